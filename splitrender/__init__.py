@@ -1,0 +1,3 @@
+"""splitrender: split-rendering streaming for XR and thin clients."""
+
+__version__ = "0.1.0"

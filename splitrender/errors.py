@@ -1,0 +1,54 @@
+"""The exception hierarchy shared by every subpackage.
+
+One root, :class:`SplitRenderError`.  Anything a peer sent us that is wrong raises a
+:class:`RemoteProtocolError` subclass whose message says what was wrong and where;
+our own misuse of an API raises :class:`LocalProtocolError`.  Errors that correspond
+to a built-in category also subclass it (as PyAV does), so ``except ValueError``
+keeps working for callers that do not know this package.
+"""
+
+from __future__ import annotations
+
+
+class SplitRenderError(Exception):
+    """Root of every error raised by splitrender."""
+
+
+class ConfigError(SplitRenderError, ValueError):
+    """A configuration value or file is invalid; the message names the key."""
+
+
+class SceneError(SplitRenderError, ValueError):
+    """A scene file is missing, corrupt or unsupported; the message names the file."""
+
+
+class TraceError(SplitRenderError, ValueError):
+    """A camera trace file is malformed; the message names the file and line."""
+
+
+class RenderError(SplitRenderError, RuntimeError):
+    """The renderer could not be created or failed (e.g. no EGL / OpenGL 4.3)."""
+
+
+class CodecError(SplitRenderError, ValueError):
+    """A video or metadata codec failed to encode or decode."""
+
+
+class ProtocolError(SplitRenderError):
+    """Base of protocol errors."""
+
+
+class RemoteProtocolError(ProtocolError, ValueError):
+    """The peer sent something invalid.  ``code`` is the wire error code to send back."""
+
+    def __init__(self, message: str, code: int = 400) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class LocalProtocolError(ProtocolError, RuntimeError):
+    """We tried to do something the protocol does not allow in the current state."""
+
+
+class NetworkConfigError(ConfigError):
+    """A network profile or netem-style string is invalid."""
