@@ -1,0 +1,235 @@
+"""H.264 / HEVC encode and decode through PyAV (FFmpeg libx264 / libx265).
+
+Tuned for interactive streaming: no B-frames, ``tune=zerolatency`` (one packet out per
+frame in, no lookahead), a fixed GOP with IDR on request, constant bitrate (with a
+VBV buffer of one frame) or CRF, and a lossless mode (HEVC ``lossless=1``, or x264
+``qp=0``).  Encoded frames are Annex-B byte strings, ready for the RTP payloaders.
+
+Input planes are numpy arrays, row 0 at the top:
+
+- ``rgb24``: (H, W, 3) uint8 sRGB (converted to the stream's ``pix_fmt``);
+- ``gray``: (H, W) uint8;
+- ``gray16le`` / ``gray10le`` / ``gray12le``: (H, W) uint16 (lossless depth, probes);
+- ``gbrp10le`` / ``gbrp16le``: (H, W, 3) uint16 high-bit-depth colour.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from fractions import Fraction
+from typing import Literal
+
+import numpy as np
+
+from ..errors import CodecError, ConfigError
+
+log = logging.getLogger(__name__)
+
+CodecName = Literal["h264", "hevc"]
+ENCODERS = {"h264": "libx264", "hevc": "libx265"}
+IDR_NAL_TYPES_H264 = {5}
+IDR_NAL_TYPES_HEVC = set(range(16, 22))
+
+
+@dataclass(frozen=True)
+class VideoCodecConfig:
+    """How one video stream is coded.  ``bitrate_kbps`` wins over ``crf`` when both are set."""
+
+    codec: CodecName = "h264"
+    pix_fmt: str = "yuv420p"
+    input_format: str = "rgb24"
+    bitrate_kbps: float | None = None
+    crf: float | None = 23.0
+    gop: int = 30
+    lossless: bool = False
+    preset: str = "ultrafast"
+    fps: int = 30
+    extra: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.codec not in ENCODERS:
+            raise ConfigError(f"video codec: {self.codec!r} is not one of {sorted(ENCODERS)}")
+        if self.gop < 1:
+            raise ConfigError(f"video gop: must be >= 1, got {self.gop}")
+        if self.bitrate_kbps is not None and not self.bitrate_kbps > 0:
+            raise ConfigError(f"video bitrate_kbps: must be > 0, got {self.bitrate_kbps}")
+        if self.crf is not None and not 0 <= self.crf <= 51:
+            raise ConfigError(f"video crf: must be in [0, 51], got {self.crf}")
+        if self.fps <= 0:
+            raise ConfigError(f"video fps: must be > 0, got {self.fps}")
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    """One access unit: Annex-B bytes, whether it is an IDR, and its index in the stream."""
+
+    data: bytes
+    keyframe: bool
+    index: int
+
+    @property
+    def nbytes(self) -> int:
+        return len(self.data)
+
+
+class VideoEncoder:
+    """Encodes one stream of same-sized planes; ``encode`` returns exactly one frame per call."""
+
+    def __init__(self, cfg: VideoCodecConfig, width: int, height: int) -> None:
+        import av
+
+        if width <= 0 or height <= 0 or width % 2 or height % 2:
+            raise ConfigError(f"video size {width}x{height}: width and height must be positive and even")
+        self.cfg, self.width, self.height = cfg, width, height
+        self._index = 0
+        self._since_idr = 0
+        ctx = av.CodecContext.create(ENCODERS[cfg.codec], "w")
+        ctx.width, ctx.height = width, height
+        ctx.pix_fmt = cfg.pix_fmt
+        ctx.time_base = Fraction(1, cfg.fps)
+        ctx.framerate = Fraction(cfg.fps, 1)
+        ctx.gop_size = cfg.gop
+        ctx.max_b_frames = 0
+        opts: dict[str, str] = {"preset": cfg.preset, "tune": "zerolatency"}
+        if cfg.codec == "h264":
+            params = ["bframes=0", "forced-idr=1", f"keyint={cfg.gop}", f"min-keyint={cfg.gop}", "scenecut=0", "repeat-headers=1"]
+            if cfg.lossless:
+                opts["qp"] = "0"
+            elif cfg.bitrate_kbps is not None:
+                kb = int(cfg.bitrate_kbps)
+                params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}", "nal-hrd=none"]
+            elif cfg.crf is not None:
+                opts["crf"] = str(cfg.crf)
+            opts["x264-params"] = ":".join(params)
+        else:
+            params = ["bframes=0", f"keyint={cfg.gop}", f"min-keyint={cfg.gop}", "scenecut=0", "repeat-headers=1", "log-level=error", "frame-threads=1"]
+            if cfg.lossless:
+                params.append("lossless=1")
+            elif cfg.bitrate_kbps is not None:
+                kb = int(cfg.bitrate_kbps)
+                params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}"]
+            elif cfg.crf is not None:
+                params.append(f"crf={cfg.crf}")
+            opts["x265-params"] = ":".join(params)
+            opts["forced-idr"] = "1"  # FFmpeg's libx265 wrapper: an I picture request becomes an IDR
+        opts.update(cfg.extra)
+        ctx.options = opts
+        try:
+            ctx.open()
+        except Exception as exc:
+            raise CodecError(f"cannot open {ENCODERS[cfg.codec]} for {width}x{height} {cfg.pix_fmt}: {exc}") from exc
+        self._ctx = ctx
+
+    def _frame(self, plane: np.ndarray):  # type: ignore[no-untyped-def]
+        import av
+
+        fmt = self.cfg.input_format
+        expect = (self.height, self.width)
+        if plane.shape[:2] != expect:
+            raise CodecError(f"encoder {self.width}x{self.height}: got a plane of shape {plane.shape}")
+        if fmt in ("rgb24", "gray"):
+            arr = np.ascontiguousarray(plane, dtype=np.uint8)
+        else:
+            arr = np.ascontiguousarray(plane, dtype=np.uint16)
+        if fmt in ("gray10le", "gray12le"):
+            frame = av.VideoFrame(self.width, self.height, fmt)
+            frame.planes[0].update(_pad_rows(arr, frame.planes[0].line_size // 2).tobytes())
+        elif fmt == "gbrp10le" or fmt == "gbrp16le":
+            frame = av.VideoFrame.from_ndarray(arr, format=fmt)
+        else:
+            frame = av.VideoFrame.from_ndarray(arr, format=fmt)
+        if frame.format.name != self.cfg.pix_fmt:
+            frame = frame.reformat(format=self.cfg.pix_fmt)
+        return frame
+
+    def encode(self, plane: np.ndarray, force_idr: bool = False) -> EncodedFrame:
+        """Encode one plane; ``force_idr`` makes this frame an IDR (resets the GOP)."""
+        from av.video.frame import PictureType
+
+        frame = self._frame(plane)
+        frame.pts = self._index
+        idr = force_idr or self._index == 0
+        frame.pict_type = PictureType.I if idr else PictureType.NONE
+        try:
+            packets = self._ctx.encode(frame)
+        except Exception as exc:
+            raise CodecError(f"{ENCODERS[self.cfg.codec]} encode failed at frame {self._index}: {exc}") from exc
+        data = b"".join(bytes(p) for p in packets)
+        if not data:
+            raise CodecError(f"{ENCODERS[self.cfg.codec]} produced no packet for frame {self._index} (zerolatency expected one)")
+        key = any(p.is_keyframe for p in packets) or contains_idr(data, self.cfg.codec)
+        ef = EncodedFrame(data, key, self._index)
+        self._index += 1
+        return ef
+
+
+class VideoDecoder:
+    """Decodes Annex-B access units back into numpy planes of ``output_format``."""
+
+    def __init__(self, codec: CodecName, output_format: str = "rgb24") -> None:
+        import av
+
+        if codec not in ENCODERS:
+            raise ConfigError(f"video codec: {codec!r} is not one of {sorted(ENCODERS)}")
+        self.codec = codec
+        self.output_format = output_format
+        self._ctx = av.CodecContext.create(codec, "r")
+        self._ctx.thread_count = 1
+
+    def decode(self, data: bytes) -> np.ndarray:
+        """Decode one access unit; raises :class:`CodecError` when it yields no picture."""
+        import av
+
+        try:
+            frames = self._ctx.decode(av.Packet(data))
+        except Exception as exc:
+            raise CodecError(f"{self.codec} decode failed ({len(data)} bytes): {exc}") from exc
+        if not frames:
+            raise CodecError(f"{self.codec} decoder returned no picture for a {len(data)}-byte access unit")
+        return frame_to_array(frames[-1], self.output_format)
+
+
+def frame_to_array(frame, fmt: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    if fmt in ("gray10le", "gray12le", "gray16le"):
+        f = frame if frame.format.name == fmt else frame.reformat(format=fmt)
+        p = f.planes[0]
+        a = np.frombuffer(p, np.uint16).reshape(f.height, p.line_size // 2)
+        return a[:, : f.width].copy()
+    return frame.to_ndarray(format=fmt)
+
+
+def _pad_rows(arr: np.ndarray, stride: int) -> np.ndarray:
+    if arr.shape[1] == stride:
+        return arr
+    out = np.zeros((arr.shape[0], stride), arr.dtype)
+    out[:, : arr.shape[1]] = arr
+    return out
+
+
+def iter_nal_units(data: bytes):  # type: ignore[no-untyped-def]
+    """Yield NAL unit payloads (without start codes) from an Annex-B byte string."""
+    i, n = 0, len(data)
+    starts = []
+    while True:
+        j = data.find(b"\x00\x00\x01", i)
+        if j < 0:
+            break
+        starts.append(j + 3)
+        i = j + 3
+    for k, s in enumerate(starts):
+        e = starts[k + 1] - 3 if k + 1 < len(starts) else n
+        if k + 1 < len(starts) and e > s and data[e - 1] == 0:
+            e -= 1
+        yield data[s:e]
+
+
+def contains_idr(data: bytes, codec: str) -> bool:
+    for nal in iter_nal_units(data):
+        if not nal:
+            continue
+        if codec == "h264" and (nal[0] & 0x1F) in IDR_NAL_TYPES_H264:
+            return True
+        if codec == "hevc" and ((nal[0] >> 1) & 0x3F) in IDR_NAL_TYPES_HEVC:
+            return True
+    return False

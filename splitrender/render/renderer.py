@@ -1,0 +1,291 @@
+"""The server's headless renderer: forward shading with a sun shadow map.
+
+Outputs, all with row 0 at the top of the image:
+
+- ``color``: (H, W, 3) uint8, sRGB-encoded;
+- ``depth``: (H, W) float32 view-space depth along -Z in metres, ``inf`` on background;
+- ``normal``: (H, W, 3) float32 world normal facing the viewer, zero on background;
+- ``object_id``: (H, W) uint32, 0 on background;
+- ``triangle_id``: (H, W) uint32 scene-wide triangle index + 1, 0 on background
+  (triangle ``k`` of object ``o`` has index ``tri_base[o] + k``; see :meth:`SceneGPU.tri_base`).
+
+The same renderer draws the ground truth (at the client's true pose and time) and
+whatever a server half needs.  Shading lives in ``shaders/shading.glsl``; any program
+that includes it can be set up with :meth:`Renderer.bind_shading`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..scene.model import Scene, SceneObject
+from ..scene.pose import CameraIntrinsics, Pose
+from .gl import SHADER_DIR, get_context, load_program, set_uniform
+
+log = logging.getLogger(__name__)
+
+ALL_OUTPUTS = ("color", "depth", "normal", "object_id", "triangle_id")
+
+
+@dataclass
+class RenderOutput:
+    color: np.ndarray
+    depth: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    object_id: np.ndarray | None = None
+    triangle_id: np.ndarray | None = None
+
+
+@dataclass
+class ObjectGPU:
+    obj: SceneObject
+    vbo: Any
+    ibo: Any
+    vao: Any
+    shadow_vao: Any
+    texture: Any | None
+    tri_base: int
+
+
+@dataclass
+class SceneGPU:
+    """GPU buffers for one scene, built once and reused for every frame."""
+
+    scene: Scene
+    objects: list[ObjectGPU] = field(default_factory=list)
+
+    def tri_base(self) -> dict[int, int]:
+        return {o.obj.object_id: o.tri_base for o in self.objects}
+
+
+def light_view_projection(scene: Scene) -> np.ndarray:
+    """World -> clip matrix of the sun's orthographic shadow camera."""
+    assert scene.sun is not None
+    lo, hi = scene.bounds()
+    centre = (lo + hi) / 2
+    d = np.asarray(scene.sun.direction, np.float64)
+    d /= np.linalg.norm(d)
+    ext = scene.sun.shadow_extent_m
+    eye = centre - d * ext * 2
+    f = d
+    up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = r, u, -f
+    view[:3, 3] = -view[:3, :3] @ eye
+    near, far = 0.1, ext * 4
+    proj = np.eye(4)
+    proj[0, 0] = proj[1, 1] = 1.0 / ext
+    proj[2, 2] = -2.0 / (far - near)
+    proj[2, 3] = -(far + near) / (far - near)
+    return proj @ view
+
+
+def gl_mat(m: np.ndarray) -> tuple[float, ...]:
+    """Column-major tuple for a moderngl matrix uniform."""
+    return tuple(np.asarray(m, dtype=np.float32).T.ravel())
+
+
+class Renderer:
+    """Renders a :class:`Scene` at any pose and time into numpy images."""
+
+    def __init__(self, ctx: Any | None = None) -> None:
+        self.ctx = ctx if ctx is not None else get_context()
+        self.prog = load_program(self.ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "forward.frag")
+        self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
+        self._scenes: dict[int, SceneGPU] = {}
+        self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
+        self._shadow: tuple[Any, Any, int] | None = None
+        self._shadow_key: tuple[int, float] | None = None
+
+    # ------------------------------------------------------------------ resources
+    def upload(self, scene: Scene) -> SceneGPU:
+        key = id(scene)
+        sg = self._scenes.get(key)
+        if sg is not None and sg.scene is scene:
+            return sg
+        import moderngl
+
+        sg = SceneGPU(scene)
+        base = 0
+        for o in scene.objects:
+            m = o.mesh
+            data = np.hstack([m.positions, m.normals, m.uvs]).astype("f4")
+            vbo = self.ctx.buffer(data.tobytes())
+            ibo = self.ctx.buffer(m.indices.astype("u4").tobytes())
+            vao = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv")], ibo)
+            svao = self.ctx.vertex_array(self.shadow_prog, [(vbo, "3f 12x 8x", "in_position")], ibo)
+            tex = None
+            if o.material.texture is not None:
+                img = np.ascontiguousarray(o.material.texture[..., :3], dtype=np.uint8)
+                tex = self.ctx.texture((img.shape[1], img.shape[0]), 3, img.tobytes())
+                tex.build_mipmaps()
+                tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+                tex.anisotropy = 8.0
+                tex.repeat_x = tex.repeat_y = True
+            sg.objects.append(ObjectGPU(o, vbo, ibo, vao, svao, tex, base))
+            base += m.triangle_count
+        self._scenes[key] = sg
+        return sg
+
+    def _fbo(self, w: int, h: int) -> tuple[Any, ...]:
+        f = self._fbos.get((w, h))
+        if f is None:
+            color = self.ctx.texture((w, h), 4, dtype="f1")
+            normal = self.ctx.texture((w, h), 4, dtype="f2")
+            ids = self.ctx.texture((w, h), 2, dtype="u4")
+            depth_lin = self.ctx.texture((w, h), 1, dtype="f4")
+            zbuf = self.ctx.depth_renderbuffer((w, h))
+            fbo = self.ctx.framebuffer([color, normal, ids, depth_lin], zbuf)
+            f = (fbo, color, normal, ids, depth_lin)
+            self._fbos[(w, h)] = f
+        return f
+
+    # ------------------------------------------------------------------ shading
+    def shadow_pass(self, scene: Scene, t_s: float) -> None:
+        """Render the sun's shadow map for time ``t_s`` (cached per scene and time)."""
+        if scene.sun is None:
+            return
+        key = (id(scene), float(t_s))
+        if self._shadow_key == key:
+            return
+        size = scene.sun.shadow_map_size
+        if self._shadow is None or self._shadow[2] != size:
+            dtex = self.ctx.depth_texture((size, size))
+            dtex.compare_func = "<="
+            import moderngl
+
+            dtex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            fbo = self.ctx.framebuffer(depth_attachment=dtex)
+            self._shadow = (fbo, dtex, size)
+        fbo, dtex, _ = self._shadow
+        sg = self.upload(scene)
+        fbo.use()
+        fbo.clear(depth=1.0)
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.disable(self.ctx.CULL_FACE)
+        lvp = light_view_projection(scene)
+        self.shadow_prog["u_light_vp"].write(np.asarray(lvp, "f4").T.tobytes())
+        for og in sg.objects:
+            self.shadow_prog["u_model"].write(np.asarray(og.obj.model_matrix(t_s), "f4").T.tobytes())
+            og.shadow_vao.render()
+        self._shadow_key = key
+
+    def bind_shading(self, prog: Any, scene: Scene, t_s: float, shadow_unit: int = 1) -> None:
+        """Set the lighting uniforms of ``shading.glsl`` on ``prog`` for time ``t_s``."""
+        self.shadow_pass(scene, t_s)
+        sun = scene.sun
+        if sun is not None:
+            d = np.asarray(sun.direction, np.float64)
+            d /= np.linalg.norm(d)
+            set_uniform(prog, "u_sun_dir", tuple(d))
+            set_uniform(prog, "u_sun_color", tuple(np.asarray(sun.color) * sun.intensity.value(t_s)))
+            set_uniform(prog, "u_has_shadow", 1)
+            if "u_light_vp" in prog:
+                prog["u_light_vp"].write(np.asarray(light_view_projection(scene), "f4").T.tobytes())
+            assert self._shadow is not None
+            self._shadow[1].use(location=shadow_unit)
+            set_uniform(prog, "u_shadow_map", shadow_unit)
+        else:
+            set_uniform(prog, "u_sun_color", (0.0, 0.0, 0.0))
+            set_uniform(prog, "u_sun_dir", (0.0, -1.0, 0.0))
+            set_uniform(prog, "u_has_shadow", 0)
+        set_uniform(prog, "u_ambient", tuple(scene.ambient))
+        n = len(scene.point_lights)
+        set_uniform(prog, "u_num_point", n)
+        if n:
+            pos = np.zeros((8, 4), "f4")
+            col = np.zeros((8, 3), "f4")
+            for i, pl in enumerate(scene.point_lights):
+                pos[i] = (*pl.position, pl.range_m)
+                col[i] = np.asarray(pl.color) * pl.intensity.value(t_s)
+            if "u_point_pos" in prog:
+                prog["u_point_pos"].write(pos.tobytes())
+            if "u_point_color" in prog:
+                prog["u_point_color"].write(col.tobytes())
+
+    def bind_material(self, prog: Any, og: ObjectGPU, texture_unit: int = 0) -> None:
+        mat = og.obj.material
+        set_uniform(prog, "u_base_color", tuple(mat.base_color))
+        set_uniform(prog, "u_specular", float(mat.specular))
+        set_uniform(prog, "u_shininess", float(mat.shininess))
+        if og.texture is not None:
+            og.texture.use(location=texture_unit)
+            set_uniform(prog, "u_albedo", texture_unit)
+            set_uniform(prog, "u_has_texture", 1)
+        else:
+            set_uniform(prog, "u_has_texture", 0)
+
+    # ------------------------------------------------------------------ render
+    def render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
+               outputs: Iterable[str] = ("color",), object_ids: set[int] | None = None) -> RenderOutput:
+        """Render ``scene`` at time ``t_s`` from ``pose``; ``object_ids`` limits what is drawn."""
+        outputs = tuple(outputs)
+        for o in outputs:
+            if o not in ALL_OUTPUTS:
+                raise ValueError(f"unknown render output {o!r}; choose from {ALL_OUTPUTS}")
+        sg = self.upload(scene)
+        self.bind_shading(self.prog, scene, t_s)
+        fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)
+        fbo.use()
+        sky = tuple(scene.sky_color)
+        fbo.clear(*sky, 1.0, depth=1.0)
+        # Clear integer and float attachments explicitly (moderngl clears all with one colour).
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.disable(self.ctx.CULL_FACE)
+        ids.write(np.zeros((intr.height, intr.width, 2), np.uint32).tobytes())
+        depth_lin.write(np.full((intr.height, intr.width), np.inf, np.float32).tobytes())
+        normal.write(np.zeros((intr.height, intr.width, 4), np.float16).tobytes())
+        view = pose.view_matrix()
+        proj = intr.projection()
+        self.prog["u_view"].write(np.asarray(view, "f4").T.tobytes())
+        self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
+        set_uniform(self.prog, "u_eye", tuple(pose.position))
+        for og in sg.objects:
+            if object_ids is not None and og.obj.object_id not in object_ids:
+                continue
+            model = og.obj.model_matrix(t_s)
+            self.prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
+            nm = np.linalg.inv(model[:3, :3]).T
+            self.prog["u_normal_matrix"].write(np.asarray(nm, "f4").T.tobytes())
+            set_uniform(self.prog, "u_object_id", og.obj.object_id)
+            set_uniform(self.prog, "u_primitive_base", og.tri_base)
+            self.bind_material(self.prog, og)
+            og.vao.render()
+        w, h = intr.width, intr.height
+        out = RenderOutput(color=np.empty(0, np.uint8))
+        if "color" in outputs:
+            out.color = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3)[::-1].copy()
+        if "depth" in outputs:
+            out.depth = np.frombuffer(depth_lin.read(), np.float32).reshape(h, w)[::-1].copy()
+        if "normal" in outputs:
+            out.normal = np.frombuffer(normal.read(), np.float16).reshape(h, w, 4)[::-1, :, :3].astype(np.float32)
+        if "object_id" in outputs or "triangle_id" in outputs:
+            idv = np.frombuffer(ids.read(), np.uint32).reshape(h, w, 2)[::-1]
+            if "object_id" in outputs:
+                out.object_id = idv[..., 0].copy()
+            if "triangle_id" in outputs:
+                out.triangle_id = idv[..., 1].copy()
+        return out
+
+
+def make_pose_looking(eye: tuple[float, float, float], target: tuple[float, float, float]) -> Pose:
+    from ..scene.pose import look_at_quat
+
+    return Pose(np.array(eye, float), look_at_quat(np.array(eye, float), np.array(target, float)))
+
+
+def pixel_to_ray(intr: CameraIntrinsics, x: float, y: float) -> np.ndarray:
+    """Camera-space direction through pixel centre (x, y) (top-left origin), z = -1."""
+    f = intr.focal_px()
+    return np.array([(x + 0.5 - intr.width / 2) / f, -(y + 0.5 - intr.height / 2) / f, -1.0])
+
+
+_ = math

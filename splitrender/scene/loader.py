@@ -1,0 +1,119 @@
+"""Loading scenes from glTF/GLB/OBJ/PLY/Collada files through trimesh."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SceneError
+from .model import DirectionalLight, Material, Mesh, Scene, SceneObject
+from .procedural import BUILTIN_SCENES
+
+log = logging.getLogger(__name__)
+
+SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".dae", ".stl", ".off")
+
+
+def _material_from_visual(visual, name: str) -> Material:
+    base = (0.8, 0.8, 0.8)
+    tex = None
+    mat = getattr(visual, "material", None)
+    if mat is not None:
+        col = getattr(mat, "baseColorFactor", None)
+        if col is None:
+            col = getattr(mat, "main_color", None)
+        if col is not None:
+            c = np.asarray(col, dtype=np.float64).ravel()[:3]
+            if c.max() > 1.0:
+                c = c / 255.0
+            base = tuple(float(v) for v in c)
+        img = getattr(mat, "baseColorTexture", None)
+        if img is None:
+            img = getattr(mat, "image", None)
+        if img is not None:
+            try:
+                tex = np.asarray(img.convert("RGB"), dtype=np.uint8)
+            except Exception as exc:  # a broken embedded image should not stop the scene
+                log.warning("scene %s: ignoring unreadable texture: %s", name, exc)
+    elif getattr(visual, "kind", None) == "vertex" or hasattr(visual, "vertex_colors"):
+        try:
+            vc = np.asarray(visual.vertex_colors)[:, :3].mean(axis=0) / 255.0
+            base = tuple(float(v) for v in vc)
+        except Exception:
+            pass
+    return Material(name, base, tex)
+
+
+def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None) -> Scene:
+    """Load a mesh file into a static :class:`Scene` with a default sun.
+
+    Raises :class:`SceneError` naming the file when it is missing, unreadable,
+    unsupported or has no triangles.  ``target_size_m`` rescales the scene so its
+    largest extent has that size, centred on the origin and resting on y=0.
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.exists():
+        raise SceneError(f"scene file not found: {p}")
+    if p.suffix.lower() not in SUPPORTED_SUFFIXES:
+        raise SceneError(f"scene file {p}: unsupported format {p.suffix!r} (supported: {', '.join(SUPPORTED_SUFFIXES)})")
+    try:
+        loaded = trimesh.load(str(p), force="scene")
+    except Exception as exc:
+        raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
+    objects: list[SceneObject] = []
+    try:
+        dumped = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=False)
+        geoms = dumped if isinstance(dumped, (list, tuple)) else [dumped]
+    except Exception:
+        geoms = []
+        for node in loaded.graph.nodes_geometry:
+            m, gname = loaded.graph[node]
+            g = loaded.geometry[gname].copy()
+            g.apply_transform(m)
+            geoms.append(g)
+    for i, g in enumerate(geoms):
+        if not hasattr(g, "faces") or len(getattr(g, "faces", [])) == 0:
+            continue
+        verts = np.asarray(g.vertices, dtype=np.float64)
+        faces = np.asarray(g.faces, dtype=np.int64)
+        if not np.isfinite(verts).all():
+            raise SceneError(f"scene file {p}: mesh {i} has non-finite vertex positions")
+        if faces.min() < 0 or faces.max() >= len(verts):
+            raise SceneError(f"scene file {p}: mesh {i} has face indices out of range")
+        try:
+            normals = np.asarray(g.vertex_normals, dtype=np.float64)
+        except Exception:
+            normals = np.tile([0.0, 1.0, 0.0], (len(verts), 1))
+        uv = getattr(g.visual, "uv", None)
+        uvs = np.asarray(uv, dtype=np.float64) if uv is not None and len(uv) == len(verts) else np.zeros((len(verts), 2))
+        uvs = np.stack([uvs[:, 0], 1.0 - uvs[:, 1]], 1) if uv is not None else uvs  # trimesh flips v
+        name = f"{p.stem}_{i}"
+        mesh = Mesh(verts, normals, uvs, faces, name)
+        objects.append(SceneObject(name, mesh, _material_from_visual(g.visual, name), len(objects) + 1))
+    if not objects:
+        raise SceneError(f"scene file {p} contains no triangle meshes")
+    if target_size_m is not None:
+        lo = np.min([o.mesh.positions.min(0) for o in objects], axis=0)
+        hi = np.max([o.mesh.positions.max(0) for o in objects], axis=0)
+        s = target_size_m / max(float((hi - lo).max()), 1e-9)
+        centre = (lo + hi) / 2
+        for o in objects:
+            t = np.eye(4)
+            t[:3, :3] *= s
+            t[:3, 3] = -np.array([centre[0], lo[1], centre[2]]) * s + np.array([0.0, 0.0, -4.0])
+            o.transform = t
+    return Scene(p.stem, objects, DirectionalLight(), [])
+
+
+def get_scene(name_or_path: str) -> Scene:
+    """A built-in scene by name (``default``, ``minimal``) or a scene file by path."""
+    if name_or_path in BUILTIN_SCENES:
+        return BUILTIN_SCENES[name_or_path]()
+    if any(name_or_path.lower().endswith(s) for s in SUPPORTED_SUFFIXES) or os.sep in name_or_path:
+        return load_scene_file(name_or_path, target_size_m=4.0)
+    raise SceneError(f"unknown scene {name_or_path!r}: use one of {sorted(BUILTIN_SCENES)} or a path to a {'/'.join(SUPPORTED_SUFFIXES)} file")

@@ -1,0 +1,257 @@
+"""The scene model: meshes, materials, rigid objects animated over time, lights.
+
+Everything is plain numpy so that the server's renderer, the method halves that
+need geometry (SAS, TSS, probes) and tests can share it.  Units: metres, seconds,
+radians; matrices are 4x4 float64 (column vectors), object-to-world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .pose import quat_from_axis_angle, quat_to_matrix3
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A piecewise-linear scalar over time: ``value(t)`` interpolates ``(times_s, values)``.
+
+    Outside the keyframes the ends are held.  A single value is a constant.
+    """
+
+    times_s: tuple[float, ...] = (0.0,)
+    values: tuple[float, ...] = (1.0,)
+
+    def value(self, t_s: float) -> float:
+        if len(self.values) == 1:
+            return float(self.values[0])
+        return float(np.interp(t_s, self.times_s, self.values))
+
+    @staticmethod
+    def constant(v: float) -> "Schedule":
+        return Schedule((0.0,), (float(v),))
+
+
+@dataclass
+class Material:
+    """Base colour (linear RGB, 0..1) optionally modulated by an sRGB texture (HxWx3 uint8)."""
+
+    name: str = "default"
+    base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    texture: np.ndarray | None = None
+    specular: float = 0.2
+    shininess: float = 32.0
+
+
+@dataclass
+class Mesh:
+    """Indexed triangle mesh.  ``positions``/``normals`` (N,3) float32, ``uvs`` (N,2), ``indices`` (M,3) uint32."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    indices: np.ndarray
+    name: str = "mesh"
+
+    def __post_init__(self) -> None:
+        self.positions = np.ascontiguousarray(self.positions, dtype=np.float32).reshape(-1, 3)
+        self.normals = np.ascontiguousarray(self.normals, dtype=np.float32).reshape(-1, 3)
+        self.uvs = np.ascontiguousarray(self.uvs, dtype=np.float32).reshape(-1, 2)
+        self.indices = np.ascontiguousarray(self.indices, dtype=np.uint32).reshape(-1, 3)
+
+    @property
+    def triangle_count(self) -> int:
+        return int(self.indices.shape[0])
+
+    @property
+    def vertex_count(self) -> int:
+        return int(self.positions.shape[0])
+
+    def triangle_areas(self) -> np.ndarray:
+        """Object-space area of each triangle, m^2."""
+        p = self.positions[self.indices]
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.positions.min(axis=0), self.positions.max(axis=0)
+
+
+class Animation:
+    """A rigid motion: ``matrix(t_s)`` is applied after the object's rest transform."""
+
+    def matrix(self, t_s: float) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class Spin(Animation):
+    """Rotation about ``axis`` through ``center`` at ``rate_rad_s``."""
+
+    axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    rate_rad_s: float = 1.0
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def matrix(self, t_s: float) -> np.ndarray:
+        m = np.eye(4)
+        r = quat_to_matrix3(quat_from_axis_angle(np.array(self.axis), self.rate_rad_s * t_s))
+        c = np.array(self.center)
+        m[:3, :3] = r
+        m[:3, 3] = c - r @ c
+        return m
+
+
+@dataclass(frozen=True)
+class Oscillate(Animation):
+    """Translation ``amplitude_m * sin(2 pi t / period_s + phase)`` along ``direction``."""
+
+    direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    amplitude_m: float = 1.0
+    period_s: float = 4.0
+    phase_rad: float = 0.0
+
+    def matrix(self, t_s: float) -> np.ndarray:
+        m = np.eye(4)
+        d = np.array(self.direction, dtype=np.float64)
+        d /= np.linalg.norm(d)
+        m[:3, 3] = d * self.amplitude_m * math.sin(2 * math.pi * t_s / self.period_s + self.phase_rad)
+        return m
+
+
+@dataclass(frozen=True)
+class Patrol(Animation):
+    """Back-and-forth linear motion between ``start`` and ``end`` at ``speed_mps`` (triangle wave)."""
+
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    end: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    speed_mps: float = 1.0
+
+    def matrix(self, t_s: float) -> np.ndarray:
+        a, b = np.array(self.start), np.array(self.end)
+        length = float(np.linalg.norm(b - a))
+        m = np.eye(4)
+        if length == 0:
+            m[:3, 3] = a
+            return m
+        s = (self.speed_mps * t_s) % (2 * length)
+        u = s / length if s <= length else 2 - s / length
+        m[:3, 3] = a + u * (b - a)
+        return m
+
+
+@dataclass
+class SceneObject:
+    """A mesh with a material placed in the world; ``object_id`` >= 1 (0 is background)."""
+
+    name: str
+    mesh: Mesh
+    material: Material
+    object_id: int
+    transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    animation: Animation | None = None
+
+    @property
+    def dynamic(self) -> bool:
+        return self.animation is not None
+
+    def model_matrix(self, t_s: float) -> np.ndarray:
+        """Object-to-world at time ``t_s``."""
+        if self.animation is None:
+            return self.transform
+        return self.animation.matrix(t_s) @ self.transform
+
+
+@dataclass
+class DirectionalLight:
+    """Sun-like light travelling along ``direction`` (world), casting a shadow map."""
+
+    direction: tuple[float, float, float] = (-0.4, -1.0, -0.3)
+    color: tuple[float, float, float] = (1.0, 0.97, 0.9)
+    intensity: Schedule = field(default_factory=lambda: Schedule.constant(2.5))
+    shadow_map_size: int = 2048
+    shadow_extent_m: float = 14.0
+
+
+@dataclass
+class PointLight:
+    position: tuple[float, float, float] = (0.0, 3.0, 0.0)
+    color: tuple[float, float, float] = (1.0, 0.8, 0.6)
+    intensity: Schedule = field(default_factory=lambda: Schedule.constant(5.0))
+    range_m: float = 10.0
+
+
+MAX_POINT_LIGHTS = 8
+
+
+@dataclass
+class Scene:
+    """A complete scene.  ``version`` changes whenever geometry is edited (GPU caches key on it)."""
+
+    name: str
+    objects: list[SceneObject]
+    sun: DirectionalLight | None = field(default_factory=DirectionalLight)
+    point_lights: list[PointLight] = field(default_factory=list)
+    ambient: tuple[float, float, float] = (0.18, 0.2, 0.24)
+    sky_color: tuple[float, float, float] = (0.55, 0.7, 0.9)
+    version: int = 0
+
+    def __post_init__(self) -> None:
+        ids = [o.object_id for o in self.objects]
+        if len(set(ids)) != len(ids) or any(i <= 0 for i in ids):
+            raise ValueError("scene object ids must be unique and >= 1")
+        if len(self.point_lights) > MAX_POINT_LIGHTS:
+            raise ValueError(f"at most {MAX_POINT_LIGHTS} point lights are supported")
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(o.mesh.triangle_count for o in self.objects)
+
+    def object_by_id(self, object_id: int) -> SceneObject:
+        for o in self.objects:
+            if o.object_id == object_id:
+                return o
+        raise KeyError(object_id)
+
+    def model_matrices(self, t_s: float) -> dict[int, np.ndarray]:
+        """Object id -> object-to-world matrix at ``t_s``."""
+        return {o.object_id: o.model_matrix(t_s) for o in self.objects}
+
+    def dynamic_ids(self) -> list[int]:
+        return [o.object_id for o in self.objects if o.dynamic]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for o in self.objects:
+            p = (o.transform[:3, :3] @ o.mesh.positions.T.astype(np.float64)).T + o.transform[:3, 3]
+            lo = np.minimum(lo, p.min(axis=0))
+            hi = np.maximum(hi, p.max(axis=0))
+        return lo, hi
+
+
+def merge_meshes(meshes: Sequence[Mesh], name: str = "merged") -> Mesh:
+    """Concatenate meshes into one (indices offset)."""
+    pos, nor, uv, idx = [], [], [], []
+    base = 0
+    for m in meshes:
+        pos.append(m.positions)
+        nor.append(m.normals)
+        uv.append(m.uvs)
+        idx.append(m.indices + base)
+        base += m.vertex_count
+    return Mesh(np.concatenate(pos), np.concatenate(nor), np.concatenate(uv), np.concatenate(idx), name)
+
+
+def transform_mesh(mesh: Mesh, m: np.ndarray, name: str | None = None) -> Mesh:
+    """Apply a 4x4 transform to positions and normals (baked)."""
+    p = mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    nm = np.linalg.inv(m[:3, :3]).T
+    n = mesh.normals.astype(np.float64) @ nm.T
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return Mesh(p, n, mesh.uvs, mesh.indices, name or mesh.name)
+
+
+IntensityFn = Callable[[float], float]
