@@ -78,7 +78,7 @@ def unpack_meta(data: bytes, max_bytes: int = DEFAULT_MAX_BYTES) -> dict[str, An
     if len(raw) > max_bytes:
         raise CodecError(f"metadata: {len(raw)} bytes decompressed exceeds the limit of {max_bytes}")
     try:
-        obj = msgpack.unpackb(raw, ext_hook=_ext_hook, raw=False, strict_map_key=False, max_buffer_size=max_bytes)
+        obj = msgpack.unpackb(raw, ext_hook=_ext_hook, raw=False, strict_map_key=False)
     except CodecError:
         raise
     except Exception as exc:
