@@ -282,11 +282,12 @@ class _TraceServer:
         """Serve ``size_bytes`` from ``start_s`` on (queue empty of earlier packets)."""
         remaining = size_bytes
         k = self._opp_index
-        if k < 0 or self._opp_left <= 0 or self._time_of(k) < start_s:
-            k = self._first_at_or_after(start_s)
-            left = MAHIMAHI_MTU_BYTES
+        if k >= 0 and self._opp_left > 0 and self._time_of(k) >= start_s:
+            left = self._opp_left  # finish the opportunity the previous packet started
         else:
-            left = self._opp_left
+            # An opportunity serves one packet start at most once: never go back to k.
+            k = max(self._first_at_or_after(start_s), k + 1)
+            left = MAHIMAHI_MTU_BYTES
         while True:
             used = min(left, remaining)
             remaining -= used
