@@ -1,0 +1,220 @@
+"""Per-SSRC jitter buffer: reorder RTP packets, assemble access units, detect loss.
+
+Behaviour (times are passed in, in ms):
+
+* packets are keyed by extended sequence number (16-bit wraparound unwrapped);
+* a frame is complete when every packet from its first one to the one with the marker
+  bit (same RTP timestamp) is present; it is emitted at once, in sequence order; a
+  frame's first packet is the one after the previous frame's last packet (or, before
+  the first frame, the lowest sequence number received);
+* :meth:`JitterBuffer.missing` lists holes between the next expected packet and the
+  highest received one (for generic NACKs);
+* if the head of the buffer cannot complete within ``frame_timeout_ms`` of its oldest
+  packet's arrival (or the buffer holds more than ``max_packets``), the broken frame is
+  dropped, the buffer resynchronises on the next frame boundary it can see, and
+  ``needs_keyframe`` is set; it is cleared by the next frame containing an IDR (H.264
+  type 5) / IRAP (HEVC types 16..21) NAL unit.  While it is set, non-keyframes are
+  dropped (``drop_until_keyframe``); ``needs_keyframe`` starts True;
+* packets older than the last emitted frame are dropped as late; malformed payloads
+  drop the frame (logged, counted) instead of raising, as one bad UDP datagram must
+  not end a session.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from splitrender.protocol.annexb import Codec, contains_keyframe, join_annexb
+from splitrender.protocol.errors import PayloadError
+from splitrender.protocol.h264 import h264_depayload
+from splitrender.protocol.h265 import h265_depayload
+from splitrender.protocol.rtp import RtpPacket, SequenceUnwrapper
+
+__all__ = ["AccessUnit", "JitterBuffer"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_MAX_PACKETS = 2048
+DEFAULT_FRAME_TIMEOUT_MS = 100.0
+MAX_NACK_ITEMS = 256
+
+
+@dataclass(frozen=True, slots=True)
+class AccessUnit:
+    """One complete, depacketized frame."""
+
+    data: bytes
+    """Annex-B bytes (4-byte start codes)."""
+    timestamp: int
+    """RTP timestamp (90 kHz)."""
+    first_seq: int
+    last_seq: int
+    arrival_ms: float
+    """Arrival time of the frame's first packet."""
+    complete_ms: float
+    """Arrival time of the packet that completed the frame."""
+    keyframe: bool
+    packet_count: int
+
+
+class JitterBuffer:
+    """Reordering buffer for one SSRC (sans-IO; call with arrival times in ms)."""
+
+    def __init__(
+        self,
+        codec: Codec,
+        max_packets: int = DEFAULT_MAX_PACKETS,
+        frame_timeout_ms: float = DEFAULT_FRAME_TIMEOUT_MS,
+        drop_until_keyframe: bool = True,
+    ) -> None:
+        if codec not in ("h264", "hevc"):
+            raise ValueError(f"unknown codec {codec!r}")
+        self.codec: Codec = codec
+        self._depayload = h264_depayload if codec == "h264" else h265_depayload
+        self.max_packets = max_packets
+        self.frame_timeout_ms = frame_timeout_ms
+        self.drop_until_keyframe = drop_until_keyframe
+        self._unwrap = SequenceUnwrapper()
+        self._packets: dict[int, tuple[RtpPacket, float]] = {}
+        self._next: int | None = None
+        self.needs_keyframe = True
+        """Decoder sync is lost (or not yet established): request a keyframe (PLI)."""
+        self.frames_emitted = 0
+        self.frames_dropped = 0
+        """Complete frames dropped while waiting for a keyframe."""
+        self.frames_lost = 0
+        """Frames given up on (timeout or overflow)."""
+        self.frames_corrupt = 0
+        self.packets_late = 0
+        self.packets_duplicate = 0
+        self.packets_lost = 0
+        """Sequence numbers skipped for good."""
+
+    def __len__(self) -> int:
+        return len(self._packets)
+
+    def insert(self, packet: RtpPacket, now_ms: float) -> list[AccessUnit]:
+        """Add a packet that arrived at ``now_ms``; returns frames completed by it."""
+        ext = self._unwrap.unwrap(packet.sequence_number)
+        if self._next is not None and ext < self._next:
+            self.packets_late += 1
+            return self._process(now_ms)
+        if ext in self._packets:
+            self.packets_duplicate += 1
+            return []
+        if self._next is not None and ext - self._next >= self.max_packets:
+            logger.info("sequence jump to %d: flushing %d packets", packet.sequence_number, len(self))
+            self.packets_lost += ext - self._next - len(self._packets)
+            self._packets.clear()
+            self._next = None
+            self._lose_sync()
+        self._packets[ext] = (packet, now_ms)
+        return self._process(now_ms)
+
+    def poll(self, now_ms: float) -> list[AccessUnit]:
+        """Apply timeouts at ``now_ms``; returns frames released by giving up on others."""
+        return self._process(now_ms)
+
+    def missing(self) -> list[int]:
+        """16-bit sequence numbers of holes to NACK (at most 256, newest kept)."""
+        if self._next is None or not self._packets:
+            return []
+        hi = max(self._packets)
+        holes = [s & 0xFFFF for s in range(max(self._next, hi - 4096), hi) if s not in self._packets]
+        return holes[-MAX_NACK_ITEMS:]
+
+    # ------------------------------------------------------------------ internals
+
+    def _lose_sync(self) -> None:
+        if not self.needs_keyframe:
+            logger.info("decoder sync lost: keyframe needed")
+        self.needs_keyframe = True
+
+    def _frame_end(self, start: int) -> int | None:
+        entry = self._packets.get(start)
+        if entry is None:
+            return None
+        ts = entry[0].timestamp
+        s = start
+        while True:
+            e = self._packets.get(s)
+            if e is None:
+                return None
+            if e[0].timestamp != ts:
+                return s - 1  # marker missing but the next frame has begun
+            if e[0].marker:
+                return s
+            s += 1
+
+    def _process(self, now_ms: float) -> list[AccessUnit]:
+        out: list[AccessUnit] = []
+        while self._packets:
+            start = self._next if self._next is not None else min(self._packets)
+            end = self._frame_end(start)
+            if end is not None:
+                au = self._emit(start, end)
+                if au is not None:
+                    out.append(au)
+                continue
+            oldest = min(t for _, t in self._packets.values())
+            if now_ms - oldest >= self.frame_timeout_ms or len(self._packets) > self.max_packets:
+                self._give_up(start)
+                continue
+            break
+        return out
+
+    def _emit(self, start: int, end: int) -> AccessUnit | None:
+        entries = [self._packets.pop(s) for s in range(start, end + 1)]
+        self._next = end + 1
+        try:
+            nals = self._depayload([p.payload for p, _ in entries])
+        except PayloadError as exc:
+            logger.warning("dropping malformed frame at seq %d: %s", entries[0][0].sequence_number, exc)
+            self.frames_corrupt += 1
+            self._lose_sync()
+            return None
+        key = contains_keyframe(self.codec, nals)
+        if key:
+            if self.needs_keyframe:
+                logger.info("keyframe received: decoder sync restored")
+            self.needs_keyframe = False
+        elif self.needs_keyframe and self.drop_until_keyframe:
+            self.frames_dropped += 1
+            return None
+        self.frames_emitted += 1
+        first, last = entries[0], entries[-1]
+        return AccessUnit(
+            data=join_annexb(nals),
+            timestamp=first[0].timestamp,
+            first_seq=first[0].sequence_number,
+            last_seq=last[0].sequence_number,
+            arrival_ms=first[1],
+            complete_ms=max(t for _, t in entries),
+            keyframe=key,
+            packet_count=len(entries),
+        )
+
+    def _give_up(self, start: int) -> None:
+        keys = sorted(self._packets)
+        resync: int | None = None
+        for r in keys:
+            if r <= start:
+                continue
+            prev = self._packets.get(r - 1)
+            cur = self._packets[r][0]
+            if prev is not None and (prev[0].marker or prev[0].timestamp != cur.timestamp):
+                resync = r
+                break
+        if resync is None:
+            markers = [k for k in keys if self._packets[k][0].marker]
+            resync = markers[0] + 1 if markers else keys[-1] + 1
+        dropped = [k for k in keys if k < resync]
+        for k in dropped:
+            del self._packets[k]
+        lo = start if self._next is not None else keys[0]
+        self.packets_lost += max(0, resync - lo - len(dropped))
+        self.frames_lost += 1
+        logger.info("giving up on frame at seq %d; resync at %d", lo & 0xFFFF, resync & 0xFFFF)
+        self._next = resync
+        self._lose_sync()
