@@ -221,7 +221,9 @@ def to_netem(spec: LinkSpec) -> str:
         raise NetworkConfigError("netem: a mahimahi trace (trace_path) cannot be expressed for tc")
     d = LinkSpec()
     parts: list[str] = []
-    if spec.delay_ms or spec.jitter_ms or spec.distribution != d.distribution:
+    if spec.delay_ms or spec.jitter_ms or spec.delay_correlation_pct or (
+        spec.distribution != d.distribution
+    ):
         parts += ["delay", f"{_fmt(spec.delay_ms)}ms"]
         if spec.jitter_ms or spec.delay_correlation_pct:
             parts.append(f"{_fmt(spec.jitter_ms)}ms")
