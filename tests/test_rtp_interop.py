@@ -1,0 +1,206 @@
+"""Interop of the RTP payload formats with an independent implementation (FFmpeg).
+
+(a) our packetizer -> UDP on loopback -> FFmpeg reading our SDP -> PSNR vs source;
+(b) FFmpeg's RTP muxer -> UDP -> our jitter buffer + depacketizer -> PyAV decoder.
+Every loop and subprocess is bounded in time; only 127.0.0.1 is used.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import av
+from fractions import Fraction
+import numpy as np
+import pytest
+
+from splitrender.protocol import (
+    JitterBuffer,
+    RtpPacket,
+    RtpPacketizer,
+    make_sdp,
+    parameter_sets_from_sdp,
+    join_annexb,
+    split_annexb,
+)
+
+pytestmark = pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg CLI not installed")
+
+WIDTH, HEIGHT, FPS, N_FRAMES = 320, 180, 30, 30
+EXTRA_FRAMES = 2  # FFmpeg's parser holds a frame until the next one starts
+TS_STEP = 90000 // FPS
+PSNR_MIN_DB = 30.0
+ENCODERS = {"h264": "libx264", "hevc": "libx265"}
+
+
+def _test_pattern(i: int) -> np.ndarray:
+    """Moving gradient with a moving square, RGB uint8 (H, W, 3)."""
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    img = np.empty((HEIGHT, WIDTH, 3), np.uint8)
+    img[..., 0] = (x * 255 // WIDTH + 4 * i) % 256
+    img[..., 1] = (y * 255 // HEIGHT) % 256
+    img[..., 2] = ((x + y + 8 * i) // 2) % 256
+    sx, sy = (10 + 7 * i) % (WIDTH - 40), (20 + 3 * i) % (HEIGHT - 40)
+    img[sy : sy + 40, sx : sx + 40] = (255, 255, 255)
+    return img
+
+
+def encode_clip(codec: str, n_frames: int = N_FRAMES) -> tuple[list[bytes], list[np.ndarray]]:
+    """Annex-B access units and source Y planes of ``n_frames`` test frames."""
+    ctx = av.CodecContext.create(ENCODERS[codec], "w")
+    ctx.width, ctx.height, ctx.pix_fmt = WIDTH, HEIGHT, "yuv420p"
+    ctx.time_base = Fraction(1, FPS)
+    ctx.framerate = Fraction(FPS, 1)
+    ctx.max_b_frames = 0
+    ctx.gop_size = N_FRAMES
+    opts = {"tune": "zerolatency", "preset": "ultrafast", "crf": "18"}
+    if codec == "hevc":
+        opts["x265-params"] = "bframes=0:log-level=error"
+    ctx.options = opts
+    aus: list[bytes] = []
+    ys: list[np.ndarray] = []
+    for i in range(n_frames):
+        frame = av.VideoFrame.from_ndarray(_test_pattern(i), format="rgb24").reformat(format="yuv420p")
+        frame.pts = i
+        ys.append(frame.to_ndarray()[:HEIGHT].copy())
+        aus.extend(bytes(p) for p in ctx.encode(frame))
+    aus.extend(bytes(p) for p in ctx.encode(None))
+    return aus, ys
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse == 0 else 10 * np.log10(255.0**2 / mse)
+
+
+def _free_port_pair() -> int:
+    """An even UDP port p with p and p+1 free on 127.0.0.1 (RTP and RTCP)."""
+    for _ in range(50):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            p = s.getsockname()[1] & ~1
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(
+                socket.AF_INET, socket.SOCK_DGRAM
+            ) as b:
+                a.bind(("127.0.0.1", p))
+                b.bind(("127.0.0.1", p + 1))
+            return p
+        except OSError:
+            continue
+    raise RuntimeError("no free UDP port pair")
+
+
+def _wait_bound(port: int, deadline_s: float) -> bool:
+    """Wait until someone else has bound UDP ``port`` (bind fails)."""
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_ffmpeg_decodes_our_packets(codec: str, tmp_path: Path) -> None:
+    aus, ys = encode_clip(codec, N_FRAMES + EXTRA_FRAMES)
+    assert len(aus) == N_FRAMES + EXTRA_FRAMES
+    port = _free_port_pair()
+    sdp_path = tmp_path / "stream.sdp"
+    sdp_path.write_text(make_sdp(codec, port, 96))
+    proc = subprocess.Popen(
+        ["ffmpeg", "-hide_banner", "-loglevel", "error", "-threads", "1",
+         "-protocol_whitelist", "file,udp,rtp",
+         "-i", str(sdp_path), "-frames:v", str(N_FRAMES), "-vsync", "0",
+         "-f", "rawvideo", "-pix_fmt", "yuv420p", "pipe:1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )
+    try:
+        assert _wait_bound(port, 10.0), "ffmpeg did not open the RTP port"
+        time.sleep(0.2)
+        packetizer = RtpPacketizer(codec, ssrc=0x1234ABCD, payload_type=96, first_sequence=65500)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i, au in enumerate(aus):
+                for pkt in packetizer.packetize(au, 1000 + i * TS_STEP):
+                    tx.sendto(bytes(pkt), ("127.0.0.1", port))
+                    time.sleep(0.0005)
+                time.sleep(0.005)
+        try:
+            out, err = proc.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate(timeout=5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=5)
+    frame_size = WIDTH * HEIGHT * 3 // 2
+    n = len(out) // frame_size
+    assert n >= N_FRAMES - 1, f"ffmpeg decoded {n} frames: {err.decode(errors='replace')[-500:]}"
+    for i in range(n):
+        y = np.frombuffer(out, np.uint8, WIDTH * HEIGHT, i * frame_size).reshape(HEIGHT, WIDTH)
+        assert psnr(y, ys[i]) > PSNR_MIN_DB, f"frame {i}"
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_we_depacketize_ffmpeg_rtp(codec: str, tmp_path: Path) -> None:
+    port = _free_port_pair()
+    sdp_path = tmp_path / "ffmpeg.sdp"
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    rx.bind(("127.0.0.1", port))
+    rx.settimeout(0.2)
+    datagrams: list[bytes] = []
+    stop = threading.Event()
+
+    def listen() -> None:
+        end = time.monotonic() + 30
+        while not stop.is_set() and time.monotonic() < end:
+            try:
+                datagrams.append(rx.recv(65536))
+            except socket.timeout:
+                continue
+
+    thread = threading.Thread(target=listen, daemon=True)
+    thread.start()
+    extra = ["-x265-params", "bframes=0:log-level=error"] if codec == "hevc" else []
+    try:
+        subprocess.run(
+            ["ffmpeg", "-hide_banner", "-loglevel", "error", "-re", "-f", "lavfi",
+             "-i", f"testsrc=size={WIDTH}x{HEIGHT}:rate={FPS}", "-frames:v", str(N_FRAMES),
+             "-c:v", ENCODERS[codec], "-bf", "0", *extra, "-sdp_file", str(sdp_path),
+             "-f", "rtp", f"rtp://127.0.0.1:{port}"],
+            check=True, timeout=30, capture_output=True,
+        )
+        time.sleep(0.3)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        rx.close()
+    assert datagrams
+    sdp = sdp_path.read_text()
+    jb = JitterBuffer(codec)
+    aus = []
+    for k, d in enumerate(datagrams):
+        aus.extend(jb.insert(RtpPacket.parse(d), now_ms=float(k)))
+    assert len(aus) == N_FRAMES and aus[0].keyframe
+    assert jb.missing() == [] and jb.frames_lost == 0
+    dec = av.CodecContext.create(codec, "r")
+    sets = join_annexb(parameter_sets_from_sdp(sdp))
+    frames = []
+    for i, au in enumerate(aus):
+        data = au.data
+        if i == 0 and sets and len(split_annexb(data)) == 1:
+            data = sets + data  # parameter sets only out of band
+        frames.extend(dec.decode(av.Packet(data)))
+    frames.extend(dec.decode(None))
+    assert len(frames) == N_FRAMES
+    assert (frames[0].width, frames[0].height) == (WIDTH, HEIGHT)
