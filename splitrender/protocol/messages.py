@@ -286,14 +286,17 @@ class Hello(Message):
     @classmethod
     def from_wire(cls, d: Mapping[str, Any]) -> Hello:
         n = "Hello"
+        version = _int(n, d, "version", 0, 255)
+        auth_token = _str(n, d, "auth_token", 256)
+        methods = _str_list(n, d, "methods")
         codecs = _str_list(n, d, "codecs")
         for c in codecs:
             if c not in CODECS:
                 raise MessageError(f"Hello.codecs: unknown codec {c!r} (expected one of {CODECS})")
         return cls(
-            version=_int(n, d, "version", 0, 255),
-            auth_token=_str(n, d, "auth_token", 256),
-            methods=_str_list(n, d, "methods"),
+            version=version,
+            auth_token=auth_token,
+            methods=methods,
             codecs=codecs,
             width=_int(n, d, "width", 1, MAX_DIMENSION_PX),
             height=_int(n, d, "height", 1, MAX_DIMENSION_PX),
