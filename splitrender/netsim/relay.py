@@ -30,7 +30,7 @@ import ipaddress
 import itertools
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -418,8 +418,8 @@ async def serve_relay(
     path: PathSpec,
     seed: int,
     *,
-    tcp: list[tuple[Address, Address]] = (),  # type: ignore[assignment]
-    udp: list[tuple[Address, Address]] = (),  # type: ignore[assignment]
+    tcp: Sequence[tuple[Address, Address]] = (),
+    udp: Sequence[tuple[Address, Address]] = (),
     allow_remote: bool = False,
     duration_s: float | None = None,
     stats_interval_s: float | None = None,
