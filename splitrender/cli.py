@@ -1,0 +1,212 @@
+"""The ``splitrender`` command: demo, run, sweep, report, serve, client, shape.
+
+Argument parsing lives here (one place to read the whole interface); each command's
+work is in its subpackage and imported only when that command runs, so
+``splitrender --help`` stays fast.  Only this module configures logging handlers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from . import __version__
+from .errors import SplitRenderError
+
+log = logging.getLogger("splitrender")
+
+
+def _lazy(target: str) -> Callable[[argparse.Namespace], int]:
+    mod, _, fn = target.partition(":")
+
+    def call(ns: argparse.Namespace) -> int:
+        return int(getattr(importlib.import_module(mod), fn)(ns) or 0)
+
+    return call
+
+
+def _common_run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scene", default="default", help="built-in scene name (default, minimal) or a .glb/.gltf/.obj/.ply/.dae file")
+    p.add_argument("--trace", default="walk", help="built-in trace (walk, walk_fast, turn, strafe, static, orbit) or a trace file (.csv, or a QUASAR .txt path)")
+    p.add_argument("--width", type=int, default=None, help="display width in pixels")
+    p.add_argument("--height", type=int, default=None, help="display height in pixels")
+    p.add_argument("--duration", type=float, default=None, help="seconds of the trace to run (default: whole trace)")
+    p.add_argument("--seed", type=int, default=0)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="splitrender", description="Split-rendering streaming for XR and thin clients.")
+    ap.add_argument("--version", action="version", version=f"splitrender {__version__}")
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="run every method on the default scene under ideal/lan/cloud and write a report with charts")
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    p.add_argument("--quick", action="store_true", help="short traces at 320x180: finishes in a few minutes on 2 CPU cores")
+    p.add_argument("--methods", default=None, help="comma-separated methods (default: all available)")
+    p.add_argument("--networks", default="ideal,lan,cloud", help="comma-separated network profiles or netem strings")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    p.add_argument("--no-studies", action="store_true", help="skip the per-method studies in the report")
+    p.set_defaults(func=_lazy("splitrender.experiments.demo:main_demo"))
+
+    p = sub.add_parser("run", help="one virtual-time run: writes frames.csv, updates.csv, summary.csv and config.toml")
+    p.add_argument("--method", default="video", help="streaming method (see `splitrender methods`)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="method parameter (TOML value), repeatable, e.g. --param overscan=1.4")
+    p.add_argument("--network", default="ideal", help="profile (ideal, lan, cloud, wifi, lte) or a netem string such as 'delay 50ms 20ms loss 1%%'")
+    p.add_argument("--config", type=Path, default=None, help="TOML run config; command-line options override it")
+    p.add_argument("--out", type=Path, default=Path("out/run"))
+    p.add_argument("--server-fps", type=int, default=None)
+    p.add_argument("--client-fps", type=int, default=None)
+    p.add_argument("--predictor", default=None, help="none, cv, ca, cv_savgol, ca_savgol, perfect")
+    p.add_argument("--flip-every", type=int, default=None, help="score FLIP every n-th displayed frame (0 = never)")
+    _common_run_args(p)
+    p.set_defaults(func=main_run)
+
+    p = sub.add_parser("methods", help="list the available methods and their parameters")
+    p.set_defaults(func=main_methods)
+
+    p = sub.add_parser("sweep", help="expand a TOML sweep file into runs (cached by config hash) and write tidy tables")
+    p.add_argument("file", type=Path)
+    p.add_argument("--out", type=Path, default=Path("out/sweep"))
+    p.add_argument("--workers", type=int, default=None, help="process pool size (default: CPU count; 1 = serial)")
+    p.add_argument("--dask", default=None, metavar="ADDRESS", help="run on a Dask cluster (tcp://host:8786) or 'local' for a LocalCluster")
+    p.add_argument("--report", action="store_true", help="write the HTML report when done")
+    p.set_defaults(func=_lazy("splitrender.experiments.sweep:main_sweep"))
+
+    p = sub.add_parser("report", help="write the HTML report (charts as PNG and SVG) for a results folder")
+    p.add_argument("dir", type=Path)
+    p.add_argument("--run", default=None, help="config key of the run to show per-frame timelines for")
+    p.set_defaults(func=_lazy("splitrender.experiments.report:main_report"))
+
+    p = sub.add_parser("stress", help="run the stability suite (where methods fail) and report per method")
+    p.add_argument("--out", type=Path, default=Path("out/stress"))
+    p.add_argument("--methods", default=None)
+    p.add_argument("--quick", action="store_true")
+    p.add_argument("--workers", type=int, default=None)
+    p.set_defaults(func=_lazy("splitrender.experiments.stress:main_stress"))
+
+    p = sub.add_parser("serve", help="live asyncio server (TCP control + RTP video)")
+    _add_optional(p, "splitrender.server.cli:add_serve_arguments")
+    p.set_defaults(func=_lazy("splitrender.server.cli:main_serve"))
+
+    p = sub.add_parser("client", help="live headless client: sends poses, decodes, displays, records")
+    _add_optional(p, "splitrender.client.cli:add_client_arguments")
+    p.set_defaults(func=_lazy("splitrender.client.cli:main_client"))
+
+    p = sub.add_parser("shape", help="netem-style UDP/TCP shaping relay on loopback")
+    _add_optional(p, "splitrender.netsim.cli:add_shape_arguments")
+    p.set_defaults(func=_lazy("splitrender.netsim.cli:main_shape"))
+    return ap
+
+
+def _add_optional(p: argparse.ArgumentParser, target: str) -> None:
+    mod, _, fn = target.partition(":")
+    try:
+        getattr(importlib.import_module(mod), fn)(p)
+    except ModuleNotFoundError:  # pragma: no cover - subpackage not installed
+        pass
+
+
+def _parse_value(text: str) -> Any:
+    import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def main_run(ns: argparse.Namespace) -> int:
+    from .errors import ConfigError
+    from .sim.config import RunConfig
+    from .sim.runner import VirtualTimeRun
+
+    base = RunConfig.from_toml(ns.config).to_dict() if ns.config else {}
+    params = dict(base.get("method_params", {}))
+    for kv in ns.param:
+        k, sep, v = kv.partition("=")
+        if not sep or not k:
+            raise ConfigError(f"--param {kv!r}: expected KEY=VALUE")
+        params[k.strip()] = _parse_value(v.strip())
+    over = {"method": ns.method, "network": ns.network, "scene": ns.scene, "trace": ns.trace, "seed": ns.seed, "method_params": params}
+    for k, v in (("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
+                 ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every)):
+        if v is not None:
+            over[k] = v
+    base.update(over)
+    cfg = RunConfig.from_dict(base)
+    vt = VirtualTimeRun(cfg)  # validates method, scene, trace and network before the bar shows
+    with _progress_bar(f"{cfg.method} / {cfg.network}") as bar:
+        vt.progress = bar.update
+        res = vt.run()
+    res.write(ns.out)
+    s = res.summary
+    print(f"{cfg.method} on {cfg.network}: PSNR {s['mean_psnr_db']:.2f} dB, SSIM {s['mean_ssim']:.4f}, "
+          f"FLIP {s['mean_flip']:.4f}, {s['mean_kbps']:.0f} kbit/s, holes {s['mean_hole_pct']:.2f}%, "
+          f"update age {s['mean_update_age_ms']:.0f} ms -> {ns.out}")
+    return 0
+
+
+def main_methods(ns: argparse.Namespace) -> int:
+    import dataclasses
+
+    from .methods import available_methods, get_method
+
+    for name in available_methods():
+        spec = get_method(name)
+        fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(spec.config))
+        print(f"{name:8s} {spec.description}\n         {fields}")
+    return 0
+
+
+class _Bar:
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self._progress: Any = None
+        self._task: Any = None
+
+    def __enter__(self) -> "_Bar":
+        try:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._progress = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                                      TimeRemainingColumn(), transient=False)
+            self._progress.__enter__()
+            self._task = self._progress.add_task(self.label, total=None)
+        except Exception:  # pragma: no cover - rich missing
+            self._progress = None
+        return self
+
+    def update(self, done: int, total: int) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task, completed=done, total=total)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._progress is not None:
+            self._progress.__exit__(*exc)
+
+
+def _progress_bar(label: str) -> _Bar:
+    return _Bar(label)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = build_parser()
+    ns = ap.parse_args(argv)
+    level = logging.WARNING - 10 * min(ns.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return ns.func(ns)
+    except SplitRenderError as exc:
+        print(f"splitrender: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

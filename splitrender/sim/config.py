@@ -1,0 +1,140 @@
+"""Typed run configuration, loadable from TOML or a dict, written next to results."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from ..methods.base import _coerce
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One virtual-time run: a method on a scene, a trace and a network.
+
+    Times in seconds unless the name says ms; sizes in pixels.
+    ``server_latency_ms`` and ``decode_latency_ms`` are *modelled* processing delays
+    (render+encode, decode) on the simulated clock, so results do not depend on this
+    machine's speed; the measured wall-clock costs are recorded separately.
+    ``flip_every``: score FLIP on every n-th displayed frame (0 = never).
+    """
+
+    method: str = "video"
+    method_params: dict[str, Any] = field(default_factory=dict)
+    scene: str = "default"
+    trace: str = "walk"
+    network: str = "ideal"
+    duration_s: float | None = None
+    width: int = 640
+    height: int = 360
+    fov_y_deg: float = 60.0
+    server_fps: int = 30
+    client_fps: int = 60
+    tracker_hz: int = 120
+    predictor: str = "cv"
+    seed: int = 0
+    server_latency_ms: float = 10.0
+    decode_latency_ms: float = 4.0
+    mtu_bytes: int = 1200
+    flip_every: int = 4
+    metrics: bool = True
+    save_images_every: int = 0
+
+    def __post_init__(self) -> None:
+        def bad(key: str, msg: str) -> ConfigError:
+            return ConfigError(f"run config {key}: {msg}")
+
+        if self.width <= 0 or self.height <= 0 or self.width % 2 or self.height % 2:
+            raise bad("width/height", f"must be positive and even, got {self.width}x{self.height}")
+        if self.width * self.height > 3840 * 2160:
+            raise bad("width/height", f"{self.width}x{self.height} is larger than 3840x2160")
+        if not 10.0 <= self.fov_y_deg <= 150.0:
+            raise bad("fov_y_deg", f"must be in [10, 150], got {self.fov_y_deg}")
+        for k in ("server_fps", "client_fps", "tracker_hz"):
+            v = getattr(self, k)
+            if not 1 <= v <= 1000:
+                raise bad(k, f"must be in [1, 1000], got {v}")
+        if self.duration_s is not None and not 0 < self.duration_s <= 3600:
+            raise bad("duration_s", f"must be in (0, 3600], got {self.duration_s}")
+        for k in ("server_latency_ms", "decode_latency_ms"):
+            if not 0 <= getattr(self, k) <= 10_000:
+                raise bad(k, f"must be in [0, 10000], got {getattr(self, k)}")
+        if not 200 <= self.mtu_bytes <= 9000:
+            raise bad("mtu_bytes", f"must be in [200, 9000], got {self.mtu_bytes}")
+        if self.flip_every < 0 or self.save_images_every < 0:
+            raise bad("flip_every/save_images_every", "must be >= 0")
+        if not isinstance(self.method_params, dict):
+            raise bad("method_params", f"must be a table, got {type(self.method_params).__name__}")
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "RunConfig":
+        """Build from a dict (e.g. parsed TOML), naming unknown keys and wrong types."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"run config: expected a table, got {type(d).__name__}")
+        import typing
+
+        hints = typing.get_type_hints(RunConfig)
+        names = {f.name for f in dataclasses.fields(RunConfig)}
+        kw: dict[str, Any] = {}
+        for k, v in d.items():
+            if k not in names:
+                raise ConfigError(f"run config: unknown key {k!r} (valid: {', '.join(sorted(names))})")
+            kw[k] = v if k == "method_params" else _coerce("run config", k, hints[k], v)
+        return RunConfig(**kw)
+
+    @staticmethod
+    def from_toml(path: str | Path) -> "RunConfig":
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"config file not found: {p}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {p} is not valid TOML: {exc}") from exc
+        return RunConfig.from_dict(data.get("run", data))
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def key(self) -> str:
+        """A stable hash of the resolved config (for result caching)."""
+        blob = json.dumps(self.to_dict(), sort_keys=True, default=str)
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+    def replace(self, **kw: Any) -> "RunConfig":
+        return dataclasses.replace(self, **kw)
+
+
+def to_toml(d: dict[str, Any], _prefix: str = "") -> str:
+    """A small TOML writer for the value types configs use."""
+    simple, tables = [], []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        elif v is None:
+            simple.append(f"# {k} = (unset)")
+        else:
+            simple.append(f"{k} = {_toml_value(v)}")
+    out = "\n".join(simple)
+    for k, v in tables:
+        name = f"{_prefix}{k}"
+        out += f"\n\n[{name}]\n" + to_toml(v, name + ".")
+    return out.strip() + "\n"
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return json.dumps(str(v))
