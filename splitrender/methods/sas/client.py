@@ -1,0 +1,172 @@
+"""The SAS client half: keeps PVS geometry and atlas coordinates, draws at its own pose.
+
+State grows with the PVS only: per patch its object slot, triangle count and
+object-space slot positions (sent once when it enters the PVS), its block rectangle
+(sent when it moves in the atlas) and per object its newest transform.  Patches that
+leave the PVS (``drop``, or absent from an I-frame's ``pvs`` list) are forgotten.
+
+Rendering is one draw call: a vertex buffer of all PVS triangles with atlas
+coordinates baked in (rebuilt only when the state changed) and the object transforms
+in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
+which the session data carries, as the server's clear colour).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...errors import RemoteProtocolError
+from ...render.canvas import Canvas, upload_image
+from ...render.gl import load_program
+from ...scene.pose import Pose
+from ..base import ClientFrame, ClientHalf, DecodedUpdate
+from .patches import SLOT_LAYOUT, TRI_SLOTS
+from .server import META_VERSION, block_layout_xy
+
+SHADERS = Path(__file__).parent / "shaders"
+
+
+class SasMetaError(RemoteProtocolError):
+    """Malformed SAS metadata from the server (names the field)."""
+
+
+def _arr(meta: dict[str, Any], key: str, dtype: Any, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
+    v = meta.get(key)
+    if v is None:
+        return np.zeros((0,) + shape_tail, dtype)
+    if not isinstance(v, np.ndarray):
+        raise SasMetaError(f"sas metadata: {key!r} must be an array, got {type(v).__name__}")
+    if v.ndim != 1 + len(shape_tail) or v.shape[1:] != shape_tail:
+        raise SasMetaError(f"sas metadata: {key!r} has shape {v.shape}, expected (N, {', '.join(map(str, shape_tail))})".replace(", )", ")"))
+    if n is not None and v.shape[0] != n:
+        raise SasMetaError(f"sas metadata: {key!r} has {v.shape[0]} rows, expected {n}")
+    return v.astype(dtype, copy=False)
+
+
+class SasClient(ClientHalf):
+    """Shading atlas streaming, client half."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        sd = self.session_data
+        if sd.get("v") != META_VERSION:
+            raise SasMetaError(f"sas session data: version {sd.get('v')!r}, expected {META_VERSION}")
+        self.atlas_size = tuple(int(x) for x in sd["atlas"])
+        self.n_obj = int(sd["n_objects"])
+        self.sky = tuple(float(x) for x in sd.get("sky", (0.0, 0.0, 0.0)))
+        i = self.intrinsics
+        self.canvas = Canvas(self.gl, i.width, i.height)
+        self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
+        self.models = np.tile(np.eye(4, dtype=np.float32), (self.n_obj, 1, 1))
+        self.ssbo = self.gl.buffer(reserve=max(1, self.n_obj) * 64)
+        # per-patch state, keyed by patch id
+        self.geo: dict[int, tuple[int, int, np.ndarray]] = {}      # id -> (object slot, triangles, (5, 3) positions)
+        self.rect: dict[int, np.ndarray] = {}                      # id -> (x, y, lw, lh, transposed)
+        self._tex: Any = None
+        self._vao: Any = None
+        self._vbo: Any = None
+        self._dirty = True
+        self._n_tri = 0
+
+    # ------------------------------------------------------------------ updates
+    def apply(self, update: DecodedUpdate) -> None:
+        m = update.meta
+        if m.get("v") != META_VERSION:
+            raise SasMetaError(f"sas metadata: version {m.get('v')!r}, expected {META_VERSION}")
+        atlas = update.planes.get("atlas")
+        if atlas is not None:
+            w, h = self.atlas_size
+            if atlas.shape != (h, w, 3):
+                raise SasMetaError(f"sas atlas plane: shape {atlas.shape}, expected ({h}, {w}, 3)")
+            self._tex = upload_image(self.gl, atlas, self._tex)
+        if m.get("full"):
+            self.geo.clear()
+            self.rect.clear()
+        for pid in _arr(m, "drop", np.int64, ()).tolist():
+            self.geo.pop(pid, None)
+            self.rect.pop(pid, None)
+        gid = _arr(m, "geo_id", np.int64, ())
+        gobj = _arr(m, "geo_obj", np.int64, (), gid.size)
+        gsz = _arr(m, "geo_size", np.int64, (), gid.size)
+        gpos = _arr(m, "geo_pos", np.float32, (5, 3), gid.size)
+        if gid.size and (gobj.max() >= self.n_obj or gsz.min() < 1 or gsz.max() > 3):
+            raise SasMetaError(f"sas metadata: geo_obj must be < {self.n_obj} and geo_size in 1..3")
+        for pid, o, s, p in zip(gid.tolist(), gobj.tolist(), gsz.tolist(), gpos):
+            self.geo[pid] = (o, s, p)
+        uid = _arr(m, "uv_id", np.int64, ())
+        urect = _arr(m, "uv_rect", np.int64, (5,), uid.size)
+        if uid.size:
+            w, h = self.atlas_size
+            x, y, lw, lh = urect[:, 0], urect[:, 1], urect[:, 2], urect[:, 3]
+            if (lw > 15).any() or (lh > 15).any() or (x + (1 << lw) > w).any() or (y + (1 << lh) > h).any():
+                raise SasMetaError("sas metadata: uv_rect has a block outside the atlas")
+        for pid, r in zip(uid.tolist(), urect):
+            self.rect[pid] = r
+        if "pvs" in m:
+            keep = set(_arr(m, "pvs", np.int64, ()).tolist())
+            for d in (self.geo, self.rect):
+                for pid in [k for k in d if k not in keep]:
+                    del d[pid]
+        xo = _arr(m, "xf_obj", np.int64, ())
+        xf = _arr(m, "xf", np.float32, (4, 4), xo.size)
+        if xo.size and xo.max() >= self.n_obj:
+            raise SasMetaError(f"sas metadata: xf_obj must be < {self.n_obj}")
+        self.models[xo] = xf
+        self._dirty = True
+        self._has_content = True
+
+    def _rebuild(self) -> None:
+        ids = [pid for pid in self.geo if pid in self.rect]
+        tris: list[np.ndarray] = []
+        if ids:
+            obj = np.array([self.geo[p][0] for p in ids], np.float32)
+            size = np.array([self.geo[p][1] for p in ids], np.int64)
+            pos = np.stack([self.geo[p][2] for p in ids]).astype(np.float32)
+            rr = np.stack([self.rect[p] for p in ids]).astype(np.int64)
+            rect = np.stack([rr[:, 0], rr[:, 1], 1 << rr[:, 2], 1 << rr[:, 3]], axis=1).astype(np.float64)
+            wh = np.array(self.atlas_size, np.float64)
+            for k in (1, 2, 3):
+                sel = np.flatnonzero(size == k)
+                if sel.size == 0:
+                    continue
+                xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], rr[sel, 4] != 0) / wh
+                for tri in TRI_SLOTS[k]:
+                    if tri[0] < 0:
+                        continue
+                    o = np.broadcast_to(obj[sel][:, None, None], (sel.size, 3, 1))
+                    tris.append(np.concatenate([pos[sel][:, tri], xy[:, tri], o], axis=2).astype(np.float32))
+        if self._vao is not None:
+            self._vao.release()
+            self._vbo.release()
+            self._vao = self._vbo = None
+        self._n_tri = 0
+        if tris:
+            v = np.concatenate(tris)
+            self._n_tri = v.shape[0]
+            self._vbo = self.gl.buffer(v.tobytes())
+            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 2f 1f", "in_position", "in_atlas_uv", "in_object")])
+        self._dirty = False
+
+    # ------------------------------------------------------------------ display
+    def render(self, pose: Pose, t_s: float) -> ClientFrame:
+        i = self.intrinsics
+        if self._dirty:
+            self._rebuild()
+        self.canvas.use()
+        self.canvas.clear((*self.sky, 0.0))
+        if self._vao is not None and self._tex is not None:
+            gl = self.gl
+            gl.enable(gl.DEPTH_TEST)
+            gl.disable(gl.CULL_FACE)
+            self.ssbo.write(np.ascontiguousarray(self.models.transpose(0, 2, 1), np.float32).tobytes())
+            self.ssbo.bind_to_storage_buffer(0)
+            self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
+            self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
+            self._tex.use(location=0)
+            self.prog["u_atlas"].value = 0
+            self._vao.render()
+        color, covered = self.canvas.read()
+        return ClientFrame(color, ~covered, {"cli_triangles": float(self._n_tri)})

@@ -1,0 +1,134 @@
+"""Level selection (paper section 4.3): the block size of each visible patch.
+
+- eq. 1: the screen-space length of an edge is ``s = r / f * acos(v1.v2 / |v1||v2|)``
+  pixels, with ``r / f`` the display's pixels per radian (width over horizontal field
+  of view) and ``v1, v2`` the vectors from the eye to the edge's vertices (a curved
+  image plane, so independent of the view direction);
+- eq. 2: from the edge lengths, the patch's block area (Heron's formula) and aspect
+  ratio (longest width edge over longest height edge in the block layout) give
+  ``A = log2(area)`` and ``a = log2(aspect)``, rounded (``a`` to the parity of ``A``)
+  and clamped; the level is ``(lw, lh) = ((A + a) / 2, (A - a) / 2)``;
+- eq. 3: under memory pressure a bias ``b = log2((I - d) / (S - d))`` is subtracted
+  from ``A``: ``I`` is the ideal total block area, ``S`` the atlas space budget and
+  ``d`` the area of blocks already at the smallest level.
+
+Blocks are landscape (``lh <= lw``); a patch that is taller than wide is laid out
+transposed (its block-local ``u, v`` swapped), flagged per patch.  A hysteresis keeps
+a patch's current level while the ideal one is within ``hysteresis`` (log2 units) of
+it, so blocks do not move for small changes of distance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .allocator import AtlasLayout
+from .patches import HEIGHT_EDGES, TRI_SLOTS, WIDTH_EDGES, ScenePatches
+
+
+@dataclass
+class LevelChoice:
+    """Chosen levels for a list of patches (aligned arrays) and the eq. 3 bias (log2 units)."""
+
+    lw: np.ndarray
+    lh: np.ndarray
+    transposed: np.ndarray
+    bias: float
+    ideal_area: float
+
+
+def patch_world_slots(patches: ScenePatches, ids: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(N, 5, 3) world positions of the slots of patches ``ids``; ``model`` (n_objects, 4, 4)."""
+    m = model[patches.object_index[ids]]                     # (N, 4, 4)
+    p = patches.slot_pos[ids].astype(np.float64)             # (N, 5, 3)
+    return np.einsum("nij,nsj->nsi", m[:, :3, :3], p) + m[:, None, :3, 3]
+
+
+def edge_px(a: np.ndarray, b: np.ndarray, eye: np.ndarray, px_per_rad: float) -> np.ndarray:
+    """Eq. 1: screen-space length in pixels of edges ``a``-``b`` (..., 3) seen from ``eye``."""
+    v1, v2 = a - eye, b - eye
+    c = (v1 * v2).sum(-1) / np.maximum(np.linalg.norm(v1, axis=-1) * np.linalg.norm(v2, axis=-1), 1e-12)
+    return px_per_rad * np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def _heron(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    s = (a + b + c) / 2
+    return np.sqrt(np.maximum(s * (s - a) * (s - b) * (s - c), 0.0))
+
+
+def ideal_log_size(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, eye: np.ndarray,
+                   px_per_rad: float, texels_per_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous ``(A, a)`` per patch: log2 block area (texels) and log2 aspect (width / height)."""
+    n = ids.size
+    width = np.zeros(n)
+    height = np.zeros(n)
+    area = np.zeros(n)
+    size = patches.size[ids]
+    for k in (1, 2, 3):
+        sel = np.flatnonzero(size == k)
+        if sel.size == 0:
+            continue
+        w = world[sel]
+        for s0, s1, du in WIDTH_EDGES[k]:
+            width[sel] = np.maximum(width[sel], edge_px(w[:, s0], w[:, s1], eye, px_per_rad) / du)
+        for s0, s1, dv in HEIGHT_EDGES[k]:
+            height[sel] = np.maximum(height[sel], edge_px(w[:, s0], w[:, s1], eye, px_per_rad) / dv)
+        tri_area = np.zeros(sel.size)
+        for t in TRI_SLOTS[k]:
+            if t[0] < 0:
+                continue
+            e0 = edge_px(w[:, t[0]], w[:, t[1]], eye, px_per_rad)
+            e1 = edge_px(w[:, t[1]], w[:, t[2]], eye, px_per_rad)
+            e2 = edge_px(w[:, t[2]], w[:, t[0]], eye, px_per_rad)
+            tri_area += _heron(e0, e1, e2)
+        # a single triangle fills half its block
+        area[sel] = tri_area * (2.0 if k == 1 else 1.0)
+    area = np.maximum(area * texels_per_px ** 2, 1e-6)
+    # the block must also hold the longest edges (slivers have tiny area but long sides)
+    area = np.maximum(area, 0.25 * width * height * texels_per_px ** 2)
+    a = np.log2(np.maximum(width, 1e-6) / np.maximum(height, 1e-6))
+    return np.log2(area), a
+
+
+def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texels: float,
+                  cur_lw: np.ndarray | None = None, cur_lh: np.ndarray | None = None, cur_t: np.ndarray | None = None,
+                  hysteresis: float = 0.75, max_aspect_log: int = 3) -> LevelChoice:
+    """Eq. 2 and 3: integer levels from continuous ``(A, a)``; ``cur_*`` (-1 = none) enable hysteresis."""
+    lo, hi = layout.min_level, layout.max_level
+    amin, amax = 2 * lo, 2 * hi
+    ideal = np.clip(2.0 ** A, 2.0 ** amin, 2.0 ** amax)
+    at_min = A <= amin
+    d = float(at_min.sum()) * 2.0 ** amin
+    total = float(ideal.sum())
+    bias = 0.0
+    if total > budget_texels and budget_texels > d:
+        bias = max(0.0, math.log2((total - d) / max(budget_texels - d, 1.0)))
+    elif total > budget_texels:
+        bias = float(amax)
+    Ab = A - bias
+    transposed = a < 0
+    aa = np.abs(a)
+    Ar = np.clip(np.rint(Ab), amin, amax).astype(np.int64)
+    ar = np.rint(aa).astype(np.int64)
+    odd = (Ar - ar) % 2 == 1
+    up = aa > ar
+    ar = np.where(odd, np.where(up, ar + 1, ar - 1), ar)
+    ar = np.clip(ar, 0, np.minimum(np.minimum(amax - Ar, Ar - amin), 2 * (max_aspect_log // 2) + (Ar % 2)))
+    ar = np.where((Ar - ar) % 2 == 1, ar + 1, ar)     # parity after the clamp at 0
+    ar = np.minimum(ar, np.minimum(amax - Ar, Ar - amin))
+    lw = ((Ar + ar) // 2).astype(np.int8)
+    lh = ((Ar - ar) // 2).astype(np.int8)
+    if cur_lw is not None and cur_lh is not None:
+        has = cur_lw >= 0
+        cur_A = cur_lw.astype(np.float64) + cur_lh
+        cur_a = cur_lw.astype(np.float64) - cur_lh
+        same_orient = (cur_t == transposed) | (cur_lw == cur_lh) | (np.abs(aa) < 0.5) if cur_t is not None else True
+        keep = has & (np.abs(np.clip(Ab, amin, amax) - cur_A) <= hysteresis + 0.5) & (np.abs(aa - cur_a) <= hysteresis + 0.5) & same_orient
+        lw = np.where(keep, cur_lw, lw).astype(np.int8)
+        lh = np.where(keep, cur_lh, lh).astype(np.int8)
+        if cur_t is not None:
+            transposed = np.where(keep, cur_t, transposed)
+    return LevelChoice(lw, lh, np.asarray(transposed, bool), bias, total)

@@ -1,0 +1,359 @@
+"""The SAS server half: PVS, level selection, atlas allocation, shading, metadata.
+
+Per server frame (paper figure 2):
+
+1. visibility: EVS samples from the newest client pose to ``target + one frame`` in
+   steps of ``pvs_step_ms`` (poses from the pose predictor; ``pvs_prediction="none"``
+   uses the newest pose only), each with the field of view enlarged by
+   ``fov_margin``; the PVS is their union;
+2. level selection (eq. 1-3) at the predicted pose, with hysteresis;
+3. atlas memory management (:class:`~.allocator.PatchAllocator`); an atlas reset
+   (global repack) happens on an I-frame when the memory load passes
+   ``high_water``, or at once (forcing an I-frame) when an allocation fails;
+4. shading of every PVS patch into its block with ``shading.glsl`` (the ground
+   truth's shader); on I-frames the atlas is cleared first so unused blocks are black;
+5. metadata: geometry of patches entering the PVS, block rectangles of patches
+   that were (re)placed, ids of patches leaving, dynamic object transforms every frame.
+
+Loss recovery: every I-frame carries the full PVS list and its block table (a few
+bytes per patch), so a client that missed P-frames re-syncs its texture coordinates
+at the next I-frame; geometry is re-sent for the whole PVS when the client asks for
+a keyframe or reports lost frames (it may have missed geometry sent "once").
+
+Wire format (metadata ``v = 1``), all arrays little-endian:
+
+- ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
+- ``pvs`` int32 (N,) (I-frames only): the complete PVS; the client drops the rest;
+- ``drop`` int32 (K,): patches that left the PVS;
+- ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
+  (1-3), ``geo_pos`` float32 (G, 5, 3) object-space slot positions (layout in
+  :mod:`.patches`);
+- ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels), lw, lh
+  (log2 size), transposed flag;
+- ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ...codecs.video import VideoCodecConfig
+from ...errors import ConfigError
+from ...render.gl import load_program
+from ...scene.pose import CameraIntrinsics, Pose
+from ..base import MethodConfig, ServerContext, ServerHalf, StreamSpec, Update
+from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
+from .levels import ideal_log_size, patch_world_slots, select_levels
+from .patches import SLOT_LAYOUT, TRI_SLOTS, ScenePatches, build_scene_patches
+from .pvs import PatchIdPass, sample_times
+
+log = logging.getLogger(__name__)
+SHADERS = Path(__file__).parent / "shaders"
+META_VERSION = 1
+EXPAND_TEXELS = 1.5
+"""How far each triangle is grown in the atlas (texels) so bilinear taps at the inset border read shaded texels."""
+
+
+@dataclass(frozen=True)
+class SasConfig(MethodConfig):
+    """SAS settings.  ``gop`` is the I-frame (and atlas reset) period in frames (paper: 5).
+
+    ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
+    the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
+    override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
+    the atlas eq. 3 aims to fill.  ``strategy``: allocator S0 (paper) .. S3.
+    """
+
+    gop: int = 5
+    atlas_mpix_1080p: float = 4.0
+    atlas_width: int = 0
+    atlas_height: int = 0
+    superblock_px: int = 32
+    strategy: Literal["S0", "S1", "S2", "S3"] = "S0"
+    high_water: float = 0.9
+    fov_margin: float = 0.2
+    pvs_step_ms: float = 33.3
+    pvs_prediction: Literal["linear", "none"] = "linear"
+    texels_per_px: float = 1.0
+    bias_fill: float = 0.75
+    hysteresis: float = 0.75
+    lossless: bool = False
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"SasConfig.strategy: {self.strategy!r} is not one of {list(STRATEGIES)}")
+        if not 0.0 <= self.fov_margin <= 2.0:
+            raise ConfigError(f"SasConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
+        if not 0.1 <= self.high_water <= 1.0:
+            raise ConfigError(f"SasConfig.high_water: must be in [0.1, 1], got {self.high_water}")
+        if not self.pvs_step_ms > 0:
+            raise ConfigError(f"SasConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
+        if not 0.05 <= self.texels_per_px <= 8:
+            raise ConfigError(f"SasConfig.texels_per_px: must be in [0.05, 8], got {self.texels_per_px}")
+        if self.pvs_prediction not in ("linear", "none"):
+            raise ConfigError(f"SasConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
+        if (self.atlas_width > 0) != (self.atlas_height > 0):
+            raise ConfigError("SasConfig: give both atlas_width and atlas_height or neither")
+        if self.atlas_mpix_1080p <= 0:
+            raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
+
+    def atlas_layout(self, intr: CameraIntrinsics) -> AtlasLayout:
+        """The atlas for a display of ``intr``: 2:1, a multiple of the superblock size."""
+        s = self.superblock_px
+        if self.atlas_width > 0:
+            return AtlasLayout(self.atlas_width, self.atlas_height, s)
+        texels = self.atlas_mpix_1080p * 1e6 * intr.width * intr.height / (1920 * 1080)
+        h = max(1, round(math.sqrt(texels / 2) / s)) * s
+        return AtlasLayout(2 * h, h, s)
+
+
+def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
+    """Barycentric weights (N, 3, 3) of 2D triangles ``p`` (N, 3, 2) grown outward by ``d`` (miter offset).
+
+    Row ``k`` gives the expanded vertex ``k`` as weights of the original three, so any
+    attribute is extrapolated linearly with ``weights @ attributes``.
+    """
+    e_next = np.roll(p, -1, axis=1) - p                   # edge k: p_k -> p_{k+1}
+    area2 = e_next[:, 0, 0] * e_next[:, 1, 1] - e_next[:, 0, 1] * e_next[:, 1, 0]
+    sgn = np.where(area2 >= 0, 1.0, -1.0)[:, None]
+    ln = np.maximum(np.linalg.norm(e_next, axis=2), 1e-9)
+    nrm = np.stack([e_next[..., 1], -e_next[..., 0]], axis=-1) / ln[..., None] * sgn[..., None]   # outward
+    n_in = np.roll(nrm, 1, axis=1)                       # edge ending at vertex k
+    n_out = nrm                                          # edge starting at vertex k
+    dots = (n_in * n_out).sum(-1, keepdims=True)
+    off = d * (n_in + n_out) / np.maximum(1.0 + dots, 0.05)
+    q = p + off
+    # barycentrics of q w.r.t. p
+    a, b, c = p[:, 0], p[:, 1], p[:, 2]
+    v0, v1 = b - a, c - a
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
+    w = q - a[:, None]
+    l1 = (w[..., 0] * v1[:, None, 1] - w[..., 1] * v1[:, None, 0]) / den[:, None]
+    l2 = (v0[:, None, 0] * w[..., 1] - v0[:, None, 1] * w[..., 0]) / den[:, None]
+    return np.stack([1 - l1 - l2, l1, l2], axis=-1)
+
+
+def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
+    """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2) with the half-texel inset."""
+    uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
+    shape = (-1,) + (1,) * (layout_uv.ndim - 2)
+    x = rect[:, 0].reshape(shape) + 0.5 + uv[..., 0] * (rect[:, 2].reshape(shape) - 1)
+    y = rect[:, 1].reshape(shape) + 0.5 + uv[..., 1] * (rect[:, 3].reshape(shape) - 1)
+    return np.stack([x, y], axis=-1)
+
+
+class SasServer(ServerHalf):
+    """Shading atlas streaming, server half."""
+
+    config: SasConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        t0 = time.perf_counter()
+        self.patches: ScenePatches = build_scene_patches(self.scene)
+        self.patch_build_ms = (time.perf_counter() - t0) * 1e3
+        self.layout = self.config.atlas_layout(self.intrinsics)
+        self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
+        self.transposed = np.zeros(self.patches.count, bool)
+        self.client_has = np.zeros(self.patches.count, bool)    # geometry the client holds (no loss assumed)
+        self.n_obj = len(self.scene.objects)
+        self._ids: PatchIdPass | None = None
+        self._gl: Any = None
+        self._frames = 0
+        self._since_i = 0
+        self._lost_seen = 0
+        self._stats: dict[str, float] = {}
+        self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
+        self.sent_static = np.zeros(self.n_obj, bool)
+
+    # ------------------------------------------------------------------ interface
+    def streams(self) -> list[StreamSpec]:
+        c = self.config
+        if c.lossless:   # bit-exact atlas: HEVC lossless in planar RGB
+            v = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", lossless=True, crf=None, gop=c.gop, preset=c.preset, fps=self.server_fps)
+        else:
+            v = c.video(self.server_fps)
+        return [StreamSpec("atlas", v, self.layout.width, self.layout.height)]
+
+    def session_data(self) -> dict[str, Any]:
+        return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
+                "sky": list(map(float, self.scene.sky_color))}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+    # ------------------------------------------------------------------ GL
+    def _setup_gl(self, renderer: Any) -> None:
+        ctx = renderer.ctx
+        self._ids = PatchIdPass(renderer, self.scene, self.patches)
+        self._prog = load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag")
+        self._tex = ctx.texture((self.layout.width, self.layout.height), 4, dtype="f1")
+        self._fbo = ctx.framebuffer([self._tex])
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._gl = ctx
+        self._sg = renderer.upload(self.scene)
+
+    # ------------------------------------------------------------------ frame
+    def pvs_poses(self, ctx: ServerContext) -> list[Pose]:
+        """Sample poses of the PVS: newest pose, then predictions to one frame past the target."""
+        if self.config.pvs_prediction == "none":
+            return [ctx.latest_pose]
+        t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / self.server_fps
+        ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
+        return [ctx.latest_pose] + [ctx.predict(t) for t in ts[1:]]
+
+    def produce(self, ctx: ServerContext) -> Update:
+        c = self.config
+        if self._gl is None:
+            self._setup_gl(ctx.renderer)
+        assert self._ids is not None
+        t0 = time.perf_counter()
+        big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
+        area = self._ids.pvs_area(self.pvs_poses(ctx), big, ctx.t_s)
+        pvs = np.flatnonzero(area > 0)
+        t1 = time.perf_counter()
+        # level selection at the predicted eye
+        models = np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
+        world = patch_world_slots(self.patches, pvs, models)
+        eye = np.asarray(ctx.target_pose.position, np.float64)
+        px_per_rad = self.intrinsics.width / math.radians(self.intrinsics.fov_x_deg)
+        A, asp = ideal_log_size(self.patches, pvs, world, eye, px_per_rad, c.texels_per_px)
+        al = self.allocator
+        choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
+                               self.transposed[pvs], c.hysteresis)
+        # I-frame / reset decisions
+        lost = ctx.feedback.lost_frames
+        full = ctx.keyframe_requested or lost > self._lost_seen or self._frames == 0
+        self._lost_seen = lost
+        iframe = full or self._since_i >= c.gop
+        reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
+        if reset:
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area)
+        res = al.update(pvs, choice.lw, choice.lh, reset=reset)
+        if res.failed.size and al.can_reset and not reset:
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area)
+            res2 = al.update(pvs, choice.lw, choice.lh, reset=True)
+            res = type(res)(np.union1d(res.placed, res2.placed), res.released, res2.failed, True)
+            reset = iframe = True
+        # a block's layout orientation only changes when the patch is (re)placed
+        self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
+        t2 = time.perf_counter()
+        live = pvs[al.level_w[pvs] >= 0]
+        self._shade(ctx, live, models, clear=iframe)
+        atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(self.layout.height, self.layout.width, 3).copy()
+        t3 = time.perf_counter()
+        meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
+        self._since_i = 1 if iframe else self._since_i + 1
+        self._frames += 1
+        mem = al.memory()
+        self._stats = {
+            "srv_pvs_patches": float(pvs.size), "srv_pvs_ms": (t1 - t0) * 1e3, "srv_alloc_ms": (t2 - t1) * 1e3,
+            "srv_shade_ms": (t3 - t2) * 1e3, "srv_atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
+            "srv_atlas_load_pct": 100.0 * al.memory_load(), "srv_reset": float(reset), "srv_iframe": float(iframe),
+            "srv_failed": float(res.failed.size), "srv_bias": choice.bias, "srv_placed": float(res.placed.size),
+            "srv_geo_sent": float(meta["geo_id"].size),
+        }
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
+
+    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, clear: bool) -> None:
+        """Shading stage: every live PVS patch into its block (one draw per object)."""
+        gl = self._gl
+        self._fbo.use()
+        gl.viewport = (0, 0, self.layout.width, self.layout.height)
+        if clear:
+            self._fbo.clear(0.0, 0.0, 0.0, 1.0)
+        if live.size == 0:
+            return
+        gl.disable(gl.DEPTH_TEST)
+        gl.disable(gl.CULL_FACE)
+        P = self.patches
+        rect = self.allocator.blocks(live).astype(np.float64)
+        size = P.size[live]
+        verts, obj_of = [], []
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(size == k)
+            if sel.size == 0:
+                continue
+            ids = live[sel]
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[ids])
+            for tri in TRI_SLOTS[k]:
+                if tri[0] < 0:
+                    continue
+                p2 = xy[:, tri]                                        # (n, 3, 2)
+                w = expand_triangles(p2, EXPAND_TEXELS)                # (n, 3, 3)
+                q = np.einsum("nkj,njc->nkc", w, p2)
+                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[ids][:, tri].astype(np.float64))
+                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[ids][:, tri].astype(np.float64))
+                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[ids][:, tri].astype(np.float64))
+                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
+                verts.append(np.concatenate([q, pos, nrm, uv, r4], axis=2))
+                obj_of.append(P.object_index[ids])
+        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 14)
+        o = np.concatenate(obj_of)
+        order = np.argsort(o, kind="stable")
+        v, o = v[order], o[order]
+        vbo = gl.buffer(v.tobytes())
+        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f", "in_atlas", "in_position", "in_normal", "in_uv", "in_rect")])
+        prog = self._prog
+        ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
+        prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
+        if "u_eye" in prog:
+            prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
+        self._fbo.use()   # bind_shading may have rendered the shadow map
+        gl.viewport = (0, 0, self.layout.width, self.layout.height)
+        gl.disable(gl.DEPTH_TEST)
+        bounds = np.flatnonzero(np.diff(o)) + 1
+        starts = np.concatenate([[0], bounds])
+        ends = np.concatenate([bounds, [o.size]])
+        for s, e in zip(starts.tolist(), ends.tolist()):
+            og = self._sg.objects[int(o[s])]
+            m = models[int(o[s])]
+            prog["u_model"].write(np.asarray(m, "f4").T.tobytes())
+            prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(m[:3, :3]).T, "f4").T.tobytes())
+            ctx.renderer.bind_material(prog, og)
+            vao.render(first=3 * s, vertices=3 * (e - s))
+        vao.release()
+        vbo.release()
+
+    def _meta(self, ctx: ServerContext, pvs: np.ndarray, live: np.ndarray, res: Any, iframe: bool, reset: bool,
+              full: bool, models: np.ndarray) -> dict[str, Any]:
+        P = self.patches
+        if full:
+            self.client_has[:] = False
+            self.sent_static[:] = False
+        # the client keeps geometry only for PVS patches
+        gone = np.flatnonzero(self.client_has)
+        gone = gone[~np.isin(gone, live)]   # left the PVS, or lost its block
+        self.client_has[gone] = False
+        geo = live[~self.client_has[live]]
+        self.client_has[geo] = True
+        uv_ids = live if (iframe or full) else np.intersect1d(res.placed, live)
+        rect = self.allocator.blocks(uv_ids)
+        lw = self.allocator.level_w[uv_ids]
+        lh = self.allocator.level_h[uv_ids]
+        uv_rect = np.stack([rect[:, 0], rect[:, 1], lw, lh, self.transposed[uv_ids]], axis=1).astype(np.uint16)
+        objs_needed = np.unique(P.object_index[live])
+        send = objs_needed[self.dynamic[objs_needed] | ~self.sent_static[objs_needed] | iframe]
+        self.sent_static[send] = True
+        meta: dict[str, Any] = {
+            "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
+            "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
+            "drop": np.asarray(gone, np.int32),
+            "geo_id": geo.astype(np.int32), "geo_obj": P.object_index[geo].astype(np.uint16),
+            "geo_size": P.size[geo].astype(np.uint8), "geo_pos": P.slot_pos[geo].astype(np.float32),
+            "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
+            "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
+        }
+        if iframe or full:
+            meta["pvs"] = live.astype(np.int32)
+        return meta
