@@ -73,7 +73,11 @@ class WarpConfig(MethodConfig):
     - ``hole_fill``: epipolar hole filling on/off; ``max_scan_px``: scan length;
     - ``extrapolate``: extrapolate object motion between updates (else objects jump);
       ``max_extrapolation_s`` caps it;
-    - ``max_splat_px``: largest point/quad splat.
+    - ``max_splat_px``: largest point/quad splat;
+    - ``splat_slack_px``: point size is ``ceil(S - slack)``; 0 is the paper's strict
+      ``ceil`` (every magnification above 1 doubles the splat and thickens edges by half a
+      pixel); the default lets near-1 magnifications keep 1-pixel splats and leaves the
+      rare crack to hole filling.
     """
 
     views: int = 1
@@ -90,6 +94,7 @@ class WarpConfig(MethodConfig):
     extrapolate: bool = True
     max_extrapolation_s: float = 0.5
     max_splat_px: float = 8.0
+    splat_slack_px: float = 0.25
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -116,6 +121,8 @@ class WarpConfig(MethodConfig):
             raise ConfigError(f"{n}.max_scan_px: must be >= 1, got {self.max_scan_px}")
         if not 1.0 <= self.max_splat_px <= 64.0:
             raise ConfigError(f"{n}.max_splat_px: must be in [1, 64], got {self.max_splat_px}")
+        if not 0.0 <= self.splat_slack_px < 1.0:
+            raise ConfigError(f"{n}.splat_slack_px: must be in [0, 1), got {self.splat_slack_px}")
         if self.max_extrapolation_s < 0:
             raise ConfigError(f"{n}.max_extrapolation_s: must be >= 0, got {self.max_extrapolation_s}")
 
@@ -457,6 +464,7 @@ class WarpClient(ClientHalf):
             self._set(p, "u_proj_zz", (float(proj[2, 2]), float(proj[2, 3])))
             self._set(p, "u_disc", float(cfg.depth_discontinuity))
             self._set(p, "u_max_splat", float(cfg.max_splat_px))
+            self._set(p, "u_splat_slack", float(cfg.splat_slack_px))
             self._set(p, "u_edge_only", 0 if p is prog else 1)
             for unit, name in enumerate(("u_color", "u_depth", "u_ids", "u_mats")):
                 self._set(p, name, unit)

@@ -4,6 +4,7 @@
 // reconstruction reuses it for the pixels its cut triangles leave out (thin structures).
 #include "warp_common.glsl"
 uniform float u_max_splat;    // largest splat, pixels
+uniform float u_splat_slack;  // size = ceil(S - slack); 0 = the paper's ceil
 uniform int u_edge_only;      // 1: only pixels next to a discontinuity (the mesh's edge pass)
 flat out vec3 v_color;
 flat out float v_depth;       // current view depth along -Z, metres (1e30 = background)
@@ -28,5 +29,5 @@ void main() {
     if (c.w <= 1e-6) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); gl_PointSize = 1.0; return; }
     mat2 J = warp_jacobian(M, p, z, id, to_screen(c));
     float s = max(abs(J[0].x) + abs(J[1].x), abs(J[0].y) + abs(J[1].y));
-    gl_PointSize = clamp(ceil(s - 1e-3), 1.0, u_max_splat);
+    gl_PointSize = clamp(ceil(s - max(u_splat_slack, 1e-3)), 1.0, u_max_splat);
 }
