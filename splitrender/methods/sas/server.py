@@ -15,15 +15,16 @@ Per server frame (paper figure 2):
 5. metadata: geometry of patches entering the PVS, block rectangles of patches
    that were (re)placed, ids of patches leaving, dynamic object transforms every frame.
 
-Loss recovery: every I-frame carries the full PVS list and its block table (a few
-bytes per patch), so a client that missed P-frames re-syncs its texture coordinates
-at the next I-frame; geometry is re-sent for the whole PVS when the client asks for
-a keyframe or reports lost frames (it may have missed geometry sent "once").
+Loss recovery: when the client asks for a keyframe or reports lost frames, the next
+frame is an I-frame with a *full* resend: the complete PVS list, every block rectangle
+and all geometry (the client may have missed geometry sent "once"); the client
+replaces its state with it.  Atlas resets also carry the full PVS list and block
+table (every block moved) but no geometry the client already has.
 
 Wire format (metadata ``v = 1``), all arrays little-endian:
 
 - ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
-- ``pvs`` int32 (N,) (I-frames only): the complete PVS; the client drops the rest;
+- ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
 - ``drop`` int32 (K,): patches that left the PVS;
 - ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
   (1-3), ``geo_pos`` float32 (G, 5, 3) object-space slot positions (layout in
@@ -337,7 +338,7 @@ class SasServer(ServerHalf):
         self.client_has[gone] = False
         geo = live[~self.client_has[live]]
         self.client_has[geo] = True
-        uv_ids = live if (iframe or full) else np.intersect1d(res.placed, live)
+        uv_ids = live if (reset or full) else np.intersect1d(res.placed, live)
         rect = self.allocator.blocks(uv_ids)
         lw = self.allocator.level_w[uv_ids]
         lh = self.allocator.level_h[uv_ids]
@@ -354,6 +355,6 @@ class SasServer(ServerHalf):
             "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
             "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
         }
-        if iframe or full:
+        if reset or full:
             meta["pvs"] = live.astype(np.int32)
         return meta

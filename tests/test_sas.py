@@ -1,0 +1,236 @@
+"""``sas`` (shading atlas streaming): patches, allocator invariants, level selection,
+the client against the ground truth, PVS coverage and the comparison with ``atw``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from splitrender.errors import RemoteProtocolError
+from splitrender.methods.base import DecodedUpdate, ServerContext
+from splitrender.methods.sas.allocator import STRATEGIES, AtlasLayout, PatchAllocator
+from splitrender.methods.sas.levels import select_levels
+from splitrender.methods.sas.patches import TRI_SLOTS, build_mesh_patches, build_scene_patches
+from splitrender.scene.pose import CameraIntrinsics
+from splitrender.scene.procedural import default_scene
+
+INTR = CameraIntrinsics(320, 180)
+
+
+# ---------------------------------------------------------------- patches
+def test_patches_partition_triangles_and_prefer_pairs() -> None:
+    scene = default_scene()
+    sp = build_scene_patches(scene)
+    assert sp.tri_to_patch.shape == (scene.triangle_count,)
+    counts = np.bincount(sp.tri_to_patch, minlength=sp.count)
+    assert (counts == sp.size).all(), "every triangle belongs to exactly one patch of the stated size"
+    in_pairs = float((sp.size[sp.tri_to_patch] == 2).mean())
+    singles = int((sp.size == 1).sum())
+    assert in_pairs >= 0.9, f"only {in_pairs:.1%} of triangles are in two-triangle patches"
+    assert singles == 0, f"{singles} one-triangle patches on a scene of quads and strips"
+    for o, mp in zip(scene.objects, sp.per_object):
+        for p in range(0, mp.count, 7):
+            n = int(mp.size[p])
+            for k in range(n):
+                got = sorted(mp.slots[p][TRI_SLOTS[n][k]].tolist())
+                assert got == sorted(o.mesh.indices[mp.tris[p, k]].tolist()), f"{o.name} patch {p} triangle {k}"
+
+
+def test_odd_strip_makes_a_three_triangle_patch() -> None:
+    from splitrender.scene.model import Mesh
+
+    # a fan of three triangles around vertex 0: one pair + one attached single
+    pos = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [-1, 1, 0]], np.float32)
+    idx = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4]], np.uint32)
+    mp = build_mesh_patches(Mesh(pos, np.tile([0, 0, 1], (5, 1)), np.zeros((5, 2)), idx))
+    assert mp.histogram() == {1: 0, 2: 0, 3: 1}
+
+
+# ---------------------------------------------------------------- allocator
+def _rects(alloc: PatchAllocator) -> np.ndarray:
+    return alloc.blocks()
+
+
+def _overlap_texels(rects: np.ndarray, w: int, h: int) -> int:
+    cov = np.zeros((h + 1, w + 1), np.int32)
+    x, y, bw, bh = rects.T
+    np.add.at(cov, (y, x), 1)
+    np.add.at(cov, (y, x + bw), -1)
+    np.add.at(cov, (y + bh, x), -1)
+    np.add.at(cov, (y + bh, x + bw), 1)
+    cov = cov.cumsum(0).cumsum(1)
+    return int((cov > 1).sum())
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), strategy=st.sampled_from(STRATEGIES), churn=st.floats(0.0, 0.3),
+       n_visible=st.integers(1, 400), max_level=st.integers(1, 5))
+def test_allocator_invariants(seed: int, strategy: str, churn: float, n_visible: int, max_level: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 1000
+    lay = AtlasLayout(256, 128, 32, 1)
+    alloc = PatchAllocator(n, lay, strategy)  # type: ignore[arg-type]
+    lw_all = rng.integers(1, max_level + 1, n)
+    lh_all = np.minimum(lw_all, rng.integers(1, max_level + 1, n))
+    vis = np.sort(rng.choice(n, n_visible, replace=False))
+    prev: dict[int, tuple[int, ...]] = {}
+    for frame in range(12):
+        keep = vis[rng.random(vis.size) >= churn]
+        vis = np.union1d(keep, rng.choice(n, max(1, int(churn * n_visible)), replace=False))
+        lw, lh = lw_all[vis].copy(), lh_all[vis].copy()
+        bump = rng.random(vis.size) < 0.05
+        lw[bump] = np.minimum(max_level, lw[bump] + 1)
+        reset = frame % 5 == 4
+        res = alloc.update(vis, lw, lh, reset=reset)
+        rects = _rects(alloc)
+        assert _overlap_texels(rects, lay.width, lay.height) == 0, f"frame {frame}: live blocks overlap"
+        assert (rects[:, 0] + rects[:, 2] <= lay.width).all() and (rects[:, 1] + rects[:, 3] <= lay.height).all()
+        mem = alloc.memory()
+        assert sum(mem.as_dict().values()) == lay.area, f"memory accounting {mem} != {lay.area}"
+        held = alloc.allocated()
+        assert set(held.tolist()) <= set(vis.tolist()), "a block is held by a patch outside the PVS"
+        assert set(held.tolist()) | set(res.failed.tolist()) == set(vis.tolist())
+        now = {int(p): tuple(r) for p, r in zip(held.tolist(), rects.tolist())}
+        if not res.reset:
+            for p, r in now.items():
+                if p in prev and prev[p][2:] == r[2:]:
+                    assert prev[p] == r, f"frame {frame}: patch {p} moved from {prev[p]} to {r} without a reset"
+        prev = now
+
+
+def test_allocator_s0_fragments_least_and_s3_never_resets() -> None:
+    """Section 5.4 in miniature: steady churn near capacity; S0 keeps the most free memory."""
+    lay = AtlasLayout(256, 128, 32, 1)
+    n = 4000
+    free: dict[str, float] = {}
+    for strategy in STRATEGIES:
+        rng = np.random.default_rng(7)
+        lw_all = rng.integers(1, 5, n)
+        lh_all = np.minimum(lw_all, rng.integers(1, 5, n))
+        alloc = PatchAllocator(n, lay, strategy)
+        vis = np.sort(rng.choice(n, 350, replace=False))
+        fails = 0
+        for frame in range(60):
+            vis = np.union1d(vis[rng.random(vis.size) > 0.08], rng.choice(n, 28, replace=False))
+            reset = frame % 5 == 0 and alloc.memory_load() > 0.9
+            fails += alloc.update(vis, lw_all[vis], lh_all[vis], reset=reset).failed.size
+        m = alloc.memory()
+        free[strategy] = (m.free_superblocks + m.block_stacks + m.superblock_tail) / lay.area
+        if strategy == "S3":
+            assert alloc.resets == 0
+    assert free["S0"] >= free["S2"], f"usable free memory by strategy: {free}"
+
+
+# ---------------------------------------------------------------- level selection
+def test_level_selection_eq2_and_bias() -> None:
+    lay = AtlasLayout(512, 256, 32, 1)
+    # a 16 x 4 texel patch: A = log2(64) = 6, a = log2(4) = 2 -> (4, 2)
+    c = select_levels(np.array([6.0]), np.array([2.0]), lay, 1e9)
+    assert (int(c.lw[0]), int(c.lh[0])) == (4, 2) and c.bias == 0.0
+    # taller than wide: transposed landscape block
+    c = select_levels(np.array([6.0]), np.array([-2.0]), lay, 1e9)
+    assert (int(c.lw[0]), int(c.lh[0]), bool(c.transposed[0])) == (4, 2, True)
+    # memory pressure: eq. 3 bias brings the total near the budget
+    A = np.full(2000, 8.0)
+    c = select_levels(A, np.zeros(2000), lay, 0.5 * lay.area)
+    total = float((2.0 ** (c.lw.astype(float) + c.lh)).sum())
+    assert c.bias > 0 and total <= 0.5 * lay.area * 1.42, f"bias {c.bias:.2f}, total {total:.0f} texels"
+
+
+# ---------------------------------------------------------------- server + client
+def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0):  # type: ignore[no-untyped-def]
+    from splitrender.codecs.meta import pack_meta, unpack_meta
+    from splitrender.codecs.video import VideoDecoder, VideoEncoder
+    from splitrender.methods.sas import SasClient, SasConfig, SasServer
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.trace import get_trace
+
+    r = Renderer()
+    scene = scene or default_scene()
+    trace = get_trace("walk")
+    cfg = SasConfig(**cfg_kw)
+    srv = SasServer(cfg, INTR, scene, 30)
+    cli = SasClient(cfg, INTR, r.ctx, unpack_meta(pack_meta(srv.session_data())))
+    spec = srv.streams()[0]
+    enc, dec = VideoEncoder(spec.codec, spec.width, spec.height), VideoDecoder(spec.codec.codec)
+    out = []
+    for f in range(frames):
+        t = t0 + f / 30
+        pose = trace.pose_at(t)
+        ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, trace.pose_at, 0.0)
+        u = srv.produce(ctx)
+        plane = dec.decode(enc.encode(u.planes["atlas"], u.force_idr).data)
+        cli.apply(DecodedUpdate(u.frame_id, t, pose, {"atlas": plane}, unpack_meta(pack_meta(u.meta))))
+        frame = cli.render(pose, t)
+        gt = r.render(scene, t, pose, INTR, ("color", "object_id"))
+        out.append((u, plane, frame, gt, srv.stats()))
+    return out, cli
+
+
+def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
+    from splitrender.metrics.image import psnr
+
+    out, _ = _loopback(3, {"lossless": True})
+    for u, plane, frame, gt, stats in out:
+        assert np.array_equal(plane, u.planes["atlas"]), "lossless HEVC gbrp must return the atlas bit-exactly"
+        geometry = gt.object_id > 0
+        missing = float((frame.holes & geometry).mean())
+        assert missing < 0.002, f"{missing:.3%} of geometry pixels are holes at zero latency"
+        p = psnr(frame.color, gt.color)
+        assert p >= 23.5, f"PSNR {p:.2f} dB against the ground truth at zero latency (threshold 23.5 dB)"
+        assert stats["srv_failed"] == 0
+
+
+def test_client_rejects_malformed_metadata() -> None:
+    out, cli = _loopback(1, {"lossless": True})
+    u, plane = out[0][0], out[0][1]
+    with pytest.raises(RemoteProtocolError, match="atlas plane"):
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {"atlas": plane[:-2]}, dict(u.meta)))
+    with pytest.raises(RemoteProtocolError, match="geo_pos"):
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "geo_pos": u.meta["geo_pos"][:, :3]}))
+    with pytest.raises(RemoteProtocolError, match="outside the atlas"):
+        bad = u.meta["uv_rect"].copy()
+        bad[0, 0] = 60000
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "uv_rect": bad}))
+    with pytest.raises(RemoteProtocolError, match="version"):
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "v": 99}))
+
+
+# ---------------------------------------------------------------- PVS
+def test_linear_prediction_covers_99_percent_on_walk() -> None:
+    """Section 5.1: EVS at 0, 8.3, ..., 33 ms from linear extrapolation of the two newest poses, 20% larger FOV."""
+    from splitrender.render.renderer import Renderer
+    from splitrender.methods.sas.pvs import PatchIdPass, pvs_rates
+    from splitrender.scene.predict import make_predictor
+    from splitrender.scene.trace import get_trace
+
+    scene = default_scene()
+    trace = get_trace("walk")
+    ids = PatchIdPass(Renderer(), scene, build_scene_patches(scene))
+    offsets = [0.0, 1 / 120, 2 / 120, 3 / 120, 4 / 120]
+    v = fn = 0.0
+    for t in np.linspace(0.5, 9.5, 10):
+        pred = make_predictor("cv")
+        for k in range(4, -1, -1):
+            pred.observe(t - k / 120, trace.pose_at(t - k / 120))
+        rates = pvs_rates(ids, [pred.predict(t + d) for d in offsets], [trace.pose_at(t + d) for d in offsets], INTR, 1.2, t)
+        v += rates.visible_px
+        fn += (1 - rates.coverage) * rates.visible_px
+    coverage = 1 - fn / v
+    assert coverage >= 0.99, f"area-weighted coverage {coverage:.4f} < 0.99 with linear prediction"
+
+
+# ---------------------------------------------------------------- end to end
+def test_sas_beats_atw_under_cloud_on_strafe() -> None:
+    from splitrender.render.renderer import Renderer
+    from splitrender.sim.runner import RunConfig, run
+
+    r = Renderer()
+    psnr = {}
+    for m in ("sas", "atw"):
+        res = run(RunConfig(method=m, trace="strafe", network="cloud", duration_s=1.0, width=320, height=180,
+                            client_fps=30, flip_every=0, seed=0), renderer=r)
+        psnr[m] = res.summary["mean_psnr_db"]
+    assert psnr["sas"] > psnr["atw"] + 1.0, f"mean PSNR under cloud on strafe: {psnr}"
