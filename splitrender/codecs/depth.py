@@ -120,6 +120,11 @@ def bc4_encode(codes: np.ndarray, level: int = 3) -> bytes:
     all_bg = bg.all(axis=1)
     lo[all_bg] = 0
     hi[all_bg] = 0
+    # A background block whose foreground is one value would store lo == hi, which reads as
+    # the no-background mode: widen it by one code (the value stays exact, see below).
+    same = has_bg & ~all_bg & (lo == hi)
+    hi = np.where(same & (hi < CODE_MAX), hi + 1, hi)
+    lo = np.where(same & (lo == hi), lo - 1, lo)
     levels = np.where(has_bg, 6, 7)  # number of intervals between lo and hi
     span = np.maximum(hi - lo, 1)
     idx = np.rint((blk.astype(np.int64) - lo[:, None]) * levels[:, None] / span[:, None])
@@ -127,15 +132,8 @@ def bc4_encode(codes: np.ndarray, level: int = 3) -> bytes:
     idx[bg] = 7
     # Endpoint order tells the decoder the mode: lo <= hi without background, lo > hi with it
     # (as BC4 does with its two endpoint orders).  A background-only block is (1, 0).
-    e0 = np.where(has_bg, hi, lo)
-    e1 = np.where(has_bg, lo, hi)
-    e0 = np.where(all_bg, 1, e0)
-    e1 = np.where(all_bg, 0, e1)
-    # A background block whose foreground is one value has lo == hi: store (v, v) is ambiguous with
-    # no-background mode, so such blocks are marked by e0 = e1 + ... ; handle by widening hi.
-    same = has_bg & ~all_bg & (e0 == e1)
-    e0 = np.where(same & (e1 < CODE_MAX), e1 + 1, e0)
-    e1 = np.where(same & (e1 >= CODE_MAX), e1 - 1, e1)
+    e0 = np.where(all_bg, 1, np.where(has_bg, hi, lo))
+    e1 = np.where(all_bg, 0, np.where(has_bg, lo, hi))
     ends = np.stack([e0, e1], axis=1).astype("<u2")
     # pack 64 3-bit indices into 24 bytes per block
     bits = np.unpackbits(idx[:, :, None], axis=2, bitorder="little")[:, :, :3].reshape(len(idx), -1)
