@@ -102,8 +102,13 @@ class Renderer:
         self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
         self._scenes: dict[int, SceneGPU] = {}
         self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
-        self._shadow: tuple[Any, Any, int] | None = None
+        self._shadow: dict[str, tuple[Any, Any]] = {}
+        self._shadow_size = 0
+        self._shadow_static_key: int | None = None
         self._shadow_key: tuple[int, float] | None = None
+        from .canvas import FullscreenPass
+
+        self._background = FullscreenPass(self.ctx, SHADER_DIR / "background.frag")
 
     # ------------------------------------------------------------------ resources
     def upload(self, scene: Scene) -> SceneGPU:
@@ -128,7 +133,7 @@ class Renderer:
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 3, img.tobytes())
                 tex.build_mipmaps()
                 tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-                tex.anisotropy = 8.0
+                tex.anisotropy = 4.0
                 tex.repeat_x = tex.repeat_y = True
             sg.objects.append(ObjectGPU(o, vbo, ibo, vao, svao, tex, base))
             base += m.triangle_count
@@ -149,34 +154,59 @@ class Renderer:
         return f
 
     # ------------------------------------------------------------------ shading
-    def shadow_pass(self, scene: Scene, t_s: float) -> None:
-        """Render the sun's shadow map for time ``t_s`` (cached per scene and time)."""
-        if scene.sun is None:
-            return
-        key = (id(scene), float(t_s))
-        if self._shadow_key == key:
-            return
-        size = scene.sun.shadow_map_size
-        if self._shadow is None or self._shadow[2] != size:
+    def _shadow_target(self, kind: str, size: int) -> tuple[Any, Any]:
+        import moderngl
+
+        if self._shadow_size != size:
+            for fbo, tex in self._shadow.values():
+                fbo.release()
+                tex.release()
+            self._shadow = {}
+            self._shadow_size = size
+            self._shadow_static_key = None
+            self._shadow_key = None
+        t = self._shadow.get(kind)
+        if t is None:
             dtex = self.ctx.depth_texture((size, size))
             dtex.compare_func = "<="
-            import moderngl
-
             dtex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            fbo = self.ctx.framebuffer(depth_attachment=dtex)
-            self._shadow = (fbo, dtex, size)
-        fbo, dtex, _ = self._shadow
+            t = (self.ctx.framebuffer(depth_attachment=dtex), dtex)
+            self._shadow[kind] = t
+        return t
+
+    def _draw_shadow_casters(self, fbo: Any, scene: Scene, t_s: float, dynamic: bool) -> None:
         sg = self.upload(scene)
         fbo.use()
         fbo.clear(depth=1.0)
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.disable(self.ctx.CULL_FACE)
-        lvp = light_view_projection(scene)
-        self.shadow_prog["u_light_vp"].write(np.asarray(lvp, "f4").T.tobytes())
+        self.shadow_prog["u_light_vp"].write(np.asarray(light_view_projection(scene), "f4").T.tobytes())
         for og in sg.objects:
+            if og.obj.dynamic != dynamic:
+                continue
             self.shadow_prog["u_model"].write(np.asarray(og.obj.model_matrix(t_s), "f4").T.tobytes())
             og.shadow_vao.render()
-        self._shadow_key = key
+
+    def shadow_pass(self, scene: Scene, t_s: float) -> None:
+        """Render the sun's shadow maps for time ``t_s``.
+
+        Static casters go into one map rendered once per scene; animated casters into
+        a second map re-rendered when the time changes.  The shader takes the minimum
+        of the two lookups, which equals one map holding every caster.
+        """
+        if scene.sun is None:
+            return
+        size = scene.sun.shadow_map_size
+        fbo_s, _ = self._shadow_target("static", size)
+        fbo_d, _ = self._shadow_target("dynamic", size)
+        if self._shadow_static_key != id(scene):
+            self._draw_shadow_casters(fbo_s, scene, 0.0, dynamic=False)
+            self._shadow_static_key = id(scene)
+            self._shadow_key = None
+        key = (id(scene), float(t_s))
+        if self._shadow_key != key:
+            self._draw_shadow_casters(fbo_d, scene, t_s, dynamic=True)
+            self._shadow_key = key
 
     def bind_shading(self, prog: Any, scene: Scene, t_s: float, shadow_unit: int = 1) -> None:
         """Set the lighting uniforms of ``shading.glsl`` on ``prog`` for time ``t_s``."""
@@ -190,9 +220,10 @@ class Renderer:
             set_uniform(prog, "u_has_shadow", 1)
             if "u_light_vp" in prog:
                 prog["u_light_vp"].write(np.asarray(light_view_projection(scene), "f4").T.tobytes())
-            assert self._shadow is not None
-            self._shadow[1].use(location=shadow_unit)
+            self._shadow["static"][1].use(location=shadow_unit)
+            self._shadow["dynamic"][1].use(location=shadow_unit + 1)
             set_uniform(prog, "u_shadow_map", shadow_unit)
+            set_uniform(prog, "u_shadow_map_dyn", shadow_unit + 1)
         else:
             set_uniform(prog, "u_sun_color", (0.0, 0.0, 0.0))
             set_uniform(prog, "u_sun_dir", (0.0, -1.0, 0.0))
@@ -235,14 +266,12 @@ class Renderer:
         self.bind_shading(self.prog, scene, t_s)
         fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)
         fbo.use()
-        sky = tuple(scene.sky_color)
-        fbo.clear(*sky, 1.0, depth=1.0)
-        # Clear integer and float attachments explicitly (moderngl clears all with one colour).
+        self.ctx.viewport = (0, 0, intr.width, intr.height)
+        fbo.clear(depth=1.0)
+        self._background.prog["u_sky"].value = tuple(scene.sky_color)
+        self._background.run()  # background values in every attachment (ids 0, depth inf)
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.disable(self.ctx.CULL_FACE)
-        ids.write(np.zeros((intr.height, intr.width, 2), np.uint32).tobytes())
-        depth_lin.write(np.full((intr.height, intr.width), np.inf, np.float32).tobytes())
-        normal.write(np.zeros((intr.height, intr.width, 4), np.float16).tobytes())
         view = pose.view_matrix()
         proj = intr.projection()
         self.prog["u_view"].write(np.asarray(view, "f4").T.tobytes())

@@ -14,7 +14,8 @@ uniform float u_specular;
 uniform float u_shininess;
 uniform int u_has_texture;
 uniform sampler2D u_albedo;
-uniform sampler2DShadow u_shadow_map;
+uniform sampler2DShadow u_shadow_map;      // static casters, rendered once per scene
+uniform sampler2DShadow u_shadow_map_dyn;  // animated casters, rendered per time
 uniform mat4 u_light_vp;         // world -> light clip
 uniform int u_has_shadow;
 
@@ -27,8 +28,10 @@ float shadow_factor(vec3 world_pos, vec3 n) {
     vec2 texel = 1.0 / vec2(textureSize(u_shadow_map, 0));
     float s = 0.0;
     for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx)
-            s += texture(u_shadow_map, vec3(uvz.xy + vec2(dx, dy) * texel, uvz.z - 0.0015));
+        for (int dx = -1; dx <= 1; ++dx) {
+            vec3 c = vec3(uvz.xy + vec2(dx, dy) * texel, uvz.z - 0.0015);
+            s += min(texture(u_shadow_map, c), texture(u_shadow_map_dyn, c));
+        }
     return s / 9.0;
 }
 

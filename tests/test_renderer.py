@@ -1,0 +1,128 @@
+"""The headless renderer: a known plane's depth and colour, ids, shading parity, errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from splitrender.errors import RenderError
+from splitrender.render.gl import read_shader
+from splitrender.scene.model import DirectionalLight, Material, Scene, SceneObject
+from splitrender.scene.pose import CameraIntrinsics, Pose, quat_from_euler_deg
+from splitrender.scene.primitives import grid_plane
+
+
+def _wall_scene(color=(0.5, 0.5, 0.5), distance=4.0) -> Scene:
+    """A large plane facing +Z at z = -distance, lit only by ambient light."""
+    plane = grid_plane(40.0, 40.0, 2, 2)
+    m = np.eye(4)
+    m[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # rotate +Y normal to +Z
+    m[:3, 3] = (0, 0, -distance)
+    obj = SceneObject("wall", plane, Material("grey", color, None, specular=0.0), 1, m)
+    return Scene("wall", [obj], sun=None, point_lights=[], ambient=(1.0, 1.0, 1.0))
+
+
+def test_plane_depth_is_exact(renderer):
+    intr = CameraIntrinsics(160, 90, 60.0)
+    out = renderer.render(_wall_scene(distance=4.0), 0.0, Pose(), intr, ("color", "depth", "object_id", "triangle_id", "normal"))
+    assert out.depth is not None and out.object_id is not None
+    # view-space depth of a fronto-parallel plane is its distance everywhere
+    assert np.allclose(out.depth, 4.0, atol=1e-3), f"depth range {out.depth.min()}..{out.depth.max()}"
+    assert (out.object_id == 1).all()
+    assert out.triangle_id.min() >= 1 and out.triangle_id.max() <= 8
+    assert np.allclose(out.normal, [0, 0, 1], atol=1e-2)
+
+
+def test_plane_colour_matches_shading_model(renderer):
+    # ambient (1,1,1) * albedo 0.5 * (0.75 + 0.25 * n.y=0) -> 0.375 linear, tone mapped c/(1+0.15c), sRGB 2.2 gamma
+    intr = CameraIntrinsics(160, 90, 60.0)
+    out = renderer.render(_wall_scene((0.5, 0.5, 0.5)), 0.0, Pose(), intr)
+    c = 0.5 * 0.75
+    c = c / (1 + 0.15 * c)
+    expect = 255 * c ** (1 / 2.2)
+    got = out.color.reshape(-1, 3).mean(axis=0)
+    assert np.allclose(got, expect, atol=1.5), f"got {got}, expected {expect:.1f}"
+
+
+def test_background_and_orientation(renderer):
+    # A camera looking away from the wall (+Z) sees only sky: depth inf and object id 0.
+    scene = _wall_scene()
+    intr = CameraIntrinsics(64, 36, 60.0)
+    up = Pose(np.zeros(3), quat_from_euler_deg(0.0, 180.0, 0.0))
+    out = renderer.render(scene, 0.0, up, intr, ("color", "depth", "object_id"))
+    assert np.isinf(out.depth).all() and (out.object_id == 0).all()
+    sky = np.round(255 * np.array(scene.sky_color))
+    assert np.abs(out.color.astype(float) - sky).max() <= 1
+
+
+def test_image_rows_start_at_the_top(renderer):
+    # A camera above the default floor pitched down 20 degrees: floor fills the bottom rows, sky the top ones.
+    from splitrender.scene.procedural import minimal_scene
+
+    intr = CameraIntrinsics(64, 36, 60.0)
+    pose = Pose(np.array([0.0, 1.0, 2.0]), quat_from_euler_deg(-5.0, 0.0, 0.0))
+    out = renderer.render(minimal_scene(), 0.0, pose, intr, ("object_id",))
+    assert (out.object_id[-1] > 0).all(), "bottom row should be floor"
+    assert (out.object_id[0] == 0).all(), "top row should be sky"
+
+
+def test_depth_matches_projection_for_a_tilted_view(renderer):
+    # floor at y=0 seen from height h, pitched down: depth along -Z of the centre pixel = h / sin(pitch) * 1
+    intr = CameraIntrinsics(64, 36, 60.0)
+    h, pitch = 1.5, 30.0
+    pose = Pose(np.array([0.0, h, 0.0]), quat_from_euler_deg(-pitch, 0.0, 0.0))
+    floor = SceneObject("floor", grid_plane(40.0, 40.0, 2, 2), Material(), 1)
+    out = renderer.render(Scene("floor", [floor], sun=None), 0.0, pose, intr, ("depth",))
+    centre = float(out.depth[17:19, 31:33].mean())
+    expect = h / math.sin(math.radians(pitch))
+    assert abs(centre - expect) < 0.05, f"centre depth {centre:.3f} m, expected {expect:.3f} m"
+
+
+def test_moving_objects_move(renderer):
+    from splitrender.scene.procedural import default_scene
+
+    scene = default_scene()
+    intr = CameraIntrinsics(160, 90, 60.0)
+    pose = Pose(np.array([0.0, 1.6, 2.5]))
+    a = renderer.render(scene, 0.0, pose, intr, ("object_id",)).object_id
+    b = renderer.render(scene, 0.5, pose, intr, ("object_id",)).object_id
+    ball = scene.objects[[o.name for o in scene.objects].index("ball")].object_id
+    ya, xa = np.nonzero(a == ball)
+    yb, xb = np.nonzero(b == ball)
+    assert xa.size and xb.size
+    assert abs(xb.mean() - xa.mean()) > 5, "the patrolling ball should move across the view in 0.5 s"
+
+
+def test_light_change_changes_the_image(renderer):
+    from splitrender.scene.procedural import default_scene
+
+    scene = default_scene()
+    intr = CameraIntrinsics(160, 90, 60.0)
+    pose = Pose(np.array([0.0, 1.6, 2.5]))
+    bright = renderer.render(scene, 1.0, pose, intr).color.astype(float).mean()
+    dim = renderer.render(scene, 5.5, pose, intr).color.astype(float).mean()
+    assert bright - dim > 10, f"sun dims between 4 and 5 s: mean {bright:.1f} -> {dim:.1f}"
+
+
+def test_unknown_output_and_shader_errors(renderer, tmp_path):
+    with pytest.raises(ValueError, match="unknown render output 'albedo'"):
+        renderer.render(_wall_scene(), 0.0, Pose(), CameraIntrinsics(32, 18), ("albedo",))
+    a = tmp_path / "a.glsl"
+    a.write_text('#include "a.glsl"\n')
+    with pytest.raises(RenderError, match="include cycle"):
+        read_shader(a)
+
+
+def test_no_egl_gives_a_clear_error(monkeypatch):
+    import moderngl
+
+    from splitrender.render import gl
+
+    def boom(*a, **kw):
+        raise Exception("eglGetDisplay failed")
+
+    monkeypatch.setattr(moderngl, "create_context", boom)
+    with pytest.raises(RenderError, match="OpenGL 4.3 context through EGL.*libegl1"):
+        gl.create_context()

@@ -1,0 +1,83 @@
+"""Scenes: the default scene's contents, file loading and clear errors for bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from splitrender.errors import SceneError
+from splitrender.scene import default_scene, get_scene, load_scene_file
+
+ASSIMP = Path("/usr/share/assimp/models")
+
+
+def test_default_scene_is_small_but_has_what_methods_fail_on():
+    s = default_scene()
+    assert 10_000 <= s.triangle_count <= 60_000, s.triangle_count
+    names = {o.name for o in s.objects}
+    assert {"railing", "ramp", "sign"} <= names
+    assert len(s.dynamic_ids()) >= 2
+    assert any(o.material.texture is not None for o in s.objects)
+    assert s.sun is not None and s.sun.intensity.value(0.0) != s.sun.intensity.value(5.5)
+    pillars = [o.transform[2, 3] for o in s.objects if o.name.startswith("pillar")]
+    assert max(pillars) - min(pillars) > 5.0, "occluders at several depths"
+    # the railing is thin: posts 2 cm in radius
+    r = s.objects[[o.name for o in s.objects].index("railing")].mesh
+    assert np.ptp(r.positions[:, 2]) < 0.05
+
+
+def test_missing_file_and_unknown_name():
+    with pytest.raises(SceneError, match="scene file not found: /nonexistent/x.glb"):
+        load_scene_file("/nonexistent/x.glb")
+    with pytest.raises(SceneError, match="unknown scene 'castle'"):
+        get_scene("castle")
+
+
+def test_corrupt_files_name_the_file(tmp_path):
+    bad = tmp_path / "broken.glb"
+    bad.write_bytes(b"glTF\x02\x00\x00\x00garbage" * 10)
+    with pytest.raises(SceneError, match=r"broken\.glb"):
+        load_scene_file(bad)
+    obj = tmp_path / "empty.obj"
+    obj.write_text("# nothing here\n")
+    with pytest.raises(SceneError, match=r"empty\.obj"):
+        load_scene_file(obj)
+    txt = tmp_path / "scene.txt"
+    txt.write_text("hello")
+    with pytest.raises(SceneError, match="unsupported format '.txt'"):
+        load_scene_file(txt)
+
+
+def test_obj_round_trip(tmp_path):
+    p = tmp_path / "tri.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    s = load_scene_file(p)
+    assert s.triangle_count == 1
+
+
+@pytest.mark.skipif(not ASSIMP.exists(), reason="assimp-testmodels not installed")
+def test_real_gltf_and_collada_models_render(renderer):
+    from splitrender.scene.pose import CameraIntrinsics, Pose
+
+    for rel in ("glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb", "glTF2/BoxTextured-glTF/BoxTextured.gltf", "Collada/duck.dae"):
+        s = get_scene(str(ASSIMP / rel))
+        assert s.triangle_count > 0
+        out = renderer.render(s, 0.0, Pose(np.array([0.0, 2.0, 4.0])), CameraIntrinsics(96, 54), ("object_id",))
+        assert (out.object_id > 0).mean() > 0.01, f"{rel} should be visible from the default viewpoint"
+    textured = get_scene(str(ASSIMP / "glTF2/BoxTextured-glTF/BoxTextured.gltf"))
+    assert any(o.material.texture is not None for o in textured.objects)
+
+
+@pytest.mark.skipif(not ASSIMP.exists(), reason="assimp-testmodels not installed")
+def test_assimp_broken_models_give_scene_errors():
+    for rel in ("glTF2/IndexOutOfRange", "glTF2/MissingBin", "glTF2/BoxWithInfinites-glTF-Binary"):
+        d = ASSIMP / rel
+        if not d.exists():
+            continue
+        for f in list(d.glob("*.gltf")) + list(d.glob("*.glb")):
+            try:
+                load_scene_file(f)
+            except SceneError as exc:
+                assert f.name in str(exc)
