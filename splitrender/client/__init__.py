@@ -1,0 +1,1 @@
+"""Live headless client: receive, decode, display, record; scoring of recordings."""

@@ -1,0 +1,69 @@
+"""``splitrender client``: argument definitions and the entry point."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+from splitrender.errors import ConfigError
+
+__all__ = ["add_client_arguments", "main_client", "config_from_args"]
+
+
+def add_client_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``splitrender client``."""
+    p.add_argument("--server", default="127.0.0.1", help="server host (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=9100, help="server TCP port (default 9100)")
+    p.add_argument("--udp-port", type=int, default=None,
+                   help="send RTCP to this UDP port instead of the one in Welcome (e.g. a relay's)")
+    p.add_argument("--token", default="", help="shared secret for the server")
+    p.add_argument("--method", default="video", help="method, or comma-separated methods in preference order")
+    p.add_argument("--codec", default="h264,hevc", help="codecs accepted, comma-separated")
+    p.add_argument("--trace", default="walk", help="camera trace: built-in name or file")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds to run")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=360)
+    p.add_argument("--display-hz", type=float, default=60.0, help="display refresh rate, Hz")
+    p.add_argument("--tracker-hz", type=float, default=120.0, help="pose sampling rate, Hz")
+    p.add_argument("--out", type=Path, default=Path("out/live"), help="recording folder (default out/live)")
+    p.add_argument("--save-images", action="store_true", help="keep every displayed image (needed to score)")
+    p.add_argument("--score", action="store_true", help="score the recording afterwards (implies --save-images)")
+
+
+def config_from_args(ns: argparse.Namespace) -> object:
+    """A :class:`ClientConfig` from parsed arguments."""
+    from splitrender.client.session import ClientConfig
+
+    if ns.duration <= 0 or ns.duration > 3600:
+        raise ConfigError(f"--duration: must be in (0, 3600], got {ns.duration}")
+    if ns.width <= 0 or ns.height <= 0 or ns.width % 2 or ns.height % 2:
+        raise ConfigError(f"--width/--height: must be positive and even, got {ns.width}x{ns.height}")
+    methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
+    codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
+    return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
+                        codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
+                        tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
+                        save_images=ns.save_images or ns.score)
+
+
+def main_client(ns: argparse.Namespace) -> int:
+    """Entry point of ``splitrender client``; returns the exit status."""
+    from splitrender.client.session import run_client
+
+    cfg = config_from_args(ns)
+    try:
+        result = asyncio.run(run_client(cfg))  # type: ignore[arg-type]
+    except KeyboardInterrupt:
+        return 130
+    c = result.counters
+    print(f"splitrender client: {len(result.rows)} frames displayed, {c['frames_complete']} updates, "
+          f"{c['rtp_packets']} RTP packets, {c['nacked_packets']} NACKed, {c['plis_sent']} PLIs -> {ns.out}")
+    if ns.score:
+        from splitrender.client.score import score_recording
+
+        s = score_recording(ns.out)
+        print(f"score: PSNR {s['mean_psnr_db']:.2f} dB, SSIM {s['mean_ssim']:.4f}, "
+              f"motion-to-photon {s['mean_motion_to_photon_ms']:.1f} ms, update age {s['mean_update_age_ms']:.1f} ms")
+    return 0

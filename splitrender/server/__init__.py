@@ -1,0 +1,1 @@
+"""Live asyncio server: sessions, frame clock, RTP/RTCP transport (see server.py)."""

@@ -1,0 +1,113 @@
+"""``splitrender serve``: argument definitions and the entry point."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from splitrender.errors import ConfigError
+
+__all__ = ["add_serve_arguments", "main_serve", "config_from_args"]
+
+logger = logging.getLogger(__name__)
+
+
+def add_serve_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``splitrender serve``."""
+    from splitrender.server.server import DEFAULT_PORT, DEFAULT_UDP_PORT
+
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 for all)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP control port (default {DEFAULT_PORT})")
+    p.add_argument("--udp-port", type=int, default=DEFAULT_UDP_PORT,
+                   help=f"UDP port for RTP/RTCP, shared by all sessions (default {DEFAULT_UDP_PORT}; 0 = any)")
+    p.add_argument("--token", default=None, help="shared secret clients must present in Hello")
+    p.add_argument("--methods", default=None, help="comma-separated methods to offer (default: all)")
+    p.add_argument("--param", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                   help="method parameter (TOML value), repeatable, e.g. --param atw.overscan=1.4")
+    p.add_argument("--scene", default="default", help="built-in scene or a scene file")
+    p.add_argument("--server-fps", type=int, default=30, help="frame clock, frames per second")
+    p.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees")
+    p.add_argument("--predictor", default="cv", help="pose predictor: none, cv, ca, cv_savgol, ca_savgol")
+    p.add_argument("--max-sessions", type=int, default=8)
+    p.add_argument("--sdp-dir", type=Path, default=None, help="write one SDP file per stream here")
+    p.add_argument("--mirror-port", type=int, default=None,
+                   help="with --sdp-dir: also send each stream to 127.0.0.1:PORT+2k for ffplay")
+    p.add_argument("--out", type=Path, default=None, help="write per-session feedback.csv (latency per frame) here")
+
+
+def _parse_value(text: str) -> Any:
+    import tomllib
+
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def config_from_args(ns: argparse.Namespace) -> Any:
+    """A :class:`ServerConfig` from parsed arguments."""
+    from splitrender.server.server import ServerConfig
+
+    params: dict[str, dict[str, Any]] = {}
+    for kv in ns.param:
+        key, sep, value = kv.partition("=")
+        method, dot, name = key.partition(".")
+        if not sep or not dot or not method or not name:
+            raise ConfigError(f"--param {kv!r}: expected METHOD.KEY=VALUE")
+        params.setdefault(method.strip(), {})[name.strip()] = _parse_value(value.strip())
+    methods = tuple(m.strip() for m in ns.methods.split(",") if m.strip()) if ns.methods else None
+    if methods:
+        from splitrender.methods import get_method
+
+        for m in methods:
+            get_method(m)  # unknown names fail here, by name
+    if ns.server_fps < 1 or ns.server_fps > 240:
+        raise ConfigError(f"--server-fps: must be in [1, 240], got {ns.server_fps}")
+    return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
+                        method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
+                        predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
+                        mirror_port=ns.mirror_port, out_dir=ns.out)
+
+
+async def _serve_until_signal(cfg: Any) -> None:
+    from splitrender.server.server import serve
+
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):  # pragma: no cover - non-Unix
+            pass
+
+    def ready(server: Any) -> None:
+        host, port = server.tcp_address
+        print(f"splitrender: serving on tcp {host}:{port}, udp {server.udp_address[0]}:{server.udp_address[1]}",
+              file=sys.stderr, flush=True)
+
+    serve_task = asyncio.create_task(serve(cfg, ready))
+    stop_task = asyncio.create_task(stop.wait())
+    try:
+        await asyncio.wait({serve_task, stop_task}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for t in (serve_task, stop_task):
+            t.cancel()
+        results = await asyncio.gather(serve_task, stop_task, return_exceptions=True)
+    err = results[0]
+    if isinstance(err, BaseException) and not isinstance(err, asyncio.CancelledError):
+        raise err
+
+
+def main_serve(ns: argparse.Namespace) -> int:
+    """Entry point of ``splitrender serve``; returns the exit status."""
+    cfg = config_from_args(ns)
+    asyncio.run(_serve_until_signal(cfg))
+    print("splitrender: server stopped", file=sys.stderr)
+    return 0

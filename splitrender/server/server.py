@@ -1,0 +1,303 @@
+"""The live asyncio server: TCP control sessions plus one shared UDP socket for RTP/RTCP.
+
+Architecture (one process):
+
+* :class:`LiveServer` owns the listening TCP socket, one UDP socket shared by all
+  sessions (RTP out, RTCP in; RTCP is demultiplexed to a session by the media SSRCs it
+  names), the shared scene and scene clock (``scene time = wall clock − epoch``), one
+  GL thread (a single-thread executor that creates and alone uses the
+  :class:`~splitrender.render.Renderer`) and one encoder thread.
+* Each accepted connection runs one :class:`~splitrender.server.session.ServerSession`
+  in the connection's task; the session owns its sub-tasks in an ``asyncio.TaskGroup``
+  (control reader, frame clock, RTCP sender).
+* ``close()`` (or cancelling :func:`serve`) stops accepting, cancels every session task
+  and waits for them, closes the sockets and shuts the executors down.
+
+The client's UDP address is learned from its first RTCP packet naming one of the
+session's SSRCs (see ``docs/protocol.md``, "Live sessions").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import logging
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from splitrender.protocol import (
+    GenericNack,
+    PictureLossIndication,
+    ReceiverReport,
+    RtcpError,
+    SenderReport,
+    is_rtcp,
+    parse_rtcp,
+)
+
+if TYPE_CHECKING:
+    from splitrender.server.session import ServerSession
+
+__all__ = ["ServerConfig", "LiveServer", "serve", "DEFAULT_PORT", "DEFAULT_UDP_PORT"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_PORT = 9100
+"""TCP control port."""
+DEFAULT_UDP_PORT = 6004
+"""UDP port for RTP (out) and RTCP (in), shared by all sessions."""
+
+Address = tuple[str, int]
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """Settings of a live server.
+
+    ``methods``: method ids offered, in the server's order (``None`` = all registered).
+    ``method_params``: per method id, parameters for its config dataclass.
+    ``udp_port`` 0 picks a free port. ``max_pixels`` bounds the display size a client
+    may ask for. ``sdp_dir``: write one SDP file per stream there; with
+    ``mirror_port`` each stream is also copied to ``127.0.0.1:mirror_port + 2k`` so
+    ``ffplay -protocol_whitelist file,udp,rtp -i <sdp>`` can watch it.
+    ``out_dir``: write each session's Feedback rows (per-frame latency) there.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = DEFAULT_PORT
+    udp_port: int = DEFAULT_UDP_PORT
+    token: str | None = None
+    methods: tuple[str, ...] | None = None
+    method_params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    scene: str = "default"
+    server_fps: int = 30
+    fov_y_deg: float = 60.0
+    predictor: str = "cv"
+    max_sessions: int = 8
+    max_pixels: int = 1920 * 1080
+    hello_timeout_s: float = 5.0
+    keyframe_min_interval_ms: float = 200.0
+    history_packets: int = 2048
+    mtu_bytes: int = 1200
+    max_meta_backlog_bytes: int = 512 * 1024
+    sr_interval_s: float = 1.0
+    sdp_dir: Path | None = None
+    mirror_port: int | None = None
+    out_dir: Path | None = None
+
+
+class _UdpProtocol(asyncio.DatagramProtocol):
+    def __init__(self, on_datagram: Callable[[bytes, Address], None]) -> None:
+        self._on_datagram = on_datagram
+
+    def datagram_received(self, data: bytes, addr: Address) -> None:  # type: ignore[override]
+        self._on_datagram(data, (addr[0], addr[1]))
+
+    def error_received(self, exc: Exception) -> None:
+        logger.debug("udp error: %s", exc)
+
+
+class LiveServer:
+    """Accepts sessions; use ``async with LiveServer(cfg) as s: await s.serve_forever()``."""
+
+    def __init__(self, config: ServerConfig) -> None:
+        from splitrender.methods import available_methods
+
+        self.config = config
+        self.methods: tuple[str, ...] = config.methods or tuple(available_methods())
+        self.epoch_wall_s = time.time()
+        """Wall-clock time (s) of scene time 0: the one scene clock all sessions share."""
+        self.gl_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-gl")
+        self.encode_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-enc")
+        self.renderer: Any = None
+        self.scene: Any = None
+        self.sessions: dict[str, ServerSession] = {}
+        self._by_ssrc: dict[int, ServerSession] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._tcp: asyncio.Server | None = None
+        self.udp: asyncio.DatagramTransport | None = None
+        self.tcp_address: Address = (config.host, 0)
+        self.udp_address: Address = (config.host, 0)
+        self.sessions_total = 0
+        self.udp_dropped = 0
+        self._mirror_next = 0
+        self._closed = False
+
+    # -- scene clock ---------------------------------------------------------------
+
+    def scene_time_s(self, wall_s: float | None = None) -> float:
+        """Scene time (s) at wall-clock ``wall_s`` (default now)."""
+        return (time.time() if wall_s is None else wall_s) - self.epoch_wall_s
+
+    async def in_gl(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run ``fn(*args)`` on the GL thread."""
+        return await asyncio.get_running_loop().run_in_executor(self.gl_executor, fn, *args)
+
+    async def in_encoder(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run ``fn(*args)`` on the encoder thread."""
+        return await asyncio.get_running_loop().run_in_executor(self.encode_executor, fn, *args)
+
+    def next_mirror_port(self) -> int | None:
+        """Port to mirror the next stream to (``mirror_port + 2k``), or ``None``."""
+        if self.config.mirror_port is None:
+            return None
+        port = self.config.mirror_port + 2 * self._mirror_next
+        self._mirror_next += 1
+        return port
+
+    # -- lifecycle -----------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Load the scene, create the renderer on the GL thread, bind UDP and TCP."""
+        from splitrender.render import Renderer
+        from splitrender.scene.loader import get_scene
+
+        cfg = self.config
+        self.scene = get_scene(cfg.scene)
+        self.renderer = await self.in_gl(Renderer)
+        await self.in_gl(self._warm_up)
+        loop = asyncio.get_running_loop()
+        transport, _ = await loop.create_datagram_endpoint(
+            lambda: _UdpProtocol(self._on_datagram), local_addr=(cfg.host, cfg.udp_port)
+        )
+        self.udp = transport
+        sock = transport.get_extra_info("sockname")
+        self.udp_address = (sock[0], sock[1])
+        self._tcp = await asyncio.start_server(self._on_connect, cfg.host, cfg.port)
+        sock = self._tcp.sockets[0].getsockname()
+        self.tcp_address = (sock[0], sock[1])
+        logger.info("serving %s on tcp %s:%d, udp %s:%d (methods %s)", cfg.scene, *self.tcp_address,
+                    *self.udp_address, ",".join(self.methods))
+
+    def _warm_up(self) -> None:
+        """One throw-away render so shader compilation does not stall the first session."""
+        from splitrender.scene.pose import CameraIntrinsics, Pose
+
+        self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36, self.config.fov_y_deg), ("color",))
+
+    async def serve_forever(self) -> None:
+        """Wait until cancelled (sessions run in their own connection tasks)."""
+        assert self._tcp is not None, "call start() first"
+        await self._tcp.serve_forever()
+
+    async def close(self) -> None:
+        """Stop accepting, end every session (cancel and wait), close sockets, stop threads."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._tcp is not None:
+            self._tcp.close()
+        tasks = list(self._tasks)
+        for task in tasks:
+            task.cancel()
+        if tasks:
+            await asyncio.gather(*tasks, return_exceptions=True)
+        if self._tcp is not None:
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._tcp.wait_closed(), 2.0)
+        if self.udp is not None:
+            self.udp.close()
+        renderer, self.renderer = self.renderer, None
+        if renderer is not None:
+            # GL objects are released on the thread that owns the context
+            with contextlib.suppress(Exception):
+                await asyncio.get_running_loop().run_in_executor(self.gl_executor, _release_renderer, renderer)
+        self.gl_executor.shutdown(wait=True)
+        self.encode_executor.shutdown(wait=True)
+        logger.info("server closed after %d sessions", self.sessions_total)
+
+    async def __aenter__(self) -> LiveServer:
+        try:
+            await self.start()
+        except BaseException:
+            await self.close()
+            raise
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # -- sessions ------------------------------------------------------------------
+
+    async def _on_connect(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        from splitrender.server.session import ServerSession
+
+        task = asyncio.current_task()
+        assert task is not None
+        if self._closed:
+            writer.close()
+            return
+        self._tasks.add(task)  # type: ignore[arg-type]
+        self.sessions_total += 1
+        session = ServerSession(self, reader, writer)
+        try:
+            await session.run()
+        finally:
+            self._tasks.discard(task)  # type: ignore[arg-type]
+
+    def register(self, session: ServerSession, ssrcs: Sequence[int]) -> None:
+        """Route RTCP naming ``ssrcs`` to ``session``."""
+        self.sessions[session.id] = session
+        for s in ssrcs:
+            self._by_ssrc[s] = session
+
+    def unregister(self, session: ServerSession) -> None:
+        self.sessions.pop(session.id, None)
+        for s in [s for s, v in self._by_ssrc.items() if v is session]:
+            del self._by_ssrc[s]
+
+    def ssrc_taken(self, ssrc: int) -> bool:
+        return ssrc in self._by_ssrc
+
+    def send_datagram(self, data: bytes, addr: Address) -> None:
+        if self.udp is not None and not self.udp.is_closing():
+            self.udp.sendto(data, addr)
+
+    def _on_datagram(self, data: bytes, addr: Address) -> None:
+        """RTCP from clients: find the session by the media SSRCs named, hand it over."""
+        if not is_rtcp(data):
+            self.udp_dropped += 1
+            return
+        try:
+            packets = parse_rtcp(data)
+        except RtcpError as exc:
+            self.udp_dropped += 1
+            logger.debug("udp from %s: %s", addr, exc)
+            return
+        session = None
+        for p in packets:
+            ssrcs: list[int] = []
+            if isinstance(p, (ReceiverReport, SenderReport)):
+                ssrcs = [b.ssrc for b in p.reports]
+            elif isinstance(p, (GenericNack, PictureLossIndication)):
+                ssrcs = [p.media_ssrc]
+            for s in ssrcs:
+                session = self._by_ssrc.get(s)
+                if session is not None:
+                    break
+            if session is not None:
+                break
+        if session is None:
+            self.udp_dropped += 1
+            return
+        session.on_rtcp(packets, addr)
+
+
+def _release_renderer(renderer: Any) -> None:
+    release = getattr(renderer.ctx, "release", None)
+    if release is not None:
+        release()
+
+
+async def serve(config: ServerConfig, ready: Callable[[LiveServer], Awaitable[None] | None] | None = None) -> None:
+    """Run a server until cancelled; ``ready(server)`` is called once it listens."""
+    async with LiveServer(config) as server:
+        if ready is not None:
+            r = ready(server)
+            if asyncio.iscoroutine(r):
+                await r
+        await server.serve_forever()

@@ -1,0 +1,492 @@
+"""One live server session: handshake, frame clock, RTP/RTCP, feedback.
+
+Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`):
+
+* ``control``: reads Pose / Feedback / KeyframeRequest / Stats / Bye; a Bye or EOF
+  ends the session, a protocol error sends ``Error`` and ends it;
+* ``frames``: the frame clock at ``server_fps``; each tick renders (GL thread),
+  encodes (encoder thread), sends FrameMeta over TCP and the planes as RTP over UDP.
+  A tick that comes while the previous frame's metadata is still queued in the TCP
+  send buffer, or that was missed because rendering overran, is skipped: stale frames
+  are dropped, never queued;
+* ``rtcp``: a sender report per stream every ``sr_interval_s``.
+
+RTCP from the client (receiver reports, generic NACKs, PLIs) arrives through the
+server's shared UDP socket and is handled synchronously in :meth:`on_rtcp`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import math
+import secrets
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from splitrender.codecs.meta import pack_meta
+from splitrender.codecs.video import VideoEncoder
+from splitrender.errors import LocalProtocolError, RemoteProtocolError, SplitRenderError
+from splitrender.methods.base import ClientFeedback, ServerContext, StreamSpec, get_method, make_config
+from splitrender.protocol import (
+    Bye,
+    ErrorCode,
+    Feedback,
+    FrameMeta,
+    GenericNack,
+    Hello,
+    KeyframeRateLimiter,
+    KeyframeRequest,
+    MessageError,
+    PictureLossIndication,
+    Pose,
+    ReceiverReport,
+    RetransmissionHistory,
+    RtcpPacket,
+    RtpPacketizer,
+    SenderReport,
+    ServerConnection,
+    Stats,
+    StreamDescription,
+    Welcome,
+    make_sdp,
+    negotiate_method,
+    ntp_from_seconds,
+    ntp_middle32,
+    serialize_rtcp,
+)
+from splitrender.scene.pose import CameraIntrinsics
+from splitrender.scene.pose import Pose as ScenePose
+from splitrender.scene.predict import make_predictor
+from splitrender.server.control import ControlChannel, wall_us
+
+if TYPE_CHECKING:
+    from splitrender.server.server import Address, LiveServer
+
+__all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE"]
+
+logger = logging.getLogger(__name__)
+
+FIRST_PAYLOAD_TYPE = 96
+"""Dynamic RTP payload type of a session's first stream (then 97, 98, ...)."""
+MAX_NACKED_PER_REQUEST = 128
+"""Most packets resent for one generic NACK."""
+DEFAULT_DECODE_MS = 5.0
+"""Client decode time assumed before feedback arrives, ms."""
+LATENCY_EMA = 0.1
+"""Weight of each new feedback sample in the expected-latency estimate."""
+MAX_EXPECTED_LATENCY_S = 1.0
+
+
+class _SessionEnded(Exception):
+    """The control task saw Bye/EOF/Error: end the session's task group."""
+
+
+@dataclass
+class _Stream:
+    spec: StreamSpec
+    ssrc: int
+    payload_type: int
+    encoder: VideoEncoder
+    packetizer: RtpPacketizer
+    history: RetransmissionHistory
+    mirror: Address | None = None
+    last_rtp_ts: int = 0
+
+
+def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, scene: str,
+                   session_blob: bytes, streams: list[StreamSpec]) -> dict[str, Any]:
+    """The ``Welcome.method_params`` map of a live session (documented in docs/protocol.md)."""
+    cfg = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+    return {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
+            "session_data": session_blob, "stream_formats": {s.name: s.codec.input_format for s in streams}}
+
+
+class ServerSession:
+    """One client: its own method halves, encoders, predictor and RTP state."""
+
+    def __init__(self, server: LiveServer, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.server = server
+        self.cfg = server.config
+        self.id = secrets.token_hex(6)
+        peer = writer.get_extra_info("peername")
+        self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
+        self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
+        self.streams: dict[str, _Stream] = {}
+        self.client_addr: Address | None = None
+        self.half: Any = None
+        self.method = ""
+        self.intrinsics: CameraIntrinsics | None = None
+        self.display_hz = 60.0
+        self._predictor: Any = None
+        self._pred_lock = threading.Lock()
+        self._latest_pose: tuple[float, ScenePose, int, int] | None = None  # wall s, pose, client µs, seq
+        self._kf = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
+        self._kf_wanted = False
+        self._frame_id = 0
+        self._expected_latency_s = 0.0
+        self._frames: dict[int, int] = {}  # frame id -> server t_us, for latency feedback
+        self.feedback_rows: list[dict[str, Any]] = []
+        self.counters: dict[str, int] = {
+            "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
+            "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
+            "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0,
+        }
+        self.rtt_ms: float | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+
+    async def run(self) -> None:
+        """Handshake, then stream until Bye/EOF/error or cancellation."""
+        logger.info("session %s: connection from %s", self.id, self.peer)
+        try:
+            if len(self.server.sessions) >= self.cfg.max_sessions:
+                await self.channel.send_error(503, f"server busy: {self.cfg.max_sessions} sessions already")
+                return
+            if not await self._handshake():
+                return
+            try:
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(self._control_loop(), name=f"session-{self.id}-control")
+                    tg.create_task(self._frame_loop(), name=f"session-{self.id}-frames")
+                    tg.create_task(self._rtcp_loop(), name=f"session-{self.id}-rtcp")
+            except* _SessionEnded:
+                pass
+            except* RemoteProtocolError as eg:
+                exc = eg.exceptions[0]
+                assert isinstance(exc, RemoteProtocolError)
+                logger.warning("session %s: protocol error from %s: %s", self.id, self.peer, exc)
+                await self.channel.send_error(exc)
+            except* (ConnectionError, asyncio.IncompleteReadError) as eg:
+                logger.info("session %s: connection lost: %s", self.id, eg.exceptions[0])
+            except* SplitRenderError as eg:
+                logger.exception("session %s: failed", self.id, exc_info=eg.exceptions[0])
+                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {eg.exceptions[0]}")
+        except asyncio.CancelledError:
+            self._say_bye("server shutting down")
+            raise
+        finally:
+            self.server.unregister(self)
+            self._write_feedback()
+            await self.channel.close()
+            logger.info("session %s: closed (%s)", self.id,
+                        ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
+
+    def _say_bye(self, reason: str) -> None:
+        """Best-effort Bye without waiting (used while being cancelled)."""
+        try:
+            data = self.channel.conn.send(Bye(reason))
+            if not self.channel.writer.is_closing():
+                self.channel.writer.write(data)
+        except (LocalProtocolError, ConnectionError, RuntimeError):
+            pass
+
+    # ------------------------------------------------------------------ handshake
+
+    async def _handshake(self) -> bool:
+        try:
+            msg = await asyncio.wait_for(self.channel.next_message(), self.cfg.hello_timeout_s)
+        except asyncio.TimeoutError:
+            logger.warning("session %s: no Hello from %s within %.1f s", self.id, self.peer, self.cfg.hello_timeout_s)
+            await self.channel.send_error(ErrorCode.BAD_MESSAGE, f"no Hello within {self.cfg.hello_timeout_s:g} s")
+            return False
+        except RemoteProtocolError as exc:
+            logger.warning("session %s: bad handshake from %s: %s", self.id, self.peer, exc)
+            await self.channel.send_error(exc)
+            return False
+        except ConnectionError as exc:
+            logger.info("session %s: %s went away during handshake: %s", self.id, self.peer, exc)
+            return False
+        if msg is None:
+            logger.info("session %s: %s closed before Hello", self.id, self.peer)
+            return False
+        assert isinstance(msg, Hello)  # the state machine allows nothing else here
+        try:
+            welcome = await self._setup(msg)
+        except RemoteProtocolError as exc:
+            logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
+            await self.channel.send_error(exc)
+            return False
+        await self.channel.send(welcome)
+        logger.info("session %s: %s streaming %s %dx%d @ %g Hz to %s", self.id, self.peer, self.method,
+                    msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in welcome.streams))
+        return True
+
+    async def _setup(self, hello: Hello) -> Welcome:
+        """Choose method and codec, build the halves and encoders; raises RemoteProtocolError."""
+        cfg = self.cfg
+        if hello.width % 2 or hello.height % 2:
+            raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} must be even")
+        if hello.width * hello.height > cfg.max_pixels:
+            raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} exceeds this server's "
+                               f"limit of {cfg.max_pixels} pixels")
+        if not hello.codecs:
+            raise MessageError("Hello.codecs: empty")
+        self.method = negotiate_method(hello.methods, self.server.methods)
+        spec = get_method(self.method)
+        params = dict(cfg.method_params.get(self.method, {}))
+        mcfg = make_config(spec.config, params)
+        if mcfg.codec not in hello.codecs:
+            mcfg = dataclasses.replace(mcfg, codec=hello.codecs[0])
+        self.display_hz = hello.display_hz
+        self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
+        self._predictor = make_predictor(cfg.predictor)
+        self._expected_latency_s = 0.02 + DEFAULT_DECODE_MS / 1000 + 0.5 / self.display_hz
+        server = self.server
+        self.half = await server.in_gl(spec.server, mcfg, self.intrinsics, server.scene, cfg.server_fps)
+        specs: list[StreamSpec] = self.half.streams()
+        session_blob = pack_meta(self.half.session_data())
+        descs = []
+        for k, s in enumerate(specs):
+            ssrc = secrets.randbits(32)
+            while server.ssrc_taken(ssrc) or ssrc in (st.ssrc for st in self.streams.values()):
+                ssrc = secrets.randbits(32)
+            pt = FIRST_PAYLOAD_TYPE + k
+            encoder = await server.in_encoder(VideoEncoder, s.codec, s.width, s.height)
+            stream = _Stream(s, ssrc, pt, encoder,
+                             RtpPacketizer(s.codec.codec, ssrc, pt, cfg.mtu_bytes, secrets.randbits(16)),
+                             RetransmissionHistory(cfg.history_packets))
+            self.streams[s.name] = stream
+            host, port = server.udp_address
+            sdp = make_sdp(s.codec.codec, port, pt, address=host if host != "0.0.0.0" else "127.0.0.1",
+                           session_name=f"splitrender {self.id} {s.name}")
+            descs.append(StreamDescription(s.name, s.codec.codec, ssrc, pt, port, sdp))
+            self._write_sdp(stream)
+        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, session_blob, specs)
+        welcome = Welcome(self.id, self.method, params_out, tuple(descs))
+        if len(welcome.encode()) > 60 * 1024:
+            raise RemoteProtocolError(f"method {self.method}: session data too large for Welcome", ErrorCode.INTERNAL)
+        server.register(self, [s.ssrc for s in self.streams.values()])
+        return welcome
+
+    def _write_sdp(self, stream: _Stream) -> None:
+        if self.cfg.sdp_dir is None:
+            return
+        mirror = self.server.next_mirror_port()
+        port = mirror if mirror is not None else self.server.udp_address[1]
+        if mirror is not None:
+            stream.mirror = ("127.0.0.1", mirror)
+        path = self.cfg.sdp_dir / f"{self.id}_{stream.spec.name}.sdp"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(make_sdp(stream.spec.codec.codec, port, stream.payload_type,
+                                 session_name=f"splitrender {self.id} {stream.spec.name}"))
+        logger.info("session %s: wrote %s (stream %s on udp port %d)", self.id, path, stream.spec.name, port)
+
+    # ------------------------------------------------------------------ control
+
+    async def _control_loop(self) -> None:
+        async for msg in self.channel.messages():
+            if isinstance(msg, Pose):
+                self._on_pose(msg)
+            elif isinstance(msg, Feedback):
+                self._on_feedback(msg)
+            elif isinstance(msg, KeyframeRequest):
+                if msg.stream not in self.streams:
+                    raise MessageError(f"KeyframeRequest.stream: unknown stream {msg.stream!r}")
+                self.counters["keyframe_requests"] += 1
+                self.request_keyframe(f"KeyframeRequest {msg.stream}: {msg.reason}")
+            elif isinstance(msg, Stats):
+                logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
+            elif isinstance(msg, Bye):
+                logger.info("session %s: client says bye: %s", self.id, msg.reason)
+                raise _SessionEnded()
+            else:  # Error: the state machine allows nothing else
+                logger.warning("session %s: client error %s", self.id, msg)
+                raise _SessionEnded()
+        logger.info("session %s: client closed the connection", self.id)
+        raise _SessionEnded()
+
+    def _on_pose(self, msg: Pose) -> None:
+        t_s = msg.client_time_us / 1e6
+        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
+        with self._pred_lock:
+            if self._latest_pose is not None and t_s <= self._latest_pose[0]:
+                return  # duplicate or reordered sample
+            self._predictor.observe(t_s, pose)
+            self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
+
+    def _on_feedback(self, fb: Feedback) -> None:
+        self.counters["feedback"] += 1
+        t_us = self._frames.get(fb.frame_id)
+        if t_us is not None:
+            lat = (fb.displayed_us - t_us) / 1e6
+            if 0.0 <= lat <= MAX_EXPECTED_LATENCY_S:
+                self._expected_latency_s += LATENCY_EMA * (lat - self._expected_latency_s)
+        row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": t_us if t_us is not None else "",
+                               "received_us": fb.received_us, "decoded_us": fb.decoded_us,
+                               "displayed_us": fb.displayed_us, "pose_time_us": fb.pose_time_us,
+                               "lost_packets": fb.lost_packets,
+                               "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0}
+        row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items()})
+        if len(self.feedback_rows) < 1_000_000:
+            self.feedback_rows.append(row)
+
+    def request_keyframe(self, why: str) -> None:
+        """Ask for an IDR on every stream (rate-limited; a suppressed request is kept)."""
+        if self._kf.request(time.monotonic() * 1000):
+            self._kf_wanted = True
+            logger.debug("session %s: keyframe for %s", self.id, why)
+
+    # ------------------------------------------------------------------ frames
+
+    async def _frame_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        interval = 1.0 / self.cfg.server_fps
+        next_t = loop.time()
+        while True:
+            delay = next_t - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            next_t += interval
+            behind = loop.time() - next_t
+            if behind > 0:  # rendering overran: skip the missed ticks instead of bursting
+                skipped = int(behind / interval) + 1
+                self.counters["frames_skipped_late"] += skipped
+                next_t += skipped * interval
+            if self.client_addr is None or self._latest_pose is None:
+                continue  # no UDP path or no pose yet: nothing useful to send
+            if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
+                self.counters["frames_skipped_backlog"] += 1
+                continue
+            await self._send_frame()
+
+    async def _send_frame(self) -> None:
+        server, intr = self.server, self.intrinsics
+        assert intr is not None and self._latest_pose is not None and self.client_addr is not None
+        wall = time.time()
+        t_us = int(wall * 1e6)
+        scene_t = server.scene_time_s(wall)
+        epoch = server.epoch_wall_s
+        kf = self._kf_wanted or self._kf.poll(time.monotonic() * 1000)
+        self._kf_wanted = False
+        with self._pred_lock:
+            pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
+            target_wall = wall + self._expected_latency_s
+            target_pose = self._predictor.predict(target_wall)
+
+        def predict(t_scene: float) -> ScenePose:
+            with self._pred_lock:
+                return self._predictor.predict(t_scene + epoch)  # type: ignore[no-any-return]
+
+        ctx = ServerContext(
+            frame_id=self._frame_id, t_s=scene_t, scene=server.scene, renderer=server.renderer, intrinsics=intr,
+            latest_pose=latest_pose, latest_pose_t_s=pose_wall - epoch, target_pose=target_pose,
+            target_t_s=target_wall - epoch, predict=predict, expected_latency_s=self._expected_latency_s,
+            keyframe_requested=kf, feedback=ClientFeedback(keyframe_requested=kf),
+        )
+        half = self.half
+
+        def render() -> tuple[Any, float]:
+            w0 = time.perf_counter()
+            upd = half.produce(ctx)
+            return upd, (time.perf_counter() - w0) * 1e6
+
+        upd, render_us = await server.in_gl(render)
+        force = bool(upd.force_idr or kf)
+        streams = self.streams
+
+        def encode() -> tuple[dict[str, Any], float]:
+            w0 = time.perf_counter()
+            out = {name: streams[name].encoder.encode(plane, force_idr=force)
+                   for name, plane in upd.planes.items() if name in streams}
+            return out, (time.perf_counter() - w0) * 1e6
+
+        encoded, encode_us = await server.in_encoder(encode)
+        encoded_at = wall_us()
+        rtp_ts = int(round(scene_t * 90000)) & 0xFFFFFFFF
+        timing = {"render": int(render_us), "encode": int(encode_us), "encoded_at": encoded_at}
+        blob = pack_meta({"t_s": upd.t_s, "pose": upd.pose.to_list(), "m": upd.meta,
+                          "target_t_s": ctx.target_t_s, "timing_us": timing, "srv": self.half.stats()})
+        keyframe = bool(encoded) and all(e.keyframe for e in encoded.values())
+        q = upd.pose.orientation
+        meta = FrameMeta(
+            frame_id=self._frame_id, server_time_us=t_us, rtp_timestamps={n: rtp_ts for n in encoded},
+            pose=Pose(pose_us, pose_seq, tuple(float(v) for v in upd.pose.position),  # type: ignore[arg-type]
+                      tuple(float(v) for v in q)),  # type: ignore[arg-type]
+            method_meta=blob, keyframe=keyframe,
+        )
+        # metadata first (reliable), then the video; both were decided together so a
+        # frame is either sent whole or not at all
+        await self.channel.send(meta, drain=False)
+        self.counters["meta_bytes"] += len(blob)
+        if any(e.keyframe for e in encoded.values()):
+            self.counters["keyframes"] += 1
+            self._kf.keyframe_sent(time.monotonic() * 1000)
+        for name, ef in encoded.items():
+            st = streams[name]
+            st.last_rtp_ts = rtp_ts
+            for pkt in st.packetizer.packetize(ef.data, rtp_ts):
+                data = bytes(pkt)
+                st.history.store(pkt)
+                server.send_datagram(data, self.client_addr)
+                if st.mirror is not None:
+                    server.send_datagram(data, st.mirror)
+                self.counters["rtp_packets"] += 1
+                self.counters["rtp_bytes"] += len(data)
+        self._frames[self._frame_id] = t_us
+        if len(self._frames) > 512:
+            for k in list(self._frames)[: len(self._frames) - 512]:
+                del self._frames[k]
+        self.counters["frames_sent"] += 1
+        self._frame_id += 1
+
+    # ------------------------------------------------------------------ RTCP
+
+    async def _rtcp_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.cfg.sr_interval_s)
+            if self.client_addr is None:
+                continue
+            now = time.time()
+            ntp = ntp_from_seconds(now)
+            rtp_now = int(round(self.server.scene_time_s(now) * 90000)) & 0xFFFFFFFF
+            reports = [SenderReport(st.ssrc, ntp, rtp_now, st.packetizer.packets_sent & 0xFFFFFFFF,
+                                    st.packetizer.octets_sent & 0xFFFFFFFF) for st in self.streams.values()]
+            self.server.send_datagram(serialize_rtcp(reports), self.client_addr)
+
+    def on_rtcp(self, packets: list[RtcpPacket], addr: Address) -> None:
+        """Handle a compound RTCP packet from ``addr`` (bind the client address on first use)."""
+        if self.client_addr is None:
+            self.client_addr = addr
+            logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
+        elif addr != self.client_addr:
+            self.counters["rtcp_foreign"] += 1
+            return
+        by_ssrc = {st.ssrc: st for st in self.streams.values()}
+        for p in packets:
+            if isinstance(p, GenericNack):
+                st = by_ssrc.get(p.media_ssrc)
+                if st is None:
+                    continue
+                self.counters["nacks"] += 1
+                for pkt in st.history.answer(p)[:MAX_NACKED_PER_REQUEST]:
+                    self.server.send_datagram(bytes(pkt), addr)
+                    self.counters["retransmitted"] += 1
+            elif isinstance(p, PictureLossIndication):
+                if p.media_ssrc in by_ssrc:
+                    self.counters["plis"] += 1
+                    self.request_keyframe("PLI")
+            elif isinstance(p, ReceiverReport):
+                for b in p.reports:
+                    if b.ssrc in by_ssrc and b.lsr:
+                        now_mid = ntp_middle32(ntp_from_seconds(time.time()))
+                        rtt = ((now_mid - b.lsr - b.dlsr) & 0xFFFFFFFF) / 65536 * 1000
+                        if rtt < 10_000:
+                            self.rtt_ms = rtt
+
+    # ------------------------------------------------------------------ records
+
+    def _write_feedback(self) -> None:
+        if self.cfg.out_dir is None or not self.feedback_rows:
+            return
+        from splitrender.sim.runner import write_csv
+
+        d = self.cfg.out_dir / self.id
+        d.mkdir(parents=True, exist_ok=True)
+        write_csv(d / "feedback.csv", self.feedback_rows)
+        write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan)])
