@@ -69,6 +69,8 @@ class _Pending:
     pose_sample_t_s: float
     decode_ms: float
     nbytes: int
+    pred_err_cm: float = math.nan
+    pred_err_deg: float = math.nan
 
 
 @dataclass
@@ -87,6 +89,12 @@ class RunResult:
         write_csv(d / "updates.csv", self.updates)
         write_csv(d / "summary.csv", [self.summary])
         (d / "config.toml").write_text("[run]\n" + to_toml(self.config.to_dict()))
+        if self.images:
+            from PIL import Image
+
+            (d / "images").mkdir(exist_ok=True)
+            for frame, shown, truth in self.images:
+                Image.fromarray(np.concatenate([shown, truth], axis=1)).save(d / "images" / f"frame{frame:05d}_client_vs_truth.png")
         return d
 
 
@@ -277,7 +285,7 @@ class VirtualTimeRun:
                 release = max(arrive + cfg.decode_latency_ms / 1000.0, last_release)
                 last_release = release
                 du = DecodedUpdate(f, meta["t_s"], Pose.from_list(meta["pose"]), planes, meta["m"])
-                pending.append(_Pending(f, release, du, t_f, latest_pose_t, decode_ms, frame_bytes))
+                pending.append(_Pending(f, release, du, t_f, latest_pose_t, decode_ms, frame_bytes, pred_cm, pred_deg))
             # -- display tick
             applied_ms = 0.0
             while pending and pending[0].release_s <= t_d:
@@ -298,6 +306,7 @@ class VirtualTimeRun:
                 "frame": di, "t_s": t_d, "update_frame_id": shown.frame_id,
                 "update_age_ms": (t_d - shown.t_s) * 1000, "motion_to_photon_ms": (t_d - shown.pose_sample_t_s) * 1000,
                 "client_ms": client_ms, "decode_ms": shown.decode_ms,
+                "pred_err_cm": shown.pred_err_cm, "pred_err_deg": shown.pred_err_deg,
             }
             if cfg.metrics:
                 w0 = time.perf_counter()
