@@ -348,12 +348,10 @@ def warp_matrices(frame: ReferenceFrame, view: ReferenceView, ref: CameraIntrins
             continue
         prev = frame.prev.get(i)
         now = cur
-        if prev is not None and not np.allclose(prev, cur, atol=0, rtol=0):
+        if prev is not None:  # a dynamic object: cut mesh triangles at its border, extrapolate its motion
             out[i, 4, 0] = 1.0
             if extrapolate:
                 now = extrapolate_model(prev, cur, h / frame.dt_s)
-        elif prev is not None:
-            out[i, 4, 0] = 1.0
         m = base @ now @ np.linalg.inv(cur) @ ref_inv
         out[i, :4, :] = m.T.astype(np.float32)
     return out
