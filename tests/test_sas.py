@@ -180,7 +180,7 @@ def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
         assert missing < 0.002, f"{missing:.3%} of geometry pixels are holes at zero latency"
         p = psnr(frame.color, gt.color)
         assert p >= 23.5, f"PSNR {p:.2f} dB against the ground truth at zero latency (threshold 23.5 dB)"
-        assert stats["srv_failed"] == 0
+        assert stats["failed"] == 0
 
 
 def test_client_rejects_malformed_metadata() -> None:

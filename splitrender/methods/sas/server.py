@@ -258,11 +258,11 @@ class SasServer(ServerHalf):
         self._frames += 1
         mem = al.memory()
         self._stats = {
-            "srv_pvs_patches": float(pvs.size), "srv_pvs_ms": (t1 - t0) * 1e3, "srv_alloc_ms": (t2 - t1) * 1e3,
-            "srv_shade_ms": (t3 - t2) * 1e3, "srv_atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
-            "srv_atlas_load_pct": 100.0 * al.memory_load(), "srv_reset": float(reset), "srv_iframe": float(iframe),
-            "srv_failed": float(res.failed.size), "srv_bias": choice.bias, "srv_placed": float(res.placed.size),
-            "srv_geo_sent": float(meta["geo_id"].size),
+            "pvs_patches": float(pvs.size), "pvs_ms": (t1 - t0) * 1e3, "alloc_ms": (t2 - t1) * 1e3,
+            "shade_ms": (t3 - t2) * 1e3, "atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
+            "atlas_load_pct": 100.0 * al.memory_load(), "reset": float(reset), "iframe": float(iframe),
+            "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
+            "geo_sent": float(meta["geo_id"].size),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
