@@ -211,8 +211,13 @@ class LiveClient:
                         tg.create_task(self._rtcp_loop(), name="client-rtcp")
                         tg.create_task(self._decode_loop(), name="client-decode")
                         tg.create_task(self._display_loop(), name="client-display")
-                except* _RunDone:
-                    pass
+                except BaseExceptionGroup as eg:
+                    _, rest = eg.split(_RunDone)
+                    if rest is not None:  # re-raise the first real failure as itself
+                        first: BaseException = rest
+                        while isinstance(first, BaseExceptionGroup):
+                            first = first.exceptions[0]
+                        raise first from None
                 await self._say_bye("duration reached")
             finally:
                 if self.udp is not None:

@@ -1,0 +1,205 @@
+"""Hostile peers against a live server: each gets an ``Error`` and is dropped, while a
+well-behaved session on the same server keeps receiving frames; and clean shutdown."""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+import socket
+import struct
+import warnings
+from pathlib import Path
+
+import msgpack
+import pytest
+
+from splitrender.client.session import ClientConfig, LiveClient, ServerRefusedError
+from splitrender.protocol import (
+    CONNECTION_CLOSED,
+    HEADER_SIZE,
+    MAGIC,
+    NEED_DATA,
+    PROTOCOL_VERSION,
+    ClientConnection,
+    Error,
+    ErrorCode,
+    FrameDecoder,
+    Hello,
+    KeyframeRequest,
+    MessageType,
+    Pose,
+    Welcome,
+    encode_frame,
+)
+from splitrender.server.server import LiveServer, ServerConfig, serve
+
+LOOPBACK = "127.0.0.1"
+HEADER = struct.Struct(">2sBBBI")
+
+
+def _hello(version: int = PROTOCOL_VERSION, token: str = "") -> Hello:
+    return Hello(version, token, ("video",), ("h264",), 160, 90, 30.0)
+
+
+def _pose() -> Pose:
+    return Pose(0, 0, (0.0, 1.6, 3.0), (0.0, 0.0, 0.0, 1.0))
+
+
+async def _exchange(address: tuple[str, int], data: bytes, *, close_after: bool = False,
+                    timeout: float = 5.0) -> list[object]:
+    """Send raw ``data``; return every message the server sends until it closes."""
+    reader, writer = await asyncio.open_connection(*address)
+    writer.write(data)
+    await writer.drain()
+    if close_after:
+        writer.write_eof()
+    dec = FrameDecoder()
+    out: list[object] = []
+    try:
+        async with asyncio.timeout(timeout):
+            while True:
+                chunk = await reader.read(65536)
+                dec.receive_data(chunk)
+                while True:
+                    ev = dec.next_event()
+                    if ev is NEED_DATA:
+                        break
+                    if ev is CONNECTION_CLOSED:
+                        return out
+                    out.append(ev)
+    finally:
+        writer.close()
+        await asyncio.gather(writer.wait_closed(), return_exceptions=True)
+
+
+def _only_error(msgs: list[object], code: int) -> Error:
+    errors = [m for m in msgs if isinstance(m, Error)]
+    assert len(errors) == 1 and isinstance(msgs[-1], Error), msgs
+    assert errors[0].code == code, errors[0]
+    return errors[0]
+
+
+CASES: list[tuple[str, bytes, int, str]] = [
+    ("garbage", b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", ErrorCode.BAD_MESSAGE, "bad frame magic b'GE', expected b'SR'"),
+    ("oversized header", HEADER.pack(MAGIC, PROTOCOL_VERSION, MessageType.HELLO, 0, 50_000_000), ErrorCode.TOO_LARGE,
+     "Hello frame body of 50000000 bytes exceeds the limit of 4096 bytes"),
+    ("wrong header version", HEADER.pack(MAGIC, 7, MessageType.HELLO, 0, 4) + b"\x80" * 4, ErrorCode.BAD_VERSION,
+     "peer speaks protocol version 7, this side speaks version 1"),
+    ("wrong Hello version", encode_frame(_hello(version=2)), ErrorCode.BAD_VERSION,
+     "Hello.version: peer speaks protocol version 2, this side speaks version 1"),
+    ("Pose before Hello", encode_frame(_pose()), ErrorCode.ILLEGAL_STATE, "client sent Pose in state AWAIT_HELLO"),
+    ("bad msgpack Hello", HEADER.pack(MAGIC, PROTOCOL_VERSION, MessageType.HELLO, 0, 3) + b"\xc1\xc1\xc1",
+     ErrorCode.BAD_MESSAGE, "Hello: body is not valid msgpack"),
+    ("odd size", encode_frame(Hello(1, "", ("video",), ("h264",), 161, 90, 30.0)), ErrorCode.BAD_MESSAGE,
+     "Hello.width/height: 161x90 must be even"),
+    ("unknown method", encode_frame(Hello(1, "", ("nope",), ("h264",), 160, 90, 30.0)),
+     ErrorCode.UNSUPPORTED_METHOD, "Hello.methods: none of ['nope'] is supported"),
+]
+
+
+async def _abrupt(address: tuple[str, int]) -> None:
+    """Half a header, then a TCP reset; and a reset right after Hello."""
+    for data in (b"SR\x01", encode_frame(_hello())):
+        s = socket.socket()
+        s.setblocking(False)
+        await asyncio.get_running_loop().sock_connect(s, address)
+        await asyncio.get_running_loop().sock_sendall(s, data)
+        await asyncio.sleep(0.05)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # RST on close
+        s.close()
+
+
+async def _after_welcome_garbage(address: tuple[str, int]) -> list[object]:
+    """A real session that turns hostile: KeyframeRequest for a stream that does not exist."""
+    conn = ClientConnection()
+    data = conn.send(_hello())
+    # the server answers Welcome, then an Error for the bad request, then closes
+    return await _exchange(address, data + encode_frame(KeyframeRequest("nope", "x")))
+
+
+async def _udp_junk(address: tuple[str, int]) -> None:
+    loop = asyncio.get_running_loop()
+    transport, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, remote_addr=address)
+    for payload in (b"", b"\x00" * 3, b"\x80\xc9\x00\x07" + b"\xff" * 28, b"\x81\xcd\x00\x03" + b"\x12" * 12, b"x" * 1400):
+        transport.sendto(payload)
+    transport.close()
+
+
+async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(tmp_path: Path) -> None:
+    cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", server_fps=30, hello_timeout_s=1.0)
+    async with LiveServer(cfg) as server:
+        serve_task = asyncio.create_task(server.serve_forever())
+        good = asyncio.create_task(LiveClient(ClientConfig(
+            port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=4.0)).run())
+        await asyncio.sleep(1.0)
+        for name, data, code, text in CASES:
+            msgs = await _exchange(server.tcp_address, data)
+            err = _only_error(msgs, code)
+            assert err.text.startswith(text), (name, err.text)
+        await _abrupt(server.tcp_address)
+        msgs = await _after_welcome_garbage(server.tcp_address)
+        assert isinstance(msgs[0], Welcome), msgs
+        _only_error(msgs, ErrorCode.BAD_MESSAGE)
+        # silent client: no Hello within hello_timeout_s
+        msgs = await _exchange(server.tcp_address, b"", timeout=3.0)
+        assert _only_error(msgs, ErrorCode.BAD_MESSAGE).text == "no Hello within 1 s"
+        await _udp_junk(server.udp_address)
+        result = await good
+        assert len(server.sessions) == 0  # every hostile session was dropped, the good one said Bye
+        serve_task.cancel()
+        await asyncio.gather(serve_task, return_exceptions=True)
+    c = result.counters
+    # the good session never stalled while the others were misbehaving
+    ids = [r["update_frame_id"] for r in result.rows]
+    assert c["frames_complete"] >= 0.6 * 30 * 4.0 - 15, c
+    assert c["decode_errors"] == 0 and c["frames_skipped"] == 0, c
+    times = [r["displayed_us"] for k, r in enumerate(result.rows) if k == 0 or ids[k] != ids[k - 1]]
+    assert max(b - a for a, b in zip(times, times[1:])) < 300_000, c
+    assert server.udp_dropped >= 3
+
+
+async def test_token_is_checked() -> None:
+    cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", token="s3cret")
+    async with LiveServer(cfg) as server:
+        msgs = await _exchange(server.tcp_address, encode_frame(_hello(token="wrong")))
+        assert _only_error(msgs, ErrorCode.UNAUTHORIZED).text == "Hello.auth_token: invalid token"
+        with pytest.raises(ServerRefusedError, match="401"):
+            await LiveClient(ClientConfig(port=server.tcp_address[1], width=160, height=90, duration_s=0.5)).run()
+        r = await LiveClient(ClientConfig(port=server.tcp_address[1], token="s3cret", width=160, height=90,
+                                          display_hz=30, duration_s=1.0)).run()
+        assert r.counters["frames_complete"] > 5
+
+
+async def test_server_cancel_ends_every_session_cleanly() -> None:
+    """Cancelling ``serve()`` ends all session tasks, closes sockets, leaves no task pending."""
+    started: asyncio.Future[LiveServer] = asyncio.get_running_loop().create_future()
+    cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        serve_task = asyncio.create_task(serve(cfg, started.set_result))
+        server = await started
+        clients = [asyncio.create_task(LiveClient(ClientConfig(port=server.tcp_address[1], width=160, height=90,
+                                                               display_hz=30, duration_s=30.0)).run())
+                   for _ in range(2)]
+        for _ in range(100):
+            await asyncio.sleep(0.05)
+            if len(server.sessions) == 2 and all(s.counters["frames_sent"] > 3 for s in server.sessions.values()):
+                break
+        assert len(server.sessions) == 2
+        sessions = list(server.sessions.values())
+        serve_task.cancel()
+        async with asyncio.timeout(10):
+            await asyncio.gather(serve_task, return_exceptions=True)
+            outcomes = await asyncio.gather(*clients, return_exceptions=True)
+        assert serve_task.cancelled()
+        # the clients were told (Bye) or saw the connection go: they end quickly, with an error
+        assert all(isinstance(o, (ServerRefusedError, ConnectionError)) for o in outcomes), outcomes
+        assert not server.sessions and not server._tasks
+        assert all(s.channel.writer.is_closing() for s in sessions)
+        assert server.udp is not None and server.udp.is_closing()
+        assert [t for t in asyncio.all_tasks() if t is not asyncio.current_task()] == []
+        del sessions, server, clients, serve_task
+        gc.collect()
+    bad = [w for w in caught if "pending" in str(w.message) or "never awaited" in str(w.message)
+           or issubclass(w.category, ResourceWarning)]
+    assert not bad, [str(w.message) for w in bad]
