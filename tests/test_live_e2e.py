@@ -46,6 +46,10 @@ async def _run_through_relay(tmp: Path, network: str, seed: int = 3, **client_kw
             result = await asyncio.wait_for(LiveClient(cfg).run(), cfg.duration_s + 20)
             counters = dict(next(iter(server.sessions.values())).counters) if server.sessions else {}
         finally:
+            for _ in range(50):  # let the relay see both TCP sides close before closing it
+                if relay.stats().tcp_connections_open == 0:
+                    break
+                await asyncio.sleep(0.02)
             await relay.close()
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)
