@@ -172,7 +172,8 @@ def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0):  # type: 
 def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
     from splitrender.metrics.image import psnr
 
-    out, _ = _loopback(3, {"lossless": True})
+    out, cli = _loopback(3, {"lossless": True})
+    assert len(cli.geo) == len(cli.rect) == int(out[-1][4]["pvs_patches"]), "client state must be exactly the PVS"
     for u, plane, frame, gt, stats in out:
         assert np.array_equal(plane, u.planes["atlas"]), "lossless HEVC gbrp must return the atlas bit-exactly"
         geometry = gt.object_id > 0
