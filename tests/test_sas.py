@@ -190,7 +190,7 @@ def test_client_rejects_malformed_metadata() -> None:
     with pytest.raises(RemoteProtocolError, match="atlas plane"):
         cli.apply(DecodedUpdate(1, 0.0, u.pose, {"atlas": plane[:-2]}, dict(u.meta)))
     with pytest.raises(RemoteProtocolError, match="geo_pos"):
-        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "geo_pos": u.meta["geo_pos"][:, :3]}))
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "geo_pos": u.meta["geo_pos"][:-1]}))
     with pytest.raises(RemoteProtocolError, match="outside the atlas"):
         bad = u.meta["uv_rect"].copy()
         bad[0, 0] = 60000

@@ -24,7 +24,7 @@ from ...render.gl import load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from .patches import SLOT_LAYOUT, TRI_SLOTS
-from .server import META_VERSION, block_layout_xy
+from .server import META_VERSION, block_layout_xy, dequantize_slots
 
 SHADERS = Path(__file__).parent / "shaders"
 
@@ -57,6 +57,10 @@ class SasClient(ClientHalf):
         self.atlas_size = tuple(int(x) for x in sd["atlas"])
         self.n_obj = int(sd["n_objects"])
         self.sky = tuple(float(x) for x in sd.get("sky", (0.0, 0.0, 0.0)))
+        box = sd.get("obj_box")
+        if not isinstance(box, np.ndarray) or box.shape != (self.n_obj, 2, 3):
+            raise SasMetaError(f"sas session data: obj_box must be an array of shape ({self.n_obj}, 2, 3)")
+        self.obj_box = box.astype(np.float32)
         i = self.intrinsics
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
@@ -91,9 +95,10 @@ class SasClient(ClientHalf):
         gid = _arr(m, "geo_id", np.int64, ())
         gobj = _arr(m, "geo_obj", np.int64, (), gid.size)
         gsz = _arr(m, "geo_size", np.int64, (), gid.size)
-        gpos = _arr(m, "geo_pos", np.float32, (5, 3), gid.size)
         if gid.size and (gobj.max() >= self.n_obj or gsz.min() < 1 or gsz.max() > 3):
             raise SasMetaError(f"sas metadata: geo_obj must be < {self.n_obj} and geo_size in 1..3")
+        gq = _arr(m, "geo_pos", np.uint16, (3,), int((gsz + 2).sum()))
+        gpos = dequantize_slots(gq, gsz, self.obj_box[gobj])
         for pid, o, s, p in zip(gid.tolist(), gobj.tolist(), gsz.tolist(), gpos):
             self.geo[pid] = (o, s, p)
         uid = _arr(m, "uv_id", np.int64, ())

@@ -27,8 +27,10 @@ Wire format (metadata ``v = 1``), all arrays little-endian:
 - ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
 - ``drop`` int32 (K,): patches that left the PVS;
 - ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
-  (1-3), ``geo_pos`` float32 (G, 5, 3) object-space slot positions (layout in
-  :mod:`.patches`);
+  (1-3), ``geo_pos`` uint16 (sum(geo_size + 2), 3): the used slots' object-space
+  positions (slot layout in :mod:`.patches`), patch after patch, quantised to 16 bits
+  in the object's bounding box (session data ``obj_box``: per object lo, hi in
+  metres); a shared vertex quantises identically in every patch, so no cracks;
 - ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels), lw, lh
   (log2 size), transposed flag;
 - ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
@@ -143,6 +145,23 @@ def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
     return np.stack([1 - l1 - l2, l1, l2], axis=-1)
 
 
+def quantize_slots(pos: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """(sum(size + 2), 3) uint16 used-slot positions of ``pos`` (G, 5, 3) in boxes ``box`` (G, 2, 3)."""
+    ext = np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None]
+    q = np.rint((pos - box[:, None, 0]) / ext * 65535.0).clip(0, 65535).astype(np.uint16)
+    return q[np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]]
+
+
+def dequantize_slots(q: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quantize_slots`: (G, 5, 3) float32 with unused slots zero."""
+    used = np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]
+    out = np.zeros(size.shape + (5, 3), np.float32)
+    lo = np.broadcast_to(box[:, None, 0], out.shape)[used]
+    ext = np.broadcast_to(np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None], out.shape)[used]
+    out[used] = lo + q.astype(np.float32) / 65535.0 * ext
+    return out
+
+
 def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
     """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2) with the half-texel inset."""
     uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
@@ -175,6 +194,9 @@ class SasServer(ServerHalf):
         self._stats: dict[str, float] = {}
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
         self.sent_static = np.zeros(self.n_obj, bool)
+        lo = np.array([o.mesh.positions.min(axis=0) for o in self.scene.objects], np.float32)
+        hi = np.array([o.mesh.positions.max(axis=0) for o in self.scene.objects], np.float32)
+        self.obj_box = np.stack([lo, hi], axis=1)                  # (n_obj, 2, 3) metres, object space
 
     # ------------------------------------------------------------------ interface
     def streams(self) -> list[StreamSpec]:
@@ -187,7 +209,7 @@ class SasServer(ServerHalf):
 
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
-                "sky": list(map(float, self.scene.sky_color))}
+                "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box}
 
     def stats(self) -> dict[str, float]:
         return dict(self._stats)
@@ -344,14 +366,14 @@ class SasServer(ServerHalf):
         lh = self.allocator.level_h[uv_ids]
         uv_rect = np.stack([rect[:, 0], rect[:, 1], lw, lh, self.transposed[uv_ids]], axis=1).astype(np.uint16)
         objs_needed = np.unique(P.object_index[live])
-        send = objs_needed[self.dynamic[objs_needed] | ~self.sent_static[objs_needed] | iframe]
+        send = objs_needed[self.dynamic[objs_needed] | ~self.sent_static[objs_needed]]
         self.sent_static[send] = True
         meta: dict[str, Any] = {
             "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
             "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
             "drop": np.asarray(gone, np.int32),
             "geo_id": geo.astype(np.int32), "geo_obj": P.object_index[geo].astype(np.uint16),
-            "geo_size": P.size[geo].astype(np.uint8), "geo_pos": P.slot_pos[geo].astype(np.float32),
+            "geo_size": P.size[geo].astype(np.uint8), "geo_pos": quantize_slots(P.slot_pos[geo], P.size[geo], self.obj_box[P.object_index[geo]]),
             "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
             "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
         }
