@@ -20,7 +20,6 @@ from __future__ import annotations
 import csv
 import json
 import logging
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -296,5 +295,4 @@ def run(out_dir: Path, quick: bool) -> Section:
         "so sas's hole rate is not comparable with methods that fill.  Bitrates include metadata (geometry is sent "
         "once; the first frame's geometry dominates short runs).",
     ]
-    _ = math
     return Section("Shading atlas streaming (sas)", "\n".join(text), figs, tables)
