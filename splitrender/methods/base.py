@@ -174,7 +174,7 @@ class ServerHalf(ABC):
         """Render and pack one frame."""
 
     def stats(self) -> dict[str, float]:
-        """Per-frame numbers for frames.csv (e.g. PVS size, atlas use); prefixed ``srv_``."""
+        """Per-frame numbers (e.g. PVS size, atlas use); the runner writes them to updates.csv as ``srv_<key>``."""
         return {}
 
 
