@@ -212,7 +212,11 @@ class ServerSession:
             logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
             await self.channel.send_error(exc)
             return False
-        await self.channel.send(welcome)
+        try:
+            await self.channel.send(welcome)
+        except ConnectionError as exc:
+            logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
+            return False
         logger.info("session %s: %s streaming %s %dx%d @ %g Hz to %s", self.id, self.peer, self.method,
                     msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in welcome.streams))
         return True
