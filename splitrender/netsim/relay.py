@@ -299,6 +299,12 @@ class Relay:
             self._tcp_tasks.add(task)  # type: ignore[arg-type]
             try:
                 await self._handle_tcp(reader, writer, target)
+            except asyncio.CancelledError:
+                # asyncio's stream server calls task.exception() on its handler tasks,
+                # which logs a cancelled one as an error (Python 3.11).  When the relay
+                # itself is closing, the cancellation is ours: end the task normally.
+                if not self._closed:
+                    raise
             finally:
                 self._tcp_tasks.discard(task)  # type: ignore[arg-type]
 
