@@ -1,0 +1,351 @@
+"""``splitrender demo``: every available method on the default scene under ideal, lan and
+cloud, in a process pool, then a self-contained HTML report plus each method's study.
+
+Outputs in ``DIR``: ``runs/<key>/`` (per-run CSVs and ``config.toml``), ``runs.csv``
+(one row per run), ``summary.csv`` (one row per method x network, mean over traces),
+``frames.csv`` (every displayed frame with ``run``/``method``/``network`` columns),
+``figures/`` (PNG + SVG + CSV per chart), ``studies/<name>/`` and ``report.html``.
+
+``--quick`` (:data:`QUICK`) runs 320x180, 1 s of the walk trace at 30 fps with FLIP
+on every 6th frame, and gives the studies what is left of a 170 s budget (a study
+that would overrun is stopped and the report says so).  The default (:data:`FULL`)
+runs 640x360 over the full 10 s walk and turn traces.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import multiprocessing as mp
+import pkgutil
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from ..errors import ConfigError
+from ..sim.config import RunConfig
+from .report import build_report, save_meta
+from .sections import Section
+from .store import ResultStore, Row, fnum, network_columns, read_csv, write_csv
+from .sweep import RunProgress, default_workers, run_configs
+
+log = logging.getLogger(__name__)
+
+NETWORKS = ("ideal", "lan", "cloud")
+QUICK: dict[str, Any] = {"width": 320, "height": 180, "duration_s": 1.0, "client_fps": 30, "server_fps": 30, "flip_every": 6,
+                         "traces": ("walk",)}
+FULL: dict[str, Any] = {"width": 640, "height": 360, "duration_s": None, "client_fps": 60, "server_fps": 30, "flip_every": 4,
+                        "traces": ("walk", "turn")}
+QUICK_BUDGET_S = 170.0
+FULL_STUDY_TIMEOUT_S = 3600.0
+SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "p5_psnr_db", "mean_ssim", "mean_flip", "flip_frames",
+                   "mean_kbps", "mean_hole_pct", "mean_lab_err_pct", "mean_update_age_ms", "mean_server_ms", "mean_client_ms",
+                   "mean_gt_ms", "client_over_gt", "lost_frames", "net_delay_ms", "net_jitter_ms")
+
+
+@dataclass
+class DemoResult:
+    out: Path
+    report: Path
+    summary: list[Row]
+    configs: list[RunConfig]
+    elapsed_s: float
+    study_notes: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+
+
+def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Sequence[str] = NETWORKS,
+                 duration_s: float | None = None, size: tuple[int, int] | None = None,
+                 traces: Sequence[str] | None = None) -> list[RunConfig]:
+    """The demo's runs: method x network x trace on the default scene."""
+    from ..methods import available_methods
+
+    p = dict(QUICK if quick else FULL)
+    all_methods = available_methods()
+    methods = list(methods) if methods else all_methods
+    for m in methods:
+        if m not in all_methods:
+            raise ConfigError(f"demo --methods: unknown method {m!r}; available: {', '.join(all_methods)}")
+    if not networks:
+        raise ConfigError("demo --networks: no network given")
+    w, h = size or (p["width"], p["height"])
+    dur = duration_s if duration_s is not None else p["duration_s"]
+    out = []
+    for m in methods:
+        for net in networks:
+            for tr in (traces or p["traces"]):
+                out.append(RunConfig.from_dict({"method": m, "network": net, "trace": tr, "scene": "default", "width": w, "height": h,
+                                                "duration_s": dur, "client_fps": p["client_fps"], "server_fps": p["server_fps"],
+                                                "flip_every": p["flip_every"]}))
+    return out
+
+
+def summarise(runs: Sequence[Row]) -> list[Row]:
+    """One row per method x network: means over traces (and seeds) of the runs' summaries."""
+    groups: dict[tuple[str, str], list[Row]] = {}
+    for r in runs:
+        groups.setdefault((str(r["method"]), str(r["network"])), []).append(r)
+    out = []
+    for (m, net), rr in groups.items():
+        row: Row = {"method": m, "network": net, "traces": "|".join(dict.fromkeys(str(r["trace"]) for r in rr)), "runs": len(rr)}
+        keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k in ("flip_frames", "lost_frames", "net_delay_ms",
+                                                                                      "net_jitter_ms")]
+        for k in keys:
+            vals = [fnum(r.get(k)) for r in rr if not math.isnan(fnum(r.get(k)))]
+            row[k] = sum(vals) / len(vals) if vals else math.nan
+        g = fnum(row.get("mean_gt_ms"))
+        row["client_over_gt"] = fnum(row.get("mean_client_ms")) / g if g > 0 else math.nan
+        out.append(row)
+    return out
+
+
+def intro_markdown(cfgs: Sequence[RunConfig], quick: bool, runs: Sequence[Row], notes: Sequence[str]) -> str:
+    """What was run, how FLIP was sampled and what latencies were modelled."""
+    c = cfgs[0]
+    dur = f"{c.duration_s:g} s of" if c.duration_s else "the full"
+    traces = ", ".join(dict.fromkeys(x.trace for x in cfgs))
+    flip_n = [fnum(r.get("flip_frames")) for r in runs]
+    frames_n = [fnum(r.get("frames")) for r in runs]
+    lines = [
+        "## What ran",
+        f"Every available method ({', '.join(dict.fromkeys(x.method for x in cfgs))}) on the `{c.scene}` scene, {dur} the "
+        f"{traces} trace(s), {c.width}x{c.height} at {c.fov_y_deg:g} degrees vertical field of view, server at {c.server_fps} fps, "
+        f"client at {c.client_fps} fps, pose predictor `{c.predictor}`, seed {c.seed}"
+        + (" (**quick mode**: reduced resolution and trace length)." if quick else "."),
+        "",
+        "## How quality was scored",
+        f"- PSNR, SSIM, Lab error pixels and holes are scored on **every** displayed frame against the ground truth rendered "
+        f"at the client's true pose and time.",
+        f"- FLIP is expensive and is sampled: `flip_every = {c.flip_every}`, i.e. every {c.flip_every}th displayed frame "
+        f"({int(sum(flip_n))} FLIP-scored frames of {int(sum(frames_n))} displayed frames in total); mean FLIP is the mean over "
+        f"the sampled frames only." if c.flip_every else "- FLIP was not scored (`flip_every = 0`).",
+        "",
+        "## Modelled latencies (simulated clock, not this machine's speed)",
+        f"- server processing (render + encode) `server_latency_ms = {c.server_latency_ms:g}` ms, client decode "
+        f"`decode_latency_ms = {c.decode_latency_ms:g}` ms, plus on average half a display interval "
+        f"({500.0 / c.client_fps:.1f} ms).",
+    ]
+    for net in dict.fromkeys(x.network for x in cfgs):
+        try:
+            nc = network_columns(net)
+            lines.append(f"- `{net}`: one-way delay {nc['net_delay_ms']:g} ms +- {nc['net_jitter_ms']:g} ms (uniform) each way, "
+                         f"round trip {nc['net_rtt_ms']:g} ms; expected update age at display about "
+                         f"{c.server_latency_ms + c.decode_latency_ms + nc['net_delay_ms'] + 500.0 / c.client_fps:.0f} ms.")
+        except Exception:  # noqa: BLE001
+            lines.append(f"- `{net}`")
+    lines.append("- Wall-clock times (server ms, client ms, ground-truth ms) are measured on this machine (Mesa llvmpipe, "
+                 "CPU) and never move the simulated clock.")
+    if notes:
+        lines += ["", "## Notes"] + [f"- {n}" for n in notes]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------
+# Studies, each in its own process with a time limit
+# ---------------------------------------------------------------------------------
+
+
+def discover_studies() -> list[str]:
+    """Names of the modules in :mod:`splitrender.experiments.studies` (sorted)."""
+    from . import studies
+
+    return sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if not m.name.startswith("_"))
+
+
+def _study_child(name: str, out_dir: str, quick: bool, conn: Any) -> None:
+    try:
+        import importlib
+
+        mod = importlib.import_module(name if "." in name else f"splitrender.experiments.studies.{name}")
+        sec = mod.run(Path(out_dir), quick)
+        if not isinstance(sec, Section):
+            raise TypeError(f"study {name}: run() returned {type(sec).__name__}, not a Section")
+        conn.send(("ok", sec))
+    except BaseException:  # noqa: BLE001 - report every failure to the parent
+        conn.send(("error", traceback.format_exc()))
+    finally:
+        conn.close()
+
+
+@dataclass
+class _StudyProc:
+    name: str
+    out_dir: Path
+    proc: Any
+    conn: Any
+    t0: float
+    msg: tuple[str, Any] | None = None
+    done: bool = False
+
+
+def _start_study(name: str, out_dir: Path, quick: bool) -> _StudyProc:
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    proc = ctx.Process(target=_study_child, args=(name, str(out_dir), quick, child), name=f"study-{name}")
+    proc.start()
+    child.close()
+    return _StudyProc(name, out_dir, proc, parent, time.monotonic())
+
+
+def _stop(sp: _StudyProc) -> None:
+    sp.proc.join(timeout=5)
+    if sp.proc.is_alive():
+        sp.proc.terminate()
+        sp.proc.join(timeout=5)
+        if sp.proc.is_alive():
+            sp.proc.kill()
+            sp.proc.join()
+    sp.done = True
+
+
+def _study_section(sp: _StudyProc, timeout_s: float) -> Section:
+    took = time.monotonic() - sp.t0
+    if sp.msg is None:
+        if took >= timeout_s - 1:
+            text = (f"**Not completed**: stopped after {took:.0f} s (time limit {timeout_s:.0f} s; in quick mode the demo's "
+                    f"{QUICK_BUDGET_S:.0f} s budget). Run `splitrender demo` without `--quick` for this study.")
+        else:
+            text = f"**Study crashed** (exit code {sp.proc.exitcode}) after {took:.0f} s without a result."
+        log.warning("study %s: %s", sp.name, text)
+        return Section(f"Study: {sp.name} (not completed)", text)
+    if sp.msg[0] == "error":
+        log.error("study %s failed:\n%s", sp.name, sp.msg[1])
+        return Section(f"Study: {sp.name} (failed)", f"**The study raised an error** after {took:.0f} s:\n\n```\n{sp.msg[1]}\n```")
+    log.info("study %s done in %.0f s", sp.name, took)
+    sec: Section = sp.msg[1]
+    return sec
+
+
+def run_study(name: str, out_dir: Path, quick: bool, timeout_s: float) -> Section:
+    """Run one study in a spawned process; failures and timeouts become an error Section.
+
+    ``name`` is a module of :mod:`splitrender.experiments.studies` or a dotted module path.
+    """
+    sp = _start_study(name, out_dir, quick)
+    if sp.conn.poll(timeout_s):
+        try:
+            sp.msg = sp.conn.recv()
+        except EOFError:
+            sp.msg = None
+    _stop(sp)
+    return _study_section(sp, timeout_s)
+
+
+def run_studies(out: Path, quick: bool, deadline: float | None, parallel: int = 1) -> tuple[list[Section], list[str]]:
+    """Every study, ``parallel`` at a time, each in its own process; all stop at ``deadline`` (monotonic s)."""
+    names = discover_studies()
+    limit = deadline if deadline is not None else time.monotonic() + FULL_STUDY_TIMEOUT_S
+    results: dict[str, Section] = {}
+    took: dict[str, float] = {}
+    queue = list(names)
+    running: list[_StudyProc] = []
+    while queue or running:
+        while queue and len(running) < max(1, parallel):
+            name = queue.pop(0)
+            if limit - time.monotonic() < 5:
+                results[name] = Section(f"Study: {name} (skipped)", f"Skipped in quick mode: the {QUICK_BUDGET_S:.0f} s budget "
+                                        "was spent before it could start. Run the full demo for it.")
+                continue
+            running.append(_start_study(name, out / "studies" / name, quick))
+        for sp in list(running):
+            if sp.conn.poll(0.1):
+                try:
+                    sp.msg = sp.conn.recv()
+                except EOFError:
+                    sp.msg = None
+            elif sp.proc.is_alive() and time.monotonic() < limit:
+                continue
+            _stop(sp)
+            took[sp.name] = time.monotonic() - sp.t0
+            results[sp.name] = _study_section(sp, limit - sp.t0)
+            running.remove(sp)
+        if not running and not queue:
+            break
+    secs, notes = [], []
+    for name in names:
+        sec = results[name]
+        sec.figures = [_rel(Path(f), out, out / "studies" / name) for f in sec.figures]
+        sec.tables = [_rel(Path(t), out, out / "studies" / name) for t in sec.tables]
+        status = "" if "(" not in sec.title else " - " + sec.title
+        notes.append(f"study `{name}`: " + (f"{took[name]:.0f} s" if name in took else "not started") + status)
+        secs.append(sec)
+    return secs, notes
+
+
+def _rel(p: Path, root: Path, study_dir: Path) -> Path:
+    if not p.is_absolute():
+        cand = study_dir / p
+        p = cand if cand.exists() else root / p
+    try:
+        return p.resolve().relative_to(root.resolve())
+    except ValueError:
+        return p
+
+
+# ---------------------------------------------------------------------------------
+# The demo
+# ---------------------------------------------------------------------------------
+
+
+def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None = None, networks: Sequence[str] = NETWORKS,
+             workers: int | None = None, studies: bool = True, duration_s: float | None = None,
+             size: tuple[int, int] | None = None, traces: Sequence[str] | None = None,
+             progress: RunProgress | None = None) -> DemoResult:
+    """Run the demo into ``out`` and write its report; see the module docstring."""
+    t0 = time.monotonic()
+    deadline = t0 + QUICK_BUDGET_S if quick else None
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfgs = demo_configs(quick, methods, networks, duration_s, size, traces)
+    store = ResultStore(out)
+    ex = run_configs(cfgs, store, workers, None, progress)
+    ok = [c for c in cfgs if store.has(c)]
+    if not ok:
+        raise ConfigError(f"demo: every run failed ({'; '.join(f.error for f in ex.failures)[:500]})")
+    store.write_tables(ok)
+    runs = read_csv(out / "runs.csv")
+    summary = summarise(runs)
+    write_csv(out / "summary.csv", summary, [c for c in SUMMARY_COLUMNS] + sorted({k for r in summary for k in r if k.startswith("kbps_")}))
+    notes = [f"run {f.key} ({f.label}) FAILED: {f.error}" for f in ex.failures]
+    notes.append(f"{len(ex.ran)} runs computed, {len(ex.cached)} reused from an earlier demo in this folder; runs took "
+                 f"{time.monotonic() - t0:.0f} s wall clock with {workers or 'CPU-count'} workers.")
+    sections: list[Section] = []
+    if studies:
+        sections, snotes = run_studies(out, quick, deadline, workers or default_workers())
+        notes += snotes
+    else:
+        notes.append("studies skipped (--no-studies).")
+    title = "splitrender demo" + (" (quick)" if quick else "")
+    intro = intro_markdown(cfgs, quick, runs, notes)
+    save_meta(out, title, intro, sections)
+    report = build_report(out, title=title, intro_md=intro, sections=sections)
+    return DemoResult(out, report, summary, cfgs, time.monotonic() - t0, notes, [f.error for f in ex.failures])
+
+
+def main_demo(ns: argparse.Namespace) -> int:
+    """``splitrender demo [--out DIR] [--quick] [--methods a,b] [--networks ...] [--workers N] [--no-studies]``."""
+    from .sweep import RichRunProgress
+
+    methods = [m.strip() for m in ns.methods.split(",") if m.strip()] if ns.methods else None
+    networks = [n.strip() for n in ns.networks.split(",") if n.strip()]
+    demo_configs(ns.quick, methods, networks)  # validate before the bar shows
+    with RichRunProgress("demo" + (" --quick" if ns.quick else "")) as bar:
+        res = run_demo(ns.out, quick=ns.quick, methods=methods, networks=networks, workers=ns.workers,
+                       studies=not ns.no_studies, progress=bar)
+    print(f"{'method':10s} {'network':8s} {'PSNR dB':>8s} {'SSIM':>7s} {'FLIP':>7s} {'kbit/s':>8s}")
+    for r in res.summary:
+        print(f"{r['method']:10s} {r['network']:8s} {r['mean_psnr_db']:8.2f} {r['mean_ssim']:7.4f} {r['mean_flip']:7.4f} "
+              f"{r['mean_kbps']:8.0f}")
+    for n in res.study_notes:
+        if "FAILED" in n or "not completed" in n or "failed" in n:
+            print(f"note: {n}")
+    print(f"demo done in {res.elapsed_s:.0f} s -> {res.report}")
+    return 1 if res.failures else 0
+
+
+__all__ = ["DemoResult", "FULL", "NETWORKS", "QUICK", "demo_configs", "discover_studies", "main_demo", "run_demo", "run_studies",
+           "run_study", "summarise"]

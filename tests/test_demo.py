@@ -1,0 +1,97 @@
+"""Demo smoke test on a tiny config, and the study runner's isolation (errors, timeouts)."""
+
+from __future__ import annotations
+
+import csv
+import re
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from splitrender.errors import ConfigError
+from splitrender.experiments.demo import demo_configs, discover_studies, run_demo, run_study
+from splitrender.experiments.store import read_csv
+
+
+def test_demo_tiny(tmp_path: Path) -> None:
+    res = run_demo(tmp_path, quick=True, methods=["video", "atw"], networks=["ideal", "cloud"], duration_s=0.5, size=(160, 90),
+                   studies=False, workers=2)
+    assert not res.failures
+    for name in ("frames.csv", "summary.csv", "runs.csv", "report.html", "report_meta.json"):
+        assert (tmp_path / name).is_file(), name
+    with open(tmp_path / "summary.csv") as f:
+        header = next(csv.reader(f))
+    for col in ("method", "network", "mean_psnr_db", "mean_ssim", "mean_flip", "mean_kbps", "client_over_gt"):
+        assert col in header, col
+    summ = read_csv(tmp_path / "summary.csv")
+    assert sorted((r["method"], r["network"]) for r in summ) == sorted(
+        (m, n) for m in ("video", "atw") for n in ("ideal", "cloud"))
+    by = {(r["method"], r["network"]): r for r in summ}
+    for r in summ:
+        assert 10 < r["mean_psnr_db"] < 60 and 0 < r["mean_ssim"] <= 1 and r["mean_kbps"] > 0
+        assert 0 < r["mean_flip"] < 1  # FLIP sampled every 6th frame
+    # latency costs quality for plain video; ATW recovers part of it
+    assert by[("video", "cloud")]["mean_psnr_db"] < by[("video", "ideal")]["mean_psnr_db"]
+    assert by[("atw", "cloud")]["mean_psnr_db"] > by[("video", "cloud")]["mean_psnr_db"]
+    frames = read_csv(tmp_path / "frames.csv")
+    assert {"method", "network", "run", "psnr_db", "t_s"} <= set(frames[0])
+    runs = read_csv(tmp_path / "runs.csv")
+    assert len(runs) == 4 and len(frames) == sum(r["frames"] for r in runs)
+    for r in runs:
+        d = tmp_path / "runs" / r["run"]
+        assert (d / "config.toml").is_file() and (d / "frames.csv").is_file() and (d / "updates.csv").is_file()
+        assert r["width"] == 160 and r["height"] == 90
+    for name in ("quality_vs_latency", "psnr_timeline", "bitrate_by_stream", "client_cost"):
+        assert (tmp_path / "figures" / f"{name}.png").is_file() and (tmp_path / "figures" / f"{name}.svg").is_file()
+    html = (tmp_path / "report.html").read_text()
+    assert len(re.findall(r'src="data:image/png;base64,', html)) >= 6
+    for needle in ('id="quality_vs_latency"', 'id="psnr_timeline"', 'id="bitrate_by_stream"', 'id="client_cost"',
+                   "flip_every = 6", "50 ms +- 20 ms", "Quality over time (cloud)"):
+        assert needle in html, needle
+    # the report can be rebuilt from the folder alone (what `splitrender report DIR` does)
+    from splitrender.experiments.report import build_report
+
+    again = build_report(tmp_path).read_text()
+    assert "flip_every = 6" in again and "splitrender demo (quick)" in again
+
+
+def test_demo_configs() -> None:
+    q = demo_configs(True, ["video", "atw"])
+    assert len(q) == 6 and {c.network for c in q} == {"ideal", "lan", "cloud"}
+    assert all((c.width, c.height, c.client_fps, c.flip_every) == (320, 180, 30, 6) for c in q)
+    full = demo_configs(False, ["video"])
+    assert {c.trace for c in full} == {"walk", "turn"} and all(c.width == 640 and c.duration_s is None for c in full)
+    with pytest.raises(ConfigError, match="demo --methods: unknown method 'nosuch'"):
+        demo_configs(True, ["nosuch"])
+
+
+def test_studies_are_discovered() -> None:
+    names = discover_studies()
+    assert all(not n.startswith("_") for n in names)
+
+
+@pytest.fixture()
+def fake_studies(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
+    pkg = tmp_path / "fakestudies"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "ok.py").write_text(textwrap.dedent("""
+        from splitrender.experiments.sections import Section
+        def run(out_dir, quick):
+            (out_dir / "t.csv").write_text("a\\n1\\n")
+            return Section("Study: ok", f"quick={quick}", [], [out_dir / "t.csv"])
+    """))
+    (pkg / "boom.py").write_text("def run(out_dir, quick):\n    raise RuntimeError('study exploded')\n")
+    (pkg / "hang.py").write_text("import time\ndef run(out_dir, quick):\n    time.sleep(60)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return "fakestudies"
+
+
+def test_study_runner_isolates_errors_and_timeouts(tmp_path: Path, fake_studies: str) -> None:
+    ok = run_study(f"{fake_studies}.ok", tmp_path / "ok", True, 60)
+    assert ok.title == "Study: ok" and ok.text_md == "quick=True" and ok.tables[0].is_file()
+    boom = run_study(f"{fake_studies}.boom", tmp_path / "boom", True, 60)
+    assert boom.title.endswith("(failed)") and "study exploded" in boom.text_md
+    hang = run_study(f"{fake_studies}.hang", tmp_path / "hang", True, 3)
+    assert hang.title.endswith("(not completed)") and "stopped after" in hang.text_md

@@ -1,0 +1,153 @@
+"""Sweep files: expansion, exact errors naming the key, caching, and serial == pool == Dask."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from splitrender.errors import ConfigError
+from splitrender.experiments.store import is_timing_column, read_csv
+from splitrender.experiments.sweep import load_sweep, parse_sweep, run_sweep
+
+TINY = """
+[sweep]
+name = "tiny"
+networks = ["ideal", "cloud"]
+[base]
+width = 128
+height = 72
+duration_s = 0.5
+flip_every = 0
+client_fps = 30
+[methods.video]
+[methods.atw]
+overscan = [1.2]
+"""
+
+
+def _parse(text: str) -> list:
+    import tomllib
+
+    return parse_sweep(tomllib.loads(text), "t.toml").configs
+
+
+def test_expansion_order_and_count() -> None:
+    cfgs = _parse("""
+[sweep]
+traces = ["walk", "turn"]
+networks = ["ideal", "lan", "delay 100ms"]
+seeds = [0, 1]
+[base]
+width = 320
+height = 180
+[grid]
+server_fps = [30, 15]
+[methods.video]
+[methods.atw]
+overscan = [1.1, 1.3, 1.5]
+bitrate_kbps = [1000, 3000]
+""")
+    # (1 video + 3*2 atw) x 2 traces x 3 networks x 2 server_fps x 2 seeds
+    assert len(cfgs) == 7 * 2 * 3 * 2 * 2
+    assert len({c.key() for c in cfgs}) == len(cfgs)
+    assert cfgs[0].method == "video" and cfgs[-1].method == "atw"
+    assert cfgs[-1].method_params == {"overscan": 1.5, "bitrate_kbps": 3000}
+    assert {c.network for c in cfgs} == {"ideal", "lan", "delay 100ms"}
+    assert {c.server_fps for c in cfgs} == {30, 15}
+    assert all(c.width == 320 and c.height == 180 for c in cfgs)
+    # method-major order: the first 24 rows are video
+    assert [c.method for c in cfgs[:24]] == ["video"] * 24
+
+
+def test_no_methods_table_means_all_available() -> None:
+    from splitrender.methods import available_methods
+
+    cfgs = _parse("[base]\nwidth = 64\nheight = 64\n")
+    assert [c.method for c in cfgs] == available_methods()
+
+
+def test_scalar_param_is_fixed_and_duplicates_collapse() -> None:
+    cfgs = _parse("[sweep]\nseeds = [3, 3]\n[methods.atw]\noverscan = 1.2\n")
+    assert len(cfgs) == 1 and cfgs[0].method_params == {"overscan": 1.2} and cfgs[0].seed == 3
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("[sweeps]\nname='x'\n", "sweeps: unknown table"),
+    ("[sweep]\nnetwork = ['ideal']\n", "sweep.network: unknown key"),
+    ("[sweep]\ntraces = 'walk'\n", "sweep.traces: expected a list of strings"),
+    ("[sweep]\ntraces = []\n", "sweep.traces: empty list"),
+    ("[sweep]\nseeds = ['a']\n", "sweep.seeds: expected a non-empty list of integers"),
+    ("[sweep]\nnetworks = ['delay fast']\n", "sweep.networks: 'delay fast'"),
+    ("[methods.nosuch]\n", "methods.nosuch: unknown method 'nosuch'"),
+    ("[methods.atw]\noverscan = []\n", "methods.atw.overscan: empty grid"),
+    ("[methods.atw]\nwobble = [1]\n", "methods.atw: AtwConfig: unknown parameter 'wobble'"),
+    ("[methods.atw]\noverscan = ['wide']\n", "methods.atw: "),
+    ("[methods.atw]\noverscan = [9.0]\n", "overscan: must be in [1, 3]"),
+    ("[methods]\n", "methods: empty table"),
+    ("methods = 3\n", "methods: must be a table"),
+    ("[base]\nwidth = 'big'\n", "base: "),
+    ("[base]\nframes = 3\n", "base.frames: unknown run config key"),
+    ("[base]\nmethod = 'atw'\n", "base.method: is set by the sweep axes"),
+    ("[grid]\nserver_fps = []\n", "grid.server_fps: empty grid"),
+    ("[grid]\nserver_fps = [0]\n", "grid.server_fps: run config server_fps: must be in [1, 1000]"),
+    ("[grid]\nnetwork = ['lan']\n", "grid.network: is set by the sweep axes"),
+])
+def test_nonsense_sweeps_name_the_key(text: str, needle: str) -> None:
+    with pytest.raises(ConfigError) as ei:
+        _parse(text)
+    assert needle in str(ei.value), str(ei.value)
+    assert str(ei.value).startswith("sweep t.toml: ")
+
+
+def test_bad_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="sweep file not found"):
+        load_sweep(tmp_path / "missing.toml")
+    p = tmp_path / "bad.toml"
+    p.write_text("[sweep\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_sweep(p)
+
+
+def test_example_sweep_parses() -> None:
+    ex = Path(__file__).resolve().parents[1] / "examples"
+    files = sorted(ex.glob("*.toml"))
+    assert files, "examples/*.toml missing"
+    for f in files:
+        assert load_sweep(f).configs
+
+
+def _det(rows: list[dict]) -> list[dict]:
+    """Rows without the wall-clock columns (NaN normalised so equal rows compare equal)."""
+    return [{k: ("nan" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items() if not is_timing_column(k)}
+            for r in rows]
+
+
+@pytest.mark.slow
+def test_serial_pool_and_dask_give_the_same_tables(tmp_path: Path) -> None:
+    f = tmp_path / "tiny.toml"
+    f.write_text(TINY)
+    outs = {}
+    for mode, kw in (("serial", {"workers": 1}), ("pool", {"workers": 2}), ("dask", {"workers": 2, "dask": "local"})):
+        sweep, res = run_sweep(f, tmp_path / mode, **kw)
+        assert not res.failures, res.failures
+        assert len(res.ran) == 4 and not res.cached
+        outs[mode] = (read_csv(tmp_path / mode / "runs.csv"), read_csv(tmp_path / mode / "frames.csv"))
+    runs, frames = outs["serial"]
+    assert len(runs) == 4
+    assert [r["method"] for r in runs] == ["video", "video", "atw", "atw"]
+    assert [r["network"] for r in runs] == ["ideal", "cloud", "ideal", "cloud"]
+    assert runs[2]["param_overscan"] == 1.2 and math.isnan(runs[0]["param_overscan"])
+    assert all(r["mean_psnr_db"] > 10 for r in runs)
+    assert len(frames) == sum(r["frames"] for r in runs)
+    assert {fr["run"] for fr in frames} == {r["run"] for r in runs}
+    for d in (tmp_path / "serial" / "runs").iterdir():
+        assert (d / "config.toml").is_file() and (d / "frames.csv").is_file()
+    for mode in ("pool", "dask"):
+        assert _det(outs[mode][0]) == _det(runs), mode
+        assert _det(outs[mode][1]) == _det(frames), mode
+    # a second sweep into the same folder reuses every run
+    _, res = run_sweep(f, tmp_path / "serial", workers=1)
+    assert res.cached and not res.ran and len(res.cached) == 4
+    assert _det(read_csv(tmp_path / "serial" / "runs.csv")) == _det(runs)
