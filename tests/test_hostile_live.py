@@ -10,13 +10,11 @@ import struct
 import warnings
 from pathlib import Path
 
-import msgpack
 import pytest
 
 from splitrender.client.session import ClientConfig, LiveClient, ServerRefusedError
 from splitrender.protocol import (
     CONNECTION_CLOSED,
-    HEADER_SIZE,
     MAGIC,
     NEED_DATA,
     PROTOCOL_VERSION,

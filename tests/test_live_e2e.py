@@ -9,7 +9,6 @@ scene, size and network: mean PSNR within ``PSNR_TOLERANCE_DB``.
 from __future__ import annotations
 
 import asyncio
-import math
 import subprocess
 import sys
 from pathlib import Path

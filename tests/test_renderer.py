@@ -9,7 +9,7 @@ import pytest
 
 from splitrender.errors import RenderError
 from splitrender.render.gl import read_shader
-from splitrender.scene.model import DirectionalLight, Material, Scene, SceneObject
+from splitrender.scene.model import Material, Scene, SceneObject
 from splitrender.scene.pose import CameraIntrinsics, Pose, quat_from_euler_deg
 from splitrender.scene.primitives import grid_plane
 

@@ -15,7 +15,7 @@ TINY = dict(width=160, height=90, flip_every=0)
 def test_same_seed_same_csv(tmp_path, renderer):
     cfg = RunConfig(method="atw", trace="walk", network="cloud", duration_s=1.0, seed=7, **TINY)
     a = run(cfg, tmp_path / "a", renderer=renderer)
-    b = run(cfg, tmp_path / "b", renderer=renderer)
+    run(cfg, tmp_path / "b", renderer=renderer)
 
     def stable(path):  # wall-clock columns differ between runs; everything else must not
         import csv

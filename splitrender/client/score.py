@@ -74,13 +74,10 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
             holes = z["holes"] if "holes" in z.files else None
         pose = Pose(np.array([row["px"], row["py"], row["pz"]]), np.array([row["qx"], row["qy"], row["qz"], row["qw"]]))
         w0 = time.perf_counter()
-        gt = renderer.render(scene, float(row["scene_t_s"]), pose, intr, ("color",)).color
+        gt = renderer.render(scene, float(row["scene_t_s"]), pose, intr, ("color", "object_id"))
         row["gt_ms"] = (time.perf_counter() - w0) * 1000
-        row["psnr_db"] = metrics.psnr(color, gt)
-        row["ssim"] = metrics.ssim(color, gt)
-        row["flip"] = metrics.flip(color, gt) if flip_every and i % flip_every == 0 else math.nan
-        row["lab_err_pct"] = 100.0 * metrics.lab_error_rate(color, gt)
-        row["hole_pct"] = 100.0 * metrics.hole_rate(holes)
+        # the same per-frame scoring as the virtual-time runner
+        row.update(metrics.score_frame(color, holes, gt.color, gt.object_id > 0, bool(flip_every) and i % flip_every == 0))
         if progress:
             progress(i + 1, len(rows))
     summary = _summary(rec, rows, counters, flip_every)

@@ -99,3 +99,23 @@ def hole_rate(mask: np.ndarray | None) -> float:
 def dssim(a: np.ndarray, b: np.ndarray) -> float:
     """Structural dissimilarity ``(1 - SSIM) / 2`` as in the TSS paper."""
     return (1.0 - ssim(a, b)) / 2.0
+
+
+def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, truth_geometry: np.ndarray | None,
+                with_flip: bool) -> dict[str, float]:
+    """Every per-frame quality number of one displayed image against its ground truth.
+
+    ``truth_geometry`` (bool, H x W) marks pixels where the ground truth shows geometry;
+    a hole counts only there (an uncovered sky pixel is background either way).
+    Returns ``psnr_db``, ``ssim``, ``flip`` (NaN unless ``with_flip``), ``lab_err_pct``
+    and ``hole_pct``.
+    """
+    if holes is not None and truth_geometry is not None:
+        holes = np.asarray(holes, bool) & np.asarray(truth_geometry, bool)
+    return {
+        "psnr_db": psnr(shown, truth),
+        "ssim": ssim(shown, truth),
+        "flip": flip(shown, truth) if with_flip else float("nan"),
+        "lab_err_pct": 100.0 * lab_error_rate(shown, truth),
+        "hole_pct": 100.0 * hole_rate(holes),
+    }

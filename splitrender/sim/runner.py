@@ -313,14 +313,8 @@ class VirtualTimeRun:
                 gt_out = self.renderer.render(self.scene, t_d, true_pose, intr, ("color", "object_id"))
                 gt = gt_out.color
                 row["gt_ms"] = (time.perf_counter() - w0) * 1000
-                row["psnr_db"] = metrics.psnr(cf.color, gt)
-                row["ssim"] = metrics.ssim(cf.color, gt)
-                row["flip"] = metrics.flip(cf.color, gt) if cfg.flip_every and di % cfg.flip_every == 0 else math.nan
-                row["lab_err_pct"] = 100.0 * metrics.lab_error_rate(cf.color, gt)
-                # a hole is a pixel the method could not fill where the truth shows geometry
-                # (an uncovered sky pixel is not a hole: it is background either way)
-                holes = None if cf.holes is None else (cf.holes & (gt_out.object_id > 0))
-                row["hole_pct"] = 100.0 * metrics.hole_rate(holes)
+                row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
+                                               bool(cfg.flip_every) and di % cfg.flip_every == 0))
                 if cfg.save_images_every and di % cfg.save_images_every == 0:
                     result.images.append((di, cf.color, gt))
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
