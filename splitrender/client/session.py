@@ -14,7 +14,7 @@ Task layout (one ``asyncio.TaskGroup`` owned by :meth:`LiveClient.run`):
   at the trace pose of that instant, records the row (and image) and sends Feedback
   the first time an update is shown.  It ends the run after ``duration_s``.
 
-Times on the wire are wall-clock µs (:func:`~splitrender.server.control.wall_us`);
+Times on the wire are wall-clock µs (:func:`~splitrender.transport.control.wall_us`);
 durations are measured with ``time.perf_counter``.
 """
 
@@ -66,7 +66,7 @@ from splitrender.protocol.errors import RtcpError
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
-from splitrender.server.control import ControlChannel, wall_us
+from splitrender.transport.control import ControlChannel, wall_us
 
 __all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "run_client"]
 

@@ -63,7 +63,7 @@ from splitrender.protocol import (
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.predict import make_predictor
-from splitrender.server.control import ControlChannel, wall_us
+from splitrender.transport.control import ControlChannel, wall_us
 
 if TYPE_CHECKING:
     from splitrender.server.server import Address, LiveServer
