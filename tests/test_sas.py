@@ -212,7 +212,7 @@ def _cloud_latency_s() -> float:
 def test_linear_prediction_covers_99_percent_on_walk() -> None:
     """Section 5.1 over the server's own window (expected latency + one frame, ~106 ms under ``cloud``).
 
-    The PVS poses come from :meth:`SasServer.pvs_poses` (constant-velocity prediction from
+    The PVS samples come from :meth:`SasServer.pvs_samples` (constant-velocity prediction from
     the 120 Hz pose history, 20% FOV margin); the truth is the EVS union at the true poses
     at the server's sample times.  Without prediction and margin the newest pose alone
     must miss more than 1% of the visible area, so the test shows that both matter.
@@ -239,16 +239,52 @@ def test_linear_prediction_covers_99_percent_on_walk() -> None:
             pred.observe(t - k / 120, trace.pose_at(t - k / 120))
         ctx = ServerContext(0, t, scene, r, INTR, trace.pose_at(t), t, pred.predict(t + lat), t + lat, pred.predict, lat)
         times = sample_times(t, t + lat + 1 / 30, servers["linear"].config.pvs_step_ms / 1e3)
-        truth = [trace.pose_at(s) for s in times]
+        truth = [(s, trace.pose_at(s)) for s in times]
         for m, srv in servers.items():
-            poses = srv.pvs_poses(ctx)
-            n_samples = max(n_samples, len(poses))
-            rates = pvs_rates(ids, poses, truth, INTR, 1.0 + srv.config.fov_margin, t)
+            samples = srv.pvs_samples(ctx)
+            n_samples = max(n_samples, len(samples))
+            rates = pvs_rates(ids, samples, truth, INTR, 1.0 + srv.config.fov_margin)
             v[m] += rates.visible_px
             fn[m] += (1 - rates.coverage) * rates.visible_px
     coverage = {m: 1 - fn[m] / v[m] for m in servers}
     assert n_samples == len(times) >= 4, f"the server sampled {n_samples} poses over {lat + 1 / 30:.3f} s"
     assert coverage["none"] < 0.99 <= coverage["linear"], f"area-weighted coverage over {lat + 1 / 30:.3f} s: {coverage}"
+
+
+def test_pvs_holds_a_moving_object_that_enters_the_view_within_the_window() -> None:
+    """Animated objects are placed at each EVS sample's time (paper section 3.1).
+
+    A still camera at x = 2.5 m looks down -z; the default scene's ``ball`` (patrolling
+    x in [-4, 4] at 2.5 m/s, z = -3.6) is outside the view at the frame time and enters
+    it within the server's window under ``cloud``.  With no FOV margin (so only object
+    motion can bring it in) its patches must be in the PVS the server sends, and
+    ``pvs_rates`` must count it as covered.
+    """
+    from splitrender.methods.sas import SasConfig, SasServer
+    from splitrender.methods.sas.pvs import PatchIdPass, pvs_rates
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.pose import Pose, look_at_quat
+
+    r = Renderer()
+    scene = default_scene()
+    srv = SasServer(SasConfig(fov_margin=0.0), INTR, scene, 30)
+    ids = PatchIdPass(r, scene, srv.patches)
+    ball = next(k for k, o in enumerate(scene.objects) if o.name == "ball")
+    ball_patches = np.flatnonzero(srv.patches.object_index == ball)
+    eye = np.array([2.5, 1.2, 0.0])
+    pose = Pose(eye, look_at_quat(eye, eye + np.array([0.0, -0.1, -1.0])))
+    t, lat = 0.87, _cloud_latency_s()
+    ctx = ServerContext(0, t, scene, r, INTR, pose, t, pose, t + lat, lambda _t: pose, lat)
+    samples = srv.pvs_samples(ctx)
+    assert ids.evs_area(pose, INTR, t)[ball_patches].sum() == 0, "the ball must start outside the view"
+    entering = ids.evs_area(pose, INTR, samples[-1][0])[ball_patches]
+    assert (entering > 0).sum() >= 5, f"the ball must be in view {samples[-1][0] - t:.3f} s later"
+    u = srv.produce(ctx)
+    in_pvs = np.isin(ball_patches, u.meta["geo_id"])
+    assert in_pvs[entering > 0].all(), (f"{int((~in_pvs[entering > 0]).sum())} of {int((entering > 0).sum())} ball patches "
+                                        f"visible at t + {samples[-1][0] - t:.3f} s are missing from the PVS")
+    rates = pvs_rates(ids, samples, [(s, pose) for s, _ in samples], INTR, 1.0)
+    assert rates.coverage == 1.0, f"pvs_rates coverage {rates.coverage:.4f} of a still camera with the ball entering"
 
 
 # ---------------------------------------------------------------- end to end

@@ -106,18 +106,18 @@ def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
                 for fov in (1.0, 1.2):
                     v = fn = fp = 0.0
                     for t in ts:
-                        samples = sample_times(t, t + latency_ms / 1e3 + 1 / 30, 1 / 30)
-                        truth = [trace.pose_at(s) for s in samples]
+                        times = sample_times(t, t + latency_ms / 1e3 + 1 / 30, 1 / 30)
+                        truth = [(s, trace.pose_at(s)) for s in times]
                         if mode == "none":
-                            poses = truth[:1]
+                            samples = truth[:1]
                         elif mode == "perfect":
-                            poses = truth
+                            samples = truth
                         else:
                             pred = make_predictor("cv")
                             for k in range(4, -1, -1):
                                 pred.observe(t - k / 120, trace.pose_at(t - k / 120))
-                            poses = [pred.predict(s) for s in samples]
-                        r = pvs_rates(ids, poses, truth, intr, fov, t)
+                            samples = [(s, pred.predict(s)) for s in times]
+                        r = pvs_rates(ids, samples, truth, intr, fov)
                         v += r.visible_px
                         fn += (1 - r.coverage) * r.visible_px
                         fp += r.overestimation * r.visible_px

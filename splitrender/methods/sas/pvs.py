@@ -1,10 +1,14 @@
 """Potentially visible set (paper sections 3.1 and 5.1).
 
 An *exact visible set* (EVS) is the set of patches with at least one pixel in a
-depth-tested patch-ID buffer rendered at one pose; its per-patch pixel counts are the
-patches' projected areas.  The PVS is the union of EVS samples at the current pose
-and at poses predicted along the expected latency, each with an enlarged field of view
-(the ID buffer grows around the original view, keeping its pixel density).
+depth-tested patch-ID buffer rendered at one pose and time; its per-patch pixel counts
+are the patches' projected areas.  The PVS is the union of EVS samples at the current
+pose and at poses predicted along the expected latency, each with an enlarged field of
+view (the ID buffer grows around the original view, keeping its pixel density).  A
+sample is a ``(t_s, pose)`` pair: animated objects are placed at the sample's own time
+(the paper: "the motion of animated objects corresponding to the predicted time for
+which an EVS is created"), so an object moving into view is in the PVS before it
+arrives.
 
 :func:`pvs_rates` computes the section 5.1 measures: with ``v`` the area of patches
 visible at the *true* sample poses (regular field of view, area-weighted by their
@@ -27,6 +31,8 @@ from ...scene.pose import CameraIntrinsics, Pose
 from .patches import ScenePatches
 
 SHADERS = Path(__file__).parent / "shaders"
+PoseSample = tuple[float, Pose]
+"""One EVS sample: scene time (seconds; places animated objects) and camera pose."""
 
 
 class PatchIdPass:
@@ -74,10 +80,10 @@ class PatchIdPass:
         """(P,) pixels covered by each patch at ``pose`` (the EVS with projected areas)."""
         return np.bincount(self.id_buffer(pose, intr, t_s).ravel(), minlength=self.patches.count + 1)[1:]
 
-    def pvs_area(self, poses: Sequence[Pose], intr: CameraIntrinsics, t_s: float) -> np.ndarray:
-        """(P,) per patch the largest EVS area over ``poses``; > 0 means in the PVS."""
+    def pvs_area(self, samples: Sequence[PoseSample], intr: CameraIntrinsics) -> np.ndarray:
+        """(P,) per patch the largest EVS area over ``samples`` (``(t_s, pose)``); > 0 means in the PVS."""
         acc = np.zeros(self.patches.count, np.int64)
-        for p in poses:
+        for t_s, p in samples:
             np.maximum(acc, self.evs_area(p, intr, t_s), out=acc)
         return acc
 
@@ -100,13 +106,16 @@ class PvsRates:
     visible_px: float
 
 
-def pvs_rates(ids: PatchIdPass, pvs_poses: Sequence[Pose], true_poses: Sequence[Pose], intr: CameraIntrinsics,
-              fov_factor: float, t_s: float) -> PvsRates:
-    """Coverage and overestimation of the PVS from ``pvs_poses`` against the EVS union of ``true_poses``."""
+def pvs_rates(ids: PatchIdPass, pvs_samples: Sequence[PoseSample], true_samples: Sequence[PoseSample],
+              intr: CameraIntrinsics, fov_factor: float) -> PvsRates:
+    """Coverage and overestimation of the PVS from ``pvs_samples`` against the EVS union of ``true_samples``.
+
+    Both are ``(t_s, pose)`` pairs; objects are placed at each sample's time.
+    """
     big = intr.enlarged(fov_factor, keep_pixel_density=True) if fov_factor > 1.0 else intr
-    pvs = ids.pvs_area(pvs_poses, big, t_s)
+    pvs = ids.pvs_area(pvs_samples, big)
     truth = np.zeros_like(pvs)
-    for p in true_poses:
+    for t_s, p in true_samples:
         truth += ids.evs_area(p, intr, t_s)
     v = float(truth.sum())
     if v == 0:

@@ -44,11 +44,11 @@ def record_visibility(renderer: Any, scene: Scene, trace: Any, intr: CameraIntri
     out = []
     for f in range(frames):
         t = t0_s + f / server_fps
-        poses = [trace.pose_at(s) for s in sample_times(t, t + latency_s + 1 / server_fps, step_s)]
-        pvs = np.flatnonzero(ids.pvs_area(poses, big, t) > 0)
+        samples = [(s, trace.pose_at(s)) for s in sample_times(t, t + latency_s + 1 / server_fps, step_s)]
+        pvs = np.flatnonzero(ids.pvs_area(samples, big) > 0)
         models = np.stack([o.model_matrix(t) for o in scene.objects])
         world = patch_world_slots(patches, pvs, models)
-        A, a = ideal_log_size(patches, pvs, world, np.asarray(poses[-1].position), px_per_rad)
+        A, a = ideal_log_size(patches, pvs, world, np.asarray(samples[-1][1].position), px_per_rad)
         out.append(VisibilityFrame(t, pvs, A, a))
     return patches, out
 

@@ -3,9 +3,10 @@
 Per server frame (paper figure 2):
 
 1. visibility: EVS samples from the newest client pose to ``target + one frame`` in
-   steps of ``pvs_step_ms`` (poses from the pose predictor; ``pvs_prediction="none"``
-   uses the newest pose only), each with the field of view enlarged by
-   ``fov_margin``; the PVS is their union;
+   steps of ``pvs_step_ms`` (poses from the pose predictor, animated objects at each
+   sample's time; ``pvs_prediction="none"`` uses the newest pose only, objects at
+   the frame's time), each with the field of view enlarged by ``fov_margin``; the
+   PVS is their union;
 2. level selection (eq. 1-3) at the predicted pose, with hysteresis;
 3. atlas memory management (:class:`~.allocator.PatchAllocator`); an atlas reset
    (global repack) happens on an I-frame when the memory load passes
@@ -50,12 +51,12 @@ import numpy as np
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
 from ...render.gl import load_program
-from ...scene.pose import CameraIntrinsics, Pose
+from ...scene.pose import CameraIntrinsics
 from ..base import MethodConfig, ServerContext, ServerHalf, StreamSpec, Update
 from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from .levels import ideal_log_size, patch_world_slots, select_levels
 from .patches import SLOT_LAYOUT, TRI_SLOTS, ScenePatches, build_scene_patches
-from .pvs import PatchIdPass, sample_times
+from .pvs import PatchIdPass, PoseSample, sample_times
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
@@ -227,13 +228,17 @@ class SasServer(ServerHalf):
         self._sg = renderer.upload(self.scene)
 
     # ------------------------------------------------------------------ frame
-    def pvs_poses(self, ctx: ServerContext) -> list[Pose]:
-        """Sample poses of the PVS: newest pose, then predictions to one frame past the target."""
+    def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
+        """EVS samples ``(t_s, pose)`` of the PVS: the newest pose, then predictions to one frame past the target.
+
+        Animated objects are placed at each sample's time; without prediction the one
+        sample shows the newest pose with objects at the frame's time ``ctx.t_s``.
+        """
         if self.config.pvs_prediction == "none":
-            return [ctx.latest_pose]
+            return [(ctx.t_s, ctx.latest_pose)]
         t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / self.server_fps
         ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
-        return [ctx.latest_pose] + [ctx.predict(t) for t in ts[1:]]
+        return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
 
     def produce(self, ctx: ServerContext) -> Update:
         c = self.config
@@ -242,7 +247,7 @@ class SasServer(ServerHalf):
         assert self._ids is not None
         t0 = time.perf_counter()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
-        area = self._ids.pvs_area(self.pvs_poses(ctx), big, ctx.t_s)
+        area = self._ids.pvs_area(self.pvs_samples(ctx), big)
         pvs = np.flatnonzero(area > 0)
         t1 = time.perf_counter()
         # level selection at the predicted eye
