@@ -30,12 +30,12 @@ def _lazy(target: str) -> Callable[[argparse.Namespace], int]:
 
 
 def _common_run_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="default", help="built-in scene name (default, minimal) or a .glb/.gltf/.obj/.ply/.dae file")
-    p.add_argument("--trace", default="walk", help="built-in trace (walk, walk_fast, turn, strafe, static, orbit) or a trace file (.csv, or a QUASAR .txt path)")
+    p.add_argument("--scene", default=None, help="built-in scene name (default, minimal) or a .glb/.gltf/.obj/.ply/.dae file (default: default)")
+    p.add_argument("--trace", default=None, help="built-in trace (walk, walk_fast, turn, strafe, static, orbit) or a trace file (.csv, or a QUASAR .txt path) (default: walk)")
     p.add_argument("--width", type=int, default=None, help="display width in pixels")
     p.add_argument("--height", type=int, default=None, help="display height in pixels")
     p.add_argument("--duration", type=float, default=None, help="seconds of the trace to run (default: whole trace)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=None, help="seed of the network model (default 0)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,9 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_demo"))
 
     p = sub.add_parser("run", help="one virtual-time run: writes frames.csv, updates.csv, summary.csv and config.toml")
-    p.add_argument("--method", default="video", help="streaming method (see `splitrender methods`)")
+    p.add_argument("--method", default=None, help="streaming method (see `splitrender methods`; default video)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="method parameter (TOML value), repeatable, e.g. --param overscan=1.4")
-    p.add_argument("--network", default="ideal", help="profile (ideal, lan, cloud, wifi, lte) or a netem string such as 'delay 50ms 20ms loss 1%%'")
+    p.add_argument("--network", default=None, help="profile (ideal, lan, cloud, wifi, lte), a netem string such as 'delay 50ms 20ms loss 1%%', or a network .toml file (default ideal)")
     p.add_argument("--config", type=Path, default=None, help="TOML run config; command-line options override it")
     p.add_argument("--out", type=Path, default=Path("out/run"))
     p.add_argument("--server-fps", type=int, default=None)
@@ -132,8 +132,10 @@ def main_run(ns: argparse.Namespace) -> int:
         if not sep or not k:
             raise ConfigError(f"--param {kv!r}: expected KEY=VALUE")
         params[k.strip()] = _parse_value(v.strip())
-    over = {"method": ns.method, "network": ns.network, "scene": ns.scene, "trace": ns.trace, "seed": ns.seed, "method_params": params}
-    for k, v in (("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
+    # the config file is the base; only options given on the command line override it
+    over: dict[str, Any] = {"method_params": params}
+    for k, v in (("method", ns.method), ("network", ns.network), ("scene", ns.scene), ("trace", ns.trace), ("seed", ns.seed),
+                 ("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every)):
         if v is not None:
             over[k] = v

@@ -58,3 +58,13 @@ def test_hole_rate_and_dssim():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="image shapes differ"):
         metrics.psnr(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8))
+
+
+def test_ssim_closed_form_on_constant_images():
+    # Constant grey images have no variance: SSIM is the luminance term alone,
+    # (2 mx my + C1) / (mx^2 + my^2 + C1) with C1 = (K1 * 255)^2.
+    a = np.full((32, 32, 3), 100, np.uint8)
+    b = np.full((32, 32, 3), 110, np.uint8)
+    c1 = (metrics.image.SSIM_K1 * 255) ** 2
+    expect = (2 * 100 * 110 + c1) / (100**2 + 110**2 + c1)
+    assert metrics.ssim(a, b) == pytest.approx(expect, abs=1e-6)

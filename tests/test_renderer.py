@@ -126,3 +126,37 @@ def test_no_egl_gives_a_clear_error(monkeypatch):
     monkeypatch.setattr(moderngl, "create_context", boom)
     with pytest.raises(RenderError, match="OpenGL 4.3 context through EGL.*libegl1"):
         gl.create_context()
+
+
+def test_sun_casts_shadows_from_static_and_moving_casters(renderer):
+    from splitrender.scene.model import DirectionalLight, Oscillate
+    from splitrender.scene.primitives import box
+
+    # A floor, two 1 m slabs 1 m above it, a sun travelling along (1, -1, 0): each slab's
+    # shadow falls 1 m to its +x side.  A camera 8 m above looks straight down (+x right, -z up).
+    floor = SceneObject("floor", grid_plane(20.0, 20.0, 2, 2), Material("floor", (0.8, 0.8, 0.8), None, specular=0.0), 1)
+    m = np.eye(4)
+    m[:3, 3] = (-1.5, 1.0, -4.0)
+    still = SceneObject("still", box((1.0, 0.2, 1.0)), Material(), 2, m.copy())
+    m[:3, 3] = (1.5, 1.0, -4.0)
+    moving = SceneObject("moving", box((1.0, 0.2, 1.0)), Material(), 3, m.copy(), Oscillate((0, 0, 1), 1.5, 4.0))
+    sun = DirectionalLight(direction=(1.0, -1.0, 0.0), shadow_map_size=1024, shadow_extent_m=10.0)
+    scene = Scene("shadows", [floor, still, moving], sun=sun, ambient=(0.2, 0.2, 0.2))
+    intr = CameraIntrinsics(96, 96, 60.0)
+    top = Pose(np.array([0.0, 8.0, -4.0]), quat_from_euler_deg(-90.0, 0.0, 0.0))
+
+    def floor_at(t, x):
+        out = renderer.render(scene, t, top, intr, ("color", "object_id"))
+        col = int(round(48 + x * intr.focal_px() / 8.0))
+        ids = out.object_id[47:50, col - 1 : col + 2]
+        assert (ids == 1).all(), f"expected to see the floor at x={x} m, t={t} s: {ids}"
+        return float(out.color[47:50, col - 1 : col + 2].astype(float).mean())
+
+    lit = floor_at(0.0, -3.5)
+    shaded = floor_at(0.0, -0.5)
+    assert lit - shaded > 30, f"static caster: lit {lit:.0f} vs shadowed {shaded:.0f}"
+    # the moving slab leaves z = -4 (it is at z = -2.5 at t = 1 s): its shadow goes with it
+    before = floor_at(0.0, 2.5)
+    after = floor_at(1.0, 2.5)
+    assert after - before > 30, f"moving caster's shadow should leave (2.5, -4): {before:.0f} -> {after:.0f}"
+    assert abs(after - lit) < 5, f"once the shadow left, the floor is lit again: {after:.0f} vs {lit:.0f}"

@@ -182,7 +182,8 @@ def _side(text: str, direction: str) -> LinkSpec:
 
 
 def parse_path(text: str) -> PathSpec:
-    """A profile name, a netem string (both directions alike) or ``"up: ...; down: ..."``.
+    """A profile name, a ``.toml`` file, a netem string (both directions alike) or
+    ``"up: ...; down: ..."``.
 
     Each side of the directional form is itself a profile name (its own direction of
     that profile is used) or a netem string; a side not given is ideal.
@@ -192,6 +193,8 @@ def parse_path(text: str) -> PathSpec:
     name = text.strip()
     if name in PROFILES:
         return PROFILES[name]
+    if name.lower().endswith(".toml"):
+        return path_from_toml(name)
     if _DIRECTION_RE.match(text) is None:
         return PathSpec.symmetric(parse_netem(text))
     sides: dict[str, LinkSpec] = {}

@@ -71,11 +71,14 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         geoms = dumped if isinstance(dumped, (list, tuple)) else [dumped]
     except Exception:
         geoms = []
-        for node in loaded.graph.nodes_geometry:
-            m, gname = loaded.graph[node]
-            g = loaded.geometry[gname].copy()
-            g.apply_transform(m)
-            geoms.append(g)
+        try:
+            for node in loaded.graph.nodes_geometry:
+                m, gname = loaded.graph[node]
+                g = loaded.geometry[gname].copy()
+                g.apply_transform(m)
+                geoms.append(g)
+        except Exception as exc:
+            raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
     for i, g in enumerate(geoms):
         if not hasattr(g, "faces") or len(getattr(g, "faces", [])) == 0:
             continue
@@ -83,8 +86,10 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         faces = np.asarray(g.faces, dtype=np.int64)
         if not np.isfinite(verts).all():
             raise SceneError(f"scene file {p}: mesh {i} has non-finite vertex positions")
-        if faces.min() < 0 or faces.max() >= len(verts):
-            raise SceneError(f"scene file {p}: mesh {i} has face indices out of range")
+        if verts.ndim != 2 or verts.shape[1] != 3:
+            raise SceneError(f"scene file {p}: mesh {i} has vertices of shape {verts.shape}, expected (N, 3)")
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= len(verts):
+            raise SceneError(f"scene file {p}: mesh {i} has face indices out of range or not triangles")
         try:
             normals = np.asarray(g.vertex_normals, dtype=np.float64)
         except Exception:
@@ -97,6 +102,8 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         objects.append(SceneObject(name, mesh, _material_from_visual(g.visual, name), len(objects) + 1))
     if not objects:
         raise SceneError(f"scene file {p} contains no triangle meshes")
+    if not any(float(o.mesh.triangle_areas().sum()) > 0 for o in objects):
+        raise SceneError(f"scene file {p}: every triangle is degenerate (zero area)")
     if target_size_m is not None:
         lo = np.min([o.mesh.positions.min(0) for o in objects], axis=0)
         hi = np.max([o.mesh.positions.max(0) for o in objects], axis=0)

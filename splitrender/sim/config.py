@@ -69,6 +69,8 @@ class RunConfig:
             raise bad("mtu_bytes", f"must be in [200, 9000], got {self.mtu_bytes}")
         if self.flip_every < 0 or self.save_images_every < 0:
             raise bad("flip_every/save_images_every", "must be >= 0")
+        if not 0 <= self.seed < 2**63:
+            raise bad("seed", f"must be in [0, 2**63), got {self.seed}")
         if not isinstance(self.method_params, dict):
             raise bad("method_params", f"must be a table, got {type(self.method_params).__name__}")
 

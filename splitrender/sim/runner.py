@@ -80,6 +80,7 @@ class RunResult:
     updates: list[dict[str, Any]] = field(default_factory=list)
     summary: dict[str, Any] = field(default_factory=dict)
     images: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    resolved: dict[str, Any] = field(default_factory=dict)
 
     def write(self, out_dir: str | Path) -> Path:
         """Write frames.csv, updates.csv, summary.csv and config.toml into ``out_dir``."""
@@ -88,7 +89,10 @@ class RunResult:
         write_csv(d / "frames.csv", self.frames)
         write_csv(d / "updates.csv", self.updates)
         write_csv(d / "summary.csv", [self.summary])
-        (d / "config.toml").write_text("[run]\n" + to_toml(self.config.to_dict()))
+        text = "[run]\n" + to_toml(self.config.to_dict(), "run.")
+        if self.resolved:  # every method parameter (defaults included) and both network directions
+            text += "\n[resolved]\n" + to_toml(self.resolved, "resolved.")
+        (d / "config.toml").write_text(text)
         if self.images:
             from PIL import Image
 
@@ -172,7 +176,9 @@ class VirtualTimeRun:
         kf_requests = 0
         last_release = -math.inf
         pending: deque[_Pending] = deque()
-        result = RunResult(cfg)
+        import dataclasses
+
+        result = RunResult(cfg, resolved={"method": dataclasses.asdict(self.mcfg), "network": dataclasses.asdict(self.path)})
         bytes_by_stream: dict[str, int] = {s.name: 0 for s in streams}
         bytes_by_stream["meta"] = 0
         bytes_by_stream["session"] = len(session_blob)
