@@ -97,6 +97,19 @@ def test_bc4_decode_rejects_malformed(bad: bytes, msg: str) -> None:
         bc4_decode(bad)
 
 
+def test_bc4_decode_refuses_an_unexpected_size_before_decompressing() -> None:
+    """A header claiming 65535x65535 (a 3.8 GB body) is refused from the header alone when the
+    caller knows the size; the right size decodes."""
+    codes = np.full((16, 24), 1000, np.uint16)
+    data = bc4_encode(codes)
+    assert np.array_equal(bc4_decode(data, expect_shape=(16, 24)), codes)
+    with pytest.raises(CodecError, match=r"^bc4: size 24x16 does not match the expected 24x8$"):
+        bc4_decode(data, expect_shape=(8, 24))
+    huge = b"BC4D\x01\x00\x08\x00\xff\xff\xff\xff" + data[12:]
+    with pytest.raises(CodecError, match=r"^bc4: size 65535x65535 does not match the expected 24x16$"):
+        bc4_decode(huge, expect_shape=(16, 24))
+
+
 def test_bad_shapes_raise() -> None:
     with pytest.raises(CodecError, match="2-D"):
         quantize_depth(np.ones((2, 2, 2)), 0.1)

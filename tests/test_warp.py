@@ -14,11 +14,11 @@ import pytest
 
 from splitrender.codecs.meta import pack_meta, unpack_meta
 from splitrender.codecs.video import VideoDecoder, VideoEncoder
-from splitrender.errors import CodecError, ConfigError
+from splitrender.errors import CodecError, ConfigError, RemoteProtocolError
 from splitrender.methods import get_method, make_config
 from splitrender.methods.atw import AtwClient, AtwConfig, AtwServer
 from splitrender.methods.base import DecodedUpdate, ServerContext, ServerHalf, Update
-from splitrender.methods.warp import WarpClient, WarpConfig, WarpServer, extrapolate_model, reference_poses
+from splitrender.methods.warp import WarpClient, WarpConfig, WarpMetaError, WarpServer, extrapolate_model, reference_poses
 from splitrender.metrics import hole_rate, lab_error_rate, psnr
 from splitrender.scene.pose import CameraIntrinsics, Pose, quat_from_axis_angle, quat_to_matrix3
 from splitrender.scene.model import Material, Scene, SceneObject
@@ -118,7 +118,8 @@ def test_reference_poses_keep_view_0_at_the_prediction() -> None:
     motion = np.array([0.0, 0.0, -0.05])
     for second, motion_dir, offset in [("stereo", None, right), ("back", None, back), ("motion", motion, -np.array([0, 0, 1.0])),
                                        ("motion", None, right)]:
-        poses = reference_poses(WarpConfig(views=2, second_view=second, baseline_m=0.4), target, motion_dir)  # type: ignore[arg-type]
+        cfg = WarpConfig(views=2, second_view=second, baseline_m=0.4)  # type: ignore[arg-type]
+        poses = reference_poses(cfg, target, motion_dir)
         assert np.array_equal(poses[0].position, target.position) and np.array_equal(poses[0].orientation, target.orientation)
         assert np.allclose(poses[1].position - target.position, 0.4 * offset), second
     assert [p is target for p in reference_poses(WarpConfig(views=1), target, None)] == [True]
@@ -296,23 +297,49 @@ def test_bc4_depth_mode_works(scene: Any, renderer: Any) -> None:
 
 
 def test_malformed_updates_raise(scene: Any, renderer: Any) -> None:
+    """Every malformed field raises :class:`WarpMetaError` (a ``RemoteProtocolError`` and a ``CodecError``)
+    with a message naming the frame and the field; the client keeps its last good update."""
     srv, cli = warp_pair(scene, renderer)
     good = through_wire(srv, srv.produce(context(scene, renderer, START)))
-    bad_plane = dataclasses.replace(good, planes={**good.planes, "color0": good.planes["color0"][:-2]})
-    with pytest.raises(CodecError, match="color0"):
-        cli.apply(bad_plane)
-    with pytest.raises(CodecError, match="depth0"):
-        cli.apply(dataclasses.replace(good, planes={"color0": good.planes["color0"]}))
-    with pytest.raises(CodecError, match="version"):
-        cli.apply(dataclasses.replace(good, meta={**good.meta, "v": 99}))
-    with pytest.raises(CodecError, match="ids"):
-        views = [dict(good.meta["views"][0], ids=np.zeros((3, 3), np.uint8))]
-        cli.apply(dataclasses.replace(good, meta={**good.meta, "views": views}))
-    with pytest.raises(CodecError, match="obj_model"):
-        cli.apply(dataclasses.replace(good, meta={**good.meta, "obj_model": np.zeros((2, 3))}))
-    with pytest.raises(CodecError, match="pose"):
-        views = [dict(good.meta["views"][0], pose=[1.0, 2.0])]
-        cli.apply(dataclasses.replace(good, meta={**good.meta, "views": views}))
+    view0 = good.meta["views"][0]
+
+    def meta(**kw: Any) -> DecodedUpdate:
+        return dataclasses.replace(good, meta={**good.meta, **kw})
+
+    def view(**kw: Any) -> DecodedUpdate:
+        return meta(views=[{**view0, **kw}])
+
+    cases = [
+        (dataclasses.replace(good, planes={**good.planes, "color0": good.planes["color0"][:-2]}),
+         "warp frame 0: plane color0 must be (234, 416, 3) uint8, got array uint8 (232, 416, 3)"),
+        (dataclasses.replace(good, planes={"color0": good.planes["color0"]}),
+         "warp frame 0: plane depth0 must be (468, 416) uint8, got None"),
+        (meta(v=99), "warp metadata frame 0: v: missing or unsupported version 99"),
+        (meta(ref=5), "warp metadata frame 0: ref: reference camera 5 does not match [416, 234, 73.7805]"),
+        (meta(ref=[416, "234", 74.0]), "warp metadata frame 0: ref: reference camera [416, '234', 74.0] does not match"),
+        (meta(depth_coding=["bc4"]), "warp metadata frame 0: depth_coding: unknown coding ['bc4']"),
+        (meta(depth_near_m=float("nan")), "warp metadata frame 0: depth_near_m must be a number in (0, 1e+06], got nan"),
+        (meta(dt_s=True), "warp metadata frame 0: dt_s must be a number in (0, 1e+06], got True"),
+        (meta(views=view0), "warp metadata frame 0: views must be a list of 1 or 2 views, got {'pose'"),
+        (meta(views=[7]), "warp metadata frame 0: views[0] must be a map, got int"),
+        (view(ids=np.zeros((3, 3), np.uint8)),
+         "warp metadata frame 0: views[0].ids must be a (234, 416) uint8/uint16 array, got array uint8 (3, 3)"),
+        (view(pose=[1.0, 2.0]),
+         "warp metadata frame 0: views[0].pose must be 7 numbers [x, y, z, qx, qy, qz, qw] within +-1e+06, got [1.0, 2.0]"),
+        (view(pose=[0.0] * 7), "warp metadata frame 0: views[0].pose orientation is not a unit quaternion"),
+        (meta(obj_ids=np.array([0, 1], np.uint16)), "warp metadata frame 0: obj_ids must be object ids in [1, 65535], got 0..1"),
+        (meta(obj_ids=5), "warp metadata frame 0: obj_ids must be a 1-D integer array, got 5"),
+        (meta(obj_model=np.zeros((2, 3))), "warp metadata frame 0: obj_model must be a ("),
+        (meta(obj_model=np.zeros_like(good.meta["obj_model"])),
+         "warp metadata frame 0: obj_model holds a matrix that is not an invertible affine transform"),
+        (meta(depth_coding="bc4"), "warp metadata frame 0: views[0].bc4: bc4: expected bytes, got NoneType"),
+    ]
+    for update, text in cases:
+        with pytest.raises(WarpMetaError) as info:
+            cli.apply(update)
+        assert str(info.value).startswith(text), str(info.value)
+        assert isinstance(info.value, RemoteProtocolError) and isinstance(info.value, CodecError)
     # the client still renders from the last good update
+    assert cli.render(START, 0.0).color.shape == (180, 320, 3)
     cli.apply(good)
     assert cli.render(START, 0.0).color.shape == (180, 320, 3)

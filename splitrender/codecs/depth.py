@@ -143,8 +143,9 @@ def bc4_encode(codes: np.ndarray, level: int = 3) -> bytes:
     return head + zstandard.ZstdCompressor(level=level).compress(body)
 
 
-def bc4_decode(data: bytes) -> np.ndarray:
-    """Inverse of :func:`bc4_encode` (lossy): bytes -> (H, W) uint16 codes."""
+def bc4_decode(data: bytes, expect_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Inverse of :func:`bc4_encode` (lossy): bytes -> (H, W) uint16 codes.  With
+    ``expect_shape`` (H, W) a header of another size is refused before decompressing."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise CodecError(f"bc4: expected bytes, got {type(data).__name__}")
     data = bytes(data)
@@ -157,6 +158,8 @@ def bc4_decode(data: bytes) -> np.ndarray:
         raise CodecError(f"bc4: unsupported version {ver}")
     if b != BC4_BLOCK or h == 0 or w == 0:
         raise CodecError(f"bc4: bad header block={b} size={w}x{h}")
+    if expect_shape is not None and (h, w) != tuple(expect_shape):
+        raise CodecError(f"bc4: size {w}x{h} does not match the expected {expect_shape[1]}x{expect_shape[0]}")
     by, bx = -(-h // b), -(-w // b)
     n = by * bx
     need = n * 4 + n * 24

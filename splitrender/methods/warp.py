@@ -37,7 +37,7 @@ import numpy as np
 
 from ..codecs.depth import bc4_decode, bc4_encode, dequantize_depth, pack_depth_planes, quantize_depth, unpack_depth_planes
 from ..codecs.video import VideoCodecConfig
-from ..errors import CodecError, ConfigError
+from ..errors import CodecError, ConfigError, RemoteProtocolError
 from ..render.canvas import FullscreenPass, upload_image
 from ..render.gl import load_program
 from ..scene.pose import CameraIntrinsics, Pose, quat_from_matrix3, quat_slerp, quat_to_matrix3
@@ -48,6 +48,7 @@ log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
 META_VERSION = 1
 MAX_OBJECT_ID = 65535
+MAX_COORD_M = 1e6  # largest pose coordinate, matrix entry, near distance or dt accepted from the server (float32 on the GPU)
 Reconstruction = Literal["points", "quads", "mesh"]
 SecondView = Literal["stereo", "back", "motion"]
 ViewMerge = Literal["holes", "depth"]
@@ -264,72 +265,117 @@ class ReferenceFrame:
     dt_s: float
 
 
-def _arr(meta: dict[str, Any], key: str, shape_tail: tuple[int, ...], where: str) -> np.ndarray:
-    a = meta.get(key)
-    if not isinstance(a, np.ndarray):
-        raise CodecError(f"warp metadata {where}: {key!r} must be an array, got {type(a).__name__}")
-    if a.shape[1:] != shape_tail:
-        raise CodecError(f"warp metadata {where}: {key!r} has shape {a.shape}, expected (n, {', '.join(map(str, shape_tail))})")
+class WarpMetaError(RemoteProtocolError, CodecError):
+    """A malformed ``warp`` update from the server; the message names the frame and the field.
+    Also a :class:`CodecError`, the class these checks raised before."""
+
+
+def _show(v: Any) -> str:
+    """A short description of a peer value for an error message."""
+    if isinstance(v, np.ndarray):
+        return f"array {v.dtype} {v.shape}"
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
+
+
+def _positive(m: dict[Any, Any], key: str, where: str) -> float:
+    v = m.get(key)
+    if not _real(v) or not 0 < v <= MAX_COORD_M:
+        raise WarpMetaError(f"warp metadata {where}: {key} must be a number in (0, {MAX_COORD_M:g}], got {_show(v)}")
+    return float(v)
+
+
+def _pose(v: Any, where: str, field: str) -> Pose:
+    """A pose sent as ``[x, y, z, qx, qy, qz, qw]`` (metres, unit quaternion)."""
+    x = v.tolist() if isinstance(v, np.ndarray) and v.ndim == 1 else v
+    if not isinstance(x, (list, tuple)) or len(x) != 7 or not all(_real(e) and abs(e) <= MAX_COORD_M for e in x):
+        raise WarpMetaError(f"warp metadata {where}: {field} must be 7 numbers [x, y, z, qx, qy, qz, qw] within "
+                            f"+-{MAX_COORD_M:g}, got {_show(v)}")
+    if not 0.5 < float(np.linalg.norm(np.asarray(x[3:], np.float64))) < 2.0:
+        raise WarpMetaError(f"warp metadata {where}: {field} orientation is not a unit quaternion: {_show(v)}")
+    return Pose.from_list(x)
+
+
+def _ids(m: dict[Any, Any], key: str, where: str) -> np.ndarray:
+    a = m.get(key)
+    if not isinstance(a, np.ndarray) or a.ndim != 1 or a.dtype.kind not in "ui":
+        raise WarpMetaError(f"warp metadata {where}: {key} must be a 1-D integer array, got {_show(a)}")
+    if a.size and not (1 <= int(a.min()) and int(a.max()) <= MAX_OBJECT_ID):
+        raise WarpMetaError(f"warp metadata {where}: {key} must be object ids in [1, {MAX_OBJECT_ID}], "
+                            f"got {int(a.min())}..{int(a.max())}")
+    return a
+
+
+def _matrices(m: dict[Any, Any], key: str, n: int, where: str) -> np.ndarray:
+    """``n`` affine 4x4 model matrices with an invertible 3x3 part (warping inverts them)."""
+    a = m.get(key)
+    if not isinstance(a, np.ndarray) or a.dtype.kind != "f" or a.shape != (n, 4, 4):
+        raise WarpMetaError(f"warp metadata {where}: {key} must be a ({n}, 4, 4) float array, got {_show(a)}")
+    a = a.astype(np.float64)
+    if not (np.abs(a) <= MAX_COORD_M).all():
+        raise WarpMetaError(f"warp metadata {where}: {key} has entries that are not finite or beyond +-{MAX_COORD_M:g}")
+    if n and (not np.allclose(a[:, 3], (0.0, 0.0, 0.0, 1.0)) or (np.abs(np.linalg.det(a[:, :3, :3])) < 1e-9).any()):
+        raise WarpMetaError(f"warp metadata {where}: {key} holds a matrix that is not an invertible affine transform")
     return a
 
 
 def parse_update(update: DecodedUpdate, cfg: WarpConfig, ref: CameraIntrinsics) -> ReferenceFrame:
-    """Check and decode one update's planes and metadata; raises :class:`CodecError`."""
+    """Check and decode one update's planes and metadata; anything malformed raises
+    :class:`WarpMetaError` naming the frame and the field."""
     m = update.meta
     where = f"frame {update.frame_id}"
-    if not isinstance(m, dict) or m.get("v") != META_VERSION:
-        raise CodecError(f"warp metadata {where}: missing or unsupported version {m.get('v') if isinstance(m, dict) else m!r}")
+    if not isinstance(m, dict):
+        raise WarpMetaError(f"warp metadata {where}: expected a map, got {type(m).__name__}")
+    if not (isinstance(m.get("v"), int) and not isinstance(m.get("v"), bool) and m.get("v") == META_VERSION):
+        raise WarpMetaError(f"warp metadata {where}: v: missing or unsupported version {_show(m.get('v'))}")
     coding = m.get("depth_coding")
-    if coding not in ("lossless", "bc4"):
-        raise CodecError(f"warp metadata {where}: unknown depth_coding {coding!r}")
-    near = m.get("depth_near_m")
-    if not isinstance(near, (int, float)) or not near > 0:
-        raise CodecError(f"warp metadata {where}: depth_near_m must be a positive number, got {near!r}")
-    if m.get("ref") is None or [int(m["ref"][0]), int(m["ref"][1])] != [ref.width, ref.height]:
-        raise CodecError(f"warp metadata {where}: reference size {m.get('ref')!r} does not match {ref.width}x{ref.height}")
+    if not isinstance(coding, str) or coding not in ("lossless", "bc4"):
+        raise WarpMetaError(f"warp metadata {where}: depth_coding: unknown coding {_show(coding)}")
+    near = _positive(m, "depth_near_m", where)
+    r = m.get("ref")
+    if (not isinstance(r, (list, tuple)) or len(r) != 3 or not all(_real(x) for x in r)
+            or (r[0], r[1]) != (ref.width, ref.height) or abs(r[2] - ref.fov_y_deg) > 1e-6):
+        raise WarpMetaError(f"warp metadata {where}: ref: reference camera {_show(r)} does not match "
+                            f"[{ref.width}, {ref.height}, {ref.fov_y_deg:.6g}]")
     views_m = m.get("views")
     if not isinstance(views_m, list) or not 1 <= len(views_m) <= 2:
-        raise CodecError(f"warp metadata {where}: 'views' must be a list of 1 or 2 views")
+        raise WarpMetaError(f"warp metadata {where}: views must be a list of 1 or 2 views, got {_show(views_m)}")
     shape = (ref.height, ref.width)
     views = []
     for v, vm in enumerate(views_m):
         if not isinstance(vm, dict):
-            raise CodecError(f"warp metadata {where}: view {v} is not a map")
-        try:
-            pose = Pose.from_list(vm["pose"])
-        except Exception as exc:
-            raise CodecError(f"warp metadata {where}: view {v} pose is malformed: {exc}") from exc
+            raise WarpMetaError(f"warp metadata {where}: views[{v}] must be a map, got {type(vm).__name__}")
+        pose = _pose(vm.get("pose"), where, f"views[{v}].pose")
         color = update.planes.get(f"color{v}")
-        if color is None or color.shape != (*shape, 3) or color.dtype != np.uint8:
-            raise CodecError(f"warp {where}: plane color{v} must be {shape + (3,)} uint8, got "
-                             f"{None if color is None else (color.shape, color.dtype)}")
+        if not isinstance(color, np.ndarray) or color.shape != (*shape, 3) or color.dtype != np.uint8:
+            raise WarpMetaError(f"warp {where}: plane color{v} must be {shape + (3,)} uint8, got {_show(color)}")
         ids = vm.get("ids")
         if not isinstance(ids, np.ndarray) or ids.shape != shape or ids.dtype not in (np.uint8, np.uint16):
-            raise CodecError(f"warp metadata {where}: view {v} ids must be a {shape} uint8/uint16 array")
+            raise WarpMetaError(f"warp metadata {where}: views[{v}].ids must be a {shape} uint8/uint16 array, got {_show(ids)}")
         if coding == "lossless":
             plane = update.planes.get(f"depth{v}")
-            if plane is None or plane.shape != (2 * shape[0], shape[1]):
-                raise CodecError(f"warp {where}: plane depth{v} must be {(2 * shape[0], shape[1])}, got "
-                                 f"{None if plane is None else plane.shape}")
+            if not isinstance(plane, np.ndarray) or plane.shape != (2 * shape[0], shape[1]) or plane.dtype != np.uint8:
+                raise WarpMetaError(f"warp {where}: plane depth{v} must be {(2 * shape[0], shape[1])} uint8, got {_show(plane)}")
             codes = unpack_depth_planes(plane)
         else:
-            codes = bc4_decode(vm.get("bc4", b""))
-            if codes.shape != shape:
-                raise CodecError(f"warp metadata {where}: view {v} bc4 depth is {codes.shape}, expected {shape}")
-        depth = dequantize_depth(codes, float(near))
+            try:
+                codes = bc4_decode(vm.get("bc4"), expect_shape=shape)
+            except CodecError as exc:
+                raise WarpMetaError(f"warp metadata {where}: views[{v}].bc4: {exc}") from exc
+        depth = dequantize_depth(codes, near)
         depth[~np.isfinite(depth)] = 0.0
         views.append(ReferenceView(pose, color, depth, ids.astype(np.uint16)))
-    obj_ids = _arr(m, "obj_ids", (), where)
-    model = _arr(m, "obj_model", (4, 4), where)
-    dyn_ids = _arr(m, "dyn_ids", (), where)
-    dyn_prev = _arr(m, "dyn_prev", (4, 4), where)
-    if len(obj_ids) != len(model) or len(dyn_ids) != len(dyn_prev):
-        raise CodecError(f"warp metadata {where}: object id and matrix counts differ")
-    dt = m.get("dt_s")
-    if not isinstance(dt, (int, float)) or not dt > 0:
-        raise CodecError(f"warp metadata {where}: dt_s must be a positive number, got {dt!r}")
+    obj_ids = _ids(m, "obj_ids", where)
+    dyn_ids = _ids(m, "dyn_ids", where)
+    model = _matrices(m, "obj_model", len(obj_ids), where)
+    dyn_prev = _matrices(m, "dyn_prev", len(dyn_ids), where)
+    dt = _positive(m, "dt_s", where)
     return ReferenceFrame(update.t_s, views, {int(i): model[k] for k, i in enumerate(obj_ids)},
-                          {int(i): dyn_prev[k] for k, i in enumerate(dyn_ids)}, float(dt))
+                          {int(i): dyn_prev[k] for k, i in enumerate(dyn_ids)}, dt)
 
 
 def extrapolate_model(prev: np.ndarray, cur: np.ndarray, u: float) -> np.ndarray:
@@ -431,11 +477,15 @@ class WarpClient(ClientHalf):
         self._views: list[_ViewGPU] = []
         self._frame: ReferenceFrame | None = None
         self._n_ids = 1
+        self._max_ids = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
 
     # ------------------------------------------------------------------ cache
     def apply(self, update: DecodedUpdate) -> None:
         frame = parse_update(update, self.config, self.ref_intr)
         n_ids = 1 + max([int(v.ids.max(initial=0)) for v in frame.views] + list(frame.model) + [0])
+        if n_ids > self._max_ids:  # the warp matrices are one texture row per id
+            raise WarpMetaError(f"warp metadata frame {update.frame_id}: object id {n_ids - 1} exceeds this client's "
+                                f"limit of {self._max_ids - 1} (GL_MAX_TEXTURE_SIZE)")
         while len(self._views) < len(frame.views):
             self._views.append(_ViewGPU())
         for g, v in zip(self._views, frame.views):
