@@ -1,6 +1,6 @@
 """Study: depth-image warping (``warp``, the MeshWarp baseline) against ``video`` and ``atw``.
 
-Three experiments on the default scene, all through the virtual-time runner:
+Four experiments on the default scene, all through the virtual-time runner:
 
 1. **Frame-ratio trend** (the paper's table 3): error-pixel rate (CIE Lab distance
    > 20) as the server:client frame ratio goes 2:1, 5:1, 10:1, 20:1 (client at 60 Hz,
@@ -9,9 +9,12 @@ Three experiments on the default scene, all through the virtual-time runner:
 2. **One vs two reference views** on the ``strafe`` trace (sideways motion: disocclusions).
 3. **Reconstructions**: points, quads and mesh with client ms per frame (the paper's
    speed/quality trade-off), beside ``video`` and ``atw``.
+4. **Networks**: warp points, ``atw`` and ``video`` at 2:1 under the demo's network
+   profiles and traces (``ideal``, ``lan``, ``cloud``; ``walk`` and ``turn``); the
+   quick run does ``cloud`` on ``walk`` and reuses experiment 1's ideal 2:1 rows.
 
 Every row records PSNR, SSIM, FLIP, error pixels, holes, bitrate and client ms.
-``quick=True`` uses 0.5 s traces at 320x180 (about a minute on two CPU cores).
+``quick=True`` uses 0.5 s traces at 320x180 (about 80 s on two CPU cores).
 """
 
 from __future__ import annotations
@@ -29,16 +32,20 @@ log = logging.getLogger(__name__)
 
 CLIENT_FPS = 60
 RATIOS = (2, 5, 10, 20)
-COLUMNS = ("experiment", "method", "label", "trace", "ratio", "psnr_db", "ssim", "flip", "lab_err_pct", "hole_pct", "kbps", "client_ms", "gt_ms")
+NETWORKS = ("ideal", "lan", "cloud")
+TRACES = ("walk", "turn")
+COLUMNS = ("experiment", "method", "label", "trace", "network", "ratio", "psnr_db", "ssim", "flip", "lab_err_pct", "hole_pct",
+           "kbps", "client_ms", "gt_ms")
 
 
-def _run(method: str, params: dict[str, Any], trace: str, ratio: int, quick: bool, renderer: Any) -> dict[str, float]:
+def _run(method: str, params: dict[str, Any], trace: str, ratio: int, quick: bool, renderer: Any,
+         network: str = "ideal") -> dict[str, float]:
     from ...sim.config import RunConfig
     from ...sim.runner import run
 
     dur = 0.5 if quick else 3.0
     w, h = (320, 180) if quick else (640, 360)
-    cfg = RunConfig(method=method, method_params=params, trace=trace, duration_s=dur, width=w, height=h,
+    cfg = RunConfig(method=method, method_params=params, trace=trace, network=network, duration_s=dur, width=w, height=h,
                     server_fps=max(1, CLIENT_FPS // ratio), client_fps=CLIENT_FPS, seed=0, flip_every=0 if quick else 6)
     s = run(cfg, renderer=renderer).summary
     return {"psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"], "flip": s.get("mean_flip", math.nan),
@@ -47,7 +54,7 @@ def _run(method: str, params: dict[str, Any], trace: str, ratio: int, quick: boo
 
 
 def run(out_dir: Path, quick: bool) -> Section:
-    """Run the three experiments, write ``warp_results.csv`` and charts into ``out_dir``."""
+    """Run the four experiments, write ``warp_results.csv`` and charts into ``out_dir``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -61,11 +68,13 @@ def run(out_dir: Path, quick: bool) -> Section:
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
 
-    def add(exp: str, method: str, label: str, params: dict[str, Any], trace: str, ratio: int) -> dict[str, Any]:
-        r = {"experiment": exp, "method": method, "label": label, "trace": trace, "ratio": ratio,
-             **_run(method, params, trace, ratio, quick, renderer)}
+    def add(exp: str, method: str, label: str, params: dict[str, Any], trace: str, ratio: int,
+            network: str = "ideal") -> dict[str, Any]:
+        r = {"experiment": exp, "method": method, "label": label, "trace": trace, "network": network, "ratio": ratio,
+             **_run(method, params, trace, ratio, quick, renderer, network)}
         rows.append(r)
-        log.info("warp study: %s %s 1:%d -> %.2f dB, %.2f%% err", exp, label, ratio, r["psnr_db"], r["lab_err_pct"])
+        log.info("warp study: %s %s %s %s 1:%d -> %.2f dB, %.2f%% err", exp, label, trace, network, ratio, r["psnr_db"],
+                 r["lab_err_pct"])
         return r
 
     # 1. frame-ratio trend (points, as the paper), with the baselines
@@ -90,6 +99,16 @@ def run(out_dir: Path, quick: bool) -> Section:
     if not quick:
         add("recon", "warp", "warp points bc4", {"reconstruction": "points", "depth_coding": "bc4"}, "walk", rec_ratio)
         add("recon", "warp", "warp quads MW120", {"reconstruction": "quads", "fov_scale": 3.0, "resolution_scale": 0.5}, "walk", rec_ratio)
+    # 4. networks: the demo's profiles and traces at 2:1 (quick: cloud on walk; ideal walk is experiment 1's 2:1)
+    net_ratio = 2
+    baselines: list[tuple[str, str, dict[str, Any]]] = [("warp", "warp points", {"reconstruction": "points"}),
+                                                        ("atw", "atw", {}), ("video", "video", {})]
+    for trace in ("walk",) if quick else TRACES:
+        for net in ("cloud",) if quick else NETWORKS:
+            if net == "ideal" and trace == "walk":
+                continue  # experiment 1 ran these
+            for m, label, p in baselines:
+                add("network", m, label, p, trace, net_ratio, net)
     elapsed = time.perf_counter() - t0
 
     table = out_dir / "warp_results.csv"
@@ -132,18 +151,39 @@ def run(out_dir: Path, quick: bool) -> Section:
     plt.close(fig)
     figs.append(p2)
 
+    # chart 3: PSNR by network profile and trace at 2:1
+    net_rows = [r for r in rows if r["ratio"] == net_ratio and r["label"] in ("warp points", "atw", "video")
+                and r["experiment"] in ("ratio", "network")]
+    groups = [(tr, net) for tr in TRACES for net in NETWORKS if any(r["trace"] == tr and r["network"] == net for r in net_rows)]
+    fig, ax = plt.subplots(figsize=(7, 3.4))
+    width = 0.8 / 3
+    for k, label in enumerate(("warp points", "atw", "video")):
+        vals = [next((r["psnr_db"] for r in net_rows if r["label"] == label and (r["trace"], r["network"]) == g), math.nan)
+                for g in groups]
+        ax.bar([i + (k - 1) * width for i in range(len(groups))], vals, width, label=label)
+    ax.set_xticks(range(len(groups)), [f"{tr}\n{net}" for tr, net in groups])
+    ax.set_ylabel("PSNR, dB")
+    ax.set_title(f"network profiles, {net_ratio}:1")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p3 = out_dir / "warp_network.png"
+    fig.savefig(p3, dpi=110)
+    plt.close(fig)
+    figs.append(p3)
+
     def fmt(r: dict[str, Any]) -> str:
-        return (f"| {r['label']} | {r['trace']} | {r['ratio']}:1 | {r['psnr_db']:.2f} | {r['ssim']:.3f} | "
+        return (f"| {r['label']} | {r['trace']} | {r['network']} | {r['ratio']}:1 | {r['psnr_db']:.2f} | {r['ssim']:.3f} | "
                 f"{r['flip']:.3f} | {r['lab_err_pct']:.2f} | {r['hole_pct']:.2f} | {r['kbps']:.0f} | {r['client_ms']:.1f} |")
 
-    head = "| config | trace | ratio | PSNR dB | SSIM | FLIP | err px % | holes % | kbit/s | client ms |\n|---|---|---|---|---|---|---|---|---|---|"
+    head = ("| config | trace | network | ratio | PSNR dB | SSIM | FLIP | err px % | holes % | kbit/s | client ms |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|")
     trend = sorted((r for r in rows if r["experiment"] == "ratio" and r["label"] == "warp points"), key=lambda r: r["ratio"])
     base = trend[0]["lab_err_pct"] if trend else math.nan
     rel = ", ".join(f"{r['ratio']}:1 {r['lab_err_pct']:.2f}% ({(r['lab_err_pct'] / base - 1) * 100:+.0f}%)" for r in trend)
     text = (
         f"Depth-image warping (`warp`, the MeshWarp baseline) on the default scene, "
         f"{'quick run: 0.5 s traces at 320x180' if quick else '3 s traces at 640x360'}, client at {CLIENT_FPS} Hz, "
-        f"ideal network; {len(rows)} runs in {elapsed:.0f} s.\n\n"
+        f"ideal network unless the row says otherwise; {len(rows)} runs in {elapsed:.0f} s.\n\n"
         f"**Frame-ratio trend** (paper, table 3): error pixels of point-splat warping by server:client ratio: {rel}.\n\n"
         f"{head}\n" + "\n".join(fmt(r) for r in rows) + "\n\n"
         "Client ms is wall-clock time on this machine's software GL (Mesa llvmpipe), not a GPU; "
