@@ -102,3 +102,23 @@ def test_toml_config_file(tmp_path):
         RunConfig.from_toml(p)
     with pytest.raises(ConfigError, match="config file not found"):
         RunConfig.from_toml(tmp_path / "nope.toml")
+
+
+def test_a_malformed_update_is_rejected_and_the_run_goes_on(renderer, monkeypatch):
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.methods.atw import AtwClient
+
+    real = AtwClient.apply
+    calls = {"n": 0}
+
+    def flaky(self, update):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise RemoteProtocolError("atw metadata: fov_y_deg missing")
+        return real(self, update)
+
+    monkeypatch.setattr(AtwClient, "apply", flaky)
+    res = run(RunConfig(method="atw", duration_s=0.5, **TINY), renderer=renderer)
+    assert res.summary["apply_errors"] == 1
+    shown = {f["update_frame_id"] for f in res.frames}
+    assert 2 not in shown and max(shown) >= 10, "the rejected update is skipped, later ones are shown"

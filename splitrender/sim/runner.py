@@ -42,7 +42,7 @@ import numpy as np
 from .. import metrics
 from ..codecs.meta import pack_meta, unpack_meta
 from ..codecs.video import VideoDecoder, VideoEncoder
-from ..errors import CodecError
+from ..errors import CodecError, RemoteProtocolError
 from ..methods.base import ClientFeedback, DecodedUpdate, ServerContext, get_method, make_config
 from ..netsim import Link, parse_path
 from ..render.renderer import Renderer
@@ -189,6 +189,7 @@ class VirtualTimeRun:
         first_release: float | None = None
         lost_frames = 0
         keyframes = 0
+        apply_errors = 0
 
         for di in range(n_display):
             t_d = di / cfg.client_fps
@@ -297,8 +298,14 @@ class VirtualTimeRun:
             while pending and pending[0].release_s <= t_d:
                 p = pending.popleft()
                 w0 = time.perf_counter()
-                client.apply(p.update)
-                applied_ms += (time.perf_counter() - w0) * 1000
+                try:
+                    client.apply(p.update)
+                except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                    apply_errors += 1
+                    log.warning("run %s: update %d rejected by the client half: %s", cfg.method, p.frame_id, exc)
+                    continue
+                finally:
+                    applied_ms += (time.perf_counter() - w0) * 1000
                 shown = p
                 if first_release is None:
                     first_release = p.release_s
@@ -328,6 +335,7 @@ class VirtualTimeRun:
             if self.progress:
                 self.progress(di + 1, n_display)
         result.summary = self._summary(result, bytes_by_stream, lost_frames, keyframes, kf_requests)
+        result.summary["apply_errors"] = apply_errors
         return result
 
     def _summary(self, r: RunResult, bytes_by_stream: dict[str, int], lost: int, keyframes: int, kf_requests: int) -> dict[str, Any]:
