@@ -4,6 +4,7 @@ well-behaved session on the same server keeps receiving frames; and clean shutdo
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import gc
 import socket
 import struct
@@ -30,6 +31,7 @@ from splitrender.protocol import (
     encode_frame,
 )
 from splitrender.server.server import LiveServer, ServerConfig, serve
+from splitrender.server.session import ServerSession
 
 LOOPBACK = "127.0.0.1"
 HEADER = struct.Struct(">2sBBBI")
@@ -115,6 +117,49 @@ async def _after_welcome_garbage(address: tuple[str, int]) -> list[object]:
     return await _exchange(address, data + encode_frame(KeyframeRequest("nope", "x")))
 
 
+async def _after_welcome_oversized(address: tuple[str, int]) -> list[object]:
+    """A real session that turns hostile in STREAMING: a Pose frame header claiming 50 MB."""
+    conn = ClientConnection()
+    data = conn.send(_hello())
+    return await _exchange(address, data + HEADER.pack(MAGIC, PROTOCOL_VERSION, MessageType.POSE, 0, 50_000_000))
+
+
+async def _our_setup_failures(server: LiveServer, monkeypatch: pytest.MonkeyPatch) -> list[Error]:
+    """Sessions whose setup fails on our side: a method parameter that slipped past
+    startup checks (a ConfigError) and a crash that is no SplitRenderError at all."""
+    errors = []
+    good_config = server.config
+    server.config = dataclasses.replace(good_config, method_params={"atw": {"nosuch": 1}})
+    try:
+        msgs = await _exchange(server.tcp_address, encode_frame(Hello(1, "", ("atw",), ("h264",), 160, 90, 30.0)))
+    finally:
+        server.config = good_config
+    errors.append(_only_error(msgs, ErrorCode.INTERNAL))
+
+    def boom(name: str) -> None:
+        raise RuntimeError(f"no predictor today ({name})")
+
+    with monkeypatch.context() as m:
+        m.setattr("splitrender.server.session.make_predictor", boom)
+        msgs = await _exchange(server.tcp_address, encode_frame(_hello()))
+    errors.append(_only_error(msgs, ErrorCode.INTERNAL))
+    return errors
+
+
+async def _streaming_failure(server: LiveServer, good: ServerSession, monkeypatch: pytest.MonkeyPatch) -> list[object]:
+    """A session whose handling crashes after Welcome (every session's but ``good``)."""
+    on_pose = ServerSession._on_pose
+
+    def crash(self: ServerSession, msg: Pose) -> None:
+        if self is not good:
+            raise RuntimeError("pose handler crashed")
+        on_pose(self, msg)
+
+    with monkeypatch.context() as m:
+        m.setattr(ServerSession, "_on_pose", crash)
+        return await _exchange(server.tcp_address, ClientConnection().send(_hello()) + encode_frame(_pose()))
+
+
 async def _udp_junk(address: tuple[str, int]) -> None:
     loop = asyncio.get_running_loop()
     transport, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, remote_addr=address)
@@ -123,7 +168,8 @@ async def _udp_junk(address: tuple[str, int]) -> None:
     transport.close()
 
 
-async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(tmp_path: Path) -> None:
+async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", server_fps=30, hello_timeout_s=1.0)
     async with LiveServer(cfg) as server:
         serve_task = asyncio.create_task(server.serve_forever())
@@ -138,11 +184,27 @@ async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(tmp_pat
         msgs = await _after_welcome_garbage(server.tcp_address)
         assert isinstance(msgs[0], Welcome), msgs
         _only_error(msgs, ErrorCode.BAD_MESSAGE)
+        msgs = await _after_welcome_oversized(server.tcp_address)
+        assert isinstance(msgs[0], Welcome), msgs
+        assert _only_error(msgs, ErrorCode.TOO_LARGE).text == \
+            "Pose frame body of 50000000 bytes exceeds the limit of 256 bytes"
+        # failures on our side: an Error(500) to that client, logged with its session id
+        caplog.clear()
+        internal = await _our_setup_failures(server, monkeypatch)
+        assert internal[0].text.startswith(
+            "session setup failed: AtwConfig: unknown parameter 'nosuch' (valid: "), internal[0]
+        assert internal[1].text == "session setup failed: RuntimeError: no predictor today (cv)", internal[1]
+        failed = [r for r in caplog.records if "setup for" in r.getMessage() and r.exc_info]
+        assert len(failed) == 2 and all(r.getMessage().startswith("session ") for r in failed), failed
+        (good_session,) = server.sessions.values()
+        msgs = await _streaming_failure(server, good_session, monkeypatch)
+        assert isinstance(msgs[0], Welcome), msgs
+        assert _only_error(msgs, ErrorCode.INTERNAL).text == "server error: RuntimeError: pose handler crashed"
         # silent client: no Hello within hello_timeout_s
         msgs = await _exchange(server.tcp_address, b"", timeout=3.0)
         assert _only_error(msgs, ErrorCode.BAD_MESSAGE).text == "no Hello within 1 s"
         await _udp_junk(server.udp_address)
-        good_session = max(server.sessions.values(), key=lambda s: s.counters["frames_sent"])
+        assert list(server.sessions.values()) == [good_session]
         result = await good
         server_counters = good_session.counters
         assert len(server.sessions) == 0  # every hostile session was dropped, the good one said Bye

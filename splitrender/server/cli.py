@@ -51,7 +51,8 @@ def _parse_value(text: str) -> Any:
 
 def config_from_args(ns: argparse.Namespace) -> Any:
     """A :class:`ServerConfig` from parsed arguments."""
-    from splitrender.server.server import ServerConfig
+    from splitrender.methods import available_methods, get_method
+    from splitrender.server.server import ServerConfig, check_method_params
 
     params: dict[str, dict[str, Any]] = {}
     for kv in ns.param:
@@ -61,13 +62,16 @@ def config_from_args(ns: argparse.Namespace) -> Any:
             raise ConfigError(f"--param {kv!r}: expected METHOD.KEY=VALUE")
         params.setdefault(method.strip(), {})[name.strip()] = _parse_value(value.strip())
     methods = tuple(m.strip() for m in ns.methods.split(",") if m.strip()) if ns.methods else None
-    if methods:
-        from splitrender.methods import get_method
-
-        for m in methods:
-            get_method(m)  # unknown names fail here, by name
+    for m in methods or ():
+        get_method(m)  # unknown names fail here, by name
+    # every offered method's config is built once now, so a bad --param fails here
+    check_method_params(methods or tuple(available_methods()), params)
     if ns.server_fps < 1 or ns.server_fps > 240:
         raise ConfigError(f"--server-fps: must be in [1, 240], got {ns.server_fps}")
+    for opt, port, low in (("--port", ns.port, 0), ("--udp-port", ns.udp_port, 0),
+                           ("--mirror-port", ns.mirror_port, 1)):
+        if port is not None and not low <= port <= 65535:
+            raise ConfigError(f"{opt}: must be in [{low}, 65535], got {port}")
     return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,

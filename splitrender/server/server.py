@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from splitrender.errors import ConfigError
 from splitrender.protocol import (
     GenericNack,
     PictureLossIndication,
@@ -38,11 +39,13 @@ from splitrender.protocol import (
     is_rtcp,
     parse_rtcp,
 )
+from splitrender.transport.errors import BindError, describe_os_error
 
 if TYPE_CHECKING:
     from splitrender.server.session import ServerSession
 
-__all__ = ["ServerConfig", "LiveServer", "serve", "DEFAULT_PORT", "DEFAULT_UDP_PORT"]
+__all__ = ["ServerConfig", "LiveServer", "serve", "check_method_params", "sdp_hint", "DEFAULT_PORT",
+           "DEFAULT_UDP_PORT"]
 
 logger = logging.getLogger(__name__)
 
@@ -90,6 +93,34 @@ class ServerConfig:
     out_dir: Path | None = None
 
 
+def check_method_params(methods: Sequence[str], params: dict[str, dict[str, Any]]) -> None:
+    """Build every offered method's config from ``params`` once, so a bad parameter
+    fails at startup by name instead of in every session; raises ``ConfigError``."""
+    from splitrender.methods import get_method, make_config
+
+    for name in params:
+        if name not in methods:
+            try:
+                get_method(name)
+            except ConfigError as exc:
+                raise ConfigError(f"--param {name}.*: {exc}") from None
+            raise ConfigError(f"--param {name}.*: method {name!r} is not offered (offered: {', '.join(methods)})")
+    for name in methods:
+        try:
+            make_config(get_method(name).config, dict(params.get(name, {})))
+        except ConfigError as exc:
+            raise ConfigError(f"--param {name}.*: {exc}") from None
+
+
+def sdp_hint(config: ServerConfig) -> str | None:
+    """Why SDP files written without ``mirror_port`` cannot be played on this host, or ``None``."""
+    if config.sdp_dir is None or config.mirror_port is not None:
+        return None
+    return ("--sdp-dir without --mirror-port: the SDP files name the server's own UDP port, which ffplay "
+            "on this host cannot bind (the server holds it); add --mirror-port 5004 to copy each stream to "
+            "127.0.0.1:5004+2k and play those SDP files with ffplay")
+
+
 class _UdpProtocol(asyncio.DatagramProtocol):
     def __init__(self, on_datagram: Callable[[bytes, Address], None]) -> None:
         self._on_datagram = on_datagram
@@ -109,6 +140,7 @@ class LiveServer:
 
         self.config = config
         self.methods: tuple[str, ...] = config.methods or tuple(available_methods())
+        check_method_params(self.methods, config.method_params)
         self.epoch_wall_s = time.time()
         """Wall-clock time (s) of scene time 0: the one scene clock all sessions share."""
         self.gl_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-gl")
@@ -142,36 +174,50 @@ class LiveServer:
         return await asyncio.get_running_loop().run_in_executor(self.encode_executor, fn, *args)
 
     def next_mirror_port(self) -> int | None:
-        """Port to mirror the next stream to (``mirror_port + 2k``), or ``None``."""
+        """Port to mirror the next stream to (``mirror_port + 2k``), or ``None`` (no mirror,
+        or the ports ran out)."""
         if self.config.mirror_port is None:
             return None
         port = self.config.mirror_port + 2 * self._mirror_next
+        if port > 65535:
+            return None
         self._mirror_next += 1
         return port
 
     # -- lifecycle -----------------------------------------------------------------
 
     async def start(self) -> None:
-        """Load the scene, create the renderer on the GL thread, bind UDP and TCP."""
+        """Bind UDP and TCP (so a busy port fails at once), load the scene, create the
+        renderer on the GL thread, then accept connections; raises ``BindError``."""
         from splitrender.render import Renderer
         from splitrender.scene.loader import get_scene
 
         cfg = self.config
-        self.scene = get_scene(cfg.scene)
-        self.renderer = await self.in_gl(Renderer)
-        await self.in_gl(self._warm_up)
         loop = asyncio.get_running_loop()
-        transport, _ = await loop.create_datagram_endpoint(
-            lambda: _UdpProtocol(self._on_datagram), local_addr=(cfg.host, cfg.udp_port)
-        )
+        try:
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _UdpProtocol(self._on_datagram), local_addr=(cfg.host, cfg.udp_port)
+            )
+        except (OSError, OverflowError) as exc:
+            raise BindError(f"cannot listen on udp {cfg.host}:{cfg.udp_port}: {describe_os_error(exc)}") from exc
         self.udp = transport
         sock = transport.get_extra_info("sockname")
         self.udp_address = (sock[0], sock[1])
-        self._tcp = await asyncio.start_server(self._on_connect, cfg.host, cfg.port)
+        try:
+            self._tcp = await asyncio.start_server(self._on_connect, cfg.host, cfg.port, start_serving=False)
+        except (OSError, OverflowError) as exc:
+            raise BindError(f"cannot listen on tcp {cfg.host}:{cfg.port}: {describe_os_error(exc)}") from exc
         sock = self._tcp.sockets[0].getsockname()
         self.tcp_address = (sock[0], sock[1])
+        self.scene = get_scene(cfg.scene)
+        self.renderer = await self.in_gl(Renderer)
+        await self.in_gl(self._warm_up)
+        await self._tcp.start_serving()
         logger.info("serving %s on tcp %s:%d, udp %s:%d (methods %s)", cfg.scene, *self.tcp_address,
                     *self.udp_address, ",".join(self.methods))
+        hint = sdp_hint(cfg)
+        if hint is not None:
+            logger.warning("%s", hint)
 
     def _warm_up(self) -> None:
         """One throw-away render so shader compilation does not stall the first session."""

@@ -83,6 +83,15 @@ LATENCY_EMA = 0.1
 MAX_EXPECTED_LATENCY_S = 1.0
 
 
+def _describe(exc: BaseException) -> str:
+    """``Error.text`` for a failure of ours: the message of a ``SplitRenderError``, else
+    the class name and message (``RuntimeError: ...``)."""
+    text = str(exc)
+    if isinstance(exc, SplitRenderError) and text:
+        return text
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 class _SessionEnded(Exception):
     """The control task saw Bye/EOF/Error: end the session's task group."""
 
@@ -164,9 +173,10 @@ class ServerSession:
                 await self.channel.send_error(exc)
             except* (ConnectionError, asyncio.IncompleteReadError) as eg:
                 logger.info("session %s: connection lost: %s", self.id, eg.exceptions[0])
-            except* SplitRenderError as eg:
-                logger.exception("session %s: failed", self.id, exc_info=eg.exceptions[0])
-                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {eg.exceptions[0]}")
+            except* Exception as eg:  # noqa: BLE001 - a failing session must not take the server down
+                err = eg.exceptions[0]
+                logger.error("session %s: failed", self.id, exc_info=err)
+                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {_describe(err)}")
         except asyncio.CancelledError:
             self._say_bye("server shutting down")
             raise
@@ -211,6 +221,11 @@ class ServerSession:
         except RemoteProtocolError as exc:
             logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
             await self.channel.send_error(exc)
+            return False
+        except Exception as exc:  # noqa: BLE001 - any setup failure ends this session only
+            # our fault (a method, encoder or GL failure): tell the client, keep serving others
+            logger.exception("session %s: setup for %s failed", self.id, self.peer)
+            await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {_describe(exc)}")
             return False
         try:
             await self.channel.send(welcome)
