@@ -6,7 +6,8 @@ import argparse
 import asyncio
 from pathlib import Path
 
-from splitrender.errors import ConfigError
+from splitrender.errors import ConfigError, SplitRenderError
+from splitrender.transport.errors import ConnectError, describe_os_error
 
 __all__ = ["add_client_arguments", "main_client", "config_from_args"]
 
@@ -39,6 +40,9 @@ def config_from_args(ns: argparse.Namespace) -> object:
         raise ConfigError(f"--duration: must be in (0, 3600], got {ns.duration}")
     if ns.width <= 0 or ns.height <= 0 or ns.width % 2 or ns.height % 2:
         raise ConfigError(f"--width/--height: must be positive and even, got {ns.width}x{ns.height}")
+    for opt, port in (("--port", ns.port), ("--udp-port", ns.udp_port)):
+        if port is not None and not 1 <= port <= 65535:
+            raise ConfigError(f"{opt}: must be in [1, 65535], got {port}")
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
     codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
     return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
@@ -56,6 +60,10 @@ def main_client(ns: argparse.Namespace) -> int:
         result = asyncio.run(run_client(cfg))  # type: ignore[arg-type]
     except KeyboardInterrupt:
         return 130
+    except SplitRenderError:
+        raise
+    except OSError as exc:  # the connection broke or timed out mid-session
+        raise ConnectError(f"session with {ns.server}:{ns.port} failed: {describe_os_error(exc)}") from exc
     c = result.counters
     print(f"splitrender client: {len(result.rows)} frames displayed, {c['frames_complete']} updates, "
           f"{c['rtp_packets']} RTP packets, {c['nacked_packets']} NACKed, {c['plis_sent']} PLIs -> {ns.out}")

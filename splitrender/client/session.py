@@ -67,6 +67,7 @@ from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
 from splitrender.transport.control import ControlChannel, wall_us
+from splitrender.transport.errors import ConnectError, describe_os_error
 
 __all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "run_client"]
 
@@ -188,7 +189,7 @@ class LiveClient:
             "rtp_packets": 0, "rtp_bytes": 0, "rtcp_sent": 0, "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0,
             "frames_meta": 0, "frames_complete": 0, "frames_displayed_updates": 0, "frames_skipped": 0,
             "decode_errors": 0, "decode_overflows": 0, "udp_bad": 0, "meta_bytes": 0, "late_ticks": 0,
-            "updates_dropped_ready": 0, "keyframes_received": 0,
+            "updates_dropped_ready": 0, "keyframes_received": 0, "keyframes_after_pli": 0,
         }
 
     # ------------------------------------------------------------------ run
@@ -197,8 +198,11 @@ class LiveClient:
         """Connect, stream for ``duration_s``, say Bye, write the recording."""
         cfg = self.cfg
         try:
-            reader, writer = await asyncio.wait_for(asyncio.open_connection(cfg.server, cfg.port),
-                                                    cfg.connect_timeout_s)
+            try:
+                reader, writer = await asyncio.wait_for(asyncio.open_connection(cfg.server, cfg.port),
+                                                        cfg.connect_timeout_s)
+            except (OSError, OverflowError) as exc:  # refused, unreachable, unknown host, timed out
+                raise ConnectError(f"cannot connect to {cfg.server}:{cfg.port}: {describe_os_error(exc)}") from exc
             self.channel = ControlChannel(ClientConnection(), reader, writer, "client")
             try:
                 await self._handshake()
@@ -292,8 +296,11 @@ class LiveClient:
         assert self._welcome is not None
         port = self.cfg.udp_port or (self._welcome.streams[0].port if self._welcome.streams else 0)
         loop = asyncio.get_running_loop()
-        self.udp, _ = await loop.create_datagram_endpoint(lambda: _ClientUdp(self._on_datagram),
-                                                          remote_addr=(self.cfg.server, port))
+        try:
+            self.udp, _ = await loop.create_datagram_endpoint(lambda: _ClientUdp(self._on_datagram),
+                                                              remote_addr=(self.cfg.server, port))
+        except (OSError, OverflowError) as exc:
+            raise ConnectError(f"cannot open udp to {self.cfg.server}:{port}: {describe_os_error(exc)}") from exc
         self._send_rtcp([ReceiverReport(0, tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.streams.values()))])
 
     # ------------------------------------------------------------------ poses
@@ -388,6 +395,8 @@ class LiveClient:
         for au in units:
             if au.keyframe:
                 self.counters["keyframes_received"] += 1
+                if self.counters["plis_sent"]:
+                    self.counters["keyframes_after_pli"] += 1
                 rx.decode_broken = False
             elif rx.decode_broken:
                 continue
