@@ -25,6 +25,7 @@ LOOPBACK = "127.0.0.1"
 NETWORK = "delay 50ms 20ms distribution uniform loss 1%"
 PSNR_TOLERANCE_DB = 3.0
 GOP_S = 1.0  # gop 30 at 30 fps
+LONG_GOP = 900  # 30 s at 30 fps: no scheduled keyframe but the first in a short run
 
 
 def _server_config(**kw: object) -> ServerConfig:
@@ -33,8 +34,9 @@ def _server_config(**kw: object) -> ServerConfig:
     return ServerConfig(**base)  # type: ignore[arg-type]
 
 
-async def _run_through_relay(tmp: Path, network: str, seed: int = 3, **client_kw: object):  # type: ignore[no-untyped-def]
-    async with LiveServer(_server_config()) as server:
+async def _run_through_relay(tmp: Path, network: str, seed: int = 3, server_kw: dict[str, object] | None = None,  # type: ignore[no-untyped-def]
+                             **client_kw: object):
+    async with LiveServer(_server_config(**(server_kw or {}))) as server:
         serve = asyncio.create_task(server.serve_forever())
         relay = Relay(parse_path(network), seed=seed)
         try:
@@ -42,8 +44,13 @@ async def _run_through_relay(tmp: Path, network: str, seed: int = 3, **client_kw
             udp = await relay.start_udp((LOOPBACK, 0), server.udp_address)
             cfg = ClientConfig(server=LOOPBACK, port=tcp[1], udp_port=udp[1], width=320, height=180,
                                trace="walk", out_dir=tmp, save_images=True, **client_kw)  # type: ignore[arg-type]
-            result = await asyncio.wait_for(LiveClient(cfg).run(), cfg.duration_s + 20)
-            counters = dict(next(iter(server.sessions.values())).counters) if server.sessions else {}
+            run = asyncio.create_task(asyncio.wait_for(LiveClient(cfg).run(), cfg.duration_s + 20))
+            while not server.sessions and not run.done():  # keep the session: it unregisters at Bye
+                await asyncio.sleep(0.01)
+            sessions = list(server.sessions.values())
+            result = await run
+            assert len(sessions) == 1, sessions
+            counters = dict(sessions[0].counters)
         finally:
             for _ in range(50):  # let the relay see both TCP sides close before closing it
                 if relay.stats().tcp_connections_open == 0:
@@ -100,15 +107,72 @@ def _score_and_reference(out: Path, duration: float) -> tuple[float, float]:
 
 @pytest.mark.slow
 async def test_loss_without_nack_recovers_through_pli_and_idr(tmp_path: Path) -> None:
-    """NACK off and 2% loss: every broken frame must be healed by a PLI-triggered IDR."""
+    """NACK off and 2% loss: every broken frame must be healed by a PLI-triggered IDR.
+
+    The GOP (``LONG_GOP`` frames) is far longer than the run, so the only scheduled
+    keyframe is the first one: every later IDR answers a PLI.
+    """
     result, _, server_counters = await _run_through_relay(
-        tmp_path, "loss 2%", seed=5, duration_s=3.0, nack_max_tries=0, jitter_timeout_ms=60.0, pli_interval_ms=100.0)
+        tmp_path, "loss 2%", seed=5, server_kw={"method_params": {"video": {"gop": LONG_GOP}}}, duration_s=3.0,
+        nack_max_tries=0, jitter_timeout_ms=60.0, pli_interval_ms=100.0)
     c = result.counters
-    assert c["plis_sent"] > 0, c
-    assert server_counters.get("plis", 0) > 0 or c["keyframes_received"] > 3, (c, server_counters)
+    # the client sent PLIs, the server received them and answered with IDRs beyond the first,
+    # and at least one of them reached the client after it had sent a PLI
+    assert c["plis_sent"] > 0 and server_counters["plis"] > 0, (c, server_counters)
+    assert server_counters["keyframes"] >= 2, server_counters
+    assert c["keyframes_after_pli"] >= 1, c
     gaps = _update_gaps_s(result.rows)
     assert max(gaps) < GOP_S, (max(gaps), c)
     assert c["frames_complete"] >= 0.4 * 3.0 * 30, c
+
+
+class _RecordingClient(LiveClient):
+    """Records, for every update that became complete, its planes and RTP timestamps."""
+
+    def __init__(self, config: ClientConfig) -> None:
+        super().__init__(config)
+        self.completed: dict[int, tuple[dict[str, int], dict[str, tuple[tuple[int, ...], str]]]] = {}
+
+    def _check_complete(self, fr) -> None:  # type: ignore[no-untyped-def]
+        before = self._last_applied
+        super()._check_complete(fr)
+        if self._last_applied != before:  # fr is now ready for display
+            self.completed[fr.frame_id] = (dict(fr.meta.rtp_timestamps),
+                                           {n: (p.shape, str(p.dtype)) for n, p in fr.planes.items()})
+
+
+async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Path) -> None:
+    """``warp`` sends two video streams per frame (colour, lossless depth); the client pairs
+    them by RTP timestamp with the FrameMeta of the same frame and shows the result."""
+    duration = 2.0
+    async with LiveServer(_server_config(methods=("warp",))) as server:
+        serve = asyncio.create_task(server.serve_forever())
+        try:
+            client = _RecordingClient(ClientConfig(server=LOOPBACK, port=server.tcp_address[1], methods=("warp",),
+                                                   width=160, height=90, display_hz=30, duration_s=duration,
+                                                   out_dir=tmp_path))
+            result = await asyncio.wait_for(client.run(), duration + 20)
+        finally:
+            serve.cancel()
+            await asyncio.gather(serve, return_exceptions=True)
+    streams = [s.name for s in client._welcome.streams]  # type: ignore[union-attr]
+    assert [s.codec for s in client._welcome.streams] == ["h264", "hevc"]  # type: ignore[union-attr]
+    assert len(streams) == 2 and streams[0].startswith("color") and streams[1].startswith("depth"), streams
+    c = result.counters
+    assert c["frames_complete"] >= 0.4 * duration * 30 and c["frames_skipped"] <= 2, c
+    assert len(client.completed) == c["frames_complete"]
+    for fid, (rtp_ts, planes) in client.completed.items():
+        # both streams of the frame, decoded, under the one RTP timestamp of the frame
+        assert set(rtp_ts) == set(streams) == set(planes), (fid, rtp_ts, planes)
+        assert len(set(rtp_ts.values())) == 1, (fid, rtp_ts)
+        # colour is RGB; depth is the 16-bit codes as two 8-bit halves stacked (2 x height)
+        (h, w, ch), _ = planes[streams[0]]
+        assert ch == 3 and planes[streams[1]][0] == (2 * h, w), (fid, planes)
+    # timestamps advance with the frames: distinct frames never share one
+    assert len({next(iter(ts.values())) for ts, _ in client.completed.values()}) == len(client.completed)
+    shown = {int(r["update_frame_id"]) for r in result.rows}
+    assert len(shown) >= 0.3 * duration * 30 and shown <= set(client.completed), (len(shown), c)
+    assert (tmp_path / "frames.csv").read_text().count("\n") == len(result.rows) + 1
 
 
 def test_cli_serve_and_client_smoke(tmp_path: Path) -> None:
