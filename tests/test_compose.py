@@ -50,6 +50,9 @@ def test_server_and_client_commands(compose: dict[str, Any]) -> None:
     assert client[client.index("--server") + 1] == "server"
     assert client[client.index("--port") + 1] == server[server.index("--port") + 1]
     assert "server" in compose["services"]["client"]["depends_on"]
+    # the client records into the folder the host mounts (not the container's out/live)
+    mounts = {v.split(":")[1]: v.split(":")[0] for v in compose["services"]["client"]["volumes"]}
+    assert mounts.get(client[client.index("--out") + 1]) == "./results", (client, mounts)
     # the unshaped setup runs without any profile
     for name in ("server", "client"):
         assert "profiles" not in compose["services"][name]
