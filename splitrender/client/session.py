@@ -555,7 +555,11 @@ class LiveClient:
             def show() -> tuple[Any, float, float]:
                 w0 = time.perf_counter()
                 for u in updates:
-                    half.apply(u)
+                    try:
+                        half.apply(u)
+                    except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                        self.counters["apply_errors"] = self.counters.get("apply_errors", 0) + 1
+                        logger.warning("session %s: update %d rejected by the client half: %s", self.session_id, u.frame_id, exc)
                 w1 = time.perf_counter()
                 frame = half.render(pose, scene_t)
                 return frame, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
