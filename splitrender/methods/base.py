@@ -231,10 +231,12 @@ def get_method(name: str) -> MethodSpec:
 
 
 def available_methods() -> list[str]:
-    from . import _load_builtin
+    """Registered method names: the built-in ones in their canonical order, then others by name."""
+    from . import BUILTIN_MODULES, _load_builtin
 
     _load_builtin()
-    return list(_REGISTRY)
+    builtin = [m for m in BUILTIN_MODULES if m in _REGISTRY]
+    return builtin + sorted(m for m in _REGISTRY if m not in builtin)
 
 
 def make_config(cls: type[MethodConfig], params: dict[str, Any] | None) -> MethodConfig:
