@@ -52,7 +52,6 @@ import os
 import queue as queue_mod
 import threading
 import time
-import tomllib
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -60,7 +59,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
 from ..errors import ConfigError
-from ..sim.config import RunConfig
+from ..sim.config import RunConfig, load_toml
 from .store import ResultStore, Row
 
 log = logging.getLogger(__name__)
@@ -202,14 +201,7 @@ def parse_sweep(data: dict[str, Any], source: str = "<sweep>") -> Sweep:
 
 def load_sweep(path: str | Path) -> Sweep:
     """Read and expand a sweep TOML file."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"sweep file not found: {p}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"sweep file {p} is not valid TOML: {exc}") from exc
-    return parse_sweep(data, str(p))
+    return parse_sweep(load_toml(path, "sweep"), str(path))
 
 
 # ---------------------------------------------------------------------------------

@@ -92,13 +92,7 @@ class RunConfig:
 
     @staticmethod
     def from_toml(path: str | Path) -> "RunConfig":
-        p = Path(path)
-        try:
-            data = tomllib.loads(p.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"config file not found: {p}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {p} is not valid TOML: {exc}") from exc
+        data = load_toml(path, "config")
         return RunConfig.from_dict(data.get("run", data))
 
     def to_dict(self) -> dict[str, Any]:
@@ -111,6 +105,19 @@ class RunConfig:
 
     def replace(self, **kw: Any) -> "RunConfig":
         return dataclasses.replace(self, **kw)
+
+
+def load_toml(path: str | Path, kind: str) -> dict[str, Any]:
+    """Parse a TOML file; a missing or malformed file is a :class:`ConfigError` naming ``kind`` and the path."""
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{kind} file not found: {p}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{kind} file {p} cannot be read: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{kind} file {p} is not valid TOML: {exc}") from exc
 
 
 def to_toml(d: dict[str, Any], _prefix: str = "") -> str:
