@@ -306,3 +306,19 @@ def test_profiles() -> None:
     assert str(exc.value) == (
         "unknown network profile 'moon' (valid: cloud, ideal, lan, lte, wifi)"
     )
+
+
+def test_latency_spike_delays_only_packets_sent_inside_the_window():
+    from splitrender.netsim import parse_netem, to_netem
+
+    spec = parse_netem("delay 50ms spike 250ms 1s 1s")
+    assert (spec.spike_ms, spec.spike_start_s, spec.spike_duration_s) == (250.0, 1.0, 1.0)
+    link = Link(spec, np.random.default_rng(0))
+    delays = {t: link.send(t, 1000)[0].time_s - t for t in (0.5, 1.0, 1.5, 1.99, 2.5)}
+    assert delays[0.5] == pytest.approx(0.050) and delays[2.5] == pytest.approx(0.050)
+    for t in (1.0, 1.5, 1.99):
+        assert delays[t] == pytest.approx(0.300), (t, delays[t])
+    with pytest.raises(NetworkConfigError, match="cannot be expressed in one tc command"):
+        to_netem(spec)
+    with pytest.raises(NetworkConfigError, match="'soon' is not a time"):
+        parse_netem("spike 250ms soon 1s")

@@ -80,7 +80,7 @@ def test_parse_examples(text: str, expected: LinkSpec) -> None:
         ("rate 0mbit", "netem: '0mbit' is not a positive rate at token 2"),
         ("limit -3", "netem: '-3' is not a packet count (expected e.g. 1000) at token 2"),
         ("delay 1ms jitter", "netem: unknown keyword 'jitter' (expected one of: corrupt, delay, "
-         "distribution, duplicate, gap, limit, loss, rate, reorder, trace) at token 3"),
+         "distribution, duplicate, gap, limit, loss, rate, reorder, spike, trace) at token 3"),
         ("delay 1ms delay 2ms", "netem: 'delay' given twice at token 3"),
         ("reorder 5%", "netem: reorder_pct needs delay_ms > 0 (as in netem)"),
         ("delay 1e999ms", "netem: '1e999ms' is out of range at token 2"),

@@ -116,9 +116,14 @@ class LinkSpec:
     limit_packets: int = DEFAULT_LIMIT_PACKETS
     trace_path: str | None = None
     keep_order: bool = True
+    spike_ms: float = 0.0
+    spike_start_s: float = 0.0
+    spike_duration_s: float = 0.0
 
     def __post_init__(self) -> None:
         _check_nonneg("delay_ms", self.delay_ms)
+        for name in ("spike_ms", "spike_start_s", "spike_duration_s"):
+            _check_nonneg(name, getattr(self, name))
         _check_nonneg("jitter_ms", self.jitter_ms)
         for name in (
             "delay_correlation_pct",
@@ -419,6 +424,8 @@ class Link:
                 self._reorder_counter = 0
                 return Delivery(depart + penalty_s, corrupted)  # sent immediately
         t = depart + self._propagation_s() + penalty_s
+        if spec.spike_ms and spec.spike_start_s <= depart < spec.spike_start_s + spec.spike_duration_s:
+            t += spec.spike_ms / 1000.0
         if spec.keep_order or reliable:
             t = max(t, self._last_delivery)
         self._last_delivery = max(self._last_delivery, t)

@@ -11,6 +11,8 @@ Grammar (the arguments after ``tc qdisc ... netem``; a leading ``netem`` is allo
     rate RATE
     limit PACKETS
     trace PATH              (splitrender extension: mahimahi trace; not for tc)
+    spike EXTRA START DUR   (splitrender extension: EXTRA delay for packets sent in
+                            [START, START+DUR), e.g. ``spike 250ms 2s 1s``; not for tc)
 
 Times need a unit: ``s``/``sec``/``ms``/``msec``/``us``/``usec`` (tc reads a bare
 number as microseconds, a classic mistake, so it is refused here).  Rates follow tc:
@@ -50,7 +52,7 @@ _RATE_TO_BPS = {
 }
 KEYWORDS: tuple[str, ...] = (
     "corrupt", "delay", "distribution", "duplicate", "gap", "limit", "loss", "rate",
-    "reorder", "trace",
+    "reorder", "spike", "trace",
 )
 
 
@@ -189,6 +191,10 @@ def parse_netem(text: str) -> LinkSpec:
             fields["limit_packets"] = t.count("packet count", "limit")
         elif kw == "trace":
             fields["trace_path"] = t.take("trace file", "trace")
+        elif kw == "spike":
+            fields["spike_ms"] = t.time_ms("spike")
+            fields["spike_start_s"] = t.time_ms("spike delay") / 1000.0
+            fields["spike_duration_s"] = t.time_ms("spike start") / 1000.0
     try:
         return LinkSpec(**fields)
     except NetworkConfigError as exc:
@@ -219,6 +225,8 @@ def to_netem(spec: LinkSpec) -> str:
     """
     if spec.trace_path is not None:
         raise NetworkConfigError("netem: a mahimahi trace (trace_path) cannot be expressed for tc")
+    if spec.spike_ms:
+        raise NetworkConfigError("netem: a timed latency spike (spike_ms) cannot be expressed in one tc command")
     d = LinkSpec()
     parts: list[str] = []
     if spec.delay_ms or spec.jitter_ms or spec.delay_correlation_pct or (
