@@ -82,8 +82,9 @@ def mutated_meta(draw: Any, good: dict[str, Any]) -> dict[str, Any]:
     """1-3 edits of the good metadata: a field replaced by junk or a near miss, deleted, or a view dropped/duplicated."""
     meta = {**good, "views": [dict(v) for v in good["views"]]}
     for _ in range(draw(st.integers(1, 3))):
-        in_view = draw(st.booleans()) and meta.get("views") and isinstance(meta["views"], list) \
-            and all(isinstance(v, dict) for v in meta["views"])
+        views = meta.get("views")  # may itself have been replaced by junk (e.g. an array)
+        in_view = draw(st.booleans()) and isinstance(views, list) and len(views) > 0 \
+            and all(isinstance(v, dict) for v in views)
         target = meta["views"][draw(st.integers(0, len(meta["views"]) - 1))] if in_view else meta
         key = draw(st.sampled_from(VIEW_KEYS if in_view else TOP_KEYS))
         op = draw(st.sampled_from(["junk", "near", "near", "delete", "views"]))
