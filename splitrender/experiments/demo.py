@@ -7,8 +7,9 @@ Outputs in ``DIR``: ``runs/<key>/`` (per-run CSVs and ``config.toml``), ``runs.c
 ``figures/`` (PNG + SVG + CSV per chart), ``studies/<name>/`` and ``report.html``.
 
 ``--quick`` (:data:`QUICK`) runs 320x180, 1 s of the walk trace at 30 fps with FLIP
-on every 6th frame, and gives the studies what is left of a 170 s budget (a study
-that would overrun is stopped and the report says so).  The default (:data:`FULL`)
+on every 6th frame, and starts the studies (each in its own process, at low
+priority) alongside the runs; studies still running 160 s after the start are stopped
+and the report says so.  The default (:data:`FULL`)
 runs 640x360 over the full 10 s walk and turn traces.
 """
 
@@ -18,6 +19,7 @@ import argparse
 import logging
 import math
 import multiprocessing as mp
+import os
 import pkgutil
 import time
 import traceback
@@ -30,7 +32,7 @@ from ..sim.config import RunConfig
 from .report import build_report, save_meta
 from .sections import Section
 from .store import ResultStore, Row, fnum, network_columns, read_csv, write_csv
-from .sweep import RunProgress, default_workers, run_configs
+from .sweep import RunProgress, run_configs
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +41,7 @@ QUICK: dict[str, Any] = {"width": 320, "height": 180, "duration_s": 1.0, "client
                          "traces": ("walk",)}
 FULL: dict[str, Any] = {"width": 640, "height": 360, "duration_s": None, "client_fps": 60, "server_fps": 30, "flip_every": 4,
                         "traces": ("walk", "turn")}
-QUICK_BUDGET_S = 170.0
+QUICK_BUDGET_S = 160.0
 FULL_STUDY_TIMEOUT_S = 3600.0
 SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "p5_psnr_db", "mean_ssim", "mean_flip", "flip_frames",
                    "mean_kbps", "mean_hole_pct", "mean_lab_err_pct", "mean_update_age_ms", "mean_server_ms", "mean_client_ms",
@@ -118,7 +120,7 @@ def intro_markdown(cfgs: Sequence[RunConfig], quick: bool, runs: Sequence[Row], 
         "",
         "## How quality was scored",
         f"- PSNR, SSIM, Lab error pixels and holes are scored on **every** displayed frame against the ground truth rendered "
-        f"at the client's true pose and time.",
+        "at the client's true pose and time.",
         f"- FLIP is expensive and is sampled: `flip_every = {c.flip_every}`, i.e. every {c.flip_every}th displayed frame "
         f"({int(sum(flip_n))} FLIP-scored frames of {int(sum(frames_n))} displayed frames in total); mean FLIP is the mean over "
         f"the sampled frames only." if c.flip_every else "- FLIP was not scored (`flip_every = 0`).",
@@ -155,9 +157,12 @@ def discover_studies() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if not m.name.startswith("_"))
 
 
-def _study_child(name: str, out_dir: str, quick: bool, conn: Any) -> None:
+def _study_child(name: str, out_dir: str, quick: bool, nice: int, conn: Any) -> None:
     try:
         import importlib
+
+        if nice:
+            os.nice(nice)  # the demo's own runs come first; studies use the CPU they leave
 
         mod = importlib.import_module(name if "." in name else f"splitrender.experiments.studies.{name}")
         sec = mod.run(Path(out_dir), quick)
@@ -181,18 +186,18 @@ class _StudyProc:
     done: bool = False
 
 
-def _start_study(name: str, out_dir: Path, quick: bool) -> _StudyProc:
+def _start_study(name: str, out_dir: Path, quick: bool, nice: int = 0) -> _StudyProc:
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
     out_dir.mkdir(parents=True, exist_ok=True)
-    proc = ctx.Process(target=_study_child, args=(name, str(out_dir), quick, child), name=f"study-{name}")
+    proc = ctx.Process(target=_study_child, args=(name, str(out_dir), quick, nice, child), name=f"study-{name}")
     proc.start()
     child.close()
     return _StudyProc(name, out_dir, proc, parent, time.monotonic())
 
 
 def _stop(sp: _StudyProc) -> None:
-    sp.proc.join(timeout=5)
+    sp.proc.join(timeout=5 if sp.msg is not None else 0.5)
     if sp.proc.is_alive():
         sp.proc.terminate()
         sp.proc.join(timeout=5)
@@ -235,45 +240,57 @@ def run_study(name: str, out_dir: Path, quick: bool, timeout_s: float) -> Sectio
     return _study_section(sp, timeout_s)
 
 
-def run_studies(out: Path, quick: bool, deadline: float | None, parallel: int = 1) -> tuple[list[Section], list[str]]:
-    """Every study, ``parallel`` at a time, each in its own process; all stop at ``deadline`` (monotonic s)."""
-    names = discover_studies()
-    limit = deadline if deadline is not None else time.monotonic() + FULL_STUDY_TIMEOUT_S
-    results: dict[str, Section] = {}
-    took: dict[str, float] = {}
-    queue = list(names)
-    running: list[_StudyProc] = []
-    while queue or running:
-        while queue and len(running) < max(1, parallel):
-            name = queue.pop(0)
-            if limit - time.monotonic() < 5:
-                results[name] = Section(f"Study: {name} (skipped)", f"Skipped in quick mode: the {QUICK_BUDGET_S:.0f} s budget "
-                                        "was spent before it could start. Run the full demo for it.")
-                continue
-            running.append(_start_study(name, out / "studies" / name, quick))
-        for sp in list(running):
-            if sp.conn.poll(0.1):
-                try:
-                    sp.msg = sp.conn.recv()
-                except EOFError:
-                    sp.msg = None
-            elif sp.proc.is_alive() and time.monotonic() < limit:
-                continue
-            _stop(sp)
-            took[sp.name] = time.monotonic() - sp.t0
-            results[sp.name] = _study_section(sp, limit - sp.t0)
-            running.remove(sp)
-        if not running and not queue:
-            break
-    secs, notes = [], []
-    for name in names:
-        sec = results[name]
-        sec.figures = [_rel(Path(f), out, out / "studies" / name) for f in sec.figures]
-        sec.tables = [_rel(Path(t), out, out / "studies" / name) for t in sec.tables]
-        status = "" if "(" not in sec.title else " - " + sec.title
-        notes.append(f"study `{name}`: " + (f"{took[name]:.0f} s" if name in took else "not started") + status)
-        secs.append(sec)
-    return secs, notes
+class StudyRunner:
+    """Studies started together in their own processes, collected by a deadline.
+
+    ``start()`` launches every study (``nice`` lowers their priority so the demo's runs,
+    started afterwards, come first); ``collect(deadline)`` waits for them and stops any
+    still running at ``deadline`` (monotonic s; ``None``: :data:`FULL_STUDY_TIMEOUT_S`).
+    """
+
+    def __init__(self, out: Path, quick: bool, nice: int = 0) -> None:
+        self.out, self.quick, self.nice = out, quick, nice
+        self.names = discover_studies()
+        self.procs: list[_StudyProc] = []
+
+    def start(self) -> "StudyRunner":
+        for name in self.names:
+            self.procs.append(_start_study(name, self.out / "studies" / name, self.quick, self.nice))
+        return self
+
+    def collect(self, deadline: float | None) -> tuple[list[Section], list[str]]:
+        t_start = min((sp.t0 for sp in self.procs), default=time.monotonic())
+        limit = deadline if deadline is not None else t_start + FULL_STUDY_TIMEOUT_S
+        results: dict[str, Section] = {}
+        took: dict[str, float] = {}
+        running = list(self.procs)
+        while running:
+            for sp in list(running):
+                if sp.conn.poll(0.1):
+                    try:
+                        sp.msg = sp.conn.recv()
+                    except EOFError:
+                        sp.msg = None
+                elif sp.proc.is_alive() and time.monotonic() < limit:
+                    continue
+                _stop(sp)
+                took[sp.name] = time.monotonic() - sp.t0
+                results[sp.name] = _study_section(sp, limit - sp.t0)
+                running.remove(sp)
+        secs, notes = [], []
+        for name in self.names:
+            sec = results[name]
+            sec.figures = [_rel(Path(f), self.out, self.out / "studies" / name) for f in sec.figures]
+            sec.tables = [_rel(Path(t), self.out, self.out / "studies" / name) for t in sec.tables]
+            status = " - " + sec.title if sec.title.endswith(("(not completed)", "(failed)", "(skipped)")) else ""
+            notes.append(f"study `{name}`: {took[name]:.0f} s (started with the runs)" + status)
+            secs.append(sec)
+        return secs, notes
+
+
+def run_studies(out: Path, quick: bool, deadline: float | None) -> tuple[list[Section], list[str]]:
+    """Every study at once, each in its own process, stopped at ``deadline`` (monotonic s)."""
+    return StudyRunner(out, quick).start().collect(deadline)
 
 
 def _rel(p: Path, root: Path, study_dir: Path) -> Path:
@@ -302,6 +319,8 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
     out.mkdir(parents=True, exist_ok=True)
     cfgs = demo_configs(quick, methods, networks, duration_s, size, traces)
     store = ResultStore(out)
+    # Studies start first at low priority, so they use whatever CPU the runs leave.
+    studies_run = StudyRunner(out, quick, nice=10).start() if studies else None
     ex = run_configs(cfgs, store, workers, None, progress)
     ok = [c for c in cfgs if store.has(c)]
     if not ok:
@@ -314,8 +333,8 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
     notes.append(f"{len(ex.ran)} runs computed, {len(ex.cached)} reused from an earlier demo in this folder; runs took "
                  f"{time.monotonic() - t0:.0f} s wall clock with {workers or 'CPU-count'} workers.")
     sections: list[Section] = []
-    if studies:
-        sections, snotes = run_studies(out, quick, deadline, workers or default_workers())
+    if studies_run is not None:
+        sections, snotes = studies_run.collect(deadline)
         notes += snotes
     else:
         notes.append("studies skipped (--no-studies).")
