@@ -119,7 +119,7 @@ def intro_markdown(cfgs: Sequence[RunConfig], quick: bool, runs: Sequence[Row], 
         + (" (**quick mode**: reduced resolution and trace length)." if quick else "."),
         "",
         "## How quality was scored",
-        f"- PSNR, SSIM, Lab error pixels and holes are scored on **every** displayed frame against the ground truth rendered "
+        "- PSNR, SSIM, Lab error pixels and holes are scored on **every** displayed frame against the ground truth rendered "
         "at the client's true pose and time.",
         f"- FLIP is expensive and is sampled: `flip_every = {c.flip_every}`, i.e. every {c.flip_every}th displayed frame "
         f"({int(sum(flip_n))} FLIP-scored frames of {int(sum(frames_n))} displayed frames in total); mean FLIP is the mean over "
