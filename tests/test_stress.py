@@ -18,7 +18,6 @@ stated bound per case:
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 
