@@ -180,7 +180,8 @@ def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
         missing = float((frame.holes & geometry).mean())
         assert missing < 0.002, f"{missing:.3%} of geometry pixels are holes at zero latency"
         p = psnr(frame.color, gt.color)
-        assert p >= 23.5, f"PSNR {p:.2f} dB against the ground truth at zero latency (threshold 23.5 dB)"
+        # measured 25.85 / 26.07 / 26.10 dB (patches span their whole block, lookups clamped to it)
+        assert p >= 25.0, f"PSNR {p:.2f} dB against the ground truth at zero latency (threshold 25.0 dB)"
         assert stats["failed"] == 0
 
 

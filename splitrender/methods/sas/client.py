@@ -6,7 +6,7 @@ object-space slot positions (sent once when it enters the PVS), its block rectan
 leave the PVS (``drop``, or absent from an I-frame's ``pvs`` list) are forgotten.
 
 Rendering is one draw call: a vertex buffer of all PVS triangles with atlas
-coordinates baked in (rebuilt only when the state changed) and the object transforms
+coordinates and each block's texel-centre clamp rectangle baked in (rebuilt only when the state changed) and the object transforms
 in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
 which the session data carries, as the server's clear colour).
 """
@@ -24,7 +24,7 @@ from ...render.gl import load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from .patches import SLOT_LAYOUT, TRI_SLOTS
-from .server import META_VERSION, block_layout_xy, dequantize_slots
+from .server import META_VERSION, block_clamp_rect, block_layout_xy, dequantize_slots
 
 SHADERS = Path(__file__).parent / "shaders"
 
@@ -142,7 +142,9 @@ class SasClient(ClientHalf):
                     if tri[0] < 0:
                         continue
                     o = np.broadcast_to(obj[sel][:, None, None], (sel.size, 3, 1))
-                    tris.append(np.concatenate([pos[sel][:, tri], xy[:, tri], o], axis=2).astype(np.float32))
+                    clamp = block_clamp_rect(rect[sel]) / np.tile(wh, 2)
+                    c4 = np.broadcast_to(clamp[:, None, :], (sel.size, 3, 4))
+                    tris.append(np.concatenate([pos[sel][:, tri], xy[:, tri], o, c4], axis=2).astype(np.float32))
         if self._vao is not None:
             self._vao.release()
             self._vbo.release()
@@ -152,7 +154,7 @@ class SasClient(ClientHalf):
             v = np.concatenate(tris)
             self._n_tri = v.shape[0]
             self._vbo = self.gl.buffer(v.tobytes())
-            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 2f 1f", "in_position", "in_atlas_uv", "in_object")])
+            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 2f 1f 4f", "in_position", "in_atlas_uv", "in_object", "in_clamp")])
         self._dirty = False
 
     # ------------------------------------------------------------------ display

@@ -62,7 +62,7 @@ log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
 META_VERSION = 1
 EXPAND_TEXELS = 1.5
-"""How far each triangle is grown in the atlas (texels) so bilinear taps at the inset border read shaded texels."""
+"""How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
 
 
 @dataclass(frozen=True)
@@ -164,12 +164,27 @@ def dequantize_slots(q: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.nda
 
 
 def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
-    """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2) with the half-texel inset."""
+    """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2): the patch spans the whole block.
+
+    ``rect`` (N, 4) is x, y, width, height in texels.  Texel centres lie inside the
+    patch (a 2x2 block samples it at 1/4 and 3/4 of each side, not on its edges, where
+    the texture filter would mix in the neighbouring surface), so a block of ``2^l``
+    texels holds ``2^l`` samples per side; the client clamps its lookups to the
+    block's texel-centre rectangle (:func:`block_clamp_rect`).
+    """
     uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
     shape = (-1,) + (1,) * (layout_uv.ndim - 2)
-    x = rect[:, 0].reshape(shape) + 0.5 + uv[..., 0] * (rect[:, 2].reshape(shape) - 1)
-    y = rect[:, 1].reshape(shape) + 0.5 + uv[..., 1] * (rect[:, 3].reshape(shape) - 1)
+    x = rect[:, 0].reshape(shape) + uv[..., 0] * rect[:, 2].reshape(shape)
+    y = rect[:, 1].reshape(shape) + uv[..., 1] * rect[:, 3].reshape(shape)
     return np.stack([x, y], axis=-1)
+
+
+def block_clamp_rect(rect: np.ndarray) -> np.ndarray:
+    """(N, 4) texel-centre rectangles x0, y0, x1, y1 (texels) of blocks ``rect`` (N, 4: x, y, width, height).
+
+    Bilinear lookups clamped to it never read a texel of another block.
+    """
+    return np.concatenate([rect[:, :2] + 0.5, rect[:, :2] + rect[:, 2:4] - 0.5], axis=1)
 
 
 class SasServer(ServerHalf):

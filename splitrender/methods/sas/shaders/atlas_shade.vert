@@ -1,8 +1,8 @@
 #version 430
 // Shading stage (paper section 3.2): each PVS triangle is drawn at its atlas block,
 // already expanded on the CPU by a texel or so (attributes extrapolated linearly) so
-// that the half-texel border of every block is shaded too; the block rectangle
-// clips it in the fragment shader.
+// that every texel of the block is shaded, also along slanted edges; the block
+// rectangle clips it in the fragment shader.
 in vec2 in_atlas;      // atlas position, texels (x along width, y along rows)
 in vec3 in_position;   // object space
 in vec3 in_normal;
