@@ -98,7 +98,7 @@ def quality_vs_latency(runs: Sequence[Row], figdir: Path, name: str = "quality_v
     if not rows:
         return None
     methods = _methods(rows)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), layout="constrained")
     data: list[Row] = []
     for m in methods:
         pts = sorted((d, grp) for (mm, d), grp in _group(rows, "method", "net_delay_ms").items() if mm == m)
