@@ -3,16 +3,19 @@ the client against the ground truth, PVS coverage and the comparison with ``atw`
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from splitrender.errors import RemoteProtocolError
+from splitrender.errors import RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import DecodedUpdate, ServerContext
 from splitrender.methods.sas.allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from splitrender.methods.sas.levels import select_levels
-from splitrender.methods.sas.patches import TRI_SLOTS, build_mesh_patches, build_scene_patches
+from splitrender.methods.sas.patches import build_mesh_patches, build_scene_patches
+from splitrender.methods.sas.wire import TRI_SLOTS, SasMetaError
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.procedural import default_scene
 
@@ -255,18 +258,93 @@ def test_small_atlas_resets_only_on_iframes_and_keeps_nothing_outside_live_block
 
 
 def test_client_rejects_malformed_metadata() -> None:
+    assert issubclass(SasMetaError, RemoteProtocolError) and issubclass(SasMetaError, SplitRenderError)
     out, cli = _loopback(1, {"lossless": True})
     u, plane = out[0][0], out[0][1]
-    with pytest.raises(RemoteProtocolError, match="atlas plane"):
-        cli.apply(DecodedUpdate(1, 0.0, u.pose, {"atlas": plane[:-2]}, dict(u.meta)))
-    with pytest.raises(RemoteProtocolError, match="geo_pos"):
-        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "geo_pos": u.meta["geo_pos"][:-1]}))
-    with pytest.raises(RemoteProtocolError, match="outside the atlas"):
-        bad = u.meta["uv_rect"].copy()
-        bad[0, 0] = 60000
-        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "uv_rect": bad}))
-    with pytest.raises(RemoteProtocolError, match="version"):
-        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, {**u.meta, "v": 99}))
+    before = (dict(cli.geo), dict(cli.rect), cli.models.copy())
+
+    def bad(match: str, planes: dict | None = None, **fields: object) -> None:  # type: ignore[type-arg]
+        with pytest.raises(SasMetaError, match=match):
+            cli.apply(DecodedUpdate(1, 0.0, u.pose, planes or {}, {**u.meta, **fields}))
+
+    def with_value(key: str, value: int, col: int | None = None) -> np.ndarray:
+        a = u.meta[key].astype(np.int64)
+        if col is None:
+            a[0] = value
+        else:
+            a[0, col] = value
+        return a
+
+    bad("atlas plane", {"atlas": plane[:-2]})
+    bad("'geo_pos' has", geo_pos=u.meta["geo_pos"][:-1])
+    bad("'uv_rect' has a block outside the atlas", uv_rect=with_value("uv_rect", 60000, 0))
+    bad("version", v=99)
+    bad(r"'geo_obj' must be in 0\.\.", geo_obj=with_value("geo_obj", -1))
+    bad(r"'geo_obj' must be in 0\.\.", geo_obj=with_value("geo_obj", cli.n_obj))
+    bad(r"'xf_obj' must be in 0\.\.", xf_obj=with_value("xf_obj", -1))
+    bad(r"'xf_obj' must be in 0\.\.", xf_obj=with_value("xf_obj", cli.n_obj))
+    bad("'uv_rect' has a negative block x or y", uv_rect=with_value("uv_rect", -1, 0))
+    bad("'uv_rect' has a negative block x or y", uv_rect=with_value("uv_rect", -4, 1))
+    bad("'uv_rect' levels must be in", uv_rect=with_value("uv_rect", -1, 2))
+    bad(r"'geo_id' must be in 0\.\.", geo_id=with_value("geo_id", cli.session.n_patches))
+    bad(r"'uv_id' must be in 0\.\.", uv_id=with_value("uv_id", -1))
+    bad(r"'drop' must be in 0\.\.", drop=np.array([-1], np.int32))
+    bad(r"'pvs' must be in 0\.\.", pvs=np.array([2**31 - 1], np.int32))
+    bad("'xf' has non-finite values", xf=np.full_like(u.meta["xf"], np.nan))
+    bad("'geo_id' has dtype float64", geo_id=u.meta["geo_id"].astype(np.float64))
+    after = (cli.geo, cli.rect, cli.models)
+    assert after[0] == before[0] and after[1].keys() == before[1].keys() and np.array_equal(after[2], before[2]), \
+        "a rejected frame must leave the client state as it was"
+
+
+@functools.lru_cache(maxsize=1)
+def _fuzz_client():  # type: ignore[no-untyped-def]
+    out, cli = _loopback(1, {"lossless": True})
+    return cli, out[0][0]
+
+
+_EXTREMES = [0, 1, -1, 2, 3, 4, 15, 16, 255, 65535, 65536, 2**31 - 1, -(2**31), 2**40]
+
+
+@settings(max_examples=150, deadline=None)
+@given(key=st.sampled_from(["v", "full", "pvs", "drop", "geo_id", "geo_obj", "geo_size", "geo_pos", "uv_id", "uv_rect",
+                            "xf_obj", "xf", "atlas"]),
+       how=st.sampled_from(["delete", "scalar", "list", "poke", "truncate", "grow", "reshape", "retype", "random"]),
+       value=st.sampled_from(_EXTREMES), seed=st.integers(0, 2**32 - 1),
+       dtype=st.sampled_from(["int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float32", "float64", "bool"]))
+def test_client_apply_fuzz_applies_or_raises_sas_meta_error(key: str, how: str, value: int, seed: int, dtype: str) -> None:
+    """h11's rule for peer input: a mutated metadata map is applied or raises SasMetaError, nothing else."""
+    cli, u = _fuzz_client()
+    rng = np.random.default_rng(seed)
+    meta = dict(u.meta)
+    orig = meta.get(key)
+    arr = orig if isinstance(orig, np.ndarray) else np.asarray(orig if orig is not None else [0])
+    if how == "delete":
+        meta.pop(key, None)
+    elif how == "scalar":
+        meta[key] = value
+    elif how == "list":
+        meta[key] = [value] * 3
+    elif how == "poke" and arr.size:
+        a = arr.astype(np.float64 if arr.dtype.kind == "f" else np.int64).copy()
+        a.flat[int(rng.integers(a.size))] = value
+        meta[key] = a.astype(dtype) if dtype != "bool" else a
+    elif how == "truncate":
+        meta[key] = arr[: max(0, arr.shape[0] - 1)] if arr.ndim else arr
+    elif how == "grow":
+        meta[key] = np.concatenate([arr, arr[:1]]) if arr.ndim and arr.size else arr
+    elif how == "reshape":
+        meta[key] = arr.reshape(-1) if arr.ndim > 1 else arr.reshape(-1, 1)
+    elif how == "retype":
+        meta[key] = arr.astype(dtype)
+    else:
+        shape = tuple(int(x) for x in rng.integers(0, 4, int(rng.integers(0, 4))))
+        meta[key] = rng.choice(_EXTREMES, size=shape).astype(dtype)
+    try:
+        cli.apply(DecodedUpdate(1, 0.0, u.pose, {}, meta))
+    except SasMetaError:
+        return
+    cli.render(u.pose, 0.0)
 
 
 # ---------------------------------------------------------------- PVS

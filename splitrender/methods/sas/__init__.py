@@ -5,7 +5,7 @@ and streams it as video with geometry and atlas coordinates as metadata; the cli
 draws the PVS geometry textured from the atlas at its own pose.  Modules, in paper
 order: :mod:`.patches` (section 3.1, fig. 4), :mod:`.pvs` (3.1, 5.1),
 :mod:`.levels` (4.3, eq. 1-3), :mod:`.allocator` (4.1-4.2, 5.4),
-:mod:`.server` and :mod:`.client`.
+:mod:`.server` and :mod:`.client`, which share only :mod:`.wire`.
 """
 
 from __future__ import annotations

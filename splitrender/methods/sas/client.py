@@ -6,9 +6,12 @@ object-space slot positions (sent once when it enters the PVS), its block rectan
 leave the PVS (``drop``, or absent from an I-frame's ``pvs`` list) are forgotten.
 
 Rendering is one draw call: a vertex buffer of all PVS triangles with atlas
-coordinates and each block's texel-centre clamp rectangle baked in (rebuilt only when the state changed) and the object transforms
-in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
+coordinates and each block's texel-centre clamp rectangle baked in (rebuilt only
+when the state changed) and the object transforms in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
 which the session data carries, as the server's clear colour).
+
+The client imports only the wire format (:mod:`.wire`) from the server's side; every
+frame is validated there before any state changes.
 """
 
 from __future__ import annotations
@@ -18,32 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import RemoteProtocolError
 from ...render.canvas import Canvas, upload_image
 from ...render.gl import load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-from .patches import SLOT_LAYOUT, TRI_SLOTS
-from .server import META_VERSION, block_clamp_rect, block_layout_xy, dequantize_slots
+from .wire import (SLOT_LAYOUT, TRI_SLOTS, SasMetaError, block_clamp_rect, block_layout_xy, dequantize_slots,
+                   parse_frame_meta, parse_session)
 
 SHADERS = Path(__file__).parent / "shaders"
-
-
-class SasMetaError(RemoteProtocolError):
-    """Malformed SAS metadata from the server (names the field)."""
-
-
-def _arr(meta: dict[str, Any], key: str, dtype: Any, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
-    v = meta.get(key)
-    if v is None:
-        return np.zeros((0,) + shape_tail, dtype)
-    if not isinstance(v, np.ndarray):
-        raise SasMetaError(f"sas metadata: {key!r} must be an array, got {type(v).__name__}")
-    if v.ndim != 1 + len(shape_tail) or v.shape[1:] != shape_tail:
-        raise SasMetaError(f"sas metadata: {key!r} has shape {v.shape}, expected (N, {', '.join(map(str, shape_tail))})".replace(", )", ")"))
-    if n is not None and v.shape[0] != n:
-        raise SasMetaError(f"sas metadata: {key!r} has {v.shape[0]} rows, expected {n}")
-    return v.astype(dtype, copy=False)
 
 
 class SasClient(ClientHalf):
@@ -51,16 +36,11 @@ class SasClient(ClientHalf):
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
-        sd = self.session_data
-        if sd.get("v") != META_VERSION:
-            raise SasMetaError(f"sas session data: version {sd.get('v')!r}, expected {META_VERSION}")
-        self.atlas_size = tuple(int(x) for x in sd["atlas"])
-        self.n_obj = int(sd["n_objects"])
-        self.sky = tuple(float(x) for x in sd.get("sky", (0.0, 0.0, 0.0)))
-        box = sd.get("obj_box")
-        if not isinstance(box, np.ndarray) or box.shape != (self.n_obj, 2, 3):
-            raise SasMetaError(f"sas session data: obj_box must be an array of shape ({self.n_obj}, 2, 3)")
-        self.obj_box = box.astype(np.float32)
+        self.session = parse_session(self.session_data)
+        self.atlas_size = self.session.atlas_size
+        self.n_obj = self.session.n_objects
+        self.sky = self.session.sky
+        self.obj_box = self.session.obj_box
         i = self.intrinsics
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
@@ -77,49 +57,31 @@ class SasClient(ClientHalf):
 
     # ------------------------------------------------------------------ updates
     def apply(self, update: DecodedUpdate) -> None:
-        m = update.meta
-        if m.get("v") != META_VERSION:
-            raise SasMetaError(f"sas metadata: version {m.get('v')!r}, expected {META_VERSION}")
+        """Apply one frame; malformed metadata raises :class:`SasMetaError` and leaves the state as it was."""
+        m = parse_frame_meta(update.meta, self.session)
         atlas = update.planes.get("atlas")
         if atlas is not None:
             w, h = self.atlas_size
-            if atlas.shape != (h, w, 3):
-                raise SasMetaError(f"sas atlas plane: shape {atlas.shape}, expected ({h}, {w}, 3)")
+            if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (h, w, 3):
+                raise SasMetaError(f"sas atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({h}, {w}, 3) uint8")
             self._tex = upload_image(self.gl, atlas, self._tex)
-        if m.get("full"):
+        if m.full:
             self.geo.clear()
             self.rect.clear()
-        for pid in _arr(m, "drop", np.int64, ()).tolist():
+        for pid in m.drop.tolist():
             self.geo.pop(pid, None)
             self.rect.pop(pid, None)
-        gid = _arr(m, "geo_id", np.int64, ())
-        gobj = _arr(m, "geo_obj", np.int64, (), gid.size)
-        gsz = _arr(m, "geo_size", np.int64, (), gid.size)
-        if gid.size and (gobj.max() >= self.n_obj or gsz.min() < 1 or gsz.max() > 3):
-            raise SasMetaError(f"sas metadata: geo_obj must be < {self.n_obj} and geo_size in 1..3")
-        gq = _arr(m, "geo_pos", np.uint16, (3,), int((gsz + 2).sum()))
-        gpos = dequantize_slots(gq, gsz, self.obj_box[gobj])
-        for pid, o, s, p in zip(gid.tolist(), gobj.tolist(), gsz.tolist(), gpos):
+        gpos = dequantize_slots(m.geo_pos, m.geo_size, self.obj_box[m.geo_obj])
+        for pid, o, s, p in zip(m.geo_id.tolist(), m.geo_obj.tolist(), m.geo_size.tolist(), gpos):
             self.geo[pid] = (o, s, p)
-        uid = _arr(m, "uv_id", np.int64, ())
-        urect = _arr(m, "uv_rect", np.int64, (5,), uid.size)
-        if uid.size:
-            w, h = self.atlas_size
-            x, y, lw, lh = urect[:, 0], urect[:, 1], urect[:, 2], urect[:, 3]
-            if (lw > 15).any() or (lh > 15).any() or (x + (1 << lw) > w).any() or (y + (1 << lh) > h).any():
-                raise SasMetaError("sas metadata: uv_rect has a block outside the atlas")
-        for pid, r in zip(uid.tolist(), urect):
+        for pid, r in zip(m.uv_id.tolist(), m.uv_rect):
             self.rect[pid] = r
-        if "pvs" in m:
-            keep = set(_arr(m, "pvs", np.int64, ()).tolist())
+        if m.pvs is not None:
+            keep = set(m.pvs.tolist())
             for d in (self.geo, self.rect):
                 for pid in [k for k in d if k not in keep]:
                     del d[pid]
-        xo = _arr(m, "xf_obj", np.int64, ())
-        xf = _arr(m, "xf", np.float32, (4, 4), xo.size)
-        if xo.size and xo.max() >= self.n_obj:
-            raise SasMetaError(f"sas metadata: xf_obj must be < {self.n_obj}")
-        self.models[xo] = xf
+        self.models[m.xf_obj] = m.xf
         self._dirty = True
         self._has_content = True
 

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .allocator import AtlasLayout
-from .patches import HEIGHT_EDGES, TRI_SLOTS, WIDTH_EDGES, ScenePatches
+from .patches import HEIGHT_EDGES, WIDTH_EDGES, ScenePatches
+from .wire import TRI_SLOTS
 
 
 @dataclass

@@ -19,7 +19,8 @@ Block layout (figure 6): every patch maps to a rectangle with block-local coordi
 - three-triangle strip ``s0 s1 s2 | s1 s2 s3 | s2 s3 s4``: s0 (0,1), s1 (0,0), s2 (.5,1), s3 (1,0), s4 (1,1).
 
 Each patch has up to five vertex *slots*; per patch we keep the slots' mesh vertex
-indices and layout coordinates, and per triangle the three slots it uses.
+indices and layout coordinates, and per triangle the three slots it uses.  The layout
+tables (`SLOT_LAYOUT`, `TRI_SLOTS`) are part of the wire format, in :mod:`.wire`.
 """
 
 from __future__ import annotations
@@ -33,18 +34,6 @@ from ...scene.model import Mesh, Scene
 MAX_SLOTS = 5
 MAX_TRIS = 3
 
-#: Layout coordinates of the slots per patch size (index = triangles in the patch).
-SLOT_LAYOUT: dict[int, np.ndarray] = {
-    1: np.array([[0, 0], [1, 0], [0, 1], [0, 0], [0, 0]], np.float32),
-    2: np.array([[0, 0], [1, 0], [0, 1], [1, 1], [0, 0]], np.float32),
-    3: np.array([[0, 1], [0, 0], [0.5, 1], [1, 0], [1, 1]], np.float32),
-}
-#: Triangles as slot triples per patch size.
-TRI_SLOTS: dict[int, np.ndarray] = {
-    1: np.array([[0, 1, 2], [-1, -1, -1], [-1, -1, -1]], np.int8),
-    2: np.array([[0, 1, 2], [1, 2, 3], [-1, -1, -1]], np.int8),
-    3: np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]], np.int8),
-}
 #: Edges parallel to the block width: (slot, slot, layout length in u).
 WIDTH_EDGES: dict[int, list[tuple[int, int, float]]] = {
     1: [(0, 1, 1.0)],

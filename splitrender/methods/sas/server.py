@@ -22,19 +22,7 @@ and all geometry (the client may have missed geometry sent "once"); the client
 replaces its state with it.  Atlas resets also carry the full PVS list and block
 table (every block moved) but no geometry the client already has.
 
-Wire format (metadata ``v = 1``), all arrays little-endian:
-
-- ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
-- ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
-- ``drop`` int32 (K,): patches that left the PVS;
-- ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
-  (1-3), ``geo_pos`` uint16 (sum(geo_size + 2), 3): the used slots' object-space
-  positions (slot layout in :mod:`.patches`), patch after patch, quantised to 16 bits
-  in the object's bounding box (session data ``obj_box``: per object lo, hi in
-  metres); a shared vertex quantises identically in every patch, so no cracks;
-- ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels), lw, lh
-  (log2 size), transposed flag;
-- ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
+The wire format is in :mod:`.wire`.
 """
 
 from __future__ import annotations
@@ -55,12 +43,12 @@ from ...scene.pose import CameraIntrinsics
 from ..base import MethodConfig, ServerContext, ServerHalf, StreamSpec, Update
 from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from .levels import ideal_log_size, patch_world_slots, select_levels
-from .patches import SLOT_LAYOUT, TRI_SLOTS, ScenePatches, build_scene_patches
+from .patches import ScenePatches, build_scene_patches
 from .pvs import PatchIdPass, PoseSample, sample_times
+from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, quantize_slots
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
-META_VERSION = 1
 EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
 
@@ -146,47 +134,6 @@ def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
     return np.stack([1 - l1 - l2, l1, l2], axis=-1)
 
 
-def quantize_slots(pos: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """(sum(size + 2), 3) uint16 used-slot positions of ``pos`` (G, 5, 3) in boxes ``box`` (G, 2, 3)."""
-    ext = np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None]
-    q = np.rint((pos - box[:, None, 0]) / ext * 65535.0).clip(0, 65535).astype(np.uint16)
-    return q[np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]]
-
-
-def dequantize_slots(q: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`quantize_slots`: (G, 5, 3) float32 with unused slots zero."""
-    used = np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]
-    out = np.zeros(size.shape + (5, 3), np.float32)
-    lo = np.broadcast_to(box[:, None, 0], out.shape)[used]
-    ext = np.broadcast_to(np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None], out.shape)[used]
-    out[used] = lo + q.astype(np.float32) / 65535.0 * ext
-    return out
-
-
-def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
-    """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2): the patch spans the whole block.
-
-    ``rect`` (N, 4) is x, y, width, height in texels.  Texel centres lie inside the
-    patch (a 2x2 block samples it at 1/4 and 3/4 of each side, not on its edges, where
-    the texture filter would mix in the neighbouring surface), so a block of ``2^l``
-    texels holds ``2^l`` samples per side; the client clamps its lookups to the
-    block's texel-centre rectangle (:func:`block_clamp_rect`).
-    """
-    uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
-    shape = (-1,) + (1,) * (layout_uv.ndim - 2)
-    x = rect[:, 0].reshape(shape) + uv[..., 0] * rect[:, 2].reshape(shape)
-    y = rect[:, 1].reshape(shape) + uv[..., 1] * rect[:, 3].reshape(shape)
-    return np.stack([x, y], axis=-1)
-
-
-def block_clamp_rect(rect: np.ndarray) -> np.ndarray:
-    """(N, 4) texel-centre rectangles x0, y0, x1, y1 (texels) of blocks ``rect`` (N, 4: x, y, width, height).
-
-    Bilinear lookups clamped to it never read a texel of another block.
-    """
-    return np.concatenate([rect[:, :2] + 0.5, rect[:, :2] + rect[:, 2:4] - 0.5], axis=1)
-
-
 class SasServer(ServerHalf):
     """Shading atlas streaming, server half."""
 
@@ -225,6 +172,7 @@ class SasServer(ServerHalf):
 
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
+                "n_patches": self.patches.count,
                 "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box}
 
     def stats(self) -> dict[str, float]:

@@ -1,0 +1,234 @@
+"""The SAS wire format: what the server and client halves share, and nothing else.
+
+Session data: ``v``, ``atlas`` [W, H] texels, ``n_objects``, ``n_patches`` (patch ids
+are ``0 .. n_patches - 1``), ``sky`` RGB, ``obj_box`` float32 (n_objects, 2, 3): per
+object the lo, hi corners of its bounding box in object space, metres.
+
+Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
+
+- ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
+- ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
+- ``drop`` int32 (K,): patches that left the PVS;
+- ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
+  (1-3), ``geo_pos`` uint16 (sum(geo_size + 2), 3): the used slots' object-space
+  positions (slot layout :data:`SLOT_LAYOUT`), patch after patch, quantised to 16
+  bits in the object's bounding box (:func:`quantize_slots`); a shared vertex
+  quantises identically in every patch, so no cracks;
+- ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels, top-left),
+  lw, lh (log2 width and height), transposed flag; the patch spans its whole block
+  (:func:`block_layout_xy`) and lookups are clamped to the block's texel centres
+  (:func:`block_clamp_rect`);
+- ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
+
+Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
+the session data carries ``n_patches``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import RemoteProtocolError
+
+META_VERSION = 2
+MAX_LEVEL = 15
+"""Largest block level (log2 texels) a client accepts."""
+
+#: Layout coordinates of the slots per patch size (index = triangles in the patch):
+#: one triangle ``(a, b, c)``: a (0,0), b (1,0), c (0,1) (half the block); two
+#: triangles ``(c, a, b)`` + ``(a, b, d)``: c (0,0), a (1,0), b (0,1), d (1,1); three
+#: (strip ``s0 s1 s2 | s1 s2 s3 | s2 s3 s4``): s0 (0,1), s1 (0,0), s2 (.5,1), s3 (1,0), s4 (1,1).
+SLOT_LAYOUT: dict[int, np.ndarray] = {
+    1: np.array([[0, 0], [1, 0], [0, 1], [0, 0], [0, 0]], np.float32),
+    2: np.array([[0, 0], [1, 0], [0, 1], [1, 1], [0, 0]], np.float32),
+    3: np.array([[0, 1], [0, 0], [0.5, 1], [1, 0], [1, 1]], np.float32),
+}
+#: Triangles as slot triples per patch size.
+TRI_SLOTS: dict[int, np.ndarray] = {
+    1: np.array([[0, 1, 2], [-1, -1, -1], [-1, -1, -1]], np.int8),
+    2: np.array([[0, 1, 2], [1, 2, 3], [-1, -1, -1]], np.int8),
+    3: np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]], np.int8),
+}
+
+
+class SasMetaError(RemoteProtocolError):
+    """Malformed SAS session data or metadata from the server (names the field)."""
+
+
+def quantize_slots(pos: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """(sum(size + 2), 3) uint16 used-slot positions of ``pos`` (G, 5, 3) in boxes ``box`` (G, 2, 3)."""
+    ext = np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None]
+    q = np.rint((pos - box[:, None, 0]) / ext * 65535.0).clip(0, 65535).astype(np.uint16)
+    return q[np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]]
+
+
+def dequantize_slots(q: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quantize_slots`: (G, 5, 3) float32 with unused slots zero."""
+    used = np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]
+    out = np.zeros(size.shape + (5, 3), np.float32)
+    lo = np.broadcast_to(box[:, None, 0], out.shape)[used]
+    ext = np.broadcast_to(np.maximum(box[:, 1] - box[:, 0], 1e-9)[:, None], out.shape)[used]
+    out[used] = lo + q.astype(np.float32) / 65535.0 * ext
+    return out
+
+
+def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
+    """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2): the patch spans the whole block.
+
+    ``rect`` (N, 4) is x, y, width, height in texels.  Texel centres lie inside the
+    patch (a 2x2 block samples it at 1/4 and 3/4 of each side, not on its edges, where
+    the texture filter would mix in the neighbouring surface), so a block of ``2^l``
+    texels holds ``2^l`` samples per side; the client clamps its lookups to the
+    block's texel-centre rectangle (:func:`block_clamp_rect`).
+    """
+    uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
+    shape = (-1,) + (1,) * (layout_uv.ndim - 2)
+    x = rect[:, 0].reshape(shape) + uv[..., 0] * rect[:, 2].reshape(shape)
+    y = rect[:, 1].reshape(shape) + uv[..., 1] * rect[:, 3].reshape(shape)
+    return np.stack([x, y], axis=-1)
+
+
+def block_clamp_rect(rect: np.ndarray) -> np.ndarray:
+    """(N, 4) texel-centre rectangles x0, y0, x1, y1 (texels) of blocks ``rect`` (N, 4: x, y, width, height).
+
+    Bilinear lookups clamped to it never read a texel of another block.
+    """
+    return np.concatenate([rect[:, :2] + 0.5, rect[:, :2] + rect[:, 2:4] - 0.5], axis=1)
+
+
+# ---------------------------------------------------------------------------- decoding
+@dataclass(frozen=True)
+class SessionInfo:
+    """Validated session data: atlas size (W, H) texels, counts, sky RGB, ``obj_box`` (n_objects, 2, 3) metres."""
+
+    atlas_size: tuple[int, int]
+    n_objects: int
+    n_patches: int
+    sky: tuple[float, float, float]
+    obj_box: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameMeta:
+    """One frame's validated metadata (int64 ids, see the module docstring for the fields)."""
+
+    full: bool
+    pvs: np.ndarray | None
+    drop: np.ndarray
+    geo_id: np.ndarray
+    geo_obj: np.ndarray
+    geo_size: np.ndarray
+    geo_pos: np.ndarray
+    uv_id: np.ndarray
+    uv_rect: np.ndarray
+    xf_obj: np.ndarray
+    xf: np.ndarray
+
+
+def _is_version(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v == META_VERSION
+
+
+def _count(sd: dict[str, Any], key: str, lo: int, hi: int) -> int:
+    v = sd.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
+        raise SasMetaError(f"sas session data: {key!r} must be an integer in {lo}..{hi}, got {v!r}")
+    return int(v)
+
+
+def parse_session(sd: Any) -> SessionInfo:
+    """Validate the server's session data; raises :class:`SasMetaError` naming the field."""
+    if not isinstance(sd, dict):
+        raise SasMetaError(f"sas session data: expected a map, got {type(sd).__name__}")
+    if not _is_version(sd.get("v")):
+        raise SasMetaError(f"sas session data: version {sd.get('v')!r}, expected {META_VERSION}")
+    atlas = sd.get("atlas")
+    if not isinstance(atlas, (list, tuple)) or len(atlas) != 2:
+        raise SasMetaError(f"sas session data: 'atlas' must be [width, height], got {atlas!r}")
+    size = _count({"atlas": atlas[0]}, "atlas", 1, 1 << MAX_LEVEL), _count({"atlas": atlas[1]}, "atlas", 1, 1 << MAX_LEVEL)
+    n_obj = _count(sd, "n_objects", 0, 65535)
+    n_patches = _count(sd, "n_patches", 0, 2**31 - 1)
+    sky = sd.get("sky", [0.0, 0.0, 0.0])
+    if not isinstance(sky, (list, tuple)) or len(sky) != 3 or not all(isinstance(c, (int, float)) for c in sky):
+        raise SasMetaError(f"sas session data: 'sky' must be three numbers, got {sky!r}")
+    box = sd.get("obj_box")
+    if not isinstance(box, np.ndarray) or box.shape != (n_obj, 2, 3) or box.dtype.kind != "f" or not np.isfinite(box).all():
+        raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
+    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box.astype(np.float32))
+
+
+def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
+    """Field ``key`` as an int64 (``kind="i"``) or float32 (``"f"``) array of shape (N, *shape_tail); absent = empty."""
+    v = meta.get(key)
+    out_dtype = np.int64 if kind == "i" else np.float32
+    if v is None:
+        if n:
+            raise SasMetaError(f"sas metadata: {key!r} is missing, expected {n} rows")
+        return np.zeros((0,) + shape_tail, out_dtype)
+    if not isinstance(v, np.ndarray):
+        raise SasMetaError(f"sas metadata: {key!r} must be an array, got {type(v).__name__}")
+    if v.ndim != 1 + len(shape_tail) or v.shape[1:] != shape_tail:
+        raise SasMetaError(f"sas metadata: {key!r} has shape {v.shape}, expected (N, {', '.join(map(str, shape_tail))})".replace(", )", ")"))
+    if n is not None and v.shape[0] != n:
+        raise SasMetaError(f"sas metadata: {key!r} has {v.shape[0]} rows, expected {n}")
+    if (kind == "i" and v.dtype.kind not in "iu") or (kind == "f" and v.dtype.kind != "f"):
+        raise SasMetaError(f"sas metadata: {key!r} has dtype {v.dtype}, expected {'integers' if kind == 'i' else 'floats'}")
+    if kind == "i" and v.dtype.kind == "u" and v.dtype.itemsize >= 8 and v.size and int(v.max()) >= 2**63:
+        raise SasMetaError(f"sas metadata: {key!r} has values beyond int64")
+    if kind == "f" and not np.isfinite(v).all():
+        raise SasMetaError(f"sas metadata: {key!r} has non-finite values")
+    return v.astype(out_dtype)
+
+
+def _in_range(key: str, v: np.ndarray, lo: int, hi: int) -> None:
+    """Every value of field ``key`` in ``lo..hi`` (inclusive)."""
+    if v.size and (int(v.min()) < lo or int(v.max()) > hi):
+        raise SasMetaError(f"sas metadata: {key!r} must be in {lo}..{hi}, got {int(v.min())}..{int(v.max())}")
+
+
+def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
+    """Validate one frame's metadata against ``session``; raises :class:`SasMetaError` naming the field.
+
+    Nothing is applied here, so a client can reject a frame without touching its state.
+    """
+    if not isinstance(meta, dict):
+        raise SasMetaError(f"sas metadata: expected a map, got {type(meta).__name__}")
+    if not _is_version(meta.get("v")):
+        raise SasMetaError(f"sas metadata: version {meta.get('v')!r}, expected {META_VERSION}")
+    full = meta.get("full", False)
+    if not isinstance(full, bool):
+        raise SasMetaError(f"sas metadata: 'full' must be a bool, got {type(full).__name__}")
+    last_id, last_obj = session.n_patches - 1, session.n_objects - 1
+    pvs = _arr(meta, "pvs", "i", ()) if "pvs" in meta else None
+    drop = _arr(meta, "drop", "i", ())
+    gid = _arr(meta, "geo_id", "i", ())
+    gobj = _arr(meta, "geo_obj", "i", (), gid.size)
+    gsz = _arr(meta, "geo_size", "i", (), gid.size)
+    for key, v in (("pvs", pvs), ("drop", drop), ("geo_id", gid)):
+        if v is not None:
+            _in_range(key, v, 0, last_id)
+    _in_range("geo_obj", gobj, 0, last_obj)
+    _in_range("geo_size", gsz, 1, 3)
+    gq = _arr(meta, "geo_pos", "i", (3,), int((gsz + 2).sum()))
+    _in_range("geo_pos", gq, 0, 65535)
+    uid = _arr(meta, "uv_id", "i", ())
+    urect = _arr(meta, "uv_rect", "i", (5,), uid.size)
+    _in_range("uv_id", uid, 0, last_id)
+    if uid.size:
+        w, h = session.atlas_size
+        x, y, lw, lh, t = urect.T
+        if (x < 0).any() or (y < 0).any():
+            raise SasMetaError("sas metadata: 'uv_rect' has a negative block x or y")
+        if (lw < 0).any() or (lh < 0).any() or (lw > MAX_LEVEL).any() or (lh > MAX_LEVEL).any():
+            raise SasMetaError(f"sas metadata: 'uv_rect' levels must be in 0..{MAX_LEVEL}")
+        if ((t != 0) & (t != 1)).any():
+            raise SasMetaError("sas metadata: 'uv_rect' transposed flag must be 0 or 1")
+        if (x + (1 << lw) > w).any() or (y + (1 << lh) > h).any():
+            raise SasMetaError("sas metadata: 'uv_rect' has a block outside the atlas")
+    xo = _arr(meta, "xf_obj", "i", ())
+    xf = _arr(meta, "xf", "f", (4, 4), xo.size)
+    _in_range("xf_obj", xo, 0, last_obj)
+    return FrameMeta(full, pvs, drop, gid, gobj, gsz, gq.astype(np.uint16), uid, urect, xo, xf)
