@@ -297,6 +297,18 @@ def test_client_rejects_malformed_metadata() -> None:
         "a rejected frame must leave the client state as it was"
 
 
+def test_client_imports_only_the_wire_format_from_the_server_side() -> None:
+    """DESIGN: the halves share nothing but the wire format (``sas/wire.py``)."""
+    import ast
+    import inspect
+
+    from splitrender.methods.sas import client
+
+    tree = ast.parse(inspect.getsource(client))
+    local = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 1}
+    assert local == {"wire"}, f"sas.client imports {sorted(local)} from its package"
+
+
 @functools.lru_cache(maxsize=1)
 def _fuzz_client():  # type: ignore[no-untyped-def]
     out, cli = _loopback(1, {"lossless": True})
