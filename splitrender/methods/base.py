@@ -1,41 +1,53 @@
 """The method interface: a server half, a client half and what passes between them.
 
-A method is one module (or subpackage) with two halves that share nothing but the
-wire format (DESIGN.md):
+A method is one package (or module) with two halves that share nothing but the wire
+format (DESIGN.md):
 
 - :class:`ServerHalf` turns a :class:`ServerContext` (scene at time t, the client's
-  newest pose, a pose predictor, feedback) into an :class:`Update`: named image planes,
-  one per declared :class:`StreamSpec`, plus msgpack-able metadata;
-- the transport (virtual-time runner or live server/client) encodes every plane with
-  its stream's video codec and the metadata with msgpack + zstd, counts the bytes,
-  delays/loses them, decodes them again and hands a :class:`DecodedUpdate` to
-- :class:`ClientHalf`, which applies updates to its cache and renders a
-  :class:`ClientFrame` for any pose and time.
+  newest pose, a pose predictor, the client's :class:`ClientFeedback`, and whatever the
+  method's :class:`SceneProducer` prepared for this frame) into an :class:`Update`: one
+  payload per declared stream (an image plane for a :class:`StreamSpec` video stream,
+  bytes for a :class:`DataStreamSpec` data stream) plus msgpack-able metadata;
+- the transmission path (:mod:`splitrender.pipeline`, the same code in virtual time
+  and live) encodes every payload, counts the bytes that cross the wire, sends them
+  over RTP or the control channel, and hands the client a :class:`DecodedUpdate`
+  per server frame, naming the streams that did not arrive (``missing``);
+- :class:`ClientHalf` applies updates to its cache and renders a :class:`ClientFrame`
+  for any pose and time, in its own GL context.
 
-The client half never sees the scene, the renderer or the uncompressed planes; all it
+A :class:`SceneProducer` does the scene-level work of a method once per server frame
+for every session (patch building, probe tracing); per-client halves do the rest.
+
+The client half never sees the scene, the renderer or the uncompressed payloads; all it
 gets at start is ``ServerHalf.session_data()`` (msgpack-able, counted as bytes too).
-
-Adding a method means writing the two halves and a config dataclass and calling
-:func:`register_method`; the runner, server, client and experiments pick it up by name.
+Methods are found through the ``splitrender.methods`` entry-point group (see
+:mod:`splitrender.methods`); a :class:`MethodSpec` names its halves as classes or as
+``"module:attribute"`` strings, so importing a client half never imports its server.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import logging
 import typing
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Literal, Union
 
 import numpy as np
 
 from ..codecs.video import VideoCodecConfig
 from ..errors import ConfigError
-from ..scene.model import Scene
 from ..scene.pose import CameraIntrinsics, Pose
 
+if TYPE_CHECKING:
+    from ..scene.model import Scene
+
 log = logging.getLogger(__name__)
+
+DEFAULT_DATA_MAX_BYTES = 64 * 1024 * 1024
+"""Largest payload of one data stream per frame unless the stream says otherwise."""
 
 
 @dataclass(frozen=True)
@@ -46,21 +58,70 @@ class StreamSpec:
     codec: VideoCodecConfig
     width: int
     height: int
+    kind: Literal["video"] = "video"
 
     def __post_init__(self) -> None:
-        if not self.name.isidentifier():
-            raise ConfigError(f"stream name {self.name!r} must be an identifier")
+        if not self.name.isidentifier() or self.name in RESERVED_STREAMS:
+            raise ConfigError(f"stream name {self.name!r} must be an identifier other than {RESERVED_STREAMS}")
         if self.width % 2 or self.height % 2 or self.width <= 0 or self.height <= 0:
             raise ConfigError(f"stream {self.name}: size {self.width}x{self.height} must be positive and even")
 
 
+@dataclass(frozen=True)
+class DataStreamSpec:
+    """One data stream: bytes per frame, compressed, over a delivery class.
+
+    ``delivery``: ``reliable`` (control channel, TCP: in order, never lost, head-of-line
+    blocked) or ``datagram`` (RTP over UDP with the splitrender data payload format:
+    fast, may be lost whole).  ``compression``: ``zstd`` (level ``level``) or ``none``.
+    ``max_bytes`` bounds one frame's payload before and after compression on both ends.
+    """
+
+    name: str
+    delivery: Literal["reliable", "datagram"] = "reliable"
+    compression: Literal["zstd", "none"] = "zstd"
+    level: int = 3
+    max_bytes: int = DEFAULT_DATA_MAX_BYTES
+    kind: Literal["data"] = "data"
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier() or self.name in RESERVED_STREAMS:
+            raise ConfigError(f"stream name {self.name!r} must be an identifier other than {RESERVED_STREAMS}")
+        if self.delivery not in ("reliable", "datagram"):
+            raise ConfigError(f"data stream {self.name}: delivery {self.delivery!r} is not one of ['reliable', 'datagram']")
+        if self.compression not in ("zstd", "none"):
+            raise ConfigError(f"data stream {self.name}: compression {self.compression!r} is not one of ['zstd', 'none']")
+        if not 0 < self.max_bytes <= 1 << 31:
+            raise ConfigError(f"data stream {self.name}: max_bytes must be in (0, 2 GiB], got {self.max_bytes}")
+
+
+AnyStreamSpec = Union[StreamSpec, DataStreamSpec]
+RESERVED_STREAMS = ("meta", "session", "pose", "control")
+"""Names the pipeline uses for its own byte counts."""
+
+
 @dataclass
 class ClientFeedback:
-    """What the client reported back that a server half may react to."""
+    """What the client reported back, merged over all Feedback that reached the server so far.
+
+    ``applied``: per stream, the newest frame id the client half applied with that
+    stream present; ``last_applied_frame``: the newest frame id applied at all;
+    ``lost``: per stream, every frame id the client reported it will never get (lost
+    packets, undecodable after a loss); ``lost_frames``: how many frames lost at least
+    one stream; ``lost_since``: per stream, ids reported lost since the server half's
+    previous update (what it has not reacted to yet).
+    """
 
     last_applied_frame: int = -1
     keyframe_requested: bool = False
     lost_frames: int = 0
+    applied: dict[str, int] = field(default_factory=dict)
+    lost: dict[str, set[int]] = field(default_factory=dict)
+    lost_since: dict[str, tuple[int, ...]] = field(default_factory=dict)
+
+    def newly_lost(self, stream: str) -> tuple[int, ...]:
+        """Frame ids of ``stream`` reported lost since the previous update."""
+        return self.lost_since.get(stream, ())
 
 
 @dataclass
@@ -70,6 +131,8 @@ class ServerContext:
     ``t_s`` is the scene time the frame shows; ``target_pose`` is the predicted client
     pose at the time the frame is expected to be displayed (``t_s + expected_latency_s``);
     ``predict(t)`` extrapolates the client pose to any time (for PVS steps).
+    ``shared`` is what the method's :class:`SceneProducer` prepared for this server
+    frame (``None`` without a producer); ``client`` numbers the session on this server.
     """
 
     frame_id: int
@@ -85,11 +148,18 @@ class ServerContext:
     expected_latency_s: float
     keyframe_requested: bool = False
     feedback: ClientFeedback = field(default_factory=ClientFeedback)
+    shared: Any = None
+    client: int = 0
 
 
 @dataclass
 class Update:
-    """A server half's output for one frame, before coding."""
+    """A server half's output for one frame, before coding.
+
+    ``planes``: video stream name → image; ``data``: data stream name → bytes; a
+    stream absent from both sends nothing this frame.  ``meta`` rides reliably with
+    the frame's ``FrameMeta``.
+    """
 
     frame_id: int
     t_s: float
@@ -97,13 +167,17 @@ class Update:
     planes: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
     force_idr: bool = False
+    data: dict[str, bytes] = field(default_factory=dict)
 
 
 @dataclass
 class DecodedUpdate:
-    """What reaches the client half: decoded planes (same names/shapes) and metadata.
+    """What reaches the client half for one server frame, in frame order.
 
-    ``planes`` may be missing a stream when the method sent no new picture for it.
+    ``planes`` (decoded video) and ``data`` (decompressed bytes) hold the streams that
+    arrived complete; ``missing`` names the streams the server sent for this frame
+    that did not (lost, or undecodable until the next keyframe).  ``meta`` always
+    arrives (it is reliable).  Each method decides what it can still show.
     """
 
     frame_id: int
@@ -111,6 +185,13 @@ class DecodedUpdate:
     pose: Pose
     planes: dict[str, np.ndarray]
     meta: dict[str, Any]
+    data: dict[str, bytes] = field(default_factory=dict)
+    missing: frozenset[str] = frozenset()
+
+    @property
+    def complete(self) -> bool:
+        """True when every stream sent for this frame arrived."""
+        return not self.missing
 
 
 @dataclass
@@ -152,18 +233,43 @@ class MethodConfig:
         return VideoCodecConfig(codec=self.codec, bitrate_kbps=br, crf=self.crf, gop=self.gop, preset=self.preset, fps=fps, **kw)  # type: ignore[arg-type]
 
 
+class SceneProducer:
+    """Scene-level work of a method, done once per server frame for all its sessions.
+
+    One producer exists per (method, scene) on a server; :meth:`prepare` is called once
+    per server frame, before any session's server half runs, and its result reaches
+    every half as ``ServerContext.shared``.  GL work happens on the server's GL thread.
+    """
+
+    def __init__(self, config: MethodConfig, scene: Scene, server_fps: int, renderer: Any = None) -> None:
+        self.config = config
+        self.scene = scene
+        self.server_fps = server_fps
+        self.renderer = renderer
+
+    def prepare(self, frame_id: int, t_s: float) -> Any:
+        """The shared state of server frame ``frame_id`` (scene time ``t_s``)."""
+        return None
+
+    def stats(self) -> dict[str, float]:
+        """Per-frame numbers of the shared work (written as ``shared_<key>``)."""
+        return {}
+
+
 class ServerHalf(ABC):
     """Produces updates; one instance per session."""
 
-    def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, scene: Scene, server_fps: int) -> None:
+    def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, scene: Scene, server_fps: int,
+                 producer: SceneProducer | None = None) -> None:
         self.config = config
         self.intrinsics = intrinsics
         self.scene = scene
         self.server_fps = server_fps
+        self.producer = producer
 
     @abstractmethod
-    def streams(self) -> list[StreamSpec]:
-        """The video streams this method sends (fixed for the session)."""
+    def streams(self) -> list[AnyStreamSpec]:
+        """The streams this method sends (fixed for the session): video and data."""
 
     def session_data(self) -> dict[str, Any]:
         """Sent once at session start (msgpack-able); e.g. scene geometry for ``probes``."""
@@ -179,7 +285,7 @@ class ServerHalf(ABC):
 
 
 class ClientHalf(ABC):
-    """Applies updates and renders at any pose/time; one instance per session."""
+    """Applies updates and renders at any pose/time; one instance per session, in its own GL context."""
 
     def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, gl: Any, session_data: dict[str, Any]) -> None:
         self.config = config
@@ -189,7 +295,7 @@ class ClientHalf(ABC):
 
     @abstractmethod
     def apply(self, update: DecodedUpdate) -> None:
-        """Take a decoded update into the cache (updates arrive in frame order)."""
+        """Take a decoded update into the cache (updates arrive in frame order, possibly partial)."""
 
     @abstractmethod
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
@@ -201,13 +307,45 @@ class ClientHalf(ABC):
         return getattr(self, "_has_content", False)
 
 
+def _resolve(ref: Any, what: str) -> Any:
+    """A class given directly or as ``"package.module:Attribute"``."""
+    if not isinstance(ref, str):
+        return ref
+    mod, _, attr = ref.partition(":")
+    if not mod or not attr:
+        raise ConfigError(f"{what}: {ref!r} is not 'module:attribute'")
+    try:
+        return getattr(importlib.import_module(mod), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"{what}: cannot load {ref!r}: {exc}") from exc
+
+
 @dataclass(frozen=True)
 class MethodSpec:
+    """A method: its name, its halves (classes or ``"module:Class"`` strings, loaded on
+    first use so that a client never imports its server half), config and optional
+    scene producer."""
+
     name: str
-    server: type[ServerHalf]
-    client: type[ClientHalf]
+    server: Any
+    client: Any
     config: type[MethodConfig]
     description: str = ""
+    producer: Any = None
+
+    @property
+    def server_class(self) -> type[ServerHalf]:
+        return typing.cast(type[ServerHalf], _resolve(self.server, f"method {self.name} server half"))
+
+    @property
+    def client_class(self) -> type[ClientHalf]:
+        return typing.cast(type[ClientHalf], _resolve(self.client, f"method {self.name} client half"))
+
+    @property
+    def producer_class(self) -> type[SceneProducer] | None:
+        if self.producer is None:
+            return None
+        return typing.cast(type[SceneProducer], _resolve(self.producer, f"method {self.name} producer"))
 
 
 _REGISTRY: dict[str, MethodSpec] = {}
@@ -221,9 +359,11 @@ def register_method(spec: MethodSpec) -> MethodSpec:
 
 
 def get_method(name: str) -> MethodSpec:
-    from . import _load_builtin
+    from . import load_methods
 
-    _load_builtin()
+    load_methods()
+    if name not in _REGISTRY:
+        load_methods(rescan=True)  # a package installed since the first scan
     try:
         return _REGISTRY[name]
     except KeyError:
@@ -232,9 +372,9 @@ def get_method(name: str) -> MethodSpec:
 
 def available_methods() -> list[str]:
     """Registered method names: the built-in ones in their canonical order, then others by name."""
-    from . import BUILTIN_MODULES, _load_builtin
+    from . import BUILTIN_MODULES, load_methods
 
-    _load_builtin()
+    load_methods()
     builtin = [m for m in BUILTIN_MODULES if m in _REGISTRY]
     return builtin + sorted(m for m in _REGISTRY if m not in builtin)
 

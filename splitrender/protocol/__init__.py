@@ -55,6 +55,7 @@ from splitrender.protocol.messages import (
     MESSAGE_CLASSES,
     PROTOCOL_VERSION,
     Bye,
+    DataChunk,
     Error,
     Feedback,
     FrameMeta,
@@ -92,7 +93,7 @@ __all__ = [
     # messages / framing / session
     "PROTOCOL_VERSION", "MessageType", "MAX_BODY_SIZE", "MESSAGE_CLASSES", "Message",
     "Hello", "Welcome", "StreamDescription", "Pose", "FrameMeta", "Feedback",
-    "KeyframeRequest", "Stats", "Bye", "Error", "decode_message",
+    "KeyframeRequest", "Stats", "Bye", "Error", "DataChunk", "decode_message",
     "MAGIC", "HEADER_SIZE", "FLAG_ZSTD", "NEED_DATA", "CONNECTION_CLOSED", "Sentinel",
     "encode_frame", "FrameDecoder",
     "Role", "State", "TRANSITIONS", "Connection", "ClientConnection", "ServerConnection",

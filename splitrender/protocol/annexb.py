@@ -20,7 +20,8 @@ __all__ = [
 START_CODE: Final = b"\x00\x00\x00\x01"
 _SC3: Final = b"\x00\x00\x01"
 
-Codec = Literal["h264", "hevc"]
+Codec = Literal["h264", "hevc", "data"]
+"""RTP payload formats: H.264 (RFC 6184), H.265 (RFC 7798) and splitrender data frames (:mod:`.data`)."""
 
 H264_NAL_IDR: Final = 5
 HEVC_NAL_IRAP_FIRST: Final = 16  # BLA_W_LP

@@ -79,6 +79,7 @@ TRANSITIONS: dict[tuple[Role, State, MessageType], State] = {
     (C, State.STREAMING, T.KEYFRAME_REQUEST): State.STREAMING,
     (C, State.STREAMING, T.STATS): State.STREAMING,
     (S, State.STREAMING, T.FRAME_META): State.STREAMING,
+    (S, State.STREAMING, T.DATA_CHUNK): State.STREAMING,
     (S, State.STREAMING, T.STATS): State.STREAMING,
     # closing: Bye from either side in any open state; Error also once in ERROR
     **{(r, st, T.BYE): State.CLOSED for r in (C, S) for st in _OPEN},

@@ -26,6 +26,7 @@ import logging
 from dataclasses import dataclass
 
 from splitrender.protocol.annexb import Codec, contains_keyframe, join_annexb
+from splitrender.protocol.data import data_depayload
 from splitrender.protocol.errors import PayloadError
 from splitrender.protocol.h264 import h264_depayload
 from splitrender.protocol.h265 import h265_depayload
@@ -68,10 +69,10 @@ class JitterBuffer:
         frame_timeout_ms: float = DEFAULT_FRAME_TIMEOUT_MS,
         drop_until_keyframe: bool = True,
     ) -> None:
-        if codec not in ("h264", "hevc"):
+        if codec not in ("h264", "hevc", "data"):
             raise ValueError(f"unknown codec {codec!r}")
         self.codec: Codec = codec
-        self._depayload = h264_depayload if codec == "h264" else h265_depayload
+        self._depayload = {"h264": h264_depayload, "hevc": h265_depayload, "data": data_depayload}[codec]
         self.max_packets = max_packets
         self.frame_timeout_ms = frame_timeout_ms
         self.drop_until_keyframe = drop_until_keyframe
@@ -90,6 +91,9 @@ class JitterBuffer:
         self.packets_duplicate = 0
         self.packets_lost = 0
         """Sequence numbers skipped for good."""
+        self.discarded: list[int] = []
+        """RTP timestamps of frames given up on, found corrupt or dropped while waiting for a
+        keyframe, oldest first (where the timestamp is known); the owner drains it."""
 
     def __len__(self) -> int:
         return len(self._packets)
@@ -172,20 +176,22 @@ class JitterBuffer:
         except PayloadError as exc:
             logger.warning("dropping malformed frame at seq %d: %s", entries[0][0].sequence_number, exc)
             self.frames_corrupt += 1
+            self._discard(entries[0][0].timestamp)
             self._lose_sync()
             return None
-        key = contains_keyframe(self.codec, nals)
+        key = True if self.codec == "data" else contains_keyframe(self.codec, nals)
         if key:
             if self.needs_keyframe:
                 logger.info("keyframe received: decoder sync restored")
             self.needs_keyframe = False
         elif self.needs_keyframe and self.drop_until_keyframe:
             self.frames_dropped += 1
+            self._discard(entries[0][0].timestamp)
             return None
         self.frames_emitted += 1
         first, last = entries[0], entries[-1]
         return AccessUnit(
-            data=join_annexb(nals),
+            data=nals[0] if self.codec == "data" else join_annexb(nals),
             timestamp=first[0].timestamp,
             first_seq=first[0].sequence_number,
             last_seq=last[0].sequence_number,
@@ -194,6 +200,11 @@ class JitterBuffer:
             keyframe=key,
             packet_count=len(entries),
         )
+
+    def _discard(self, timestamp: int) -> None:
+        self.discarded.append(timestamp)
+        if len(self.discarded) > 4 * MAX_NACK_ITEMS:
+            del self.discarded[: len(self.discarded) - 4 * MAX_NACK_ITEMS]
 
     def _give_up(self, start: int) -> None:
         keys = sorted(self._packets)
@@ -210,6 +221,8 @@ class JitterBuffer:
             markers = [k for k in keys if self._packets[k][0].marker]
             resync = markers[0] + 1 if markers else keys[-1] + 1
         dropped = [k for k in keys if k < resync]
+        for ts in dict.fromkeys(self._packets[k][0].timestamp for k in dropped):
+            self._discard(ts)
         for k in dropped:
             del self._packets[k]
         lo = start if self._next is not None else keys[0]

@@ -35,11 +35,13 @@ __all__ = [
     "Stats",
     "Bye",
     "Error",
+    "DataChunk",
+    "MAX_DATA_CHUNK",
     "MESSAGE_CLASSES",
     "decode_message",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 """The protocol version this code speaks (header byte 2 and ``Hello.version``)."""
 
 KIB = 1024
@@ -57,8 +59,11 @@ MAX_NESTING = 32
 QUATERNION_NORM_TOLERANCE = 1e-3
 RTP_CLOCK_RATE_HZ = 90000
 
-CodecName = Literal["h264", "hevc"]
+CodecName = Literal["h264", "hevc", "data"]
 CODECS: tuple[str, ...] = ("h264", "hevc")
+"""Video codecs a client may offer in ``Hello``."""
+RTP_FORMATS: tuple[str, ...] = (*CODECS, "data")
+"""Payload formats of RTP streams in ``Welcome``: the video codecs and datagram ``data`` streams."""
 
 
 class MessageType(IntEnum):
@@ -73,6 +78,7 @@ class MessageType(IntEnum):
     STATS = 7
     BYE = 8
     ERROR = 9
+    DATA_CHUNK = 10
 
 
 MAX_BODY_SIZE: dict[MessageType, int] = {
@@ -85,6 +91,7 @@ MAX_BODY_SIZE: dict[MessageType, int] = {
     MessageType.STATS: 64 * KIB,
     MessageType.BYE: 1 * KIB,
     MessageType.ERROR: 4 * KIB,
+    MessageType.DATA_CHUNK: 1 * MIB + 4 * KIB,
 }
 """Largest body (bytes, compressed on the wire and after decompression) per type."""
 
@@ -306,7 +313,7 @@ class Hello(Message):
 
 @dataclass(frozen=True)
 class StreamDescription:
-    """One RTP video stream announced in ``Welcome``."""
+    """One RTP stream announced in ``Welcome``: video (``h264``/``hevc``) or a datagram ``data`` stream."""
 
     name: str
     codec: CodecName
@@ -335,8 +342,8 @@ class StreamDescription:
         if not isinstance(d, dict):
             raise MessageError(f"{where}: expected map, got {_tname(d)}")
         codec = _str(where, d, "codec", MAX_NAME_LEN)
-        if codec not in CODECS:
-            raise MessageError(f"{where}.codec: unknown codec {codec!r} (expected one of {CODECS})")
+        if codec not in RTP_FORMATS:
+            raise MessageError(f"{where}.codec: unknown codec {codec!r} (expected one of {RTP_FORMATS})")
         clock = _int(where, d, "clock_rate", 1, U32_MAX)
         if clock != RTP_CLOCK_RATE_HZ:
             raise MessageError(f"{where}.clock_rate: expected {RTP_CLOCK_RATE_HZ}, got {clock}")
@@ -487,9 +494,15 @@ class Feedback(Message):
     """``Pose.client_time_us`` of the pose the frame was rendered for (motion-to-photon)."""
     server_timings_us: Mapping[str, int] = field(default_factory=dict)
     """Server stage durations echoed back (e.g. ``render``, ``encode``), µs."""
+    applied: Mapping[str, int] = field(default_factory=dict)
+    """Per stream, the newest frame id whose payload the client half applied."""
+    lost: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
+    """Per stream, frame ids the client will never get (lost or undecodable) since the last Feedback."""
 
     def to_wire(self) -> dict[str, Any]:
         return {
+            "applied": dict(self.applied),
+            "lost": {k: list(v) for k, v in self.lost.items()},
             "frame_id": self.frame_id,
             "received_us": self.received_us,
             "decoded_us": self.decoded_us,
@@ -510,7 +523,70 @@ class Feedback(Message):
             lost_packets=_int(n, d, "lost_packets", 0, U32_MAX),
             pose_time_us=_int(n, d, "pose_time_us", I64_MIN, I64_MAX),
             server_timings_us=_int_map(n, d, "server_us", I64_MIN, I64_MAX),
+            applied=_int_map(n, d, "applied", -1, U64_MAX) if "applied" in d else {},
+            lost=_lost_map(d) if "lost" in d else {},
         )
+
+
+def _lost_map(d: Mapping[str, Any]) -> dict[str, tuple[int, ...]]:
+    v = d["lost"]
+    if not isinstance(v, dict):
+        raise MessageError(f"Feedback.lost: expected map, got {_tname(v)}")
+    if len(v) > MAX_LIST_LEN:
+        raise MessageError(f"Feedback.lost: {len(v)} streams exceeds {MAX_LIST_LEN}")
+    out: dict[str, tuple[int, ...]] = {}
+    for k, ids in v.items():
+        if not isinstance(k, str) or len(k) > MAX_NAME_LEN:
+            raise MessageError(f"Feedback.lost: keys must be str of at most {MAX_NAME_LEN} chars")
+        if not isinstance(ids, list) or len(ids) > MAX_LOST_REPORTED:
+            raise MessageError(f"Feedback.lost[{k!r}]: expected a list of at most {MAX_LOST_REPORTED} frame ids")
+        for i in ids:
+            if not isinstance(i, int) or isinstance(i, bool) or not 0 <= i <= U64_MAX:
+                raise MessageError(f"Feedback.lost[{k!r}]: expected frame ids, got {i!r}")
+        out[k] = tuple(ids)
+    return out
+
+
+MAX_DATA_CHUNK = 1 * MIB
+"""Largest ``DataChunk.payload`` in bytes."""
+MAX_LOST_REPORTED = 256
+"""Most lost frame ids one ``Feedback`` lists per stream."""
+
+
+@dataclass(frozen=True)
+class DataChunk(Message):
+    """Server → client: a piece of a reliable ``data`` stream's payload for one frame.
+
+    ``stream`` is the method's stream name, or ``session`` for the session data sent
+    once after ``Welcome``.  A payload of ``total`` bytes is sent as chunks with
+    increasing ``offset``; for a frame, all its chunks come before its ``FrameMeta``.
+    """
+
+    TYPE: ClassVar[MessageType] = MessageType.DATA_CHUNK
+    stream: str
+    frame_id: int
+    offset: int
+    total: int
+    payload: bytes
+
+    def to_wire(self) -> dict[str, Any]:
+        return {"stream": self.stream, "frame_id": self.frame_id, "offset": self.offset, "total": self.total,
+                "data": self.payload}
+
+    @classmethod
+    def from_wire(cls, d: Mapping[str, Any]) -> DataChunk:
+        n = "DataChunk"
+        data = _get(n, d, "data")
+        if not isinstance(data, bytes):
+            raise MessageError(f"DataChunk.data: expected bytes, got {_tname(data)}")
+        if len(data) > MAX_DATA_CHUNK:
+            raise MessageError(f"DataChunk.data: {len(data)} bytes exceeds {MAX_DATA_CHUNK}")
+        total = _int(n, d, "total", 0, I64_MAX)
+        offset = _int(n, d, "offset", 0, I64_MAX)
+        if offset + len(data) > total:
+            raise MessageError(f"DataChunk: bytes {offset}..{offset + len(data)} run past total {total}")
+        return cls(stream=_str(n, d, "stream", MAX_NAME_LEN), frame_id=_int(n, d, "frame_id", 0, U64_MAX),
+                   offset=offset, total=total, payload=data)
 
 
 @dataclass(frozen=True)
@@ -578,7 +654,7 @@ class Error(Message):
 
 MESSAGE_CLASSES: dict[MessageType, type[Message]] = {
     cls.TYPE: cls
-    for cls in (Hello, Welcome, Pose, FrameMeta, Feedback, KeyframeRequest, Stats, Bye, Error)
+    for cls in (Hello, Welcome, Pose, FrameMeta, Feedback, KeyframeRequest, Stats, Bye, Error, DataChunk)
 }
 
 

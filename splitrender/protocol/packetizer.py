@@ -6,6 +6,7 @@ import logging
 from collections.abc import Iterable
 
 from splitrender.protocol.annexb import Codec, join_annexb, split_annexb
+from splitrender.protocol.data import data_depayload, data_payloads
 from splitrender.protocol.h264 import h264_depayload, h264_payloads
 from splitrender.protocol.h265 import h265_depayload, h265_payloads
 from splitrender.protocol.rtp import RtpPacket
@@ -19,7 +20,9 @@ DEFAULT_MTU = 1200
 
 
 def payloads_for(codec: Codec, access_unit: bytes, mtu: int = DEFAULT_MTU) -> list[bytes]:
-    """RTP payloads for one Annex-B access unit (RFC 6184 / RFC 7798)."""
+    """RTP payloads for one Annex-B access unit (RFC 6184 / RFC 7798) or data frame."""
+    if codec == "data":
+        return data_payloads(access_unit, mtu)
     nals = split_annexb(access_unit)
     if codec == "h264":
         return h264_payloads(nals, mtu)
@@ -30,6 +33,8 @@ def payloads_for(codec: Codec, access_unit: bytes, mtu: int = DEFAULT_MTU) -> li
 
 def depacketize(codec: Codec, payloads: Iterable[bytes]) -> bytes:
     """Annex-B bytes from the RTP payloads of one access unit; raises ``PayloadError``."""
+    if codec == "data":
+        return data_depayload(payloads)[0]
     if codec == "h264":
         return join_annexb(h264_depayload(payloads))
     if codec == "hevc":
@@ -51,7 +56,7 @@ class RtpPacketizer:
         mtu: int = DEFAULT_MTU,
         first_sequence: int = 0,
     ) -> None:
-        if codec not in ("h264", "hevc"):
+        if codec not in ("h264", "hevc", "data"):
             raise ValueError(f"unknown codec {codec!r}")
         self.codec: Codec = codec
         self.ssrc = ssrc

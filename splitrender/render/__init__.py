@@ -1,6 +1,21 @@
-"""Headless rendering through moderngl (EGL): contexts, shaders, the forward renderer."""
+"""Headless rendering through moderngl (EGL): contexts, shaders, the forward renderer.
 
-from .gl import create_context, get_context, load_program
-from .renderer import ALL_OUTPUTS, Renderer, RenderOutput, light_view_projection
+Names are loaded on first use, so that a client half importing :mod:`.gl` or
+:mod:`.canvas` does not import the ground-truth renderer.
+"""
 
-__all__ = ["ALL_OUTPUTS", "RenderOutput", "Renderer", "create_context", "get_context", "light_view_projection", "load_program"]
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_WHERE = {"create_context": "gl", "get_context": "gl", "load_program": "gl", "make_current": "gl",
+          "ALL_OUTPUTS": "renderer", "RenderOutput": "renderer", "Renderer": "renderer", "light_view_projection": "renderer"}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    mod = _WHERE.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{mod}"), name)

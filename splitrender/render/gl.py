@@ -44,13 +44,25 @@ def create_context() -> Any:
     return ctx
 
 
+def make_current(ctx: Any) -> Any:
+    """Make ``ctx`` the calling thread's current GL context and return it.
+
+    moderngl sends every call to whichever context is current, so a thread that holds
+    several contexts (the virtual-time runner: the server's and one per client) must
+    switch before each use.  Nested ``with ctx:`` blocks do not restore the outer
+    context on exit; this plain switch is what the runner uses instead.
+    """
+    ctx.__enter__()
+    return ctx
+
+
 def get_context() -> Any:
-    """The calling thread's shared context, created on first use."""
+    """The calling thread's shared context, created on first use, made current."""
     ctx = getattr(_local, "ctx", None)
     if ctx is None:
         ctx = create_context()
         _local.ctx = ctx
-    return ctx
+    return make_current(ctx)
 
 
 def read_shader(path: str | Path, _seen: frozenset[Path] = frozenset()) -> str:

@@ -23,6 +23,14 @@ class RunConfig:
     (render+encode, decode) on the simulated clock, so results do not depend on this
     machine's speed; the measured wall-clock costs are recorded separately.
     ``flip_every``: score FLIP on every n-th displayed frame (0 = never).
+
+    Many clients: ``clients`` sessions share one server (its scene producer runs once
+    per frame for all of them); client ``i`` follows ``client_traces[i % len]`` (or
+    ``trace``), starting ``i * client_offset_s`` seconds into it, with its own network
+    links seeded from ``seed``.  ``jitter_timeout_ms``: how long the client's jitter
+    buffer waits for a frame's missing packets; ``keyframe_request_interval_ms``: the
+    least time between two keyframe requests of a client; ``max_session_bytes``:
+    limit on the method's session data.
     """
 
     method: str = "video"
@@ -45,6 +53,12 @@ class RunConfig:
     flip_every: int = 4
     metrics: bool = True
     save_images_every: int = 0
+    clients: int = 1
+    client_traces: tuple[str, ...] = ()
+    client_offset_s: float = 0.0
+    jitter_timeout_ms: float = 100.0
+    keyframe_request_interval_ms: float = 250.0
+    max_session_bytes: int = 256 * 1024 * 1024
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -71,6 +85,14 @@ class RunConfig:
             raise bad("flip_every/save_images_every", "must be >= 0")
         if not 0 <= self.seed < 2**63:
             raise bad("seed", f"must be in [0, 2**63), got {self.seed}")
+        if not 1 <= self.clients <= 64:
+            raise bad("clients", f"must be in [1, 64], got {self.clients}")
+        if not 0 <= self.client_offset_s <= 3600:
+            raise bad("client_offset_s", f"must be in [0, 3600], got {self.client_offset_s}")
+        if not 1 <= self.jitter_timeout_ms <= 10_000 or not 1 <= self.keyframe_request_interval_ms <= 10_000:
+            raise bad("jitter_timeout_ms/keyframe_request_interval_ms", "must be in [1, 10000]")
+        if not 1024 <= self.max_session_bytes <= 1 << 34:
+            raise bad("max_session_bytes", f"must be in [1024, 2**34], got {self.max_session_bytes}")
         if not isinstance(self.method_params, dict):
             raise bad("method_params", f"must be a table, got {type(self.method_params).__name__}")
 

@@ -1,34 +1,46 @@
-"""The virtual-time runner: a deterministic discrete-event run of one method.
+"""The virtual-time runner: a deterministic discrete-event run of one server and its clients.
 
-Timeline (all on the simulated clock, seconds):
+Every byte goes through the same transmission path as a live session
+(:mod:`splitrender.pipeline`): the handshake, session data, ``FrameMeta`` and
+``DataChunk`` messages are framed by real :class:`~splitrender.protocol.Connection`
+pairs, video and datagram data are real RTP packets, the client reassembles them in
+real jitter buffers and decodes them with the real decoders.  Only the sockets are
+replaced: each packet crosses the network model (:mod:`splitrender.netsim`) on a
+simulated clock.
 
-- The client's tracker samples the trace at ``tracker_hz``; each pose travels the
+Timeline (all on the simulated clock, seconds; wall-clock-like µs values on the wire
+count from :data:`SIM_EPOCH_US` so messages have the same sizes as live ones):
+
+- Each client's tracker samples its trace at ``tracker_hz``; each pose travels the
   uplink as a small datagram (a lost pose is simply superseded by the next one).
-- The server ticks at ``server_fps``.  At tick ``t`` it feeds the poses that have
-  arrived to its predictor, predicts the pose at the expected display time
-  (``t + server_latency + mean downlink delay + decode + half a display interval``),
-  asks the method's server half for an :class:`Update`, encodes every plane with the
-  stream's real codec and the metadata with msgpack + zstd.  Bytes counted are the
-  bytes produced, for every stream.
-- After ``server_latency_ms`` the frame leaves: video as MTU-sized RTP packets over
-  the (lossy) downlink, metadata as reliable TCP segments (a lost segment costs one
-  RTO, head-of-line blocking included).  A video frame with a lost or corrupted packet
-  cannot be decoded, nor can later frames of that stream until an IDR: the client
-  sends a keyframe request up the control uplink and the server answers with an IDR.
-- Updates are released to the client in frame order once all their streams and
-  metadata have arrived, plus ``decode_latency_ms``.
-- The client displays at ``client_fps``: at each tick it applies every released
-  update, renders through the method's client half at the true pose of that tick,
-  and the ground truth is rendered at the same pose and time with no latency.
+- The server ticks at ``server_fps``.  At tick ``t`` the method's scene producer (if
+  any) runs once for all clients; then, per client, the server feeds the poses that
+  have arrived to its predictor and predicts the pose at ``t`` plus the latency it has
+  *measured* from the client's feedback (as the live server does), asks the server
+  half for an update with the client's merged feedback, encodes and packetizes it.
+- After ``server_latency_ms`` the frame leaves: control frames as TCP segments over
+  the downlink (a lost segment costs one RTO, in order, head-of-line blocking
+  included), RTP packets as datagrams (lost, delayed, reordered, duplicated).
+- The client's pipeline releases each frame in order once every stream it sent is
+  present or known lost (partial delivery); ``decode_latency_ms`` later it is
+  applied.  A video stream that lost a frame waits for a keyframe and the client asks
+  for one over the control uplink (at most every ``keyframe_request_interval_ms``).
+- Each client displays at ``client_fps`` from t = 0: it renders through its client
+  half, in its own GL context, at the true pose of that tick (a tick with nothing yet
+  shows and scores the black background); the ground truth is rendered at the same
+  pose and time with no latency.  The first display of each update sends a Feedback
+  (applied and lost frames per stream, display time) up the control uplink.
 
-Wall-clock costs (server render+pack, encode, decode, client render, ground truth)
-are measured and recorded, but never move the simulated clock, so a run is the same
-on any machine for a given seed.
+Wall-clock costs (shared and per-client server work, encode, decode, client render,
+ground truth) are measured and recorded, but never move the simulated clock, so a
+run is the same on any machine for a given seed.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import heapq
 import logging
 import math
 import time
@@ -41,10 +53,16 @@ import numpy as np
 
 from .. import metrics
 from ..codecs.meta import pack_meta, unpack_meta
-from ..codecs.video import VideoDecoder, VideoEncoder
-from ..errors import CodecError, RemoteProtocolError
-from ..methods.base import ClientFeedback, DecodedUpdate, ServerContext, get_method, make_config
+from ..errors import RemoteProtocolError
+from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
+from ..pipeline import (META_STREAM, SESSION_STREAM, ClientPipeline, FeedbackState, ProducerPool, ReceivedFrame,
+                        ServerPipeline, SessionAssembler, SessionDataError, rtp_timestamp, specs_from_table, tcp_segments)
+from ..pipeline.wire import control_wire_bytes
+from ..protocol import (PROTOCOL_VERSION, ClientConnection, DataChunk, Feedback, Hello, KeyframeRequest, Message,
+                        ServerConnection, Welcome)
+from ..protocol.framing import NEED_DATA
+from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
 from ..scene.loader import get_scene
 from ..scene.pose import CameraIntrinsics, Pose
@@ -54,23 +72,20 @@ from .config import RunConfig, to_toml
 
 log = logging.getLogger(__name__)
 
-RTP_OVERHEAD_BYTES = 12 + 8 + 20  # RTP + UDP + IPv4 headers per packet
-TCP_SEGMENT_BYTES = 1400
 POSE_MESSAGE_BYTES = 64 + 40
+SIM_EPOCH_US = 1_735_689_600_000_000
+"""Simulated wall clock at t = 0 (2025-01-01T00:00:00Z), so timestamps on the wire have live sizes."""
+_DELIVER, _SERVER, _DISPLAY = 0, 1, 2
 ProgressFn = Callable[[int, int], None]
 
 
-@dataclass
-class _Pending:
-    frame_id: int
-    release_s: float
-    update: DecodedUpdate
-    t_s: float
-    pose_sample_t_s: float
-    decode_ms: float
-    nbytes: int
-    pred_err_cm: float = math.nan
-    pred_err_deg: float = math.nan
+def _plain(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+def sim_us(t_s: float) -> int:
+    """The simulated wall clock at ``t_s``, µs."""
+    return SIM_EPOCH_US + int(round(t_s * 1e6))
 
 
 @dataclass
@@ -81,14 +96,16 @@ class RunResult:
     summary: dict[str, Any] = field(default_factory=dict)
     images: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     resolved: dict[str, Any] = field(default_factory=dict)
+    client_summaries: list[dict[str, Any]] = field(default_factory=list)
+    """One summary per client (``summary`` is client 0's, with the run-wide columns)."""
 
     def write(self, out_dir: str | Path) -> Path:
-        """Write frames.csv, updates.csv, summary.csv and config.toml into ``out_dir``."""
+        """Write frames.csv, updates.csv, summary.csv (a row per client) and config.toml into ``out_dir``."""
         d = Path(out_dir)
         d.mkdir(parents=True, exist_ok=True)
         write_csv(d / "frames.csv", self.frames)
         write_csv(d / "updates.csv", self.updates)
-        write_csv(d / "summary.csv", [self.summary])
+        write_csv(d / "summary.csv", self.client_summaries or [self.summary])
         text = "[run]\n" + to_toml(self.config.to_dict(), "run.")
         if self.resolved:  # every method parameter (defaults included) and both network directions
             text += "\n[resolved]\n" + to_toml(self.resolved, "resolved.")
@@ -127,6 +144,63 @@ def _packets(nbytes: int, mtu: int) -> list[int]:
     return [s + RTP_OVERHEAD_BYTES for s in sizes]
 
 
+class _ShiftedTrace:
+    """A trace seen ``offset_s`` later (client ``i`` of a many-client run)."""
+
+    def __init__(self, trace: Any, offset_s: float) -> None:
+        self.trace, self.offset_s = trace, offset_s
+        self.duration_s = max(0.0, trace.duration_s - offset_s)
+
+    def pose_at(self, t: float) -> Pose:
+        return self.trace.pose_at(min(t + self.offset_s, self.trace.duration_s))  # type: ignore[no-any-return]
+
+
+@dataclass
+class _Client:
+    """One session of a run: its server side, links and client side."""
+
+    index: int
+    trace: Any
+    up: Link
+    ctrl: Link
+    down: Link
+    # server side
+    sconn: ServerConnection = field(default_factory=ServerConnection)
+    half: Any = None
+    tx: ServerPipeline | None = None
+    fb: FeedbackState | None = None
+    predictor: Any = None
+    arrivals: list[tuple[float, float]] = field(default_factory=list)
+    arrival_idx: int = 0
+    latest_pose_t: float = 0.0
+    kf_pending: bool = False
+    # client side
+    cconn: ClientConnection = field(default_factory=ClientConnection)
+    rx: ClientPipeline | None = None
+    chalf: Any = None
+    gl: Any = None
+    ctrl_free_s: float = -math.inf
+    down_ctrl_free_s: float = -math.inf
+    ready: deque[tuple[float, ReceivedFrame, float]] = field(default_factory=deque)
+    shown: ReceivedFrame | None = None
+    shown_fed_back: int = -1
+    pose_t: dict[int, float] = field(default_factory=dict)
+    pred: dict[int, tuple[float, float]] = field(default_factory=dict)
+    update_rows: dict[int, dict[str, Any]] = field(default_factory=dict)
+    last_kf_request_s: float = -math.inf
+    kf_requests: int = 0
+    apply_errors: int = 0
+    protocol_errors: int = 0
+    keyframes: int = 0
+    lost_frames: int = 0
+    bytes: dict[str, int] = field(default_factory=dict)
+    window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
+    frames: list[dict[str, Any]] = field(default_factory=list)
+    updates: list[dict[str, Any]] = field(default_factory=list)
+    decode_ms: float = 0.0
+    uplink_bytes: int = 0
+
+
 class VirtualTimeRun:
     """One run; call :meth:`run`.  Holds the GL renderer (one thread owns it)."""
 
@@ -137,210 +211,345 @@ class VirtualTimeRun:
         self.mcfg = make_config(self.spec.config, cfg.method_params)
         self.scene = get_scene(cfg.scene)
         self.trace = get_trace(cfg.trace)
+        names = cfg.client_traces or (cfg.trace,)
+        self.traces = [_ShiftedTrace(self.trace if names[i % len(names)] == cfg.trace else get_trace(names[i % len(names)]),
+                                     i * cfg.client_offset_s) for i in range(cfg.clients)]
         self.path = parse_path(cfg.network)
         self.intr = CameraIntrinsics(cfg.width, cfg.height, cfg.fov_y_deg)
         self.renderer = renderer or Renderer()
-        self.duration_s = min(cfg.duration_s or self.trace.duration_s, self.trace.duration_s)
+        make_current(self.renderer.ctx)
+        full = min(t.duration_s for t in self.traces)
+        if full <= 0:
+            from ..errors import ConfigError
 
-    def run(self) -> RunResult:
-        cfg, intr = self.cfg, self.intr
-        seeds = np.random.SeedSequence(cfg.seed).spawn(3)
-        up = Link(self.path.uplink, np.random.default_rng(seeds[0]))
-        ctrl = Link(self.path.uplink, np.random.default_rng(seeds[1]))
-        down = Link(self.path.downlink, np.random.default_rng(seeds[2]))
-        server = self.spec.server(self.mcfg, intr, self.scene, cfg.server_fps)
-        streams = server.streams()
-        encoders = {s.name: VideoEncoder(s.codec, s.width, s.height) for s in streams}
-        decoders = {s.name: VideoDecoder(s.codec.codec, s.codec.input_format) for s in streams}
-        session_blob = pack_meta(server.session_data())
-        client = self.spec.client(self.mcfg, intr, self.renderer.ctx, unpack_meta(session_blob))
-        predictor = PerfectPredictor(self.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
+            raise ConfigError(f"run config client_offset_s: {cfg.client_offset_s} s leaves no trace for client {cfg.clients - 1}")
+        self.duration_s = min(cfg.duration_s or full, full)
+        self._events: list[tuple[float, int, int, Callable[..., None], tuple[Any, ...]]] = []
+        self._seq = 0
 
+    # ------------------------------------------------------------------ events
+
+    def _at(self, t: float, prio: int, fn: Callable[..., None], *args: Any) -> None:
+        self._seq += 1
+        heapq.heappush(self._events, (t, prio, self._seq, fn, args))
+
+    # ------------------------------------------------------------------ set-up
+
+    def _setup(self, i: int, seeds: list[np.random.SeedSequence], pool: ProducerPool) -> _Client:
+        cfg = self.cfg
+        c = _Client(i, self.traces[i], Link(self.path.uplink, np.random.default_rng(seeds[3 * i])),
+                    Link(self.path.uplink, np.random.default_rng(seeds[3 * i + 1])),
+                    Link(self.path.downlink, np.random.default_rng(seeds[3 * i + 2])))
+        # handshake through a real Connection pair (set-up time is not simulated)
+        hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), (self.mcfg.codec,), cfg.width, cfg.height, float(cfg.client_fps))
+        self._to_server(c, c.cconn.send(hello))
+        make_current(self.renderer.ctx)
+        producer = pool.producer(self.spec, self.mcfg)
+        c.half = self.spec.server_class(self.mcfg, self.intr, self.scene, cfg.server_fps, producer=producer)
+        specs = c.half.streams()
+        session_blob = pack_meta(c.half.session_data())
+        if len(session_blob) > cfg.max_session_bytes:
+            raise SessionDataError(f"method {cfg.method}: session data of {len(session_blob)} bytes exceeds the limit of "
+                                   f"{cfg.max_session_bytes} bytes (max_session_bytes)")
+        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]))
+        params = {"config": _plain(dataclasses.asdict(self.mcfg)), "fov_y_deg": cfg.fov_y_deg, "server_fps": cfg.server_fps,
+                  "scene": cfg.scene, **c.tx.welcome_params(session_blob)}
+        welcome = Welcome(f"sim{i}", cfg.method, params, c.tx.describe("127.0.0.1", 6004, f"splitrender sim{i}"))
+        wire = c.sconn.send(welcome)
+        c.bytes[SESSION_STREAM] = control_wire_bytes(len(wire))
+        frames = c.tx.session_frames(session_blob, c.sconn.send)
+        c.bytes[SESSION_STREAM] += sum(control_wire_bytes(len(f)) for _, f in frames)
+        msgs = self._to_client_msgs(c, wire + b"".join(f for _, f in frames))
+        w = msgs[0]
+        assert isinstance(w, Welcome)
+        asm = SessionAssembler(w.method_params["session_data_bytes"], w.method_params.get("session_data_crc"),
+                               cfg.max_session_bytes)
+        for m in msgs[1:]:
+            assert isinstance(m, DataChunk)
+            asm.add(m)
+        c.rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), cfg.jitter_timeout_ms)
+        c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
+        make_current(c.gl)
+        c.chalf = self.spec.client_class(self.mcfg, self.intr, c.gl, unpack_meta(asm.blob) if asm.total else {})
+        make_current(self.renderer.ctx)
+        c.fb = FeedbackState(cfg.client_fps)
+        c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
+        c.predictor.observe(0.0, c.trace.pose_at(0.0))  # the Hello carries the first pose
         # upstream poses: precomputed deliveries (the uplink model is deterministic)
-        arrivals: list[tuple[float, float]] = []
         for k in range(int(self.duration_s * cfg.tracker_hz) + 1):
             ts = k / cfg.tracker_hz
-            for d in up.send(ts, POSE_MESSAGE_BYTES):
+            for d in c.up.send(ts, POSE_MESSAGE_BYTES):
                 if not d.corrupted:
-                    arrivals.append((d.time_s, ts))
-        arrivals.sort()
-        arrival_idx = 0
-        latest_pose_t = 0.0
-        predictor.observe(0.0, self.trace.pose_at(0.0))  # the Hello carries the first pose
+                    c.arrivals.append((d.time_s, ts))
+        c.arrivals.sort()
+        for name in [META_STREAM, *(s.name for s in specs)]:
+            c.bytes.setdefault(name, 0)
+        return c
 
-        mean_down_s = self.path.downlink.delay_ms / 1000.0
-        expected_latency = (cfg.server_latency_ms + cfg.decode_latency_ms) / 1000.0 + mean_down_s + 0.5 / cfg.client_fps
-        broken = {s.name: False for s in streams}
-        kf_request_arrival = math.inf
-        kf_request_pending = False
-        kf_requests = 0
-        last_release = -math.inf
-        pending: deque[_Pending] = deque()
-        import dataclasses
+    def _to_server(self, c: _Client, data: bytes) -> list[Message]:
+        c.sconn.receive_data(data)
+        out = []
+        while True:
+            ev = c.sconn.next_event()
+            if ev is NEED_DATA:
+                return out
+            if isinstance(ev, Message):
+                out.append(ev)
 
+    def _to_client_msgs(self, c: _Client, data: bytes) -> list[Message]:
+        c.cconn.receive_data(data)
+        out = []
+        while True:
+            ev = c.cconn.next_event()
+            if ev is NEED_DATA:
+                return out
+            if isinstance(ev, Message):
+                out.append(ev)
+
+    # ------------------------------------------------------------------ run
+
+    def run(self) -> RunResult:
+        cfg = self.cfg
+        seeds = np.random.SeedSequence(cfg.seed).spawn(4 * cfg.clients)
+        pool = ProducerPool(self.scene, cfg.server_fps, self.renderer)
+        clients = [self._setup(i, seeds, pool) for i in range(cfg.clients)]
+        self.clients = clients
         result = RunResult(cfg, resolved={"method": dataclasses.asdict(self.mcfg), "network": dataclasses.asdict(self.path)})
-        bytes_by_stream: dict[str, int] = {s.name: 0 for s in streams}
-        bytes_by_stream["meta"] = 0
-        bytes_by_stream["session"] = len(session_blob)
         n_server = int(math.floor(self.duration_s * cfg.server_fps)) + 1
         n_display = int(math.floor(self.duration_s * cfg.client_fps)) + 1
-        next_server = 0
-        shown: _Pending | None = None
-        first_release: float | None = None
-        lost_frames = 0
-        keyframes = 0
-        apply_errors = 0
-
+        for f in range(n_server):
+            self._at(f / cfg.server_fps, _SERVER, self._server_tick, f, pool, result)
         for di in range(n_display):
-            t_d = di / cfg.client_fps
-            # -- server frames due before this display tick
-            while next_server < n_server and next_server / cfg.server_fps <= t_d:
-                f = next_server
-                next_server += 1
-                t_f = f / cfg.server_fps
-                while arrival_idx < len(arrivals) and arrivals[arrival_idx][0] <= t_f:
-                    ts = arrivals[arrival_idx][1]
-                    if ts >= latest_pose_t:
-                        predictor.observe(ts, self.trace.pose_at(ts))
-                        latest_pose_t = ts
-                    arrival_idx += 1
-                kf = False
-                if kf_request_pending and kf_request_arrival <= t_f:
-                    kf, kf_request_pending = True, False
-                target_t = t_f + expected_latency
-                target_pose = predictor.predict(target_t)
-                ctx = ServerContext(
-                    frame_id=f, t_s=t_f, scene=self.scene, renderer=self.renderer, intrinsics=intr,
-                    latest_pose=self.trace.pose_at(latest_pose_t), latest_pose_t_s=latest_pose_t,
-                    target_pose=target_pose, target_t_s=target_t, predict=predictor.predict,
-                    expected_latency_s=expected_latency, keyframe_requested=kf,
-                    feedback=ClientFeedback(keyframe_requested=kf),
-                )
-                w0 = time.perf_counter()
-                upd = server.produce(ctx)
-                server_ms = (time.perf_counter() - w0) * 1000
-                force = upd.force_idr or kf
-                w0 = time.perf_counter()
-                encoded = {}
-                for s in streams:
-                    if s.name in upd.planes:
-                        encoded[s.name] = encoders[s.name].encode(upd.planes[s.name], force_idr=force)
-                meta_blob = pack_meta({"frame_id": f, "t_s": t_f, "pose": upd.pose.to_list(), "m": upd.meta})
-                encode_ms = (time.perf_counter() - w0) * 1000
-                send_t = t_f + cfg.server_latency_ms / 1000.0
+            self._at(di / cfg.client_fps, _DISPLAY, self._display_tick, di, n_display, result)
+        while self._events:
+            t, _, _, fn, args = heapq.heappop(self._events)
+            self.now = t
+            fn(*args)
+        make_current(self.renderer.ctx)
+        for c in clients:
+            c.gl.release()
+        make_current(self.renderer.ctx)
+        result.frames = [r for c in clients for r in c.frames]
+        result.updates = [r for c in clients for r in c.updates]
+        result.client_summaries = [self._summary(c) for c in clients]
+        result.summary = dict(result.client_summaries[0])
+        if cfg.clients > 1:
+            result.summary["clients"] = cfg.clients
+        return result
+
+    # ------------------------------------------------------------------ server
+
+    def _server_tick(self, f: int, pool: ProducerPool, result: RunResult) -> None:
+        cfg, t_f = self.cfg, f / self.cfg.server_fps
+        from ..methods.base import ServerContext
+
+        make_current(self.renderer.ctx)
+        shared = pool.prepare(self.spec.name, f, t_f)
+        shared_ms = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
+        shared_stats = pool._producers[self.spec.name].stats() if self.spec.name in pool._producers else {}
+        for c in self.clients:
+            while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
+                ts = c.arrivals[c.arrival_idx][1]
+                if ts >= c.latest_pose_t:
+                    c.predictor.observe(ts, c.trace.pose_at(ts))
+                    c.latest_pose_t = ts
+                c.arrival_idx += 1
+            assert c.fb is not None and c.tx is not None
+            kf, c.kf_pending = c.kf_pending, False
+            expected = c.fb.latency.value_s
+            target_t = t_f + expected
+            target_pose = c.predictor.predict(target_t)
+            ctx = ServerContext(
+                frame_id=f, t_s=t_f, scene=self.scene, renderer=self.renderer, intrinsics=self.intr,
+                latest_pose=c.trace.pose_at(c.latest_pose_t), latest_pose_t_s=c.latest_pose_t,
+                target_pose=target_pose, target_t_s=target_t, predict=c.predictor.predict,
+                expected_latency_s=expected, keyframe_requested=kf, feedback=c.fb.snapshot(kf), shared=shared,
+                client=c.index,
+            )
+            w0 = time.perf_counter()
+            upd = c.half.produce(ctx)
+            server_ms = (time.perf_counter() - w0) * 1000
+            enc = c.tx.encode(upd, force_idr=upd.force_idr or kf)
+            send_t = t_f + cfg.server_latency_ms / 1000.0
+            timing = {"render": int(round(cfg.server_latency_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
+            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.latest_pose_t),
+                                 int(round(c.latest_pose_t * cfg.tracker_hz)), target_t, timing, c.half.stats())
+            c.fb.frame_sent(f, sim_us(t_f))
+            c.keyframes += int(out.keyframe)
+            # control frames: TCP segments over the downlink, in order, head-of-line blocked
+            for stream, data in out.control:
                 arrive = send_t
-                ok = True
-                frame_bytes = len(meta_blob)
-                bytes_by_stream["meta"] += len(meta_blob)
-                any_key = False
-                for name, ef in encoded.items():
-                    bytes_by_stream[name] += ef.nbytes
-                    frame_bytes += ef.nbytes
-                    any_key |= ef.keyframe
-                    got = True
-                    last = send_t
-                    for size in _packets(ef.nbytes, cfg.mtu_bytes):
-                        ds = [d for d in down.send(send_t, size) if not d.corrupted]
-                        if not ds:
-                            got = False
-                        else:
-                            last = max(last, min(d.time_s for d in ds))
-                    if ef.keyframe and got:
-                        broken[name] = False
-                    if not got:
-                        broken[name] = True
-                    if broken[name]:
-                        ok = False
-                    arrive = max(arrive, last)
-                meta_arrive = send_t
-                for i in range(0, max(1, len(meta_blob)), TCP_SEGMENT_BYTES):
-                    seg = min(TCP_SEGMENT_BYTES, len(meta_blob) - i) + 40
-                    meta_arrive = max(meta_arrive, down.send(send_t, seg, reliable=True)[0].time_s)
-                arrive = max(arrive, meta_arrive)
-                keyframes += int(any_key)
-                pred_cm, pred_deg = prediction_error(target_pose, self.trace.pose_at(target_t))
-                urow = {"frame_id": f, "t_s": t_f, "bytes": frame_bytes, "keyframe": int(any_key), "delivered": int(ok),
-                        "server_ms": server_ms, "encode_ms": encode_ms, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
-                        "arrival_s": arrive}
-                for name, ef in encoded.items():
-                    urow[f"bytes_{name}"] = ef.nbytes
-                urow["bytes_meta"] = len(meta_blob)
-                urow.update({f"srv_{k}": v for k, v in server.stats().items()})
-                result.updates.append(urow)
-                if not ok:
-                    lost_frames += 1
-                    if not kf_request_pending:
-                        kf_requests += 1
-                        kf_request_pending = True
-                        notice = max(arrive, send_t + mean_down_s)
-                        kf_request_arrival = min(d.time_s for d in ctrl.send(max(notice, ctrl._last_now), 80, reliable=True))
-                    # decoders of streams that are fine still decode this frame to stay in sync
-                    for name, ef in encoded.items():
-                        if not broken[name]:
-                            decoders[name].decode(ef.data)
-                    continue
+                for seg in tcp_segments(len(data)):
+                    arrive = max(arrive, c.down.send(send_t, seg, reliable=True)[0].time_s)
+                arrive = max(arrive, c.down_ctrl_free_s)
+                c.down_ctrl_free_s = arrive
+                self._at(arrive, _DELIVER, self._deliver_control, c, data)
+            for stream, _pkt, data in out.datagrams:
+                for d in c.down.send(send_t, len(data) + 28):
+                    if not d.corrupted:
+                        self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+            for k, v in out.wire_bytes.items():
+                c.bytes[k] = c.bytes.get(k, 0) + v
+            c.window.append((t_f, dict(out.wire_bytes)))
+            pred_cm, pred_deg = prediction_error(target_pose, c.trace.pose_at(target_t))
+            c.pose_t[f] = c.latest_pose_t
+            c.pred[f] = (pred_cm, pred_deg)
+            row: dict[str, Any] = {"client": c.index, "frame_id": f, "t_s": t_f, "bytes": out.total_wire_bytes,
+                                   "keyframe": int(out.keyframe), "delivered": "", "missing": "",
+                                   "shared_ms": shared_ms, "server_ms": server_ms, "encode_ms": enc.encode_ms,
+                                   "expected_latency_ms": expected * 1000, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
+                                   "arrival_s": math.nan}
+            for name in c.bytes:
+                if name != SESSION_STREAM:
+                    row[f"bytes_{name}"] = out.wire_bytes.get(name, 0)
+            row.update({f"srv_{k}": v for k, v in c.half.stats().items()})
+            row.update({f"shared_{k}": v for k, v in shared_stats.items()})
+            c.update_rows[f] = row
+            c.updates.append(row)
+
+    def _server_receive(self, c: _Client, data: bytes) -> None:
+        assert c.fb is not None
+        for msg in self._to_server(c, data):
+            if isinstance(msg, Feedback):
+                c.fb.on_feedback(msg)
+            elif isinstance(msg, KeyframeRequest):
+                c.kf_pending = True
+
+    # ------------------------------------------------------------------ client
+
+    def _deliver_control(self, c: _Client, data: bytes) -> None:
+        assert c.rx is not None
+        now_ms = self.now * 1000
+        try:
+            for msg in self._to_client_msgs(c, data):
+                c.rx.on_message(msg, now_ms)
+        except RemoteProtocolError as exc:  # a malformed update: counted, the run goes on
+            c.protocol_errors += 1
+            log.warning("run %s client %d: %s", self.cfg.method, c.index, exc)
+        self._drain(c)
+
+    def _deliver_datagram(self, c: _Client, data: bytes) -> None:
+        assert c.rx is not None
+        self._decode(c, c.rx.on_datagram(data, self.now * 1000))
+        self._drain(c)
+
+    def _decode(self, c: _Client, works: list[Any]) -> None:
+        assert c.rx is not None
+        for w in works:
+            w0 = time.perf_counter()
+            res = c.rx.decode(w)
+            c.decode_ms += (time.perf_counter() - w0) * 1000
+            c.rx.on_decoded(w, res, self.now * 1000)
+
+    def _drain(self, c: _Client) -> None:
+        assert c.rx is not None
+        for rf in c.rx.ready():
+            release = max(self.now + self.cfg.decode_latency_ms / 1000.0, c.ready[-1][0] if c.ready else -math.inf)
+            c.ready.append((release, rf, c.decode_ms))
+            c.decode_ms = 0.0
+            row = c.update_rows.pop(rf.update.frame_id, None)
+            if row is not None:
+                row["delivered"] = int(rf.update.complete)
+                row["missing"] = ";".join(sorted(rf.update.missing))
+                row["arrival_s"] = rf.received_ms / 1000.0
+            if rf.update.missing:
+                c.lost_frames += 1
+
+    def _send_up(self, c: _Client, msg: Message) -> None:
+        data = c.cconn.send(msg)
+        c.uplink_bytes += control_wire_bytes(len(data))
+        arrive = self.now
+        for seg in tcp_segments(len(data)):
+            arrive = max(arrive, c.ctrl.send(max(self.now, c.ctrl._last_now), seg, reliable=True)[0].time_s)
+        arrive = max(arrive, c.ctrl_free_s)
+        c.ctrl_free_s = arrive
+        self._at(arrive, _DELIVER, self._server_receive, c, data)
+
+    def _display_tick(self, di: int, n_display: int, result: RunResult) -> None:
+        cfg, t_d = self.cfg, di / self.cfg.client_fps
+        for c in self.clients:
+            self._display_one(c, di, t_d, result)
+        if self.progress:
+            self.progress(di + 1, n_display)
+
+    def _display_one(self, c: _Client, di: int, t_d: float, result: RunResult) -> None:
+        cfg = self.cfg
+        assert c.rx is not None
+        self._decode(c, c.rx.poll(t_d * 1000))
+        self._drain(c)
+        applied_ms, decode_ms = 0.0, math.nan
+        make_current(c.gl)
+        if True:
+            while c.ready and c.ready[0][0] <= t_d:
+                _, rf, dms = c.ready.popleft()
+                decode_ms = dms
                 w0 = time.perf_counter()
-                planes = {}
                 try:
-                    for name, ef in encoded.items():
-                        planes[name] = decoders[name].decode(ef.data)
-                except CodecError:
-                    log.warning("run %s: frame %d failed to decode", cfg.method, f)
-                    continue
-                meta = unpack_meta(meta_blob)
-                decode_ms = (time.perf_counter() - w0) * 1000
-                release = max(arrive + cfg.decode_latency_ms / 1000.0, last_release)
-                last_release = release
-                du = DecodedUpdate(f, meta["t_s"], Pose.from_list(meta["pose"]), planes, meta["m"])
-                pending.append(_Pending(f, release, du, t_f, latest_pose_t, decode_ms, frame_bytes, pred_cm, pred_deg))
-            # -- display tick
-            applied_ms = 0.0
-            while pending and pending[0].release_s <= t_d:
-                p = pending.popleft()
-                w0 = time.perf_counter()
-                try:
-                    client.apply(p.update)
+                    c.chalf.apply(rf.update)
                 except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                    apply_errors += 1
-                    log.warning("run %s: update %d rejected by the client half: %s", cfg.method, p.frame_id, exc)
+                    c.apply_errors += 1
+                    log.warning("run %s: update %d rejected by the client half: %s", cfg.method, rf.update.frame_id, exc)
                     continue
                 finally:
                     applied_ms += (time.perf_counter() - w0) * 1000
-                shown = p
-                if first_release is None:
-                    first_release = p.release_s
-            if shown is None:
-                continue
-            true_pose = self.trace.pose_at(t_d)
+                c.rx.tracker.on_applied(rf.update.frame_id, [*rf.update.planes, *rf.update.data])
+                if rf.update.complete or c.shown is None or rf.update.planes or rf.update.data:
+                    c.shown = rf
+            true_pose = c.trace.pose_at(t_d)
             w0 = time.perf_counter()
-            cf = client.render(true_pose, t_d)
+            if c.chalf.has_content:
+                cf = c.chalf.render(true_pose, t_d)
+            else:  # nothing to show yet: the black background, every pixel a hole
+                cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
             client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
-            row: dict[str, Any] = {
-                "frame": di, "t_s": t_d, "update_frame_id": shown.frame_id,
-                "update_age_ms": (t_d - shown.t_s) * 1000, "motion_to_photon_ms": (t_d - shown.pose_sample_t_s) * 1000,
-                "client_ms": client_ms, "decode_ms": shown.decode_ms,
-                "pred_err_cm": shown.pred_err_cm, "pred_err_deg": shown.pred_err_deg,
-            }
-            if cfg.metrics:
-                w0 = time.perf_counter()
-                gt_out = self.renderer.render(self.scene, t_d, true_pose, intr, ("color", "object_id"))
-                gt = gt_out.color
-                row["gt_ms"] = (time.perf_counter() - w0) * 1000
-                row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
-                                               bool(cfg.flip_every) and di % cfg.flip_every == 0))
-                if cfg.save_images_every and di % cfg.save_images_every == 0:
-                    result.images.append((di, cf.color, gt))
-            row.update({f"cli_{k}": v for k, v in cf.stats.items()})
-            result.frames.append(row)
-            if self.progress:
-                self.progress(di + 1, n_display)
-        result.summary = self._summary(result, bytes_by_stream, lost_frames, keyframes, kf_requests)
-        result.summary["apply_errors"] = apply_errors
-        return result
+        make_current(self.renderer.ctx)
+        # keyframe requests: a video stream that lost sync (after it had started)
+        if any(c.rx.streams[n].broken or (c.rx.streams[n].jitter is not None and c.rx.streams[n].jitter.frames_emitted > 0)
+               for n in c.rx.needs_keyframe()) and (t_d - c.last_kf_request_s) * 1000 >= cfg.keyframe_request_interval_ms:
+            c.last_kf_request_s = t_d
+            c.kf_requests += 1
+            self._send_up(c, KeyframeRequest(c.rx.needs_keyframe()[0], "decoder waits for a keyframe"))
+        shown = c.shown
+        while c.window and c.window[0][0] <= t_d - 1.0:
+            c.window.popleft()
+        row: dict[str, Any] = {"client": c.index, "frame": di, "t_s": t_d}
+        if shown is not None:
+            fid = shown.update.frame_id
+            pose_t = c.pose_t.get(fid, math.nan)
+            pcm, pdeg = c.pred.get(fid, (math.nan, math.nan))
+            row.update({"update_frame_id": fid, "update_age_ms": (t_d - shown.update.t_s) * 1000,
+                        "motion_to_photon_ms": (t_d - pose_t) * 1000, "client_ms": client_ms, "decode_ms": decode_ms,
+                        "pred_err_cm": pcm, "pred_err_deg": pdeg})
+            if c.shown_fed_back != fid:
+                c.shown_fed_back = fid
+                applied, lost = c.rx.tracker.take()
+                self._send_up(c, Feedback(fid, sim_us(shown.received_ms / 1000), sim_us(shown.decoded_ms / 1000),
+                                          sim_us(t_d), 0, sim_us(pose_t if math.isfinite(pose_t) else 0.0),
+                                          {k: int(v) for k, v in shown.env.timing_us.items() if k in ("render", "encode")},
+                                          applied, lost))
+        else:
+            row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
+                        "client_ms": client_ms, "decode_ms": math.nan, "pred_err_cm": math.nan, "pred_err_deg": math.nan})
+        for name in c.bytes:
+            if name != SESSION_STREAM:
+                row[f"kbps_{name}"] = sum(w.get(name, 0) for _, w in c.window) * 8 / 1000.0
+        if cfg.metrics:
+            w0 = time.perf_counter()
+            if True:
+                gt_out = self.renderer.render(self.scene, t_d, true_pose, self.intr, ("color", "object_id"))
+            gt = gt_out.color
+            row["gt_ms"] = (time.perf_counter() - w0) * 1000
+            row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
+                                           bool(cfg.flip_every) and di % cfg.flip_every == 0))
+            if cfg.save_images_every and di % cfg.save_images_every == 0 and c.index == 0:
+                result.images.append((di, cf.color, gt))
+        row.update({f"cli_{k}": v for k, v in cf.stats.items()})
+        c.frames.append(row)
 
-    def _summary(self, r: RunResult, bytes_by_stream: dict[str, int], lost: int, keyframes: int, kf_requests: int) -> dict[str, Any]:
+    def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg
-        fr = r.frames
+        fr = c.frames
+        bytes_by_stream = c.bytes
 
         def col(k: str) -> np.ndarray:
             return np.array([f.get(k, math.nan) for f in fr], dtype=np.float64)
@@ -358,8 +567,9 @@ class VirtualTimeRun:
         dur = self.duration_s + 1.0 / cfg.server_fps
         total = sum(bytes_by_stream.values())
         s: dict[str, Any] = {
-            "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace, "seed": cfg.seed,
+            "client": c.index, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace, "seed": cfg.seed,
             "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
+            "client_trace": (cfg.client_traces or (cfg.trace,))[c.index % len(cfg.client_traces or (cfg.trace,))],
             "width": cfg.width, "height": cfg.height, "server_fps": cfg.server_fps, "client_fps": cfg.client_fps,
             "frames": len(fr), "mean_psnr_db": mean("psnr_db"), "p5_psnr_db": pct("psnr_db", 5), "mean_ssim": mean("ssim"),
             "mean_flip": mean("flip"), "flip_frames": int(np.sum(~np.isnan(col("flip")))) if fr else 0,
@@ -368,17 +578,22 @@ class VirtualTimeRun:
         }
         for name, b in bytes_by_stream.items():
             s[f"kbps_{name}"] = b * 8 / dur / 1000.0
-        ups = r.updates
+        ups = c.updates
         s.update({
             "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
             "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
             "mean_server_ms": float(np.mean([u["server_ms"] for u in ups])) if ups else math.nan,
+            "mean_shared_server_ms": float(np.mean([u["shared_ms"] for u in ups])) if ups else math.nan,
+            "clients": cfg.clients,
             "mean_encode_ms": float(np.mean([u["encode_ms"] for u in ups])) if ups else math.nan,
             "mean_decode_ms": mean("decode_ms"), "mean_client_ms": mean("client_ms"), "mean_gt_ms": mean("gt_ms"),
-            "lost_frames": lost, "keyframes": keyframes, "keyframe_requests": kf_requests,
+            "lost_frames": c.lost_frames, "keyframes": c.keyframes, "keyframe_requests": c.kf_requests,
+            "apply_errors": c.apply_errors, "protocol_errors": c.protocol_errors,
+            "mean_expected_latency_ms": float(np.mean([u["expected_latency_ms"] for u in ups])) if ups else math.nan,
             "mean_pred_err_cm": float(np.mean([u["pred_err_cm"] for u in ups])) if ups else math.nan,
             "mean_pred_err_deg": float(np.mean([u["pred_err_deg"] for u in ups])) if ups else math.nan,
             "flip_every": cfg.flip_every, "config_key": cfg.key(),
+            "frames_before_content": int(sum(1 for f in fr if f.get("update_frame_id", -1) == -1)),
         })
         return s
 

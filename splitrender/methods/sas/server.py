@@ -40,7 +40,7 @@ from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
 from ...render.gl import load_program
 from ...scene.pose import CameraIntrinsics
-from ..base import MethodConfig, ServerContext, ServerHalf, StreamSpec, Update
+from ..base import MethodConfig, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from .levels import ideal_log_size, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches
@@ -134,16 +134,45 @@ def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
     return np.stack([1 - l1 - l2, l1, l2], axis=-1)
 
 
-class SasServer(ServerHalf):
-    """Shading atlas streaming, server half."""
-
-    config: SasConfig
+class SasProducer(SceneProducer):
+    """The scene-level half of SAS, shared by every session: patches (built once at
+    load), the patch-id pass's GPU buffers, and each frame's object transforms."""
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         t0 = time.perf_counter()
         self.patches: ScenePatches = build_scene_patches(self.scene)
         self.patch_build_ms = (time.perf_counter() - t0) * 1e3
+        self._ids: PatchIdPass | None = None
+        self._stats: dict[str, float] = {}
+
+    def id_pass(self, renderer: Any) -> PatchIdPass:
+        """The patch-id pass (GPU buffers of every patch), built on first use on the server's GL thread."""
+        if self._ids is None:
+            self._ids = PatchIdPass(renderer, self.scene, self.patches)
+        return self._ids
+
+    def prepare(self, frame_id: int, t_s: float) -> dict[str, Any]:
+        """Object model matrices at ``t_s`` (the scene's animation), shared by all sessions."""
+        models = np.stack([o.model_matrix(t_s) for o in self.scene.objects])
+        self._stats = {"patches": float(self.patches.count)}
+        return {"t_s": t_s, "models": models}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+
+class SasServer(ServerHalf):
+    """Shading atlas streaming, server half (per session); scene patches come from the shared :class:`SasProducer`."""
+
+    config: SasConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        if not isinstance(self.producer, SasProducer):  # a half used on its own builds its own scene state
+            self.producer = SasProducer(self.config, self.scene, self.server_fps)
+        self.patches: ScenePatches = self.producer.patches
+        self.patch_build_ms = self.producer.patch_build_ms
         self.layout = self.config.atlas_layout(self.intrinsics)
         self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
         self.transposed = np.zeros(self.patches.count, bool)
@@ -181,7 +210,8 @@ class SasServer(ServerHalf):
     # ------------------------------------------------------------------ GL
     def _setup_gl(self, renderer: Any) -> None:
         ctx = renderer.ctx
-        self._ids = PatchIdPass(renderer, self.scene, self.patches)
+        assert isinstance(self.producer, SasProducer)
+        self._ids = self.producer.id_pass(renderer)
         self._prog = load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag")
         self._tex = ctx.texture((self.layout.width, self.layout.height), 4, dtype="f1")
         self._fbo = ctx.framebuffer([self._tex])
@@ -214,7 +244,8 @@ class SasServer(ServerHalf):
         pvs = np.flatnonzero(area > 0)
         t1 = time.perf_counter()
         # level selection at the predicted eye
-        models = np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
+        shared = ctx.shared if isinstance(ctx.shared, dict) and ctx.shared.get("t_s") == ctx.t_s else None
+        models = shared["models"] if shared is not None else np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
         world = patch_world_slots(self.patches, pvs, models)
         eye = np.asarray(ctx.target_pose.position, np.float64)
         px_per_rad = self.intrinsics.width / math.radians(self.intrinsics.fov_x_deg)
@@ -223,9 +254,10 @@ class SasServer(ServerHalf):
         choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
                                self.transposed[pvs], c.hysteresis)
         # I-frame / reset decisions
-        lost = ctx.feedback.lost_frames
-        full = ctx.keyframe_requested or lost > self._lost_seen or self._frames == 0
-        self._lost_seen = lost
+        # the client reported atlas frames it never got (feedback): resend the whole PVS
+        lost = ctx.feedback.newly_lost("atlas")
+        full = ctx.keyframe_requested or bool(lost) or self._frames == 0
+        self._lost_seen += len(lost)
         iframe = full or self._since_i >= c.gop
         reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
         if reset:

@@ -1,0 +1,25 @@
+"""``video``, client half: sees only what arrived."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...scene.pose import Pose
+from ..base import ClientFrame, ClientHalf, DecodedUpdate
+
+
+class VideoClient(ClientHalf):
+    def __init__(self, *a, **kw) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(*a, **kw)
+        self._frame: np.ndarray | None = None
+
+    def apply(self, update: DecodedUpdate) -> None:
+        if "color" in update.planes:
+            self._frame = update.planes["color"]
+            self._has_content = True
+
+    def render(self, pose: Pose, t_s: float) -> ClientFrame:
+        i = self.intrinsics
+        if self._frame is None:
+            return ClientFrame(np.zeros((i.height, i.width, 3), np.uint8), np.ones((i.height, i.width), bool))
+        return ClientFrame(self._frame, np.zeros((i.height, i.width), bool))

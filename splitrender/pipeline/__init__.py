@@ -1,0 +1,24 @@
+"""One transmission path for both modes (DESIGN.md, "one pipeline").
+
+:class:`ServerPipeline` (encode, packetize, count) and :class:`ClientPipeline`
+(reassemble, jitter buffer, decode, release in order with partial delivery) are
+sans-IO: they take time and bytes in and give bytes and updates out.  The live server
+and client drive them with sockets and the wall clock; the virtual-time runner drives
+them with the network model on a simulated clock.  :mod:`.feedback` holds both ends
+of the feedback loop, :mod:`.producers` the scene producers shared by sessions, and
+:mod:`.wire` the byte-counting model and the update envelope.
+"""
+
+from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
+from .producers import ProducerPool
+from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
+from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
+from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
+                   control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
+
+__all__ = [
+    "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
+    "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
+    "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",
+    "datagram_wire_bytes", "rtp_timestamp", "specs_from_table", "tcp_segments",
+]

@@ -1,0 +1,220 @@
+"""The server's transmission path for one session (sans-IO): encode, packetize, count.
+
+:class:`ServerPipeline` turns a method's :class:`~splitrender.methods.base.Update` into
+what crosses the wire, in both modes:
+
+1. :meth:`ServerPipeline.encode` (heavy; the live server runs it on its encoder
+   thread): every video plane through the stream's real encoder, every data payload
+   through its compression;
+2. :meth:`ServerPipeline.packetize` (light): reliable data as ``DataChunk`` messages,
+   then the ``FrameMeta`` with the update envelope, framed by the session's control
+   :class:`~splitrender.protocol.Connection`; video and datagram data as RTP packets.
+   Every byte is counted per stream as it will cross the wire (:mod:`.wire`).
+
+The drivers only move the bytes: the live session writes them to its sockets, the
+virtual-time runner delays them through the network model.
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from ..codecs.video import EncodedFrame, VideoEncoder
+from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
+from ..protocol import DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp
+from ..scene.pose import Pose
+from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
+                   datagram_wire_bytes, pack_envelope, rtp_format, stream_table)
+
+FIRST_PAYLOAD_TYPE = 96
+"""Dynamic RTP payload type of a session's first RTP stream (then 97, 98, ...)."""
+RTP_CLOCK_HZ = 90000
+
+Framer = Callable[[Message], bytes]
+"""Frames one control message for the wire (a :class:`~splitrender.protocol.Connection`'s ``send``)."""
+
+
+@dataclass
+class EncodedUpdate:
+    """One update after coding: video access units and compressed data, with costs."""
+
+    update: Update
+    video: dict[str, EncodedFrame]
+    data: dict[str, bytes]
+    encode_ms: float
+
+    @property
+    def keyframe(self) -> bool:
+        """True when every video stream sent an IDR (or there is no video)."""
+        return bool(self.video) and all(e.keyframe for e in self.video.values())
+
+
+@dataclass
+class OutgoingFrame:
+    """What one server frame puts on the wire, in sending order per channel."""
+
+    frame_id: int
+    control: list[tuple[str, bytes]] = field(default_factory=list)
+    """(stream, framed bytes) for the control channel: reliable data chunks, then ``meta``."""
+    datagrams: list[tuple[str, RtpPacket, bytes]] = field(default_factory=list)
+    """(stream, packet, bytes) for UDP."""
+    wire_bytes: dict[str, int] = field(default_factory=dict)
+    """Bytes on the wire per stream (headers included)."""
+    payload_bytes: dict[str, int] = field(default_factory=dict)
+    """Coded payload bytes per stream (no transport headers)."""
+    keyframe: bool = False
+
+    @property
+    def total_wire_bytes(self) -> int:
+        return sum(self.wire_bytes.values())
+
+
+@dataclass
+class TxStream:
+    spec: AnyStreamSpec
+    ssrc: int = 0
+    payload_type: int = 0
+    packetizer: RtpPacketizer | None = None
+    encoder: VideoEncoder | None = None
+
+
+class ServerPipeline:
+    """One session's sending side; see the module docstring."""
+
+    def __init__(self, specs: list[AnyStreamSpec], mtu: int = 1200, ssrc_taken: Callable[[int], bool] | None = None,
+                 rng: Any = None) -> None:
+        names = [s.name for s in specs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"duplicate stream names in {names}")
+        self.specs = list(specs)
+        self.mtu = mtu
+        self._rand = (lambda bits: int(rng.integers(0, 1 << bits))) if rng is not None else secrets.randbits
+        self.streams: dict[str, TxStream] = {}
+        used: set[int] = set()
+        k = 0
+        for s in specs:
+            st = TxStream(s)
+            if not (isinstance(s, DataStreamSpec) and s.delivery == "reliable"):
+                ssrc = self._rand(32)
+                while ssrc in used or (ssrc_taken is not None and ssrc_taken(ssrc)):
+                    ssrc = self._rand(32)
+                used.add(ssrc)
+                st.ssrc, st.payload_type = ssrc, FIRST_PAYLOAD_TYPE + k
+                k += 1
+                st.packetizer = RtpPacketizer(rtp_format(s), ssrc, st.payload_type, mtu, self._rand(16))  # type: ignore[arg-type]
+            self.streams[s.name] = st
+        self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
+
+    # ------------------------------------------------------------------ set-up
+
+    @property
+    def rtp_streams(self) -> list[TxStream]:
+        return [st for st in self.streams.values() if st.packetizer is not None]
+
+    def describe(self, host: str, port: int, session_name: str) -> tuple[StreamDescription, ...]:
+        """``Welcome.streams``: one description per RTP stream (SDP for video streams)."""
+        out = []
+        for st in self.rtp_streams:
+            fmt = rtp_format(st.spec)
+            sdp = make_sdp(fmt, port, st.payload_type, address=host, session_name=f"{session_name} {st.spec.name}") \
+                if fmt != "data" else ""
+            out.append(StreamDescription(st.spec.name, fmt, st.ssrc, st.payload_type, port, sdp))  # type: ignore[arg-type]
+        return tuple(out)
+
+    def welcome_params(self, session_blob: bytes) -> dict[str, Any]:
+        """The stream table and session data size for ``Welcome.method_params``."""
+        return {"streams": stream_table(self.specs), "session_data_bytes": len(session_blob),
+                "session_data_crc": checksum(session_blob)}
+
+    def session_frames(self, session_blob: bytes, framer: Framer) -> list[tuple[str, bytes]]:
+        """The session data as ``DataChunk`` control frames (sent right after ``Welcome``); counted as ``session``."""
+        out = []
+        for msg in _chunks(SESSION_STREAM, 0, session_blob):
+            data = framer(msg)
+            out.append((SESSION_STREAM, data))
+        self.bytes_sent[SESSION_STREAM] = self.bytes_sent.get(SESSION_STREAM, 0) + sum(
+            control_wire_bytes(len(d)) for _, d in out)
+        return out
+
+    # ------------------------------------------------------------------ per frame
+
+    def encode(self, update: Update, force_idr: bool = False) -> EncodedUpdate:
+        """Code every payload of ``update`` (runs on the encoder thread live)."""
+        w0 = time.perf_counter()
+        video: dict[str, EncodedFrame] = {}
+        data: dict[str, bytes] = {}
+        for name, plane in update.planes.items():
+            st = self.streams.get(name)
+            if st is None or not isinstance(st.spec, StreamSpec):
+                raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
+            if st.encoder is None:
+                st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
+            video[name] = st.encoder.encode(plane, force_idr=force_idr)
+        for name, payload in update.data.items():
+            st = self.streams.get(name)
+            if st is None or not isinstance(st.spec, DataStreamSpec):
+                raise ValueError(f"update {update.frame_id}: data {name!r} is not a declared data stream")
+            data[name] = compress_data(st.spec, payload)
+        return EncodedUpdate(update, video, data, (time.perf_counter() - w0) * 1000)
+
+    def packetize(self, enc: EncodedUpdate, framer: Framer, server_time_us: int, rtp_ts: int, pose_sample_us: int,
+                  pose_seq: int, target_t_s: float, timing_us: dict[str, int], srv: dict[str, float]) -> OutgoingFrame:
+        """Everything frame ``enc.update.frame_id`` sends, framed and counted."""
+        upd = enc.update
+        out = OutgoingFrame(upd.frame_id, keyframe=enc.keyframe)
+        rtp_ts &= 0xFFFFFFFF
+        reliable = []
+        for name, blob in enc.data.items():
+            st = self.streams[name]
+            assert isinstance(st.spec, DataStreamSpec)
+            out.payload_bytes[name] = len(blob)
+            if st.spec.delivery == "reliable":
+                reliable.append(name)
+                for msg in _chunks(name, upd.frame_id, blob):
+                    frame = framer(msg)
+                    out.control.append((name, frame))
+                    out.wire_bytes[name] = out.wire_bytes.get(name, 0) + control_wire_bytes(len(frame))
+        rtp_names = [n for n in (*enc.video, *enc.data) if self.streams[n].packetizer is not None]
+        env = Envelope(upd.t_s, upd.pose, upd.meta, target_t_s, timing_us, srv, tuple(reliable))
+        blob = pack_envelope(env)
+        q = upd.pose.orientation
+        meta = FrameMeta(
+            frame_id=upd.frame_id, server_time_us=int(server_time_us), rtp_timestamps={n: rtp_ts for n in rtp_names},
+            pose=PoseMsg(int(pose_sample_us), int(pose_seq) & 0xFFFFFFFF, tuple(float(v) for v in upd.pose.position),  # type: ignore[arg-type]
+                         tuple(float(v) for v in q)),  # type: ignore[arg-type]
+            method_meta=blob, keyframe=enc.keyframe)
+        frame = framer(meta)
+        out.control.append((META_STREAM, frame))
+        out.wire_bytes[META_STREAM] = control_wire_bytes(len(frame))
+        out.payload_bytes[META_STREAM] = len(blob)
+        for name in rtp_names:
+            st = self.streams[name]
+            assert st.packetizer is not None
+            payload = enc.video[name].data if name in enc.video else enc.data[name]
+            out.payload_bytes.setdefault(name, len(payload))
+            for pkt in st.packetizer.packetize(payload, rtp_ts):
+                data = bytes(pkt)
+                out.datagrams.append((name, pkt, data))
+                out.wire_bytes[name] = out.wire_bytes.get(name, 0) + datagram_wire_bytes(len(data))
+        for k, v in out.wire_bytes.items():
+            self.bytes_sent[k] = self.bytes_sent.get(k, 0) + v
+        return out
+
+
+def _chunks(stream: str, frame_id: int, blob: bytes) -> list[DataChunk]:
+    n = len(blob)
+    if n == 0:
+        return [DataChunk(stream, frame_id, 0, 0, b"")]
+    return [DataChunk(stream, frame_id, off, n, blob[off:off + DATA_CHUNK_BYTES]) for off in range(0, n, DATA_CHUNK_BYTES)]
+
+
+def rtp_timestamp(scene_t_s: float) -> int:
+    """The 90 kHz RTP timestamp of scene time ``scene_t_s``."""
+    return int(round(scene_t_s * RTP_CLOCK_HZ)) & 0xFFFFFFFF
+
+
+def pose_of(msg_pose: Any) -> Pose:  # pragma: no cover - convenience for drivers
+    return Pose.from_list([*msg_pose.position, *msg_pose.orientation])
