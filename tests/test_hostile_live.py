@@ -84,22 +84,22 @@ CASES: list[tuple[str, bytes, int, str]] = [
     ("oversized header", HEADER.pack(MAGIC, PROTOCOL_VERSION, MessageType.HELLO, 0, 50_000_000), ErrorCode.TOO_LARGE,
      "Hello frame body of 50000000 bytes exceeds the limit of 4096 bytes"),
     ("wrong header version", HEADER.pack(MAGIC, 7, MessageType.HELLO, 0, 4) + b"\x80" * 4, ErrorCode.BAD_VERSION,
-     "peer speaks protocol version 7, this side speaks version 1"),
-    ("wrong Hello version", encode_frame(_hello(version=2)), ErrorCode.BAD_VERSION,
-     "Hello.version: peer speaks protocol version 2, this side speaks version 1"),
+     "peer speaks protocol version 7, this side speaks version 2"),
+    ("wrong Hello version", encode_frame(_hello(version=1)), ErrorCode.BAD_VERSION,
+     "Hello.version: peer speaks protocol version 1, this side speaks version 2"),
     ("Pose before Hello", encode_frame(_pose()), ErrorCode.ILLEGAL_STATE, "client sent Pose in state AWAIT_HELLO"),
     ("bad msgpack Hello", HEADER.pack(MAGIC, PROTOCOL_VERSION, MessageType.HELLO, 0, 3) + b"\xc1\xc1\xc1",
      ErrorCode.BAD_MESSAGE, "Hello: body is not valid msgpack"),
-    ("odd size", encode_frame(Hello(1, "", ("video",), ("h264",), 161, 90, 30.0)), ErrorCode.BAD_MESSAGE,
+    ("odd size", encode_frame(Hello(PROTOCOL_VERSION, "", ("video",), ("h264",), 161, 90, 30.0)), ErrorCode.BAD_MESSAGE,
      "Hello.width/height: 161x90 must be even"),
-    ("unknown method", encode_frame(Hello(1, "", ("nope",), ("h264",), 160, 90, 30.0)),
+    ("unknown method", encode_frame(Hello(PROTOCOL_VERSION, "", ("nope",), ("h264",), 160, 90, 30.0)),
      ErrorCode.UNSUPPORTED_METHOD, "Hello.methods: none of ['nope'] is supported"),
 ]
 
 
 async def _abrupt(address: tuple[str, int]) -> None:
     """Half a header, then a TCP reset; and a reset right after Hello."""
-    for data in (b"SR\x01", encode_frame(_hello())):
+    for data in (b"SR\x02", encode_frame(_hello())):
         s = socket.socket()
         s.setblocking(False)
         await asyncio.get_running_loop().sock_connect(s, address)
@@ -131,7 +131,7 @@ async def _our_setup_failures(server: LiveServer, monkeypatch: pytest.MonkeyPatc
     good_config = server.config
     server.config = dataclasses.replace(good_config, method_params={"atw": {"nosuch": 1}})
     try:
-        msgs = await _exchange(server.tcp_address, encode_frame(Hello(1, "", ("atw",), ("h264",), 160, 90, 30.0)))
+        msgs = await _exchange(server.tcp_address, encode_frame(Hello(PROTOCOL_VERSION, "", ("atw",), ("h264",), 160, 90, 30.0)))
     finally:
         server.config = good_config
     errors.append(_only_error(msgs, ErrorCode.INTERNAL))

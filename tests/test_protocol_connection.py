@@ -32,8 +32,9 @@ from splitrender.protocol import (
     negotiate_method,
 )
 from splitrender.protocol.framing import HEADER
+from splitrender.protocol.messages import PROTOCOL_VERSION
 
-HELLO = Hello(1, "tok", ("sas", "video"), ("h264",), 1280, 720, 90.0)
+HELLO = Hello(PROTOCOL_VERSION, "tok", ("sas", "video"), ("h264",), 1280, 720, 90.0)
 WELCOME = Welcome("s1", "video", {}, ())
 POSE = Pose(5, 1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
 META = FrameMeta(1, 10, {"color": 0}, POSE, b"", True)
@@ -138,16 +139,16 @@ def test_illegal_peer_messages() -> None:
 
 def test_wrong_version_in_hello() -> None:
     s = ServerConnection()
-    s.receive_data(_raw(Hello(2, "", ("video",), ("h264",), 64, 64, 60.0)))
+    s.receive_data(_raw(Hello(1, "", ("video",), ("h264",), 64, 64, 60.0)))
     with pytest.raises(
         VersionError,
-        match=r"^Hello\.version: peer speaks protocol version 2, this side speaks version 1$",
+        match=r"^Hello\.version: peer speaks protocol version 1, this side speaks version 2$",
     ) as info:
         s.next_event()
     assert info.value.code == 505
     s = ServerConnection()
     s.receive_data(HEADER.pack(b"SR", 3, 1, 0, 0))
-    with pytest.raises(VersionError, match=r"^peer speaks protocol version 3, this side speaks version 1$"):
+    with pytest.raises(VersionError, match=r"^peer speaks protocol version 3, this side speaks version 2$"):
         s.next_event()
 
 
@@ -192,7 +193,7 @@ def test_eof_closes_and_bad_body_in_hello() -> None:
     assert s.state is State.CLOSED
     body = msgpack.packb({"version": 1})
     s = ServerConnection()
-    s.receive_data(HEADER.pack(b"SR", 1, 1, 0, len(body)) + body)
+    s.receive_data(HEADER.pack(b"SR", PROTOCOL_VERSION, 1, 0, len(body)) + body)
     with pytest.raises(RemoteProtocolError, match=r"^Hello: missing field 'auth_token'$"):
         s.next_event()
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import struct
 
+from splitrender.protocol import PROTOCOL_VERSION
+
 import msgpack
 import pytest
 import zstandard
@@ -91,14 +93,14 @@ def test_errors_are_sticky_and_data_after_eof_is_local_error() -> None:
         dec.receive_data(b"x")
 
 
-def _header(version: int = 1, msg_type: int = 3, flags: int = 0, length: int = 0) -> bytes:
+def _header(version: int = PROTOCOL_VERSION, msg_type: int = 3, flags: int = 0, length: int = 0) -> bytes:
     return struct.pack(">2sBBBI", b"SR", version, msg_type, flags, length)
 
 
 def test_wrong_version_names_both_versions() -> None:
     dec = FrameDecoder()
-    dec.receive_data(_header(version=2))
-    with pytest.raises(VersionError, match=r"^peer speaks protocol version 2, this side speaks version 1$") as info:
+    dec.receive_data(_header(version=3))
+    with pytest.raises(VersionError, match=r"^peer speaks protocol version 3, this side speaks version 2$") as info:
         dec.next_event()
     assert info.value.code == ErrorCode.BAD_VERSION == 505
 

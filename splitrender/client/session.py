@@ -26,35 +26,31 @@ import json
 import logging
 import math
 import time
-from collections import OrderedDict, deque
-from dataclasses import asdict, dataclass, field
+from collections import deque
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from splitrender.codecs.meta import unpack_meta
-from splitrender.codecs.video import VideoDecoder
 from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
-from splitrender.methods.base import DecodedUpdate, get_method, make_config
+from splitrender.methods.base import get_method, make_config
+from splitrender.pipeline import ClientPipeline, ReceivedFrame, SessionAssembler, Work, specs_from_table
 from splitrender.protocol import (
     PROTOCOL_VERSION,
-    AccessUnit,
     Bye,
     ClientConnection,
+    DataChunk,
     Error,
     Feedback,
     FrameMeta,
     GenericNack,
     Hello,
-    JitterBuffer,
     PictureLossIndication,
     Pose,
     ReceiverReport,
-    ReceiverStatistics,
     ReportBlock,
-    RtpError,
-    RtpPacket,
     SenderReport,
     Stats,
     Welcome,
@@ -116,35 +112,35 @@ class ClientConfig:
     pli_interval_ms: float = 250.0
     rr_interval_s: float = 0.5
     connect_timeout_s: float = 5.0
+    max_session_bytes: int = 256 * 1024 * 1024
 
 
 @dataclass
-class _StreamRx:
-    name: str
-    codec: str
-    ssrc: int
-    jitter: JitterBuffer
-    stats: ReceiverStatistics
-    decoder: VideoDecoder
-    output_format: str
-    holes: dict[int, tuple[float, float, int]] = field(default_factory=dict)  # seq -> first seen, last nack, tries
-    last_pli_ms: float = -math.inf
-    first_packet_ms: float | None = None
-    decode_broken: bool = False
+class _Shown:
+    """The update on screen, with its wall-clock arrival stages (µs)."""
 
-
-@dataclass
-class _Frame:
-    """One update on its way: metadata, planes, per-stage wall-clock times (µs)."""
-
-    frame_id: int
-    meta: FrameMeta | None = None
-    blob: dict[str, Any] | None = None
-    meta_us: int = 0
-    planes: dict[str, np.ndarray] = field(default_factory=dict)
-    received_us: int = 0
-    decoded_us: int = 0
+    frame: ReceivedFrame
     shown: bool = False
+
+    @property
+    def meta(self) -> FrameMeta:
+        return self.frame.meta
+
+    @property
+    def frame_id(self) -> int:
+        return self.frame.update.frame_id
+
+    @property
+    def received_us(self) -> int:
+        return int(self.frame.received_ms * 1000)
+
+    @property
+    def decoded_us(self) -> int:
+        return int(self.frame.decoded_ms * 1000)
+
+    @property
+    def meta_us(self) -> int:
+        return int(self.frame.meta_ms * 1000)
 
 
 @dataclass
@@ -170,19 +166,19 @@ class LiveClient:
         self.io_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-client-io")
         self.channel: ControlChannel | None = None
         self.udp: asyncio.DatagramTransport | None = None
-        self.streams: dict[str, _StreamRx] = {}
-        self._by_ssrc: dict[int, _StreamRx] = {}
-        self._frames: OrderedDict[int, _Frame] = OrderedDict()
-        self._orphans: OrderedDict[tuple[str, int], tuple[np.ndarray, int, int]] = OrderedDict()
-        self._ready: deque[_Frame] = deque()
-        self._decode_q: asyncio.Queue[tuple[_StreamRx, AccessUnit, int]] = asyncio.Queue(DECODE_QUEUE)
+        self.rx: ClientPipeline | None = None
+        self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
+        self._last_pli_ms: dict[str, float] = {}
+        self._first_packet_ms: dict[str, float] = {}
+        self._ready: deque[ReceivedFrame] = deque()
+        self._pending_apply: list[ReceivedFrame] = []
+        self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
         self._welcome: Welcome | None = None
         self._params: dict[str, Any] = {}
         self._server_epoch_s: float | None = None
         self._t0_wall = 0.0
         self._rtp_seen = False
-        self._last_applied = -1
         self.rows: list[dict[str, Any]] = []
         self.meta_ids: list[int] = []
         self.counters: dict[str, Any] = {
@@ -272,23 +268,27 @@ class LiveClient:
         spec = get_method(msg.method)
         mcfg = make_config(spec.config, dict(self._params.get("config", {})))
         intr = CameraIntrinsics(cfg.width, cfg.height, float(self._params.get("fov_y_deg", 60.0)))
-        blob = self._params.get("session_data", b"")
-        session_data = unpack_meta(blob) if blob else {}
+        # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
+        asm = SessionAssembler(self._params.get("session_data_bytes", 0), self._params.get("session_data_crc"),
+                               cfg.max_session_bytes)
+        while not asm.done:
+            chunk = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
+            if isinstance(chunk, Error):
+                raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(chunk)}")
+            if not isinstance(chunk, DataChunk):
+                raise ServerRefusedError(f"expected session data after Welcome, got {type(chunk).__name__}")
+            asm.add(chunk)
+        self.counters["session_bytes"] = asm.total
+        session_data = unpack_meta(asm.blob) if asm.total else {}
 
         def make_half() -> Any:
             from splitrender.render.gl import get_context
 
-            return spec.client(mcfg, intr, get_context(), session_data)
+            return spec.client_class(mcfg, intr, get_context(), session_data)
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
-        fmts = dict(self._params.get("stream_formats", {}))
-        for s in msg.streams:
-            fmt = fmts.get(s.name, "rgb24")
-            rx = _StreamRx(s.name, s.codec, s.ssrc,
-                           JitterBuffer(s.codec, frame_timeout_ms=cfg.jitter_timeout_ms),
-                           ReceiverStatistics(s.ssrc), VideoDecoder(s.codec, fmt), fmt)  # type: ignore[arg-type]
-            self.streams[s.name] = rx
-            self._by_ssrc[s.ssrc] = rx
+        self.rx = ClientPipeline(msg.streams, specs_from_table(self._params.get("streams", [])), cfg.jitter_timeout_ms,
+                                 resolve_timeout_ms=max(500.0, 2 * cfg.jitter_timeout_ms))
         logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
 
@@ -301,7 +301,11 @@ class LiveClient:
                                                               remote_addr=(self.cfg.server, port))
         except (OSError, OverflowError) as exc:
             raise ConnectError(f"cannot open udp to {self.cfg.server}:{port}: {describe_os_error(exc)}") from exc
-        self._send_rtcp([ReceiverReport(0, tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.streams.values()))])
+        self._send_rtcp([self._empty_rr()])
+
+    def _empty_rr(self) -> ReceiverReport:
+        assert self.rx is not None
+        return ReceiverReport(0, tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.rx.streams.values() if s.ssrc))
 
     # ------------------------------------------------------------------ poses
 
@@ -329,8 +333,8 @@ class LiveClient:
     async def _control_loop(self) -> None:
         assert self.channel is not None
         async for msg in self.channel.messages():
-            if isinstance(msg, FrameMeta):
-                self._on_meta(msg)
+            if isinstance(msg, (FrameMeta, DataChunk)):
+                self._on_control(msg)
             elif isinstance(msg, Stats):
                 logger.debug("session %s: server stats %s", self.session_id, dict(msg.counters))
             elif isinstance(msg, Bye):
@@ -339,130 +343,99 @@ class LiveClient:
                 raise ServerRefusedError(f"server error {ControlChannel.error_message(msg)}")
         raise ConnectionResetError("server closed the control connection")
 
-    def _on_meta(self, msg: FrameMeta) -> None:
-        now = wall_us()
-        self.counters["frames_meta"] += 1
-        self.meta_ids.append(msg.frame_id)
-        blob = msg.method_meta if isinstance(msg.method_meta, bytes) else b""
-        self.counters["meta_bytes"] += len(blob)
-        try:
-            meta = unpack_meta(blob)
-        except CodecError as exc:
-            raise _BadMeta(f"FrameMeta {msg.frame_id}: {exc}") from exc
-        # both stamps were taken at the same instant on the server's wall clock
-        self._server_epoch_s = msg.server_time_us / 1e6 - float(meta.get("t_s", 0.0))
-        fr = _Frame(msg.frame_id, msg, meta, now)
-        self._frames[msg.frame_id] = fr
-        while len(self._frames) > MAX_PENDING_FRAMES:
-            self._frames.popitem(last=False)
-        for name, ts in msg.rtp_timestamps.items():
-            got = self._orphans.pop((name, ts), None)
-            if got is not None:
-                self._add_plane(fr, name, *got)
-        self._check_complete(fr)
+    def _on_control(self, msg: FrameMeta | DataChunk) -> None:
+        assert self.rx is not None
+        now_ms = wall_us() / 1000
+        if isinstance(msg, FrameMeta):
+            self.counters["frames_meta"] += 1
+            self.meta_ids.append(msg.frame_id)
+            if isinstance(msg.method_meta, bytes):
+                self.counters["meta_bytes"] += len(msg.method_meta)
+        self.rx.on_message(msg, now_ms)  # raises RemoteProtocolError on bad input: the session ends with Error
+        if isinstance(msg, FrameMeta):
+            env = self.rx.last_envelope
+            if env is not None:  # both stamps were taken at the same instant on the server's wall clock
+                self._server_epoch_s = msg.server_time_us / 1e6 - env.t_s
+        self._collect()
 
     # ------------------------------------------------------------------ UDP in
 
     def _on_datagram(self, data: bytes) -> None:
-        now_ms = time.monotonic() * 1000
+        assert self.rx is not None
+        now_ms = wall_us() / 1000
         if is_rtcp(data):
             try:
                 for p in parse_rtcp(data):
-                    if isinstance(p, SenderReport) and p.ssrc in self._by_ssrc:
-                        self._by_ssrc[p.ssrc].stats.on_sender_report(p, now_ms)
+                    if isinstance(p, SenderReport) and p.ssrc in self.rx.by_ssrc:
+                        st = self.rx.by_ssrc[p.ssrc].stats
+                        if st is not None:
+                            st.on_sender_report(p, time.monotonic() * 1000)
             except RtcpError:
                 self.counters["udp_bad"] += 1
             return
-        try:
-            pkt = RtpPacket.parse(data)
-        except RtpError:
-            self.counters["udp_bad"] += 1
-            return
-        rx = self._by_ssrc.get(pkt.ssrc)
-        if rx is None:
+        before = self.rx.counters["udp_bad"]
+        works = self.rx.on_datagram(data, now_ms)
+        if self.rx.counters["udp_bad"] != before:
             self.counters["udp_bad"] += 1
             return
         self._rtp_seen = True
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
-        rx.stats.receive(pkt, now_ms)
-        if rx.first_packet_ms is None:
-            rx.first_packet_ms = now_ms
-        self._queue_units(rx, rx.jitter.insert(pkt, now_ms))
+        try:
+            ssrc = int.from_bytes(data[8:12], "big")
+            name = self.rx.by_ssrc[ssrc].name
+            self._first_packet_ms.setdefault(name, time.monotonic() * 1000)
+        except (KeyError, IndexError):
+            pass
+        self._queue_work(works)
 
-    def _queue_units(self, rx: _StreamRx, units: list[AccessUnit]) -> None:
-        now = wall_us()
-        for au in units:
-            if au.keyframe:
+    def _queue_work(self, works: list[Work]) -> None:
+        assert self.rx is not None
+        for w in works:
+            if w.unit.keyframe and w.stream.kind == "video":
                 self.counters["keyframes_received"] += 1
                 if self.counters["plis_sent"]:
                     self.counters["keyframes_after_pli"] += 1
-                rx.decode_broken = False
-            elif rx.decode_broken:
-                continue
             try:
-                self._decode_q.put_nowait((rx, au, now))
+                self._decode_q.put_nowait(w)
             except asyncio.QueueFull:
                 self.counters["decode_overflows"] += 1
                 while not self._decode_q.empty():
                     self._decode_q.get_nowait()
-                for s in self.streams.values():
-                    s.decode_broken = True
+                for s in self.rx.streams.values():
+                    if s.kind == "video":
+                        s.broken = True
 
     # ------------------------------------------------------------------ decode
 
     async def _decode_loop(self) -> None:
         loop = asyncio.get_running_loop()
+        assert self.rx is not None
         while True:
-            rx, au, received_us = await self._decode_q.get()
-            if rx.decode_broken and not au.keyframe:
+            w = await self._decode_q.get()
+            if w.stream.kind == "video" and w.stream.broken and not w.unit.keyframe:
+                self.rx.on_decoded(w, CodecError("skipped: waiting for a keyframe"), wall_us() / 1000)
                 continue
-            try:
-                plane = await loop.run_in_executor(self.decode_executor, rx.decoder.decode, au.data)
-            except CodecError as exc:
+            res = await loop.run_in_executor(self.decode_executor, self.rx.decode, w)
+            if isinstance(res, CodecError):
                 self.counters["decode_errors"] += 1
-                rx.decode_broken = True
-                logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, rx.name, exc)
-                continue
-            decoded_us = wall_us()
-            fid = self._frame_for(rx.name, au.timestamp)
-            if fid is None:
-                self._orphans[(rx.name, au.timestamp)] = (plane, received_us, decoded_us)
-                while len(self._orphans) > MAX_PENDING_FRAMES:
-                    self._orphans.popitem(last=False)
-                continue
-            fr = self._frames[fid]
-            self._add_plane(fr, rx.name, plane, received_us, decoded_us)
-            self._check_complete(fr)
+                logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
+            self.rx.on_decoded(w, res, wall_us() / 1000)
+            self._collect()
 
-    def _frame_for(self, name: str, ts: int) -> int | None:
-        for fid in reversed(self._frames):
-            fr = self._frames[fid]
-            if fr.meta is not None and fr.meta.rtp_timestamps.get(name) == ts:
-                return fid
-        return None
-
-    @staticmethod
-    def _add_plane(fr: _Frame, name: str, plane: np.ndarray, received_us: int, decoded_us: int) -> None:
-        fr.planes[name] = plane
-        fr.received_us = max(fr.received_us, received_us)
-        fr.decoded_us = max(fr.decoded_us, decoded_us)
-
-    def _check_complete(self, fr: _Frame) -> None:
-        assert fr.meta is not None
-        if fr.frame_id <= self._last_applied or not all(n in fr.planes for n in fr.meta.rtp_timestamps):
-            return
-        # frames before this one that are still incomplete can never be shown in order
-        for fid in [f for f in self._frames if f <= fr.frame_id]:
-            if fid != fr.frame_id:
-                self.counters["frames_skipped"] += 1
-            del self._frames[fid]
-        self._last_applied = fr.frame_id
-        self.counters["frames_complete"] += 1
-        self._ready.append(fr)
-        while len(self._ready) > MAX_READY_UPDATES:
-            self._ready.popleft()
-            self.counters["updates_dropped_ready"] += 1
+    def _collect(self) -> None:
+        """Move released frames to the display queue."""
+        assert self.rx is not None
+        for rf in self.rx.ready():
+            if rf.update.missing:
+                self.counters["frames_partial"] = self.counters.get("frames_partial", 0) + 1
+            else:
+                self.counters["frames_complete"] += 1
+            self._ready.append(rf)
+            while len(self._ready) > MAX_READY_UPDATES:
+                dropped = self._ready.popleft()
+                self.counters["updates_dropped_ready"] += 1
+                self._pending_apply.append(dropped)  # still applied (in order) so the half's state stays consistent
 
     # ------------------------------------------------------------------ RTCP out
 
@@ -478,47 +451,52 @@ class LiveClient:
             await asyncio.sleep(RTCP_TICK_S)
             now = time.monotonic()
             now_ms = now * 1000
-            for rx in self.streams.values():
-                self._queue_units(rx, rx.jitter.poll(now_ms))
+            assert self.rx is not None
+            self._queue_work(self.rx.poll(wall_us() / 1000))
+            self._collect()
             if not self._rtp_seen:
                 if now - last_bind >= BIND_INTERVAL_S:
                     last_bind = now
-                    self._send_rtcp([ReceiverReport(0, tuple(ReportBlock(s.ssrc, 0, 0, 0, 0)
-                                                             for s in self.streams.values()))])
+                    self._send_rtcp([self._empty_rr()])
                 continue
             out: list[Any] = []
             if now - last_rr >= cfg.rr_interval_s:
                 last_rr = now
-                out.append(ReceiverReport(0, tuple(s.stats.report_block(now_ms) for s in self.streams.values())))
-            for rx in self.streams.values():
+                out.append(ReceiverReport(0, tuple(s.stats.report_block(now_ms) for s in self.rx.streams.values()
+                                                   if s.stats is not None)))
+            for rx in self.rx.streams.values():
+                if rx.jitter is None:
+                    continue
                 nack = self._nack_list(rx, now_ms)
                 if nack:
                     out.append(GenericNack(0, rx.ssrc, tuple(nack)))
                     self.counters["nacks_sent"] += 1
                     self.counters["nacked_packets"] += len(nack)
-                started = rx.first_packet_ms is not None and now_ms - rx.first_packet_ms >= cfg.pli_interval_ms
-                if ((rx.jitter.needs_keyframe and (started or rx.jitter.frames_emitted)) or rx.decode_broken) \
-                        and now_ms - rx.last_pli_ms >= cfg.pli_interval_ms:
-                    rx.last_pli_ms = now_ms
+                first = self._first_packet_ms.get(rx.name)
+                started = first is not None and now_ms - first >= cfg.pli_interval_ms
+                if rx.kind == "video" and ((rx.jitter.needs_keyframe and (started or rx.jitter.frames_emitted)) or rx.broken) \
+                        and now_ms - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
+                    self._last_pli_ms[rx.name] = now_ms
                     out.append(PictureLossIndication(0, rx.ssrc))
                     self.counters["plis_sent"] += 1
             if out:
                 self._send_rtcp(out)
 
-    def _nack_list(self, rx: _StreamRx, now_ms: float) -> list[int]:
+    def _nack_list(self, rx: Any, now_ms: float) -> list[int]:
         cfg = self.cfg
         missing = set(rx.jitter.missing())
-        for seq in [s for s in rx.holes if s not in missing]:
-            del rx.holes[seq]
+        holes = self._holes.setdefault(rx.name, {})
+        for seq in [s for s in holes if s not in missing]:
+            del holes[seq]
         out = []
         for seq in missing:
-            first, last, tries = rx.holes.get(seq, (now_ms, -math.inf, 0))
+            first, last, tries = holes.get(seq, (now_ms, -math.inf, 0))
             if (tries < cfg.nack_max_tries and now_ms - first >= cfg.nack_delay_ms
                     and now_ms - last >= cfg.nack_retry_ms):
                 out.append(seq)
-                rx.holes[seq] = (first, now_ms, tries + 1)
+                holes[seq] = (first, now_ms, tries + 1)
             else:
-                rx.holes.setdefault(seq, (first, last, tries))
+                holes.setdefault(seq, (first, last, tries))
         return out
 
     # ------------------------------------------------------------------ display
@@ -530,7 +508,8 @@ class LiveClient:
         start = loop.time()
         n = int(cfg.duration_s * cfg.display_hz)
         half = self._half
-        shown: _Frame | None = None
+        shown: _Shown | None = None
+        before_content: list[tuple[int, float, ScenePose]] = []
         saves: list[asyncio.Future[None]] = []
         for tick in range(n):
             delay = start + tick * interval - loop.time()
@@ -539,18 +518,33 @@ class LiveClient:
             elif delay < -interval:
                 self.counters["late_ticks"] += 1
                 continue  # more than a tick late: skip it rather than bunch renders up
-            new = list(self._ready)
+            new = [*self._pending_apply, *self._ready]
+            self._pending_apply.clear()
             self._ready.clear()
-            if new:
-                shown = new[-1]
+            useful = [f for f in new if f.update.complete or f.update.planes or f.update.data]
+            if useful and (shown is None or useful[-1].update.frame_id != shown.frame_id):
+                shown = _Shown(useful[-1])  # a frame that lost everything shows nothing new
             if shown is None or self._server_epoch_s is None:
+                # nothing to show yet: the black background, recorded (and scored) once the server clock is known
+                w = time.time()
+                before_content.append((tick, w, self._trace_pose(w)))
                 continue
+            for b_tick, b_wall, b_pose in before_content:
+                row = self._empty_row(len(self.rows), b_tick, b_wall - self._t0_wall, b_wall - self._server_epoch_s, b_pose,
+                                      int(b_wall * 1e6))
+                self.rows.append(row)
+                if cfg.save_images and cfg.out_dir is not None:
+                    black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
+                    saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], black,
+                                                      np.ones((cfg.height, cfg.width), bool)))
+            before_content.clear()
             tick_wall = time.time()
             pose = self._trace_pose(tick_wall)
             trace_t = tick_wall - self._t0_wall
             scene_t = tick_wall - self._server_epoch_s
-            updates = [DecodedUpdate(f.frame_id, float(f.blob["t_s"]), ScenePose.from_list(f.blob["pose"]),  # type: ignore[index]
-                                     f.planes, f.blob["m"]) for f in new]  # type: ignore[index]
+            updates = [f.update for f in new]
+            rx = self.rx
+            assert rx is not None
 
             def show() -> tuple[Any, float, float]:
                 w0 = time.perf_counter()
@@ -560,6 +554,8 @@ class LiveClient:
                     except RemoteProtocolError as exc:  # a malformed update: keep the last good state
                         self.counters["apply_errors"] = self.counters.get("apply_errors", 0) + 1
                         logger.warning("session %s: update %d rejected by the client half: %s", self.session_id, u.frame_id, exc)
+                    else:
+                        rx.tracker.on_applied(u.frame_id, [*u.planes, *u.data])
                 w1 = time.perf_counter()
                 frame = half.render(pose, scene_t)
                 return frame, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
@@ -584,10 +580,18 @@ class LiveClient:
         await asyncio.gather(*saves)
         raise _RunDone()
 
-    def _row(self, index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, fr: _Frame,
+    @staticmethod
+    def _empty_row(index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, displayed_us: int) -> dict[str, Any]:
+        """A display tick before the first update (shown as the black background)."""
+        p = pose.to_list()
+        nan = math.nan
+        return {"frame": index, "t_s": trace_t, "update_frame_id": -1, "update_age_ms": nan, "motion_to_photon_ms": nan,
+                "client_ms": nan, "decode_ms": nan, "tick": tick, "scene_t_s": scene_t, "displayed_us": displayed_us,
+                "px": p[0], "py": p[1], "pz": p[2], "qx": p[3], "qy": p[4], "qz": p[5], "qw": p[6]}
+
+    def _row(self, index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, fr: _Shown,
              displayed_us: int, client_ms: float) -> dict[str, Any]:
-        assert fr.meta is not None and fr.blob is not None
-        timing = fr.blob.get("timing_us", {})
+        timing = fr.frame.env.timing_us
         server_us = fr.meta.server_time_us
         encoded_at = int(timing.get("encoded_at", server_us))
         p = pose.to_list()
@@ -603,16 +607,17 @@ class LiveClient:
             "meta_network_ms": (fr.meta_us - encoded_at) / 1000.0,
             "wait_display_ms": (displayed_us - fr.decoded_us) / 1000.0 - client_ms,
             "pose_uplink_age_ms": (server_us - fr.meta.pose.client_time_us) / 1000.0,
-            "keyframe": int(fr.meta.keyframe),
+            "keyframe": int(fr.meta.keyframe), "missing": ";".join(sorted(fr.frame.update.missing)),
         }
         return row
 
-    async def _feedback(self, fr: _Frame, displayed_us: int) -> None:
-        assert self.channel is not None and fr.meta is not None and fr.blob is not None
-        timing = fr.blob.get("timing_us", {})
+    async def _feedback(self, fr: _Shown, displayed_us: int) -> None:
+        assert self.channel is not None and self.rx is not None
+        timing = fr.frame.env.timing_us
         server = {k: int(v) for k, v in timing.items() if k in ("render", "encode", "encoded_at")}
+        applied, lost = self.rx.tracker.take()
         await self.channel.send(Feedback(fr.frame_id, fr.received_us, fr.decoded_us, displayed_us, 0,
-                                         fr.meta.pose.client_time_us, server))
+                                         fr.meta.pose.client_time_us, server, applied, lost))
 
     # ------------------------------------------------------------------ recording
 

@@ -481,6 +481,8 @@ class WarpClient(ClientHalf):
 
     # ------------------------------------------------------------------ cache
     def apply(self, update: DecodedUpdate) -> None:
+        if update.missing:  # a reference view without its colour or depth cannot be warped: keep the last one
+            return
         frame = parse_update(update, self.config, self.ref_intr)
         n_ids = 1 + max([int(v.ids.max(initial=0)) for v in frame.views] + list(frame.model) + [0])
         if n_ids > self._max_ids:  # the warp matrices are one texture row per id

@@ -169,6 +169,8 @@ class ClientPipeline:
         self._chunks: dict[tuple[str, int], bytearray] = {}
         self._reliable: dict[int, dict[str, bytes]] = {}
         self._last_released = -1
+        self.last_envelope: Envelope | None = None
+        """The newest ``FrameMeta`` envelope parsed (the live client reads the server clock from it)."""
         self.tracker = FeedbackTracker()
         self.counters: dict[str, int] = {
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_given_up": 0, "decode_errors": 0,
@@ -219,6 +221,7 @@ class ClientPipeline:
         blob = msg.method_meta if isinstance(msg.method_meta, bytes) else b""
         self.counters["meta_bytes"] += len(blob)
         env = parse_envelope(blob, self.meta_max_bytes)
+        self.last_envelope = env
         for name in (*msg.rtp_timestamps, *env.reliable):
             rx = self.streams.get(name)
             if rx is None or (rx.kind == "reliable") != (name in env.reliable):

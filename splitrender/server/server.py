@@ -68,6 +68,8 @@ class ServerConfig:
     ``mirror_port`` each stream is also copied to ``127.0.0.1:mirror_port + 2k`` so
     ``ffplay -protocol_whitelist file,udp,rtp -i <sdp>`` can watch it.
     ``out_dir``: write each session's Feedback rows (per-frame latency) there.
+    ``max_session_bytes``: a method whose session data is larger fails that session
+    with an error naming the limit.
     """
 
     host: str = "127.0.0.1"
@@ -91,6 +93,7 @@ class ServerConfig:
     sdp_dir: Path | None = None
     mirror_port: int | None = None
     out_dir: Path | None = None
+    max_session_bytes: int = 256 * 1024 * 1024
 
 
 def check_method_params(methods: Sequence[str], params: dict[str, dict[str, Any]]) -> None:
@@ -147,6 +150,8 @@ class LiveServer:
         self.encode_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-enc")
         self.renderer: Any = None
         self.scene: Any = None
+        self.producers: Any = None
+        """The scene producers shared by every session (:class:`~splitrender.pipeline.ProducerPool`; GL thread only)."""
         self.sessions: dict[str, ServerSession] = {}
         self._by_ssrc: dict[int, ServerSession] = {}
         self._tasks: set[asyncio.Task[None]] = set()
@@ -160,6 +165,10 @@ class LiveServer:
         self._closed = False
 
     # -- scene clock ---------------------------------------------------------------
+
+    def tick_of(self, wall_s: float) -> int:
+        """Index of the shared server frame clock at ``wall_s`` (every session ticks on this grid)."""
+        return int(round((wall_s - self.epoch_wall_s) * self.config.server_fps))
 
     def scene_time_s(self, wall_s: float | None = None) -> float:
         """Scene time (s) at wall-clock ``wall_s`` (default now)."""
@@ -211,6 +220,9 @@ class LiveServer:
         self.tcp_address = (sock[0], sock[1])
         self.scene = get_scene(cfg.scene)
         self.renderer = await self.in_gl(Renderer)
+        from splitrender.pipeline import ProducerPool
+
+        self.producers = ProducerPool(self.scene, cfg.server_fps, self.renderer)
         await self.in_gl(self._warm_up)
         await self._tcp.start_serving()
         logger.info("serving %s on tcp %s:%d, udp %s:%d (methods %s)", cfg.scene, *self.tcp_address,

@@ -30,9 +30,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from splitrender.codecs.meta import pack_meta
-from splitrender.codecs.video import VideoEncoder
 from splitrender.errors import LocalProtocolError, RemoteProtocolError, SplitRenderError
-from splitrender.methods.base import ClientFeedback, ServerContext, StreamSpec, get_method, make_config
+from splitrender.methods.base import AnyStreamSpec, ServerContext, StreamSpec, get_method, make_config
+from splitrender.pipeline import FeedbackState, ServerPipeline, SessionDataError, rtp_timestamp
+from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol import (
     Bye,
     ErrorCode,
@@ -72,15 +73,8 @@ __all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE"]
 
 logger = logging.getLogger(__name__)
 
-FIRST_PAYLOAD_TYPE = 96
-"""Dynamic RTP payload type of a session's first stream (then 97, 98, ...)."""
 MAX_NACKED_PER_REQUEST = 128
 """Most packets resent for one generic NACK."""
-DEFAULT_DECODE_MS = 5.0
-"""Client decode time assumed before feedback arrives, ms."""
-LATENCY_EMA = 0.1
-"""Weight of each new feedback sample in the expected-latency estimate."""
-MAX_EXPECTED_LATENCY_S = 1.0
 
 
 def _describe(exc: BaseException) -> str:
@@ -98,10 +92,11 @@ class _SessionEnded(Exception):
 
 @dataclass
 class _Stream:
-    spec: StreamSpec
+    """One RTP stream of the session (video or datagram data): RTCP state beside the pipeline's packetizer."""
+
+    spec: AnyStreamSpec
     ssrc: int
     payload_type: int
-    encoder: VideoEncoder
     packetizer: RtpPacketizer
     history: RetransmissionHistory
     mirror: Address | None = None
@@ -109,11 +104,11 @@ class _Stream:
 
 
 def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, scene: str,
-                   session_blob: bytes, streams: list[StreamSpec]) -> dict[str, Any]:
+                   tx: ServerPipeline, session_blob: bytes) -> dict[str, Any]:
     """The ``Welcome.method_params`` map of a live session (documented in docs/protocol.md)."""
     cfg = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
     return {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
-            "session_data": session_blob, "stream_formats": {s.name: s.codec.input_format for s in streams}}
+            **tx.welcome_params(session_blob)}
 
 
 class ServerSession:
@@ -138,13 +133,15 @@ class ServerSession:
         self._kf = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
         self._kf_wanted = False
         self._frame_id = 0
-        self._expected_latency_s = 0.0
-        self._frames: dict[int, int] = {}  # frame id -> server t_us, for latency feedback
+        self.tx: ServerPipeline | None = None
+        self._last_tick = -1
+        self.fb: FeedbackState | None = None
         self.feedback_rows: list[dict[str, Any]] = []
         self.counters: dict[str, int] = {
             "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
             "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
-            "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0,
+            "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0, "data_bytes": 0, "session_bytes": 0,
+            "lost_reported": 0,
         }
         self.rtt_ms: float | None = None
 
@@ -229,6 +226,10 @@ class ServerSession:
             return False
         try:
             await self.channel.send(welcome)
+            assert self.tx is not None
+            frames = self.tx.session_frames(self._session_blob, self.channel.conn.send)
+            await self.channel.write_frames([f for _, f in frames])
+            self.counters["session_bytes"] = sum(len(f) for _, f in frames)
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
             return False
@@ -255,31 +256,34 @@ class ServerSession:
         self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
         self._predictor = make_predictor(cfg.predictor)
-        self._expected_latency_s = 0.02 + DEFAULT_DECODE_MS / 1000 + 0.5 / self.display_hz
+        self.fb = FeedbackState(self.display_hz)
         server = self.server
-        self.half = await server.in_gl(spec.server, mcfg, self.intrinsics, server.scene, cfg.server_fps)
-        specs: list[StreamSpec] = self.half.streams()
-        session_blob = pack_meta(self.half.session_data())
-        descs = []
-        for k, s in enumerate(specs):
-            ssrc = secrets.randbits(32)
-            while server.ssrc_taken(ssrc) or ssrc in (st.ssrc for st in self.streams.values()):
-                ssrc = secrets.randbits(32)
-            pt = FIRST_PAYLOAD_TYPE + k
-            encoder = await server.in_encoder(VideoEncoder, s.codec, s.width, s.height)
-            stream = _Stream(s, ssrc, pt, encoder,
-                             RtpPacketizer(s.codec.codec, ssrc, pt, cfg.mtu_bytes, secrets.randbits(16)),
-                             RetransmissionHistory(cfg.history_packets))
-            self.streams[s.name] = stream
-            host, port = server.udp_address
-            sdp = make_sdp(s.codec.codec, port, pt, address=host if host != "0.0.0.0" else "127.0.0.1",
-                           session_name=f"splitrender {self.id} {s.name}")
-            descs.append(StreamDescription(s.name, s.codec.codec, ssrc, pt, port, sdp))
-            self._write_sdp(stream)
-        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, session_blob, specs)
-        welcome = Welcome(self.id, self.method, params_out, tuple(descs))
-        if len(welcome.encode()) > 60 * 1024:
-            raise RemoteProtocolError(f"method {self.method}: session data too large for Welcome", ErrorCode.INTERNAL)
+
+        def build() -> tuple[Any, list[AnyStreamSpec], bytes]:
+            producer = server.producers.producer(spec, mcfg) if server.producers is not None else None
+            half = spec.server_class(mcfg, self.intrinsics, server.scene, cfg.server_fps, producer=producer)
+            return half, half.streams(), pack_meta(half.session_data())
+
+        self.half, specs, session_blob = await server.in_gl(build)
+        if len(session_blob) > cfg.max_session_bytes:
+            raise SessionDataError(f"method {self.method}: session data of {len(session_blob)} bytes exceeds this "
+                                   f"server's limit of {cfg.max_session_bytes} bytes (max_session_bytes)")
+        for s in specs:
+            if isinstance(s, StreamSpec) and s.codec.codec not in hello.codecs:
+                raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
+                                          f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
+        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken)
+        host, port = server.udp_address
+        descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
+        for st in self.tx.rtp_streams:
+            assert st.packetizer is not None
+            stream = _Stream(st.spec, st.ssrc, st.payload_type, st.packetizer, RetransmissionHistory(cfg.history_packets))
+            self.streams[st.spec.name] = stream
+            if isinstance(st.spec, StreamSpec):
+                self._write_sdp(stream)
+        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, self.tx, session_blob)
+        welcome = Welcome(self.id, self.method, params_out, descs)
+        self._session_blob = session_blob
         server.register(self, [s.ssrc for s in self.streams.values()])
         return welcome
 
@@ -292,6 +296,7 @@ class ServerSession:
             stream.mirror = ("127.0.0.1", mirror)
         path = self.cfg.sdp_dir / f"{self.id}_{stream.spec.name}.sdp"
         path.parent.mkdir(parents=True, exist_ok=True)
+        assert isinstance(stream.spec, StreamSpec)
         path.write_text(make_sdp(stream.spec.codec.codec, port, stream.payload_type,
                                  session_name=f"splitrender {self.id} {stream.spec.name}"))
         logger.info("session %s: wrote %s (stream %s on udp port %d)", self.id, path, stream.spec.name, port)
@@ -331,16 +336,16 @@ class ServerSession:
 
     def _on_feedback(self, fb: Feedback) -> None:
         self.counters["feedback"] += 1
-        t_us = self._frames.get(fb.frame_id)
-        if t_us is not None:
-            lat = (fb.displayed_us - t_us) / 1e6
-            if 0.0 <= lat <= MAX_EXPECTED_LATENCY_S:
-                self._expected_latency_s += LATENCY_EMA * (lat - self._expected_latency_s)
+        assert self.fb is not None
+        t_us = self.fb.server_time_us(fb.frame_id)
+        self.fb.on_feedback(fb)
+        self.counters["lost_reported"] += sum(len(v) for v in fb.lost.values())
         row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": t_us if t_us is not None else "",
                                "received_us": fb.received_us, "decoded_us": fb.decoded_us,
                                "displayed_us": fb.displayed_us, "pose_time_us": fb.pose_time_us,
                                "lost_packets": fb.lost_packets,
-                               "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0}
+                               "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0,
+                               "lost_frames": ";".join(f"{k}:{','.join(map(str, v))}" for k, v in fb.lost.items())}
         row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items()})
         if len(self.feedback_rows) < 1_000_000:
             self.feedback_rows.append(row)
@@ -356,7 +361,10 @@ class ServerSession:
     async def _frame_loop(self) -> None:
         loop = asyncio.get_running_loop()
         interval = 1.0 / self.cfg.server_fps
-        next_t = loop.time()
+        # tick on the server's shared frame grid (scene time k / server_fps) so sessions share producer work
+        wall_now = time.time()
+        next_t = loop.time() + (self.server.tick_of(wall_now) + 1) / self.cfg.server_fps \
+            - (wall_now - self.server.epoch_wall_s)
         while True:
             delay = next_t - loop.time()
             if delay > 0:
@@ -375,17 +383,21 @@ class ServerSession:
             await self._send_frame()
 
     async def _send_frame(self) -> None:
-        server, intr = self.server, self.intrinsics
+        server, intr, tx, fbs = self.server, self.intrinsics, self.tx, self.fb
         assert intr is not None and self._latest_pose is not None and self.client_addr is not None
+        assert tx is not None and fbs is not None
         wall = time.time()
+        tick = max(server.tick_of(wall), self._last_tick + 1)  # never two frames on one tick
+        self._last_tick = tick
         t_us = int(wall * 1e6)
-        scene_t = server.scene_time_s(wall)
+        scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
         epoch = server.epoch_wall_s
         kf = self._kf_wanted or self._kf.poll(time.monotonic() * 1000)
         self._kf_wanted = False
+        expected = fbs.latency.value_s
         with self._pred_lock:
             pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
-            target_wall = wall + self._expected_latency_s
+            target_wall = wall + expected
             target_pose = self._predictor.predict(target_wall)
 
         def predict(t_scene: float) -> ScenePose:
@@ -395,62 +407,43 @@ class ServerSession:
         ctx = ServerContext(
             frame_id=self._frame_id, t_s=scene_t, scene=server.scene, renderer=server.renderer, intrinsics=intr,
             latest_pose=latest_pose, latest_pose_t_s=pose_wall - epoch, target_pose=target_pose,
-            target_t_s=target_wall - epoch, predict=predict, expected_latency_s=self._expected_latency_s,
-            keyframe_requested=kf, feedback=ClientFeedback(keyframe_requested=kf),
+            target_t_s=target_wall - epoch, predict=predict, expected_latency_s=expected,
+            keyframe_requested=kf, feedback=fbs.snapshot(kf),
         )
-        half = self.half
+        half, method = self.half, self.method
 
-        def render() -> tuple[Any, float]:
+        def render() -> tuple[Any, float, float]:
             w0 = time.perf_counter()
+            ctx.shared = server.producers.prepare(method, tick, scene_t) if server.producers is not None else None
+            w1 = time.perf_counter()
             upd = half.produce(ctx)
-            return upd, (time.perf_counter() - w0) * 1e6
+            return upd, (time.perf_counter() - w1) * 1e6, (w1 - w0) * 1e6
 
-        upd, render_us = await server.in_gl(render)
+        upd, render_us, shared_us = await server.in_gl(render)
         force = bool(upd.force_idr or kf)
-        streams = self.streams
-
-        def encode() -> tuple[dict[str, Any], float]:
-            w0 = time.perf_counter()
-            out = {name: streams[name].encoder.encode(plane, force_idr=force)
-                   for name, plane in upd.planes.items() if name in streams}
-            return out, (time.perf_counter() - w0) * 1e6
-
-        encoded, encode_us = await server.in_encoder(encode)
-        encoded_at = wall_us()
-        rtp_ts = int(round(scene_t * 90000)) & 0xFFFFFFFF
-        timing = {"render": int(render_us), "encode": int(encode_us), "encoded_at": encoded_at}
-        blob = pack_meta({"t_s": upd.t_s, "pose": upd.pose.to_list(), "m": upd.meta,
-                          "target_t_s": ctx.target_t_s, "timing_us": timing, "srv": self.half.stats()})
-        keyframe = bool(encoded) and all(e.keyframe for e in encoded.values())
-        q = upd.pose.orientation
-        meta = FrameMeta(
-            frame_id=self._frame_id, server_time_us=t_us, rtp_timestamps={n: rtp_ts for n in encoded},
-            pose=Pose(pose_us, pose_seq, tuple(float(v) for v in upd.pose.position),  # type: ignore[arg-type]
-                      tuple(float(v) for v in q)),  # type: ignore[arg-type]
-            method_meta=blob, keyframe=keyframe,
-        )
-        # metadata first (reliable), then the video; both were decided together so a
-        # frame is either sent whole or not at all
-        await self.channel.send(meta, drain=False)
-        self.counters["meta_bytes"] += len(blob)
-        if any(e.keyframe for e in encoded.values()):
+        enc = await server.in_encoder(tx.encode, upd, force)
+        timing = {"render": int(render_us), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
+                  "shared": int(shared_us)}
+        rtp_ts = rtp_timestamp(scene_t)
+        # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
+        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, ctx.target_t_s, timing,
+                           half.stats())
+        await self.channel.write_frames([f for _, f in out.control], drain=False)
+        fbs.frame_sent(self._frame_id, t_us)
+        self.counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
+        self.counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
+        if out.keyframe or any(e.keyframe for e in enc.video.values()):
             self.counters["keyframes"] += 1
             self._kf.keyframe_sent(time.monotonic() * 1000)
-        for name, ef in encoded.items():
-            st = streams[name]
+        for name, pkt, data in out.datagrams:
+            st = self.streams[name]
             st.last_rtp_ts = rtp_ts
-            for pkt in st.packetizer.packetize(ef.data, rtp_ts):
-                data = bytes(pkt)
-                st.history.store(pkt)
-                server.send_datagram(data, self.client_addr)
-                if st.mirror is not None:
-                    server.send_datagram(data, st.mirror)
-                self.counters["rtp_packets"] += 1
-                self.counters["rtp_bytes"] += len(data)
-        self._frames[self._frame_id] = t_us
-        if len(self._frames) > 512:
-            for k in list(self._frames)[: len(self._frames) - 512]:
-                del self._frames[k]
+            st.history.store(pkt)
+            server.send_datagram(data, self.client_addr)
+            if st.mirror is not None:
+                server.send_datagram(data, st.mirror)
+            self.counters["rtp_packets"] += 1
+            self.counters["rtp_bytes"] += len(data)
         self.counters["frames_sent"] += 1
         self._frame_id += 1
 

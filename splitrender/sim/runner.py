@@ -138,12 +138,6 @@ def _fmt(v: Any) -> Any:
     return v
 
 
-def _packets(nbytes: int, mtu: int) -> list[int]:
-    n = max(1, math.ceil(nbytes / mtu))
-    sizes = [mtu] * (n - 1) + [nbytes - mtu * (n - 1)]
-    return [s + RTP_OVERHEAD_BYTES for s in sizes]
-
-
 class _ShiftedTrace:
     """A trace seen ``offset_s`` later (client ``i`` of a many-client run)."""
 
@@ -466,7 +460,7 @@ class VirtualTimeRun:
         self._at(arrive, _DELIVER, self._server_receive, c, data)
 
     def _display_tick(self, di: int, n_display: int, result: RunResult) -> None:
-        cfg, t_d = self.cfg, di / self.cfg.client_fps
+        t_d = di / self.cfg.client_fps
         for c in self.clients:
             self._display_one(c, di, t_d, result)
         if self.progress:

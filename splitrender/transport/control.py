@@ -67,6 +67,17 @@ class ControlChannel:
             if drain:
                 await self.writer.drain()
 
+    async def write_frames(self, frames: list[bytes], drain: bool = True) -> None:
+        """Write control frames already framed by ``self.conn`` (the pipeline frames and counts them)."""
+        async with self._lock:
+            if self.writer.is_closing():
+                raise ConnectionResetError("control connection is closed")
+            for data in frames:
+                self.writer.write(data)
+                self.bytes_sent += len(data)
+            if drain:
+                await self.writer.drain()
+
     async def send_error(self, exc: RemoteProtocolError | int, text: str = "") -> None:
         """Best-effort ``Error`` message (ignores a peer that is already gone)."""
         try:
