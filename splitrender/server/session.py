@@ -137,6 +137,8 @@ class ServerSession:
         self._last_tick = -1
         self.fb: FeedbackState | None = None
         self.feedback_rows: list[dict[str, Any]] = []
+        self.update_rows: list[dict[str, Any]] = []
+        """One row per frame sent: wire bytes per stream (as the virtual-time runner's updates.csv)."""
         self.counters: dict[str, int] = {
             "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
             "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
@@ -444,6 +446,12 @@ class ServerSession:
                 server.send_datagram(data, st.mirror)
             self.counters["rtp_packets"] += 1
             self.counters["rtp_bytes"] += len(data)
+        if len(self.update_rows) < 1_000_000:
+            row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
+                                   "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,
+                                   "encode_ms": enc.encode_ms, "expected_latency_ms": expected * 1000}
+            row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
+            self.update_rows.append(row)
         self.counters["frames_sent"] += 1
         self._frame_id += 1
 
@@ -494,11 +502,12 @@ class ServerSession:
     # ------------------------------------------------------------------ records
 
     def _write_feedback(self) -> None:
-        if self.cfg.out_dir is None or not self.feedback_rows:
+        if self.cfg.out_dir is None or not (self.feedback_rows or self.update_rows):
             return
         from splitrender.sim.runner import write_csv
 
         d = self.cfg.out_dir / self.id
         d.mkdir(parents=True, exist_ok=True)
         write_csv(d / "feedback.csv", self.feedback_rows)
+        write_csv(d / "updates.csv", self.update_rows)
         write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan)])

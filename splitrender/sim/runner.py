@@ -308,6 +308,7 @@ class VirtualTimeRun:
         pool = ProducerPool(self.scene, cfg.server_fps, self.renderer)
         clients = [self._setup(i, seeds, pool) for i in range(cfg.clients)]
         self.clients = clients
+        self.pool = pool
         result = RunResult(cfg, resolved={"method": dataclasses.asdict(self.mcfg), "network": dataclasses.asdict(self.path)})
         n_server = int(math.floor(self.duration_s * cfg.server_fps)) + 1
         n_display = int(math.floor(self.duration_s * cfg.client_fps)) + 1

@@ -13,8 +13,9 @@ from __future__ import annotations
 from ..base import MethodSpec, register_method
 from .allocator import AtlasLayout, PatchAllocator
 from .client import SasClient
-from .server import SasConfig, SasServer
+from .server import SasConfig, SasProducer, SasServer
 
-SPEC = register_method(MethodSpec("sas", SasServer, SasClient, SasConfig, "shading atlas streaming: shaded PVS patches in a video atlas"))
+SPEC = register_method(MethodSpec("sas", SasServer, SasClient, SasConfig, "shading atlas streaming: shaded PVS patches in a video atlas",
+                                  producer=SasProducer))
 
 __all__ = ["AtlasLayout", "PatchAllocator", "SasClient", "SasConfig", "SasServer", "SPEC"]
