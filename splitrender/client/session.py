@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from splitrender.codecs.meta import unpack_meta
+from splitrender.codecs.meta import parse_update_envelope, unpack_meta
 from splitrender.codecs.video import VideoDecoder
 from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import DecodedUpdate, get_method, make_config
@@ -346,8 +346,8 @@ class LiveClient:
         blob = msg.method_meta if isinstance(msg.method_meta, bytes) else b""
         self.counters["meta_bytes"] += len(blob)
         try:
-            meta = unpack_meta(blob)
-        except CodecError as exc:
+            meta: dict[str, Any] = parse_update_envelope(unpack_meta(blob), "metadata")  # type: ignore[assignment]
+        except CodecError as exc:  # MetaEnvelopeError is one too
             raise _BadMeta(f"FrameMeta {msg.frame_id}: {exc}") from exc
         # both stamps were taken at the same instant on the server's wall clock
         self._server_epoch_s = msg.server_time_us / 1e6 - float(meta.get("t_s", 0.0))
