@@ -76,18 +76,19 @@ def check_msgpack(data: bytes | bytearray | memoryview, limits: MsgpackLimits) -
         objects += 1
         if objects > limits.max_objects:
             raise MsgpackLimitError(f"more than {limits.max_objects} objects (at byte {pos})")
+        start = pos
         b = buf[pos]
         pos += 1
         if b <= 0x7f or b >= 0xe0:
             continue
-        if b <= 0x8f or 0x90 <= b <= 0x9f:  # fixmap / fixarray
+        if b <= 0x9f:  # fixmap 0x80.., fixarray 0x90..
             count = b & 0x0f
             kind = "map" if b <= 0x8f else "array"
         elif b <= 0xbf:  # fixstr
             length = b & 0x1f
             pos += length
             if length > limits.max_str_len:
-                raise MsgpackLimitError(f"str of {length} bytes exceeds {limits.max_str_len}")
+                raise MsgpackLimitError(f"str of {length} bytes exceeds {limits.max_str_len} (at byte {start})")
             continue
         elif b in _FIXED:
             pos += _FIXED[b]
@@ -95,7 +96,7 @@ def check_msgpack(data: bytes | bytearray | memoryview, limits: MsgpackLimits) -
         elif b in _SIZED:
             kind, width = _SIZED[b]
             if pos + width > n:
-                raise MsgpackLimitError(f"truncated {kind} header at byte {pos - 1}")
+                raise MsgpackLimitError(f"truncated {kind} header at byte {start}")
             length = _LEN[width].unpack_from(buf, pos)[0]
             pos += width
             if kind in ("array", "map"):
@@ -103,20 +104,20 @@ def check_msgpack(data: bytes | bytearray | memoryview, limits: MsgpackLimits) -
             else:
                 cap = {"bin": limits.max_bin_len, "ext": limits.max_ext_len, "str": limits.max_str_len}[kind]
                 if length > cap:
-                    raise MsgpackLimitError(f"{kind} of {length} bytes exceeds {cap} (at byte {pos - width - 1})")
+                    raise MsgpackLimitError(f"{kind} of {length} bytes exceeds {cap} (at byte {start})")
                 pos += length + (1 if kind == "ext" else 0)
                 continue
         else:  # 0xc1, never used
-            raise MsgpackLimitError(f"invalid type byte 0x{b:02x} at byte {pos - 1}")
+            raise MsgpackLimitError(f"invalid type byte 0x{b:02x} at byte {start}")
         cap = limits.max_map_len if kind == "map" else limits.max_array_len
         if count > cap:
-            raise MsgpackLimitError(f"{kind} of {count} entries exceeds {cap} (at byte {pos - 1})")
+            raise MsgpackLimitError(f"{kind} of {count} entries exceeds {cap} (at byte {start})")
         items = 2 * count if kind == "map" else count
         if items > n - pos:  # every item takes at least one byte
-            raise MsgpackLimitError(f"{kind} of {count} entries at byte {pos - 1} is longer than the data")
+            raise MsgpackLimitError(f"{kind} of {count} entries at byte {start} is longer than the data")
         if items:
             if len(stack) > limits.max_depth:
-                raise MsgpackLimitError(f"nested deeper than {limits.max_depth} (at byte {pos - 1})")
+                raise MsgpackLimitError(f"nested deeper than {limits.max_depth} (at byte {start})")
             stack.append(items)
     if pos > n:
         raise MsgpackLimitError(f"truncated: needs {pos} bytes, have {n}")
