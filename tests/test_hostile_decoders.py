@@ -174,6 +174,24 @@ def test_metadata_msgpack_amplification_is_refused() -> None:
     assert dt < 0.25, dt  # a Python scan of 65537 objects; measured 0.05 s
 
 
+def test_metadata_arrays_are_bounded_and_copied_once() -> None:
+    a = np.random.default_rng(0).integers(0, 255, 16 * MB, dtype=np.uint8)
+    blob = pack_meta({"a": a, "b": np.arange(12.0).reshape(3, 4)})
+    err, peak, _ = _peak(lambda: unpack_meta(blob))
+    assert err is None
+    # the decompressed document, msgpack's ext bytes and the array: 3 x 16 MiB (measured 50.4 MB)
+    assert peak < 3 * 16 * MB + 1 * MB, peak
+    out = unpack_meta(blob)
+    assert np.array_equal(out["a"], a) and out["a"].flags.writeable and out["b"].shape == (3, 4)
+    with pytest.raises(CodecError, match=r"^metadata: malformed array header: ValueError: 9 exceeds max_array_len\(8\)$"):
+        unpack_meta(pack_meta({"a": np.zeros((1,) * 9)}))
+    # sizes multiplied in Python ints: 2**32 x 2**32 wraps to 0 in int64, and 0 bytes follow
+    head = msgpack.packb(["|u1", [2**32, 2**32]])
+    raw = msgpack.packb({"a": msgpack.ExtType(1, head)})
+    with pytest.raises(CodecError, match=r"needs 18446744073709551616 bytes, got 0$"):
+        unpack_meta(zstandard.ZstdCompressor().compress(raw))
+
+
 def _frame_meta_body(meta: Any) -> dict[str, Any]:
     return {"frame_id": 1, "t_us": 0, "rtp_ts": {}, "pose": {"t_us": 0, "seq": 0, "p": [0.0, 0.0, 0.0],
                                                                 "q": [0.0, 0.0, 0.0, 1.0]},

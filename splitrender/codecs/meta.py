@@ -34,6 +34,7 @@ META_LIMITS = MsgpackLimits(max_objects=65536, max_array_len=65536, max_map_len=
 bounding the Python objects a blob can create to a few MB."""
 _ARRAY_HEADER_LIMITS = MsgpackLimits(max_objects=2 + MAX_NDIM, max_array_len=MAX_NDIM, max_map_len=0,
                                      max_str_len=8, max_bin_len=0, max_ext_len=0, max_depth=2)
+_ARRAY_HEADER_MAX = 128  # bytes: [dtype, shape] with 8 uint64 sizes takes at most 80
 _ALLOWED_DTYPES = {"|u1", "|i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8", "<f2", "<f4", "<f8", "|b1"}
 
 
@@ -59,8 +60,8 @@ def _default(obj: Any) -> Any:
 def _ext_hook(code: int, data: bytes) -> Any:
     if code != NDARRAY_EXT:
         raise CodecError(f"metadata: unknown msgpack extension type {code}")
-    up = msgpack.Unpacker(max_buffer_size=len(data) + 16, **_ARRAY_HEADER_LIMITS.unpacker_kwargs())
-    up.feed(data)
+    up = msgpack.Unpacker(max_buffer_size=_ARRAY_HEADER_MAX, **_ARRAY_HEADER_LIMITS.unpacker_kwargs())
+    up.feed(data[:_ARRAY_HEADER_MAX])  # the header only: the payload is not copied into the unpacker
     try:
         dt, shape = next(up)
     except Exception as exc:
@@ -69,7 +70,7 @@ def _ext_hook(code: int, data: bytes) -> Any:
             or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)):
         raise CodecError(f"metadata: bad array header dtype={dt!r} shape={shape!r}"[:200])
     off = up.tell()
-    raw = data[off:]
+    raw = memoryview(data)[off:]  # no copy: the .copy() below is the only one
     n = 1
     for s in shape:  # Python ints: no int64 wrap
         n *= s
