@@ -266,3 +266,55 @@ async def test_server_cancel_ends_every_session_cleanly() -> None:
     bad = [w for w in caught if "pending" in str(w.message) or "never awaited" in str(w.message)
            or issubclass(w.category, ResourceWarning)]
     assert not bad, [str(w.message) for w in bad]
+
+
+async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 16: a server whose FrameMeta for one session carries a zstd bomb (a frame
+    declaring 512 MiB) ends that client's session with a protocol error, without the
+    client allocating it, while a second session on the same server keeps streaming."""
+    import resource
+
+    from splitrender.codecs import meta as meta_codec
+    from splitrender.errors import RemoteProtocolError
+
+    bomb = b"\x28\xb5\x2f\xfd\xe0" + (512 << 20).to_bytes(8, "little") + b"\x09\x00\x00\x80"
+    real_pack = meta_codec.pack_meta
+
+    def pack(meta: dict, *args: object, **kwargs: object) -> bytes:
+        # the atw session's per-frame metadata becomes the bomb; session data and video's stay real
+        if "t_s" in meta and "fov_y_deg" in meta.get("m", {}):
+            return bomb
+        return real_pack(meta, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr("splitrender.pipeline.wire.pack_meta", pack)
+    cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", server_fps=30)
+    async with LiveServer(cfg) as server:
+        serve_task = asyncio.create_task(server.serve_forever())
+        good = asyncio.create_task(LiveClient(ClientConfig(
+            port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=3.0)).run())
+        await asyncio.sleep(1.0)
+        rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MB
+        bad = LiveClient(ClientConfig(port=server.tcp_address[1], methods=("atw",), width=160, height=90,
+                                      display_hz=30, duration_s=10.0))
+        with pytest.raises(RemoteProtocolError) as info:
+            await asyncio.wait_for(bad.run(), 10.0)
+        growth = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - rss0
+        assert str(info.value) == ("FrameMeta 0: metadata: zstd frame declares 536870912 bytes, "
+                                   "over the limit of 67108864"), info.value
+        assert bad.counters["frames_meta"] == 1 and bad.counters["frames_complete"] == 0, bad.counters
+        # the peak RSS of this process did not take the 512 MiB (before the fix: +512 MB)
+        assert growth < 128, growth
+        result = await good
+        for _ in range(50):  # the server notices the bad client's close
+            if not server.sessions:
+                break
+            await asyncio.sleep(0.05)
+        assert not server.sessions
+        serve_task.cancel()
+        await asyncio.gather(serve_task, return_exceptions=True)
+    c = result.counters
+    assert c["frames_complete"] >= 30 * 3.0 / 3, c  # a third of 30 fps on 2 shared cores
+    assert c["decode_errors"] == 0 and c["frames_skipped"] == 0, c
+    ids = [r["update_frame_id"] for r in result.rows]
+    times = [r["displayed_us"] for k, r in enumerate(result.rows) if k == 0 or ids[k] != ids[k - 1]]
+    assert max(b - a for a, b in zip(times, times[1:])) < 1_000_000  # never stalled for a GOP

@@ -290,7 +290,7 @@ def test_client_rejects_malformed_metadata() -> None:
     bad(r"'uv_id' must be in 0\.\.", uv_id=with_value("uv_id", -1))
     bad(r"'drop' must be in 0\.\.", drop=np.array([-1], np.int32))
     bad(r"'pvs' must be in 0\.\.", pvs=np.array([2**31 - 1], np.int32))
-    bad("'xf' has non-finite values", xf=np.full_like(u.meta["xf"], np.nan))
+    bad("'xf' has values that are not finite in float32", xf=np.full_like(u.meta["xf"], np.nan))
     bad("'geo_id' has dtype float64", geo_id=u.meta["geo_id"].astype(np.float64))
     after = (cli.geo, cli.rect, cli.models)
     assert after[0] == before[0] and after[1].keys() == before[1].keys() and np.array_equal(after[2], before[2]), \

@@ -32,6 +32,7 @@ import numpy as np
 import zstandard
 
 from ..errors import CodecError
+from .bounded import bounded_zstd_decompress
 
 CODE_MAX = 65535
 BC4_BLOCK = 8
@@ -160,15 +161,14 @@ def bc4_decode(data: bytes, expect_shape: tuple[int, int] | None = None) -> np.n
         raise CodecError(f"bc4: bad header block={b} size={w}x{h}")
     if expect_shape is not None and (h, w) != tuple(expect_shape):
         raise CodecError(f"bc4: size {w}x{h} does not match the expected {expect_shape[1]}x{expect_shape[0]}")
+    if h * w > BC4_MAX_PIXELS:
+        raise CodecError(f"bc4: size {w}x{h} exceeds the limit of {BC4_MAX_PIXELS} pixels")
     by, bx = -(-h // b), -(-w // b)
     n = by * bx
     need = n * 4 + n * 24
-    try:
-        body = zstandard.ZstdDecompressor().decompress(data[_BC4_HEADER.size:], max_output_size=need)
-    except zstandard.ZstdError as exc:
-        raise CodecError(f"bc4: zstd: {exc}") from exc
-    if len(body) != need:
-        raise CodecError(f"bc4: body is {len(body)} bytes, {w}x{h} needs {need}")
+    # the body size follows from the header: a frame declaring anything else is refused
+    # before decompressing, and one without a declared size is capped at ``need``
+    body = bounded_zstd_decompress(data[_BC4_HEADER.size:], need, "bc4", exact=need)
     ends = np.frombuffer(body[: n * 4], "<u2").reshape(n, 2).astype(np.int64)
     bits = np.unpackbits(np.frombuffer(body[n * 4:], np.uint8).reshape(n, 24), axis=1, bitorder="little").reshape(n, 64, 3)
     idx = (bits[..., 0] | (bits[..., 1] << 1) | (bits[..., 2] << 2)).astype(np.int64)

@@ -220,7 +220,10 @@ class ClientPipeline:
         self.counters["frames_meta"] += 1
         blob = msg.method_meta if isinstance(msg.method_meta, bytes) else b""
         self.counters["meta_bytes"] += len(blob)
-        env = parse_envelope(blob, self.meta_max_bytes)
+        try:
+            env = parse_envelope(blob, self.meta_max_bytes)
+        except EnvelopeError as exc:
+            raise EnvelopeError(f"FrameMeta {msg.frame_id}: {exc}") from None
         self.last_envelope = env
         for name in (*msg.rtp_timestamps, *env.reliable):
             rx = self.streams.get(name)

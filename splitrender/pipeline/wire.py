@@ -15,7 +15,8 @@ from typing import Any
 
 import zstandard
 
-from ..codecs.meta import pack_meta, unpack_meta
+from ..codecs.bounded import bounded_zstd_decompress
+from ..codecs.meta import pack_meta, parse_update_envelope, unpack_meta
 from ..errors import CodecError, RemoteProtocolError
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec
 from ..protocol.errors import ErrorCode
@@ -86,42 +87,21 @@ def pack_envelope(env: Envelope) -> bytes:
                       "srv": {k: float(v) for k, v in env.srv.items()}, "d": list(env.reliable)})
 
 
-def _finite(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise EnvelopeError(f"FrameMeta.meta.{where}: expected a finite number, got {v!r}"[:200])
-    return float(v)
-
-
 def parse_envelope(blob: bytes, max_bytes: int) -> Envelope:
-    """Unpack and validate a ``FrameMeta.meta`` blob; raises :class:`EnvelopeError` naming the field."""
+    """Unpack and validate a ``FrameMeta.meta`` blob (``codecs.meta.parse_update_envelope``
+    for the fields every update has, then the reliable-stream list); raises
+    :class:`EnvelopeError` naming the field."""
     try:
         d = unpack_meta(blob, max_bytes=max_bytes)
-    except CodecError as exc:
-        raise EnvelopeError(f"FrameMeta.meta: {exc}") from None
-    for key in ("t_s", "pose", "m"):
-        if key not in d:
-            raise EnvelopeError(f"FrameMeta.meta: missing field {key!r}")
-    pose = d["pose"]
-    if not isinstance(pose, (list, tuple)) or len(pose) != 7:
-        raise EnvelopeError("FrameMeta.meta.pose: expected 7 numbers (position xyz, quaternion xyzw)")
-    p = [_finite(v, f"pose[{i}]") for i, v in enumerate(pose)]
-    if abs(math.sqrt(sum(v * v for v in p[3:])) - 1.0) > 1e-3:
-        raise EnvelopeError("FrameMeta.meta.pose: quaternion is not unit length")
-    if not isinstance(d["m"], dict):
-        raise EnvelopeError(f"FrameMeta.meta.m: expected a map, got {type(d['m']).__name__}")
-    timing = d.get("timing_us", {})
-    if not isinstance(timing, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool)
-                                               for k, v in timing.items()):
-        raise EnvelopeError("FrameMeta.meta.timing_us: expected a map of names to integers")
-    srv = d.get("srv", {})
-    if not isinstance(srv, dict) or not all(isinstance(k, str) for k in srv):
-        raise EnvelopeError("FrameMeta.meta.srv: expected a map of names to numbers")
+        env = parse_update_envelope(d, "metadata")
+    except CodecError as exc:  # MetaEnvelopeError is one too; texts start with "metadata"
+        raise EnvelopeError(str(exc)) from None
     rel = d.get("d", [])
-    if not isinstance(rel, list) or not all(isinstance(n, str) for n in rel) or len(rel) > 64:
-        raise EnvelopeError("FrameMeta.meta.d: expected a list of at most 64 stream names")
-    return Envelope(_finite(d["t_s"], "t_s"), Pose.from_list(p), d["m"],
-                    _finite(d.get("target_t_s", d["t_s"]), "target_t_s"), dict(timing),
-                    {k: _finite(v, f"srv.{k}") for k, v in srv.items()}, tuple(rel))
+    if not isinstance(rel, list) or len(rel) > 64 or not all(isinstance(n, str) and len(n) <= 64 for n in rel):
+        raise EnvelopeError("metadata.d: expected a list of at most 64 stream names")
+    target = env["target_t_s"]
+    return Envelope(env["t_s"], Pose.from_list(env["pose"]), env["m"], env["t_s"] if target is None else target,
+                    dict(env["timing_us"]), dict(env["srv"]), tuple(rel))
 
 
 # --------------------------------------------------------------------------- data streams
@@ -137,26 +117,13 @@ def compress_data(spec: DataStreamSpec, payload: bytes) -> bytes:
 
 
 def decompress_data(spec: DataStreamSpec, data: bytes) -> bytes:
-    """Inverse of :func:`compress_data`, bounded by ``max_bytes`` before anything is allocated."""
+    """Inverse of :func:`compress_data`, bounded by ``max_bytes`` before anything is allocated
+    (:func:`~splitrender.codecs.bounded.bounded_zstd_decompress`)."""
     if len(data) > spec.max_bytes + 1024:
         raise CodecError(f"data stream {spec.name}: {len(data)} bytes received exceeds its max_bytes {spec.max_bytes}")
     if spec.compression == "none":
         return data
-    try:
-        params = zstandard.get_frame_parameters(data)
-    except zstandard.ZstdError as exc:
-        raise CodecError(f"data stream {spec.name}: zstd: {exc}") from None
-    if params.content_size not in (zstandard.CONTENTSIZE_UNKNOWN, zstandard.CONTENTSIZE_ERROR) \
-            and params.content_size > spec.max_bytes:
-        raise CodecError(f"data stream {spec.name}: frame declares {params.content_size} bytes, over its max_bytes {spec.max_bytes}")
-    try:
-        dobj = zstandard.ZstdDecompressor().decompressobj()
-        out = dobj.decompress(data)
-    except zstandard.ZstdError as exc:
-        raise CodecError(f"data stream {spec.name}: zstd: {exc}") from None
-    if len(out) > spec.max_bytes:
-        raise CodecError(f"data stream {spec.name}: {len(out)} bytes decompressed exceeds its max_bytes {spec.max_bytes}")
-    return out
+    return bounded_zstd_decompress(data, spec.max_bytes, f"data stream {spec.name}")
 
 
 def stream_kind(spec: AnyStreamSpec) -> str:

@@ -84,6 +84,8 @@ TRANSITIONS: dict[tuple[Role, State, MessageType], State] = {
     # closing: Bye from either side in any open state; Error also once in ERROR
     **{(r, st, T.BYE): State.CLOSED for r in (C, S) for st in _OPEN},
     **{(r, st, T.ERROR): State.ERROR for r in (C, S) for st in (*_OPEN, State.ERROR)},
+    # an Error may still answer a malformed frame that follows a Bye; the session stays CLOSED
+    **{(r, State.CLOSED, T.ERROR): State.CLOSED for r in (C, S)},
 }
 """The only place session transitions are defined."""
 

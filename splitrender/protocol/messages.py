@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Literal, TypeVar, cast
 import msgpack
 
 from splitrender.protocol.errors import MessageError
+from splitrender.protocol.msgpack_limits import MsgpackLimitError, MsgpackLimits, bounded_unpackb
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -95,6 +96,17 @@ MAX_BODY_SIZE: dict[MessageType, int] = {
 }
 """Largest body (bytes, compressed on the wire and after decompression) per type."""
 
+MAX_OBJECTS = 65536
+"""Most msgpack objects (containers and scalars) in one body, whatever its size."""
+MSGPACK_LIMITS: dict[MessageType, MsgpackLimits] = {
+    t: MsgpackLimits(max_objects=min(size, MAX_OBJECTS), max_array_len=min(size, MAX_OBJECTS),
+                     max_map_len=min(size, MAX_OBJECTS) // 2, max_str_len=size, max_bin_len=size,
+                     max_ext_len=size, max_depth=MAX_NESTING + 1)
+    for t, size in MAX_BODY_SIZE.items()
+}
+"""Per-type msgpack limits, checked by a scan before anything is unpacked: a 4 MiB
+body of empty arrays would otherwise become four million Python lists."""
+
 
 # --------------------------------------------------------------------------- helpers
 
@@ -103,9 +115,11 @@ def _pack(obj: dict[str, Any]) -> bytes:
     return cast(bytes, msgpack.packb(obj, use_bin_type=True))
 
 
-def _unpack_map(name: str, body: bytes) -> dict[str, Any]:
+def _unpack_map(name: str, body: bytes, limits: MsgpackLimits) -> dict[str, Any]:
     try:
-        obj = msgpack.unpackb(body, raw=False, strict_map_key=True, use_list=True)
+        obj = bounded_unpackb(body, limits)
+    except MsgpackLimitError as exc:
+        raise MessageError(f"{name}: body is not valid msgpack ({exc})") from None
     except Exception as exc:  # msgpack raises many unrelated types on garbage
         raise MessageError(f"{name}: body is not valid msgpack ({type(exc).__name__})") from None
     if not isinstance(obj, dict):
@@ -257,7 +271,7 @@ class Message:
     @classmethod
     def decode(cls: type[_M], body: bytes) -> _M:
         """Parse and validate a msgpack body; raises :class:`MessageError`."""
-        return cast(_M, cls.from_wire(_unpack_map(cls.__name__, body)))
+        return cast(_M, cls.from_wire(_unpack_map(cls.__name__, body, MSGPACK_LIMITS[cls.TYPE])))
 
 
 _M = TypeVar("_M", bound=Message)

@@ -35,6 +35,7 @@ from ...errors import RemoteProtocolError
 
 META_VERSION = 2
 MAX_LEVEL = 15
+_F32_MAX = float(np.finfo(np.float32).max)
 """Largest block level (log2 texels) a client accepts."""
 
 #: Layout coordinates of the slots per patch size (index = triangles in the patch):
@@ -152,12 +153,17 @@ def parse_session(sd: Any) -> SessionInfo:
     n_obj = _count(sd, "n_objects", 0, 65535)
     n_patches = _count(sd, "n_patches", 0, 2**31 - 1)
     sky = sd.get("sky", [0.0, 0.0, 0.0])
-    if not isinstance(sky, (list, tuple)) or len(sky) != 3 or not all(isinstance(c, (int, float)) for c in sky):
-        raise SasMetaError(f"sas session data: 'sky' must be three numbers, got {sky!r}")
+    if (not isinstance(sky, (list, tuple)) or len(sky) != 3
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and abs(c) <= _F32_MAX for c in sky)):
+        raise SasMetaError(f"sas session data: 'sky' must be three finite numbers, got {sky!r}"[:200])
     box = sd.get("obj_box")
-    if not isinstance(box, np.ndarray) or box.shape != (n_obj, 2, 3) or box.dtype.kind != "f" or not np.isfinite(box).all():
+    if not isinstance(box, np.ndarray) or box.shape != (n_obj, 2, 3) or box.dtype.kind != "f":
         raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
-    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box.astype(np.float32))
+    with np.errstate(over="ignore"):
+        box32 = box.astype(np.float32)
+    if not np.isfinite(box32).all():  # checked as float32, the dtype used: 1e39 is finite only in float64
+        raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
+    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box32)
 
 
 def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
@@ -178,9 +184,11 @@ def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...],
         raise SasMetaError(f"sas metadata: {key!r} has dtype {v.dtype}, expected {'integers' if kind == 'i' else 'floats'}")
     if kind == "i" and v.dtype.kind == "u" and v.dtype.itemsize >= 8 and v.size and int(v.max()) >= 2**63:
         raise SasMetaError(f"sas metadata: {key!r} has values beyond int64")
-    if kind == "f" and not np.isfinite(v).all():
-        raise SasMetaError(f"sas metadata: {key!r} has non-finite values")
-    return v.astype(out_dtype)
+    with np.errstate(over="ignore"):
+        out = v.astype(out_dtype)
+    if kind == "f" and not np.isfinite(out).all():  # after the cast: 1e39 overflows float32
+        raise SasMetaError(f"sas metadata: {key!r} has values that are not finite in float32")
+    return out
 
 
 def _in_range(key: str, v: np.ndarray, lo: int, hi: int) -> None:
@@ -226,7 +234,9 @@ def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
             raise SasMetaError(f"sas metadata: 'uv_rect' levels must be in 0..{MAX_LEVEL}")
         if ((t != 0) & (t != 1)).any():
             raise SasMetaError("sas metadata: 'uv_rect' transposed flag must be 0 or 1")
-        if (x + (1 << lw) > w).any() or (y + (1 << lh) > h).any():
+        # levels are in 0..MAX_LEVEL here, so 1 << level and the atlas size minus it
+        # fit easily; comparing x against that (not x + width) cannot wrap int64
+        if (x > w - (1 << lw)).any() or (y > h - (1 << lh)).any():
             raise SasMetaError("sas metadata: 'uv_rect' has a block outside the atlas")
     xo = _arr(meta, "xf_obj", "i", ())
     xf = _arr(meta, "xf", "f", (4, 4), xo.size)
