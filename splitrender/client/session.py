@@ -36,7 +36,7 @@ import numpy as np
 from splitrender.codecs.meta import unpack_meta
 from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import get_method, make_config
-from splitrender.pipeline import ClientPipeline, ReceivedFrame, SessionAssembler, Work, specs_from_table
+from splitrender.pipeline import ClientPipeline, EnvelopeError, ReceivedFrame, SessionAssembler, Work, specs_from_table
 from splitrender.protocol import (
     PROTOCOL_VERSION,
     Bye,
@@ -279,7 +279,10 @@ class LiveClient:
                 raise ServerRefusedError(f"expected session data after Welcome, got {type(chunk).__name__}")
             asm.add(chunk)
         self.counters["session_bytes"] = asm.total
-        session_data = unpack_meta(asm.blob) if asm.total else {}
+        try:
+            session_data = unpack_meta(asm.blob) if asm.total else {}
+        except CodecError as exc:  # the peer's bytes: a protocol error, not our crash
+            raise EnvelopeError(f"session data: {exc}") from None
 
         def make_half() -> Any:
             from splitrender.render.gl import get_context
