@@ -129,6 +129,26 @@ def test_mesh_covers_the_border_at_fov_scale_1(renderer: Any) -> None:
     assert hole_rate(holes) == 0.0, f"{int(holes.sum())} holes at the reference pose (cut seams the edge pass missed)"
 
 
+def test_holes_over_the_sky_are_counted(scene: Any, renderer: Any) -> None:
+    """Issue 17: tilting the display 4 degrees up past a reference of the display's own FOV uncovers
+    the top rows, where the ground truth is sky; with filling off they stay holes and ``hole_pct``
+    counts them: 8.77% holes, of which 0.65% over geometry (``hole_geom_pct``, seams at cuts), so
+    8.1% over the sky (the metric used to drop all of those)."""
+    from splitrender.metrics import score_frame
+
+    _, cli = warp_pair(scene, renderer, reconstruction="mesh", fov_scale=1.0, hole_fill=False)
+    pitch = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(4.0))
+    pose = Pose(START.position, pitch)
+    frame = cli.render(pose, 0.0)
+    gt = renderer.render(scene, 0.0, pose, INTR, ("color", "object_id"))
+    top = frame.holes[:3]
+    assert top.all(), f"the top rows should be uncovered: {int((~top).sum())} of them drawn"
+    assert (gt.object_id[:3] == 0).all(), "the top rows should be sky in the ground truth"
+    s = score_frame(frame.color, frame.holes, gt.color, gt.object_id > 0, with_flip=False)
+    assert s["hole_pct"] - s["hole_geom_pct"] >= 7.0, s
+    assert s["hole_geom_pct"] < 1.0, s
+
+
 def test_translation_beats_atw(scene: Any, renderer: Any) -> None:
     """A 15 cm sideways step: warp (quads) beats rotation-only ATW by >= 6 dB (measured ~13 dB)."""
     _, cli = warp_pair(scene, renderer, reconstruction="quads")
