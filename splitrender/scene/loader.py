@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -17,11 +18,47 @@ log = logging.getLogger(__name__)
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".dae", ".stl", ".off")
 
 
+def _image(img: Any, name: str, what: str) -> np.ndarray | None:
+    """An embedded image as (H, W, 3) uint8, or None (a broken image should not stop the scene)."""
+    if img is None:
+        return None
+    try:
+        return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    except Exception as exc:
+        log.warning("scene %s: ignoring unreadable %s texture: %s", name, what, exc)
+        return None
+
+
+def _factor(v: Any, default: float) -> float:
+    return default if v is None else float(np.asarray(v, np.float64).ravel()[0])
+
+
+def _pbr_fields(mat: Any, name: str) -> dict[str, Any]:
+    """glTF metallic-roughness fields of a trimesh ``PBRMaterial`` (glTF defaults where absent:
+    metallic 1, roughness 1, no emission).  trimesh (5.x) exposes neither the normal map's scale,
+    the occlusion strength nor ``KHR_texture_transform``, so those stay 1, 1 and identity."""
+    if not hasattr(mat, "metallicRoughnessTexture"):
+        return {}
+    em = getattr(mat, "emissiveFactor", None)
+    emissive = (0.0, 0.0, 0.0) if em is None else tuple(float(c) for c in np.asarray(em, np.float64).ravel()[:3])
+    return {
+        "metallic": _factor(getattr(mat, "metallicFactor", None), 1.0),
+        "roughness": _factor(getattr(mat, "roughnessFactor", None), 1.0),
+        "metallic_roughness_texture": _image(getattr(mat, "metallicRoughnessTexture", None), name, "metallic-roughness"),
+        "normal_texture": _image(getattr(mat, "normalTexture", None), name, "normal"),
+        "occlusion_texture": _image(getattr(mat, "occlusionTexture", None), name, "occlusion"),
+        "emissive": emissive,
+        "emissive_texture": _image(getattr(mat, "emissiveTexture", None), name, "emissive"),
+    }
+
+
 def _material_from_visual(visual, name: str) -> Material:
     base = (0.8, 0.8, 0.8)
     tex = None
+    pbr: dict[str, Any] = {}
     mat = getattr(visual, "material", None)
     if mat is not None:
+        pbr = _pbr_fields(mat, name)
         col = getattr(mat, "baseColorFactor", None)
         if col is None:
             col = getattr(mat, "main_color", None)
@@ -33,18 +70,14 @@ def _material_from_visual(visual, name: str) -> Material:
         img = getattr(mat, "baseColorTexture", None)
         if img is None:
             img = getattr(mat, "image", None)
-        if img is not None:
-            try:
-                tex = np.asarray(img.convert("RGB"), dtype=np.uint8)
-            except Exception as exc:  # a broken embedded image should not stop the scene
-                log.warning("scene %s: ignoring unreadable texture: %s", name, exc)
+        tex = _image(img, name, "base colour")
     elif getattr(visual, "kind", None) == "vertex" or hasattr(visual, "vertex_colors"):
         try:
             vc = np.asarray(visual.vertex_colors)[:, :3].mean(axis=0) / 255.0
             base = tuple(float(v) for v in vc)
         except Exception:
             pass
-    return Material(name, base, tex)
+    return Material(name, base, tex, **pbr)
 
 
 def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None) -> Scene:
@@ -67,7 +100,8 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
     objects: list[SceneObject] = []
     try:
-        dumped = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=False)
+        # one geometry per mesh node, transforms baked, materials kept (to_geometry() would merge them)
+        dumped = loaded.dump(concatenate=False) if hasattr(loaded, "dump") else loaded.to_geometry()
         geoms = dumped if isinstance(dumped, (list, tuple)) else [dumped]
     except Exception:
         geoms = []

@@ -38,15 +38,17 @@ def _tr(x: float, y: float, z: float, rot_axis=None, rot_deg: float = 0.0) -> np
 
 
 def default_scene() -> Scene:
-    mats = {
-        "floor": Material("floor", (0.9, 0.9, 0.9), T.checker(256, 8)),
-        "brick": Material("brick", (1.0, 1.0, 1.0), T.bricks(256, 8, seed=1)),
-        "stripes": Material("stripes", (1.0, 1.0, 1.0), T.noise_stripes(256, seed=2)),
-        "sign": Material("sign", (1.0, 1.0, 1.0), T.text_panel(256, seed=3), specular=0.05),
-        "concrete": Material("concrete", (0.62, 0.6, 0.58), None, specular=0.1),
-        "metal": Material("metal", (0.75, 0.76, 0.8), None, specular=0.8, shininess=64.0),
-        "red": Material("red", (0.8, 0.12, 0.1), None, specular=0.5),
-        "gold": Material("gold", (0.9, 0.7, 0.2), None, specular=0.9, shininess=64.0),
+    sign = T.text_panel(256, seed=3)
+    mats = {  # (Blinn-Phong specular and shininess for shading = "phong"; metallic-roughness for "pbr")
+        "floor": Material("floor", (0.9, 0.9, 0.9), T.checker(256, 8), roughness=0.35),   # glossy tiles
+        "brick": Material("brick", (1.0, 1.0, 1.0), T.bricks(256, 8, seed=1), roughness=0.85),
+        "stripes": Material("stripes", (1.0, 1.0, 1.0), T.noise_stripes(256, seed=2), roughness=0.6),
+        "sign": Material("sign", (1.0, 1.0, 1.0), sign, specular=0.05, roughness=0.4,           # a lit display
+                         emissive=(0.8, 0.8, 0.8), emissive_texture=sign),
+        "concrete": Material("concrete", (0.62, 0.6, 0.58), None, specular=0.1, roughness=0.9),
+        "metal": Material("metal", (0.75, 0.76, 0.8), None, specular=0.8, shininess=64.0, metallic=1.0, roughness=0.3),
+        "red": Material("red", (0.8, 0.12, 0.1), None, specular=0.5, roughness=0.15),          # glossy plastic
+        "gold": Material("gold", (0.9, 0.7, 0.2), None, specular=0.9, shininess=64.0, metallic=1.0, roughness=0.25),
     }
     objs: list[SceneObject] = []
 
