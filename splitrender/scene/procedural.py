@@ -14,7 +14,8 @@ rendering methods fail on:
 
 The camera's walkable box is x in [-3, 3], z in [-4, 3] at eye height 1.6 m, looking
 towards -Z (see ``splitrender.scene.trace``).  ``minimal_scene()`` is one textured
-plane and one box, for tests that need no more.
+plane and one box, for tests that need no more; ``default_phong`` is the default scene with
+the older Blinn-Phong shading (``Scene.shading = "phong"``), for comparison.
 """
 
 from __future__ import annotations
@@ -90,4 +91,11 @@ def minimal_scene() -> Scene:
     return Scene("minimal", [floor, cube], DirectionalLight(shadow_map_size=1024, shadow_extent_m=8.0), [])
 
 
-BUILTIN_SCENES = {"default": default_scene, "minimal": minimal_scene}
+def default_phong_scene() -> Scene:
+    """The default scene shaded with the older Blinn-Phong model (base colour only), for comparison."""
+    sc = default_scene()
+    sc.name, sc.shading = "default_phong", "phong"
+    return sc
+
+
+BUILTIN_SCENES = {"default": default_scene, "default_phong": default_phong_scene, "minimal": minimal_scene}
