@@ -52,6 +52,52 @@ def _pbr_fields(mat: Any, name: str) -> dict[str, Any]:
     }
 
 
+def texture_transform_matrix(ext: dict[str, Any]) -> np.ndarray:
+    """3x3 UV matrix of a ``KHR_texture_transform`` (translation * rotation * scale, glTF's order)."""
+    ox, oy = (float(v) for v in ext.get("offset", (0.0, 0.0)))
+    sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
+    r = float(ext.get("rotation", 0.0))
+    c, s = np.cos(r), np.sin(r)
+    t = np.array([[1.0, 0.0, ox], [0.0, 1.0, oy], [0.0, 0.0, 1.0]])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return t @ rot @ np.diag([sx, sy, 1.0])
+
+
+def _gltf_json(p: Path) -> dict[str, Any] | None:
+    """The JSON of a .gltf or .glb file, or None when it cannot be read."""
+    import json
+    import struct
+
+    try:
+        data = p.read_bytes()
+        if p.suffix.lower() == ".glb":
+            if len(data) < 20 or data[:4] != b"glTF":
+                return None
+            n, kind = struct.unpack_from("<II", data, 12)
+            if kind != 0x4E4F534A:  # "JSON"
+                return None
+            data = data[20:20 + n]
+        doc = json.loads(data)
+        return doc if isinstance(doc, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def gltf_texture_transforms(p: Path) -> dict[str, np.ndarray]:
+    """Material name -> UV matrix of its base-colour texture's ``KHR_texture_transform`` (trimesh
+    does not expose the extension, so it is read from the file's JSON; one matrix serves every
+    map of the material)."""
+    doc = _gltf_json(p) if p.suffix.lower() in (".gltf", ".glb") else None
+    out: dict[str, np.ndarray] = {}
+    for m in (doc or {}).get("materials", []) if isinstance((doc or {}).get("materials"), list) else []:
+        try:
+            ext = m["pbrMetallicRoughness"]["baseColorTexture"]["extensions"]["KHR_texture_transform"]
+            out[str(m["name"])] = texture_transform_matrix(ext)
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
 def _material_from_visual(visual, name: str) -> Material:
     base = (0.8, 0.8, 0.8)
     tex = None
@@ -99,6 +145,7 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
     except Exception as exc:
         raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
     objects: list[SceneObject] = []
+    uv_transforms = gltf_texture_transforms(p)
     try:
         # one geometry per mesh node, transforms baked, materials kept (to_geometry() would merge them)
         dumped = loaded.dump(concatenate=False) if hasattr(loaded, "dump") else loaded.to_geometry()
@@ -133,7 +180,11 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         uvs = np.stack([uvs[:, 0], 1.0 - uvs[:, 1]], 1) if uv is not None else uvs  # trimesh flips v
         name = f"{p.stem}_{i}"
         mesh = Mesh(verts, normals, uvs, faces, name)
-        objects.append(SceneObject(name, mesh, _material_from_visual(g.visual, name), len(objects) + 1))
+        material = _material_from_visual(g.visual, name)
+        src = getattr(getattr(g.visual, "material", None), "name", None)
+        if src in uv_transforms:
+            material.uv_transform = uv_transforms[src]
+        objects.append(SceneObject(name, mesh, material, len(objects) + 1))
     if not objects:
         raise SceneError(f"scene file {p} contains no triangle meshes")
     if not any(float(o.mesh.triangle_areas().sum()) > 0 for o in objects):
