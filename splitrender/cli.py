@@ -30,7 +30,7 @@ def _lazy(target: str) -> Callable[[argparse.Namespace], int]:
 
 
 def _common_run_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default=None, help="built-in scene name (default, minimal) or a .glb/.gltf/.obj/.ply/.dae file (default: default)")
+    p.add_argument("--scene", default=None, help="built-in scene name (default, default_phong, minimal) or a .glb/.gltf/.obj/.ply/.dae file (default: default)")
     p.add_argument("--trace", default=None, help="built-in trace (walk, walk_fast, turn, strafe, static, orbit) or a trace file (.csv, or a QUASAR .txt path) (default: walk)")
     p.add_argument("--width", type=int, default=None, help="display width in pixels")
     p.add_argument("--height", type=int, default=None, help="display height in pixels")

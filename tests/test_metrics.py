@@ -55,6 +55,23 @@ def test_hole_rate_and_dssim():
     assert metrics.dssim(a, a) == pytest.approx(0.0)
 
 
+def test_holes_count_where_the_truth_is_background():
+    """Issue 17: a hole is any pixel the client did not draw, sky included; ``hole_geom_pct`` keeps the
+    holes over geometry only."""
+    truth = np.zeros((16, 16, 3), np.uint8)
+    geometry = np.zeros((16, 16), bool)
+    geometry[8:] = True          # bottom half geometry, top half sky
+    holes = np.zeros((16, 16), bool)
+    holes[0] = True              # a black top row over the sky: 16 pixels
+    holes[15, :4] = True         # 4 over geometry
+    s = metrics.score_frame(truth, holes, truth, geometry, with_flip=False)
+    assert s["hole_pct"] == pytest.approx(100 * 20 / 256)
+    assert s["hole_geom_pct"] == pytest.approx(100 * 4 / 256)
+    none = metrics.score_frame(truth, None, truth, geometry, with_flip=False)
+    assert none["hole_pct"] == 0.0 and none["hole_geom_pct"] == 0.0
+    assert np.isnan(metrics.score_frame(truth, holes, truth, None, with_flip=False)["hole_geom_pct"])
+
+
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="image shapes differ"):
         metrics.psnr(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8))

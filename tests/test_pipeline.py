@@ -139,7 +139,7 @@ def test_every_display_tick_from_zero_is_scored(renderer) -> None:  # type: igno
     assert res.frames[0]["t_s"] == 0.0 and len(res.frames) == 16
     early = [f for f in res.frames if f["update_frame_id"] == -1]
     # nothing can arrive before 10 ms server + 100 ms network + 4 ms decode: ticks 0..3 show black
-    assert len(early) == 4 and all(f["hole_pct"] > 0 for f in early)
+    assert len(early) == 4 and all(f["hole_pct"] == 100.0 for f in early)
     assert all(f["psnr_db"] < 15 for f in early) and res.frames[-1]["psnr_db"] > 25
     assert res.summary["frames_before_content"] == 4
 

@@ -35,10 +35,34 @@ def test_plane_depth_is_exact(renderer):
     assert np.allclose(out.normal, [0, 0, 1], atol=1e-2)
 
 
-def test_plane_colour_matches_shading_model(renderer):
-    # ambient (1,1,1) * albedo 0.5 * (0.75 + 0.25 * n.y=0) -> 0.375 linear, tone mapped c/(1+0.15c), sRGB 2.2 gamma
+def test_plane_colour_matches_pbr_model(renderer):
+    """Metallic-roughness, ambient only, at the centre pixel (n = v = +Z, reflection horizontal):
+    diffuse albedo 0.5 * 0.75 plus the environment BRDF (Karis' fit, f0 0.04, roughness 0.6, n.v 1)
+    times the environment, the ambient mixed towards the sky by smoothstep(-0.2, 0.4, 0) * (1 - 0.7 * 0.6)."""
     intr = CameraIntrinsics(160, 90, 60.0)
-    out = renderer.render(_wall_scene((0.5, 0.5, 0.5)), 0.0, Pose(), intr)
+    scene = _wall_scene((0.5, 0.5, 0.5))
+    assert scene.shading == "pbr"
+    out = renderer.render(scene, 0.0, Pose(), intr)
+    rough, ndv, f0 = 0.6, 1.0, 0.04
+    r = rough * np.array([-1.0, -0.0275, -0.572, 0.022]) + np.array([1.0, 0.0425, 1.04, -0.04])
+    a004 = min(r[0] * r[0], 2 ** (-9.28 * ndv)) * r[0] + r[1]
+    env_brdf = f0 * (-1.04 * a004 + r[2]) + (1.04 * a004 + r[3])
+    s = 1 / 3
+    w = (3 * s * s - 2 * s ** 3) * (1 - 0.7 * rough)
+    env = (1 - w) * 1.0 + w * np.array(scene.sky_color) ** 2.2
+    c = 0.5 * 0.75 + env_brdf * env
+    c = c / (1 + 0.15 * c)
+    expect = 255 * c ** (1 / 2.2)
+    got = out.color[44:46, 79:81].reshape(-1, 3).mean(axis=0)
+    assert np.allclose(got, expect, atol=1.5), f"got {got}, expected {expect}"
+
+
+def test_plane_colour_matches_shading_model(renderer):
+    # Blinn-Phong: ambient (1,1,1) * albedo 0.5 * (0.75 + 0.25 * n.y=0) -> 0.375 linear, tone mapped c/(1+0.15c), sRGB 2.2 gamma
+    intr = CameraIntrinsics(160, 90, 60.0)
+    scene = _wall_scene((0.5, 0.5, 0.5))
+    scene.shading = "phong"
+    out = renderer.render(scene, 0.0, Pose(), intr)
     c = 0.5 * 0.75
     c = c / (1 + 0.15 * c)
     expect = 255 * c ** (1 / 2.2)

@@ -111,7 +111,7 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
         "client_fps": rec.get("display_hz"), "frames": len(rows),
         "mean_psnr_db": mean("psnr_db"), "p5_psnr_db": pct("psnr_db", 5), "mean_ssim": mean("ssim"),
         "mean_flip": mean("flip"), "flip_frames": int(col("flip").size),
-        "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"),
+        "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"), "mean_hole_geom_pct": mean("hole_geom_pct"),
         "mean_kbps": kbps + meta_kbps, "kbps_video": kbps, "kbps_meta": meta_kbps,
         "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
         "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),

@@ -246,7 +246,7 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
         parts.append(f'<p class="err">These results lack the baseline(s) {", ".join(missing)}: the charts cannot show them.</p>')
     if intro_md:
         parts.append(markdown_to_html(intro_md))
-    parts.append(f"<p>Failure frames: PSNR below {FAIL_PSNR_DB:g} dB or more than {FAIL_HOLE_PCT:g}% hole pixels.</p>")
+    parts.append(f"<p>Failure frames: PSNR below {FAIL_PSNR_DB:g} dB or more than {FAIL_HOLE_PCT:g}% hole pixels where the ground truth shows geometry.</p>")
     parts.append("<h2>Contents</h2><ul>" + "".join(f'<li><a href="#{c.name}">{html.escape(h)}</a></li>' for h, c in charts)
                  + "".join(f"<li>{html.escape(s.title)}</li>" for s in sections) + "</ul>")
     for heading, ch in charts:

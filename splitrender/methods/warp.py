@@ -16,7 +16,8 @@ Client half: per object one 4x4 warp matrix
 projection's inverse is applied analytically in the shader because depth arrives in
 metres); ``O_i(t)`` is extrapolated from the two model matrices (slerp on rotation,
 linear on translation).  The grid of reference pixels is drawn as Jacobian-sized point
-splats, Jacobian quad splats (geometry shader), or a grid mesh cut at depth and
+splats, Jacobian quad splats (geometry shader), or a grid mesh (its outer vertices on the
+image border, so it spans the whole reference image) cut at depth and
 moving-object discontinuities.  The view nearest the display pose is drawn first; a
 second view only fills the pixels it left uncovered (``view_merge``; the paper's plain
 depth test is ``"depth"``).  Pixels no warped fragment reaches are holes; they are
@@ -416,6 +417,17 @@ def warp_matrices(frame: ReferenceFrame, view: ReferenceView, ref: CameraIntrins
 
 
 # ----------------------------------------------------------------------------- client: GL
+def mesh_grid_indices(width: int, height: int) -> np.ndarray:
+    """Triangle indices (flat uint32) of the mesh reconstruction's grid for a ``width`` x ``height``
+    reference image: ``(width + 2) x (height + 2)`` vertices, row-major from the top, whose inner
+    ``width x height`` are the pixel centres and whose outer ring lies on the image border
+    (``warp_mesh.vert``), so the mesh spans the whole image."""
+    gw, gh = width + 2, height + 2
+    idx = np.arange(gw * gh, dtype=np.uint32).reshape(gh, gw)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    return np.stack([a, c, b, b, c, d], axis=-1).reshape(-1).astype(np.uint32)
+
+
 class _ViewGPU:
     """Textures of one reference view."""
 
@@ -459,9 +471,7 @@ class WarpClient(ClientHalf):
             self.prog = load_program(ctx, SHADERS / "warp_mesh.vert", SHADERS / "warp_mesh.frag", SHADERS / "warp_mesh.geom")
         rw, rh = self.ref_intr.width, self.ref_intr.height
         if rec == "mesh":
-            idx = np.arange(rw * rh, dtype=np.uint32).reshape(rh, rw)
-            a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-            tris = np.stack([a, c, b, b, c, d], axis=-1).reshape(-1)
+            tris = mesh_grid_indices(rw, rh)
             self._ibo = ctx.buffer(tris.astype("u4").tobytes())
             self.vao = ctx.vertex_array(self.prog, [], index_buffer=self._ibo, index_element_size=4)
             self._mode = moderngl.TRIANGLES

@@ -10,7 +10,7 @@
   better, for the default 67 pixels-per-degree viewing condition.
 - :func:`lab_error_rate`: share of pixels whose CIE L*a*b* distance (CIE76, D65)
   exceeds 20, the "error pixel" measure of the image-warping paper.
-- :func:`hole_rate`: share of pixels a method could not fill.
+- :func:`hole_rate`: share of pixels a method did not draw from received content.
 
 This module imports nothing else from splitrender.
 """
@@ -105,17 +105,21 @@ def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, 
                 with_flip: bool) -> dict[str, float]:
     """Every per-frame quality number of one displayed image against its ground truth.
 
-    ``truth_geometry`` (bool, H x W) marks pixels where the ground truth shows geometry;
-    a hole counts only there (an uncovered sky pixel is background either way).
-    Returns ``psnr_db``, ``ssim``, ``flip`` (NaN unless ``with_flip``), ``lab_err_pct``
-    and ``hole_pct``.
+    ``holes`` (bool, H x W) marks the pixels the client did not draw from received content;
+    ``hole_pct`` counts them wherever they lie, sky included (a black border over the sky is
+    as much a hole as one over a wall).  ``truth_geometry`` (bool, H x W) marks pixels where
+    the ground truth shows geometry; ``hole_geom_pct`` counts only the holes there (NaN
+    without it).  Returns ``psnr_db``, ``ssim``, ``flip`` (NaN unless ``with_flip``),
+    ``lab_err_pct``, ``hole_pct`` and ``hole_geom_pct``.
     """
-    if holes is not None and truth_geometry is not None:
-        holes = np.asarray(holes, bool) & np.asarray(truth_geometry, bool)
+    geom_pct = float("nan")
+    if truth_geometry is not None:
+        geom_pct = 0.0 if holes is None else 100.0 * hole_rate(np.asarray(holes, bool) & np.asarray(truth_geometry, bool))
     return {
         "psnr_db": psnr(shown, truth),
         "ssim": ssim(shown, truth),
         "flip": flip(shown, truth) if with_flip else float("nan"),
         "lab_err_pct": 100.0 * lab_error_rate(shown, truth),
         "hole_pct": 100.0 * hole_rate(holes),
+        "hole_geom_pct": geom_pct,
     }

@@ -30,6 +30,8 @@ from .gl import SHADER_DIR, get_context, load_program, set_uniform
 log = logging.getLogger(__name__)
 
 ALL_OUTPUTS = ("color", "depth", "normal", "object_id", "triangle_id")
+SHADING_MODEL_CODES = {"phong": 0, "pbr": 1}   # u_shading_model in shading.glsl
+MAP_UNITS = {"u_mr_map": 3, "u_normal_map": 4, "u_occlusion_map": 5, "u_emissive_map": 6}
 
 
 @dataclass
@@ -50,6 +52,8 @@ class ObjectGPU:
     shadow_vao: Any
     texture: Any | None
     tri_base: int
+    maps: dict[str, Any] = field(default_factory=dict)   # the material's other textures, by uniform name
+    tbo: Any = None                                      # per-vertex tangents (4f)
 
 
 @dataclass
@@ -124,18 +128,29 @@ class Renderer:
             m = o.mesh
             data = np.hstack([m.positions, m.normals, m.uvs]).astype("f4")
             vbo = self.ctx.buffer(data.tobytes())
+            tbo = self.ctx.buffer(m.tangent_frame().astype("f4").tobytes())
             ibo = self.ctx.buffer(m.indices.astype("u4").tobytes())
-            vao = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv")], ibo)
+            vao = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv"),
+                                                    (tbo, "4f", "in_tangent")], ibo)
             svao = self.ctx.vertex_array(self.shadow_prog, [(vbo, "3f 12x 8x", "in_position")], ibo)
-            tex = None
-            if o.material.texture is not None:
-                img = np.ascontiguousarray(o.material.texture[..., :3], dtype=np.uint8)
+            mat = o.material
+
+            def texture(img: np.ndarray | None) -> Any:
+                if img is None:
+                    return None
+                img = np.ascontiguousarray(np.asarray(img)[..., :3], dtype=np.uint8)
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 3, img.tobytes())
                 tex.build_mipmaps()
                 tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
                 tex.anisotropy = 4.0
                 tex.repeat_x = tex.repeat_y = True
-            sg.objects.append(ObjectGPU(o, vbo, ibo, vao, svao, tex, base))
+                return tex
+
+            maps = {k: t for k, t in (("u_mr_map", texture(mat.metallic_roughness_texture)),
+                                      ("u_normal_map", texture(mat.normal_texture)),
+                                      ("u_occlusion_map", texture(mat.occlusion_texture)),
+                                      ("u_emissive_map", texture(mat.emissive_texture))) if t is not None}
+            sg.objects.append(ObjectGPU(o, vbo, ibo, vao, svao, texture(mat.texture), base, maps, tbo))
             base += m.triangle_count
         self._scenes[key] = sg
         return sg
@@ -229,6 +244,8 @@ class Renderer:
             set_uniform(prog, "u_sun_dir", (0.0, -1.0, 0.0))
             set_uniform(prog, "u_has_shadow", 0)
         set_uniform(prog, "u_ambient", tuple(scene.ambient))
+        set_uniform(prog, "u_sky_env", tuple(float(c) ** 2.2 for c in scene.sky_color))
+        set_uniform(prog, "u_shading_model", SHADING_MODEL_CODES[scene.shading])
         n = len(scene.point_lights)
         set_uniform(prog, "u_num_point", n)
         if n:
@@ -243,16 +260,35 @@ class Renderer:
                 prog["u_point_color"].write(col.tobytes())
 
     def bind_material(self, prog: Any, og: ObjectGPU, texture_unit: int = 0) -> None:
+        """Set the material uniforms of ``shading.glsl``: the base-colour texture on ``texture_unit``,
+        the other maps on units :data:`MAP_UNITS` (the shadow maps take 1 and 2)."""
         mat = og.obj.material
         set_uniform(prog, "u_base_color", tuple(mat.base_color))
         set_uniform(prog, "u_specular", float(mat.specular))
         set_uniform(prog, "u_shininess", float(mat.shininess))
+        set_uniform(prog, "u_metallic", float(mat.metallic))
+        set_uniform(prog, "u_roughness", float(mat.roughness))
+        set_uniform(prog, "u_normal_scale", float(mat.normal_scale))
+        set_uniform(prog, "u_occlusion_strength", float(mat.occlusion_strength))
+        set_uniform(prog, "u_emissive", tuple(float(c) for c in mat.emissive))
+        uvt = np.eye(3) if mat.uv_transform is None else np.asarray(mat.uv_transform, np.float64)
+        if "u_uv_transform" in prog:
+            prog["u_uv_transform"].write(np.asarray(uvt, "f4").T.tobytes())
         if og.texture is not None:
             og.texture.use(location=texture_unit)
             set_uniform(prog, "u_albedo", texture_unit)
             set_uniform(prog, "u_has_texture", 1)
         else:
             set_uniform(prog, "u_has_texture", 0)
+        for name, unit in MAP_UNITS.items():
+            tex = og.maps.get(name)
+            flag = "u_has_" + name[2:]
+            if tex is not None and name in prog:
+                tex.use(location=unit)
+                set_uniform(prog, name, unit)
+                set_uniform(prog, flag, 1)
+            else:
+                set_uniform(prog, flag, 0)
 
     # ------------------------------------------------------------------ render
     def render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,

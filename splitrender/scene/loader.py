@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -17,11 +18,93 @@ log = logging.getLogger(__name__)
 SUPPORTED_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".dae", ".stl", ".off")
 
 
+def _image(img: Any, name: str, what: str) -> np.ndarray | None:
+    """An embedded image as (H, W, 3) uint8, or None (a broken image should not stop the scene)."""
+    if img is None:
+        return None
+    try:
+        return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    except Exception as exc:
+        log.warning("scene %s: ignoring unreadable %s texture: %s", name, what, exc)
+        return None
+
+
+def _factor(v: Any, default: float) -> float:
+    return default if v is None else float(np.asarray(v, np.float64).ravel()[0])
+
+
+def _pbr_fields(mat: Any, name: str) -> dict[str, Any]:
+    """glTF metallic-roughness fields of a trimesh ``PBRMaterial`` (glTF defaults where absent:
+    metallic 1, roughness 1, no emission).  trimesh (5.x) exposes neither the normal map's scale,
+    the occlusion strength nor ``KHR_texture_transform``, so those stay 1, 1 and identity."""
+    if not hasattr(mat, "metallicRoughnessTexture"):
+        return {}
+    em = getattr(mat, "emissiveFactor", None)
+    emissive = (0.0, 0.0, 0.0) if em is None else tuple(float(c) for c in np.asarray(em, np.float64).ravel()[:3])
+    return {
+        "metallic": _factor(getattr(mat, "metallicFactor", None), 1.0),
+        "roughness": _factor(getattr(mat, "roughnessFactor", None), 1.0),
+        "metallic_roughness_texture": _image(getattr(mat, "metallicRoughnessTexture", None), name, "metallic-roughness"),
+        "normal_texture": _image(getattr(mat, "normalTexture", None), name, "normal"),
+        "occlusion_texture": _image(getattr(mat, "occlusionTexture", None), name, "occlusion"),
+        "emissive": emissive,
+        "emissive_texture": _image(getattr(mat, "emissiveTexture", None), name, "emissive"),
+    }
+
+
+def texture_transform_matrix(ext: dict[str, Any]) -> np.ndarray:
+    """3x3 UV matrix of a ``KHR_texture_transform`` (translation * rotation * scale, glTF's order)."""
+    ox, oy = (float(v) for v in ext.get("offset", (0.0, 0.0)))
+    sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
+    r = float(ext.get("rotation", 0.0))
+    c, s = np.cos(r), np.sin(r)
+    t = np.array([[1.0, 0.0, ox], [0.0, 1.0, oy], [0.0, 0.0, 1.0]])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return t @ rot @ np.diag([sx, sy, 1.0])
+
+
+def _gltf_json(p: Path) -> dict[str, Any] | None:
+    """The JSON of a .gltf or .glb file, or None when it cannot be read."""
+    import json
+    import struct
+
+    try:
+        data = p.read_bytes()
+        if p.suffix.lower() == ".glb":
+            if len(data) < 20 or data[:4] != b"glTF":
+                return None
+            n, kind = struct.unpack_from("<II", data, 12)
+            if kind != 0x4E4F534A:  # "JSON"
+                return None
+            data = data[20:20 + n]
+        doc = json.loads(data)
+        return doc if isinstance(doc, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def gltf_texture_transforms(p: Path) -> dict[str, np.ndarray]:
+    """Material name -> UV matrix of its base-colour texture's ``KHR_texture_transform`` (trimesh
+    does not expose the extension, so it is read from the file's JSON; one matrix serves every
+    map of the material)."""
+    doc = _gltf_json(p) if p.suffix.lower() in (".gltf", ".glb") else None
+    out: dict[str, np.ndarray] = {}
+    for m in (doc or {}).get("materials", []) if isinstance((doc or {}).get("materials"), list) else []:
+        try:
+            ext = m["pbrMetallicRoughness"]["baseColorTexture"]["extensions"]["KHR_texture_transform"]
+            out[str(m["name"])] = texture_transform_matrix(ext)
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
 def _material_from_visual(visual, name: str) -> Material:
     base = (0.8, 0.8, 0.8)
     tex = None
+    pbr: dict[str, Any] = {}
     mat = getattr(visual, "material", None)
     if mat is not None:
+        pbr = _pbr_fields(mat, name)
         col = getattr(mat, "baseColorFactor", None)
         if col is None:
             col = getattr(mat, "main_color", None)
@@ -33,18 +116,14 @@ def _material_from_visual(visual, name: str) -> Material:
         img = getattr(mat, "baseColorTexture", None)
         if img is None:
             img = getattr(mat, "image", None)
-        if img is not None:
-            try:
-                tex = np.asarray(img.convert("RGB"), dtype=np.uint8)
-            except Exception as exc:  # a broken embedded image should not stop the scene
-                log.warning("scene %s: ignoring unreadable texture: %s", name, exc)
+        tex = _image(img, name, "base colour")
     elif getattr(visual, "kind", None) == "vertex" or hasattr(visual, "vertex_colors"):
         try:
             vc = np.asarray(visual.vertex_colors)[:, :3].mean(axis=0) / 255.0
             base = tuple(float(v) for v in vc)
         except Exception:
             pass
-    return Material(name, base, tex)
+    return Material(name, base, tex, **pbr)
 
 
 def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None) -> Scene:
@@ -66,8 +145,10 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
     except Exception as exc:
         raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
     objects: list[SceneObject] = []
+    uv_transforms = gltf_texture_transforms(p)
     try:
-        dumped = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=False)
+        # one geometry per mesh node, transforms baked, materials kept (to_geometry() would merge them)
+        dumped = loaded.dump(concatenate=False) if hasattr(loaded, "dump") else loaded.to_geometry()
         geoms = dumped if isinstance(dumped, (list, tuple)) else [dumped]
     except Exception:
         geoms = []
@@ -99,7 +180,11 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         uvs = np.stack([uvs[:, 0], 1.0 - uvs[:, 1]], 1) if uv is not None else uvs  # trimesh flips v
         name = f"{p.stem}_{i}"
         mesh = Mesh(verts, normals, uvs, faces, name)
-        objects.append(SceneObject(name, mesh, _material_from_visual(g.visual, name), len(objects) + 1))
+        material = _material_from_visual(g.visual, name)
+        src = getattr(getattr(g.visual, "material", None), "name", None)
+        if src in uv_transforms:
+            material.uv_transform = uv_transforms[src]
+        objects.append(SceneObject(name, mesh, material, len(objects) + 1))
     if not objects:
         raise SceneError(f"scene file {p} contains no triangle meshes")
     if not any(float(o.mesh.triangle_areas().sum()) > 0 for o in objects):

@@ -36,15 +36,38 @@ class Schedule:
         return Schedule((0.0,), (float(v),))
 
 
+SHADING_MODELS = ("pbr", "phong")
+
+
 @dataclass
 class Material:
-    """Base colour (linear RGB, 0..1) optionally modulated by an sRGB texture (HxWx3 uint8)."""
+    """A glTF 2.0 metallic-roughness material (also read by the older Blinn-Phong model).
+
+    Colours are linear RGB in 0..1.  Textures are (H, W, 3) uint8 with row 0 at ``uv.y = 0``
+    (glTF's top-left origin): ``texture`` (base colour) and ``emissive_texture`` are sRGB;
+    ``metallic_roughness_texture`` (G = roughness, B = metallic), ``normal_texture``
+    (tangent space, +Y towards decreasing ``v``) and ``occlusion_texture`` (R) are linear.
+    ``uv_transform`` is a 3x3 matrix applied to the texture coordinates of every map
+    (``KHR_texture_transform``; identity when the file has none).  ``specular`` and
+    ``shininess`` are the Blinn-Phong model's (``Scene.shading = "phong"``), which ignores
+    everything but the base colour.
+    """
 
     name: str = "default"
     base_color: tuple[float, float, float] = (0.8, 0.8, 0.8)
     texture: np.ndarray | None = None
     specular: float = 0.2
     shininess: float = 32.0
+    metallic: float = 0.0
+    roughness: float = 0.6
+    metallic_roughness_texture: np.ndarray | None = None
+    normal_texture: np.ndarray | None = None
+    normal_scale: float = 1.0
+    occlusion_texture: np.ndarray | None = None
+    occlusion_strength: float = 1.0
+    emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    emissive_texture: np.ndarray | None = None
+    uv_transform: np.ndarray | None = None
 
 
 @dataclass
@@ -56,12 +79,22 @@ class Mesh:
     uvs: np.ndarray
     indices: np.ndarray
     name: str = "mesh"
+    tangents: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.positions = np.ascontiguousarray(self.positions, dtype=np.float32).reshape(-1, 3)
         self.normals = np.ascontiguousarray(self.normals, dtype=np.float32).reshape(-1, 3)
         self.uvs = np.ascontiguousarray(self.uvs, dtype=np.float32).reshape(-1, 2)
         self.indices = np.ascontiguousarray(self.indices, dtype=np.uint32).reshape(-1, 3)
+        if self.tangents is not None:
+            self.tangents = np.ascontiguousarray(self.tangents, dtype=np.float32).reshape(-1, 4)
+
+    def tangent_frame(self) -> np.ndarray:
+        """(N, 4) float32 tangents (xyz, handedness w = +-1): the file's, else generated from
+        the UVs (:func:`generate_tangents`, computed once)."""
+        if self.tangents is None or len(self.tangents) != self.vertex_count:
+            self.tangents = generate_tangents(self.positions, self.normals, self.uvs, self.indices)
+        return self.tangents
 
     @property
     def triangle_count(self) -> int:
@@ -197,8 +230,11 @@ class Scene:
     ambient: tuple[float, float, float] = (0.18, 0.2, 0.24)
     sky_color: tuple[float, float, float] = (0.55, 0.7, 0.9)
     version: int = 0
+    shading: str = "pbr"
 
     def __post_init__(self) -> None:
+        if self.shading not in SHADING_MODELS:
+            raise ValueError(f"scene {self.name}: shading {self.shading!r} is not one of {list(SHADING_MODELS)}")
         ids = [o.object_id for o in self.objects]
         if len(set(ids)) != len(ids) or any(i <= 0 for i in ids):
             raise ValueError("scene object ids must be unique and >= 1")
@@ -252,6 +288,40 @@ def transform_mesh(mesh: Mesh, m: np.ndarray, name: str | None = None) -> Mesh:
     n = mesh.normals.astype(np.float64) @ nm.T
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return Mesh(p, n, mesh.uvs, mesh.indices, name or mesh.name)
+
+
+def generate_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """Per-vertex tangents (N, 4) float32 for normal mapping, from the UV layout (Lengyel's method):
+    ``xyz`` is dP/du summed over the vertex's triangles and made orthogonal to the normal; ``w`` is
+    +1 when ``cross(normal, xyz)`` points towards decreasing ``v`` (glTF's bitangent, the normal
+    map's +Y), else -1.  Vertices without a usable UV gradient get any unit vector orthogonal to
+    the normal."""
+    p = np.asarray(positions, np.float64)
+    n = np.asarray(normals, np.float64)
+    uv = np.asarray(uvs, np.float64)
+    tri = np.asarray(indices, np.int64).reshape(-1, 3)
+    e1, e2 = p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]]
+    d1, d2 = uv[tri[:, 1]] - uv[tri[:, 0]], uv[tri[:, 2]] - uv[tri[:, 0]]
+    r = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    ok = np.abs(r) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, r, 1.0), 0.0)[:, None]
+    sdir = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv       # dP/du
+    tdir = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv       # dP/dv
+    ts = np.zeros_like(p)
+    tt = np.zeros_like(p)
+    for k in range(3):
+        np.add.at(ts, tri[:, k], sdir)
+        np.add.at(tt, tri[:, k], tdir)
+    t = ts - n * np.sum(n * ts, axis=1, keepdims=True)
+    ln = np.linalg.norm(t, axis=1)
+    bad = ln < 1e-12
+    if bad.any():  # any perpendicular: cross with the axis least aligned with the normal
+        axis = np.eye(3)[np.argmin(np.abs(n[bad]), axis=1)]
+        t[bad] = np.cross(n[bad], axis)
+        ln[bad] = np.maximum(np.linalg.norm(t[bad], axis=1), 1e-12)
+    t /= ln[:, None]
+    w = np.where(np.sum(np.cross(n, t) * -tt, axis=1) < 0.0, -1.0, 1.0)
+    return np.concatenate([t, w[:, None]], axis=1).astype(np.float32)
 
 
 IntensityFn = Callable[[float], float]

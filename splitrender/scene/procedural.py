@@ -14,7 +14,8 @@ rendering methods fail on:
 
 The camera's walkable box is x in [-3, 3], z in [-4, 3] at eye height 1.6 m, looking
 towards -Z (see ``splitrender.scene.trace``).  ``minimal_scene()`` is one textured
-plane and one box, for tests that need no more.
+plane and one box, for tests that need no more; ``default_phong`` is the default scene with
+the older Blinn-Phong shading (``Scene.shading = "phong"``), for comparison.
 """
 
 from __future__ import annotations
@@ -38,15 +39,17 @@ def _tr(x: float, y: float, z: float, rot_axis=None, rot_deg: float = 0.0) -> np
 
 
 def default_scene() -> Scene:
-    mats = {
-        "floor": Material("floor", (0.9, 0.9, 0.9), T.checker(256, 8)),
-        "brick": Material("brick", (1.0, 1.0, 1.0), T.bricks(256, 8, seed=1)),
-        "stripes": Material("stripes", (1.0, 1.0, 1.0), T.noise_stripes(256, seed=2)),
-        "sign": Material("sign", (1.0, 1.0, 1.0), T.text_panel(256, seed=3), specular=0.05),
-        "concrete": Material("concrete", (0.62, 0.6, 0.58), None, specular=0.1),
-        "metal": Material("metal", (0.75, 0.76, 0.8), None, specular=0.8, shininess=64.0),
-        "red": Material("red", (0.8, 0.12, 0.1), None, specular=0.5),
-        "gold": Material("gold", (0.9, 0.7, 0.2), None, specular=0.9, shininess=64.0),
+    sign = T.text_panel(256, seed=3)
+    mats = {  # (Blinn-Phong specular and shininess for shading = "phong"; metallic-roughness for "pbr")
+        "floor": Material("floor", (0.9, 0.9, 0.9), T.checker(256, 8), roughness=0.35),   # glossy tiles
+        "brick": Material("brick", (1.0, 1.0, 1.0), T.bricks(256, 8, seed=1), roughness=0.85),
+        "stripes": Material("stripes", (1.0, 1.0, 1.0), T.noise_stripes(256, seed=2), roughness=0.6),
+        "sign": Material("sign", (1.0, 1.0, 1.0), sign, specular=0.05, roughness=0.4,           # a lit display
+                         emissive=(0.8, 0.8, 0.8), emissive_texture=sign),
+        "concrete": Material("concrete", (0.62, 0.6, 0.58), None, specular=0.1, roughness=0.9),
+        "metal": Material("metal", (0.75, 0.76, 0.8), None, specular=0.8, shininess=64.0, metallic=1.0, roughness=0.3),
+        "red": Material("red", (0.8, 0.12, 0.1), None, specular=0.5, roughness=0.15),          # glossy plastic
+        "gold": Material("gold", (0.9, 0.7, 0.2), None, specular=0.9, shininess=64.0, metallic=1.0, roughness=0.25),
     }
     objs: list[SceneObject] = []
 
@@ -88,4 +91,11 @@ def minimal_scene() -> Scene:
     return Scene("minimal", [floor, cube], DirectionalLight(shadow_map_size=1024, shadow_extent_m=8.0), [])
 
 
-BUILTIN_SCENES = {"default": default_scene, "minimal": minimal_scene}
+def default_phong_scene() -> Scene:
+    """The default scene shaded with the older Blinn-Phong model (base colour only), for comparison."""
+    sc = default_scene()
+    sc.name, sc.shading = "default_phong", "phong"
+    return sc
+
+
+BUILTIN_SCENES = {"default": default_scene, "default_phong": default_phong_scene, "minimal": minimal_scene}

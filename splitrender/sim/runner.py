@@ -568,7 +568,7 @@ class VirtualTimeRun:
             "width": cfg.width, "height": cfg.height, "server_fps": cfg.server_fps, "client_fps": cfg.client_fps,
             "frames": len(fr), "mean_psnr_db": mean("psnr_db"), "p5_psnr_db": pct("psnr_db", 5), "mean_ssim": mean("ssim"),
             "mean_flip": mean("flip"), "flip_frames": int(np.sum(~np.isnan(col("flip")))) if fr else 0,
-            "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"),
+            "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"), "mean_hole_geom_pct": mean("hole_geom_pct"),
             "mean_kbps": total * 8 / dur / 1000.0,
         }
         for name, b in bytes_by_stream.items():

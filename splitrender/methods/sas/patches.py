@@ -181,8 +181,8 @@ class ScenePatches:
     ``object_index`` (P,) index into ``scene.objects``; ``local`` (P,) patch index inside
     its object; ``tri_to_patch`` (T_scene,) global patch of each scene-wide triangle
     (the renderer's ``tri_base`` order); ``size`` (P,) triangles per patch;
-    ``slot_pos``/``slot_nrm`` (P, 5, 3) and ``slot_uv`` (P, 5, 2) object-space vertex
-    attributes per slot (float32).
+    ``slot_pos``/``slot_nrm`` (P, 5, 3), ``slot_uv`` (P, 5, 2) and ``slot_tan`` (P, 5, 4)
+    object-space vertex attributes per slot (float32).
     """
 
     per_object: list[MeshPatches]
@@ -194,6 +194,7 @@ class ScenePatches:
     slot_nrm: np.ndarray
     slot_uv: np.ndarray
     base: np.ndarray
+    slot_tan: np.ndarray
 
     @property
     def count(self) -> int:
@@ -202,7 +203,7 @@ class ScenePatches:
 
 def build_scene_patches(scene: Scene) -> ScenePatches:
     """Patches for every object of ``scene`` (object order = renderer triangle order)."""
-    per, oi, loc, sz, t2p, sp, sn, su, base = [], [], [], [], [], [], [], [], []
+    per, oi, loc, sz, t2p, sp, sn, su, st, base = [], [], [], [], [], [], [], [], [], []
     pbase = 0
     for k, o in enumerate(scene.objects):
         mp = build_mesh_patches(o.mesh)
@@ -215,8 +216,10 @@ def build_scene_patches(scene: Scene) -> ScenePatches:
         sp.append(o.mesh.positions[s])
         sn.append(o.mesh.normals[s])
         su.append(o.mesh.uvs[s])
+        st.append(o.mesh.tangent_frame()[s])
         base.append(pbase)
         pbase += mp.count
     return ScenePatches(per, np.concatenate(oi), np.concatenate(loc), np.concatenate(sz), np.concatenate(t2p).astype(np.int32),
                         np.concatenate(sp).astype(np.float32), np.concatenate(sn).astype(np.float32),
-                        np.concatenate(su).astype(np.float32), np.array(base, np.int64))
+                        np.concatenate(su).astype(np.float32), np.array(base, np.int64),
+                        np.concatenate(st).astype(np.float32))

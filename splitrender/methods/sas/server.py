@@ -318,15 +318,17 @@ class SasServer(ServerHalf):
                 pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[ids][:, tri].astype(np.float64))
                 nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[ids][:, tri].astype(np.float64))
                 uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[ids][:, tri].astype(np.float64))
+                tan = np.einsum("nkj,njc->nkc", w, P.slot_tan[ids][:, tri].astype(np.float64))
+                tan[..., 3] = P.slot_tan[ids][:, tri[0], 3][:, None]    # handedness is not interpolated
                 r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
-                verts.append(np.concatenate([q, pos, nrm, uv, r4], axis=2))
+                verts.append(np.concatenate([q, pos, nrm, uv, tan, r4], axis=2))
                 obj_of.append(P.object_index[ids])
-        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 14)
+        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 18)
         o = np.concatenate(obj_of)
         order = np.argsort(o, kind="stable")
         v, o = v[order], o[order]
         vbo = gl.buffer(v.tobytes())
-        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f", "in_atlas", "in_position", "in_normal", "in_uv", "in_rect")])
+        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f 4f", "in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect")])
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))

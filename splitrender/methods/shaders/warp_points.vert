@@ -14,8 +14,9 @@ void main() {
     uint id = ref_id(p);
     if (u_edge_only == 1) {
         bool edge = false;
-        const ivec2 nb[4] = ivec2[](ivec2(1, 0), ivec2(-1, 0), ivec2(0, 1), ivec2(0, -1));
-        for (int k = 0; k < 4; ++k) {
+        // the grid's edges: the four axis neighbours and the anti-diagonal of its triangles
+        const ivec2 nb[6] = ivec2[](ivec2(1, 0), ivec2(-1, 0), ivec2(0, 1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 1));
+        for (int k = 0; k < 6; ++k) {
             ivec2 q = clamp(p + nb[k], ivec2(0), u_ref_size - 1);
             edge = edge || discontinuous(z, id, ref_depth(q), ref_id(q));
         }

@@ -3,6 +3,7 @@
 in vec3 v_world;
 in vec3 v_normal;
 in vec2 v_uv;
+in vec4 v_tangent;
 in float v_view_depth;
 uniform vec3 u_eye;
 uniform uint u_object_id;
@@ -14,7 +15,7 @@ layout(location = 3) out float f_depth;   // view-space depth along -Z, metres
 void main() {
     vec3 n = normalize(v_normal);
     if (dot(n, u_eye - v_world) < 0.0) n = -n;
-    f_color = vec4(shade(v_world, n, v_uv, u_eye), 1.0);
+    f_color = vec4(shade(v_world, n, v_tangent, v_uv, u_eye), 1.0);
     f_normal = vec4(n, 0.0);
     f_ids = uvec2(u_object_id, u_primitive_base + uint(gl_PrimitiveID) + 1u);
     f_depth = v_view_depth;

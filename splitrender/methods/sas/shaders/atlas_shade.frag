@@ -5,6 +5,7 @@
 in vec3 v_world;
 in vec3 v_normal;
 in vec2 v_uv;
+in vec4 v_tangent;
 flat in vec4 v_rect;
 uniform vec3 u_eye;
 layout(location = 0) out vec4 f_color;
@@ -13,5 +14,5 @@ void main() {
     if (p.x < v_rect.x || p.y < v_rect.y || p.x > v_rect.x + v_rect.z || p.y > v_rect.y + v_rect.w) discard;
     vec3 n = normalize(v_normal);
     if (dot(n, u_eye - v_world) < 0.0) n = -n;
-    f_color = vec4(shade(v_world, n, v_uv, u_eye), 1.0);
+    f_color = vec4(shade(v_world, n, v_tangent, v_uv, u_eye), 1.0);
 }
