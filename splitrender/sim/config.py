@@ -23,6 +23,7 @@ class RunConfig:
     (render+encode, decode) on the simulated clock, so results do not depend on this
     machine's speed; the measured wall-clock costs are recorded separately.
     ``flip_every``: score FLIP on every n-th displayed frame (0 = never).
+    ``ssim_sigma``: the SSIM Gaussian window in pixels (1.5, Wang et al.; the SAS paper uses 2).
     """
 
     method: str = "video"
@@ -45,6 +46,7 @@ class RunConfig:
     flip_every: int = 4
     metrics: bool = True
     save_images_every: int = 0
+    ssim_sigma: float = 1.5
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -67,6 +69,8 @@ class RunConfig:
                 raise bad(k, f"must be in [0, 10000], got {getattr(self, k)}")
         if not 200 <= self.mtu_bytes <= 9000:
             raise bad("mtu_bytes", f"must be in [200, 9000], got {self.mtu_bytes}")
+        if not 0.5 <= self.ssim_sigma <= 10.0:
+            raise bad("ssim_sigma", f"must be in [0.5, 10], got {self.ssim_sigma}")
         if self.flip_every < 0 or self.save_images_every < 0:
             raise bad("flip_every/save_images_every", "must be >= 0")
         if not 0 <= self.seed < 2**63:

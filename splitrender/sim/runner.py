@@ -327,7 +327,7 @@ class VirtualTimeRun:
                 gt = gt_out.color
                 row["gt_ms"] = (time.perf_counter() - w0) * 1000
                 row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
-                                               bool(cfg.flip_every) and di % cfg.flip_every == 0))
+                                               bool(cfg.flip_every) and di % cfg.flip_every == 0, cfg.ssim_sigma))
                 if cfg.save_images_every and di % cfg.save_images_every == 0:
                     result.images.append((di, cf.color, gt))
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
@@ -361,10 +361,7 @@ class VirtualTimeRun:
             "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace, "seed": cfg.seed,
             "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
             "width": cfg.width, "height": cfg.height, "server_fps": cfg.server_fps, "client_fps": cfg.client_fps,
-            "frames": len(fr), "mean_psnr_db": mean("psnr_db"), "p5_psnr_db": pct("psnr_db", 5), "mean_ssim": mean("ssim"),
-            "mean_flip": mean("flip"), "flip_frames": int(np.sum(~np.isnan(col("flip")))) if fr else 0,
-            "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"),
-            "mean_kbps": total * 8 / dur / 1000.0,
+            "frames": len(fr), **metrics.quality_summary(fr), "mean_kbps": total * 8 / dur / 1000.0,
         }
         for name, b in bytes_by_stream.items():
             s[f"kbps_{name}"] = b * 8 / dur / 1000.0
