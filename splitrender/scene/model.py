@@ -188,7 +188,11 @@ MAX_POINT_LIGHTS = 8
 
 @dataclass
 class Scene:
-    """A complete scene.  ``version`` changes whenever geometry is edited (GPU caches key on it)."""
+    """A complete scene.  ``version`` changes whenever geometry is edited (GPU caches key on it).
+
+    ``subject``: world bounds (lo, hi) in metres of a loaded model, which the built-in
+    traces frame; None for the built-in scenes (their traces are fixed).
+    """
 
     name: str
     objects: list[SceneObject]
@@ -197,6 +201,7 @@ class Scene:
     ambient: tuple[float, float, float] = (0.18, 0.2, 0.24)
     sky_color: tuple[float, float, float] = (0.55, 0.7, 0.9)
     version: int = 0
+    subject: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         ids = [o.object_id for o in self.objects]

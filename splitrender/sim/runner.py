@@ -136,7 +136,7 @@ class VirtualTimeRun:
         self.spec = get_method(cfg.method)
         self.mcfg = make_config(self.spec.config, cfg.method_params)
         self.scene = get_scene(cfg.scene)
-        self.trace = get_trace(cfg.trace)
+        self.trace = get_trace(cfg.trace, scene=self.scene, fov_y_deg=cfg.fov_y_deg, aspect=cfg.width / cfg.height)
         self.path = parse_path(cfg.network)
         self.intr = CameraIntrinsics(cfg.width, cfg.height, cfg.fov_y_deg)
         self.renderer = renderer or Renderer()
