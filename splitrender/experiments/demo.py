@@ -29,6 +29,7 @@ from typing import Any, Sequence
 
 from ..errors import ConfigError
 from ..sim.config import RunConfig
+from ..sim.truth import shared_cache_setting
 from .report import build_report, save_meta
 from .sections import Section
 from .store import ResultStore, Row, fnum, network_columns, read_csv, write_csv
@@ -317,7 +318,8 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
     deadline = t0 + QUICK_BUDGET_S if quick else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    cfgs = demo_configs(quick, methods, networks, duration_s, size, traces)
+    # one ground truth for every method and network (splitrender.sim.truth)
+    cfgs = [c.replace(truth_cache=shared_cache_setting(out)) for c in demo_configs(quick, methods, networks, duration_s, size, traces)]
     store = ResultStore(out)
     # Studies start first at low priority, so they use whatever CPU the runs leave.
     studies_run = StudyRunner(out, quick, nice=10).start() if studies else None

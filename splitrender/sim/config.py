@@ -24,6 +24,10 @@ class RunConfig:
     machine's speed; the measured wall-clock costs are recorded separately.
     ``flip_every``: score FLIP on every n-th displayed frame (0 = never).
     ``ssim_sigma``: the SSIM Gaussian window in pixels (1.5, Wang et al.; the SAS paper uses 2).
+    ``truth_cache``: where ground-truth frames are cached (:mod:`splitrender.sim.truth`):
+    ``""`` renders every one, ``"default"`` uses ``$SPLITRENDER_TRUTH_CACHE`` or
+    ``~/.cache/splitrender/truth``, anything else is a folder.  It cannot change a
+    result, so it is not part of :meth:`key`.
     """
 
     method: str = "video"
@@ -47,6 +51,7 @@ class RunConfig:
     metrics: bool = True
     save_images_every: int = 0
     ssim_sigma: float = 1.5
+    truth_cache: str = ""
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -104,7 +109,9 @@ class RunConfig:
 
     def key(self) -> str:
         """A stable hash of the resolved config (for result caching)."""
-        blob = json.dumps(self.to_dict(), sort_keys=True, default=str)
+        d = self.to_dict()
+        d.pop("truth_cache")  # where the ground truth is cached does not change the result
+        blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def replace(self, **kw: Any) -> "RunConfig":
