@@ -75,3 +75,59 @@ def test_errors_name_what_was_wrong():
     dec = VideoDecoder("h264")
     with pytest.raises(CodecError):
         dec.decode(b"\x00\x00\x01\x65garbage-not-a-slice" * 3)
+
+
+FLAT = [(140, 178, 230), (0, 0, 0), (255, 255, 255), (200, 50, 50), (17, 99, 201), (128, 128, 128), (3, 250, 7)]
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_flat_colour_survives_the_lossy_path_within_one_code_value(codec):
+    # before the fix the sky (140, 178, 230) came back as (138, 178, 228) through swscale
+    for col in FLAT:
+        f = np.empty((64, 96, 3), np.uint8)
+        f[:] = col
+        enc = VideoEncoder(VideoCodecConfig(codec=codec, crf=23), 96, 64)
+        out = VideoDecoder(codec).decode(enc.encode(f).data)
+        err = int(np.abs(out.astype(int) - f).max())
+        assert err <= 1, f"{codec} {col}: came back as {tuple(out[32, 48])}, off by {err}"
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_flat_colour_survives_the_lossless_path_exactly(codec):
+    from splitrender.methods.base import MethodConfig
+
+    vc = MethodConfig(codec=codec, lossless=True).video(30)
+    assert (vc.codec, vc.pix_fmt, vc.lossless) == ("hevc", "gbrp", True)
+    enc, dec = VideoEncoder(vc, 96, 64), VideoDecoder(vc.codec, vc.input_format)
+    for i, col in enumerate(FLAT):
+        f = np.empty((64, 96, 3), np.uint8)
+        f[:] = col
+        f[10:20, 10:30] = FLAT[(i + 1) % len(FLAT)]
+        assert np.array_equal(dec.decode(enc.encode(f).data), f), col
+
+
+def test_colour_conversion_is_within_one_code_value_for_every_flat_colour():
+    from splitrender.codecs.video import rgb_to_yuv, yuv_to_rgb
+
+    c = np.stack(np.meshgrid(np.arange(256), np.arange(256), np.arange(0, 256, 5), indexing="ij"), -1)
+    c = c.reshape(-1, 2, 3).astype(np.uint8)[:, :1]          # (N, 1, 3): one pixel per colour, 4:4:4
+    out = yuv_to_rgb(*rgb_to_yuv(c, 1), full_range=True)
+    assert int(np.abs(out.astype(int) - c).max()) == 1
+    # and 4:2:0 on 2x2 blocks of one colour
+    blk = np.repeat(np.repeat(c[:4096].reshape(64, 64, 3), 2, 0), 2, 1)
+    out = yuv_to_rgb(*rgb_to_yuv(blk, 2), full_range=True)
+    assert int(np.abs(out.astype(int) - blk).max()) <= 1
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_bitstream_signals_the_colour_description(codec):
+    import av
+
+    enc = VideoEncoder(VideoCodecConfig(codec=codec), 64, 64)
+    ctx = av.CodecContext.create(codec, "r")
+    frames = []
+    for _ in range(3):
+        frames += ctx.decode(av.Packet(enc.encode(np.full((64, 64, 3), 90, np.uint8)).data))
+    f = frames[0]
+    # BT.709 matrix and primaries, full range, sRGB transfer (IEC 61966-2-1)
+    assert (int(f.colorspace), int(f.color_range), int(f.color_primaries), int(f.color_trc)) == (1, 2, 1, 13)

@@ -85,3 +85,60 @@ def test_ssim_closed_form_on_constant_images():
     c1 = (metrics.image.SSIM_K1 * 255) ** 2
     expect = (2 * 100 * 110 + c1) / (100**2 + 110**2 + c1)
     assert metrics.ssim(a, b) == pytest.approx(expect, abs=1e-6)
+
+
+def test_identical_frame_scores_the_60_db_cap():
+    a = np.full((16, 16, 3), 77, np.uint8)
+    assert metrics.PSNR_CAP_DB == 60.0
+    assert metrics.psnr(a, a) == 60.0
+    s = metrics.score_frame(a, None, a, np.zeros((16, 16), bool), with_flip=True)
+    assert s["psnr_db"] == 60.0 and s["mse"] == 0.0 and s["dssim"] == pytest.approx(0.0)
+    # an MSE of 0.05 (below 255^2 / 10^6 = 0.065) also reads 60 dB, not 61
+    assert metrics.psnr_from_mse(0.05) == 60.0
+
+
+def test_run_psnr_from_mean_mse_is_finite_and_differs_from_mean_of_frames():
+    a = np.zeros((16, 16, 3), np.uint8)
+    b = np.full((16, 16, 3), 10, np.uint8)   # MSE 100: 28.13 dB
+    rows = [metrics.score_frame(a, None, a, None, False), metrics.score_frame(b, None, a, None, False)]
+    q = metrics.quality_summary(rows)
+    assert q["mean_psnr_db"] == pytest.approx((60.0 + 10 * math.log10(255**2 / 100.0)) / 2)   # 44.07 dB
+    assert q["psnr_mse_db"] == pytest.approx(10 * math.log10(255**2 / 50.0))                   # 31.14 dB
+    assert math.isfinite(q["psnr_mse_db"]) and q["psnr_mse_db"] < q["mean_psnr_db"] - 12
+    assert q["flip_frames"] == 0 and math.isnan(q["mean_flip"])
+
+
+def test_dssim_beside_ssim_and_the_window_is_a_parameter():
+    rng = np.random.default_rng(2)
+    a = (rng.random((64, 64, 3)) * 255).astype(np.uint8)
+    b = np.clip(a.astype(int) + rng.integers(-30, 31, a.shape), 0, 255).astype(np.uint8)
+    s15, s2 = metrics.ssim(b, a), metrics.ssim(b, a, sigma=2.0)
+    assert s15 == pytest.approx(0.97391, abs=1e-5) and s2 == pytest.approx(0.97458, abs=1e-5)   # measured
+    assert metrics.dssim(b, a, 2.0) == pytest.approx((1 - s2) / 2)
+    row = metrics.score_frame(b, None, a, None, False, ssim_sigma=2.0)
+    assert row["ssim"] == pytest.approx(s2) and row["dssim"] == pytest.approx((1 - s2) / 2)
+
+
+def test_foreground_covers_geometry_in_either_image():
+    sky = (140, 178, 230)
+    truth = np.zeros((20, 40, 3), np.uint8)
+    truth[:] = sky
+    truth[5:10, 5:10] = (200, 50, 50)            # an object in the truth: 25 px
+    geo = np.zeros((20, 40), bool)
+    geo[5:10, 5:10] = True
+    shown = truth.copy()
+    shown[5:10, 5:10] = sky                      # the method missed it ...
+    shown[12:16, 20:30] = (200, 50, 50)          # ... and draws it elsewhere: 40 px
+    shown[0, :] = (141, 177, 231)                # codec noise of 1 on the sky is not geometry
+    fg = metrics.foreground_mask(shown, truth, geo)
+    assert fg.sum() == 25 + 40
+    s = metrics.score_frame(shown, None, truth, geo, with_flip=True)
+    assert s["fg_pct"] == pytest.approx(100 * 65 / 800)
+    assert s["fg_mse"] == pytest.approx(s["mse"] * 800 / 65, rel=1e-3)   # the 40 noise px add 3 each to the sum
+    assert s["fg_psnr_db"] < s["psnr_db"] - 10
+    assert s["fg_flip"] > 4 * s["flip"]
+    # no foreground anywhere: NaN, left out of the means
+    e = metrics.score_frame(truth, None, truth, np.zeros((20, 40), bool), with_flip=True)
+    assert math.isnan(e["fg_psnr_db"]) and math.isnan(e["fg_flip"])
+    q = metrics.quality_summary([s, e])
+    assert q["fg_frames"] == 1 and q["mean_fg_psnr_db"] == pytest.approx(s["fg_psnr_db"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from splitrender.errors import ConfigError, NetworkConfigError, TraceError
@@ -122,3 +123,15 @@ def test_a_malformed_update_is_rejected_and_the_run_goes_on(renderer, monkeypatc
     assert res.summary["apply_errors"] == 1
     shown = {f["update_frame_id"] for f in res.frames}
     assert 2 not in shown and max(shown) >= 10, "the rejected update is skipped, later ones are shown"
+
+
+def test_still_camera_lossless_video_reproduces_the_truth_bit_for_bit(renderer):
+    """A still camera on a still scene at ``ideal`` with ``lossless = true``: every shown frame is the truth."""
+    cfg = RunConfig(method="video", scene="minimal", trace="static", network="ideal", duration_s=0.5, width=160, height=90,
+                    flip_every=2, save_images_every=1, method_params={"lossless": True})
+    res = run(cfg, renderer=renderer)
+    assert len(res.images) == 30
+    for frame, shown, truth in res.images:
+        assert np.array_equal(shown, truth), f"frame {frame}: {int(np.sum(np.any(shown != truth, axis=-1)))} pixels differ"
+    s = res.summary
+    assert (s["mean_psnr_db"], s["psnr_mse_db"], s["mean_fg_psnr_db"], s["mean_flip"]) == (60.0, 60.0, 60.0, 0.0)

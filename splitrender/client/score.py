@@ -4,7 +4,7 @@ For every displayed frame the recording holds the trace pose, the scene time of 
 display instant and (with ``--save-images``) the displayed image and hole mask.  The
 ground truth is rendered at that pose and scene time with no latency, and the same
 metrics as :mod:`splitrender.sim.runner` are computed; ``frames.csv`` gains the
-``psnr_db``, ``ssim``, ``flip``, ``lab_err_pct``, ``hole_pct`` and ``gt_ms`` columns and
+columns of :func:`splitrender.metrics.score_frame` and ``gt_ms``, and
 ``summary.csv`` gets the runner's summary keys (where a live run has them).
 """
 
@@ -47,7 +47,7 @@ def read_frames(path: Path) -> list[dict[str, Any]]:
 
 
 def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every: int = 4,
-                    progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+                    progress: Callable[[int, int], None] | None = None, ssim_sigma: float = metrics.SSIM_SIGMA) -> dict[str, Any]:
     """Add image metrics to ``out_dir``'s frames.csv and write summary.csv; returns the summary.
 
     Needs a recording made with ``save_images``.  ``renderer`` must belong to the
@@ -77,7 +77,8 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
         gt = renderer.render(scene, float(row["scene_t_s"]), pose, intr, ("color", "object_id"))
         row["gt_ms"] = (time.perf_counter() - w0) * 1000
         # the same per-frame scoring as the virtual-time runner
-        row.update(metrics.score_frame(color, holes, gt.color, gt.object_id > 0, bool(flip_every) and i % flip_every == 0))
+        row.update(metrics.score_frame(color, holes, gt.color, gt.object_id > 0, bool(flip_every) and i % flip_every == 0,
+                                         ssim_sigma))
         if progress:
             progress(i + 1, len(rows))
     summary = _summary(rec, rows, counters, flip_every)
@@ -109,10 +110,7 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
         "seed": 0, "params": ";".join(f"{k}={v}" for k, v in sorted(params.items())),
         "width": rec["width"], "height": rec["height"], "server_fps": rec.get("server_fps"),
         "client_fps": rec.get("display_hz"), "frames": len(rows),
-        "mean_psnr_db": mean("psnr_db"), "p5_psnr_db": pct("psnr_db", 5), "mean_ssim": mean("ssim"),
-        "mean_flip": mean("flip"), "flip_frames": int(col("flip").size),
-        "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"), "mean_hole_geom_pct": mean("hole_geom_pct"),
-        "mean_kbps": kbps + meta_kbps, "kbps_video": kbps, "kbps_meta": meta_kbps,
+        **metrics.quality_summary(rows), "mean_kbps": kbps + meta_kbps, "kbps_video": kbps, "kbps_meta": meta_kbps,
         "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
         "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
         "mean_server_ms": mean("server_render_ms"), "mean_encode_ms": mean("server_encode_ms"),

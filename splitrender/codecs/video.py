@@ -7,7 +7,16 @@ VBV buffer of one frame) or CRF, and a lossless mode (HEVC ``lossless=1``, or x2
 
 Input planes are numpy arrays, row 0 at the top:
 
-- ``rgb24``: (H, W, 3) uint8 sRGB (converted to the stream's ``pix_fmt``);
+- ``rgb24``: (H, W, 3) uint8 sRGB.  Into ``yuv420p`` / ``yuv444p`` it is converted
+  here, not by swscale: BT.709 matrix, **full range** (Y, Cb, Cr in 0..255), exact
+  float arithmetic rounded to nearest, chroma averaged over each 2x2 block for 4:2:0.
+  The bitstream says so (VUI: matrix BT.709, range full, primaries BT.709, transfer
+  IEC 61966-2-1 = sRGB), so FFmpeg, GStreamer or a browser decode the same colours;
+  :class:`VideoDecoder` inverts it with the matrix and range the stream signals.  A
+  flat colour comes back within one code value per channel (exhaustively checked:
+  full range loses at most 1; the old swscale path turned the sky (140, 178, 230)
+  into (138, 178, 228), limited range loses up to 2).  Into ``gbrp`` (lossless RGB
+  4:4:4) the planes are only reordered;
 - ``gray``: (H, W) uint8;
 - ``gray16le`` / ``gray10le`` / ``gray12le``: (H, W) uint16 (lossless depth, probes);
 - ``gbrp10le`` / ``gbrp16le``: (H, W, 3) uint16 high-bit-depth colour.
@@ -30,6 +39,77 @@ CodecName = Literal["h264", "hevc"]
 ENCODERS = {"h264": "libx264", "hevc": "libx265"}
 IDR_NAL_TYPES_H264 = {5}
 IDR_NAL_TYPES_HEVC = set(range(16, 22))
+
+# Colour description written into the bitstream (ISO/IEC 23091-2 code points, as FFmpeg numbers them)
+COLOR_MATRIX_BT709 = 1
+COLOR_PRIMARIES_BT709 = 1
+COLOR_TRC_SRGB = 13        # IEC 61966-2-1
+COLOR_RANGE_FULL = 2       # AVCOL_RANGE_JPEG
+COLOR_RANGE_LIMITED = 1    # AVCOL_RANGE_MPEG
+# luma weights (Kr, Kb) per matrix code point; unspecified (2) decodes as BT.601, FFmpeg's default
+_KR_KB = {1: (0.2126, 0.0722), 5: (0.299, 0.114), 6: (0.299, 0.114), 2: (0.299, 0.114), 9: (0.2627, 0.0593), 10: (0.2627, 0.0593)}
+_YUV_FORMATS = {"yuv420p": 2, "yuvj420p": 2, "yuv444p": 1, "yuvj444p": 1}  # chroma subsampling factor
+
+
+def rgb_to_yuv(rgb: np.ndarray, sub: int, kr: float = 0.2126, kb: float = 0.0722) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(H, W, 3) uint8 RGB -> full-range Y (H, W), Cb, Cr (H/sub, W/sub) uint8 planes.
+
+    Float arithmetic rounded to nearest; 4:2:0 chroma is that of the mean colour of each
+    2x2 block.
+    """
+    kg = 1.0 - kr - kb
+    x = rgb.astype(np.float32)
+    y = x @ np.array([kr, kg, kb], np.float32)
+    if sub == 2:
+        x = x[0::2, 0::2] + x[1::2, 0::2] + x[0::2, 1::2] + x[1::2, 1::2]
+    m = np.array([[-kr / (2 * (1 - kb)), 0.5], [-kg / (2 * (1 - kb)), -kg / (2 * (1 - kr))], [0.5, -kb / (2 * (1 - kr))]],
+                 np.float32) / (sub * sub)
+    c = x @ m
+    c += 128.0
+    for a in (y, c):
+        np.rint(a, out=a)
+        np.clip(a, 0, 255, out=a)
+    c8 = c.astype(np.uint8)
+    return y.astype(np.uint8), np.ascontiguousarray(c8[..., 0]), np.ascontiguousarray(c8[..., 1])
+
+
+_INV_LUTS: dict[tuple[float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _inverse_luts(kr: float, kb: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Full-range offsets added to Y: R by Cr, B by Cb, G by (Cb, Cr); int16, rounded."""
+    if (kr, kb) not in _INV_LUTS:
+        kg = 1.0 - kr - kb
+        u = np.arange(256, dtype=np.float64) - 128.0
+        r_v = np.rint(2 * (1 - kr) * u).astype(np.int16)
+        b_u = np.rint(2 * (1 - kb) * u).astype(np.int16)
+        g_uv = np.rint(-(kb * 2 * (1 - kb) * u[:, None] + kr * 2 * (1 - kr) * u[None, :]) / kg).astype(np.int16)
+        _INV_LUTS[(kr, kb)] = (r_v, g_uv, b_u)
+    return _INV_LUTS[(kr, kb)]
+
+
+def yuv_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, full_range: bool, kr: float = 0.2126,
+               kb: float = 0.0722) -> np.ndarray:
+    """Y (H, W) and Cb, Cr (H/s, W/s) uint8 planes -> (H, W, 3) uint8 RGB, chroma repeated over its block.
+
+    Full range: Y is an integer, so round(Y + k * (C - 128)) = Y + round(k * (C - 128))
+    and the offsets come from tables.  Limited range (streams from elsewhere) in floats.
+    """
+    h, w = y.shape
+    ch, cw = cb.shape
+    sy, sx = h // ch, w // cw
+    if full_range:
+        r_v, g_uv, b_u = _inverse_luts(kr, kb)
+        off = np.stack([r_v[cr], g_uv[cb, cr], b_u[cb]], axis=-1)
+        out = y.astype(np.int16).reshape(ch, sy, cw, sx, 1) + off[:, None, :, None, :]
+    else:
+        kg = 1.0 - kr - kb
+        u = (cb.astype(np.float32) - 128.0) * (255.0 / 224.0)
+        v = (cr.astype(np.float32) - 128.0) * (255.0 / 224.0)
+        off = np.stack([2 * (1 - kr) * v, -(kb * 2 * (1 - kb) * u + kr * 2 * (1 - kr) * v) / kg, 2 * (1 - kb) * u], axis=-1)
+        yf = (y.astype(np.float32) - 16.0) * (255.0 / 219.0)
+        out = np.rint(yf.reshape(ch, sy, cw, sx, 1) + off[:, None, :, None, :])
+    return np.clip(out, 0, 255).astype(np.uint8).reshape(h, w, 3)
 
 
 @dataclass(frozen=True)
@@ -91,6 +171,12 @@ class VideoEncoder:
         ctx.framerate = Fraction(cfg.fps, 1)
         ctx.gop_size = cfg.gop
         ctx.max_b_frames = 0
+        self._yuv_sub = _YUV_FORMATS.get(cfg.pix_fmt) if cfg.input_format == "rgb24" else None
+        if cfg.input_format in ("rgb24", "gbrp10le", "gbrp16le"):  # colour: say what the samples mean
+            ctx.color_primaries = COLOR_PRIMARIES_BT709
+            ctx.color_trc = COLOR_TRC_SRGB
+            ctx.colorspace = COLOR_MATRIX_BT709 if self._yuv_sub else 0   # 0: RGB (gbrp)
+            ctx.color_range = COLOR_RANGE_FULL
         opts: dict[str, str] = {"preset": cfg.preset, "tune": "zerolatency"}
         if cfg.codec == "h264":
             params = ["bframes=0", "forced-idr=1", f"keyint={cfg.gop}", f"min-keyint={cfg.gop}", "scenecut=0", "repeat-headers=1"]
@@ -132,6 +218,13 @@ class VideoEncoder:
             arr = np.ascontiguousarray(plane, dtype=np.uint8)
         else:
             arr = np.ascontiguousarray(plane, dtype=np.uint16)
+        if self._yuv_sub:
+            frame = av.VideoFrame(self.width, self.height, self.cfg.pix_fmt)
+            for p, data in zip(frame.planes, rgb_to_yuv(arr, self._yuv_sub)):
+                p.update(_pad_rows(data, p.line_size).tobytes())
+            frame.colorspace = COLOR_MATRIX_BT709
+            frame.color_range = COLOR_RANGE_FULL
+            return frame
         if fmt in ("gray10le", "gray12le"):
             frame = av.VideoFrame(self.width, self.height, fmt)
             frame.planes[0].update(_pad_rows(arr, frame.planes[0].line_size // 2).tobytes())
@@ -191,6 +284,11 @@ class VideoDecoder:
 
 
 def frame_to_array(frame, fmt: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    if fmt == "rgb24" and frame.format.name in _YUV_FORMATS:
+        kr, kb = _KR_KB.get(int(frame.colorspace), _KR_KB[2])
+        full = int(frame.color_range) == COLOR_RANGE_FULL or frame.format.name.startswith("yuvj")
+        planes = [np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, : p.width] for p in frame.planes]
+        return yuv_to_rgb(planes[0], planes[1], planes[2], full, kr, kb)
     if fmt in ("gray10le", "gray12le", "gray16le"):
         f = frame if frame.format.name == fmt else frame.reformat(format=fmt)
         p = f.planes[0]

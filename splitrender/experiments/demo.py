@@ -29,6 +29,7 @@ from typing import Any, Sequence
 
 from ..errors import ConfigError
 from ..sim.config import RunConfig
+from ..sim.truth import shared_cache_setting
 from .report import build_report, save_meta
 from .sections import Section
 from .store import ResultStore, Row, fnum, network_columns, read_csv, write_csv
@@ -43,7 +44,8 @@ FULL: dict[str, Any] = {"width": 640, "height": 360, "duration_s": None, "client
                         "traces": ("walk", "turn")}
 QUICK_BUDGET_S = 160.0
 FULL_STUDY_TIMEOUT_S = 3600.0
-SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "p5_psnr_db", "mean_ssim", "mean_flip", "flip_frames",
+SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "psnr_mse_db", "p5_psnr_db", "mean_ssim", "mean_dssim",
+                   "mean_flip", "flip_frames", "mean_fg_psnr_db", "mean_fg_flip", "mean_fg_pct",
                    "mean_kbps", "mean_hole_pct", "mean_lab_err_pct", "mean_update_age_ms", "mean_server_ms", "mean_client_ms",
                    "mean_gt_ms", "client_over_gt", "lost_frames", "net_delay_ms", "net_jitter_ms")
 
@@ -94,7 +96,7 @@ def summarise(runs: Sequence[Row]) -> list[Row]:
     for (m, net), rr in groups.items():
         row: Row = {"method": m, "network": net, "traces": "|".join(dict.fromkeys(str(r["trace"]) for r in rr)), "runs": len(rr)}
         keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k in ("flip_frames", "lost_frames", "net_delay_ms",
-                                                                                      "net_jitter_ms")]
+                                                                                      "net_jitter_ms", "psnr_mse_db", "fg_psnr_mse_db")]
         for k in keys:
             vals = [fnum(r.get(k)) for r in rr if not math.isnan(fnum(r.get(k)))]
             row[k] = sum(vals) / len(vals) if vals else math.nan
@@ -317,7 +319,8 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
     deadline = t0 + QUICK_BUDGET_S if quick else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    cfgs = demo_configs(quick, methods, networks, duration_s, size, traces)
+    # one ground truth for every method and network (splitrender.sim.truth)
+    cfgs = [c.replace(truth_cache=shared_cache_setting(out)) for c in demo_configs(quick, methods, networks, duration_s, size, traces)]
     store = ResultStore(out)
     # Studies start first at low priority, so they use whatever CPU the runs leave.
     studies_run = StudyRunner(out, quick, nice=10).start() if studies else None

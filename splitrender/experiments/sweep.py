@@ -60,6 +60,7 @@ from typing import Any, Callable, Iterator, Protocol, Sequence
 
 from ..errors import ConfigError
 from ..sim.config import RunConfig, load_toml
+from ..sim.truth import shared_cache_setting
 from .store import ResultStore, Row
 
 log = logging.getLogger(__name__)
@@ -459,6 +460,9 @@ def run_sweep(path: str | Path, out: str | Path, workers: int | None = None, das
     store = ResultStore(out)
     store.root.mkdir(parents=True, exist_ok=True)
     (store.root / "sweep.toml").write_text(Path(path).read_text())
+    # one ground-truth cache for every run that does not name its own (splitrender.sim.truth)
+    shared = shared_cache_setting(out)
+    sweep.configs[:] = [c if c.truth_cache else c.replace(truth_cache=shared) for c in sweep.configs]
     res = run_configs(sweep.configs, store, workers, dask, progress)
     ok = [c for c in sweep.configs if store.has(c)]
     store.write_tables(ok)

@@ -208,7 +208,9 @@ class MethodConfig:
     """Settings every method has; methods subclass this with their own fields.
 
     ``bitrate_kbps`` (when set) is the total video budget of the method, split across
-    its streams as the method sees fit; otherwise streams use ``crf``.
+    its streams as the method sees fit; otherwise streams use ``crf``.  ``lossless``
+    sends the colour streams as lossless HEVC in 8-bit planar RGB 4:4:4 (``gbrp``),
+    whatever ``codec`` says: bit-exact colour, no bitrate control.
     """
 
     codec: str = "h264"
@@ -216,6 +218,7 @@ class MethodConfig:
     crf: float | None = 23.0
     gop: int = 30
     preset: str = "ultrafast"
+    lossless: bool = False
 
     def __post_init__(self) -> None:
         if self.codec not in ("h264", "hevc"):
@@ -229,6 +232,8 @@ class MethodConfig:
 
     def video(self, fps: int, share: float = 1.0, **kw: Any) -> VideoCodecConfig:
         """The codec config for a stream getting ``share`` of the bitrate budget."""
+        if self.lossless:
+            return VideoCodecConfig(codec="hevc", pix_fmt="gbrp", lossless=True, crf=None, gop=self.gop, preset=self.preset, fps=fps, **kw)
         br = None if self.bitrate_kbps is None else self.bitrate_kbps * share
         return VideoCodecConfig(codec=self.codec, bitrate_kbps=br, crf=self.crf, gop=self.gop, preset=self.preset, fps=fps, **kw)  # type: ignore[arg-type]
 

@@ -1,11 +1,13 @@
 """Image quality metrics on (H, W, 3) uint8 sRGB images.
 
-- :func:`psnr`: over all three channels, peak 255, in dB; identical images give
-  :data:`PSNR_CAP_DB` (100 dB) rather than infinity so means stay finite.
+- :func:`psnr`: over all three channels, peak 255, in dB, capped at
+  :data:`PSNR_CAP_DB` = 60 dB (libvmaf's cap for 8-bit video: an MSE below
+  0.065 is "identical"), so identical frames do not drag a mean to infinity.
+  :func:`psnr_from_mse` turns a mean MSE into a PSNR (FFmpeg's "average").
 - :func:`ssim`: luminance (ITU-R BT.601 luma) SSIM with the constants of Wang et al.
-  2004: Gaussian window sigma = 1.5 px (11 x 11 taps, truncate 3.5), K1 = 0.01,
-  K2 = 0.03, L = 255, population covariance.  That is the MSSIM the SAS and TSS
-  papers report (``DSSIM = (1 - SSIM) / 2``).
+  2004: Gaussian window sigma = 1.5 px by default (``sigma`` argument; the SAS paper
+  uses 2), taps out to 3.5 sigma, K1 = 0.01, K2 = 0.03, L = 255, population
+  covariance.  :func:`dssim` is ``(1 - SSIM) / 2`` (the SAS and TSS papers).
 - :func:`flip`: NVIDIA's LDR-FLIP (flip-evaluator), mean error in [0, 1], lower is
   better, for the default 67 pixels-per-degree viewing condition.
 - :func:`lab_error_rate`: share of pixels whose CIE L*a*b* distance (CIE76, D65)
@@ -17,10 +19,14 @@ This module imports nothing else from splitrender.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 
-PSNR_CAP_DB = 100.0
+PSNR_CAP_DB = 60.0
 SSIM_SIGMA = 1.5
+BACKGROUND_TOLERANCE = 6  # code values: a shown pixel this far from a background truth pixel shows geometry
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 LAB_ERROR_THRESHOLD = 20.0
@@ -33,13 +39,29 @@ def _check(a: np.ndarray, b: np.ndarray) -> None:
         raise ValueError(f"expected (H, W, 3) images, got {a.shape}")
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Peak signal-to-noise ratio in dB (peak 255), capped at 100 dB."""
+def mse(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Mean squared error over all channels (code values squared); over ``mask`` pixels
+    only when given (NaN for an empty mask)."""
     _check(a, b)
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    if mse <= 0:
+    d = (a.astype(np.float64) - b.astype(np.float64)) ** 2
+    if mask is not None:
+        m = np.asarray(mask, bool)
+        return float(d[m].mean()) if m.any() else float("nan")
+    return float(d.mean())
+
+
+def psnr_from_mse(m: float) -> float:
+    """PSNR in dB (peak 255) of a mean squared error, capped at :data:`PSNR_CAP_DB`; NaN stays NaN."""
+    if math.isnan(m):
+        return float("nan")
+    if m <= 0:
         return PSNR_CAP_DB
-    return min(PSNR_CAP_DB, 10.0 * np.log10(255.0**2 / mse))
+    return float(min(PSNR_CAP_DB, 10.0 * math.log10(255.0**2 / m)))
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """Peak signal-to-noise ratio in dB (peak 255), capped at 60 dB."""
+    return psnr_from_mse(mse(a, b))
 
 
 def luma(img: np.ndarray) -> np.ndarray:
@@ -47,28 +69,33 @@ def luma(img: np.ndarray) -> np.ndarray:
     return 0.299 * x[..., 0] + 0.587 * x[..., 1] + 0.114 * x[..., 2]
 
 
-def ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean SSIM of the luma channel (constants in the module docstring)."""
+def ssim(a: np.ndarray, b: np.ndarray, sigma: float = SSIM_SIGMA) -> float:
+    """Mean SSIM of the luma channel; ``sigma`` is the Gaussian window in pixels (constants in the module docstring)."""
     from skimage.metrics import structural_similarity
 
     _check(a, b)
     return float(
         structural_similarity(
-            luma(a), luma(b), data_range=255.0, gaussian_weights=True, sigma=SSIM_SIGMA,
+            luma(a), luma(b), data_range=255.0, gaussian_weights=True, sigma=sigma,
             use_sample_covariance=False, K1=SSIM_K1, K2=SSIM_K2,
         )
     )
 
 
-def flip(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean LDR-FLIP error between ``a`` (test) and ``b`` (reference), in [0, 1]."""
+def flip_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-pixel LDR-FLIP error (H, W) in [0, 1] between ``a`` (test) and ``b`` (reference)."""
     import flip_evaluator
 
     _check(a, b)
     ref = b.astype(np.float32) / 255.0
     test = a.astype(np.float32) / 255.0
-    _, mean_err, _ = flip_evaluator.evaluate(ref, test, "LDR")
-    return float(mean_err)
+    err, _, _ = flip_evaluator.evaluate(ref, test, "LDR", applyMagma=False)
+    return np.asarray(err, np.float64).reshape(a.shape[:2])
+
+
+def flip(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean LDR-FLIP error between ``a`` (test) and ``b`` (reference), in [0, 1]."""
+    return float(flip_map(a, b).mean())
 
 
 def srgb_to_lab(img: np.ndarray) -> np.ndarray:
@@ -96,30 +123,96 @@ def hole_rate(mask: np.ndarray | None) -> float:
     return float(np.asarray(mask, bool).mean())
 
 
-def dssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Structural dissimilarity ``(1 - SSIM) / 2`` as in the TSS paper."""
-    return (1.0 - ssim(a, b)) / 2.0
+def dssim(a: np.ndarray, b: np.ndarray, sigma: float = SSIM_SIGMA) -> float:
+    """Structural dissimilarity ``(1 - SSIM) / 2`` as in the SAS and TSS papers."""
+    return (1.0 - ssim(a, b, sigma)) / 2.0
+
+
+def foreground_mask(shown: np.ndarray, truth: np.ndarray, truth_geometry: np.ndarray,
+                    shown_geometry: np.ndarray | None = None) -> np.ndarray:
+    """Pixels covered by geometry in either image (H, W) bool.
+
+    ``truth_geometry`` comes from the ground truth's object ids.  Where the method does
+    not report its own coverage (``shown_geometry`` is None), a shown pixel counts as
+    geometry when the truth there is background and the shown colour is more than
+    :data:`BACKGROUND_TOLERANCE` code values away from it in some channel: the
+    background is one flat sky colour, so anything else drawn there (a stale object,
+    a hole fill, codec ringing) is something the viewer sees in place of the sky.
+    """
+    _check(shown, truth)
+    tg = np.asarray(truth_geometry, bool)
+    if shown_geometry is not None:
+        return tg | np.asarray(shown_geometry, bool)
+    diff = np.abs(shown.astype(np.int16) - truth.astype(np.int16)).max(axis=-1) > BACKGROUND_TOLERANCE
+    return tg | diff
 
 
 def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, truth_geometry: np.ndarray | None,
-                with_flip: bool) -> dict[str, float]:
+                with_flip: bool, ssim_sigma: float = SSIM_SIGMA, shown_geometry: np.ndarray | None = None) -> dict[str, float]:
     """Every per-frame quality number of one displayed image against its ground truth.
 
     ``holes`` (bool, H x W) marks the pixels the client did not draw from received content;
     ``hole_pct`` counts them wherever they lie, sky included (a black border over the sky is
     as much a hole as one over a wall).  ``truth_geometry`` (bool, H x W) marks pixels where
     the ground truth shows geometry; ``hole_geom_pct`` counts only the holes there (NaN
-    without it).  Returns ``psnr_db``, ``ssim``, ``flip`` (NaN unless ``with_flip``),
-    ``lab_err_pct``, ``hole_pct`` and ``hole_geom_pct``.
+    without it).  Returns ``mse``, ``psnr_db`` (capped at 60 dB), ``ssim``, ``dssim``,
+    ``flip`` (NaN unless ``with_flip``), ``lab_err_pct``, ``hole_pct``, ``hole_geom_pct``
+    and the foreground scores over :func:`foreground_mask`: ``fg_pct`` (its share of the
+    frame), ``fg_mse``, ``fg_psnr_db`` and ``fg_flip`` (NaN on a frame without foreground).
     """
     geom_pct = float("nan")
     if truth_geometry is not None:
         geom_pct = 0.0 if holes is None else 100.0 * hole_rate(np.asarray(holes, bool) & np.asarray(truth_geometry, bool))
+    fg = None
+    if truth_geometry is not None:
+        fg = foreground_mask(shown, truth, truth_geometry, shown_geometry)
+    m = mse(shown, truth)
+    s = ssim(shown, truth, ssim_sigma)
+    fmap = flip_map(shown, truth) if with_flip else None
+    fg_mse = mse(shown, truth, fg) if fg is not None else float("nan")
+    has_fg = fg is not None and bool(fg.any())
     return {
-        "psnr_db": psnr(shown, truth),
-        "ssim": ssim(shown, truth),
-        "flip": flip(shown, truth) if with_flip else float("nan"),
+        "mse": m,
+        "psnr_db": psnr_from_mse(m),
+        "ssim": s,
+        "dssim": (1.0 - s) / 2.0,
+        "flip": float(fmap.mean()) if fmap is not None else float("nan"),
         "lab_err_pct": 100.0 * lab_error_rate(shown, truth),
         "hole_pct": 100.0 * hole_rate(holes),
         "hole_geom_pct": geom_pct,
+        "fg_pct": 100.0 * float(fg.mean()) if fg is not None else float("nan"),
+        "fg_mse": fg_mse,
+        "fg_psnr_db": psnr_from_mse(fg_mse),
+        "fg_flip": float(fmap[fg].mean()) if fmap is not None and has_fg else float("nan"),
+    }
+
+
+def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
+    """The run's quality aggregates from per-frame rows of :func:`score_frame` (NaN cells skipped).
+
+    ``mean_psnr_db``: mean of the capped per-frame PSNRs; ``psnr_mse_db``: PSNR of the
+    mean MSE (FFmpeg's "average", finite as soon as one frame differs); ``p5_psnr_db``;
+    ``mean_ssim`` and ``mean_dssim``; ``mean_flip`` over the ``flip_frames`` scored;
+    ``mean_lab_err_pct``, ``mean_hole_pct``; foreground: ``mean_fg_psnr_db`` (mean of
+    capped per-frame foreground PSNRs), ``fg_psnr_mse_db`` (from the mean foreground
+    MSE), ``mean_fg_flip``, ``mean_fg_pct`` and ``fg_frames`` (frames with foreground).
+    """
+    def col(k: str) -> np.ndarray:
+        a = np.array([float(r.get(k, math.nan)) for r in rows], dtype=np.float64)
+        return a[~np.isnan(a)]
+
+    def mean(k: str) -> float:
+        a = col(k)
+        return float(a.mean()) if a.size else math.nan
+
+    p = col("psnr_db")
+    return {
+        "mean_psnr_db": mean("psnr_db"), "psnr_mse_db": psnr_from_mse(mean("mse")),
+        "p5_psnr_db": float(np.percentile(p, 5)) if p.size else math.nan,
+        "mean_ssim": mean("ssim"), "mean_dssim": mean("dssim"),
+        "mean_flip": mean("flip"), "flip_frames": int(col("flip").size),
+        "mean_lab_err_pct": mean("lab_err_pct"), "mean_hole_pct": mean("hole_pct"),
+        "mean_hole_geom_pct": mean("hole_geom_pct"),
+        "mean_fg_psnr_db": mean("fg_psnr_db"), "fg_psnr_mse_db": psnr_from_mse(mean("fg_mse")),
+        "mean_fg_flip": mean("fg_flip"), "mean_fg_pct": mean("fg_pct"), "fg_frames": int(col("fg_psnr_db").size),
     }

@@ -126,12 +126,79 @@ def _material_from_visual(visual, name: str) -> Material:
     return Material(name, base, tex, **pbr)
 
 
-def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None) -> Scene:
+def _texture_refs(p: Path) -> list[str]:
+    """External texture files a glTF/GLB/OBJ file refers to (relative paths as written)."""
+    import json
+    import struct
+
+    refs: list[str] = []
+    try:
+        suffix = p.suffix.lower()
+        if suffix in (".gltf", ".glb"):
+            if suffix == ".glb":
+                raw = p.read_bytes()
+                length, kind = struct.unpack_from("<II", raw, 12)  # first chunk: JSON
+                doc = json.loads(raw[20:20 + length]) if kind == 0x4E4F534A else {}
+            else:
+                doc = json.loads(p.read_text())
+            for img in doc.get("images", []) or []:
+                uri = img.get("uri") if isinstance(img, dict) else None
+                if isinstance(uri, str) and not uri.startswith("data:"):
+                    refs.append(uri)
+        elif suffix == ".obj":
+            for line in p.read_text(errors="replace").splitlines():
+                if line.startswith("mtllib "):
+                    mtl = p.parent / line.split(None, 1)[1].strip()
+                    if mtl.exists():
+                        for ml in mtl.read_text(errors="replace").splitlines():
+                            parts = ml.split()
+                            if parts and parts[0].lower() in ("map_kd", "map_ka") and len(parts) > 1:
+                                refs.append(parts[-1])
+    except (OSError, ValueError, struct.error):
+        return []  # the loader proper reports unreadable files
+    return refs
+
+
+def _warn_missing_textures(p: Path) -> list[str]:
+    """Log a warning for each texture file ``p`` refers to that is not there; returns them."""
+    from urllib.parse import unquote
+
+    missing = [r for r in _texture_refs(p) if not (p.parent / unquote(r)).exists()]
+    for r in missing:
+        log.warning("scene file %s: texture %s is missing; its material uses its base colour", p, r)
+    return missing
+
+
+def _node_geometries(p: Path, loaded) -> list[tuple[str, object]]:  # type: ignore[no-untyped-def]
+    """One (name, mesh in world coordinates) per mesh node of the file's scene graph."""
+    out = []
+    try:
+        for node in loaded.graph.nodes_geometry:
+            m, gname = loaded.graph[node]
+            g = loaded.geometry[gname].copy()
+            g.apply_transform(m)
+            out.append((str(node), g))
+    except Exception as exc:
+        raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
+    return out
+
+
+GROUND_SIZE_MIN_M = 20.0
+"""Side of the optional ground plane: at least this, or 5x the model's footprint (metres)."""
+
+
+def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None, ground: bool = False) -> Scene:
     """Load a mesh file into a static :class:`Scene` with a default sun.
 
+    Every mesh node of the file becomes its own object (its own object id, material and
+    texture).  A texture the file names but that is missing is logged as a warning and
+    that material falls back to its base colour; textures that are present are used.
     Raises :class:`SceneError` naming the file when it is missing, unreadable,
     unsupported or has no triangles.  ``target_size_m`` rescales the scene so its
-    largest extent has that size, centred on the origin and resting on y=0.
+    largest extent has that size, centred on (0, y, -4) and resting on y=0.
+    ``ground`` adds a checkered ground plane under it (object id after the model's).
+    The model's world bounds are kept as :attr:`Scene.subject`, so built-in traces can
+    frame it (:func:`splitrender.scene.trace.get_trace`).
     """
     import trimesh
 
@@ -144,23 +211,10 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
         loaded = trimesh.load(str(p), force="scene")
     except Exception as exc:
         raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
+    _warn_missing_textures(p)
     objects: list[SceneObject] = []
     uv_transforms = gltf_texture_transforms(p)
-    try:
-        # one geometry per mesh node, transforms baked, materials kept (to_geometry() would merge them)
-        dumped = loaded.dump(concatenate=False) if hasattr(loaded, "dump") else loaded.to_geometry()
-        geoms = dumped if isinstance(dumped, (list, tuple)) else [dumped]
-    except Exception:
-        geoms = []
-        try:
-            for node in loaded.graph.nodes_geometry:
-                m, gname = loaded.graph[node]
-                g = loaded.geometry[gname].copy()
-                g.apply_transform(m)
-                geoms.append(g)
-        except Exception as exc:
-            raise SceneError(f"scene file {p} is corrupt or unreadable: {type(exc).__name__}: {exc}") from exc
-    for i, g in enumerate(geoms):
+    for i, (node, g) in enumerate(_node_geometries(p, loaded)):
         if not hasattr(g, "faces") or len(getattr(g, "faces", [])) == 0:
             continue
         verts = np.asarray(g.vertices, dtype=np.float64)
@@ -199,13 +253,34 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None)
             t[:3, :3] *= s
             t[:3, 3] = -np.array([centre[0], lo[1], centre[2]]) * s + np.array([0.0, 0.0, -4.0])
             o.transform = t
-    return Scene(p.stem, objects, DirectionalLight(), [])
+    scene = Scene(p.stem, objects, DirectionalLight(), [])
+    lo, hi = scene.bounds()
+    scene.subject = (lo, hi)
+    if ground:
+        from . import primitives, textures
+
+        size = max(GROUND_SIZE_MIN_M, 5.0 * float(max(hi[0] - lo[0], hi[2] - lo[2])))
+        t = np.eye(4)
+        t[:3, 3] = [(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2]
+        plane = primitives.grid_plane(size, size, 16, 16, uv_scale_m=2.0, name="ground")
+        scene.objects.append(SceneObject("ground", plane, Material("ground", (0.9, 0.9, 0.9), textures.checker(256, 8)),
+                                         len(objects) + 1, t))
+    return scene
+
+
+GROUND_OPTION = "+ground"
+"""Suffix of a scene file path that adds the ground plane: ``model.glb+ground``."""
 
 
 def get_scene(name_or_path: str) -> Scene:
-    """A built-in scene by name (``default``, ``minimal``) or a scene file by path."""
+    """A built-in scene by name (``default``, ``minimal``) or a scene file by path.
+
+    A file is rescaled to 4 m (largest extent); ``path+ground`` adds a ground plane.
+    """
     if name_or_path in BUILTIN_SCENES:
         return BUILTIN_SCENES[name_or_path]()
-    if any(name_or_path.lower().endswith(s) for s in SUPPORTED_SUFFIXES) or os.sep in name_or_path:
-        return load_scene_file(name_or_path, target_size_m=4.0)
+    ground = name_or_path.endswith(GROUND_OPTION)
+    path = name_or_path[: -len(GROUND_OPTION)] if ground else name_or_path
+    if any(path.lower().endswith(s) for s in SUPPORTED_SUFFIXES) or os.sep in path:
+        return load_scene_file(path, target_size_m=4.0, ground=ground)
     raise SceneError(f"unknown scene {name_or_path!r}: use one of {sorted(BUILTIN_SCENES)} or a path to a {'/'.join(SUPPORTED_SUFFIXES)} file")

@@ -221,7 +221,11 @@ MAX_POINT_LIGHTS = 8
 
 @dataclass
 class Scene:
-    """A complete scene.  ``version`` changes whenever geometry is edited (GPU caches key on it)."""
+    """A complete scene.  ``version`` changes whenever geometry is edited (GPU caches key on it).
+
+    ``subject``: world bounds (lo, hi) in metres of a loaded model, which the built-in
+    traces frame; None for the built-in scenes (their traces are fixed).
+    """
 
     name: str
     objects: list[SceneObject]
@@ -231,6 +235,7 @@ class Scene:
     sky_color: tuple[float, float, float] = (0.55, 0.7, 0.9)
     version: int = 0
     shading: str = "pbr"
+    subject: tuple[np.ndarray, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         if self.shading not in SHADING_MODELS:

@@ -44,11 +44,14 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 import numpy as np
 
 from splitrender.errors import TraceError
+
+if TYPE_CHECKING:
+    from splitrender.scene.model import Scene
 from splitrender.scene.pose import (
     Pose,
     look_at_quat,
@@ -539,6 +542,7 @@ def head_turn_trace(
     pitch_amp_deg: float = 15.0,
     rate_hz: float = TRACKER_RATE_HZ,
     name: str = "turn",
+    base_pitch_deg: float = 0.0,
 ) -> CameraTrace:
     """Standing still, turning the head fast left and right (stress trace).
 
@@ -569,6 +573,8 @@ def head_turn_trace(
     pos[:, 1] += _sway(rng, t, 0.005, (0.3, 0.7))
     pos[:, 2] += _sway(rng, t, 0.01, (0.15, 0.5))
     roll = _sway(rng, t, 1.0, (0.2, 0.5))
+    if base_pitch_deg:
+        pitch = pitch + base_pitch_deg
     return _from_euler(name, t, pos, pitch, yaw, roll)
 
 
@@ -582,6 +588,7 @@ def strafe_trace(
     x_limit_m: float = 2.5,
     rate_hz: float = TRACKER_RATE_HZ,
     name: str = "strafe",
+    base_pitch_deg: float = 0.0,
 ) -> CameraTrace:
     """Side-stepping along X while looking towards -Z (disocclusion stress).
 
@@ -612,6 +619,8 @@ def strafe_trace(
     pos[:, 2] += _sway(rng, t, 0.03, (0.1, 0.25))
     yaw = _sway(rng, t, 6.0, (0.12, 0.29, 0.5))
     pitch = -3.0 + _sway(rng, t, 2.0, (0.1, 0.33))
+    if base_pitch_deg:
+        pitch = pitch + 3.0 + base_pitch_deg
     roll = _sway(rng, t, 1.0, (0.2, 0.4))
     return _from_euler(name, t, pos, pitch, yaw, roll)
 
@@ -662,6 +671,109 @@ def static_trace(
 
 
 # ---------------------------------------------------------------------------------
+# Traces fitted to a loaded model
+# ---------------------------------------------------------------------------------
+
+FIT_FILL = 0.8
+"""Share of the frame's width and height that a loaded model's bounds span on the fitted traces.
+
+The camera stays at the distance where a horizontal circle around the model's
+bounding box (its footprint's half diagonal) spans ``FIT_FILL`` of the frame width
+and the box's half height spans ``FIT_FILL`` of the half frame height, whichever is
+further (seen from the circle's centre), so the model fits from every side."""
+
+EYE_HEIGHT_M = 1.6
+"""Eye height above the model's lowest point on the fitted traces, metres."""
+
+
+@dataclass(frozen=True)
+class TraceFrame:
+    """Where the fitted traces stand: look target, eye height, distance (metres)."""
+
+    center: np.ndarray
+    eye_y: float
+    distance_m: float     # eye to ``center``
+    radius_xz_m: float    # the same, projected on the ground plane
+    footprint_m: float    # half diagonal of the model's footprint
+
+    @property
+    def home(self) -> np.ndarray:
+        """The standing point of ``static``, ``turn`` and ``strafe``: on the +Z side, looking towards -Z."""
+        return np.array([self.center[0], self.eye_y, self.center[2] + self.radius_xz_m])
+
+    @property
+    def home_pitch_deg(self) -> float:
+        return math.degrees(math.atan2(self.center[1] - self.eye_y, self.radius_xz_m))
+
+
+def frame_subject(lo: Sequence[float], hi: Sequence[float], fov_y_deg: float = 60.0, aspect: float = 16 / 9) -> TraceFrame:
+    """Place the fitted traces around a model with world bounds ``lo``..``hi`` (metres)."""
+    lo_a, hi_a = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    c = (lo_a + hi_a) / 2
+    r_xz = 0.5 * math.hypot(hi_a[0] - lo_a[0], hi_a[2] - lo_a[2])
+    half_h = 0.5 * (hi_a[1] - lo_a[1])
+    tan_v = math.tan(math.radians(fov_y_deg) / 2)
+    tan_h = tan_v * aspect
+    d = max(r_xz / math.sin(math.atan(FIT_FILL * tan_h)), half_h / math.sin(math.atan(FIT_FILL * tan_v)), 0.5)
+    eye_y = float(lo_a[1]) + EYE_HEIGHT_M
+    dy = float(c[1]) - eye_y
+    d = max(d, abs(dy) + 0.5)
+    return TraceFrame(c, eye_y, d, math.sqrt(d * d - dy * dy), r_xz)
+
+
+def _looking_at(name: str, t: np.ndarray, pos: np.ndarray, target: np.ndarray, yaw_off: np.ndarray, pitch_off: np.ndarray,
+                roll: np.ndarray) -> CameraTrace:
+    d = target[None, :] - pos
+    yaw = np.degrees(np.unwrap(np.arctan2(-d[:, 0], -d[:, 2])))
+    pitch = np.degrees(np.arctan2(d[:, 1], np.hypot(d[:, 0], d[:, 2])))
+    return _from_euler(name, t, pos, pitch + pitch_off, yaw + yaw_off, roll)
+
+
+def walk_around_trace(frame: TraceFrame, duration_s: float = 10.0, speed_mps: float = 1.4, seed: int = 0,
+                      rate_hz: float = TRACKER_RATE_HZ, name: str = "walk") -> CameraTrace:
+    """Walking around the model at eye height, mostly looking at it.
+
+    The path is a circle of ``frame.radius_xz_m`` (radius wandering by 10 %) at
+    ``speed_mps``; gait bob as in :func:`walk_trace`; the gaze is on the model's centre
+    plus head sway and occasional head turns of 10-25 degrees.
+    """
+    rng = np.random.default_rng(seed)
+    t = _times(duration_s, rate_hz)
+    r0 = frame.radius_xz_m
+    direction = rng.choice([-1.0, 1.0])
+    r = r0 * (1.0 + _sway(rng, t, 0.1, (0.05, 0.11)))
+    phi = direction * np.cumsum(np.full_like(t, speed_mps / rate_hz) / r)
+    phi -= phi[0]
+    f_step = float(np.clip(1.5 + 0.35 * speed_mps, 1.6, 3.0))
+    pos = np.stack([frame.center[0] + r * np.sin(phi), frame.eye_y + 0.015 * np.cos(2 * math.pi * f_step * t),
+                    frame.center[2] + r * np.cos(phi)], axis=1)
+    yaw_off = _sway(rng, t, 4.0, (0.13, 0.31, 0.57)) + _head_turn_offsets(rng, t, 0.25, (10.0, 25.0), (100.0, 200.0), (0.4, 1.5))
+    pitch_off = _sway(rng, t, 2.0, (0.11, 0.23, 0.41))
+    roll = _sway(rng, t, 0.8, (0.17, 0.37))
+    return _looking_at(name, t, pos, frame.center, yaw_off, pitch_off, roll)
+
+
+def fitted_trace(name: str, frame: TraceFrame, duration_s: float = 10.0) -> CameraTrace:
+    """The built-in trace ``name`` placed around a loaded model (see :data:`FIT_FILL`)."""
+    home = frame.home
+    if name == "walk":
+        return walk_around_trace(frame, duration_s, 1.4, seed=1, name=name)
+    if name == "walk_fast":
+        return walk_around_trace(frame, duration_s, 3.0, seed=2, name=name)
+    if name == "orbit":
+        return orbit_trace(duration_s, seed=5, center=frame.center, radius_m=frame.radius_xz_m, eye_height_m=frame.eye_y, name=name)
+    if name == "static":
+        return static_trace(duration_s, position=home, pitch_deg=frame.home_pitch_deg, name=name)
+    if name == "turn":
+        return head_turn_trace(duration_s, seed=3, position=home, amp_deg=(30.0, 60.0), pitch_amp_deg=8.0, name=name,
+                               base_pitch_deg=frame.home_pitch_deg)
+    if name == "strafe":
+        return strafe_trace(duration_s, seed=4, start=home, x_limit_m=max(0.3, min(2.5, frame.footprint_m)), name=name,
+                            base_pitch_deg=frame.home_pitch_deg)
+    raise TraceError(f"no fitted version of trace {name!r}")
+
+
+# ---------------------------------------------------------------------------------
 # Built-in traces
 # ---------------------------------------------------------------------------------
 
@@ -679,14 +791,23 @@ BUILTIN_TRACES: dict[str, Callable[[float], CameraTrace]] = {
 """Named traces for the default scene: name -> factory(duration_s)."""
 
 
-def get_trace(name: str, duration_s: float | None = None) -> CameraTrace:
+def get_trace(name: str, duration_s: float | None = None, scene: "Scene | None" = None, fov_y_deg: float = 60.0,
+              aspect: float = 16 / 9) -> CameraTrace:
     """A built-in trace by name, or a trace file by path.
 
     Paths ending ``.csv`` load the v1 format; ``.txt`` / ``.path`` load QUASAR paths.
     ``duration_s`` (seconds, default 10) applies to built-in traces; a file is cut to
     it when given.  Unknown names raise :class:`TraceError` listing the valid ones.
+    With a ``scene`` that has a :attr:`~splitrender.scene.model.Scene.subject` (a
+    loaded model), built-in traces are placed around it (:func:`fitted_trace`, for a
+    camera of ``fov_y_deg`` and ``aspect`` = width / height); the built-in scenes keep
+    the fixed traces.  Trace files are never moved.
     """
     lower = name.lower()
+    subject = getattr(scene, "subject", None)
+    if subject is not None and name in BUILTIN_TRACES and not lower.endswith((".csv", ".txt", ".path")):
+        frame = frame_subject(subject[0], subject[1], fov_y_deg, aspect)
+        return fitted_trace(name, frame, DEFAULT_DURATION_S if duration_s is None else float(duration_s))
     if lower.endswith(".csv"):
         trace = CameraTrace.load(name)
     elif lower.endswith((".txt", ".path")):
@@ -710,6 +831,11 @@ __all__ = [
     "DEFAULT_BOX_XZ",
     "DEFAULT_START",
     "DEFAULT_TRACE",
+    "FIT_FILL",
+    "TraceFrame",
+    "fitted_trace",
+    "frame_subject",
+    "walk_around_trace",
     "TRACE_HEADER",
     "TRACE_MAGIC",
     "TRACKER_RATE_HZ",

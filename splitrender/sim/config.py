@@ -31,6 +31,12 @@ class RunConfig:
     buffer waits for a frame's missing packets; ``keyframe_request_interval_ms``: the
     least time between two keyframe requests of a client; ``max_session_bytes``:
     limit on the method's session data.
+
+    ``ssim_sigma``: the SSIM Gaussian window in pixels (1.5, Wang et al.; the SAS paper uses 2).
+    ``truth_cache``: where ground-truth frames are cached (:mod:`splitrender.sim.truth`):
+    ``""`` renders every one, ``"default"`` uses ``$SPLITRENDER_TRUTH_CACHE`` or
+    ``~/.cache/splitrender/truth``, anything else is a folder.  It cannot change a
+    result, so it is not part of :meth:`key`.
     """
 
     method: str = "video"
@@ -59,6 +65,8 @@ class RunConfig:
     jitter_timeout_ms: float = 100.0
     keyframe_request_interval_ms: float = 250.0
     max_session_bytes: int = 256 * 1024 * 1024
+    ssim_sigma: float = 1.5
+    truth_cache: str = ""
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -81,6 +89,8 @@ class RunConfig:
                 raise bad(k, f"must be in [0, 10000], got {getattr(self, k)}")
         if not 200 <= self.mtu_bytes <= 9000:
             raise bad("mtu_bytes", f"must be in [200, 9000], got {self.mtu_bytes}")
+        if not 0.5 <= self.ssim_sigma <= 10.0:
+            raise bad("ssim_sigma", f"must be in [0.5, 10], got {self.ssim_sigma}")
         if self.flip_every < 0 or self.save_images_every < 0:
             raise bad("flip_every/save_images_every", "must be >= 0")
         if not 0 <= self.seed < 2**63:
@@ -122,7 +132,9 @@ class RunConfig:
 
     def key(self) -> str:
         """A stable hash of the resolved config (for result caching)."""
-        blob = json.dumps(self.to_dict(), sort_keys=True, default=str)
+        d = self.to_dict()
+        d.pop("truth_cache")  # where the ground truth is cached does not change the result
+        blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def replace(self, **kw: Any) -> "RunConfig":
