@@ -44,8 +44,15 @@ class PatchIdPass:
         self.scene = scene
         self.patches = patches
         self.prog = load_program(self.ctx, SHADERS / "patch_id.vert", SHADERS / "patch_id.frag")
-        sg = renderer.upload(scene)
-        self.objects = [(og, self.ctx.vertex_array(self.prog, [(og.vbo, "3f 12x 8x", "in_position")], og.ibo)) for og in sg.objects]
+        meshes = patches.meshes or [o.mesh for o in scene.objects]
+        # the patches' own (possibly split) meshes, scene-wide triangle order
+        self.objects: list[tuple[Any, Any, int]] = []
+        base = 0
+        for o, m in zip(scene.objects, meshes):
+            vbo = self.ctx.buffer(np.ascontiguousarray(m.positions, "f4").tobytes())
+            ibo = self.ctx.buffer(np.ascontiguousarray(m.indices, "u4").tobytes())
+            self.objects.append((o, self.ctx.vertex_array(self.prog, [(vbo, "3f", "in_position")], ibo), base))
+            base += m.triangle_count
         self._fbos: dict[tuple[int, int], tuple[Any, Any]] = {}
         # scene-wide triangle index + 1 -> patch id + 1 (0 stays background)
         self.lookup = np.concatenate([[0], patches.tri_to_patch.astype(np.int64) + 1])
@@ -69,9 +76,9 @@ class PatchIdPass:
         self.ctx.disable(self.ctx.CULL_FACE)
         self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
         self.prog["u_proj"].write(np.asarray(intr.projection(), "f4").T.tobytes())
-        for og, vao in self.objects:
-            self.prog["u_model"].write(np.asarray(og.obj.model_matrix(t_s), "f4").T.tobytes())
-            self.prog["u_tri_base"].value = og.tri_base
+        for obj, vao, base in self.objects:
+            self.prog["u_model"].write(np.asarray(obj.model_matrix(t_s), "f4").T.tobytes())
+            self.prog["u_tri_base"].value = base
             vao.render()
         ids = np.frombuffer(tex.read(), np.uint32).reshape(intr.height, intr.width)[::-1]
         return self.lookup[ids]

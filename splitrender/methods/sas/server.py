@@ -42,10 +42,10 @@ from ...render.gl import load_program
 from ...scene.pose import CameraIntrinsics
 from ..base import MethodConfig, ServerContext, ServerHalf, StreamSpec, Update
 from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
-from .levels import ideal_log_size, patch_world_slots, select_levels
-from .patches import ScenePatches, build_scene_patches
+from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
+from .patches import ScenePatches, build_scene_patches, split_scene_meshes
 from .pvs import PatchIdPass, PoseSample, sample_times
-from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, quantize_slots
+from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, quantize_slots
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
@@ -61,10 +61,17 @@ class SasConfig(MethodConfig):
     the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
     override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
     the atlas eq. 3 aims to fill.  ``strategy``: allocator S0 (paper) .. S3.
+    ``pvs_linger_frames``: a patch stays in the PVS for this many server frames after
+    it was last in an EVS sample, so small patches flickering at the edge of
+    visibility do not re-send geometry and blocks every frame.  ``split_near_m``: at load time every mesh is split (:func:`~.patches.split_mesh`)
+    until each edge, seen from this distance (metres), fits the largest block
+    (``superblock_px`` texels at ``texels_per_px``); the paper's "tessellation of overly
+    large triangles" (section 6.4).  0 disables it.  ``split_max_triangles`` caps the
+    split scene (the edge bound grows until it fits).
     """
 
     gop: int = 5
-    atlas_mpix_1080p: float = 4.0
+    atlas_mpix_1080p: float = 8.0
     atlas_width: int = 0
     atlas_height: int = 0
     superblock_px: int = 32
@@ -77,6 +84,9 @@ class SasConfig(MethodConfig):
     bias_fill: float = 0.75
     hysteresis: float = 0.75
     lossless: bool = False
+    pvs_linger_frames: int = 4
+    split_near_m: float = 2.0
+    split_max_triangles: int = 200_000
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -94,6 +104,12 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
         if (self.atlas_width > 0) != (self.atlas_height > 0):
             raise ConfigError("SasConfig: give both atlas_width and atlas_height or neither")
+        if not 0 <= self.pvs_linger_frames <= 1000:
+            raise ConfigError(f"SasConfig.pvs_linger_frames: must be in [0, 1000], got {self.pvs_linger_frames}")
+        if not 0.0 <= self.split_near_m <= 1e3:
+            raise ConfigError(f"SasConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
+        if not 1 <= self.split_max_triangles <= 50_000_000:
+            raise ConfigError(f"SasConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
         if self.atlas_mpix_1080p <= 0:
             raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
 
@@ -105,6 +121,43 @@ class SasConfig(MethodConfig):
         texels = self.atlas_mpix_1080p * 1e6 * intr.width * intr.height / (1920 * 1080)
         h = max(1, round(math.sqrt(texels / 2) / s)) * s
         return AtlasLayout(2 * h, h, s)
+
+    def split_edge_m(self, intr: CameraIntrinsics) -> float:
+        """Longest edge (metres) a patch may keep at load time: the largest block seen from ``split_near_m``."""
+        if self.split_near_m <= 0:
+            return math.inf
+        px_per_rad = intr.width / math.radians(intr.fov_x_deg)
+        return self.superblock_px / (self.texels_per_px * px_per_rad) * self.split_near_m
+
+
+def object_boxes(meshes: list[Any]) -> np.ndarray:
+    """(n_obj, 2, 3) float32 object-space bounding boxes (lo, hi corners, metres) of ``meshes``."""
+    lo = np.array([m.positions.min(axis=0) for m in meshes], np.float32).reshape(-1, 3)
+    hi = np.array([m.positions.max(axis=0) for m in meshes], np.float32).reshape(-1, 3)
+    return np.stack([lo, hi], axis=1)
+
+
+def quantize_vertices(meshes: list[Any], box: np.ndarray) -> np.ndarray:
+    """(V_scene, 3) uint16: every vertex quantised in its object's box, as :func:`~.wire.quantize_slots` does."""
+    if not meshes:
+        return np.zeros((0, 3), np.uint16)
+    q = []
+    for m, bx in zip(meshes, box):
+        ext = np.maximum(bx[1] - bx[0], 1e-9)
+        q.append(np.rint((m.positions - bx[0]) / ext * 65535.0).clip(0, 65535).astype(np.uint16))
+    return np.concatenate(q)
+
+
+def load_scene_patches(scene: Any, config: SasConfig, intr: CameraIntrinsics) -> ScenePatches:
+    """Scene-level work done once at load: split the meshes, group them into patches.
+
+    Depends only on the scene, the config and the display, not on a client's state.
+    """
+    meshes, edge = split_scene_meshes(scene, config.split_edge_m(intr), config.split_max_triangles)
+    sp = build_scene_patches(scene, meshes)
+    log.info("sas: %d triangles split to %d (edges <= %.3f m) in %d patches",
+             scene.triangle_count, sum(m.triangle_count for m in meshes), edge, sp.count)
+    return sp
 
 
 def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
@@ -142,12 +195,13 @@ class SasServer(ServerHalf):
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         t0 = time.perf_counter()
-        self.patches: ScenePatches = build_scene_patches(self.scene)
+        self.patches: ScenePatches = load_scene_patches(self.scene, self.config, self.intrinsics)
         self.patch_build_ms = (time.perf_counter() - t0) * 1e3
         self.layout = self.config.atlas_layout(self.intrinsics)
         self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
         self.transposed = np.zeros(self.patches.count, bool)
         self.client_has = np.zeros(self.patches.count, bool)    # geometry the client holds (no loss assumed)
+        self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
         self._gl: Any = None
@@ -157,9 +211,8 @@ class SasServer(ServerHalf):
         self._stats: dict[str, float] = {}
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
         self.sent_static = np.zeros(self.n_obj, bool)
-        lo = np.array([o.mesh.positions.min(axis=0) for o in self.scene.objects], np.float32)
-        hi = np.array([o.mesh.positions.max(axis=0) for o in self.scene.objects], np.float32)
-        self.obj_box = np.stack([lo, hi], axis=1)                  # (n_obj, 2, 3) metres, object space
+        self.obj_box = object_boxes(self.patches.meshes)               # (n_obj, 2, 3) metres, object space
+        self.vertex_q = quantize_vertices(self.patches.meshes, self.obj_box)
 
     # ------------------------------------------------------------------ interface
     def streams(self) -> list[StreamSpec]:
@@ -172,7 +225,7 @@ class SasServer(ServerHalf):
 
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
-                "n_patches": self.patches.count,
+                "n_patches": self.patches.count, "patch_base": self.patches.base.astype(np.int64),
                 "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box}
 
     def stats(self) -> dict[str, float]:
@@ -211,14 +264,16 @@ class SasServer(ServerHalf):
         t0 = time.perf_counter()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
         area = self._ids.pvs_area(self.pvs_samples(ctx), big)
-        pvs = np.flatnonzero(area > 0)
+        self._last_seen[area > 0] = self._frames
+        pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
         t1 = time.perf_counter()
         # level selection at the predicted eye
         models = np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
         world = patch_world_slots(self.patches, pvs, models)
         eye = np.asarray(ctx.target_pose.position, np.float64)
         px_per_rad = self.intrinsics.width / math.radians(self.intrinsics.fov_x_deg)
-        A, asp = ideal_log_size(self.patches, pvs, world, eye, px_per_rad, c.texels_per_px)
+        ext = patch_extent_px(self.patches, pvs, world, eye, px_per_rad)
+        A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
         choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
                                self.transposed[pvs], c.hysteresis)
@@ -240,7 +295,10 @@ class SasServer(ServerHalf):
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
         t2 = time.perf_counter()
         live = pvs[al.level_w[pvs] >= 0]
-        self._shade(ctx, live, models, clear=iframe)
+        in_live = np.searchsorted(pvs, live)
+        foot = footprint(type(ext)(ext.width[in_live], ext.height[in_live], ext.area[in_live]),
+                         al.level_w[live], al.level_h[live], self.transposed[live])
+        self._shade(ctx, live, models, foot, clear=iframe)
         atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(self.layout.height, self.layout.width, 3).copy()
         t3 = time.perf_counter()
         meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
@@ -256,7 +314,7 @@ class SasServer(ServerHalf):
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
-    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, clear: bool) -> None:
+    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, foot: np.ndarray, clear: bool) -> None:
         """Shading stage: every live PVS patch into its block (one draw per object)."""
         gl = self._gl
         self._fbo.use()
@@ -287,14 +345,15 @@ class SasServer(ServerHalf):
                 nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[ids][:, tri].astype(np.float64))
                 uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[ids][:, tri].astype(np.float64))
                 r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
-                verts.append(np.concatenate([q, pos, nrm, uv, r4], axis=2))
+                f2 = np.broadcast_to(foot[sel][:, None, :], (sel.size, 3, 2))
+                verts.append(np.concatenate([q, pos, nrm, uv, r4, f2], axis=2))
                 obj_of.append(P.object_index[ids])
-        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 14)
+        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 16)
         o = np.concatenate(obj_of)
         order = np.argsort(o, kind="stable")
         v, o = v[order], o[order]
         vbo = gl.buffer(v.tobytes())
-        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f", "in_atlas", "in_position", "in_normal", "in_uv", "in_rect")])
+        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f 2f", "in_atlas", "in_position", "in_normal", "in_uv", "in_rect", "in_footprint")])
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
@@ -340,8 +399,7 @@ class SasServer(ServerHalf):
             "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
             "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
             "drop": np.asarray(gone, np.int32),
-            "geo_id": geo.astype(np.int32), "geo_obj": P.object_index[geo].astype(np.uint16),
-            "geo_size": P.size[geo].astype(np.uint8), "geo_pos": quantize_slots(P.slot_pos[geo], P.size[geo], self.obj_box[P.object_index[geo]]),
+            **encode_geometry(geo, P.size[geo], P.slot_vertex[geo], self.vertex_q),
             "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
             "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
         }

@@ -35,6 +35,12 @@ float shadow_factor(vec3 world_pos, vec3 n) {
     return s / 9.0;
 }
 
+// A shader including this file may define ALBEDO_LOOKUP(uv) first (e.g. a textureGrad
+// with its own footprint); by default the albedo texture is sampled with texture().
+#ifndef ALBEDO_LOOKUP
+#define ALBEDO_LOOKUP(uv) texture(u_albedo, uv)
+#endif
+
 vec3 srgb_to_linear(vec3 c) { return pow(c, vec3(2.2)); }
 vec3 linear_to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
 
@@ -42,7 +48,7 @@ vec3 linear_to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
 vec3 shade(vec3 world_pos, vec3 normal, vec2 uv, vec3 eye_pos) {
     vec3 n = normalize(normal);
     vec3 albedo = u_base_color;
-    if (u_has_texture != 0) albedo *= srgb_to_linear(texture(u_albedo, uv).rgb);
+    if (u_has_texture != 0) albedo *= srgb_to_linear(ALBEDO_LOOKUP(uv).rgb);
     vec3 v = normalize(eye_pos - world_pos);
     if (dot(n, v) < 0.0) n = -n;   // two-sided lighting
     vec3 l = -u_sun_dir;
