@@ -237,7 +237,7 @@ def build_scene_patches(scene: Scene, meshes: list[Mesh] | None = None) -> Scene
 
 
 # ---------------------------------------------------------------------------- load-time splitting
-def split_mesh(mesh: Mesh, max_edge_m: float, max_rounds: int = 8) -> Mesh:
+def split_mesh(mesh: Mesh, max_edge_m: float, max_rounds: int = 8, max_triangles: int | None = None) -> Mesh:
     """``mesh`` with every edge longer than ``max_edge_m`` (metres) halved, round after round (red-green refinement).
 
     An edge is split at its midpoint in every triangle that uses it (edges are keyed
@@ -246,14 +246,15 @@ def split_mesh(mesh: Mesh, max_edge_m: float, max_rounds: int = 8) -> Mesh:
     one becomes two.  Positions, normals and texture coordinates of a midpoint are the
     averages of its edge's ends (normals are *not* renormalised), so the split mesh
     interpolates every attribute exactly as the original does: it renders the same.
-    At most ``max_rounds`` rounds (each at most quadruples the triangle count).
+    At most ``max_rounds`` rounds (each at most quadruples the triangle count); no
+    round starts once the mesh has more than ``max_triangles``.
     """
     pos = mesh.positions.astype(np.float64)
     nrm = mesh.normals.astype(np.float64)
     uv = mesh.uvs.astype(np.float64)
     idx = mesh.indices.astype(np.int64)
     for _ in range(max_rounds):
-        if idx.shape[0] == 0:
+        if idx.shape[0] == 0 or (max_triangles is not None and idx.shape[0] > max_triangles):
             break
         a, b = idx, np.roll(idx, -1, axis=1)                        # edge k: vertex k -> k+1
         long = np.linalg.norm(pos[b] - pos[a], axis=2) > max_edge_m  # (T, 3)
@@ -315,7 +316,13 @@ def split_scene_meshes(scene: Scene, max_edge_m: float, max_triangles: int) -> t
     limit = max(max_triangles, scene.triangle_count)
     edge = max_edge_m
     while True:
-        meshes = [split_mesh(o.mesh, edge) for o in scene.objects]
-        if sum(m.triangle_count for m in meshes) <= limit:
+        meshes: list[Mesh] = []
+        total = 0
+        for o in scene.objects:
+            meshes.append(split_mesh(o.mesh, edge, max_triangles=limit - total))
+            total += meshes[-1].triangle_count
+            if total > limit:
+                break
+        if total <= limit:
             return meshes, edge
         edge *= math.sqrt(2.0)

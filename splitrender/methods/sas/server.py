@@ -45,7 +45,7 @@ from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches, split_scene_meshes
 from .pvs import PatchIdPass, PoseSample, sample_times
-from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, quantize_slots
+from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, encode_ids
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
@@ -201,6 +201,8 @@ class SasServer(ServerHalf):
         self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
         self.transposed = np.zeros(self.patches.count, bool)
         self.client_has = np.zeros(self.patches.count, bool)    # geometry the client holds (no loss assumed)
+        self._vcache = np.zeros((self.patches.count, 3, 3, 16), np.float32)   # atlas-shading vertices per patch
+        self._vcache_ok = np.zeros(self.patches.count, bool)
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
@@ -242,6 +244,8 @@ class SasServer(ServerHalf):
         self._fbo.clear(0.0, 0.0, 0.0, 1.0)
         self._gl = ctx
         self._sg = renderer.upload(self.scene)
+        self._vbo: Any = None
+        self._vao: Any = None
 
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
@@ -293,6 +297,7 @@ class SasServer(ServerHalf):
             reset = iframe = True
         # a block's layout orientation only changes when the patch is (re)placed
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
+        self._vcache_ok[res.placed] = False
         t2 = time.perf_counter()
         live = pvs[al.level_w[pvs] >= 0]
         in_live = np.searchsorted(pvs, live)
@@ -326,34 +331,27 @@ class SasServer(ServerHalf):
         gl.disable(gl.DEPTH_TEST)
         gl.disable(gl.CULL_FACE)
         P = self.patches
-        rect = self.allocator.blocks(live).astype(np.float64)
-        size = P.size[live]
-        verts, obj_of = [], []
-        for k in (1, 2, 3):
-            sel = np.flatnonzero(size == k)
-            if sel.size == 0:
-                continue
-            ids = live[sel]
-            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[ids])
-            for tri in TRI_SLOTS[k]:
-                if tri[0] < 0:
-                    continue
-                p2 = xy[:, tri]                                        # (n, 3, 2)
-                w = expand_triangles(p2, EXPAND_TEXELS)                # (n, 3, 3)
-                q = np.einsum("nkj,njc->nkc", w, p2)
-                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[ids][:, tri].astype(np.float64))
-                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[ids][:, tri].astype(np.float64))
-                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[ids][:, tri].astype(np.float64))
-                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
-                f2 = np.broadcast_to(foot[sel][:, None, :], (sel.size, 3, 2))
-                verts.append(np.concatenate([q, pos, nrm, uv, r4, f2], axis=2))
-                obj_of.append(P.object_index[ids])
-        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 16)
-        o = np.concatenate(obj_of)
-        order = np.argsort(o, kind="stable")
-        v, o = v[order], o[order]
-        vbo = gl.buffer(v.tobytes())
-        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f 2f", "in_atlas", "in_position", "in_normal", "in_uv", "in_rect", "in_footprint")])
+        stale = live[~self._vcache_ok[live]]
+        if stale.size:
+            self._vcache[stale] = self._shade_vertices(stale)
+            self._vcache_ok[stale] = True
+        tri_used = np.arange(3)[None, :] < P.size[live][:, None]             # (L, 3)
+        v = self._vcache[live].copy()                                       # (L, 3, 3, 16)
+        v[..., 14:16] = foot[:, None, None, :]
+        v = v[tri_used]                                                     # (n_tri, 3, 16), object order (ids are)
+        o = np.repeat(P.object_index[live], tri_used.sum(1))
+        data = v.tobytes()
+        if self._vbo is None or self._vbo.size < len(data):   # grow (doubling) the persistent buffer
+            old = 0
+            if self._vbo is not None:
+                old = self._vbo.size
+                self._vao.release()
+                self._vbo.release()
+            self._vbo = gl.buffer(reserve=max(len(data), 2 * old))
+            self._vao = gl.vertex_array(self._prog, [(self._vbo, "2f 3f 3f 2f 4f 2f", "in_atlas", "in_position", "in_normal",
+                                                      "in_uv", "in_rect", "in_footprint")])
+        self._vbo.write(data)
+        vao = self._vao
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
@@ -372,8 +370,36 @@ class SasServer(ServerHalf):
             prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(m[:3, :3]).T, "f4").T.tobytes())
             ctx.renderer.bind_material(prog, og)
             vao.render(first=3 * s, vertices=3 * (e - s))
-        vao.release()
-        vbo.release()
+
+    def _shade_vertices(self, ids: np.ndarray) -> np.ndarray:
+        """(N, 3, 3, 16) float32 atlas-shading vertices of patches ``ids`` at their blocks (unused triangles zero).
+
+        Per vertex: atlas xy (texels), object-space position, normal, uv, block rect,
+        footprint (filled per frame).  Depends only on the patch and its block, so it is
+        computed when a patch is (re)placed and reused while the block stays put.
+        """
+        P = self.patches
+        out = np.zeros((ids.size, 3, 3, 16), np.float32)
+        rect = self.allocator.blocks(ids).astype(np.float64)
+        size = P.size[ids]
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(size == k)
+            if sel.size == 0:
+                continue
+            sid = ids[sel]
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[sid])
+            for t, tri in enumerate(TRI_SLOTS[k]):
+                if tri[0] < 0:
+                    continue
+                p2 = xy[:, tri]                                        # (n, 3, 2)
+                w = expand_triangles(p2, EXPAND_TEXELS)                # (n, 3, 3)
+                q = np.einsum("nkj,njc->nkc", w, p2)
+                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[sid][:, tri].astype(np.float64))
+                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[sid][:, tri].astype(np.float64))
+                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[sid][:, tri].astype(np.float64))
+                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
+                out[sel, t, :, :14] = np.concatenate([q, pos, nrm, uv, r4], axis=2)
+        return out
 
     def _meta(self, ctx: ServerContext, pvs: np.ndarray, live: np.ndarray, res: Any, iframe: bool, reset: bool,
               full: bool, models: np.ndarray) -> dict[str, Any]:
@@ -387,7 +413,9 @@ class SasServer(ServerHalf):
         self.client_has[gone] = False
         geo = live[~self.client_has[live]]
         self.client_has[geo] = True
-        uv_ids = live if (reset or full) else np.intersect1d(res.placed, live)
+        uv_all = live if (reset or full) else np.intersect1d(res.placed, live)
+        uv_only = np.setdiff1d(uv_all, geo)                 # the new patches' rects come first, without ids
+        uv_ids = np.concatenate([geo, uv_only])
         rect = self.allocator.blocks(uv_ids)
         lw = self.allocator.level_w[uv_ids]
         lh = self.allocator.level_h[uv_ids]
@@ -398,11 +426,11 @@ class SasServer(ServerHalf):
         meta: dict[str, Any] = {
             "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
             "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
-            "drop": np.asarray(gone, np.int32),
+            "drop": encode_ids(gone),
             **encode_geometry(geo, P.size[geo], P.slot_vertex[geo], self.vertex_q),
-            "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
+            "uv_id": encode_ids(uv_only), "uv_rect": uv_rect,
             "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
         }
         if reset or full:
-            meta["pvs"] = live.astype(np.int32)
+            meta["pvs"] = encode_ids(live)
         return meta

@@ -9,8 +9,11 @@ corners of its bounding box in object space, metres.
 Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
 
 - ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
-- ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
-- ``drop`` int32 (K,): patches that left the PVS;
+Every id list (``pvs``, ``drop``, ``geo_id``, ``uv_id``) is sorted, distinct and
+delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
+
+- ``pvs`` (N,) (resets and full resends only): the complete PVS; the client drops the rest;
+- ``drop`` (K,): patches that left the PVS;
 - geometry of the G patches entering the PVS (:func:`encode_geometry`), compact:
   ``geo_id`` uint32 (G,) strictly increasing patch ids, delta-coded (the first id,
   then differences >= 1); ``geo_size`` uint8 (G,) triangles (1-3); ``geo_vtx``
@@ -23,7 +26,8 @@ Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
   ``k``-th most recently introduced one.  A shared vertex is sent once per frame
   and quantises identically in every frame, so no cracks; the objects of the patches
   follow from ``patch_base``;
-- ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels, top-left),
+- ``uv_id`` (U,) patches other than the new ones whose block moved, ``uv_rect``
+  uint16 (G + U, 5), the new patches' rows first, then ``uv_id``'s: block x, y (texels, top-left),
   lw, lh (log2 width and height), transposed flag; the patch spans its whole block
   (:func:`block_layout_xy`) and lookups are clamped to the block's texel centres
   (:func:`block_clamp_rect`);
@@ -31,9 +35,9 @@ Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
 
 Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
 the session data carries ``n_patches``.  Version 3: compact geometry (``geo_vtx`` +
-``geo_idx`` shared-vertex indices and delta-coded ``geo_id`` replace ``geo_pos`` and
-``geo_obj``, about a third of version 2's bytes per new patch after zstd) and
-``patch_base`` in the session data.
+``geo_idx`` shared-vertex indices replace ``geo_pos`` and ``geo_obj``), delta-coded
+id lists, block rectangles of new patches without their ids, and ``patch_base`` in
+the session data.
 """
 
 from __future__ import annotations
@@ -108,8 +112,7 @@ def encode_geometry(ids: np.ndarray, size: np.ndarray, slot_vertex: np.ndarray, 
     code = new_before - idx
     q = vertex_q[uniq[by_first]].astype(np.int64)
     dq = np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536
-    did = np.diff(ids, prepend=0)
-    return {"geo_id": did.astype(np.uint32), "geo_size": size.astype(np.uint8), "geo_vtx": dq.astype(np.uint16),
+    return {"geo_id": encode_ids(ids), "geo_size": size.astype(np.uint8), "geo_vtx": dq.astype(np.uint16),
             "geo_idx": code.astype(np.uint16 if code.size == 0 or code.max() < 65536 else np.uint32)}
 
 
@@ -247,6 +250,22 @@ def _in_range(key: str, v: np.ndarray, lo: int, hi: int) -> None:
         raise SasMetaError(f"sas metadata: {key!r} must be in {lo}..{hi}, got {int(v.min())}..{int(v.max())}")
 
 
+def encode_ids(ids: np.ndarray) -> np.ndarray:
+    """Sorted distinct patch ids as the wire's delta code: uint32, the first id, then differences >= 1."""
+    return np.diff(np.asarray(ids, np.int64), prepend=0).astype(np.uint32)
+
+
+def _ids(meta: dict[str, Any], key: str, last_id: int) -> np.ndarray:
+    """Decode the delta-coded id list ``key`` (:func:`encode_ids`): strictly increasing int64 ids in ``0..last_id``."""
+    d = _arr(meta, key, "i", ())
+    _in_range(key, d, 0, last_id)
+    if d.size > 1 and (d[1:] < 1).any():
+        raise SasMetaError(f"sas metadata: {key!r} differences must be >= 1 (strictly increasing ids)")
+    ids = np.cumsum(d)
+    _in_range(key, ids, 0, last_id)
+    return ids
+
+
 def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
     """Validate one frame's metadata against ``session``; raises :class:`SasMetaError` naming the field.
 
@@ -260,17 +279,10 @@ def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
     if not isinstance(full, bool):
         raise SasMetaError(f"sas metadata: 'full' must be a bool, got {type(full).__name__}")
     last_id, last_obj = session.n_patches - 1, session.n_objects - 1
-    pvs = _arr(meta, "pvs", "i", ()) if "pvs" in meta else None
-    drop = _arr(meta, "drop", "i", ())
-    did = _arr(meta, "geo_id", "i", ())
-    gsz = _arr(meta, "geo_size", "i", (), did.size)
-    if did.size and (did[1:] < 1).any():
-        raise SasMetaError("sas metadata: 'geo_id' differences must be >= 1 (strictly increasing ids)")
-    _in_range("geo_id", did, 0, last_id)
-    gid = np.cumsum(did)
-    for key, v in (("pvs", pvs), ("drop", drop), ("geo_id", gid)):
-        if v is not None:
-            _in_range(key, v, 0, last_id)
+    pvs = _ids(meta, "pvs", last_id) if "pvs" in meta else None
+    drop = _ids(meta, "drop", last_id)
+    gid = _ids(meta, "geo_id", last_id)
+    gsz = _arr(meta, "geo_size", "i", (), gid.size)
     _in_range("geo_size", gsz, 1, 3)
     dvtx = _arr(meta, "geo_vtx", "i", (3,))
     _in_range("geo_vtx", dvtx, 0, 65535)
@@ -283,9 +295,8 @@ def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
         raise SasMetaError(f"sas metadata: 'geo_idx' introduces {int(is_new.sum())} vertices, 'geo_vtx' has {dvtx.shape[0]}")
     gq = decode_geometry_slots(dvtx, code)
     gobj = session.object_of(gid)
-    uid = _arr(meta, "uv_id", "i", ())
+    uid = np.concatenate([gid, _ids(meta, "uv_id", last_id)])   # rect rows: the new patches', then uv_id's
     urect = _arr(meta, "uv_rect", "i", (5,), uid.size)
-    _in_range("uv_id", uid, 0, last_id)
     if uid.size:
         w, h = session.atlas_size
         x, y, lw, lh, t = urect.T
