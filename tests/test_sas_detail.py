@@ -118,3 +118,84 @@ def test_geometry_bytes_per_new_patch_on_walk() -> None:
     first, later = a[0, 1] / a[0, 0], a[1:, 1].sum() / a[1:, 0].sum()
     assert first <= 4.0 and a[0, 1] <= 0.4 * a[0, 2], f"first frame: {first:.2f} bytes per patch, {a[0, 1] / a[0, 2]:.2f} of v2"
     assert later <= 14.0 and a[1:, 1].sum() <= 0.85 * a[1:, 2].sum(), f"later frames: {later:.2f} bytes per new patch"
+
+
+def test_moving_object_is_drawn_at_the_display_time() -> None:
+    """The ``ball`` (pure green, patrolling at 2.5 m/s) shown 100 ms after each server frame.
+
+    With transforms extrapolated from the two newest updates its centroid must be
+    within 2 px of the ground truth at the display time; drawn with the server
+    frame's transform (as before issue 15) it would lag by more than 8 px.
+    """
+    from dataclasses import replace
+
+    from splitrender.codecs.meta import pack_meta, unpack_meta
+    from splitrender.methods.base import DecodedUpdate, ServerContext
+    from splitrender.methods.sas import SasClient, SasConfig, SasServer
+    from splitrender.methods.sas.client import extrapolate_transforms
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.procedural import default_scene
+    from splitrender.scene.trace import get_trace
+
+    r = Renderer()
+    scene = default_scene()
+    ball = next(o for o in scene.objects if o.name == "ball")
+    ball.material = replace(ball.material, base_color=(0.05, 0.9, 0.05), texture=None)
+    trace = get_trace("walk")
+    cfg = SasConfig(lossless=True)
+    srv = SasServer(cfg, INTR, scene, 30)
+    cli = SasClient(cfg, INTR, r.ctx, unpack_meta(pack_meta(srv.session_data())))
+    late, lag = 0.1, []
+    for f in range(6):
+        t = 1.3 + f / 30
+        pose = trace.pose_at(t + late)
+        ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t + late, lambda s: trace.pose_at(s), late)
+        u = srv.produce(ctx)
+        cli.apply(DecodedUpdate(u.frame_id, t, pose, {"atlas": u.planes["atlas"]}, unpack_meta(pack_meta(u.meta))))
+        if f < 2:
+            continue   # two updates before an object has a velocity
+        frame = cli.render(pose, t + late)
+        truth = r.render(scene, t + late, pose, INTR, ("object_id",)).object_id == ball.object_id
+        c = frame.color.astype(np.int32)
+        seen = (c[..., 1] > c[..., 0] + 40) & (c[..., 1] > c[..., 2] + 40) & ~frame.holes
+        assert truth.sum() >= 200 and seen.sum() >= 100, f"frame {f}: ball {truth.sum()} px in the truth, {seen.sum()} on the client"
+        err = float(np.abs(np.argwhere(seen).mean(0) - np.argwhere(truth).mean(0)).max())
+        # where the server frame's transform would put it
+        stale = r.render(scene, t, pose, INTR, ("object_id",)).object_id == ball.object_id
+        lag.append(float(np.abs(np.argwhere(stale).mean(0) - np.argwhere(truth).mean(0)).max()))
+        assert err <= 2.0, f"frame {f}: ball centroid {err:.1f} px from the truth at the display time"
+    assert min(lag) > 8.0, f"the server frame's transform must lag visibly, so the test can fail: {lag}"
+    # the extrapolation itself: a pure rotation about z at 1 rad/s plus a translation
+    def m(a: float, x: float) -> np.ndarray:
+        out = np.eye(4, dtype=np.float32)
+        out[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        out[0, 3] = x
+        return out
+    got = extrapolate_transforms(m(0.0, 0.0)[None], np.array([0.0]), m(0.1, 0.2)[None], np.array([0.1]), 0.2)
+    assert np.allclose(got[0], m(0.2, 0.4), atol=1e-5)
+
+
+def test_allocator_s0_uses_columns() -> None:
+    """S0 stacks blocks of different heights in columns of one width inside a superblock; S1 (no columns) cannot.
+
+    Blocks 8 texels wide and 2, 4 or 8 high: under S0 they share superblocks (fewer
+    claimed), under S1 each height claims its own, so a strategy that silently lost its
+    columns fails here.
+    """
+    from splitrender.methods.sas.allocator import AtlasLayout, PatchAllocator
+
+    lay = AtlasLayout(256, 128, 32, 1)
+    n = 60
+    lw = np.full(n, 3)
+    lh = np.array([1, 2, 3] * (n // 3))
+    mixed, used = {}, {}
+    for strategy in ("S0", "S1"):
+        al = PatchAllocator(n, lay, strategy)  # type: ignore[arg-type]
+        al.update(np.arange(n), lw, lh)
+        rects = al.blocks(np.arange(n))
+        sb = (rects[:, 1] // 32) * lay.sb_cols + rects[:, 0] // 32
+        mixed[strategy] = max(len(set(rects[sb == s, 3].tolist())) for s in np.unique(sb))
+        used[strategy] = int(np.unique(sb).size)
+    # 20 blocks each of 8x2, 8x4, 8x8: 280 texel rows of width 8 = 2.2 superblocks of 4 columns under S0
+    assert mixed["S0"] >= 2 and mixed["S1"] == 1, f"distinct block heights in one superblock: {mixed}"
+    assert used["S0"] == 3 and used["S1"] >= 4, f"superblocks claimed: {used}"

@@ -7,7 +7,9 @@ leave the PVS (``drop``, or absent from an I-frame's ``pvs`` list) are forgotten
 
 Rendering is one draw call: a vertex buffer of all PVS triangles with atlas
 coordinates and each block's texel-centre clamp rectangle baked in (rebuilt only
-when the state changed) and the object transforms in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
+when the state changed) and the object transforms in a storage buffer, extrapolated
+from the two newest updates to the display time (:func:`extrapolate_transforms`).
+Pixels no patch covers are holes (filled with the sky colour,
 which the session data carries, as the server's clear colour).
 
 The client imports only the wire format (:mod:`.wire`) from the server's side; every
@@ -31,6 +33,44 @@ from .wire import (SLOT_LAYOUT, TRI_SLOTS, SasMetaError, block_clamp_rect, block
 SHADERS = Path(__file__).parent / "shaders"
 
 
+MAX_EXTRAPOLATION_S = 0.25
+"""Longest time (s) an object transform is extrapolated past its newest update."""
+
+
+def extrapolate_transforms(prev: np.ndarray, prev_t: np.ndarray, cur: np.ndarray, cur_t: np.ndarray, t_s: float) -> np.ndarray:
+    """(N, 4, 4) object transforms at scene time ``t_s`` from the two newest updates (constant velocity).
+
+    Translation moves linearly; the linear part turns by the rotation between the two
+    samples, scaled in angle (Rodrigues).  Objects with one sample, samples at the same
+    time, or a linear part that is not a rotation times the previous one keep ``cur``;
+    extrapolation stops :data:`MAX_EXTRAPOLATION_S` past the newest sample.
+    """
+    out = cur.astype(np.float64).copy()
+    dt = cur_t - prev_t
+    ok = np.isfinite(dt) & (dt > 1e-6)
+    if not ok.any():
+        return out.astype(np.float32)
+    k = np.flatnonzero(ok)
+    alpha = np.clip(t_s - cur_t[k], 0.0, MAX_EXTRAPOLATION_S) / dt[k]              # (K,) in units of dt
+    a0, a1 = prev[k, :3, :3].astype(np.float64), cur[k, :3, :3].astype(np.float64)
+    d = a1 @ np.linalg.inv(a0)                                                     # rotation from prev to cur
+    orthonormal = np.abs(d @ d.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)) < 1e-3
+    cos = np.clip((np.trace(d, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.arccos(cos)
+    axis = np.stack([d[:, 2, 1] - d[:, 1, 2], d[:, 0, 2] - d[:, 2, 0], d[:, 1, 0] - d[:, 0, 1]], 1)
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    th = (ang * alpha)[:, None, None]
+    kx = np.zeros((k.size, 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
+    rot = np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * (kx @ kx)
+    rot = np.where(((ang > 1e-9) & orthonormal)[:, None, None], rot, np.eye(3))
+    out[k, :3, :3] = rot @ a1
+    t0, t1 = prev[k, :3, 3].astype(np.float64), cur[k, :3, 3].astype(np.float64)
+    out[k, :3, 3] = t1 + (t1 - t0) * alpha[:, None]
+    return out.astype(np.float32)
+
+
 class SasClient(ClientHalf):
     """Shading atlas streaming, client half."""
 
@@ -45,6 +85,10 @@ class SasClient(ClientHalf):
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
         self.models = np.tile(np.eye(4, dtype=np.float32), (self.n_obj, 1, 1))
+        # the previous transform of each object and the scene times (s) of both, for extrapolation
+        self.models_prev = self.models.copy()
+        self.models_t = np.full(self.n_obj, np.nan)
+        self.models_prev_t = np.full(self.n_obj, np.nan)
         self.ssbo = self.gl.buffer(reserve=max(1, self.n_obj) * 64)
         # per-patch state, keyed by patch id
         self.geo: dict[int, tuple[int, int, np.ndarray]] = {}      # id -> (object slot, triangles, (5, 3) positions)
@@ -81,7 +125,11 @@ class SasClient(ClientHalf):
             for d in (self.geo, self.rect):
                 for pid in [k for k in d if k not in keep]:
                     del d[pid]
+        fresh = m.xf_obj[self.models_t[m.xf_obj] != update.t_s]     # a newer sample: the current one becomes previous
+        self.models_prev[fresh] = self.models[fresh]
+        self.models_prev_t[fresh] = self.models_t[fresh]
         self.models[m.xf_obj] = m.xf
+        self.models_t[m.xf_obj] = update.t_s
         self._dirty = True
         self._has_content = True
 
@@ -130,7 +178,8 @@ class SasClient(ClientHalf):
             gl = self.gl
             gl.enable(gl.DEPTH_TEST)
             gl.disable(gl.CULL_FACE)
-            self.ssbo.write(np.ascontiguousarray(self.models.transpose(0, 2, 1), np.float32).tobytes())
+            shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
+            self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
             self.ssbo.bind_to_storage_buffer(0)
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
