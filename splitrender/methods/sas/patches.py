@@ -278,6 +278,7 @@ def _refine(idx: np.ndarray, mid: np.ndarray, long: np.ndarray) -> np.ndarray:
     """New (T', 3) triangles of red-green refinement; ``mid`` (T, 3) midpoint vertex of edge k (k -> k+1) or -1."""
     n = long.sum(axis=1)
     out = [idx[n == 0]]
+    parent = [np.flatnonzero(n == 0)]
     # one long edge: rotate it to edge 0, then (v0, m0, v2) + (m0, v1, v2)
     sel = np.flatnonzero(n == 1)
     if sel.size:
@@ -286,6 +287,7 @@ def _refine(idx: np.ndarray, mid: np.ndarray, long: np.ndarray) -> np.ndarray:
         v = np.take_along_axis(idx[sel], rot, 1)
         m0 = mid[sel, r]
         out.append(np.stack([np.stack([v[:, 0], m0, v[:, 2]], 1), np.stack([m0, v[:, 1], v[:, 2]], 1)], 1).reshape(-1, 3))
+        parent.append(np.repeat(sel, 2))
     # two long edges: rotate the short one to edge 2, then (m0, v1, m1) + the quad v0 m0 m1 v2 split at its diagonal
     sel = np.flatnonzero(n == 2)
     if sel.size:
@@ -296,13 +298,16 @@ def _refine(idx: np.ndarray, mid: np.ndarray, long: np.ndarray) -> np.ndarray:
         m0, m1 = mm[:, 0], mm[:, 1]
         out.append(np.stack([np.stack([m0, v[:, 1], m1], 1), np.stack([v[:, 0], m0, m1], 1),
                              np.stack([v[:, 0], m1, v[:, 2]], 1)], 1).reshape(-1, 3))
+        parent.append(np.repeat(sel, 3))
     # three long edges: four similar triangles
     sel = np.flatnonzero(n == 3)
     if sel.size:
         v, m = idx[sel], mid[sel]
         out.append(np.stack([np.stack([v[:, 0], m[:, 0], m[:, 2]], 1), np.stack([m[:, 0], v[:, 1], m[:, 1]], 1),
                              np.stack([m[:, 2], m[:, 1], v[:, 2]], 1), np.stack([m[:, 0], m[:, 1], m[:, 2]], 1)], 1).reshape(-1, 3))
-    return np.concatenate(out)
+        parent.append(np.repeat(sel, 4))
+    # children stay where their parent was, so triangle order stays spatially coherent
+    return np.concatenate(out)[np.argsort(np.concatenate(parent), kind="stable")]
 
 
 def split_scene_meshes(scene: Scene, max_edge_m: float, max_triangles: int) -> tuple[list[Mesh], float]:
