@@ -215,8 +215,7 @@ class PatchIdPass:
                 np.maximum(acc, self.evs_area(p, intr, t_s), out=acc)
             return acc
         n = self.patches.count
-        self._acc.clear()
-        self._counts.clear()
+        any_drawn = False
         self._lookup_buf.bind_to_storage_buffer(1)
         self._counts.bind_to_storage_buffer(2)
         self._acc.bind_to_storage_buffer(3)
@@ -224,6 +223,12 @@ class PatchIdPass:
         self._count_max["u_n"].value = n
         for t_s, p in samples:
             tex = self.render_ids(p, intr, t_s)
+            if self.drawn_triangles == 0:
+                continue          # nothing in the frustum: no pixel to count
+            if not any_drawn:
+                self._acc.clear()
+                self._counts.clear()
+                any_drawn = True
             tex.bind_to_image(0, read=True, write=False)
             self._lookup_buf.bind_to_storage_buffer(1)
             self._counts.bind_to_storage_buffer(2)
@@ -232,6 +237,8 @@ class PatchIdPass:
             self.ctx.memory_barrier()
             self._count_max.run(-(-max(n, 1) // 256))
             self.ctx.memory_barrier()
+        if not any_drawn:
+            return np.zeros(n, np.int64)
         return np.frombuffer(self._acc.read(size=4 * n), np.uint32).astype(np.int64)
 
 
