@@ -245,8 +245,8 @@ def test_small_atlas_resets_only_on_iframes_and_keeps_nothing_outside_live_block
         mask = np.zeros((al.layout.height, al.layout.width), bool)
         for x, y, w, h in al.blocks(live).tolist():
             mask[y:y + h, x:x + w] = True
-        stale = int(u.planes["atlas"][~mask].any(axis=-1).sum()) if u.meta["iframe"] else 0
-        frames.append((bool(st["reset"]), bool(u.meta["reset"]), bool(u.meta["iframe"]), u.force_idr, stale))
+        stale = int(u.planes["atlas"][~mask].any(axis=-1).sum()) if u.meta.get("iframe", False) else 0
+        frames.append((bool(st["reset"]), bool(u.meta.get("reset", False)), bool(u.meta.get("iframe", False)), u.force_idr, stale))
 
     _loopback(20, {"atlas_width": 192, "atlas_height": 96, "gop": 30, "lossless": True}, on_frame=check)
     resets = [f for f, r in enumerate(frames) if r[0]]
@@ -444,7 +444,7 @@ def test_pvs_holds_a_moving_object_that_enters_the_view_within_the_window() -> N
     entering = ids.evs_area(pose, INTR, samples[-1][0])[ball_patches]
     assert (entering > 0).sum() >= 5, f"the ball must be in view {samples[-1][0] - t:.3f} s later"
     u = srv.produce(ctx)
-    in_pvs = np.isin(ball_patches, np.cumsum(u.meta["geo_id"].astype(np.int64)))   # wire v3: delta-coded ids
+    in_pvs = np.isin(ball_patches, np.cumsum(u.meta.get("geo_id", np.zeros(0, np.uint32)).astype(np.int64)))   # wire v3: delta-coded ids
     assert in_pvs[entering > 0].all(), (f"{int((~in_pvs[entering > 0]).sum())} of {int((entering > 0).sum())} ball patches "
                                         f"visible at t + {samples[-1][0] - t:.3f} s are missing from the PVS")
     rates = pvs_rates(ids, samples, [(s, pose) for s, _ in samples], INTR, 1.0)

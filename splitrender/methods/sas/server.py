@@ -315,7 +315,7 @@ class SasServer(ServerHalf):
             "shade_ms": (t3 - t2) * 1e3, "atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
             "atlas_load_pct": 100.0 * al.memory_load(), "reset": float(reset), "iframe": float(iframe),
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
-            "geo_sent": float(meta["geo_id"].size),
+            "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
@@ -424,7 +424,7 @@ class SasServer(ServerHalf):
         send = objs_needed[self.dynamic[objs_needed] | ~self.sent_static[objs_needed]]
         self.sent_static[send] = True
         meta: dict[str, Any] = {
-            "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
+            "v": META_VERSION,
             "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
             "drop": encode_ids(gone),
             **encode_geometry(geo, P.size[geo], P.slot_vertex[geo], self.vertex_q),
@@ -433,4 +433,6 @@ class SasServer(ServerHalf):
         }
         if reset or full:
             meta["pvs"] = encode_ids(live)
-        return meta
+        # absent = empty / false on the wire: a frame with nothing new costs a few bytes
+        return {k: v for k, v in meta.items()
+                if not ((isinstance(v, np.ndarray) and v.size == 0) or v is False)}

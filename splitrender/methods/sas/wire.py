@@ -6,9 +6,10 @@ each object (non-decreasing from 0; patch ``p`` belongs to the last object whose
 is <= ``p``), ``sky`` RGB, ``obj_box`` float32 (n_objects, 2, 3): per object the lo, hi
 corners of its bounding box in object space, metres.
 
-Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
+Per-frame metadata (``v = META_VERSION``), all arrays little-endian; an absent array
+is empty and an absent flag false (the server leaves them out):
 
-- ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
+- ``iframe``, ``reset``, ``full`` bools;
 Every id list (``pvs``, ``drop``, ``geo_id``, ``uv_id``) is sorted, distinct and
 delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
 
@@ -36,8 +37,8 @@ delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
 Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
 the session data carries ``n_patches``.  Version 3: compact geometry (``geo_vtx`` +
 ``geo_idx`` shared-vertex indices replace ``geo_pos`` and ``geo_obj``), delta-coded
-id lists, block rectangles of new patches without their ids, and ``patch_base`` in
-the session data.
+id lists, block rectangles of new patches without their ids, empty fields and false
+flags left out (and no ``atlas`` per frame), and ``patch_base`` in the session data.
 """
 
 from __future__ import annotations
