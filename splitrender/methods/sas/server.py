@@ -84,7 +84,7 @@ class SasConfig(MethodConfig):
     bias_fill: float = 0.75
     hysteresis: float = 0.75
     lossless: bool = False
-    pvs_linger_frames: int = 4
+    pvs_linger_frames: int = 8
     split_near_m: float = 2.0
     split_max_triangles: int = 200_000
 
