@@ -5,9 +5,11 @@ object-space slot positions (sent once when it enters the PVS), its block rectan
 (sent when it moves in the atlas) and per object its newest transform.  Patches that
 leave the PVS (``drop``, or absent from an I-frame's ``pvs`` list) are forgotten.
 
-Rendering is one draw call: a vertex buffer of all PVS triangles with atlas
-coordinates and each block's texel-centre clamp rectangle baked in (rebuilt only
-when the state changed) and the object transforms in a storage buffer.  Pixels no patch covers are holes (filled with the sky colour,
+Rendering is one draw call: a vertex buffer with a slot of three triangles per PVS
+patch (atlas coordinates and the block's texel-centre clamp rectangle baked in; only
+the slots of patches that changed are recomputed, freed slots are zeroed and reused) and the object transforms in a storage buffer, extrapolated
+from the two newest updates to the display time (:func:`extrapolate_transforms`).
+Pixels no patch covers are holes (filled with the sky colour,
 which the session data carries, as the server's clear colour).
 
 The client imports only the wire format (:mod:`.wire`) from the server's side; every
@@ -31,6 +33,44 @@ from .wire import (SLOT_LAYOUT, TRI_SLOTS, SasMetaError, block_clamp_rect, block
 SHADERS = Path(__file__).parent / "shaders"
 
 
+MAX_EXTRAPOLATION_S = 0.25
+"""Longest time (s) an object transform is extrapolated past its newest update."""
+
+
+def extrapolate_transforms(prev: np.ndarray, prev_t: np.ndarray, cur: np.ndarray, cur_t: np.ndarray, t_s: float) -> np.ndarray:
+    """(N, 4, 4) object transforms at scene time ``t_s`` from the two newest updates (constant velocity).
+
+    Translation moves linearly; the linear part turns by the rotation between the two
+    samples, scaled in angle (Rodrigues).  Objects with one sample, samples at the same
+    time, or a linear part that is not a rotation times the previous one keep ``cur``;
+    extrapolation stops :data:`MAX_EXTRAPOLATION_S` past the newest sample.
+    """
+    out = cur.astype(np.float64).copy()
+    dt = cur_t - prev_t
+    ok = np.isfinite(dt) & (dt > 1e-6)
+    if not ok.any():
+        return out.astype(np.float32)
+    k = np.flatnonzero(ok)
+    alpha = np.clip(t_s - cur_t[k], 0.0, MAX_EXTRAPOLATION_S) / dt[k]              # (K,) in units of dt
+    a0, a1 = prev[k, :3, :3].astype(np.float64), cur[k, :3, :3].astype(np.float64)
+    d = a1 @ np.linalg.inv(a0)                                                     # rotation from prev to cur
+    orthonormal = np.abs(d @ d.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)) < 1e-3
+    cos = np.clip((np.trace(d, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.arccos(cos)
+    axis = np.stack([d[:, 2, 1] - d[:, 1, 2], d[:, 0, 2] - d[:, 2, 0], d[:, 1, 0] - d[:, 0, 1]], 1)
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    th = (ang * alpha)[:, None, None]
+    kx = np.zeros((k.size, 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
+    rot = np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * (kx @ kx)
+    rot = np.where(((ang > 1e-9) & orthonormal)[:, None, None], rot, np.eye(3))
+    out[k, :3, :3] = rot @ a1
+    t0, t1 = prev[k, :3, 3].astype(np.float64), cur[k, :3, 3].astype(np.float64)
+    out[k, :3, 3] = t1 + (t1 - t0) * alpha[:, None]
+    return out.astype(np.float32)
+
+
 class SasClient(ClientHalf):
     """Shading atlas streaming, client half."""
 
@@ -45,6 +85,10 @@ class SasClient(ClientHalf):
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
         self.models = np.tile(np.eye(4, dtype=np.float32), (self.n_obj, 1, 1))
+        # the previous transform of each object and the scene times (s) of both, for extrapolation
+        self.models_prev = self.models.copy()
+        self.models_t = np.full(self.n_obj, np.nan)
+        self.models_prev_t = np.full(self.n_obj, np.nan)
         self.ssbo = self.gl.buffer(reserve=max(1, self.n_obj) * 64)
         # per-patch state, keyed by patch id
         self.geo: dict[int, tuple[int, int, np.ndarray]] = {}      # id -> (object slot, triangles, (5, 3) positions)
@@ -54,6 +98,13 @@ class SasClient(ClientHalf):
         self._vbo: Any = None
         self._dirty = True
         self._n_tri = 0
+        # incremental vertex buffer: one slot of 3 triangles per drawn patch (zeros = nothing drawn)
+        self._changed: set[int] = set()
+        self._slot: dict[int, int] = {}
+        self._free: list[int] = []
+        self._rows = np.zeros((0, 3, 3, 10), np.float32)
+        self._slot_tris = np.zeros(0, np.int64)
+        self._high = 0
 
     # ------------------------------------------------------------------ updates
     def apply(self, update: DecodedUpdate) -> None:
@@ -66,8 +117,13 @@ class SasClient(ClientHalf):
                 raise SasMetaError(f"sas atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({h}, {w}, 3) uint8")
             self._tex = upload_image(self.gl, atlas, self._tex)
         if m.full:
+            self._changed.update(self.geo)
+            self._changed.update(self.rect)
             self.geo.clear()
             self.rect.clear()
+        self._changed.update(m.drop.tolist())
+        self._changed.update(m.geo_id.tolist())
+        self._changed.update(m.uv_id.tolist())
         for pid in m.drop.tolist():
             self.geo.pop(pid, None)
             self.rect.pop(pid, None)
@@ -81,42 +137,74 @@ class SasClient(ClientHalf):
             for d in (self.geo, self.rect):
                 for pid in [k for k in d if k not in keep]:
                     del d[pid]
+                    self._changed.add(pid)
+        fresh = m.xf_obj[self.models_t[m.xf_obj] != update.t_s]     # a newer sample: the current one becomes previous
+        self.models_prev[fresh] = self.models[fresh]
+        self.models_prev_t[fresh] = self.models_t[fresh]
         self.models[m.xf_obj] = m.xf
+        self.models_t[m.xf_obj] = update.t_s
         self._dirty = True
         self._has_content = True
 
-    def _rebuild(self) -> None:
-        ids = [pid for pid in self.geo if pid in self.rect]
-        tris: list[np.ndarray] = []
-        if ids:
-            obj = np.array([self.geo[p][0] for p in ids], np.float32)
-            size = np.array([self.geo[p][1] for p in ids], np.int64)
-            pos = np.stack([self.geo[p][2] for p in ids]).astype(np.float32)
-            rr = np.stack([self.rect[p] for p in ids]).astype(np.int64)
-            rect = np.stack([rr[:, 0], rr[:, 1], 1 << rr[:, 2], 1 << rr[:, 3]], axis=1).astype(np.float64)
-            wh = np.array(self.atlas_size, np.float64)
-            for k in (1, 2, 3):
-                sel = np.flatnonzero(size == k)
-                if sel.size == 0:
+    def _patch_rows(self, ids: list[int]) -> np.ndarray:
+        """(N, 3, 3, 10) float32 vertex rows of patches ``ids`` (unused triangles zero): object-space
+        position, normalised atlas uv, object slot, the block's normalised texel-centre clamp rectangle."""
+        out = np.zeros((len(ids), 3, 3, 10), np.float32)
+        obj = np.array([self.geo[p][0] for p in ids], np.float32)
+        size = np.array([self.geo[p][1] for p in ids], np.int64)
+        pos = np.stack([self.geo[p][2] for p in ids]).astype(np.float32)
+        rr = np.stack([self.rect[p] for p in ids]).astype(np.int64)
+        rect = np.stack([rr[:, 0], rr[:, 1], 1 << rr[:, 2], 1 << rr[:, 3]], axis=1).astype(np.float64)
+        wh = np.array(self.atlas_size, np.float64)
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(size == k)
+            if sel.size == 0:
+                continue
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], rr[sel, 4] != 0) / wh
+            o = np.broadcast_to(obj[sel][:, None, None], (sel.size, 3, 1))
+            clamp = block_clamp_rect(rect[sel]) / np.tile(wh, 2)
+            c4 = np.broadcast_to(clamp[:, None, :], (sel.size, 3, 4))
+            for t, tri in enumerate(TRI_SLOTS[k]):
+                if tri[0] < 0:
                     continue
-                xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], rr[sel, 4] != 0) / wh
-                for tri in TRI_SLOTS[k]:
-                    if tri[0] < 0:
-                        continue
-                    o = np.broadcast_to(obj[sel][:, None, None], (sel.size, 3, 1))
-                    clamp = block_clamp_rect(rect[sel]) / np.tile(wh, 2)
-                    c4 = np.broadcast_to(clamp[:, None, :], (sel.size, 3, 4))
-                    tris.append(np.concatenate([pos[sel][:, tri], xy[:, tri], o, c4], axis=2).astype(np.float32))
-        if self._vao is not None:
-            self._vao.release()
-            self._vbo.release()
-            self._vao = self._vbo = None
-        self._n_tri = 0
-        if tris:
-            v = np.concatenate(tris)
-            self._n_tri = v.shape[0]
-            self._vbo = self.gl.buffer(v.tobytes())
+                out[sel, t] = np.concatenate([pos[sel][:, tri], xy[:, tri], o, c4], axis=2)
+        return out
+
+    def _rebuild(self) -> None:
+        """Update the slots of the patches that changed since the last draw, then upload once."""
+        drawn = [p for p in self._changed if p in self.geo and p in self.rect]
+        for pid in self._changed:
+            if pid in self._slot and not (pid in self.geo and pid in self.rect):
+                k = self._slot.pop(pid)
+                self._rows[k] = 0.0
+                self._slot_tris[k] = 0
+                self._free.append(k)
+        for pid in drawn:
+            if pid not in self._slot:
+                if not self._free:
+                    grow = max(64, self._rows.shape[0])
+                    self._free = list(range(self._rows.shape[0] + grow - 1, self._rows.shape[0] - 1, -1))
+                    self._rows = np.concatenate([self._rows, np.zeros((grow, 3, 3, 10), np.float32)])
+                    self._slot_tris = np.concatenate([self._slot_tris, np.zeros(grow, np.int64)])
+                self._slot[pid] = self._free.pop()
+        if drawn:
+            slots = np.array([self._slot[p] for p in drawn], np.int64)
+            self._rows[slots] = self._patch_rows(drawn)
+            self._slot_tris[slots] = [self.geo[p][1] for p in drawn]
+        self._changed.clear()
+        self._high = max(self._slot.values()) + 1 if self._slot else 0
+        self._n_tri = int(self._slot_tris[:self._high].sum())
+        data = self._rows[:self._high].tobytes()
+        if self._vbo is None or self._vbo.size < len(data):
+            old = 0
+            if self._vbo is not None:
+                old = self._vbo.size
+                self._vao.release()
+                self._vbo.release()
+            self._vbo = self.gl.buffer(reserve=max(len(data), 2 * old, 4096))
             self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 2f 1f 4f", "in_position", "in_atlas_uv", "in_object", "in_clamp")])
+        if data:
+            self._vbo.write(data)
         self._dirty = False
 
     # ------------------------------------------------------------------ display
@@ -130,12 +218,14 @@ class SasClient(ClientHalf):
             gl = self.gl
             gl.enable(gl.DEPTH_TEST)
             gl.disable(gl.CULL_FACE)
-            self.ssbo.write(np.ascontiguousarray(self.models.transpose(0, 2, 1), np.float32).tobytes())
+            shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
+            self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
             self.ssbo.bind_to_storage_buffer(0)
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
             self._tex.use(location=0)
             self.prog["u_atlas"].value = 0
-            self._vao.render()
+            if self._high:
+                self._vao.render(vertices=9 * self._high)
         color, covered = self.canvas.read()
         return ClientFrame(color, ~covered, {"cli_triangles": float(self._n_tri)})

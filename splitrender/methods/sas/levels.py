@@ -60,9 +60,18 @@ def _heron(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(s * (s - a) * (s - b) * (s - c), 0.0))
 
 
-def ideal_log_size(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, eye: np.ndarray,
-                   px_per_rad: float, texels_per_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous ``(A, a)`` per patch: log2 block area (texels) and log2 aspect (width / height)."""
+@dataclass
+class PatchExtent:
+    """Screen-space size of patches (eq. 1), pixels: along the block width ``u`` and height ``v``, and area."""
+
+    width: np.ndarray
+    height: np.ndarray
+    area: np.ndarray
+
+
+def patch_extent_px(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, eye: np.ndarray,
+                    px_per_rad: float) -> PatchExtent:
+    """Eq. 1 per patch: extent along ``u`` and ``v`` (longest edge over its layout length) and area, in pixels."""
     n = ids.size
     width = np.zeros(n)
     height = np.zeros(n)
@@ -87,11 +96,35 @@ def ideal_log_size(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, ey
             tri_area += _heron(e0, e1, e2)
         # a single triangle fills half its block
         area[sel] = tri_area * (2.0 if k == 1 else 1.0)
-    area = np.maximum(area * texels_per_px ** 2, 1e-6)
+    return PatchExtent(width, height, area)
+
+
+def log_size(ext: PatchExtent, texels_per_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous ``(A, a)`` per patch from its extent: log2 block area (texels) and log2 aspect (width / height)."""
+    area = np.maximum(ext.area * texels_per_px ** 2, 1e-6)
     # the block must also hold the longest edges (slivers have tiny area but long sides)
-    area = np.maximum(area, 0.25 * width * height * texels_per_px ** 2)
-    a = np.log2(np.maximum(width, 1e-6) / np.maximum(height, 1e-6))
+    area = np.maximum(area, 0.25 * ext.width * ext.height * texels_per_px ** 2)
+    a = np.log2(np.maximum(ext.width, 1e-6) / np.maximum(ext.height, 1e-6))
     return np.log2(area), a
+
+
+def ideal_log_size(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, eye: np.ndarray,
+                   px_per_rad: float, texels_per_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous ``(A, a)`` per patch: log2 block area (texels) and log2 aspect (width / height)."""
+    return log_size(patch_extent_px(patches, ids, world, eye, px_per_rad), texels_per_px)
+
+
+def footprint(ext: PatchExtent, lw: np.ndarray, lh: np.ndarray, transposed: np.ndarray) -> np.ndarray:
+    """(N, 2) block texels per display pixel along atlas x and y (at least 1) for blocks ``2^lw x 2^lh``.
+
+    The block width (atlas x) holds the patch's ``u`` extent, or its ``v`` extent when
+    the patch is laid out transposed.
+    """
+    along_x = np.where(transposed, ext.height, ext.width)
+    along_y = np.where(transposed, ext.width, ext.height)
+    fx = np.maximum(1.0, 2.0 ** lw.astype(np.float64) / np.maximum(along_x, 1e-6))
+    fy = np.maximum(1.0, 2.0 ** lh.astype(np.float64) / np.maximum(along_y, 1e-6))
+    return np.stack([fx, fy], 1)
 
 
 def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texels: float,
@@ -100,7 +133,8 @@ def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texe
     """Eq. 2 and 3: integer levels from continuous ``(A, a)``; ``cur_*`` (-1 = none) enable hysteresis."""
     lo, hi = layout.min_level, layout.max_level
     amin, amax = 2 * lo, 2 * hi
-    ideal = np.clip(2.0 ** A, 2.0 ** amin, 2.0 ** amax)
+    # without pressure a patch gets at least as many texels as it covers pixels (A rounded up)
+    ideal = np.clip(2.0 ** np.ceil(A - 0.01), 2.0 ** amin, 2.0 ** amax)
     at_min = A <= amin
     d = float(at_min.sum()) * 2.0 ** amin
     total = float(ideal.sum())
@@ -112,7 +146,7 @@ def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texe
     Ab = A - bias
     transposed = a < 0
     aa = np.abs(a)
-    Ar = np.clip(np.rint(Ab), amin, amax).astype(np.int64)
+    Ar = np.clip(np.ceil(A - 0.01) if bias == 0.0 else np.rint(Ab), amin, amax).astype(np.int64)
     ar = np.rint(aa).astype(np.int64)
     odd = (Ar - ar) % 2 == 1
     up = aa > ar

@@ -25,7 +25,8 @@ tables (`SLOT_LAYOUT`, `TRI_SLOTS`) are part of the wire format, in :mod:`.wire`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -182,7 +183,10 @@ class ScenePatches:
     its object; ``tri_to_patch`` (T_scene,) global patch of each scene-wide triangle
     (the renderer's ``tri_base`` order); ``size`` (P,) triangles per patch;
     ``slot_pos``/``slot_nrm`` (P, 5, 3), ``slot_uv`` (P, 5, 2) and ``slot_tan`` (P, 5, 4)
-    object-space vertex attributes per slot (float32).
+    object-space vertex attributes per slot (float32); ``meshes`` the (possibly split,
+    :func:`split_mesh`) mesh of each object whose triangles the patches group;
+    ``slot_vertex`` (P, 5) int64 scene-wide vertex id per slot (the objects' vertices one
+    after another, -1 unused).
     """
 
     per_object: list[MeshPatches]
@@ -195,31 +199,138 @@ class ScenePatches:
     slot_uv: np.ndarray
     base: np.ndarray
     slot_tan: np.ndarray
+    meshes: list[Mesh] = field(default_factory=list)
+    slot_vertex: np.ndarray = field(default_factory=lambda: np.zeros((0, MAX_SLOTS), np.int64))
 
     @property
     def count(self) -> int:
         return int(self.size.shape[0])
 
 
-def build_scene_patches(scene: Scene) -> ScenePatches:
-    """Patches for every object of ``scene`` (object order = renderer triangle order)."""
-    per, oi, loc, sz, t2p, sp, sn, su, st, base = [], [], [], [], [], [], [], [], [], []
-    pbase = 0
-    for k, o in enumerate(scene.objects):
-        mp = build_mesh_patches(o.mesh)
+def build_scene_patches(scene: Scene, meshes: list[Mesh] | None = None) -> ScenePatches:
+    """Patches for every object of ``scene`` (object order = renderer triangle order).
+
+    ``meshes`` replaces the objects' meshes (one per object, e.g. from
+    :func:`split_scene_meshes`); ``tri_to_patch`` then follows their triangles.
+    """
+    per, oi, loc, sz, t2p, sp, sn, su, st, base, sv = [], [], [], [], [], [], [], [], [], [], []
+    pbase = vbase = 0
+    meshes = [o.mesh for o in scene.objects] if meshes is None else meshes
+    for k, mesh in enumerate(meshes):
+        mp = build_mesh_patches(mesh)
         per.append(mp)
         oi.append(np.full(mp.count, k, np.int32))
         loc.append(np.arange(mp.count, dtype=np.int32))
         sz.append(mp.size)
         t2p.append(mp.tri_patch + pbase)
         s = np.where(mp.slots < 0, 0, mp.slots)
-        sp.append(o.mesh.positions[s])
-        sn.append(o.mesh.normals[s])
-        su.append(o.mesh.uvs[s])
-        st.append(o.mesh.tangent_frame()[s])
+        sp.append(mesh.positions[s])
+        sn.append(mesh.normals[s])
+        su.append(mesh.uvs[s])
+        st.append(mesh.tangent_frame()[s])
         base.append(pbase)
+        sv.append(np.where(mp.slots < 0, -1, mp.slots.astype(np.int64) + vbase))
         pbase += mp.count
+        vbase += mesh.vertex_count
     return ScenePatches(per, np.concatenate(oi), np.concatenate(loc), np.concatenate(sz), np.concatenate(t2p).astype(np.int32),
                         np.concatenate(sp).astype(np.float32), np.concatenate(sn).astype(np.float32),
                         np.concatenate(su).astype(np.float32), np.array(base, np.int64),
-                        np.concatenate(st).astype(np.float32))
+                        np.concatenate(st).astype(np.float32), list(meshes),
+                        np.concatenate(sv) if sv else np.zeros((0, MAX_SLOTS), np.int64))
+
+
+# ---------------------------------------------------------------------------- load-time splitting
+def split_mesh(mesh: Mesh, max_edge_m: float, max_rounds: int = 8, max_triangles: int | None = None) -> Mesh:
+    """``mesh`` with every edge longer than ``max_edge_m`` (metres) halved, round after round (red-green refinement).
+
+    An edge is split at its midpoint in every triangle that uses it (edges are keyed
+    by vertex index pair), so the result is conforming: no T-junctions, no cracks.  A
+    triangle with three long edges becomes four, one with two becomes three, one with
+    one becomes two.  Positions, normals and texture coordinates of a midpoint are the
+    averages of its edge's ends (normals are *not* renormalised), so the split mesh
+    interpolates every attribute exactly as the original does: it renders the same.
+    At most ``max_rounds`` rounds (each at most quadruples the triangle count); no
+    round starts once the mesh has more than ``max_triangles``.
+    """
+    pos = mesh.positions.astype(np.float64)
+    nrm = mesh.normals.astype(np.float64)
+    uv = mesh.uvs.astype(np.float64)
+    idx = mesh.indices.astype(np.int64)
+    for _ in range(max_rounds):
+        if idx.shape[0] == 0 or (max_triangles is not None and idx.shape[0] > max_triangles):
+            break
+        a, b = idx, np.roll(idx, -1, axis=1)                        # edge k: vertex k -> k+1
+        long = np.linalg.norm(pos[b] - pos[a], axis=2) > max_edge_m  # (T, 3)
+        if not long.any():
+            break
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        key = lo * pos.shape[0] + hi
+        ukey, inv = np.unique(key[long], return_inverse=True)
+        n0 = pos.shape[0]
+        ea, eb = ukey // n0, ukey % n0
+        pos = np.concatenate([pos, (pos[ea] + pos[eb]) / 2])
+        nrm = np.concatenate([nrm, (nrm[ea] + nrm[eb]) / 2])
+        uv = np.concatenate([uv, (uv[ea] + uv[eb]) / 2])
+        mid = np.full(idx.shape, -1, np.int64)
+        mid[long] = n0 + inv
+        idx = _refine(idx, mid, long)
+    return Mesh(pos.astype(np.float32), nrm.astype(np.float32), uv.astype(np.float32), idx.astype(np.uint32), mesh.name)
+
+
+def _refine(idx: np.ndarray, mid: np.ndarray, long: np.ndarray) -> np.ndarray:
+    """New (T', 3) triangles of red-green refinement; ``mid`` (T, 3) midpoint vertex of edge k (k -> k+1) or -1."""
+    n = long.sum(axis=1)
+    out = [idx[n == 0]]
+    parent = [np.flatnonzero(n == 0)]
+    # one long edge: rotate it to edge 0, then (v0, m0, v2) + (m0, v1, v2)
+    sel = np.flatnonzero(n == 1)
+    if sel.size:
+        r = np.argmax(long[sel], axis=1)
+        rot = (r[:, None] + np.arange(3)) % 3
+        v = np.take_along_axis(idx[sel], rot, 1)
+        m0 = mid[sel, r]
+        out.append(np.stack([np.stack([v[:, 0], m0, v[:, 2]], 1), np.stack([m0, v[:, 1], v[:, 2]], 1)], 1).reshape(-1, 3))
+        parent.append(np.repeat(sel, 2))
+    # two long edges: rotate the short one to edge 2, then (m0, v1, m1) + the quad v0 m0 m1 v2 split at its diagonal
+    sel = np.flatnonzero(n == 2)
+    if sel.size:
+        r = (np.argmin(long[sel], axis=1) + 1) % 3
+        rot = (r[:, None] + np.arange(3)) % 3
+        v = np.take_along_axis(idx[sel], rot, 1)
+        mm = np.take_along_axis(mid[sel], rot, 1)
+        m0, m1 = mm[:, 0], mm[:, 1]
+        out.append(np.stack([np.stack([m0, v[:, 1], m1], 1), np.stack([v[:, 0], m0, m1], 1),
+                             np.stack([v[:, 0], m1, v[:, 2]], 1)], 1).reshape(-1, 3))
+        parent.append(np.repeat(sel, 3))
+    # three long edges: four similar triangles
+    sel = np.flatnonzero(n == 3)
+    if sel.size:
+        v, m = idx[sel], mid[sel]
+        out.append(np.stack([np.stack([v[:, 0], m[:, 0], m[:, 2]], 1), np.stack([m[:, 0], v[:, 1], m[:, 1]], 1),
+                             np.stack([m[:, 2], m[:, 1], v[:, 2]], 1), np.stack([m[:, 0], m[:, 1], m[:, 2]], 1)], 1).reshape(-1, 3))
+        parent.append(np.repeat(sel, 4))
+    # children stay where their parent was, so triangle order stays spatially coherent
+    return np.concatenate(out)[np.argsort(np.concatenate(parent), kind="stable")]
+
+
+def split_scene_meshes(scene: Scene, max_edge_m: float, max_triangles: int) -> tuple[list[Mesh], float]:
+    """Every object's mesh split to edges of at most ``max_edge_m`` metres (object space, :func:`split_mesh`).
+
+    Should that exceed ``max_triangles`` in all, the edge bound grows by sqrt(2) until
+    it fits (never below the original meshes).  Returns the meshes and the bound used.
+    """
+    if not np.isfinite(max_edge_m) or max_edge_m <= 0:
+        return [o.mesh for o in scene.objects], math.inf
+    limit = max(max_triangles, scene.triangle_count)
+    edge = max_edge_m
+    while True:
+        meshes: list[Mesh] = []
+        total = 0
+        for o in scene.objects:
+            meshes.append(split_mesh(o.mesh, edge, max_triangles=limit - total))
+            total += meshes[-1].triangle_count
+            if total > limit:
+                break
+        if total <= limit:
+            return meshes, edge
+        edge *= math.sqrt(2.0)

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ...render.gl import load_program
+from ...render.gl import load_program, read_shader
 from ...scene.model import Scene
 from ...scene.pose import CameraIntrinsics, Pose
 from .patches import ScenePatches
@@ -35,20 +35,119 @@ PoseSample = tuple[float, Pose]
 """One EVS sample: scene time (seconds; places animated objects) and camera pose."""
 
 
-class PatchIdPass:
-    """Renders depth-tested patch-ID buffers of ``scene`` and turns them into EVS areas."""
+CLUSTER_TRIANGLES = 256
+"""Triangles per culling cluster (consecutive in patch order, so spatially coherent)."""
 
-    def __init__(self, renderer: Any, scene: Scene, patches: ScenePatches) -> None:
+
+@dataclass
+class PatchClusters:
+    """Scene-level culling data, built once at load (depends only on the scene's patches).
+
+    Per object: its triangles sorted by patch (``indices`` (T, 3) uint32), the patch of
+    each sorted triangle, and clusters of :data:`CLUSTER_TRIANGLES` consecutive sorted
+    triangles with object-space bounding spheres (``centers`` (C, 3), ``radii`` (C,)
+    metres); ``tri_base`` is the object's first scene-wide sorted triangle.
+    """
+
+    indices: list[np.ndarray]
+    tri_patch: np.ndarray          # (T_scene,) global patch of each sorted triangle
+    tri_base: np.ndarray           # (n_objects,)
+    centers: list[np.ndarray]
+    radii: list[np.ndarray]
+    sphere: np.ndarray             # (n_objects, 4) object-space sphere of the whole mesh: centre, radius
+
+    @staticmethod
+    def build(scene: Scene, patches: ScenePatches) -> "PatchClusters":
+        meshes = patches.meshes or [o.mesh for o in scene.objects]
+        indices, tri_patch, tri_base, centers, radii, sphere = [], [], [], [], [], []
+        base = tbase = 0
+        for k, m in enumerate(meshes):
+            t = m.triangle_count
+            local = patches.tri_to_patch[tbase:tbase + t]
+            order = np.argsort(local, kind="stable")
+            idx = np.ascontiguousarray(m.indices[order], np.uint32)
+            indices.append(idx)
+            tri_patch.append(local[order])
+            tri_base.append(base)
+            p = m.positions[idx.astype(np.int64)]                                   # (T, 3, 3)
+            n_cl = max(1, -(-t // CLUSTER_TRIANGLES))
+            lo = np.full((n_cl, 3), np.inf)
+            hi = np.full((n_cl, 3), -np.inf)
+            if t:
+                cl = np.arange(t) // CLUSTER_TRIANGLES
+                np.minimum.at(lo, cl, p.min(axis=1))
+                np.maximum.at(hi, cl, p.max(axis=1))
+            c = np.where(np.isfinite(lo), (lo + hi) / 2, 0.0)
+            r = np.where(np.isfinite(lo).all(1), np.linalg.norm(hi - lo, axis=1) / 2, 0.0)
+            centers.append(c)
+            radii.append(r)
+            if t:
+                mlo, mhi = m.positions.min(axis=0), m.positions.max(axis=0)
+                sphere.append([*((mlo + mhi) / 2), float(np.linalg.norm(mhi - mlo) / 2)])
+            else:
+                sphere.append([0.0, 0.0, 0.0, -1.0])
+            base += t
+            tbase += t
+        return PatchClusters(indices, np.concatenate(tri_patch) if tri_patch else np.zeros(0, np.int32),
+                             np.array(tri_base, np.int64), centers, radii, np.array(sphere, np.float64).reshape(-1, 4))
+
+
+def frustum_planes(view_proj: np.ndarray) -> np.ndarray:
+    """(6, 4) normalised planes ``n.x + d >= 0`` inside, of the clip matrix ``view_proj`` (world -> clip)."""
+    m = view_proj
+    pl = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
+    return pl / np.linalg.norm(pl[:, :3], axis=1, keepdims=True)
+
+
+def spheres_visible(planes: np.ndarray, model: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Which object-space spheres, placed by ``model`` (4, 4), intersect the frustum ``planes``."""
+    c = centers @ model[:3, :3].T + model[:3, 3]
+    r = radii * float(np.linalg.norm(model[:3, :3], axis=0).max())
+    return ((c @ planes[:, :3].T + planes[:, 3]) >= -r[:, None]).all(axis=1)
+
+
+class PatchIdPass:
+    """Renders depth-tested patch-ID buffers of ``scene`` and turns them into EVS areas.
+
+    Only objects and clusters of :class:`PatchClusters` that intersect the sample's
+    frustum are drawn.  :meth:`pvs_area` counts pixels per patch on the GPU (a compute
+    pass with atomic counters, then a max over the samples) and reads back one count
+    per patch; :meth:`evs_area` reads the ID buffer back and counts on the CPU (the
+    reference path, also used by :func:`pvs_rates`).
+    """
+
+    def __init__(self, renderer: Any, scene: Scene, patches: ScenePatches, clusters: PatchClusters | None = None,
+                 gpu_count: bool = True) -> None:
         self.renderer = renderer
         self.ctx = renderer.ctx
         self.scene = scene
         self.patches = patches
+        self.clusters = clusters or PatchClusters.build(scene, patches)
         self.prog = load_program(self.ctx, SHADERS / "patch_id.vert", SHADERS / "patch_id.frag")
-        sg = renderer.upload(scene)
-        self.objects = [(og, self.ctx.vertex_array(self.prog, [(og.vbo, "3f 12x 8x", "in_position")], og.ibo)) for og in sg.objects]
+        meshes = patches.meshes or [o.mesh for o in scene.objects]
+        self.objects: list[tuple[Any, Any]] = []
+        for o, m, idx in zip(scene.objects, meshes, self.clusters.indices):
+            vbo = self.ctx.buffer(np.ascontiguousarray(m.positions, "f4").tobytes())
+            ibo = self.ctx.buffer(idx.tobytes() if idx.size else b"\0" * 12)
+            self.objects.append((o, self.ctx.vertex_array(self.prog, [(vbo, "3f", "in_position")], ibo)))
         self._fbos: dict[tuple[int, int], tuple[Any, Any]] = {}
-        # scene-wide triangle index + 1 -> patch id + 1 (0 stays background)
-        self.lookup = np.concatenate([[0], patches.tri_to_patch.astype(np.int64) + 1])
+        # scene-wide sorted triangle index + 1 -> patch id + 1 (0 stays background)
+        self.lookup = np.concatenate([[0], self.clusters.tri_patch.astype(np.int64) + 1])
+        self.drawn_triangles = 0
+        self.gpu_count = gpu_count
+        self._count: Any = None
+        if gpu_count:
+            try:
+                self._count = self.ctx.compute_shader(read_shader(SHADERS / "patch_count.comp"))
+                self._count_max = self.ctx.compute_shader(read_shader(SHADERS / "patch_count_max.comp"))
+                n = max(1, patches.count)
+                self._lookup_buf = self.ctx.buffer(self.lookup.astype(np.uint32).tobytes())
+                self._counts = self.ctx.buffer(reserve=4 * n)
+                self._acc = self.ctx.buffer(reserve=4 * n)
+                self._counts.clear()
+            except Exception:   # no compute shaders: count on the CPU
+                self._count = None
+                self.gpu_count = False
 
     def _fbo(self, w: int, h: int) -> tuple[Any, Any]:
         f = self._fbos.get((w, h))
@@ -58,8 +157,8 @@ class PatchIdPass:
             f = self._fbos[(w, h)] = (fbo, tex)
         return f
 
-    def id_buffer(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> np.ndarray:
-        """(H, W) int64 patch id + 1 per pixel (0 = background), row 0 at the top."""
+    def render_ids(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> Any:
+        """Draw the ID buffer (frustum-culled per object and cluster); returns its texture."""
         fbo, tex = self._fbo(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
@@ -67,25 +166,80 @@ class PatchIdPass:
         tex.write(np.zeros((intr.height, intr.width), np.uint32).tobytes())
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.disable(self.ctx.CULL_FACE)
-        self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
-        self.prog["u_proj"].write(np.asarray(intr.projection(), "f4").T.tobytes())
-        for og, vao in self.objects:
-            self.prog["u_model"].write(np.asarray(og.obj.model_matrix(t_s), "f4").T.tobytes())
-            self.prog["u_tri_base"].value = og.tri_base
-            vao.render()
+        view, proj = pose.view_matrix(), intr.projection()
+        planes = frustum_planes(proj @ view)
+        self.prog["u_view"].write(np.asarray(view, "f4").T.tobytes())
+        self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
+        cl = self.clusters
+        drawn = 0
+        for k, (obj, vao) in enumerate(self.objects):
+            sph = cl.sphere[k]
+            n_tri = cl.indices[k].shape[0]
+            if n_tri == 0:
+                continue
+            model = np.asarray(obj.model_matrix(t_s), np.float64)
+            if not spheres_visible(planes, model, sph[None, :3], sph[3:4])[0]:
+                continue
+            vis = spheres_visible(planes, model, cl.centers[k], cl.radii[k])
+            if not vis.any():
+                continue
+            self.prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
+            # runs of visible clusters -> triangle ranges
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], vis.astype(np.int8), [0]])))
+            for a, b in zip(edges[0::2].tolist(), edges[1::2].tolist()):
+                t0, t1 = a * CLUSTER_TRIANGLES, min(b * CLUSTER_TRIANGLES, n_tri)
+                self.prog["u_tri_base"].value = int(cl.tri_base[k]) + t0
+                vao.render(first=3 * t0, vertices=3 * (t1 - t0))
+                drawn += t1 - t0
+        self.drawn_triangles = drawn
+        return tex
+
+    def id_buffer(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> np.ndarray:
+        """(H, W) int64 patch id + 1 per pixel (0 = background), row 0 at the top."""
+        tex = self.render_ids(pose, intr, t_s)
         ids = np.frombuffer(tex.read(), np.uint32).reshape(intr.height, intr.width)[::-1]
         return self.lookup[ids]
 
     def evs_area(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> np.ndarray:
-        """(P,) pixels covered by each patch at ``pose`` (the EVS with projected areas)."""
+        """(P,) pixels covered by each patch at ``pose`` (the EVS with projected areas), counted on the CPU."""
         return np.bincount(self.id_buffer(pose, intr, t_s).ravel(), minlength=self.patches.count + 1)[1:]
 
-    def pvs_area(self, samples: Sequence[PoseSample], intr: CameraIntrinsics) -> np.ndarray:
-        """(P,) per patch the largest EVS area over ``samples`` (``(t_s, pose)``); > 0 means in the PVS."""
-        acc = np.zeros(self.patches.count, np.int64)
+    def pvs_area(self, samples: Sequence[PoseSample], intr: CameraIntrinsics, gpu: bool | None = None) -> np.ndarray:
+        """(P,) per patch the largest EVS area over ``samples`` (``(t_s, pose)``); > 0 means in the PVS.
+
+        ``gpu`` (default: the pass's ``gpu_count``) counts with the compute passes.
+        """
+        if not (self.gpu_count if gpu is None else gpu) or self._count is None:
+            acc = np.zeros(self.patches.count, np.int64)
+            for t_s, p in samples:
+                np.maximum(acc, self.evs_area(p, intr, t_s), out=acc)
+            return acc
+        n = self.patches.count
+        any_drawn = False
+        self._lookup_buf.bind_to_storage_buffer(1)
+        self._counts.bind_to_storage_buffer(2)
+        self._acc.bind_to_storage_buffer(3)
+        self._count["u_size"].value = (intr.width, intr.height)
+        self._count_max["u_n"].value = n
         for t_s, p in samples:
-            np.maximum(acc, self.evs_area(p, intr, t_s), out=acc)
-        return acc
+            tex = self.render_ids(p, intr, t_s)
+            if self.drawn_triangles == 0:
+                continue          # nothing in the frustum: no pixel to count
+            if not any_drawn:
+                self._acc.clear()
+                self._counts.clear()
+                any_drawn = True
+            tex.bind_to_image(0, read=True, write=False)
+            self._lookup_buf.bind_to_storage_buffer(1)
+            self._counts.bind_to_storage_buffer(2)
+            self._acc.bind_to_storage_buffer(3)
+            self._count.run(-(-intr.width // 16), -(-intr.height // 16))
+            self.ctx.memory_barrier()
+            self._count_max.run(-(-max(n, 1) // 256))
+            self.ctx.memory_barrier()
+        if not any_drawn:
+            return np.zeros(n, np.int64)
+        return np.frombuffer(self._acc.read(size=4 * n), np.uint32).astype(np.int64)
 
 
 def sample_times(t_from_s: float, t_to_s: float, step_s: float) -> list[float]:

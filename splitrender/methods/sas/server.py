@@ -30,81 +30,58 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...errors import ConfigError
 from ...render.gl import load_program
 from ...scene.pose import CameraIntrinsics
-from ..base import MethodConfig, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
-from .allocator import STRATEGIES, AtlasLayout, PatchAllocator
-from .levels import ideal_log_size, patch_world_slots, select_levels
-from .patches import ScenePatches, build_scene_patches
+from ..base import SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
+from .config import SasConfig
+from .allocator import PatchAllocator
+from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
+from .patches import ScenePatches, build_scene_patches, split_scene_meshes
 from .pvs import PatchIdPass, PoseSample, sample_times
-from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, quantize_slots
+from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, encode_ids
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
+VERTEX_FLOATS = 2 + 3 + 3 + 2 + 4 + 4 + 2
+"""Floats per atlas-shading vertex: atlas xy, position, normal, uv, tangent, block rect, footprint."""
 EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
 
 
-@dataclass(frozen=True)
-class SasConfig(MethodConfig):
-    """SAS settings.  ``gop`` is the I-frame (and atlas reset) period in frames (paper: 5).
+def object_boxes(meshes: list[Any]) -> np.ndarray:
+    """(n_obj, 2, 3) float32 object-space bounding boxes (lo, hi corners, metres) of ``meshes``."""
+    lo = np.array([m.positions.min(axis=0) for m in meshes], np.float32).reshape(-1, 3)
+    hi = np.array([m.positions.max(axis=0) for m in meshes], np.float32).reshape(-1, 3)
+    return np.stack([lo, hi], axis=1)
 
-    ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
-    the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
-    override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
-    the atlas eq. 3 aims to fill.  ``strategy``: allocator S0 (paper) .. S3.
+
+def quantize_vertices(meshes: list[Any], box: np.ndarray) -> np.ndarray:
+    """(V_scene, 3) uint16: every vertex quantised in its object's box, as :func:`~.wire.quantize_slots` does."""
+    if not meshes:
+        return np.zeros((0, 3), np.uint16)
+    q = []
+    for m, bx in zip(meshes, box):
+        ext = np.maximum(bx[1] - bx[0], 1e-9)
+        q.append(np.rint((m.positions - bx[0]) / ext * 65535.0).clip(0, 65535).astype(np.uint16))
+    return np.concatenate(q)
+
+
+def load_scene_patches(scene: Any, config: SasConfig, intr: CameraIntrinsics) -> ScenePatches:
+    """Scene-level work done once at load: split the meshes, group them into patches.
+
+    Depends only on the scene, the config and the display, not on a client's state.
     """
-
-    gop: int = 5
-    atlas_mpix_1080p: float = 4.0
-    atlas_width: int = 0
-    atlas_height: int = 0
-    superblock_px: int = 32
-    strategy: Literal["S0", "S1", "S2", "S3"] = "S0"
-    high_water: float = 0.9
-    fov_margin: float = 0.2
-    pvs_step_ms: float = 33.3
-    pvs_prediction: Literal["linear", "none"] = "linear"
-    texels_per_px: float = 1.0
-    bias_fill: float = 0.75
-    hysteresis: float = 0.75
-    lossless: bool = False
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.strategy not in STRATEGIES:
-            raise ConfigError(f"SasConfig.strategy: {self.strategy!r} is not one of {list(STRATEGIES)}")
-        if not 0.0 <= self.fov_margin <= 2.0:
-            raise ConfigError(f"SasConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
-        if not 0.1 <= self.high_water <= 1.0:
-            raise ConfigError(f"SasConfig.high_water: must be in [0.1, 1], got {self.high_water}")
-        if not self.pvs_step_ms > 0:
-            raise ConfigError(f"SasConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
-        if not 0.05 <= self.texels_per_px <= 8:
-            raise ConfigError(f"SasConfig.texels_per_px: must be in [0.05, 8], got {self.texels_per_px}")
-        if self.pvs_prediction not in ("linear", "none"):
-            raise ConfigError(f"SasConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
-        if (self.atlas_width > 0) != (self.atlas_height > 0):
-            raise ConfigError("SasConfig: give both atlas_width and atlas_height or neither")
-        if self.atlas_mpix_1080p <= 0:
-            raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
-
-    def atlas_layout(self, intr: CameraIntrinsics) -> AtlasLayout:
-        """The atlas for a display of ``intr``: 2:1, a multiple of the superblock size."""
-        s = self.superblock_px
-        if self.atlas_width > 0:
-            return AtlasLayout(self.atlas_width, self.atlas_height, s)
-        texels = self.atlas_mpix_1080p * 1e6 * intr.width * intr.height / (1920 * 1080)
-        h = max(1, round(math.sqrt(texels / 2) / s)) * s
-        return AtlasLayout(2 * h, h, s)
+    meshes, edge = split_scene_meshes(scene, config.split_edge_m(intr), config.split_max_triangles)
+    sp = build_scene_patches(scene, meshes)
+    log.info("sas: %d triangles split to %d (edges <= %.3f m) in %d patches",
+             scene.triangle_count, sum(m.triangle_count for m in meshes), edge, sp.count)
+    return sp
 
 
 def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
@@ -135,27 +112,38 @@ def expand_triangles(p: np.ndarray, d: float) -> np.ndarray:
 
 
 class SasProducer(SceneProducer):
-    """The scene-level half of SAS, shared by every session: patches (built once at
-    load), the patch-id pass's GPU buffers, and each frame's object transforms."""
+    """The scene-level half of SAS, shared by every session: the split meshes and their
+    patches (built once per display size, :func:`load_scene_patches`), the patch-id
+    pass's GPU buffers and clusters, and each frame's object transforms."""
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
-        t0 = time.perf_counter()
-        self.patches: ScenePatches = build_scene_patches(self.scene)
-        self.patch_build_ms = (time.perf_counter() - t0) * 1e3
-        self._ids: PatchIdPass | None = None
+        self._patches: dict[tuple[int, int, float], ScenePatches] = {}
+        self._ids: dict[tuple[int, int, float], PatchIdPass] = {}
+        self.patch_build_ms = 0.0
         self._stats: dict[str, float] = {}
 
-    def id_pass(self, renderer: Any) -> PatchIdPass:
-        """The patch-id pass (GPU buffers of every patch), built on first use on the server's GL thread."""
-        if self._ids is None:
-            self._ids = PatchIdPass(renderer, self.scene, self.patches)
-        return self._ids
+    def patches_for(self, intr: CameraIntrinsics) -> ScenePatches:
+        """The scene's patches for a display of ``intr`` (the split edge length depends on it); built once per size."""
+        key = (intr.width, intr.height, float(intr.fov_y_deg))
+        got = self._patches.get(key)
+        if got is None:
+            t0 = time.perf_counter()
+            got = self._patches[key] = load_scene_patches(self.scene, self.config, intr)  # type: ignore[arg-type]
+            self.patch_build_ms += (time.perf_counter() - t0) * 1e3
+        return got
+
+    def id_pass(self, renderer: Any, patches: ScenePatches) -> PatchIdPass:
+        """The patch-id pass of ``patches`` (GPU buffers and clusters), built on first use on the server's GL thread."""
+        key = next(k for k, v in self._patches.items() if v is patches)
+        if key not in self._ids:
+            self._ids[key] = PatchIdPass(renderer, self.scene, patches)
+        return self._ids[key]
 
     def prepare(self, frame_id: int, t_s: float) -> dict[str, Any]:
         """Object model matrices at ``t_s`` (the scene's animation), shared by all sessions."""
         models = np.stack([o.model_matrix(t_s) for o in self.scene.objects])
-        self._stats = {"patches": float(self.patches.count)}
+        self._stats = {"patch_sets": float(len(self._patches))}
         return {"t_s": t_s, "models": models}
 
     def stats(self) -> dict[str, float]:
@@ -171,12 +159,15 @@ class SasServer(ServerHalf):
         super().__init__(*a, **kw)
         if not isinstance(self.producer, SasProducer):  # a half used on its own builds its own scene state
             self.producer = SasProducer(self.config, self.scene, self.server_fps)
-        self.patches: ScenePatches = self.producer.patches
+        self.patches: ScenePatches = self.producer.patches_for(self.intrinsics)
         self.patch_build_ms = self.producer.patch_build_ms
         self.layout = self.config.atlas_layout(self.intrinsics)
         self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
         self.transposed = np.zeros(self.patches.count, bool)
         self.client_has = np.zeros(self.patches.count, bool)    # geometry the client holds (no loss assumed)
+        self._vcache = np.zeros((self.patches.count, 3, 3, VERTEX_FLOATS), np.float32)   # atlas-shading vertices per patch
+        self._vcache_ok = np.zeros(self.patches.count, bool)
+        self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
         self._gl: Any = None
@@ -186,9 +177,8 @@ class SasServer(ServerHalf):
         self._stats: dict[str, float] = {}
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
         self.sent_static = np.zeros(self.n_obj, bool)
-        lo = np.array([o.mesh.positions.min(axis=0) for o in self.scene.objects], np.float32)
-        hi = np.array([o.mesh.positions.max(axis=0) for o in self.scene.objects], np.float32)
-        self.obj_box = np.stack([lo, hi], axis=1)                  # (n_obj, 2, 3) metres, object space
+        self.obj_box = object_boxes(self.patches.meshes)               # (n_obj, 2, 3) metres, object space
+        self.vertex_q = quantize_vertices(self.patches.meshes, self.obj_box)
 
     # ------------------------------------------------------------------ interface
     def streams(self) -> list[StreamSpec]:
@@ -201,7 +191,7 @@ class SasServer(ServerHalf):
 
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
-                "n_patches": self.patches.count,
+                "n_patches": self.patches.count, "patch_base": self.patches.base.astype(np.int64),
                 "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box}
 
     def stats(self) -> dict[str, float]:
@@ -211,7 +201,7 @@ class SasServer(ServerHalf):
     def _setup_gl(self, renderer: Any) -> None:
         ctx = renderer.ctx
         assert isinstance(self.producer, SasProducer)
-        self._ids = self.producer.id_pass(renderer)
+        self._ids = self.producer.id_pass(renderer, self.patches)
         self._prog = load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag")
         self._tex = ctx.texture((self.layout.width, self.layout.height), 4, dtype="f1")
         self._fbo = ctx.framebuffer([self._tex])
@@ -219,6 +209,8 @@ class SasServer(ServerHalf):
         self._fbo.clear(0.0, 0.0, 0.0, 1.0)
         self._gl = ctx
         self._sg = renderer.upload(self.scene)
+        self._vbo: Any = None
+        self._vao: Any = None
 
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
@@ -241,7 +233,8 @@ class SasServer(ServerHalf):
         t0 = time.perf_counter()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
         area = self._ids.pvs_area(self.pvs_samples(ctx), big)
-        pvs = np.flatnonzero(area > 0)
+        self._last_seen[area > 0] = self._frames
+        pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
         t1 = time.perf_counter()
         # level selection at the predicted eye
         shared = ctx.shared if isinstance(ctx.shared, dict) and ctx.shared.get("t_s") == ctx.t_s else None
@@ -249,7 +242,8 @@ class SasServer(ServerHalf):
         world = patch_world_slots(self.patches, pvs, models)
         eye = np.asarray(ctx.target_pose.position, np.float64)
         px_per_rad = self.intrinsics.width / math.radians(self.intrinsics.fov_x_deg)
-        A, asp = ideal_log_size(self.patches, pvs, world, eye, px_per_rad, c.texels_per_px)
+        ext = patch_extent_px(self.patches, pvs, world, eye, px_per_rad)
+        A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
         choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
                                self.transposed[pvs], c.hysteresis)
@@ -270,9 +264,13 @@ class SasServer(ServerHalf):
             reset = iframe = True
         # a block's layout orientation only changes when the patch is (re)placed
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
+        self._vcache_ok[res.placed] = False
         t2 = time.perf_counter()
         live = pvs[al.level_w[pvs] >= 0]
-        self._shade(ctx, live, models, clear=iframe)
+        in_live = np.searchsorted(pvs, live)
+        foot = footprint(type(ext)(ext.width[in_live], ext.height[in_live], ext.area[in_live]),
+                         al.level_w[live], al.level_h[live], self.transposed[live])
+        self._shade(ctx, live, models, foot, clear=iframe)
         atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(self.layout.height, self.layout.width, 3).copy()
         t3 = time.perf_counter()
         meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
@@ -284,11 +282,11 @@ class SasServer(ServerHalf):
             "shade_ms": (t3 - t2) * 1e3, "atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
             "atlas_load_pct": 100.0 * al.memory_load(), "reset": float(reset), "iframe": float(iframe),
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
-            "geo_sent": float(meta["geo_id"].size),
+            "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
-    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, clear: bool) -> None:
+    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, foot: np.ndarray, clear: bool) -> None:
         """Shading stage: every live PVS patch into its block (one draw per object)."""
         gl = self._gl
         self._fbo.use()
@@ -300,35 +298,27 @@ class SasServer(ServerHalf):
         gl.disable(gl.DEPTH_TEST)
         gl.disable(gl.CULL_FACE)
         P = self.patches
-        rect = self.allocator.blocks(live).astype(np.float64)
-        size = P.size[live]
-        verts, obj_of = [], []
-        for k in (1, 2, 3):
-            sel = np.flatnonzero(size == k)
-            if sel.size == 0:
-                continue
-            ids = live[sel]
-            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[ids])
-            for tri in TRI_SLOTS[k]:
-                if tri[0] < 0:
-                    continue
-                p2 = xy[:, tri]                                        # (n, 3, 2)
-                w = expand_triangles(p2, EXPAND_TEXELS)                # (n, 3, 3)
-                q = np.einsum("nkj,njc->nkc", w, p2)
-                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[ids][:, tri].astype(np.float64))
-                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[ids][:, tri].astype(np.float64))
-                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[ids][:, tri].astype(np.float64))
-                tan = np.einsum("nkj,njc->nkc", w, P.slot_tan[ids][:, tri].astype(np.float64))
-                tan[..., 3] = P.slot_tan[ids][:, tri[0], 3][:, None]    # handedness is not interpolated
-                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
-                verts.append(np.concatenate([q, pos, nrm, uv, tan, r4], axis=2))
-                obj_of.append(P.object_index[ids])
-        v = np.concatenate(verts).astype(np.float32)                    # (n_tri, 3, 18)
-        o = np.concatenate(obj_of)
-        order = np.argsort(o, kind="stable")
-        v, o = v[order], o[order]
-        vbo = gl.buffer(v.tobytes())
-        vao = gl.vertex_array(self._prog, [(vbo, "2f 3f 3f 2f 4f 4f", "in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect")])
+        stale = live[~self._vcache_ok[live]]
+        if stale.size:
+            self._vcache[stale] = self._shade_vertices(stale)
+            self._vcache_ok[stale] = True
+        tri_used = np.arange(3)[None, :] < P.size[live][:, None]             # (L, 3)
+        v = self._vcache[live].copy()                                       # (L, 3, 3, VERTEX_FLOATS)
+        v[..., VERTEX_FLOATS - 2:] = foot[:, None, None, :]
+        v = v[tri_used]                                                     # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
+        o = np.repeat(P.object_index[live], tri_used.sum(1))
+        data = v.tobytes()
+        if self._vbo is None or self._vbo.size < len(data):   # grow (doubling) the persistent buffer
+            old = 0
+            if self._vbo is not None:
+                old = self._vbo.size
+                self._vao.release()
+                self._vbo.release()
+            self._vbo = gl.buffer(reserve=max(len(data), 2 * old))
+            self._vao = gl.vertex_array(self._prog, [(self._vbo, "2f 3f 3f 2f 4f 4f 2f", "in_atlas", "in_position", "in_normal",
+                                                      "in_uv", "in_tangent", "in_rect", "in_footprint")])
+        self._vbo.write(data)
+        vao = self._vao
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
@@ -347,8 +337,38 @@ class SasServer(ServerHalf):
             prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(m[:3, :3]).T, "f4").T.tobytes())
             ctx.renderer.bind_material(prog, og)
             vao.render(first=3 * s, vertices=3 * (e - s))
-        vao.release()
-        vbo.release()
+
+    def _shade_vertices(self, ids: np.ndarray) -> np.ndarray:
+        """(N, 3, 3, VERTEX_FLOATS) float32 atlas-shading vertices of patches ``ids`` at their blocks (unused triangles zero).
+
+        Per vertex: atlas xy (texels), object-space position, normal, uv, tangent (xyz,
+        handedness), block rect, footprint (filled per frame).  Depends only on the patch and its block, so it is
+        computed when a patch is (re)placed and reused while the block stays put.
+        """
+        P = self.patches
+        out = np.zeros((ids.size, 3, 3, VERTEX_FLOATS), np.float32)
+        rect = self.allocator.blocks(ids).astype(np.float64)
+        size = P.size[ids]
+        for k in (1, 2, 3):
+            sel = np.flatnonzero(size == k)
+            if sel.size == 0:
+                continue
+            sid = ids[sel]
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[sid])
+            for t, tri in enumerate(TRI_SLOTS[k]):
+                if tri[0] < 0:
+                    continue
+                p2 = xy[:, tri]                                        # (n, 3, 2)
+                w = expand_triangles(p2, EXPAND_TEXELS)                # (n, 3, 3)
+                q = np.einsum("nkj,njc->nkc", w, p2)
+                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[sid][:, tri].astype(np.float64))
+                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[sid][:, tri].astype(np.float64))
+                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[sid][:, tri].astype(np.float64))
+                tan = np.einsum("nkj,njc->nkc", w, P.slot_tan[sid][:, tri].astype(np.float64))
+                tan[..., 3] = P.slot_tan[sid][:, tri[0], 3][:, None]    # handedness is not interpolated
+                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
+                out[sel, t, :, :VERTEX_FLOATS - 2] = np.concatenate([q, pos, nrm, uv, tan, r4], axis=2)
+        return out
 
     def _meta(self, ctx: ServerContext, pvs: np.ndarray, live: np.ndarray, res: Any, iframe: bool, reset: bool,
               full: bool, models: np.ndarray) -> dict[str, Any]:
@@ -362,7 +382,9 @@ class SasServer(ServerHalf):
         self.client_has[gone] = False
         geo = live[~self.client_has[live]]
         self.client_has[geo] = True
-        uv_ids = live if (reset or full) else np.intersect1d(res.placed, live)
+        uv_all = live if (reset or full) else np.intersect1d(res.placed, live)
+        uv_only = np.setdiff1d(uv_all, geo)                 # the new patches' rects come first, without ids
+        uv_ids = np.concatenate([geo, uv_only])
         rect = self.allocator.blocks(uv_ids)
         lw = self.allocator.level_w[uv_ids]
         lh = self.allocator.level_h[uv_ids]
@@ -371,14 +393,15 @@ class SasServer(ServerHalf):
         send = objs_needed[self.dynamic[objs_needed] | ~self.sent_static[objs_needed]]
         self.sent_static[send] = True
         meta: dict[str, Any] = {
-            "v": META_VERSION, "atlas": [self.layout.width, self.layout.height],
+            "v": META_VERSION,
             "iframe": bool(iframe), "reset": bool(reset), "full": bool(full),
-            "drop": np.asarray(gone, np.int32),
-            "geo_id": geo.astype(np.int32), "geo_obj": P.object_index[geo].astype(np.uint16),
-            "geo_size": P.size[geo].astype(np.uint8), "geo_pos": quantize_slots(P.slot_pos[geo], P.size[geo], self.obj_box[P.object_index[geo]]),
-            "uv_id": uv_ids.astype(np.int32), "uv_rect": uv_rect,
+            "drop": encode_ids(gone),
+            **encode_geometry(geo, P.size[geo], P.slot_vertex[geo], self.vertex_q),
+            "uv_id": encode_ids(uv_only), "uv_rect": uv_rect,
             "xf_obj": send.astype(np.uint16), "xf": models[send].astype(np.float32),
         }
         if reset or full:
-            meta["pvs"] = live.astype(np.int32)
-        return meta
+            meta["pvs"] = encode_ids(live)
+        # absent = empty / false on the wire: a frame with nothing new costs a few bytes
+        return {k: v for k, v in meta.items()
+                if not ((isinstance(v, np.ndarray) and v.size == 0) or v is False)}

@@ -1,27 +1,44 @@
 """The SAS wire format: what the server and client halves share, and nothing else.
 
 Session data: ``v``, ``atlas`` [W, H] texels, ``n_objects``, ``n_patches`` (patch ids
-are ``0 .. n_patches - 1``), ``sky`` RGB, ``obj_box`` float32 (n_objects, 2, 3): per
-object the lo, hi corners of its bounding box in object space, metres.
+are ``0 .. n_patches - 1``), ``patch_base`` int64 (n_objects,): the first patch id of
+each object (non-decreasing from 0; patch ``p`` belongs to the last object whose base
+is <= ``p``), ``sky`` RGB, ``obj_box`` float32 (n_objects, 2, 3): per object the lo, hi
+corners of its bounding box in object space, metres.
 
-Per-frame metadata (``v = META_VERSION``), all arrays little-endian:
+Per-frame metadata (``v = META_VERSION``), all arrays little-endian; an absent array
+is empty and an absent flag false (the server leaves them out):
 
-- ``atlas`` [W, H]; ``iframe``, ``reset``, ``full`` bools;
-- ``pvs`` int32 (N,) (resets and full resends only): the complete PVS; the client drops the rest;
-- ``drop`` int32 (K,): patches that left the PVS;
-- ``geo_id`` int32 (G,), ``geo_obj`` uint16 (G,), ``geo_size`` uint8 (G,) triangles
-  (1-3), ``geo_pos`` uint16 (sum(geo_size + 2), 3): the used slots' object-space
-  positions (slot layout :data:`SLOT_LAYOUT`), patch after patch, quantised to 16
-  bits in the object's bounding box (:func:`quantize_slots`); a shared vertex
-  quantises identically in every patch, so no cracks;
-- ``uv_id`` int32 (U,), ``uv_rect`` uint16 (U, 5): block x, y (texels, top-left),
+- ``iframe``, ``reset``, ``full`` bools;
+Every id list (``pvs``, ``drop``, ``geo_id``, ``uv_id``) is sorted, distinct and
+delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
+
+- ``pvs`` (N,) (resets and full resends only): the complete PVS; the client drops the rest;
+- ``drop`` (K,): patches that left the PVS;
+- geometry of the G patches entering the PVS (:func:`encode_geometry`), compact:
+  ``geo_id`` uint32 (G,) strictly increasing patch ids, delta-coded (the first id,
+  then differences >= 1); ``geo_size`` uint8 (G,) triangles (1-3); ``geo_vtx``
+  uint16 (V, 3) the distinct vertices these patches use, in order of first use,
+  quantised to 16 bits in their object's bounding box (:func:`quantize_slots`) and
+  delta-coded per component modulo 2^16; ``geo_idx`` uint16 or uint32
+  (sum(geo_size + 2),) per used slot (slot layout :data:`SLOT_LAYOUT`, patch after
+  patch) its vertex as ``new_before - index`` (``new_before``: vertices first used
+  before this slot), so 0 introduces the next vertex and ``k >= 1`` reuses the
+  ``k``-th most recently introduced one.  A shared vertex is sent once per frame
+  and quantises identically in every frame, so no cracks; the objects of the patches
+  follow from ``patch_base``;
+- ``uv_id`` (U,) patches other than the new ones whose block moved, ``uv_rect``
+  uint16 (G + U, 5), the new patches' rows first, then ``uv_id``'s: block x, y (texels, top-left),
   lw, lh (log2 width and height), transposed flag; the patch spans its whole block
   (:func:`block_layout_xy`) and lookups are clamped to the block's texel centres
   (:func:`block_clamp_rect`);
 - ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
 
 Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
-the session data carries ``n_patches``.
+the session data carries ``n_patches``.  Version 3: compact geometry (``geo_vtx`` +
+``geo_idx`` shared-vertex indices replace ``geo_pos`` and ``geo_obj``), delta-coded
+id lists, block rectangles of new patches without their ids, empty fields and false
+flags left out (and no ``atlas`` per frame), and ``patch_base`` in the session data.
 """
 
 from __future__ import annotations
@@ -33,7 +50,7 @@ import numpy as np
 
 from ...errors import RemoteProtocolError
 
-META_VERSION = 2
+META_VERSION = 3
 MAX_LEVEL = 15
 _F32_MAX = float(np.finfo(np.float32).max)
 """Largest block level (log2 texels) a client accepts."""
@@ -76,6 +93,39 @@ def dequantize_slots(q: np.ndarray, size: np.ndarray, box: np.ndarray) -> np.nda
     return out
 
 
+def encode_geometry(ids: np.ndarray, size: np.ndarray, slot_vertex: np.ndarray, vertex_q: np.ndarray) -> dict[str, np.ndarray]:
+    """Wire fields ``geo_id``, ``geo_size``, ``geo_vtx``, ``geo_idx`` for patches ``ids`` (sorted, distinct).
+
+    ``size`` (G,) triangles per patch, ``slot_vertex`` (G, 5) scene-wide vertex id per
+    slot (unused slots ignored), ``vertex_q`` (V_scene, 3) uint16 every scene vertex
+    quantised in its object's box.
+    """
+    ids = np.asarray(ids, np.int64)
+    used = np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]
+    flat = slot_vertex[used].astype(np.int64)
+    uniq, first, inv = np.unique(flat, return_index=True, return_inverse=True)
+    by_first = np.argsort(first, kind="stable")
+    rank = np.empty_like(by_first)
+    rank[by_first] = np.arange(by_first.size)
+    idx = rank[inv.reshape(-1)]
+    is_new = np.zeros(flat.size, np.int64)
+    is_new[first] = 1
+    new_before = np.cumsum(is_new) - is_new
+    code = new_before - idx
+    q = vertex_q[uniq[by_first]].astype(np.int64)
+    dq = np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536
+    return {"geo_id": encode_ids(ids), "geo_size": size.astype(np.uint8), "geo_vtx": dq.astype(np.uint16),
+            "geo_idx": code.astype(np.uint16 if code.size == 0 or code.max() < 65536 else np.uint32)}
+
+
+def decode_geometry_slots(dvtx: np.ndarray, code: np.ndarray) -> np.ndarray:
+    """(S, 3) uint16 quantised slot positions from ``geo_vtx`` deltas (V, 3) and ``geo_idx`` codes (S,) (validated)."""
+    q = (np.cumsum(dvtx.astype(np.int64), axis=0) % 65536).astype(np.uint16)
+    is_new = (code == 0).astype(np.int64)
+    idx = np.cumsum(is_new) - is_new - code
+    return q[idx] if idx.size else np.zeros((0, 3), np.uint16)
+
+
 def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
     """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2): the patch spans the whole block.
 
@@ -110,6 +160,11 @@ class SessionInfo:
     n_patches: int
     sky: tuple[float, float, float]
     obj_box: np.ndarray
+    patch_base: np.ndarray
+
+    def object_of(self, ids: np.ndarray) -> np.ndarray:
+        """Object index of patches ``ids`` (validated ids)."""
+        return np.searchsorted(self.patch_base, ids, side="right") - 1
 
 
 @dataclass(frozen=True)
@@ -163,7 +218,14 @@ def parse_session(sd: Any) -> SessionInfo:
         box32 = box.astype(np.float32)
     if not np.isfinite(box32).all():  # checked as float32, the dtype used: 1e39 is finite only in float64
         raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
-    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box32)
+    base = sd.get("patch_base")
+    if (not isinstance(base, np.ndarray) or base.shape != (n_obj,) or base.dtype.kind not in "iu"
+            or (n_obj and (int(base[0]) != 0 or (np.diff(base.astype(np.int64)) < 0).any() or int(base[-1]) > n_patches))):
+        raise SasMetaError(f"sas session data: 'patch_base' must be {n_obj} non-decreasing integers from 0 to at most n_patches")
+    if n_patches and not n_obj:
+        raise SasMetaError("sas session data: patches without objects")
+    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box32,
+                       base.astype(np.int64))
 
 
 def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
@@ -197,6 +259,22 @@ def _in_range(key: str, v: np.ndarray, lo: int, hi: int) -> None:
         raise SasMetaError(f"sas metadata: {key!r} must be in {lo}..{hi}, got {int(v.min())}..{int(v.max())}")
 
 
+def encode_ids(ids: np.ndarray) -> np.ndarray:
+    """Sorted distinct patch ids as the wire's delta code: uint32, the first id, then differences >= 1."""
+    return np.diff(np.asarray(ids, np.int64), prepend=0).astype(np.uint32)
+
+
+def _ids(meta: dict[str, Any], key: str, last_id: int) -> np.ndarray:
+    """Decode the delta-coded id list ``key`` (:func:`encode_ids`): strictly increasing int64 ids in ``0..last_id``."""
+    d = _arr(meta, key, "i", ())
+    _in_range(key, d, 0, last_id)
+    if d.size > 1 and (d[1:] < 1).any():
+        raise SasMetaError(f"sas metadata: {key!r} differences must be >= 1 (strictly increasing ids)")
+    ids = np.cumsum(d)
+    _in_range(key, ids, 0, last_id)
+    return ids
+
+
 def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
     """Validate one frame's metadata against ``session``; raises :class:`SasMetaError` naming the field.
 
@@ -210,21 +288,24 @@ def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
     if not isinstance(full, bool):
         raise SasMetaError(f"sas metadata: 'full' must be a bool, got {type(full).__name__}")
     last_id, last_obj = session.n_patches - 1, session.n_objects - 1
-    pvs = _arr(meta, "pvs", "i", ()) if "pvs" in meta else None
-    drop = _arr(meta, "drop", "i", ())
-    gid = _arr(meta, "geo_id", "i", ())
-    gobj = _arr(meta, "geo_obj", "i", (), gid.size)
+    pvs = _ids(meta, "pvs", last_id) if "pvs" in meta else None
+    drop = _ids(meta, "drop", last_id)
+    gid = _ids(meta, "geo_id", last_id)
     gsz = _arr(meta, "geo_size", "i", (), gid.size)
-    for key, v in (("pvs", pvs), ("drop", drop), ("geo_id", gid)):
-        if v is not None:
-            _in_range(key, v, 0, last_id)
-    _in_range("geo_obj", gobj, 0, last_obj)
     _in_range("geo_size", gsz, 1, 3)
-    gq = _arr(meta, "geo_pos", "i", (3,), int((gsz + 2).sum()))
-    _in_range("geo_pos", gq, 0, 65535)
-    uid = _arr(meta, "uv_id", "i", ())
+    dvtx = _arr(meta, "geo_vtx", "i", (3,))
+    _in_range("geo_vtx", dvtx, 0, 65535)
+    code = _arr(meta, "geo_idx", "i", (), int((gsz + 2).sum()))
+    is_new = (code == 0).astype(np.int64)
+    new_before = np.cumsum(is_new) - is_new
+    if code.size and ((code < 0).any() or (code > new_before).any()):
+        raise SasMetaError("sas metadata: 'geo_idx' refers to a vertex not yet introduced")
+    if int(is_new.sum()) != dvtx.shape[0]:
+        raise SasMetaError(f"sas metadata: 'geo_idx' introduces {int(is_new.sum())} vertices, 'geo_vtx' has {dvtx.shape[0]}")
+    gq = decode_geometry_slots(dvtx, code)
+    gobj = session.object_of(gid)
+    uid = np.concatenate([gid, _ids(meta, "uv_id", last_id)])   # rect rows: the new patches', then uv_id's
     urect = _arr(meta, "uv_rect", "i", (5,), uid.size)
-    _in_range("uv_id", uid, 0, last_id)
     if uid.size:
         w, h = session.atlas_size
         x, y, lw, lh, t = urect.T

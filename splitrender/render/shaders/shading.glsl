@@ -59,6 +59,12 @@ float shadow_factor(vec3 world_pos, vec3 n) {
     return s / 9.0;
 }
 
+// A shader including this file may define ALBEDO_LOOKUP(uv) first (e.g. a textureGrad
+// with its own footprint); by default the albedo texture is sampled with texture().
+#ifndef ALBEDO_LOOKUP
+#define ALBEDO_LOOKUP(uv) texture(u_albedo, uv)
+#endif
+
 vec3 srgb_to_linear(vec3 c) { return pow(c, vec3(2.2)); }
 vec3 linear_to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
 
@@ -71,7 +77,7 @@ vec3 tone_map(vec3 c) {
 // The older model: Blinn-Phong on the base colour (texture included), no other maps.
 vec3 shade_phong(vec3 world_pos, vec3 n, vec2 uv, vec3 v) {
     vec3 albedo = u_base_color;
-    if (u_has_texture != 0) albedo *= srgb_to_linear(texture(u_albedo, uv).rgb);
+    if (u_has_texture != 0) albedo *= srgb_to_linear(ALBEDO_LOOKUP(uv).rgb);
     vec3 l = -u_sun_dir;
     float ndl = max(dot(n, l), 0.0);
     vec3 h = normalize(l + v);
@@ -132,7 +138,7 @@ vec3 env_brdf(vec3 f0, float roughness, float ndv) {
 
 vec3 shade_pbr(vec3 world_pos, vec3 n_geo, vec4 tangent, vec2 uv, vec3 v) {
     vec3 base = u_base_color;
-    if (u_has_texture != 0) base *= srgb_to_linear(texture(u_albedo, uv).rgb);
+    if (u_has_texture != 0) base *= srgb_to_linear(ALBEDO_LOOKUP(uv).rgb);
     float metallic = u_metallic, roughness = u_roughness;
     if (u_has_mr_map != 0) {
         vec3 mr = texture(u_mr_map, uv).rgb;

@@ -1,0 +1,89 @@
+"""``sas`` settings, shared by the server and client halves."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from ...errors import ConfigError
+from ...scene.pose import CameraIntrinsics
+from ..base import MethodConfig
+from .allocator import STRATEGIES, AtlasLayout
+
+
+@dataclass(frozen=True)
+class SasConfig(MethodConfig):
+    """SAS settings.  ``gop`` is the I-frame (and atlas reset) period in frames (paper: 5).
+
+    ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
+    the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
+    override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
+    the atlas eq. 3 aims to fill.  ``strategy``: allocator S0 (paper) .. S3.
+    ``pvs_linger_frames``: a patch stays in the PVS for this many server frames after
+    it was last in an EVS sample, so small patches flickering at the edge of
+    visibility do not re-send geometry and blocks every frame.  ``split_near_m``: at load time every mesh is split (:func:`~.patches.split_mesh`)
+    until each edge, seen from this distance (metres), fits the largest block
+    (``superblock_px`` texels at ``texels_per_px``); the paper's "tessellation of overly
+    large triangles" (section 6.4).  0 disables it.  ``split_max_triangles`` caps the
+    split scene (the edge bound grows until it fits).
+    """
+
+    gop: int = 5
+    atlas_mpix_1080p: float = 8.0
+    atlas_width: int = 0
+    atlas_height: int = 0
+    superblock_px: int = 32
+    strategy: Literal["S0", "S1", "S2", "S3"] = "S0"
+    high_water: float = 0.9
+    fov_margin: float = 0.2
+    pvs_step_ms: float = 33.3
+    pvs_prediction: Literal["linear", "none"] = "linear"
+    texels_per_px: float = 1.0
+    bias_fill: float = 0.75
+    hysteresis: float = 0.75
+    lossless: bool = False
+    pvs_linger_frames: int = 8
+    split_near_m: float = 2.0
+    split_max_triangles: int = 200_000
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"SasConfig.strategy: {self.strategy!r} is not one of {list(STRATEGIES)}")
+        if not 0.0 <= self.fov_margin <= 2.0:
+            raise ConfigError(f"SasConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
+        if not 0.1 <= self.high_water <= 1.0:
+            raise ConfigError(f"SasConfig.high_water: must be in [0.1, 1], got {self.high_water}")
+        if not self.pvs_step_ms > 0:
+            raise ConfigError(f"SasConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
+        if not 0.05 <= self.texels_per_px <= 8:
+            raise ConfigError(f"SasConfig.texels_per_px: must be in [0.05, 8], got {self.texels_per_px}")
+        if self.pvs_prediction not in ("linear", "none"):
+            raise ConfigError(f"SasConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
+        if (self.atlas_width > 0) != (self.atlas_height > 0):
+            raise ConfigError("SasConfig: give both atlas_width and atlas_height or neither")
+        if not 0 <= self.pvs_linger_frames <= 1000:
+            raise ConfigError(f"SasConfig.pvs_linger_frames: must be in [0, 1000], got {self.pvs_linger_frames}")
+        if not 0.0 <= self.split_near_m <= 1e3:
+            raise ConfigError(f"SasConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
+        if not 1 <= self.split_max_triangles <= 50_000_000:
+            raise ConfigError(f"SasConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
+        if self.atlas_mpix_1080p <= 0:
+            raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
+
+    def atlas_layout(self, intr: CameraIntrinsics) -> AtlasLayout:
+        """The atlas for a display of ``intr``: 2:1, a multiple of the superblock size."""
+        s = self.superblock_px
+        if self.atlas_width > 0:
+            return AtlasLayout(self.atlas_width, self.atlas_height, s)
+        texels = self.atlas_mpix_1080p * 1e6 * intr.width * intr.height / (1920 * 1080)
+        h = max(1, round(math.sqrt(texels / 2) / s)) * s
+        return AtlasLayout(2 * h, h, s)
+
+    def split_edge_m(self, intr: CameraIntrinsics) -> float:
+        """Longest edge (metres) a patch may keep at load time: the largest block seen from ``split_near_m``."""
+        if self.split_near_m <= 0:
+            return math.inf
+        px_per_rad = intr.width / math.radians(intr.fov_x_deg)
+        return self.superblock_px / (self.texels_per_px * px_per_rad) * self.split_near_m
