@@ -462,8 +462,9 @@ def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud_on_strafe() -> None:
     for name, (m, params) in runs.items():
         res = run(RunConfig(method=m, trace="strafe", network="cloud", duration_s=1.0, width=320, height=180,
                             client_fps=30, flip_every=0, seed=0, method_params=params), renderer=r)
-        psnr[name] = res.summary["mean_psnr_db"]
-        holes[name] = res.summary["mean_hole_geom_pct"]  # the sky counts in mean_hole_pct
+        shown = [f for f in res.frames if f["update_frame_id"] >= 0]  # the start-up ticks (black) are no PVS miss
+        psnr[name] = float(np.mean([f["psnr_db"] for f in shown]))
+        holes[name] = float(np.mean([f["hole_geom_pct"] for f in shown]))  # the sky counts in hole_pct
     assert psnr["sas"] > psnr["atw"] + 1.0, f"mean PSNR under cloud on strafe: {psnr}"
     # prediction + FOV margin matter: measured 24.0 vs 23.1 dB, holes 0.22% vs 1.16%
     assert psnr["sas"] > psnr["sas_no_pvs_prediction"] + 0.5, f"mean PSNR with and without PVS prediction + margin: {psnr}"

@@ -210,7 +210,14 @@ def recovery_time_s(t: np.ndarray, psnr: np.ndarray, t0: float, t1: float, withi
 
 
 def case_metrics(frames: Sequence[Row], n_display: int, case: StressCase, tm: Timing) -> Row:
-    """Worst PSNR, floor share, recovery, holes, errors and frames shown of one run."""
+    """Worst PSNR, floor share, recovery, holes, errors and frames shown of one run.
+
+    Runs score every display tick from t = 0; the ticks before the first update (the
+    black background, counted as ``startup_ticks``) are start-up, not a failure, so the
+    stability figures use the ticks that showed an update.
+    """
+    startup = sum(1 for f in frames if fnum(f.get("update_frame_id")) < 0)
+    frames = [f for f in frames if not fnum(f.get("update_frame_id")) < 0]
     t = np.array([fnum(f.get("t_s")) for f in frames], dtype=np.float64)
     psnr = np.array([fnum(f.get("psnr_db")) for f in frames], dtype=np.float64)
     holes = np.array([fnum(f.get("hole_pct")) for f in frames], dtype=np.float64)
@@ -221,7 +228,7 @@ def case_metrics(frames: Sequence[Row], n_display: int, case: StressCase, tm: Ti
         return float(fn(a)) if a.size else math.nan
 
     return {
-        "frames_shown": len(frames), "display_ticks": n_display,
+        "frames_shown": len(frames), "display_ticks": n_display, "startup_ticks": startup,
         "worst_psnr_db": nanstat(np.min, psnr), "mean_psnr_db": nanstat(np.mean, psnr),
         "below_floor_pct": 100.0 * float(np.mean(psnr < FLOOR_DB)) if psnr.size else math.nan,
         "recovery_s": recovery_time_s(t, psnr, tm.t0_s, tm.t1_s) if case.windowed else math.nan,
