@@ -135,3 +135,56 @@ def test_khr_texture_transform_is_applied(renderer: Any) -> None:
         o.material.uv_transform = None
     without = yellow()
     assert with_t < 500 and without > 5000, f"'not supported' pixels: {with_t} with the transforms, {without} without"
+
+
+def _gltf_with_lights(path: Path, lights: list, light_nodes: list) -> Path:
+    """A one-quad glTF (2 x 2 m floor at y = 0) with ``KHR_lights_punctual`` lights."""
+    import base64
+    import json
+    import struct
+
+    pos = [-1.0, 0.0, -1.0, 1.0, 0.0, -1.0, 1.0, 0.0, 1.0, -1.0, 0.0, 1.0]
+    idx = [0, 2, 1, 0, 3, 2]
+    blob = struct.pack("<12f", *pos) + struct.pack("<6H", *idx)
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "extensionsUsed": ["KHR_lights_punctual"],
+        "extensions": {"KHR_lights_punctual": {"lights": lights}},
+        "scenes": [{"nodes": list(range(1 + len(light_nodes)))}],
+        "nodes": [{"mesh": 0}, *light_nodes],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 12}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0, 1]},
+                      {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+    }
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_gltf_punctual_lights_are_read_placed_and_lit(tmp_path: Path, renderer) -> None:  # type: ignore[no-untyped-def]
+    """Issue 17: a file's ``KHR_lights_punctual`` point light is placed through its node (and the
+    loader's rescaling) and lights the floor under it; a directional light replaces the sun."""
+    from splitrender.scene.loader import GLTF_POINT_INTENSITY_SCALE, load_scene_file
+
+    lit = _gltf_with_lights(tmp_path / "lit.gltf", [{"type": "point", "color": [1, 0.5, 0.25], "intensity": 80, "range": 3}],
+                            [{"translation": [0.5, 0.5, 0.0], "extensions": {"KHR_lights_punctual": {"light": 0}}}])
+    dark = _gltf_with_lights(tmp_path / "dark.gltf", [], [])
+    s_lit = load_scene_file(lit, target_size_m=4.0)
+    s_dark = load_scene_file(dark, target_size_m=4.0)
+    assert len(s_lit.point_lights) == 1 and not s_dark.point_lights
+    pl = s_lit.point_lights[0]
+    # rescaled 2 m -> 4 m (x2), floor moved to z = -4: (0.5, 0.5, 0) -> (1, 1, -4); range 3 m -> 6 m
+    assert np.allclose(pl.position, (1.0, 1.0, -4.0)) and pl.range_m == pytest.approx(6.0)
+    assert pl.intensity.value(0.0) == pytest.approx(80 * GLTF_POINT_INTENSITY_SCALE) and pl.color == (1.0, 0.5, 0.25)
+    sun = load_scene_file(_gltf_with_lights(tmp_path / "sun.gltf", [{"type": "directional", "intensity": 3}],
+                                            [{"rotation": [-0.7071068, 0, 0, 0.7071068],
+                                              "extensions": {"KHR_lights_punctual": {"light": 0}}}])).sun
+    assert np.allclose(sun.direction, (0.0, -1.0, 0.0), atol=1e-6)  # -Z turned 90 degrees about x: straight down
+    intr = CameraIntrinsics(160, 90, 60.0)
+    eye = make_pose_looking((1.0, 3.0, -2.0), (1.0, 0.0, -4.0))
+    s_lit.sun = s_dark.sun = None  # the point light alone (the sun would saturate the grey floor)
+    a = renderer.render(s_lit, 0.0, eye, intr, ("color",)).color.astype(np.float64)
+    b = renderer.render(s_dark, 0.0, eye, intr, ("color",)).color.astype(np.float64)
+    centre = (slice(35, 55), slice(70, 90))
+    assert (a[centre] - b[centre]).mean() > 10.0  # the floor under the light is lit
+    assert (a[centre][..., 0] - b[centre][..., 0]).mean() > (a[centre][..., 2] - b[centre][..., 2]).mean()  # in its colour

@@ -36,7 +36,7 @@ import numpy as np
 from splitrender.codecs.meta import unpack_meta
 from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import get_method, make_config
-from splitrender.pipeline import ClientPipeline, EnvelopeError, ReceivedFrame, SessionAssembler, Work, specs_from_table
+from splitrender.pipeline import ClientPipeline, control_wire_bytes, EnvelopeError, ReceivedFrame, SessionAssembler, Work, specs_from_table
 from splitrender.protocol import (
     PROTOCOL_VERSION,
     Bye,
@@ -172,6 +172,7 @@ class LiveClient:
         self._first_packet_ms: dict[str, float] = {}
         self._ready: deque[ReceivedFrame] = deque()
         self._pending_apply: list[ReceivedFrame] = []
+        self._rate_window: deque[tuple[float, dict[str, int]]] = deque()
         self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
         self._welcome: Welcome | None = None
@@ -568,6 +569,7 @@ class LiveClient:
             row = self._row(len(self.rows), tick, trace_t, scene_t, pose, shown, displayed_us,
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
+            row.update(self._kbps(displayed_us / 1e6))
             self.rows.append(row)
             if cfg.save_images and cfg.out_dir is not None:
                 idx = row["frame"]
@@ -582,6 +584,19 @@ class LiveClient:
                 await self._feedback(shown, displayed_us)
         await asyncio.gather(*saves)
         raise _RunDone()
+
+    def _kbps(self, now_s: float) -> dict[str, float]:
+        """``kbps_<stream>`` over the last second for each RTP stream (wire bytes received) and
+        ``kbps_control`` for the control channel (bytes read, with the TCP/IP header model)."""
+        assert self.rx is not None and self.channel is not None
+        snap = dict(self.rx.wire_bytes)
+        snap["control"] = control_wire_bytes(self.channel.bytes_received)
+        self._rate_window.append((now_s, snap))
+        while len(self._rate_window) > 1 and self._rate_window[0][0] < now_s - 1.0:
+            self._rate_window.popleft()
+        t0, old = self._rate_window[0]
+        span = max(now_s - t0, 1e-3) if len(self._rate_window) > 1 else 1.0
+        return {f"kbps_{k}": (v - old.get(k, 0)) * 8 / span / 1000.0 for k, v in snap.items()}
 
     @staticmethod
     def _empty_row(index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, displayed_us: int) -> dict[str, Any]:

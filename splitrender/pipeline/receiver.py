@@ -31,7 +31,7 @@ from ..methods.base import DataStreamSpec, DecodedUpdate
 from ..protocol import (AccessUnit, DataChunk, FrameMeta, JitterBuffer, Message, ReceiverStatistics, RtpError, RtpPacket,
                         StreamDescription)
 from .feedback import FeedbackTracker
-from .wire import SESSION_STREAM, Envelope, EnvelopeError, SessionDataError, checksum, decompress_data, parse_envelope
+from .wire import SESSION_STREAM, Envelope, datagram_wire_bytes, EnvelopeError, SessionDataError, checksum, decompress_data, parse_envelope
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +169,8 @@ class ClientPipeline:
         self._chunks: dict[tuple[str, int], bytearray] = {}
         self._reliable: dict[int, dict[str, bytes]] = {}
         self._last_released = -1
+        self.wire_bytes: dict[str, int] = {}
+        """Bytes received per RTP stream as they crossed the wire (IPv4 + UDP headers included)."""
         self.last_envelope: Envelope | None = None
         """The newest ``FrameMeta`` envelope parsed (the live client reads the server clock from it)."""
         self.tracker = FeedbackTracker()
@@ -265,6 +267,7 @@ class ClientPipeline:
             return []
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
+        self.wire_bytes[rx.name] = self.wire_bytes.get(rx.name, 0) + datagram_wire_bytes(len(data))
         assert rx.stats is not None
         rx.stats.receive(pkt, now_ms)
         return self._units(rx, rx.jitter.insert(pkt, now_ms), now_ms)

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError
-from .model import DirectionalLight, Material, Mesh, Scene, SceneObject
+from .model import MAX_POINT_LIGHTS, DirectionalLight, Material, Mesh, PointLight, Scene, SceneObject, Schedule
 from .procedural import BUILTIN_SCENES
 
 log = logging.getLogger(__name__)
@@ -96,6 +96,72 @@ def gltf_texture_transforms(p: Path) -> dict[str, np.ndarray]:
         except (KeyError, TypeError, ValueError):
             continue
     return out
+
+
+def _node_matrix(node: dict[str, Any]) -> np.ndarray:
+    """A glTF node's local 4x4 matrix (``matrix``, column-major, or translation/rotation/scale)."""
+    if "matrix" in node:
+        return np.asarray(node["matrix"], np.float64).reshape(4, 4).T
+    t = np.asarray(node.get("translation", [0.0, 0.0, 0.0]), np.float64)
+    x, y, z, w = (float(v) for v in node.get("rotation", [0.0, 0.0, 0.0, 1.0]))
+    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    m = np.eye(4)
+    m[:3, :3] = r * np.asarray(node.get("scale", [1.0, 1.0, 1.0]), np.float64)[None, :]
+    m[:3, 3] = t
+    return m
+
+
+GLTF_POINT_INTENSITY_SCALE = 4.0 * np.pi / 100.0
+"""Renderer point-light intensity per glTF candela (the renderer's units are relative: its default
+point light is 5; a 40 cd bulb, about a 500 lm lamp, maps to about 5)."""
+GLTF_SUN_INTENSITY_SCALE = 2.5 / 3.0
+"""Renderer sun intensity per glTF lux unit as exporters write it (Blender writes its
+'strength', typically 1-5; the renderer's default sun is 2.5)."""
+
+
+def gltf_punctual_lights(p: Path) -> tuple[list[tuple[np.ndarray, tuple[float, float, float], float, float]],
+                                           list[tuple[np.ndarray, tuple[float, float, float], float]]]:
+    """``KHR_lights_punctual`` lights of a glTF/GLB file, placed by the default scene's node graph.
+
+    Returns (point lights: world position, colour, intensity in renderer units, range in
+    metres (10 when the file gives none)), (directional lights: world direction of travel,
+    colour, intensity).  Spot lights are taken as point lights (their cone is not modelled).
+    Photometric units are mapped with :data:`GLTF_POINT_INTENSITY_SCALE` and
+    :data:`GLTF_SUN_INTENSITY_SCALE`.  Read from the JSON: trimesh does not expose the extension.
+    """
+    doc = _gltf_json(p) if p.suffix.lower() in (".gltf", ".glb") else None
+    points: list[tuple[np.ndarray, tuple[float, float, float], float, float]] = []
+    suns: list[tuple[np.ndarray, tuple[float, float, float], float]] = []
+    try:
+        lights = (doc or {}).get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
+        nodes = (doc or {}).get("nodes", [])
+        scenes = (doc or {}).get("scenes", [])
+        roots = scenes[int((doc or {}).get("scene", 0))].get("nodes", []) if scenes else list(range(len(nodes)))
+        stack = [(int(i), np.eye(4)) for i in roots]
+        seen = 0
+        while stack and seen < 100_000:
+            seen += 1
+            i, parent = stack.pop()
+            node = nodes[i]
+            world = parent @ _node_matrix(node)
+            ref = node.get("extensions", {}).get("KHR_lights_punctual", {}).get("light")
+            if ref is not None:
+                light = lights[int(ref)]
+                color = tuple(float(c) for c in light.get("color", [1.0, 1.0, 1.0]))[:3]
+                inten = float(light.get("intensity", 1.0))
+                if light.get("type") == "directional":
+                    d = world[:3, :3] @ np.array([0.0, 0.0, -1.0])
+                    suns.append((d / max(float(np.linalg.norm(d)), 1e-12), color, inten * GLTF_SUN_INTENSITY_SCALE))  # type: ignore[arg-type]
+                else:
+                    points.append((world[:3, 3].copy(), color, inten * GLTF_POINT_INTENSITY_SCALE,  # type: ignore[arg-type]
+                                   float(light.get("range", 10.0))))
+            stack.extend((int(c), world) for c in node.get("children", []))
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError) as exc:
+        log.warning("scene file %s: KHR_lights_punctual ignored: %s", p, exc)
+        return [], []
+    return points, suns
 
 
 def _material_from_visual(visual, name: str) -> Material:
@@ -243,17 +309,27 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
         raise SceneError(f"scene file {p} contains no triangle meshes")
     if not any(float(o.mesh.triangle_areas().sum()) > 0 for o in objects):
         raise SceneError(f"scene file {p}: every triangle is degenerate (zero area)")
+    t = np.eye(4)
     if target_size_m is not None:
         lo = np.min([o.mesh.positions.min(0) for o in objects], axis=0)
         hi = np.max([o.mesh.positions.max(0) for o in objects], axis=0)
         s = target_size_m / max(float((hi - lo).max()), 1e-9)
         centre = (lo + hi) / 2
+        t[:3, :3] *= s
+        t[:3, 3] = -np.array([centre[0], lo[1], centre[2]]) * s + np.array([0.0, 0.0, -4.0])
         for o in objects:
-            t = np.eye(4)
-            t[:3, :3] *= s
-            t[:3, 3] = -np.array([centre[0], lo[1], centre[2]]) * s + np.array([0.0, 0.0, -4.0])
-            o.transform = t
-    scene = Scene(p.stem, objects, DirectionalLight(), [])
+            o.transform = t.copy()
+    points, suns = gltf_punctual_lights(p)
+    sun = DirectionalLight()
+    if suns:  # the file's first directional light replaces the default sun
+        d, col, inten = suns[0]
+        sun = DirectionalLight(tuple(float(v) for v in d), col, Schedule.constant(inten))  # type: ignore[arg-type]
+    scale = float(t[0, 0])
+    point_lights = [PointLight(tuple(float(v) for v in (t @ np.append(pos, 1.0))[:3]), col, Schedule.constant(inten),  # type: ignore[arg-type]
+                               rng * scale) for pos, col, inten, rng in points[:MAX_POINT_LIGHTS]]
+    if len(points) > MAX_POINT_LIGHTS:
+        log.warning("scene file %s: %d point lights, only the first %d are used", p, len(points), MAX_POINT_LIGHTS)
+    scene = Scene(p.stem, objects, sun, point_lights)
     lo, hi = scene.bounds()
     scene.subject = (lo, hi)
     if ground:
