@@ -25,7 +25,7 @@ from splitrender.codecs.bounded import bounded_zstd_decompress
 from splitrender.codecs.depth import BC4_MAX_PIXELS, bc4_decode, bc4_encode
 from splitrender.codecs.meta import META_LIMITS, MetaEnvelopeError, pack_meta, parse_update_envelope, unpack_meta
 from splitrender.errors import CodecError, LocalProtocolError, RemoteProtocolError
-from splitrender.methods.sas.wire import SasMetaError, SessionInfo, parse_frame_meta, parse_session
+from splitrender.methods.sas.wire import META_VERSION, SasMetaError, SessionInfo, encode_ids, parse_frame_meta, parse_session
 from splitrender.protocol import (
     NEED_DATA,
     Bye,
@@ -258,27 +258,28 @@ def test_check_msgpack_agrees_with_msgpack(obj: Any) -> None:
 
 
 # ------------------------------------------------------------------ 4./5. sas overflow past validation
-SESSION = SessionInfo((64, 64), 1, 4, (0.0, 0.0, 0.0), np.zeros((1, 2, 3), np.float32))
+SESSION = SessionInfo((64, 64), 1, 4, (0.0, 0.0, 0.0), np.zeros((1, 2, 3), np.float32), np.zeros(1, np.int64))
 
 
 def test_sas_block_bounds_do_not_wrap() -> None:
     for x in (2**63 - 2, 2**63 - 1, 63):
-        meta = {"v": 2, "uv_id": np.array([0], np.int32), "uv_rect": np.array([[x, 0, 1, 1, 0]], np.int64)}
+        meta = {"v": META_VERSION, "uv_id": encode_ids(np.array([0])), "uv_rect": np.array([[x, 0, 1, 1, 0]], np.int64)}
         with pytest.raises(SasMetaError, match=r"^sas metadata: 'uv_rect' has a block outside the atlas$"):
             parse_frame_meta(meta, SESSION)
-    ok = {"v": 2, "uv_id": np.array([0], np.int32), "uv_rect": np.array([[62, 0, 1, 1, 0]], np.int64)}
+    ok = {"v": META_VERSION, "uv_id": encode_ids(np.array([0])), "uv_rect": np.array([[62, 0, 1, 1, 0]], np.int64)}
     assert parse_frame_meta(ok, SESSION).uv_rect.tolist() == [[62, 0, 1, 1, 0]]
 
 
 def test_sas_floats_checked_in_float32() -> None:
     xf = np.tile(np.eye(4), (1, 1, 1))
     xf[0, 0, 3] = 1e39  # finite in float64, inf in float32
-    meta = {"v": 2, "xf_obj": np.array([0], np.uint16), "xf": xf}
+    meta = {"v": META_VERSION, "xf_obj": np.array([0], np.uint16), "xf": xf}
     with pytest.raises(SasMetaError, match=r"^sas metadata: 'xf' has values that are not finite in float32$"):
         parse_frame_meta(meta, SESSION)
     box = np.zeros((1, 2, 3))
     box[0, 1, 2] = -1e39
-    sd = {"v": 2, "atlas": [64, 64], "n_objects": 1, "n_patches": 4, "obj_box": box}
+    sd = {"v": META_VERSION, "atlas": [64, 64], "n_objects": 1, "n_patches": 4, "obj_box": box,
+          "patch_base": np.zeros(1, np.int64)}
     with pytest.raises(SasMetaError, match=r"^sas session data: 'obj_box' must be a finite float array"):
         parse_session(sd)
     with pytest.raises(SasMetaError, match=r"^sas session data: 'sky' must be three finite numbers"):
