@@ -214,21 +214,31 @@ def _warp_seed() -> tuple[bytes, Callable[[bytes], Any]]:
 def _sas_seeds() -> tuple[bytes, bytes, Callable[[bytes], Any], Callable[[bytes], Any]]:
     from splitrender.methods.sas.wire import META_VERSION, parse_frame_meta, parse_session
 
-    box = np.array([[[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]] * 3, np.float32)
-    sd = {"v": META_VERSION, "atlas": [256, 256], "n_objects": 3, "n_patches": 100, "sky": [0.5, 0.6, 0.7],
-          "obj_box": box}
+    # seeds from a real sas session (wire v3): a short virtual-time run, envelopes captured as packed
+    from splitrender.pipeline import sender as pipeline_wire
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import VirtualTimeRun
+
+    blobs: list[bytes] = []
+    real = pipeline_wire.pack_envelope
+
+    def capture(env: Any) -> bytes:
+        out = real(env)
+        blobs.append(out)
+        return out
+
+    pipeline_wire.pack_envelope = capture
+    try:
+        vt = VirtualTimeRun(RunConfig(method="sas", scene="minimal", trace="walk", network="ideal", width=160, height=90,
+                                      duration_s=0.2, client_fps=30, metrics=False))
+        vt.run()
+    finally:
+        pipeline_wire.pack_envelope = real
+    sd = vt.clients[0].half.session_data()
     session = parse_session(sd)
-    gid = np.array([3, 7, 9], np.int32)
-    gsz = np.array([1, 2, 3], np.uint8)
-    m = {"v": META_VERSION, "atlas": [256, 256], "iframe": True, "reset": False, "full": True,
-         "pvs": np.arange(20, dtype=np.int32), "drop": np.array([50], np.int32), "geo_id": gid,
-         "geo_obj": np.array([0, 1, 2], np.uint16), "geo_size": gsz,
-         "geo_pos": np.arange(int((gsz + 2).sum()) * 3, dtype=np.uint16).reshape(-1, 3),
-         "uv_id": gid, "uv_rect": np.array([[0, 0, 2, 2, 0], [4, 0, 1, 1, 1], [16, 16, 3, 2, 0]], np.uint16),
-         "xf_obj": np.array([0, 2], np.uint16), "xf": np.tile(np.eye(4, dtype=np.float32), (2, 1, 1))}
-    frame_blob = pack_meta({"t_s": 2.0, "pose": [0.0, 1.6, 2.5, 0.0, 0.0, 0.0, 1.0], "m": m,
-                            "timing_us": {"render": 1}, "srv": {"pvs": 20.0}})
+    frame_blob = blobs[0]
     session_blob = pack_meta(sd)
+    assert META_VERSION == parse_update_envelope(unpack_meta(frame_blob))["m"]["v"]
 
     def run_frame(data: bytes) -> Any:
         return parse_frame_meta(parse_update_envelope(unpack_meta(data))["m"], session)
