@@ -186,6 +186,14 @@ def tiny_installed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):  # type: ig
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]))
     load_methods(rescan=True)
     yield site
+    # uninstall: later tests see only the built-in methods again
+    from splitrender.methods import base as methods_base
+    from splitrender import methods as methods_pkg
+
+    methods_base._REGISTRY.pop("tiny", None)
+    methods_pkg._seen_entry_points.discard("tiny=splitrender_tiny:SPEC")
+    for mod in [m for m in sys.modules if m == "splitrender_tiny" or m.startswith("splitrender_tiny.")]:
+        del sys.modules[mod]
 
 
 def test_plugin_method_runs_through_run_sweep_and_live(tiny_installed: Path, tmp_path: Path, renderer) -> None:  # type: ignore[no-untyped-def]
