@@ -656,10 +656,6 @@ class _RunDone(Exception):
     """The display clock reached ``duration_s``."""
 
 
-class _BadMeta(RemoteProtocolError):
-    """FrameMeta.meta could not be unpacked."""
-
-
 class _ClientUdp(asyncio.DatagramProtocol):
     def __init__(self, on_datagram: Any) -> None:
         self._on_datagram = on_datagram

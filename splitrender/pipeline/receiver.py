@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..codecs.video import VideoDecoder
-from ..errors import CodecError, RemoteProtocolError
+from ..errors import CodecError
 from ..methods.base import DataStreamSpec, DecodedUpdate
 from ..protocol import (AccessUnit, DataChunk, FrameMeta, JitterBuffer, Message, ReceiverStatistics, RtpError, RtpPacket,
                         StreamDescription)
@@ -407,6 +407,3 @@ class ClientPipeline:
     def pending_frames(self) -> int:
         return len(self._pending)
 
-
-def check_chunk_error(exc: RemoteProtocolError) -> str:  # pragma: no cover - logging helper
-    return str(exc)

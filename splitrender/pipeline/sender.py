@@ -25,7 +25,6 @@ from typing import Any, Callable
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol import DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp
-from ..scene.pose import Pose
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
                    datagram_wire_bytes, pack_envelope, rtp_format, stream_table)
 
@@ -215,6 +214,3 @@ def rtp_timestamp(scene_t_s: float) -> int:
     """The 90 kHz RTP timestamp of scene time ``scene_t_s``."""
     return int(round(scene_t_s * RTP_CLOCK_HZ)) & 0xFFFFFFFF
 
-
-def pose_of(msg_pose: Any) -> Pose:  # pragma: no cover - convenience for drivers
-    return Pose.from_list([*msg_pose.position, *msg_pose.orientation])

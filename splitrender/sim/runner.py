@@ -284,25 +284,21 @@ class VirtualTimeRun:
             c.bytes.setdefault(name, 0)
         return c
 
-    def _to_server(self, c: _Client, data: bytes) -> list[Message]:
-        c.sconn.receive_data(data)
+    @staticmethod
+    def _feed(conn: Any, data: bytes) -> list[Message]:
+        """The messages ``data`` completes on one end of the in-memory control connection."""
+        conn.receive_data(data)
         out = []
-        while True:
-            ev = c.sconn.next_event()
-            if ev is NEED_DATA:
-                return out
+        while (ev := conn.next_event()) is not NEED_DATA:
             if isinstance(ev, Message):
                 out.append(ev)
+        return out
+
+    def _to_server(self, c: _Client, data: bytes) -> list[Message]:
+        return self._feed(c.sconn, data)
 
     def _to_client_msgs(self, c: _Client, data: bytes) -> list[Message]:
-        c.cconn.receive_data(data)
-        out = []
-        while True:
-            ev = c.cconn.next_event()
-            if ev is NEED_DATA:
-                return out
-            if isinstance(ev, Message):
-                out.append(ev)
+        return self._feed(c.cconn, data)
 
     # ------------------------------------------------------------------ run
 
