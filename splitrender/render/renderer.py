@@ -31,6 +31,12 @@ log = logging.getLogger(__name__)
 
 ALL_OUTPUTS = ("color", "depth", "normal", "object_id", "triangle_id")
 SHADING_MODEL_CODES = {"phong": 0, "pbr": 1}   # u_shading_model in shading.glsl
+TEXTURE_ANISOTROPY = 1.0
+"""Anisotropic filtering of scene textures: off (trilinear).  llvmpipe's anisotropic path
+takes seconds for one draw at some views (a 160x90 frame of the default scene's sign at
+6.5 s against 2 ms), which stalls whole runs, and it derives its footprint from implicit
+derivatives only, so no method that resamples shading (SAS, TSS) could reproduce it."""
+
 MAP_UNITS = {"u_mr_map": 3, "u_normal_map": 4, "u_occlusion_map": 5, "u_emissive_map": 6}
 
 
@@ -105,6 +111,7 @@ class Renderer:
         self.prog = load_program(self.ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "forward.frag")
         self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
         self._scenes: dict[int, SceneGPU] = {}
+        self._placeholder_tex: Any = None
         self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
         self._shadow: dict[str, tuple[Any, Any]] = {}
         self._shadow_size = 0
@@ -142,7 +149,7 @@ class Renderer:
                 tex = self.ctx.texture((img.shape[1], img.shape[0]), 3, img.tobytes())
                 tex.build_mipmaps()
                 tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-                tex.anisotropy = 4.0
+                tex.anisotropy = TEXTURE_ANISOTROPY
                 tex.repeat_x = tex.repeat_y = True
                 return tex
 
@@ -274,21 +281,24 @@ class Renderer:
         uvt = np.eye(3) if mat.uv_transform is None else np.asarray(mat.uv_transform, np.float64)
         if "u_uv_transform" in prog:
             prog["u_uv_transform"].write(np.asarray(uvt, "f4").T.tobytes())
-        if og.texture is not None:
-            og.texture.use(location=texture_unit)
-            set_uniform(prog, "u_albedo", texture_unit)
-            set_uniform(prog, "u_has_texture", 1)
-        else:
-            set_uniform(prog, "u_has_texture", 0)
+        # Every sampler gets a texture of its own, a 1x1 placeholder where the material has
+        # none: an unused sampler left on another object's mipmapped, anisotropic texture
+        # costs llvmpipe seconds per draw at some views (its masked-off lanes still sample,
+        # and derivatives across a silhouette send the anisotropic footprint far off).
+        (og.texture or self._placeholder()).use(location=texture_unit)
+        set_uniform(prog, "u_albedo", texture_unit)
+        set_uniform(prog, "u_has_texture", int(og.texture is not None))
         for name, unit in MAP_UNITS.items():
             tex = og.maps.get(name)
-            flag = "u_has_" + name[2:]
-            if tex is not None and name in prog:
-                tex.use(location=unit)
+            if name in prog:
+                (tex or self._placeholder()).use(location=unit)
                 set_uniform(prog, name, unit)
-                set_uniform(prog, flag, 1)
-            else:
-                set_uniform(prog, flag, 0)
+            set_uniform(prog, "u_has_" + name[2:], int(tex is not None and name in prog))
+
+    def _placeholder(self) -> Any:
+        if self._placeholder_tex is None:
+            self._placeholder_tex = self.ctx.texture((1, 1), 4, bytes((255, 255, 255, 255)))
+        return self._placeholder_tex
 
     # ------------------------------------------------------------------ render
     def render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
