@@ -478,7 +478,7 @@ class LiveClient:
                     self.counters["nacked_packets"] += len(nack)
                 first = self._first_packet_ms.get(rx.name)
                 started = first is not None and now_ms - first >= cfg.pli_interval_ms
-                if rx.kind == "video" and ((rx.jitter.needs_keyframe and (started or rx.jitter.frames_emitted)) or rx.broken) \
+                if (rx.wants_keyframe or (rx.needs_keyframe and started)) \
                         and now_ms - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
                     self._last_pli_ms[rx.name] = now_ms
                     out.append(PictureLossIndication(0, rx.ssrc))

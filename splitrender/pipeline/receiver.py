@@ -63,6 +63,15 @@ class RxStream:
     def needs_keyframe(self) -> bool:
         return self.kind == "video" and (self.broken or (self.jitter is not None and self.jitter.needs_keyframe))
 
+    @property
+    def wants_keyframe(self) -> bool:
+        """Needs a keyframe and the stream is flowing: a frame was decoded, dropped for want
+        of a keyframe (the first IDR was lost) or given up on.  Before any of these the
+        first IDR may simply be on its way, and a request would only cost an extra one."""
+        j = self.jitter
+        return self.needs_keyframe and (self.broken or (j is not None and bool(j.frames_emitted or j.frames_dropped
+                                                                              or j.frames_lost)))
+
 
 @dataclass
 class Work:
@@ -402,6 +411,10 @@ class ClientPipeline:
     def needs_keyframe(self) -> list[str]:
         """Video streams whose decoder waits for a keyframe."""
         return [rx.name for rx in self.streams.values() if rx.needs_keyframe]
+
+    def wants_keyframe(self) -> list[str]:
+        """Video streams to request a keyframe for now (see :attr:`RxStream.wants_keyframe`)."""
+        return [rx.name for rx in self.streams.values() if rx.wants_keyframe]
 
     @property
     def pending_frames(self) -> int:

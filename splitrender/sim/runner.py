@@ -488,7 +488,7 @@ class VirtualTimeRun:
                 finally:
                     applied_ms += (time.perf_counter() - w0) * 1000
                 c.rx.tracker.on_applied(rf.update.frame_id, [*rf.update.planes, *rf.update.data])
-                if rf.update.complete or c.shown is None or rf.update.planes or rf.update.data:
+                if rf.update.complete or rf.update.planes or rf.update.data:  # one that lost everything shows nothing new
                     c.shown = rf
             true_pose = c.trace.pose_at(t_d)
             w0 = time.perf_counter()
@@ -498,12 +498,12 @@ class VirtualTimeRun:
                 cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
             client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
         make_current(self.renderer.ctx)
-        # keyframe requests: a video stream that lost sync (after it had started)
-        if any(c.rx.streams[n].broken or (c.rx.streams[n].jitter is not None and c.rx.streams[n].jitter.frames_emitted > 0)
-               for n in c.rx.needs_keyframe()) and (t_d - c.last_kf_request_s) * 1000 >= cfg.keyframe_request_interval_ms:
+        # keyframe requests: a video stream that lost sync, or whose first IDR was lost
+        want = c.rx.wants_keyframe()
+        if want and (t_d - c.last_kf_request_s) * 1000 >= cfg.keyframe_request_interval_ms:
             c.last_kf_request_s = t_d
             c.kf_requests += 1
-            self._send_up(c, KeyframeRequest(c.rx.needs_keyframe()[0], "decoder waits for a keyframe"))
+            self._send_up(c, KeyframeRequest(want[0], "decoder waits for a keyframe"))
         shown = c.shown
         while c.window and c.window[0][0] <= t_d - 1.0:
             c.window.popleft()
@@ -522,7 +522,8 @@ class VirtualTimeRun:
                                           sim_us(t_d), 0, sim_us(pose_t if math.isfinite(pose_t) else 0.0),
                                           {k: int(v) for k, v in shown.env.timing_us.items() if k in ("render", "encode")},
                                           applied, lost))
-        else:
+        if shown is None or not c.chalf.has_content:
+            # a start-up tick: nothing shown yet, or only updates whose content was lost (black)
             row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
                         "client_ms": client_ms, "decode_ms": math.nan, "pred_err_cm": math.nan, "pred_err_deg": math.nan})
         for name in c.bytes:
