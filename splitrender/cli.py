@@ -66,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clients", type=int, default=None, help="sessions against one server (shared scene producer; default 1)")
     p.add_argument("--client-traces", default=None, help="comma-separated trace per client, cycled (default: --trace)")
     p.add_argument("--client-offset", type=float, default=None, help="client i starts i * this many seconds into its trace")
+    p.add_argument("--cost-model", choices=("fixed", "measured"), default=None,
+                   help="processing time on the simulated clock: the modelled server/decode latencies (fixed, default) or "
+                        "this machine's measured milliseconds (measured)")
+    p.add_argument("--cost-scale", type=float, default=None, help="scale the measured milliseconds (0.1: a machine 10x faster)")
     _common_run_args(p)
     p.set_defaults(func=main_run)
 
@@ -141,6 +145,7 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
+                 ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale),
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:
             over[k] = v

@@ -52,6 +52,33 @@ def test_latency_costs_quality_and_is_reported(renderer):
     assert ideal["mean_psnr_db"] > cloud["mean_psnr_db"]
 
 
+def test_measured_cost_puts_a_slow_server_on_the_clock(renderer, monkeypatch):
+    """``cost_model = "measured"``: a method made 100 ms slower per frame delivers late and skips ticks."""
+    import time
+
+    from splitrender.methods.video.server import VideoServer
+
+    common = dict(method="video", trace="walk", duration_s=1.0, **TINY)
+    fixed = run(RunConfig(**common), renderer=renderer).summary
+    fast = run(RunConfig(cost_model="measured", **common), renderer=renderer).summary
+    produce = VideoServer.produce
+
+    def slow(self, ctx):  # type: ignore[no-untyped-def]
+        time.sleep(0.1)
+        return produce(self, ctx)
+
+    monkeypatch.setattr(VideoServer, "produce", slow)
+    slowed = run(RunConfig(cost_model="measured", **common), renderer=renderer).summary
+    halved = run(RunConfig(cost_model="measured", cost_scale=0.5, **common), renderer=renderer).summary
+    assert fixed["server_skipped"] == 0 and fixed["mean_cost_ms"] == pytest.approx(10.0)
+    assert slowed["mean_cost_ms"] >= fast["mean_cost_ms"] + 95.0 and slowed["server_skipped"] > fast["server_skipped"]
+    # the server is busy for 3 of every 4 ticks at 30 fps (31 ticks)
+    assert slowed["server_skipped"] >= 20, slowed
+    assert slowed["mean_update_age_ms"] >= fixed["mean_update_age_ms"] + 90.0, (slowed, fixed)
+    assert slowed["mean_psnr_db"] < fixed["mean_psnr_db"]
+    assert halved["mean_cost_ms"] < 0.7 * slowed["mean_cost_ms"] and halved["server_skipped"] < slowed["server_skipped"]
+
+
 def test_bits_count_every_stream_and_metadata(renderer):
     res = run(RunConfig(method="atw", duration_s=1.0, **TINY), renderer=renderer)
     s = res.summary

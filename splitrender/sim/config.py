@@ -14,6 +14,10 @@ from ..errors import ConfigError
 from ..methods.base import _coerce
 
 
+COST_MODELS = ("fixed", "measured")
+"""Where processing time on the simulated clock comes from (see :class:`RunConfig`)."""
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """One virtual-time run: a method on a scene, a trace and a network.
@@ -31,6 +35,15 @@ class RunConfig:
     buffer waits for a frame's missing packets; ``keyframe_request_interval_ms``: the
     least time between two keyframe requests of a client; ``max_session_bytes``:
     limit on the method's session data.
+
+    ``cost_model``: ``"fixed"`` puts the modelled ``server_latency_ms`` and
+    ``decode_latency_ms`` on the clock; ``"measured"`` puts this machine's measured
+    milliseconds there instead, times ``cost_scale`` (e.g. 0.1 to project onto a machine
+    ten times faster): a frame leaves after the shared scene work, its own server work
+    and its encoding (sessions served one after another), is released
+    its measured decode time after it arrives, and a server tick that finds the server
+    still busy is skipped (``server_skipped``), as a frame loop that renders the latest
+    pose when it is free would.
 
     ``ssim_sigma``: the SSIM Gaussian window in pixels (1.5, Wang et al.; the SAS paper uses 2).
     ``truth_cache``: where ground-truth frames are cached (:mod:`splitrender.sim.truth`):
@@ -55,6 +68,8 @@ class RunConfig:
     seed: int = 0
     server_latency_ms: float = 10.0
     decode_latency_ms: float = 4.0
+    cost_model: str = "fixed"
+    cost_scale: float = 1.0
     mtu_bytes: int = 1200
     flip_every: int = 4
     metrics: bool = True
@@ -87,6 +102,10 @@ class RunConfig:
         for k in ("server_latency_ms", "decode_latency_ms"):
             if not 0 <= getattr(self, k) <= 10_000:
                 raise bad(k, f"must be in [0, 10000], got {getattr(self, k)}")
+        if self.cost_model not in COST_MODELS:
+            raise bad("cost_model", f"must be one of {', '.join(COST_MODELS)}, got {self.cost_model!r}")
+        if not 0.001 <= self.cost_scale <= 1000:
+            raise bad("cost_scale", f"must be in [0.001, 1000], got {self.cost_scale}")
         if not 200 <= self.mtu_bytes <= 9000:
             raise bad("mtu_bytes", f"must be in [200, 9000], got {self.mtu_bytes}")
         if not 0.5 <= self.ssim_sigma <= 10.0:
@@ -134,6 +153,8 @@ class RunConfig:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
+        if d["cost_model"] == "fixed" and d["cost_scale"] == 1.0:  # keys from before the cost model stay valid
+            del d["cost_model"], d["cost_scale"]
         blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -18,12 +18,14 @@ count from :data:`SIM_EPOCH_US` so messages have the same sizes as live ones):
   have arrived to its predictor and predicts the pose at ``t`` plus the latency it has
   *measured* from the client's feedback (as the live server does), asks the server
   half for an update with the client's merged feedback, encodes and packetizes it.
-- After ``server_latency_ms`` the frame leaves: control frames as TCP segments over
+- After ``server_latency_ms`` (``cost_model = "measured"``: the measured shared, server
+  and encode milliseconds times ``cost_scale``; a tick that finds the server busy is
+  skipped) the frame leaves: control frames as TCP segments over
   the downlink (a lost segment costs one RTO, in order, head-of-line blocking
   included), RTP packets as datagrams (lost, delayed, reordered, duplicated).
 - The client's pipeline releases each frame in order once every stream it sent is
-  present or known lost (partial delivery); ``decode_latency_ms`` later it is
-  applied.  A video stream that lost a frame waits for a keyframe and the client asks
+  present or known lost (partial delivery); ``decode_latency_ms`` (or its measured
+  decode time) later it is applied.  A video stream that lost a frame waits for a keyframe and the client asks
   for one over the control uplink (at most every ``keyframe_request_interval_ms``).
 - Each client displays at ``client_fps`` from t = 0: it renders through its client
   half, in its own GL context, at the true pose of that tick (a tick with nothing yet
@@ -224,6 +226,9 @@ class VirtualTimeRun:
         self.duration_s = min(cfg.duration_s or full, full)
         self._events: list[tuple[float, int, int, Callable[..., None], tuple[Any, ...]]] = []
         self._seq = 0
+        self.server_free_s = 0.0
+        """When the server finishes its current frame (``cost_model = "measured"``)."""
+        self.server_skipped = 0
 
     # ------------------------------------------------------------------ events
 
@@ -338,10 +343,15 @@ class VirtualTimeRun:
         cfg, t_f = self.cfg, f / self.cfg.server_fps
         from ..methods.base import ServerContext
 
+        measured = cfg.cost_model == "measured"
+        if measured and self.server_free_s > t_f + 1e-9:  # still busy with the last frame: this tick is skipped
+            self.server_skipped += 1
+            return
         make_current(self.renderer.ctx)
         shared = pool.prepare(self.spec.name, f, t_f)
         shared_ms = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
         shared_stats = pool._producers[self.spec.name].stats() if self.spec.name in pool._producers else {}
+        busy_ms = shared_ms  # measured server time so far this tick (sessions are served one after another)
         for c in self.clients:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
                 ts = c.arrivals[c.arrival_idx][1]
@@ -365,8 +375,11 @@ class VirtualTimeRun:
             upd = c.half.produce(ctx)
             server_ms = (time.perf_counter() - w0) * 1000
             enc = c.tx.encode(upd, force_idr=upd.force_idr or kf)
-            send_t = t_f + cfg.server_latency_ms / 1000.0
-            timing = {"render": int(round(cfg.server_latency_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
+            busy_ms += server_ms + enc.encode_ms
+            cost_ms = busy_ms * cfg.cost_scale if measured else cfg.server_latency_ms
+            send_t = t_f + cost_ms / 1000.0
+            self.server_free_s = max(self.server_free_s, send_t)
+            timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
             out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.latest_pose_t),
                                  int(round(c.latest_pose_t * cfg.tracker_hz)), target_t, timing, c.half.stats())
             c.fb.frame_sent(f, sim_us(t_f))
@@ -392,6 +405,7 @@ class VirtualTimeRun:
             row: dict[str, Any] = {"client": c.index, "frame_id": f, "t_s": t_f, "bytes": out.total_wire_bytes,
                                    "keyframe": int(out.keyframe), "delivered": "", "missing": "",
                                    "shared_ms": shared_ms, "server_ms": server_ms, "encode_ms": enc.encode_ms,
+                                   "cost_ms": cost_ms,
                                    "expected_latency_ms": expected * 1000, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
                                    "arrival_s": math.nan}
             for name in c.bytes:
@@ -439,7 +453,8 @@ class VirtualTimeRun:
     def _drain(self, c: _Client) -> None:
         assert c.rx is not None
         for rf in c.rx.ready():
-            release = max(self.now + self.cfg.decode_latency_ms / 1000.0, c.ready[-1][0] if c.ready else -math.inf)
+            dec_ms = c.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
+            release = max(self.now + dec_ms / 1000.0, c.ready[-1][0] if c.ready else -math.inf)
             c.ready.append((release, rf, c.decode_ms))
             c.decode_ms = 0.0
             row = c.update_rows.pop(rf.update.frame_id, None)
@@ -575,6 +590,8 @@ class VirtualTimeRun:
             "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
             "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
             "mean_server_ms": float(np.mean([u["server_ms"] for u in ups])) if ups else math.nan,
+            "cost_model": cfg.cost_model, "mean_cost_ms": float(np.mean([u["cost_ms"] for u in ups])) if ups else math.nan,
+            "server_skipped": self.server_skipped,
             "mean_shared_server_ms": float(np.mean([u["shared_ms"] for u in ups])) if ups else math.nan,
             "clients": cfg.clients,
             "mean_encode_ms": float(np.mean([u["encode_ms"] for u in ups])) if ups else math.nan,
