@@ -152,11 +152,14 @@ def test_a_malformed_update_is_rejected_and_the_run_goes_on(renderer, monkeypatc
     assert 2 not in shown and max(shown) >= 10, "the rejected update is skipped, later ones are shown"
 
 
-def test_still_camera_lossless_video_reproduces_the_truth_bit_for_bit(renderer):
-    """A still camera on a still scene at ``ideal`` with ``lossless = true``: every shown frame is the truth."""
+@pytest.mark.parametrize("supersample", [1, 2])
+def test_still_camera_lossless_video_reproduces_the_truth_bit_for_bit(renderer, supersample):
+    """A still camera on a still scene at ``ideal`` with ``lossless = true``: every shown frame is the truth,
+    supersampled or not (the server renders with the same anti-aliasing as the truth)."""
     cfg = RunConfig(method="video", scene="minimal", trace="static", network="ideal", duration_s=0.5, width=160, height=90,
-                    flip_every=2, save_images_every=1, method_params={"lossless": True})
+                    flip_every=2, save_images_every=1, method_params={"lossless": True}, supersample=supersample)
     res = run(cfg, renderer=renderer)
+    assert renderer.supersample == 1  # restored for the next user of the shared renderer
     assert len(res.images) == 31 and res.summary["frames_before_content"] == 1  # tick 0 shows the black background
     for frame, shown, truth in res.images[1:]:
         assert np.array_equal(shown, truth), f"frame {frame}: {int(np.sum(np.any(shown != truth, axis=-1)))} pixels differ"

@@ -16,6 +16,7 @@ that includes it can be set up with :meth:`Renderer.bind_shading`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
@@ -112,6 +113,8 @@ class Renderer:
         self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
         self._scenes: dict[int, SceneGPU] = {}
         self._placeholder_tex: Any = None
+        self.supersample = 1
+        """Samples per pixel along each axis of :meth:`render` (1: none; 2: 4 samples)."""
         self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
         self._shadow: dict[str, tuple[Any, Any]] = {}
         self._shadow_size = 0
@@ -303,11 +306,34 @@ class Renderer:
     # ------------------------------------------------------------------ render
     def render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
                outputs: Iterable[str] = ("color",), object_ids: set[int] | None = None) -> RenderOutput:
-        """Render ``scene`` at time ``t_s`` from ``pose``; ``object_ids`` limits what is drawn."""
+        """Render ``scene`` at time ``t_s`` from ``pose``; ``object_ids`` limits what is drawn.
+
+        With :attr:`supersample` ``k`` > 1 the frame is rendered at ``k`` times the size:
+        colour is the mean of each ``k`` x ``k`` block (in the stored sRGB code values, as a
+        multisample resolve into an 8-bit target does); depth, normals and ids are the
+        sample nearest the pixel centre, so they stay consistent with one another."""
         outputs = tuple(outputs)
         for o in outputs:
             if o not in ALL_OUTPUTS:
                 raise ValueError(f"unknown render output {o!r}; choose from {ALL_OUTPUTS}")
+        k = self.supersample
+        if k == 1:
+            return self._render(scene, t_s, pose, intr, outputs, object_ids)
+        big = dataclasses.replace(intr, width=intr.width * k, height=intr.height * k)
+        hi = self._render(scene, t_s, pose, big, outputs, object_ids)
+        h, w = intr.height, intr.width
+        out = RenderOutput(color=np.empty(0, np.uint8))
+        if hi.color.size:
+            c = hi.color.reshape(h, k, w, k, 3).astype(np.uint32).sum(axis=(1, 3))
+            out.color = ((c + (k * k) // 2) // (k * k)).astype(np.uint8)
+        for name in ("depth", "normal", "object_id", "triangle_id"):
+            a = getattr(hi, name)
+            if a is not None:
+                setattr(out, name, np.ascontiguousarray(a[k // 2::k, k // 2::k]))
+        return out
+
+    def _render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
+                outputs: tuple[str, ...], object_ids: set[int] | None) -> RenderOutput:
         sg = self.upload(scene)
         self.bind_shading(self.prog, scene, t_s)
         fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)

@@ -45,6 +45,10 @@ class RunConfig:
     still busy is skipped (``server_skipped``), as a frame loop that renders the latest
     pose when it is free would.
 
+    ``supersample``: the ground truth and the servers' renders through the shared
+    renderer are drawn at ``supersample`` times the size and box-filtered down
+    (anti-aliasing; 1 = off).  The clients render without it.
+
     ``ssim_sigma``: the SSIM Gaussian window in pixels (1.5, Wang et al.; the SAS paper uses 2).
     ``truth_cache``: where ground-truth frames are cached (:mod:`splitrender.sim.truth`):
     ``""`` renders every one, ``"default"`` uses ``$SPLITRENDER_TRUTH_CACHE`` or
@@ -70,6 +74,7 @@ class RunConfig:
     decode_latency_ms: float = 4.0
     cost_model: str = "fixed"
     cost_scale: float = 1.0
+    supersample: int = 1
     mtu_bytes: int = 1200
     flip_every: int = 4
     metrics: bool = True
@@ -102,6 +107,8 @@ class RunConfig:
         for k in ("server_latency_ms", "decode_latency_ms"):
             if not 0 <= getattr(self, k) <= 10_000:
                 raise bad(k, f"must be in [0, 10000], got {getattr(self, k)}")
+        if not 1 <= self.supersample <= 4:
+            raise bad("supersample", f"must be in [1, 4], got {self.supersample}")
         if self.cost_model not in COST_MODELS:
             raise bad("cost_model", f"must be one of {', '.join(COST_MODELS)}, got {self.cost_model!r}")
         if not 0.001 <= self.cost_scale <= 1000:
@@ -153,8 +160,9 @@ class RunConfig:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
-        if d["cost_model"] == "fixed" and d["cost_scale"] == 1.0:  # keys from before the cost model stay valid
-            del d["cost_model"], d["cost_scale"]
+        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1)):
+            if d[k] == default:  # keys of configs from before these options stay valid
+                del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

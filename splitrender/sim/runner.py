@@ -217,7 +217,10 @@ class VirtualTimeRun:
         self.intr = CameraIntrinsics(cfg.width, cfg.height, cfg.fov_y_deg)
         self.renderer = renderer or Renderer()
         make_current(self.renderer.ctx)
+        self._supersample_before = self.renderer.supersample
+        self.renderer.supersample = cfg.supersample  # part of the truth key; set again for the run, restored after it
         self.truth = truth_source(cfg.truth_cache, self.renderer, self.scene, self.trace, self.intr, cfg.client_fps)
+        self.renderer.supersample = self._supersample_before
         full = min(t.duration_s for t in self.traces)
         if full <= 0:
             from ..errors import ConfigError
@@ -308,6 +311,13 @@ class VirtualTimeRun:
     # ------------------------------------------------------------------ run
 
     def run(self) -> RunResult:
+        self.renderer.supersample = self.cfg.supersample
+        try:
+            return self._run()
+        finally:
+            self.renderer.supersample = self._supersample_before
+
+    def _run(self) -> RunResult:
         cfg = self.cfg
         seeds = np.random.SeedSequence(cfg.seed).spawn(4 * cfg.clients)
         pool = ProducerPool(self.scene, cfg.server_fps, self.renderer)

@@ -154,6 +154,7 @@ class TruthKey:
     height: int
     fov_y_deg: float
     fps: float
+    supersample: int = 1
 
     def digest(self) -> str:
         h = hashlib.sha256()
@@ -284,5 +285,5 @@ def truth_source(setting: str, renderer: _Renders, scene: Scene, trace: CameraTr
         return renderer
     info = getattr(getattr(renderer, "ctx", None), "info", None)
     key = TruthKey(scene_digest(scene), renderer_version(info if isinstance(info, dict) else None), trace_digest(trace),
-                   intr.width, intr.height, float(intr.fov_y_deg), float(fps))
+                   intr.width, intr.height, float(intr.fov_y_deg), float(fps), int(getattr(renderer, "supersample", 1)))
     return CachedTruth(renderer, GroundTruthCache(root), key)
