@@ -43,7 +43,7 @@ async def _run_through_relay(tmp: Path, network: str, seed: int = 3, server_kw: 
             tcp = await relay.start_tcp((LOOPBACK, 0), server.tcp_address)
             udp = await relay.start_udp((LOOPBACK, 0), server.udp_address)
             cfg = ClientConfig(server=LOOPBACK, port=tcp[1], udp_port=udp[1], width=320, height=180,
-                               trace="walk", out_dir=tmp, save_images=True, **client_kw)  # type: ignore[arg-type]
+                               out_dir=tmp, save_images=True, **{"trace": "walk", **client_kw})  # type: ignore[arg-type]
             run = asyncio.create_task(asyncio.wait_for(LiveClient(cfg).run(), cfg.duration_s + 20))
             while not server.sessions and not run.done():  # keep the session: it unregisters at Bye
                 await asyncio.sleep(0.01)
@@ -210,3 +210,29 @@ def test_cli_serve_and_client_smoke(tmp_path: Path) -> None:
     assert srv.returncode == 0, err
     assert "server stopped" in err
     assert "Traceback" not in err
+
+
+BOX_TEXTURED = Path("/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb")
+
+
+@pytest.mark.skipif(not BOX_TEXTURED.is_file(), reason="assimp-testmodels not installed")
+async def test_live_client_fits_builtin_traces_around_a_loaded_model(tmp_path: Path) -> None:
+    """The server sends the model's bounds (``subject``); the client's ``orbit`` goes around the model,
+    pose for pose the trace the simulator uses, not the default scene's orbit."""
+    from splitrender.scene import get_scene
+    from splitrender.scene.pose import Pose
+    from splitrender.scene.trace import get_trace
+
+    result, _, _ = await _run_through_relay(tmp_path, "ideal", server_kw={"scene": str(BOX_TEXTURED)}, duration_s=1.0,
+                                           trace="orbit")
+    scene = get_scene(str(BOX_TEXTURED))
+    fitted = get_trace("orbit", scene=scene, fov_y_deg=60.0, aspect=320 / 180)
+    plain = get_trace("orbit")
+    rows = result.rows
+    assert len(rows) > 10
+    for r in rows:
+        shown = Pose.from_list([r["px"], r["py"], r["pz"], r["qx"], r["qy"], r["qz"], r["qw"]])
+        want = fitted.pose_at(min(r["t_s"], fitted.duration_s))
+        assert np.allclose(shown.position, want.position, atol=1e-6), (r["t_s"], shown.position, want.position)
+    far = max(np.linalg.norm(plain.pose_at(r["t_s"]).position - fitted.pose_at(r["t_s"]).position) for r in rows)
+    assert far > 0.5  # the fitted orbit is not the default scene's

@@ -135,3 +135,12 @@ async def test_sdp_dir_without_mirror_port_logs_a_hint(tmp_path: Path, caplog: p
             assert len(hints) == 1 and "ffplay on this host cannot bind" in hints[0], hints
         else:
             assert hints == []
+
+
+@pytest.mark.parametrize("bad", [[[0, 0, 0]], [[0, 0, "x"], [1, 1, 1]], [[0, 0, 0], [1, float("nan"), 1]], [[2, 0, 0], [1, 1, 1]], 7])
+def test_malformed_subject_bounds_name_the_field(bad) -> None:  # type: ignore[no-untyped-def]
+    from splitrender.client.session import _parse_subject
+    from splitrender.pipeline import EnvelopeError
+
+    with pytest.raises(EnvelopeError, match="Welcome.method_params.subject"):
+        _parse_subject(bad)

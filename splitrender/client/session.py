@@ -154,6 +154,24 @@ class ClientResult:
     out_dir: Path | None = None
 
 
+@dataclass
+class _Subject:
+    """What :func:`get_trace` reads of a scene to fit a built-in trace: the model's bounds."""
+
+    subject: tuple[np.ndarray, np.ndarray]
+
+
+def _parse_subject(v: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``Welcome.method_params.subject``: [[x, y, z], [x, y, z]], finite, lo <= hi."""
+    try:
+        lo, hi = (np.asarray(b, np.float64).reshape(3) for b in v)
+    except (TypeError, ValueError):
+        raise EnvelopeError(f"Welcome.method_params.subject: expected [[x, y, z], [x, y, z]], got {v!r:.80}") from None
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+        raise EnvelopeError(f"Welcome.method_params.subject: bounds must be finite with lo <= hi, got {v!r:.80}")
+    return lo, hi
+
+
 class LiveClient:
     """One session against a live server; ``await LiveClient(cfg).run()``."""
 
@@ -269,6 +287,10 @@ class LiveClient:
         spec = get_method(msg.method)
         mcfg = make_config(spec.config, dict(self._params.get("config", {})))
         intr = CameraIntrinsics(cfg.width, cfg.height, float(self._params.get("fov_y_deg", 60.0)))
+        subject = self._params.get("subject")
+        if subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
+            self.trace = get_trace(cfg.trace, scene=_Subject(_parse_subject(subject)), fov_y_deg=intr.fov_y_deg,
+                                   aspect=cfg.width / cfg.height)
         # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
         asm = SessionAssembler(self._params.get("session_data_bytes", 0), self._params.get("session_data_crc"),
                                cfg.max_session_bytes)

@@ -104,11 +104,17 @@ class _Stream:
 
 
 def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, scene: str,
-                   tx: ServerPipeline, session_blob: bytes) -> dict[str, Any]:
-    """The ``Welcome.method_params`` map of a live session (documented in docs/protocol.md)."""
+                   tx: ServerPipeline, session_blob: bytes, subject: Any = None) -> dict[str, Any]:
+    """The ``Welcome.method_params`` map of a live session (documented in docs/protocol.md).
+
+    ``subject``: a loaded model's world bounds (lo, hi), sent as ``subject`` so that the
+    client places its built-in traces around the model as the simulator does."""
     cfg = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
-    return {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
-            **tx.welcome_params(session_blob)}
+    out = {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
+           **tx.welcome_params(session_blob)}
+    if subject is not None:
+        out["subject"] = [[float(v) for v in subject[0]], [float(v) for v in subject[1]]]
+    return out
 
 
 class ServerSession:
@@ -283,7 +289,8 @@ class ServerSession:
             self.streams[st.spec.name] = stream
             if isinstance(st.spec, StreamSpec):
                 self._write_sdp(stream)
-        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, self.tx, session_blob)
+        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, self.tx, session_blob,
+                                    getattr(server.scene, "subject", None))
         welcome = Welcome(self.id, self.method, params_out, descs)
         self._session_blob = session_blob
         server.register(self, [s.ssrc for s in self.streams.values()])
