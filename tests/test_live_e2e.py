@@ -236,3 +236,129 @@ async def test_live_client_fits_builtin_traces_around_a_loaded_model(tmp_path: P
         assert np.allclose(shown.position, want.position, atol=1e-6), (r["t_s"], shown.position, want.position)
     far = max(np.linalg.norm(plain.pose_at(r["t_s"]).position - fitted.pose_at(r["t_s"]).position) for r in rows)
     assert far > 0.5  # the fitted orbit is not the default scene's
+
+
+def _serve(port: int) -> subprocess.Popen:  # type: ignore[type-arg]
+    srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
+                            "--scene", "minimal", "--methods", "video"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert srv.stderr is not None
+    line = srv.stderr.readline()
+    assert "serving on" in line, line
+    return srv
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind((LOOPBACK, 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_rows(journal: Path, n: int, proc: subprocess.Popen, timeout_s: float = 30.0) -> None:  # type: ignore[type-arg]
+    import time
+
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and proc.poll() is None:
+        if journal.exists() and journal.read_text().count("\n") >= n:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"{journal}: fewer than {n} rows in {timeout_s} s (client rc {proc.poll()})")
+
+
+@pytest.mark.slow
+def test_killed_server_or_client_leaves_a_scoreable_partial_recording(tmp_path: Path) -> None:
+    """``kill -9`` of the server mid-session: the client exits non-zero within 2 s and leaves frames.csv,
+    counters.json and recording.json (``complete: false``, the error); ``kill -9`` of the client leaves the
+    manifest and the rows appended so far (frames.jsonl).  Both score; the server serves the next client."""
+    import json
+    import signal
+    import time
+
+    from splitrender.client.score import score_recording
+
+    port = _free_port()
+    client_cmd = [sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--width", "160", "--height", "90",
+                  "--display-hz", "30", "--duration", "15", "--save-images"]
+    srv = _serve(port)
+    try:
+        out = tmp_path / "server_killed"
+        cli = subprocess.Popen(client_cmd + ["--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _wait_rows(out / "frames.jsonl", 20, cli)
+        srv.send_signal(signal.SIGKILL)
+        t0 = time.monotonic()
+        _, err = cli.communicate(timeout=30)
+        exited_s = time.monotonic() - t0
+    finally:
+        srv.kill()
+        srv.communicate()
+    assert cli.returncode != 0 and exited_s < 2.0, (cli.returncode, exited_s, err[-2000:])
+    assert "Traceback" not in err and "error" in err.lower(), err[-2000:]
+    rec = json.loads((out / "recording.json").read_text())
+    assert rec["complete"] is False and rec["error"], rec
+    assert (out / "counters.json").is_file() and not (out / "frames.jsonl").exists()
+    s = score_recording(out, flip_every=0)
+    assert s["frames"] >= 20 and s["mean_psnr_db"] > 15, s
+
+    # kill -9 of the client: the manifest and the journal survive, and the server takes the next client
+    port = _free_port()
+    srv = _serve(port)
+    try:
+        client_cmd[client_cmd.index("--port") + 1] = str(port)
+        out2 = tmp_path / "client_killed"
+        cli = subprocess.Popen(client_cmd + ["--out", str(out2)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _wait_rows(out2 / "frames.jsonl", 20, cli)
+        time.sleep(0.6)  # past one journal flush
+        cli.send_signal(signal.SIGKILL)
+        cli.communicate(timeout=10)
+        rec2 = json.loads((out2 / "recording.json").read_text())
+        assert rec2["complete"] is False and not (out2 / "frames.csv").exists()
+        s2 = score_recording(out2, flip_every=0)
+        assert s2["frames"] >= 20, s2
+        nxt_cmd = [a if a != "15" else "1.0" for a in client_cmd] + ["--out", str(tmp_path / "next")]
+        nxt = subprocess.run(nxt_cmd, capture_output=True, text=True, timeout=60)
+        assert nxt.returncode == 0, nxt.stderr[-2000:]
+        assert json.loads((tmp_path / "next" / "recording.json").read_text())["complete"] is True
+    finally:
+        srv.kill()
+        srv.communicate()
+
+
+async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The server stops sending frames after 0.5 s (a test hook): the client counts a stall, sends PLIs while it
+    lasts, and after ``stall_timeout_s`` ends the session with StreamStalledError and a partial recording."""
+    import json
+    import time
+
+    from splitrender.client.session import StreamStalledError
+    from splitrender.server.session import ServerSession
+
+    send = ServerSession._send_frame
+    t_stop: list[float] = []
+
+    async def stalling(self) -> None:  # type: ignore[no-untyped-def]
+        if t_stop and time.monotonic() >= t_stop[0]:
+            return  # frozen: the session stays up, no frame goes out
+        await send(self)
+
+    monkeypatch.setattr(ServerSession, "_send_frame", stalling)
+    async with LiveServer(_server_config()) as server:
+        serve = asyncio.create_task(server.serve_forever())
+        try:
+            cfg = ClientConfig(server=LOOPBACK, port=server.tcp_address[1], width=160, height=90, display_hz=30,
+                               duration_s=10.0, out_dir=tmp_path, stall_frames=6, stall_timeout_s=1.5)
+            client = LiveClient(cfg)
+            t_stop.append(time.monotonic() + 1.0)
+            t0 = time.monotonic()
+            with pytest.raises(StreamStalledError, match="no frame for"):
+                await asyncio.wait_for(client.run(), 20)
+            took = time.monotonic() - t0
+        finally:
+            serve.cancel()
+            await asyncio.gather(serve, return_exceptions=True)
+    c = client.counters
+    assert c["stalls"] == 1 and c["stall_plis"] >= 2, c  # 6 frames (200 ms) in, then every pli_interval (250 ms)
+    assert 2.4 < took < 4.5, took  # 1 s streaming (+ set-up), then 1.5 s of stall
+    rec = json.loads((tmp_path / "recording.json").read_text())
+    assert rec["complete"] is False and "StreamStalledError" in rec["error"]
+    assert (tmp_path / "frames.csv").read_text().count("\n") > 10

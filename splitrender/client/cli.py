@@ -30,6 +30,10 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/live"), help="recording folder (default out/live)")
     p.add_argument("--save-images", action="store_true", help="keep every displayed image (needed to score)")
     p.add_argument("--score", action="store_true", help="score the recording afterwards (implies --save-images)")
+    p.add_argument("--stall-frames", type=float, default=6.0,
+                   help="no new frame for this many server frame intervals: log, count and ask for a keyframe (default 6)")
+    p.add_argument("--stall-timeout", type=float, default=5.0,
+                   help="seconds without a frame after which the session ends with an error (default 5)")
 
 
 def config_from_args(ns: argparse.Namespace) -> object:
@@ -43,12 +47,17 @@ def config_from_args(ns: argparse.Namespace) -> object:
     for opt, port in (("--port", ns.port), ("--udp-port", ns.udp_port)):
         if port is not None and not 1 <= port <= 65535:
             raise ConfigError(f"{opt}: must be in [1, 65535], got {port}")
+    if not 0.5 <= ns.stall_frames <= 10_000:
+        raise ConfigError(f"--stall-frames: must be in [0.5, 10000], got {ns.stall_frames}")
+    if not 0.1 <= ns.stall_timeout <= 3600:
+        raise ConfigError(f"--stall-timeout: must be in [0.1, 3600] s, got {ns.stall_timeout}")
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
     codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
     return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
-                        save_images=ns.save_images or ns.score)
+                        save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
+                        stall_timeout_s=ns.stall_timeout)
 
 
 def main_client(ns: argparse.Namespace) -> int:

@@ -26,7 +26,7 @@ from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
 from splitrender.sim.runner import write_csv
 
-__all__ = ["score_recording", "read_frames"]
+__all__ = ["score_recording", "read_frames", "read_journal"]
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +46,20 @@ def read_frames(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def read_journal(path: Path) -> list[dict[str, Any]]:
+    """Rows of a frames.jsonl (one JSON object per line); a torn last line is dropped."""
+    rows = []
+    with open(path) as f:
+        for line in f:
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                break  # the client died mid-write
+            if isinstance(row, dict):
+                rows.append({k: (math.nan if v is None else v) for k, v in row.items()})
+    return rows
+
+
 def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every: int = 4,
                     progress: Callable[[int, int], None] | None = None, ssim_sigma: float = metrics.SSIM_SIGMA) -> dict[str, Any]:
     """Add image metrics to ``out_dir``'s frames.csv and write summary.csv; returns the summary.
@@ -58,7 +72,15 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
     if not rec.get("images"):
         raise ConfigError(f"{d}: the recording has no images (record with --save-images to score it)")
     counters = json.loads((d / "counters.json").read_text()) if (d / "counters.json").exists() else {}
-    rows = read_frames(d / "frames.csv")
+    if (d / "frames.csv").exists():
+        rows = read_frames(d / "frames.csv")
+    elif (d / "frames.jsonl").exists():  # the client was killed: the rows it had appended
+        rows = read_journal(d / "frames.jsonl")
+    else:
+        raise ConfigError(f"{d}: no frames.csv or frames.jsonl (was the session started?)")
+    if not rec.get("complete", True):
+        logger.warning("%s: a partial recording (%s): scoring its %d frames", d, rec.get("error", "the client did not finish"),
+                       len(rows))
     if renderer is None:
         from splitrender.render import Renderer
 

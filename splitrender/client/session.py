@@ -79,6 +79,10 @@ RTCP_TICK_S = 0.01
 BIND_INTERVAL_S = 0.1
 
 
+class StreamStalledError(SplitRenderError):
+    """No frame arrived for ``stall_timeout_s``: the server stopped streaming."""
+
+
 class ServerRefusedError(SplitRenderError):
     """The server answered with an ``Error`` message."""
 
@@ -113,6 +117,10 @@ class ClientConfig:
     rr_interval_s: float = 0.5
     connect_timeout_s: float = 5.0
     max_session_bytes: int = 256 * 1024 * 1024
+    stall_frames: float = 6.0
+    """No new frame for this many server frame intervals is a stall: logged, counted, a keyframe requested."""
+    stall_timeout_s: float = 5.0
+    """A stall this long ends the session with :class:`StreamStalledError` (a non-zero exit)."""
 
 
 @dataclass
@@ -187,6 +195,11 @@ class LiveClient:
         self.rx: ClientPipeline | None = None
         self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
         self._last_pli_ms: dict[str, float] = {}
+        self._last_frame_mono = time.monotonic()
+        """When the last frame with content was released (monotonic s; the session start before)."""
+        self._stalled_since: float | None = None
+        self._journal: Any = None
+        """frames.jsonl, appended as the session goes (see :meth:`_record`)."""
         self._first_packet_ms: dict[str, float] = {}
         self._ready: deque[ReceivedFrame] = deque()
         self._pending_apply: list[ReceivedFrame] = []
@@ -223,6 +236,8 @@ class LiveClient:
                 await self._handshake()
                 await self._open_udp()
                 self._t0_wall = time.time()
+                self._last_frame_mono = time.monotonic()
+                self._start_recording()
                 try:
                     async with asyncio.TaskGroup() as tg:
                         tg.create_task(self._pose_loop(), name="client-poses")
@@ -242,14 +257,56 @@ class LiveClient:
                 if self.udp is not None:
                     self.udp.close()
                 await self.channel.close()
-        finally:
+        except BaseException as exc:
             await self._release()
+            if self._journal is not None:  # a broken session: keep what was recorded, marked incomplete
+                result = ClientResult(self.rows, dict(self.counters), {**self._recording(), "complete": False,
+                                      "error": f"{type(exc).__name__}: {exc}"}, list(self.meta_ids), cfg.out_dir)
+                self._finish_recording(result)
+                logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
+                             exc, len(self.rows), cfg.out_dir)
+            raise
+        await self._release()
         logger.info("session %s: client done: %d displayed rows, %s", self.session_id, len(self.rows),
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(self.rows, dict(self.counters), self._recording(), list(self.meta_ids), cfg.out_dir)
+        result = ClientResult(self.rows, dict(self.counters), {**self._recording(), "complete": True}, list(self.meta_ids),
+                              cfg.out_dir)
         if cfg.out_dir is not None:
-            await asyncio.get_running_loop().run_in_executor(None, write_recording, result, cfg.out_dir)
+            await asyncio.get_running_loop().run_in_executor(None, self._finish_recording, result)
         return result
+
+    # ------------------------------------------------------------------ recording as it goes
+
+    def _start_recording(self) -> None:
+        """Write the manifest (``complete: false``) and open ``frames.jsonl`` for the rows to come."""
+        d = self.cfg.out_dir
+        if d is None:
+            return
+        d.mkdir(parents=True, exist_ok=True)
+        for stale in ("frames.csv", "summary.csv", "counters.json"):
+            (d / stale).unlink(missing_ok=True)
+        (d / "recording.json").write_text(json.dumps({**self._recording(), "complete": False}, indent=2, default=str))
+        self._journal = open(d / JOURNAL, "w", buffering=1 << 16)
+        self._journal_flushed = time.monotonic()
+
+    def _record(self, row: dict[str, Any]) -> None:
+        self.rows.append(row)
+        if self._journal is not None:
+            self._journal.write(json.dumps(row, default=float) + "\n")
+            now = time.monotonic()
+            if now - self._journal_flushed >= JOURNAL_FLUSH_S:
+                self._journal.flush()
+                self._journal_flushed = now
+
+    def _finish_recording(self, result: ClientResult) -> None:
+        """frames.csv, counters.json and the completed manifest; the journal goes once they are written."""
+        d = self.cfg.out_dir
+        if d is None:
+            return
+        if self._journal is not None:
+            self._journal.close()
+        write_recording(result, d)
+        (d / JOURNAL).unlink(missing_ok=True)
 
     async def _release(self) -> None:
         loop = asyncio.get_running_loop()
@@ -453,6 +510,8 @@ class LiveClient:
         """Move released frames to the display queue."""
         assert self.rx is not None
         for rf in self.rx.ready():
+            if rf.update.complete or rf.update.planes or rf.update.data:
+                self._on_frame(time.monotonic())
             if rf.update.missing:
                 self.counters["frames_partial"] = self.counters.get("frames_partial", 0) + 1
             else:
@@ -462,6 +521,42 @@ class LiveClient:
                 dropped = self._ready.popleft()
                 self.counters["updates_dropped_ready"] += 1
                 self._pending_apply.append(dropped)  # still applied (in order) so the half's state stays consistent
+
+    def _on_frame(self, now: float) -> None:
+        if self._stalled_since is not None:
+            ms = (now - self._stalled_since) * 1000 + self._stall_after_s() * 1000
+            self.counters["longest_stall_ms"] = max(self.counters.get("longest_stall_ms", 0.0), round(ms, 1))
+            logger.info("session %s: frames resumed after %.0f ms", self.session_id, ms)
+            self._stalled_since = None
+        self._last_frame_mono = now
+
+    def _stall_after_s(self) -> float:
+        return self.cfg.stall_frames / max(1.0, float(self._params.get("server_fps", 30)))
+
+    def _check_stall(self, now: float) -> list[Any]:
+        """Stall detection (called from the RTCP loop): PLIs for every video stream while no frame
+        arrives for ``stall_frames`` server intervals; :class:`StreamStalledError` after ``stall_timeout_s``."""
+        cfg = self.cfg
+        idle = now - self._last_frame_mono
+        if idle < self._stall_after_s():
+            return []
+        if idle >= cfg.stall_timeout_s:
+            raise StreamStalledError(f"session {self.session_id}: no frame for {idle:.1f} s (stall_timeout_s "
+                                     f"{cfg.stall_timeout_s:g} s): the server stopped streaming")
+        if self._stalled_since is None:
+            self._stalled_since = now
+            self.counters["stalls"] = self.counters.get("stalls", 0) + 1
+            logger.warning("session %s: no new frame for %.0f ms (%g frame intervals): asking for a keyframe",
+                           self.session_id, idle * 1000, cfg.stall_frames)
+        out: list[Any] = []
+        assert self.rx is not None
+        for rx in self.rx.streams.values():
+            if rx.kind == "video" and now * 1000 - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
+                self._last_pli_ms[rx.name] = now * 1000
+                out.append(PictureLossIndication(0, rx.ssrc))
+                self.counters["plis_sent"] += 1
+                self.counters["stall_plis"] = self.counters.get("stall_plis", 0) + 1
+        return out
 
     # ------------------------------------------------------------------ RTCP out
 
@@ -484,6 +579,8 @@ class LiveClient:
                 if now - last_bind >= BIND_INTERVAL_S:
                     last_bind = now
                     self._send_rtcp([self._empty_rr()])
+                if now - self._last_frame_mono >= cfg.stall_timeout_s:
+                    self._check_stall(now)  # raises: nothing ever arrived
                 continue
             out: list[Any] = []
             if now - last_rr >= cfg.rr_interval_s:
@@ -505,6 +602,7 @@ class LiveClient:
                     self._last_pli_ms[rx.name] = now_ms
                     out.append(PictureLossIndication(0, rx.ssrc))
                     self.counters["plis_sent"] += 1
+            out.extend(self._check_stall(now))
             if out:
                 self._send_rtcp(out)
 
@@ -558,7 +656,7 @@ class LiveClient:
             for b_tick, b_wall, b_pose in before_content:
                 row = self._empty_row(len(self.rows), b_tick, b_wall - self._t0_wall, b_wall - self._server_epoch_s, b_pose,
                                       int(b_wall * 1e6))
-                self.rows.append(row)
+                self._record(row)
                 if cfg.save_images and cfg.out_dir is not None:
                     black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
                     saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], black,
@@ -592,7 +690,7 @@ class LiveClient:
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
             row.update(self._kbps(displayed_us / 1e6))
-            self.rows.append(row)
+            self._record(row)
             if cfg.save_images and cfg.out_dir is not None:
                 idx = row["frame"]
                 color, holes = cf.color, cf.holes
@@ -672,6 +770,11 @@ class LiveClient:
             "duration_s": cfg.duration_s, "images": bool(cfg.save_images and cfg.out_dir is not None),
             "client": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
         }
+
+
+JOURNAL = "frames.jsonl"
+"""Rows appended while the session runs; replaced by frames.csv at the end, left behind by a killed client."""
+JOURNAL_FLUSH_S = 0.5
 
 
 class _RunDone(Exception):
