@@ -1,0 +1,52 @@
+"""The papers study (SAS figs. 13-15, QUASAR tables 1 and 4) on a shrunken grid."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from splitrender.experiments.studies import papers
+
+TINY = {
+    "size": (160, 90), "duration_s": 0.3, "pred_duration_s": 0.4,
+    "fig13_fps": (30, 60), "fig13_latency_ms": (0, 100), "fig13_methods": ("sas", "atw"),
+    "fig14_client_fps": 60, "fig14_server_fps": (30,), "fig14_methods": ("sas", "atw"),  # reuses fig. 13's 0 ms runs
+    "fig15_fps": (30, 60), "fig15_kbps": (300, 2000), "fig15_methods": ("video",),
+    "t4_fps": (30, 60), "t4_networks": ("lan",), "t4_configs": ("ATW",),
+    "t1_networks": ("lan",), "t1_predictors": ("none", "ca"),
+}
+
+
+def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(papers.GRID, True, TINY)
+    sec = papers.run(tmp_path, quick=True)
+    names = {p.name for p in sec.figures}
+    assert names == {"papers_sas_fig13.png", "papers_sas_fig14.png", "papers_sas_fig15.png", "papers_quasar_t4.png",
+                     "papers_quasar_t1.png"}
+    for p in sec.figures:
+        assert p.is_file() and p.with_suffix(".svg").is_file()
+    assert [p.name for p in sec.tables] == ["papers_results.csv"]
+    with open(sec.tables[0]) as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4 + 2 + 2 + 1 + 2
+
+    def get(exp: str, **kw: str) -> dict[str, float]:
+        r = [r for r in rows if r["experiment"] == exp and all(r[k] == v for k, v in kw.items())]
+        assert len(r) == 1, (exp, kw)
+        return {k: float(v) for k, v in r[0].items() if k in ("psnr_db", "ssim", "kbps", "pred_err_cm", "pred_err_deg")}
+
+    # SAS fig. 13: from 0 to 100 ms atw loses far more PSNR than sas (measured: sas 6.1 dB, atw 11.6 dB)
+    loss = {m: get("sas_fig13", method=m, latency_ms="0")["psnr_db"] - get("sas_fig13", method=m, latency_ms="100")["psnr_db"]
+            for m in ("sas", "atw")}
+    assert loss["atw"] - loss["sas"] > 4.5, loss
+    # SAS fig. 15: the higher bitrate buys video PSNR (measured 442 -> 2028 kbit/s, +3.9 dB)
+    lo, hi = get("sas_fig15", method="video", bitrate_kbps="300"), get("sas_fig15", method="video", bitrate_kbps="2000")
+    assert hi["kbps"] > 3 * lo["kbps"] and hi["psnr_db"] - lo["psnr_db"] > 3.0, (lo, hi)
+    # QUASAR table 1: prediction cuts the position error under lan (measured 11.4 cm -> 0.74 cm)
+    none, ca = get("quasar_t1", label="none"), get("quasar_t1", label="ca")
+    assert ca["pred_err_cm"] < 0.1 * none["pred_err_cm"], (none, ca)
+    for needle in ("SAS figure 13", "crossover point is already at 20 ms", "QUASAR table 4", "24.11 / 24.94 / 25.42 / 22.89",
+                   "9 ± 6 / 46 cm", "runs as 8 Hz"):
+        assert needle in sec.text_md, needle
