@@ -19,12 +19,15 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
+from splitrender.codecs.video import VideoCodecConfig, VideoEncoder, rgb_to_yuv
 from splitrender.protocol import (
     JitterBuffer,
     RtpPacket,
     RtpPacketizer,
     make_sdp,
+    nal_type,
     parameter_sets_from_sdp,
+    parse_fmtp,
     join_annexb,
     split_annexb,
 )
@@ -109,13 +112,20 @@ def _wait_bound(port: int, deadline_s: float) -> bool:
     return False
 
 
-@pytest.mark.parametrize("codec", ["h264", "hevc"])
-def test_ffmpeg_decodes_our_packets(codec: str, tmp_path: Path) -> None:
-    aus, ys = encode_clip(codec, N_FRAMES + EXTRA_FRAMES)
-    assert len(aus) == N_FRAMES + EXTRA_FRAMES
-    port = _free_port_pair()
+def _send_aus(codec: str, aus: list[bytes], port: int) -> None:
+    packetizer = RtpPacketizer(codec, ssrc=0x1234ABCD, payload_type=96, first_sequence=65500)  # type: ignore[arg-type]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for i, au in enumerate(aus):
+            for pkt in packetizer.packetize(au, 1000 + i * TS_STEP):
+                tx.sendto(bytes(pkt), ("127.0.0.1", port))
+                time.sleep(0.0005)
+            time.sleep(0.005)
+
+
+def _ffmpeg_cli_decode(codec: str, sdp: str, port: int, aus: list[bytes], tmp_path: Path) -> tuple[list[np.ndarray], str]:
+    """Y planes the ``ffmpeg`` CLI decodes from ``aus`` sent as RTP to ``port``, described by ``sdp``."""
     sdp_path = tmp_path / "stream.sdp"
-    sdp_path.write_text(make_sdp(codec, port, 96))
+    sdp_path.write_text(sdp)
     proc = subprocess.Popen(
         ["ffmpeg", "-hide_banner", "-loglevel", "error", "-threads", "1",
          "-protocol_whitelist", "file,udp,rtp",
@@ -126,13 +136,7 @@ def test_ffmpeg_decodes_our_packets(codec: str, tmp_path: Path) -> None:
     try:
         assert _wait_bound(port, 10.0), "ffmpeg did not open the RTP port"
         time.sleep(0.2)
-        packetizer = RtpPacketizer(codec, ssrc=0x1234ABCD, payload_type=96, first_sequence=65500)
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
-            for i, au in enumerate(aus):
-                for pkt in packetizer.packetize(au, 1000 + i * TS_STEP):
-                    tx.sendto(bytes(pkt), ("127.0.0.1", port))
-                    time.sleep(0.0005)
-                time.sleep(0.005)
+        _send_aus(codec, aus, port)
         try:
             out, err = proc.communicate(timeout=15)
         except subprocess.TimeoutExpired:
@@ -143,10 +147,84 @@ def test_ffmpeg_decodes_our_packets(codec: str, tmp_path: Path) -> None:
             proc.kill()
             proc.communicate(timeout=5)
     frame_size = WIDTH * HEIGHT * 3 // 2
-    n = len(out) // frame_size
-    assert n >= N_FRAMES - 1, f"ffmpeg decoded {n} frames: {err.decode(errors='replace')[-500:]}"
-    for i in range(n):
-        y = np.frombuffer(out, np.uint8, WIDTH * HEIGHT, i * frame_size).reshape(HEIGHT, WIDTH)
+    ys = [np.frombuffer(out, np.uint8, WIDTH * HEIGHT, i * frame_size).reshape(HEIGHT, WIDTH)
+          for i in range(len(out) // frame_size)]
+    return ys, err.decode(errors="replace")
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_ffmpeg_decodes_our_packets(codec: str, tmp_path: Path) -> None:
+    aus, ys = encode_clip(codec, N_FRAMES + EXTRA_FRAMES)
+    assert len(aus) == N_FRAMES + EXTRA_FRAMES
+    port = _free_port_pair()
+    got, err = _ffmpeg_cli_decode(codec, make_sdp(codec, port, 96), port, aus, tmp_path)  # type: ignore[arg-type]
+    assert len(got) >= N_FRAMES - 1, f"ffmpeg decoded {len(got)} frames: {err[-500:]}"
+    for i, y in enumerate(got):
+        assert psnr(y, ys[i]) > PSNR_MIN_DB, f"frame {i}"
+
+
+PARAMETER_SET_TYPES = {"h264": {7, 8}, "hevc": {32, 33, 34}}
+
+
+def _pipeline_clip(codec: str, n_frames: int) -> tuple[list[bytes], list[np.ndarray], tuple[bytes, ...]]:
+    """Access units of our own encoder with the in-band parameter sets removed, source Y planes, and
+    the parameter sets it reports (so a decoder can only get them from the SDP)."""
+    enc = VideoEncoder(VideoCodecConfig(codec=codec, crf=18, gop=N_FRAMES), WIDTH, HEIGHT)  # type: ignore[arg-type]
+    sets = enc.parameter_sets()
+    aus, ys = [], []
+    for i in range(n_frames):
+        img = _test_pattern(i)
+        data = enc.encode(img).data
+        nals = split_annexb(data)
+        if i == 0:
+            assert sets and all(n in nals for n in sets)
+        keep = [n for n in nals if nal_type(codec, n) not in PARAMETER_SET_TYPES[codec]]  # type: ignore[arg-type]
+        aus.append(join_annexb(keep))
+        ys.append(rgb_to_yuv(img, 2)[0])
+    return aus, ys, sets
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_ffmpeg_cli_decodes_with_the_parameter_sets_of_the_sdp_only(codec: str, tmp_path: Path) -> None:
+    """The AVPF / rtcp-mux SDP with sprop sets from our encoder: the ffmpeg CLI decodes a stream
+    that carries no parameter sets in-band (so the SDP's must be the right ones)."""
+    aus, ys, sets = _pipeline_clip(codec, N_FRAMES + EXTRA_FRAMES)
+    port = _free_port_pair()
+    sdp = make_sdp(codec, port, 96, parameter_sets=sets)  # type: ignore[arg-type]
+    assert "RTP/AVPF" in sdp and "a=rtcp-mux" in sdp and ("sprop-parameter-sets" in parse_fmtp(sdp) or codec == "hevc")
+    got, err = _ffmpeg_cli_decode(codec, sdp, port, aus, tmp_path)
+    assert len(got) >= N_FRAMES - 1, f"ffmpeg decoded {len(got)} frames: {err[-500:]}"
+    for i, y in enumerate(got):
+        limited = np.rint(16 + ys[i] * (219 / 255))  # our stream says full range; -pix_fmt yuv420p scales to limited
+        assert psnr(y, limited) > PSNR_MIN_DB, f"frame {i}"
+
+
+@pytest.mark.parametrize("codec", ["h264", "hevc"])
+def test_pyav_opens_the_sdp_and_decodes_with_its_parameter_sets(codec: str, tmp_path: Path) -> None:
+    """The same through PyAV's own FFmpeg libraries: ``av.open`` on the SDP file."""
+    aus, ys, sets = _pipeline_clip(codec, N_FRAMES + EXTRA_FRAMES)
+    port = _free_port_pair()
+    sdp_path = tmp_path / "stream.sdp"
+    sdp_path.write_text(make_sdp(codec, port, 96, parameter_sets=sets))  # type: ignore[arg-type]
+    def send() -> None:
+        if _wait_bound(port, 10.0):
+            time.sleep(0.3)
+            _send_aus(codec, aus, port)
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    got = []
+    with av.open(str(sdp_path), options={"protocol_whitelist": "file,udp,rtp", "reorder_queue_size": "0"},
+                 timeout=10.0) as container:
+        stream = container.streams.video[0]
+        assert (stream.codec_context.width, stream.codec_context.height) == (WIDTH, HEIGHT)  # from the sprop SPS
+        for frame in container.decode(stream):
+            got.append(frame.to_ndarray(format="yuv420p")[:HEIGHT].copy())
+            if len(got) == N_FRAMES - 1:
+                break
+    sender.join(timeout=10)
+    assert len(got) == N_FRAMES - 1
+    for i, y in enumerate(got):
         assert psnr(y, ys[i]) > PSNR_MIN_DB, f"frame {i}"
 
 

@@ -25,6 +25,7 @@ import concurrent.futures
 import json
 import logging
 import math
+import secrets
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -59,6 +60,7 @@ from splitrender.protocol import (
     serialize_rtcp,
 )
 from splitrender.protocol.errors import RtcpError
+from splitrender.protocol.rtcp import compound_feedback
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -388,7 +390,8 @@ class LiveClient:
 
     def _empty_rr(self) -> ReceiverReport:
         assert self.rx is not None
-        return ReceiverReport(0, tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.rx.streams.values() if s.ssrc))
+        blocks = tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.rx.streams.values() if s.ssrc)
+        return ReceiverReport(self._rtcp_identity()[0], blocks)
 
     # ------------------------------------------------------------------ poses
 
@@ -560,9 +563,24 @@ class LiveClient:
 
     # ------------------------------------------------------------------ RTCP out
 
+    _rtcp_id: tuple[int, bytes] | None = None
+
+    def _rtcp_identity(self) -> tuple[int, bytes]:
+        """This receiver's RTCP SSRC and CNAME (random per session, RFC 7022), chosen on first use."""
+        if self._rtcp_id is None:
+            media = {s.ssrc for s in self.rx.streams.values()} if self.rx is not None else set()
+            ssrc = 0
+            while ssrc == 0 or ssrc in media:
+                ssrc = secrets.randbits(32)
+            self._rtcp_id = (ssrc, f"splitrender-client-{secrets.token_hex(8)}".encode("ascii"))
+        return self._rtcp_id
+
     def _send_rtcp(self, packets: list[Any]) -> None:
+        """Send ``packets`` as one compound RTCP packet: a report first (an RR with no blocks
+        when none is due), the SDES CNAME, then NACKs and PLIs (RFC 3550 6.1, RFC 4585 3.1)."""
         if self.udp is not None and not self.udp.is_closing():
-            self.udp.sendto(serialize_rtcp(packets))
+            ssrc, cname = self._rtcp_identity()
+            self.udp.sendto(serialize_rtcp(compound_feedback(ssrc, cname, packets)))
             self.counters["rtcp_sent"] += 1
 
     async def _rtcp_loop(self) -> None:
@@ -585,14 +603,14 @@ class LiveClient:
             out: list[Any] = []
             if now - last_rr >= cfg.rr_interval_s:
                 last_rr = now
-                out.append(ReceiverReport(0, tuple(s.stats.report_block(now_ms) for s in self.rx.streams.values()
-                                                   if s.stats is not None)))
+                out.append(ReceiverReport(self._rtcp_identity()[0], tuple(
+                    s.stats.report_block(now_ms) for s in self.rx.streams.values() if s.stats is not None)))
             for rx in self.rx.streams.values():
                 if rx.jitter is None:
                     continue
                 nack = self._nack_list(rx, now_ms)
                 if nack:
-                    out.append(GenericNack(0, rx.ssrc, tuple(nack)))
+                    out.append(GenericNack(self._rtcp_identity()[0], rx.ssrc, tuple(nack)))
                     self.counters["nacks_sent"] += 1
                     self.counters["nacked_packets"] += len(nack)
                 first = self._first_packet_ms.get(rx.name)
@@ -600,7 +618,7 @@ class LiveClient:
                 if (rx.wants_keyframe or (rx.needs_keyframe and started)) \
                         and now_ms - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
                     self._last_pli_ms[rx.name] = now_ms
-                    out.append(PictureLossIndication(0, rx.ssrc))
+                    out.append(PictureLossIndication(self._rtcp_identity()[0], rx.ssrc))
                     self.counters["plis_sent"] += 1
             out.extend(self._check_stall(now))
             if out:

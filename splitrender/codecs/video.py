@@ -157,13 +157,20 @@ class VideoEncoder:
     """Encodes one stream of same-sized planes; ``encode`` returns exactly one frame per call."""
 
     def __init__(self, cfg: VideoCodecConfig, width: int, height: int) -> None:
-        import av
-
         if width <= 0 or height <= 0 or width % 2 or height % 2:
             raise ConfigError(f"video size {width}x{height}: width and height must be positive and even")
         self.cfg, self.width, self.height = cfg, width, height
         self._index = 0
         self._since_idr = 0
+        self._parameter_sets: tuple[bytes, ...] | None = None
+        self._yuv_sub = _YUV_FORMATS.get(cfg.pix_fmt) if cfg.input_format == "rgb24" else None
+        self._ctx = self._open(global_header=False)
+
+    def _open(self, global_header: bool):  # type: ignore[no-untyped-def]
+        """An opened encoder context for this configuration (``global_header``: headers in ``extradata``)."""
+        import av
+
+        cfg, width, height = self.cfg, self.width, self.height
         ctx = av.CodecContext.create(ENCODERS[cfg.codec], "w")
         ctx.width, ctx.height = width, height
         ctx.pix_fmt = cfg.pix_fmt
@@ -171,7 +178,8 @@ class VideoEncoder:
         ctx.framerate = Fraction(cfg.fps, 1)
         ctx.gop_size = cfg.gop
         ctx.max_b_frames = 0
-        self._yuv_sub = _YUV_FORMATS.get(cfg.pix_fmt) if cfg.input_format == "rgb24" else None
+        if global_header:
+            ctx.flags |= av.codec.context.Flags.global_header
         if cfg.input_format in ("rgb24", "gbrp10le", "gbrp16le"):  # colour: say what the samples mean
             ctx.color_primaries = COLOR_PRIMARIES_BT709
             ctx.color_trc = COLOR_TRC_SRGB
@@ -205,7 +213,36 @@ class VideoEncoder:
             ctx.open()
         except Exception as exc:
             raise CodecError(f"cannot open {ENCODERS[cfg.codec]} for {width}x{height} {cfg.pix_fmt}: {exc}") from exc
-        self._ctx = ctx
+        return ctx
+
+    @property
+    def parameter_sets_known(self) -> bool:
+        """:meth:`parameter_sets` has run (so calling it again costs nothing)."""
+        return self._parameter_sets is not None
+
+    def parameter_sets(self) -> tuple[bytes, ...]:
+        """The parameter set NAL units (H.264 SPS, PPS; HEVC VPS, SPS, PPS) this encoder sends before each IDR.
+
+        Read, without encoding a picture, from the ``extradata`` of a second context of the
+        same configuration opened with the global-header flag (the headers the encoder
+        would repeat in-band); the streaming context itself is left as it is.  Cached.
+        """
+        if self._parameter_sets is None:
+            ctx = self._open(global_header=True)
+            try:
+                extra = bytes(ctx.extradata or b"")
+            finally:
+                del ctx
+            keep = {7, 8} if self.cfg.codec == "h264" else {32, 33, 34}
+            nals = []
+            for nal in iter_nal_units(extra):
+                if not nal:
+                    continue
+                t = nal[0] & 0x1F if self.cfg.codec == "h264" else (nal[0] >> 1) & 0x3F
+                if t in keep:
+                    nals.append(bytes(nal))
+            self._parameter_sets = tuple(nals)
+        return self._parameter_sets
 
     def _frame(self, plane: np.ndarray):  # type: ignore[no-untyped-def]
         import av

@@ -17,6 +17,7 @@ virtual-time runner delays them through the network model.
 
 from __future__ import annotations
 
+import logging
 import secrets
 import time
 from dataclasses import dataclass, field
@@ -24,9 +25,12 @@ from typing import Any, Callable
 
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
-from ..protocol import DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp
+from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
+                        split_annexb)
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
                    datagram_wire_bytes, pack_envelope, rtp_format, stream_table)
+
+logger = logging.getLogger(__name__)
 
 FIRST_PAYLOAD_TYPE = 96
 """Dynamic RTP payload type of a session's first RTP stream (then 97, 98, ...)."""
@@ -78,6 +82,8 @@ class TxStream:
     payload_type: int = 0
     packetizer: RtpPacketizer | None = None
     encoder: VideoEncoder | None = None
+    sets_checked: bool = False
+    """The first IDR's in-band parameter sets were compared with the described ones."""
 
 
 class ServerPipeline:
@@ -113,13 +119,31 @@ class ServerPipeline:
     def rtp_streams(self) -> list[TxStream]:
         return [st for st in self.streams.values() if st.packetizer is not None]
 
+    def open_encoders(self) -> None:
+        """Open every video stream's encoder now (heavy: the live server runs it on its encoder
+        thread) and read the parameter sets it will send, for :meth:`describe`'s SDP."""
+        for st in self.streams.values():
+            if isinstance(st.spec, StreamSpec) and st.encoder is None:
+                st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
+            if st.encoder is not None:
+                st.encoder.parameter_sets()
+
+    def parameter_sets(self, name: str) -> tuple[bytes, ...]:
+        """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open_encoders`)."""
+        enc = self.streams[name].encoder
+        return enc.parameter_sets() if enc is not None else ()
+
     def describe(self, host: str, port: int, session_name: str) -> tuple[StreamDescription, ...]:
-        """``Welcome.streams``: one description per RTP stream (SDP for video streams)."""
+        """``Welcome.streams``: one description per RTP stream (SDP for video streams).
+
+        After :meth:`open_encoders` a video stream's SDP carries the parameter sets and the
+        profile and level its encoder sends; before, only what the codec alone says.
+        """
         out = []
         for st in self.rtp_streams:
             fmt = rtp_format(st.spec)
-            sdp = make_sdp(fmt, port, st.payload_type, address=host, session_name=f"{session_name} {st.spec.name}") \
-                if fmt != "data" else ""
+            sdp = make_sdp(fmt, port, st.payload_type, address=host, session_name=f"{session_name} {st.spec.name}",
+                           parameter_sets=self.parameter_sets(st.spec.name)) if fmt != "data" else ""
             out.append(StreamDescription(st.spec.name, fmt, st.ssrc, st.payload_type, port, sdp))  # type: ignore[arg-type]
         return tuple(out)
 
@@ -151,7 +175,14 @@ class ServerPipeline:
                 raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
             if st.encoder is None:
                 st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
-            video[name] = st.encoder.encode(plane, force_idr=force_idr)
+            video[name] = ef = st.encoder.encode(plane, force_idr=force_idr)
+            if ef.keyframe and not st.sets_checked and st.encoder.parameter_sets_known:
+                st.sets_checked = True
+                described = st.encoder.parameter_sets()
+                missing = [n for n in described if n not in split_annexb(ef.data)]
+                if missing:  # the SDP's sprop sets would disagree with the stream
+                    logger.warning("stream %s: %d of the parameter sets in the SDP are not in the first IDR",
+                                   name, len(missing))
         for name, payload in update.data.items():
             st = self.streams.get(name)
             if st is None or not isinstance(st.spec, DataStreamSpec):

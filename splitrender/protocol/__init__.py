@@ -80,14 +80,18 @@ from splitrender.protocol.rtcp import (
     RetransmissionHistory,
     RtcpPacket,
     RtcpUnknown,
+    SdesChunk,
     SenderReport,
+    SourceDescription,
+    compound_feedback,
     ntp_from_seconds,
     ntp_middle32,
     parse_rtcp,
     serialize_rtcp,
 )
 from splitrender.protocol.rtp import RtpPacket, SequenceUnwrapper, is_rtcp, seq_add, seq_diff, seq_lt
-from splitrender.protocol.sdp import make_sdp, parameter_sets_from_sdp, parse_fmtp
+from splitrender.protocol.sdp import make_sdp, parameter_sets_from_sdp, parse_fmtp, sdp_attributes
+from splitrender.protocol.sps import H264Sps, HevcSps, parse_h264_sps, parse_hevc_sps
 
 __all__ = [
     # messages / framing / session
@@ -110,8 +114,10 @@ __all__ = [
     "AccessUnit", "JitterBuffer",
     # RTCP
     "ReportBlock", "SenderReport", "ReceiverReport", "GenericNack", "PictureLossIndication",
-    "RtcpUnknown", "RtcpPacket", "parse_rtcp", "serialize_rtcp", "ntp_from_seconds",
+    "RtcpUnknown", "RtcpPacket", "SdesChunk", "SourceDescription", "compound_feedback",
+    "parse_rtcp", "serialize_rtcp", "ntp_from_seconds",
     "ntp_middle32", "ReceiverStatistics", "RetransmissionHistory", "KeyframeRateLimiter",
     # SDP
-    "make_sdp", "parse_fmtp", "parameter_sets_from_sdp",
+    "make_sdp", "parse_fmtp", "parameter_sets_from_sdp", "sdp_attributes",
+    "H264Sps", "HevcSps", "parse_h264_sps", "parse_hevc_sps",
 ]

@@ -1,9 +1,12 @@
 """RTCP (RFC 3550 section 6, RFC 4585 feedback) packets and sans-IO helpers.
 
-Packets: sender report (SR, PT 200), receiver report (RR, 201), generic NACK
-(RTPFB, PT 205, FMT 1) and picture loss indication (PSFB, PT 206, FMT 1); other types
-parse as :class:`RtcpUnknown`.  Helpers: :class:`ReceiverStatistics` (RFC 3550 A.1,
-A.3, A.8), :class:`RetransmissionHistory`, :class:`KeyframeRateLimiter`.
+Packets: sender report (SR, PT 200), receiver report (RR, 201), source description
+(SDES, 202), generic NACK (RTPFB, PT 205, FMT 1) and picture loss indication (PSFB,
+PT 206, FMT 1); other types parse as :class:`RtcpUnknown`.  :func:`compound_feedback`
+builds the compound packet RFC 3550 6.1 and RFC 4585 3.1 ask of a receiver: a report
+first (an RR, with zero report blocks when none is due), then SDES with the CNAME,
+then the feedback messages.  Helpers: :class:`ReceiverStatistics` (RFC 3550 A.1, A.3,
+A.8), :class:`RetransmissionHistory`, :class:`KeyframeRateLimiter`.
 """
 
 from __future__ import annotations
@@ -31,12 +34,16 @@ __all__ = [
     "ReportBlock",
     "SenderReport",
     "ReceiverReport",
+    "SdesChunk",
+    "SourceDescription",
+    "SDES_CNAME",
     "GenericNack",
     "PictureLossIndication",
     "RtcpUnknown",
     "RtcpPacket",
     "parse_rtcp",
     "serialize_rtcp",
+    "compound_feedback",
     "ntp_from_seconds",
     "ntp_middle32",
     "ReceiverStatistics",
@@ -55,6 +62,7 @@ RTCP_RTPFB: Final = 205
 RTCP_PSFB: Final = 206
 RTPFB_NACK: Final = 1
 PSFB_PLI: Final = 1
+SDES_CNAME: Final = 1
 
 RTCP_VERSION: Final = 2
 _HEADER: Final = struct.Struct("!BBH")
@@ -151,6 +159,38 @@ class ReceiverReport:
 
 
 @dataclass(frozen=True, slots=True)
+class SdesChunk:
+    """One SDES chunk: a source and its items as (type, value) pairs (RFC 3550 6.5)."""
+
+    ssrc: int
+    items: tuple[tuple[int, bytes], ...] = ()
+
+    def __bytes__(self) -> bytes:
+        out = bytearray(struct.pack("!I", self.ssrc))
+        for kind, value in self.items:
+            if not 1 <= kind <= 255 or len(value) > 255:
+                raise ValueError(f"SDES item type {kind} with {len(value)} bytes is not encodable")
+            out += bytes((kind, len(value))) + value
+        out += b"\x00" * (4 - len(out) % 4)  # the null item ends the list, then pad to 32 bits
+        return bytes(out)
+
+    @property
+    def cname(self) -> bytes | None:
+        return next((v for k, v in self.items if k == SDES_CNAME), None)
+
+
+@dataclass(frozen=True, slots=True)
+class SourceDescription:
+    """RTCP SDES (PT 202)."""
+
+    chunks: tuple[SdesChunk, ...]
+
+    def __bytes__(self) -> bytes:
+        body = b"".join(bytes(c) for c in self.chunks)
+        return _header(len(self.chunks), RTCP_SDES, len(body)) + body
+
+
+@dataclass(frozen=True, slots=True)
 class GenericNack:
     """RTPFB FMT 1 (RFC 4585 6.2.1): ``lost`` sequence numbers of ``media_ssrc``."""
 
@@ -198,12 +238,55 @@ class RtcpUnknown:
         return _header(self.count, self.packet_type, len(self.body)) + self.body
 
 
-RtcpPacket = Union[SenderReport, ReceiverReport, GenericNack, PictureLossIndication, RtcpUnknown]
+RtcpPacket = Union[SenderReport, ReceiverReport, SourceDescription, GenericNack, PictureLossIndication, RtcpUnknown]
 
 
 def serialize_rtcp(packets: Iterable[RtcpPacket]) -> bytes:
     """A compound RTCP packet."""
     return b"".join(bytes(p) for p in packets)
+
+
+def compound_feedback(ssrc: int, cname: bytes, packets: Iterable[RtcpPacket]) -> list[RtcpPacket]:
+    """``packets`` as a valid compound RTCP packet from receiver ``ssrc`` (RFC 3550 6.1, RFC 4585 3.1).
+
+    Reports (SR/RR) in ``packets`` go first, or an RR with no report blocks when there is
+    none; then an SDES with ``cname`` (unless ``packets`` has one); then the rest
+    (feedback messages) in their order.
+    """
+    packets = list(packets)
+    reports = [p for p in packets if isinstance(p, (SenderReport, ReceiverReport))]
+    sdes = [p for p in packets if isinstance(p, SourceDescription)]
+    rest = [p for p in packets if not isinstance(p, (SenderReport, ReceiverReport, SourceDescription))]
+    if not reports:
+        reports = [ReceiverReport(ssrc)]
+    if not sdes:
+        sdes = [SourceDescription((SdesChunk(ssrc, ((SDES_CNAME, cname),)),))]
+    return [*reports, *sdes, *rest]
+
+
+def _sdes(data: bytes, pos: int, body_end: int, count: int) -> SourceDescription:
+    chunks = []
+    at = pos + 4
+    for k in range(count):
+        if at + 4 > body_end:
+            raise RtcpError(f"RTCP SDES at offset {pos}: chunk {k} of {count} runs past the packet")
+        (ssrc,) = struct.unpack_from("!I", data, at)
+        at += 4
+        items = []
+        while True:
+            if at >= body_end:
+                raise RtcpError(f"RTCP SDES at offset {pos}: chunk {k} has no terminating null item")
+            kind = data[at]
+            if kind == 0:
+                at = (at + 4) & ~3  # the null item and padding to the next 32-bit boundary
+                break
+            if at + 2 > body_end or at + 2 + data[at + 1] > body_end:
+                raise RtcpError(f"RTCP SDES at offset {pos}: item of type {kind} runs past the packet")
+            n = data[at + 1]
+            items.append((kind, bytes(data[at + 2:at + 2 + n])))
+            at += 2 + n
+        chunks.append(SdesChunk(ssrc, tuple(items)))
+    return SourceDescription(tuple(chunks))
 
 
 def _blocks(data: bytes, pos: int, end: int, count: int, name: str) -> tuple[ReportBlock, ...]:
@@ -249,6 +332,8 @@ def parse_rtcp(data: bytes) -> list[RtcpPacket]:
                 raise RtcpError(f"RTCP RR at offset {pos} truncated: body needs 4 bytes")
             (ssrc,) = struct.unpack_from("!I", data, body)
             packets.append(ReceiverReport(ssrc, _blocks(data, body + 4, body_end, count, "RR")))
+        elif pt == RTCP_SDES:
+            packets.append(_sdes(data, pos, body_end, count))
         elif pt in (RTCP_RTPFB, RTCP_PSFB) and count in (RTPFB_NACK, PSFB_PLI):
             if body + 8 > body_end:
                 raise RtcpError(f"RTCP feedback at offset {pos} truncated: body needs 8 bytes")

@@ -1,5 +1,13 @@
 """SDP (RFC 4566) descriptions of one RTP video stream, as FFmpeg/PyAV open them.
 
+The media line is ``RTP/AVPF`` (RFC 4585): the receiver sends generic NACKs and PLIs
+(``a=rtcp-fb:<pt> nack`` and ``nack pli``), RTP and RTCP share one port
+(``a=rtcp-mux``, RFC 5761).  With the parameter sets the encoder sends, the ``fmtp``
+line names the stream exactly: H.264 (RFC 6184) ``profile-level-id`` from the SPS and
+``sprop-parameter-sets``; HEVC (RFC 7798) ``profile-id``, ``tier-flag``, ``level-id``
+(and ``profile-space`` when not 0) from the SPS, and ``sprop-vps/sps/pps``.  The stream
+repeats them in-band before every IDR as well.
+
 Open the file with ``av.open(path, options={"protocol_whitelist": "file,udp,rtp"})``
 or ``ffmpeg -protocol_whitelist file,udp,rtp -i stream.sdp``.
 """
@@ -13,8 +21,9 @@ from collections.abc import Sequence
 
 from splitrender.protocol.annexb import Codec, nal_type
 from splitrender.protocol.errors import SdpError
+from splitrender.protocol.sps import nal_to_rbsp, parse_hevc_sps
 
-__all__ = ["RTPMAP_NAMES", "make_sdp", "parse_fmtp", "parameter_sets_from_sdp"]
+__all__ = ["RTPMAP_NAMES", "make_sdp", "parse_fmtp", "parameter_sets_from_sdp", "sdp_attributes"]
 
 RTPMAP_NAMES: dict[str, str] = {"h264": "H264", "hevc": "H265"}
 CLOCK_RATE_HZ = 90000
@@ -37,21 +46,37 @@ def make_sdp(
     """SDP text for one video stream received on ``address:port``.
 
     ``parameter_sets`` are optional NAL units (H.264 SPS/PPS, HEVC VPS/SPS/PPS) put in
-    ``sprop-*`` fmtp parameters; without them the stream must carry them in-band.
+    ``sprop-*`` fmtp parameters, and whose SPS gives the profile and level parameters;
+    other NAL types are left out.  Without them the fmtp line says only
+    ``packetization-mode=1`` (H.264) and the stream must carry them in-band.  Pass the
+    sets the encoder actually sends (:meth:`splitrender.codecs.video.VideoEncoder.parameter_sets`).
     """
     if codec not in RTPMAP_NAMES:
         raise ValueError(f"unknown codec {codec!r}")
     ip = ipaddress.ip_address(address)
     net = "IP4" if ip.version == 4 else "IP6"
     fmtp: list[str] = []
+    parameter_sets = [n for n in parameter_sets if n]
     if codec == "h264":
         fmtp.append("packetization-mode=1")
         sps = [n for n in parameter_sets if nal_type("h264", n) == H264_SPS]
-        if sps and len(sps[0]) >= 4:
-            fmtp.append(f"profile-level-id={sps[0][1:4].hex()}")
-        if parameter_sets:
-            fmtp.append("sprop-parameter-sets=" + ",".join(_b64(n) for n in parameter_sets))
+        pps = [n for n in parameter_sets if nal_type("h264", n) == H264_PPS]
+        rbsp = nal_to_rbsp(sps[0][1:8]) if sps else b""
+        if len(rbsp) >= 3:  # profile_idc, constraint flags, level_idc: the RBSP's first three bytes
+            fmtp.append(f"profile-level-id={rbsp[:3].hex()}")
+        if sps or pps:
+            fmtp.append("sprop-parameter-sets=" + ",".join(_b64(n) for n in (*sps, *pps)))
     else:
+        sps = [n for n in parameter_sets if nal_type("hevc", n) == HEVC_SPS]
+        if sps:
+            try:
+                info = parse_hevc_sps(sps[0])
+            except SdpError:
+                info = None
+            if info is not None:
+                if info.profile_space:
+                    fmtp.append(f"profile-space={info.profile_space}")
+                fmtp += [f"profile-id={info.profile_idc}", f"tier-flag={info.tier_flag}", f"level-id={info.level_idc}"]
         for name, t in (("vps", HEVC_VPS), ("sps", HEVC_SPS), ("pps", HEVC_PPS)):
             sets = [n for n in parameter_sets if nal_type("hevc", n) == t]
             if sets:
@@ -62,12 +87,25 @@ def make_sdp(
         f"s={session_name}",
         f"c=IN {net} {address}",
         "t=0 0",
-        f"m=video {port} RTP/AVP {payload_type}",
+        f"m=video {port} RTP/AVPF {payload_type}",
         f"a=rtpmap:{payload_type} {RTPMAP_NAMES[codec]}/{CLOCK_RATE_HZ}",
     ]
     if fmtp:
         lines.append(f"a=fmtp:{payload_type} " + "; ".join(fmtp))
+    lines += [f"a=rtcp-fb:{payload_type} nack", f"a=rtcp-fb:{payload_type} nack pli", "a=rtcp-mux"]
     return "\r\n".join(lines) + "\r\n"
+
+
+def sdp_attributes(sdp: str, name: str) -> list[str]:
+    """Values of every ``a=<name>:<value>`` line (``""`` for a flag ``a=<name>``)."""
+    out = []
+    for line in sdp.splitlines():
+        line = line.strip()
+        if line == f"a={name}":
+            out.append("")
+        elif line.startswith(f"a={name}:"):
+            out.append(line[len(name) + 3:])
+    return out
 
 
 def parse_fmtp(sdp: str) -> dict[str, str]:

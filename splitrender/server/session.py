@@ -281,6 +281,7 @@ class ServerSession:
                 raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
                                           f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
         self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken)
+        await server.in_encoder(self.tx.open_encoders)  # the SDP names the parameter sets the encoders send
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
         for st in self.tx.rtp_streams:
@@ -306,8 +307,10 @@ class ServerSession:
         path = self.cfg.sdp_dir / f"{self.id}_{stream.spec.name}.sdp"
         path.parent.mkdir(parents=True, exist_ok=True)
         assert isinstance(stream.spec, StreamSpec)
+        assert self.tx is not None
         path.write_text(make_sdp(stream.spec.codec.codec, port, stream.payload_type,
-                                 session_name=f"splitrender {self.id} {stream.spec.name}"))
+                                 session_name=f"splitrender {self.id} {stream.spec.name}",
+                                 parameter_sets=self.tx.parameter_sets(stream.spec.name)))
         logger.info("session %s: wrote %s (stream %s on udp port %d)", self.id, path, stream.spec.name, port)
 
     # ------------------------------------------------------------------ control
