@@ -5,7 +5,8 @@ first run renders the ground truth and the other three read it; a second demo in
 fresh result folder (same cache) reads every frame.  Runs are serial (one worker) so
 the comparison does not depend on how many cores are free.
 
-Writes ``benchmarks/results/bench_truth_cache.json``.  Run: ``python benchmarks/bench_truth_cache.py``.
+Writes ``benchmarks/results/bench_truth_cache.json``.  Run: ``python benchmarks/bench_truth_cache.py``;
+``--sweep24`` instead times a 24-run sweep on a 2-process pool (``bench_truth_cache_sweep24.json``).
 Other work on the machine skews wall-clock numbers: the JSON records the load average.
 """
 
@@ -127,5 +128,45 @@ def main() -> None:
     print(json.dumps(out, indent=2))
 
 
+SWEEP_METHODS = ("video", "atw", "warp", "sas")
+SWEEP_NETWORKS = ("ideal", "lan", "cloud")
+SWEEP_SEEDS = (0, 1)
+SWEEP_BASE: dict = dict(BASE, duration_s=0.5, flip_every=0)
+
+
+def sweep24() -> None:
+    """A 24-run sweep (4 methods x 3 networks x 2 seeds, one trace) on a 2-process pool, without the
+    cache and with a cold one (its processes share the file store); writes ``bench_truth_cache_sweep24.json``."""
+    cfgs = {arm: [RunConfig.from_dict({**SWEEP_BASE, "method": m, "network": n, "seed": sd, "truth_cache": setting})
+                  for m in SWEEP_METHODS for n in SWEEP_NETWORKS for sd in SWEEP_SEEDS]
+            for arm, setting in (("no_cache", ""), ("cold_cache", "<tmp>"))}
+    walls, scores = {}, {}
+    with tempfile.TemporaryDirectory() as cache:
+        for arm, cs in cfgs.items():
+            cs = [c.replace(truth_cache=cache) if c.truth_cache == "<tmp>" else c for c in cs]
+            with tempfile.TemporaryDirectory(prefix="bench-sweep-") as d:
+                t0 = time.perf_counter()
+                res = run_configs(cs, ResultStore(d), workers=2)
+                walls[arm] = time.perf_counter() - t0
+                if res.failures:
+                    raise RuntimeError(f"bench: {len(res.failures)} runs failed: {res.failures[0].error}")
+                scores[arm] = _summaries(Path(d))
+        n_files = sum(1 for _ in Path(cache).rglob("*.srgt"))
+    same = len(scores["no_cache"]) == len(scores["cold_cache"]) == 24 and all(
+        all(a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])) for k in SCORES)
+        for a, b in zip(scores["no_cache"], scores["cold_cache"]))
+    out = {
+        "what": (f"24-run sweep: {', '.join(SWEEP_METHODS)} x {', '.join(SWEEP_NETWORKS)} x seeds {SWEEP_SEEDS} on "
+                 f"{SWEEP_BASE['scene']}/{SWEEP_BASE['trace']}, {SWEEP_BASE['duration_s']} s at "
+                 f"{SWEEP_BASE['width']}x{SWEEP_BASE['height']}, 2-process pool, no FLIP"),
+        "wall_s_no_cache": walls["no_cache"], "wall_s_cold_cache": walls["cold_cache"],
+        "speedup": walls["no_cache"] / walls["cold_cache"], "cached_frames": n_files, "identical_scores": same,
+        "loadavg": os.getloadavg(), "cpus": os.cpu_count(), "python": platform.python_version(),
+    }
+    path = RESULTS.with_name("bench_truth_cache_sweep24.json")
+    path.write_text(json.dumps(out, indent=2) + "\n")
+    print(json.dumps(out, indent=2))
+
+
 if __name__ == "__main__":
-    main()
+    sweep24() if "--sweep24" in sys.argv[1:] else main()
