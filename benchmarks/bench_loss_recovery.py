@@ -16,8 +16,9 @@ relative to the lossless run, the longest time between two new updates on screen
 (the freeze), the update age's 95th percentile, and the client's NACK, PLI and stall
 counters.  Writes ``benchmarks/results/bench_loss_recovery.json``.
 
-Measured (5 s, 320x180, seed 1): lossless 145/146 shown, longest freeze 64 ms; 2% loss 70/124
-(57%), longest freeze 335 ms, 23 packets lost and 23 NACKed; bursty 23/122, freeze 1.16 s.
+Measured twice (5 s, 320x180, seed 1; the share moves with the machine's load): lossless 86-99%
+shown, longest freeze 64-71 ms; 2% loss 48-57%, longest freeze 303-335 ms, every lost packet
+NACKed; bursty 14-19%, freeze 0.80-1.16 s.
 Retransmissions arrive 40-70 ms after the NACK, but H.264 frames decode in order, so each
 loss holds the next two or three frames until the retransmission lands and they then reach
 the display within one tick, where only the newest is shown.  NACK alone therefore misses
