@@ -218,51 +218,36 @@ def run(out_dir: Path, quick: bool) -> Section:
     def by(exp: str) -> list[dict[str, Any]]:
         return [r for r in rows if r["experiment"] == exp]
 
-    # figure 13
-    r13 = by("sas_fig13")
-    if r13:
+    def psnr_ssim(rs: list[dict[str, Any]], methods: Any, xkey: str, xlabel: str, title: str, name: str,
+                  style_x: Any = None) -> None:
+        """One SAS figure: PSNR and SSIM against ``xkey``, a line per method."""
+        if not rs:
+            return
         fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
-        for m in g["fig13_methods"]:
-            pts = sorted((r["latency_ms"], r["psnr_db"], r["ssim"]) for r in r13 if r["method"] == m)
+        for m in methods:
+            pts = sorted((r[xkey], r["psnr_db"], r["ssim"]) for r in rs if r["method"] == m)
             ax[0].plot([p[0] for p in pts], [p[1] for p in pts], marker=markers.get(m, "o"), label=m)
             ax[1].plot([p[0] for p in pts], [p[2] for p in pts], marker=markers.get(m, "o"), label=m)
         for a, yl in ((ax[0], "PSNR, dB"), (ax[1], "SSIM (sigma 2)")):
-            a.set_xlabel("one-way latency, ms")
+            if style_x is not None:
+                style_x(a)
+            a.set_xlabel(xlabel)
             a.set_ylabel(yl)
         ax[0].legend(fontsize=8)
-        fig.suptitle(f"SAS fig. 13: quality vs latency (server {s13} Hz, client {c13} Hz)", fontsize=10)
-        figs.append(_save(fig, out_dir / "papers_sas_fig13.png"))
-    # figure 14
-    r14 = by("sas_fig14")
-    if r14:
-        fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
-        for m in g["fig14_methods"]:
-            pts = sorted((r["server_fps"], r["psnr_db"], r["ssim"]) for r in r14 if r["method"] == m)
-            ax[0].plot([p[0] for p in pts], [p[1] for p in pts], marker=markers.get(m, "o"), label=m)
-            ax[1].plot([p[0] for p in pts], [p[2] for p in pts], marker=markers.get(m, "o"), label=m)
-        for a, yl in ((ax[0], "PSNR, dB"), (ax[1], "SSIM (sigma 2)")):
-            a.set_xscale("log", base=2)
-            a.set_xticks(list(g["fig14_server_fps"]), [("7.5 (8)" if s == 8 else str(s)) for s in g["fig14_server_fps"]])
-            a.set_xlabel(f"server Hz (client {c14} Hz)")
-            a.set_ylabel(yl)
-        ax[0].legend(fontsize=8)
-        fig.suptitle("SAS fig. 14: quality vs server rate, zero latency", fontsize=10)
-        figs.append(_save(fig, out_dir / "papers_sas_fig14.png"))
-    # figure 15
-    r15 = by("sas_fig15")
-    if r15:
-        fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
-        for m in g["fig15_methods"]:
-            pts = sorted((r["kbps"], r["psnr_db"], r["ssim"]) for r in r15 if r["method"] == m)
-            ax[0].plot([p[0] for p in pts], [p[1] for p in pts], marker=markers.get(m, "o"), label=m)
-            ax[1].plot([p[0] for p in pts], [p[2] for p in pts], marker=markers.get(m, "o"), label=m)
-        for a, yl in ((ax[0], "PSNR, dB"), (ax[1], "SSIM (sigma 2)")):
-            a.set_xscale("log")
-            a.set_xlabel("measured bitrate, kbit/s")
-            a.set_ylabel(yl)
-        ax[0].legend(fontsize=8)
-        fig.suptitle(f"SAS fig. 15: rate-distortion (server {s15} Hz, client {c15} Hz, zero latency)", fontsize=10)
-        figs.append(_save(fig, out_dir / "papers_sas_fig15.png"))
+        fig.suptitle(title, fontsize=10)
+        figs.append(_save(fig, out_dir / name))
+
+    def fig14_axis(a: Any) -> None:
+        a.set_xscale("log", base=2)
+        a.set_xticks(list(g["fig14_server_fps"]), [("7.5 (8)" if s == 8 else str(s)) for s in g["fig14_server_fps"]])
+
+    psnr_ssim(by("sas_fig13"), g["fig13_methods"], "latency_ms", "one-way latency, ms",
+              f"SAS fig. 13: quality vs latency (server {s13} Hz, client {c13} Hz)", "papers_sas_fig13.png")
+    psnr_ssim(by("sas_fig14"), g["fig14_methods"], "server_fps", f"server Hz (client {c14} Hz)",
+              "SAS fig. 14: quality vs server rate, zero latency", "papers_sas_fig14.png", fig14_axis)
+    psnr_ssim(by("sas_fig15"), g["fig15_methods"], "kbps", "measured bitrate, kbit/s",
+              f"SAS fig. 15: rate-distortion (server {s15} Hz, client {c15} Hz, zero latency)", "papers_sas_fig15.png",
+              lambda a: a.set_xscale("log"))
     # table 4: ours and the paper's (mean of its four scenes)
     r4 = by("quasar_t4")
     if r4:
