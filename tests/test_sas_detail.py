@@ -68,8 +68,8 @@ def _still(renderer, scene: str, method: str) -> float:  # type: ignore[no-untyp
 # 4x anisotropic filtering in the ground truth: BoxTextured 40.65 / 40.93, minimal 29.29 / 42.02, default
 # 28.41 / 32.21.  Now the textures are filtered trilinearly (llvmpipe's anisotropic path stalled whole runs,
 # see render/renderer.py TEXTURE_ANISOTROPY): BoxTextured 38.99 / 40.72, minimal 27.79 / 42.07, default
-# 28.81 / 32.16.  The atlas's textureGrad footprint is now honoured by the sampler, and it blurs the checker
-# textures more than the display's own trilinear lookup: the gap is issue 15's to close.
+# 28.81 / 32.16.  The atlas's footprint scaling is not the cause of the gap: without it BoxTextured stays at
+# 38.99 and minimal/default drop 0.4 dB.  The cause is not identified yet (issue 15).
 STILL = [(BOX_TEXTURED, 38.7, 2.0), ("minimal", 27.5, 14.6), ("default", 28.5, 3.7)]
 
 
