@@ -362,3 +362,23 @@ async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(t
     rec = json.loads((tmp_path / "recording.json").read_text())
     assert rec["complete"] is False and "StreamStalledError" in rec["error"]
     assert (tmp_path / "frames.csv").read_text().count("\n") > 10
+
+
+async def test_periodic_metrics_lines_and_drop_counters(tmp_path: Path, caplog) -> None:  # type: ignore[no-untyped-def]
+    """Server and client log a ``metrics`` line every ``metrics_interval_s``; the client's counters carry each
+    jitter buffer's drops (late packets, frames given up, dropped waiting for a keyframe, corrupt)."""
+    import logging
+
+    caplog.set_level(logging.INFO)
+    result, _, counters = await _run_through_relay(tmp_path, "loss 3%", seed=2, server_kw={"metrics_interval_s": 0.5},
+                                                   duration_s=2.0, metrics_interval_s=0.5)
+    server_lines = [r.getMessage() for r in caplog.records if r.name.startswith("splitrender.server")
+                    and r.getMessage().startswith("metrics session=")]
+    client_lines = [r.getMessage() for r in caplog.records if r.name.startswith("splitrender.client")
+                    and r.getMessage().startswith("metrics session=")]
+    assert len(server_lines) >= 2 and "frames_sent=" in server_lines[-1] and "server_udp_dropped=" in server_lines[-1]
+    assert len(client_lines) >= 2 and "color_packets_late=" in client_lines[-1] and "nacks_sent=" in client_lines[-1]
+    c = result.counters
+    for k in ("packets_late", "frames_lost", "frames_dropped", "frames_corrupt"):
+        assert f"color_{k}" in c, sorted(c)
+    assert c["nacks_sent"] > 0, c  # the loss was seen and reported

@@ -32,6 +32,8 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--score", action="store_true", help="score the recording afterwards (implies --save-images)")
     p.add_argument("--stall-frames", type=float, default=6.0,
                    help="no new frame for this many server frame intervals: log, count and ask for a keyframe (default 6)")
+    p.add_argument("--metrics-interval", type=float, default=5.0,
+                   help="seconds between `metrics` log lines (counters, drops included; 0 = never; default 5)")
     p.add_argument("--stall-timeout", type=float, default=5.0,
                    help="seconds without a frame after which the session ends with an error (default 5)")
 
@@ -49,6 +51,8 @@ def config_from_args(ns: argparse.Namespace) -> object:
             raise ConfigError(f"{opt}: must be in [1, 65535], got {port}")
     if not 0.5 <= ns.stall_frames <= 10_000:
         raise ConfigError(f"--stall-frames: must be in [0.5, 10000], got {ns.stall_frames}")
+    if not 0 <= ns.metrics_interval <= 3600:
+        raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     if not 0.1 <= ns.stall_timeout <= 3600:
         raise ConfigError(f"--stall-timeout: must be in [0.1, 3600] s, got {ns.stall_timeout}")
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
@@ -57,7 +61,7 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
-                        stall_timeout_s=ns.stall_timeout)
+                        stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval)
 
 
 def main_client(ns: argparse.Namespace) -> int:

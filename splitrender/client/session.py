@@ -123,6 +123,8 @@ class ClientConfig:
     """No new frame for this many server frame intervals is a stall: logged, counted, a keyframe requested."""
     stall_timeout_s: float = 5.0
     """A stall this long ends the session with :class:`StreamStalledError` (a non-zero exit)."""
+    metrics_interval_s: float = 5.0
+    """Log a ``metrics`` line (the counters, the jitter buffers' drops included) this often; 0 = never."""
 
 
 @dataclass
@@ -262,7 +264,7 @@ class LiveClient:
         except BaseException as exc:
             await self._release()
             if self._journal is not None:  # a broken session: keep what was recorded, marked incomplete
-                result = ClientResult(self.rows, dict(self.counters), {**self._recording(), "complete": False,
+                result = ClientResult(self.rows, self._all_counters(), {**self._recording(), "complete": False,
                                       "error": f"{type(exc).__name__}: {exc}"}, list(self.meta_ids), cfg.out_dir)
                 self._finish_recording(result)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
@@ -271,7 +273,7 @@ class LiveClient:
         await self._release()
         logger.info("session %s: client done: %d displayed rows, %s", self.session_id, len(self.rows),
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(self.rows, dict(self.counters), {**self._recording(), "complete": True}, list(self.meta_ids),
+        result = ClientResult(self.rows, self._all_counters(), {**self._recording(), "complete": True}, list(self.meta_ids),
                               cfg.out_dir)
         if cfg.out_dir is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._finish_recording, result)
@@ -525,6 +527,18 @@ class LiveClient:
                 self.counters["updates_dropped_ready"] += 1
                 self._pending_apply.append(dropped)  # still applied (in order) so the half's state stays consistent
 
+    def _all_counters(self) -> dict[str, Any]:
+        """The session counters plus, per RTP stream, what its jitter buffer dropped: late packets,
+        frames given up (timeout or overflow), frames dropped waiting for a keyframe, corrupt frames."""
+        out = dict(self.counters)
+        if self.rx is not None:
+            for rx in self.rx.streams.values():
+                j = rx.jitter
+                if j is not None:
+                    out.update({f"{rx.name}_packets_late": j.packets_late, f"{rx.name}_frames_lost": j.frames_lost,
+                                f"{rx.name}_frames_dropped": j.frames_dropped, f"{rx.name}_frames_corrupt": j.frames_corrupt})
+        return out
+
     def _on_frame(self, now: float) -> None:
         if self._stalled_since is not None:
             ms = (now - self._stalled_since) * 1000 + self._stall_after_s() * 1000
@@ -585,7 +599,7 @@ class LiveClient:
 
     async def _rtcp_loop(self) -> None:
         cfg = self.cfg
-        last_bind = last_rr = time.monotonic()
+        last_bind = last_rr = last_metrics = time.monotonic()
         while True:
             await asyncio.sleep(RTCP_TICK_S)
             now = time.monotonic()
@@ -621,6 +635,10 @@ class LiveClient:
                     out.append(PictureLossIndication(self._rtcp_identity()[0], rx.ssrc))
                     self.counters["plis_sent"] += 1
             out.extend(self._check_stall(now))
+            if cfg.metrics_interval_s > 0 and now - last_metrics >= cfg.metrics_interval_s:
+                last_metrics = now
+                logger.info("metrics session=%s %s", self.session_id,
+                            " ".join(f"{k}={v}" for k, v in self._all_counters().items()))
             if out:
                 self._send_rtcp(out)
 

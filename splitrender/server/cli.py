@@ -38,6 +38,8 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mirror-port", type=int, default=None,
                    help="with --sdp-dir: also send each stream to 127.0.0.1:PORT+2k for ffplay")
     p.add_argument("--out", type=Path, default=None, help="write per-session feedback.csv (latency per frame) here")
+    p.add_argument("--metrics-interval", type=float, default=5.0,
+                   help="seconds between each session's `metrics` log line (counters; 0 = never; default 5)")
 
 
 def _parse_value(text: str) -> Any:
@@ -72,10 +74,12 @@ def config_from_args(ns: argparse.Namespace) -> Any:
                            ("--mirror-port", ns.mirror_port, 1)):
         if port is not None and not low <= port <= 65535:
             raise ConfigError(f"{opt}: must be in [{low}, 65535], got {port}")
+    if not 0 <= ns.metrics_interval <= 3600:
+        raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
-                        mirror_port=ns.mirror_port, out_dir=ns.out)
+                        mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval)
 
 
 async def _serve_until_signal(cfg: Any) -> None:

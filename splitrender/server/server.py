@@ -94,6 +94,8 @@ class ServerConfig:
     mirror_port: int | None = None
     out_dir: Path | None = None
     max_session_bytes: int = 256 * 1024 * 1024
+    metrics_interval_s: float = 5.0
+    """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
 
 
 def check_method_params(methods: Sequence[str], params: dict[str, dict[str, Any]]) -> None:

@@ -375,6 +375,7 @@ class ServerSession:
         wall_now = time.time()
         next_t = loop.time() + (self.server.tick_of(wall_now) + 1) / self.cfg.server_fps \
             - (wall_now - self.server.epoch_wall_s)
+        next_metrics = loop.time() + self.cfg.metrics_interval_s
         while True:
             delay = next_t - loop.time()
             if delay > 0:
@@ -385,12 +386,21 @@ class ServerSession:
                 skipped = int(behind / interval) + 1
                 self.counters["frames_skipped_late"] += skipped
                 next_t += skipped * interval
+            if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
+                next_metrics = loop.time() + self.cfg.metrics_interval_s
+                self.log_metrics()
             if self.client_addr is None or self._latest_pose is None:
                 continue  # no UDP path or no pose yet: nothing useful to send
             if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
                 self.counters["frames_skipped_backlog"] += 1
                 continue
             await self._send_frame()
+
+    def log_metrics(self) -> None:
+        """One ``metrics`` log line: this session's counters and the datagrams the server dropped."""
+        logger.info("metrics session=%s method=%s %s server_udp_dropped=%d rtt_ms=%s", self.id, self.method,
+                    " ".join(f"{k}={v}" for k, v in self.counters.items()), self.server.udp_dropped,
+                    f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
     async def _send_frame(self) -> None:
         server, intr, tx, fbs = self.server, self.intrinsics, self.tx, self.fb
@@ -518,4 +528,5 @@ class ServerSession:
         d.mkdir(parents=True, exist_ok=True)
         write_csv(d / "feedback.csv", self.feedback_rows)
         write_csv(d / "updates.csv", self.update_rows)
-        write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan)])
+        write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
+                                            server_udp_dropped=self.server.udp_dropped)])
