@@ -55,9 +55,16 @@ def warp_matrices(frame: ReferenceFrame, view: ReferenceView, ref: CameraIntrins
             out[i, 4, 0] = 1.0
             if extrapolate:
                 now = extrapolate_model(prev, cur, h / frame.dt_s)
-        m = base @ now @ np.linalg.inv(cur) @ ref_inv
+        with np.errstate(over="ignore", invalid="ignore"):
+            m = base @ now @ np.linalg.inv(cur) @ ref_inv
+        if not np.all(np.isfinite(m)) or np.abs(m).max() > F32_SAFE:
+            m = static  # a near-singular transform from the wire: draw the object where the reference view has it
         out[i, :4, :] = m.T.astype(np.float32)
     return out
+
+
+F32_SAFE = 1e30
+"""Largest warp-matrix entry drawn as computed; beyond it float32 would overflow."""
 
 
 # ----------------------------------------------------------------------------- client: GL
