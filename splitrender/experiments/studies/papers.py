@@ -37,7 +37,7 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..sections import Section
 
@@ -306,6 +306,25 @@ def _f(v: Any, fmt: str = ".2f") -> str:
     return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
 
 
+def _psnr_ssim(c: dict[str, Any]) -> str:
+    return f"{_f(c.get('psnr_db'))} / {_f(c.get('ssim'), '.3f')}"
+
+
+def _method_table(rs: list[dict[str, Any]], key: str, values: list[Any], head: Callable[[Any], str],
+                  cell: Callable[[dict[str, Any]], str],
+                  extra: tuple[str, Callable[[list[dict[str, Any]]], str]] | None = None) -> list[str]:
+    """Markdown table lines: a row per method (in first-seen order), a column per value of ``key``
+    (``head`` names it, ``cell`` formats the run's row, or ``{}`` when it is missing), and an optional
+    last column ``extra`` = (title, fn(that row's cells))."""
+    heads = [head(v) for v in values] + ([extra[0]] if extra else [])
+    lines = ["| method | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for m in dict.fromkeys(r["method"] for r in rs):
+        cells = [_get(rs, method=m, **{key: v}) or {} for v in values]
+        tail = [extra[1](cells)] if extra else []
+        lines.append(f"| {m} | " + " | ".join([*(cell(c) for c in cells), *tail]) + " |")
+    return lines
+
+
 def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: float, nruns: int) -> str:
     w, h = g["size"]
     parts = [
@@ -325,13 +344,12 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
         s13, c13 = g["fig13_fps"]
         lat = sorted({r["latency_ms"] for r in r13})
         ms = list(dict.fromkeys(r["method"] for r in r13))
-        head = "| method | " + " | ".join(f"{d} ms PSNR / SSIM" for d in lat) + " | loss 0 -> " + f"{lat[-1]} ms, dB |"
-        lines = [head, "|---" * (len(lat) + 2) + "|"]
-        for m in ms:
-            cells = [(_get(r13, method=m, latency_ms=d) or {}) for d in lat]
-            loss = cells[0].get("psnr_db", math.nan) - cells[-1].get("psnr_db", math.nan)
-            lines.append(f"| {m} | " + " | ".join(f"{_f(c.get('psnr_db'))} / {_f(c.get('ssim'), '.3f')}" for c in cells)
-                         + f" | {_f(loss)} |")
+
+        def with_loss(cells: list[dict[str, Any]]) -> str:
+            return _f(cells[0].get("psnr_db", math.nan) - cells[-1].get("psnr_db", math.nan))
+
+        lines = _method_table(r13, "latency_ms", lat, lambda d: f"{d} ms PSNR / SSIM", _psnr_ssim,
+                              (f"loss 0 -> {lat[-1]} ms, dB", with_loss))
         parts.append(
             f"**SAS figure 13, quality against one-way latency** (server {s13} Hz, client {c13} Hz; the paper runs both "
             "at 120 Hz and plots MSSIM only). The paper: \"While the quality of IBR methods starts to decrease "
@@ -341,13 +359,7 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
     r14 = rows_of("sas_fig14")
     if r14:
         fps = sorted({r["server_fps"] for r in r14})
-        ms = list(dict.fromkeys(r["method"] for r in r14))
-        lines = ["| method | " + " | ".join(f"{'7.5 (8)' if s == 8 else s} Hz PSNR / SSIM" for s in fps) + " |",
-                 "|---" * (len(fps) + 1) + "|"]
-        for m in ms:
-            lines.append(f"| {m} | " + " | ".join(
-                f"{_f((_get(r14, method=m, server_fps=s) or {}).get('psnr_db'))} / "
-                f"{_f((_get(r14, method=m, server_fps=s) or {}).get('ssim'), '.3f')}" for s in fps) + " |")
+        lines = _method_table(r14, "server_fps", fps, lambda s: f"{'7.5 (8)' if s == 8 else s} Hz PSNR / SSIM", _psnr_ssim)
         parts.append(
             f"**SAS figure 14, server rate** (client {g['fig14_client_fps']} Hz, zero latency; the paper's 7.5 Hz runs "
             "as 8 Hz because `server_fps` is an integer). The paper: \"ATW cannot compete with the other methods "
@@ -358,12 +370,8 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
     if r15:
         kbs = sorted({r["bitrate_kbps"] for r in r15})
         ms = list(dict.fromkeys(r["method"] for r in r15))
-        lines = ["| method | " + " | ".join(f"{k} kbit/s: measured kbit/s, PSNR, SSIM" for k in kbs) + " |",
-                 "|---" * (len(kbs) + 1) + "|"]
-        for m in ms:
-            cells = [(_get(r15, method=m, bitrate_kbps=k) or {}) for k in kbs]
-            lines.append(f"| {m} | " + " | ".join(
-                f"{_f(c.get('kbps'), '.0f')}, {_f(c.get('psnr_db'))}, {_f(c.get('ssim'), '.3f')}" for c in cells) + " |")
+        lines = _method_table(r15, "bitrate_kbps", kbs, lambda k: f"{k} kbit/s: measured kbit/s, PSNR, SSIM",
+                              lambda c: f"{_f(c.get('kbps'), '.0f')}, {_f(c.get('psnr_db'))}, {_f(c.get('ssim'), '.3f')}")
         parts.append(
             f"**SAS figure 15, rate-distortion** (server {g['fig15_fps'][0]} Hz, client {g['fig15_fps'][1]} Hz, zero "
             "latency; `bitrate_kbps` targets, x of the chart is the measured rate of everything sent). The paper varies "
