@@ -217,10 +217,8 @@ class VirtualTimeRun:
         self.intr = CameraIntrinsics(cfg.width, cfg.height, cfg.fov_y_deg)
         self.renderer = renderer or Renderer()
         make_current(self.renderer.ctx)
-        self._supersample_before = self.renderer.supersample
-        self.renderer.supersample = cfg.supersample  # part of the truth key; set again for the run, restored after it
-        self.truth = truth_source(cfg.truth_cache, self.renderer, self.scene, self.trace, self.intr, cfg.client_fps)
-        self.renderer.supersample = self._supersample_before
+        self.truth = truth_source(cfg.truth_cache, self.renderer, self.scene, self.trace, self.intr, cfg.client_fps,
+                                  cfg.supersample)
         full = min(t.duration_s for t in self.traces)
         if full <= 0:
             from ..errors import ConfigError
@@ -311,11 +309,11 @@ class VirtualTimeRun:
     # ------------------------------------------------------------------ run
 
     def run(self) -> RunResult:
-        self.renderer.supersample = self.cfg.supersample
+        before, self.renderer.supersample = self.renderer.supersample, self.cfg.supersample
         try:
             return self._run()
         finally:
-            self.renderer.supersample = self._supersample_before
+            self.renderer.supersample = before  # the renderer may be shared with the caller
 
     def _run(self) -> RunResult:
         cfg = self.cfg

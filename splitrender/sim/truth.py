@@ -278,12 +278,14 @@ class CachedTruth:
 
 
 def truth_source(setting: str, renderer: _Renders, scene: Scene, trace: CameraTrace, intr: CameraIntrinsics,
-                 fps: float) -> Any:
-    """What the runner renders its ground truth with: the renderer itself, or a :class:`CachedTruth`."""
+                 fps: float, supersample: int = 1) -> Any:
+    """What the runner renders its ground truth with: the renderer itself, or a :class:`CachedTruth`.
+
+    ``supersample`` is the renderer's setting while the run renders (part of the cache key)."""
     root = cache_dir(setting)
     if root is None:
         return renderer
     info = getattr(getattr(renderer, "ctx", None), "info", None)
     key = TruthKey(scene_digest(scene), renderer_version(info if isinstance(info, dict) else None), trace_digest(trace),
-                   intr.width, intr.height, float(intr.fov_y_deg), float(fps), int(getattr(renderer, "supersample", 1)))
+                   intr.width, intr.height, float(intr.fov_y_deg), float(fps), int(supersample))
     return CachedTruth(renderer, GroundTruthCache(root), key)
