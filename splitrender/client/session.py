@@ -201,7 +201,7 @@ class LiveClient:
         self._last_pli_ms: dict[str, float] = {}
         self._last_frame_mono = time.monotonic()
         """When the last frame with content was released (monotonic s; the session start before)."""
-        self._stalled_since: float | None = None
+        self._stalled = False
         self._journal: Any = None
         """frames.jsonl, appended as the session goes (see :meth:`_record`)."""
         self._first_packet_ms: dict[str, float] = {}
@@ -540,11 +540,11 @@ class LiveClient:
         return out
 
     def _on_frame(self, now: float) -> None:
-        if self._stalled_since is not None:
-            ms = (now - self._stalled_since) * 1000 + self._stall_after_s() * 1000
+        if self._stalled:
+            ms = (now - self._last_frame_mono) * 1000
             self.counters["longest_stall_ms"] = max(self.counters.get("longest_stall_ms", 0.0), round(ms, 1))
             logger.info("session %s: frames resumed after %.0f ms", self.session_id, ms)
-            self._stalled_since = None
+            self._stalled = False
         self._last_frame_mono = now
 
     def _stall_after_s(self) -> float:
@@ -560,20 +560,23 @@ class LiveClient:
         if idle >= cfg.stall_timeout_s:
             raise StreamStalledError(f"session {self.session_id}: no frame for {idle:.1f} s (stall_timeout_s "
                                      f"{cfg.stall_timeout_s:g} s): the server stopped streaming")
-        if self._stalled_since is None:
-            self._stalled_since = now
+        if not self._stalled:
+            self._stalled = True
             self.counters["stalls"] = self.counters.get("stalls", 0) + 1
             logger.warning("session %s: no new frame for %.0f ms (%g frame intervals): asking for a keyframe",
                            self.session_id, idle * 1000, cfg.stall_frames)
-        out: list[Any] = []
         assert self.rx is not None
-        for rx in self.rx.streams.values():
-            if rx.kind == "video" and now * 1000 - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
-                self._last_pli_ms[rx.name] = now * 1000
-                out.append(PictureLossIndication(0, rx.ssrc))
-                self.counters["plis_sent"] += 1
-                self.counters["stall_plis"] = self.counters.get("stall_plis", 0) + 1
+        out = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now * 1000))]
+        self.counters["stall_plis"] = self.counters.get("stall_plis", 0) + len(out)
         return out
+
+    def _pli(self, rx: Any, now_ms: float) -> PictureLossIndication | None:
+        """A PLI for stream ``rx`` unless one went out less than ``pli_interval_ms`` ago (counted)."""
+        if now_ms - self._last_pli_ms.get(rx.name, -math.inf) < self.cfg.pli_interval_ms:
+            return None
+        self._last_pli_ms[rx.name] = now_ms
+        self.counters["plis_sent"] += 1
+        return PictureLossIndication(self._rtcp_identity()[0], rx.ssrc)
 
     # ------------------------------------------------------------------ RTCP out
 
@@ -629,11 +632,8 @@ class LiveClient:
                     self.counters["nacked_packets"] += len(nack)
                 first = self._first_packet_ms.get(rx.name)
                 started = first is not None and now_ms - first >= cfg.pli_interval_ms
-                if (rx.wants_keyframe or (rx.needs_keyframe and started)) \
-                        and now_ms - self._last_pli_ms.get(rx.name, -math.inf) >= cfg.pli_interval_ms:
-                    self._last_pli_ms[rx.name] = now_ms
-                    out.append(PictureLossIndication(self._rtcp_identity()[0], rx.ssrc))
-                    self.counters["plis_sent"] += 1
+                if (rx.wants_keyframe or (rx.needs_keyframe and started)) and (pli := self._pli(rx, now_ms)):
+                    out.append(pli)
             out.extend(self._check_stall(now))
             if cfg.metrics_interval_s > 0 and now - last_metrics >= cfg.metrics_interval_s:
                 last_metrics = now
