@@ -32,6 +32,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import CodecError, ConfigError
+from ..protocol.annexb import nal_type
 
 log = logging.getLogger(__name__)
 
@@ -234,14 +235,8 @@ class VideoEncoder:
             finally:
                 del ctx
             keep = {7, 8} if self.cfg.codec == "h264" else {32, 33, 34}
-            nals = []
-            for nal in iter_nal_units(extra):
-                if not nal:
-                    continue
-                t = nal[0] & 0x1F if self.cfg.codec == "h264" else (nal[0] >> 1) & 0x3F
-                if t in keep:
-                    nals.append(bytes(nal))
-            self._parameter_sets = tuple(nals)
+            self._parameter_sets = tuple(bytes(nal) for nal in iter_nal_units(extra)
+                                         if nal and nal_type(self.cfg.codec, nal) in keep)
         return self._parameter_sets
 
     def _frame(self, plane: np.ndarray):  # type: ignore[no-untyped-def]
@@ -360,11 +355,5 @@ def iter_nal_units(data: bytes):  # type: ignore[no-untyped-def]
 
 
 def contains_idr(data: bytes, codec: str) -> bool:
-    for nal in iter_nal_units(data):
-        if not nal:
-            continue
-        if codec == "h264" and (nal[0] & 0x1F) in IDR_NAL_TYPES_H264:
-            return True
-        if codec == "hevc" and ((nal[0] >> 1) & 0x3F) in IDR_NAL_TYPES_HEVC:
-            return True
-    return False
+    idr = IDR_NAL_TYPES_H264 if codec == "h264" else IDR_NAL_TYPES_HEVC
+    return any(nal and nal_type(codec, nal) in idr for nal in iter_nal_units(data))  # type: ignore[arg-type]
