@@ -24,6 +24,7 @@ from splitrender import metrics
 from splitrender.errors import ConfigError
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
+from splitrender.client.session import JOURNAL
 from splitrender.sim.runner import write_csv
 
 __all__ = ["score_recording", "read_frames", "read_journal"]
@@ -74,10 +75,10 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
     counters = json.loads((d / "counters.json").read_text()) if (d / "counters.json").exists() else {}
     if (d / "frames.csv").exists():
         rows = read_frames(d / "frames.csv")
-    elif (d / "frames.jsonl").exists():  # the client was killed: the rows it had appended
-        rows = read_journal(d / "frames.jsonl")
+    elif (d / JOURNAL).exists():  # the client was killed: the rows it had appended
+        rows = read_journal(d / JOURNAL)
     else:
-        raise ConfigError(f"{d}: no frames.csv or frames.jsonl (was the session started?)")
+        raise ConfigError(f"{d}: no frames.csv or {JOURNAL} (was the session started?)")
     if not rec.get("complete", True):
         logger.warning("%s: a partial recording (%s): scoring its %d frames", d, rec.get("error", "the client did not finish"),
                        len(rows))
