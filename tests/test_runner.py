@@ -110,6 +110,10 @@ def test_nonsense_config_gives_clear_errors():
         RunConfig.from_dict({"server_fps": "thirty"})
     with pytest.raises(ConfigError, match="client_fps: must be in"):
         RunConfig(client_fps=0)
+    with pytest.raises(ConfigError, match="cost_model: must be one of fixed, measured, got 'wallclock'"):
+        RunConfig(cost_model="wallclock")
+    with pytest.raises(ConfigError, match=r"supersample: must be in \[1, 4\], got 8"):
+        RunConfig(supersample=8)
     with pytest.raises(ConfigError, match="unknown method 'teleport'"):
         run(RunConfig(method="teleport"))
     with pytest.raises(ConfigError, match="AtwConfig: unknown parameter 'overscna'"):
