@@ -71,12 +71,15 @@ def test_measured_cost_puts_a_slow_server_on_the_clock(renderer, monkeypatch):
     slowed = run(RunConfig(cost_model="measured", **common), renderer=renderer).summary
     halved = run(RunConfig(cost_model="measured", cost_scale=0.5, **common), renderer=renderer).summary
     assert fixed["server_skipped"] == 0 and fixed["mean_cost_ms"] == pytest.approx(10.0)
+    # measured on an idle machine: cost 10 / 32 / 147 / 74 ms (fixed / fast / slowed / halved), skipped 0 / 7 / 25 / 21,
+    # update age 25 / 55 / 233 / 129 ms
     assert slowed["mean_cost_ms"] >= fast["mean_cost_ms"] + 95.0 and slowed["server_skipped"] > fast["server_skipped"]
     # the server is busy for 3 of every 4 ticks at 30 fps (31 ticks)
     assert slowed["server_skipped"] >= 20, slowed
-    assert slowed["mean_update_age_ms"] >= fixed["mean_update_age_ms"] + 90.0, (slowed, fixed)
+    # >= 100 ms more on the clock, plus about half of the 133 ms between the frames that are made
+    assert slowed["mean_update_age_ms"] >= fixed["mean_update_age_ms"] + 150.0, (slowed, fixed)
     assert slowed["mean_psnr_db"] < fixed["mean_psnr_db"]
-    assert halved["mean_cost_ms"] < 0.7 * slowed["mean_cost_ms"] and halved["server_skipped"] < slowed["server_skipped"]
+    assert halved["mean_cost_ms"] < 0.6 * slowed["mean_cost_ms"] and halved["server_skipped"] < slowed["server_skipped"]
 
 
 def test_bits_count_every_stream_and_metadata(renderer):
