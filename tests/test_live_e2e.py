@@ -292,7 +292,7 @@ def test_killed_server_or_client_leaves_a_scoreable_partial_recording(tmp_path: 
     finally:
         srv.kill()
         srv.communicate()
-    assert cli.returncode != 0 and exited_s < 2.0, (cli.returncode, exited_s, err[-2000:])
+    assert cli.returncode != 0 and exited_s < 2.0, (cli.returncode, exited_s, err[-2000:])  # the bound; measured 0.14 s
     assert "Traceback" not in err and "error" in err.lower(), err[-2000:]
     rec = json.loads((out / "recording.json").read_text())
     assert rec["complete"] is False and rec["error"], rec
@@ -357,8 +357,9 @@ async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(t
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)
     c = client.counters
-    assert c["stalls"] == 1 and c["stall_plis"] >= 2, c  # 6 frames (200 ms) in, then every pli_interval (250 ms)
-    assert 2.4 < took < 4.5, took  # 1 s streaming (+ set-up), then 1.5 s of stall
+    # measured: 1 stall, 5 stall PLIs (6 frames = 200 ms in, then one every pli_interval_ms = 250 ms of the 1.5 s)
+    assert c["stalls"] == 1 and c["stall_plis"] >= 4, c
+    assert 2.4 < took < 3.5, took  # 1 s streaming (+ set-up), then 1.5 s of stall; measured 2.50 s
     rec = json.loads((tmp_path / "recording.json").read_text())
     assert rec["complete"] is False and "StreamStalledError" in rec["error"]
     assert (tmp_path / "frames.csv").read_text().count("\n") > 10
