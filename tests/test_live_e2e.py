@@ -235,7 +235,7 @@ async def test_live_client_fits_builtin_traces_around_a_loaded_model(tmp_path: P
         want = fitted.pose_at(min(r["t_s"], fitted.duration_s))
         assert np.allclose(shown.position, want.position, atol=1e-6), (r["t_s"], shown.position, want.position)
     far = max(np.linalg.norm(plain.pose_at(r["t_s"]).position - fitted.pose_at(r["t_s"]).position) for r in rows)
-    assert far > 0.5  # the fitted orbit is not the default scene's
+    assert far > 1.0  # the fitted orbit is not the default scene's: 1.25-2.06 m apart over the first 1.2 s
 
 
 def _serve(port: int) -> subprocess.Popen:  # type: ignore[type-arg]
