@@ -1,0 +1,140 @@
+"""The TSS client half: caches triangle geometry, draws the live triangles at its own pose.
+
+State: per triangle ever sent its object and object-space corners (``geo``; bounded by
+the scene's triangle count), the newest triangle table (``tris``) with the atlas it
+describes, and the object transforms at that frame's time.  A table is applied only
+together with its atlas: when the atlas of a frame is missing, the previous pair stays
+on screen (geometry is still taken, it is cumulative).
+
+Per fragment (``shaders/client.frag``): object-space barycentrics from the rasteriser,
+the inverse perspective encoding (paper eq. 5) with the triangle's vertex depths at the
+frame's reference pose (computed here from the frame's pose and transforms), then the
+L-packing or oversampling layout and one bilinear tap.  Pixels no triangle covers
+are holes (sky colour).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...render.canvas import Canvas, upload_image
+from ...render.gl import load_program
+from ...scene.pose import Pose
+from ..base import ClientFrame, ClientHalf, DecodedUpdate
+from ..sas.client import extrapolate_transforms
+from .layout import KIND_OS, layout_attributes
+from .wire import TssWireError, Table, decode_geometry, decode_table, parse_session, parse_transforms
+
+SHADERS = Path(__file__).parent / "shaders"
+VERTEX_FLOATS = 3 + 1 + 3 + 4 + 4 + 4
+
+
+class TssClient(ClientHalf):
+    """Tessellated shading streaming, client half."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self.session = parse_session(self.session_data)
+        s = self.session
+        i = self.intrinsics
+        self.canvas = Canvas(self.gl, i.width, i.height)
+        self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
+        n = s.n_triangles
+        self.has = np.zeros(n, bool)
+        self.obj = np.zeros(n, np.int64)
+        self.pos = np.zeros((n, 3, 3), np.float32)
+        self.models = np.tile(np.eye(4, dtype=np.float32), (s.n_objects, 1, 1))
+        self.models_prev = self.models.copy()
+        self.models_t = np.full(s.n_objects, np.nan)
+        self.models_prev_t = np.full(s.n_objects, np.nan)
+        self.ssbo = self.gl.buffer(reserve=max(1, s.n_objects) * 64)
+        self.table: Table | None = None
+        self._tex: Any = None
+        self._vbo: Any = None
+        self._vao: Any = None
+        self._n = 0
+
+    def apply(self, update: DecodedUpdate) -> None:
+        """Apply one frame; malformed data raises :class:`TssWireError` and leaves the drawn state as it was."""
+        s = self.session
+        xf = parse_transforms(update.meta, s.n_objects)
+        geo = update.data.get("geo")
+        g = decode_geometry(geo, s.n_triangles, s.n_objects) if geo is not None else None
+        tris = update.data.get("tris")
+        atlas = update.planes.get("atlas")
+        table = None
+        if tris is not None and atlas is not None:
+            W, H = s.atlas
+            if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3):
+                raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
+            table = decode_table(tris, s.n_triangles, s.atlas)
+            has = self.has.copy()
+            if g is not None:
+                has[g.ids] = True
+            if table.ids.size and not has[table.ids].all():
+                raise TssWireError(f"tss tris: {int((~has[table.ids]).sum())} live triangles have no geometry")
+        # everything validated: apply
+        if g is not None:
+            self.has[g.ids] = True
+            self.obj[g.ids] = g.obj
+            self.pos[g.ids] = g.pos
+        if table is None:
+            return
+        fresh = self.models_t != update.t_s
+        self.models_prev[fresh] = self.models[fresh]
+        self.models_prev_t[fresh] = self.models_t[fresh]
+        self.models[:] = xf
+        self.models_t[:] = update.t_s
+        self._tex = upload_image(self.gl, atlas, self._tex)
+        self.table = table
+        self._upload(table, update.pose, xf)
+        self._has_content = True
+
+    def _upload(self, t: Table, pose: Pose, xf: np.ndarray) -> None:
+        """The vertex buffer of table ``t``: per vertex its object-space position, object, reference depths, layout."""
+        n = t.ids.size
+        rot = np.where(t.kind == KIND_OS, t.base, 0)
+        order = (rot[:, None] + np.arange(3)) % 3
+        pos = np.take_along_axis(self.pos[t.ids], order[:, :, None], axis=1).astype(np.float64)
+        obj = self.obj[t.ids]
+        m = xf[obj].astype(np.float64)
+        view = np.asarray(pose.view_matrix(), np.float64)
+        world = np.einsum("nij,nkj->nki", m[:, :3, :3], pos) + m[:, None, :3, 3]
+        z = -(world @ view[2, :3] + view[2, 3])                                # (n, 3) depths at the reference view
+        o0, o1 = layout_attributes(t.kind, t.origin, t.w, t.w2, t.h, t.a, np.zeros(n))
+        info = np.stack([t.kind, t.level, t.persp.astype(np.float64), np.zeros(n)], 1)
+        flat = np.concatenate([obj[:, None].astype(np.float64), z, info, o0, o1], 1)[:, None, :].repeat(3, axis=1)
+        data = np.concatenate([pos, flat], axis=2).astype(np.float32).tobytes()
+        if self._vbo is None or self._vbo.size < len(data):
+            if self._vbo is not None:
+                self._vao.release()
+                self._vbo.release()
+            self._vbo = self.gl.buffer(reserve=max(len(data), 4096, 2 * (self._vbo.size if self._vbo is not None else 0)))
+            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 1f 3f 4f 4f 4f", "in_position", "in_object", "in_zref",
+                                                          "in_info", "in_o0", "in_o1")])
+        if data:
+            self._vbo.write(data)
+        self._n = n
+
+    def render(self, pose: Pose, t_s: float) -> ClientFrame:
+        i = self.intrinsics
+        self.canvas.use()
+        self.canvas.clear((*self.session.sky, 0.0))
+        if self._vao is not None and self._tex is not None and self._n:
+            gl = self.gl
+            gl.enable(gl.DEPTH_TEST)
+            gl.disable(gl.CULL_FACE)
+            shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
+            self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
+            self.ssbo.bind_to_storage_buffer(0)
+            self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
+            self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
+            self._tex.use(location=0)
+            self.prog["u_atlas"].value = 0
+            self.prog["u_atlas_size"].value = tuple(float(x) for x in self.session.atlas)
+            self._vao.render(vertices=3 * self._n)
+        color, covered = self.canvas.read()
+        return ClientFrame(color, ~covered, {"cli_triangles": float(self._n)})

@@ -1,0 +1,81 @@
+"""``tss`` settings, shared by the server and client halves."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from ...errors import ConfigError
+from ...scene.pose import CameraIntrinsics
+from ..base import MethodConfig
+
+
+@dataclass(frozen=True)
+class TssConfig(MethodConfig):
+    """TSS settings.
+
+    ``samples_per_px``: shading samples per covered display pixel (the paper's target
+    of one).  ``slant_threshold``: a triangle whose longest projected edge over its
+    height exceeds this is oversampled, otherwise L-packed (the paper does not give
+    the value).  ``tiny_samples``: triangles needing fewer samples than this get one
+    texel.  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
+    the display's pixel count (paper: 24 Mpix at 1080p for the walkthroughs); when
+    the visible set does not fit, the sampling rate of the frame is lowered until it
+    does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
+    ``pvs_prediction``, ``pvs_linger_frames``.  ``split_near_m``: at load time, meshes
+    are split (midpoints) until no edge seen from this distance needs a level above 64
+    (the paper's pre-tessellation, done once); 0 disables it.
+    """
+
+    gop: int = 30
+    samples_per_px: float = 1.0
+    slant_threshold: float = 4.0
+    tiny_samples: float = 2.0
+    atlas_mpix_1080p: float = 8.0
+    fov_margin: float = 0.2
+    pvs_step_ms: float = 33.3
+    pvs_prediction: Literal["linear", "none"] = "linear"
+    pvs_linger_frames: int = 8
+    split_near_m: float = 2.0
+    split_max_triangles: int = 200_000
+    perspective: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 0.05 <= self.samples_per_px <= 8:
+            raise ConfigError(f"TssConfig.samples_per_px: must be in [0.05, 8], got {self.samples_per_px}")
+        if not 1.0 <= self.slant_threshold <= 1000:
+            raise ConfigError(f"TssConfig.slant_threshold: must be in [1, 1000], got {self.slant_threshold}")
+        if not 0.0 <= self.tiny_samples <= 64:
+            raise ConfigError(f"TssConfig.tiny_samples: must be in [0, 64], got {self.tiny_samples}")
+        if not 0.0 < self.atlas_mpix_1080p <= 64:
+            raise ConfigError(f"TssConfig.atlas_mpix_1080p: must be in (0, 64], got {self.atlas_mpix_1080p}")
+        if not 0.0 <= self.fov_margin <= 2.0:
+            raise ConfigError(f"TssConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
+        if not self.pvs_step_ms > 0:
+            raise ConfigError(f"TssConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
+        if self.pvs_prediction not in ("linear", "none"):
+            raise ConfigError(f"TssConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
+        if not 0 <= self.pvs_linger_frames <= 1000:
+            raise ConfigError(f"TssConfig.pvs_linger_frames: must be in [0, 1000], got {self.pvs_linger_frames}")
+        if not 0.0 <= self.split_near_m <= 1e3:
+            raise ConfigError(f"TssConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
+        if not 1 <= self.split_max_triangles <= 50_000_000:
+            raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
+
+    def atlas_size(self, intr: CameraIntrinsics) -> tuple[int, int]:
+        """The atlas for a display of ``intr``: 2:1, multiples of 16 texels."""
+        texels = self.atlas_mpix_1080p * 1e6 * intr.width * intr.height / (1920 * 1080)
+        h = max(1, round(math.sqrt(texels / 2) / 16)) * 16
+        return 2 * h, h
+
+    def split_edge_m(self, intr: CameraIntrinsics) -> float:
+        """Longest edge (metres) kept at load time: an equilateral triangle with this edge,
+        seen face-on from ``split_near_m``, needs at most ``v(64)`` samples."""
+        if self.split_near_m <= 0:
+            return math.inf
+        px_per_rad = intr.width / math.radians(intr.fov_x_deg)
+        max_area_px = 3169.0 / self.samples_per_px
+        edge_px = math.sqrt(4.0 * max_area_px / math.sqrt(3.0))
+        return edge_px / px_per_rad * self.split_near_m

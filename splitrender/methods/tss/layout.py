@@ -1,0 +1,338 @@
+"""TSS sample patterns and atlas layout (Hladky et al. 2019, sections 3.1-3.3), in numpy.
+
+Everything here is shared by the server half (which mirrors it in GLSL, ``shaders/``),
+the client half and the tests; none of it touches GL.
+
+**Tessellation pattern.**  A triangle patch with all four tessellation factors equal
+to ``l`` (1..64, equal spacing) spawns :func:`v_count` ``v(l)`` vertices (eq. 1) on
+concentric rings: ring ``k`` (0 = the outer edge) holds the points whose smallest
+barycentric coordinate is ``k * i(l)`` (``i(l) = 2 / (3 l)``, eq. 3), ``3 (l - 2k)``
+of them (the centre alone when ``l`` is even).  :func:`tess_coords` generates them;
+a test checks them against this machine's GL.
+
+**L-packing** (eq. 3-4).  A sample with barycentrics ``B`` belongs to the *tip* of
+its largest coordinate; within a tip (vertex ``t``, the others ``a = t+1``, ``b =
+t+2``) it has a row ``r = lambda_min / i(l)`` (its ring) and a column ``c =
+(lambda_med + lambda_min / 2) / o(l)`` (``o(l) = 1 / l``).  The side where
+``lambda_a >= lambda_b`` keeps ``(x, y) = (c, r)`` (on or above the block's diagonal,
+``r <= c``); the other side is flipped under it, ``(x, y) = (r, c)``.  Each tip fills
+a square block of :func:`tip_dim` ``D(l)`` texels: ``ceil((l + 1) / 2)`` for even
+levels, one more for odd ones, whose extra column duplicates the first samples of
+the neighbouring tip (the paper duplicates one cut row instead; ours makes every
+block self-contained, so a bilinear tap never reads a neighbour's block).  Samples
+on the borders between tips (edge midpoints, the centre) are written to every block
+they border.  Three blocks make an L; two Ls, the second turned by 180 degrees,
+interlock into a ``3D x 2D`` pair cell.
+
+**Oversampling** (section 3.3, figure 8).  A slanted triangle (vertex 0 -> 1 its
+longest edge, the base; vertex 2 the apex) is split at the foot of its height, at the
+fraction ``a`` of the base (eq. 12), into two right triangles with the height ``H``
+(samples ~ projected pixels) in common and bases ``w1 ~ a W``, ``w2 ~ (1 - a) W``.
+Each is sampled on an orthogonal grid, ``x`` along the base from the foot and ``y``
+up the height, one sample per pixel; row ``y = j`` keeps :func:`os_row_lengths`
+samples, exactly those a bilinear tap inside the right triangle reads (a staircase;
+the samples past its hypotenuse are the paper's conservative extras).  The second
+staircase, turned by 180 degrees, interlocks with the first in one rectangle of
+:func:`os_pair_width` by ``H + 1`` texels.
+
+**Atlas layout** (:func:`pack_atlas`): single texels for tiny triangles first, then
+one bin per L-packing level (largest first) of pair cells on shelves, then the
+oversampled staircases on shelves by height; every list ordered by triangle id, so
+the layout is a deterministic function of the visible set (a prefix sum, not the
+paper's atomic binning).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MAX_LEVEL = 64
+"""Largest tessellation factor (GL_MAX_TESS_GEN_LEVEL on every GL 4 implementation)."""
+
+EPS = 1e-4
+"""Tolerance of barycentric comparisons (GL's tessellation coordinates are float32)."""
+
+KIND_SINGLE, KIND_LP, KIND_OS = 0, 1, 2
+"""Triangle kinds: one texel (tiny), L-packing, oversampling."""
+
+
+def v_count(level: np.ndarray | int) -> np.ndarray:
+    """Vertices (shading samples) a triangle patch with all factors ``level`` spawns (paper eq. 1)."""
+    lv = np.asarray(level, np.int64)
+    h = lv // 2
+    return 3 * (h + 1) * (h + lv % 2) + (lv + 1) % 2
+
+
+def t_count(level: np.ndarray | int) -> np.ndarray:
+    """Triangles of the same pattern (paper eq. 2)."""
+    lv = np.asarray(level, np.int64)
+    return lv % 2 + 3 * (lv + lv % 2) * (lv // 2)
+
+
+V_TABLE = v_count(np.arange(MAX_LEVEL + 1))
+"""``v(l)`` for ``l = 0..64`` (``v(0)`` unused)."""
+
+
+def level_for(samples: np.ndarray) -> np.ndarray:
+    """Smallest level ``l`` in 1..64 whose ``v(l)`` covers ``samples`` (capped at 64)."""
+    s = np.asarray(samples, np.float64)
+    lv = np.searchsorted(V_TABLE[1:], np.ceil(s), side="left") + 1
+    return np.clip(lv, 1, MAX_LEVEL).astype(np.int64)
+
+
+def tip_dim(level: np.ndarray | int) -> np.ndarray:
+    """Side ``D(l)`` of one tip block in texels: ``ceil((l + 1) / 2)``, plus one for odd ``l``."""
+    lv = np.asarray(level, np.int64)
+    return (lv + 2) // 2 + lv % 2
+
+
+def max_ring(level: np.ndarray | int) -> np.ndarray:
+    """Index of the innermost ring (the centre for even ``l``)."""
+    return np.asarray(level, np.int64) // 2
+
+
+def tess_coords(level: int) -> np.ndarray:
+    """(v(l), 3) float64 barycentrics of the tessellator's vertices for all factors ``level``.
+
+    Ring ``k`` is the triangle with corners ``(1 - 2d, d, d)`` (and rotations), ``d =
+    k i(l)``; its edge from corner ``e`` to corner ``e + 1`` holds ``l - 2k`` equally
+    spaced points, corner ``e`` included.
+    """
+    pts: list[np.ndarray] = []
+    for k in range(level // 2 + 1):
+        n = level - 2 * k
+        d = 2.0 * k / (3.0 * level)
+        if n == 0:
+            pts.append(np.array([[1 / 3, 1 / 3, 1 / 3]]))
+            continue
+        corners = np.array([[1 - 2 * d, d, d], [d, 1 - 2 * d, d], [d, d, 1 - 2 * d]])
+        j = np.arange(n)[:, None] / n
+        for e in range(3):
+            pts.append(corners[e] + j * (corners[(e + 1) % 3] - corners[e]))
+    return np.concatenate(pts)
+
+
+def lp_positions(bary: np.ndarray, level: int) -> list[tuple[int, int, int, int]]:
+    """Every ``(sample, tip, x, y)`` an L-packing writes for samples ``bary`` (N, 3) at ``level``.
+
+    The reference for the GLSL in ``shaders/tss_shade.tese``: a sample lands in every
+    tip block whose region it lies in or borders (within the block's ``D`` columns).
+    """
+    D = int(tip_dim(level))
+    out = []
+    b = np.asarray(bary, np.float64)
+    for t in range(3):
+        a, q = (t + 1) % 3, (t + 2) % 3
+        for s, m, flip in ((a, q, False), (q, a, True)):
+            r = np.rint(b[:, m] * 1.5 * level).astype(np.int64)
+            c = np.rint((b[:, s] + b[:, m] / 2) * level).astype(np.int64)
+            # on ring r: lambda_m is the smallest coordinate (strictly below lambda_s on the flipped side)
+            ok = (b[:, m] < b[:, s] - EPS) if flip else (b[:, m] <= b[:, s] + EPS)
+            ok &= (c <= D - 1) & (b[:, m] <= b[:, t] + EPS)
+            for i in np.flatnonzero(ok):
+                x, y = (int(r[i]), int(c[i])) if flip else (int(c[i]), int(r[i]))
+                out.append((int(i), t, x, y))
+    return out
+
+
+def lp_lookup(bary: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tip and continuous block position ``(x, y)`` (texel units, sample centres at integers)
+    of points ``bary`` (N, 3): the client's decode (``shaders/client.frag``)."""
+    b = np.asarray(bary, np.float64)
+    t = np.argmax(b, axis=1)
+    a, q = (t + 1) % 3, (t + 2) % 3
+    ba, bq = b[np.arange(len(b)), a], b[np.arange(len(b)), q]
+    side_a = ba >= bq
+    s_val = np.where(side_a, ba, bq)
+    m_val = np.where(side_a, bq, ba)
+    r = np.minimum(m_val * 1.5 * level, float(max_ring(level)))
+    c = (s_val + m_val / 2) * level
+    x = np.where(side_a, c, r)
+    y = np.where(side_a, r, c)
+    return t, x, y
+
+
+def os_linear_id(bary: np.ndarray, level: int) -> np.ndarray:
+    """(N,) consecutive thread ids ``0 .. v(l) - 1`` of tessellator vertices ``bary`` (N, 3) at ``level``.
+
+    Ring ``k`` starts at ``3 k (l - k + 1)``; on it, the vertex on edge ``e`` (corner
+    ``e`` included, corner ``e + 1`` not) ``j`` steps from corner ``e`` is ``e (l - 2k) + j``.
+    Mirrors the oversampling threads of ``shaders/tss_shade.tese`` (our derivation of
+    the paper's eq. 6-8 for the ring pattern of :func:`tess_coords`).
+    """
+    b = np.asarray(bary, np.float64)
+    k = np.rint(b.min(axis=1) * 1.5 * level).astype(np.int64)
+    n = level - 2 * k
+    out = 3 * k * (level - k + 1)
+    d = k * 2.0 / (3.0 * level)
+    found = n == 0
+    for e in range(3):
+        j = np.rint((b[:, (e + 1) % 3] - d) * level).astype(np.int64)
+        hit = ~found & (np.abs(b[:, (e + 2) % 3] - d) < 1.0 / (6.0 * level)) & (j >= 0) & (j < n)
+        out = np.where(hit, out + e * n + j, out)
+        found |= hit
+    return np.where(found, out, -1)
+
+
+def os_row_lengths(w: int, h: int) -> np.ndarray:
+    """(h + 1,) samples in each row of an oversampled staircase of base ``w`` and height ``h``.
+
+    Row ``j`` holds ``x = 0 .. floor(w (1 - max(j - 1, 0) / h)) + 1``: every sample a
+    bilinear tap at a point of the triangle (``x / w + y / h <= 1``) reads.
+    """
+    j = np.arange(h + 1)
+    return (w * (h - np.maximum(j - 1, 0))) // h + 2          # integer arithmetic, as the shader
+
+
+def os_samples(w: int, h: int) -> int:
+    """Samples of an oversampled staircase (all rows)."""
+    return int(os_row_lengths(w, h).sum())
+
+
+def os_pair_width(wa: int, wb: int, h: int) -> int:
+    """Width of the rectangle holding staircases ``(wa, h)`` and ``(wb, h)``, the second turned 180 degrees."""
+    la, lb = os_row_lengths(wa, h), os_row_lengths(wb, h)
+    return int((la + lb[::-1]).max())
+
+
+@dataclass
+class AtlasPlan:
+    """Where every live triangle's samples go.  Arrays are per triangle in ``ids`` order.
+
+    ``kind`` (N,) :data:`KIND_SINGLE` / :data:`KIND_LP` / :data:`KIND_OS`; ``level``
+    (N,) tessellation level (LP) or the level spawning both staircases (OS); ``slot``
+    (N,) index within the triangle's bin (single texels, LP levels); ``origin`` (N, 3, 2)
+    int64 texel origin of each tip block (LP), of the rectangle (OS, first row; its
+    width in ``origin[:, 1, 0]``) or the texel (single); ``w``/``w2``/``h`` (N,) OS
+    staircase bases and height, ``a`` (N,) the split fraction; ``samples`` (N,)
+    samples shaded;
+    ``bins`` {level: (y0, shelves)} (0 = the single-texel rows); ``height`` texel rows
+    used; ``overflow`` True when it did not fit the atlas.
+    """
+
+    kind: np.ndarray
+    level: np.ndarray
+    slot: np.ndarray
+    origin: np.ndarray
+    w: np.ndarray
+    w2: np.ndarray
+    h: np.ndarray
+    a: np.ndarray
+    samples: np.ndarray
+    bins: dict[int, tuple[int, int]]
+    height: int
+    overflow: bool
+
+
+def lp_tip_origins(level: int, slot: np.ndarray, y0: int, width: int) -> np.ndarray:
+    """(N, 3, 2) tip-block origins of L-packing slots ``slot`` in the bin of ``level`` starting at row ``y0``."""
+    D = int(tip_dim(level))
+    per = max(1, width // (3 * D))
+    pair, half = slot // 2, slot % 2
+    X = (pair % per) * 3 * D
+    Y = y0 + (pair // per) * 2 * D
+    o = np.zeros((slot.size, 3, 2), np.int64)
+    up = half == 0
+    o[:, 0] = np.where(up[:, None], np.stack([X, Y], 1), np.stack([X + 2 * D, Y + D], 1))
+    o[:, 1] = np.where(up[:, None], np.stack([X + D, Y], 1), np.stack([X + D, Y + D], 1))
+    o[:, 2] = np.where(up[:, None], np.stack([X, Y + D], 1), np.stack([X + 2 * D, Y], 1))
+    return o
+
+
+def lp_bin_shelves(level: int, count: int, width: int) -> int:
+    """Shelves (each ``2 D(l)`` rows) the bin of ``count`` level-``level`` triangles takes."""
+    D = int(tip_dim(level))
+    per = max(1, width // (3 * D))
+    return -(-(-(-count // 2)) // per)
+
+
+def pack_atlas(kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray,
+               width: int, height: int) -> AtlasPlan:
+    """Lay out triangles (already ordered by id) in a ``width`` x ``height`` atlas.
+
+    ``kind``/``level`` per triangle, ``w``/``w2``/``h``/``a`` their oversampling
+    staircases; returns an :class:`AtlasPlan`.
+    """
+    n = kind.size
+    slot = np.zeros(n, np.int64)
+    origin = np.zeros((n, 3, 2), np.int64)
+    samples = np.zeros(n, np.int64)
+    lvl = level.astype(np.int64).copy()
+    bins: dict[int, tuple[int, int]] = {}
+    y = 0
+    sel = np.flatnonzero(kind == KIND_SINGLE)
+    if sel.size:
+        k = np.arange(sel.size)
+        slot[sel] = k
+        origin[sel, 0, 0] = k % width
+        origin[sel, 0, 1] = k // width
+        samples[sel] = 1
+        rows = -(-sel.size // width)
+        bins[0] = (0, rows)
+        y += rows
+    lp = kind == KIND_LP
+    for lv in sorted(np.unique(level[lp]).tolist(), reverse=True):
+        sel = np.flatnonzero(lp & (level == lv))
+        k = np.arange(sel.size)
+        slot[sel] = k
+        origin[sel] = lp_tip_origins(lv, k, y, width)
+        samples[sel] = int(v_count(lv))
+        shelves = lp_bin_shelves(lv, sel.size, width)
+        bins[int(lv)] = (y, shelves)
+        y += shelves * 2 * int(tip_dim(lv))
+    os_ = np.flatnonzero(kind == KIND_OS)
+    if os_.size:
+        order = os_[np.lexsort((os_, h[os_]))]          # shelves by height, then id
+        x = 0
+        shelf_h = -1
+        for i in order.tolist():
+            hh = int(h[i])
+            pw = os_pair_width(int(w[i]), int(w2[i]), hh)
+            if hh != shelf_h or x + pw > width:
+                y += (shelf_h + 1) if shelf_h >= 0 else 0
+                x, shelf_h = 0, hh
+            origin[i, 0] = (x, y)
+            origin[i, 1] = (pw, 0)
+            samples[i] = os_samples(int(w[i]), hh) + os_samples(int(w2[i]), hh)
+            x += pw
+        y += shelf_h + 1
+        lvl[os_] = level_for(samples[os_])
+    return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, y, y > height)
+
+
+def os_sample_bary(x: np.ndarray, y: np.ndarray, half: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray,
+                   a: np.ndarray) -> np.ndarray:
+    """(N, 3) screen-space barycentrics (base start, base end, apex) of staircase samples ``(x, y)`` of ``half`` 0/1."""
+    foot = np.stack([1 - a, a, np.zeros_like(a)], -1)
+    up = np.stack([-(1 - a), -a, np.ones_like(a)], -1)
+    along = np.where((half == 0)[:, None], np.stack([a, -a, np.zeros_like(a)], -1) / np.maximum(w, 1)[:, None],
+                     np.stack([-(1 - a), 1 - a, np.zeros_like(a)], -1) / np.maximum(w2, 1)[:, None])
+    return foot + x[:, None] * along + (y / h)[:, None] * up
+
+
+def os_lookup(bary: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray, pw: np.ndarray) -> np.ndarray:
+    """(N, 2) continuous texel offsets from the rectangle's origin of points ``bary`` (the client's decode)."""
+    b = np.asarray(bary, np.float64)
+    y = b[:, 2] * h
+    s = b[:, 1] + b[:, 2] * a
+    first = s <= a
+    x1 = np.where(a > 0, (a - s) / np.where(a > 0, a, 1) * w, 0.0)
+    x2 = np.where(a < 1, (s - a) / np.where(a < 1, 1 - a, 1) * w2, 0.0)
+    return np.where(first[:, None], np.stack([x1, y], -1), np.stack([pw - 1 - x2, h - y], -1))
+
+
+def layout_attributes(kind: np.ndarray, origin: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray,
+                      samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two vec4 layout attributes per triangle both halves' shaders read (``in_o0``, ``in_o1``).
+
+    L-packing: tip 0 xy, tip 1 xy | tip 2 xy, 0, 0.  Oversampling: rectangle xy, its
+    width, ``a`` | ``w1``, ``w2``, ``h``, samples.  Single texel: texel xy, ...
+    """
+    n = kind.size
+    o = origin.astype(np.float64)
+    os_ = (kind == KIND_OS)[:, None]
+    o0 = np.where(os_, np.stack([o[:, 0, 0], o[:, 0, 1], o[:, 1, 0], a], 1), np.concatenate([o[:, 0], o[:, 1]], 1))
+    o1 = np.where(os_, np.stack([w, w2, h, samples], 1).astype(np.float64), np.concatenate([o[:, 2], np.zeros((n, 2))], 1))
+    return o0, o1

@@ -1,0 +1,366 @@
+"""The TSS server half: triangle PVS, sample distribution, atlas layout, gathering in the tessellator.
+
+Per server frame (paper figure 10):
+
+1. **PVS** at triangle granularity: the ``sas`` ID pass with one patch per triangle,
+   EVS samples from the newest pose to one frame past the predicted one, the field
+   of view enlarged by ``fov_margin`` (:mod:`splitrender.methods.sas.pvs`);
+2. **mesh split**: every PVS triangle is projected at the predicted pose; its
+   slantedness (longest edge over height, pixels) sends it to oversampling above
+   ``slant_threshold``, else to L-packing at the smallest level whose ``v(l)`` covers
+   its area times ``samples_per_px``; triangles needing fewer than ``tiny_samples``
+   get one texel.  Load-time midpoint splits keep levels at or below 64
+   (:meth:`TssConfig.split_edge_m`);
+3. **atlas mapping** (:func:`~.layout.pack_atlas`): a deterministic prefix-sum layout
+   by kind, level and triangle id; when the set does not fit, the frame's sampling
+   rate drops until it does (``srv_rate``);
+4. **gathering**: one patch per triangle through ``shaders/tss_shade.*`` with the
+   rasteriser discarded; each tessellator vertex shades its sample with
+   ``shading.glsl`` (the ground truth's shader) and stores it into the atlas;
+5. **wire** (:mod:`.wire`): the atlas as video, the triangle table and the geometry
+   of triangles new to the client as reliable data streams.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...codecs.video import VideoCodecConfig
+from ...render.gl import read_shader
+from ...scene.pose import CameraIntrinsics, Pose
+from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
+from ..sas.patches import split_scene_meshes
+from ..sas.pvs import PatchIdPass, PoseSample, sample_times
+from .config import TssConfig
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, layout_attributes, level_for, pack_atlas, v_count
+from .wire import WIRE_VERSION, encode_geometry, encode_table
+
+log = logging.getLogger(__name__)
+SHADERS = Path(__file__).parent / "shaders"
+RASTERIZER_DISCARD = 0x8C89
+NEAR_M = 0.05
+"""Triangles with a vertex closer than this to the reference eye (or behind it) are shaded without perspective correction."""
+VERTEX_FLOATS = 3 + 3 + 2 + 4 + 4 + 4 + 4
+
+
+@dataclass
+class SceneTriangles:
+    """The split scene, one row per triangle (scene-wide ids in object order).
+
+    ``obj`` (T,) object index; ``pos``/``nrm`` (T, 3, 3), ``uv`` (T, 3, 2), ``tan``
+    (T, 3, 4) object-space vertex attributes; ``meshes`` the split meshes;
+    ``tri_to_patch``/``count`` make it a patch table of one triangle per patch for
+    the ID pass.
+    """
+
+    obj: np.ndarray
+    pos: np.ndarray
+    nrm: np.ndarray
+    uv: np.ndarray
+    tan: np.ndarray
+    meshes: list[Any]
+    tri_to_patch: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.obj.size)
+
+
+def build_scene_triangles(scene: Any, config: TssConfig, intr: CameraIntrinsics) -> SceneTriangles:
+    meshes, edge = split_scene_meshes(scene, config.split_edge_m(intr), config.split_max_triangles)
+    obj, pos, nrm, uv, tan = [], [], [], [], []
+    for k, m in enumerate(meshes):
+        idx = m.indices.astype(np.int64)
+        obj.append(np.full(idx.shape[0], k, np.int64))
+        pos.append(m.positions[idx])
+        nrm.append(m.normals[idx])
+        uv.append(m.uvs[idx])
+        tan.append(m.tangent_frame()[idx])
+    n = sum(len(o) for o in obj)
+    log.info("tss: %d triangles split to %d (edges <= %.3f m)", scene.triangle_count, n, edge)
+    cat = (lambda a, shape: np.concatenate(a).astype(np.float32) if a else np.zeros(shape, np.float32))
+    return SceneTriangles(np.concatenate(obj) if obj else np.zeros(0, np.int64), cat(pos, (0, 3, 3)), cat(nrm, (0, 3, 3)),
+                          cat(uv, (0, 3, 2)), cat(tan, (0, 3, 4)), list(meshes), np.arange(n, dtype=np.int32))
+
+
+class TssProducer(SceneProducer):
+    """Scene-level TSS work shared by every session: the split triangles (per display size),
+    their ID pass, and each frame's object transforms."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self._tris: dict[tuple[int, int, float], SceneTriangles] = {}
+        self._ids: dict[tuple[int, int, float], PatchIdPass] = {}
+
+    def triangles_for(self, intr: CameraIntrinsics) -> SceneTriangles:
+        key = (intr.width, intr.height, float(intr.fov_y_deg))
+        if key not in self._tris:
+            self._tris[key] = build_scene_triangles(self.scene, self.config, intr)  # type: ignore[arg-type]
+        return self._tris[key]
+
+    def id_pass(self, renderer: Any, tris: SceneTriangles) -> PatchIdPass:
+        key = next(k for k, v in self._tris.items() if v is tris)
+        if key not in self._ids:
+            self._ids[key] = PatchIdPass(renderer, self.scene, tris)  # type: ignore[arg-type]
+        return self._ids[key]
+
+    def prepare(self, frame_id: int, t_s: float) -> dict[str, Any]:
+        return {"t_s": t_s, "models": np.stack([o.model_matrix(t_s) for o in self.scene.objects])}
+
+
+def project(world: np.ndarray, pose: Pose, intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions (N, 3, 2) and view depths (N, 3) of world-space triangles (N, 3, 3) at ``pose``;
+    depths are clamped to :data:`NEAR_M` for the projection."""
+    view = np.asarray(pose.view_matrix(), np.float64)
+    v = world @ view[:3, :3].T + view[:3, 3]
+    z = -v[..., 2]
+    zc = np.maximum(z, NEAR_M)
+    f = 1.0 / math.tan(math.radians(intr.fov_y_deg) / 2.0)
+    aspect = intr.width / intr.height
+    x = v[..., 0] / zc * f / aspect
+    y = v[..., 1] / zc * f
+    px = np.stack([(x + 1) * 0.5 * intr.width, (y + 1) * 0.5 * intr.height], axis=-1)
+    return px, z
+
+
+def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -> tuple[np.ndarray, ...]:
+    """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
+
+    Returns ``kind, level, w1, w2, h, a, base, slant``: the kind, L-packing level, the
+    oversampling staircases (bases and height in samples, the split fraction ``a``
+    quantised to 16 bits as on the wire), the base's start vertex and slantedness.
+    """
+    e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
+    ln = np.linalg.norm(e, axis=2)
+    area = 0.5 * np.abs(e[:, 0, 0] * e[:, 2, 1] - e[:, 0, 1] * e[:, 2, 0])
+    base = np.argmax(ln, axis=1)
+    r = np.arange(len(ln))
+    longest = ln[r, base]
+    height = 2.0 * area / np.maximum(longest, 1e-9)
+    slant = longest / np.maximum(height, 1e-9)
+    need = area * rate
+    kind = np.where(need < tiny, KIND_SINGLE, np.where(slant > slant_threshold, KIND_OS, KIND_LP)).astype(np.int64)
+    level = level_for(need)
+    # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
+    b0 = px[r, base]
+    apex = px[r, (base + 2) % 3]
+    eb = e[r, base]
+    a = np.clip(((apex - b0) * eb).sum(1) / np.maximum((eb * eb).sum(1), 1e-12), 0.0, 1.0)
+    a = np.rint(a * 65535.0) / 65535.0
+    sq = math.sqrt(rate)
+    w1 = np.ceil(a * longest * sq)
+    w2 = np.ceil((1.0 - a) * longest * sq)
+    h = np.ceil(height * sq)
+    # both staircases must fit one patch (v(64) threads): shrink them evenly if not
+    total = (w1 + w2 + 4) * (h + 1)
+    shrink = np.sqrt(np.minimum(1.0, 0.9 * int(v_count(MAX_LEVEL)) / np.maximum(total, 1)))
+    w1, w2, h = (np.clip(np.floor(v * shrink), 1, 4096).astype(np.int64) for v in (w1, w2, h))
+    return kind, level, w1, w2, h, a, base, slant
+
+
+class TssServer(ServerHalf):
+    """Tessellated shading streaming, server half (per session)."""
+
+    config: TssConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        if not isinstance(self.producer, TssProducer):
+            self.producer = TssProducer(self.config, self.scene, self.server_fps)
+        self.tris = self.producer.triangles_for(self.intrinsics)
+        self.atlas = self.config.atlas_size(self.intrinsics)
+        n = self.tris.count
+        self.client_has = np.zeros(n, bool)
+        self._last_seen = np.full(n, -(1 << 40), np.int64)
+        self._frames = 0
+        self._since_i = 0
+        self._gl: Any = None
+        self._stats: dict[str, float] = {}
+        self.last_plan: AtlasPlan | None = None
+        self.last_ids = np.zeros(0, np.int64)
+
+    # ------------------------------------------------------------------ interface
+    def streams(self) -> list[Any]:
+        c = self.config
+        if c.lossless:
+            v = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", lossless=True, crf=None, gop=c.gop, preset=c.preset, fps=self.server_fps)
+        else:
+            v = c.video(self.server_fps)
+        return [StreamSpec("atlas", v, *self.atlas), DataStreamSpec("tris", "reliable"), DataStreamSpec("geo", "reliable")]
+
+    def session_data(self) -> dict[str, Any]:
+        return {"v": WIRE_VERSION, "atlas": list(self.atlas), "n_objects": len(self.scene.objects),
+                "n_triangles": self.tris.count, "sky": list(map(float, self.scene.sky_color))}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+    # ------------------------------------------------------------------ GL
+    def _setup_gl(self, renderer: Any) -> None:
+        ctx = renderer.ctx
+        assert isinstance(self.producer, TssProducer)
+        self._ids = self.producer.id_pass(renderer, self.tris)
+        self._prog = ctx.program(vertex_shader=read_shader(SHADERS / "tss_shade.vert"),
+                                 tess_control_shader=read_shader(SHADERS / "tss_shade.tesc"),
+                                 tess_evaluation_shader=read_shader(SHADERS / "tss_shade.tese"),
+                                 fragment_shader=read_shader(SHADERS / "tss_shade.frag"))
+        W, H = self.atlas
+        self._tex = ctx.texture((W, H), 4, dtype="f1")
+        self._fbo = ctx.framebuffer([self._tex])
+        self._counter = ctx.buffer(reserve=16)
+        self._sg = renderer.upload(self.scene)
+        self._tex_size = np.array([og.texture.size if og.texture is not None else (1, 1) for og in self._sg.objects], np.float64)
+        self._vbo: Any = None
+        self._vao: Any = None
+        self._gl = ctx
+
+    # ------------------------------------------------------------------ frame
+    def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
+        if self.config.pvs_prediction == "none":
+            return [(ctx.t_s, ctx.latest_pose)]
+        t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / self.server_fps
+        ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
+        return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
+
+    def plan(self, px: np.ndarray, depth: np.ndarray) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
+        """Classify and lay out triangles with pixel corners ``px``; lowers the rate until the atlas holds them.
+
+        Returns the plan, the OS base vertex per triangle, the slantedness and the rate used.
+        """
+        c = self.config
+        W, H = self.atlas
+        rate = c.samples_per_px
+        for _ in range(12):
+            kind, level, w1, w2, h, a, base, slant = classify(px, rate, c.slant_threshold, c.tiny_samples)
+            plan = pack_atlas(kind, level, w1, w2, h, a, W, H)
+            if not plan.overflow:
+                break
+            rate *= max(0.3, min(0.9, (H / max(plan.height, 1)) * 0.95))
+        return plan, base, slant, rate
+
+    def produce(self, ctx: ServerContext) -> Update:
+        c = self.config
+        if self._gl is None:
+            self._setup_gl(ctx.renderer)
+        t0 = time.perf_counter()
+        big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
+        area = self._ids.pvs_area(self.pvs_samples(ctx), big)
+        self._last_seen[area > 0] = self._frames
+        pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
+        t1 = time.perf_counter()
+        shared = ctx.shared if isinstance(ctx.shared, dict) and ctx.shared.get("t_s") == ctx.t_s else None
+        models = shared["models"] if shared is not None else np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
+        T = self.tris
+        m = models[T.obj[pvs]].astype(np.float64)                                     # (N, 4, 4)
+        world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
+        px, depth = project(world, ctx.target_pose, self.intrinsics)
+        plan, base, slant, rate = self.plan(px, depth)
+        persp = (depth.min(axis=1) > NEAR_M) & c.perspective
+        t2 = time.perf_counter()
+        shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
+        W, H = self.atlas
+        atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(H, W, 3).copy()
+        t3 = time.perf_counter()
+        full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
+        iframe = full or self._since_i >= c.gop
+        new = pvs[~self.client_has[pvs]]
+        self.client_has[new] = True
+        geo = encode_geometry(new, T.obj[new], T.pos[new])
+        table = encode_table(pvs, plan, persp, base)
+        self._since_i = 1 if iframe else self._since_i + 1
+        self._frames += 1
+        self.last_plan, self.last_ids = plan, pvs
+        k = plan.kind
+        os_ = k == KIND_OS
+        inside = float(((plan.w[os_] + plan.w2[os_]) * plan.h[os_] / 2.0).sum())
+        self._stats = {
+            "pvs_triangles": float(pvs.size), "pvs_ms": (t1 - t0) * 1e3, "layout_ms": (t2 - t1) * 1e3,
+            "shade_ms": (t3 - t2) * 1e3, "samples": float(plan.samples.sum()), "shaded": float(shaded),
+            "lp_triangles": float((k == KIND_LP).sum()), "os_triangles": float(os_.sum()),
+            "single_triangles": float((k == KIND_SINGLE).sum()), "lp_samples": float(plan.samples[k == KIND_LP].sum()),
+            "os_samples": float(plan.samples[os_].sum()), "os_inside": inside,
+            "atlas_used_pct": 100.0 * plan.height / H, "rate": rate, "iframe": float(iframe),
+            "geo_sent": float(new.size), "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
+        }
+        meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe,
+                      data={"tris": table, "geo": geo})
+
+    def _vertices(self, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray, px: np.ndarray) -> np.ndarray:
+        """(N, 3, VERTEX_FLOATS) gathering-stage vertices (OS triangles rotated so the base starts at vertex 0)."""
+        T = self.tris
+        rot = np.where(plan.kind == KIND_OS, base, 0)
+        order = (rot[:, None] + np.arange(3)) % 3
+        take = (lambda a: np.take_along_axis(a[ids], order[:, :, None], axis=1))
+        pos, nrm, uv, tan = take(T.pos), take(T.nrm), take(T.uv), take(T.tan)
+        # albedo lod as a trilinear forward render picks it: log2 of the longer texel-space
+        # derivative of the uv mapping per display pixel (one Jacobian per triangle, at the reference view)
+        lod = self._lod(ids, px, order, uv)
+        info = np.stack([plan.kind, plan.level, persp.astype(np.float64), lod], axis=1)
+        o0, o1 = layout_attributes(plan.kind, plan.origin, plan.w, plan.w2, plan.h, plan.a, plan.samples)
+        flat = np.concatenate([info, o0, o1], axis=1)[:, None, :].repeat(3, axis=1)
+        return np.concatenate([pos, nrm, uv, tan, flat], axis=2).astype(np.float32)
+
+    def _lod(self, ids: np.ndarray, px: np.ndarray, order: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """(N,) albedo mip level per triangle: GL's ``log2(max(|d uv/dx|, |d uv/dy|))`` in texels, from the
+        triangle's pixel corners ``px`` (N, 3, 2, original order) and ``uv`` (N, 3, 2, rotated by ``order``)."""
+        p = np.take_along_axis(px, order[:, :, None], axis=1)
+        dp = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=2)           # (N, 2, 2) columns: edges in pixels
+        du = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2) * self._tex_size[self.tris.obj[ids]][:, :, None]
+        det = dp[:, 0, 0] * dp[:, 1, 1] - dp[:, 0, 1] * dp[:, 1, 0]
+        ok = np.abs(det) > 1e-9
+        inv = np.zeros_like(dp)
+        inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 0], inv[:, 1, 1] = dp[:, 1, 1], -dp[:, 0, 1], -dp[:, 1, 0], dp[:, 0, 0]
+        inv /= np.where(ok, det, 1.0)[:, None, None]
+        J = du @ inv                                                              # (N, 2, 2): d(texel)/d(pixel)
+        rho = np.maximum(np.linalg.norm(J[:, :, 0], axis=1), np.linalg.norm(J[:, :, 1], axis=1))
+        return np.where(ok, np.maximum(0.0, np.log2(np.maximum(rho, 1e-12))), 0.0)
+
+    def _gather(self, ctx: ServerContext, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray,
+                models: np.ndarray, px: np.ndarray) -> int:
+        """Shade every live triangle's samples into the atlas; returns the samples the GPU shaded."""
+        gl = self._gl
+        self._fbo.use()
+        self._fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._counter.clear()
+        if ids.size == 0:
+            return 0
+        data = self._vertices(ids, plan, base, persp, px).tobytes()
+        if self._vbo is None or self._vbo.size < len(data):
+            if self._vbo is not None:
+                self._vao.release()
+                self._vbo.release()
+            self._vbo = gl.buffer(reserve=max(len(data), 2 * (self._vbo.size if self._vbo is not None else 0)))
+            self._vao = gl.vertex_array(self._prog, [(self._vbo, "3f 3f 2f 4f 4f 4f 4f", "in_position", "in_normal", "in_uv",
+                                                      "in_tangent", "in_info", "in_o0", "in_o1")])
+        self._vbo.write(data)
+        prog = self._prog
+        ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
+        prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
+        prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
+        self._tex.bind_to_image(0, read=False, write=True)
+        self._counter.bind_to_storage_buffer(1)
+        o = self.tris.obj[ids]
+        bounds = np.flatnonzero(np.diff(o)) + 1
+        starts = np.concatenate([[0], bounds]).tolist()
+        ends = np.concatenate([bounds, [o.size]]).tolist()
+        gl.enable_direct(RASTERIZER_DISCARD)
+        try:
+            for s, e in zip(starts, ends):
+                og = self._sg.objects[int(o[s])]
+                mm = models[int(o[s])]
+                prog["u_model"].write(np.asarray(mm, "f4").T.tobytes())
+                prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(mm[:3, :3]).T, "f4").T.tobytes())
+                ctx.renderer.bind_material(prog, og)
+                self._vao.render(mode=gl.PATCHES, first=3 * s, vertices=3 * (e - s))
+        finally:
+            gl.disable_direct(RASTERIZER_DISCARD)
+        gl.memory_barrier()
+        return int(np.frombuffer(self._counter.read(4), np.uint32)[0])

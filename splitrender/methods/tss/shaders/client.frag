@@ -1,0 +1,46 @@
+#version 430
+// Per fragment (paper section 3.2 "Decoding"): object-space barycentrics, inverse
+// perspective encoding (eq. 5), the L-packing or oversampling layout, one bilinear tap.
+in vec3 v_bary;
+flat in vec3 v_zref;
+flat in vec4 v_info;
+flat in vec4 v_o0;
+flat in vec4 v_o1;
+uniform sampler2D u_atlas;
+uniform vec2 u_atlas_size;
+layout(location = 0) out vec4 f_color;
+
+vec2 tip_origin(int t) { return t == 0 ? v_o0.xy : (t == 1 ? v_o0.zw : v_o1.xy); }
+
+void main() {
+    vec3 b = max(v_bary, vec3(0.0));
+    b /= (b.x + b.y + b.z);
+    vec3 B = b;
+    if (v_info.z > 0.5) {            // eq. 5: back to the reference view's screen-space barycentrics
+        vec3 q = b * max(v_zref, vec3(1e-4));
+        B = q / (q.x + q.y + q.z);
+    }
+    int kind = int(v_info.x + 0.5);
+    vec2 p;
+    if (kind == 0) {
+        p = v_o0.xy + 0.5;
+    } else if (kind == 1) {
+        float l = v_info.y;
+        int t = B.x >= B.y && B.x >= B.z ? 0 : (B.y >= B.z ? 1 : 2);
+        int a = (t + 1) % 3, q = (t + 2) % 3;
+        bool side_a = B[a] >= B[q];
+        float s = side_a ? B[a] : B[q];
+        float m = side_a ? B[q] : B[a];
+        float r = min(m * 1.5 * l, floor(l * 0.5));
+        float c = (s + 0.5 * m) * l;
+        p = tip_origin(t) + 0.5 + (side_a ? vec2(c, r) : vec2(r, c));
+    } else {
+        // the two right-triangle staircases: which side of the height's foot, then x from it
+        float a = v_o0.w;
+        float y = B.z * v_o1.z;
+        float s = B.y + B.z * a;
+        if (s <= a) p = v_o0.xy + 0.5 + vec2(a > 0.0 ? (a - s) / a * v_o1.x : 0.0, y);
+        else p = v_o0.xy + 0.5 + vec2(v_o0.z - 1.0 - (a < 1.0 ? (s - a) / (1.0 - a) * v_o1.y : 0.0), v_o1.z - y);
+    }
+    f_color = vec4(texture(u_atlas, p / u_atlas_size).rgb, 1.0);
+}

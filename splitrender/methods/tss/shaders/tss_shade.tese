@@ -1,0 +1,114 @@
+#version 430
+// Sample gathering (paper sections 3.2-3.3): every tessellator vertex is a shading
+// thread.  It finds its sample, shades it with the ground truth's shading code and
+// writes the texel(s) straight into the atlas; the rasteriser does not run.
+// Mirrors splitrender/methods/tss/layout.py (lp_positions, os_linear_id, os_row_lengths).
+layout(triangles, equal_spacing, ccw) in;
+in vec3 c_world[];
+in vec3 c_normal[];
+in vec2 c_uv[];
+in vec4 c_tangent[];
+in float c_depth[];
+patch in vec4 p_info;
+patch in vec4 p_o0;
+patch in vec4 p_o1;
+layout(rgba8, binding = 0) uniform writeonly image2D u_atlas;
+layout(std430, binding = 1) buffer Counters { uint n_shaded; };
+uniform vec3 u_eye;
+float g_lod;
+#define ALBEDO_LOOKUP(uv) textureLod(u_albedo, uv, g_lod)
+#include "shading.glsl"
+const float EPS = 1e-4;
+
+// screen-space barycentrics at the reference view -> object-space ones (perspective, [MHAM08])
+vec3 to_object(vec3 B) {
+    if (p_info.z < 0.5) return B;
+    vec3 z = vec3(max(c_depth[0], 1e-4), max(c_depth[1], 1e-4), max(c_depth[2], 1e-4));
+    vec3 q = B / z;
+    return q / (q.x + q.y + q.z);
+}
+
+vec3 shade_at(vec3 B) {
+    vec3 b = to_object(B);
+    vec3 world = b.x * c_world[0] + b.y * c_world[1] + b.z * c_world[2];
+    vec3 n = b.x * c_normal[0] + b.y * c_normal[1] + b.z * c_normal[2];
+    vec2 uv = b.x * c_uv[0] + b.y * c_uv[1] + b.z * c_uv[2];
+    vec4 tg = vec4(b.x * c_tangent[0].xyz + b.y * c_tangent[1].xyz + b.z * c_tangent[2].xyz, c_tangent[0].w);
+    atomicAdd(n_shaded, 1u);
+    return shade(world, n, tg, uv, u_eye);
+}
+
+void store(vec2 origin, int x, int y, vec3 c) {
+    imageStore(u_atlas, ivec2(origin) + ivec2(x, y), vec4(c, 1.0));
+}
+
+vec2 tip_origin(int t) { return t == 0 ? p_o0.xy : (t == 1 ? p_o0.zw : p_o1.xy); }
+
+void main() {
+    gl_Position = vec4(0.0);
+    vec3 B = gl_TessCoord;
+    int kind = int(p_info.x + 0.5);
+    int l = int(p_info.y + 0.5);
+    g_lod = p_info.w;
+    if (kind == 0) {                       // one texel: the centroid, by the first corner's thread
+        if (B.x > 0.5) store(p_o0.xy, 0, 0, shade_at(vec3(1.0 / 3.0)));
+        return;
+    }
+    if (kind == 1) {                       // L-packing: tip blocks, folded at the diagonal
+        int D = (l + 2) / 2 + (l & 1);
+        vec3 c = vec3(-1.0);
+        for (int t = 0; t < 3; ++t) {
+            int a = (t + 1) % 3, q = (t + 2) % 3;
+            for (int side = 0; side < 2; ++side) {
+                int s = side == 0 ? a : q;
+                int m = side == 0 ? q : a;
+                bool ok = side == 0 ? B[m] <= B[s] + EPS : B[m] < B[s] - EPS;
+                int r = int(round(B[m] * 1.5 * float(l)));
+                int col = int(round((B[s] + 0.5 * B[m]) * float(l)));
+                if (!ok || col > D - 1 || B[m] > B[t] + EPS) continue;
+                if (c.x < 0.0) c = shade_at(B);
+                if (side == 0) store(tip_origin(t), col, r, c);
+                else store(tip_origin(t), r, col, c);
+            }
+        }
+        return;
+    }
+    // oversampling: a linear thread id from the ring pattern, then the staircase row
+    float fl = float(l);
+    float bmin = min(B.x, min(B.y, B.z));
+    int k = int(round(bmin * 1.5 * fl));
+    int n = l - 2 * k;
+    int id = 3 * k * (l - k + 1);
+    if (n > 0) {
+        float d = float(k) * 2.0 / (3.0 * fl);
+        int e = -1, j = 0;
+        for (int ee = 0; ee < 3; ++ee) {
+            int jj = int(round((B[(ee + 1) % 3] - d) * fl));
+            if (e < 0 && abs(B[(ee + 2) % 3] - d) < 1.0 / (6.0 * fl) && jj < n && jj >= 0) { e = ee; j = jj; }
+        }
+        if (e < 0) return;
+        id += e * n + j;
+    }
+    int total = int(p_o1.w + 0.5);
+    if (id >= total) return;
+    // two right-triangle staircases (figure 8): x along the base from the foot, y up the height
+    float a = p_o0.w;
+    int W1 = int(p_o1.x + 0.5), W2 = int(p_o1.y + 0.5), H = int(p_o1.z + 0.5);
+    int left = id;
+    for (int hf = 0; hf < 2; ++hf) {
+        int W = hf == 0 ? W1 : W2;
+        for (int y = 0; y <= H; ++y) {
+            int len = (W * (H - max(y - 1, 0))) / H + 2;
+            if (left >= len) { left -= len; continue; }
+            int x = left;
+            vec3 foot = vec3(1.0 - a, a, 0.0);
+            vec3 along = hf == 0 ? vec3(a, -a, 0.0) / float(W) : vec3(-(1.0 - a), 1.0 - a, 0.0) / float(W);
+            vec3 Bs = foot + float(x) * along + float(y) / float(H) * vec3(-(1.0 - a), -a, 1.0);
+            vec3 col = shade_at(Bs);
+            ivec2 o = ivec2(p_o0.xy);
+            ivec2 at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, H - y);
+            imageStore(u_atlas, at, vec4(col, 1.0));
+            return;
+        }
+    }
+}

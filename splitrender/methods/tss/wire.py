@@ -1,0 +1,287 @@
+"""The TSS wire format: what the server and client halves share.
+
+Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels,
+``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
+scene's triangles in object order), ``sky`` RGB.
+
+Per frame, two ``reliable`` data streams (zstd-compressed by the pipeline) and the
+atlas video stream.  All integers little-endian.
+
+``geo`` -- geometry of the triangles entering the client's cache (sent once per
+triangle and session): ``u8 version, u32 n``, then ``n`` delta-coded ``u32`` ids
+(the first id, then differences >= 1), ``n`` ``u16`` object indices, and ``n x 9``
+``f32`` object-space vertex positions (metres).
+
+``tris`` -- the live triangles and where their samples are: ``u8 version, u32
+n_single, u32 n_lp, u32 n_os, u16 n_bins``; ``n_bins`` bins ``(u8 level, u16 y0, u16
+shelves)`` (level 0 = the single-texel rows); then the delta-coded ``u32`` ids of each
+kind (single, L-packing, oversampling; each sorted), then
+
+- one ``u32`` per single texel: its slot (texel ``slot % W`` of row ``y0 + slot // W``);
+- one ``u32`` per L-packing triangle (4 B, paper section 4): bits 0-5 level - 1,
+  bit 6 no perspective correction, bits 7-31 the slot in its level's bin;
+- 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
+  ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
+  and common height (samples), ``u16 a`` the height's foot on the base (fraction x
+  65535), ``u8 flags`` (bit 1 no perspective correction, others 0), ``u8 base`` (the
+  vertex starting the base; the client rotates its vertices so it comes first).
+
+Per-frame metadata: ``v``, ``xf`` float32 (n_objects, 4, 4) object-to-world matrices
+at the frame's time (what the atlas was shaded with; the frame's pose is the
+reference view of the perspective correction).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import RemoteProtocolError
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_bin_shelves, lp_tip_origins, os_pair_width, tip_dim
+
+WIRE_VERSION = 1
+OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
+                     ("flags", "u1"), ("base", "u1")])
+"""The 16-byte oversampling descriptor."""
+LP_PERSP_OFF = 1 << 6
+OS_PERSP_OFF = 2
+MAX_OS_SIDE = 4096
+
+
+class TssWireError(RemoteProtocolError):
+    """Malformed TSS session data, geometry or triangle table (names the field)."""
+
+
+def encode_ids(ids: np.ndarray) -> bytes:
+    """Sorted distinct ids as ``u32`` deltas (the first id, then differences >= 1)."""
+    return np.diff(np.asarray(ids, np.int64), prepend=0).astype("<u4").tobytes()
+
+
+def decode_ids(d: np.ndarray, what: str, n_max: int) -> np.ndarray:
+    """Strictly increasing ids in ``0 .. n_max - 1`` from their deltas."""
+    d = d.astype(np.int64)
+    if d.size > 1 and (d[1:] < 1).any():
+        raise TssWireError(f"tss {what}: id differences must be >= 1 (strictly increasing ids)")
+    ids = np.cumsum(d)
+    if ids.size and ids[-1] >= n_max:
+        raise TssWireError(f"tss {what}: id {int(ids[-1])} is not below the scene's {n_max} triangles")
+    return ids
+
+
+class _Reader:
+    def __init__(self, buf: bytes, what: str) -> None:
+        self.buf = memoryview(buf)
+        self.pos = 0
+        self.what = what
+
+    def take(self, n: int, field: str) -> memoryview:
+        if n < 0 or self.pos + n > len(self.buf):
+            raise TssWireError(f"tss {self.what}: truncated at {field} (needs {n} bytes at offset {self.pos}, "
+                               f"payload is {len(self.buf)})")
+        out = self.buf[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def array(self, dtype: Any, count: int, field: str) -> np.ndarray:
+        dt = np.dtype(dtype)
+        return np.frombuffer(self.take(dt.itemsize * count, field), dt).copy()
+
+    def done(self) -> None:
+        if self.pos != len(self.buf):
+            raise TssWireError(f"tss {self.what}: {len(self.buf) - self.pos} bytes after the end")
+
+
+# ---------------------------------------------------------------------------- geometry
+def encode_geometry(ids: np.ndarray, obj: np.ndarray, pos: np.ndarray) -> bytes:
+    """The ``geo`` payload: triangles ``ids`` (sorted), their objects and (n, 3, 3) object-space positions."""
+    return (struct.pack("<BI", WIRE_VERSION, ids.size) + encode_ids(ids) + obj.astype("<u2").tobytes()
+            + np.ascontiguousarray(pos, "<f4").tobytes())
+
+
+@dataclass
+class Geometry:
+    ids: np.ndarray
+    obj: np.ndarray
+    pos: np.ndarray
+
+
+def decode_geometry(buf: bytes, n_triangles: int, n_objects: int) -> Geometry:
+    r = _Reader(buf, "geo")
+    v, n = struct.unpack("<BI", r.take(5, "header"))
+    if v != WIRE_VERSION:
+        raise TssWireError(f"tss geo: version {v}, this client speaks {WIRE_VERSION}")
+    if n > n_triangles:
+        raise TssWireError(f"tss geo: {n} triangles, the scene has {n_triangles}")
+    ids = decode_ids(r.array("<u4", n, "ids"), "geo ids", n_triangles)
+    obj = r.array("<u2", n, "objects").astype(np.int64)
+    if obj.size and obj.max() >= n_objects:
+        raise TssWireError(f"tss geo: object index {int(obj.max())} >= {n_objects} objects")
+    pos = r.array("<f4", 9 * n, "positions").reshape(n, 3, 3)
+    if not np.isfinite(pos).all():
+        raise TssWireError("tss geo: non-finite vertex positions")
+    r.done()
+    return Geometry(ids, obj, pos)
+
+
+# ---------------------------------------------------------------------------- triangle table
+def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> bytes:
+    """The ``tris`` payload of one frame: ``plan`` for triangles ``ids`` (sorted), their perspective flags and OS base vertices."""
+    kind, level, slot, origin = plan.kind, plan.level, plan.slot, plan.origin
+    sel = [np.flatnonzero(kind == k) for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
+    out = [struct.pack("<BIIIH", WIRE_VERSION, *(s.size for s in sel), len(plan.bins))]
+    for lv, (y0, shelves) in sorted(plan.bins.items()):
+        out.append(struct.pack("<BHH", lv, y0, shelves))
+    for s in sel:
+        out.append(encode_ids(ids[s]))
+    out.append(slot[sel[0]].astype("<u4").tobytes())
+    lp = sel[1]
+    d = (level[lp].astype(np.uint32) - 1) | np.where(persp[lp], 0, LP_PERSP_OFF).astype(np.uint32) | (slot[lp].astype(np.uint32) << 7)
+    out.append(d.astype("<u4").tobytes())
+    os_ = sel[2]
+    rec = np.zeros(os_.size, OS_DTYPE)
+    rec["x"], rec["y"], rec["pw"] = origin[os_, 0, 0], origin[os_, 0, 1], origin[os_, 1, 0]
+    rec["w1"], rec["w2"], rec["h"] = plan.w[os_], plan.w2[os_], plan.h[os_]
+    rec["a"] = np.rint(plan.a[os_] * 65535.0)
+    rec["flags"] = np.where(persp[os_], 0, OS_PERSP_OFF)
+    rec["base"] = base[os_]
+    out.append(rec.tobytes())
+    return b"".join(out)
+
+
+@dataclass
+class Table:
+    """A decoded triangle table: per live triangle (sorted by kind, then id) what the client draws with.
+
+    ``origin`` (N, 3, 2) texel origins, ``w``/``w2``/``h``/``a`` as in :class:`~.layout.AtlasPlan`.
+    """
+
+    ids: np.ndarray
+    kind: np.ndarray
+    level: np.ndarray
+    origin: np.ndarray
+    w: np.ndarray
+    w2: np.ndarray
+    h: np.ndarray
+    a: np.ndarray
+    persp: np.ndarray
+    base: np.ndarray
+
+
+def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int]) -> Table:
+    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H))."""
+    W, H = atlas
+    r = _Reader(buf, "tris")
+    v, n0, n1, n2, nb = struct.unpack("<BIIIH", r.take(15, "header"))
+    if v != WIRE_VERSION:
+        raise TssWireError(f"tss tris: version {v}, this client speaks {WIRE_VERSION}")
+    if n0 + n1 + n2 > n_triangles:
+        raise TssWireError(f"tss tris: {n0 + n1 + n2} live triangles, the scene has {n_triangles}")
+    bins: dict[int, tuple[int, int]] = {}
+    for _ in range(nb):
+        lv, y0, shelves = struct.unpack("<BHH", r.take(5, "bins"))
+        if lv > MAX_LEVEL or lv in bins:
+            raise TssWireError(f"tss tris: bin level {lv} repeated or above {MAX_LEVEL}")
+        bins[lv] = (y0, shelves)
+    ids = [decode_ids(r.array("<u4", n, f"{k} ids"), f"tris {k} ids", n_triangles) for n, k in
+           ((n0, "single"), (n1, "lp"), (n2, "os"))]
+    s0 = r.array("<u4", n0, "single slots").astype(np.int64)
+    d1 = r.array("<u4", n1, "lp descriptors").astype(np.int64)
+    rec = r.array(OS_DTYPE, n2, "os descriptors")
+    r.done()
+    allids = np.concatenate(ids)
+    if np.unique(allids).size != allids.size:
+        raise TssWireError("tss tris: a triangle is listed under two kinds")
+    n = allids.size
+    kind = np.concatenate([np.full(n0, KIND_SINGLE), np.full(n1, KIND_LP), np.full(n2, KIND_OS)]).astype(np.int64)
+    level = np.zeros(n, np.int64)
+    origin = np.zeros((n, 3, 2), np.int64)
+    w = np.zeros(n, np.int64)
+    w2 = np.zeros(n, np.int64)
+    h = np.zeros(n, np.int64)
+    a = np.zeros(n, np.float64)
+    persp = np.ones(n, bool)
+    base = np.zeros(n, np.int64)
+    if n0:
+        if 0 not in bins:
+            raise TssWireError("tss tris: single texels without a level-0 bin")
+        y0, rows = bins[0]
+        if (s0 >= rows * W).any() or y0 + rows > H:
+            raise TssWireError(f"tss tris: single-texel slot beyond its {rows} rows of the {W}x{H} atlas")
+        origin[:n0, 0, 0] = s0 % W
+        origin[:n0, 0, 1] = y0 + s0 // W
+        level[:n0] = 1
+    if n1:
+        lv = (d1 & 63) + 1
+        slot = d1 >> 7
+        persp[n0:n0 + n1] = (d1 & LP_PERSP_OFF) == 0
+        level[n0:n0 + n1] = lv
+        for L in np.unique(lv).tolist():
+            if L not in bins:
+                raise TssWireError(f"tss tris: level-{L} triangles without a level-{L} bin")
+            y0, shelves = bins[L]
+            k = np.flatnonzero(lv == L)
+            if slot[k].max() >= 2 * shelves * max(1, W // (3 * int(tip_dim(L)))) or shelves > lp_bin_shelves(L, 1 << 25, W):
+                raise TssWireError(f"tss tris: level-{L} slot {int(slot[k].max())} beyond its bin of {shelves} shelves")
+            if y0 + shelves * 2 * int(tip_dim(L)) > H:
+                raise TssWireError(f"tss tris: level-{L} bin (rows {y0}+{shelves * 2 * int(tip_dim(L))}) beyond the atlas height {H}")
+            origin[n0 + k] = lp_tip_origins(L, slot[k], y0, W)
+    if n2:
+        sl = slice(n0 + n1, n)
+        if (rec["flags"] & ~np.uint8(OS_PERSP_OFF)).any() or (rec["base"] > 2).any():
+            raise TssWireError("tss tris: oversampling descriptor with reserved flags or a base vertex above 2")
+        w1, ww2, hh, pw = (rec[k].astype(np.int64) for k in ("w1", "w2", "h", "pw"))
+        if (np.minimum(w1, np.minimum(ww2, hh)) < 1).any() or (np.maximum(w1, np.maximum(ww2, hh)) > MAX_OS_SIDE).any():
+            raise TssWireError(f"tss tris: oversampling size outside 1..{MAX_OS_SIDE}")
+        need = np.array([os_pair_width(int(p), int(q), int(r)) for p, q, r in zip(w1, ww2, hh)], np.int64)
+        if (pw < need).any():
+            raise TssWireError("tss tris: an oversampling rectangle is narrower than its two staircases")
+        x, y = rec["x"].astype(np.int64), rec["y"].astype(np.int64)
+        if (x + pw > W).any() or (y + hh + 1 > H).any():
+            raise TssWireError(f"tss tris: an oversampling rectangle reaches outside the {W}x{H} atlas")
+        origin[sl, 0, 0], origin[sl, 0, 1], origin[sl, 1, 0] = x, y, pw
+        w[sl], w2[sl], h[sl] = w1, ww2, hh
+        a[sl] = rec["a"] / 65535.0
+        persp[sl] = (rec["flags"] & OS_PERSP_OFF) == 0
+        base[sl] = rec["base"]
+    return Table(allids, kind, level, origin, w, w2, h, a, persp, base)
+
+
+@dataclass(frozen=True)
+class Session:
+    atlas: tuple[int, int]
+    n_objects: int
+    n_triangles: int
+    sky: tuple[float, float, float]
+
+
+def parse_session(data: Any) -> Session:
+    """Validate the session data; raises :class:`TssWireError` naming the field."""
+    if not isinstance(data, dict):
+        raise TssWireError(f"tss session data: expected a map, got {type(data).__name__}")
+    if data.get("v") != WIRE_VERSION:
+        raise TssWireError(f"tss session data: version {data.get('v')!r}, this client speaks {WIRE_VERSION}")
+    try:
+        W, H = (int(x) for x in data["atlas"])
+        n_obj, n_tri = int(data["n_objects"]), int(data["n_triangles"])
+        sky = tuple(float(x) for x in data["sky"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise TssWireError(f"tss session data: missing or malformed field ({exc})") from None
+    if not (0 < W <= 16384 and 0 < H <= 16384 and W % 2 == 0 and H % 2 == 0):
+        raise TssWireError(f"tss session data: atlas {W}x{H} must be even and at most 16384")
+    if not (0 <= n_obj <= 65535 and 0 <= n_tri < 1 << 25) or len(sky) != 3:
+        raise TssWireError("tss session data: n_objects, n_triangles or sky out of range")
+    return Session((W, H), n_obj, n_tri, sky)  # type: ignore[arg-type]
+
+
+def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:
+    """The frame's (n_objects, 4, 4) object transforms from the metadata."""
+    if not isinstance(meta, dict) or meta.get("v") != WIRE_VERSION:
+        raise TssWireError(f"tss metadata: expected a map with v={WIRE_VERSION}")
+    xf = meta.get("xf")
+    if not isinstance(xf, np.ndarray) or xf.shape != (n_objects, 4, 4) or not np.isfinite(xf).all():
+        raise TssWireError(f"tss metadata: 'xf' must be finite float ({n_objects}, 4, 4), got "
+                           f"{getattr(xf, 'shape', type(xf).__name__)}")
+    return xf.astype(np.float32)
