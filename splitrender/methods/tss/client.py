@@ -109,10 +109,12 @@ class TssClient(ClientHalf):
         flat = np.concatenate([obj[:, None].astype(np.float64), z, info, o0, o1], 1)[:, None, :].repeat(3, axis=1)
         data = np.concatenate([pos, flat], axis=2).astype(np.float32).tobytes()
         if self._vbo is None or self._vbo.size < len(data):
+            old = 0
             if self._vbo is not None:
+                old = self._vbo.size
                 self._vao.release()
                 self._vbo.release()
-            self._vbo = self.gl.buffer(reserve=max(len(data), 4096, 2 * (self._vbo.size if self._vbo is not None else 0)))
+            self._vbo = self.gl.buffer(reserve=max(len(data), 4096, 2 * old))
             self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 1f 3f 4f 4f 4f", "in_position", "in_object", "in_zref",
                                                           "in_info", "in_o0", "in_o1")])
         if data:

@@ -20,7 +20,7 @@ class TssConfig(MethodConfig):
     height exceeds this is oversampled, otherwise L-packed (the paper does not give
     the value).  ``tiny_samples``: triangles needing fewer samples than this get one
     texel.  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
-    the display's pixel count (paper: 24 Mpix at 1080p for the walkthroughs); when
+    the display's pixel count (the paper's 24 Mpix for its walkthroughs); when
     the visible set does not fit, the sampling rate of the frame is lowered until it
     does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
     ``pvs_prediction``, ``pvs_linger_frames``.  ``split_near_m``: at load time, meshes
@@ -32,7 +32,7 @@ class TssConfig(MethodConfig):
     samples_per_px: float = 1.0
     slant_threshold: float = 4.0
     tiny_samples: float = 2.0
-    atlas_mpix_1080p: float = 8.0
+    atlas_mpix_1080p: float = 24.0
     fov_margin: float = 0.2
     pvs_step_ms: float = 33.3
     pvs_prediction: Literal["linear", "none"] = "linear"

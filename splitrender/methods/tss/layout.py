@@ -197,6 +197,20 @@ def os_pair_width(wa: int, wb: int, h: int) -> int:
     return int((la + lb[::-1]).max())
 
 
+def os_sizes(w1: np.ndarray, w2: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rectangle widths (:func:`os_pair_width`) and samples of both staircases, vectorised over triangles."""
+    pw = np.zeros(h.size, np.int64)
+    ns = np.zeros(h.size, np.int64)
+    for hh in np.unique(h).tolist():
+        k = np.flatnonzero(h == hh)
+        rows = hh - np.maximum(np.arange(hh + 1) - 1, 0)                  # (hh + 1,)
+        l1 = (w1[k, None] * rows) // hh + 2
+        l2 = (w2[k, None] * rows) // hh + 2
+        pw[k] = (l1 + l2[:, ::-1]).max(axis=1)
+        ns[k] = l1.sum(axis=1) + l2.sum(axis=1)
+    return pw, ns
+
+
 @dataclass
 class AtlasPlan:
     """Where every live triangle's samples go.  Arrays are per triangle in ``ids`` order.
@@ -284,20 +298,26 @@ def pack_atlas(kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarra
         y += shelves * 2 * int(tip_dim(lv))
     os_ = np.flatnonzero(kind == KIND_OS)
     if os_.size:
+        pw_all, n_all = os_sizes(w[os_], w2[os_], h[os_])
+        samples[os_] = n_all
+        pw = np.zeros(n, np.int64)
+        pw[os_] = pw_all
         order = os_[np.lexsort((os_, h[os_]))]          # shelves by height, then id
         x = 0
         shelf_h = -1
-        for i in order.tolist():
-            hh = int(h[i])
-            pw = os_pair_width(int(w[i]), int(w2[i]), hh)
-            if hh != shelf_h or x + pw > width:
+        hs, pws = h[order].tolist(), pw[order].tolist()
+        xs, ys = [], []
+        for hh, p in zip(hs, pws):
+            if hh != shelf_h or x + p > width:
                 y += (shelf_h + 1) if shelf_h >= 0 else 0
                 x, shelf_h = 0, hh
-            origin[i, 0] = (x, y)
-            origin[i, 1] = (pw, 0)
-            samples[i] = os_samples(int(w[i]), hh) + os_samples(int(w2[i]), hh)
-            x += pw
+            xs.append(x)
+            ys.append(y)
+            x += p
         y += shelf_h + 1
+        origin[order, 0, 0] = xs
+        origin[order, 0, 1] = ys
+        origin[order, 1, 0] = pw[order]
         lvl[os_] = level_for(samples[os_])
     return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, y, y > height)
 

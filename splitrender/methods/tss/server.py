@@ -242,7 +242,7 @@ class TssServer(ServerHalf):
             plan = pack_atlas(kind, level, w1, w2, h, a, W, H)
             if not plan.overflow:
                 break
-            rate *= max(0.3, min(0.9, (H / max(plan.height, 1)) * 0.95))
+            rate *= max(0.25, min(0.95, (H / max(plan.height, 1)) ** 1.5 * 0.97))   # samples ~ rate, rows ~ rate^(2/3) or so
         return plan, base, slant, rate
 
     def produce(self, ctx: ServerContext) -> Update:
@@ -334,10 +334,12 @@ class TssServer(ServerHalf):
             return 0
         data = self._vertices(ids, plan, base, persp, px).tobytes()
         if self._vbo is None or self._vbo.size < len(data):
+            old = 0
             if self._vbo is not None:
+                old = self._vbo.size
                 self._vao.release()
                 self._vbo.release()
-            self._vbo = gl.buffer(reserve=max(len(data), 2 * (self._vbo.size if self._vbo is not None else 0)))
+            self._vbo = gl.buffer(reserve=max(len(data), 2 * old))
             self._vao = gl.vertex_array(self._prog, [(self._vbo, "3f 3f 2f 4f 4f 4f 4f", "in_position", "in_normal", "in_uv",
                                                       "in_tangent", "in_info", "in_o0", "in_o1")])
         self._vbo.write(data)
