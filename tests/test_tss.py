@@ -12,7 +12,7 @@ import struct
 import numpy as np
 import pytest
 
-from splitrender.methods.tss.layout import (KIND_OS, os_linear_id, os_lookup, os_row_lengths, os_sample_bary, os_sizes,
+from splitrender.methods.tss.layout import (os_linear_id, os_lookup, os_row_lengths, os_sample_bary, os_sizes,
                                             lp_lookup, lp_positions, tess_coords, tip_dim, v_count)
 from splitrender.scene.pose import CameraIntrinsics
 
