@@ -44,36 +44,8 @@ void store(vec2 origin, int x, int y, vec3 c) {
 
 vec2 tip_origin(int t) { return t == 0 ? p_o0.xy : (t == 1 ? p_o0.zw : p_o1.xy); }
 
-void main() {
-    gl_Position = vec4(0.0);
-    vec3 B = gl_TessCoord;
-    int kind = int(p_info.x + 0.5);
-    int l = int(p_info.y + 0.5);
-    g_lod = p_info.w;
-    if (kind == 0) {                       // one texel: the centroid, by the first corner's thread
-        if (B.x > 0.5) store(p_o0.xy, 0, 0, shade_at(vec3(1.0 / 3.0)));
-        return;
-    }
-    if (kind == 1) {                       // L-packing: tip blocks, folded at the diagonal
-        int D = (l + 2) / 2 + (l & 1);
-        vec3 c = vec3(-1.0);
-        for (int t = 0; t < 3; ++t) {
-            int a = (t + 1) % 3, q = (t + 2) % 3;
-            for (int side = 0; side < 2; ++side) {
-                int s = side == 0 ? a : q;
-                int m = side == 0 ? q : a;
-                bool ok = side == 0 ? B[m] <= B[s] + EPS : B[m] < B[s] - EPS;
-                int r = int(round(B[m] * 1.5 * float(l)));
-                int col = int(round((B[s] + 0.5 * B[m]) * float(l)));
-                if (!ok || col > D - 1 || B[m] > B[t] + EPS) continue;
-                if (c.x < 0.0) c = shade_at(B);
-                if (side == 0) store(tip_origin(t), col, r, c);
-                else store(tip_origin(t), r, col, c);
-            }
-        }
-        return;
-    }
-    // oversampling: a linear thread id from the ring pattern, then the staircase row
+// The sample an invocation shades (oversampling: from its linear thread id), and whether it shades one.
+bool os_sample(vec3 B, int l, out vec3 Bs, out ivec2 at) {
     float fl = float(l);
     float bmin = min(B.x, min(B.y, B.z));
     int k = int(round(bmin * 1.5 * fl));
@@ -86,29 +58,68 @@ void main() {
             int jj = int(round((B[(ee + 1) % 3] - d) * fl));
             if (e < 0 && abs(B[(ee + 2) % 3] - d) < 1.0 / (6.0 * fl) && jj < n && jj >= 0) { e = ee; j = jj; }
         }
-        if (e < 0) return;
+        if (e < 0) return false;
         id += e * n + j;
     }
-    int total = int(p_o1.w + 0.5);
-    if (id >= total) return;
+    if (id >= int(p_o1.w + 0.5)) return false;
     // two right-triangle staircases (figure 8): x along the base from the foot, y up the height
     float a = p_o0.w;
     int W1 = int(p_o1.x + 0.5), W2 = int(p_o1.y + 0.5), H = int(p_o1.z + 0.5);
-    int left = id;
-    for (int hf = 0; hf < 2; ++hf) {
-        int W = hf == 0 ? W1 : W2;
-        for (int y = 0; y <= H; ++y) {
-            int len = (W * (H - max(y - 1, 0))) / H + 2;
-            if (left >= len) { left -= len; continue; }
-            int x = left;
-            vec3 foot = vec3(1.0 - a, a, 0.0);
-            vec3 along = hf == 0 ? vec3(a, -a, 0.0) / float(W) : vec3(-(1.0 - a), 1.0 - a, 0.0) / float(W);
-            vec3 Bs = foot + float(x) * along + float(y) / float(H) * vec3(-(1.0 - a), -a, 1.0);
-            vec3 col = shade_at(Bs);
-            ivec2 o = ivec2(p_o0.xy);
-            ivec2 at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, H - y);
-            imageStore(u_atlas, at, vec4(col, 1.0));
-            return;
+    int left = id, hf = -1, y = 0;
+    for (int h2 = 0; h2 < 2 && hf < 0; ++h2) {
+        int W = h2 == 0 ? W1 : W2;
+        for (int yy = 0; yy <= H; ++yy) {
+            int len = (W * (H - max(yy - 1, 0))) / H + 2;
+            if (left < len) { hf = h2; y = yy; break; }
+            left -= len;
+        }
+    }
+    if (hf < 0) return false;
+    int x = left;
+    vec3 foot = vec3(1.0 - a, a, 0.0);
+    vec3 along = hf == 0 ? vec3(a, -a, 0.0) / float(W1) : vec3(-(1.0 - a), 1.0 - a, 0.0) / float(W2);
+    Bs = foot + float(x) * along + float(y) / float(H) * vec3(-(1.0 - a), -a, 1.0);
+    ivec2 o = ivec2(p_o0.xy);
+    at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, H - y);
+    return true;
+}
+
+void main() {
+    gl_Position = vec4(0.0);
+    vec3 B = gl_TessCoord;
+    int kind = int(p_info.x + 0.5);
+    int l = int(p_info.y + 0.5);
+    g_lod = p_info.w;
+    // Every kind first finds its sample; the shading runs once, outside every branch and loop: in SIMD
+    // execution (llvmpipe, GPU warps) a shade inside a divergent branch or loop runs once per path taken.
+    vec3 Bs = B;
+    ivec2 at = ivec2(p_o0.xy);
+    bool valid = true;
+    if (kind == 0) {                       // one texel: the centroid, by the first corner's thread
+        valid = B.x > 0.5;
+        Bs = vec3(1.0 / 3.0);
+    } else if (kind == 2) {
+        valid = os_sample(B, l, Bs, at);
+    }
+    if (!valid) return;
+    vec3 c = shade_at(Bs);
+    if (kind != 1) {
+        imageStore(u_atlas, at, vec4(c, 1.0));
+        return;
+    }
+    // L-packing: every tip block the sample lies in or borders, folded at the diagonal
+    int D = (l + 2) / 2 + (l & 1);
+    for (int t = 0; t < 3; ++t) {
+        int a = (t + 1) % 3, q = (t + 2) % 3;
+        for (int side = 0; side < 2; ++side) {
+            int s = side == 0 ? a : q;
+            int m = side == 0 ? q : a;
+            bool ok = side == 0 ? B[m] <= B[s] + EPS : B[m] < B[s] - EPS;
+            int r = int(round(B[m] * 1.5 * float(l)));
+            int col = int(round((B[s] + 0.5 * B[m]) * float(l)));
+            if (!ok || col > D - 1 || B[m] > B[t] + EPS) continue;
+            if (side == 0) store(tip_origin(t), col, r, c);
+            else store(tip_origin(t), r, col, c);
         }
     }
 }
