@@ -283,6 +283,7 @@ class SasServer(ServerHalf):
             "atlas_load_pct": 100.0 * al.memory_load(), "reset": float(reset), "iframe": float(iframe),
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
+            "samples": float(((1 << al.level_w[live].astype(np.int64)) * (1 << al.level_h[live].astype(np.int64))).sum()),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
