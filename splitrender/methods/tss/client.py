@@ -58,31 +58,29 @@ class TssClient(ClientHalf):
         self._n = 0
 
     def apply(self, update: DecodedUpdate) -> None:
-        """Apply one frame; malformed data raises :class:`TssWireError` and leaves the drawn state as it was."""
+        """Apply one frame; malformed data raises :class:`TssWireError` and leaves the drawn state as it was.
+
+        Geometry is checked and taken first (it is cumulative, and later tables name it),
+        then the table and atlas; a bad table does not cost the geometry that came with it.
+        """
         s = self.session
         xf = parse_transforms(update.meta, s.n_objects)
         geo = update.data.get("geo")
-        g = decode_geometry(geo, s.n_triangles, s.n_objects) if geo is not None else None
-        tris = update.data.get("tris")
-        atlas = update.planes.get("atlas")
-        table = None
-        if tris is not None and atlas is not None:
-            W, H = s.atlas
-            if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3):
-                raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
-            table = decode_table(tris, s.n_triangles, s.atlas)
-            has = self.has.copy()
-            if g is not None:
-                has[g.ids] = True
-            if table.ids.size and not has[table.ids].all():
-                raise TssWireError(f"tss tris: {int((~has[table.ids]).sum())} live triangles have no geometry")
-        # everything validated: apply
-        if g is not None:
+        if geo is not None:
+            g = decode_geometry(geo, s.n_triangles, s.n_objects)
             self.has[g.ids] = True
             self.obj[g.ids] = g.obj
             self.pos[g.ids] = g.pos
-        if table is None:
+        tris = update.data.get("tris")
+        atlas = update.planes.get("atlas")
+        if tris is None or atlas is None:
             return
+        W, H = s.atlas
+        if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3):
+            raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
+        table = decode_table(tris, s.n_triangles, s.atlas, s.strip)
+        if table.ids.size and not self.has[table.ids].all():
+            raise TssWireError(f"tss tris: {int((~self.has[table.ids]).sum())} live triangles have no geometry")
         fresh = self.models_t != update.t_s
         self.models_prev[fresh] = self.models[fresh]
         self.models_prev_t[fresh] = self.models_t[fresh]

@@ -25,7 +25,14 @@ class TssConfig(MethodConfig):
     does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
     ``pvs_prediction``, ``pvs_linger_frames``.  ``split_near_m``: at load time, meshes
     are split (midpoints) until no edge seen from this distance needs a level above 64
-    (the paper's pre-tessellation, done once); 0 disables it.
+    (the paper's pre-tessellation, done once); 0 disables it.  ``perspective``: place
+    samples uniformly in the reference view's screen space ([MHAM08], eq. 5) rather
+    than in object space.  ``layout``: ``stable`` keeps a triangle's atlas cell while it
+    stays visible in the same class (repacked on I-frames once the atlas is
+    ``high_water`` full, and whenever it overflows); ``prefix`` repacks every frame (a
+    deterministic prefix sum by class and id, closest to the paper's per-frame
+    binning).  ``hysteresis``: a triangle keeps its kind, level or staircase sizes
+    while the new ones are within this fraction of the old (fewer moves in the atlas).
     """
 
     gop: int = 30
@@ -40,6 +47,9 @@ class TssConfig(MethodConfig):
     split_near_m: float = 2.0
     split_max_triangles: int = 200_000
     perspective: bool = True
+    layout: Literal["stable", "prefix"] = "stable"
+    high_water: float = 0.9
+    hysteresis: float = 0.25
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -61,6 +71,12 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.pvs_linger_frames: must be in [0, 1000], got {self.pvs_linger_frames}")
         if not 0.0 <= self.split_near_m <= 1e3:
             raise ConfigError(f"TssConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
+        if self.layout not in ("stable", "prefix"):
+            raise ConfigError(f"TssConfig.layout: {self.layout!r} is not one of ['stable', 'prefix']")
+        if not 0.1 <= self.high_water <= 1.0:
+            raise ConfigError(f"TssConfig.high_water: must be in [0.1, 1], got {self.high_water}")
+        if not 0.0 <= self.hysteresis <= 1.0:
+            raise ConfigError(f"TssConfig.hysteresis: must be in [0, 1], got {self.hysteresis}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

@@ -35,11 +35,12 @@ the samples past its hypotenuse are the paper's conservative extras).  The secon
 staircase, turned by 180 degrees, interlocks with the first in one rectangle of
 :func:`os_pair_width` by ``H + 1`` texels.
 
-**Atlas layout** (:func:`pack_atlas`): single texels for tiny triangles first, then
-one bin per L-packing level (largest first) of pair cells on shelves, then the
-oversampled staircases on shelves by height; every list ordered by triangle id, so
-the layout is a deterministic function of the visible set (a prefix sum, not the
-paper's atomic binning).
+**Atlas layout** (:class:`StableAtlas`, :func:`plan_atlas`): shelves per class (single
+texels, each L-packing level's pair cells, oversampling rectangles by height and rounded
+width); a triangle keeps its cell while it stays visible in the same class, so the
+atlas changes little between frames (P-frames stay cheap).  A repack (on overflow,
+or every frame in the ``prefix`` mode) places every triangle in (class, id) order: a
+deterministic prefix sum, not the paper's atomic binning.
 """
 
 from __future__ import annotations
@@ -222,8 +223,9 @@ class AtlasPlan:
     width in ``origin[:, 1, 0]``) or the texel (single); ``w``/``w2``/``h`` (N,) OS
     staircase bases and height, ``a`` (N,) the split fraction; ``samples`` (N,)
     samples shaded;
-    ``bins`` {level: (y0, shelves)} (0 = the single-texel rows); ``height`` texel rows
-    used; ``overflow`` True when it did not fit the atlas.
+    ``bins`` {level: shelves (x, y)} (0 = the single-texel rows); ``height`` texel rows
+    used; ``overflow`` True when it did not fit the atlas; ``repacked`` when every
+    triangle was (re)placed.
     """
 
     kind: np.ndarray
@@ -235,18 +237,26 @@ class AtlasPlan:
     h: np.ndarray
     a: np.ndarray
     samples: np.ndarray
-    bins: dict[int, tuple[int, int]]
+    bins: dict[int, list[tuple[int, int]]]
     height: int
     overflow: bool
+    repacked: bool = True
 
 
-def lp_tip_origins(level: int, slot: np.ndarray, y0: int, width: int) -> np.ndarray:
-    """(N, 3, 2) tip-block origins of L-packing slots ``slot`` in the bin of ``level`` starting at row ``y0``."""
+def lp_per_shelf(level: int, strip: int) -> int:
+    """L-packing slots (half pair cells) on one shelf of ``2 D(l)`` rows and ``strip`` texels."""
+    return 2 * max(1, strip // (3 * int(tip_dim(level))))
+
+
+def lp_tip_origins(level: int, slot: np.ndarray, shelves: np.ndarray, strip: int) -> np.ndarray:
+    """(N, 3, 2) tip-block origins of L-packing slots ``slot`` of ``level``, whose bin's shelves start at texels
+    ``shelves`` (S, 2) (x, y), each ``strip`` texels wide."""
     D = int(tip_dim(level))
-    per = max(1, width // (3 * D))
+    per = lp_per_shelf(level, strip) // 2
     pair, half = slot // 2, slot % 2
-    X = (pair % per) * 3 * D
-    Y = y0 + (pair // per) * 2 * D
+    sh = np.asarray(shelves, np.int64).reshape(-1, 2)[pair // per]
+    X = sh[:, 0] + (pair % per) * 3 * D
+    Y = sh[:, 1]
     o = np.zeros((slot.size, 3, 2), np.int64)
     up = half == 0
     o[:, 0] = np.where(up[:, None], np.stack([X, Y], 1), np.stack([X + 2 * D, Y + D], 1))
@@ -255,71 +265,183 @@ def lp_tip_origins(level: int, slot: np.ndarray, y0: int, width: int) -> np.ndar
     return o
 
 
-def lp_bin_shelves(level: int, count: int, width: int) -> int:
-    """Shelves (each ``2 D(l)`` rows) the bin of ``count`` level-``level`` triangles takes."""
-    D = int(tip_dim(level))
-    per = max(1, width // (3 * D))
-    return -(-(-(-count // 2)) // per)
+OS_CELL_STEP = 8
+"""Oversampling cells are rectangles of the staircases' height and their width rounded up to this (stable layout)."""
 
 
-def pack_atlas(kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray,
-               width: int, height: int) -> AtlasPlan:
-    """Lay out triangles (already ordered by id) in a ``width`` x ``height`` atlas.
+def strip_width(width: int) -> int:
+    """Width of the atlas's shelf strips: a quarter of it, at least 128 texels (an L-packed pair at level 64 is 99)."""
+    return min(width, max(128, width // 4))
 
-    ``kind``/``level`` per triangle, ``w``/``w2``/``h``/``a`` their oversampling
-    staircases; returns an :class:`AtlasPlan`.
+
+class StableAtlas:
+    """Atlas memory in which a triangle keeps its place while it stays visible (the codec-friendly layout).
+
+    The atlas is cut into vertical strips of :func:`strip_width`; space is handed out in
+    shelves (one strip wide, or the whole width for cells wider than a strip) per
+    *class*: single texels (shelves of one row), one class per L-packing level (shelves
+    of ``2 D(l)`` rows holding pair cells), one per oversampling height and rounded
+    width (shelves of ``h + 1`` rows holding cells of :data:`OS_CELL_STEP`-rounded
+    width).  A triangle whose class is unchanged keeps its cell; one that leaves or
+    changes class frees it, and new ones take the lowest free cell of their class, or a
+    new shelf in the least filled strip.  :meth:`place` with ``reset`` (or when space
+    runs out) repacks every live triangle compactly in (class, id) order: the
+    prefix-sum layout, which is deterministic; the server then sends an I-frame.
     """
-    n = kind.size
-    slot = np.zeros(n, np.int64)
+
+    def __init__(self, n_triangles: int, width: int, height: int) -> None:
+        self.width, self.height = width, height
+        self.strip = strip_width(width)
+        self.cls = np.full(n_triangles, -1, np.int64)      # class index per triangle (-1: none)
+        self.cell = np.full(n_triangles, -1, np.int64)
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self.keys: list[tuple[int, ...]] = []
+        self.index: dict[tuple[int, ...], int] = {}
+        self.shelves: list[list[tuple[int, int]]] = []    # per class: (x, y) of its shelves
+        self.free: list[list[int]] = []                   # per class: free cells (sorted descending; pop() takes the lowest)
+        self.cursor = np.zeros(max(1, self.width // self.strip), np.int64)   # first free row per strip
+        self.cls[:] = -1
+        self.cell[:] = -1
+
+    @property
+    def rows(self) -> int:
+        """Rows in use (the deepest strip)."""
+        return int(self.cursor.max())
+
+    def cell_size(self, key: tuple[int, ...]) -> tuple[int, int, int]:
+        """(cell width, shelf height, cells per shelf) of class ``key``."""
+        if key[0] == KIND_SINGLE:
+            return 1, 1, self.strip
+        if key[0] == KIND_LP:
+            D = int(tip_dim(key[1]))
+            return 3 * D, 2 * D, lp_per_shelf(key[1], self.strip)
+        cw = min(key[2], self.width)
+        return cw, key[1] + 1, max(1, (self.strip if cw <= self.strip else self.width) // cw)
+
+    def _class(self, key: tuple[int, ...]) -> int:
+        c = self.index.get(key)
+        if c is None:
+            c = self.index[key] = len(self.keys)
+            self.keys.append(key)
+            self.shelves.append([])
+            self.free.append([])
+        return c
+
+    def _shelf(self, cw: int, sh: int) -> tuple[int, int] | None:
+        if cw > self.strip:                                # a full-width shelf below every strip
+            y = int(self.cursor.max())
+            if y + sh > self.height:
+                return None
+            self.cursor[:] = y + sh
+            return 0, y
+        s = int(np.argmin(self.cursor))
+        y = int(self.cursor[s])
+        if y + sh > self.height:
+            return None
+        self.cursor[s] = y + sh
+        return s * self.strip, y
+
+    def _alloc(self, c: int) -> int:
+        if not self.free[c]:
+            cw, sh, per = self.cell_size(self.keys[c])
+            at = self._shelf(cw, sh)
+            if at is None:
+                return -1
+            base = len(self.shelves[c]) * per
+            self.shelves[c].append(at)
+            self.free[c] = list(range(base + per - 1, base - 1, -1))
+        return self.free[c].pop()
+
+    def load(self) -> float:
+        """Mean rows in use per strip over the atlas height."""
+        return float(self.cursor.mean()) / self.height
+
+    def place(self, ids: np.ndarray, keys: list[tuple[int, ...]], reset: bool = False) -> tuple[bool, bool]:
+        """Give every live triangle ``ids`` (sorted) of class ``keys`` a cell; returns ``(fits, repacked)``."""
+        live = np.zeros(self.cls.size, bool)
+        live[ids] = True
+        repacked = reset
+        if not reset:
+            want = np.array([self._class(k) for k in keys], np.int64)
+            gone = np.flatnonzero((self.cls >= 0) & ~live)
+            moved = ids[(self.cls[ids] >= 0) & (self.cls[ids] != want)]
+            out = np.concatenate([gone, moved])
+            touched = set()
+            for c, k in zip(self.cls[out].tolist(), self.cell[out].tolist()):
+                self.free[c].append(k)
+                touched.add(c)
+            for c in touched:
+                self.free[c].sort(reverse=True)
+            self.cls[out] = -1
+            self.cell[out] = -1
+            new = self.cls[ids] < 0
+            for t, c in zip(ids[new].tolist(), want[new].tolist()):
+                k = self._alloc(c)
+                if k < 0:
+                    repacked = True
+                    break
+                self.cls[t], self.cell[t] = c, k
+        if repacked:
+            self._reset_state()
+            order = sorted(range(len(keys)), key=lambda i: (keys[i], int(ids[i])))
+            for i in order:
+                c = self._class(keys[i])
+                k = self._alloc(c)
+                if k < 0:
+                    return False, True
+                self.cls[ids[i]], self.cell[ids[i]] = c, k
+        return True, repacked
+
+    def origins(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) first texel of each triangle's cell and (N,) its slot within its class (single texels, L-packing)."""
+        out = np.zeros((ids.size, 2), np.int64)
+        slot = self.cell[ids].copy()
+        for c, key in enumerate(self.keys):
+            sel = np.flatnonzero(self.cls[ids] == c)
+            if sel.size == 0:
+                continue
+            cw, sh, per = self.cell_size(key)
+            k = self.cell[ids[sel]]
+            if key[0] == KIND_LP:
+                k = k // 2
+                per //= 2
+            at = np.asarray(self.shelves[c], np.int64).reshape(-1, 2)[k // per]
+            out[sel, 0] = at[:, 0] + (k % per) * cw
+            out[sel, 1] = at[:, 1]
+        return out, slot
+
+    def bins(self) -> dict[int, list[tuple[int, int]]]:
+        """Shelves per single-texel (0) and L-packing level class: what the client needs to find a slot."""
+        return {(0 if k[0] == KIND_SINGLE else k[1]): list(self.shelves[c]) for c, k in enumerate(self.keys)
+                if k[0] in (KIND_SINGLE, KIND_LP) and self.shelves[c]}
+
+
+def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarray,
+               h: np.ndarray, a: np.ndarray, reset: bool = False) -> AtlasPlan:
+    """Lay out triangles ``ids`` (sorted) in ``atlas``: keep places where the class is unchanged (or repack all with
+    ``reset``); ``plan.overflow`` when they do not fit even repacked, ``plan.repacked`` when they were repacked."""
+    n = ids.size
+    pw, ns = os_sizes(w, w2, h)
+    samples = np.where(kind == KIND_SINGLE, 1, np.where(kind == KIND_LP, v_count(level), ns)).astype(np.int64)
+    lvl = np.where(kind == KIND_OS, level_for(samples), level).astype(np.int64)
+    cw = -(-pw // OS_CELL_STEP) * OS_CELL_STEP
+    keys = [(KIND_SINGLE,) if k == KIND_SINGLE else (KIND_LP, int(lv)) if k == KIND_LP else (KIND_OS, int(hh), int(c))
+            for k, lv, hh, c in zip(kind.tolist(), level.tolist(), h.tolist(), cw.tolist())]
+    fits, repacked = atlas.place(ids, keys, reset)
     origin = np.zeros((n, 3, 2), np.int64)
-    samples = np.zeros(n, np.int64)
-    lvl = level.astype(np.int64).copy()
-    bins: dict[int, tuple[int, int]] = {}
-    y = 0
-    sel = np.flatnonzero(kind == KIND_SINGLE)
-    if sel.size:
-        k = np.arange(sel.size)
-        slot[sel] = k
-        origin[sel, 0, 0] = k % width
-        origin[sel, 0, 1] = k // width
-        samples[sel] = 1
-        rows = -(-sel.size // width)
-        bins[0] = (0, rows)
-        y += rows
-    lp = kind == KIND_LP
-    for lv in sorted(np.unique(level[lp]).tolist(), reverse=True):
-        sel = np.flatnonzero(lp & (level == lv))
-        k = np.arange(sel.size)
-        slot[sel] = k
-        origin[sel] = lp_tip_origins(lv, k, y, width)
-        samples[sel] = int(v_count(lv))
-        shelves = lp_bin_shelves(lv, sel.size, width)
-        bins[int(lv)] = (y, shelves)
-        y += shelves * 2 * int(tip_dim(lv))
-    os_ = np.flatnonzero(kind == KIND_OS)
-    if os_.size:
-        pw_all, n_all = os_sizes(w[os_], w2[os_], h[os_])
-        samples[os_] = n_all
-        pw = np.zeros(n, np.int64)
-        pw[os_] = pw_all
-        order = os_[np.lexsort((os_, h[os_]))]          # shelves by height, then id
-        x = 0
-        shelf_h = -1
-        hs, pws = h[order].tolist(), pw[order].tolist()
-        xs, ys = [], []
-        for hh, p in zip(hs, pws):
-            if hh != shelf_h or x + p > width:
-                y += (shelf_h + 1) if shelf_h >= 0 else 0
-                x, shelf_h = 0, hh
-            xs.append(x)
-            ys.append(y)
-            x += p
-        y += shelf_h + 1
-        origin[order, 0, 0] = xs
-        origin[order, 0, 1] = ys
-        origin[order, 1, 0] = pw[order]
-        lvl[os_] = level_for(samples[os_])
-    return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, y, y > height)
+    slot = np.zeros(n, np.int64)
+    bins = atlas.bins() if fits else {}
+    if fits:
+        o, slot = atlas.origins(ids)
+        origin[:, 0] = o
+        lp = kind == KIND_LP
+        for lv in np.unique(level[lp]).tolist():
+            sel = np.flatnonzero(lp & (level == lv))
+            origin[sel] = lp_tip_origins(lv, slot[sel], np.asarray(bins[lv]), atlas.strip)
+        origin[kind == KIND_OS, 1, 0] = pw[kind == KIND_OS]
+    return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, atlas.rows, not fits, repacked)
 
 
 def os_sample_bary(x: np.ndarray, y: np.ndarray, half: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray,

@@ -11,9 +11,11 @@ Per server frame (paper figure 10):
    its area times ``samples_per_px``; triangles needing fewer than ``tiny_samples``
    get one texel.  Load-time midpoint splits keep levels at or below 64
    (:meth:`TssConfig.split_edge_m`);
-3. **atlas mapping** (:func:`~.layout.pack_atlas`): a deterministic prefix-sum layout
-   by kind, level and triangle id; when the set does not fit, the frame's sampling
-   rate drops until it does (``srv_rate``);
+3. **atlas mapping** (:class:`~.layout.StableAtlas`): a triangle keeps its cell while
+   it stays visible in the same class (with hysteresis on kind, level and sizes); a
+   repack in (class, id) order, a deterministic prefix sum, on overflow and on I-frames
+   past ``high_water`` (every frame with ``layout = "prefix"``) forces an I-frame; when
+   the set does not fit, the frame's sampling rate drops until it does (``srv_rate``);
 4. **gathering**: one patch per triangle through ``shaders/tss_shade.*`` with the
    rasteriser discarded; each tessellator vertex shades its sample with
    ``shading.glsl`` (the ground truth's shader) and stores it into the atlas;
@@ -39,7 +41,7 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, sample_times
 from .config import TssConfig
-from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, layout_attributes, level_for, pack_atlas, v_count
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, layout_attributes, level_for, plan_atlas, v_count
 from .wire import WIRE_VERSION, encode_geometry, encode_table
 
 log = logging.getLogger(__name__)
@@ -133,9 +135,10 @@ def project(world: np.ndarray, pose: Pose, intr: CameraIntrinsics) -> tuple[np.n
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
-    Returns ``kind, level, w1, w2, h, a, base, slant``: the kind, L-packing level, the
-    oversampling staircases (bases and height in samples, the split fraction ``a``
-    quantised to 16 bits as on the wire), the base's start vertex and slantedness.
+    Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
+    the oversampling staircases (bases and height in samples, the split fraction ``a``
+    quantised to 16 bits as on the wire), the base's start vertex, slantedness and
+    samples needed (area times rate).
     """
     e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
     ln = np.linalg.norm(e, axis=2)
@@ -162,7 +165,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -
     total = (w1 + w2 + 4) * (h + 1)
     shrink = np.sqrt(np.minimum(1.0, 0.9 * int(v_count(MAX_LEVEL)) / np.maximum(total, 1)))
     w1, w2, h = (np.clip(np.floor(v * shrink), 1, 4096).astype(np.int64) for v in (w1, w2, h))
-    return kind, level, w1, w2, h, a, base, slant
+    return kind, level, w1, w2, h, a, base, slant, need
 
 
 class TssServer(ServerHalf):
@@ -183,6 +186,12 @@ class TssServer(ServerHalf):
         self._since_i = 0
         self._gl: Any = None
         self._stats: dict[str, float] = {}
+        self.store = StableAtlas(n, *self.atlas)
+        self._prev_kind = np.full(n, -1, np.int64)
+        self._prev_level = np.zeros(n, np.int64)
+        self._prev_w1 = np.zeros(n, np.int64)
+        self._prev_w2 = np.zeros(n, np.int64)
+        self._prev_h = np.zeros(n, np.int64)
         self.last_plan: AtlasPlan | None = None
         self.last_ids = np.zeros(0, np.int64)
 
@@ -196,7 +205,7 @@ class TssServer(ServerHalf):
         return [StreamSpec("atlas", v, *self.atlas), DataStreamSpec("tris", "reliable"), DataStreamSpec("geo", "reliable")]
 
     def session_data(self) -> dict[str, Any]:
-        return {"v": WIRE_VERSION, "atlas": list(self.atlas), "n_objects": len(self.scene.objects),
+        return {"v": WIRE_VERSION, "atlas": list(self.atlas), "strip": self.store.strip, "n_objects": len(self.scene.objects),
                 "n_triangles": self.tris.count, "sky": list(map(float, self.scene.sky_color))}
 
     def stats(self) -> dict[str, float]:
@@ -229,20 +238,55 @@ class TssServer(ServerHalf):
         ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
         return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
 
-    def plan(self, px: np.ndarray, depth: np.ndarray) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
-        """Classify and lay out triangles with pixel corners ``px``; lowers the rate until the atlas holds them.
+    def _hysteresis(self, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray,
+                    slant: np.ndarray, need: np.ndarray) -> None:
+        """Keep each triangle's previous kind, level and staircase sizes (in place) while the new ones are close."""
+        c = self.config
+        hy = c.hysteresis
+        pk, pl = self._prev_kind[ids], self._prev_level[ids]
+        pw1, pw2, ph = self._prev_w1[ids], self._prev_w2[ids], self._prev_h[ids]
+        tiny = c.tiny_samples
+        stay = pk == kind
+        stay |= (pk == KIND_OS) & (kind == KIND_LP) & (slant > c.slant_threshold * (1 - hy)) & (need >= tiny)
+        stay |= (pk == KIND_LP) & (kind == KIND_OS) & (slant < c.slant_threshold * (1 + hy))
+        stay |= (pk == KIND_SINGLE) & (need < tiny * (1 + hy))
+        stay |= (pk == KIND_LP) & (kind == KIND_SINGLE) & (need >= tiny * (1 - hy))
+        kind[:] = np.where(stay & (pk >= 0), pk, kind)
+        v_prev = v_count(np.maximum(pl, 1))
+        keep_l = (kind == KIND_LP) & (pk == KIND_LP) & (v_prev >= need * (1 - hy)) & (v_prev <= need * (1 + 2 * hy) + 2)
+        level[:] = np.where(keep_l, pl, level)
 
-        Returns the plan, the OS base vertex per triangle, the slantedness and the rate used.
-        """
+        def close(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+            return (old >= new * (1 - hy)) & (old <= new * (1 + hy) + 1)
+
+        keep_o = (kind == KIND_OS) & (pk == KIND_OS) & close(pw1, w1) & close(pw2, w2) & close(ph, h)
+        w1[:], w2[:], h[:] = (np.where(keep_o, o, n) for o, n in ((pw1, w1), (pw2, w2), (ph, h)))
+
+    def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
+        """Classify triangles ``ids`` with pixel corners ``px`` and place them in the atlas; lowers the frame's
+        sampling rate (and repacks) until they fit.  Returns the plan, the OS base vertex per triangle, the
+        slantedness and the rate used."""
         c = self.config
         W, H = self.atlas
         rate = c.samples_per_px
-        for _ in range(12):
-            kind, level, w1, w2, h, a, base, slant = classify(px, rate, c.slant_threshold, c.tiny_samples)
-            plan = pack_atlas(kind, level, w1, w2, h, a, W, H)
+        reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
+        for attempt in range(12):
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples)
+            if attempt == 0 and c.layout == "stable":
+                self._hysteresis(ids, kind, level, w1, w2, h, slant, need)
+            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0)
             if not plan.overflow:
                 break
-            rate *= max(0.25, min(0.95, (H / max(plan.height, 1)) ** 1.5 * 0.97))   # samples ~ rate, rows ~ rate^(2/3) or so
+            rate *= max(0.25, min(0.95, (H / max(plan.height, 1)) ** 1.5 * 0.97))
+        if plan.overflow:   # the last resort: one texel per triangle
+            log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
+            kind[:] = KIND_SINGLE
+            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True)
+            if plan.overflow:
+                raise RuntimeError(f"tss: {ids.size} triangles do not fit a {W}x{H} atlas even as single texels")
+        self._prev_kind[:] = -1
+        self._prev_kind[ids], self._prev_level[ids] = plan.kind, np.where(plan.kind == KIND_LP, level, 0)
+        self._prev_w1[ids], self._prev_w2[ids], self._prev_h[ids] = plan.w, plan.w2, plan.h
         return plan, base, slant, rate
 
     def produce(self, ctx: ServerContext) -> Update:
@@ -261,15 +305,16 @@ class TssServer(ServerHalf):
         m = models[T.obj[pvs]].astype(np.float64)                                     # (N, 4, 4)
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
         px, depth = project(world, ctx.target_pose, self.intrinsics)
-        plan, base, slant, rate = self.plan(px, depth)
+        full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
+        iframe = full or self._since_i >= c.gop
+        plan, base, slant, rate = self.plan(pvs, px, iframe)
+        iframe = iframe or (plan.repacked and c.layout == "stable" and self._frames > 0)
         persp = (depth.min(axis=1) > NEAR_M) & c.perspective
         t2 = time.perf_counter()
         shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
         W, H = self.atlas
         atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(H, W, 3).copy()
         t3 = time.perf_counter()
-        full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
-        iframe = full or self._since_i >= c.gop
         new = pvs[~self.client_has[pvs]]
         self.client_has[new] = True
         geo = encode_geometry(new, T.obj[new], T.pos[new])
@@ -287,7 +332,8 @@ class TssServer(ServerHalf):
             "single_triangles": float((k == KIND_SINGLE).sum()), "lp_samples": float(plan.samples[k == KIND_LP].sum()),
             "os_samples": float(plan.samples[os_].sum()), "os_inside": inside,
             "atlas_used_pct": 100.0 * plan.height / H, "rate": rate, "iframe": float(iframe),
-            "geo_sent": float(new.size), "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
+            "geo_sent": float(new.size), "repacked": float(plan.repacked), "atlas_load_pct": 100.0 * self.store.load(),
+            "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
         }
         meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe,

@@ -1,6 +1,7 @@
 """The TSS wire format: what the server and client halves share.
 
-Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels,
+Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels, ``strip``
+(width of the atlas's shelf strips, texels, :func:`~.layout.strip_width`),
 ``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
 scene's triangles in object order), ``sky`` RGB.
 
@@ -13,13 +14,17 @@ triangle and session): ``u8 version, u32 n``, then ``n`` delta-coded ``u32`` ids
 ``f32`` object-space vertex positions (metres).
 
 ``tris`` -- the live triangles and where their samples are: ``u8 version, u32
-n_single, u32 n_lp, u32 n_os, u16 n_bins``; ``n_bins`` bins ``(u8 level, u16 y0, u16
-shelves)`` (level 0 = the single-texel rows); then the delta-coded ``u32`` ids of each
-kind (single, L-packing, oversampling; each sorted), then
+n_single, u32 n_lp, u32 n_os, u16 n_bins``; ``n_bins`` bins ``u8 level, u16 n`` and
+``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
+session's ``strip``; level 0 = the single-texel shelves, one row each; level ``l``:
+shelves of ``2 D(l)`` rows, each ``S // (3 D(l))`` pair cells of two slots); then the
+delta-coded ``u32`` ids of each kind (single, L-packing, oversampling; each sorted),
+then
 
-- one ``u32`` per single texel: its slot (texel ``slot % W`` of row ``y0 + slot // W``);
+- one ``u32`` per single texel: its slot (texel ``slot % S`` of shelf ``slot // S``);
 - one ``u32`` per L-packing triangle (4 B, paper section 4): bits 0-5 level - 1,
-  bit 6 no perspective correction, bits 7-31 the slot in its level's bin;
+  bit 6 no perspective correction, bits 7-31 the slot in its level's bin
+  (:func:`~.layout.lp_tip_origins`);
 - 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
   ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
   and common height (samples), ``u16 a`` the height's foot on the base (fraction x
@@ -40,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_bin_shelves, lp_tip_origins, os_pair_width, tip_dim
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_per_shelf, lp_tip_origins, os_pair_width, tip_dim
 
 WIRE_VERSION = 1
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
@@ -132,8 +137,8 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.n
     kind, level, slot, origin = plan.kind, plan.level, plan.slot, plan.origin
     sel = [np.flatnonzero(kind == k) for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
     out = [struct.pack("<BIIIH", WIRE_VERSION, *(s.size for s in sel), len(plan.bins))]
-    for lv, (y0, shelves) in sorted(plan.bins.items()):
-        out.append(struct.pack("<BHH", lv, y0, shelves))
+    for lv, shelves in sorted(plan.bins.items()):
+        out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
     for s in sel:
         out.append(encode_ids(ids[s]))
     out.append(slot[sel[0]].astype("<u4").tobytes())
@@ -170,21 +175,26 @@ class Table:
     base: np.ndarray
 
 
-def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int]) -> Table:
-    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H))."""
+def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int) -> Table:
+    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width)."""
     W, H = atlas
+    S = strip
     r = _Reader(buf, "tris")
     v, n0, n1, n2, nb = struct.unpack("<BIIIH", r.take(15, "header"))
     if v != WIRE_VERSION:
         raise TssWireError(f"tss tris: version {v}, this client speaks {WIRE_VERSION}")
     if n0 + n1 + n2 > n_triangles:
         raise TssWireError(f"tss tris: {n0 + n1 + n2} live triangles, the scene has {n_triangles}")
-    bins: dict[int, tuple[int, int]] = {}
+    bins: dict[int, np.ndarray] = {}
     for _ in range(nb):
-        lv, y0, shelves = struct.unpack("<BHH", r.take(5, "bins"))
+        lv, ns = struct.unpack("<BH", r.take(3, "bins"))
         if lv > MAX_LEVEL or lv in bins:
             raise TssWireError(f"tss tris: bin level {lv} repeated or above {MAX_LEVEL}")
-        bins[lv] = (y0, shelves)
+        shelves = r.array("<u2", 2 * ns, "bin shelves").astype(np.int64).reshape(-1, 2)
+        tall = 1 if lv == 0 else 2 * int(tip_dim(lv))
+        if shelves.size and ((shelves[:, 1] + tall > H).any() or (shelves[:, 0] + S > W).any()):
+            raise TssWireError(f"tss tris: a level-{lv} shelf reaches outside the {W}x{H} atlas")
+        bins[lv] = shelves
     ids = [decode_ids(r.array("<u4", n, f"{k} ids"), f"tris {k} ids", n_triangles) for n, k in
            ((n0, "single"), (n1, "lp"), (n2, "os"))]
     s0 = r.array("<u4", n0, "single slots").astype(np.int64)
@@ -207,11 +217,11 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int]) -> Table:
     if n0:
         if 0 not in bins:
             raise TssWireError("tss tris: single texels without a level-0 bin")
-        y0, rows = bins[0]
-        if (s0 >= rows * W).any() or y0 + rows > H:
-            raise TssWireError(f"tss tris: single-texel slot beyond its {rows} rows of the {W}x{H} atlas")
-        origin[:n0, 0, 0] = s0 % W
-        origin[:n0, 0, 1] = y0 + s0 // W
+        sh = bins[0]
+        if (s0 >= len(sh) * S).any():
+            raise TssWireError(f"tss tris: single-texel slot beyond its {len(sh)} shelves")
+        origin[:n0, 0, 0] = sh[s0 // S, 0] + s0 % S
+        origin[:n0, 0, 1] = sh[s0 // S, 1]
         level[:n0] = 1
     if n1:
         lv = (d1 & 63) + 1
@@ -221,13 +231,11 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int]) -> Table:
         for L in np.unique(lv).tolist():
             if L not in bins:
                 raise TssWireError(f"tss tris: level-{L} triangles without a level-{L} bin")
-            y0, shelves = bins[L]
+            sh = bins[L]
             k = np.flatnonzero(lv == L)
-            if slot[k].max() >= 2 * shelves * max(1, W // (3 * int(tip_dim(L)))) or shelves > lp_bin_shelves(L, 1 << 25, W):
-                raise TssWireError(f"tss tris: level-{L} slot {int(slot[k].max())} beyond its bin of {shelves} shelves")
-            if y0 + shelves * 2 * int(tip_dim(L)) > H:
-                raise TssWireError(f"tss tris: level-{L} bin (rows {y0}+{shelves * 2 * int(tip_dim(L))}) beyond the atlas height {H}")
-            origin[n0 + k] = lp_tip_origins(L, slot[k], y0, W)
+            if slot[k].max() >= lp_per_shelf(L, S) * len(sh):
+                raise TssWireError(f"tss tris: level-{L} slot {int(slot[k].max())} beyond its bin of {len(sh)} shelves")
+            origin[n0 + k] = lp_tip_origins(L, slot[k], sh, S)
     if n2:
         sl = slice(n0 + n1, n)
         if (rec["flags"] & ~np.uint8(OS_PERSP_OFF)).any() or (rec["base"] > 2).any():
@@ -252,6 +260,7 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int]) -> Table:
 @dataclass(frozen=True)
 class Session:
     atlas: tuple[int, int]
+    strip: int
     n_objects: int
     n_triangles: int
     sky: tuple[float, float, float]
@@ -265,15 +274,18 @@ def parse_session(data: Any) -> Session:
         raise TssWireError(f"tss session data: version {data.get('v')!r}, this client speaks {WIRE_VERSION}")
     try:
         W, H = (int(x) for x in data["atlas"])
+        strip = int(data["strip"])
         n_obj, n_tri = int(data["n_objects"]), int(data["n_triangles"])
         sky = tuple(float(x) for x in data["sky"])
     except (KeyError, TypeError, ValueError) as exc:
         raise TssWireError(f"tss session data: missing or malformed field ({exc})") from None
     if not (0 < W <= 16384 and 0 < H <= 16384 and W % 2 == 0 and H % 2 == 0):
         raise TssWireError(f"tss session data: atlas {W}x{H} must be even and at most 16384")
+    if not min(W, 128) <= strip <= W:
+        raise TssWireError(f"tss session data: strip {strip} must be in [min(128, W), W] for an atlas {W} wide")
     if not (0 <= n_obj <= 65535 and 0 <= n_tri < 1 << 25) or len(sky) != 3:
         raise TssWireError("tss session data: n_objects, n_triangles or sky out of range")
-    return Session((W, H), n_obj, n_tri, sky)  # type: ignore[arg-type]
+    return Session((W, H), strip, n_obj, n_tri, sky)  # type: ignore[arg-type]
 
 
 def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:
