@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_per_shelf, lp_tip_origins, os_pair_width, tip_dim
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_per_shelf, lp_tip_origins, os_sizes, tip_dim
 
 WIRE_VERSION = 1
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
@@ -243,7 +243,7 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: in
         w1, ww2, hh, pw = (rec[k].astype(np.int64) for k in ("w1", "w2", "h", "pw"))
         if (np.minimum(w1, np.minimum(ww2, hh)) < 1).any() or (np.maximum(w1, np.maximum(ww2, hh)) > MAX_OS_SIDE).any():
             raise TssWireError(f"tss tris: oversampling size outside 1..{MAX_OS_SIDE}")
-        need = np.array([os_pair_width(int(p), int(q), int(r)) for p, q, r in zip(w1, ww2, hh)], np.int64)
+        need, _ = os_sizes(w1, ww2, hh)
         if (pw < need).any():
             raise TssWireError("tss tris: an oversampling rectangle is narrower than its two staircases")
         x, y = rec["x"].astype(np.int64), rec["y"].astype(np.int64)
