@@ -107,6 +107,20 @@ def railing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     return CameraTrace(t, pos, q, name="thin_railing")
 
 
+def grazing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
+    """Eye 0.25 m above the floor looking along it towards the tilted ramp, creeping forward 0.4 m/s with a slow
+    sway: surfaces nearly parallel to the view (slanted triangles, anisotropic texture footprints)."""
+    from ..scene.pose import look_at_quat
+    from ..scene.trace import CameraTrace
+
+    t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
+    pos = np.stack([5.6 + 0.1 * np.sin(2 * math.pi * 0.4 * t), 0.25 + 0.03 * np.sin(2 * math.pi * 0.9 * t),
+                    -0.2 - 0.4 * t], axis=1)
+    yaw = np.radians(6.0) * np.sin(2 * math.pi * 0.3 * t)
+    q = np.array([look_at_quat(p, p + np.array([math.sin(a) - 0.15, -0.04, -math.cos(a)])) for p, a in zip(pos, yaw)])
+    return CameraTrace(t, pos, q, name="grazing")
+
+
 def ball_trace(duration_s: float) -> Any:
     from ..scene.trace import static_trace
 
@@ -151,6 +165,9 @@ CASES: tuple[StressCase, ...] = (
         "trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0),
     StressCase("bandwidth_drop", "1500 kbit/s stream; link drops to 500 kbit/s inside the window", _bandwidth, True, 100.0,
                "a time-windowed drop (mahimahi trace) rather than `rate 500kbit` for the whole run, so recovery can be measured"),
+    StressCase("grazing", "eye 25 cm above the floor looking along it to the tilted ramp (slanted triangles), lan",
+               lambda d, tm: {"trace": _save_trace(grazing_trace(tm.duration_s), d / "grazing.csv"), "network": "lan"},
+               False, 100.0),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
 )

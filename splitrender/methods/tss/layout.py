@@ -265,8 +265,20 @@ def lp_tip_origins(level: int, slot: np.ndarray, shelves: np.ndarray, strip: int
     return o
 
 
-OS_CELL_STEP = 8
-"""Oversampling cells are rectangles of the staircases' height and their width rounded up to this (stable layout)."""
+LADDER = np.array([1, 2, 3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96, 112, 128, 160, 192, 224, 256,
+                   320, 384, 448, 512, 640, 768, 896, 1024, 1280, 1536, 1792, 2048, 2560, 3072, 3584, 4096], np.int64)
+"""Cell sizes of the stable layout: L-packing levels and oversampling heights are rounded up to this ladder,
+oversampling widths to 8 times it, so a few dozen classes share the shelves (at most 25% of a cell is slack)."""
+
+
+def ladder(v: np.ndarray | int) -> np.ndarray:
+    """``v`` rounded up to :data:`LADDER`."""
+    return LADDER[np.minimum(np.searchsorted(LADDER, np.asarray(v, np.int64), side="left"), LADDER.size - 1)]
+
+
+def lp_cell_level(level: np.ndarray | int) -> np.ndarray:
+    """The level whose pair cells hold L-packed triangles of ``level`` (the ladder's next step)."""
+    return ladder(level)
 
 
 def strip_width(width: int) -> int:
@@ -279,10 +291,9 @@ class StableAtlas:
 
     The atlas is cut into vertical strips of :func:`strip_width`; space is handed out in
     shelves (one strip wide, or the whole width for cells wider than a strip) per
-    *class*: single texels (shelves of one row), one class per L-packing level (shelves
-    of ``2 D(l)`` rows holding pair cells), one per oversampling height and rounded
-    width (shelves of ``h + 1`` rows holding cells of :data:`OS_CELL_STEP`-rounded
-    width).  A triangle whose class is unchanged keeps its cell; one that leaves or
+    *class*: single texels (shelves of one row), L-packing pair cells per cell level
+    (:func:`lp_cell_level`; shelves of ``2 D`` rows), oversampling rectangles per
+    rounded height and width (:data:`LADDER`; shelves of ``h + 1`` rows).  A triangle whose class is unchanged keeps its cell; one that leaves or
     changes class frees it, and new ones take the lowest free cell of their class, or a
     new shelf in the least filled strip.  :meth:`place` with ``reset`` (or when space
     runs out) repacks every live triangle compactly in (class, id) order: the
@@ -318,7 +329,7 @@ class StableAtlas:
             D = int(tip_dim(key[1]))
             return 3 * D, 2 * D, lp_per_shelf(key[1], self.strip)
         cw = min(key[2], self.width)
-        return cw, key[1] + 1, max(1, (self.strip if cw <= self.strip else self.width) // cw)
+        return cw, key[1] + 1, max(1, (self.strip if cw <= self.strip else self.width) // cw)   # key: (OS, height, width)
 
     def _class(self, key: tuple[int, ...]) -> int:
         c = self.index.get(key)
@@ -426,9 +437,11 @@ def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.
     pw, ns = os_sizes(w, w2, h)
     samples = np.where(kind == KIND_SINGLE, 1, np.where(kind == KIND_LP, v_count(level), ns)).astype(np.int64)
     lvl = np.where(kind == KIND_OS, level_for(samples), level).astype(np.int64)
-    cw = -(-pw // OS_CELL_STEP) * OS_CELL_STEP
+    cw = 8 * ladder(-(-pw // 8))
+    ch = ladder(h)
+    cl = lp_cell_level(np.maximum(level, 1))
     keys = [(KIND_SINGLE,) if k == KIND_SINGLE else (KIND_LP, int(lv)) if k == KIND_LP else (KIND_OS, int(hh), int(c))
-            for k, lv, hh, c in zip(kind.tolist(), level.tolist(), h.tolist(), cw.tolist())]
+            for k, lv, hh, c in zip(kind.tolist(), cl.tolist(), ch.tolist(), cw.tolist())]
     fits, repacked = atlas.place(ids, keys, reset)
     origin = np.zeros((n, 3, 2), np.int64)
     slot = np.zeros(n, np.int64)
@@ -437,8 +450,8 @@ def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.
         o, slot = atlas.origins(ids)
         origin[:, 0] = o
         lp = kind == KIND_LP
-        for lv in np.unique(level[lp]).tolist():
-            sel = np.flatnonzero(lp & (level == lv))
+        for lv in np.unique(cl[lp]).tolist():
+            sel = np.flatnonzero(lp & (cl == lv))
             origin[sel] = lp_tip_origins(lv, slot[sel], np.asarray(bins[lv]), atlas.strip)
         origin[kind == KIND_OS, 1, 0] = pw[kind == KIND_OS]
     return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, atlas.rows, not fits, repacked)

@@ -132,13 +132,59 @@ def project(world: np.ndarray, pose: Pose, intr: CameraIntrinsics) -> tuple[np.n
     return px, z
 
 
-def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -> tuple[np.ndarray, ...]:
+def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: float) -> np.ndarray:
+    """(N,) pixels of each world-space triangle (N, 3, 3) inside the view at ``pose``: clipped (Sutherland-Hodgman,
+    vectorised) to the near plane and to the frustum widened by ``margin`` on every side (NDC units)."""
+    view = np.asarray(pose.view_matrix(), np.float64)
+    v = world @ view[:3, :3].T + view[:3, 3]
+    n = v.shape[0]
+    f = 1.0 / math.tan(math.radians(intr.fov_y_deg) / 2.0)
+    fx, s = f / (intr.width / intr.height), 1.0 + margin
+    # inside where a . p + b >= 0 (view space, the camera looks down -z)
+    planes = [((0.0, 0.0, -1.0), -NEAR_M), ((-fx, 0.0, -s), 0.0), ((fx, 0.0, -s), 0.0), ((0.0, -f, -s), 0.0), ((0.0, f, -s), 0.0)]
+    poly = np.zeros((n, 8, 3))
+    poly[:, :3] = v
+    cnt = np.full(n, 3, np.int64)
+    rows = np.arange(n)
+    for a, b in planes:
+        a_ = np.asarray(a)
+        d = poly @ a_ + b                                                   # (n, 8)
+        out = np.zeros_like(poly)
+        pos = np.zeros(n, np.int64)
+        for i in range(8):
+            valid = i < cnt
+            j = np.where(cnt > 0, (i + 1) % np.maximum(cnt, 1), 0)
+            di, dj = d[:, i], d[rows, j]
+            pi, pj = poly[:, i], poly[rows, j]
+            e1 = valid & (di >= 0)
+            out[rows[e1], np.minimum(pos[e1], 7)] = pi[e1]
+            pos += e1
+            e2 = valid & ((di >= 0) != (dj >= 0))
+            t = di / np.where(e2, di - dj, 1.0)
+            x = pi + t[:, None] * (pj - pi)
+            out[rows[e2], np.minimum(pos[e2], 7)] = x[e2]
+            pos += e2
+        poly, cnt = out, np.minimum(pos, 8)
+    z = np.maximum(-poly[..., 2], NEAR_M)
+    p2 = np.stack([poly[..., 0] / z * fx * intr.width / 2, poly[..., 1] / z * f * intr.height / 2], -1)
+    e = p2 - p2[:, :1]
+    cross = e[:, 1:-1, 0] * e[:, 2:, 1] - e[:, 1:-1, 1] * e[:, 2:, 0]      # fan triangles (0, k, k+1)
+    k = np.arange(1, 7)[None, :]
+    return 0.5 * np.abs((cross * (k + 1 < cnt[:, None])).sum(axis=1))
+
+
+def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
+             visible: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
     the oversampling staircases (bases and height in samples, the split fraction ``a``
     quantised to 16 bits as on the wire), the base's start vertex, slantedness and
-    samples needed (area times rate).
+    samples needed (area times rate).  With ``visible`` (pixels of each triangle
+    inside the widened view, :func:`visible_area`) a triangle reaching out of the view
+    gets samples for that part only, spread over the whole triangle (the paper
+    samples whole triangles; the part outside the view would need samples only if
+    the client turned that way, and the PVS margin already covers that).
     """
     e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
     ln = np.linalg.norm(e, axis=2)
@@ -148,7 +194,8 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -
     longest = ln[r, base]
     height = 2.0 * area / np.maximum(longest, 1e-9)
     slant = longest / np.maximum(height, 1e-9)
-    need = area * rate
+    shown = area if visible is None else np.minimum(area, visible)
+    need = shown * rate
     kind = np.where(need < tiny, KIND_SINGLE, np.where(slant > slant_threshold, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
     # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
@@ -157,7 +204,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float) -
     eb = e[r, base]
     a = np.clip(((apex - b0) * eb).sum(1) / np.maximum((eb * eb).sum(1), 1e-12), 0.0, 1.0)
     a = np.rint(a * 65535.0) / 65535.0
-    sq = math.sqrt(rate)
+    sq = math.sqrt(rate) * np.sqrt(shown / np.maximum(area, 1e-12))
     w1 = np.ceil(a * longest * sq)
     w2 = np.ceil((1.0 - a) * longest * sq)
     h = np.ceil(height * sq)
@@ -262,7 +309,8 @@ class TssServer(ServerHalf):
         keep_o = (kind == KIND_OS) & (pk == KIND_OS) & close(pw1, w1) & close(pw2, w2) & close(ph, h)
         w1[:], w2[:], h[:] = (np.where(keep_o, o, n) for o, n in ((pw1, w1), (pw2, w2), (ph, h)))
 
-    def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
+    def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool, visible: np.ndarray | None = None
+             ) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
         """Classify triangles ``ids`` with pixel corners ``px`` and place them in the atlas; lowers the frame's
         sampling rate (and repacks) until they fit.  Returns the plan, the OS base vertex per triangle, the
         slantedness and the rate used."""
@@ -271,7 +319,7 @@ class TssServer(ServerHalf):
         rate = c.samples_per_px
         reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples)
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, slant, need)
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0)
@@ -307,7 +355,8 @@ class TssServer(ServerHalf):
         px, depth = project(world, ctx.target_pose, self.intrinsics)
         full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
         iframe = full or self._since_i >= c.gop
-        plan, base, slant, rate = self.plan(pvs, px, iframe)
+        visible = visible_area(world, ctx.target_pose, self.intrinsics, c.fov_margin)
+        plan, base, slant, rate = self.plan(pvs, px, iframe, visible)
         iframe = iframe or (plan.repacked and c.layout == "stable" and self._frames > 0)
         persp = (depth.min(axis=1) > NEAR_M) & c.perspective
         t2 = time.perf_counter()

@@ -16,14 +16,16 @@ triangle and session): ``u8 version, u32 n``, then ``n`` delta-coded ``u32`` ids
 ``tris`` -- the live triangles and where their samples are: ``u8 version, u32
 n_single, u32 n_lp, u32 n_os, u16 n_bins``; ``n_bins`` bins ``u8 level, u16 n`` and
 ``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
-session's ``strip``; level 0 = the single-texel shelves, one row each; level ``l``:
-shelves of ``2 D(l)`` rows, each ``S // (3 D(l))`` pair cells of two slots); then the
+session's ``strip``; level 0 = the single-texel shelves, one row each; cell level
+``L``: shelves of ``2 D(L)`` rows, each ``S // (3 D(L))`` pair cells of two slots,
+holding the L-packed triangles whose level rounds up to ``L``,
+:func:`~.layout.lp_cell_level`); then the
 delta-coded ``u32`` ids of each kind (single, L-packing, oversampling; each sorted),
 then
 
 - one ``u32`` per single texel: its slot (texel ``slot % S`` of shelf ``slot // S``);
 - one ``u32`` per L-packing triangle (4 B, paper section 4): bits 0-5 level - 1,
-  bit 6 no perspective correction, bits 7-31 the slot in its level's bin
+  bit 6 no perspective correction, bits 7-31 the slot in its cell level's bin
   (:func:`~.layout.lp_tip_origins`);
 - 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
   ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
@@ -45,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_per_shelf, lp_tip_origins, os_sizes, tip_dim
+from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins, os_sizes, tip_dim
 
 WIRE_VERSION = 1
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
@@ -228,11 +230,12 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: in
         slot = d1 >> 7
         persp[n0:n0 + n1] = (d1 & LP_PERSP_OFF) == 0
         level[n0:n0 + n1] = lv
-        for L in np.unique(lv).tolist():
+        cell = lp_cell_level(lv)
+        for L in np.unique(cell).tolist():
             if L not in bins:
-                raise TssWireError(f"tss tris: level-{L} triangles without a level-{L} bin")
+                raise TssWireError(f"tss tris: L-packed triangles of cell level {L} without a level-{L} bin")
             sh = bins[L]
-            k = np.flatnonzero(lv == L)
+            k = np.flatnonzero(cell == L)
             if slot[k].max() >= lp_per_shelf(L, S) * len(sh):
                 raise TssWireError(f"tss tris: level-{L} slot {int(slot[k].max())} beyond its bin of {len(sh)} shelves")
             origin[n0 + k] = lp_tip_origins(L, slot[k], sh, S)
