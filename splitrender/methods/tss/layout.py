@@ -282,8 +282,9 @@ def lp_cell_level(level: np.ndarray | int) -> np.ndarray:
 
 
 def strip_width(width: int) -> int:
-    """Width of the atlas's shelf strips: a quarter of it, at least 128 texels (an L-packed pair at level 64 is 99)."""
-    return min(width, max(128, width // 4))
+    """Width of the atlas's shelf strips: the width cut into as many strips of at least 128 texels as fit
+    (an L-packed pair at level 64 is 99 wide)."""
+    return width // max(1, width // 128)
 
 
 class StableAtlas:

@@ -318,6 +318,7 @@ class TssServer(ServerHalf):
         W, H = self.atlas
         rate = c.samples_per_px
         reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
+        failed = None
         for attempt in range(12):
             kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible)
             if attempt == 0 and c.layout == "stable":
@@ -325,7 +326,25 @@ class TssServer(ServerHalf):
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0)
             if not plan.overflow:
                 break
-            rate *= max(0.25, min(0.95, (H / max(plan.height, 1)) ** 1.5 * 0.97))
+            failed = rate
+            # samples scale with the rate; cells take about twice the samples' area in texels
+            rate *= max(0.2, min(0.9, 0.5 * W * H / max(float(plan.samples.sum()), 1.0)))
+        if failed is not None and not plan.overflow:
+            # a few bisection steps (geometric) between the rate that fitted and the one that did not
+            lo, hi = rate, failed
+            good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
+            for _ in range(3):
+                mid = math.sqrt(lo * hi)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible)
+                p2 = plan_atlas(self.store, ids, *k2[:6], reset=True)
+                if p2.overflow:
+                    hi = mid
+                else:
+                    lo = mid
+                    good = (p2, *k2[:8], mid)
+            if good[0] is not plan or good[-1] != rate:
+                plan, kind, level, w1, w2, h, a, base, slant, rate = good
+                plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True)   # the store holds the last try
         if plan.overflow:   # the last resort: one texel per triangle
             log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
             kind[:] = KIND_SINGLE
