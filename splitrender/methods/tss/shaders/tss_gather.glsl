@@ -1,0 +1,58 @@
+// Sample gathering shared by the tessellation path (tss_shade.tese) and the compute-shader
+// generator of the figure 16 benchmark (tss_gather.comp).  The including shader declares the
+// triangle's corners c_world[3], c_normal[3], c_uv[3], c_tangent[3], c_depth[3], its layout
+// p_info, p_o0, p_o1, the atlas image u_atlas and the Counters buffer, then includes this file.
+float g_lod;
+#define ALBEDO_LOOKUP(uv) textureLod(u_albedo, uv, g_lod)
+#include "shading.glsl"
+const float EPS = 1e-4;
+
+// screen-space barycentrics at the reference view -> object-space ones (perspective, [MHAM08])
+vec3 to_object(vec3 B) {
+    if (p_info.z < 0.5) return B;
+    vec3 z = vec3(max(c_depth[0], 1e-4), max(c_depth[1], 1e-4), max(c_depth[2], 1e-4));
+    vec3 q = B / z;
+    return q / (q.x + q.y + q.z);
+}
+
+vec3 shade_at(vec3 B) {
+    vec3 b = to_object(B);
+    vec3 world = b.x * c_world[0] + b.y * c_world[1] + b.z * c_world[2];
+    vec3 n = b.x * c_normal[0] + b.y * c_normal[1] + b.z * c_normal[2];
+    vec2 uv = b.x * c_uv[0] + b.y * c_uv[1] + b.z * c_uv[2];
+    vec4 tg = vec4(b.x * c_tangent[0].xyz + b.y * c_tangent[1].xyz + b.z * c_tangent[2].xyz, c_tangent[0].w);
+    atomicAdd(n_shaded, 1u);
+    return shade(world, n, tg, uv, u_eye);
+}
+
+void store(vec2 origin, int x, int y, vec3 c) {
+    imageStore(u_atlas, ivec2(origin) + ivec2(x, y), vec4(c, 1.0));
+}
+
+vec2 tip_origin(int t) { return t == 0 ? p_o0.xy : (t == 1 ? p_o0.zw : p_o1.xy); }
+
+// Oversampling sample ``id`` (0 .. samples - 1): its screen-space barycentrics and texel; false past the end.
+bool os_staircase(int id, out vec3 Bs, out ivec2 at) {
+    if (id < 0 || id >= int(p_o1.w + 0.5)) return false;
+    // two right-triangle staircases (figure 8): x along the base from the foot, y up the height
+    float a = p_o0.w;
+    int W1 = int(p_o1.x + 0.5), W2 = int(p_o1.y + 0.5), H = int(p_o1.z + 0.5);
+    int left = id, hf = -1, y = 0;
+    for (int h2 = 0; h2 < 2 && hf < 0; ++h2) {
+        int W = h2 == 0 ? W1 : W2;
+        for (int yy = 0; yy <= H; ++yy) {
+            int len = (W * (H - max(yy - 1, 0))) / H + 2;
+            if (left < len) { hf = h2; y = yy; break; }
+            left -= len;
+        }
+    }
+    if (hf < 0) return false;
+    int x = left;
+    vec3 foot = vec3(1.0 - a, a, 0.0);
+    vec3 along = hf == 0 ? vec3(a, -a, 0.0) / float(W1) : vec3(-(1.0 - a), 1.0 - a, 0.0) / float(W2);
+    Bs = foot + float(x) * along + float(y) / float(H) * vec3(-(1.0 - a), -a, 1.0);
+    ivec2 o = ivec2(p_o0.xy);
+    at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, H - y);
+    return true;
+}
+
