@@ -180,8 +180,14 @@ def test_gathering_shades_exactly_the_planned_samples_deterministically(renderer
     plan = srv.last_plan
     assert plan is not None and not plan.overflow and plan.level.max() <= 64
     b = srv.produce(ctx)
-    assert np.array_equal(a.planes["atlas"], b.planes["atlas"]) and a.data["tris"] == b.data["tris"]
-    assert b.data["geo"] != a.data["geo"] and len(b.data["geo"]) < 16, "geometry is sent once"
+    assert np.array_equal(a.planes["atlas"], b.planes["atlas"]), "the same frame shades the same atlas"
+    from splitrender.methods.tss.wire import decode_table
+
+    s = srv.session_data()
+    rows, gone = decode_table(b.data["tris"], s["n_triangles"], tuple(s["atlas"]), s["strip"])
+    assert gone is not None and gone.size == 0 and rows.ids.size == 0, "a delta table with nothing in it"
+    assert len(b.data["geo"]) < 16, "geometry is sent once"
+    assert rows is not None
 
 
 def _still(renderer, scene: str, method: str, params: dict) -> float:  # type: ignore[no-untyped-def]
@@ -219,7 +225,7 @@ def test_malformed_tables_and_geometry_give_named_errors_and_keep_the_shown_stat
     shown = cli.render(pose, ctx.t_s).color
     table = cli.table
     tris, geo = upd.data["tris"], upd.data["geo"]
-    n0, n1, n2, nb = struct.unpack("<IIIH", tris[1:15])
+    n0, n1, n2, nb = struct.unpack("<IIIH", tris[2:16])
     os_off = len(tris) - 16 * n2
     rec = np.frombuffer(tris[os_off:], OS_DTYPE).copy()
     far = rec.copy()
@@ -234,7 +240,9 @@ def test_malformed_tables_and_geometry_give_named_errors_and_keep_the_shown_stat
     cases = [
         ({"tris": tris[:-3]}, r"^tss tris: truncated at os descriptors"),
         ({"tris": tris + b"\0"}, r"^tss tris: 1 bytes after the end$"),
-        ({"tris": b"\x07" + tris[1:]}, r"^tss tris: version 7, this client speaks 1$"),
+        ({"tris": b"\x07" + tris[1:]}, r"^tss tris: version 7, this client speaks 2$"),
+        ({"tris": tris[:1] + b"\x05" + tris[2:]}, r"^tss tris: full flag 5 is not 0 or 1$"),
+        ({"tris": struct.pack("<BBII", 2, 0, 1, 0) + tris[2:]}, r"^tss tris: 1 triangles leave that were not live$"),
         ({"tris": tris[:os_off] + far.tobytes()}, r"^tss tris: an oversampling rectangle reaches outside the \d+x\d+ atlas$"),
         ({"tris": tris[:os_off] + narrow.tobytes()}, r"^tss tris: an oversampling rectangle is narrower than its two staircases$"),
         ({"tris": tris[:os_off] + flags.tobytes()}, r"^tss tris: oversampling descriptor with reserved flags"),
@@ -251,9 +259,9 @@ def test_malformed_tables_and_geometry_give_named_errors_and_keep_the_shown_stat
     # a table naming triangles whose geometry never came
     fresh = _client(renderer, srv, spec, cfg)
     with pytest.raises(TssWireError, match=r"^tss tris: \d+ live triangles have no geometry$"):
-        fresh.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, {"tris": tris, "geo": struct.pack("<BI", 1, 0)}))
+        fresh.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, {"tris": tris, "geo": struct.pack("<BI", 2, 0)}))
     with pytest.raises(TssWireError, match=r"^tss metadata: 'xf' must be finite"):
-        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, {"v": 1, "xf": np.zeros((1, 4, 4), "f4")}, upd.data))
+        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, {"v": 2, "xf": np.zeros((1, 4, 4), "f4")}, upd.data))
     assert np.array_equal(cli.render(pose, ctx.t_s).color, shown), "the last good state stays on screen"
 
 

@@ -1,10 +1,11 @@
 """The TSS client half: caches triangle geometry, draws the live triangles at its own pose.
 
 State: per triangle ever sent its object and object-space corners (``geo``; bounded by
-the scene's triangle count), the newest triangle table (``tris``) with the atlas it
-describes, and the object transforms at that frame's time.  A table is applied only
-together with its atlas: when the atlas of a frame is missing, the previous pair stays
-on screen (geometry is still taken, it is cumulative).
+the scene's triangle count), the live triangles' descriptors as the reliable ``tris``
+stream builds them (full tables on I-frames, deltas between), and the pair drawn: the
+newest atlas with the table of its frame and the object transforms at that frame's
+time.  When the atlas of a frame is missing, the previous pair stays on screen; the
+table state and the geometry still advance (both streams are reliable and cumulative).
 
 Per fragment (``shaders/client.frag``): object-space barycentrics from the rasteriser,
 the inverse perspective encoding (paper eq. 5) with the triangle's vertex depths at the
@@ -51,7 +52,11 @@ class TssClient(ClientHalf):
         self.models_t = np.full(s.n_objects, np.nan)
         self.models_prev_t = np.full(s.n_objects, np.nan)
         self.ssbo = self.gl.buffer(reserve=max(1, s.n_objects) * 64)
-        self.table: Table | None = None
+        self.table: Table | None = None              # what is drawn: the table of the newest atlas
+        self.live = np.zeros(n, bool)                 # the table state the tris stream built
+        self.st = Table(np.zeros(0, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros((n, 3, 2), np.int64),
+                        np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n), np.ones(n, bool),
+                        np.zeros(n, np.int64))
         self._tex: Any = None
         self._vbo: Any = None
         self._vao: Any = None
@@ -73,14 +78,28 @@ class TssClient(ClientHalf):
             self.pos[g.ids] = g.pos
         tris = update.data.get("tris")
         atlas = update.planes.get("atlas")
-        if tris is None or atlas is None:
-            return
         W, H = s.atlas
-        if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3):
+        if atlas is not None and (not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3)):
             raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
-        table = decode_table(tris, s.n_triangles, s.atlas, s.strip)
-        if table.ids.size and not self.has[table.ids].all():
-            raise TssWireError(f"tss tris: {int((~self.has[table.ids]).sum())} live triangles have no geometry")
+        if tris is not None:
+            rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip)
+            if gone is not None and gone.size and not self.live[gone].all():
+                raise TssWireError(f"tss tris: {int((~self.live[gone]).sum())} triangles leave that were not live")
+            if rows.ids.size and not self.has[rows.ids].all():
+                raise TssWireError(f"tss tris: {int((~self.has[rows.ids]).sum())} live triangles have no geometry")
+            if gone is None:
+                self.live[:] = False
+            else:
+                self.live[gone] = False
+            self.live[rows.ids] = True
+            st, i = self.st, rows.ids
+            st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i] = rows.kind, rows.level, rows.origin, rows.w, rows.w2
+            st.h[i], st.a[i], st.persp[i], st.base[i] = rows.h, rows.a, rows.persp, rows.base
+        if atlas is None or tris is None:
+            return
+        st = self.st
+        i = np.flatnonzero(self.live)
+        table = Table(i, st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i], st.h[i], st.a[i], st.persp[i], st.base[i])
         fresh = self.models_t != update.t_s
         self.models_prev[fresh] = self.models[fresh]
         self.models_prev_t[fresh] = self.models_t[fresh]

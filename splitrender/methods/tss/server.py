@@ -42,7 +42,7 @@ from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, sample_times
 from .config import TssConfig
 from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, layout_attributes, level_for, plan_atlas, v_count
-from .wire import WIRE_VERSION, encode_geometry, encode_table
+from .wire import WIRE_VERSION, descriptors, encode_geometry, encode_table
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
@@ -234,6 +234,9 @@ class TssServer(ServerHalf):
         self._gl: Any = None
         self._stats: dict[str, float] = {}
         self.store = StableAtlas(n, *self.atlas)
+        self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
+        self._sent_desc = np.zeros((n, 17), np.uint8)
+        self._prev_a = np.zeros(n)
         self._prev_kind = np.full(n, -1, np.int64)
         self._prev_level = np.zeros(n, np.int64)
         self._prev_w1 = np.zeros(n, np.int64)
@@ -286,7 +289,7 @@ class TssServer(ServerHalf):
         return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
 
     def _hysteresis(self, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray,
-                    slant: np.ndarray, need: np.ndarray) -> None:
+                    a: np.ndarray, slant: np.ndarray, need: np.ndarray) -> None:
         """Keep each triangle's previous kind, level and staircase sizes (in place) while the new ones are close."""
         c = self.config
         hy = c.hysteresis
@@ -308,6 +311,8 @@ class TssServer(ServerHalf):
 
         keep_o = (kind == KIND_OS) & (pk == KIND_OS) & close(pw1, w1) & close(pw2, w2) & close(ph, h)
         w1[:], w2[:], h[:] = (np.where(keep_o, o, n) for o, n in ((pw1, w1), (pw2, w2), (ph, h)))
+        # the height's foot moves as the view does; keep the sample grid while it moves less than a tenth of hy
+        a[:] = np.where(keep_o & (np.abs(a - self._prev_a[ids]) < 0.1 * hy), self._prev_a[ids], a)
 
     def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool, visible: np.ndarray | None = None
              ) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
@@ -322,7 +327,7 @@ class TssServer(ServerHalf):
         for attempt in range(12):
             kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible)
             if attempt == 0 and c.layout == "stable":
-                self._hysteresis(ids, kind, level, w1, w2, h, slant, need)
+                self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0)
             if not plan.overflow:
                 break
@@ -354,6 +359,7 @@ class TssServer(ServerHalf):
         self._prev_kind[:] = -1
         self._prev_kind[ids], self._prev_level[ids] = plan.kind, np.where(plan.kind == KIND_LP, level, 0)
         self._prev_w1[ids], self._prev_w2[ids], self._prev_h[ids] = plan.w, plan.w2, plan.h
+        self._prev_a[ids] = plan.a
         return plan, base, slant, rate
 
     def produce(self, ctx: ServerContext) -> Update:
@@ -386,7 +392,19 @@ class TssServer(ServerHalf):
         new = pvs[~self.client_has[pvs]]
         self.client_has[new] = True
         geo = encode_geometry(new, T.obj[new], T.pos[new])
-        table = encode_table(pvs, plan, persp, base)
+        desc = descriptors(plan, persp, base)
+        if iframe:
+            table = encode_table(pvs, plan, persp, base)
+            changed = np.ones(pvs.size, bool)
+        else:
+            live = np.zeros(self.tris.count, bool)
+            live[pvs] = True
+            gone = np.flatnonzero(self._sent_live & ~live)
+            changed = ~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
+            table = encode_table(pvs, plan, persp, base, gone, changed)
+        self._sent_live[:] = False
+        self._sent_live[pvs] = True
+        self._sent_desc[pvs] = desc
         self._since_i = 1 if iframe else self._since_i + 1
         self._frames += 1
         self.last_plan, self.last_ids = plan, pvs
@@ -400,7 +418,7 @@ class TssServer(ServerHalf):
             "single_triangles": float((k == KIND_SINGLE).sum()), "lp_samples": float(plan.samples[k == KIND_LP].sum()),
             "os_samples": float(plan.samples[os_].sum()), "os_inside": inside,
             "atlas_used_pct": 100.0 * plan.height / H, "rate": rate, "iframe": float(iframe),
-            "geo_sent": float(new.size), "repacked": float(plan.repacked), "atlas_load_pct": 100.0 * self.store.load(),
+            "geo_sent": float(new.size), "table_rows": float(changed.sum()), "repacked": float(plan.repacked), "atlas_load_pct": 100.0 * self.store.load(),
             "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
         }
         meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}

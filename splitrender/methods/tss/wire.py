@@ -13,8 +13,12 @@ triangle and session): ``u8 version, u32 n``, then ``n`` delta-coded ``u32`` ids
 (the first id, then differences >= 1), ``n`` ``u16`` object indices, and ``n x 9``
 ``f32`` object-space vertex positions (metres).
 
-``tris`` -- the live triangles and where their samples are: ``u8 version, u32
-n_single, u32 n_lp, u32 n_os, u16 n_bins``; ``n_bins`` bins ``u8 level, u16 n`` and
+``tris`` -- the live triangles and where their samples are: ``u8 version, u8 full``;
+a delta (``full = 0``, between I-frames) then lists the triangles that left, ``u32 n``
+and ``n`` delta-coded ``u32`` ids, and carries only the triangles that are new or whose
+descriptor changed (the layout is stable, so most do not); a full table (I-frames,
+keyframe requests) carries every live triangle.  Then ``u32 n_single, u32 n_lp, u32
+n_os, u16 n_bins``; ``n_bins`` bins (every bin, in both kinds) ``u8 level, u16 n`` and
 ``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
 session's ``strip``; level 0 = the single-texel shelves, one row each; cell level
 ``L``: shelves of ``2 D(L)`` rows, each ``S // (3 D(L))`` pair cells of two slots,
@@ -33,6 +37,9 @@ then
   65535), ``u8 flags`` (bit 1 no perspective correction, others 0), ``u8 base`` (the
   vertex starting the base; the client rotates its vertices so it comes first).
 
+Version 2 added delta tables; version 1 sent the full table every frame (20 KB of a
+30 KB frame on the walk at 160x90).
+
 Per-frame metadata: ``v``, ``xf`` float32 (n_objects, 4, 4) object-to-world matrices
 at the frame's time (what the atlas was shaded with; the frame's pose is the
 reference view of the perspective correction).
@@ -49,7 +56,7 @@ import numpy as np
 from ...errors import RemoteProtocolError
 from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins, os_sizes, tip_dim
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
                      ("flags", "u1"), ("base", "u1")])
 """The 16-byte oversampling descriptor."""
@@ -134,11 +141,43 @@ def decode_geometry(buf: bytes, n_triangles: int, n_objects: int) -> Geometry:
 
 
 # ---------------------------------------------------------------------------- triangle table
-def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> bytes:
-    """The ``tris`` payload of one frame: ``plan`` for triangles ``ids`` (sorted), their perspective flags and OS base vertices."""
-    kind, level, slot, origin = plan.kind, plan.level, plan.slot, plan.origin
+def descriptors(plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """(N, 17) uint8: each triangle's kind byte and its wire descriptor, zero-padded (what a delta table compares)."""
+    out = np.zeros((plan.kind.size, 17), np.uint8)
+    out[:, 0] = plan.kind
+    one = plan.kind != KIND_OS
+    d = np.where(plan.kind == KIND_SINGLE, plan.slot,
+                 (plan.level - 1) | np.where(persp, 0, LP_PERSP_OFF) | (plan.slot << 7)).astype("<u4")
+    out[one, 1:5] = np.ascontiguousarray(d[one]).view(np.uint8).reshape(-1, 4)
+    os_ = np.flatnonzero(~one)
+    rec = np.zeros(os_.size, OS_DTYPE)
+    rec["x"], rec["y"], rec["pw"] = plan.origin[os_, 0, 0], plan.origin[os_, 0, 1], plan.origin[os_, 1, 0]
+    rec["w1"], rec["w2"], rec["h"] = plan.w[os_], plan.w2[os_], plan.h[os_]
+    rec["a"] = np.rint(plan.a[os_] * 65535.0)
+    rec["flags"] = np.where(persp[os_], 0, OS_PERSP_OFF)
+    rec["base"] = base[os_]
+    out[os_, 1:] = rec.view(np.uint8).reshape(-1, 16)
+    return out
+
+
+def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.ndarray,
+                 gone: np.ndarray | None = None, changed: np.ndarray | None = None) -> bytes:
+    """The ``tris`` payload of one frame: ``plan`` for triangles ``ids`` (sorted), their perspective flags and OS
+    base vertices.  A full table without ``gone``; else a delta: the ids that left (``gone``, sorted) and only
+    the rows ``changed`` (a mask over ``ids``: new triangles and those whose descriptor changed)."""
+    if gone is None:
+        head = struct.pack("<BB", WIRE_VERSION, 1)
+        rows = np.arange(ids.size)
+    else:
+        head = struct.pack("<BBI", WIRE_VERSION, 0, gone.size) + encode_ids(gone)
+        rows = np.flatnonzero(changed)
+    return head + _encode_body(ids[rows], plan, rows, persp[rows], base[rows])
+
+
+def _encode_body(ids: np.ndarray, plan: AtlasPlan, rows: np.ndarray, persp: np.ndarray, base: np.ndarray) -> bytes:
+    kind, level, slot, origin = plan.kind[rows], plan.level[rows], plan.slot[rows], plan.origin[rows]
     sel = [np.flatnonzero(kind == k) for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
-    out = [struct.pack("<BIIIH", WIRE_VERSION, *(s.size for s in sel), len(plan.bins))]
+    out = [struct.pack("<IIIH", *(s.size for s in sel), len(plan.bins))]
     for lv, shelves in sorted(plan.bins.items()):
         out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
     for s in sel:
@@ -150,8 +189,8 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.n
     os_ = sel[2]
     rec = np.zeros(os_.size, OS_DTYPE)
     rec["x"], rec["y"], rec["pw"] = origin[os_, 0, 0], origin[os_, 0, 1], origin[os_, 1, 0]
-    rec["w1"], rec["w2"], rec["h"] = plan.w[os_], plan.w2[os_], plan.h[os_]
-    rec["a"] = np.rint(plan.a[os_] * 65535.0)
+    rec["w1"], rec["w2"], rec["h"] = plan.w[rows][os_], plan.w2[rows][os_], plan.h[rows][os_]
+    rec["a"] = np.rint(plan.a[rows][os_] * 65535.0)
     rec["flags"] = np.where(persp[os_], 0, OS_PERSP_OFF)
     rec["base"] = base[os_]
     out.append(rec.tobytes())
@@ -177,14 +216,31 @@ class Table:
     base: np.ndarray
 
 
-def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int) -> Table:
-    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width)."""
-    W, H = atlas
-    S = strip
+def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int) -> tuple[Table, np.ndarray | None]:
+    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width).
+
+    Returns the table's rows (all live triangles for a full table, the changed ones for a delta) and, for a
+    delta, the ids that left (``None`` for a full table).
+    """
     r = _Reader(buf, "tris")
-    v, n0, n1, n2, nb = struct.unpack("<BIIIH", r.take(15, "header"))
+    v, full = struct.unpack("<BB", r.take(2, "header"))
     if v != WIRE_VERSION:
         raise TssWireError(f"tss tris: version {v}, this client speaks {WIRE_VERSION}")
+    if full not in (0, 1):
+        raise TssWireError(f"tss tris: full flag {full} is not 0 or 1")
+    gone = None
+    if not full:
+        (ng,) = struct.unpack("<I", r.take(4, "gone count"))
+        if ng > n_triangles:
+            raise TssWireError(f"tss tris: {ng} triangles gone, the scene has {n_triangles}")
+        gone = decode_ids(r.array("<u4", ng, "gone ids"), "tris gone ids", n_triangles)
+    return _decode_body(r, n_triangles, atlas, strip), gone
+
+
+def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int) -> Table:
+    W, H = atlas
+    S = strip
+    n0, n1, n2, nb = struct.unpack("<IIIH", r.take(14, "counts"))
     if n0 + n1 + n2 > n_triangles:
         raise TssWireError(f"tss tris: {n0 + n1 + n2} live triangles, the scene has {n_triangles}")
     bins: dict[int, np.ndarray] = {}
