@@ -57,10 +57,12 @@ def test_tessellation_invocations_equal_v_l_on_this_gl() -> None:
         assert n == v_count(lv), f"level {lv}: {n} invocations, v(l) = {int(v_count(lv))}"
         got = np.frombuffer(buf.read(16 * n, offset=16), np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
         model = tess_coords(lv)
-        d = np.abs(got[:, None, :] - model[None, :, :]).max(axis=2)      # (n, v) distance to every model vertex
-        # within 5% of the ring spacing i(l) = 2 / (3 l) (float32 coordinates; measured up to 0.6% of it)
-        assert d.min(axis=1).max() < 0.05 * 2.0 / (3.0 * lv), f"level {lv}: a GL vertex is off the ring model"
-        assert np.unique(d.argmin(axis=1)).size == n, f"level {lv}: two GL vertices map to one model vertex"
+        # both sets on the lattice of 1 / (6 l): GL's float32 coordinates must round to the ring model's points
+        # (within 5% of the ring spacing i(l) = 2 / (3 l); measured up to 0.6% of it), one GL vertex per point
+        q_gl, q_model = got * 6 * lv, model * 6 * lv
+        assert np.abs(q_gl - np.rint(q_gl)).max() < 0.05 * 4, f"level {lv}: a GL vertex is off the ring model"
+        key = lambda q: np.unique(np.rint(q).astype(np.int64), axis=0)  # noqa: E731
+        assert key(q_gl).shape[0] == n and np.array_equal(key(q_gl), key(q_model)), f"level {lv}: GL and ring model differ"
 
 
 @pytest.mark.parametrize("lv", range(1, 65))

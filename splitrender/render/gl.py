@@ -11,7 +11,7 @@ import logging
 import re
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from ..errors import RenderError
 
@@ -109,6 +109,37 @@ def load_program(ctx: Any, vertex: str | Path, fragment: str | Path | None = Non
         )
     except Exception as exc:
         raise RenderError(f"shader program {Path(str(vertex)).name}/{Path(str(fragment)).name if fragment else '-'} failed to build: {exc}") from exc
+
+
+def grow_vertex_buffer(ctx: Any, prog: Any, vbo: Any, vao: Any, nbytes: int, layout: str, names: Sequence[str],
+                       minimum: int = 0) -> tuple[Any, Any]:
+    """A persistent vertex buffer (and its vertex array on ``prog``) of at least ``nbytes``.
+
+    Returns ``(vbo, vao)`` unchanged while they are large enough; otherwise releases them
+    and makes new ones of ``max(nbytes, minimum, twice the old size)`` bytes (doubling, so
+    a growing set reallocates rarely).  ``layout``/``names`` as in
+    ``ctx.vertex_array(prog, [(vbo, layout, *names)])``.
+    """
+    if vbo is not None and vbo.size >= nbytes:
+        return vbo, vao
+    old = 0
+    if vbo is not None:
+        old = vbo.size
+        vao.release()
+        vbo.release()
+    vbo = ctx.buffer(reserve=max(nbytes, minimum, 2 * old, 1))
+    return vbo, ctx.vertex_array(prog, [(vbo, layout, *names)])
+
+
+def runs(values: Any) -> list[tuple[int, int]]:
+    """``(start, end)`` of each run of equal consecutive values (e.g. the triangles of one object in a sorted list)."""
+    import numpy as np
+
+    v = np.asarray(values)
+    if v.size == 0:
+        return []
+    b = (np.flatnonzero(v[1:] != v[:-1]) + 1).tolist()
+    return list(zip([0] + b, b + [int(v.size)]))
 
 
 def set_uniform(prog: Any, name: str, value: Any) -> None:

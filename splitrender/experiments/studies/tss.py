@@ -19,7 +19,6 @@ Evidence, following the paper's section 5:
 
 from __future__ import annotations
 
-import csv
 import logging
 import time
 from pathlib import Path
@@ -33,13 +32,9 @@ log = logging.getLogger(__name__)
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
-        w.writeheader()
-        w.writerows([{k: (f"{v:.5g}" if isinstance(v, float) else v) for k, v in r.items()} for r in rows])
+    from ...sim.runner import write_csv
+
+    write_csv(path, rows)
     return path
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ...render.canvas import Canvas, upload_image
-from ...render.gl import load_program
+from ...render.gl import grow_vertex_buffer, load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from .wire import (SLOT_LAYOUT, TRI_SLOTS, SasMetaError, block_clamp_rect, block_layout_xy, dequantize_slots,
@@ -195,14 +195,8 @@ class SasClient(ClientHalf):
         self._high = max(self._slot.values()) + 1 if self._slot else 0
         self._n_tri = int(self._slot_tris[:self._high].sum())
         data = self._rows[:self._high].tobytes()
-        if self._vbo is None or self._vbo.size < len(data):
-            old = 0
-            if self._vbo is not None:
-                old = self._vbo.size
-                self._vao.release()
-                self._vbo.release()
-            self._vbo = self.gl.buffer(reserve=max(len(data), 2 * old, 4096))
-            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 2f 1f 4f", "in_position", "in_atlas_uv", "in_object", "in_clamp")])
+        self._vbo, self._vao = grow_vertex_buffer(self.gl, self.prog, self._vbo, self._vao, len(data), "3f 2f 1f 4f",
+                                                  ("in_position", "in_atlas_uv", "in_object", "in_clamp"), 4096)
         if data:
             self._vbo.write(data)
         self._dirty = False

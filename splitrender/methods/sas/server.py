@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import load_program
+from ...render.gl import grow_vertex_buffer, load_program, runs
 from ...scene.pose import CameraIntrinsics
 from ..base import SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import SasConfig
@@ -309,15 +309,8 @@ class SasServer(ServerHalf):
         v = v[tri_used]                                                     # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
         o = np.repeat(P.object_index[live], tri_used.sum(1))
         data = v.tobytes()
-        if self._vbo is None or self._vbo.size < len(data):   # grow (doubling) the persistent buffer
-            old = 0
-            if self._vbo is not None:
-                old = self._vbo.size
-                self._vao.release()
-                self._vbo.release()
-            self._vbo = gl.buffer(reserve=max(len(data), 2 * old))
-            self._vao = gl.vertex_array(self._prog, [(self._vbo, "2f 3f 3f 2f 4f 4f 2f", "in_atlas", "in_position", "in_normal",
-                                                      "in_uv", "in_tangent", "in_rect", "in_footprint")])
+        self._vbo, self._vao = grow_vertex_buffer(gl, self._prog, self._vbo, self._vao, len(data), "2f 3f 3f 2f 4f 4f 2f",
+                                                  ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint"))
         self._vbo.write(data)
         vao = self._vao
         prog = self._prog
@@ -328,10 +321,7 @@ class SasServer(ServerHalf):
         self._fbo.use()   # bind_shading may have rendered the shadow map
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         gl.disable(gl.DEPTH_TEST)
-        bounds = np.flatnonzero(np.diff(o)) + 1
-        starts = np.concatenate([[0], bounds])
-        ends = np.concatenate([bounds, [o.size]])
-        for s, e in zip(starts.tolist(), ends.tolist()):
+        for s, e in runs(o):
             og = self._sg.objects[int(o[s])]
             m = models[int(o[s])]
             prog["u_model"].write(np.asarray(m, "f4").T.tobytes())

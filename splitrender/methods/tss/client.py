@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ...render.canvas import Canvas, upload_image
-from ...render.gl import load_program
+from ...render.gl import grow_vertex_buffer, load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from ..sas.client import extrapolate_transforms
@@ -125,15 +125,8 @@ class TssClient(ClientHalf):
         info = np.stack([t.kind, t.level, t.persp.astype(np.float64), np.zeros(n)], 1)
         flat = np.concatenate([obj[:, None].astype(np.float64), z, info, o0, o1], 1)[:, None, :].repeat(3, axis=1)
         data = np.concatenate([pos, flat], axis=2).astype(np.float32).tobytes()
-        if self._vbo is None or self._vbo.size < len(data):
-            old = 0
-            if self._vbo is not None:
-                old = self._vbo.size
-                self._vao.release()
-                self._vbo.release()
-            self._vbo = self.gl.buffer(reserve=max(len(data), 4096, 2 * old))
-            self._vao = self.gl.vertex_array(self.prog, [(self._vbo, "3f 1f 3f 4f 4f 4f", "in_position", "in_object", "in_zref",
-                                                          "in_info", "in_o0", "in_o1")])
+        self._vbo, self._vao = grow_vertex_buffer(self.gl, self.prog, self._vbo, self._vao, len(data), "3f 1f 3f 4f 4f 4f",
+                                                  ("in_position", "in_object", "in_zref", "in_info", "in_o0", "in_o1"), 4096)
         if data:
             self._vbo.write(data)
         self._n = n

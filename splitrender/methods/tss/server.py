@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import read_shader
+from ...render.gl import grow_vertex_buffer, read_shader, runs
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
@@ -465,15 +465,8 @@ class TssServer(ServerHalf):
         if ids.size == 0:
             return 0
         data = self._vertices(ids, plan, base, persp, px).tobytes()
-        if self._vbo is None or self._vbo.size < len(data):
-            old = 0
-            if self._vbo is not None:
-                old = self._vbo.size
-                self._vao.release()
-                self._vbo.release()
-            self._vbo = gl.buffer(reserve=max(len(data), 2 * old))
-            self._vao = gl.vertex_array(self._prog, [(self._vbo, "3f 3f 2f 4f 4f 4f 4f", "in_position", "in_normal", "in_uv",
-                                                      "in_tangent", "in_info", "in_o0", "in_o1")])
+        self._vbo, self._vao = grow_vertex_buffer(gl, self._prog, self._vbo, self._vao, len(data), "3f 3f 2f 4f 4f 4f 4f",
+                                                  ("in_position", "in_normal", "in_uv", "in_tangent", "in_info", "in_o0", "in_o1"))
         self._vbo.write(data)
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
@@ -482,12 +475,9 @@ class TssServer(ServerHalf):
         self._tex.bind_to_image(0, read=False, write=True)
         self._counter.bind_to_storage_buffer(1)
         o = self.tris.obj[ids]
-        bounds = np.flatnonzero(np.diff(o)) + 1
-        starts = np.concatenate([[0], bounds]).tolist()
-        ends = np.concatenate([bounds, [o.size]]).tolist()
         gl.enable_direct(RASTERIZER_DISCARD)
         try:
-            for s, e in zip(starts, ends):
+            for s, e in runs(o):
                 og = self._sg.objects[int(o[s])]
                 mm = models[int(o[s])]
                 prog["u_model"].write(np.asarray(mm, "f4").T.tobytes())
