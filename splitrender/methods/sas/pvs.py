@@ -251,6 +251,17 @@ def sample_times(t_from_s: float, t_to_s: float, step_s: float) -> list[float]:
     return ts + [t_to_s]
 
 
+def evs_samples(ctx: Any, prediction: str, step_ms: float, server_fps: int) -> list[PoseSample]:
+    """EVS samples ``(t_s, pose)`` of a server frame (``ctx``: a ``ServerContext``): the newest pose, then
+    predictions in ``step_ms`` steps to one frame past the target.  Animated objects are placed at each
+    sample's time; with ``prediction = "none"`` the one sample shows the newest pose at the frame's time."""
+    if prediction == "none":
+        return [(ctx.t_s, ctx.latest_pose)]
+    t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / server_fps
+    ts = sample_times(ctx.latest_pose_t_s, t_end, step_ms / 1e3)
+    return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
+
+
 @dataclass
 class PvsRates:
     """Section 5.1 rates, area-weighted (fractions, 0..1)."""

@@ -43,7 +43,7 @@ from .config import SasConfig
 from .allocator import PatchAllocator
 from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches, split_scene_meshes
-from .pvs import PatchIdPass, PoseSample, sample_times
+from .pvs import PatchIdPass, PoseSample, evs_samples
 from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, encode_ids
 
 log = logging.getLogger(__name__)
@@ -214,16 +214,8 @@ class SasServer(ServerHalf):
 
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
-        """EVS samples ``(t_s, pose)`` of the PVS: the newest pose, then predictions to one frame past the target.
-
-        Animated objects are placed at each sample's time; without prediction the one
-        sample shows the newest pose with objects at the frame's time ``ctx.t_s``.
-        """
-        if self.config.pvs_prediction == "none":
-            return [(ctx.t_s, ctx.latest_pose)]
-        t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / self.server_fps
-        ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
-        return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
+        """EVS samples of the PVS (:func:`~.pvs.evs_samples`)."""
+        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps)
 
     def produce(self, ctx: ServerContext) -> Update:
         c = self.config

@@ -39,7 +39,7 @@ from ...render.gl import grow_vertex_buffer, read_shader, runs
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
-from ..sas.pvs import PatchIdPass, PoseSample, sample_times
+from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
 from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, layout_attributes, level_for, plan_atlas, v_count
 from .wire import WIRE_VERSION, descriptors, encode_geometry, encode_table
@@ -282,11 +282,8 @@ class TssServer(ServerHalf):
 
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
-        if self.config.pvs_prediction == "none":
-            return [(ctx.t_s, ctx.latest_pose)]
-        t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / self.server_fps
-        ts = sample_times(ctx.latest_pose_t_s, t_end, self.config.pvs_step_ms / 1e3)
-        return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
+        """EVS samples of the PVS, as ``sas`` takes them (:func:`~splitrender.methods.sas.pvs.evs_samples`)."""
+        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps)
 
     def _hysteresis(self, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray,
                     a: np.ndarray, slant: np.ndarray, need: np.ndarray) -> None:
