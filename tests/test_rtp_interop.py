@@ -99,10 +99,10 @@ def _free_port_pair() -> int:
     raise RuntimeError("no free UDP port pair")
 
 
-def _wait_bound(port: int, deadline_s: float) -> bool:
-    """Wait until someone else has bound UDP ``port`` (bind fails)."""
+def _wait_bound(port: int, deadline_s: float, proc: subprocess.Popen | None = None) -> bool:
+    """Wait until someone else has bound UDP ``port`` (bind fails); stop early if ``proc`` has exited."""
     end = time.monotonic() + deadline_s
-    while time.monotonic() < end:
+    while time.monotonic() < end and (proc is None or proc.poll() is None):
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             try:
                 s.bind(("127.0.0.1", port))
@@ -134,7 +134,11 @@ def _ffmpeg_cli_decode(codec: str, sdp: str, port: int, aus: list[bytes], tmp_pa
         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )
     try:
-        assert _wait_bound(port, 10.0), "ffmpeg did not open the RTP port"
+        # a loaded CI machine has taken over 10 s to start ffmpeg: wait up to 30 s, and say why if it exited
+        if not _wait_bound(port, 30.0, proc):
+            rc = proc.poll()
+            err = proc.stderr.read().decode(errors="replace")[-500:] if rc is not None and proc.stderr else ""
+            raise AssertionError(f"ffmpeg did not open the RTP port {port} (exit code {rc}): {err}")
         time.sleep(0.2)
         _send_aus(codec, aus, port)
         try:
