@@ -54,10 +54,7 @@ async def one_run(method: str, network: str, duration_s: float, scene: str, widt
                                                        height=height, duration_s=duration_s, trace="walk",
                                                        out_dir=Path(tmp))).run()
         finally:
-            for _ in range(50):
-                if relay.stats().tcp_connections_open == 0:
-                    break
-                await asyncio.sleep(0.02)
+            await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
             await relay.close()
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)

@@ -88,10 +88,7 @@ async def one_run(network: str, duration_s: float, width: int, height: int, seed
                                                        display_hz=30, duration_s=duration_s, trace="walk", **CLIENT_KW,
                                                        out_dir=Path(tmp))).run()
         finally:
-            for _ in range(50):
-                if relay.stats().tcp_connections_open == 0:
-                    break
-                await asyncio.sleep(0.02)
+            await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
             stats = relay.stats()
             await relay.close()
     finally:

@@ -52,10 +52,7 @@ async def _run_through_relay(tmp: Path, network: str, seed: int = 3, server_kw: 
             assert len(sessions) == 1, sessions
             counters = dict(sessions[0].counters)
         finally:
-            for _ in range(50):  # let the relay see both TCP sides close before closing it
-                if relay.stats().tcp_connections_open == 0:
-                    break
-                await asyncio.sleep(0.02)
+            await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
             await relay.close()
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)

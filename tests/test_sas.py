@@ -262,7 +262,7 @@ def test_client_rejects_malformed_metadata() -> None:
     assert issubclass(SasMetaError, RemoteProtocolError) and issubclass(SasMetaError, SplitRenderError)
     out, cli = _loopback(1, {"lossless": True})
     u, plane = out[0][0], out[0][1]
-    before = (dict(cli.geo), dict(cli.rect), cli.models.copy())
+    before = (dict(cli.geo), dict(cli.rect), cli.xf.models.copy())
 
     def bad(match: str, planes: dict | None = None, **fields: object) -> None:  # type: ignore[type-arg]
         with pytest.raises(SasMetaError, match=match):
@@ -296,7 +296,7 @@ def test_client_rejects_malformed_metadata() -> None:
     bad(r"'pvs' must be in 0\.\.", pvs=np.array([2**31 - 1], np.int32))
     bad("'xf' has values that are not finite in float32", xf=np.full_like(u.meta["xf"], np.nan))
     bad("'geo_id' has dtype float64", geo_id=u.meta["geo_id"].astype(np.float64))
-    after = (cli.geo, cli.rect, cli.models)
+    after = (cli.geo, cli.rect, cli.xf.models)
     assert after[0] == before[0] and after[1].keys() == before[1].keys() and np.array_equal(after[2], before[2]), \
         "a rejected frame must leave the client state as it was"
 

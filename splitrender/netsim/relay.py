@@ -393,6 +393,14 @@ class Relay:
 
     # -- lifecycle ----------------------------------------------------------------
 
+    async def wait_tcp_idle(self, timeout_s: float = 1.0, poll_s: float = 0.02) -> bool:
+        """Wait until no relayed TCP connection is open (both sides closed), at most ``timeout_s``; True if none is."""
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout_s
+        while self._tcp_open and loop.time() < end:
+            await asyncio.sleep(poll_s)
+        return self._tcp_open == 0
+
     async def close(self) -> None:
         """Stop listening, cancel TCP connections, drop what is still in flight."""
         if self._closed:

@@ -71,6 +71,36 @@ def extrapolate_transforms(prev: np.ndarray, prev_t: np.ndarray, cur: np.ndarray
     return out.astype(np.float32)
 
 
+class ObjectTransforms:
+    """Each object's two newest transforms and their scene times, and the storage buffer the display stage reads.
+
+    :meth:`update` takes new samples (the current one becomes the previous one when the
+    time differs); :meth:`bind` writes the transforms extrapolated to the display time
+    (:func:`extrapolate_transforms`) into the buffer and binds it to ``binding``.
+    """
+
+    def __init__(self, gl: Any, n_objects: int) -> None:
+        self.models = np.tile(np.eye(4, dtype=np.float32), (n_objects, 1, 1))
+        self.models_prev = self.models.copy()
+        self.models_t = np.full(n_objects, np.nan)
+        self.models_prev_t = np.full(n_objects, np.nan)
+        self.ssbo = gl.buffer(reserve=max(1, n_objects) * 64)
+
+    def update(self, objects: np.ndarray | slice, xf: np.ndarray, t_s: float) -> None:
+        """New transforms ``xf`` of ``objects`` (indices, or a slice for all) sampled at scene time ``t_s``."""
+        idx = np.arange(self.models.shape[0])[objects]
+        fresh = idx[self.models_t[idx] != t_s]        # a newer sample: the current one becomes previous
+        self.models_prev[fresh] = self.models[fresh]
+        self.models_prev_t[fresh] = self.models_t[fresh]
+        self.models[idx] = xf
+        self.models_t[idx] = t_s
+
+    def bind(self, t_s: float, binding: int = 0) -> None:
+        shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
+        self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
+        self.ssbo.bind_to_storage_buffer(binding)
+
+
 class SasClient(ClientHalf):
     """Shading atlas streaming, client half."""
 
@@ -84,12 +114,7 @@ class SasClient(ClientHalf):
         i = self.intrinsics
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
-        self.models = np.tile(np.eye(4, dtype=np.float32), (self.n_obj, 1, 1))
-        # the previous transform of each object and the scene times (s) of both, for extrapolation
-        self.models_prev = self.models.copy()
-        self.models_t = np.full(self.n_obj, np.nan)
-        self.models_prev_t = np.full(self.n_obj, np.nan)
-        self.ssbo = self.gl.buffer(reserve=max(1, self.n_obj) * 64)
+        self.xf = ObjectTransforms(self.gl, self.n_obj)   # the two newest transforms per object, for extrapolation
         # per-patch state, keyed by patch id
         self.geo: dict[int, tuple[int, int, np.ndarray]] = {}      # id -> (object slot, triangles, (5, 3) positions)
         self.rect: dict[int, np.ndarray] = {}                      # id -> (x, y, lw, lh, transposed)
@@ -138,11 +163,7 @@ class SasClient(ClientHalf):
                 for pid in [k for k in d if k not in keep]:
                     del d[pid]
                     self._changed.add(pid)
-        fresh = m.xf_obj[self.models_t[m.xf_obj] != update.t_s]     # a newer sample: the current one becomes previous
-        self.models_prev[fresh] = self.models[fresh]
-        self.models_prev_t[fresh] = self.models_t[fresh]
-        self.models[m.xf_obj] = m.xf
-        self.models_t[m.xf_obj] = update.t_s
+        self.xf.update(m.xf_obj.astype(np.int64), m.xf, update.t_s)
         self._dirty = True
         self._has_content = True
 
@@ -212,9 +233,7 @@ class SasClient(ClientHalf):
             gl = self.gl
             gl.enable(gl.DEPTH_TEST)
             gl.disable(gl.CULL_FACE)
-            shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
-            self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
-            self.ssbo.bind_to_storage_buffer(0)
+            self.xf.bind(t_s)
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
             self._tex.use(location=0)

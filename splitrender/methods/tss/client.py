@@ -25,7 +25,7 @@ from ...render.canvas import Canvas, upload_image
 from ...render.gl import grow_vertex_buffer, load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-from ..sas.client import extrapolate_transforms
+from ..sas.client import ObjectTransforms
 from .layout import KIND_OS, layout_attributes
 from .wire import TssWireError, Table, decode_geometry, decode_table, parse_session, parse_transforms
 
@@ -47,11 +47,7 @@ class TssClient(ClientHalf):
         self.has = np.zeros(n, bool)
         self.obj = np.zeros(n, np.int64)
         self.pos = np.zeros((n, 3, 3), np.float32)
-        self.models = np.tile(np.eye(4, dtype=np.float32), (s.n_objects, 1, 1))
-        self.models_prev = self.models.copy()
-        self.models_t = np.full(s.n_objects, np.nan)
-        self.models_prev_t = np.full(s.n_objects, np.nan)
-        self.ssbo = self.gl.buffer(reserve=max(1, s.n_objects) * 64)
+        self.xf = ObjectTransforms(self.gl, s.n_objects)
         self.table: Table | None = None              # what is drawn: the table of the newest atlas
         self.live = np.zeros(n, bool)                 # the table state the tris stream built
         self.st = Table(np.zeros(0, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros((n, 3, 2), np.int64),
@@ -100,11 +96,7 @@ class TssClient(ClientHalf):
         st = self.st
         i = np.flatnonzero(self.live)
         table = Table(i, st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i], st.h[i], st.a[i], st.persp[i], st.base[i])
-        fresh = self.models_t != update.t_s
-        self.models_prev[fresh] = self.models[fresh]
-        self.models_prev_t[fresh] = self.models_t[fresh]
-        self.models[:] = xf
-        self.models_t[:] = update.t_s
+        self.xf.update(slice(None), xf, update.t_s)
         self._tex = upload_image(self.gl, atlas, self._tex)
         self.table = table
         self._upload(table, update.pose, xf)
@@ -139,9 +131,7 @@ class TssClient(ClientHalf):
             gl = self.gl
             gl.enable(gl.DEPTH_TEST)
             gl.disable(gl.CULL_FACE)
-            shown = extrapolate_transforms(self.models_prev, self.models_prev_t, self.models, self.models_t, t_s)
-            self.ssbo.write(np.ascontiguousarray(shown.transpose(0, 2, 1), np.float32).tobytes())
-            self.ssbo.bind_to_storage_buffer(0)
+            self.xf.bind(t_s)
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
             self._tex.use(location=0)
