@@ -33,7 +33,7 @@ up the height, one sample per pixel; row ``y = j`` keeps :func:`os_row_lengths`
 samples, exactly those a bilinear tap inside the right triangle reads (a staircase;
 the samples past its hypotenuse are the paper's conservative extras).  The second
 staircase, turned by 180 degrees, interlocks with the first in one rectangle of
-:func:`os_pair_width` by ``H + 1`` texels.
+:func:`os_sizes` width by ``H + 1`` texels.
 
 **Atlas layout** (:class:`StableAtlas`, :func:`plan_atlas`): shelves per class (single
 texels, each L-packing level's pair cells, oversampling rectangles by height and rounded
@@ -64,12 +64,6 @@ def v_count(level: np.ndarray | int) -> np.ndarray:
     lv = np.asarray(level, np.int64)
     h = lv // 2
     return 3 * (h + 1) * (h + lv % 2) + (lv + 1) % 2
-
-
-def t_count(level: np.ndarray | int) -> np.ndarray:
-    """Triangles of the same pattern (paper eq. 2)."""
-    lv = np.asarray(level, np.int64)
-    return lv % 2 + 3 * (lv + lv % 2) * (lv // 2)
 
 
 V_TABLE = v_count(np.arange(MAX_LEVEL + 1))
@@ -187,19 +181,9 @@ def os_row_lengths(w: int, h: int) -> np.ndarray:
     return (w * (h - np.maximum(j - 1, 0))) // h + 2          # integer arithmetic, as the shader
 
 
-def os_samples(w: int, h: int) -> int:
-    """Samples of an oversampled staircase (all rows)."""
-    return int(os_row_lengths(w, h).sum())
-
-
-def os_pair_width(wa: int, wb: int, h: int) -> int:
-    """Width of the rectangle holding staircases ``(wa, h)`` and ``(wb, h)``, the second turned 180 degrees."""
-    la, lb = os_row_lengths(wa, h), os_row_lengths(wb, h)
-    return int((la + lb[::-1]).max())
-
-
 def os_sizes(w1: np.ndarray, w2: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rectangle widths (:func:`os_pair_width`) and samples of both staircases, vectorised over triangles."""
+    """Per triangle, the width of the rectangle holding its two staircases (the second turned by 180 degrees,
+    interlocked with the first) and their samples in all (:func:`os_row_lengths` per row)."""
     pw = np.zeros(h.size, np.int64)
     ns = np.zeros(h.size, np.int64)
     for hh in np.unique(h).tolist():

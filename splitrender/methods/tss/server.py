@@ -391,14 +391,14 @@ class TssServer(ServerHalf):
         geo = encode_geometry(new, T.obj[new], T.pos[new])
         desc = descriptors(plan, persp, base)
         if iframe:
-            table = encode_table(pvs, plan, persp, base)
+            table = encode_table(pvs, plan, desc)
             changed = np.ones(pvs.size, bool)
         else:
             live = np.zeros(self.tris.count, bool)
             live[pvs] = True
             gone = np.flatnonzero(self._sent_live & ~live)
             changed = ~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
-            table = encode_table(pvs, plan, persp, base, gone, changed)
+            table = encode_table(pvs, plan, desc, gone, changed)
         self._sent_live[:] = False
         self._sent_live[pvs] = True
         self._sent_desc[pvs] = desc

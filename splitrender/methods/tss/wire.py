@@ -142,7 +142,9 @@ def decode_geometry(buf: bytes, n_triangles: int, n_objects: int) -> Geometry:
 
 # ---------------------------------------------------------------------------- triangle table
 def descriptors(plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """(N, 17) uint8: each triangle's kind byte and its wire descriptor, zero-padded (what a delta table compares)."""
+    """(N, 17) uint8: each triangle's kind byte and its wire descriptor, zero-padded: bytes 1-4 the ``u32`` slot
+    (single texel) or L-packing word, bytes 1-16 the oversampling record.  What a delta table compares and
+    :func:`encode_table` sends."""
     out = np.zeros((plan.kind.size, 17), np.uint8)
     out[:, 0] = plan.kind
     one = plan.kind != KIND_OS
@@ -160,40 +162,26 @@ def descriptors(plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> np.ndar
     return out
 
 
-def encode_table(ids: np.ndarray, plan: AtlasPlan, persp: np.ndarray, base: np.ndarray,
-                 gone: np.ndarray | None = None, changed: np.ndarray | None = None) -> bytes:
-    """The ``tris`` payload of one frame: ``plan`` for triangles ``ids`` (sorted), their perspective flags and OS
-    base vertices.  A full table without ``gone``; else a delta: the ids that left (``gone``, sorted) and only
-    the rows ``changed`` (a mask over ``ids``: new triangles and those whose descriptor changed)."""
+def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.ndarray | None = None,
+                 changed: np.ndarray | None = None) -> bytes:
+    """The ``tris`` payload of one frame for triangles ``ids`` (sorted) laid out by ``plan``, with their
+    :func:`descriptors` ``desc``.  A full table without ``gone``; else a delta: the ids that left (``gone``,
+    sorted) and only the rows ``changed`` (a mask over ``ids``: new triangles and those whose descriptor changed)."""
     if gone is None:
         head = struct.pack("<BB", WIRE_VERSION, 1)
         rows = np.arange(ids.size)
     else:
         head = struct.pack("<BBI", WIRE_VERSION, 0, gone.size) + encode_ids(gone)
         rows = np.flatnonzero(changed)
-    return head + _encode_body(ids[rows], plan, rows, persp[rows], base[rows])
-
-
-def _encode_body(ids: np.ndarray, plan: AtlasPlan, rows: np.ndarray, persp: np.ndarray, base: np.ndarray) -> bytes:
-    kind, level, slot, origin = plan.kind[rows], plan.level[rows], plan.slot[rows], plan.origin[rows]
-    sel = [np.flatnonzero(kind == k) for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
-    out = [struct.pack("<IIIH", *(s.size for s in sel), len(plan.bins))]
+    kind = plan.kind[rows]
+    sel = [rows[kind == k] for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
+    out = [head, struct.pack("<IIIH", *(s.size for s in sel), len(plan.bins))]
     for lv, shelves in sorted(plan.bins.items()):
         out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
     for s in sel:
         out.append(encode_ids(ids[s]))
-    out.append(slot[sel[0]].astype("<u4").tobytes())
-    lp = sel[1]
-    d = (level[lp].astype(np.uint32) - 1) | np.where(persp[lp], 0, LP_PERSP_OFF).astype(np.uint32) | (slot[lp].astype(np.uint32) << 7)
-    out.append(d.astype("<u4").tobytes())
-    os_ = sel[2]
-    rec = np.zeros(os_.size, OS_DTYPE)
-    rec["x"], rec["y"], rec["pw"] = origin[os_, 0, 0], origin[os_, 0, 1], origin[os_, 1, 0]
-    rec["w1"], rec["w2"], rec["h"] = plan.w[rows][os_], plan.w2[rows][os_], plan.h[rows][os_]
-    rec["a"] = np.rint(plan.a[rows][os_] * 65535.0)
-    rec["flags"] = np.where(persp[os_], 0, OS_PERSP_OFF)
-    rec["base"] = base[os_]
-    out.append(rec.tobytes())
+    # the descriptors' bytes as they go on the wire: u32 slots, u32 L-packing words, 16-byte records
+    out += [desc[sel[0], 1:5].tobytes(), desc[sel[1], 1:5].tobytes(), desc[sel[2], 1:17].tobytes()]
     return b"".join(out)
 
 
