@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("stress", help="run the stability suite (where methods fail) and report per method")
     p.add_argument("--out", type=Path, default=Path("out/stress"))
-    p.add_argument("--methods", default=None)
+    p.add_argument("--methods", default=None, help="comma-separated methods (default: every available one)")
+    p.add_argument("--cases", default=None, help="comma-separated stress cases (default: all)")
     p.add_argument("--quick", action="store_true")
     p.add_argument("--workers", type=int, default=None)
     p.set_defaults(func=_lazy("splitrender.experiments.stress:main_stress"))

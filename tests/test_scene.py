@@ -152,3 +152,29 @@ def test_a_loaded_model_fills_the_stated_share_of_the_frame_on_every_builtin_tra
         assert min(cov) >= 0.12, f"{name}: the model covers only {100 * min(cov):.1f}% at some instant"
     # the built-in scenes keep their fixed traces
     assert np.array_equal(get_trace("walk", 2.0, scene=default_scene()).positions, get_trace("walk", 2.0).positions)
+
+
+def test_shift_time_runs_the_scene_clock_ahead():
+    from splitrender.errors import ConfigError
+    from splitrender.experiments.stress import SUN_DIMS_AT_S
+    from splitrender.scene.model import shift_time
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.truth import scene_digest
+
+    s = default_scene()
+    assert s.sun.intensity.value(SUN_DIMS_AT_S) > s.sun.intensity.value(SUN_DIMS_AT_S + 0.5)  # the stress case's event
+    assert s.sun.intensity.value(SUN_DIMS_AT_S - 0.1) == s.sun.intensity.value(SUN_DIMS_AT_S)
+    z = shift_time(s, 3.5)
+    assert shift_time(s, 0.0) is s
+    for t in (0.0, 0.6, 1.2, 5.0):
+        assert z.sun.intensity.value(t) == pytest.approx(s.sun.intensity.value(t + 3.5))
+        for a, b in zip(z.point_lights, s.point_lights):
+            assert a.intensity.value(t) == pytest.approx(b.intensity.value(t + 3.5))
+        za, sa = z.model_matrices(t), s.model_matrices(t + 3.5)
+        assert s.dynamic_ids() and all(np.allclose(za[i], sa[i]) for i in sa)
+    assert z.objects[0].mesh is s.objects[0].mesh                      # geometry is shared, not copied
+    assert scene_digest(z) != scene_digest(s)                          # the truth cache tells them apart
+    cfg = RunConfig()
+    assert cfg.key() == cfg.replace(scene_time_offset_s=0.0).key() != cfg.replace(scene_time_offset_s=3.5).key()
+    with pytest.raises(ConfigError, match="scene_time_offset_s"):
+        RunConfig(scene_time_offset_s=-1.0)

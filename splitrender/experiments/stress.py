@@ -13,6 +13,9 @@ suite):
 ``loss_burst``     Gilbert-Elliott loss ``loss gemodel 3% 30%`` (20 ms delay) for the whole run
 ``bandwidth_drop`` ``bitrate_kbps = 1500``; inside the window the downlink drops to
                    500 kbit/s (mahimahi trace), outside it is 48 Mbit/s
+``light_change``   the walk under ``lan`` with the scene's clock ``4 s - t0`` ahead, so the
+                   default scene's sun dims from 2.6 to 0.9 over one second from ``t0``
+                   (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
 ``ball_crossing``  a static camera at (0, 1.6, 2.5) looking -Z while the ball crosses at 2.5 m/s
 
 Per method x case it reports the worst-frame PSNR, the share of frames below
@@ -43,6 +46,8 @@ from .store import Row, fnum, write_csv
 log = logging.getLogger(__name__)
 
 FLOOR_DB = 20.0
+SUN_DIMS_AT_S = 4.0
+"""Scene time at which the default scene's sun starts dimming (``scene/procedural.py``)."""
 RECOVER_WITHIN_DB = 1.0
 RECOVER_HOLD_S = 0.5
 STARTUP_S = 0.2
@@ -168,6 +173,9 @@ CASES: tuple[StressCase, ...] = (
     StressCase("grazing", "eye 25 cm above the floor looking along it to the tilted ramp (slanted triangles), lan",
                lambda d, tm: {"trace": _save_trace(grazing_trace(tm.duration_s), d / "grazing.csv"), "network": "lan"},
                False, 100.0),
+    StressCase("light_change", "the sun dims from 2.6 to 0.9 over 1 s from the window's start (stale shading), lan",
+               lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 55.0,
+               "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
 )
@@ -480,10 +488,11 @@ def _write_html(out: Path, rows: Sequence[Row], tm: Timing) -> Path:
 
 
 def main_stress(ns: argparse.Namespace) -> int:
-    """``splitrender stress [--out DIR] [--methods a,b] [--quick] [--workers N]``."""
+    """``splitrender stress [--out DIR] [--methods a,b] [--cases c,d] [--quick] [--workers N]``."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     methods = [m.strip() for m in ns.methods.split(",") if m.strip()] if ns.methods else None
+    cases = [c.strip() for c in ns.cases.split(",") if c.strip()] if getattr(ns, "cases", None) else None
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("eta"),
                   TimeRemainingColumn()) as bar:
         task = bar.add_task("stress", total=None)
@@ -491,7 +500,7 @@ def main_stress(ns: argparse.Namespace) -> int:
         def prog(label: str, done: int, total: int) -> None:
             bar.update(task, completed=done, total=total, description=f"stress (last: {label})")
 
-        res = run_stress(ns.out, methods, quick=ns.quick, workers=ns.workers, progress=prog)
+        res = run_stress(ns.out, methods, cases, quick=ns.quick, workers=ns.workers, progress=prog)
     bad = [r for r in res.rows if r.get("status") != "ok"]
     print(f"{'case':15s} {'method':8s} {'status':8s} {'worst dB':>8s} {'<20dB %':>8s} {'recover s':>9s} {'holes %':>8s} {'RSS MB':>7s}")
     for r in res.rows:

@@ -175,6 +175,17 @@ class Patrol(Animation):
         return m
 
 
+@dataclass(frozen=True)
+class Delayed(Animation):
+    """``inner`` run ``offset_s`` seconds ahead: ``matrix(t) = inner.matrix(t + offset_s)``."""
+
+    inner: Animation
+    offset_s: float
+
+    def matrix(self, t_s: float) -> np.ndarray:
+        return self.inner.matrix(t_s + self.offset_s)
+
+
 @dataclass
 class SceneObject:
     """A mesh with a material placed in the world; ``object_id`` >= 1 (0 is background)."""
@@ -330,3 +341,23 @@ def generate_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarra
 
 
 IntensityFn = Callable[[float], float]
+
+
+def shift_time(scene: Scene, offset_s: float) -> Scene:
+    """``scene`` with its clock ``offset_s`` seconds ahead: animations and light schedules at time ``t``
+    show what the original shows at ``t + offset_s`` (e.g. start a short run just before the sun dims).
+
+    Meshes and materials are shared with ``scene``; the result is a new :class:`Scene` object.
+    """
+    if offset_s == 0:
+        return scene
+    import dataclasses
+
+    def sched(s: Schedule) -> Schedule:
+        return Schedule(tuple(t - offset_s for t in s.times_s), s.values) if len(s.values) > 1 else s
+
+    objs = [dataclasses.replace(o, animation=Delayed(o.animation, offset_s)) if o.animation is not None else o
+            for o in scene.objects]
+    sun = dataclasses.replace(scene.sun, intensity=sched(scene.sun.intensity)) if scene.sun is not None else None
+    lamps = [dataclasses.replace(pl, intensity=sched(pl.intensity)) for pl in scene.point_lights]
+    return dataclasses.replace(scene, objects=objs, sun=sun, point_lights=lamps)

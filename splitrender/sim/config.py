@@ -54,6 +54,10 @@ class RunConfig:
     ``""`` renders every one, ``"default"`` uses ``$SPLITRENDER_TRUTH_CACHE`` or
     ``~/.cache/splitrender/truth``, anything else is a folder.  It cannot change a
     result, so it is not part of :meth:`key`.
+
+    ``scene_time_offset_s``: the scene's clock runs this far ahead of the run's (its
+    animations and light schedules at run time ``t`` are those at ``t + offset``), so a
+    short run can start just before an event such as the default scene's sun dimming at 4 s.
     """
 
     method: str = "video"
@@ -87,6 +91,7 @@ class RunConfig:
     max_session_bytes: int = 256 * 1024 * 1024
     ssim_sigma: float = 1.5
     truth_cache: str = ""
+    scene_time_offset_s: float = 0.0
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -129,6 +134,8 @@ class RunConfig:
             raise bad("jitter_timeout_ms/keyframe_request_interval_ms", "must be in [1, 10000]")
         if not 1024 <= self.max_session_bytes <= 1 << 34:
             raise bad("max_session_bytes", f"must be in [1024, 2**34], got {self.max_session_bytes}")
+        if not 0 <= self.scene_time_offset_s <= 3600:
+            raise bad("scene_time_offset_s", f"must be in [0, 3600], got {self.scene_time_offset_s}")
         if not isinstance(self.method_params, dict):
             raise bad("method_params", f"must be a table, got {type(self.method_params).__name__}")
 
@@ -160,7 +167,7 @@ class RunConfig:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
-        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1)):
+        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0)):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)

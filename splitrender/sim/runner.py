@@ -67,6 +67,7 @@ from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
 from ..scene.loader import get_scene
+from ..scene.model import shift_time
 from ..scene.pose import CameraIntrinsics, Pose
 from ..scene.predict import PerfectPredictor, make_predictor, prediction_error
 from ..scene.trace import get_trace
@@ -206,7 +207,7 @@ class VirtualTimeRun:
         self.progress = progress
         self.spec = get_method(cfg.method)
         self.mcfg = make_config(self.spec.config, cfg.method_params)
-        self.scene = get_scene(cfg.scene)
+        self.scene = shift_time(get_scene(cfg.scene), cfg.scene_time_offset_s)
         self.trace = get_trace(cfg.trace, scene=self.scene, fov_y_deg=cfg.fov_y_deg, aspect=cfg.width / cfg.height)
         names = cfg.client_traces or (cfg.trace,)
         self.traces = [_ShiftedTrace(self.trace if names[i % len(names)] == cfg.trace else
