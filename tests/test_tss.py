@@ -156,7 +156,8 @@ def renderer():  # type: ignore[no-untyped-def]
     return Renderer()
 
 
-def _server_frame(renderer, scene_name: str = "default", params: dict | None = None, t: float = 0.5):  # type: ignore[no-untyped-def]
+def _server_frame(renderer, scene_name: str = "default", params: dict | None = None, t: float = 0.5,  # type: ignore[no-untyped-def]
+                  intr: CameraIntrinsics = INTR, trace: str = "walk"):
     from splitrender.methods import ServerContext, get_method, make_config
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
@@ -164,9 +165,9 @@ def _server_frame(renderer, scene_name: str = "default", params: dict | None = N
     scene = get_scene(scene_name)
     spec = get_method("tss")
     cfg = make_config(spec.config, params or {})
-    pose = get_trace("walk", scene=scene).pose_at(t)
-    srv = spec.server_class(cfg, INTR, scene, 30, None)
-    ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
+    pose = get_trace(trace, scene=scene).pose_at(t)
+    srv = spec.server_class(cfg, intr, scene, 30, None)
+    ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
                         latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
     return srv, ctx, spec, cfg, scene, pose
 
@@ -192,12 +193,33 @@ def test_gathering_shades_exactly_the_planned_samples_deterministically(renderer
     assert rows is not None
 
 
-def _still(renderer, scene: str, method: str, params: dict) -> float:  # type: ignore[no-untyped-def]
+def test_conservative_oversampling_samples_at_the_papers_resolution(renderer) -> None:  # type: ignore[no-untyped-def]
+    """Paper section 4: the conservative samples "stay within 25 to 35%" (client renders at 1920x1080).  We read
+    it as the oversampled samples outside their triangle on top of the frame's other samples.  Default scene,
+    still camera, 1920x1080, planning only: 30.5% measured (46% of the oversampled samples alone; at 320x180,
+    where slanted triangles are 1-3 px high, 78%)."""
+    from splitrender.methods.tss.layout import KIND_OS
+
+    srv, ctx, *_ = _server_frame(renderer, intr=CameraIntrinsics(1920, 1080, 60.0), trace="static")
+    _, _, _, _, plan, _, _, rate, _ = srv.plan_view(ctx, True)
+    assert rate == 1.0 and not plan.overflow
+    os_ = plan.kind == KIND_OS
+    assert os_.sum() > 5000, "the frame has slanted triangles to oversample"
+    inside = float(((plan.w[os_] + plan.w2[os_]) * plan.h[os_] / 2.0).sum())
+    extra = float(plan.samples[os_].sum()) - inside
+    overhead = extra / (float(plan.samples.sum()) - extra)
+    assert 0.25 <= overhead <= 0.35, overhead
+
+
+def _still(renderer, scene: str, method: str, params: dict, size: tuple[int, int] = (320, 180)  # type: ignore[no-untyped-def]
+           ) -> tuple[float, float]:
+    """Mean PSNR of a still run and the server's mean samples per frame."""
     from splitrender.sim.runner import RunConfig, run
 
-    res = run(RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=320, height=180,
-                        client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
-    return float(np.mean([f["psnr_db"] for f in res.frames if f["update_frame_id"] >= 0]))
+    res = run(RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=size[0],
+                        height=size[1], client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
+    return (float(np.mean([f["psnr_db"] for f in res.frames if f["update_frame_id"] >= 0])),
+            float(np.mean([u["srv_samples"] for u in res.updates])))
 
 
 @pytest.mark.slow
@@ -206,9 +228,19 @@ def test_zero_latency_lossless_tss_scores_at_least_sas(renderer, scene: str, lea
     """Still camera, zero latency, lossless atlases.  Measured at 320x180 (tss / sas, dB): default 31.05 / 29.14,
     minimal 30.40 / 27.84.  tss shades more samples than sas here (146k against 88k block texels on the
     default scene): its oversampled staircases are mostly conservative samples at this size."""
-    tss = _still(renderer, scene, "tss", {"lossless": True})
-    sas = _still(renderer, scene, "sas", {"lossless": True})
+    tss = _still(renderer, scene, "tss", {"lossless": True})[0]
+    sas = _still(renderer, scene, "sas", {"lossless": True})[0]
     assert tss >= sas and tss >= least, (tss, sas)
+
+
+@pytest.mark.slow
+def test_with_fewer_samples_than_sas_tss_scores_higher(renderer) -> None:  # type: ignore[no-untyped-def]
+    """Still camera, zero latency, lossless atlases, minimal scene at 640x360: tss at 0.75 samples per pixel shades
+    145k samples (sas: 148k block texels) and scores 30.39 dB (sas: 29.29).  On the default scene tss needs 2%
+    more samples than sas for +0.7 dB at this rate (its thin slanted triangles carry conservative samples)."""
+    tss, n_tss = _still(renderer, "minimal", "tss", {"lossless": True, "samples_per_px": 0.75}, (640, 360))
+    sas, n_sas = _still(renderer, "minimal", "sas", {"lossless": True}, (640, 360))
+    assert n_tss <= n_sas and tss >= sas + 0.8, (tss, n_tss, sas, n_sas)
 
 
 def _client(renderer, srv, spec, cfg):  # type: ignore[no-untyped-def]
@@ -277,6 +309,38 @@ def test_a_missing_atlas_keeps_the_previous_table_and_takes_the_geometry(rendere
     assert cli.table is None and not cli.has_content and cli.has.sum() == srv.stats()["pvs_triangles"]
     cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
     assert cli.table is not None and cli.has_content
+
+
+@pytest.mark.parametrize("layout", ["stable", "prefix"])
+def test_delta_tables_give_the_client_the_servers_layout(renderer, layout: str) -> None:  # type: ignore[no-untyped-def]
+    """Over a walk of P-frames (delta tables), the client's table equals the server's plan every frame; the
+    per-frame layout moves shelves under unchanged descriptors (it showed 18.5 dB before origins were compared)."""
+    import dataclasses
+
+    from splitrender.methods import DecodedUpdate
+    from splitrender.scene.trace import get_trace
+
+    srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"layout": layout, "gop": 30})
+    cli = _client(renderer, srv, spec, cfg)
+    walk = get_trace("walk", scene=scene)
+    moved = 0
+    for k in range(5):
+        t = 0.5 + 0.1 * k
+        p = walk.pose_at(t)
+        c = dataclasses.replace(ctx, frame_id=k, t_s=t, latest_pose=p, latest_pose_t_s=t, target_pose=p, target_t_s=t,
+                                predict=lambda _t, p=p: p)
+        u = srv.produce(c)
+        assert k == 0 or srv.stats()["iframe"] == 0.0
+        cli.apply(DecodedUpdate(u.frame_id, u.t_s, u.pose, u.planes, u.meta, u.data))
+        plan, ids = srv.last_plan, srv.last_ids
+        order = np.argsort(ids)
+        tab = cli.table
+        assert np.array_equal(tab.ids, ids[order])
+        assert np.array_equal(tab.origin, plan.origin[order]) and np.array_equal(tab.kind, plan.kind[order])
+        if k:
+            moved += int((plan.origin[order] != prev).any(axis=(1, 2)).sum()) if prev.shape == plan.origin.shape else 1
+        prev = plan.origin[order]
+    assert layout == "stable" or moved > 0, "the per-frame layout moves triangles"
 
 
 @pytest.mark.parametrize("params,msg", [({"slant_threshold": 0.5}, "slant_threshold"), ({"samples_per_px": 0.0}, "samples_per_px"),

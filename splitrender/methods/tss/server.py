@@ -236,6 +236,7 @@ class TssServer(ServerHalf):
         self.store = StableAtlas(n, *self.atlas)
         self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
         self._sent_desc = np.zeros((n, 17), np.uint8)
+        self._sent_origin = np.zeros((n, 3, 2), np.int64)   # where the client finds each triangle's samples
         self._prev_a = np.zeros(n)
         self._prev_kind = np.full(n, -1, np.int64)
         self._prev_level = np.zeros(n, np.int64)
@@ -359,11 +360,14 @@ class TssServer(ServerHalf):
         self._prev_a[ids] = plan.a
         return plan, base, slant, rate
 
-    def produce(self, ctx: ServerContext) -> Update:
+    def plan_view(self, ctx: ServerContext, iframe: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, AtlasPlan,
+                                                                  np.ndarray, np.ndarray, float, float]:
+        """The frame's PVS and atlas plan, before any shading: ``pvs`` ids, object ``models`` (O, 4, 4), the PVS's
+        pixel corners ``px`` and ``depth``, then :meth:`plan`'s plan, base vertices, slantedness and rate, and the
+        ``perf_counter`` time at which the PVS was done."""
         c = self.config
         if self._gl is None:
             self._setup_gl(ctx.renderer)
-        t0 = time.perf_counter()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
         area = self._ids.pvs_area(self.pvs_samples(ctx), big)
         self._last_seen[area > 0] = self._frames
@@ -375,10 +379,18 @@ class TssServer(ServerHalf):
         m = models[T.obj[pvs]].astype(np.float64)                                     # (N, 4, 4)
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
         px, depth = project(world, ctx.target_pose, self.intrinsics)
-        full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
-        iframe = full or self._since_i >= c.gop
         visible = visible_area(world, ctx.target_pose, self.intrinsics, c.fov_margin)
         plan, base, slant, rate = self.plan(pvs, px, iframe, visible)
+        return pvs, models, px, depth, plan, base, slant, rate, t1
+
+    def produce(self, ctx: ServerContext) -> Update:
+        c = self.config
+        if self._gl is None:
+            self._setup_gl(ctx.renderer)
+        t0 = time.perf_counter()
+        full = ctx.keyframe_requested or bool(ctx.feedback.newly_lost("atlas")) or self._frames == 0
+        iframe = full or self._since_i >= c.gop
+        pvs, models, px, depth, plan, base, slant, rate, t1 = self.plan_view(ctx, iframe)
         iframe = iframe or (plan.repacked and c.layout == "stable" and self._frames > 0)
         persp = (depth.min(axis=1) > NEAR_M) & c.perspective
         t2 = time.perf_counter()
@@ -388,7 +400,7 @@ class TssServer(ServerHalf):
         t3 = time.perf_counter()
         new = pvs[~self.client_has[pvs]]
         self.client_has[new] = True
-        geo = encode_geometry(new, T.obj[new], T.pos[new])
+        geo = encode_geometry(new, self.tris.obj[new], self.tris.pos[new])
         desc = descriptors(plan, persp, base)
         if iframe:
             table = encode_table(pvs, plan, desc)
@@ -397,11 +409,14 @@ class TssServer(ServerHalf):
             live = np.zeros(self.tris.count, bool)
             live[pvs] = True
             gone = np.flatnonzero(self._sent_live & ~live)
-            changed = ~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
+            # a row whose descriptor is unchanged still moves when its bin's shelves do (per-frame layouts)
+            changed = (~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
+                       | (plan.origin != self._sent_origin[pvs]).any(axis=(1, 2)))
             table = encode_table(pvs, plan, desc, gone, changed)
         self._sent_live[:] = False
         self._sent_live[pvs] = True
         self._sent_desc[pvs] = desc
+        self._sent_origin[pvs] = plan.origin
         self._since_i = 1 if iframe else self._since_i + 1
         self._frames += 1
         self.last_plan, self.last_ids = plan, pvs
