@@ -323,7 +323,7 @@ def test_delta_tables_give_the_client_the_servers_layout(renderer, layout: str) 
     srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"layout": layout, "gop": 30})
     cli = _client(renderer, srv, spec, cfg)
     walk = get_trace("walk", scene=scene)
-    moved = 0
+    moved, prev = 0, None
     for k in range(5):
         t = 0.5 + 0.1 * k
         p = walk.pose_at(t)
@@ -337,7 +337,7 @@ def test_delta_tables_give_the_client_the_servers_layout(renderer, layout: str) 
         tab = cli.table
         assert np.array_equal(tab.ids, ids[order])
         assert np.array_equal(tab.origin, plan.origin[order]) and np.array_equal(tab.kind, plan.kind[order])
-        if k:
+        if prev is not None:
             moved += int((plan.origin[order] != prev).any(axis=(1, 2)).sum()) if prev.shape == plan.origin.shape else 1
         prev = plan.origin[order]
     assert layout == "stable" or moved > 0, "the per-frame layout moves triangles"
