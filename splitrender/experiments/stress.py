@@ -13,6 +13,8 @@ suite):
 ``loss_burst``     Gilbert-Elliott loss ``loss gemodel 3% 30%`` (20 ms delay) for the whole run
 ``bandwidth_drop`` ``bitrate_kbps = 1500``; inside the window the downlink drops to
                    500 kbit/s (mahimahi trace), outside it is 48 Mbit/s
+``fine_texture``   backing away from the glyph sign (1.5 m to 7 m) beside the brick wall:
+                   fine textures through every mip level
 ``light_change``   the walk under ``lan`` with the scene's clock ``4 s - t0`` ahead, so the
                    default scene's sun dims from 2.6 to 0.9 over one second from ``t0``
                    (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
@@ -126,6 +128,26 @@ def grazing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     return CameraTrace(t, pos, q, name="grazing")
 
 
+def fine_texture_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
+    """Backing away from the glyph sign along its normal (1.5 m to 7 m over the run) with the brick wall beside it,
+    swaying +-8 degrees: text and bricks shrink through every mip level (the shaders' level-of-detail choice)."""
+    from ..scene.pose import look_at_quat
+    from ..scene.trace import CameraTrace
+
+    t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
+    sign = np.array([-4.2, 2.2, -4.5])
+    normal = np.array([math.sin(math.radians(55.0)), 0.0, math.cos(math.radians(55.0))])
+    d = 1.5 + 5.5 * t / max(duration_s, 1e-9)
+    pos = sign + d[:, None] * normal + np.array([0.0, -0.3, 0.0])
+    yaw = np.radians(8.0) * np.sin(2 * math.pi * 0.6 * t)
+    q = []
+    for p, a in zip(pos, yaw):
+        f = sign - p
+        f = np.array([f[0] * math.cos(a) - f[2] * math.sin(a), f[1], f[0] * math.sin(a) + f[2] * math.cos(a)])
+        q.append(look_at_quat(p, p + f))
+    return CameraTrace(t, pos, np.array(q), name="fine_texture")
+
+
 def ball_trace(duration_s: float) -> Any:
     from ..scene.trace import static_trace
 
@@ -173,6 +195,9 @@ CASES: tuple[StressCase, ...] = (
     StressCase("grazing", "eye 25 cm above the floor looking along it to the tilted ramp (slanted triangles), lan",
                lambda d, tm: {"trace": _save_trace(grazing_trace(tm.duration_s), d / "grazing.csv"), "network": "lan"},
                False, 100.0),
+    StressCase("fine_texture", "backing away from the glyph sign and the brick wall (every mip level), lan",
+               lambda d, tm: {"trace": _save_trace(fine_texture_trace(tm.duration_s), d / "fine_texture.csv"), "network": "lan"},
+               False, 25.0),
     StressCase("light_change", "the sun dims from 2.6 to 0.9 over 1 s from the window's start (stale shading), lan",
                lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 55.0,
                "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
@@ -512,4 +537,4 @@ def main_stress(ns: argparse.Namespace) -> int:
 
 
 __all__ = ["CASES", "FLOOR_DB", "FULL", "QUICK", "SPIKE_NOTE", "StressCase", "Timing", "ball_trace", "case_config", "case_metrics",
-           "get_case", "mahimahi_trace", "railing_trace", "recovery_time_s", "run_stress", "main_stress"]
+           "fine_texture_trace", "get_case", "grazing_trace", "mahimahi_trace", "railing_trace", "recovery_time_s", "run_stress", "main_stress"]
