@@ -1,0 +1,211 @@
+"""Two independent receivers decode every frame of live sessions from the server's SDP files.
+
+A live ``video`` or ``warp`` session runs with ``sdp_dir`` and ``mirror_port``: the server
+writes one SDP file per stream and copies each stream's RTP to ``127.0.0.1:mirror + 2k``,
+where this test captures it.  Each captured stream is then replayed, byte for byte, to the
+port its SDP file names, once for the ``ffmpeg`` CLI and once for GStreamer
+(``gst-launch-1.0``: ``sdpdemux``, ``rtph264depay``/``rtph265depay``, ``avdec_*``); both
+must decode every frame, bit for bit the frames our own receiver gets (our jitter buffer
+and depacketizer, PyAV's decoder).  Only 127.0.0.1; every subprocess and loop is bounded
+in time.  ``warp`` with a client that accepts only H.264 is refused by name (its depth
+stream is HEVC), so the warp cases offer HEVC.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from splitrender.protocol import JitterBuffer, RtpPacket
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg CLI not installed"),
+              pytest.mark.skipif(shutil.which("gst-launch-1.0") is None, reason="GStreamer (gst-launch-1.0) not installed")]
+
+W, H = 160, 90   # the display; warp's streams are larger (overscan)
+DEPAY = {"h264": "rtph264depay ! h264parse ! avdec_h264", "hevc": "rtph265depay ! h265parse ! avdec_h265"}
+
+
+def _free_ports(n: int) -> int:
+    """An even port p with p .. p + n - 1 free on 127.0.0.1 (UDP)."""
+    for _ in range(100):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            p = s.getsockname()[1] & ~1
+        socks = []
+        try:
+            for k in range(n):
+                a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(a)
+                a.bind(("127.0.0.1", p + k))
+            return p
+        except OSError:
+            continue
+        finally:
+            for a in socks:
+                a.close()
+    raise RuntimeError("no free UDP port range")
+
+
+def parse_sdp_port(sdp: str) -> int:
+    """The port of the SDP's (only) ``m=video`` line."""
+    (line,) = [ln for ln in sdp.splitlines() if ln.startswith("m=video ")]
+    return int(line.split()[1])
+
+
+def _bound(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return True
+    return False
+
+
+def _live_session(tmp_path: Path, method: str, codecs: tuple[str, ...]) -> dict[str, tuple[Path, list[bytes], str]]:
+    """Run one live session; per stream name: its SDP file, the datagrams mirrored to it, its codec."""
+    from splitrender.client.session import ClientConfig, LiveClient
+    from splitrender.server.server import LiveServer, ServerConfig
+
+    base = _free_ports(4)
+    socks = []
+    got: dict[int, list[bytes]] = {base: [], base + 2: []}
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        for port in got:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            s.bind(("127.0.0.1", port))
+            s.setblocking(False)
+            socks.append(s)
+            loop.add_reader(s.fileno(), lambda s=s, port=port: got[port].append(s.recv(65536)))
+        cfg = ServerConfig(host="127.0.0.1", port=0, udp_port=0, scene="minimal", server_fps=30, sdp_dir=tmp_path,
+                           mirror_port=base)
+        async with LiveServer(cfg) as server:
+            serve = asyncio.create_task(server.serve_forever())
+            client = LiveClient(ClientConfig(port=server.tcp_address[1], methods=(method,), codecs=codecs, width=W, height=H,
+                                             display_hz=30, duration_s=1.2))
+            await client.run()
+            await asyncio.sleep(0.2)
+            serve.cancel()
+        for s in socks:
+            loop.remove_reader(s.fileno())
+
+    try:
+        asyncio.run(asyncio.wait_for(main(), 60))
+    finally:
+        for s in socks:
+            s.close()
+    out = {}
+    for f in sorted(tmp_path.glob("*.sdp")):
+        sdp = f.read_text()
+        port = parse_sdp_port(sdp)
+        codec = "hevc" if "H265/90000" in sdp else "h264"
+        out[f.stem.split("_", 1)[1]] = (f, got[port], codec)
+    return out
+
+
+def _decoded_md5s(codec: str, datagrams: list[bytes]) -> list[str]:
+    """MD5 of every frame our own receiver gets from ``datagrams``: our jitter buffer and depacketizer, then
+    PyAV's decoder; the hash is of the frame's packed planes, as ffmpeg's ``framemd5`` computes it."""
+    import hashlib
+
+    import av
+
+    jb = JitterBuffer(codec)  # type: ignore[arg-type]
+    dec = av.CodecContext.create(codec, "r")
+    frames = []
+    for k, d in enumerate(datagrams):
+        if len(d) >= 2 and 200 <= d[1] <= 206:   # RTCP on the muxed port
+            continue
+        for au in jb.insert(RtpPacket.parse(d), now_ms=float(k)):
+            frames += dec.decode(av.Packet(au.data))
+    frames += dec.decode(None)
+    return [hashlib.md5(f.to_ndarray().tobytes()).hexdigest() for f in frames]
+
+
+def _replay(datagrams: list[bytes], port: int) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for d in datagrams:
+            tx.sendto(d, ("127.0.0.1", port))
+            time.sleep(0.0005)
+
+
+def _decode(cmd: list[str], sdp: Path, datagrams: list[bytes], stop: signal.Signals | None) -> tuple[subprocess.CompletedProcess, str]:
+    port = parse_sdp_port(sdp.read_text())
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        end = time.monotonic() + 30.0
+        while not _bound(port) and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.02)
+        assert proc.poll() is None and _bound(port), f"{cmd[0]} did not open port {port}: {proc.poll()}"
+        time.sleep(0.3)
+        _replay(datagrams, port)
+        if stop is not None:
+            time.sleep(1.0)
+            os.killpg(proc.pid, stop)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate(timeout=5)
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err), err.decode(errors="replace")
+
+
+def _continued(datagrams: list[bytes]) -> list[bytes]:
+    """The RTP packets of ``datagrams`` again, as the stream's continuation (sequence numbers and timestamps
+    carry on; RTCP left out)."""
+    import dataclasses
+
+    rtp = [RtpPacket.parse(d) for d in datagrams if not (len(d) >= 2 and 200 <= d[1] <= 206)]
+    dseq = (rtp[-1].sequence_number - rtp[0].sequence_number + 1) % 65536
+    dts = (rtp[-1].timestamp - rtp[0].timestamp + 3000) % 2**32
+    return [bytes(dataclasses.replace(p, sequence_number=(p.sequence_number + dseq) % 65536,
+                                      timestamp=(p.timestamp + dts) % 2**32)) for p in rtp]
+
+
+def _ffmpeg_frames(sdp: Path, datagrams: list[bytes], n: int) -> tuple[list[str], str]:
+    """MD5s of the first ``n`` frames the ffmpeg CLI decodes (``framemd5``): its parser holds a frame until the next starts, and
+    stopping it gracefully takes 10 s on this machine, so the stream is sent twice and ffmpeg stops after ``n``."""
+    cmd = ["ffmpeg", "-hide_banner", "-loglevel", "error", "-threads", "1", "-protocol_whitelist", "file,udp,rtp",
+           "-reorder_queue_size", "0", "-i", str(sdp), "-frames:v", str(n), "-f", "framemd5", "-"]
+    res, err = _decode(cmd, sdp, datagrams + _continued(datagrams), None)
+    return [ln.split(",")[-1].strip() for ln in res.stdout.decode().splitlines() if ln and not ln.startswith("#")], err
+
+
+def _gst_frames(sdp: Path, datagrams: list[bytes], codec: str, tmp: Path) -> tuple[list[str], str]:
+    frames = tmp / f"{sdp.stem}.frames"       # one file per decoded frame, whatever its size
+    frames.mkdir()
+    cmd = ["gst-launch-1.0", "-q", "-e", "filesrc", f"location={sdp}", "!", "sdpdemux", "latency=100", "!",
+           *DEPAY[codec].split(), "!", "multifilesink", f"location={frames}/%05d.raw"]
+    _, err = _decode(cmd, sdp, datagrams, signal.SIGINT)
+    import hashlib
+
+    return [hashlib.md5(f.read_bytes()).hexdigest() for f in sorted(frames.iterdir())], err
+
+
+@pytest.mark.parametrize("method,codecs", [("video", ("h264",)), ("video", ("hevc",)), ("warp", ("h264", "hevc")),
+                                           ("warp", ("hevc",))])
+def test_ffmpeg_and_gstreamer_decode_every_frame_of_a_live_session(tmp_path: Path, method: str, codecs: tuple[str, ...]) -> None:
+    streams = _live_session(tmp_path / "sdp", method, codecs)
+    assert len(streams) == (2 if method == "warp" else 1), sorted(streams)
+    for name, (sdp, datagrams, codec) in streams.items():
+        if len(codecs) == 1:
+            assert codec == codecs[0], f"{name}: the client accepts only {codecs[0]}, the SDP says {codec}"
+        ours = _decoded_md5s(codec, datagrams)
+        n = len(ours)
+        assert n >= 20, f"{name}: only {n} frames in 1.2 s"
+        ff, ff_err = _ffmpeg_frames(sdp, datagrams, n)
+        gst, gst_err = _gst_frames(sdp, datagrams, codec, tmp_path)
+        assert ff == ours, f"{method}/{name} ({codec}): ffmpeg decoded {len(ff)} frames, {sum(a == b for a, b in zip(ff, ours))} " \
+                           f"of {n} as ours: {ff_err[-400:]}"
+        assert gst == ours, f"{method}/{name} ({codec}): GStreamer decoded {len(gst)} frames, {sum(a == b for a, b in zip(gst, ours))} " \
+                            f"of {n} as ours: {gst_err[-400:]}"
