@@ -70,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processing time on the simulated clock: the modelled server/decode latencies (fixed, default) or "
                         "this machine's measured milliseconds (measured)")
     p.add_argument("--cost-scale", type=float, default=None, help="scale the measured milliseconds (0.1: a machine 10x faster)")
+    p.add_argument("--fec", action="store_true", default=None,
+                   help="forward error correction: an RFC 5109 parity packet per group of up to 16 RTP packets")
     _common_run_args(p)
     p.set_defaults(func=main_run)
 
@@ -146,7 +148,7 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
-                 ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale),
+                 ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:
             over[k] = v

@@ -165,3 +165,16 @@ def test_fuzz_decode_mutated_maps(msg_type: MessageType, data: st.DataObject) ->
         cls.decode(msgpack.packb(base, use_bin_type=True))
     except MessageError:
         pass
+
+
+def test_stream_description_fec_field_round_trips_and_is_checked() -> None:
+    from splitrender.protocol.errors import MessageError
+
+    d = StreamDescription("color", "h264", 0x11223344, 96, 5004, "v=0\r\n", fec_ssrc=0x55667788, fec_payload_type=127)
+    w = d.to_wire()
+    assert w["fec"] == [0x55667788, 127] and StreamDescription.from_wire("s", w) == d
+    assert "fec" not in StreamDescription("color", "h264", 1, 96, 5004, "").to_wire()   # without FEC: the old bytes
+    for bad, text in (([1], "expected \\[ssrc"), ([1, 95], "expected \\[ssrc"), ("x", "expected \\[ssrc"),
+                      ([0x11223344, 127], "the FEC stream must differ"), ([5, 96], "the FEC stream must differ"), ([True, 127], "expected \\[ssrc")):
+        with pytest.raises(MessageError, match=r"^s\.fec: " + text):
+            StreamDescription.from_wire("s", {**w, "fec": bad})

@@ -529,7 +529,8 @@ class LiveClient:
 
     def _all_counters(self) -> dict[str, Any]:
         """The session counters plus, per RTP stream, what its jitter buffer dropped: late packets,
-        frames given up (timeout or overflow), frames dropped waiting for a keyframe, corrupt frames."""
+        frames given up (timeout or overflow), frames dropped waiting for a keyframe, corrupt frames;
+        with FEC, the parity packets received, the packets they rebuilt and the malformed ones."""
         out = dict(self.counters)
         if self.rx is not None:
             for rx in self.rx.streams.values():
@@ -537,6 +538,9 @@ class LiveClient:
                 if j is not None:
                     out.update({f"{rx.name}_packets_late": j.packets_late, f"{rx.name}_frames_lost": j.frames_lost,
                                 f"{rx.name}_frames_dropped": j.frames_dropped, f"{rx.name}_frames_corrupt": j.frames_corrupt})
+                    if j.fec_packets:
+                        out.update({f"{rx.name}_fec_packets": j.fec_packets, f"{rx.name}_fec_recovered": j.fec_recovered,
+                                    f"{rx.name}_fec_bad": j.fec_bad})
         return out
 
     def _on_frame(self, now: float) -> None:

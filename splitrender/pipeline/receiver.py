@@ -153,6 +153,8 @@ class ClientPipeline:
         self.meta_max_bytes = meta_max_bytes
         self.streams: dict[str, RxStream] = {}
         self.by_ssrc: dict[int, RxStream] = {}
+        self.by_fec_ssrc: dict[int, tuple[RxStream, int]] = {}
+        """FEC stream SSRC -> (the stream it protects, its payload type)."""
         by_desc = {d.name: d for d in descriptions}
         for row in table:
             if isinstance(row, DataStreamSpec):
@@ -171,6 +173,8 @@ class ClientPipeline:
                 if rx.kind == "video":
                     rx.decoder = VideoDecoder(d.codec, rx.output_format)  # type: ignore[arg-type]
                 self.by_ssrc[d.ssrc] = rx
+                if d.fec_payload_type:
+                    self.by_fec_ssrc[d.fec_ssrc] = (rx, d.fec_payload_type)
             self.streams[rx.name] = rx
         self._pending: OrderedDict[int, _Pending] = OrderedDict()
         self._orphans: OrderedDict[tuple[str, int], tuple[Any, float, float]] = OrderedDict()
@@ -186,7 +190,7 @@ class ClientPipeline:
         self.counters: dict[str, int] = {
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_given_up": 0, "decode_errors": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "udp_bad": 0, "meta_bytes": 0, "data_bytes": 0, "keyframes_received": 0,
-            "data_errors": 0,
+            "data_errors": 0, "fec_packets": 0, "fec_recovered": 0,
         }
 
     # ------------------------------------------------------------------ input
@@ -271,6 +275,17 @@ class ClientPipeline:
             self.counters["udp_bad"] += 1
             return []
         rx = self.by_ssrc.get(pkt.ssrc)
+        if rx is None and pkt.ssrc in self.by_fec_ssrc:
+            frx, pt = self.by_fec_ssrc[pkt.ssrc]
+            if pkt.payload_type != pt or frx.jitter is None:
+                self.counters["udp_bad"] += 1
+                return []
+            self.counters["fec_packets"] += 1
+            self.wire_bytes[frx.name] = self.wire_bytes.get(frx.name, 0) + datagram_wire_bytes(len(data))
+            before = frx.jitter.fec_recovered
+            units = frx.jitter.insert_fec(pkt, frx.ssrc, now_ms)
+            self.counters["fec_recovered"] += frx.jitter.fec_recovered - before
+            return self._units(frx, units, now_ms)
         if rx is None or rx.jitter is None:
             self.counters["udp_bad"] += 1
             return []
@@ -279,7 +294,10 @@ class ClientPipeline:
         self.wire_bytes[rx.name] = self.wire_bytes.get(rx.name, 0) + datagram_wire_bytes(len(data))
         assert rx.stats is not None
         rx.stats.receive(pkt, now_ms)
-        return self._units(rx, rx.jitter.insert(pkt, now_ms), now_ms)
+        before = rx.jitter.fec_recovered
+        units = rx.jitter.insert(pkt, now_ms)
+        self.counters["fec_recovered"] += rx.jitter.fec_recovered - before
+        return self._units(rx, units, now_ms)
 
     def poll(self, now_ms: float) -> list[Work]:
         """Apply jitter-buffer and resolution timeouts at ``now_ms``."""

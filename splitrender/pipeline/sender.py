@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
+from ..protocol.fec import fec_encode
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
                         split_annexb)
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
@@ -34,6 +35,8 @@ logger = logging.getLogger(__name__)
 
 FIRST_PAYLOAD_TYPE = 96
 """Dynamic RTP payload type of a session's first RTP stream (then 97, 98, ...)."""
+FEC_PAYLOAD_TYPE = 127
+"""Payload type of the first RTP stream's FEC stream (then 126, ...), when FEC is on."""
 RTP_CLOCK_HZ = 90000
 
 Framer = Callable[[Message], bytes]
@@ -64,6 +67,8 @@ class OutgoingFrame:
     """(stream, framed bytes) for the control channel: reliable data chunks, then ``meta``."""
     datagrams: list[tuple[str, RtpPacket, bytes]] = field(default_factory=list)
     """(stream, packet, bytes) for UDP."""
+    fec: list[tuple[str, bytes]] = field(default_factory=list)
+    """(stream, bytes) of the FEC packets protecting ``datagrams`` (sent after them; not for NACK history)."""
     wire_bytes: dict[str, int] = field(default_factory=dict)
     """Bytes on the wire per stream (headers included)."""
     payload_bytes: dict[str, int] = field(default_factory=dict)
@@ -84,13 +89,16 @@ class TxStream:
     encoder: VideoEncoder | None = None
     sets_checked: bool = False
     """The first IDR's in-band parameter sets were compared with the described ones."""
+    fec_ssrc: int = 0
+    fec_payload_type: int = 0
+    fec_seq: int = 0
 
 
 class ServerPipeline:
     """One session's sending side; see the module docstring."""
 
     def __init__(self, specs: list[AnyStreamSpec], mtu: int = 1200, ssrc_taken: Callable[[int], bool] | None = None,
-                 rng: Any = None) -> None:
+                 rng: Any = None, fec: bool = False) -> None:
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
             raise ValueError(f"duplicate stream names in {names}")
@@ -111,6 +119,17 @@ class ServerPipeline:
                 k += 1
                 st.packetizer = RtpPacketizer(rtp_format(s), ssrc, st.payload_type, mtu, self._rand(16))  # type: ignore[arg-type]
             self.streams[s.name] = st
+        self.fec = fec
+        if fec:   # one FEC stream per RTP stream: its own SSRC, payload type 127, 126, ... and sequence numbers
+            for k, st in enumerate(self.rtp_streams):
+                ssrc = self._rand(32)
+                while ssrc in used or (ssrc_taken is not None and ssrc_taken(ssrc)):
+                    ssrc = self._rand(32)
+                used.add(ssrc)
+                st.fec_ssrc, st.fec_payload_type, st.fec_seq = ssrc, FEC_PAYLOAD_TYPE - k, self._rand(16)
+            if FEC_PAYLOAD_TYPE - len(self.rtp_streams) < FIRST_PAYLOAD_TYPE + len(self.rtp_streams):
+                raise ValueError(f"{len(self.rtp_streams)} RTP streams leave no payload types for FEC")
+        self.fec_bytes_sent = 0
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
 
     # ------------------------------------------------------------------ set-up
@@ -144,7 +163,8 @@ class ServerPipeline:
             fmt = rtp_format(st.spec)
             sdp = make_sdp(fmt, port, st.payload_type, address=host, session_name=f"{session_name} {st.spec.name}",
                            parameter_sets=self.parameter_sets(st.spec.name)) if fmt != "data" else ""
-            out.append(StreamDescription(st.spec.name, fmt, st.ssrc, st.payload_type, port, sdp))  # type: ignore[arg-type]
+            out.append(StreamDescription(st.spec.name, fmt, st.ssrc, st.payload_type, port, sdp,  # type: ignore[arg-type]
+                                         fec_ssrc=st.fec_ssrc, fec_payload_type=st.fec_payload_type))
         return tuple(out)
 
     def welcome_params(self, session_blob: bytes) -> dict[str, Any]:
@@ -225,10 +245,19 @@ class ServerPipeline:
             assert st.packetizer is not None
             payload = enc.video[name].data if name in enc.video else enc.data[name]
             out.payload_bytes.setdefault(name, len(payload))
+            media = []
             for pkt in st.packetizer.packetize(payload, rtp_ts):
                 data = bytes(pkt)
+                media.append(data)
                 out.datagrams.append((name, pkt, data))
                 out.wire_bytes[name] = out.wire_bytes.get(name, 0) + datagram_wire_bytes(len(data))
+            if self.fec and media:
+                for f in fec_encode(media, st.fec_ssrc, st.fec_payload_type, st.fec_seq, rtp_ts):
+                    data = bytes(f)
+                    out.fec.append((name, data))
+                    out.wire_bytes[name] += datagram_wire_bytes(len(data))   # FEC counts as its stream's bytes
+                    self.fec_bytes_sent += datagram_wire_bytes(len(data))
+                    st.fec_seq = (st.fec_seq + 1) & 0xFFFF
         for k, v in out.wire_bytes.items():
             self.bytes_sent[k] = self.bytes_sent.get(k, 0) + v
         return out

@@ -17,7 +17,10 @@ Behaviour (times are passed in, in ms):
   dropped (``drop_until_keyframe``); ``needs_keyframe`` starts True;
 * packets older than the last emitted frame are dropped as late; malformed payloads
   drop the frame (logged, counted) instead of raising, as one bad UDP datagram must
-  not end a session.
+  not end a session;
+* FEC packets (RFC 5109, :mod:`.fec`) go to :meth:`JitterBuffer.insert_fec`: when every
+  packet of an FEC group but one is in, the missing one is rebuilt and inserted as if
+  it had arrived (``fec_recovered``); malformed FEC packets are counted (``fec_bad``).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 from splitrender.protocol.annexb import Codec, contains_keyframe, join_annexb
 from splitrender.protocol.data import data_depayload
 from splitrender.protocol.errors import PayloadError
+from splitrender.protocol.fec import FecPacket, fec_recover, parse_fec
 from splitrender.protocol.h264 import h264_depayload
 from splitrender.protocol.h265 import h265_depayload
 from splitrender.protocol.rtp import RtpPacket, SequenceUnwrapper
@@ -37,6 +41,7 @@ __all__ = ["AccessUnit", "JitterBuffer"]
 logger = logging.getLogger(__name__)
 
 DEFAULT_MAX_PACKETS = 2048
+MAX_PENDING_FEC = 64
 DEFAULT_FRAME_TIMEOUT_MS = 100.0
 MAX_NACK_ITEMS = 256
 
@@ -91,6 +96,11 @@ class JitterBuffer:
         self.packets_duplicate = 0
         self.packets_lost = 0
         """Sequence numbers skipped for good."""
+        self.fec_packets = 0
+        self.fec_recovered = 0
+        self.fec_bad = 0
+        self._fec: list[FecPacket] = []
+        self._ssrc_fec = 0
         self.discarded: list[int] = []
         """RTP timestamps of frames given up on, found corrupt or dropped while waiting for a
         keyframe, oldest first (where the timestamp is known); the owner drains it."""
@@ -114,7 +124,60 @@ class JitterBuffer:
             self._next = None
             self._lose_sync()
         self._packets[ext] = (packet, now_ms)
+        if self._fec:
+            return self._process(now_ms) + self._try_fec(now_ms)
         return self._process(now_ms)
+
+    def insert_fec(self, packet: RtpPacket, ssrc: int, now_ms: float) -> list[AccessUnit]:
+        """An FEC packet protecting this buffer's stream (media SSRC ``ssrc``) arrived at ``now_ms``; returns
+        frames completed by a packet it recovers."""
+        self.fec_packets += 1
+        try:
+            fec = parse_fec(packet.payload)
+        except PayloadError as exc:
+            self.fec_bad += 1
+            logger.info("dropping FEC packet %d: %s", packet.sequence_number, exc)
+            return []
+        self._ssrc_fec = ssrc
+        self._fec.append(fec)
+        if len(self._fec) > MAX_PENDING_FEC:
+            del self._fec[0]
+        return self._try_fec(now_ms)
+
+    def _try_fec(self, now_ms: float) -> list[AccessUnit]:
+        out: list[AccessUnit] = []
+        keep: list[FecPacket] = []
+        for fec in self._fec:
+            exts = [self._unwrap.peek(s) for s in fec.protected()]
+            if any(e is None for e in exts):
+                keep.append(fec)                              # no media packet yet
+                continue
+            if self._next is not None and max(exts) < self._next:  # type: ignore[type-var]
+                continue                                      # the group is done with
+            missing = [e for e in exts if e not in self._packets and (self._next is None or e >= self._next)]  # type: ignore[operator]
+            if len(missing) > 1:
+                keep.append(fec)
+                continue
+            if not missing or any(e not in self._packets for e in exts if e != missing[0]):
+                continue                                      # complete, or others already emitted
+            try:
+                pkt = fec_recover(fec, self._ssrc_fec, self._packet_bytes)
+            except PayloadError as exc:
+                self.fec_bad += 1
+                logger.info("FEC recovery failed: %s", exc)
+                continue
+            if pkt is not None:
+                self.fec_recovered += 1
+                ext = self._unwrap.unwrap(pkt.sequence_number)
+                self._packets[ext] = (pkt, now_ms)
+                out += self._process(now_ms)
+        self._fec = keep
+        return out
+
+    def _packet_bytes(self, seq: int) -> bytes | None:
+        ext = self._unwrap.peek(seq)
+        e = self._packets.get(ext) if ext is not None else None
+        return bytes(e[0]) if e is not None else None
 
     def poll(self, now_ms: float) -> list[AccessUnit]:
         """Apply timeouts at ``now_ms``; returns frames released by giving up on others."""

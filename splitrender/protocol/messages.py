@@ -339,9 +339,12 @@ class StreamDescription:
     sdp: str
     clock_rate: int = RTP_CLOCK_RATE_HZ
     """RTP timestamp clock in Hz; always 90000 for video."""
+    fec_ssrc: int = 0
+    """SSRC of the RFC 5109 FEC stream protecting this one (``fec_payload_type`` 0: no FEC)."""
+    fec_payload_type: int = 0
 
     def to_wire(self) -> dict[str, Any]:
-        return {
+        d = {
             "name": self.name,
             "codec": self.codec,
             "ssrc": self.ssrc,
@@ -350,6 +353,9 @@ class StreamDescription:
             "port": self.port,
             "sdp": self.sdp,
         }
+        if self.fec_payload_type:
+            d["fec"] = [self.fec_ssrc, self.fec_payload_type]
+        return d
 
     @classmethod
     def from_wire(cls, where: str, d: Any) -> StreamDescription:
@@ -361,14 +367,27 @@ class StreamDescription:
         clock = _int(where, d, "clock_rate", 1, U32_MAX)
         if clock != RTP_CLOCK_RATE_HZ:
             raise MessageError(f"{where}.clock_rate: expected {RTP_CLOCK_RATE_HZ}, got {clock}")
+        fec_ssrc, fec_pt = 0, 0
+        if "fec" in d:
+            fec = d["fec"]
+            if (not isinstance(fec, list) or len(fec) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) for v in fec)
+                    or not 0 <= fec[0] <= U32_MAX or not 96 <= fec[1] <= 127):
+                raise MessageError(f"{where}.fec: expected [ssrc (u32), payload type (96..127)], got {fec!r:.80}")
+            fec_ssrc, fec_pt = fec
+        ssrc = _int(where, d, "ssrc", 0, U32_MAX)
+        pt = _int(where, d, "payload_type", 0, 127)
+        if fec_pt and (fec_ssrc == ssrc or fec_pt == pt):
+            raise MessageError(f"{where}.fec: the FEC stream must differ from the media stream in SSRC and payload type")
         return cls(
             name=_str(where, d, "name", MAX_NAME_LEN),
             codec=cast(CodecName, codec),
-            ssrc=_int(where, d, "ssrc", 0, U32_MAX),
-            payload_type=_int(where, d, "payload_type", 0, 127),
+            ssrc=ssrc,
+            payload_type=pt,
             port=_int(where, d, "port", 0, 65535),
             sdp=_str(where, d, "sdp", 16 * KIB),
             clock_rate=clock,
+            fec_ssrc=fec_ssrc,
+            fec_payload_type=fec_pt,
         )
 
 

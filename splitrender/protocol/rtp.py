@@ -49,6 +49,12 @@ class SequenceUnwrapper:
     def __init__(self) -> None:
         self._last: int | None = None
 
+    def peek(self, seq: int) -> int | None:
+        """The extended number :meth:`unwrap` would give ``seq``, without recording it (``None`` before any)."""
+        if self._last is None:
+            return None
+        return self._last + seq_diff(seq, self._last & 0xFFFF)
+
     def unwrap(self, seq: int) -> int:
         """Extended sequence number closest to the last one seen."""
         if self._last is None:

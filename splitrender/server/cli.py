@@ -38,6 +38,8 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mirror-port", type=int, default=None,
                    help="with --sdp-dir: also send each stream to 127.0.0.1:PORT+2k for ffplay")
     p.add_argument("--out", type=Path, default=None, help="write per-session feedback.csv (latency per frame) here")
+    p.add_argument("--fec", action="store_true",
+                   help="forward error correction: an RFC 5109 parity packet per group of up to 16 RTP packets")
     p.add_argument("--metrics-interval", type=float, default=5.0,
                    help="seconds between each session's `metrics` log line (counters; 0 = never; default 5)")
 
@@ -79,7 +81,8 @@ def config_from_args(ns: argparse.Namespace) -> Any:
     return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
-                        mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval)
+                        mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
+                        fec=ns.fec)
 
 
 async def _serve_until_signal(cfg: Any) -> None:

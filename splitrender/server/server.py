@@ -69,7 +69,8 @@ class ServerConfig:
     ``ffplay -protocol_whitelist file,udp,rtp -i <sdp>`` can watch it.
     ``out_dir``: write each session's Feedback rows (per-frame latency) there.
     ``max_session_bytes``: a method whose session data is larger fails that session
-    with an error naming the limit.
+    with an error naming the limit.  ``fec``: protect every RTP stream with RFC 5109
+    parity packets on a separate SSRC (announced in ``Welcome``, not mirrored).
     """
 
     host: str = "127.0.0.1"
@@ -94,6 +95,7 @@ class ServerConfig:
     mirror_port: int | None = None
     out_dir: Path | None = None
     max_session_bytes: int = 256 * 1024 * 1024
+    fec: bool = False
     metrics_interval_s: float = 5.0
     """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
 

@@ -147,7 +147,7 @@ class ServerSession:
             "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
             "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0, "data_bytes": 0, "session_bytes": 0,
-            "lost_reported": 0,
+            "lost_reported": 0, "fec_packets": 0, "fec_bytes": 0,
         }
         self.rtt_ms: float | None = None
 
@@ -278,7 +278,7 @@ class ServerSession:
             if isinstance(s, StreamSpec) and s.codec.codec not in hello.codecs:
                 raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
                                           f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
-        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken)
+        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec)
         await server.in_encoder(self.tx.open_encoders)  # the SDP names the parameter sets the encoders send
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
@@ -464,6 +464,10 @@ class ServerSession:
                 server.send_datagram(data, st.mirror)
             self.counters["rtp_packets"] += 1
             self.counters["rtp_bytes"] += len(data)
+        for _, data in out.fec:                 # parity packets: neither mirrored nor kept for retransmission
+            server.send_datagram(data, self.client_addr)
+            self.counters["fec_packets"] += 1
+            self.counters["fec_bytes"] += len(data)
         if len(self.update_rows) < 1_000_000:
             row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
                                    "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,

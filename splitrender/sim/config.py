@@ -58,6 +58,7 @@ class RunConfig:
     ``scene_time_offset_s``: the scene's clock runs this far ahead of the run's (its
     animations and light schedules at run time ``t`` are those at ``t + offset``), so a
     short run can start just before an event such as the default scene's sun dimming at 4 s.
+    ``fec``: protect every RTP stream with RFC 5109 parity packets (:mod:`splitrender.protocol.fec`).
     """
 
     method: str = "video"
@@ -92,6 +93,7 @@ class RunConfig:
     ssim_sigma: float = 1.5
     truth_cache: str = ""
     scene_time_offset_s: float = 0.0
+    fec: bool = False
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -167,7 +169,8 @@ class RunConfig:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
-        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0)):
+        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
+                           ("fec", False)):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)

@@ -256,7 +256,7 @@ class VirtualTimeRun:
         if len(session_blob) > cfg.max_session_bytes:
             raise SessionDataError(f"method {cfg.method}: session data of {len(session_blob)} bytes exceeds the limit of "
                                    f"{cfg.max_session_bytes} bytes (max_session_bytes)")
-        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]))
+        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec)
         params = {"config": _plain(dataclasses.asdict(self.mcfg)), "fov_y_deg": cfg.fov_y_deg, "server_fps": cfg.server_fps,
                   "scene": cfg.scene, **c.tx.welcome_params(session_blob)}
         welcome = Welcome(f"sim{i}", cfg.method, params, c.tx.describe("127.0.0.1", 6004, f"splitrender sim{i}"))
@@ -401,7 +401,7 @@ class VirtualTimeRun:
                 arrive = max(arrive, c.down_ctrl_free_s)
                 c.down_ctrl_free_s = arrive
                 self._at(arrive, _DELIVER, self._deliver_control, c, data)
-            for stream, _pkt, data in out.datagrams:
+            for data in [d for _, _, d in out.datagrams] + [d for _, d in out.fec]:
                 for d in c.down.send(send_t, len(data) + 28):
                     if not d.corrupted:
                         self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
