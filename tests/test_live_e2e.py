@@ -364,11 +364,12 @@ async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(t
 
 async def test_periodic_metrics_lines_and_drop_counters(tmp_path: Path, caplog) -> None:  # type: ignore[no-untyped-def]
     """Server and client log a ``metrics`` line every ``metrics_interval_s``; the client's counters carry each
-    jitter buffer's drops (late packets, frames given up, dropped waiting for a keyframe, corrupt)."""
+    jitter buffer's drops (late packets, frames given up, dropped waiting for a keyframe, corrupt) and the
+    measured NACK round trip that times its retries."""
     import logging
 
     caplog.set_level(logging.INFO)
-    result, _, counters = await _run_through_relay(tmp_path, "loss 3%", seed=2, server_kw={"metrics_interval_s": 0.5},
+    result, _, counters = await _run_through_relay(tmp_path, "delay 10ms loss 3%", seed=2, server_kw={"metrics_interval_s": 0.5},
                                                    duration_s=2.0, metrics_interval_s=0.5)
     server_lines = [r.getMessage() for r in caplog.records if r.name.startswith("splitrender.server")
                     and r.getMessage().startswith("metrics session=")]
@@ -380,3 +381,5 @@ async def test_periodic_metrics_lines_and_drop_counters(tmp_path: Path, caplog) 
     for k in ("packets_late", "frames_lost", "frames_dropped", "frames_corrupt"):
         assert f"color_{k}" in c, sorted(c)
     assert c["nacks_sent"] > 0, c  # the loss was seen and reported
+    # NACK retries are timed from the measured round trip: 10 ms each way at least
+    assert 20.0 <= c["nack_rtt_ms"] < 200.0, c

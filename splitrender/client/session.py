@@ -78,6 +78,8 @@ MAX_READY_UPDATES = 16
 DECODE_QUEUE = 64
 """Access units waiting for the decoder; overflow flushes and asks for a keyframe."""
 RTCP_TICK_S = 0.01
+NACK_RETRY_MIN_MS = 30.0
+NACK_RETRY_MAX_MS = 500.0
 BIND_INTERVAL_S = 0.1
 
 
@@ -114,6 +116,8 @@ class ClientConfig:
     jitter_timeout_ms: float = 300.0
     nack_delay_ms: float = 20.0
     nack_retry_ms: float = 120.0
+    """Wait between two NACKs of a hole until a retransmission's round trip has been measured; then
+    1.5x the smoothed round trip + 10 ms, within [:data:`NACK_RETRY_MIN_MS`, :data:`NACK_RETRY_MAX_MS`]."""
     nack_max_tries: int = 3
     pli_interval_ms: float = 250.0
     rr_interval_s: float = 0.5
@@ -198,6 +202,8 @@ class LiveClient:
         self.udp: asyncio.DatagramTransport | None = None
         self.rx: ClientPipeline | None = None
         self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
+        self.nack_rtt_ms: float | None = None
+        """Smoothed time from a NACK to its retransmission's arrival (RFC 6298's 1/8 gain), monotonic ms."""
         self._last_pli_ms: dict[str, float] = {}
         self._last_frame_mono = time.monotonic()
         """When the last frame with content was released (monotonic s; the session start before)."""
@@ -472,7 +478,13 @@ class LiveClient:
         try:
             ssrc = int.from_bytes(data[8:12], "big")
             name = self.rx.by_ssrc[ssrc].name
-            self._first_packet_ms.setdefault(name, time.monotonic() * 1000)
+            mono_ms = time.monotonic() * 1000
+            self._first_packet_ms.setdefault(name, mono_ms)
+            hole = self._holes.get(name, {}).get(int.from_bytes(data[2:4], "big"))
+            if hole is not None and hole[2] > 0:   # a NACKed packet: time its round trip
+                sample = mono_ms - hole[1]
+                self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
+                self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
         except (KeyError, IndexError):
             pass
         self._queue_work(works)
@@ -653,10 +665,12 @@ class LiveClient:
         for seq in [s for s in holes if s not in missing]:
             del holes[seq]
         out = []
+        retry = cfg.nack_retry_ms if self.nack_rtt_ms is None else \
+            min(NACK_RETRY_MAX_MS, max(NACK_RETRY_MIN_MS, 1.5 * self.nack_rtt_ms + 10.0))
         for seq in missing:
             first, last, tries = holes.get(seq, (now_ms, -math.inf, 0))
             if (tries < cfg.nack_max_tries and now_ms - first >= cfg.nack_delay_ms
-                    and now_ms - last >= cfg.nack_retry_ms):
+                    and now_ms - last >= retry):
                 out.append(seq)
                 holes[seq] = (first, now_ms, tries + 1)
             else:
