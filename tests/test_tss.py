@@ -211,36 +211,26 @@ def test_conservative_oversampling_samples_at_the_papers_resolution(renderer) ->
     assert 0.25 <= overhead <= 0.35, overhead
 
 
-def _still(renderer, scene: str, method: str, params: dict, size: tuple[int, int] = (320, 180)  # type: ignore[no-untyped-def]
-           ) -> tuple[float, float]:
-    """Mean PSNR of a still run and the server's mean samples per frame."""
+def _still(renderer, scene: str, method: str, params: dict) -> float:  # type: ignore[no-untyped-def]
+    """Mean PSNR of a still run at 320x180 over the ticks that show an update."""
     from splitrender.sim.runner import RunConfig, run
 
-    res = run(RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=size[0],
-                        height=size[1], client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
-    return (float(np.mean([f["psnr_db"] for f in res.frames if f["update_frame_id"] >= 0])),
-            float(np.mean([u["srv_samples"] for u in res.updates])))
+    res = run(RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=320, height=180,
+                        client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
+    return float(np.mean([f["psnr_db"] for f in res.frames if f["update_frame_id"] >= 0]))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene,least", [("default", 30.5), ("minimal", 30.0)])
-def test_zero_latency_lossless_tss_scores_at_least_sas(renderer, scene: str, least: float) -> None:  # type: ignore[no-untyped-def]
-    """Still camera, zero latency, lossless atlases.  Measured at 320x180 (tss / sas, dB): default 31.05 / 29.14,
-    minimal 30.40 / 27.84.  tss shades more samples than sas here (146k against 88k block texels on the
-    default scene): its oversampled staircases are mostly conservative samples at this size."""
-    tss = _still(renderer, scene, "tss", {"lossless": True})[0]
-    sas = _still(renderer, scene, "sas", {"lossless": True})[0]
-    assert tss >= sas and tss >= least, (tss, sas)
-
-
-@pytest.mark.slow
-def test_with_fewer_samples_than_sas_tss_scores_higher(renderer) -> None:  # type: ignore[no-untyped-def]
-    """Still camera, zero latency, lossless atlases, minimal scene at 640x360: tss at 0.75 samples per pixel shades
-    145k samples (sas: 148k block texels) and scores 30.39 dB (sas: 29.29).  On the default scene tss needs 2%
-    more samples than sas for +0.7 dB at this rate (its thin slanted triangles carry conservative samples)."""
-    tss, n_tss = _still(renderer, "minimal", "tss", {"lossless": True, "samples_per_px": 0.75}, (640, 360))
-    sas, n_sas = _still(renderer, "minimal", "sas", {"lossless": True}, (640, 360))
-    assert n_tss <= n_sas and tss >= sas + 0.8, (tss, n_tss, sas, n_sas)
+@pytest.mark.parametrize("scene,least", [("default", 30.8), ("minimal", 30.2)])
+def test_zero_latency_lossless_tss_is_level_with_sas(renderer, scene: str, least: float) -> None:  # type: ignore[no-untyped-def]
+    """Still camera, zero latency, lossless atlases, 320x180 (tss / sas, dB): default 31.09 / 31.24, minimal
+    30.48 / 30.58.  Before sas took its texture gradients per atlas texel from the reference view (it used one
+    level per patch, aliasing far floor texels) tss led by 1.9 and 2.6 dB; now the two are level, and tss
+    shades more samples here (138k against 88k block texels on the default scene; its oversampled staircases
+    are mostly conservative samples at this size).  The paper has TSS ahead with fewer samples: not reproduced."""
+    tss = _still(renderer, scene, "tss", {"lossless": True})
+    sas = _still(renderer, scene, "sas", {"lossless": True})
+    assert tss >= sas - 0.3 and tss >= least, (tss, sas)
 
 
 def _client(renderer, srv, spec, cfg):  # type: ignore[no-untyped-def]
@@ -355,8 +345,8 @@ def test_nonsense_config_is_named(params: dict, msg: str) -> None:
 
 @pytest.mark.slow
 def test_tss_beats_atw_under_cloud_on_the_default_walk(renderer) -> None:  # type: ignore[no-untyped-def]
-    """Under ``cloud`` (50 +- 20 ms each way), 1 s of the default walk at 320x180: measured tss 24.63 dB,
-    atw 16.86 dB (sas 24.16 dB); tss must keep 6 dB of that lead."""
+    """Under ``cloud`` (50 +- 20 ms each way), 1 s of the default walk at 320x180: measured tss 24.64 dB,
+    atw 16.86 dB (sas 24.86 dB); tss must keep 6 dB of that lead."""
     from splitrender.sim.runner import RunConfig, run
 
     def psnr(method: str) -> float:  # noqa: F811

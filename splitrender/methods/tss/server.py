@@ -484,6 +484,9 @@ class TssServer(ServerHalf):
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
+        vp = self.intrinsics.projection() @ ctx.target_pose.view_matrix()      # per-sample texture gradients
+        prog["u_view_proj"].write(np.asarray(vp, "f4").T.tobytes())
+        prog["u_viewport"].value = (float(self.intrinsics.width), float(self.intrinsics.height))
         self._tex.bind_to_image(0, read=False, write=True)
         self._counter.bind_to_storage_buffer(1)
         o = self.tris.obj[ids]

@@ -2,10 +2,33 @@
 // generator of the figure 16 benchmark (tss_gather.comp).  The including shader declares the
 // triangle's corners c_world[3], c_normal[3], c_uv[3], c_tangent[3], c_depth[3], its layout
 // p_info, p_o0, p_o1, the atlas image u_atlas and the Counters buffer, then includes this file.
-float g_lod;
-#define ALBEDO_LOOKUP(uv) textureLod(u_albedo, uv, g_lod)
+float g_lod;              // the triangle's albedo mip level (the fallback)
+bool g_grad = false;      // per-sample gradients found
+vec2 g_dx, g_dy;          // d(uv)/d(display x, y) at the sample, seen from the reference view
+uniform mat4 u_view_proj; // the reference view's projection * view (zero: per-triangle levels only)
+uniform vec2 u_viewport;  // display pixels
+#define ALBEDO_LOOKUP(uv) (g_grad ? textureGrad(u_albedo, uv, g_dx, g_dy) : textureLod(u_albedo, uv, g_lod))
 #include "shading.glsl"
 const float EPS = 1e-4;
+
+// The texture gradients a forward render at the reference view takes at object-space barycentrics ``b``:
+// uv is affine in b, the display position projective, d(uv)/d(screen) = d(uv)/d(b) * inverse(d(screen)/d(b)).
+void sample_gradients(vec3 b) {
+    vec4 c0 = u_view_proj * vec4(c_world[0], 1.0);
+    vec4 e1 = u_view_proj * vec4(c_world[1], 1.0) - c0;
+    vec4 e2 = u_view_proj * vec4(c_world[2], 1.0) - c0;
+    vec4 c = c0 + b.y * e1 + b.z * e2;
+    g_grad = false;
+    if (c.w < 1e-3) return;
+    vec2 s1 = (e1.xy * c.w - c.xy * e1.w) / (c.w * c.w) * 0.5 * u_viewport;
+    vec2 s2 = (e2.xy * c.w - c.xy * e2.w) / (c.w * c.w) * 0.5 * u_viewport;
+    float det = s1.x * s2.y - s2.x * s1.y;
+    if (abs(det) < 1e-6) return;
+    mat2 g = mat2(c_uv[1] - c_uv[0], c_uv[2] - c_uv[0]) * inverse(mat2(s1, s2));
+    g_dx = g[0];
+    g_dy = g[1];
+    g_grad = true;
+}
 
 // screen-space barycentrics at the reference view -> object-space ones (perspective, [MHAM08])
 vec3 to_object(vec3 B) {
@@ -21,6 +44,7 @@ vec3 shade_at(vec3 B) {
     vec3 n = b.x * c_normal[0] + b.y * c_normal[1] + b.z * c_normal[2];
     vec2 uv = b.x * c_uv[0] + b.y * c_uv[1] + b.z * c_uv[2];
     vec4 tg = vec4(b.x * c_tangent[0].xyz + b.y * c_tangent[1].xyz + b.z * c_tangent[2].xyz, c_tangent[0].w);
+    sample_gradients(b);
     atomicAdd(n_shaded, 1u);
     return shade(world, n, tg, uv, u_eye);
 }
