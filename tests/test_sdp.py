@@ -317,3 +317,25 @@ async def test_live_server_sdp_file_and_welcome_match_the_parameter_sets_sent(tm
     assert parse_fmtp(file_sdp)["profile-level-id"] == sps.profile_level_id
     assert (sps.width, sps.height) == (160, 90)
     assert client.counters["rtcp_sent"] > 0
+
+
+def test_the_simulators_welcome_sdp_names_the_parameter_sets_it_sends() -> None:
+    """Virtual time describes its streams after opening the encoders, as the live session does: the SDP's
+    ``sprop-parameter-sets`` are the SPS/PPS its encoder sends, and ``profile-level-id`` is that SPS's."""
+    from splitrender.protocol import nal_type
+    from splitrender.protocol.sdp import parameter_sets_from_sdp, parse_fmtp
+    from splitrender.protocol.sps import parse_h264_sps
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import VirtualTimeRun
+
+    vt = VirtualTimeRun(RunConfig(method="video", scene="minimal", trace="static", duration_s=0.1, width=160, height=90,
+                                  flip_every=0, metrics=False))
+    vt.run()
+    (c,) = vt.clients
+    assert c.welcome is not None and c.tx is not None
+    sdp = c.welcome.streams[0].sdp
+    sets = parameter_sets_from_sdp(sdp)
+    assert [nal_type("h264", n) for n in sets] == [7, 8], sdp
+    enc = c.tx.streams["color"].encoder
+    assert enc is not None and tuple(sets) == tuple(enc.parameter_sets())
+    assert parse_fmtp(sdp)["profile-level-id"] == parse_h264_sps(sets[0]).profile_level_id

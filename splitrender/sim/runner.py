@@ -175,6 +175,8 @@ class _Client:
     # client side
     cconn: ClientConnection = field(default_factory=ClientConnection)
     rx: ClientPipeline | None = None
+    welcome: Welcome | None = None
+    """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
     chalf: Any = None
     gl: Any = None
     ctrl_free_s: float = -math.inf
@@ -259,6 +261,7 @@ class VirtualTimeRun:
         c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec)
         params = {"config": _plain(dataclasses.asdict(self.mcfg)), "fov_y_deg": cfg.fov_y_deg, "server_fps": cfg.server_fps,
                   "scene": cfg.scene, **c.tx.welcome_params(session_blob)}
+        c.tx.open_encoders()   # as the live session does: the SDP names the parameter sets the encoders send
         welcome = Welcome(f"sim{i}", cfg.method, params, c.tx.describe("127.0.0.1", 6004, f"splitrender sim{i}"))
         wire = c.sconn.send(welcome)
         c.bytes[SESSION_STREAM] = control_wire_bytes(len(wire))
@@ -272,6 +275,7 @@ class VirtualTimeRun:
         for m in msgs[1:]:
             assert isinstance(m, DataChunk)
             asm.add(m)
+        c.welcome = w
         c.rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), cfg.jitter_timeout_ms)
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
