@@ -209,6 +209,65 @@ def test_cli_serve_and_client_smoke(tmp_path: Path) -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
+def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tmp_path: Path) -> None:
+    """``splitrender serve`` exits 0 within 2 s of SIGTERM with no session, and with two clients streaming;
+    the clients then end with a non-zero exit and a recording that says the session broke."""
+    import json
+    import signal
+    import socket
+    import time
+
+    def start() -> tuple[subprocess.Popen, int]:
+        with socket.socket() as s:
+            s.bind((LOOPBACK, 0))
+            port = s.getsockname()[1]
+        srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
+                                "--scene", "minimal", "--methods", "video"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert srv.stderr is not None
+        line = srv.stderr.readline()
+        assert "serving on" in line, line
+        return srv, port
+
+    def stop(srv: subprocess.Popen) -> float:
+        t0 = time.monotonic()
+        srv.send_signal(signal.SIGTERM)
+        try:
+            _, err = srv.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            srv.kill()
+            raise
+        took = time.monotonic() - t0
+        assert srv.returncode == 0 and "server stopped" in err and "Traceback" not in err, err
+        return took
+
+    srv, _ = start()
+    assert stop(srv) < 2.0
+    srv, port = start()
+    clients = [subprocess.Popen([sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--width", "160",
+                                 "--height", "90", "--duration", "20", "--out", str(tmp_path / f"c{k}")],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in range(2)]
+    try:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not all((tmp_path / f"c{k}" / "frames.jsonl").is_file()
+                                                 and (tmp_path / f"c{k}" / "frames.jsonl").stat().st_size > 0 for k in range(2)):
+            time.sleep(0.1)
+        assert all(c.poll() is None for c in clients), "the clients stream"
+        took = stop(srv)
+        assert took < 2.0, took
+        for k, c in enumerate(clients):
+            c.communicate(timeout=20)
+            assert c.returncode != 0
+            rec = json.loads((tmp_path / f"c{k}" / "recording.json").read_text())
+            assert rec["complete"] is False and rec["error"], rec
+    finally:
+        for c in clients:
+            if c.poll() is None:
+                c.kill()
+                c.communicate(timeout=5)
+
+
 BOX_TEXTURED = Path("/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb")
 
 

@@ -298,6 +298,10 @@ class LiveServer:
         session = ServerSession(self, reader, writer)
         try:
             await session.run()
+        except asyncio.CancelledError:
+            # the server is closing: this is the connection's top-level task, and asyncio's stream
+            # callback (Python 3.11) logs a cancelled handler's exception as an error with a traceback
+            logger.info("session %s: closed with the server", session.id)
         finally:
             self._tasks.discard(task)  # type: ignore[arg-type]
 
