@@ -178,18 +178,9 @@ async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Pat
 
 def test_cli_serve_and_client_smoke(tmp_path: Path) -> None:
     """``splitrender serve`` and ``splitrender client`` as subprocesses, 1.5 s of video."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind((LOOPBACK, 0))
-        port = s.getsockname()[1]
-    srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
-                            "--scene", "minimal", "--methods", "video,atw"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    port = _free_port()
+    srv = _serve(port, "video,atw")
     try:
-        assert srv.stderr is not None
-        line = srv.stderr.readline()  # "splitrender: serving on ..." once it listens
-        assert "serving on" in line, line
         out = tmp_path / "rec"
         cli = subprocess.run([sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--method", "atw",
                               "--width", "160", "--height", "90", "--duration", "1.5", "--out", str(out)],
@@ -215,20 +206,7 @@ def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tm
     the clients then end with a non-zero exit and a recording that says the session broke."""
     import json
     import signal
-    import socket
     import time
-
-    def start() -> tuple[subprocess.Popen, int]:
-        with socket.socket() as s:
-            s.bind((LOOPBACK, 0))
-            port = s.getsockname()[1]
-        srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
-                                "--scene", "minimal", "--methods", "video"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert srv.stderr is not None
-        line = srv.stderr.readline()
-        assert "serving on" in line, line
-        return srv, port
 
     def stop(srv: subprocess.Popen) -> float:
         t0 = time.monotonic()
@@ -242,9 +220,9 @@ def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tm
         assert srv.returncode == 0 and "server stopped" in err and "Traceback" not in err, err
         return took
 
-    srv, _ = start()
-    assert stop(srv) < 2.0
-    srv, port = start()
+    assert stop(_serve(_free_port())) < 2.0
+    port = _free_port()
+    srv = _serve(port)
     clients = [subprocess.Popen([sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--width", "160",
                                  "--height", "90", "--duration", "20", "--out", str(tmp_path / f"c{k}")],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in range(2)]
@@ -294,11 +272,12 @@ async def test_live_client_fits_builtin_traces_around_a_loaded_model(tmp_path: P
     assert far > 1.0  # the fitted orbit is not the default scene's: 1.25-2.06 m apart over the first 1.2 s
 
 
-def _serve(port: int) -> subprocess.Popen:  # type: ignore[type-arg]
+def _serve(port: int, methods: str = "video") -> subprocess.Popen:  # type: ignore[type-arg]
+    """``splitrender serve`` on ``port`` with the minimal scene, once it listens."""
     srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
-                            "--scene", "minimal", "--methods", "video"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            "--scene", "minimal", "--methods", methods], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert srv.stderr is not None
-    line = srv.stderr.readline()
+    line = srv.stderr.readline()  # "splitrender: serving on ..." once it listens
     assert "serving on" in line, line
     return srv
 
