@@ -107,14 +107,20 @@ class ServerPipeline:
         self._rand = (lambda bits: int(rng.integers(0, 1 << bits))) if rng is not None else secrets.randbits
         self.streams: dict[str, TxStream] = {}
         used: set[int] = set()
+
+        def new_ssrc() -> int:
+            """A random SSRC no stream of this session or (``ssrc_taken``) of the server uses."""
+            ssrc = self._rand(32)
+            while ssrc in used or (ssrc_taken is not None and ssrc_taken(ssrc)):
+                ssrc = self._rand(32)
+            used.add(ssrc)
+            return ssrc
+
         k = 0
         for s in specs:
             st = TxStream(s)
             if not (isinstance(s, DataStreamSpec) and s.delivery == "reliable"):
-                ssrc = self._rand(32)
-                while ssrc in used or (ssrc_taken is not None and ssrc_taken(ssrc)):
-                    ssrc = self._rand(32)
-                used.add(ssrc)
+                ssrc = new_ssrc()
                 st.ssrc, st.payload_type = ssrc, FIRST_PAYLOAD_TYPE + k
                 k += 1
                 st.packetizer = RtpPacketizer(rtp_format(s), ssrc, st.payload_type, mtu, self._rand(16))  # type: ignore[arg-type]
@@ -122,14 +128,9 @@ class ServerPipeline:
         self.fec = fec
         if fec:   # one FEC stream per RTP stream: its own SSRC, payload type 127, 126, ... and sequence numbers
             for k, st in enumerate(self.rtp_streams):
-                ssrc = self._rand(32)
-                while ssrc in used or (ssrc_taken is not None and ssrc_taken(ssrc)):
-                    ssrc = self._rand(32)
-                used.add(ssrc)
-                st.fec_ssrc, st.fec_payload_type, st.fec_seq = ssrc, FEC_PAYLOAD_TYPE - k, self._rand(16)
+                st.fec_ssrc, st.fec_payload_type, st.fec_seq = new_ssrc(), FEC_PAYLOAD_TYPE - k, self._rand(16)
             if FEC_PAYLOAD_TYPE - len(self.rtp_streams) < FIRST_PAYLOAD_TYPE + len(self.rtp_streams):
                 raise ValueError(f"{len(self.rtp_streams)} RTP streams leave no payload types for FEC")
-        self.fec_bytes_sent = 0
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
 
     # ------------------------------------------------------------------ set-up
@@ -256,7 +257,6 @@ class ServerPipeline:
                     data = bytes(f)
                     out.fec.append((name, data))
                     out.wire_bytes[name] += datagram_wire_bytes(len(data))   # FEC counts as its stream's bytes
-                    self.fec_bytes_sent += datagram_wire_bytes(len(data))
                     st.fec_seq = (st.fec_seq + 1) & 0xFFFF
         for k, v in out.wire_bytes.items():
             self.bytes_sent[k] = self.bytes_sent.get(k, 0) + v
