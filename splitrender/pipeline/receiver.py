@@ -154,7 +154,8 @@ class ClientPipeline:
         self.streams: dict[str, RxStream] = {}
         self.by_ssrc: dict[int, RxStream] = {}
         self.by_fec_ssrc: dict[int, tuple[RxStream, int]] = {}
-        """FEC stream SSRC -> (the stream it protects, its payload type)."""
+        """FEC stream SSRC -> (the stream it protects, its payload type); each stream's jitter buffer counts the
+        FEC packets it took and the packets they rebuilt (``fec_packets``, ``fec_recovered``, ``fec_bad``)."""
         by_desc = {d.name: d for d in descriptions}
         for row in table:
             if isinstance(row, DataStreamSpec):
@@ -190,7 +191,7 @@ class ClientPipeline:
         self.counters: dict[str, int] = {
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_given_up": 0, "decode_errors": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "udp_bad": 0, "meta_bytes": 0, "data_bytes": 0, "keyframes_received": 0,
-            "data_errors": 0, "fec_packets": 0, "fec_recovered": 0,
+            "data_errors": 0,
         }
 
     # ------------------------------------------------------------------ input
@@ -280,12 +281,8 @@ class ClientPipeline:
             if pkt.payload_type != pt or frx.jitter is None:
                 self.counters["udp_bad"] += 1
                 return []
-            self.counters["fec_packets"] += 1
             self.wire_bytes[frx.name] = self.wire_bytes.get(frx.name, 0) + datagram_wire_bytes(len(data))
-            before = frx.jitter.fec_recovered
-            units = frx.jitter.insert_fec(pkt, frx.ssrc, now_ms)
-            self.counters["fec_recovered"] += frx.jitter.fec_recovered - before
-            return self._units(frx, units, now_ms)
+            return self._units(frx, frx.jitter.insert_fec(pkt, frx.ssrc, now_ms), now_ms)
         if rx is None or rx.jitter is None:
             self.counters["udp_bad"] += 1
             return []
@@ -294,10 +291,7 @@ class ClientPipeline:
         self.wire_bytes[rx.name] = self.wire_bytes.get(rx.name, 0) + datagram_wire_bytes(len(data))
         assert rx.stats is not None
         rx.stats.receive(pkt, now_ms)
-        before = rx.jitter.fec_recovered
-        units = rx.jitter.insert(pkt, now_ms)
-        self.counters["fec_recovered"] += rx.jitter.fec_recovered - before
-        return self._units(rx, units, now_ms)
+        return self._units(rx, rx.jitter.insert(pkt, now_ms), now_ms)
 
     def poll(self, now_ms: float) -> list[Work]:
         """Apply jitter-buffer and resolution timeouts at ``now_ms``."""
