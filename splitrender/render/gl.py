@@ -146,3 +146,15 @@ def set_uniform(prog: Any, name: str, value: Any) -> None:
     """Set a uniform if the program uses it (the GLSL compiler drops unused ones)."""
     if name in prog:
         prog[name].value = value
+
+
+def set_reference_view(prog: Any, intrinsics: Any, pose: Any) -> None:
+    """``u_view_proj`` (projection times view) and ``u_viewport`` (display pixels) of the view ``pose`` seen through
+    ``intrinsics``, where the program uses them: the object-space shading stages take their texture gradients
+    from it."""
+    if "u_view_proj" in prog:
+        import numpy as np
+
+        vp = intrinsics.projection() @ pose.view_matrix()
+        prog["u_view_proj"].write(np.asarray(vp, "f4").T.tobytes())
+    set_uniform(prog, "u_viewport", (float(intrinsics.width), float(intrinsics.height)))

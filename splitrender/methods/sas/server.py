@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import grow_vertex_buffer, load_program, runs
+from ...render.gl import grow_vertex_buffer, load_program, runs, set_reference_view
 from ...scene.pose import CameraIntrinsics
 from ..base import SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import SasConfig
@@ -310,10 +310,7 @@ class SasServer(ServerHalf):
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
         if "u_eye" in prog:
             prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
-        if "u_view_proj" in prog:   # texture filtering for the reference view's pixel footprint
-            vp = self.intrinsics.projection() @ ctx.target_pose.view_matrix()
-            prog["u_view_proj"].write(np.asarray(vp, "f4").T.tobytes())
-            prog["u_viewport"].value = (float(self.intrinsics.width), float(self.intrinsics.height))
+        set_reference_view(prog, self.intrinsics, ctx.target_pose)   # textures filtered for its pixel footprint
         self._fbo.use()   # bind_shading may have rendered the shadow map
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         gl.disable(gl.DEPTH_TEST)

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import grow_vertex_buffer, read_shader, runs
+from ...render.gl import grow_vertex_buffer, read_shader, runs, set_reference_view
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
@@ -484,9 +484,7 @@ class TssServer(ServerHalf):
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
-        vp = self.intrinsics.projection() @ ctx.target_pose.view_matrix()      # per-sample texture gradients
-        prog["u_view_proj"].write(np.asarray(vp, "f4").T.tobytes())
-        prog["u_viewport"].value = (float(self.intrinsics.width), float(self.intrinsics.height))
+        set_reference_view(prog, self.intrinsics, ctx.target_pose)   # per-sample texture gradients
         self._tex.bind_to_image(0, read=False, write=True)
         self._counter.bind_to_storage_buffer(1)
         o = self.tris.obj[ids]
