@@ -39,6 +39,9 @@ takes seconds for one draw at some views (a 160x90 frame of the default scene's 
 derivatives only, so no method that resamples shading (SAS, TSS) could reproduce it."""
 
 MAP_UNITS = {"u_mr_map": 3, "u_normal_map": 4, "u_occlusion_map": 5, "u_emissive_map": 6}
+PEEL_UNIT = 7
+PEEL_EPS = 1e-4
+"""Depth peeling keeps a fragment only this far (relative) behind the previous layer (f32 depth noise)."""
 
 
 @dataclass
@@ -113,6 +116,11 @@ class Renderer:
         self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
         self._scenes: dict[int, SceneGPU] = {}
         self._placeholder_tex: Any = None
+        self._peel_tex: Any = None
+        self._peel_none: Any = None
+        import moderngl
+
+        self._nearest = moderngl.NEAREST
         self.supersample = 1
         """Samples per pixel along each axis of :meth:`render` (1: none; 2: 4 samples)."""
         self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
@@ -298,6 +306,27 @@ class Renderer:
                 set_uniform(prog, name, unit)
             set_uniform(prog, "u_has_" + name[2:], int(tex is not None and name in prog))
 
+    def _bind_peel(self, peel: np.ndarray | None, intr: CameraIntrinsics) -> None:
+        """Bind the depth-peeling texture (a 1x1 placeholder when not peeling: every sampler gets a texture)."""
+        if peel is None:
+            set_uniform(self.prog, "u_peel_on", 0)
+            if self._peel_none is None:
+                self._peel_none = self.ctx.texture((1, 1), 1, np.zeros(1, "f4").tobytes(), dtype="f4")
+                self._peel_none.filter = (self._nearest, self._nearest)
+            tex = self._peel_none
+        else:
+            if self._peel_tex is None or self._peel_tex.size != (intr.width, intr.height):
+                if self._peel_tex is not None:
+                    self._peel_tex.release()
+                self._peel_tex = self.ctx.texture((intr.width, intr.height), 1, dtype="f4")
+                self._peel_tex.filter = (self._nearest, self._nearest)
+            self._peel_tex.write(np.ascontiguousarray(np.asarray(peel, np.float32)[::-1]).tobytes())
+            set_uniform(self.prog, "u_peel_on", 1)
+            set_uniform(self.prog, "u_peel_eps", PEEL_EPS)
+            tex = self._peel_tex
+        tex.use(location=PEEL_UNIT)
+        set_uniform(self.prog, "u_peel", PEEL_UNIT)
+
     def _placeholder(self) -> Any:
         if self._placeholder_tex is None:
             self._placeholder_tex = self.ctx.texture((1, 1), 4, bytes((255, 255, 255, 255)))
@@ -305,8 +334,15 @@ class Renderer:
 
     # ------------------------------------------------------------------ render
     def render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
-               outputs: Iterable[str] = ("color",), object_ids: set[int] | None = None) -> RenderOutput:
+               outputs: Iterable[str] = ("color",), object_ids: set[int] | None = None,
+               peel: np.ndarray | None = None) -> RenderOutput:
         """Render ``scene`` at time ``t_s`` from ``pose``; ``object_ids`` limits what is drawn.
+
+        ``peel`` (H, W) float32 view depths turn the pass into one step of depth peeling:
+        a fragment is kept only where it lies more than :data:`PEEL_EPS` (relative) behind
+        ``peel`` at its pixel (``inf``: nothing is kept there) and faces the eye (a back
+        face of a closed surface is hidden by its own front from every viewpoint), so the
+        output holds the nearest front-facing surface behind the previous layer.
 
         With :attr:`supersample` ``k`` > 1 the frame is rendered at ``k`` times the size:
         colour is the mean of each ``k`` x ``k`` block (in the stored sRGB code values, as a
@@ -317,10 +353,14 @@ class Renderer:
             if o not in ALL_OUTPUTS:
                 raise ValueError(f"unknown render output {o!r}; choose from {ALL_OUTPUTS}")
         k = self.supersample
+        if peel is not None and np.shape(peel) != (intr.height, intr.width):
+            raise ValueError(f"peel depths must be {(intr.height, intr.width)}, got {np.shape(peel)}")
         if k == 1:
-            return self._render(scene, t_s, pose, intr, outputs, object_ids)
+            return self._render(scene, t_s, pose, intr, outputs, object_ids, peel)
         big = dataclasses.replace(intr, width=intr.width * k, height=intr.height * k)
-        hi = self._render(scene, t_s, pose, big, outputs, object_ids)
+        if peel is not None:
+            peel = np.repeat(np.repeat(peel, k, axis=0), k, axis=1)
+        hi = self._render(scene, t_s, pose, big, outputs, object_ids, peel)
         h, w = intr.height, intr.width
         out = RenderOutput(color=np.empty(0, np.uint8))
         if hi.color.size:
@@ -333,9 +373,10 @@ class Renderer:
         return out
 
     def _render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
-                outputs: tuple[str, ...], object_ids: set[int] | None) -> RenderOutput:
+                outputs: tuple[str, ...], object_ids: set[int] | None, peel: np.ndarray | None = None) -> RenderOutput:
         sg = self.upload(scene)
         self.bind_shading(self.prog, scene, t_s)
+        self._bind_peel(peel, intr)
         fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)

@@ -12,7 +12,14 @@ layout(location = 0) out vec4 f_color;
 layout(location = 1) out vec4 f_normal;   // world normal, facing the viewer
 layout(location = 2) out uvec2 f_ids;     // object id, scene-wide triangle id + 1
 layout(location = 3) out float f_depth;   // view-space depth along -Z, metres
+uniform int u_peel_on;           // depth peeling: drop fragments at or in front of the previous layer
+uniform sampler2D u_peel;        // the previous layer's view depth per pixel (inf: nothing behind it is kept)
+uniform float u_peel_eps;        // relative gap a fragment must keep behind the previous layer
 void main() {
+    if (u_peel_on == 1) {
+        if (v_view_depth <= texelFetch(u_peel, ivec2(gl_FragCoord.xy), 0).r * (1.0 + u_peel_eps)) discard;
+        if (dot(v_normal, u_eye - v_world) < 0.0) discard;   // a back face: its own front hides it from every eye
+    }
     vec3 n = normalize(v_normal);
     if (dot(n, u_eye - v_world) < 0.0) n = -n;
     f_color = vec4(shade(v_world, n, v_tangent, v_uv, u_eye), 1.0);

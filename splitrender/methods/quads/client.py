@@ -1,0 +1,137 @@
+"""The ``quads`` client half: keeps the reference quads, draws the layered mesh at its own rate."""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from ...render.canvas import FullscreenPass, upload_image
+from ...scene.pose import Pose
+from ..base import ClientFrame, ClientHalf, DecodedUpdate
+from .config import QuadsConfig
+from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
+from .wire import (CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, QuadsWireError, decode_cameras, decode_sets)
+
+log = logging.getLogger(__name__)
+META_VERSION = 1
+
+
+class QuadsClient(ClientHalf):
+    """Caches the reference set, rebuilds the mesh per update, draws it per display frame."""
+
+    config: QuadsConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        sd = self.session_data
+        try:
+            self.slots = int(sd["slots"])
+            self.cols, self.rows = int(sd["cols"]), int(sd["rows"])
+            self.slot_size = (int(sd["slot_size"][0]), int(sd["slot_size"][1]))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise QuadsWireError(f"quads session data: missing or malformed slot layout ({exc!r})") from exc
+        if not (1 <= self.slots <= self.cols * self.rows <= 64 and 0 < self.slot_size[0] <= 4096 and 0 < self.slot_size[1] <= 4096):
+            raise QuadsWireError(f"quads session data: {self.slots} slots in a {self.cols}x{self.rows} grid of "
+                                 f"{self.slot_size} is not a valid atlas")
+        self.atlas_size = (self.cols * self.slot_size[0], self.rows * self.slot_size[1])
+        self.cache = ReferenceCache()
+        self._broken = True           # no reference yet: residual frames cannot apply
+        self._atlas_tex: Any = None
+        self._mesh = QuadMeshGL(self.gl)
+        self._fill = FullscreenPass(self.gl, _warp_shader("warp_holefill.frag"))
+        i = self.intrinsics
+        self._out = self.gl.texture((i.width, i.height), 4, dtype="f1")
+        self._out_fbo = self.gl.framebuffer([self._out])
+        self._pose0: Pose | None = None
+        self._stats: dict[str, float] = {}
+
+    def _origin(self, slot: int) -> tuple[int, int]:
+        return (slot % self.cols) * self.slot_size[0], (slot // self.cols) * self.slot_size[1]
+
+    # ------------------------------------------------------------------ cache
+    def apply(self, update: DecodedUpdate) -> None:
+        where = f"frame {update.frame_id}"
+        if update.missing:
+            # a lost atlas or quad stream: keep showing the last good state; residual frames
+            # cannot apply until the reference frame the server sends after the loss report
+            self._broken = True
+            return
+        m = update.meta
+        if not isinstance(m, dict) or m.get("v") != META_VERSION:
+            raise QuadsWireError(f"quads metadata {where}: missing or unsupported version {m.get('v') if isinstance(m, dict) else m!r}")
+        kind = m.get("frame")
+        if kind not in ("reference", "residual"):
+            raise QuadsWireError(f"quads metadata {where}: frame must be 'reference' or 'residual', got {kind!r}")
+        ref_frame = m.get("ref_frame")
+        if not isinstance(ref_frame, int) or isinstance(ref_frame, bool):
+            raise QuadsWireError(f"quads metadata {where}: ref_frame must be an integer, got {ref_frame!r}")
+        cams = decode_cameras(m.get("cameras"), where, self.slot_size)
+        atlas = update.planes.get("atlas")
+        if not isinstance(atlas, np.ndarray) or atlas.shape != (self.atlas_size[1], self.atlas_size[0], 3) or atlas.dtype != np.uint8:
+            raise QuadsWireError(f"quads {where}: plane atlas must be {(self.atlas_size[1], self.atlas_size[0], 3)} uint8")
+        sets = decode_sets(update.data.get("quads", b""), update.data.get("offsets", b""), where, self.slot_size, self.slots,
+                           len(cams), self.intrinsics.far_m)
+        if kind == "residual" and (self._broken or self.cache.frame_id != ref_frame):
+            log.debug("quads %s: residual frame for reference %d, holding %d; waiting for a reference frame",
+                      where, ref_frame, self.cache.frame_id)
+            return
+        t0 = time.perf_counter()
+        # everything is checked: change the state
+        for s in sets:
+            pose, intr = cams[s.camera]
+            if s.kind == KIND_REFERENCE:
+                self.cache.set_reference(s.quads, pose, intr, ref_frame)
+            elif s.kind == KIND_UPDATE and len(s.quads):
+                self.cache.apply_update(s.quads)
+        parts = []
+        if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
+            parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0)))
+        for s in sets:
+            if s.kind in CACHED_KINDS:
+                continue
+            pose, intr = cams[s.camera]
+            parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot)))
+        self._mesh.upload(*join_meshes(parts))
+        self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
+        self._pose0 = cams[0][0]
+        self._broken = False
+        self._has_content = True
+        self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.count // 24),
+                       "quads_cached": float(len(self.cache))}
+
+    # ------------------------------------------------------------------ render
+    def render(self, pose: Pose, t_s: float) -> ClientFrame:
+        i = self.intrinsics
+        if not self.has_content:
+            return ClientFrame(np.zeros((i.height, i.width, 3), np.uint8), np.ones((i.height, i.width), bool))
+        t0 = time.perf_counter()
+        _, color, depth = self._mesh.draw(pose, i, self._atlas_tex, self.atlas_size)
+        ctx = self.gl
+        self._out_fbo.use()
+        ctx.viewport = (0, 0, i.width, i.height)
+        assert self._pose0 is not None
+        e = i.projection() @ pose.view_matrix() @ np.append(self._pose0.position, 1.0)
+        fp = self._fill.prog
+        color.use(0)
+        depth.use(1)
+        for name, value in (("u_warped", 0), ("u_wdepth", 1), ("u_out_size", (float(i.width), float(i.height))),
+                            ("u_epipole", ((e[0] + e[3]) * 0.5 * i.width, (e[1] + e[3]) * 0.5 * i.height, float(e[3]))),
+                            ("u_max_scan", 64), ("u_fill", 1)):
+            if name in fp:
+                fp[name].value = value
+        self._fill.run()
+        rgba = np.frombuffer(self._out_fbo.read(components=4), np.uint8).reshape(i.height, i.width, 4)[::-1]
+        holes = rgba[..., 3] == 0
+        st = dict(self._stats)
+        st["draw_ms"] = (time.perf_counter() - t0) * 1e3
+        return ClientFrame(np.ascontiguousarray(rgba[..., :3]), holes, st)
+
+
+def _warp_shader(name: str) -> Any:
+    from ..warp import SHADERS
+
+    return SHADERS / name
+

@@ -1,0 +1,112 @@
+"""Settings of the ``quads`` method (QUASAR and its QuadStream baseline)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from ...errors import ConfigError
+from ..base import MethodConfig
+
+Variant = Literal["quasar", "quadstream"]
+
+
+@dataclass(frozen=True)
+class QuadParams:
+    """Thresholds of one quad generation pass (paper section 3.2; units of the public code).
+
+    - ``delta_max``: corner snapping and the coarse passes' depth-discontinuity test, in
+      window depth (the ``[0, 1]`` depth-buffer value): a corner snaps to its neighbours'
+      planes when their distance along the ray, as a window depth, is below it (1e-4 with
+      a 5 cm near plane means "closer than the near distance"), and a coarse pass merges four
+      quads whose centre depths differ by less than it in NDC;
+    - ``delta_sim``: largest distance between two normalised plane equations ``(n, w)``
+      (``w`` in metres) for a merge;
+    - ``delta_flatten``: a quad is flat (no depth offsets sent) when all 16 offsets, in
+      metres along the ray, are below it;
+    - ``coarse_passes``: the first merge passes that also merge across no depth discontinuity.
+    """
+
+    delta_max: float = 1e-4
+    delta_sim: float = 0.5
+    delta_flatten: float = 0.2
+    coarse_passes: int = 3
+
+    def relaxed(self, factor: float, coarse_passes: int) -> "QuadParams":
+        """The hidden layers' and wide view's thresholds: ``delta_sim`` and ``delta_flatten`` times ``factor``."""
+        return QuadParams(self.delta_max, self.delta_sim * factor, self.delta_flatten * factor, coarse_passes)
+
+
+@dataclass(frozen=True)
+class QuadsConfig(MethodConfig):
+    """Settings of the ``quads`` method.
+
+    - ``variant``: ``quasar`` (effective depth peeling, temporal compression) or
+      ``quadstream`` (a cube view cell sampled by 10 views, the full set every frame);
+    - ``view_cell_m``: the view cell's diameter (QUASAR: a sphere; QuadStream: a cube of this side);
+    - ``layers``: G-buffer layers in all, the visible one included (QUASAR, at most 4);
+    - ``wide_fov_deg``: vertical field of view of the wide G-buffer (half resolution);
+      0 leaves it out;
+    - ``delta_max``, ``delta_sim``, ``delta_flatten``, ``coarse_passes``: the visible layer's
+      thresholds (:class:`QuadParams`); ``None`` takes the variant's defaults (QUASAR 1e-4,
+      0.5, 0.2, 3; QuadStream 1e-4, 0.1, 0.05, 1);
+    - ``relax``, ``relaxed_coarse_passes``: hidden layers and wide view merge with
+      ``delta_sim`` and ``delta_flatten`` times ``relax`` and this many coarse passes
+      (QUASAR: 10x, 4);
+    - ``reference_every``: a reference frame every n frames; the others are residual
+      frames (QUASAR only; 1 streams reference frames only);
+    - ``edp_tolerance``: relative depth slack of the parallax test.
+    """
+
+    variant: Variant = "quasar"
+    view_cell_m: float = 0.5
+    layers: int = 4
+    wide_fov_deg: float = 120.0
+    delta_max: float | None = None
+    delta_sim: float | None = None
+    delta_flatten: float | None = None
+    coarse_passes: int | None = None
+    relax: float = 10.0
+    relaxed_coarse_passes: int = 4
+    reference_every: int = 5
+    edp_tolerance: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        n = type(self).__name__
+        if self.variant not in ("quasar", "quadstream"):
+            raise ConfigError(f"{n}.variant: {self.variant!r} is not one of ['quasar', 'quadstream']")
+        if not 0.0 <= self.view_cell_m <= 10.0:
+            raise ConfigError(f"{n}.view_cell_m: must be in [0, 10] metres, got {self.view_cell_m}")
+        if not 1 <= self.layers <= 4:
+            raise ConfigError(f"{n}.layers: must be 1 to 4 (the visible layer and up to 3 hidden ones), got {self.layers}")
+        if self.wide_fov_deg != 0.0 and not 60.0 <= self.wide_fov_deg <= 170.0:
+            raise ConfigError(f"{n}.wide_fov_deg: must be 0 (off) or in [60, 170] degrees, got {self.wide_fov_deg}")
+        for k in ("delta_max", "delta_sim", "delta_flatten"):
+            v = getattr(self, k)
+            if v is not None and not 0.0 <= v <= 100.0:
+                raise ConfigError(f"{n}.{k}: must be in [0, 100], got {v}")
+        if self.coarse_passes is not None and not 0 <= self.coarse_passes <= 12:
+            raise ConfigError(f"{n}.coarse_passes: must be in [0, 12], got {self.coarse_passes}")
+        if not 1.0 <= self.relax <= 1000.0:
+            raise ConfigError(f"{n}.relax: must be in [1, 1000], got {self.relax}")
+        if not 0 <= self.relaxed_coarse_passes <= 12:
+            raise ConfigError(f"{n}.relaxed_coarse_passes: must be in [0, 12], got {self.relaxed_coarse_passes}")
+        if not 1 <= self.reference_every <= 1000:
+            raise ConfigError(f"{n}.reference_every: must be in [1, 1000], got {self.reference_every}")
+        if not 0.0 <= self.edp_tolerance < 0.5:
+            raise ConfigError(f"{n}.edp_tolerance: must be in [0, 0.5), got {self.edp_tolerance}")
+
+    @property
+    def params(self) -> QuadParams:
+        """The visible layer's thresholds, the variant's defaults filled in."""
+        d = QuadParams() if self.variant == "quasar" else QuadParams(1e-4, 0.1, 0.05, 1)
+        return QuadParams(d.delta_max if self.delta_max is None else self.delta_max,
+                          d.delta_sim if self.delta_sim is None else self.delta_sim,
+                          d.delta_flatten if self.delta_flatten is None else self.delta_flatten,
+                          d.coarse_passes if self.coarse_passes is None else self.coarse_passes)
+
+    @property
+    def hidden_params(self) -> QuadParams:
+        """Thresholds of hidden layers and the wide view."""
+        return self.params.relaxed(self.relax, self.relaxed_coarse_passes)

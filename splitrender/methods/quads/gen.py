@@ -1,0 +1,340 @@
+"""Quad proxies from a G-buffer (QUASAR section 3.2), in numpy.
+
+A quad proxy covers an ``S x S`` block of pixels (``S = 2**level``) of one G-buffer. It is
+the plane through the view-space point at the block's centre (``depth`` metres along
+-Z) with normal ``n`` (view space, facing the camera), cut by the block's pixel frustum.
+It is split into four sub-quads (its quadrants, order TL, TR, BL, BR with y down); each
+sub-quad has four corners (the same order), and every corner may move along its ray
+by a **depth offset** (metres along the ray, negative towards the eye).  A quad whose 16
+offsets are all below ``delta_flatten`` is **flat** and sends none.
+
+1. **Initial quads**: one per pixel.  The nine points of the pixel's 3x3 corner lattice
+   lie on its own plane, except that a pixel corner (edge midpoint) whose three (one)
+   neighbouring planes pass within ``delta_max`` of it along its ray moves to the mean
+   of those planes and its own: surfaces close up across pixels, and depth
+   discontinuities stay open.  The public code averages the neighbouring pixels' centre
+   depths here; averaging the planes at the corner is exact for planar surfaces.
+2. **Merging**: pass ``p`` combines 2x2 quads of level ``p`` into one of level ``p + 1``
+   when the four normalised plane equations ``(n, w)`` lie pairwise within ``delta_sim``
+   (the first ``coarse_passes`` passes also when their centre depths differ by less than
+   ``delta_max`` in NDC).  The merged plane has the mean normal and the mean centre depth;
+   its sub-quad ``k`` is child ``k`` and takes the child's four outer corners, whose
+   offsets are recomputed against the merged plane.  So a quad always carries 16 offsets,
+   where the public code keeps a texture of offsets at twice the G-buffer's resolution.
+3. **Gathering**: every quad left on any level.
+
+Normals are quantised to the wire's 8 + 8 bit spherical angles before any plane is
+built, so the client's planes are the server's.  Normals closer than 2.5 degrees to
+edge-on (the public code's ``angleThreshold`` 87.5) are turned towards the eye until they
+are not, so no plane runs along its own rays.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...scene.pose import CameraIntrinsics
+from .config import QuadParams
+
+COS_EDGE_ON = math.cos(math.radians(87.5))
+MAX_LEVEL = 11
+"""Largest quad: 2**11 = 2048 pixels (QUASAR's limit; the wire's size field has 6 bits)."""
+BACKGROUND_FAR = 0.98
+"""Background pixels of a visible layer become quads on a plane facing the eye at this fraction of the far distance."""
+SUB_CORNERS = np.array([(s % 2 + c % 2, s // 2 + c // 2) for s in range(4) for c in range(4)])
+"""(i, j) half-steps from a quad's top-left corner of corner ``c`` of sub-quad ``s`` (index ``4 s + c``)."""
+OUTER = np.array([5 * c for c in range(4)])
+"""Index ``4 c + c``: outer corner ``c`` of a quad (corner ``c`` of its sub-quad ``c``)."""
+
+
+@dataclass
+class QuadSet:
+    """The quads of one G-buffer, in gathering order (level, then row-major position).
+
+    ``level`` (N,) uint8 log2 size; ``x``, ``y`` (N,) uint16 top-left pixel; ``theta``,
+    ``phi`` (N,) uint8 the normal's spherical angles; ``depth`` (N,) float32 the plane's
+    view depth at the quad centre; ``flat`` (N,) bool; ``offsets`` (M, 16) float16 for the
+    M non-flat quads, in order.
+    """
+
+    level: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    theta: np.ndarray
+    phi: np.ndarray
+    depth: np.ndarray
+    flat: np.ndarray
+    offsets: np.ndarray
+    stats: dict[str, float] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.level.size)
+
+    @staticmethod
+    def empty() -> "QuadSet":
+        z = np.zeros(0, np.uint8)
+        return QuadSet(z, np.zeros(0, np.uint16), np.zeros(0, np.uint16), z, z, np.zeros(0, np.float32), np.zeros(0, bool),
+                       np.zeros((0, 16), np.float16))
+
+    def pixels(self) -> int:
+        """Pixels covered (sum of S**2)."""
+        return int((4 ** self.level.astype(np.int64)).sum())
+
+
+# ----------------------------------------------------------------------------- geometry helpers
+def rays(intr: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """View-space ray directions (z = -1) through image points ``(u, v)`` (pixels, top-left origin)."""
+    f = intr.focal_px()
+    return np.stack([(u - intr.width / 2) / f, -(v - intr.height / 2) / f, -np.ones_like(u, dtype=np.float64)], axis=-1)
+
+
+def encode_normals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals → (theta, phi) uint8: polar angle from +y over [0, pi], azimuth atan2(z, x) over [-pi, pi]."""
+    theta = np.arccos(np.clip(n[..., 1], -1.0, 1.0))
+    phi = np.arctan2(n[..., 2], n[..., 0])
+    return (np.rint(theta / math.pi * 255).astype(np.uint8), np.rint((phi + math.pi) / (2 * math.pi) * 255).astype(np.uint8))
+
+
+def decode_normals(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    t = theta.astype(np.float64) / 255 * math.pi
+    p = phi.astype(np.float64) / 255 * 2 * math.pi - math.pi
+    return np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1)
+
+
+def ndc_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    n, f = intr.near_m, intr.far_m
+    return (f + n) / (f - n) - 2 * f * n / ((f - n) * np.maximum(z, 1e-9))
+
+
+def window_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    """Depth-buffer value in [0, 1] of view depth ``z`` clamped to [near, far] (the public code's ``normalizeDepth``)."""
+    return ndc_depth(np.clip(z, intr.near_m, intr.far_m), intr) * 0.5 + 0.5
+
+
+def orient(n: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Normals ``n`` turned to face the eye along rays ``d``, and at least 2.5 degrees from edge-on."""
+    a = -d / np.linalg.norm(d, axis=-1, keepdims=True)
+    dot = (n * a).sum(-1, keepdims=True)
+    n = np.where(dot < 0, -n, n)
+    dot = np.abs(dot)
+    low = dot[..., 0] < COS_EDGE_ON
+    if low.any():
+        p = n[low] - dot[low] * a[low]
+        pn = np.linalg.norm(p, axis=-1, keepdims=True)
+        p = np.where(pn > 1e-12, p / np.maximum(pn, 1e-12), 0.0)
+        n = n.copy()
+        n[low] = p * math.sqrt(1 - COS_EDGE_ON ** 2) + a[low] * COS_EDGE_ON
+    return n
+
+
+def quantize(n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(theta, phi, decoded normal): the normal the client will see."""
+    t, p = encode_normals(n)
+    return t, p, decode_normals(t, p)
+
+
+def plane_depth(n: np.ndarray, w: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """View depth where rays ``d`` (z = -1) meet planes ``n . X + w = 0`` (inf where parallel or behind)."""
+    den = (n * d).sum(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = -w / den
+    return np.where((np.abs(den) > 1e-12) & (z > 0), z, np.inf)
+
+
+# ----------------------------------------------------------------------------- generation
+def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray, intr: CameraIntrinsics,
+                  params: QuadParams, emit: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Level-0 quad map: per pixel its plane, centre depth, 16 corner depths, offsets and flatness.
+
+    Planes are built for every valid pixel (neighbours need them); the corner lattice only
+    for the pixels that ``emit`` quads."""
+    h, w = depth.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    dc = rays(intr, xs + 0.5, ys + 0.5)
+    n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
+    th, ph, n = quantize(n)
+    z = np.where(valid, depth, 1.0)
+    wq = -(n * dc).sum(-1) * z
+    need = valid if emit is None else valid & emit
+    py, px = np.nonzero(need)
+    k = py.size
+    # the 3x3 lattice of each emitting pixel: (j, i) half-steps from its top-left corner
+    half = np.arange(3) / 2
+    lat_u = np.broadcast_to(px[:, None, None] + half[None, None, :], (k, 3, 3))
+    lat_v = np.broadcast_to(py[:, None, None] + half[None, :, None], (k, 3, 3))
+    dl = rays(intr, lat_u.astype(np.float64), lat_v.astype(np.float64))       # (k, 3, 3, 3)
+    dl_len = np.linalg.norm(dl, axis=-1)
+    own = plane_depth(n[py, px][:, None, None, :], wq[py, px][:, None, None], dl)
+
+    def nb(dx: int, dy: int, j: int, i: int) -> tuple[np.ndarray, np.ndarray]:
+        yy, xx = py + dy, px + dx
+        inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+        yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
+        zz = plane_depth(n[yc, xc], wq[yc, xc], dl[:, j, i])
+        ok = inside & valid[yc, xc] & np.isfinite(zz) & np.isfinite(own[:, j, i])
+        dist = np.abs(np.where(ok, zz, 0.0) - np.where(ok, own[:, j, i], 0.0)) * dl_len[:, j, i]
+        return np.where(ok, zz, 0.0), ok & (window_depth(dist, intr) < params.delta_max)
+
+    lat = own.copy()
+    for j in (0, 1, 2):
+        for i in (0, 1, 2):
+            if i == 1 and j == 1:
+                continue
+            dx = -1 if i == 0 else (1 if i == 2 else 0)
+            dy = -1 if j == 0 else (1 if j == 2 else 0)
+            nbs = [(dx, 0), (0, dy), (dx, dy)] if dx and dy else [(dx, dy)]
+            got = [nb(a, b, j, i) for a, b in nbs]
+            close = np.logical_and.reduce([c for _, c in got])
+            mean = (own[:, j, i] + sum(zv for zv, _ in got)) / (1 + len(got))
+            lat[:, j, i] = np.where(close, mean, own[:, j, i])
+    idx_j, idx_i = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
+    corners = lat[:, idx_j, idx_i]                                            # (k, 16) actual depths
+    offs = (corners - own[:, idx_j, idx_i]) * dl_len[:, idx_j, idx_i]
+    ok = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
+    present = np.zeros((h, w), bool)
+    present[py[ok], px[ok]] = True
+    full_c = np.zeros((h, w, 16))
+    full_o = np.zeros((h, w, 16))
+    full_c[py[ok], px[ok]] = corners[ok]
+    full_o[py[ok], px[ok]] = offs[ok]
+    flat = (np.abs(full_o) < params.delta_flatten).all(-1)
+    return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "corners": full_c, "offs": full_o, "flat": flat}
+
+
+def _sub_positions(size: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Image positions (h, w, 16) of the 16 sub-quad corners of every quad of ``size`` on a quad map ``h x w``."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    u = xs[..., None] * size + SUB_CORNERS[:, 0] * size / 2
+    v = ys[..., None] * size + SUB_CORNERS[:, 1] * size / 2
+    return u, v
+
+
+def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics, params: QuadParams, coarse: bool
+               ) -> dict[str, np.ndarray]:
+    """One merge pass: level ``level`` quads (``child``, cleared where merged) into level ``level + 1``."""
+    h, w = child["present"].shape[0] // 2, child["present"].shape[1] // 2
+    k = [(slice(0, 2 * h, 2), slice(0, 2 * w, 2)), (slice(0, 2 * h, 2), slice(1, 2 * w, 2)),
+         (slice(1, 2 * h, 2), slice(0, 2 * w, 2)), (slice(1, 2 * h, 2), slice(1, 2 * w, 2))]
+    get = lambda key: [child[key][s] for s in k]  # noqa: E731
+    pres = np.logical_and.reduce(get("present"))
+    size = 2 ** (level + 1)
+    half = 2 ** level
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    # each child's plane equation (n, w)
+    eqs = []
+    for s, (sy, sx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
+        n = child["n"][k[s]]
+        dcen = rays(intr, xs * size + sx * half + half / 2, ys * size + sy * half + half / 2)
+        wv = -(n * dcen).sum(-1) * child["zc"][k[s]]
+        eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
+    similar = np.ones((h, w), bool)
+    for a in range(4):
+        for b in range(a + 1, 4):
+            similar &= np.linalg.norm(eqs[a] - eqs[b], axis=-1) < params.delta_sim
+    ok = pres & similar
+    if coarse:
+        ndc = [ndc_depth(z, intr) for z in get("zc")]
+        cont = np.ones((h, w), bool)
+        for a in range(4):
+            for b in range(a + 1, 4):
+                cont &= np.abs(ndc[a] - ndc[b]) < params.delta_max
+        ok |= pres & cont
+    dcen = rays(intr, xs * size + size / 2, ys * size + size / 2)
+    nsum = sum(get("n"))
+    nn = nsum / np.maximum(np.linalg.norm(nsum, axis=-1, keepdims=True), 1e-12)
+    th, ph, nq = quantize(orient(nn, dcen))
+    zc = sum(get("zc")) / 4.0
+    wq = -(nq * dcen).sum(-1) * zc
+    corners = np.stack([child["corners"][k[s]][..., OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
+    u, v = _sub_positions(size, h, w)
+    d16 = rays(intr, u, v)
+    plane16 = plane_depth(nq[:, :, None, :], wq[:, :, None], d16)
+    offs = (corners - plane16) * np.linalg.norm(d16, axis=-1)
+    ok &= np.isfinite(offs).all(-1)
+    offs = np.where(ok[..., None], offs, 0.0)
+    flat = (np.abs(offs) < params.delta_flatten).all(-1)
+    for s in k:  # merged children leave their map
+        child["present"][s] &= ~ok
+    return {"present": ok, "n": nq, "theta": th, "phi": ph, "zc": zc, "corners": np.where(ok[..., None], corners, 0.0),
+            "offs": offs, "flat": flat}
+
+
+def generate(depth: np.ndarray, normal_world: np.ndarray, view_rot: np.ndarray, intr: CameraIntrinsics,
+             params: QuadParams, emit: np.ndarray | None = None, background: bool = False) -> QuadSet:
+    """The quads of one G-buffer: ``depth`` (H, W) view depth (inf: background), ``normal_world``
+    (H, W, 3), ``view_rot`` the world-to-view rotation; quads only where ``emit`` (all
+    pixels with geometry when ``None``); ``background`` turns background pixels into quads
+    on a far plane facing the eye (the visible layer's sky)."""
+    t0 = time.perf_counter()
+    h, w = depth.shape
+    valid = np.isfinite(depth) & (depth > 0)
+    depth = depth.astype(np.float64)
+    nview = normal_world.astype(np.float64) @ np.asarray(view_rot, np.float64).T
+    if background:
+        bg = ~valid
+        depth = np.where(bg, BACKGROUND_FAR * intr.far_m, depth)
+        nview = np.where(bg[..., None], (0.0, 0.0, 1.0), nview)
+        valid = np.ones_like(valid)
+    m0 = initial_quads(np.where(valid, depth, 1.0), nview, valid, intr, params, emit)
+    t1 = time.perf_counter()
+    maps = [m0]
+    level = 0
+    while level < MAX_LEVEL and min(maps[-1]["present"].shape) >= 2:
+        nxt = merge_pass(maps[-1], level, intr, params, coarse=level < params.coarse_passes)
+        maps.append(nxt)
+        level += 1
+        if not nxt["present"].any():
+            break
+    t2 = time.perf_counter()
+    out = gather(maps)
+    out.stats = {"gen_ms": (t1 - t0) * 1e3, "merge_ms": (t2 - t1) * 1e3, "quads": float(len(out)),
+                 "flat": float(out.flat.sum()), "pixels": float(out.pixels())}
+    return out
+
+
+def gather(maps: list[dict[str, np.ndarray]]) -> QuadSet:
+    """Every quad left on any level, level by level, row-major."""
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("level", "x", "y", "theta", "phi", "depth", "flat", "offs")}
+    for lv, m in enumerate(maps):
+        yy, xx = np.nonzero(m["present"])
+        s = 2 ** lv
+        parts["level"].append(np.full(yy.size, lv, np.uint8))
+        parts["x"].append((xx * s).astype(np.uint16))
+        parts["y"].append((yy * s).astype(np.uint16))
+        parts["theta"].append(m["theta"][yy, xx])
+        parts["phi"].append(m["phi"][yy, xx])
+        parts["depth"].append(m["zc"][yy, xx].astype(np.float32))
+        parts["flat"].append(m["flat"][yy, xx])
+        parts["offs"].append(m["offs"][yy, xx])
+    cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
+    flat = cat["flat"].astype(bool)
+    return QuadSet(cat["level"].astype(np.uint8), cat["x"].astype(np.uint16), cat["y"].astype(np.uint16),
+                   cat["theta"].astype(np.uint8), cat["phi"].astype(np.uint8), cat["depth"].astype(np.float32), flat,
+                   cat["offs"].reshape(-1, 16)[~flat].astype(np.float16))
+
+
+# ----------------------------------------------------------------------------- reconstruction
+def corner_points(qs: QuadSet, intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """View-space points (N, 16, 3) of every quad's sub-quad corners, their image positions (N, 16, 2),
+    and which quads are drawable (N,) (finite corners in front of the eye)."""
+    n = decode_normals(qs.theta, qs.phi)
+    s = (2.0 ** qs.level.astype(np.float64))
+    x0 = qs.x.astype(np.float64)
+    y0 = qs.y.astype(np.float64)
+    dcen = rays(intr, x0 + s / 2, y0 + s / 2)
+    wv = -(n * dcen).sum(-1) * qs.depth.astype(np.float64)
+    u = x0[:, None] + SUB_CORNERS[None, :, 0] * s[:, None] / 2
+    v = y0[:, None] + SUB_CORNERS[None, :, 1] * s[:, None] / 2
+    d = rays(intr, u, v)
+    z = plane_depth(n[:, None, :], wv[:, None], d)
+    offs = np.zeros((len(qs), 16))
+    offs[~qs.flat] = qs.offsets.astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        z = z + offs / np.linalg.norm(d, axis=-1)
+    ok = np.isfinite(z).all(-1) & (z > 0).all(-1)
+    z = np.where(ok[:, None], z, 1.0)
+    return d * z[..., None], np.stack([u, v], axis=-1), ok

@@ -1,0 +1,205 @@
+"""The client's quad cache and layered mesh (QUASAR section 3.6), shared by both halves:
+the server keeps the same cache to know what the client holds.
+
+:class:`ReferenceCache` holds the quads of the newest reference frame and the updates
+since, with a quad index map at the reference camera's resolution (each pixel: the
+quad that covers it last); an update's quads overwrite the map where they lie, and a
+cached quad no pixel names any more is freed.  :func:`build_mesh` turns sets of quads
+into one indexed triangle mesh in world space, textured from the atlas; :class:`QuadMeshGL`
+draws it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...scene.pose import CameraIntrinsics, Pose
+from .gen import QuadSet, corner_points
+
+SHADERS = Path(__file__).parent / "shaders"
+VERTEX_FLOATS = 3 + 3 + 4
+SUB_TRIANGLES = np.array([[s * 4 + a for a in tri] for s in range(4) for tri in ((0, 2, 1), (1, 2, 3))], np.uint32).ravel()
+"""24 indices into a quad's 16 corners: two triangles per sub-quad (TL, BL, TR) and (TR, BL, BR)."""
+
+
+def concat(sets: list[QuadSet]) -> QuadSet:
+    if not sets:
+        return QuadSet.empty()
+    return QuadSet(*(np.concatenate([getattr(s, k) for s in sets]) for k in ("level", "x", "y", "theta", "phi", "depth", "flat")),
+                   np.concatenate([s.offsets for s in sets]).reshape(-1, 16))
+
+
+def select(qs: QuadSet, keep: np.ndarray) -> QuadSet:
+    """The quads where ``keep``, their offsets with them."""
+    nonflat_keep = keep[~qs.flat]
+    return QuadSet(qs.level[keep], qs.x[keep], qs.y[keep], qs.theta[keep], qs.phi[keep], qs.depth[keep], qs.flat[keep],
+                   qs.offsets[nonflat_keep])
+
+
+def rasterize(index_map: np.ndarray, qs: QuadSet, first: int) -> None:
+    """Write quad indices ``first + i`` over the pixels each quad covers."""
+    h, w = index_map.shape
+    for lv in np.unique(qs.level):
+        sel = np.flatnonzero(qs.level == lv)
+        s = 1 << int(lv)
+        dy, dx = np.mgrid[0:s, 0:s]
+        ys = qs.y[sel, None].astype(np.int64) + dy.ravel()
+        xs = qs.x[sel, None].astype(np.int64) + dx.ravel()
+        ok = (ys < h) & (xs < w)
+        idx = np.broadcast_to((first + sel)[:, None], ys.shape)
+        index_map[ys[ok], xs[ok]] = idx[ok]
+
+
+@dataclass
+class ReferenceCache:
+    """The cached reference quads of one camera and their quad index map."""
+
+    pose: Pose | None = None
+    intr: CameraIntrinsics | None = None
+    frame_id: int = -1
+    quads: QuadSet | None = None
+    index_map: np.ndarray | None = None
+    freed: int = 0
+
+    def set_reference(self, qs: QuadSet, pose: Pose, intr: CameraIntrinsics, frame_id: int) -> None:
+        self.pose, self.intr, self.frame_id, self.quads = pose, intr, frame_id, qs
+        self.index_map = np.full((intr.height, intr.width), -1, np.int64)
+        rasterize(self.index_map, qs, 0)
+        self.freed = 0
+
+    def apply_update(self, qs: QuadSet) -> None:
+        """Append an update's quads, overwrite the index map where they lie, free quads covered entirely."""
+        assert self.quads is not None and self.index_map is not None
+        n0 = len(self.quads)
+        allq = concat([self.quads, qs])
+        rasterize(self.index_map, qs, n0)
+        named = np.zeros(len(allq), bool)
+        named[self.index_map[self.index_map >= 0]] = True
+        named[n0:] = True  # an update's quads are drawn even where a later one of the same update overlaps
+        self.freed = int((~named[:n0]).sum())
+        remap = np.cumsum(named) - 1
+        self.quads = select(allq, named)
+        m = self.index_map >= 0
+        self.index_map[m] = remap[self.index_map[m]]
+
+    def __len__(self) -> int:
+        return 0 if self.quads is None else len(self.quads)
+
+
+def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (N*16, 10) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
+    with ``z`` the corner's depth in the source camera, atlas pixel rect; indices (N*24,) uint32).
+
+    The atlas position of a surface point is its projection in the source camera, a
+    projective function of the point: ``(u z, v z, z)`` is affine in it, so interpolated
+    perspective-correctly and divided per fragment it gives the exact atlas position from
+    any viewpoint (plain ``uv`` would bend across slanted quads).  The rect (the quad's pixels in the atlas) lets the fragment shader clamp its lookup, so
+    bilinear filtering never mixes in a neighbouring quad's colour."""
+    if len(qs) == 0:
+        return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
+    pts, uv, ok = corner_points(qs, intr)
+    pts, uv = pts[ok], uv[ok]
+    n = pts.shape[0]
+    m = pose.matrix()
+    world = pts @ m[:3, :3].T + m[:3, 3]
+    s = (2.0 ** qs.level[ok].astype(np.float64))
+    x0 = qs.x[ok].astype(np.float64) + slot_origin[0]
+    y0 = qs.y[ok].astype(np.float64) + slot_origin[1]
+    rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
+    v = np.empty((n, 16, VERTEX_FLOATS), np.float32)
+    v[..., 0:3] = world
+    zs = -pts[..., 2]
+    v[..., 3] = (uv[..., 0] + slot_origin[0]) * zs
+    v[..., 4] = (uv[..., 1] + slot_origin[1]) * zs
+    v[..., 5] = zs
+    v[..., 6:10] = rect[:, None, :]
+    idx = (np.arange(n, dtype=np.uint32)[:, None] * 16 + SUB_TRIANGLES[None, :]).ravel()
+    return v.reshape(-1, VERTEX_FLOATS), idx
+
+
+def join_meshes(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    vs, ids, base = [], [], 0
+    for v, i in parts:
+        vs.append(v)
+        ids.append(i + np.uint32(base))
+        base += v.shape[0]
+    if not vs:
+        return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
+    return np.concatenate(vs), np.concatenate(ids).astype(np.uint32)
+
+
+class QuadMeshGL:
+    """Draws a quad mesh from any pose into colour (alpha = coverage) and view depth (0 = none)."""
+
+    def __init__(self, ctx: Any) -> None:
+        import moderngl
+
+        from ...render.gl import load_program
+
+        self.ctx = ctx
+        self._mgl = moderngl
+        self.prog = load_program(ctx, SHADERS / "quads_mesh.vert", SHADERS / "quads_mesh.frag")
+        self.vbo: Any = None
+        self.ibo: Any = None
+        self.vao: Any = None
+        self.count = 0
+        self._targets: dict[tuple[int, int], tuple[Any, Any, Any, Any]] = {}
+
+    def upload(self, vertices: np.ndarray, indices: np.ndarray) -> None:
+        for b in (self.vao, self.vbo, self.ibo):
+            if b is not None:
+                b.release()
+        self.vao = self.vbo = self.ibo = None
+        self.count = int(indices.size)
+        if self.count == 0:
+            return
+        self.vbo = self.ctx.buffer(np.ascontiguousarray(vertices, np.float32).tobytes())
+        self.ibo = self.ctx.buffer(np.ascontiguousarray(indices, np.uint32).tobytes())
+        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f", "in_pos", "in_uvw", "in_rect")],
+                                         index_buffer=self.ibo, index_element_size=4)
+
+    def target(self, w: int, h: int) -> tuple[Any, Any, Any, Any]:
+        t = self._targets.get((w, h))
+        if t is None:
+            color = self.ctx.texture((w, h), 4, dtype="f1")
+            depth = self.ctx.texture((w, h), 1, dtype="f4")
+            for tex in (color, depth):
+                tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
+            fbo = self.ctx.framebuffer([color, depth], self.ctx.depth_renderbuffer((w, h)))
+            t = (fbo, color, depth, None)
+            self._targets[(w, h)] = t
+        return t
+
+    def draw(self, pose: Pose, intr: CameraIntrinsics, atlas: Any | None, atlas_size: tuple[int, int]) -> tuple[Any, Any, Any]:
+        """Draw into the target of ``intr``'s size; returns (framebuffer, colour texture, depth texture)."""
+        fbo, color, depth, _ = self.target(intr.width, intr.height)
+        fbo.use()
+        self.ctx.viewport = (0, 0, intr.width, intr.height)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if self.vao is not None:
+            self.ctx.enable(self.ctx.DEPTH_TEST)
+            self.ctx.disable(self.ctx.CULL_FACE | self.ctx.BLEND)
+            vp = intr.projection() @ pose.view_matrix()
+            self.prog["u_vp"].write(np.asarray(vp, "f4").T.tobytes())
+            self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
+            if "u_atlas_size" in self.prog:
+                self.prog["u_atlas_size"].value = (float(atlas_size[0]), float(atlas_size[1]))
+            if "u_has_atlas" in self.prog:
+                self.prog["u_has_atlas"].value = 0 if atlas is None else 1
+            if atlas is not None:
+                atlas.use(0)
+                if "u_atlas" in self.prog:
+                    self.prog["u_atlas"].value = 0
+            self.vao.render(mode=self._mgl.TRIANGLES, vertices=self.count)
+        return fbo, color, depth
+
+    def depth_at(self, pose: Pose, intr: CameraIntrinsics) -> np.ndarray:
+        """(H, W) view depth of the mesh seen from ``pose`` (inf where it covers nothing), top row first."""
+        _, _, depth = self.draw(pose, intr, None, (1, 1))
+        z = np.frombuffer(depth.read(), np.float32).reshape(intr.height, intr.width)[::-1].copy()
+        z[z <= 0] = np.inf
+        return z

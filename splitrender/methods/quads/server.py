@@ -1,0 +1,303 @@
+"""The ``quads`` server half: G-buffers at the predicted pose, quads, atlas, temporal compression.
+
+**QUASAR** per frame (paper sections 3.2-3.5):
+
+1. the visible G-buffer at the predicted pose; on a **reference frame** (every
+   ``reference_every`` frames, on a keyframe request, after a reported loss) its quads
+   (background included) are the client's new reference set, its colour atlas slot 0;
+2. on a **residual frame**: the G-buffer at the reference pose and the current time;
+   pixels whose depth or normal changed since what the client holds get quads
+   (``update``, cached by the client; the render's colour refreshes slot 0 for all
+   cached quads), then the G-buffer at the current pose is masked by the cached mesh
+   drawn from that pose, and the pixels it does not explain, grown by one pixel, get
+   quads (``revealed``, slot 1);
+3. **hidden layers** by depth peeling from the visible layer, each kept where the
+   parallax test (:mod:`.edp`) says an eye in the view sphere could see it, merged with
+   relaxed thresholds;
+4. the **wide view** (``wide_fov_deg``, half resolution): only its pixels outside the
+   main view's frustum get quads.
+
+**QuadStream**: views at the centre and the eight corners of a cube of side
+``view_cell_m`` plus the wide view, each masked by the mesh of the views before it (with
+one-pixel boundary expansion), the full set every frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import binary_dilation
+
+from ...scene.pose import CameraIntrinsics, Pose
+from ..base import DataStreamSpec, ServerContext, ServerHalf, StreamSpec, Update
+from .config import QuadsConfig
+from .edp import edp_keep
+from .gen import BACKGROUND_FAR, QuadSet, generate, rays
+from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
+from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
+                   encode_camera, encode_sets)
+
+log = logging.getLogger(__name__)
+META_VERSION = 1
+CHANGE_REL = 0.01
+"""A reference pixel changed when its depth moved by more than this fraction (or its normal by more than ~8 degrees)."""
+MASK_REL = 0.02
+"""A pixel of a new view is explained by the cached mesh when their depths agree within this fraction."""
+
+
+def slot_grid(n_slots: int) -> tuple[int, int]:
+    """(columns, rows) of the atlas: two rows (one for a single slot)."""
+    rows = 1 if n_slots == 1 else 2
+    return math.ceil(n_slots / rows), rows
+
+
+def n_slots(cfg: QuadsConfig) -> int:
+    wide = 1 if cfg.wide_fov_deg else 0
+    if cfg.variant == "quadstream":
+        return 9 + wide
+    return 1 + (1 if cfg.reference_every > 1 else 0) + (cfg.layers - 1) + wide
+
+
+def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float) -> CameraIntrinsics:
+    """The wide G-buffer: ``fov_y_deg`` vertically at half the display's resolution (even sizes)."""
+    return CameraIntrinsics(max(2, intr.width // 4 * 2), max(2, intr.height // 4 * 2), fov_y_deg, intr.near_m, intr.far_m)
+
+
+def outside_frustum(wide: CameraIntrinsics, main: CameraIntrinsics) -> np.ndarray:
+    """(H, W) bool: wide-view pixels whose ray falls outside the main view's image (same pose)."""
+    ys, xs = np.mgrid[0:wide.height, 0:wide.width].astype(np.float64)
+    d = rays(wide, xs + 0.5, ys + 0.5)
+    f = main.focal_px()
+    u = d[..., 0] / -d[..., 2] * f + main.width / 2
+    v = -d[..., 1] / -d[..., 2] * f + main.height / 2
+    return ~((u >= 0) & (u < main.width) & (v >= 0) & (v < main.height))
+
+
+class QuadsServer(ServerHalf):
+    """QUASAR or QuadStream, one session."""
+
+    config: QuadsConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        cfg = self.config
+        self.slots = n_slots(cfg)
+        self.cols, self.rows = slot_grid(self.slots)
+        self.wide = wide_intrinsics(self.intrinsics, cfg.wide_fov_deg) if cfg.wide_fov_deg else None
+        self._wide_out = outside_frustum(self.wide, self.intrinsics) if self.wide else None
+        self.cache = ReferenceCache()
+        self._ref_due = True
+        self._ref_depth: np.ndarray | None = None
+        self._ref_normal: np.ndarray | None = None
+        self._mesh: QuadMeshGL | None = None
+        self._stats: dict[str, float] = {}
+        self.last_sets: list[WireSet] = []
+
+    # ------------------------------------------------------------------ session
+    def streams(self) -> list[Any]:
+        i = self.intrinsics
+        return [StreamSpec("atlas", self.config.video(self.server_fps), i.width * self.cols, i.height * self.rows),
+                DataStreamSpec("quads"), DataStreamSpec("offsets")]
+
+    def session_data(self) -> dict[str, Any]:
+        return {"v": META_VERSION, "wire": WIRE_VERSION, "variant": self.config.variant, "slots": self.slots,
+                "cols": self.cols, "rows": self.rows, "slot_size": [self.intrinsics.width, self.intrinsics.height]}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+    # ------------------------------------------------------------------ helpers
+    def _slot_origin(self, slot: int) -> tuple[int, int]:
+        return (slot % self.cols) * self.intrinsics.width, (slot // self.cols) * self.intrinsics.height
+
+    def _place(self, atlas: np.ndarray, slot: int, img: np.ndarray) -> None:
+        x, y = self._slot_origin(slot)
+        atlas[y:y + img.shape[0], x:x + img.shape[1]] = img
+
+    def _gbuffer(self, ctx: ServerContext, pose: Pose, intr: CameraIntrinsics, peel: np.ndarray | None = None) -> Any:
+        return ctx.renderer.render(self.scene, ctx.t_s, pose, intr, ("color", "depth", "normal"), peel=peel)
+
+    def _mesh_depth(self, ctx: ServerContext, parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
+                    intr: CameraIntrinsics) -> np.ndarray:
+        if self._mesh is None:
+            self._mesh = QuadMeshGL(ctx.renderer.ctx)
+        self._mesh.upload(*join_meshes(parts))
+        return self._mesh.depth_at(pose, intr)
+
+    def _unexplained(self, depth: np.ndarray, mesh_z: np.ndarray) -> np.ndarray:
+        """Pixels the mesh does not explain: uncovered, or whose surface lies more than :data:`MASK_REL`
+        in front of the mesh (a surface behind the mesh would not show from here; background
+        pixels stand on the far plane the visible layer gives them)."""
+        zd = np.where(np.isfinite(depth), depth, BACKGROUND_FAR * self.intrinsics.far_m)
+        return ~np.isfinite(mesh_z) | (zd < mesh_z * (1.0 - MASK_REL))
+
+    def _reference_due(self, ctx: ServerContext) -> bool:
+        fb = ctx.feedback
+        lost = any(fb.newly_lost(s) for s in ("atlas", "quads", "offsets"))
+        return (self._ref_due or ctx.keyframe_requested or lost or self.config.reference_every == 1
+                or ctx.frame_id - self.cache.frame_id >= self.config.reference_every)
+
+    # ------------------------------------------------------------------ produce
+    def produce(self, ctx: ServerContext) -> Update:
+        if self.config.variant == "quadstream":
+            return self._produce_quadstream(ctx)
+        return self._produce_quasar(ctx)
+
+    def _hidden_and_wide(self, ctx: ServerContext, pose: Pose, front: Any, first_slot: int, cam: int, wide_cam: int,
+                         sets: list[WireSet], atlas: np.ndarray, times: dict[str, float]) -> None:
+        cfg, intr = self.config, self.intrinsics
+        hp = cfg.hidden_params
+        prev = front.depth
+        radius = cfg.view_cell_m / 2
+        for k in range(1, cfg.layers):
+            t0 = time.perf_counter()
+            g = self._gbuffer(ctx, pose, intr, peel=prev)
+            t1 = time.perf_counter()
+            keep = edp_keep(front.depth, g.depth, intr, radius, cfg.edp_tolerance)
+            q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], intr, hp, emit=keep)
+            times["gbuffer_ms"] += (t1 - t0) * 1e3
+            times["edp_ms"] += (time.perf_counter() - t1) * 1e3 - q.stats["gen_ms"] - q.stats["merge_ms"]
+            self._account(times, q)
+            self._stats[f"hidden{k}_fragments"] = float(np.isfinite(g.depth).sum())
+            self._stats[f"hidden{k}_kept"] = float(keep.sum())
+            sets.append(WireSet(KIND_HIDDEN, first_slot + k - 1, cam, q))
+            self._place(atlas, first_slot + k - 1, np.where(keep[..., None], g.color, 0).astype(np.uint8))
+            prev = g.depth
+            if not np.isfinite(g.depth).any():
+                break
+        if self.wide is not None:
+            t0 = time.perf_counter()
+            g = self._gbuffer(ctx, pose, self.wide)
+            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], self.wide, hp, emit=self._wide_out, background=True)
+            self._account(times, q)
+            sets.append(WireSet(KIND_WIDE, self.slots - 1, wide_cam, q))
+            self._place(atlas, self.slots - 1, g.color)
+
+    @staticmethod
+    def _account(times: dict[str, float], q: QuadSet) -> None:
+        times["quadgen_ms"] += q.stats["gen_ms"]
+        times["merge_ms"] += q.stats["merge_ms"]
+
+    def _produce_quasar(self, ctx: ServerContext) -> Update:
+        cfg, intr = self.config, self.intrinsics
+        pose = ctx.target_pose
+        times = {"gbuffer_ms": 0.0, "quadgen_ms": 0.0, "merge_ms": 0.0, "edp_ms": 0.0, "mask_ms": 0.0}
+        i = self.intrinsics
+        atlas = np.zeros((i.height * self.rows, i.width * self.cols, 3), np.uint8)
+        sets: list[WireSet] = []
+        reference = self._reference_due(ctx)
+        self._stats = {}
+        t0 = time.perf_counter()
+        g0 = self._gbuffer(ctx, pose, intr)
+        times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+        rot = pose.view_matrix()[:3, :3]
+        p = cfg.params
+        if reference:
+            q = generate(g0.depth, g0.normal, rot, intr, p, background=True)
+            self._account(times, q)
+            self.cache.set_reference(q, pose, intr, ctx.frame_id)
+            self._ref_depth, self._ref_normal = g0.depth.copy(), g0.normal.copy()
+            sets.append(WireSet(KIND_REFERENCE, 0, 1, q))
+            self._place(atlas, 0, g0.color)
+            self._ref_due = False
+            cameras = [encode_camera(pose, intr), encode_camera(pose, intr)]
+        else:
+            ref_pose = self.cache.pose
+            assert ref_pose is not None and self._ref_depth is not None and self._ref_normal is not None
+            t0 = time.perf_counter()
+            gr = self._gbuffer(ctx, ref_pose, intr)
+            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            t1 = time.perf_counter()
+            a, b = self._ref_depth, gr.depth
+            fin_a, fin_b = np.isfinite(a), np.isfinite(b)
+            changed = (fin_a != fin_b) | (fin_a & fin_b & (np.abs(np.where(fin_a, a, 0) - np.where(fin_b, b, 0))
+                                                          > CHANGE_REL * np.where(fin_b, b, 1)))
+            changed |= fin_a & fin_b & ((self._ref_normal * gr.normal).sum(-1) < 0.99)
+            times["mask_ms"] += (time.perf_counter() - t1) * 1e3
+            qu = generate(gr.depth, gr.normal, ref_pose.view_matrix()[:3, :3], intr, p, emit=changed, background=True)
+            self._account(times, qu)
+            if len(qu):
+                self.cache.apply_update(qu)
+            self._ref_depth = np.where(changed, gr.depth, self._ref_depth)
+            self._ref_normal = np.where(changed[..., None], gr.normal, self._ref_normal)
+            sets.append(WireSet(KIND_UPDATE, 0, 1, qu))
+            self._place(atlas, 0, gr.color)
+            t1 = time.perf_counter()
+            assert self.cache.quads is not None
+            mesh_z = self._mesh_depth(ctx, [build_mesh(self.cache.quads, ref_pose, intr, (0, 0))], pose, intr)
+            revealed = binary_dilation(self._unexplained(g0.depth, mesh_z), iterations=1)
+            times["mask_ms"] += (time.perf_counter() - t1) * 1e3
+            qn = generate(g0.depth, g0.normal, rot, intr, p, emit=revealed, background=True)
+            self._account(times, qn)
+            sets.append(WireSet(KIND_REVEALED, 1, 0, qn))
+            self._place(atlas, 1, np.where(revealed[..., None], g0.color, 0).astype(np.uint8))
+            self._stats["changed_px"] = float(changed.sum())
+            self._stats["revealed_px"] = float(revealed.sum())
+            self._stats["freed"] = float(self.cache.freed)
+            cameras = [encode_camera(pose, intr), encode_camera(ref_pose, intr)]
+        first_hidden = 1 + (1 if cfg.reference_every > 1 else 0)
+        cameras.append(encode_camera(pose, self.wide) if self.wide else encode_camera(pose, intr))
+        self._hidden_and_wide(ctx, pose, g0, first_hidden, 0, 2, sets, atlas, times)
+        return self._finish(ctx, pose, sets, atlas, cameras, times, "reference" if reference else "residual")
+
+    def _produce_quadstream(self, ctx: ServerContext) -> Update:
+        cfg, intr = self.config, self.intrinsics
+        pose = ctx.target_pose
+        times = {"gbuffer_ms": 0.0, "quadgen_ms": 0.0, "merge_ms": 0.0, "edp_ms": 0.0, "mask_ms": 0.0}
+        atlas = np.zeros((intr.height * self.rows, intr.width * self.cols, 3), np.uint8)
+        self._stats = {}
+        rot = pose.matrix()[:3, :3]
+        h = cfg.view_cell_m / 2
+        offsets = [np.zeros(3)] + [np.array([sx, sy, sz]) * h for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+        views = [(Pose(pose.position + rot @ o, pose.orientation), intr) for o in offsets]
+        if self.wide is not None:
+            views.append((pose, self.wide))
+        sets: list[WireSet] = []
+        parts: list[tuple[np.ndarray, np.ndarray]] = []
+        cameras = []
+        p = cfg.params
+        for v, (vp, vi) in enumerate(views):
+            t0 = time.perf_counter()
+            g = self._gbuffer(ctx, vp, vi)
+            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            if parts:
+                t1 = time.perf_counter()
+                new = self._unexplained(g.depth, self._mesh_depth(ctx, parts, vp, vi))
+                emit = binary_dilation(new, iterations=1)   # one-pixel boundary quads
+                if vi is self.wide:
+                    emit &= self._wide_out
+                times["mask_ms"] += (time.perf_counter() - t1) * 1e3
+            else:
+                emit = None
+            q = generate(g.depth, g.normal, vp.view_matrix()[:3, :3], vi, p, emit=emit, background=True)
+            self._account(times, q)
+            kind = KIND_WIDE if vi is self.wide else KIND_VIEW
+            sets.append(WireSet(kind, v, v, q))
+            cameras.append(encode_camera(vp, vi))
+            self._place(atlas, v, g.color if emit is None else np.where(emit[..., None], g.color, 0).astype(np.uint8))
+            parts.append(build_mesh(q, vp, vi, (0, 0)))
+        return self._finish(ctx, pose, sets, atlas, cameras, times, "reference")
+
+    def _finish(self, ctx: ServerContext, pose: Pose, sets: list[WireSet], atlas: np.ndarray, cameras: list[list[float]],
+                times: dict[str, float], frame_kind: str) -> Update:
+        t0 = time.perf_counter()
+        quads, offsets = encode_sets(sets)
+        times["pack_ms"] = (time.perf_counter() - t0) * 1e3
+        self.last_sets = sets
+        self._stats.update(times)
+        self._stats["quads"] = float(sum(len(s.quads) for s in sets))
+        self._stats["nonflat"] = float(sum(int((~s.quads.flat).sum()) for s in sets))
+        self._stats["cached"] = float(len(self.cache))
+        self._stats["reference"] = 1.0 if frame_kind == "reference" else 0.0
+        for s in sets:
+            key = {KIND_REFERENCE: "ref", KIND_UPDATE: "update", KIND_REVEALED: "revealed", KIND_HIDDEN: "hidden",
+                   KIND_WIDE: "wide", KIND_VIEW: "views"}[s.kind]
+            self._stats[f"quads_{key}"] = self._stats.get(f"quads_{key}", 0.0) + len(s.quads)
+        meta = {"v": META_VERSION, "frame": frame_kind, "ref_frame": int(self.cache.frame_id), "cameras": cameras}
+        return Update(ctx.frame_id, ctx.t_s, pose, {"atlas": atlas}, meta, force_idr=False,
+                      data={"quads": quads, "offsets": offsets})

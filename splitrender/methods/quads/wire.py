@@ -1,0 +1,182 @@
+"""``quads``' wire format, shared by both halves.
+
+Per frame, three streams:
+
+- ``quads`` (reliable data, zstd): a header, then every set's quads as a structure of
+  arrays, the sets one after another inside each array (paper section 3.4.2):
+  ``theta`` u8[N], ``phi`` u8[N], ``packed`` u32[N] (bits 31-26 level = log2 size,
+  25-14 x, 13-2 y, 1 flat, 0 alpha), ``depth`` f32[N] (the plane's view depth at the
+  quad centre): 80 bits per quad before zstd.  Header: ``b"QD"``, version u8, set count
+  u8, then per set kind u8, atlas slot u8, camera u8, reserved u8, quads u32, non-flat
+  quads u32 (little-endian).
+- ``offsets`` (reliable data, zstd): 16 float16 depth offsets per non-flat quad, in
+  quad order.
+- ``atlas`` (video): the sets' colour images, one slot each, side by side.
+
+The frame's metadata names the cameras (pose, size, vertical FOV) the sets refer to
+and, for QUASAR, whether the frame is a reference or a residual frame.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import CodecError, RemoteProtocolError
+from ...scene.pose import CameraIntrinsics, Pose
+from .gen import MAX_LEVEL, QuadSet
+
+WIRE_VERSION = 1
+MAGIC = b"QD"
+HEADER = struct.Struct("<2sBB")
+SET_HEADER = struct.Struct("<BBBBII")
+KIND_REFERENCE, KIND_UPDATE, KIND_REVEALED, KIND_HIDDEN, KIND_WIDE, KIND_VIEW = range(6)
+KIND_NAMES = ("reference", "update", "revealed", "hidden", "wide", "view")
+CACHED_KINDS = (KIND_REFERENCE, KIND_UPDATE)
+"""Sets the client keeps across frames (QUASAR's reference frame); the others live for one frame."""
+MAX_OFFSET_M = 1000.0
+MAX_QUADS = 1 << 24
+MAX_CAMERAS = 16
+
+
+class QuadsWireError(RemoteProtocolError, CodecError):
+    """Malformed ``quads`` data from the server; the message names the frame, the stream and the field."""
+
+
+@dataclass
+class WireSet:
+    """One set of quads: what it is, where its colour lies in the atlas, which camera it was made from."""
+
+    kind: int
+    slot: int
+    camera: int
+    quads: QuadSet
+
+
+def pack(level: np.ndarray, x: np.ndarray, y: np.ndarray, flat: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
+    """The u32 of size, position, flat and alpha bits."""
+    a = np.zeros(level.shape, np.uint32) if alpha is None else alpha.astype(np.uint32)
+    return ((level.astype(np.uint32) & 0x3F) << 26 | (x.astype(np.uint32) & 0xFFF) << 14
+            | (y.astype(np.uint32) & 0xFFF) << 2 | flat.astype(np.uint32) << 1 | a).astype(np.uint32)
+
+
+def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    p = p.astype(np.uint32)
+    return ((p >> 26) & 0x3F).astype(np.uint8), ((p >> 14) & 0xFFF).astype(np.uint16), ((p >> 2) & 0xFFF).astype(np.uint16), \
+        ((p >> 1) & 1).astype(bool), (p & 1).astype(bool)
+
+
+def encode_sets(sets: list[WireSet]) -> tuple[bytes, bytes]:
+    """(``quads`` payload, ``offsets`` payload) of a frame's sets."""
+    head = [HEADER.pack(MAGIC, WIRE_VERSION, len(sets))]
+    for s in sets:
+        head.append(SET_HEADER.pack(s.kind, s.slot, s.camera, 0, len(s.quads), int((~s.quads.flat).sum())))
+    qs = [s.quads for s in sets]
+    cat = lambda name, dt: np.concatenate([getattr(q, name) for q in qs]).astype(dt) if qs else np.zeros(0, dt)  # noqa: E731
+    packed = np.concatenate([pack(q.level, q.x, q.y, q.flat) for q in qs]) if qs else np.zeros(0, np.uint32)
+    body = (cat("theta", np.uint8).tobytes() + cat("phi", np.uint8).tobytes() + packed.astype("<u4").tobytes()
+            + cat("depth", "<f4").tobytes())
+    offs = np.concatenate([q.offsets for q in qs]) if qs else np.zeros((0, 16), np.float16)
+    return b"".join(head) + body, offs.astype("<f2").tobytes()
+
+
+def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, int], n_slots: int, n_cameras: int,
+                far_m: float) -> list[WireSet]:
+    """Check and decode a frame's ``quads`` and ``offsets`` payloads; anything malformed raises
+    :class:`QuadsWireError` naming the frame and field."""
+    def bad(msg: str) -> QuadsWireError:
+        return QuadsWireError(f"quads {where}: {msg}")
+
+    if not isinstance(quads, (bytes, bytearray, memoryview)) or len(quads) < HEADER.size:
+        raise bad(f"quads stream: {len(quads) if isinstance(quads, (bytes, bytearray)) else type(quads).__name__} bytes "
+                  f"is shorter than the {HEADER.size}-byte header")
+    magic, version, n_sets = HEADER.unpack_from(quads, 0)
+    if magic != MAGIC:
+        raise bad(f"quads stream: bad magic {magic!r} (expected {MAGIC!r})")
+    if version != WIRE_VERSION:
+        raise bad(f"quads stream: unsupported version {version} (this client speaks {WIRE_VERSION})")
+    pos = HEADER.size
+    if len(quads) < pos + n_sets * SET_HEADER.size:
+        raise bad(f"quads stream: {len(quads)} bytes cannot hold {n_sets} set headers")
+    heads = []
+    for k in range(n_sets):
+        kind, slot, cam, _, n, nonflat = SET_HEADER.unpack_from(quads, pos)
+        pos += SET_HEADER.size
+        if kind >= len(KIND_NAMES):
+            raise bad(f"set {k}: unknown kind {kind}")
+        if slot >= n_slots:
+            raise bad(f"set {k}: atlas slot {slot} beyond the session's {n_slots}")
+        if cam >= n_cameras:
+            raise bad(f"set {k}: camera {cam} beyond the frame's {n_cameras}")
+        if n > MAX_QUADS or nonflat > n:
+            raise bad(f"set {k}: {n} quads with {nonflat} non-flat is not a valid count (at most {MAX_QUADS})")
+        heads.append((kind, slot, cam, n, nonflat))
+    total = sum(h[3] for h in heads)
+    if len(quads) - pos != total * 10:
+        raise bad(f"quads stream: {len(quads) - pos} bytes of quad arrays for {total} quads (expected {total * 10})")
+    theta = np.frombuffer(quads, np.uint8, total, pos)
+    phi = np.frombuffer(quads, np.uint8, total, pos + total)
+    packed = np.frombuffer(quads, "<u4", total, pos + 2 * total)
+    depth = np.frombuffer(quads, "<f4", total, pos + 6 * total).astype(np.float32)
+    level, x, y, flat, alpha = unpack(packed)
+    n_nonflat = sum(h[4] for h in heads)
+    if int((~flat).sum()) != n_nonflat:
+        raise bad(f"quads stream: {int((~flat).sum())} quads say non-flat, the set headers {n_nonflat}")
+    if not isinstance(offsets, (bytes, bytearray, memoryview)) or len(offsets) != n_nonflat * 32:
+        raise bad(f"offsets stream: {len(offsets) if isinstance(offsets, (bytes, bytearray)) else '?'} bytes for "
+                  f"{n_nonflat} non-flat quads (expected {n_nonflat * 32})")
+    offs = np.frombuffer(offsets, "<f2").reshape(-1, 16).astype(np.float16)
+    if offs.size and not (np.isfinite(offs).all() and float(np.abs(offs.astype(np.float32)).max()) <= MAX_OFFSET_M):
+        raise bad(f"offsets stream: offsets must be finite and within +-{MAX_OFFSET_M:g} m")
+    if total:
+        if int(level.max()) > MAX_LEVEL:
+            raise bad(f"quads stream: quad level {int(level.max())} beyond {MAX_LEVEL} (size {2 ** MAX_LEVEL})")
+        if not (np.isfinite(depth).all() and float(depth.min()) > 0 and float(depth.max()) <= far_m * 1.01):
+            raise bad(f"quads stream: plane depths must be in (0, {far_m * 1.01:g}] m")
+        if alpha.any():
+            raise bad("quads stream: the alpha bit is set, and this version sends no alpha atlas")
+    out = []
+    a = b = 0
+    for k, (kind, slot, cam, n, nonflat) in enumerate(heads):
+        sl = slice(a, a + n)
+        s = 2 ** level[sl].astype(np.int64)
+        if n and (int((x[sl] + s).max()) > slot_size[0] or int((y[sl] + s).max()) > slot_size[1]):
+            raise bad(f"set {k}: a quad reaches beyond its {slot_size[0]}x{slot_size[1]} atlas slot")
+        if int((~flat[sl]).sum()) != nonflat:
+            raise bad(f"set {k}: {int((~flat[sl]).sum())} non-flat quads, the header says {nonflat}")
+        q = QuadSet(level[sl].copy(), x[sl].copy(), y[sl].copy(), theta[sl].copy(), phi[sl].copy(), depth[sl].copy(),
+                    flat[sl].copy(), offs[b:b + nonflat].copy())
+        out.append(WireSet(kind, slot, cam, q))
+        a += n
+        b += nonflat
+    return out
+
+
+def _real(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def decode_cameras(v: Any, where: str, slot_size: tuple[int, int]) -> list[tuple[Pose, CameraIntrinsics]]:
+    """The frame's cameras from its metadata: ``[[x, y, z, qx, qy, qz, qw, width, height, fov_y_deg], ...]``."""
+    if not isinstance(v, list) or not 1 <= len(v) <= MAX_CAMERAS:
+        raise QuadsWireError(f"quads metadata {where}: cameras must be a list of 1 to {MAX_CAMERAS}, got {type(v).__name__}")
+    out = []
+    for k, c in enumerate(v):
+        if not isinstance(c, list) or len(c) != 10 or not all(_real(e) for e in c):
+            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] must be 10 numbers (pose, width, height, fov)")
+        if any(abs(e) > 1e6 for e in c[:3]) or not 0.5 < float(np.linalg.norm(c[3:7])) < 2.0:
+            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] pose is out of range or not a unit quaternion")
+        w, h, fov = int(c[7]), int(c[8]), float(c[9])
+        if not (1 <= w <= slot_size[0] and 1 <= h <= slot_size[1] and 1.0 <= fov <= 179.0):
+            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] {w}x{h} at {fov:g} degrees does not fit a "
+                                 f"{slot_size[0]}x{slot_size[1]} slot")
+        out.append((Pose.from_list(c[:7]), CameraIntrinsics(w, h, fov)))
+    return out
+
+
+def encode_camera(pose: Pose, intr: CameraIntrinsics) -> list[float]:
+    return [*map(float, pose.to_list()), intr.width, intr.height, float(intr.fov_y_deg)]
