@@ -193,7 +193,8 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
             lat[:, j, i] = np.where(close, mean, own[:, j, i])
     idx_j, idx_i = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
     corners = lat[:, idx_j, idx_i]                                            # (k, 16) actual depths
-    offs = (corners - own[:, idx_j, idx_i]) * dl_len[:, idx_j, idx_i]
+    with np.errstate(invalid="ignore"):
+        offs = (corners - own[:, idx_j, idx_i]) * dl_len[:, idx_j, idx_i]
     ok = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
     present = np.zeros((h, w), bool)
     present[py[ok], px[ok]] = True
@@ -205,62 +206,72 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "corners": full_c, "offs": full_o, "flat": flat}
 
 
-def _sub_positions(size: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """Image positions (h, w, 16) of the 16 sub-quad corners of every quad of ``size`` on a quad map ``h x w``."""
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    u = xs[..., None] * size + SUB_CORNERS[:, 0] * size / 2
-    v = ys[..., None] * size + SUB_CORNERS[:, 1] * size / 2
-    return u, v
-
-
 def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics, params: QuadParams, coarse: bool
                ) -> dict[str, np.ndarray]:
-    """One merge pass: level ``level`` quads (``child``, cleared where merged) into level ``level + 1``."""
+    """One merge pass: level ``level`` quads (``child``, cleared where merged) into level ``level + 1``.
+
+    Only cells whose four children are all present are examined (sparse layers cost little)."""
     h, w = child["present"].shape[0] // 2, child["present"].shape[1] // 2
-    k = [(slice(0, 2 * h, 2), slice(0, 2 * w, 2)), (slice(0, 2 * h, 2), slice(1, 2 * w, 2)),
-         (slice(1, 2 * h, 2), slice(0, 2 * w, 2)), (slice(1, 2 * h, 2), slice(1, 2 * w, 2))]
-    get = lambda key: [child[key][s] for s in k]  # noqa: E731
-    pres = np.logical_and.reduce(get("present"))
+    out = {"present": np.zeros((h, w), bool), "n": np.zeros((h, w, 3)), "theta": np.zeros((h, w), np.uint8),
+           "phi": np.zeros((h, w), np.uint8), "zc": np.ones((h, w)), "corners": np.zeros((h, w, 16)),
+           "offs": np.zeros((h, w, 16)), "flat": np.zeros((h, w), bool)}
+    cp = child["present"]
+    pres = cp[0:2 * h:2, 0:2 * w:2] & cp[0:2 * h:2, 1:2 * w:2] & cp[1:2 * h:2, 0:2 * w:2] & cp[1:2 * h:2, 1:2 * w:2]
+    cy, cx = np.nonzero(pres)
+    if cy.size == 0:
+        return out
     size = 2 ** (level + 1)
     half = 2 ** level
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    # each child's plane equation (n, w)
+    subs = [(0, 0), (0, 1), (1, 0), (1, 1)]
+    kids = [(2 * cy + sy, 2 * cx + sx) for sy, sx in subs]
+    get = lambda key: [child[key][yy, xx] for yy, xx in kids]  # noqa: E731
+    fx, fy = cx.astype(np.float64), cy.astype(np.float64)
     eqs = []
-    for s, (sy, sx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
-        n = child["n"][k[s]]
-        dcen = rays(intr, xs * size + sx * half + half / 2, ys * size + sy * half + half / 2)
-        wv = -(n * dcen).sum(-1) * child["zc"][k[s]]
+    for s, (sy, sx) in enumerate(subs):
+        n = child["n"][kids[s]]
+        dcen = rays(intr, fx * size + sx * half + half / 2, fy * size + sy * half + half / 2)
+        wv = -(n * dcen).sum(-1) * child["zc"][kids[s]]
         eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
-    similar = np.ones((h, w), bool)
+    ok = np.ones(cy.size, bool)
     for a in range(4):
         for b in range(a + 1, 4):
-            similar &= np.linalg.norm(eqs[a] - eqs[b], axis=-1) < params.delta_sim
-    ok = pres & similar
+            ok &= np.linalg.norm(eqs[a] - eqs[b], axis=-1) < params.delta_sim
+    zs = get("zc")
     if coarse:
-        ndc = [ndc_depth(z, intr) for z in get("zc")]
-        cont = np.ones((h, w), bool)
+        ndc = [ndc_depth(z, intr) for z in zs]
+        cont = np.ones(cy.size, bool)
         for a in range(4):
             for b in range(a + 1, 4):
                 cont &= np.abs(ndc[a] - ndc[b]) < params.delta_max
-        ok |= pres & cont
-    dcen = rays(intr, xs * size + size / 2, ys * size + size / 2)
+        ok |= cont
+    dcen = rays(intr, fx * size + size / 2, fy * size + size / 2)
     nsum = sum(get("n"))
     nn = nsum / np.maximum(np.linalg.norm(nsum, axis=-1, keepdims=True), 1e-12)
     th, ph, nq = quantize(orient(nn, dcen))
-    zc = sum(get("zc")) / 4.0
+    zc = sum(zs) / 4.0
     wq = -(nq * dcen).sum(-1) * zc
-    corners = np.stack([child["corners"][k[s]][..., OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
-    u, v = _sub_positions(size, h, w)
+    cs = get("corners")
+    corners = np.stack([cs[s][:, OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
+    u = fx[:, None] * size + SUB_CORNERS[:, 0] * size / 2
+    v = fy[:, None] * size + SUB_CORNERS[:, 1] * size / 2
     d16 = rays(intr, u, v)
-    plane16 = plane_depth(nq[:, :, None, :], wq[:, :, None], d16)
-    offs = (corners - plane16) * np.linalg.norm(d16, axis=-1)
+    plane16 = plane_depth(nq[:, None, :], wq[:, None], d16)
+    with np.errstate(invalid="ignore"):
+        offs = (corners - plane16) * np.linalg.norm(d16, axis=-1)
     ok &= np.isfinite(offs).all(-1)
-    offs = np.where(ok[..., None], offs, 0.0)
-    flat = (np.abs(offs) < params.delta_flatten).all(-1)
-    for s in k:  # merged children leave their map
-        child["present"][s] &= ~ok
-    return {"present": ok, "n": nq, "theta": th, "phi": ph, "zc": zc, "corners": np.where(ok[..., None], corners, 0.0),
-            "offs": offs, "flat": flat}
+    sel = np.flatnonzero(ok)
+    yy, xx = cy[sel], cx[sel]
+    out["present"][yy, xx] = True
+    out["n"][yy, xx] = nq[sel]
+    out["theta"][yy, xx] = th[sel]
+    out["phi"][yy, xx] = ph[sel]
+    out["zc"][yy, xx] = zc[sel]
+    out["corners"][yy, xx] = corners[sel]
+    out["offs"][yy, xx] = offs[sel]
+    out["flat"][yy, xx] = (np.abs(offs[sel]) < params.delta_flatten).all(-1)
+    for ky, kx in kids:  # merged children leave their map
+        child["present"][ky[sel], kx[sel]] = False
+    return out
 
 
 def generate(depth: np.ndarray, normal_world: np.ndarray, view_rot: np.ndarray, intr: CameraIntrinsics,
