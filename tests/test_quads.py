@@ -162,13 +162,17 @@ def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(ren
 @pytest.mark.slow
 def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type: ignore[no-untyped-def]
     """Three peeled layers of the default view, view sphere of 25 cm radius; reference: what 64 eyes spread
-    through the sphere see (0.3% depth tolerance).  Measured: layer 1 keeps 7.4k of 12.6k fragments, false
-    negatives 9.2% (seen but dropped), false positives 31%; layers 2-3 hold few seen fragments (233) and
-    mostly false positives (86%, 96%); pooled false negatives 8.9%."""
+    through the sphere see (0.3% depth tolerance).  Measured: layer 1 keeps 6.8k of 12.6k fragments, false
+    negatives 9.5% (seen but dropped), false positives 25%; layers 2-3 hold few seen fragments and keep mostly
+    false positives (84%, 95%).  The false negatives are seams: half lie within 1.2% of the front surface's depth
+    at their pixel (where a wall meets another, a post meets the floor), a duplicate of a visible surface; among
+    fragments more than 2% behind their front surface the pooled rate is 3.6%."""
     from splitrender.methods.quads.edp import brute_force_seen, edp_keep, unproject
 
     scene, pose, g0 = _gbuffer(renderer)
-    prev, seen_all, fn_all, kept_seen = g0.depth, 0, 0, []
+    prev = g0.depth
+    seen_n = fn_n = deep_seen = deep_fn = 0
+    kept_seen = []
     for k in range(3):
         g = renderer.render(scene, 0.5, pose, INTR, ("depth",), peel=prev).depth
         assert (g[np.isfinite(g)] > prev[np.isfinite(g)]).all(), "a peeled layer lies behind the one before"
@@ -176,13 +180,17 @@ def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type:
         keep = edp_keep(g0.depth, g, INTR, 0.25)[valid]
         seen = brute_force_seen(renderer, scene, 0.5, pose, INTR, unproject(g, pose, INTR, valid), 0.25, eyes=64,
                                 tolerance=0.003)
-        seen_all += int(seen.sum())
-        fn_all += int((seen & ~keep).sum())
+        deep = (g > g0.depth * 1.02)[valid]
+        seen_n += int(seen.sum())
+        fn_n += int((seen & ~keep).sum())
+        deep_seen += int((seen & deep).sum())
+        deep_fn += int((seen & deep & ~keep).sum())
         kept_seen.append((int(keep.sum()), int((keep & seen).sum())))
         prev = g
-    assert seen_all > 3000 and fn_all / seen_all < 0.11, (fn_all, seen_all)
+    assert seen_n > 3000 and fn_n / seen_n < 0.11, (fn_n, seen_n)
+    assert deep_seen > 3000 and deep_fn / deep_seen < 0.045, (deep_fn, deep_seen)
     kept, hit = kept_seen[0]
-    assert hit / kept > 0.6, "most of what layer 1 keeps is seen from somewhere in the sphere"
+    assert hit / kept > 0.7, "most of what layer 1 keeps is seen from somewhere in the sphere"
 
 
 @pytest.mark.slow

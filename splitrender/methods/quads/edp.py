@@ -9,7 +9,7 @@ fragment at depth ``z_h`` behind a front surface at ``z_f`` moves against it by 
 ``R = r (f + rho) (1 / z_f - 1 / z_h)`` pixels.  It can show only if some pixel within
 ``R`` of it has a front surface at least as far as ``z_h`` (the occluder's edge lies
 within reach).  Kept: ``R >= 0.5`` and the largest front depth in the square of radius
-``R`` (rounded up to a power of two, at most 128) reaches ``z_h (1 - tolerance)``.
+``R`` (rounded up to the next of 1, 2, 3, 4, 6, 8, ... 128) reaches ``z_h (1 - tolerance)``.
 
 :func:`brute_force_seen` is the reference it is measured against: the fragments that
 any of ``n`` eyes spread through the sphere sees.
@@ -25,7 +25,7 @@ from scipy.ndimage import maximum_filter
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import rays
 
-RADII = (1, 2, 4, 8, 16, 32, 64, 128)
+RADII = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128)
 FAR_STANDIN = 1e9
 
 
