@@ -245,6 +245,9 @@ def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(rendere
         with pytest.raises(QuadsWireError, match=msg):
             cli.apply(DecodedUpdate(upd.frame_id + 1, upd.t_s, upd.pose, upd.planes, meta, dict(upd.data)))
         assert np.array_equal(cli.render(pose, 0.5).color, before), msg
+    for sd, msg in (({**srv.session_data(), "wire": 9}, "wire 9 unsupported"), ({**srv.session_data(), "slots": 99}, "not a valid atlas")):
+        with pytest.raises(QuadsWireError, match=msg):
+            spec.client_class(cfg, INTR, renderer.ctx, sd)
 
 
 @pytest.mark.parametrize("params,msg", [({"variant": "seurat"}, "variant"), ({"layers": 5}, "layers"),

@@ -13,7 +13,7 @@ from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from .config import QuadsConfig
 from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
-from .wire import (CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, QuadsWireError, decode_cameras, decode_sets)
+from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, WIRE_VERSION, QuadsWireError, decode_cameras, decode_sets
 
 log = logging.getLogger(__name__)
 META_VERSION = 1
@@ -27,6 +27,10 @@ class QuadsClient(ClientHalf):
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         sd = self.session_data
+        if not isinstance(sd, dict) or sd.get("v") != META_VERSION or sd.get("wire") != WIRE_VERSION:
+            raise QuadsWireError(f"quads session data: version {sd.get('v') if isinstance(sd, dict) else sd!r} / wire "
+                                 f"{sd.get('wire') if isinstance(sd, dict) else '?'} unsupported (this client speaks "
+                                 f"{META_VERSION} / {WIRE_VERSION})")
         try:
             self.slots = int(sd["slots"])
             self.cols, self.rows = int(sd["cols"]), int(sd["rows"])
