@@ -22,7 +22,7 @@ INTR = CameraIntrinsics(320, 180)
 
 
 def _random_set(rng: np.random.Generator, n: int) -> QuadSet:
-    level = rng.integers(0, 6, n).astype(np.uint8)
+    level = rng.integers(0, 3, n).astype(np.uint8)   # at most 16 pixels a quad: 1000 quads fit one slot
     s = 2 ** level.astype(np.int64)
     x = (rng.integers(0, 320, n) // s * s).clip(0, 320 - s).astype(np.uint16)
     y = (rng.integers(0, 180, n) // s * s).clip(0, 180 - s).astype(np.uint16)
@@ -245,6 +245,17 @@ def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(rendere
         with pytest.raises(QuadsWireError, match=msg):
             cli.apply(DecodedUpdate(upd.frame_id + 1, upd.t_s, upd.pose, upd.planes, meta, dict(upd.data)))
         assert np.array_equal(cli.render(pose, 0.5).color, before), msg
+    from splitrender.methods.quads.wire import KIND_UPDATE
+
+    stacked = QuadSet(np.full(100, 5, np.uint8), np.zeros(100, np.uint16), np.zeros(100, np.uint16), np.zeros(100, np.uint8),
+                      np.zeros(100, np.uint8), np.ones(100, np.float32), np.ones(100, bool), np.zeros((0, 16), np.float16))
+    for sets, msg in (([WireSet(KIND_HIDDEN, 1, 0, stacked)], "cover 102400 pixels"),
+                      ([WireSet(KIND_UPDATE, 0, 1, _random_set(np.random.default_rng(1), 3))],
+                       "updates a reference set the client does not hold")):
+        q2, o2 = encode_sets(sets)
+        bad = DecodedUpdate(upd.frame_id + 1, upd.t_s, upd.pose, upd.planes, upd.meta, {"quads": q2, "offsets": o2})
+        with pytest.raises(QuadsWireError, match=msg):
+            spec.client_class(cfg, INTR, renderer.ctx, srv.session_data()).apply(bad)
     for sd, msg in (({**srv.session_data(), "wire": 9}, "wire 9 unsupported"), ({**srv.session_data(), "slots": 99}, "not a valid atlas")):
         with pytest.raises(QuadsWireError, match=msg):
             spec.client_class(cfg, INTR, renderer.ctx, sd)

@@ -342,7 +342,9 @@ class Renderer:
         a fragment is kept only where it lies more than :data:`PEEL_EPS` (relative) behind
         ``peel`` at its pixel (``inf``: nothing is kept there) and faces the eye (a back
         face of a closed surface is hidden by its own front from every viewpoint), so the
-        output holds the nearest front-facing surface behind the previous layer.
+        output holds the nearest front-facing surface behind the previous layer.  Peeling
+        passes are not supersampled (a sub-sample of the front surface can lie more than the
+        gap behind the pixel's one depth and would be kept).
 
         With :attr:`supersample` ``k`` > 1 the frame is rendered at ``k`` times the size:
         colour is the mean of each ``k`` x ``k`` block (in the stored sRGB code values, as a
@@ -355,12 +357,10 @@ class Renderer:
         k = self.supersample
         if peel is not None and np.shape(peel) != (intr.height, intr.width):
             raise ValueError(f"peel depths must be {(intr.height, intr.width)}, got {np.shape(peel)}")
-        if k == 1:
+        if k == 1 or peel is not None:  # peeling compares each pixel with one depth: no sub-samples
             return self._render(scene, t_s, pose, intr, outputs, object_ids, peel)
         big = dataclasses.replace(intr, width=intr.width * k, height=intr.height * k)
-        if peel is not None:
-            peel = np.repeat(np.repeat(peel, k, axis=0), k, axis=1)
-        hi = self._render(scene, t_s, pose, big, outputs, object_ids, peel)
+        hi = self._render(scene, t_s, pose, big, outputs, object_ids)
         h, w = intr.height, intr.width
         out = RenderOutput(color=np.empty(0, np.uint8))
         if hi.color.size:

@@ -63,21 +63,13 @@ class QuadsClient(ClientHalf):
             # cannot apply until the reference frame the server sends after the loss report
             self._broken = True
             return
-        m = update.meta
-        if not isinstance(m, dict) or m.get("v") != META_VERSION:
-            raise QuadsWireError(f"quads metadata {where}: missing or unsupported version {m.get('v') if isinstance(m, dict) else m!r}")
-        kind = m.get("frame")
-        if kind not in ("reference", "residual"):
-            raise QuadsWireError(f"quads metadata {where}: frame must be 'reference' or 'residual', got {kind!r}")
-        ref_frame = m.get("ref_frame")
-        if not isinstance(ref_frame, int) or isinstance(ref_frame, bool):
-            raise QuadsWireError(f"quads metadata {where}: ref_frame must be an integer, got {ref_frame!r}")
-        cams = decode_cameras(m.get("cameras"), where, self.slot_size)
-        atlas = update.planes.get("atlas")
-        if not isinstance(atlas, np.ndarray) or atlas.shape != (self.atlas_size[1], self.atlas_size[0], 3) or atlas.dtype != np.uint8:
-            raise QuadsWireError(f"quads {where}: plane atlas must be {(self.atlas_size[1], self.atlas_size[0], 3)} uint8")
-        sets = decode_sets(update.data.get("quads", b""), update.data.get("offsets", b""), where, self.slot_size, self.slots,
-                           len(cams), self.intrinsics.far_m)
+        try:
+            cams, sets, kind, ref_frame, atlas = self._check(update, where)
+        except QuadsWireError:
+            # the server's copy of this client's cache took the frame: residual frames cannot
+            # apply until the next reference frame (every reference_every frames, or on a keyframe request)
+            self._broken = True
+            raise
         if kind == "residual" and (self._broken or self.cache.frame_id != ref_frame):
             log.debug("quads %s: residual frame for reference %d, holding %d; waiting for a reference frame",
                       where, ref_frame, self.cache.frame_id)
@@ -105,6 +97,33 @@ class QuadsClient(ClientHalf):
         self._has_content = True
         self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.count // 24),
                        "quads_cached": float(len(self.cache))}
+
+    def _check(self, update: DecodedUpdate, where: str) -> tuple[Any, Any, str, int, np.ndarray]:
+        """Everything of an update checked, nothing changed yet: (cameras, sets, frame kind, reference id, atlas)."""
+        m = update.meta
+        if not isinstance(m, dict) or m.get("v") != META_VERSION:
+            raise QuadsWireError(f"quads metadata {where}: missing or unsupported version {m.get('v') if isinstance(m, dict) else m!r}")
+        kind = m.get("frame")
+        if kind not in ("reference", "residual"):
+            raise QuadsWireError(f"quads metadata {where}: frame must be 'reference' or 'residual', got {kind!r}")
+        ref_frame = m.get("ref_frame")
+        if not isinstance(ref_frame, int) or isinstance(ref_frame, bool):
+            raise QuadsWireError(f"quads metadata {where}: ref_frame must be an integer, got {ref_frame!r}")
+        cams = decode_cameras(m.get("cameras"), where, self.slot_size)
+        atlas = update.planes.get("atlas")
+        if not isinstance(atlas, np.ndarray) or atlas.shape != (self.atlas_size[1], self.atlas_size[0], 3) or atlas.dtype != np.uint8:
+            raise QuadsWireError(f"quads {where}: plane atlas must be {(self.atlas_size[1], self.atlas_size[0], 3)} uint8")
+        sets = decode_sets(update.data.get("quads", b""), update.data.get("offsets", b""), where, self.slot_size, self.slots,
+                           len(cams), self.intrinsics.far_m)
+        has_ref = self.cache.quads is not None and kind == "residual"
+        for k, s in enumerate(sets):
+            if s.kind == KIND_REFERENCE:
+                if kind != "reference":
+                    raise QuadsWireError(f"quads {where}: set {k} is a reference set in a residual frame")
+                has_ref = True
+            elif s.kind == KIND_UPDATE and not has_ref:
+                raise QuadsWireError(f"quads {where}: set {k} updates a reference set the client does not hold")
+        return cams, sets, kind, ref_frame, atlas
 
     # ------------------------------------------------------------------ render
     def render(self, pose: Pose, t_s: float) -> ClientFrame:

@@ -43,6 +43,8 @@ from .config import QuadParams
 COS_EDGE_ON = math.cos(math.radians(87.5))
 MAX_LEVEL = 11
 """Largest quad: 2**11 = 2048 pixels (QUASAR's limit; the wire's size field has 6 bits)."""
+MAX_OFFSET_M = 1000.0
+"""Largest depth offset a quad may carry (metres along its ray); the client rejects larger ones."""
 BACKGROUND_FAR = 0.98
 """Background pixels of a visible layer become quads on a plane facing the eye at this fraction of the far distance."""
 SUB_CORNERS = np.array([(s % 2 + c % 2, s // 2 + c // 2) for s in range(4) for c in range(4)])
@@ -196,6 +198,7 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     with np.errstate(invalid="ignore"):
         offs = (corners - own[:, idx_j, idx_i]) * dl_len[:, idx_j, idx_i]
     ok = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
+    ok &= (np.abs(np.where(ok[:, None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)
     present = np.zeros((h, w), bool)
     present[py[ok], px[ok]] = True
     full_c = np.zeros((h, w, 16))
@@ -259,6 +262,7 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     with np.errstate(invalid="ignore"):
         offs = (corners - plane16) * np.linalg.norm(d16, axis=-1)
     ok &= np.isfinite(offs).all(-1)
+    ok &= (np.abs(np.where(ok[:, None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)   # a plane near edge-on over a large quad
     sel = np.flatnonzero(ok)
     yy, xx = cy[sel], cx[sel]
     out["present"][yy, xx] = True

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...errors import CodecError, RemoteProtocolError
 from ...scene.pose import CameraIntrinsics, Pose
-from .gen import MAX_LEVEL, QuadSet
+from .gen import MAX_LEVEL, MAX_OFFSET_M, QuadSet
 
 WIRE_VERSION = 1
 MAGIC = b"QD"
@@ -38,7 +38,6 @@ KIND_REFERENCE, KIND_UPDATE, KIND_REVEALED, KIND_HIDDEN, KIND_WIDE, KIND_VIEW = 
 KIND_NAMES = ("reference", "update", "revealed", "hidden", "wide", "view")
 CACHED_KINDS = (KIND_REFERENCE, KIND_UPDATE)
 """Sets the client keeps across frames (QUASAR's reference frame); the others live for one frame."""
-MAX_OFFSET_M = 1000.0
 MAX_QUADS = 1 << 24
 MAX_CAMERAS = 16
 
@@ -146,6 +145,9 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
         s = 2 ** level[sl].astype(np.int64)
         if n and (int((x[sl] + s).max()) > slot_size[0] or int((y[sl] + s).max()) > slot_size[1]):
             raise bad(f"set {k}: a quad reaches beyond its {slot_size[0]}x{slot_size[1]} atlas slot")
+        if int((s * s).sum()) > slot_size[0] * slot_size[1]:   # one G-buffer's quads never overlap
+            raise bad(f"set {k}: its quads cover {int((s * s).sum())} pixels, more than the "
+                      f"{slot_size[0] * slot_size[1]} of a slot")
         if int((~flat[sl]).sum()) != nonflat:
             raise bad(f"set {k}: {int((~flat[sl]).sum())} non-flat quads, the header says {nonflat}")
         q = QuadSet(level[sl].copy(), x[sl].copy(), y[sl].copy(), theta[sl].copy(), phi[sl].copy(), depth[sl].copy(),
