@@ -24,14 +24,10 @@ from typing import Any
 import numpy as np
 
 from ..sections import Section
+from ._util import update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
 STAGES = ("gbuffer_ms", "quadgen_ms", "merge_ms", "edp_ms", "mask_ms", "pack_ms")
-
-
-def _upd_mean(ups: list[dict[str, Any]], key: str) -> float:
-    v = [float(u[key]) for u in ups[1:] if key in u and u[key] == u[key]]   # the first frame compiles shaders
-    return float(np.mean(v)) if v else float("nan")
 
 
 def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network: str, dur: float,

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..sections import Section
+from ._util import update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
 
@@ -36,11 +37,6 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
 
     write_csv(path, rows)
     return path
-
-
-def _upd_mean(ups: list[dict[str, Any]], key: str) -> float:
-    v = [float(u[key]) for u in ups[1:] if key in u and u[key] == u[key]]   # the first frame compiles shaders
-    return float(np.mean(v)) if v else float("nan")
 
 
 def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network: str, dur: float,

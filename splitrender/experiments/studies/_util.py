@@ -1,0 +1,13 @@
+"""Helpers the studies share (a leading underscore keeps this module out of study discovery)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def update_mean(ups: list[dict[str, Any]], key: str) -> float:
+    """Mean of ``key`` over a run's updates, the first left out (it compiles shaders); NaN when absent."""
+    v = [float(u[key]) for u in ups[1:] if key in u and u[key] == u[key]]
+    return float(np.mean(v)) if v else float("nan")
