@@ -110,7 +110,7 @@ def _decoded(upd):  # type: ignore[no-untyped-def]
 
 @pytest.mark.parametrize("variant", ["quasar", "quadstream"])
 def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) -> None:  # type: ignore[no-untyped-def]
-    """A lossless atlas drawn from the pose the quads were made at: QUASAR (one layer and four with the wide view)
+    """A lossless atlas drawn from the pose the quads were made at: QUASAR (one layer, and three with the wide view)
     reproduces the truth pixel for pixel (measured: every pixel equal), since every quad projects onto its own
     pixels whatever its depth.  QuadStream's corner views add boundary quads that are not pixel-aligned with the
     centre view (the artefact the QUASAR paper's figure 6 shows): measured 24.7 dB.  20 cm to the side, QUASAR
@@ -135,8 +135,8 @@ def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) ->
 
 def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(renderer) -> None:  # type: ignore[no-untyped-def]
     """The default walk at 30 Hz, frames 0-5: a reference frame, four residual frames, a reference frame.
-    Measured quads payload after zstd: 93 KB and 97 KB for the reference frames, 54-64 KB for the residual
-    frames (1.5-1.8x smaller; the paper reports 2-3x); the client's cached set equals the server's mirror."""
+    Measured quads payload after zstd: 92 KB and 93 KB for the reference frames, 53-63 KB for the residual
+    frames (1.5-1.7x smaller; the paper reports 2-3x); the client's cached set equals the server's mirror."""
     import zstandard
 
     from splitrender.scene.loader import get_scene
@@ -195,10 +195,9 @@ def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type:
 
 @pytest.mark.slow
 def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(renderer) -> None:  # type: ignore[no-untyped-def]
-    """``cloud`` (50 +- 20 ms each way), 0.6 s of the default walk at 320x180.  Measured: QUASAR 19.82 dB at
-    19.4 Mbit/s, QuadStream 19.71 dB at 49.8 Mbit/s (2.6x QUASAR; the issue asks 3x, the paper reports up to
-    15x at larger view cells), warp 19.13 dB.  Over 1 s: 20.98 dB / 21.2 Mbit/s, 20.84 dB / 53.0 Mbit/s,
-    20.24 dB."""
+    """``cloud`` (50 +- 20 ms each way), 0.6 s of the default walk at 320x180.  Measured: QUASAR 19.83 dB at
+    18.9 Mbit/s, QuadStream 19.71 dB at 49.8 Mbit/s (2.6x QUASAR; the issue asks 3x, the paper reports up to
+    15x at larger view cells), warp 19.13 dB."""
     from splitrender.sim.runner import RunConfig, run
 
     def go(method: str, params: dict) -> dict:

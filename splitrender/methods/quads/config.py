@@ -44,7 +44,10 @@ class QuadsConfig(MethodConfig):
     - ``variant``: ``quasar`` (effective depth peeling, temporal compression) or
       ``quadstream`` (a cube view cell sampled by 10 views, the full set every frame);
     - ``view_cell_m``: the view cell's diameter (QUASAR: a sphere; QuadStream: a cube of this side);
-    - ``layers``: G-buffer layers in all, the visible one included (QUASAR, at most 4);
+    - ``layers``: G-buffer layers in all, the visible one included (QUASAR: at most 4).  The
+      default is 3: on the default view a third hidden layer held 9 of the 6.1k hidden
+      fragments that any eye in a 50 cm view cell sees (and kept 161 fragments to show
+      them), for one more G-buffer, a sixth of the server's frame;
     - ``wide_fov_deg``: vertical field of view of the wide G-buffer (half resolution);
       0 leaves it out;
     - ``delta_max``, ``delta_sim``, ``delta_flatten``, ``coarse_passes``: the visible layer's
@@ -60,7 +63,7 @@ class QuadsConfig(MethodConfig):
 
     variant: Variant = "quasar"
     view_cell_m: float = 0.5
-    layers: int = 4
+    layers: int = 3
     wide_fov_deg: float = 120.0
     delta_max: float | None = None
     delta_sim: float | None = None
