@@ -72,7 +72,9 @@ def _pose(v: Any, where: str, field: str) -> Pose:
     if not isinstance(x, (list, tuple)) or len(x) != 7 or not all(_real(e) and abs(e) <= MAX_COORD_M for e in x):
         raise WarpMetaError(f"warp metadata {where}: {field} must be 7 numbers [x, y, z, qx, qy, qz, qw] within "
                             f"+-{MAX_COORD_M:g}, got {_show(v)}")
-    if not 0.5 < float(np.linalg.norm(np.asarray(x[3:], np.float64))) < 2.0:
+    with np.errstate(over="ignore"):   # a peer's 1e300 overflows to inf, which the range check rejects
+        qn = float(np.linalg.norm(np.asarray(x[3:], np.float64)))
+    if not 0.5 < qn < 2.0:
         raise WarpMetaError(f"warp metadata {where}: {field} orientation is not a unit quaternion: {_show(v)}")
     return Pose.from_list(x)
 
