@@ -24,13 +24,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 import zstandard  # noqa: E402
 
 from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
+from splitrender.methods.quads.server import STAGES as SERVER_STAGES  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
 from splitrender.scene.trace import get_trace  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "bench_quads.json"
-STAGES = ("gbuffer_ms", "quadgen_ms", "merge_ms", "edp_ms", "mask_ms", "pack_ms")
+STAGES = (*SERVER_STAGES, "pack_ms")
 FRAMES = 10
 
 

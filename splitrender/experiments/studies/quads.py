@@ -23,11 +23,12 @@ from typing import Any
 
 import numpy as np
 
+from ...methods.quads.server import STAGES as SERVER_STAGES
 from ..sections import Section
 from ._util import update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
-STAGES = ("gbuffer_ms", "quadgen_ms", "merge_ms", "edp_ms", "mask_ms", "pack_ms")
+STAGES = (*SERVER_STAGES, "pack_ms")
 
 
 def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network: str, dur: float,

@@ -11,6 +11,8 @@ import numpy as np
 from ...render.canvas import FullscreenPass, upload_image
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
+from ..warp import SHADERS as WARP_SHADERS
+from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, WIRE_VERSION, QuadsWireError, decode_cameras, decode_sets
@@ -45,7 +47,7 @@ class QuadsClient(ClientHalf):
         self._broken = True           # no reference yet: residual frames cannot apply
         self._atlas_tex: Any = None
         self._mesh = QuadMeshGL(self.gl)
-        self._fill = FullscreenPass(self.gl, _warp_shader("warp_holefill.frag"))
+        self._fill = FullscreenPass(self.gl, WARP_SHADERS / "warp_holefill.frag")
         i = self.intrinsics
         self._out = self.gl.texture((i.width, i.height), 4, dtype="f1")
         self._out_fbo = self.gl.framebuffer([self._out])
@@ -132,29 +134,9 @@ class QuadsClient(ClientHalf):
             return ClientFrame(np.zeros((i.height, i.width, 3), np.uint8), np.ones((i.height, i.width), bool))
         t0 = time.perf_counter()
         _, color, depth = self._mesh.draw(pose, i, self._atlas_tex, self.atlas_size)
-        ctx = self.gl
-        self._out_fbo.use()
-        ctx.viewport = (0, 0, i.width, i.height)
         assert self._pose0 is not None
-        e = i.projection() @ pose.view_matrix() @ np.append(self._pose0.position, 1.0)
-        fp = self._fill.prog
-        color.use(0)
-        depth.use(1)
-        for name, value in (("u_warped", 0), ("u_wdepth", 1), ("u_out_size", (float(i.width), float(i.height))),
-                            ("u_epipole", ((e[0] + e[3]) * 0.5 * i.width, (e[1] + e[3]) * 0.5 * i.height, float(e[3]))),
-                            ("u_max_scan", 64), ("u_fill", 1)):
-            if name in fp:
-                fp[name].value = value
-        self._fill.run()
-        rgba = np.frombuffer(self._out_fbo.read(components=4), np.uint8).reshape(i.height, i.width, 4)[::-1]
-        holes = rgba[..., 3] == 0
+        rgb, holes = fill_holes(self._fill, self._out_fbo, color, depth, i, pose, self._pose0.position, 64, True)
         st = dict(self._stats)
         st["draw_ms"] = (time.perf_counter() - t0) * 1e3
-        return ClientFrame(np.ascontiguousarray(rgba[..., :3]), holes, st)
-
-
-def _warp_shader(name: str) -> Any:
-    from ..warp import SHADERS
-
-    return SHADERS / name
+        return ClientFrame(rgb, holes, st)
 

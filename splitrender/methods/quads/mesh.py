@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import QuadSet, corner_points
 
@@ -147,7 +148,7 @@ class QuadMeshGL:
         self.ibo: Any = None
         self.vao: Any = None
         self.count = 0
-        self._targets: dict[tuple[int, int], tuple[Any, Any, Any, Any]] = {}
+        self._targets: dict[tuple[int, int], tuple[Any, Any, Any]] = {}
 
     def upload(self, vertices: np.ndarray, indices: np.ndarray) -> None:
         for b in (self.vao, self.vbo, self.ibo):
@@ -162,7 +163,7 @@ class QuadMeshGL:
         self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f", "in_pos", "in_uvw", "in_rect")],
                                          index_buffer=self.ibo, index_element_size=4)
 
-    def target(self, w: int, h: int) -> tuple[Any, Any, Any, Any]:
+    def target(self, w: int, h: int) -> tuple[Any, Any, Any]:
         t = self._targets.get((w, h))
         if t is None:
             color = self.ctx.texture((w, h), 4, dtype="f1")
@@ -170,13 +171,13 @@ class QuadMeshGL:
             for tex in (color, depth):
                 tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
             fbo = self.ctx.framebuffer([color, depth], self.ctx.depth_renderbuffer((w, h)))
-            t = (fbo, color, depth, None)
+            t = (fbo, color, depth)
             self._targets[(w, h)] = t
         return t
 
     def draw(self, pose: Pose, intr: CameraIntrinsics, atlas: Any | None, atlas_size: tuple[int, int]) -> tuple[Any, Any, Any]:
         """Draw into the target of ``intr``'s size; returns (framebuffer, colour texture, depth texture)."""
-        fbo, color, depth, _ = self.target(intr.width, intr.height)
+        fbo, color, depth = self.target(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -186,14 +187,11 @@ class QuadMeshGL:
             vp = intr.projection() @ pose.view_matrix()
             self.prog["u_vp"].write(np.asarray(vp, "f4").T.tobytes())
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
-            if "u_atlas_size" in self.prog:
-                self.prog["u_atlas_size"].value = (float(atlas_size[0]), float(atlas_size[1]))
-            if "u_has_atlas" in self.prog:
-                self.prog["u_has_atlas"].value = 0 if atlas is None else 1
+            set_uniform(self.prog, "u_atlas_size", (float(atlas_size[0]), float(atlas_size[1])))
+            set_uniform(self.prog, "u_has_atlas", 0 if atlas is None else 1)
             if atlas is not None:
                 atlas.use(0)
-                if "u_atlas" in self.prog:
-                    self.prog["u_atlas"].value = 0
+                set_uniform(self.prog, "u_atlas", 0)
             self.vao.render(mode=self._mgl.TRIANGLES, vertices=self.count)
         return fbo, color, depth
 

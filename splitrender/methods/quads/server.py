@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 META_VERSION = 1
 CHANGE_REL = 0.01
 """A reference pixel changed when its depth moved by more than this fraction (or its normal by more than ~8 degrees)."""
+STAGES = ("gbuffer_ms", "quadgen_ms", "merge_ms", "edp_ms", "mask_ms")
+"""Server stages timed per frame (``srv_<stage>``; packing adds ``pack_ms``)."""
 MASK_REL = 0.02
 """A pixel of a new view is explained by the cached mesh when their depths agree within this fraction."""
 
@@ -118,8 +120,19 @@ class QuadsServer(ServerHalf):
         x, y = self._slot_origin(slot)
         atlas[y:y + img.shape[0], x:x + img.shape[1]] = img
 
-    def _gbuffer(self, ctx: ServerContext, pose: Pose, intr: CameraIntrinsics, peel: np.ndarray | None = None) -> Any:
-        return ctx.renderer.render(self.scene, ctx.t_s, pose, intr, ("color", "depth", "normal"), peel=peel)
+    def _gbuffer(self, ctx: ServerContext, pose: Pose, intr: CameraIntrinsics, times: dict[str, float],
+                 peel: np.ndarray | None = None) -> Any:
+        """Colour, depth and normals at ``pose``; the time goes to ``times["gbuffer_ms"]``."""
+        t0 = time.perf_counter()
+        g = ctx.renderer.render(self.scene, ctx.t_s, pose, intr, ("color", "depth", "normal"), peel=peel)
+        times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+        return g
+
+    def _start(self) -> tuple[dict[str, float], np.ndarray]:
+        """A frame's stage times (all zero) and its empty atlas."""
+        i = self.intrinsics
+        self._stats = {}
+        return dict.fromkeys(STAGES, 0.0), np.zeros((i.height * self.rows, i.width * self.cols, 3), np.uint8)
 
     def _mesh_depth(self, ctx: ServerContext, parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
                     intr: CameraIntrinsics) -> np.ndarray:
@@ -154,12 +167,10 @@ class QuadsServer(ServerHalf):
         prev = front.depth
         radius = cfg.view_cell_m / 2
         for k in range(1, cfg.layers):
-            t0 = time.perf_counter()
-            g = self._gbuffer(ctx, pose, intr, peel=prev)
+            g = self._gbuffer(ctx, pose, intr, times, peel=prev)
             t1 = time.perf_counter()
             keep = edp_keep(front.depth, g.depth, intr, radius, cfg.edp_tolerance)
             q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], intr, hp, emit=keep)
-            times["gbuffer_ms"] += (t1 - t0) * 1e3
             times["edp_ms"] += (time.perf_counter() - t1) * 1e3 - q.stats["gen_ms"] - q.stats["merge_ms"]
             self._account(times, q)
             self._stats[f"hidden{k}_fragments"] = float(np.isfinite(g.depth).sum())
@@ -170,9 +181,7 @@ class QuadsServer(ServerHalf):
             if not np.isfinite(g.depth).any():
                 break
         if self.wide is not None:
-            t0 = time.perf_counter()
-            g = self._gbuffer(ctx, pose, self.wide)
-            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            g = self._gbuffer(ctx, pose, self.wide, times)
             q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], self.wide, hp, emit=self._wide_out, background=True)
             self._account(times, q)
             sets.append(WireSet(KIND_WIDE, self.slots - 1, wide_cam, q))
@@ -186,15 +195,10 @@ class QuadsServer(ServerHalf):
     def _produce_quasar(self, ctx: ServerContext) -> Update:
         cfg, intr = self.config, self.intrinsics
         pose = ctx.target_pose
-        times = {"gbuffer_ms": 0.0, "quadgen_ms": 0.0, "merge_ms": 0.0, "edp_ms": 0.0, "mask_ms": 0.0}
-        i = self.intrinsics
-        atlas = np.zeros((i.height * self.rows, i.width * self.cols, 3), np.uint8)
+        times, atlas = self._start()
         sets: list[WireSet] = []
         reference = self._reference_due(ctx)
-        self._stats = {}
-        t0 = time.perf_counter()
-        g0 = self._gbuffer(ctx, pose, intr)
-        times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+        g0 = self._gbuffer(ctx, pose, intr, times)
         rot = pose.view_matrix()[:3, :3]
         p = cfg.params
         if reference:
@@ -209,9 +213,7 @@ class QuadsServer(ServerHalf):
         else:
             ref_pose = self.cache.pose
             assert ref_pose is not None and self._ref_depth is not None and self._ref_normal is not None
-            t0 = time.perf_counter()
-            gr = self._gbuffer(ctx, ref_pose, intr)
-            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            gr = self._gbuffer(ctx, ref_pose, intr, times)
             t1 = time.perf_counter()
             a, b = self._ref_depth, gr.depth
             fin_a, fin_b = np.isfinite(a), np.isfinite(b)
@@ -248,9 +250,7 @@ class QuadsServer(ServerHalf):
     def _produce_quadstream(self, ctx: ServerContext) -> Update:
         cfg, intr = self.config, self.intrinsics
         pose = ctx.target_pose
-        times = {"gbuffer_ms": 0.0, "quadgen_ms": 0.0, "merge_ms": 0.0, "edp_ms": 0.0, "mask_ms": 0.0}
-        atlas = np.zeros((intr.height * self.rows, intr.width * self.cols, 3), np.uint8)
-        self._stats = {}
+        times, atlas = self._start()
         rot = pose.matrix()[:3, :3]
         h = cfg.view_cell_m / 2
         offsets = [np.zeros(3)] + [np.array([sx, sy, sz]) * h for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
@@ -262,9 +262,7 @@ class QuadsServer(ServerHalf):
         cameras = []
         p = cfg.params
         for v, (vp, vi) in enumerate(views):
-            t0 = time.perf_counter()
-            g = self._gbuffer(ctx, vp, vi)
-            times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+            g = self._gbuffer(ctx, vp, vi, times)
             if parts:
                 t1 = time.perf_counter()
                 new = self._unexplained(g.depth, self._mesh_depth(ctx, parts, vp, vi))

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ...render.canvas import FullscreenPass, upload_image
-from ...render.gl import load_program
+from ...render.gl import load_program, set_uniform
 from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3, quat_slerp, quat_to_matrix3
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 
@@ -65,6 +65,29 @@ def warp_matrices(frame: ReferenceFrame, view: ReferenceView, ref: CameraIntrins
 
 F32_SAFE = 1e30
 """Largest warp-matrix entry drawn as computed; beyond it float32 would overflow."""
+
+
+def fill_holes(fill: FullscreenPass, out_fbo: Any, warped: Any, wdepth: Any, intr: CameraIntrinsics, pose: Pose,
+               eye: np.ndarray, max_scan_px: int, enabled: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Run ``warp_holefill.frag`` over ``warped`` (RGBA8, alpha = coverage) and ``wdepth`` (view depth)
+    into ``out_fbo``, scanning along the epipolar direction of the reference camera at ``eye``
+    seen from ``pose``; returns (colour (H, W, 3) uint8, hole mask before filling (H, W) bool)."""
+    ctx = out_fbo.ctx
+    ctx.disable(ctx.DEPTH_TEST)
+    out_fbo.use()
+    ctx.viewport = (0, 0, intr.width, intr.height)
+    e = intr.projection() @ pose.view_matrix() @ np.append(eye, 1.0)
+    ep = ((e[0] + e[3]) * 0.5 * intr.width, (e[1] + e[3]) * 0.5 * intr.height, e[3])
+    fp = fill.prog
+    warped.use(0)
+    wdepth.use(1)
+    for name, value in (("u_warped", 0), ("u_wdepth", 1), ("u_out_size", (float(intr.width), float(intr.height))),
+                        ("u_epipole", tuple(float(x) for x in ep)), ("u_max_scan", int(max_scan_px)),
+                        ("u_fill", 1 if enabled else 0)):
+        set_uniform(fp, name, value)
+    fill.run()
+    rgba = np.frombuffer(out_fbo.read(components=4), np.uint8).reshape(intr.height, intr.width, 4)[::-1]
+    return np.ascontiguousarray(rgba[..., :3]), rgba[..., 3] == 0
 
 
 # ----------------------------------------------------------------------------- client: GL
@@ -212,26 +235,8 @@ class WarpClient(ClientHalf):
             self.vao.render(mode=self._mode, vertices=self._count)
             if cfg.reconstruction == "mesh":
                 self.edge_vao.render(mode=self._mgl.POINTS, vertices=ref.width * ref.height)
-        # hole filling into the output target; alpha keeps the coverage
-        ctx.disable(ctx.DEPTH_TEST)
-        self._out_fbo.use()
-        ctx.viewport = (0, 0, i.width, i.height)
-        primary = frame.views[order[0]]
-        e = proj @ pose.view_matrix() @ np.append(primary.pose.position, 1.0)
-        ep = np.array([(e[0] + e[3]) * 0.5 * i.width, (e[1] + e[3]) * 0.5 * i.height, e[3]])
-        fp = self.fill.prog
-        self._warped.use(0)
-        self._wdepth.use(1)
-        self._set(fp, "u_warped", 0)
-        self._set(fp, "u_wdepth", 1)
-        self._set(fp, "u_out_size", (float(i.width), float(i.height)))
-        self._set(fp, "u_epipole", tuple(float(x) for x in ep))
-        self._set(fp, "u_max_scan", int(cfg.max_scan_px))
-        self._set(fp, "u_fill", 1 if cfg.hole_fill else 0)
-        self.fill.run()
-        rgba = np.frombuffer(self._out_fbo.read(components=4), np.uint8).reshape(i.height, i.width, 4)[::-1]
-        color = np.ascontiguousarray(rgba[..., :3])
-        holes = rgba[..., 3] == 0
+        color, holes = fill_holes(self.fill, self._out_fbo, self._warped, self._wdepth, i, pose,
+                                  frame.views[order[0]].pose.position, cfg.max_scan_px, cfg.hole_fill)
         ms = (time.perf_counter() - t0) * 1e3
         return ClientFrame(color, holes, {"warp_ms": ms, "views": float(len(order))})
 
