@@ -83,7 +83,7 @@ def test_quad_count_falls_monotonically_with_the_thresholds(renderer) -> None:  
     by_flat = [int((~run(delta_flatten=f).flat).sum()) for f in (0.01, 0.05, 0.2, 1.0)]
     for seq in (by_sim, by_coarse, by_flat):
         assert all(a >= b for a, b in zip(seq, seq[1:])), (by_sim, by_coarse, by_flat)
-    assert by_sim[0] == INTR.width * INTR.height and by_sim[-1] < by_sim[0] / 4, by_sim
+    assert by_sim[0] == INTR.width * INTR.height and by_sim[-1] < by_sim[0] / 8, by_sim   # measured 9.5x fewer
     assert by_coarse[-1] < by_coarse[0] and by_flat[-1] < by_flat[0], (by_coarse, by_flat)
 
 
@@ -130,7 +130,7 @@ def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) ->
     side = Pose(pose.position + pose.matrix()[:3, :3] @ np.array([0.2, 0.0, 0.0]), pose.orientation)
     if variant == "quasar":
         moved = cli.render(side, 0.5)
-        assert psnr(moved.color, renderer.render(scene, 0.5, side, INTR).color) > 26.5 and moved.holes.mean() < 0.02
+        assert psnr(moved.color, renderer.render(scene, 0.5, side, INTR).color) > 26.5 and moved.holes.mean() < 0.015
 
 
 def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(renderer) -> None:  # type: ignore[no-untyped-def]
