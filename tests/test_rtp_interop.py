@@ -207,25 +207,37 @@ def test_ffmpeg_cli_decodes_with_the_parameter_sets_of_the_sdp_only(codec: str, 
 def test_pyav_opens_the_sdp_and_decodes_with_its_parameter_sets(codec: str, tmp_path: Path) -> None:
     """The same through PyAV's own FFmpeg libraries: ``av.open`` on the SDP file."""
     aus, ys, sets = _pipeline_clip(codec, N_FRAMES + EXTRA_FRAMES)
-    port = _free_port_pair()
     sdp_path = tmp_path / "stream.sdp"
-    sdp_path.write_text(make_sdp(codec, port, 96, parameter_sets=sets))  # type: ignore[arg-type]
-    def send() -> None:
-        if _wait_bound(port, 10.0):
-            time.sleep(0.3)
-            _send_aus(codec, aus, port)
+    got: list[np.ndarray] = []
+    for attempt in range(3):
+        # FFmpeg's SDP demuxer reports a port it cannot bind as invalid data: on a busy machine another
+        # socket can take the free pair between our check and its bind, so a new pair is drawn then
+        port = _free_port_pair()
+        sdp_path.write_text(make_sdp(codec, port, 96, parameter_sets=sets))  # type: ignore[arg-type]
 
-    sender = threading.Thread(target=send, daemon=True)
-    sender.start()
-    got = []
-    with av.open(str(sdp_path), options={"protocol_whitelist": "file,udp,rtp", "reorder_queue_size": "0"},
-                 timeout=10.0) as container:
-        stream = container.streams.video[0]
-        assert (stream.codec_context.width, stream.codec_context.height) == (WIDTH, HEIGHT)  # from the sprop SPS
-        for frame in container.decode(stream):
-            got.append(frame.to_ndarray(format="yuv420p")[:HEIGHT].copy())
-            if len(got) == N_FRAMES - 1:
-                break
+        def send(port: int = port) -> None:
+            if _wait_bound(port, 10.0):
+                time.sleep(0.3)
+                _send_aus(codec, aus, port)
+
+        sender = threading.Thread(target=send, daemon=True)
+        sender.start()
+        try:
+            container = av.open(str(sdp_path), options={"protocol_whitelist": "file,udp,rtp", "reorder_queue_size": "0"},
+                                timeout=10.0)
+        except av.error.InvalidDataError:
+            sender.join(timeout=15)
+            if attempt == 2:
+                raise
+            continue
+        with container:
+            stream = container.streams.video[0]
+            assert (stream.codec_context.width, stream.codec_context.height) == (WIDTH, HEIGHT)  # from the sprop SPS
+            for frame in container.decode(stream):
+                got.append(frame.to_ndarray(format="yuv420p")[:HEIGHT].copy())
+                if len(got) == N_FRAMES - 1:
+                    break
+        break
     sender.join(timeout=10)
     assert len(got) == N_FRAMES - 1
     for i, y in enumerate(got):
