@@ -52,3 +52,12 @@ class LocalProtocolError(ProtocolError, RuntimeError):
 
 class NetworkConfigError(ConfigError):
     """A network profile or netem-style string is invalid."""
+
+
+def describe_error(exc: BaseException) -> str:
+    """A failure of ours in one line for a peer or a log: the message of a ``SplitRenderError``, else the
+    class name and message (``RuntimeError: ...``)."""
+    text = str(exc)
+    if isinstance(exc, SplitRenderError) and text:
+        return text
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

@@ -174,7 +174,7 @@ async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(
     async with LiveServer(cfg) as server:
         serve_task = asyncio.create_task(server.serve_forever())
         good = asyncio.create_task(LiveClient(ClientConfig(
-            port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=4.0)).run())
+            port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=6.0)).run())
         await asyncio.sleep(1.0)
         for name, data, code, text in CASES:
             msgs = await _exchange(server.tcp_address, data)
@@ -213,7 +213,7 @@ async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(
     c = result.counters
     # the good session never stalled while the others were misbehaving
     ids = [r["update_frame_id"] for r in result.rows]
-    assert c["frames_complete"] >= 30 * 4.0 / 3, c  # a third of 30 fps: 2 shared cores under attack traffic
+    assert c["frames_complete"] >= 30 * 6.0 / 3, c  # a third of 30 fps: 2 shared cores under attack traffic
     assert c["decode_errors"] == 0 and c["frames_skipped"] == 0, c
     times = [r["displayed_us"] for k, r in enumerate(result.rows) if k == 0 or ids[k] != ids[k - 1]]
     gaps = [(b - a, k) for k, (a, b) in enumerate(zip(times, times[1:]))]

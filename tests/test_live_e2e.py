@@ -246,6 +246,103 @@ def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tm
                 c.communicate(timeout=5)
 
 
+def _client(port: int, out: Path, duration_s: float = 20.0) -> subprocess.Popen:  # type: ignore[type-arg]
+    return subprocess.Popen([sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--width", "160",
+                             "--height", "90", "--duration", str(duration_s), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _rows(out: Path) -> int:
+    journal = out / "frames.jsonl"
+    return journal.read_text().count("\n") if journal.is_file() else 0
+
+
+@pytest.mark.slow
+def test_a_hung_render_ends_its_session_only_and_sigterm_still_stops_the_server(tmp_path: Path) -> None:
+    """The ``SPLITRENDER_TEST_HANG`` hook spins the first session's render worker at frame 8, holding that
+    process's interpreter lock as the Mesa stall did.  With a 1.5 s deadline the watchdog kills that worker:
+    its client exits non-zero naming the deadline, the second session keeps streaming (its journal grows after
+    the first client ended) and SIGTERM stops the server within 2 s.  Then, with a 60 s deadline, SIGTERM
+    during the hang (the render still stuck) stops the server within 2 s too."""
+    import signal
+    import time
+
+    port = _free_port()
+    srv = _serve(port, "video", "--render-deadline", "1.5", hang="1:8")
+    first, second = tmp_path / "first", tmp_path / "second"
+    clients = []
+    try:
+        clients.append(_client(port, first))
+        _wait_rows(first / "frames.jsonl", 1, clients[0])
+        clients.append(_client(port, second))
+        _, err = clients[0].communicate(timeout=30)
+        assert clients[0].returncode != 0, err
+        assert "missed its 1.5 s deadline" in err, err
+        n = _rows(second)
+        end = time.monotonic() + 20
+        while time.monotonic() < end and _rows(second) < n + 30:
+            time.sleep(0.1)
+        assert _rows(second) >= n + 30, "the second session keeps streaming"
+        assert clients[1].poll() is None
+        t0 = time.monotonic()
+        srv.send_signal(signal.SIGTERM)
+        _, err = srv.communicate(timeout=10)
+        assert time.monotonic() - t0 < 2.0 and srv.returncode == 0, err
+        assert "missed its 1.5 s deadline" in err and "Traceback" not in err, err
+        clients[1].communicate(timeout=20)
+
+        port = _free_port()
+        srv = _serve(port, "video", "--render-deadline", "60", hang="1:3")
+        clients.append(_client(port, tmp_path / "third"))
+        _wait_rows(tmp_path / "third" / "frames.jsonl", 1, clients[2])
+        time.sleep(1.0)                      # the worker is now spinning inside frame 3
+        t0 = time.monotonic()
+        srv.send_signal(signal.SIGTERM)
+        _, err = srv.communicate(timeout=10)
+        assert time.monotonic() - t0 < 2.0 and srv.returncode == 0, err
+    finally:
+        if srv.poll() is None:
+            srv.kill()
+            srv.communicate(timeout=5)
+        for c in clients:
+            if c.poll() is None:
+                c.kill()
+                c.communicate(timeout=5)
+
+
+@pytest.mark.slow
+def test_one_shared_worker_serves_every_session_and_is_replaced_after_a_hang(tmp_path: Path) -> None:
+    """``--isolation server``: both sessions run in one render worker; when the first one's render hangs
+    (frame 12) the watchdog kills it, both sessions end with the deadline named, and the next client
+    streams from a fresh worker."""
+    import time
+
+    port = _free_port()
+    srv = _serve(port, "video", "--isolation", "server", "--render-deadline", "1.5", hang="1:12")
+    outs = [tmp_path / f"c{k}" for k in range(3)]
+    clients = [_client(port, outs[0])]
+    try:
+        _wait_rows(outs[0] / "frames.jsonl", 1, clients[0])
+        clients.append(_client(port, outs[1]))
+        for c in clients:
+            _, err = c.communicate(timeout=30)
+            assert c.returncode != 0 and "missed its 1.5 s deadline" in err, err
+        clients.append(_client(port, outs[2], duration_s=1.5))
+        _, err = clients[2].communicate(timeout=60)
+        assert clients[2].returncode == 0, err
+        assert (outs[2] / "frames.csv").read_text().count("\n") > 10
+    finally:
+        srv.send_signal(2)
+        _, err = srv.communicate(timeout=15)
+        for c in clients:
+            if c.poll() is None:
+                c.kill()
+                c.communicate(timeout=5)
+    assert err.count("missed its 1.5 s deadline") >= 2, err   # the watchdog's line and each session's error
+    pids = {line.split("pid ")[1].split(")")[0] for line in err.splitlines() if "render worker" in line and "pid " in line}
+    assert len(pids) == 1, pids                                # one worker served both sessions
+
+
 BOX_TEXTURED = Path("/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb")
 
 
@@ -272,10 +369,17 @@ async def test_live_client_fits_builtin_traces_around_a_loaded_model(tmp_path: P
     assert far > 1.0  # the fitted orbit is not the default scene's: 1.25-2.06 m apart over the first 1.2 s
 
 
-def _serve(port: int, methods: str = "video") -> subprocess.Popen:  # type: ignore[type-arg]
-    """``splitrender serve`` on ``port`` with the minimal scene, once it listens."""
+def _serve(port: int, methods: str = "video", *args: str, hang: str = "") -> subprocess.Popen:  # type: ignore[type-arg]
+    """``splitrender serve`` on ``port`` with the minimal scene, once it listens; ``hang``: the
+    ``SPLITRENDER_TEST_HANG`` hook (``"SESSION:FRAME"``)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "SPLITRENDER_TEST_HANG"}
+    if hang:
+        env["SPLITRENDER_TEST_HANG"] = hang
     srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--port", str(port), "--udp-port", "0",
-                            "--scene", "minimal", "--methods", methods], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            "--scene", "minimal", "--methods", methods, *args], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True, env=env)
     assert srv.stderr is not None
     line = srv.stderr.readline()  # "splitrender: serving on ..." once it listens
     assert "serving on" in line, line

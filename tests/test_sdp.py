@@ -240,20 +240,16 @@ def test_server_routes_compound_and_bare_feedback() -> None:
             self.got.append(packets)
 
     server = LiveServer(ServerConfig())
-    try:
-        session = _Session()
-        server.register(session, [0x1234])  # type: ignore[arg-type]
-        addr = ("127.0.0.1", 40000)
-        compound = serialize_rtcp(compound_feedback(99, b"c", [GenericNack(99, 0x1234, (1, 2))]))
-        server._on_datagram(compound, addr)
-        server._on_datagram(bytes(PictureLossIndication(0, 0x1234)), addr)  # old bare packet
-        server._on_datagram(serialize_rtcp(compound_feedback(99, b"c", [PictureLossIndication(99, 0x9999)])), addr)
-        assert len(session.got) == 2 and server.udp_dropped == 1
-        assert isinstance(session.got[0][-1], GenericNack) and isinstance(session.got[1][0], PictureLossIndication)
-        assert not any(isinstance(p, SenderReport) for got in session.got for p in got)
-    finally:
-        server.gl_executor.shutdown()
-        server.encode_executor.shutdown()
+    session = _Session()
+    server.register(session, [0x1234])  # type: ignore[arg-type]
+    addr = ("127.0.0.1", 40000)
+    compound = serialize_rtcp(compound_feedback(99, b"c", [GenericNack(99, 0x1234, (1, 2))]))
+    server._on_datagram(compound, addr)
+    server._on_datagram(bytes(PictureLossIndication(0, 0x1234)), addr)  # old bare packet
+    server._on_datagram(serialize_rtcp(compound_feedback(99, b"c", [PictureLossIndication(99, 0x9999)])), addr)
+    assert len(session.got) == 2 and server.udp_dropped == 1
+    assert isinstance(session.got[0][-1], GenericNack) and isinstance(session.got[1][0], PictureLossIndication)
+    assert not any(isinstance(p, SenderReport) for got in session.got for p in got)
 
 
 def test_sps_parsers_raise_only_sdp_errors_on_junk() -> None:

@@ -3,8 +3,8 @@
 :class:`ServerPipeline` turns a method's :class:`~splitrender.methods.base.Update` into
 what crosses the wire, in both modes:
 
-1. :meth:`ServerPipeline.encode` (heavy; the live server runs it on its encoder
-   thread): every video plane through the stream's real encoder, every data payload
+1. :meth:`ServerPipeline.encode` (heavy; the live server runs it in the session's
+   render worker process): every video plane through the stream's real encoder, every data payload
    through its compression;
 2. :meth:`ServerPipeline.packetize` (light): reliable data as ``DataChunk`` messages,
    then the ``FrameMeta`` with the update envelope, framed by the session's control
@@ -132,6 +132,8 @@ class ServerPipeline:
             if FEC_PAYLOAD_TYPE - len(self.rtp_streams) < FIRST_PAYLOAD_TYPE + len(self.rtp_streams):
                 raise ValueError(f"{len(self.rtp_streams)} RTP streams leave no payload types for FEC")
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
+        self.described_sets: dict[str, tuple[bytes, ...]] = {}
+        """Parameter sets per stream of encoders that run elsewhere (the live server's render worker)."""
 
     # ------------------------------------------------------------------ set-up
 
@@ -140,8 +142,8 @@ class ServerPipeline:
         return [st for st in self.streams.values() if st.packetizer is not None]
 
     def open_encoders(self) -> None:
-        """Open every video stream's encoder now (heavy: the live server runs it on its encoder
-        thread) and read the parameter sets it will send, for :meth:`describe`'s SDP."""
+        """Open every video stream's encoder now (heavy: the live server runs it in the render
+        worker) and read the parameter sets it will send, for :meth:`describe`'s SDP."""
         for st in self.streams.values():
             if isinstance(st.spec, StreamSpec) and st.encoder is None:
                 st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
@@ -149,9 +151,10 @@ class ServerPipeline:
                 st.encoder.parameter_sets()
 
     def parameter_sets(self, name: str) -> tuple[bytes, ...]:
-        """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open_encoders`)."""
+        """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open_encoders`, unless
+        :attr:`described_sets` names them)."""
         enc = self.streams[name].encoder
-        return enc.parameter_sets() if enc is not None else ()
+        return enc.parameter_sets() if enc is not None else tuple(self.described_sets.get(name, ()))
 
     def describe(self, host: str, port: int, session_name: str) -> tuple[StreamDescription, ...]:
         """``Welcome.streams``: one description per RTP stream (SDP for video streams).
@@ -186,7 +189,7 @@ class ServerPipeline:
     # ------------------------------------------------------------------ per frame
 
     def encode(self, update: Update, force_idr: bool = False) -> EncodedUpdate:
-        """Code every payload of ``update`` (runs on the encoder thread live)."""
+        """Code every payload of ``update`` (live, in the render worker)."""
         w0 = time.perf_counter()
         video: dict[str, EncodedFrame] = {}
         data: dict[str, bytes] = {}

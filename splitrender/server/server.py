@@ -4,14 +4,16 @@ Architecture (one process):
 
 * :class:`LiveServer` owns the listening TCP socket, one UDP socket shared by all
   sessions (RTP out, RTCP in; RTCP is demultiplexed to a session by the media SSRCs it
-  names), the shared scene and scene clock (``scene time = wall clock − epoch``), one
-  GL thread (a single-thread executor that creates and alone uses the
-  :class:`~splitrender.render.Renderer`) and one encoder thread.
+  names), the scene clock (``scene time = wall clock − epoch``) and the render workers
+  (:mod:`splitrender.server.worker`): child processes that hold the renderer, the method
+  halves and the encoders, each request under a watchdog deadline.  The event loop's
+  process never runs GL or a codec, so a stuck render cannot stall the other sessions,
+  the sockets or the signal handlers.
 * Each accepted connection runs one :class:`~splitrender.server.session.ServerSession`
   in the connection's task; the session owns its sub-tasks in an ``asyncio.TaskGroup``
   (control reader, frame clock, RTCP sender).
 * ``close()`` (or cancelling :func:`serve`) stops accepting, cancels every session task
-  and waits for them, closes the sockets and shuts the executors down.
+  and waits for them, closes the sockets and stops the workers (SIGKILL after 0.5 s).
 
 The client's UDP address is learned from its first RTCP packet naming one of the
 session's SSRCs (see ``docs/protocol.md``, "Live sessions").
@@ -20,11 +22,12 @@ session's SSRCs (see ``docs/protocol.md``, "Live sessions").
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
 import logging
+import os
 import time
 from collections.abc import Awaitable, Callable, Sequence
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,6 +42,7 @@ from splitrender.protocol import (
     is_rtcp,
     parse_rtcp,
 )
+from splitrender.server.worker import RenderWorker, parse_test_hang
 from splitrender.transport.errors import BindError, describe_os_error
 
 if TYPE_CHECKING:
@@ -98,6 +102,30 @@ class ServerConfig:
     fec: bool = False
     metrics_interval_s: float = 5.0
     """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
+    isolation: str = "session"
+    """``"session"``: a render worker process per session (a hung render ends that session only);
+    ``"server"``: one worker for every session, sharing the scene producers' per-frame work (a hung render
+    ends every session, and the next session gets a fresh worker)."""
+    render_deadline_s: float = 10.0
+    """Watchdog: a frame's render and encode must finish within this, or its worker is killed and its
+    session(s) end with an error."""
+    setup_deadline_s: float = 60.0
+    """Watchdog for a worker's start and a session's set-up (scene loading, method half, encoders)."""
+    test_hang: str = dataclasses.field(default_factory=lambda: os.environ.get("SPLITRENDER_TEST_HANG", ""))
+    """Test hook, ``"SESSION:FRAME"``: the SESSION-th session (1-based) hangs rendering frame FRAME (taken
+    from ``$SPLITRENDER_TEST_HANG``); ``""`` = never."""
+
+    def __post_init__(self) -> None:
+        if self.isolation not in ("session", "server"):
+            raise ConfigError(f"server isolation: {self.isolation!r} is not one of ['session', 'server']")
+        for k in ("render_deadline_s", "setup_deadline_s"):
+            v = getattr(self, k)
+            if not 0.05 <= v <= 3600:
+                raise ConfigError(f"server {k}: must be in [0.05, 3600] s, got {v}")
+        try:
+            parse_test_hang(self.test_hang)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
 
 def check_method_params(methods: Sequence[str], params: dict[str, dict[str, Any]]) -> None:
@@ -150,12 +178,15 @@ class LiveServer:
         check_method_params(self.methods, config.method_params)
         self.epoch_wall_s = time.time()
         """Wall-clock time (s) of scene time 0: the one scene clock all sessions share."""
-        self.gl_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-gl")
-        self.encode_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-server-enc")
-        self.renderer: Any = None
         self.scene: Any = None
-        self.producers: Any = None
-        """The scene producers shared by every session (:class:`~splitrender.pipeline.ProducerPool`; GL thread only)."""
+        """The scene, loaded here too (checked at start; a loaded model's bounds go to clients as ``subject``)."""
+        self.workers: set[RenderWorker] = set()
+        """Every live render worker (the spare, the shared one, each session's)."""
+        self._spare: asyncio.Task[RenderWorker] | None = None
+        self._shared: RenderWorker | None = None
+        self._shared_lock = asyncio.Lock()
+        self.test_hang = parse_test_hang(config.test_hang)
+        self.workers_killed = 0
         self.sessions: dict[str, ServerSession] = {}
         self._by_ssrc: dict[int, ServerSession] = {}
         self._tasks: set[asyncio.Task[None]] = set()
@@ -178,13 +209,53 @@ class LiveServer:
         """Scene time (s) at wall-clock ``wall_s`` (default now)."""
         return (time.time() if wall_s is None else wall_s) - self.epoch_wall_s
 
-    async def in_gl(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run ``fn(*args)`` on the GL thread."""
-        return await asyncio.get_running_loop().run_in_executor(self.gl_executor, fn, *args)
+    # -- render workers ------------------------------------------------------------
 
-    async def in_encoder(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Run ``fn(*args)`` on the encoder thread."""
-        return await asyncio.get_running_loop().run_in_executor(self.encode_executor, fn, *args)
+    async def _new_worker(self) -> RenderWorker:
+        w = RenderWorker(self.config.scene, self.config.server_fps)
+        self.workers.add(w)
+        try:
+            await w.start(self.config.setup_deadline_s)    # closes the worker itself when it fails
+        finally:
+            if w.dead is not None:
+                self.workers.discard(w)
+        return w
+
+    def _spawn_spare(self) -> None:
+        if self._closed or self.config.isolation != "session":
+            return
+        self._spare = asyncio.ensure_future(self._new_worker())
+        self._spare.add_done_callback(lambda t: t.cancelled() or t.exception())
+
+    async def acquire_worker(self) -> RenderWorker:
+        """The worker a new session runs in: the warm spare (a new spare starts behind it) or a new one
+        (``isolation = "session"``), or the shared one, replaced when it was killed (``"server"``)."""
+        if self.config.isolation == "server":
+            async with self._shared_lock:
+                if self._shared is None or self._shared.dead is not None:
+                    self._shared = await self._new_worker()
+                return self._shared
+        spare, self._spare = self._spare, None
+        self._spawn_spare()
+        if spare is not None:
+            with contextlib.suppress(Exception):
+                w = await spare
+                if w.dead is None:
+                    return w
+        return await self._new_worker()
+
+    async def release_worker(self, worker: RenderWorker, session_id: str) -> None:
+        """A session ended: drop its half from the shared worker, or stop its own worker."""
+        if worker.dead is not None:
+            self.workers_killed += worker.dead != "closed"
+        if self.config.isolation == "server" and worker.dead is None:
+            with contextlib.suppress(Exception):
+                await worker.call("close", session_id, deadline_s=self.config.render_deadline_s)
+            return
+        try:
+            await worker.close()
+        finally:
+            self.workers.discard(worker)
 
     def next_mirror_port(self) -> int | None:
         """Port to mirror the next stream to (``mirror_port + 2k``), or ``None`` (no mirror,
@@ -200,9 +271,9 @@ class LiveServer:
     # -- lifecycle -----------------------------------------------------------------
 
     async def start(self) -> None:
-        """Bind UDP and TCP (so a busy port fails at once), load the scene, create the
-        renderer on the GL thread, then accept connections; raises ``BindError``."""
-        from splitrender.render import Renderer
+        """Bind UDP and TCP (so a busy port fails at once), load the scene, start the first render
+        worker (its renderer and shaders ready, so a GL fault fails here), then accept connections;
+        raises ``BindError``."""
         from splitrender.scene.loader import get_scene
 
         cfg = self.config
@@ -223,11 +294,12 @@ class LiveServer:
         sock = self._tcp.sockets[0].getsockname()
         self.tcp_address = (sock[0], sock[1])
         self.scene = get_scene(cfg.scene)
-        self.renderer = await self.in_gl(Renderer)
-        from splitrender.pipeline import ProducerPool
-
-        self.producers = ProducerPool(self.scene, cfg.server_fps, self.renderer)
-        await self.in_gl(self._warm_up)
+        first = await self._new_worker()
+        if cfg.isolation == "server":
+            self._shared = first
+        else:
+            self._spare = asyncio.get_running_loop().create_future()
+            self._spare.set_result(first)
         await self._tcp.start_serving()
         logger.info("serving %s on tcp %s:%d, udp %s:%d (methods %s)", cfg.scene, *self.tcp_address,
                     *self.udp_address, ",".join(self.methods))
@@ -235,19 +307,13 @@ class LiveServer:
         if hint is not None:
             logger.warning("%s", hint)
 
-    def _warm_up(self) -> None:
-        """One throw-away render so shader compilation does not stall the first session."""
-        from splitrender.scene.pose import CameraIntrinsics, Pose
-
-        self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36, self.config.fov_y_deg), ("color",))
-
     async def serve_forever(self) -> None:
         """Wait until cancelled (sessions run in their own connection tasks)."""
         assert self._tcp is not None, "call start() first"
         await self._tcp.serve_forever()
 
     async def close(self) -> None:
-        """Stop accepting, end every session (cancel and wait), close sockets, stop threads."""
+        """Stop accepting, end every session (cancel and wait), close sockets, stop the workers."""
         if self._closed:
             return
         self._closed = True
@@ -263,13 +329,12 @@ class LiveServer:
                 await asyncio.wait_for(self._tcp.wait_closed(), 2.0)
         if self.udp is not None:
             self.udp.close()
-        renderer, self.renderer = self.renderer, None
-        if renderer is not None:
-            # GL objects are released on the thread that owns the context
-            with contextlib.suppress(Exception):
-                await asyncio.get_running_loop().run_in_executor(self.gl_executor, _release_renderer, renderer)
-        self.gl_executor.shutdown(wait=True)
-        self.encode_executor.shutdown(wait=True)
+        if self._spare is not None:
+            self._spare.cancel()
+            with contextlib.suppress(BaseException):
+                await self._spare
+        workers, self.workers = list(self.workers), set()
+        await asyncio.gather(*(w.close() for w in workers), return_exceptions=True)
         logger.info("server closed after %d sessions", self.sessions_total)
 
     async def __aenter__(self) -> LiveServer:
@@ -295,7 +360,7 @@ class LiveServer:
             return
         self._tasks.add(task)  # type: ignore[arg-type]
         self.sessions_total += 1
-        session = ServerSession(self, reader, writer)
+        session = ServerSession(self, reader, writer, self.sessions_total)
         try:
             await session.run()
         except asyncio.CancelledError:
@@ -351,12 +416,6 @@ class LiveServer:
             self.udp_dropped += 1
             return
         session.on_rtcp(packets, addr)
-
-
-def _release_renderer(renderer: Any) -> None:
-    release = getattr(renderer.ctx, "release", None)
-    if release is not None:
-        release()
 
 
 async def serve(config: ServerConfig, ready: Callable[[LiveServer], Awaitable[None] | None] | None = None) -> None:

@@ -4,8 +4,10 @@ Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`
 
 * ``control``: reads Pose / Feedback / KeyframeRequest / Stats / Bye; a Bye or EOF
   ends the session, a protocol error sends ``Error`` and ends it;
-* ``frames``: the frame clock at ``server_fps``; each tick renders (GL thread),
-  encodes (encoder thread), sends FrameMeta over TCP and the planes as RTP over UDP.
+* ``frames``: the frame clock at ``server_fps``; each tick has the session's render
+  worker (:mod:`splitrender.server.worker`, another process) render and encode, then
+  sends FrameMeta over TCP and the planes as RTP over UDP.  A frame that misses the
+  worker's deadline ends the session with an error (the worker is killed).
   A tick that comes while the previous frame's metadata is still queued in the TCP
   send buffer, or that was missed because rendering overran, is skipped: stale frames
   are dropped, never queued;
@@ -22,17 +24,16 @@ import dataclasses
 import logging
 import math
 import secrets
-import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from splitrender.codecs.meta import pack_meta
-from splitrender.errors import LocalProtocolError, RemoteProtocolError, SplitRenderError
-from splitrender.methods.base import AnyStreamSpec, ServerContext, StreamSpec, get_method, make_config
+from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
+from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
 from splitrender.pipeline import FeedbackState, ServerPipeline, SessionDataError, rtp_timestamp
+from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol import (
     Bye,
@@ -75,15 +76,6 @@ MAX_NACKED_PER_REQUEST = 128
 """Most packets resent for one generic NACK."""
 
 
-def _describe(exc: BaseException) -> str:
-    """``Error.text`` for a failure of ours: the message of a ``SplitRenderError``, else
-    the class name and message (``RuntimeError: ...``)."""
-    text = str(exc)
-    if isinstance(exc, SplitRenderError) and text:
-        return text
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 class _SessionEnded(Exception):
     """The control task saw Bye/EOF/Error: end the session's task group."""
 
@@ -118,8 +110,12 @@ def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, 
 class ServerSession:
     """One client: its own method halves, encoders, predictor and RTP state."""
 
-    def __init__(self, server: LiveServer, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def __init__(self, server: LiveServer, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                 ordinal: int = 0) -> None:
         self.server = server
+        self.ordinal = ordinal
+        """This session's number on the server (1-based; the ``test_hang`` hook names sessions by it)."""
+        self.worker: RenderWorker | None = None
         self.cfg = server.config
         self.id = secrets.token_hex(6)
         peer = writer.get_extra_info("peername")
@@ -127,12 +123,10 @@ class ServerSession:
         self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
         self.streams: dict[str, _Stream] = {}
         self.client_addr: Address | None = None
-        self.half: Any = None
         self.method = ""
         self.intrinsics: CameraIntrinsics | None = None
         self.display_hz = 60.0
         self._predictor: Any = None
-        self._pred_lock = threading.Lock()
         self._latest_pose: tuple[float, ScenePose, int, int] | None = None  # wall s, pose, client µs, seq
         self._kf = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
         self._kf_wanted = False
@@ -147,8 +141,9 @@ class ServerSession:
             "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
             "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0, "data_bytes": 0, "session_bytes": 0,
-            "lost_reported": 0, "fec_packets": 0, "fec_bytes": 0,
+            "lost_reported": 0, "fec_packets": 0, "fec_bytes": 0, "render_timeouts": 0,
         }
+
         self.rtt_ms: float | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -178,8 +173,11 @@ class ServerSession:
                 logger.info("session %s: connection lost: %s", self.id, eg.exceptions[0])
             except* Exception as eg:  # noqa: BLE001 - a failing session must not take the server down
                 err = eg.exceptions[0]
-                logger.error("session %s: failed", self.id, exc_info=err)
-                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {_describe(err)}")
+                if isinstance(err, (WorkerTimeout, WorkerDied, WorkerError)):   # said in full by the message
+                    logger.error("session %s: failed: %s", self.id, describe_error(err))
+                else:
+                    logger.error("session %s: failed", self.id, exc_info=err)
+                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {describe_error(err)}")
         except asyncio.CancelledError:
             self._say_bye("server shutting down")
             raise
@@ -187,6 +185,8 @@ class ServerSession:
             self.server.unregister(self)
             self._write_feedback()
             await self.channel.close()
+            if self.worker is not None:
+                await self.server.release_worker(self.worker, self.id)
             logger.info("session %s: closed (%s)", self.id,
                         ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
 
@@ -228,7 +228,7 @@ class ServerSession:
         except Exception as exc:  # noqa: BLE001 - any setup failure ends this session only
             # our fault (a method, encoder or GL failure): tell the client, keep serving others
             logger.exception("session %s: setup for %s failed", self.id, self.peer)
-            await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {_describe(exc)}")
+            await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
         try:
             await self.channel.send(welcome)
@@ -264,13 +264,13 @@ class ServerSession:
         self._predictor = make_predictor(cfg.predictor)
         self.fb = FeedbackState(self.display_hz)
         server = self.server
-
-        def build() -> tuple[Any, list[AnyStreamSpec], bytes]:
-            producer = server.producers.producer(spec, mcfg) if server.producers is not None else None
-            half = spec.server_class(mcfg, self.intrinsics, server.scene, cfg.server_fps, producer=producer)
-            return half, half.streams(), pack_meta(half.session_data())
-
-        self.half, specs, session_blob = await server.in_gl(build)
+        hang = server.test_hang
+        self.worker = await server.acquire_worker()
+        # the method half and its encoders live in the worker; it sends back the streams, the session data
+        # and the parameter sets each encoder will send (for the SDP)
+        specs, session_blob, sets = await self.worker.call(
+            "open", self.id, self.method, mcfg, self.intrinsics, hang[1] if hang and hang[0] == self.ordinal else -1,
+            deadline_s=cfg.setup_deadline_s)
         if len(session_blob) > cfg.max_session_bytes:
             raise SessionDataError(f"method {self.method}: session data of {len(session_blob)} bytes exceeds this "
                                    f"server's limit of {cfg.max_session_bytes} bytes (max_session_bytes)")
@@ -279,7 +279,7 @@ class ServerSession:
                 raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
                                           f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
         self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec)
-        await server.in_encoder(self.tx.open_encoders)  # the SDP names the parameter sets the encoders send
+        self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
         for st in self.tx.rtp_streams:
@@ -338,11 +338,10 @@ class ServerSession:
     def _on_pose(self, msg: Pose) -> None:
         t_s = msg.client_time_us / 1e6
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        with self._pred_lock:
-            if self._latest_pose is not None and t_s <= self._latest_pose[0]:
-                return  # duplicate or reordered sample
-            self._predictor.observe(t_s, pose)
-            self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
+        if self._latest_pose is not None and t_s <= self._latest_pose[0]:
+            return  # duplicate or reordered sample
+        self._predictor.observe(t_s, pose)
+        self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
 
     def _on_feedback(self, fb: Feedback) -> None:
         self.counters["feedback"] += 1
@@ -415,39 +414,25 @@ class ServerSession:
         kf = self._kf_wanted or self._kf.poll(time.monotonic() * 1000)
         self._kf_wanted = False
         expected = fbs.latency.value_s
-        with self._pred_lock:
-            pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
-            target_wall = wall + expected
-            target_pose = self._predictor.predict(target_wall)
-
-        def predict(t_scene: float) -> ScenePose:
-            with self._pred_lock:
-                return self._predictor.predict(t_scene + epoch)  # type: ignore[no-any-return]
-
-        ctx = ServerContext(
-            frame_id=self._frame_id, t_s=scene_t, scene=server.scene, renderer=server.renderer, intrinsics=intr,
-            latest_pose=latest_pose, latest_pose_t_s=pose_wall - epoch, target_pose=target_pose,
-            target_t_s=target_wall - epoch, predict=predict, expected_latency_s=expected,
-            keyframe_requested=kf, feedback=fbs.snapshot(kf),
-        )
-        half, method = self.half, self.method
-
-        def render() -> tuple[Any, float, float]:
-            w0 = time.perf_counter()
-            ctx.shared = server.producers.prepare(method, tick, scene_t) if server.producers is not None else None
-            w1 = time.perf_counter()
-            upd = half.produce(ctx)
-            return upd, (time.perf_counter() - w1) * 1e6, (w1 - w0) * 1e6
-
-        upd, render_us, shared_us = await server.in_gl(render)
-        force = bool(upd.force_idr or kf)
-        enc = await server.in_encoder(tx.encode, upd, force)
+        pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
+        target_wall = wall + expected
+        target_pose = self._predictor.predict(target_wall)
+        target_t_s = target_wall - epoch
+        assert self.worker is not None
+        # the worker gets a copy of the predictor (pickled now, before any other pose arrives) for the
+        # method's own predictions (a PVS over the expected latency)
+        try:
+            enc, stats, render_us, shared_us = await self.worker.call(
+                "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
+                self._predictor, epoch, expected, kf, fbs.snapshot(kf), deadline_s=self.cfg.render_deadline_s)
+        except WorkerTimeout:
+            self.counters["render_timeouts"] += 1
+            raise
         timing = {"render": int(render_us), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
                   "shared": int(shared_us)}
         rtp_ts = rtp_timestamp(scene_t)
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, ctx.target_t_s, timing,
-                           half.stats())
+        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, target_t_s, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
         fbs.frame_sent(self._frame_id, t_us)
         self.counters["meta_bytes"] += out.payload_bytes.get("meta", 0)

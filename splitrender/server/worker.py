@@ -1,0 +1,344 @@
+"""Render workers: the live server's GL and codec work in child processes, with a watchdog.
+
+moderngl holds the interpreter lock during GL calls, so a render stuck inside Mesa
+(seen on llvmpipe: a ``Framebuffer.read`` spinning forever) froze every session, the
+control sockets and the signal handlers of a server that rendered on a thread.  Here
+the event loop's process never touches GL or a codec:
+
+* a :class:`RenderWorker` is a child process that loads the scene, creates its own
+  :class:`~splitrender.render.Renderer` (EGL), and holds the method halves, their
+  scene producers and the video encoders of the sessions it serves;
+* the server talks to it over a socket pair with :mod:`multiprocessing`'s framing
+  (4-byte big-endian length, pickled tuple), from asyncio, without threads;
+* every request has a deadline (the **watchdog**): a worker that misses it is killed
+  with SIGKILL, every session it served ends with an error naming the request and the
+  deadline, and the next session gets a fresh worker; the event loop stays free, so the
+  other sessions keep streaming and SIGTERM still stops the server.
+
+Isolation (``ServerConfig.isolation``): ``"session"`` (the default) gives each session
+its own worker, so a hung render ends that session only, at the cost of one renderer
+and one set of scene producers per session; ``"server"`` runs every session in one
+worker that shares the producers' per-frame work (as virtual time does) and whose
+watchdog ends every session at once.  A warm spare worker (scene loaded, renderer
+created, shaders compiled) waits for the next session so that a session starts without
+paying for the process start.
+
+Workers fork from a :mod:`multiprocessing` fork server that imported the heavy modules
+(numpy, moderngl, PyAV, the methods) once and never created a GL context.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import itertools
+import logging
+import multiprocessing
+import os
+import pickle
+import signal
+import socket
+import struct
+import time
+import traceback
+from typing import Any
+
+from splitrender.errors import SplitRenderError, describe_error
+
+__all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
+
+logger = logging.getLogger(__name__)
+
+_PRELOAD = ["splitrender.server.worker", "splitrender.render", "splitrender.methods", "splitrender.pipeline",
+            "splitrender.scene.loader", "splitrender.codecs.video"]
+
+_ctx: Any = None
+
+
+def worker_context() -> Any:
+    """The multiprocessing context workers start from: a fork server with the heavy modules preloaded
+    (safe: the fork server is single-threaded and never creates a GL context)."""
+    global _ctx
+    if _ctx is None:
+        methods = multiprocessing.get_all_start_methods()
+        if "forkserver" in methods:
+            _ctx = multiprocessing.get_context("forkserver")
+            _ctx.set_forkserver_preload(_PRELOAD)
+        else:  # pragma: no cover - non-Unix
+            _ctx = multiprocessing.get_context("spawn")
+    return _ctx
+
+
+class WorkerError(SplitRenderError):
+    """A request failed inside the worker (the worker keeps running); the text names the cause."""
+
+
+class WorkerTimeout(SplitRenderError):
+    """A request missed its deadline; the worker was killed."""
+
+
+class WorkerDied(SplitRenderError):
+    """The worker process ended (crashed, was killed, or was closed) while requests were pending."""
+
+
+def parse_test_hang(text: str) -> tuple[int, int] | None:
+    """``"SESSION:FRAME"`` (the ``SPLITRENDER_TEST_HANG`` test hook): the server's SESSION-th session (1-based)
+    hangs while rendering frame FRAME; ``""`` = never.  Raises ``ValueError`` naming the fault."""
+    if not text:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        s, f = int(a), int(b)
+    except ValueError:
+        s = f = -1
+    if not sep or s < 1 or f < 0:
+        raise ValueError(f"SPLITRENDER_TEST_HANG: expected SESSION:FRAME (e.g. 1:5), got {text!r}")
+    return s, f
+
+
+# ---------------------------------------------------------------------- the event-loop side
+
+class RenderWorker:
+    """One worker process and the asyncio end of its socket.
+
+    ``await call(op, *args, deadline_s=...)`` sends one request and waits for its answer;
+    requests are answered in order.  Raises :class:`WorkerError` (the worker reported an
+    exception; it keeps running), :class:`WorkerTimeout` (deadline missed; the worker is
+    killed) or :class:`WorkerDied`.
+    """
+
+    _ids = itertools.count(1)
+
+    def __init__(self, scene: str, server_fps: int) -> None:
+        self.scene = scene
+        self.server_fps = server_fps
+        self.name = f"sr-render-{next(self._ids)}"
+        self.process: Any = None
+        self.sessions: set[str] = set()
+        """Sessions whose halves live in this worker."""
+        self.dead: str | None = None
+        """Why the worker is unusable (killed, crashed, closed), or ``None``."""
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._lock = asyncio.Lock()
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.process is None else self.process.pid
+
+    async def start(self, deadline_s: float) -> None:
+        """Start the process and wait until it has its scene, renderer and compiled shaders."""
+        ctx = worker_context()
+        parent, child = ctx.Pipe(duplex=True)
+        self.process = ctx.Process(target=_worker_main, args=(child, self.scene, self.server_fps), name=self.name,
+                                   daemon=True)
+        # a few milliseconds from the fork server (its own start, once per server process, takes longer);
+        # synchronous, so a cancelled start never leaves a process behind
+        self.process.start()
+        child.close()
+        sock = socket.socket(fileno=os.dup(parent.fileno()))
+        parent.close()
+        try:
+            self._reader, self._writer = await asyncio.open_connection(sock=sock, limit=1 << 20)
+            await self.call("ping", deadline_s=deadline_s)
+        except BaseException:
+            sock.close()
+            await self.close()
+            raise
+        logger.debug("%s: ready (pid %d)", self.name, self.pid)
+
+    async def call(self, op: str, *args: Any, deadline_s: float) -> Any:
+        if self.dead is not None:
+            raise WorkerDied(f"render worker {self.name}: {self.dead}")
+        assert self._reader is not None and self._writer is not None, "start() first"
+        blob = pickle.dumps((op, args), protocol=pickle.HIGHEST_PROTOCOL)
+        # the exchange runs to its end even when the caller is cancelled (a session ending mid-frame), so the
+        # next request's answer is never read in its place and a shared worker is not lost with one session
+        task = asyncio.ensure_future(self._exchange(op, blob, deadline_s))
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())
+        status, value = await asyncio.shield(task)
+        if status == "ok":
+            return value
+        raise WorkerError(value)
+
+    async def _exchange(self, op: str, blob: bytes, deadline_s: float) -> Any:
+        assert self._writer is not None
+        async with self._lock:
+            if self.dead is not None:
+                raise WorkerDied(f"render worker {self.name}: {self.dead}")
+            try:
+                self._writer.write(_frame(blob))
+                return await asyncio.wait_for(self._read(), deadline_s)
+            except asyncio.TimeoutError:
+                why = f"{op} missed its {deadline_s:g} s deadline"
+                self.kill(why)
+                raise WorkerTimeout(f"render worker {self.name}: {why}; the worker was killed") from None
+            except (ConnectionError, asyncio.IncompleteReadError, OSError) as exc:
+                code = self.process.exitcode if self.process is not None else None
+                self.kill(f"connection lost during {op}: {exc or type(exc).__name__}")
+                raise WorkerDied(f"render worker {self.name}: ended during {op} (exit code {code})") from None
+
+    async def _read(self) -> Any:
+        assert self._reader is not None
+        head = await self._reader.readexactly(4)
+        (n,) = struct.unpack("!i", head)
+        if n == -1:
+            (n,) = struct.unpack("!Q", await self._reader.readexactly(8))
+        return pickle.loads(await self._reader.readexactly(n))
+
+    def kill(self, why: str) -> None:
+        """SIGKILL the process now (idempotent); every later call raises :class:`WorkerDied`."""
+        if self.dead is None:
+            self.dead = why
+            logger.warning("render worker %s (pid %s): %s", self.name, self.pid, why)
+        if self.process is not None and self.process.is_alive():
+            with contextlib.suppress(OSError, AttributeError):
+                self.process.kill()
+        if self._writer is not None:
+            self._writer.close()
+
+    async def close(self, grace_s: float = 0.5) -> None:
+        """Ask an idle worker to stop (a busy one is killed at once), kill it after ``grace_s``, reap it.
+        Cancelling this still kills the process and closes the socket."""
+        p = self.process
+        try:
+            if self.dead is None and self._writer is not None and not self._lock.locked():
+                self.dead = "closed"
+                with contextlib.suppress(Exception):
+                    self._writer.write(_frame(pickle.dumps(("stop", ()))))
+                    await asyncio.wait_for(self._writer.drain(), grace_s)
+                end = time.monotonic() + grace_s
+                while p is not None and p.is_alive() and time.monotonic() < end:
+                    await asyncio.sleep(0.02)
+        finally:
+            self.dead = self.dead or "closed"
+            if p is not None and p.is_alive():
+                with contextlib.suppress(OSError, AttributeError):
+                    p.kill()
+            if self._writer is not None:
+                self._writer.close()
+        if p is not None:
+            for _ in range(100):
+                if not p.is_alive():
+                    break
+                await asyncio.sleep(0.01)
+            with contextlib.suppress(Exception):
+                p.join(0)
+
+
+def _frame(blob: bytes) -> bytes:
+    n = len(blob)
+    head = struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!i", -1) + struct.pack("!Q", n)
+    return head + blob
+
+
+# ---------------------------------------------------------------------- the worker process
+
+@dataclasses.dataclass
+class _Half:
+    """One session inside the worker: its method half and the encoders of its streams."""
+
+    method: str
+    half: Any
+    tx: Any
+    intrinsics: Any
+    hang_frame: int
+
+
+class _Worker:
+    def __init__(self, scene_name: str, server_fps: int) -> None:
+        from splitrender.pipeline import ProducerPool
+        from splitrender.render import Renderer
+        from splitrender.scene.loader import get_scene
+        from splitrender.scene.pose import CameraIntrinsics, Pose
+
+        self.scene = get_scene(scene_name)
+        self.server_fps = server_fps
+        self.renderer = Renderer()
+        self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36), ("color",))   # compile shaders now
+        self.producers = ProducerPool(self.scene, server_fps, self.renderer)
+        self.halves: dict[str, _Half] = {}
+
+    def ping(self) -> int:
+        return os.getpid()
+
+    def open(self, sid: str, method: str, config: Any, intrinsics: Any, hang_frame: int = -1) -> Any:
+        """Build session ``sid``'s server half and encoders; returns its stream specs, session data and the
+        parameter sets each video encoder sends (for the SDP)."""
+        from splitrender.codecs.meta import pack_meta
+        from splitrender.methods.base import get_method
+        from splitrender.pipeline import ServerPipeline
+
+        spec = get_method(method)
+        producer = self.producers.producer(spec, config)
+        half = spec.server_class(config, intrinsics, self.scene, self.server_fps, producer=producer)
+        specs = half.streams()
+        tx = ServerPipeline(specs)
+        tx.open_encoders()
+        self.halves[sid] = _Half(method, half, tx, intrinsics, hang_frame)
+        sets = {name: tx.parameter_sets(name) for name, st in tx.streams.items() if st.encoder is not None}
+        return specs, pack_meta(half.session_data()), sets
+
+    def frame(self, sid: str, frame_id: int, tick: int, scene_t: float, poses: tuple[Any, ...], predictor: Any,
+              epoch: float, expected_s: float, keyframe: bool, feedback: Any) -> Any:
+        """Render and encode one frame of session ``sid``; returns the coded update without its raw planes,
+        the half's stats, and the render and shared-work microseconds."""
+        from splitrender.methods.base import ServerContext
+
+        h = self.halves[sid]
+        if frame_id == h.hang_frame:
+            _hang()
+        latest_pose, latest_t, target_pose, target_t = poses
+        ctx = ServerContext(frame_id=frame_id, t_s=scene_t, scene=self.scene, renderer=self.renderer,
+                            intrinsics=h.intrinsics, latest_pose=latest_pose, latest_pose_t_s=latest_t,
+                            target_pose=target_pose, target_t_s=target_t,
+                            predict=lambda t: predictor.predict(t + epoch), expected_latency_s=expected_s,
+                            keyframe_requested=keyframe, feedback=feedback)
+        w0 = time.perf_counter()
+        ctx.shared = self.producers.prepare(h.method, tick, scene_t)
+        w1 = time.perf_counter()
+        upd = h.half.produce(ctx)
+        w2 = time.perf_counter()
+        enc = h.tx.encode(upd, bool(upd.force_idr or keyframe))
+        enc.update = dataclasses.replace(upd, planes={}, data={})     # the raw planes stay here
+        return enc, h.half.stats(), (w2 - w1) * 1e6, (w1 - w0) * 1e6
+
+    def close(self, sid: str) -> None:
+        self.halves.pop(sid, None)
+
+
+def _hang() -> None:
+    """The test hook's hang: spin holding this process's interpreter lock, as the Mesa stall did."""
+    while True:
+        pass
+
+
+def _worker_main(conn: Any, scene_name: str, server_fps: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C reaches the whole group; the server stops us
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        worker: _Worker | None = _Worker(scene_name, server_fps)
+        setup_error = None
+    except Exception as exc:  # noqa: BLE001 - reported on the first request
+        worker, setup_error = None, f"worker start failed: {describe_error(exc)}"
+    while True:
+        try:
+            op, args = conn.recv()
+        except (EOFError, OSError):
+            return
+        if op == "stop":
+            return
+        try:
+            if worker is None:
+                raise RuntimeError(setup_error)
+            fn = getattr(worker, op)
+            reply = ("ok", fn(*args))
+        except Exception as exc:  # noqa: BLE001 - one session's failure is answered, the worker goes on
+            traceback.print_exc()           # to the server's stderr, for whoever debugs the method
+            reply = ("error", describe_error(exc))
+        try:
+            conn.send(reply)
+        except (OSError, ValueError):
+            return
+
