@@ -66,7 +66,8 @@ def _free_port() -> int:
         return int(sk.getsockname()[1])
 
 
-async def one_run(network: str, duration_s: float, width: int, height: int, seed: int, fec: bool = False) -> dict[str, Any]:
+async def one_run(network: str, duration_s: float, width: int, height: int, seed: int, fec: bool = False,
+                  playout_ms: float = 0.0) -> dict[str, Any]:
     """The server in its own process (``splitrender serve``), as deployed: in one process with the client
     and the relay, the three compete for one interpreter lock and delay each other's datagrams by 100s of ms."""
     import subprocess
@@ -87,7 +88,7 @@ async def one_run(network: str, duration_s: float, width: int, height: int, seed
             with tempfile.TemporaryDirectory() as tmp:
                 result = await LiveClient(ClientConfig(port=tcp[1], udp_port=udp[1], width=width, height=height,
                                                        display_hz=30, duration_s=duration_s, trace="walk", **CLIENT_KW,
-                                                       out_dir=Path(tmp))).run()
+                                                       playout_delay_ms=playout_ms, out_dir=Path(tmp))).run()
         finally:
             await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
             stats = relay.stats()
@@ -104,7 +105,7 @@ async def one_run(network: str, duration_s: float, width: int, height: int, seed
     shown = len(set(ids))
     c = result.counters
     return {
-        "network": network, "fec": fec, "frames_in_span": span, "updates_shown": shown,
+        "network": network, "fec": fec, "playout_delay_ms": playout_ms, "frames_in_span": span, "updates_shown": shown,
         "shown_share": shown / span if span else float("nan"),
         "longest_freeze_ms": float(np.nanmax(gaps) * 1000), "p95_update_age_ms": float(np.percentile(ages, 95)) if len(ages) else float("nan"),
         "downlink_packets_dropped": stats.downlink.packets_dropped, "downlink_packets": stats.downlink.packets_in,
@@ -120,23 +121,26 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--playout", type=float, default=150.0, help="client playout delay (ms) of the last two runs")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ns = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     w, h = (int(v) for v in ns.size.split("x"))
     t0 = time.perf_counter()
     runs = []
-    for net, fec in [(n, f) for n in PROFILES for f in (False, True)]:
-        r = asyncio.run(one_run(net, ns.duration, w, h, ns.seed, fec))
+    plans = [(n, f, 0.0) for n in PROFILES for f in (False, True)]
+    plans += [(PROFILES[2], f, ns.playout) for f in (False, True)]      # the bursty profile with a playout delay
+    for net, fec, playout in plans:
+        r = asyncio.run(one_run(net, ns.duration, w, h, ns.seed, fec, playout))
         runs.append(r)
-        print(f"{net:42s} {'FEC' if fec else 'NACK':4s} shown {r['updates_shown']}/{r['frames_in_span']} ({r['shown_share']:.1%}), "
+        print(f"{net:42s} {'FEC' if fec else 'NACK':4s} playout {playout:3.0f} ms shown {r['updates_shown']}/{r['frames_in_span']} ({r['shown_share']:.1%}), "
               f"longest freeze {r['longest_freeze_ms']:.0f} ms, p95 age {r['p95_update_age_ms']:.0f} ms, "
               f"dropped {r['downlink_packets_dropped']}/{r['downlink_packets']} packets, NACKs {r['nacks_sent']}, "
               f"PLIs {r['plis_sent']}, FEC rebuilt {r['fec_recovered']}", flush=True)
     for r in runs:
         base = next(b for b in runs if b["network"] == PROFILES[0] and b["fec"] == r["fec"])
         r["shown_ratio_vs_lossless"] = r["shown_share"] / base["shown_share"]
-    nack2, two, nack_burst, burst = runs[2], runs[3], runs[4], runs[5]
+    nack2, two, nack_burst, burst, nack_burst_po, burst_po = runs[2:8]
     doc = {
         "benchmark": "bench_loss_recovery", "method": "video", "scene": "minimal", "size": ns.size,
         "duration_s": ns.duration, "server_fps": 30, "display_hz": 30, "seed": ns.seed, "runs": runs,
@@ -144,6 +148,11 @@ def main() -> None:
             "loss_2pct_shown_at_least": TARGET_SHOWN, "loss_2pct_freeze_under_ms": TARGET_FREEZE_MS,
             "loss_2pct_met": bool(two["shown_share"] >= TARGET_SHOWN and two["longest_freeze_ms"] < TARGET_FREEZE_MS),
             "bursty_recovers_within_gop": bool(burst["longest_freeze_ms"] < GOP_S * 1000),
+            "bursty_playout_delay_ms": ns.playout,
+            "bursty_with_playout_most_shown": bool(burst_po["shown_share"] > 0.5),
+            "bursty_with_playout_recovers_within_gop": bool(burst_po["longest_freeze_ms"] < GOP_S * 1000),
+            "bursty_shown_playout_over_none_fec": burst_po["shown_share"] / burst["shown_share"],
+            "bursty_shown_playout_over_none_nack": nack_burst_po["shown_share"] / nack_burst["shown_share"],
             "loss_2pct_shown_fec_over_nack": two["shown_share"] / nack2["shown_share"],
             "bursty_shown_fec_over_nack": burst["shown_share"] / nack_burst["shown_share"],
         },

@@ -24,3 +24,76 @@ def renderer():
 @pytest.fixture(scope="session")
 def gl(renderer):
     return renderer.ctx
+
+
+# ----------------------------------------------------------------------------- ordering and the stress suite
+#
+# The stability suite (tests/test_stress.py, ~5 min of two worker processes) needs no quiet machine: it runs in
+# virtual time.  When its tests are selected it starts in the background as the session starts, beside the
+# deterministic tests; its tests come after those, and the live tests (wall-clock bounds: frames per second,
+# shutdown within 2 s, sessions that must keep streaming) come last, once the background suite has finished.
+
+LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
+                        "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",
+                        "test_sdp.py", "test_cli.py"})
+STRESS_FILE = "test_stress.py"
+_STRESS_SCRIPT = """
+import pickle, sys
+from splitrender.experiments.stress import run_stress
+res = run_stress(sys.argv[1], quick=True, workers=2, timeout_s=120)
+with open(sys.argv[1] + "/rows.pickle", "wb") as f:
+    pickle.dump(res.rows, f)
+"""
+
+
+def pytest_collection_modifyitems(session, config, items) -> None:  # type: ignore[no-untyped-def]
+    def rank(item) -> int:  # type: ignore[no-untyped-def]
+        name = item.path.name
+        return 2 if name in LIVE_FILES else 1 if name == STRESS_FILE else 0
+
+    items.sort(key=rank)          # stable: each file's tests stay together and in order
+    if any(item.path.name == STRESS_FILE and "suite" in getattr(item, "fixturenames", ()) for item in items):
+        import subprocess
+        import sys
+        import tempfile
+
+        out = tempfile.mkdtemp(prefix="sr-stress-")
+        log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
+        config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
+                                                        stderr=subprocess.STDOUT))
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
+    bg = getattr(session.config, "_sr_stress", None)
+    if bg is not None:
+        import shutil
+
+        out, log, proc = bg
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        log.close()
+        shutil.rmtree(out, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def background_stress(request):  # type: ignore[no-untyped-def]
+    """``(out folder, rows)`` of the stress suite started in the background, or ``None`` when it was not started."""
+    bg = getattr(request.config, "_sr_stress", None)
+    if bg is None:
+        return None
+    import pickle
+    import subprocess
+    from pathlib import Path
+
+    out, log, proc = bg
+    try:
+        proc.wait(timeout=1800)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    log.flush()
+    text = Path(out, "log.txt").read_text(errors="replace")
+    assert proc.returncode == 0, f"the background stress suite failed (exit {proc.returncode}):\n{text[-3000:]}"
+    with open(os.path.join(out, "rows.pickle"), "rb") as f:
+        return Path(out), pickle.load(f)

@@ -343,6 +343,20 @@ def test_one_shared_worker_serves_every_session_and_is_replaced_after_a_hang(tmp
     assert len(pids) == 1, pids                                # one worker served both sessions
 
 
+async def test_a_playout_delay_holds_every_update_until_its_turn(tmp_path: Path) -> None:
+    """``playout_delay_ms``: no update reaches the screen sooner than its server time plus the delay, and the
+    updates still come one after another; a delay outside [0, 2000] ms is refused by name."""
+    from splitrender.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="playout_delay_ms"):
+        ClientConfig(playout_delay_ms=5000.0)
+    result, _, _ = await _run_through_relay(tmp_path, "delay 10ms", duration_s=1.5, display_hz=30, playout_delay_ms=120.0)
+    rows = [r for r in result.rows if r["update_frame_id"] != -1]
+    ages = [r["update_age_ms"] for r in rows]
+    assert len({r["update_frame_id"] for r in rows}) >= 15, len(rows)
+    assert min(ages) >= 120.0, min(ages)
+
+
 BOX_TEXTURED = Path("/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb")
 
 

@@ -36,6 +36,9 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between `metrics` log lines (counters, drops included; 0 = never; default 5)")
     p.add_argument("--stall-timeout", type=float, default=5.0,
                    help="seconds without a frame after which the session ends with an error (default 5)")
+    p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
+                   help="show each update no earlier than its server time + MS: frames held behind a retransmission "
+                        "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
 
 
 def config_from_args(ns: argparse.Namespace) -> object:
@@ -55,13 +58,16 @@ def config_from_args(ns: argparse.Namespace) -> object:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     if not 0.1 <= ns.stall_timeout <= 3600:
         raise ConfigError(f"--stall-timeout: must be in [0.1, 3600] s, got {ns.stall_timeout}")
+    if not 0 <= ns.playout_delay <= 2000:
+        raise ConfigError(f"--playout-delay: must be in [0, 2000] ms, got {ns.playout_delay}")
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
     codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
     return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
-                        stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval)
+                        stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval,
+                        playout_delay_ms=ns.playout_delay)
 
 
 def main_client(ns: argparse.Namespace) -> int:

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from splitrender.codecs.meta import unpack_meta
-from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
+from splitrender.errors import CodecError, ConfigError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import get_method, make_config
 from splitrender.pipeline import ClientPipeline, control_wire_bytes, EnvelopeError, ReceivedFrame, SessionAssembler, Work, specs_from_table
 from splitrender.protocol import (
@@ -129,6 +129,15 @@ class ClientConfig:
     """A stall this long ends the session with :class:`StreamStalledError` (a non-zero exit)."""
     metrics_interval_s: float = 5.0
     """Log a ``metrics`` line (the counters, the jitter buffers' drops included) this often; 0 = never."""
+    playout_delay_ms: float = 0.0
+    """Show an update no earlier than its server frame time (``FrameMeta.server_time_us``) plus this: frames
+    held behind a lost packet until its retransmission lands are then shown one per tick, each at its turn,
+    instead of together (where only the newest is seen).  0 = show every update as soon as it is ready (the
+    lowest latency).  The delay adds to the motion-to-photon latency of every frame."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.playout_delay_ms <= 2000.0:
+            raise ConfigError(f"client playout_delay_ms: must be in [0, 2000], got {self.playout_delay_ms}")
 
 
 @dataclass
@@ -534,7 +543,7 @@ class LiveClient:
             else:
                 self.counters["frames_complete"] += 1
             self._ready.append(rf)
-            while len(self._ready) > MAX_READY_UPDATES:
+            while len(self._ready) > MAX_READY_UPDATES + int(self.cfg.playout_delay_ms / 10):
                 dropped = self._ready.popleft()
                 self.counters["updates_dropped_ready"] += 1
                 self._pending_apply.append(dropped)  # still applied (in order) so the half's state stays consistent
@@ -696,9 +705,15 @@ class LiveClient:
             elif delay < -interval:
                 self.counters["late_ticks"] += 1
                 continue  # more than a tick late: skip it rather than bunch renders up
-            new = [*self._pending_apply, *self._ready]
+            if cfg.playout_delay_ms > 0:   # only the updates whose turn has come
+                due_us = wall_us() - int(cfg.playout_delay_ms * 1000)
+                new = list(self._pending_apply)
+                while self._ready and self._ready[0].meta.server_time_us <= due_us:
+                    new.append(self._ready.popleft())
+            else:
+                new = [*self._pending_apply, *self._ready]
+                self._ready.clear()
             self._pending_apply.clear()
-            self._ready.clear()
             useful = [f for f in new if f.update.complete or f.update.planes or f.update.data]
             if useful and (shown is None or useful[-1].update.frame_id != shown.frame_id):
                 shown = _Shown(useful[-1])  # a frame that lost everything shows nothing new

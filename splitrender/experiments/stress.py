@@ -217,10 +217,14 @@ def get_case(name: str) -> StressCase:
 
 def case_config(case: StressCase, method: str, tm: Timing, work_dir: Path) -> RunConfig:
     """The RunConfig of ``case`` for ``method`` (trace/network files written under ``work_dir``)."""
+    from ..sim.truth import shared_cache_setting
+
     d = case.build(work_dir, tm)
     params = dict(d.pop("method_params", {}))
+    # every method of a case sees the same ground truth: rendered once, by whichever run comes first
     return RunConfig.from_dict({"method": method, "method_params": params, "duration_s": tm.duration_s, "width": tm.width,
-                                "height": tm.height, "client_fps": tm.client_fps, "flip_every": tm.flip_every, **d})
+                                "height": tm.height, "client_fps": tm.client_fps, "flip_every": tm.flip_every,
+                                "truth_cache": shared_cache_setting(work_dir.parent), **d})
 
 
 # ---------------------------------------------------------------------------------
