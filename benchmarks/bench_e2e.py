@@ -1,12 +1,18 @@
 """End-to-end motion-to-photon latency of live sessions, broken down per stage.
 
-Server, shaping relay and client run in one process on loopback (asyncio; the server
-and the client each have their own GL thread and codec thread).  For ``video`` and
+The relay and the client run in this process on loopback (asyncio; the client has its
+own GL thread and codec thread); the server's event loop runs here too, its rendering
+and encoding in a render worker process (``splitrender.server.worker``).  With the
+worker (against the JSON of the last run before it, an earlier session, same machine):
+motion-to-photon of ``video`` at ``ideal`` 37.3 to 27.1 ms mean (p95 53 to 28 ms),
+``atw`` 61.9 to 36.3 ms (p95 124 to 51 ms); server render + encode of ``atw`` 22.0 to
+15.8 ms; 104-113 to 115-117 updates in 4 s.  The server's GL work no longer holds the
+interpreter lock the relay and client need.  For ``video`` and
 ``atw`` under the ``ideal`` and ``lan`` profiles (through the relay in both cases),
 each displayed frame's stages are measured on the wall clock:
 
 * pose uplink: client samples the pose → the server starts the frame that uses it;
-* server render, encode (server threads);
+* server render, encode (the session's render worker);
 * packetize + network: encode done → last RTP packet of the frame received;
 * decode: received → decoded (includes waiting in the decode queue);
 * wait for display: decoded → the display tick that first shows it;
