@@ -182,11 +182,10 @@ class LiveServer:
         """The scene, loaded here too (checked at start; a loaded model's bounds go to clients as ``subject``)."""
         self.workers: set[RenderWorker] = set()
         """Every live render worker (the spare, the shared one, each session's)."""
-        self._spare: asyncio.Task[RenderWorker] | None = None
+        self._spare: asyncio.Future[RenderWorker] | None = None
         self._shared: RenderWorker | None = None
         self._shared_lock = asyncio.Lock()
         self.test_hang = parse_test_hang(config.test_hang)
-        self.workers_killed = 0
         self.sessions: dict[str, ServerSession] = {}
         self._by_ssrc: dict[int, ServerSession] = {}
         self._tasks: set[asyncio.Task[None]] = set()
@@ -238,16 +237,16 @@ class LiveServer:
         spare, self._spare = self._spare, None
         self._spawn_spare()
         if spare is not None:
-            with contextlib.suppress(Exception):
+            try:
                 w = await spare
                 if w.dead is None:
                     return w
+            except Exception as exc:  # noqa: BLE001 - try once more with a fresh worker below
+                logger.warning("spare render worker failed to start: %s", exc)
         return await self._new_worker()
 
     async def release_worker(self, worker: RenderWorker, session_id: str) -> None:
         """A session ended: drop its half from the shared worker, or stop its own worker."""
-        if worker.dead is not None:
-            self.workers_killed += worker.dead != "closed"
         if self.config.isolation == "server" and worker.dead is None:
             with contextlib.suppress(Exception):
                 await worker.call("close", session_id, deadline_s=self.config.render_deadline_s)
