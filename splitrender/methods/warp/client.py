@@ -51,11 +51,12 @@ def warp_matrices(frame: ReferenceFrame, view: ReferenceView, ref: CameraIntrins
             continue
         prev = frame.prev.get(i)
         now = cur
-        if prev is not None:  # a dynamic object: cut mesh triangles at its border, extrapolate its motion
-            out[i, 4, 0] = 1.0
-            if extrapolate:
-                now = extrapolate_model(prev, cur, h / frame.dt_s)
-        with np.errstate(over="ignore", invalid="ignore"):
+        # a peer's huge or degenerate matrices overflow quietly here; the finite check below falls back
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            if prev is not None:  # a dynamic object: cut mesh triangles at its border, extrapolate its motion
+                out[i, 4, 0] = 1.0
+                if extrapolate:
+                    now = extrapolate_model(prev, cur, h / frame.dt_s)
             m = base @ now @ np.linalg.inv(cur) @ ref_inv
         if not np.all(np.isfinite(m)) or np.abs(m).max() > F32_SAFE:
             m = static  # a near-singular transform from the wire: draw the object where the reference view has it
