@@ -26,17 +26,26 @@ next two or three frames until the retransmission lands (H.264 decodes in order)
 display within one tick, where only the newest is shown.  FEC rebuilds a single loss per group
 without a round trip; bursts that take two packets of a group still wait for NACK or a keyframe.
 
-The bursty profile then runs again with the client's playout delay (``--playout``, default 150 ms: an
-update is shown no earlier than its server time + 150 ms, so frames held behind a retransmission are shown in
-turn).  Measured once after the render workers landed (6 s, same machine, loaded differently): lossless 100%
-(NACK) / 91.5% (FEC); 2% loss 60% / 77%; bursty 26% / 31%, and with the 150 ms playout delay 33% / 44% (x1.29 /
-x1.44), longest freeze 0.6-0.87 s (within the 1 s GOP); most frames shown under bursts is still not met.  With
-the bursts on the downlink only (uplink lossless) the same client shows 36-41% (NACK) and 52% (FEC + 150 ms
-playout): the uplink's bursts take the NACKs and PLIs, which travel over RTCP/UDP and are sparse, so an uplink
-bad state lasts long in time.  In the downlink-only NACK run the client saw 10 stalls (200 ms without a new
-frame, each answered with a PLI), 8 frames given up and 24 dropped while waiting for a keyframe.
+Then three runs with a patient client (:data:`PATIENT_KW` and ``--playout``, default 300 ms: an update is
+shown no earlier than its server time + 300 ms, so frames held behind a retransmission are shown in turn; six
+NACK tries; a frame given up after 600 ms; a stall PLI after 15 frame intervals): 2% loss with FEC, and the
+bursty profile with NACK alone and with FEC.  Two runs after the render workers landed (6 s, seed 1):
 
-    python benchmarks/bench_loss_recovery.py [--duration 8] [--size 320x180] [--seed 1] [--playout 150]
+| profile | NACK | FEC | patient, NACK | patient, FEC |
+|---|---|---|---|---|
+| lossless | 100 / 87% | 86 / 94% | | |
+| 2% loss | 43 / 56% | 88 / 68% | | 95 / 99% shown, longest freeze 68 / 69 ms |
+| bursty | 20 / 21% | 31 / 28% | 47 / 55% (freeze 600 / 435 ms) | 60 / 61% (freeze 366 / 400 ms) |
+
+The immediate-display runs are noisy: at ``display_hz`` = ``server_fps`` = 30 a frame that arrives a little
+late lands in the same tick as the next one and is never seen, which the playout delay also absorbs.  The
+issue's targets (2%: at least 90% shown and no freeze over 250 ms; bursty: recovery within one GOP and most
+frames shown) are met by the patient client with FEC, at 300 ms more motion-to-photon latency (95th
+percentile update age 313 ms at 2% loss, 630-693 ms under bursts).  Without the delay the bursty profile shows
+20-31%.  With the bursts on the downlink only the immediate client shows 36-41% (NACK): uplink bursts take the
+NACKs and PLIs, sparse RTCP datagrams, so an uplink bad state lasts long in time.
+
+    python benchmarks/bench_loss_recovery.py [--duration 8] [--size 320x180] [--seed 1] [--playout 300]
 """
 
 from __future__ import annotations
@@ -64,6 +73,9 @@ RESULTS = Path(__file__).parent / "results" / "bench_loss_recovery.json"
 PROFILES = ("delay 20ms", "delay 20ms loss 2%", "delay 20ms loss gemodel 4% 30% 70% 0.5%")
 GOP_S = 1.0
 CLIENT_KW: dict[str, Any] = {}
+PATIENT_KW: dict[str, Any] = {"nack_max_tries": 6, "jitter_timeout_ms": 600.0, "stall_frames": 15.0}
+"""The patient client of the playout runs: more NACK tries, a frame given up after 600 ms (not 300), a stall (and
+its PLI) after 15 frame intervals (not 6), so a burst is repaired by retransmission instead of a keyframe."""
 TARGET_SHOWN = 0.9
 TARGET_FREEZE_MS = 250.0
 
@@ -78,6 +90,7 @@ def _free_port() -> int:
 
 async def one_run(network: str, duration_s: float, width: int, height: int, seed: int, fec: bool = False,
                   playout_ms: float = 0.0) -> dict[str, Any]:
+    """One session; with ``playout_ms`` > 0 the client is also :data:`PATIENT_KW`."""
     """The server in its own process (``splitrender serve``), as deployed: in one process with the client
     and the relay, the three compete for one interpreter lock and delay each other's datagrams by 100s of ms."""
     import subprocess
@@ -97,7 +110,8 @@ async def one_run(network: str, duration_s: float, width: int, height: int, seed
             udp = await relay.start_udp((LOOPBACK, 0), (LOOPBACK, udp_port))
             with tempfile.TemporaryDirectory() as tmp:
                 result = await LiveClient(ClientConfig(port=tcp[1], udp_port=udp[1], width=width, height=height,
-                                                       display_hz=30, duration_s=duration_s, trace="walk", **CLIENT_KW,
+                                                       display_hz=30, duration_s=duration_s, trace="walk",
+                                                       **{**CLIENT_KW, **(PATIENT_KW if playout_ms > 0 else {})},
                                                        playout_delay_ms=playout_ms, out_dir=Path(tmp))).run()
         finally:
             await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
@@ -131,7 +145,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--playout", type=float, default=150.0, help="client playout delay (ms) of the last two runs")
+    ap.add_argument("--playout", type=float, default=300.0,
+                    help="playout delay (ms) of the patient-client runs (2%% loss with FEC, bursty with NACK and FEC)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ns = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -139,7 +154,7 @@ def main() -> None:
     t0 = time.perf_counter()
     runs = []
     plans = [(n, f, 0.0) for n in PROFILES for f in (False, True)]
-    plans += [(PROFILES[2], f, ns.playout) for f in (False, True)]      # the bursty profile with a playout delay
+    plans += [(PROFILES[1], True, ns.playout)] + [(PROFILES[2], f, ns.playout) for f in (False, True)]  # patient client
     for net, fec, playout in plans:
         r = asyncio.run(one_run(net, ns.duration, w, h, ns.seed, fec, playout))
         runs.append(r)
@@ -150,7 +165,7 @@ def main() -> None:
     for r in runs:
         base = next(b for b in runs if b["network"] == PROFILES[0] and b["fec"] == r["fec"])
         r["shown_ratio_vs_lossless"] = r["shown_share"] / base["shown_share"]
-    nack2, two, nack_burst, burst, nack_burst_po, burst_po = runs[2:8]
+    nack2, two, nack_burst, burst, two_po, nack_burst_po, burst_po = runs[2:9]
     doc = {
         "benchmark": "bench_loss_recovery", "method": "video", "scene": "minimal", "size": ns.size,
         "duration_s": ns.duration, "server_fps": 30, "display_hz": 30, "seed": ns.seed, "runs": runs,
@@ -158,7 +173,8 @@ def main() -> None:
             "loss_2pct_shown_at_least": TARGET_SHOWN, "loss_2pct_freeze_under_ms": TARGET_FREEZE_MS,
             "loss_2pct_met": bool(two["shown_share"] >= TARGET_SHOWN and two["longest_freeze_ms"] < TARGET_FREEZE_MS),
             "bursty_recovers_within_gop": bool(burst["longest_freeze_ms"] < GOP_S * 1000),
-            "bursty_playout_delay_ms": ns.playout,
+            "patient_playout_delay_ms": ns.playout, "patient_client": PATIENT_KW,
+            "loss_2pct_patient_met": bool(two_po["shown_share"] >= TARGET_SHOWN and two_po["longest_freeze_ms"] < TARGET_FREEZE_MS),
             "bursty_with_playout_most_shown": bool(burst_po["shown_share"] > 0.5),
             "bursty_with_playout_recovers_within_gop": bool(burst_po["longest_freeze_ms"] < GOP_S * 1000),
             "bursty_shown_playout_over_none_fec": burst_po["shown_share"] / burst["shown_share"],

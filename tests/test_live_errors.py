@@ -61,6 +61,10 @@ def closed_port() -> int:
     (["serve", "--port", "70000"], "--port: must be in [0, 65535], got 70000"),
     (["serve", "--udp-port", "-1"], "--udp-port: must be in [0, 65535], got -1"),
     (["client", "--port", "70000"], "--port: must be in [1, 65535], got 70000"),
+    (["client", "--playout-delay", "-5"], "--playout-delay: must be in [0, 2000] ms, got -5.0"),
+    (["client", "--jitter-timeout", "5"], "--jitter-timeout: must be in [20, 10000] ms, got 5.0"),
+    (["client", "--nack-tries", "99"], "--nack-tries: must be in [0, 20], got 99"),
+    (["serve", "--render-deadline", "0"], "--render-deadline: must be in [0.05, 3600] s, got 0.0"),
 ])
 def test_bad_arguments_are_refused_at_startup(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
     if argv[0] == "serve":  # should a check regress, the server fails to bind instead of serving forever

@@ -36,6 +36,9 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between `metrics` log lines (counters, drops included; 0 = never; default 5)")
     p.add_argument("--stall-timeout", type=float, default=5.0,
                    help="seconds without a frame after which the session ends with an error (default 5)")
+    p.add_argument("--jitter-timeout", type=float, default=300.0, metavar="MS",
+                   help="give up a frame whose packets are still missing after MS (then wait for a keyframe; default 300)")
+    p.add_argument("--nack-tries", type=int, default=3, help="NACKs sent for one missing packet (default 3)")
     p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
                    help="show each update no earlier than its server time + MS: frames held behind a retransmission "
                         "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
@@ -58,6 +61,10 @@ def config_from_args(ns: argparse.Namespace) -> object:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     if not 0.1 <= ns.stall_timeout <= 3600:
         raise ConfigError(f"--stall-timeout: must be in [0.1, 3600] s, got {ns.stall_timeout}")
+    if not 20 <= ns.jitter_timeout <= 10_000:
+        raise ConfigError(f"--jitter-timeout: must be in [20, 10000] ms, got {ns.jitter_timeout}")
+    if not 0 <= ns.nack_tries <= 20:
+        raise ConfigError(f"--nack-tries: must be in [0, 20], got {ns.nack_tries}")
     if not 0 <= ns.playout_delay <= 2000:
         raise ConfigError(f"--playout-delay: must be in [0, 2000] ms, got {ns.playout_delay}")
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
@@ -67,7 +74,8 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
                         stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval,
-                        playout_delay_ms=ns.playout_delay)
+                        playout_delay_ms=ns.playout_delay, jitter_timeout_ms=ns.jitter_timeout,
+                        nack_max_tries=ns.nack_tries)
 
 
 def main_client(ns: argparse.Namespace) -> int:

@@ -82,6 +82,8 @@ def config_from_args(ns: argparse.Namespace) -> Any:
                            ("--mirror-port", ns.mirror_port, 1)):
         if port is not None and not low <= port <= 65535:
             raise ConfigError(f"{opt}: must be in [{low}, 65535], got {port}")
+    if not 0.05 <= ns.render_deadline <= 3600:
+        raise ConfigError(f"--render-deadline: must be in [0.05, 3600] s, got {ns.render_deadline}")
     if not 0 <= ns.metrics_interval <= 3600:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
