@@ -46,6 +46,18 @@ with open(sys.argv[1] + "/rows.pickle", "wb") as f:
 """
 
 
+def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
+    """Start the quick stress suite in a child process (its result: ``background_stress``)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    out = tempfile.mkdtemp(prefix="sr-stress-")
+    log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
+    config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
+                                                    stderr=subprocess.STDOUT))
+
+
 def pytest_collection_modifyitems(session, config, items) -> None:  # type: ignore[no-untyped-def]
     def rank(item) -> int:  # type: ignore[no-untyped-def]
         name = item.path.name
@@ -53,14 +65,7 @@ def pytest_collection_modifyitems(session, config, items) -> None:  # type: igno
 
     items.sort(key=rank)          # stable: each file's tests stay together and in order
     if any(item.path.name == STRESS_FILE and "suite" in getattr(item, "fixturenames", ()) for item in items):
-        import subprocess
-        import sys
-        import tempfile
-
-        out = tempfile.mkdtemp(prefix="sr-stress-")
-        log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
-        config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
-                                                        stderr=subprocess.STDOUT))
+        _start_stress(config)
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
@@ -78,15 +83,14 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
 
 @pytest.fixture(scope="session")
 def background_stress(request):  # type: ignore[no-untyped-def]
-    """``(out folder, rows)`` of the stress suite started in the background, or ``None`` when it was not started."""
-    bg = getattr(request.config, "_sr_stress", None)
-    if bg is None:
-        return None
+    """``(out folder, rows)`` of the quick stress suite: the run started as the session began (or now)."""
     import pickle
     import subprocess
     from pathlib import Path
 
-    out, log, proc = bg
+    if getattr(request.config, "_sr_stress", None) is None:
+        _start_stress(request.config)
+    out, log, proc = request.config._sr_stress
     try:
         proc.wait(timeout=1800)
     except subprocess.TimeoutExpired:

@@ -223,9 +223,7 @@ def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tm
     assert stop(_serve(_free_port())) < 2.0
     port = _free_port()
     srv = _serve(port)
-    clients = [subprocess.Popen([sys.executable, "-m", "splitrender.cli", "client", "--port", str(port), "--width", "160",
-                                 "--height", "90", "--duration", "20", "--out", str(tmp_path / f"c{k}")],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in range(2)]
+    clients = [_client(port, tmp_path / f"c{k}") for k in range(2)]
     try:
         end = time.monotonic() + 30
         while time.monotonic() < end and not all((tmp_path / f"c{k}" / "frames.jsonl").is_file()
@@ -315,8 +313,6 @@ def test_one_shared_worker_serves_every_session_and_is_replaced_after_a_hang(tmp
     """``--isolation server``: both sessions run in one render worker; when the first one's render hangs
     (frame 12) the watchdog kills it, both sessions end with the deadline named, and the next client
     streams from a fresh worker."""
-    import time
-
     port = _free_port()
     srv = _serve(port, "video", "--isolation", "server", "--render-deadline", "1.5", hang="1:12")
     outs = [tmp_path / f"c{k}" for k in range(3)]

@@ -25,19 +25,15 @@ import math
 
 import pytest
 
-from splitrender.experiments.stress import CASES, QUICK, get_case, recovery_time_s, run_stress
+from splitrender.experiments.stress import CASES, QUICK, get_case, recovery_time_s
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def suite(tmp_path_factory: pytest.TempPathFactory, background_stress) -> dict[tuple[str, str], dict]:  # type: ignore[no-untyped-def]
-    """The quick suite's rows: from the run the session started in the background (``conftest.py``), or run here."""
-    if background_stress is not None:
-        out, rows = background_stress
-    else:
-        out = tmp_path_factory.mktemp("stress")
-        rows = run_stress(out, quick=True, workers=2, timeout_s=120).rows
+def suite(background_stress) -> dict[tuple[str, str], dict]:  # type: ignore[no-untyped-def]
+    """The quick suite's rows, from the run the session started in the background (``conftest.py``)."""
+    out, rows = background_stress
     assert (out / "stress.csv").is_file() and (out / "stress.html").is_file()
     return {(r["case"], r["method"]): r for r in rows}
 

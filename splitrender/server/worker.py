@@ -115,8 +115,6 @@ class RenderWorker:
         self.server_fps = server_fps
         self.name = f"sr-render-{next(self._ids)}"
         self.process: Any = None
-        self.sessions: set[str] = set()
-        """Sessions whose halves live in this worker."""
         self.dead: str | None = None
         """Why the worker is unusable (killed, crashed, closed), or ``None``."""
         self._reader: asyncio.StreamReader | None = None
@@ -192,6 +190,10 @@ class RenderWorker:
         if self.dead is None:
             self.dead = why
             logger.warning("render worker %s (pid %s): %s", self.name, self.pid, why)
+        self._end_now()
+
+    def _end_now(self) -> None:
+        """SIGKILL the process if it still runs and close the socket."""
         if self.process is not None and self.process.is_alive():
             with contextlib.suppress(OSError, AttributeError):
                 self.process.kill()
@@ -213,11 +215,7 @@ class RenderWorker:
                     await asyncio.sleep(0.02)
         finally:
             self.dead = self.dead or "closed"
-            if p is not None and p.is_alive():
-                with contextlib.suppress(OSError, AttributeError):
-                    p.kill()
-            if self._writer is not None:
-                self._writer.close()
+            self._end_now()
         if p is not None:
             for _ in range(100):
                 if not p.is_alive():
