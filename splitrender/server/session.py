@@ -52,6 +52,7 @@ from splitrender.protocol import (
     RtpPacketizer,
     SenderReport,
     ServerConnection,
+    State,
     Stats,
     Welcome,
     make_sdp,
@@ -428,6 +429,10 @@ class ServerSession:
         except WorkerTimeout:
             self.counters["render_timeouts"] += 1
             raise
+        if self.channel.conn.state is not State.STREAMING:
+            # the peer said Bye (or the connection closed) while the worker rendered: the control
+            # task is ending the session in this same loop turn; this frame has nowhere to go
+            raise _SessionEnded()
         timing = {"render": int(render_us), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
                   "shared": int(shared_us)}
         rtp_ts = rtp_timestamp(scene_t)
