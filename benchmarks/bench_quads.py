@@ -5,7 +5,8 @@ then residual frames, as the method runs by default), for QUASAR and QuadStream.
 stage (G-buffers, quad generation, merging, effective depth peeling, masking with the
 cached mesh, packing) the median milliseconds over the frames after the first, divided by
 the median time of one ground-truth render of the same frame measured in the same
-process.  Also the payload per frame: quads before and after zstd, offsets, quads per set.
+process.  Also the payload per frame: quads before and after zstd, offsets, quads per set,
+and the byte planes against the interleaved arrays of wire 1 (zstd level 3, same frames).
 
 Writes ``benchmarks/results/bench_quads.json``.  Run: ``python benchmarks/bench_quads.py``.
 """
@@ -25,6 +26,7 @@ import zstandard  # noqa: E402
 
 from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
 from splitrender.methods.quads.server import STAGES as SERVER_STAGES  # noqa: E402
+from splitrender.methods.quads.wire import SET_HEADER, from_byte_planes  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
@@ -33,6 +35,14 @@ from splitrender.scene.trace import get_trace  # noqa: E402
 RESULTS = Path(__file__).parent / "results" / "bench_quads.json"
 STAGES = (*SERVER_STAGES, "pack_ms")
 FRAMES = 10
+
+
+def interleaved(q: bytes) -> bytes:
+    """Wire 1's layout of a wire-2 ``quads`` payload (the arrays' bytes interleaved), the byte planes' baseline."""
+    arrays = 4 + SET_HEADER.size * q[3]
+    n = (len(q) - arrays) // 10
+    return (q[:arrays + 2 * n] + from_byte_planes(q, "<u4", n, arrays + 2 * n).tobytes()
+            + from_byte_planes(q, "<f4", n, arrays + 6 * n).tobytes())
 
 
 def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
@@ -58,6 +68,7 @@ def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
         st = srv.stats()
         rows.append({"total_ms": total, **{k: st.get(k, 0.0) for k in STAGES}, "quads": st["quads"],
                      "quads_bytes": len(upd.data["quads"]), "quads_zstd_bytes": len(zc.compress(upd.data["quads"])),
+                     "quads_zstd_bytes_interleaved": len(zc.compress(interleaved(upd.data["quads"]))),
                      "offsets_bytes": len(upd.data["offsets"]), "reference": st["reference"]})
     later = rows[1:]
     gt_ms = statistics.median(gt[1:])
@@ -68,6 +79,8 @@ def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
             "quads_zstd_kb_reference": statistics.median(r["quads_zstd_bytes"] for r in rows if r["reference"]) / 1e3,
             "quads_zstd_kb_residual": (statistics.median(r["quads_zstd_bytes"] for r in later if not r["reference"]) / 1e3
                                        if any(not r["reference"] for r in later) else None),
+            "byte_planes_gain": (sum(r["quads_zstd_bytes_interleaved"] for r in rows)
+                                 / sum(r["quads_zstd_bytes"] for r in rows)),
             "frames": rows}
 
 
@@ -80,7 +93,8 @@ def main() -> None:
             out["runs"].append(r)
             ratios = ", ".join(f"{k[:-3]} {v:.2f}x" for k, v in r["ratio_to_gt"].items())
             print(f"{variant:10s} {size[0]}x{size[1]}: ground truth {r['gt_ms']:.1f} ms; {ratios}; "
-                  f"{r['quads_per_frame']:.0f} quads a frame", flush=True)
+                  f"{r['quads_per_frame']:.0f} quads a frame; byte planes {r['byte_planes_gain']:.2f}x fewer "
+                  f"zstd bytes than interleaved arrays", flush=True)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(out, indent=1))
     print(f"wrote {RESULTS}")

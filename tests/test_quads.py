@@ -7,15 +7,14 @@ QuadStream's rate beside QUASAR's, and malformed quad data."""
 
 from __future__ import annotations
 
-import struct
 
 import numpy as np
 import pytest
 
 from splitrender.methods.quads.config import QuadParams
 from splitrender.methods.quads.gen import QuadSet, decode_normals, encode_normals, generate
-from splitrender.methods.quads.wire import (KIND_HIDDEN, KIND_REFERENCE, QuadsWireError, WireSet, decode_sets, encode_sets,
-                                            pack, unpack)
+from splitrender.methods.quads.wire import (KIND_HIDDEN, KIND_REFERENCE, QuadsWireError, WireSet, byte_planes, decode_sets,
+                                            encode_sets, from_byte_planes, pack, unpack)
 from splitrender.scene.pose import CameraIntrinsics, Pose
 
 INTR = CameraIntrinsics(320, 180)
@@ -43,6 +42,9 @@ def test_the_80_bit_packing_round_trips_exactly() -> None:
     sets = [WireSet(KIND_REFERENCE, 0, 1, _random_set(rng, 700)), WireSet(KIND_HIDDEN, 2, 0, _random_set(rng, 300))]
     q, o = encode_sets(sets)
     assert len(q) == 4 + 2 * 12 + 1000 * 10, "80 bits a quad plus the header"
+    # the multi-byte arrays go as byte planes: every element's byte 0, then every byte 1, ...
+    assert byte_planes(np.array([0x01020304, 0x05060708]), "<u4") == bytes([4, 8, 3, 7, 2, 6, 1, 5])
+    assert from_byte_planes(b"\0" + bytes([4, 8, 3, 7, 2, 6, 1, 5]), "<u4", 2, 1).tolist() == [0x01020304, 0x05060708]
     assert len(o) == 32 * sum(int((~s.quads.flat).sum()) for s in sets)
     back = decode_sets(q, o, "frame 0", (320, 180), 6, 3, 100.0)
     for a, b in zip(back, sets):
@@ -135,8 +137,11 @@ def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) ->
 
 def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(renderer) -> None:  # type: ignore[no-untyped-def]
     """The default walk at 30 Hz, frames 0-5: a reference frame, four residual frames, a reference frame.
-    Measured quads payload after zstd: 92 KB and 93 KB for the reference frames, 53-63 KB for the residual
-    frames (1.5-1.7x smaller; the paper reports 2-3x); the client's cached set equals the server's mirror."""
+    Measured quads payload after zstd (byte planes, wire 2): 51.7 KB and 54.0 KB for the reference frames,
+    33.4-39.2 KB for the residual frames (1.32-1.55x smaller, 1.46x on average; the paper reports 2-3x).  The
+    byte planes shrank reference frames 1.78x and residual frames 1.6x (interleaved: 92 KB against 53-63 KB,
+    1.5-1.7x): a dense reference layer's neighbouring quads share more high bytes than a residual frame's
+    scattered ones.  The client's cached set equals the server's mirror."""
     import zstandard
 
     from splitrender.scene.loader import get_scene
@@ -156,7 +161,7 @@ def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(ren
         assert len(cli.cache) == len(srv.cache) and np.array_equal(cli.cache.index_map, srv.cache.index_map)
     assert kinds == ["reference"] + ["residual"] * 4 + ["reference"]
     ref = min(sizes[0], sizes[5])
-    assert max(sizes[1:5]) < ref / 1.4, sizes
+    assert max(sizes[1:5]) < ref / 1.25 and np.mean(sizes[1:5]) < ref / 1.4, sizes
 
 
 @pytest.mark.slow
@@ -196,8 +201,9 @@ def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type:
 @pytest.mark.slow
 def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(renderer) -> None:  # type: ignore[no-untyped-def]
     """``cloud`` (50 +- 20 ms each way), 0.6 s of the default walk at 320x180.  Measured: QUASAR 19.83 dB at
-    18.9 Mbit/s, QuadStream 19.71 dB at 49.8 Mbit/s (2.6x QUASAR; the issue asks 3x, the paper reports up to
-    15x at larger view cells), warp 19.13 dB."""
+    13.2 Mbit/s, QuadStream 19.71 dB at 34.7 Mbit/s (2.6x QUASAR; the issue asks 3x, the paper reports up to
+    15x at larger view cells), warp 19.13 dB.  Wire 1 (interleaved arrays) sent 18.9 and 49.8 Mbit/s: the byte
+    planes took 1.43x off both, so the ratio stayed."""
     from splitrender.sim.runner import RunConfig, run
 
     def go(method: str, params: dict) -> dict:
@@ -218,10 +224,13 @@ def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(rendere
     n_sets = q[3]
     arrays = 4 + 12 * n_sets
     total = (len(q) - arrays) // 10
-    depth_at = arrays + 6 * total
-    nan_depth = q[:depth_at] + struct.pack("<f", float("nan")) + q[depth_at + 4:]
-    big = bytearray(q)
-    big[arrays + 2 * total:arrays + 2 * total + 4] = struct.pack("<I", (5 << 26) | (4000 << 14))
+    depth_at, packed_at = arrays + 6 * total, arrays + 2 * total
+    depth = from_byte_planes(q, "<f4", total, depth_at).copy()
+    depth[0] = np.nan
+    nan_depth = q[:depth_at] + byte_planes(depth, "<f4")
+    packed = from_byte_planes(q, "<u4", total, packed_at).copy()
+    packed[0] = (5 << 26) | (4000 << 14)
+    big = q[:packed_at] + byte_planes(packed, "<u4") + q[depth_at:]
     cases = [
         ({"quads": q[:3]}, "shorter than"),
         ({"quads": b"XX" + q[2:]}, "bad magic"),

@@ -6,11 +6,15 @@ Per frame, three streams:
   arrays, the sets one after another inside each array (paper section 3.4.2):
   ``theta`` u8[N], ``phi`` u8[N], ``packed`` u32[N] (bits 31-26 level = log2 size,
   25-14 x, 13-2 y, 1 flat, 0 alpha), ``depth`` f32[N] (the plane's view depth at the
-  quad centre): 80 bits per quad before zstd.  Header: ``b"QD"``, version u8, set count
-  u8, then per set kind u8, atlas slot u8, camera u8, reserved u8, quads u32, non-flat
-  quads u32 (little-endian).
+  quad centre): 80 bits per quad before zstd.  The multi-byte arrays go as byte planes
+  (byte 0 of every element, then byte 1, ...; the "shuffle" filter of Blosc and HDF5):
+  the high bytes of neighbouring quads' positions and depths are nearly equal, and zstd
+  finds those runs only when they are adjacent (measured on the default walk at
+  320x180: 1.78x fewer ``quads`` bytes than the interleaved arrays, for 0.3 ms).
+  Header: ``b"QD"``, version u8, set count u8, then per set kind u8, atlas slot u8,
+  camera u8, reserved u8, quads u32, non-flat quads u32 (little-endian).
 - ``offsets`` (reliable data, zstd): 16 float16 depth offsets per non-flat quad, in
-  quad order.
+  quad order, as two byte planes.
 - ``atlas`` (video): the sets' colour images, one slot each, side by side.
 
 The frame's metadata names the cameras (pose, size, vertical FOV) the sets refer to
@@ -30,7 +34,8 @@ from ...errors import CodecError, RemoteProtocolError
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import MAX_LEVEL, MAX_OFFSET_M, QuadSet
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2
+"""2: byte planes for the multi-byte arrays (1 sent them interleaved)."""
 MAGIC = b"QD"
 HEADER = struct.Struct("<2sBB")
 SET_HEADER = struct.Struct("<BBBBII")
@@ -69,6 +74,19 @@ def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         ((p >> 1) & 1).astype(bool), (p & 1).astype(bool)
 
 
+def byte_planes(a: np.ndarray, dtype: str) -> bytes:
+    """``a`` as ``dtype`` (little-endian), its bytes regrouped by position within an element."""
+    a = np.ascontiguousarray(a, dtype)
+    return a.view(np.uint8).reshape(-1, a.dtype.itemsize).T.tobytes()
+
+
+def from_byte_planes(buf: bytes | bytearray | memoryview, dtype: str, n: int, offset: int = 0) -> np.ndarray:
+    """Inverse of :func:`byte_planes`: ``n`` elements of ``dtype`` from ``buf`` at ``offset``."""
+    size = np.dtype(dtype).itemsize
+    planes = np.frombuffer(buf, np.uint8, n * size, offset).reshape(size, n)
+    return np.ascontiguousarray(planes.T).view(dtype).reshape(n)
+
+
 def encode_sets(sets: list[WireSet]) -> tuple[bytes, bytes]:
     """(``quads`` payload, ``offsets`` payload) of a frame's sets."""
     head = [HEADER.pack(MAGIC, WIRE_VERSION, len(sets))]
@@ -77,10 +95,10 @@ def encode_sets(sets: list[WireSet]) -> tuple[bytes, bytes]:
     qs = [s.quads for s in sets]
     cat = lambda name, dt: np.concatenate([getattr(q, name) for q in qs]).astype(dt) if qs else np.zeros(0, dt)  # noqa: E731
     packed = np.concatenate([pack(q.level, q.x, q.y, q.flat) for q in qs]) if qs else np.zeros(0, np.uint32)
-    body = (cat("theta", np.uint8).tobytes() + cat("phi", np.uint8).tobytes() + packed.astype("<u4").tobytes()
-            + cat("depth", "<f4").tobytes())
+    body = (cat("theta", np.uint8).tobytes() + cat("phi", np.uint8).tobytes() + byte_planes(packed, "<u4")
+            + byte_planes(cat("depth", np.float32), "<f4"))
     offs = np.concatenate([q.offsets for q in qs]) if qs else np.zeros((0, 16), np.float16)
-    return b"".join(head) + body, offs.astype("<f2").tobytes()
+    return b"".join(head) + body, byte_planes(offs.reshape(-1), "<f2")
 
 
 def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, int], n_slots: int, n_cameras: int,
@@ -119,8 +137,8 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
         raise bad(f"quads stream: {len(quads) - pos} bytes of quad arrays for {total} quads (expected {total * 10})")
     theta = np.frombuffer(quads, np.uint8, total, pos)
     phi = np.frombuffer(quads, np.uint8, total, pos + total)
-    packed = np.frombuffer(quads, "<u4", total, pos + 2 * total)
-    depth = np.frombuffer(quads, "<f4", total, pos + 6 * total).astype(np.float32)
+    packed = from_byte_planes(quads, "<u4", total, pos + 2 * total)
+    depth = from_byte_planes(quads, "<f4", total, pos + 6 * total).astype(np.float32)
     level, x, y, flat, alpha = unpack(packed)
     n_nonflat = sum(h[4] for h in heads)
     if int((~flat).sum()) != n_nonflat:
@@ -128,7 +146,7 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
     if not isinstance(offsets, (bytes, bytearray, memoryview)) or len(offsets) != n_nonflat * 32:
         raise bad(f"offsets stream: {len(offsets) if isinstance(offsets, (bytes, bytearray)) else '?'} bytes for "
                   f"{n_nonflat} non-flat quads (expected {n_nonflat * 32})")
-    offs = np.frombuffer(offsets, "<f2").reshape(-1, 16).astype(np.float16)
+    offs = from_byte_planes(offsets, "<f2", n_nonflat * 16).reshape(-1, 16).astype(np.float16)
     if offs.size and not (np.isfinite(offs).all() and float(np.abs(offs.astype(np.float32)).max()) <= MAX_OFFSET_M):
         raise bad(f"offsets stream: offsets must be finite and within +-{MAX_OFFSET_M:g} m")
     if total:
