@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
 from splitrender.methods.tss.server import SHADERS  # noqa: E402
-from splitrender.render.gl import read_shader  # noqa: E402
+from splitrender.render.gl import read_shader, set_uniform  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
@@ -104,6 +104,7 @@ def main() -> None:
         t0 = time.perf_counter()
         r.bind_shading(prog, scene, t)
         prog["u_eye"].value = tuple(float(x) for x in pose.position)
+        set_uniform(prog, "u_os_centred", int(srv.config.os_grid == "centred"))
         srv._tex.bind_to_image(0, read=False, write=True)
         srv._counter.bind_to_storage_buffer(1)
         buf.bind_to_storage_buffer(2)

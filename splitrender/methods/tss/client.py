@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ...render.canvas import Canvas, upload_image
-from ...render.gl import grow_vertex_buffer, load_program
+from ...render.gl import grow_vertex_buffer, load_program, set_uniform
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from ..sas.client import ObjectTransforms
@@ -78,7 +78,7 @@ class TssClient(ClientHalf):
         if atlas is not None and (not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3)):
             raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
         if tris is not None:
-            rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip)
+            rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip, s.os_grid)
             if gone is not None and gone.size and not self.live[gone].all():
                 raise TssWireError(f"tss tris: {int((~self.live[gone]).sum())} triangles leave that were not live")
             if rows.ids.size and not self.has[rows.ids].all():
@@ -137,6 +137,7 @@ class TssClient(ClientHalf):
             self._tex.use(location=0)
             self.prog["u_atlas"].value = 0
             self.prog["u_atlas_size"].value = tuple(float(x) for x in self.session.atlas)
+            set_uniform(self.prog, "u_os_centred", int(self.session.os_grid == "centred"))
             self._vao.render(vertices=3 * self._n)
         color, covered = self.canvas.read()
         return ClientFrame(color, ~covered, {"cli_triangles": float(self._n)})

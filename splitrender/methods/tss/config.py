@@ -19,7 +19,9 @@ class TssConfig(MethodConfig):
     of one).  ``slant_threshold``: a triangle whose longest projected edge over its
     height exceeds this is oversampled, otherwise L-packed (the paper does not give
     the value).  ``tiny_samples``: triangles needing fewer samples than this get one
-    texel.  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
+    texel, unless ``sliver_px`` is set (>= 1) and their longest edge spans that many
+    pixels or more: those slivers are sampled along their length as any other triangle
+    (the default 0: one texel whatever the length, as the paper).  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
     the display's pixel count (the paper's 24 Mpix for its walkthroughs); when
     the visible set does not fit, the sampling rate of the frame is lowered until it
     does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
@@ -33,12 +35,17 @@ class TssConfig(MethodConfig):
     deterministic prefix sum by class and id, closest to the paper's per-frame
     binning).  ``hysteresis``: a triangle keeps its kind, level or staircase sizes
     while the new ones are within this fraction of the old (fewer moves in the atlas).
+    ``os_grid``: where an oversampled triangle's samples sit: ``paper`` (the default:
+    the integer lattice of figure 8, rows long enough for a plain bilinear tap past the
+    hypotenuse) or ``centred`` (ours: cell centres, the client clamps its taps to each
+    row; fewer samples for the same quality, see ``docs/methods.md``).
     """
 
     gop: int = 30
     samples_per_px: float = 1.0
     slant_threshold: float = 4.0
     tiny_samples: float = 2.0
+    sliver_px: float = 0.0
     atlas_mpix_1080p: float = 24.0
     fov_margin: float = 0.2
     pvs_step_ms: float = 33.3
@@ -50,6 +57,7 @@ class TssConfig(MethodConfig):
     layout: Literal["stable", "prefix"] = "stable"
     high_water: float = 0.9
     hysteresis: float = 0.25
+    os_grid: Literal["centred", "paper"] = "paper"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -59,6 +67,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.slant_threshold: must be in [1, 1000], got {self.slant_threshold}")
         if not 0.0 <= self.tiny_samples <= 64:
             raise ConfigError(f"TssConfig.tiny_samples: must be in [0, 64], got {self.tiny_samples}")
+        if not (self.sliver_px == 0.0 or 1.0 <= self.sliver_px <= 1e4):
+            raise ConfigError(f"TssConfig.sliver_px: must be 0 (off) or in [1, 10000] pixels, got {self.sliver_px}")
         if not 0.0 < self.atlas_mpix_1080p <= 64:
             raise ConfigError(f"TssConfig.atlas_mpix_1080p: must be in (0, 64], got {self.atlas_mpix_1080p}")
         if not 0.0 <= self.fov_margin <= 2.0:
@@ -77,6 +87,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.high_water: must be in [0.1, 1], got {self.high_water}")
         if not 0.0 <= self.hysteresis <= 1.0:
             raise ConfigError(f"TssConfig.hysteresis: must be in [0, 1], got {self.hysteresis}")
+        if self.os_grid not in ("centred", "paper"):
+            raise ConfigError(f"TssConfig.os_grid: {self.os_grid!r} is not one of ['centred', 'paper']")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

@@ -35,6 +35,15 @@ the samples past its hypotenuse are the paper's conservative extras).  The secon
 staircase, turned by 180 degrees, interlocks with the first in one rectangle of
 :func:`os_sizes` width by ``H + 1`` texels.
 
+That lattice costs two extra samples a row, which is most of a small triangle's
+samples: at 640x360 on the default scene the oversampled triangles are 1-4 rows
+high and their staircases hold 3.4 samples per covered pixel.  The ``centred`` grid
+(ours, ``os_grid = "centred"``; the paper's lattice stays the default) puts the
+samples at cell centres, ``h`` rows of ``ceil(w (h - j) / h)``, and the client clamps
+each tap to its row's samples (four fetches, :func:`os_centred_taps`) instead of
+reading past the hypotenuse: 1.8 samples per covered pixel there, and 8.7% overhead at
+1080p against the lattice's 30.5%.
+
 **Atlas layout** (:class:`StableAtlas`, :func:`plan_atlas`): shelves per class (single
 texels, each L-packing level's pair cells, oversampling rectangles by height and rounded
 width); a triangle keeps its cell while it stays visible in the same class, so the
@@ -171,26 +180,47 @@ def os_linear_id(bary: np.ndarray, level: int) -> np.ndarray:
     return np.where(found, out, -1)
 
 
-def os_row_lengths(w: int, h: int) -> np.ndarray:
-    """(h + 1,) samples in each row of an oversampled staircase of base ``w`` and height ``h``.
+OS_GRIDS = ("centred", "paper")
+"""Oversampling grids: ``paper`` (samples on the integer lattice, each row long enough for a bilinear tap,
+figure 8) and ``centred`` (samples at cell centres, one row per unit of height, taps clamped to each row)."""
 
-    Row ``j`` holds ``x = 0 .. floor(w (1 - max(j - 1, 0) / h)) + 1``: every sample a
-    bilinear tap at a point of the triangle (``x / w + y / h <= 1``) reads.
+
+def os_rows(h: np.ndarray | int, grid: str = "paper") -> np.ndarray:
+    """Rows of an oversampled staircase of height ``h``: ``h + 1`` on the paper's lattice, ``h`` centred."""
+    return np.asarray(h, np.int64) + (1 if grid == "paper" else 0)
+
+
+def os_row_lengths(w: int, h: int, grid: str = "paper") -> np.ndarray:
+    """Samples in each row of an oversampled staircase of base ``w`` and height ``h``.
+
+    ``paper`` (``h + 1`` rows): row ``j`` holds ``x = 0 .. floor(w (1 - max(j - 1, 0) / h)) + 1``,
+    every sample a bilinear tap at a point of the triangle (``x / w + y / h <= 1``) reads.
+    ``centred`` (``h`` rows): row ``j`` holds the cell centres ``x + 1/2`` of the band
+    ``j <= y <= j + 1``, ``ceil(w (h - j) / h)`` of them (at least one); a tap beyond a
+    row's last centre takes that sample.
     """
-    j = np.arange(h + 1)
-    return (w * (h - np.maximum(j - 1, 0))) // h + 2          # integer arithmetic, as the shader
+    if grid == "paper":
+        j = np.arange(h + 1)
+        return (w * (h - np.maximum(j - 1, 0))) // h + 2      # integer arithmetic, as the shader
+    j = np.arange(h)
+    return np.maximum((w * (h - j) + h - 1) // h, 1)
 
 
-def os_sizes(w1: np.ndarray, w2: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def os_sizes(w1: np.ndarray, w2: np.ndarray, h: np.ndarray, grid: str = "paper") -> tuple[np.ndarray, np.ndarray]:
     """Per triangle, the width of the rectangle holding its two staircases (the second turned by 180 degrees,
     interlocked with the first) and their samples in all (:func:`os_row_lengths` per row)."""
     pw = np.zeros(h.size, np.int64)
     ns = np.zeros(h.size, np.int64)
     for hh in np.unique(h).tolist():
         k = np.flatnonzero(h == hh)
-        rows = hh - np.maximum(np.arange(hh + 1) - 1, 0)                  # (hh + 1,)
-        l1 = (w1[k, None] * rows) // hh + 2
-        l2 = (w2[k, None] * rows) // hh + 2
+        if grid == "paper":
+            rows = hh - np.maximum(np.arange(hh + 1) - 1, 0)              # (hh + 1,)
+            l1 = (w1[k, None] * rows) // hh + 2
+            l2 = (w2[k, None] * rows) // hh + 2
+        else:
+            rows = hh - np.arange(hh)                                     # (hh,)
+            l1 = np.maximum((w1[k, None] * rows + hh - 1) // hh, 1)
+            l2 = np.maximum((w2[k, None] * rows + hh - 1) // hh, 1)
         pw[k] = (l1 + l2[:, ::-1]).max(axis=1)
         ns[k] = l1.sum(axis=1) + l2.sum(axis=1)
     return pw, ns
@@ -278,7 +308,7 @@ class StableAtlas:
     shelves (one strip wide, or the whole width for cells wider than a strip) per
     *class*: single texels (shelves of one row), L-packing pair cells per cell level
     (:func:`lp_cell_level`; shelves of ``2 D`` rows), oversampling rectangles per
-    rounded height and width (:data:`LADDER`; shelves of ``h + 1`` rows).  A triangle whose class is unchanged keeps its cell; one that leaves or
+    rounded rows and width (:data:`LADDER`; shelves of that many rows).  A triangle whose class is unchanged keeps its cell; one that leaves or
     changes class frees it, and new ones take the lowest free cell of their class, or a
     new shelf in the least filled strip.  :meth:`place` with ``reset`` (or when space
     runs out) repacks every live triangle compactly in (class, id) order: the
@@ -314,7 +344,7 @@ class StableAtlas:
             D = int(tip_dim(key[1]))
             return 3 * D, 2 * D, lp_per_shelf(key[1], self.strip)
         cw = min(key[2], self.width)
-        return cw, key[1] + 1, max(1, (self.strip if cw <= self.strip else self.width) // cw)   # key: (OS, height, width)
+        return cw, key[1], max(1, (self.strip if cw <= self.strip else self.width) // cw)   # key: (OS, rows, width)
 
     def _class(self, key: tuple[int, ...]) -> int:
         c = self.index.get(key)
@@ -415,15 +445,16 @@ class StableAtlas:
 
 
 def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarray,
-               h: np.ndarray, a: np.ndarray, reset: bool = False) -> AtlasPlan:
+               h: np.ndarray, a: np.ndarray, reset: bool = False, grid: str = "paper") -> AtlasPlan:
     """Lay out triangles ``ids`` (sorted) in ``atlas``: keep places where the class is unchanged (or repack all with
-    ``reset``); ``plan.overflow`` when they do not fit even repacked, ``plan.repacked`` when they were repacked."""
+    ``reset``); ``plan.overflow`` when they do not fit even repacked, ``plan.repacked`` when they were repacked.
+    ``grid``: the oversampling grid (:data:`OS_GRIDS`)."""
     n = ids.size
-    pw, ns = os_sizes(w, w2, h)
+    pw, ns = os_sizes(w, w2, h, grid)
     samples = np.where(kind == KIND_SINGLE, 1, np.where(kind == KIND_LP, v_count(level), ns)).astype(np.int64)
     lvl = np.where(kind == KIND_OS, level_for(samples), level).astype(np.int64)
     cw = 8 * ladder(-(-pw // 8))
-    ch = ladder(h)
+    ch = ladder(os_rows(h, grid))
     cl = lp_cell_level(np.maximum(level, 1))
     keys = [(KIND_SINGLE,) if k == KIND_SINGLE else (KIND_LP, int(lv)) if k == KIND_LP else (KIND_OS, int(hh), int(c))
             for k, lv, hh, c in zip(kind.tolist(), cl.tolist(), ch.tolist(), cw.tolist())]
@@ -443,8 +474,11 @@ def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.
 
 
 def os_sample_bary(x: np.ndarray, y: np.ndarray, half: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray,
-                   a: np.ndarray) -> np.ndarray:
-    """(N, 3) screen-space barycentrics (base start, base end, apex) of staircase samples ``(x, y)`` of ``half`` 0/1."""
+                   a: np.ndarray, grid: str = "paper") -> np.ndarray:
+    """(N, 3) screen-space barycentrics (base start, base end, apex) of staircase samples ``(x, y)`` of ``half`` 0/1
+    (the sample's column and row; ``centred`` samples sit half a step further along both)."""
+    if grid != "paper":
+        x, y = x + 0.5, y + 0.5
     foot = np.stack([1 - a, a, np.zeros_like(a)], -1)
     up = np.stack([-(1 - a), -a, np.ones_like(a)], -1)
     along = np.where((half == 0)[:, None], np.stack([a, -a, np.zeros_like(a)], -1) / np.maximum(w, 1)[:, None],
@@ -461,6 +495,36 @@ def os_lookup(bary: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a:
     x1 = np.where(a > 0, (a - s) / np.where(a > 0, a, 1) * w, 0.0)
     x2 = np.where(a < 1, (s - a) / np.where(a < 1, 1 - a, 1) * w2, 0.0)
     return np.where(first[:, None], np.stack([x1, y], -1), np.stack([pw - 1 - x2, h - y], -1))
+
+
+def os_centred_taps(bary: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray,
+                    pw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The client's decode on the ``centred`` grid: for points ``bary`` (N, 3), four texels (N, 4, 2) (x, y from the
+    rectangle's origin) and their weights (N, 4): two rows, in each the two samples around the point's column,
+    clamped to the row's samples; mirrors ``shaders/client.frag``."""
+    b = np.asarray(bary, np.float64)
+    h = np.asarray(h, np.int64)
+    s = b[:, 1] + b[:, 2] * a
+    first = s <= a
+    x = np.where(first, np.where(a > 0, (a - s) / np.where(a > 0, a, 1) * w, 0.0),
+                 np.where(a < 1, (s - a) / np.where(a < 1, 1 - a, 1) * w2, 0.0))
+    W = np.where(first, w, w2).astype(np.int64)
+    yc = np.clip(b[:, 2] * h - 0.5, 0.0, np.maximum(h - 1, 0).astype(np.float64))
+    j0 = np.floor(yc).astype(np.int64)
+    j1 = np.minimum(j0 + 1, h - 1)
+    fy = yc - j0
+    texels = np.zeros((b.shape[0], 4, 2), np.int64)
+    weights = np.zeros((b.shape[0], 4))
+    for r, (j, wy) in enumerate(((j0, 1.0 - fy), (j1, fy))):
+        n = np.maximum((W * (h - j) + h - 1) // np.maximum(h, 1), 1)
+        xc = np.clip(x - 0.5, 0.0, (n - 1).astype(np.float64))
+        i0 = np.floor(xc).astype(np.int64)
+        i1 = np.minimum(i0 + 1, n - 1)
+        fx = xc - i0
+        for c, (i, wx) in enumerate(((i0, 1.0 - fx), (i1, fx))):
+            texels[:, 2 * r + c] = np.where(first[:, None], np.stack([i, j], -1), np.stack([pw - 1 - i, h - 1 - j], -1))
+            weights[:, 2 * r + c] = wx * wy
+    return texels, weights
 
 
 def layout_attributes(kind: np.ndarray, origin: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray, a: np.ndarray,

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import grow_vertex_buffer, read_shader, runs, set_reference_view
+from ...render.gl import grow_vertex_buffer, read_shader, runs, set_reference_view, set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
@@ -174,7 +174,7 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
 
 
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
-             visible: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+             visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
@@ -196,7 +196,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     slant = longest / np.maximum(height, 1e-9)
     shown = area if visible is None else np.minimum(area, visible)
     need = shown * rate
-    kind = np.where(need < tiny, KIND_SINGLE, np.where(slant > slant_threshold, KIND_OS, KIND_LP)).astype(np.int64)
+    # one texel only for a triangle that is small in both directions: a sliver (a far floor tile's triangle,
+    # 8 px long and a quarter pixel high) would show one colour along its whole length
+    single = (need < tiny) & (longest * np.sqrt(rate * shown / np.maximum(area, 1e-12)) < sliver_px)
+    kind = np.where(single, KIND_SINGLE, np.where(slant > slant_threshold, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
     # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
     b0 = px[r, base]
@@ -209,7 +212,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     w2 = np.ceil((1.0 - a) * longest * sq)
     h = np.ceil(height * sq)
     # both staircases must fit one patch (v(64) threads): shrink them evenly if not
-    total = (w1 + w2 + 4) * (h + 1)
+    total = (w1 + w2 + 4) * (h + 1) if grid == "paper" else (w1 + w2 + 2) * h    # bounds of os_sizes' samples
     shrink = np.sqrt(np.minimum(1.0, 0.9 * int(v_count(MAX_LEVEL)) / np.maximum(total, 1)))
     w1, w2, h = (np.clip(np.floor(v * shrink), 1, 4096).astype(np.int64) for v in (w1, w2, h))
     return kind, level, w1, w2, h, a, base, slant, need
@@ -256,7 +259,8 @@ class TssServer(ServerHalf):
         return [StreamSpec("atlas", v, *self.atlas), DataStreamSpec("tris", "reliable"), DataStreamSpec("geo", "reliable")]
 
     def session_data(self) -> dict[str, Any]:
-        return {"v": WIRE_VERSION, "atlas": list(self.atlas), "strip": self.store.strip, "n_objects": len(self.scene.objects),
+        return {"v": WIRE_VERSION, "atlas": list(self.atlas), "strip": self.store.strip, "os_grid": self.config.os_grid,
+                "n_objects": len(self.scene.objects),
                 "n_triangles": self.tris.count, "sky": list(map(float, self.scene.sky_color))}
 
     def stats(self) -> dict[str, float]:
@@ -323,10 +327,10 @@ class TssServer(ServerHalf):
         reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible)
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
-            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0)
+            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0, grid=c.os_grid)
             if not plan.overflow:
                 break
             failed = rate
@@ -338,8 +342,8 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible)
-                p2 = plan_atlas(self.store, ids, *k2[:6], reset=True)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
+                p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid
                 else:
@@ -347,11 +351,11 @@ class TssServer(ServerHalf):
                     good = (p2, *k2[:8], mid)
             if good[0] is not plan or good[-1] != rate:
                 plan, kind, level, w1, w2, h, a, base, slant, rate = good
-                plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True)   # the store holds the last try
+                plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)   # the store holds the last try
         if plan.overflow:   # the last resort: one texel per triangle
             log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
             kind[:] = KIND_SINGLE
-            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True)
+            plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)
             if plan.overflow:
                 raise RuntimeError(f"tss: {ids.size} triangles do not fit a {W}x{H} atlas even as single texels")
         self._prev_kind[:] = -1
@@ -485,6 +489,7 @@ class TssServer(ServerHalf):
         prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # per-sample texture gradients
+        set_uniform(prog, "u_os_centred", int(self.config.os_grid == "centred"))
         self._tex.bind_to_image(0, read=False, write=True)
         self._counter.bind_to_storage_buffer(1)
         o = self.tris.obj[ids]

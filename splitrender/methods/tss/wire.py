@@ -2,7 +2,8 @@
 
 Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels, ``strip``
 (width of the atlas's shelf strips, texels, :func:`~.layout.strip_width`),
-``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
+``os_grid`` (``centred`` or ``paper``: where oversampled triangles' samples sit,
+:func:`~.layout.os_row_lengths`), ``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
 scene's triangles in object order), ``sky`` RGB.
 
 Per frame, two ``reliable`` data streams (zstd-compressed by the pipeline) and the
@@ -33,12 +34,13 @@ then
   (:func:`~.layout.lp_tip_origins`);
 - 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
   ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
-  and common height (samples), ``u16 a`` the height's foot on the base (fraction x
+  and common height (samples; the rectangle has ``h`` rows on the centred grid,
+  ``h + 1`` on the paper's), ``u16 a`` the height's foot on the base (fraction x
   65535), ``u8 flags`` (bit 1 no perspective correction, others 0), ``u8 base`` (the
   vertex starting the base; the client rotates its vertices so it comes first).
 
-Version 2 added delta tables; version 1 sent the full table every frame (20 KB of a
-30 KB frame on the walk at 160x90).
+Version 3 added ``os_grid``; version 2 added delta tables; version 1 sent the full
+table every frame (20 KB of a 30 KB frame on the walk at 160x90).
 
 Per-frame metadata: ``v``, ``xf`` float32 (n_objects, 4, 4) object-to-world matrices
 at the frame's time (what the atlas was shaded with; the frame's pose is the
@@ -54,9 +56,10 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from .layout import KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins, os_sizes, tip_dim
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins,
+                     os_rows, os_sizes, tip_dim)
 
-WIRE_VERSION = 2
+WIRE_VERSION = 3
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
                      ("flags", "u1"), ("base", "u1")])
 """The 16-byte oversampling descriptor."""
@@ -204,7 +207,8 @@ class Table:
     base: np.ndarray
 
 
-def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int) -> tuple[Table, np.ndarray | None]:
+def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int,
+                 grid: str = "centred") -> tuple[Table, np.ndarray | None]:
     """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width).
 
     Returns the table's rows (all live triangles for a full table, the changed ones for a delta) and, for a
@@ -222,10 +226,10 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: in
         if ng > n_triangles:
             raise TssWireError(f"tss tris: {ng} triangles gone, the scene has {n_triangles}")
         gone = decode_ids(r.array("<u4", ng, "gone ids"), "tris gone ids", n_triangles)
-    return _decode_body(r, n_triangles, atlas, strip), gone
+    return _decode_body(r, n_triangles, atlas, strip, grid), gone
 
 
-def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int) -> Table:
+def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int, grid: str) -> Table:
     W, H = atlas
     S = strip
     n0, n1, n2, nb = struct.unpack("<IIIH", r.take(14, "counts"))
@@ -290,11 +294,11 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         w1, ww2, hh, pw = (rec[k].astype(np.int64) for k in ("w1", "w2", "h", "pw"))
         if (np.minimum(w1, np.minimum(ww2, hh)) < 1).any() or (np.maximum(w1, np.maximum(ww2, hh)) > MAX_OS_SIDE).any():
             raise TssWireError(f"tss tris: oversampling size outside 1..{MAX_OS_SIDE}")
-        need, _ = os_sizes(w1, ww2, hh)
+        need, _ = os_sizes(w1, ww2, hh, grid)
         if (pw < need).any():
             raise TssWireError("tss tris: an oversampling rectangle is narrower than its two staircases")
         x, y = rec["x"].astype(np.int64), rec["y"].astype(np.int64)
-        if (x + pw > W).any() or (y + hh + 1 > H).any():
+        if (x + pw > W).any() or (y + os_rows(hh, grid) > H).any():
             raise TssWireError(f"tss tris: an oversampling rectangle reaches outside the {W}x{H} atlas")
         origin[sl, 0, 0], origin[sl, 0, 1], origin[sl, 1, 0] = x, y, pw
         w[sl], w2[sl], h[sl] = w1, ww2, hh
@@ -308,6 +312,7 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
 class Session:
     atlas: tuple[int, int]
     strip: int
+    os_grid: str
     n_objects: int
     n_triangles: int
     sky: tuple[float, float, float]
@@ -322,6 +327,7 @@ def parse_session(data: Any) -> Session:
     try:
         W, H = (int(x) for x in data["atlas"])
         strip = int(data["strip"])
+        grid = data["os_grid"]
         n_obj, n_tri = int(data["n_objects"]), int(data["n_triangles"])
         sky = tuple(float(x) for x in data["sky"])
     except (KeyError, TypeError, ValueError) as exc:
@@ -330,9 +336,11 @@ def parse_session(data: Any) -> Session:
         raise TssWireError(f"tss session data: atlas {W}x{H} must be even and at most 16384")
     if not min(W, 128) <= strip <= W:
         raise TssWireError(f"tss session data: strip {strip} must be in [min(128, W), W] for an atlas {W} wide")
+    if grid not in OS_GRIDS:
+        raise TssWireError(f"tss session data: os_grid {grid!r} is not one of {list(OS_GRIDS)}")
     if not (0 <= n_obj <= 65535 and 0 <= n_tri < 1 << 25) or len(sky) != 3:
         raise TssWireError("tss session data: n_objects, n_triangles or sky out of range")
-    return Session((W, H), strip, n_obj, n_tri, sky)  # type: ignore[arg-type]
+    return Session((W, H), strip, grid, n_obj, n_tri, sky)  # type: ignore[arg-type]
 
 
 def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:

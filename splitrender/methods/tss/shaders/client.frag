@@ -8,6 +8,7 @@ flat in vec4 v_o0;
 flat in vec4 v_o1;
 uniform sampler2D u_atlas;
 uniform vec2 u_atlas_size;
+uniform int u_os_centred;   // oversampling grid: 1 cell centres, taps clamped to each row (layout.os_centred_taps)
 layout(location = 0) out vec4 f_color;
 
 vec2 tip_origin(int t) { return t == 0 ? v_o0.xy : (t == 1 ? v_o0.zw : v_o1.xy); }
@@ -34,6 +35,35 @@ void main() {
         float r = min(m * 1.5 * l, floor(l * 0.5));
         float c = (s + 0.5 * m) * l;
         p = tip_origin(t) + 0.5 + (side_a ? vec2(c, r) : vec2(r, c));
+    } else if (u_os_centred != 0) {
+        // centred grid: two rows around the point, in each the two samples around its column,
+        // clamped to the samples that row holds (its length as the server's os_row_lengths)
+        float a = v_o0.w;
+        int W1 = int(v_o1.x + 0.5), W2 = int(v_o1.y + 0.5), H = int(v_o1.z + 0.5), PW = int(v_o0.z + 0.5);
+        float s = B.y + B.z * a;
+        bool first = s <= a;
+        float x = first ? (a > 0.0 ? (a - s) / a * float(W1) : 0.0) : (a < 1.0 ? (s - a) / (1.0 - a) * float(W2) : 0.0);
+        int W = first ? W1 : W2;
+        float yc = clamp(B.z * float(H) - 0.5, 0.0, float(H - 1));
+        int j0 = int(floor(yc));
+        int j1 = min(j0 + 1, H - 1);
+        float fy = yc - float(j0);
+        ivec2 o = ivec2(v_o0.xy);
+        vec3 acc = vec3(0.0);
+        for (int r = 0; r < 2; ++r) {
+            int j = r == 0 ? j0 : j1;
+            int n = max((W * (H - j) + H - 1) / H, 1);
+            float xc = clamp(x - 0.5, 0.0, float(n - 1));
+            int i0 = int(floor(xc));
+            int i1 = min(i0 + 1, n - 1);
+            float fx = xc - float(i0);
+            ivec2 t0 = first ? o + ivec2(i0, j) : o + ivec2(PW - 1 - i0, H - 1 - j);
+            ivec2 t1 = first ? o + ivec2(i1, j) : o + ivec2(PW - 1 - i1, H - 1 - j);
+            vec3 row = mix(texelFetch(u_atlas, t0, 0).rgb, texelFetch(u_atlas, t1, 0).rgb, fx);
+            acc += row * (r == 0 ? 1.0 - fy : fy);
+        }
+        f_color = vec4(acc, 1.0);
+        return;
     } else {
         // the two right-triangle staircases: which side of the height's foot, then x from it
         float a = v_o0.w;

@@ -7,6 +7,7 @@ bool g_grad = false;      // per-sample gradients found
 vec2 g_dx, g_dy;          // d(uv)/d(display x, y) at the sample, seen from the reference view
 uniform mat4 u_view_proj; // the reference view's projection * view (zero: per-triangle levels only)
 uniform vec2 u_viewport;  // display pixels
+uniform int u_os_centred; // oversampling grid: 1 cell centres (layout.os_row_lengths "centred"), 0 the paper's lattice
 #define ALBEDO_LOOKUP(uv) (g_grad ? textureGrad(u_albedo, uv, g_dx, g_dy) : textureLod(u_albedo, uv, g_lod))
 #include "shading.glsl"
 const float EPS = 1e-4;
@@ -61,22 +62,25 @@ bool os_staircase(int id, out vec3 Bs, out ivec2 at) {
     // two right-triangle staircases (figure 8): x along the base from the foot, y up the height
     float a = p_o0.w;
     int W1 = int(p_o1.x + 0.5), W2 = int(p_o1.y + 0.5), H = int(p_o1.z + 0.5);
+    bool centred = u_os_centred != 0;
+    int rows = centred ? H : H + 1;
     int left = id, hf = -1, y = 0;
     for (int h2 = 0; h2 < 2 && hf < 0; ++h2) {
         int W = h2 == 0 ? W1 : W2;
-        for (int yy = 0; yy <= H; ++yy) {
-            int len = (W * (H - max(yy - 1, 0))) / H + 2;
+        for (int yy = 0; yy < rows; ++yy) {
+            int len = centred ? max((W * (H - yy) + H - 1) / H, 1) : (W * (H - max(yy - 1, 0))) / H + 2;
             if (left < len) { hf = h2; y = yy; break; }
             left -= len;
         }
     }
     if (hf < 0) return false;
     int x = left;
+    float c = centred ? 0.5 : 0.0;
     vec3 foot = vec3(1.0 - a, a, 0.0);
     vec3 along = hf == 0 ? vec3(a, -a, 0.0) / float(W1) : vec3(-(1.0 - a), 1.0 - a, 0.0) / float(W2);
-    Bs = foot + float(x) * along + float(y) / float(H) * vec3(-(1.0 - a), -a, 1.0);
+    Bs = foot + (float(x) + c) * along + (float(y) + c) / float(H) * vec3(-(1.0 - a), -a, 1.0);
     ivec2 o = ivec2(p_o0.xy);
-    at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, H - y);
+    at = hf == 0 ? o + ivec2(x, y) : o + ivec2(int(p_o0.z + 0.5) - 1 - x, rows - 1 - y);
     return true;
 }
 
