@@ -131,6 +131,9 @@ class Renderer:
         from .canvas import FullscreenPass
 
         self._background = FullscreenPass(self.ctx, SHADER_DIR / "background.frag")
+        self._gi: dict[int, Any] = {}
+        self._gi_building: set[int] = set()
+        self._gi_none: Any = None
 
     # ------------------------------------------------------------------ resources
     def upload(self, scene: Scene) -> SceneGPU:
@@ -276,6 +279,42 @@ class Renderer:
                 prog["u_point_pos"].write(pos.tobytes())
             if "u_point_color" in prog:
                 prog["u_point_color"].write(col.tobytes())
+        self._bind_gi(prog, scene, t_s)
+
+    def gi_volume(self, scene: Scene) -> Any:
+        """The scene's DDGI probes on this renderer (captured on first use; None while being captured)."""
+        from ..gi.ddgi import DdgiSettings, DdgiVolume
+
+        key = id(scene)
+        vol = self._gi.get(key)
+        if vol is None or vol.scene is not scene:
+            if key in self._gi_building:
+                return None
+            self._gi_building.add(key)
+            try:
+                vol = DdgiVolume(self, scene, DdgiSettings(counts=tuple(scene.gi_probes)))  # type: ignore[arg-type]
+            finally:
+                self._gi_building.discard(key)
+            self._gi[key] = vol
+        return vol
+
+    def _bind_gi(self, prog: Any, scene: Scene, t_s: float) -> None:
+        from ..gi.ddgi import GI_UNITS
+
+        vol = self.gi_volume(scene) if scene.gi == "ddgi" else None
+        if vol is not None:
+            if not vol.updating:
+                vol.update(t_s)
+            vol.bind(prog)
+            set_uniform(prog, "u_gi", 1)
+            return
+        set_uniform(prog, "u_gi", 0)
+        if "u_gi_irr" in prog or "u_gi_vis" in prog:   # every sampler gets a texture of its own
+            if self._gi_none is None:
+                self._gi_none = self.ctx.texture((1, 1), 4, np.zeros(4, "f4").tobytes(), dtype="f4")
+            for unit, name in zip(GI_UNITS, ("u_gi_irr", "u_gi_vis")):
+                self._gi_none.use(location=unit)
+                set_uniform(prog, name, unit)
 
     def bind_material(self, prog: Any, og: ObjectGPU, texture_unit: int = 0) -> None:
         """Set the material uniforms of ``shading.glsl``: the base-colour texture on ``texture_unit``,

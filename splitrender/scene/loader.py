@@ -345,6 +345,7 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
 
 
 GROUND_OPTION = "+ground"
+GI_OPTION = "+gi"
 """Suffix of a scene file path that adds the ground plane: ``model.glb+ground``."""
 
 
@@ -352,7 +353,13 @@ def get_scene(name_or_path: str) -> Scene:
     """A built-in scene by name (``default``, ``minimal``) or a scene file by path.
 
     A file is rescaled to 4 m (largest extent); ``path+ground`` adds a ground plane.
+    A trailing ``+gi`` (``default+gi``) turns on DDGI global illumination (``Scene.gi``).
     """
+    if name_or_path.endswith(GI_OPTION):
+        scene = get_scene(name_or_path[: -len(GI_OPTION)])
+        scene.gi = "ddgi"
+        scene.name += GI_OPTION
+        return scene
     if name_or_path in BUILTIN_SCENES:
         return BUILTIN_SCENES[name_or_path]()
     ground = name_or_path.endswith(GROUND_OPTION)

@@ -228,6 +228,7 @@ class PointLight:
 
 
 MAX_POINT_LIGHTS = 8
+GI_MODES = ("none", "ddgi")
 
 
 @dataclass
@@ -236,6 +237,10 @@ class Scene:
 
     ``subject``: world bounds (lo, hi) in metres of a loaded model, which the built-in
     traces frame; None for the built-in scenes (their traces are fixed).
+    ``gi``: ``none`` (the constant ``ambient`` on a hemisphere gradient) or ``ddgi``
+    (light probes over the scene's bounds, ``gi_probes`` along x, y, z, whose
+    irradiance replaces the ambient term in every method's shading; the sky's radiance
+    is ``ambient``; :mod:`splitrender.gi.ddgi`).
     """
 
     name: str
@@ -247,10 +252,14 @@ class Scene:
     version: int = 0
     shading: str = "pbr"
     subject: tuple[np.ndarray, np.ndarray] | None = None
+    gi: str = "none"
+    gi_probes: tuple[int, int, int] = (8, 4, 8)
 
     def __post_init__(self) -> None:
         if self.shading not in SHADING_MODELS:
             raise ValueError(f"scene {self.name}: shading {self.shading!r} is not one of {list(SHADING_MODELS)}")
+        if self.gi not in GI_MODES:
+            raise ValueError(f"scene {self.name}: gi {self.gi!r} is not one of {list(GI_MODES)}")
         ids = [o.object_id for o in self.objects]
         if len(set(ids)) != len(ids) or any(i <= 0 for i in ids):
             raise ValueError("scene object ids must be unique and >= 1")

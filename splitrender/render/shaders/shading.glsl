@@ -43,6 +43,15 @@ uniform sampler2DShadow u_shadow_map_dyn;  // animated casters, rendered per tim
 uniform mat4 u_light_vp;         // world -> light clip
 uniform int u_has_shadow;
 
+#include "ddgi.glsl"
+
+// Diffuse ambient light (per pi, as the lights' colours): the scene's constant ambient on a
+// hemisphere gradient, or with DDGI (u_gi) the probes' irradiance over pi.
+vec3 ambient_diffuse(vec3 world_pos, vec3 n, vec3 v) {
+    if (u_gi != 0) return gi_irradiance(world_pos, n, v) / PI;
+    return u_ambient * (0.75 + 0.25 * n.y);
+}
+
 float shadow_factor(vec3 world_pos, vec3 n) {
     if (u_has_shadow == 0) return 1.0;
     vec3 p = world_pos + n * 0.03;
@@ -83,7 +92,7 @@ vec3 shade_phong(vec3 world_pos, vec3 n, vec2 uv, vec3 v) {
     vec3 h = normalize(l + v);
     float spec = u_specular * pow(max(dot(n, h), 0.0), u_shininess) * step(0.0, ndl);
     float sh = shadow_factor(world_pos, n);
-    vec3 c = albedo * u_ambient * (0.75 + 0.25 * n.y);
+    vec3 c = albedo * ambient_diffuse(world_pos, n, v);
     c += (albedo * ndl + spec) * u_sun_color * sh;
     for (int i = 0; i < u_num_point; ++i) {
         vec3 d = u_point_pos[i].xyz - world_pos;
@@ -158,7 +167,7 @@ vec3 shade_pbr(vec3 world_pos, vec3 n_geo, vec4 tangent, vec2 uv, vec3 v) {
     // environment along the reflection for specular
     vec3 r = reflect(-v, n);
     vec3 env = mix(u_ambient, u_sky_env, smoothstep(-0.2, 0.4, r.y) * (1.0 - 0.7 * roughness));
-    vec3 c = (c_diff * u_ambient * (0.75 + 0.25 * n.y) + env_brdf(f0, roughness, ndv) * env) * ao;
+    vec3 c = (c_diff * ambient_diffuse(world_pos, n, v) + env_brdf(f0, roughness, ndv) * env) * ao;
     float sh = shadow_factor(world_pos, n_geo);
     c += gltf_brdf(n, v, -u_sun_dir, c_diff, f0, a2, ndv) * u_sun_color * sh;
     for (int i = 0; i < u_num_point; ++i) {

@@ -1,0 +1,289 @@
+"""DDGI light probes (Majercik et al. 2019): a grid of probes that hold irradiance and distance moments.
+
+The scene-level global illumination every method's shading shares when a scene sets
+``gi = "ddgi"`` (``render/shaders/ddgi.glsl`` reads the probes in place of the constant
+ambient term).  Everything here is deterministic: a still scene gives bit-identical
+probes at every update.
+
+**Tracing by rasterisation.**  A GPU ray tracer is not available on llvmpipe; each probe
+sees the scene instead through a cube of six ``face_res`` x ``face_res`` faces, whose
+pixel centres are its fixed ray set (6 x 16^2 = 1536 rays; the paper uses 256 random
+rays per update).  The cube faces of every probe are rasterised once per scene into a
+G-buffer atlas (what each ray hits: position, normal, back-face flag, diffuse colour,
+emission).  An update relights that atlas in one full-screen pass: the sun with the
+scene's shadow maps at the update's time, the point lights, and the previous bounce's
+probes; rays that miss see the sky, whose radiance is the scene's ``ambient`` colour (so
+an open surface facing up receives the same light as without GI).  ``bounces`` passes
+give that many bounces of indirect light.  The radiance then becomes
+
+- irradiance ``E(n) = sum max(0, n . w) L(w) dOmega`` in an 8 x 8 octahedral map, and
+- the mean distance and mean squared distance to what the rays hit, weighted by
+  ``max(0, n . w)^50`` as DDGI does, in a 16 x 16 map,
+
+each with a one-texel guard band (10 x 10 and 18 x 18 tiles; paper: 3.125 kbit and
+10.125 kbit per probe at 32 bits a texel).
+
+**Simplification (ours):** geometry is captured once, with every object at its pose at
+time 0, so moving objects cast their shadows into the bounce light (the shadow maps are
+per time) but do not move their own bounce.  Probes with more than a quarter of their
+rays on back faces sit inside geometry and are inactive (DDGI's classification).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..render.gl import SHADER_DIR, load_program, set_uniform
+from .octa import CUBE_FACES, add_guard, cube_directions, irradiance_weights, texel_directions, visibility_weights
+
+IRR_CORE = 8
+VIS_CORE = 16
+IRR_TILE = IRR_CORE + 2
+VIS_TILE = VIS_CORE + 2
+BITS_PER_TEXEL = 32
+"""The paper's texel formats: A2RGB10 irradiance, RG16F visibility."""
+GI_UNITS = (12, 13)
+"""Texture units of the irradiance and visibility atlases in every program that includes ``shading.glsl``."""
+NEAR_M = 0.02
+SHARPNESS = 50.0
+BACKFACE_INACTIVE = 0.25
+
+
+@dataclass(frozen=True)
+class DdgiSettings:
+    """``counts`` probes along x, y, z over the scene's bounds (paper: 16x8x16 and up);
+    ``face_res`` cube-face pixels (rays: ``6 face_res^2``); ``bounces`` of indirect light;
+    ``bias`` metres along the normal and the view before the lookup."""
+
+    counts: tuple[int, int, int] = (8, 4, 8)
+    face_res: int = 16
+    bounces: int = 2
+    bias: float = 0.1
+
+    def __post_init__(self) -> None:
+        if len(self.counts) != 3 or not all(2 <= int(c) <= 64 for c in self.counts):
+            raise ValueError(f"ddgi counts: each of the three must be in [2, 64], got {self.counts}")
+        if not 4 <= self.face_res <= 64:
+            raise ValueError(f"ddgi face_res: must be in [4, 64], got {self.face_res}")
+        if not 1 <= self.bounces <= 8:
+            raise ValueError(f"ddgi bounces: must be in [1, 8], got {self.bounces}")
+
+
+def probe_grid(lo: np.ndarray, hi: np.ndarray, counts: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, spacing): probe ``(i, j, k)`` sits at ``origin + (i, j, k) * spacing``, the centres of a
+    ``counts`` grid of cells over the box ``lo``..``hi``."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    spacing = np.maximum(hi - lo, 1e-3) / np.asarray(counts, np.float64)
+    return lo + spacing / 2.0, spacing
+
+
+def face_view(eye: np.ndarray, face: int) -> np.ndarray:
+    """4x4 view matrix of cube face ``face`` (:data:`~.octa.CUBE_FACES`) of a probe at ``eye``."""
+    f, up = (np.asarray(v, np.float64) for v in CUBE_FACES[face])
+    r = np.cross(f, up)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = r, up, -f
+    m[:3, 3] = -m[:3, :3] @ np.asarray(eye, np.float64)
+    return m
+
+
+def face_projection(far: float) -> np.ndarray:
+    """90-degree square perspective from :data:`NEAR_M` to ``far``."""
+    n = NEAR_M
+    p = np.zeros((4, 4))
+    p[0, 0] = p[1, 1] = 1.0
+    p[2, 2] = -(far + n) / (far - n)
+    p[2, 3] = -2.0 * far * n / (far - n)
+    p[3, 2] = -1.0
+    return p
+
+
+class DdgiVolume:
+    """The probes of one scene on one renderer: captured once, relit per update."""
+
+    def __init__(self, renderer: Any, scene: Any, settings: DdgiSettings | None = None) -> None:
+        self.renderer, self.scene = renderer, scene
+        self.settings = s = settings or DdgiSettings()
+        lo, hi = (np.asarray(v, np.float64) for v in scene.bounds())
+        self.origin, self.spacing = probe_grid(lo, hi, s.counts)
+        cx, cy, cz = s.counts
+        self.count = cx * cy * cz
+        k, j, i = np.meshgrid(np.arange(cz), np.arange(cy), np.arange(cx), indexing="ij")
+        self.positions = self.origin + np.stack([i, j, k], -1).reshape(-1, 3) * self.spacing   # probe = i + cx (j + cy k)
+        self.cols = int(math.ceil(math.sqrt(self.count)))
+        self.rows = int(math.ceil(self.count / self.cols))
+        F = s.face_res
+        self.tile = (6 * F, F)
+        self.far = float(np.linalg.norm(hi - lo)) * 1.5 + 1.0
+        self.max_distance = float(np.linalg.norm(self.spacing)) * 2.0
+        dirs, omega = cube_directions(F)
+        self._w_irr = irradiance_weights(texel_directions(IRR_CORE), dirs, omega).astype(np.float32)
+        self._w_vis = visibility_weights(texel_directions(VIS_CORE), dirs, omega, SHARPNESS).astype(np.float32)
+        ctx = renderer.ctx
+        self.ctx = ctx
+        W, H = self.cols * self.tile[0], self.rows * self.tile[1]
+        self._cap = [ctx.texture((W, H), 4, dtype=dt) for dt in ("f4", "f2", "f2", "f2")]
+        for t in self._cap:
+            t.filter = (renderer._nearest, renderer._nearest)
+        self._rad = ctx.texture((W, H), 4, dtype="f4")
+        self._rad_fbo = ctx.framebuffer([self._rad])
+        self.irr_tex = ctx.texture((self.cols * IRR_TILE, self.rows * IRR_TILE), 4, dtype="f4")
+        self.vis_tex = ctx.texture((self.cols * VIS_TILE, self.rows * VIS_TILE), 2, dtype="f4")
+        self.active = np.ones(self.count, bool)
+        self.irradiance = np.zeros((self.count, IRR_CORE * IRR_CORE, 3), np.float32)
+        self.moments = np.zeros((self.count, VIS_CORE * VIS_CORE, 2), np.float32)
+        self.updates = 0
+        self.updating = False
+        self._key: Any = None
+        self._capture()
+        from ..render.canvas import FullscreenPass
+
+        self._relight = FullscreenPass(ctx, SHADER_DIR / "gi_relight.frag")
+
+    # ------------------------------------------------------------------ capture (once)
+    def _per_ray(self, img: np.ndarray) -> np.ndarray:
+        """(count, 6 F^2, C) per-probe rays of an atlas image (H, W, C) laid out as the capture tiles."""
+        F = self.settings.face_res
+        C = img.shape[-1]
+        t = img.reshape(self.rows, F, self.cols, 6, F, C).transpose(0, 2, 3, 1, 4, 5)   # (row, col, face, y, x, C)
+        return t.reshape(self.rows * self.cols, 6 * F * F, C)[: self.count]
+
+    def _capture(self) -> None:
+        r, ctx, scene = self.renderer, self.ctx, self.scene
+        sg = r.upload(scene)
+        prog = load_program(ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "gi_capture.frag")
+        r.bind_shading(prog, scene, 0.0)          # (renders the shadow maps: before our framebuffer is bound)
+        zbuf = ctx.depth_renderbuffer(self._cap[0].size)
+        fbo = ctx.framebuffer(self._cap, zbuf)
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        prog["u_proj"].write(np.asarray(face_projection(self.far), "f4").T.tobytes())
+        F = self.settings.face_res
+        models = {og.obj.object_id: og.obj.model_matrix(0.0) for og in sg.objects}
+        vaos = [ctx.vertex_array(prog, [(og.vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv"), (og.tbo, "4f", "in_tangent")],
+                                 og.ibo, skip_errors=True) for og in sg.objects]
+        for p in range(self.count):
+            eye = self.positions[p]
+            set_uniform(prog, "u_eye", tuple(float(x) for x in eye))
+            ty, tx = divmod(p, self.cols)
+            for face in range(6):
+                ctx.viewport = (tx * self.tile[0] + face * F, ty * F, F, F)
+                prog["u_view"].write(np.asarray(face_view(eye, face), "f4").T.tobytes())
+                for og, vao in zip(sg.objects, vaos):
+                    model = models[og.obj.object_id]
+                    prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
+                    prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(model[:3, :3]).T, "f4").T.tobytes())
+                    r.bind_material(prog, og)
+                    vao.render()
+        W, H = self._cap[0].size
+        pos = np.frombuffer(self._cap[0].read(), np.float32).reshape(H, W, 4)
+        nrm = np.frombuffer(self._cap[1].read(), np.float16).reshape(H, W, 4).astype(np.float32)
+        self._hit = self._per_ray(pos[..., 3:4])[..., 0] > 0.5
+        back = self._per_ray(nrm[..., 3:4])[..., 0] > 0.5
+        self.active = (back & self._hit).mean(axis=1) <= BACKFACE_INACTIVE
+        dist = np.linalg.norm(self._per_ray(pos[..., :3]) - self.positions[:, None, :], axis=-1)
+        dist = np.where(self._hit, np.minimum(dist, self.max_distance), self.max_distance)
+        dist = np.where(back & self._hit, dist * 0.2, dist)          # DDGI: back faces pull the distance in
+        d = dist.astype(np.float32)
+        self.moments = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1).astype(np.float32)   # (count, VIS^2, 2)
+        vis = add_guard(self.moments.reshape(self.count, VIS_CORE, VIS_CORE, 2))
+        self.vis_tex.write(self._atlas(vis, VIS_TILE).tobytes())
+        for vao in vaos:
+            vao.release()
+        self._rad_fbo.use()                      # not the framebuffer about to be released
+        fbo.release()
+        zbuf.release()
+        prog.release()
+
+    def _atlas(self, tiles: np.ndarray, size: int) -> np.ndarray:
+        """(rows * size, cols * size, C) float32 texture of per-probe tiles (count, size, size, C)."""
+        C = tiles.shape[-1]
+        out = np.zeros((self.rows * self.cols, size, size, C), np.float32)
+        out[: self.count] = tiles
+        return out.reshape(self.rows, self.cols, size, size, C).transpose(0, 2, 1, 3, 4).reshape(
+            self.rows * size, self.cols * size, C)
+
+    # ------------------------------------------------------------------ relight (per update)
+    def bind(self, prog: Any) -> None:
+        """Set the probe uniforms and textures of ``ddgi.glsl`` on ``prog`` (``u_gi`` left to the caller)."""
+        self.irr_tex.use(location=GI_UNITS[0])
+        self.vis_tex.use(location=GI_UNITS[1])
+        set_uniform(prog, "u_gi_irr", GI_UNITS[0])
+        set_uniform(prog, "u_gi_vis", GI_UNITS[1])
+        set_uniform(prog, "u_gi_origin", tuple(float(x) for x in self.origin))
+        set_uniform(prog, "u_gi_spacing", tuple(float(x) for x in self.spacing))
+        set_uniform(prog, "u_gi_counts", tuple(int(c) for c in self.settings.counts))
+        set_uniform(prog, "u_gi_cols", self.cols)
+        set_uniform(prog, "u_gi_irr_core", IRR_CORE)
+        set_uniform(prog, "u_gi_vis_core", VIS_CORE)
+        set_uniform(prog, "u_gi_bias", float(self.settings.bias))
+
+    def state_key(self, t_s: float) -> tuple[Any, ...]:
+        """What the probes at ``t_s`` depend on: the lights and the sky and, with animated shadow casters, the time."""
+        sc = self.scene
+        sun = (float(sc.sun.intensity.value(t_s)), tuple(sc.sun.direction), tuple(sc.sun.color)) if sc.sun is not None else None
+        pts = tuple((float(pl.intensity.value(t_s)), tuple(pl.position), tuple(pl.color), pl.range_m) for pl in sc.point_lights)
+        return (sun, pts, tuple(sc.ambient), float(t_s) if sc.dynamic_ids() and sc.sun is not None else None)
+
+    def update(self, t_s: float) -> bool:
+        """Relight the probes for time ``t_s`` unless they already hold that state; True when they were relit."""
+        key = self.state_key(t_s)
+        if key == self._key:
+            return False
+        prev_fbo, prev_viewport = self.ctx.fbo, self.ctx.viewport
+        self.updating = True
+        try:
+            self._relight_all(t_s)
+        finally:
+            self.updating = False
+            prev_fbo.use()
+            self.ctx.viewport = prev_viewport
+        self._key = key
+        self.updates += 1
+        return True
+
+    def _relight_all(self, t_s: float) -> None:
+        r, ctx = self.renderer, self.ctx
+        prog = self._relight.prog
+        self.irradiance[:] = 0.0
+        self.irr_tex.write(self._atlas(add_guard(np.concatenate(
+            [self.irradiance.reshape(self.count, IRR_CORE, IRR_CORE, 3),
+             self.active.astype(np.float32)[:, None, None, None] * np.ones((1, IRR_CORE, IRR_CORE, 1), np.float32)], -1)),
+            IRR_TILE).tobytes())
+        for b in range(self.settings.bounces):
+            r.bind_shading(prog, self.scene, t_s)
+            self.bind(prog)
+            set_uniform(prog, "u_gi", 1)
+            for unit, (name, tex) in enumerate(zip(("u_cap_pos", "u_cap_nrm", "u_cap_diff", "u_cap_emit"), self._cap), start=8):
+                tex.use(location=unit)
+                set_uniform(prog, name, unit)
+            set_uniform(prog, "u_tile", self.tile)
+            set_uniform(prog, "u_tiles_per_row", self.cols)
+            set_uniform(prog, "u_bounce", b)
+            set_uniform(prog, "u_sky", tuple(float(c) for c in self.scene.ambient))
+            self._rad_fbo.use()
+            ctx.viewport = (0, 0, *self._rad.size)
+            self._relight.run()
+            W, H = self._rad.size
+            rad = np.frombuffer(self._rad.read(), np.float32).reshape(H, W, 4)[..., :3]
+            L = np.ascontiguousarray(self._per_ray(rad))                          # (count, rays, 3)
+            self.irradiance = np.ascontiguousarray(np.matmul(self._w_irr, L))           # (count, texels, 3), BLAS
+            self.irradiance[~self.active] = 0.0
+            core = np.concatenate([self.irradiance.reshape(self.count, IRR_CORE, IRR_CORE, 3),
+                                   np.broadcast_to(self.active.astype(np.float32)[:, None, None, None],
+                                                   (self.count, IRR_CORE, IRR_CORE, 1))], -1)
+            self.irr_tex.write(self._atlas(add_guard(core), IRR_TILE).tobytes())
+
+    def textures(self) -> tuple[np.ndarray, np.ndarray]:
+        """The irradiance (RGB + active) and visibility atlases as the shaders read them, float32."""
+        W, H = self.irr_tex.size
+        irr = np.frombuffer(self.irr_tex.read(), np.float32).reshape(H, W, 4)
+        W2, H2 = self.vis_tex.size
+        vis = np.frombuffer(self.vis_tex.read(), np.float32).reshape(H2, W2, 2)
+        return irr, vis
