@@ -139,3 +139,87 @@ def test_settings_and_scene_option_are_checked() -> None:
         _floor_scene("rtx")
     s = get_scene("minimal+gi")
     assert s.gi == "ddgi" and s.name == "minimal+gi" and get_scene("minimal").gi == "none"
+
+
+# ---------------------------------------------------------------------------- probe streaming formats
+def test_colour_codes_keep_irradiance_within_0_6_percent() -> None:
+    from splitrender.gi.stream import decode_irradiance, encode_irradiance
+
+    e = np.geomspace(2.0 ** -10, 2.0 ** 8, 5000) * np.pi
+    err = np.abs(decode_irradiance(encode_irradiance(e)) / e - 1)
+    assert err.max() < 0.0062, err.max()
+    assert encode_irradiance(np.array([0.0, -1.0, 1e9])).tolist() == [0, 0, 1023]
+    assert decode_irradiance(np.array([0])).tolist() == [0.0]
+
+
+def test_guard_bands_dropped_save_the_papers_share() -> None:
+    """Paper section 3.5: removing the guard bands decreases the colour data by 36 % and the visibility data by 21 %."""
+    from splitrender.gi.stream import guard_band_savings
+
+    c, v = guard_band_savings()
+    assert round(c * 100) == 36 and round(v * 100) == 21
+
+
+def test_probe_updates_round_trip_lossless_hevc_bit_for_bit(renderer) -> None:  # type: ignore[no-untyped-def]
+    """The floor scene's probes (and random ones) through the update pictures and lossless HEVC: colour as 10-bit
+    4:4:4 RGB, visibility as float16 bytes over 8-bit 4:4:4 (three RG16F texels in four pixels); what comes out
+    equals what went in, bit for bit."""
+    from splitrender.codecs.video import VideoCodecConfig, VideoDecoder, VideoEncoder
+    from splitrender.gi.stream import (color_frame, color_from_frame, encode_irradiance, grid_shape, visibility_frame,
+                                       visibility_from_frame, visibility_width)
+
+    vol = renderer.gi_volume(_floor_scene())
+    vol.update(0.0)
+    rng = np.random.default_rng(5)
+    n = vol.count
+    real = (encode_irradiance(vol.irradiance.reshape(n, IRR_CORE, IRR_CORE, 3)),
+            vol.moments.reshape(n, VIS_CORE, VIS_CORE, 2).astype(np.float16))
+    noise = (rng.integers(0, 1024, (37, IRR_CORE, IRR_CORE, 3)).astype(np.uint16),
+             rng.uniform(0, 60, (37, VIS_CORE, VIS_CORE, 2)).astype(np.float16))
+    for codes, moments in (real, noise):
+        count = codes.shape[0]
+        cf, vf = color_frame(codes), visibility_frame(moments)
+        cols, rows = grid_shape(count)
+        assert cf.shape == (rows * IRR_CORE, cols * IRR_CORE, 3)
+        assert vf.shape == (rows * VIS_CORE, visibility_width(count), 3) and 3 * vf.shape[1] >= 4 * cols * VIS_CORE
+        for img, fmt, pix, out in ((cf, "gbrp10le", "gbrp10le", "gbrp10le"), (vf, "rgb24", "gbrp", "rgb24")):
+            enc = VideoEncoder(VideoCodecConfig(codec="hevc", pix_fmt=pix, input_format=fmt, lossless=True, crf=None, gop=30),
+                               img.shape[1], img.shape[0])
+            dec = VideoDecoder("hevc", out)
+            for k in range(2):              # an I-frame, then a P-frame
+                back = dec.decode(enc.encode(img).data)
+                assert back.dtype == img.dtype and np.array_equal(back, img), (fmt, k)
+        assert np.array_equal(color_from_frame(cf, count), codes)
+        assert np.array_equal(visibility_from_frame(vf, count).view(np.uint16), moments.view(np.uint16))
+
+
+def test_malformed_index_lists_and_pictures_are_named() -> None:
+    from splitrender.gi.stream import (ProbeStreamError, color_from_frame, decode_index_list, encode_index_list,
+                                       visibility_from_frame)
+
+    ids = np.array([0, 3, 4, 200, 255])
+    assert decode_index_list(encode_index_list(ids), 256).tolist() == ids.tolist()
+    assert decode_index_list(encode_index_list(np.zeros(0, int)), 256).tolist() == []
+    good = encode_index_list(ids)
+    cases = [
+        (b"\x05", r"^probe index list: 1 bytes, shorter than its 2-byte count$"),
+        (good[:-1], r"^probe index list: 11 bytes for 5 indices \(expected 12\)$"),
+        (good[:4] + b"\x00\x00" + good[6:], r"^probe index list: delta 0 at position 1; indices must strictly increase$"),
+        (good, r"^probe index list: index 255 beyond the volume's 200 probes$"),
+        (struct_pack(300) + bytes(600), r"^probe index list: 300 indices for a volume of 256 probes$"),
+    ]
+    for buf, msg in cases:
+        with pytest.raises(ProbeStreamError, match=msg):
+            decode_index_list(buf, 200 if "200 probes" in msg else 256)
+    with pytest.raises(ProbeStreamError, match=r"^probe colour picture: \(8, 8, 3\), expected \(128, 128, 3\)"):
+        color_from_frame(np.zeros((8, 8, 3), np.uint16), 256)
+    with pytest.raises(ProbeStreamError, match=r"^probe visibility picture"):
+        visibility_from_frame(np.zeros((256, 341, 3), np.uint8), 256)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        encode_index_list(np.array([3, 3]))
+
+
+def struct_pack(n: int) -> bytes:
+    import struct
+
+    return struct.pack("<H", n)
