@@ -102,6 +102,66 @@ def face_projection(far: float) -> np.ndarray:
     return p
 
 
+def bind_probes(prog: Any, irr_tex: Any, vis_tex: Any, origin: np.ndarray, spacing: np.ndarray,
+                counts: tuple[int, int, int], cols: int, bias: float) -> None:
+    """Set the probe uniforms and textures of ``ddgi.glsl`` on ``prog`` (``u_gi`` is left to the caller)."""
+    irr_tex.use(location=GI_UNITS[0])
+    vis_tex.use(location=GI_UNITS[1])
+    set_uniform(prog, "u_gi_irr", GI_UNITS[0])
+    set_uniform(prog, "u_gi_vis", GI_UNITS[1])
+    set_uniform(prog, "u_gi_origin", tuple(float(x) for x in origin))
+    set_uniform(prog, "u_gi_spacing", tuple(float(x) for x in spacing))
+    set_uniform(prog, "u_gi_counts", tuple(int(c) for c in counts))
+    set_uniform(prog, "u_gi_cols", int(cols))
+    set_uniform(prog, "u_gi_irr_core", IRR_CORE)
+    set_uniform(prog, "u_gi_vis_core", VIS_CORE)
+    set_uniform(prog, "u_gi_bias", float(bias))
+
+
+def probe_atlas(tiles: np.ndarray, count: int, cols: int, size: int) -> np.ndarray:
+    """(rows * size, cols * size, C) float32 texture of per-probe tiles (count, size, size, C), probes row-major."""
+    rows = -(-count // cols)
+    C = tiles.shape[-1]
+    out = np.zeros((rows * cols, size, size, C), np.float32)
+    out[:count] = tiles
+    return out.reshape(rows, cols, size, size, C).transpose(0, 2, 1, 3, 4).reshape(rows * size, cols * size, C)
+
+
+class ProbeCopy:
+    """A client's copy of the probes: what it received, with the guard bands rebuilt, in the textures the shading
+    reads (register it in ``Renderer.gi_sources`` for its scene).  A probe never received is inactive."""
+
+    def __init__(self, ctx: Any, origin: np.ndarray, spacing: np.ndarray, counts: tuple[int, int, int], bias: float) -> None:
+        self.origin, self.spacing = np.asarray(origin, np.float64), np.asarray(spacing, np.float64)
+        self.counts = tuple(int(c) for c in counts)
+        self.count = int(np.prod(self.counts))
+        self.cols = int(math.ceil(math.sqrt(self.count)))
+        self.rows = int(math.ceil(self.count / self.cols))
+        self.bias = float(bias)
+        self.irradiance = np.zeros((self.count, IRR_CORE, IRR_CORE, 3), np.float32)
+        self.moments = np.zeros((self.count, VIS_CORE, VIS_CORE, 2), np.float32)
+        self.received = np.zeros(self.count, bool)
+        self.irr_tex = ctx.texture((self.cols * IRR_TILE, self.rows * IRR_TILE), 4, dtype="f4")
+        self.vis_tex = ctx.texture((self.cols * VIS_TILE, self.rows * VIS_TILE), 2, dtype="f4")
+        self._upload()
+
+    def scatter(self, ids: np.ndarray, irradiance: np.ndarray, moments: np.ndarray) -> None:
+        """Take probes ``ids``' core texels (n, 8, 8, 3) and (n, 16, 16, 2) and rebuild the textures."""
+        self.irradiance[ids] = irradiance
+        self.moments[ids] = moments
+        self.received[ids] = True
+        self._upload()
+
+    def _upload(self) -> None:
+        alpha = np.broadcast_to(self.received.astype(np.float32)[:, None, None, None], (self.count, IRR_CORE, IRR_CORE, 1))
+        irr = add_guard(np.concatenate([self.irradiance, alpha], -1))
+        self.irr_tex.write(probe_atlas(irr, self.count, self.cols, IRR_TILE).tobytes())
+        self.vis_tex.write(probe_atlas(add_guard(self.moments), self.count, self.cols, VIS_TILE).tobytes())
+
+    def bind(self, prog: Any) -> None:
+        bind_probes(prog, self.irr_tex, self.vis_tex, self.origin, self.spacing, self.counts, self.cols, self.bias)  # type: ignore[arg-type]
+
+
 class DdgiVolume:
     """The probes of one scene on one renderer: captured once, relit per update."""
 
@@ -168,19 +228,35 @@ class DdgiVolume:
         models = {og.obj.object_id: og.obj.model_matrix(0.0) for og in sg.objects}
         vaos = [ctx.vertex_array(prog, [(og.vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv"), (og.tbo, "4f", "in_tangent")],
                                  og.ibo, skip_errors=True) for og in sg.objects]
-        for p in range(self.count):
-            eye = self.positions[p]
-            set_uniform(prog, "u_eye", tuple(float(x) for x in eye))
-            ty, tx = divmod(p, self.cols)
-            for face in range(6):
-                ctx.viewport = (tx * self.tile[0] + face * F, ty * F, F, F)
-                prog["u_view"].write(np.asarray(face_view(eye, face), "f4").T.tobytes())
-                for og, vao in zip(sg.objects, vaos):
-                    model = models[og.obj.object_id]
-                    prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
-                    prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(model[:3, :3]).T, "f4").T.tobytes())
-                    r.bind_material(prog, og)
-                    vao.render()
+        # object by object (one material binding each), every probe face in its tile that the object's bounding
+        # sphere reaches (the four side planes of the 90-degree face frustum); the depth test sorts out the rest
+        views = [(tuple(float(x) for x in self.positions[p]), np.asarray(face_view(self.positions[p], face), "f4").T.tobytes(),
+                  ((p % self.cols) * self.tile[0] + face * F, (p // self.cols) * F, F, F))
+                 for p in range(self.count) for face in range(6)]
+        planes = []                                         # (6, 4, 3) inward side-plane normals per face
+        for f, up in CUBE_FACES:
+            f_, u_ = np.asarray(f, np.float64), np.asarray(up, np.float64)
+            r_ = np.cross(f_, u_)
+            planes.append([(f_ + r_), (f_ - r_), (f_ + u_), (f_ - u_)])
+        planes_n = np.asarray(planes) / math.sqrt(2.0)
+        eye_u, view_u = prog["u_eye"], prog["u_view"]
+        for og, vao in zip(sg.objects, vaos):
+            model = models[og.obj.object_id]
+            wp = og.obj.mesh.positions.astype(np.float64) @ model[:3, :3].T + model[:3, 3]
+            centre = (wp.min(axis=0) + wp.max(axis=0)) / 2.0
+            radius = float(np.linalg.norm(wp.max(axis=0) - wp.min(axis=0))) / 2.0 + 1e-3
+            rel = centre[None, :] - self.positions                                            # (count, 3)
+            dist = np.einsum("pc,fkc->pfk", rel, planes_n)                                      # (count, 6, 4)
+            seen = ((dist >= -radius).all(axis=2) | (np.linalg.norm(rel, axis=1) <= radius)[:, None]).reshape(-1)
+            prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
+            prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(model[:3, :3]).T, "f4").T.tobytes())
+            r.bind_material(prog, og)
+            for k in np.flatnonzero(seen).tolist():
+                eye, view, viewport = views[k]
+                ctx.viewport = viewport
+                eye_u.value = eye
+                view_u.write(view)
+                vao.render()
         W, H = self._cap[0].size
         pos = np.frombuffer(self._cap[0].read(), np.float32).reshape(H, W, 4)
         nrm = np.frombuffer(self._cap[1].read(), np.float16).reshape(H, W, 4).astype(np.float32)
@@ -202,27 +278,13 @@ class DdgiVolume:
         prog.release()
 
     def _atlas(self, tiles: np.ndarray, size: int) -> np.ndarray:
-        """(rows * size, cols * size, C) float32 texture of per-probe tiles (count, size, size, C)."""
-        C = tiles.shape[-1]
-        out = np.zeros((self.rows * self.cols, size, size, C), np.float32)
-        out[: self.count] = tiles
-        return out.reshape(self.rows, self.cols, size, size, C).transpose(0, 2, 1, 3, 4).reshape(
-            self.rows * size, self.cols * size, C)
+        return probe_atlas(tiles, self.count, self.cols, size)
 
     # ------------------------------------------------------------------ relight (per update)
     def bind(self, prog: Any) -> None:
         """Set the probe uniforms and textures of ``ddgi.glsl`` on ``prog`` (``u_gi`` left to the caller)."""
-        self.irr_tex.use(location=GI_UNITS[0])
-        self.vis_tex.use(location=GI_UNITS[1])
-        set_uniform(prog, "u_gi_irr", GI_UNITS[0])
-        set_uniform(prog, "u_gi_vis", GI_UNITS[1])
-        set_uniform(prog, "u_gi_origin", tuple(float(x) for x in self.origin))
-        set_uniform(prog, "u_gi_spacing", tuple(float(x) for x in self.spacing))
-        set_uniform(prog, "u_gi_counts", tuple(int(c) for c in self.settings.counts))
-        set_uniform(prog, "u_gi_cols", self.cols)
-        set_uniform(prog, "u_gi_irr_core", IRR_CORE)
-        set_uniform(prog, "u_gi_vis_core", VIS_CORE)
-        set_uniform(prog, "u_gi_bias", float(self.settings.bias))
+        bind_probes(prog, self.irr_tex, self.vis_tex, self.origin, self.spacing, self.settings.counts, self.cols,
+                    self.settings.bias)
 
     def state_key(self, t_s: float) -> tuple[Any, ...]:
         """What the probes at ``t_s`` depend on: the lights and the sky and, with animated shadow casters, the time."""

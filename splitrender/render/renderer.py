@@ -132,6 +132,8 @@ class Renderer:
 
         self._background = FullscreenPass(self.ctx, SHADER_DIR / "background.frag")
         self._gi: dict[int, Any] = {}
+        self.gi_sources: dict[int, Any] = {}
+        """Probes to shade a scene with instead of computing its own (by ``id(scene)``; a client's received copy)."""
         self._gi_building: set[int] = set()
         self._gi_none: Any = None
 
@@ -301,6 +303,11 @@ class Renderer:
     def _bind_gi(self, prog: Any, scene: Scene, t_s: float) -> None:
         from ..gi.ddgi import GI_UNITS
 
+        src = self.gi_sources.get(id(scene))
+        if src is not None:
+            src.bind(prog)
+            set_uniform(prog, "u_gi", 1)
+            return
         vol = self.gi_volume(scene) if scene.gi == "ddgi" else None
         if vol is not None:
             if not vol.updating:

@@ -1,0 +1,96 @@
+"""``probes`` client half (paper section 3.5): renders the scene itself, lit by its copy of the probes.
+
+The scene arrives once in the session data; each update brings the object transforms
+and light intensities of its frame, and the probes the server selected (the ``index``
+stream names their slots in the two lossless pictures).  The client scatters the
+decoded blocks into its probe textures, rebuilds the guard bands, and draws primary
+visibility, direct light with shadows and the probes' indirect light with the same
+shader as the ground truth.  An update whose pictures are missing (lost, or undecodable
+until the next I-frame) still moves the objects; malformed data raises a named error and
+the last good state stays on screen.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...gi.ddgi import ProbeCopy
+from ...gi.stream import ProbeStreamError, color_from_frame, decode_index_list, decode_irradiance, visibility_from_frame
+from ...scene.model import Schedule
+from ...scene.pose import Pose
+from ...scene.wire import SceneWireError, scene_from_data
+from ..base import ClientFrame, ClientHalf, DecodedUpdate
+from .server import META_VERSION
+
+
+class ProbesClient(ClientHalf):
+    """Light probe streaming, client half."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        sd = self.session_data
+        if not isinstance(sd, dict) or sd.get("v") != META_VERSION:
+            raise ProbeStreamError(f"probes session data: expected a map with v={META_VERSION}")
+        self.scene, self._moving = scene_from_data(sd.get("scene"))
+        try:
+            origin = np.asarray(sd["origin"], np.float64).reshape(3)
+            spacing = np.asarray(sd["spacing"], np.float64).reshape(3)
+            counts = tuple(int(c) for c in sd["counts"])
+            bias = float(sd["bias"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ProbeStreamError(f"probes session data: missing or malformed grid ({exc})") from None
+        if len(counts) != 3 or not all(2 <= c <= 64 for c in counts) or not (np.isfinite(origin).all() and
+                                                                             (spacing > 0).all() and np.isfinite(bias)):
+            raise ProbeStreamError("probes session data: the probe grid is out of range")
+        from ...render.renderer import Renderer
+
+        self.renderer = Renderer(self.gl)
+        self.probes = ProbeCopy(self.gl, origin, spacing, counts, bias)   # type: ignore[arg-type]
+        self.renderer.gi_sources[id(self.scene)] = self.probes
+        self.count = self.probes.count
+        self._has_content = False
+        self.applied = 0
+
+    def apply(self, update: DecodedUpdate) -> None:
+        meta = update.meta
+        if not isinstance(meta, dict) or meta.get("v") != META_VERSION:
+            raise ProbeStreamError(f"probes metadata: expected a map with v={META_VERSION}")
+        xf = meta.get("xf")
+        n_obj = len(self.scene.objects)
+        if not isinstance(xf, np.ndarray) or xf.shape != (n_obj, 4, 4) or not np.isfinite(xf).all():
+            raise ProbeStreamError(f"probes metadata: 'xf' must be finite ({n_obj}, 4, 4), got {getattr(xf, 'shape', type(xf).__name__)}")
+        lights = meta.get("lights")
+        sun = meta.get("sun")
+        if (not isinstance(lights, list) or len(lights) != len(self.scene.point_lights)
+                or not all(isinstance(v, (int, float)) and 0 <= v < 1e6 for v in [*lights, sun])):
+            raise ProbeStreamError("probes metadata: 'sun' and 'lights' must be intensities in [0, 1e6)")
+        probes = None
+        if not ({"color", "vis", "index"} & set(update.missing)) and "color" in update.planes and "vis" in update.planes:
+            ids = decode_index_list(update.data.get("index", b""), self.count)
+            codes = color_from_frame(update.planes["color"], self.count)
+            moments = visibility_from_frame(update.planes["vis"], self.count)
+            if ids.size and not np.isfinite(moments[ids].astype(np.float32)).all():
+                raise ProbeStreamError("probes visibility: non-finite distance moments")
+            probes = (ids, decode_irradiance(codes[ids]), moments[ids].astype(np.float32))
+        # everything checked: take it
+        for o, m in zip(self.scene.objects, xf):
+            holder = self._moving.get(o.object_id)
+            if holder is not None:
+                holder.m = np.asarray(m, np.float64) @ np.linalg.inv(o.transform)   # model = holder.m @ transform
+        if self.scene.sun is not None:
+            self.scene.sun.intensity = Schedule.constant(float(sun))  # type: ignore[arg-type]
+        for pl, v in zip(self.scene.point_lights, lights):
+            pl.intensity = Schedule.constant(float(v))
+        if probes is not None:
+            self.probes.scatter(*probes)
+            self._has_content = True
+            self.applied += 1
+
+    def render(self, pose: Pose, t_s: float) -> ClientFrame:
+        out = self.renderer.render(self.scene, t_s, pose, self.intrinsics)
+        return ClientFrame(out.color, None, {"cli_probes": float(self.probes.received.sum())})
+
+
+__all__ = ["ProbesClient", "SceneWireError"]

@@ -1,0 +1,188 @@
+"""``probes`` server half and the shared GI server (paper sections 3.1-3.4).
+
+**GI server** (:class:`ProbesProducer`, once per server frame for every session): the
+scene's DDGI volume (:mod:`splitrender.gi.ddgi`, on the server's renderer, so the ground
+truth and the server share the capture) relit at the newest time on the ``gi_hz`` grid,
+then coded: 10-bit colour codes and float16 distance moments per probe.  A still scene
+gives the same codes at every update.
+
+**Per client** (:class:`ProbesServer`):
+
+1. select the probes that are active, differ texel for texel from what this client
+   last received, and light points a 360-degree view at its predicted position sees
+   (``pvs = "view"``: six ``pvs_res`` depth faces; the eight probes around each
+   visible point); on a keyframe request or a reported loss every selected probe is
+   sent again and the codec restarts with an I-frame;
+2. write the selected probes into their stable slots of the two update pictures (the
+   other slots keep what this client last received, so the codec's P-frames skip
+   them) and list them in the ``index`` data stream;
+3. send each frame's object transforms and light intensities in the metadata; the scene
+   itself goes once, in the session data (:mod:`splitrender.scene.wire`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from ...codecs.video import VideoCodecConfig
+from ...errors import ConfigError
+from ...gi.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, probe_grid
+from ...gi.stream import color_frame, encode_index_list, encode_irradiance, grid_shape, visibility_frame, visibility_width
+from ...gi.octa import CUBE_FACES
+from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3
+from ...scene.wire import scene_to_data
+from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
+from .config import ProbesConfig
+
+META_VERSION = 1
+
+
+def _require_gi(scene: Any) -> None:
+    if getattr(scene, "gi", "none") != "ddgi":
+        raise ConfigError(f"probes: scene {scene.name!r} has no global illumination to stream; use a '+gi' scene "
+                          f"(e.g. --scene {scene.name}+gi)")
+
+
+def gi_time(t_s: float, hz: float) -> float:
+    """The newest probe update time at or before ``t_s`` on the ``hz`` grid."""
+    return math.floor(t_s * hz + 1e-9) / hz
+
+
+class ProbesProducer(SceneProducer):
+    """The GI server: one probe update per ``gi_hz`` tick, coded once for every session."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        _require_gi(self.scene)
+        self._last: dict[str, Any] | None = None
+        self._ms = 0.0
+        self.traces = 0
+
+    def prepare(self, frame_id: int, t_s: float) -> dict[str, Any]:
+        return self.state(self.renderer, t_s)
+
+    def state(self, renderer: Any, t_s: float) -> dict[str, Any]:
+        """The coded probes at the newest update time before ``t_s`` (relit only when that time changes)."""
+        cfg = self.config
+        assert isinstance(cfg, ProbesConfig)
+        t_gi = gi_time(t_s, cfg.gi_hz)
+        if self._last is not None and self._last["t_gi"] == t_gi:
+            self._ms = 0.0
+            return self._last
+        w0 = time.perf_counter()
+        vol = renderer.gi_volume(self.scene)
+        vol.update(t_gi)
+        n = vol.count
+        self._last = {"t_gi": t_gi, "count": n, "active": vol.active.copy(),
+                      "codes": encode_irradiance(vol.irradiance).reshape(n, IRR_CORE, IRR_CORE, 3),
+                      "moments": vol.moments.astype(np.float16).reshape(n, VIS_CORE, VIS_CORE, 2),
+                      "origin": vol.origin, "spacing": vol.spacing, "counts": vol.settings.counts, "bias": vol.settings.bias}
+        self.traces += 1
+        self._ms = (time.perf_counter() - w0) * 1e3
+        return self._last
+
+    def stats(self) -> dict[str, float]:
+        return {"gi_ms": self._ms, "gi_traces": float(self.traces)}
+
+
+class ProbesServer(ServerHalf):
+    """Light probe streaming, server half (per session)."""
+
+    config: ProbesConfig
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        _require_gi(self.scene)
+        if not isinstance(self.producer, ProbesProducer):
+            self.producer = ProbesProducer(self.config, self.scene, self.server_fps, None)
+        counts = tuple(int(c) for c in self.scene.gi_probes)
+        self.count = int(np.prod(counts))
+        lo, hi = self.scene.bounds()
+        self.origin, self.spacing = probe_grid(lo, hi, counts)  # type: ignore[arg-type]
+        self.counts = counts
+        cols, rows = grid_shape(self.count)
+        self._color_size = (cols * IRR_CORE, rows * IRR_CORE)
+        self._vis_size = (visibility_width(self.count), rows * VIS_CORE)
+        self.sent_codes = np.zeros((self.count, IRR_CORE, IRR_CORE, 3), np.uint16)
+        self.sent_moments = np.zeros((self.count, VIS_CORE, VIS_CORE, 2), np.float16)
+        self.sent = np.zeros(self.count, bool)
+        self._stats: dict[str, float] = {}
+        self._frames = 0
+
+    def streams(self) -> list[Any]:
+        fps, gop = self.server_fps, self.config.gop
+        color = VideoCodecConfig(codec="hevc", pix_fmt="gbrp10le", input_format="gbrp10le", lossless=True, crf=None, gop=gop,
+                                 preset=self.config.preset, fps=fps)
+        vis = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", input_format="rgb24", lossless=True, crf=None, gop=gop,
+                               preset=self.config.preset, fps=fps)
+        return [StreamSpec("color", color, *self._color_size), StreamSpec("vis", vis, *self._vis_size),
+                DataStreamSpec("index", "reliable")]
+
+    def session_data(self) -> dict[str, Any]:
+        return {"v": META_VERSION, "scene": scene_to_data(self.scene), "origin": [float(x) for x in self.origin],
+                "spacing": [float(x) for x in self.spacing], "counts": list(self.counts),
+                "bias": float(DdgiSettings().bias)}
+
+    # ------------------------------------------------------------------ visibility
+    def visible_probes(self, ctx: ServerContext) -> np.ndarray:
+        """(count,) bool: probes around the points a 360-degree view at the predicted position sees."""
+        res = self.config.pvs_res
+        intr = CameraIntrinsics(res, res, 90.0)
+        eye = np.asarray(ctx.target_pose.position, np.float64)
+        c = (np.arange(res) + 0.5) / res * 2.0 - 1.0
+        u, v = np.meshgrid(c, -c)                        # rows from the top, as the renderer returns them
+        pts = []
+        for f, up in CUBE_FACES:
+            fw, upv = np.asarray(f, np.float64), np.asarray(up, np.float64)
+            r = np.cross(fw, upv)
+            pose = Pose(eye, quat_from_matrix3(np.stack([r, upv, -fw], axis=1)))
+            depth = ctx.renderer.render(self.scene, ctx.t_s, pose, intr, outputs=("depth",)).depth
+            ok = np.isfinite(depth) & (depth > 0)
+            d = depth[ok][:, None]
+            pts.append(eye + d * (fw[None] + u[ok][:, None] * r[None] + v[ok][:, None] * upv[None]))
+        p = np.concatenate(pts) if pts else np.zeros((0, 3))
+        cx, cy, cz = self.counts
+        rel = (p - self.origin) / self.spacing
+        base = np.clip(np.floor(rel).astype(np.int64), 0, np.array([cx, cy, cz]) - 2)
+        out = np.zeros(self.count, bool)
+        for k in range(8):
+            q = np.minimum(base + np.array([k & 1, (k >> 1) & 1, (k >> 2) & 1]), np.array([cx, cy, cz]) - 1)
+            out[q[:, 0] + cx * (q[:, 1] + cy * q[:, 2])] = True
+        return out
+
+    # ------------------------------------------------------------------ produce
+    def produce(self, ctx: ServerContext) -> Update:
+        t0 = time.perf_counter()
+        prod = self.producer
+        assert isinstance(prod, ProbesProducer)
+        shared = ctx.shared if isinstance(ctx.shared, dict) and "codes" in ctx.shared else prod.state(ctx.renderer, ctx.t_s)
+        codes, moments, active = shared["codes"], shared["moments"], shared["active"]
+        full = ctx.keyframe_requested or self._frames == 0 or any(ctx.feedback.newly_lost(s) for s in ("color", "vis", "index"))
+        if full:
+            self.sent[:] = False
+        visible = self.visible_probes(ctx) if self.config.pvs == "view" else np.ones(self.count, bool)
+        changed = ~self.sent | (codes != self.sent_codes).any(axis=(1, 2, 3)) | \
+            (moments.view(np.uint16) != self.sent_moments.view(np.uint16)).any(axis=(1, 2, 3))
+        sel = np.flatnonzero(active & visible & changed)
+        self.sent_codes[sel] = codes[sel]
+        self.sent_moments[sel] = moments[sel]
+        self.sent[sel] = True
+        models = np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects]).astype(np.float32)
+        sc = self.scene
+        meta = {"v": META_VERSION, "t_gi": float(shared["t_gi"]), "xf": models,
+                "sun": float(sc.sun.intensity.value(ctx.t_s)) if sc.sun is not None else 0.0,
+                "lights": [float(pl.intensity.value(ctx.t_s)) for pl in sc.point_lights]}
+        self._frames += 1
+        self._stats = {"probes_sent": float(sel.size), "probes_active": float(active.sum()),
+                       "probes_visible": float((active & visible).sum()), "probes_changed": float((active & changed).sum()),
+                       "full": float(full), "probe_ms": (time.perf_counter() - t0) * 1e3}
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose,
+                      {"color": color_frame(self.sent_codes), "vis": visibility_frame(self.sent_moments)},
+                      meta, force_idr=full, data={"index": encode_index_list(sel)})
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
