@@ -40,10 +40,10 @@ def suite(background_stress) -> dict[tuple[str, str], dict]:  # type: ignore[no-
 
 @pytest.mark.parametrize("case", [c.name for c in CASES])
 def test_stress_case(suite: dict, case: str) -> None:
-    from splitrender.methods import available_methods
+    from splitrender.methods import methods_for_scene
 
     c = get_case(case)
-    rows = {m: suite[(case, m)] for m in available_methods()}
+    rows = {m: suite[(case, m)] for m in methods_for_scene("default")}
     for m, r in rows.items():
         assert r["status"] == "ok", f"{case}/{m}: {r['status']} {r.get('error')}"
         assert r["frames_shown"] >= 0.6 * r["display_ticks"], f"{case}/{m}: only {r['frames_shown']} of {r['display_ticks']} shown"

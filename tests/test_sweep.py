@@ -62,10 +62,13 @@ bitrate_kbps = [1000, 3000]
 
 
 def test_no_methods_table_means_all_available() -> None:
+    """Every method that runs on the sweep's scenes: ``probes`` only where every scene has global illumination."""
     from splitrender.methods import available_methods
 
     cfgs = _parse("[base]\nwidth = 64\nheight = 64\n")
-    assert [c.method for c in cfgs] == available_methods()
+    assert [c.method for c in cfgs] == [m for m in available_methods() if m != "probes"]
+    cfgs = _parse("[sweep]\nscenes = [\"minimal+gi\"]\n[base]\nwidth = 64\nheight = 64\n")
+    assert [c.method for c in cfgs] == available_methods() and "probes" in available_methods()
 
 
 def test_scalar_param_is_fixed_and_duplicates_collapse() -> None:

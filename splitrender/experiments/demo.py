@@ -65,14 +65,17 @@ def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Se
                  duration_s: float | None = None, size: tuple[int, int] | None = None,
                  traces: Sequence[str] | None = None) -> list[RunConfig]:
     """The demo's runs: method x network x trace on the default scene."""
-    from ..methods import available_methods
+    from ..methods import available_methods, methods_for_scene
 
     p = dict(QUICK if quick else FULL)
     all_methods = available_methods()
-    methods = list(methods) if methods else all_methods
+    methods = list(methods) if methods else methods_for_scene("default")
     for m in methods:
         if m not in all_methods:
             raise ConfigError(f"demo --methods: unknown method {m!r}; available: {', '.join(all_methods)}")
+        if m not in methods_for_scene("default"):
+            raise ConfigError(f"demo --methods: {m} streams global illumination, which the demo's default scene does not "
+                              f"have; run it with 'splitrender run --method {m} --scene default+gi'")
     if not networks:
         raise ConfigError("demo --networks: no network given")
     w, h = size or (p["width"], p["height"])

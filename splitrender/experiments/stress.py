@@ -366,13 +366,13 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
     compiles are paid once); a case that raises is recorded, a case that crashes the
     worker or runs past ``timeout_s`` is recorded and the worker is replaced.
     """
-    from ..methods import available_methods
+    from ..methods import methods_for_scene
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tm = timing or (QUICK if quick else FULL)
     limit = timeout_s or (120.0 if quick else 900.0)
-    methods = list(methods) if methods else available_methods()
+    methods = list(methods) if methods else methods_for_scene("default")   # the cases' scenes have no GI
     sel = [get_case(c) for c in cases] if cases else list(CASES)
     jobs = [_Job(c, m, case_config(c, m, tm, out / "inputs")) for c in sel for m in methods]
     ctx = mp.get_context("spawn")

@@ -110,7 +110,7 @@ def _product(axes: dict[str, list[Any]]) -> Iterator[dict[str, Any]]:
 
 def parse_sweep(data: dict[str, Any], source: str = "<sweep>") -> Sweep:
     """Expand a parsed sweep file into RunConfigs; :class:`ConfigError` names the bad key."""
-    from ..methods import available_methods, get_method, make_config
+    from ..methods import available_methods, get_method, make_config, methods_for_scene
     from ..netsim import parse_path
 
     def err(key: str, msg: str) -> ConfigError:
@@ -166,7 +166,8 @@ def parse_sweep(data: dict[str, Any], source: str = "<sweep>") -> Sweep:
 
     methods_t = data.get("methods")
     if methods_t is None:
-        methods_t = {m: {} for m in available_methods()}
+        usable = [set(methods_for_scene(sc)) for sc in scenes]     # on every scene of the sweep
+        methods_t = {m: {} for m in available_methods() if all(m in u for u in usable)}
     if not methods_t:
         raise err("methods", "empty table (name at least one method, or leave [methods] out for all)")
     method_grids: list[tuple[str, dict[str, Any]]] = []

@@ -21,7 +21,7 @@ import logging
 
 from .base import (AnyStreamSpec, ClientFeedback, ClientFrame, ClientHalf, DataStreamSpec, DecodedUpdate, MethodConfig,
                    MethodSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update, available_methods, get_method,
-                   make_config, register_method)
+                   make_config, methods_for_scene, register_method)
 
 log = logging.getLogger(__name__)
 
@@ -70,5 +70,5 @@ _load_builtin = load_methods  # the name older callers used
 __all__ = [
     "AnyStreamSpec", "ClientFeedback", "ClientFrame", "ClientHalf", "DataStreamSpec", "DecodedUpdate", "MethodConfig",
     "MethodSpec", "SceneProducer", "ServerContext", "ServerHalf", "StreamSpec", "Update", "available_methods",
-    "get_method", "load_methods", "make_config", "register_method", "ENTRY_POINT_GROUP",
+    "get_method", "load_methods", "make_config", "methods_for_scene", "register_method", "ENTRY_POINT_GROUP",
 ]

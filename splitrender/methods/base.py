@@ -337,6 +337,8 @@ class MethodSpec:
     config: type[MethodConfig]
     description: str = ""
     producer: Any = None
+    needs_gi: bool = False
+    """The method streams the scene's global illumination: it runs only on scenes with ``gi = "ddgi"`` (``+gi``)."""
 
     @property
     def server_class(self) -> type[ServerHalf]:
@@ -382,6 +384,13 @@ def available_methods() -> list[str]:
     load_methods()
     builtin = [m for m in BUILTIN_MODULES if m in _REGISTRY]
     return builtin + sorted(m for m in _REGISTRY if m not in builtin)
+
+
+def methods_for_scene(scene: str) -> list[str]:
+    """The registered methods that can run on scene ``scene`` (a name or path; a ``+gi`` suffix turns GI on):
+    what demos, sweeps, the stress suite and the server offer when no method is named."""
+    gi = scene.endswith("+gi")
+    return [m for m in available_methods() if gi or not _REGISTRY[m].needs_gi]
 
 
 def make_config(cls: type[MethodConfig], params: dict[str, Any] | None) -> MethodConfig:

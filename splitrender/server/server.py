@@ -171,10 +171,10 @@ class LiveServer:
     """Accepts sessions; use ``async with LiveServer(cfg) as s: await s.serve_forever()``."""
 
     def __init__(self, config: ServerConfig) -> None:
-        from splitrender.methods import available_methods
+        from splitrender.methods import methods_for_scene
 
         self.config = config
-        self.methods: tuple[str, ...] = config.methods or tuple(available_methods())
+        self.methods: tuple[str, ...] = config.methods or tuple(methods_for_scene(config.scene))
         check_method_params(self.methods, config.method_params)
         self.epoch_wall_s = time.time()
         """Wall-clock time (s) of scene time 0: the one scene clock all sessions share."""

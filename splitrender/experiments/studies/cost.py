@@ -48,14 +48,14 @@ def run(out_dir: Path, quick: bool) -> Section:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ...methods import available_methods
+    from ...methods import methods_for_scene
     from ...render.renderer import Renderer
     from ..charts import method_order
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     renderer = Renderer()
-    methods = method_order(available_methods())
+    methods = method_order(methods_for_scene("default"))
     variants = [("fixed", 1.0), ("measured", 1.0)] + ([] if quick else [("measured", 0.1)])
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()

@@ -17,6 +17,6 @@ from .config import ProbesConfig
 SPEC = register_method(MethodSpec("probes", "splitrender.methods.probes.server:ProbesServer",
                                   "splitrender.methods.probes.client:ProbesClient", ProbesConfig,
                                   "light probe streaming: DDGI probes traced once, streamed losslessly, shaded by the client",
-                                  producer="splitrender.methods.probes.server:ProbesProducer"))
+                                  producer="splitrender.methods.probes.server:ProbesProducer", needs_gi=True))
 
 __all__ = ["SPEC", "ProbesConfig"]
