@@ -55,7 +55,7 @@ def closed_port() -> int:
      "preset)"),
     (["serve", "--param", "atw.overscan=abc"], "--param atw.*: AtwConfig.overscan: expected a number, got str 'abc'"),
     (["serve", "--param", "video.gop=0"], "--param video.*: VideoConfig.gop: must be >= 1, got 0"),
-    (["serve", "--param", "nosuch.x=1"], "--param nosuch.*: unknown method 'nosuch'; available: video, atw, warp, sas, tss, quads"),
+    (["serve", "--param", "nosuch.x=1"], "--param nosuch.*: unknown method 'nosuch'; available: video, atw, warp, sas, tss, quads, probes"),
     (["serve", "--methods", "video", "--param", "atw.overscan=1.4"],
      "--param atw.*: method 'atw' is not offered (offered: video)"),
     (["serve", "--port", "70000"], "--port: must be in [0, 65535], got 70000"),

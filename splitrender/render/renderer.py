@@ -246,8 +246,9 @@ class Renderer:
             self._draw_shadow_casters(fbo_d, scene, t_s, dynamic=True)
             self._shadow_key = key
 
-    def bind_shading(self, prog: Any, scene: Scene, t_s: float, shadow_unit: int = 1) -> None:
-        """Set the lighting uniforms of ``shading.glsl`` on ``prog`` for time ``t_s``."""
+    def bind_shading(self, prog: Any, scene: Scene, t_s: float, shadow_unit: int = 1, gi: bool = True) -> None:
+        """Set the lighting uniforms of ``shading.glsl`` on ``prog`` for time ``t_s``; ``gi=False`` leaves the scene's
+        global illumination off (a pass that writes no colour need not relight the probes)."""
         self.shadow_pass(scene, t_s)
         sun = scene.sun
         if sun is not None:
@@ -281,7 +282,7 @@ class Renderer:
                 prog["u_point_pos"].write(pos.tobytes())
             if "u_point_color" in prog:
                 prog["u_point_color"].write(col.tobytes())
-        self._bind_gi(prog, scene, t_s)
+        self._bind_gi(prog, scene, t_s, gi)
 
     def gi_volume(self, scene: Scene) -> Any:
         """The scene's DDGI probes on this renderer (captured on first use; None while being captured)."""
@@ -300,15 +301,15 @@ class Renderer:
             self._gi[key] = vol
         return vol
 
-    def _bind_gi(self, prog: Any, scene: Scene, t_s: float) -> None:
+    def _bind_gi(self, prog: Any, scene: Scene, t_s: float, on: bool = True) -> None:
         from ..gi.ddgi import GI_UNITS
 
-        src = self.gi_sources.get(id(scene))
+        src = self.gi_sources.get(id(scene)) if on else None
         if src is not None:
             src.bind(prog)
             set_uniform(prog, "u_gi", 1)
             return
-        vol = self.gi_volume(scene) if scene.gi == "ddgi" else None
+        vol = self.gi_volume(scene) if on and scene.gi == "ddgi" else None
         if vol is not None:
             if not vol.updating:
                 vol.update(t_s)
@@ -421,7 +422,7 @@ class Renderer:
     def _render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
                 outputs: tuple[str, ...], object_ids: set[int] | None, peel: np.ndarray | None = None) -> RenderOutput:
         sg = self.upload(scene)
-        self.bind_shading(self.prog, scene, t_s)
+        self.bind_shading(self.prog, scene, t_s, gi="color" in outputs)
         self._bind_peel(peel, intr)
         fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)
         fbo.use()
