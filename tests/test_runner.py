@@ -36,12 +36,14 @@ def test_same_seed_same_csv(tmp_path, renderer):
 
 
 def test_atw_beats_video_on_a_turning_trace_under_cloud(renderer):
-    common = dict(trace="turn", network="cloud", duration_s=2.5, width=320, height=180, flip_every=0)
+    """1.5 s of head turns under ``cloud`` at 320x180: measured atw 4.54 dB and 0.269 SSIM ahead of video (over 2.5 s
+    4.88 dB and 0.259)."""
+    common = dict(trace="turn", network="cloud", duration_s=1.5, width=320, height=180, flip_every=0)
     v = run(RunConfig(method="video", **common), renderer=renderer).summary
     a = run(RunConfig(method="atw", **common), renderer=renderer).summary
     margin = a["mean_psnr_db"] - v["mean_psnr_db"]
-    assert margin > 2.0, f"atw {a['mean_psnr_db']:.2f} dB vs video {v['mean_psnr_db']:.2f} dB: margin {margin:.2f} dB <= 2 dB"
-    assert a["mean_ssim"] > v["mean_ssim"] + 0.05, (a["mean_ssim"], v["mean_ssim"])
+    assert margin > 3.5, f"atw {a['mean_psnr_db']:.2f} dB vs video {v['mean_psnr_db']:.2f} dB: margin {margin:.2f} dB <= 3.5 dB"
+    assert a["mean_ssim"] > v["mean_ssim"] + 0.2, (a["mean_ssim"], v["mean_ssim"])
 
 
 def test_latency_costs_quality_and_is_reported(renderer):
