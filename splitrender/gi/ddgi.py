@@ -118,13 +118,35 @@ def bind_probes(prog: Any, irr_tex: Any, vis_tex: Any, origin: np.ndarray, spaci
     set_uniform(prog, "u_gi_bias", float(bias))
 
 
-def probe_atlas(tiles: np.ndarray, count: int, cols: int, size: int) -> np.ndarray:
-    """(rows * size, cols * size, C) float32 texture of per-probe tiles (count, size, size, C), probes row-major."""
-    rows = -(-count // cols)
-    C = tiles.shape[-1]
-    out = np.zeros((rows * cols, size, size, C), np.float32)
+def slot_grid(count: int) -> tuple[int, int]:
+    """(cols, rows) of the slot grid that holds ``count`` probes' tiles, row-major (as square as it gets)."""
+    cols = int(math.ceil(math.sqrt(count)))
+    return cols, int(math.ceil(count / cols))
+
+
+def probe_atlas(tiles: np.ndarray, size: int) -> np.ndarray:
+    """(rows * size, cols * size, C) picture of per-probe tiles (count, size, size, C) in their slots
+    (:func:`slot_grid`), in the tiles' dtype."""
+    count, C = tiles.shape[0], tiles.shape[-1]
+    cols, rows = slot_grid(count)
+    out = np.zeros((rows * cols, size, size, C), tiles.dtype)
     out[:count] = tiles
     return out.reshape(rows, cols, size, size, C).transpose(0, 2, 1, 3, 4).reshape(rows * size, cols * size, C)
+
+
+def atlas_tiles(img: np.ndarray, count: int, size: int) -> np.ndarray:
+    """Inverse of :func:`probe_atlas`: (count, size, size, C) tiles of a picture."""
+    cols, rows = slot_grid(count)
+    C = img.shape[-1]
+    return img.reshape(rows, size, cols, size, C).transpose(0, 2, 1, 3, 4).reshape(rows * cols, size, size, C)[:count]
+
+
+def irradiance_atlas(irradiance: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """The float32 irradiance texture: each probe's (8 x 8) RGB, alpha 1 where the probe is active, guard bands."""
+    n = active.size
+    alpha = np.broadcast_to(active.astype(np.float32)[:, None, None, None], (n, IRR_CORE, IRR_CORE, 1))
+    core = np.concatenate([np.asarray(irradiance, np.float32).reshape(n, IRR_CORE, IRR_CORE, 3), alpha], -1)
+    return probe_atlas(add_guard(core), IRR_TILE)
 
 
 class ProbeCopy:
@@ -135,8 +157,7 @@ class ProbeCopy:
         self.origin, self.spacing = np.asarray(origin, np.float64), np.asarray(spacing, np.float64)
         self.counts = tuple(int(c) for c in counts)
         self.count = int(np.prod(self.counts))
-        self.cols = int(math.ceil(math.sqrt(self.count)))
-        self.rows = int(math.ceil(self.count / self.cols))
+        self.cols, self.rows = slot_grid(self.count)
         self.bias = float(bias)
         self.irradiance = np.zeros((self.count, IRR_CORE, IRR_CORE, 3), np.float32)
         self.moments = np.zeros((self.count, VIS_CORE, VIS_CORE, 2), np.float32)
@@ -153,10 +174,8 @@ class ProbeCopy:
         self._upload()
 
     def _upload(self) -> None:
-        alpha = np.broadcast_to(self.received.astype(np.float32)[:, None, None, None], (self.count, IRR_CORE, IRR_CORE, 1))
-        irr = add_guard(np.concatenate([self.irradiance, alpha], -1))
-        self.irr_tex.write(probe_atlas(irr, self.count, self.cols, IRR_TILE).tobytes())
-        self.vis_tex.write(probe_atlas(add_guard(self.moments), self.count, self.cols, VIS_TILE).tobytes())
+        self.irr_tex.write(irradiance_atlas(self.irradiance, self.received).tobytes())
+        self.vis_tex.write(probe_atlas(add_guard(self.moments), VIS_TILE).tobytes())
 
     def bind(self, prog: Any) -> None:
         bind_probes(prog, self.irr_tex, self.vis_tex, self.origin, self.spacing, self.counts, self.cols, self.bias)  # type: ignore[arg-type]
@@ -174,8 +193,7 @@ class DdgiVolume:
         self.count = cx * cy * cz
         k, j, i = np.meshgrid(np.arange(cz), np.arange(cy), np.arange(cx), indexing="ij")
         self.positions = self.origin + np.stack([i, j, k], -1).reshape(-1, 3) * self.spacing   # probe = i + cx (j + cy k)
-        self.cols = int(math.ceil(math.sqrt(self.count)))
-        self.rows = int(math.ceil(self.count / self.cols))
+        self.cols, self.rows = slot_grid(self.count)
         F = s.face_res
         self.tile = (6 * F, F)
         self.far = float(np.linalg.norm(hi - lo)) * 1.5 + 1.0
@@ -269,16 +287,13 @@ class DdgiVolume:
         d = dist.astype(np.float32)
         self.moments = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1).astype(np.float32)   # (count, VIS^2, 2)
         vis = add_guard(self.moments.reshape(self.count, VIS_CORE, VIS_CORE, 2))
-        self.vis_tex.write(self._atlas(vis, VIS_TILE).tobytes())
+        self.vis_tex.write(probe_atlas(vis, VIS_TILE).tobytes())
         for vao in vaos:
             vao.release()
         self._rad_fbo.use()                      # not the framebuffer about to be released
         fbo.release()
         zbuf.release()
         prog.release()
-
-    def _atlas(self, tiles: np.ndarray, size: int) -> np.ndarray:
-        return probe_atlas(tiles, self.count, self.cols, size)
 
     # ------------------------------------------------------------------ relight (per update)
     def bind(self, prog: Any) -> None:
@@ -311,36 +326,29 @@ class DdgiVolume:
         return True
 
     def _relight_all(self, t_s: float) -> None:
+        # bounce 0 reads no probes (u_bounce); each later bounce reads the textures the one before wrote
         r, ctx = self.renderer, self.ctx
         prog = self._relight.prog
-        self.irradiance[:] = 0.0
-        self.irr_tex.write(self._atlas(add_guard(np.concatenate(
-            [self.irradiance.reshape(self.count, IRR_CORE, IRR_CORE, 3),
-             self.active.astype(np.float32)[:, None, None, None] * np.ones((1, IRR_CORE, IRR_CORE, 1), np.float32)], -1)),
-            IRR_TILE).tobytes())
+        r.bind_shading(prog, self.scene, t_s)
+        self.bind(prog)
+        set_uniform(prog, "u_gi", 1)
+        for unit, (name, tex) in enumerate(zip(("u_cap_pos", "u_cap_nrm", "u_cap_diff", "u_cap_emit"), self._cap), start=8):
+            tex.use(location=unit)
+            set_uniform(prog, name, unit)
+        set_uniform(prog, "u_tile", self.tile)
+        set_uniform(prog, "u_tiles_per_row", self.cols)
+        set_uniform(prog, "u_sky", tuple(float(c) for c in self.scene.ambient))
+        self._rad_fbo.use()
+        ctx.viewport = (0, 0, *self._rad.size)
         for b in range(self.settings.bounces):
-            r.bind_shading(prog, self.scene, t_s)
-            self.bind(prog)
-            set_uniform(prog, "u_gi", 1)
-            for unit, (name, tex) in enumerate(zip(("u_cap_pos", "u_cap_nrm", "u_cap_diff", "u_cap_emit"), self._cap), start=8):
-                tex.use(location=unit)
-                set_uniform(prog, name, unit)
-            set_uniform(prog, "u_tile", self.tile)
-            set_uniform(prog, "u_tiles_per_row", self.cols)
             set_uniform(prog, "u_bounce", b)
-            set_uniform(prog, "u_sky", tuple(float(c) for c in self.scene.ambient))
-            self._rad_fbo.use()
-            ctx.viewport = (0, 0, *self._rad.size)
             self._relight.run()
             W, H = self._rad.size
             rad = np.frombuffer(self._rad.read(), np.float32).reshape(H, W, 4)[..., :3]
             L = np.ascontiguousarray(self._per_ray(rad))                          # (count, rays, 3)
             self.irradiance = np.ascontiguousarray(np.matmul(self._w_irr, L))           # (count, texels, 3), BLAS
             self.irradiance[~self.active] = 0.0
-            core = np.concatenate([self.irradiance.reshape(self.count, IRR_CORE, IRR_CORE, 3),
-                                   np.broadcast_to(self.active.astype(np.float32)[:, None, None, None],
-                                                   (self.count, IRR_CORE, IRR_CORE, 1))], -1)
-            self.irr_tex.write(self._atlas(add_guard(core), IRR_TILE).tobytes())
+            self.irr_tex.write(irradiance_atlas(self.irradiance, self.active).tobytes())
 
     def textures(self) -> tuple[np.ndarray, np.ndarray]:
         """The irradiance (RGB + active) and visibility atlases as the shaders read them, float32."""

@@ -1,7 +1,7 @@
 """Probe streaming formats (light probe streaming paper, sections 3.2-3.4): what a ``probes`` server sends.
 
-The wire layer of the method that streams :mod:`.ddgi` probes to thin clients; the
-halves that use it are not built yet.  Everything here is exact: a decoded update
+The wire layer of the ``probes`` method (:mod:`splitrender.methods.probes`), which
+streams :mod:`.ddgi` probes to thin clients.  Everything here is exact: a decoded update
 equals, bit for bit, what the server packed.
 
 **Update textures** hold the probes' core texels without guard bands (the client
@@ -36,7 +36,7 @@ import struct
 import numpy as np
 
 from ..errors import RemoteProtocolError
-from .ddgi import IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE
+from .ddgi import IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE, atlas_tiles, probe_atlas, slot_grid
 
 COLOR_BITS = 10
 COLOR_MAX_CODE = (1 << COLOR_BITS) - 1
@@ -71,27 +71,10 @@ def decode_irradiance(q: np.ndarray) -> np.ndarray:
 
 
 def grid_shape(count: int) -> tuple[int, int]:
-    """(cols, rows) of the slot grid for ``count`` probes (as square as it gets)."""
+    """(cols, rows) of the slot grid for ``count`` probes (:func:`~.ddgi.slot_grid`; the index list's u16 bounds it)."""
     if not 1 <= count <= MAX_PROBES:
         raise ValueError(f"probe count must be in [1, {MAX_PROBES}], got {count}")
-    cols = int(math.ceil(math.sqrt(count)))
-    return cols, int(math.ceil(count / cols))
-
-
-def _blocks(tiles: np.ndarray, count: int, core: int) -> np.ndarray:
-    """(rows * core, cols * core, C) picture of per-probe blocks (count, core, core, C) in their slots."""
-    cols, rows = grid_shape(count)
-    c = tiles.shape[-1]
-    out = np.zeros((rows * cols, core, core, c), tiles.dtype)
-    out[:count] = tiles
-    return out.reshape(rows, cols, core, core, c).transpose(0, 2, 1, 3, 4).reshape(rows * core, cols * core, c)
-
-
-def _unblocks(img: np.ndarray, count: int, core: int) -> np.ndarray:
-    cols, rows = grid_shape(count)
-    c = img.shape[-1]
-    t = img.reshape(rows, core, cols, core, c).transpose(0, 2, 1, 3, 4).reshape(rows * cols, core, core, c)
-    return t[:count]
+    return slot_grid(count)
 
 
 def color_frame(codes: np.ndarray) -> np.ndarray:
@@ -99,7 +82,8 @@ def color_frame(codes: np.ndarray) -> np.ndarray:
     codes = np.asarray(codes)
     if codes.ndim != 4 or codes.shape[1:] != (IRR_CORE, IRR_CORE, 3):
         raise ValueError(f"colour codes must be (count, {IRR_CORE}, {IRR_CORE}, 3), got {codes.shape}")
-    return _blocks(codes.astype(np.uint16), codes.shape[0], IRR_CORE)
+    grid_shape(codes.shape[0])
+    return probe_atlas(codes.astype(np.uint16), IRR_CORE)
 
 
 def color_from_frame(img: np.ndarray, count: int) -> np.ndarray:
@@ -110,7 +94,7 @@ def color_from_frame(img: np.ndarray, count: int) -> np.ndarray:
                                f"for {count} probes")
     if int(img.max(initial=0)) > COLOR_MAX_CODE:
         raise ProbeStreamError(f"probe colour picture: code {int(img.max())} above {COLOR_MAX_CODE}")
-    return _unblocks(img, count, IRR_CORE)
+    return atlas_tiles(img, count, IRR_CORE)
 
 
 def visibility_width(count: int) -> int:
@@ -126,7 +110,7 @@ def visibility_frame(moments: np.ndarray) -> np.ndarray:
     if m.ndim != 4 or m.shape[1:] != (VIS_CORE, VIS_CORE, 2):
         raise ValueError(f"moments must be (count, {VIS_CORE}, {VIS_CORE}, 2), got {m.shape}")
     count = m.shape[0]
-    tex = _blocks(m.astype("<f2"), count, VIS_CORE)                   # (H, C, 2) float16
+    tex = probe_atlas(m.astype("<f2"), VIS_CORE)                   # (H, C, 2) float16
     rows = tex.view(np.uint8).reshape(tex.shape[0], -1)                # 4 bytes a texel
     w = visibility_width(count)
     out = np.zeros((rows.shape[0], w * 3), np.uint8)
@@ -144,7 +128,7 @@ def visibility_from_frame(img: np.ndarray, count: int) -> np.ndarray:
     nbytes = cols * VIS_CORE * 4
     flat = np.ascontiguousarray(img.reshape(img.shape[0], -1)[:, :nbytes])
     tex = flat.view("<f2").reshape(img.shape[0], cols * VIS_CORE, 2)
-    return _unblocks(tex, count, VIS_CORE)
+    return atlas_tiles(tex, count, VIS_CORE)
 
 
 def encode_index_list(ids: np.ndarray) -> bytes:

@@ -167,10 +167,13 @@ def scene_from_data(data: Any) -> tuple[Scene, dict[int, _Fixed]]:
     lds = data.get("lights")
     if not isinstance(lds, list) or len(lds) > MAX_POINT_LIGHTS:
         raise SceneWireError(f"scene.lights: expected a list of at most {MAX_POINT_LIGHTS}")
-    lights = [PointLight(_vec(ld, "position", 3, f"scene.lights[{i}]"), _vec(ld, "color", 3, f"scene.lights[{i}]"),
-                         Schedule.constant(_num(ld, "intensity", f"scene.lights[{i}]", 0.0, 1e6)),
-                         _num(ld, "range_m", f"scene.lights[{i}]", 0.0, 1e5))
-              for i, ld in enumerate(lds) if isinstance(ld, dict) or _bad(f"scene.lights[{i}]")]
+    lights = []
+    for i, ld in enumerate(lds):
+        w = f"scene.lights[{i}]"
+        if not isinstance(ld, dict):
+            raise SceneWireError(f"{w}: expected a map")
+        lights.append(PointLight(_vec(ld, "position", 3, w), _vec(ld, "color", 3, w),
+                                 Schedule.constant(_num(ld, "intensity", w, 0.0, 1e6)), _num(ld, "range_m", w, 0.0, 1e5)))
     shading, gi = data.get("shading"), data.get("gi")
     if shading not in SHADING_MODELS or gi not in GI_MODES:
         raise SceneWireError(f"scene: shading {shading!r} / gi {gi!r} unsupported")
@@ -185,6 +188,3 @@ def scene_from_data(data: Any) -> tuple[Scene, dict[int, _Fixed]]:
         raise SceneWireError(f"scene: {exc}") from None
     return scene, holders
 
-
-def _bad(where: str) -> bool:
-    raise SceneWireError(f"{where}: expected a map")

@@ -20,7 +20,7 @@ from ...gi.ddgi import ProbeCopy
 from ...gi.stream import ProbeStreamError, color_from_frame, decode_index_list, decode_irradiance, visibility_from_frame
 from ...scene.model import Schedule
 from ...scene.pose import Pose
-from ...scene.wire import SceneWireError, scene_from_data
+from ...scene.wire import scene_from_data
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from .server import META_VERSION
 
@@ -51,7 +51,6 @@ class ProbesClient(ClientHalf):
         self.renderer.gi_sources[id(self.scene)] = self.probes
         self.count = self.probes.count
         self._has_content = False
-        self.applied = 0
 
     def apply(self, update: DecodedUpdate) -> None:
         meta = update.meta
@@ -86,11 +85,10 @@ class ProbesClient(ClientHalf):
         if probes is not None:
             self.probes.scatter(*probes)
             self._has_content = True
-            self.applied += 1
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         out = self.renderer.render(self.scene, t_s, pose, self.intrinsics)
         return ClientFrame(out.color, None, {"cli_probes": float(self.probes.received.sum())})
 
 
-__all__ = ["ProbesClient", "SceneWireError"]
+__all__ = ["ProbesClient"]

@@ -77,10 +77,9 @@ class ProbesProducer(SceneProducer):
         vol = renderer.gi_volume(self.scene)
         vol.update(t_gi)
         n = vol.count
-        self._last = {"t_gi": t_gi, "count": n, "active": vol.active.copy(),
+        self._last = {"t_gi": t_gi, "active": vol.active.copy(),
                       "codes": encode_irradiance(vol.irradiance).reshape(n, IRR_CORE, IRR_CORE, 3),
-                      "moments": vol.moments.astype(np.float16).reshape(n, VIS_CORE, VIS_CORE, 2),
-                      "origin": vol.origin, "spacing": vol.spacing, "counts": vol.settings.counts, "bias": vol.settings.bias}
+                      "moments": vol.moments.astype(np.float16).reshape(n, VIS_CORE, VIS_CORE, 2)}
         self.traces += 1
         self._ms = (time.perf_counter() - w0) * 1e3
         return self._last
