@@ -45,14 +45,14 @@ def _coded(srv, upd, encoders=None, decoders=None):  # type: ignore[no-untyped-d
     if encoders is None:
         encoders = {n: VideoEncoder(s.codec, s.width, s.height) for n, s in specs.items()}
         decoders = {n: VideoDecoder("hevc", s.codec.input_format) for n, s in specs.items()}
-    planes = {n: decoders[n].decode(encoders[n].encode(upd.planes[n], force_idr=upd.force_idr).data) for n in specs}
+    planes = {n: decoders[n].decode(encoders[n].encode(upd.planes[n], force_idr=upd.force_idr).data) for n in upd.planes}
     return DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, planes, upd.meta, dict(upd.data)), encoders, decoders
 
 
 def test_decoded_probes_equal_the_sent_ones_bit_for_bit(renderer) -> None:  # type: ignore[no-untyped-def]
     """Through the lossless streams, the client's probe copy holds exactly what the server selected: the 10-bit
     colour codes' irradiance and the float16 distance moments, bit for bit (an I-frame, then a P-frame with the
-    next probe update)."""
+    next probe update, which carries colour only)."""
     from splitrender.gi.stream import decode_irradiance
 
     srv, spec, cfg, scene, pose, ctx = _server(renderer, "default+gi")
@@ -64,6 +64,8 @@ def test_decoded_probes_equal_the_sent_ones_bit_for_bit(renderer) -> None:  # ty
         cli.apply(d)
         st = srv.stats()
         assert st["probes_sent"] > (100 if f == 0 else 10), st
+        # the second update relights (colour) but moves no static geometry: no visibility picture goes
+        assert (st["color_sent"], st["vis_sent"]) == ((1.0, 1.0) if f == 0 else (1.0, 0.0)), st
         sent = np.flatnonzero(srv.sent)
         assert np.array_equal(cli.probes.received, srv.sent)
         assert np.array_equal(cli.probes.irradiance[sent], decode_irradiance(srv.sent_codes[sent]))
@@ -79,11 +81,13 @@ def _run(method: str, scene: str, trace: str, network: str, dur: float, size=(32
 
 def test_a_still_scene_sends_no_probe_after_the_first_update_and_scores_near_the_truth(renderer) -> None:  # type: ignore[no-untyped-def]
     """``minimal+gi`` (no moving object, no light change), still camera, zero latency: the first update sends the
-    136 probes the view needs, every later one none (the index list is empty, the pictures repeat); the client,
-    rendering the scene itself with exact probes, scores 56.4 dB (mean over the frames, capped at 60)."""
+    136 probes the view needs, every later one none and no picture or index list at all; the client, rendering
+    the scene itself with exact probes, scores 56.4 dB (mean over the frames, capped at 60)."""
     res = _run("probes", "minimal+gi", "static", "ideal", 0.5, renderer=renderer)
     sent = [u["srv_probes_sent"] for u in res.updates]
     assert sent[0] > 100 and not any(sent[1:]), sent
+    later = [u.get(f"bytes_{s}", 0) for u in res.updates[1:] for s in ("color", "vis", "index")]
+    assert res.updates[0]["bytes_color"] > 0 and not any(later), later
     assert res.summary["mean_psnr_db"] >= 55.0, res.summary["mean_psnr_db"]
 
 
@@ -109,6 +113,7 @@ def test_four_clients_share_one_trace_per_update(renderer) -> None:  # type: ign
 
 def test_malformed_probe_updates_are_named_and_the_last_state_stays(renderer) -> None:  # type: ignore[no-untyped-def]
     from splitrender.gi.stream import ProbeStreamError, encode_index_list
+    from splitrender.methods.probes.server import META_VERSION
 
     srv, spec, cfg, scene, pose, ctx = _server(renderer)
     cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
@@ -125,7 +130,7 @@ def test_malformed_probe_updates_are_named_and_the_last_state_stays(renderer) ->
         ({"planes": {**good.planes, "vis": good.planes["vis"][:, :-2]}}, r"^probe visibility picture"),
         ({"meta": bad_xf}, r"^probes metadata: 'xf' must be finite"),
         ({"meta": {**good.meta, "sun": -1.0}}, r"^probes metadata: 'sun' and 'lights'"),
-        ({"meta": {**good.meta, "v": 9}}, r"^probes metadata: expected a map with v=1$"),
+        ({"meta": {**good.meta, "v": 9}}, rf"^probes metadata: expected a map with v={META_VERSION}$"),
     ]
     from splitrender.methods import DecodedUpdate
 

@@ -166,11 +166,14 @@ class ProbeCopy:
         self.vis_tex = ctx.texture((self.cols * VIS_TILE, self.rows * VIS_TILE), 2, dtype="f4")
         self._upload()
 
-    def scatter(self, ids: np.ndarray, irradiance: np.ndarray, moments: np.ndarray) -> None:
-        """Take probes ``ids``' core texels (n, 8, 8, 3) and (n, 16, 16, 2) and rebuild the textures."""
-        self.irradiance[ids] = irradiance
-        self.moments[ids] = moments
-        self.received[ids] = True
+    def scatter(self, ids: np.ndarray, irradiance: np.ndarray | None, moments: np.ndarray | None) -> None:
+        """Take probes ``ids``' core texels (n, 8, 8, 3) and (n, 16, 16, 2) and rebuild the textures (None: that
+        half of those probes is unchanged)."""
+        if irradiance is not None:
+            self.irradiance[ids] = irradiance
+            self.received[ids] = True
+        if moments is not None:
+            self.moments[ids] = moments
         self._upload()
 
     def _upload(self) -> None:

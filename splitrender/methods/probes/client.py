@@ -1,6 +1,6 @@
 """``probes`` client half (paper section 3.5): renders the scene itself, lit by its copy of the probes.
 
-The scene arrives once in the session data; each update brings the object transforms
+The scene arrives once in the session data; each update brings the moving objects' transforms
 and light intensities of its frame, and the probes the server selected (the ``index``
 stream names their slots in the two lossless pictures).  The client scatters the
 decoded blocks into its probe textures, rebuilds the guard bands, and draws primary
@@ -57,7 +57,8 @@ class ProbesClient(ClientHalf):
         if not isinstance(meta, dict) or meta.get("v") != META_VERSION:
             raise ProbeStreamError(f"probes metadata: expected a map with v={META_VERSION}")
         xf = meta.get("xf")
-        n_obj = len(self.scene.objects)
+        moving = [o for o in self.scene.objects if o.object_id in self._moving]
+        n_obj = len(moving)
         if not isinstance(xf, np.ndarray) or xf.shape != (n_obj, 4, 4) or not np.isfinite(xf).all():
             raise ProbeStreamError(f"probes metadata: 'xf' must be finite ({n_obj}, 4, 4), got {getattr(xf, 'shape', type(xf).__name__)}")
         lights = meta.get("lights")
@@ -66,18 +67,22 @@ class ProbesClient(ClientHalf):
                 or not all(isinstance(v, (int, float)) and 0 <= v < 1e6 for v in [*lights, sun])):
             raise ProbeStreamError("probes metadata: 'sun' and 'lights' must be intensities in [0, 1e6)")
         probes = None
-        if not ({"color", "vis", "index"} & set(update.missing)) and "color" in update.planes and "vis" in update.planes:
-            ids = decode_index_list(update.data.get("index", b""), self.count)
-            codes = color_from_frame(update.planes["color"], self.count)
-            moments = visibility_from_frame(update.planes["vis"], self.count)
-            if ids.size and not np.isfinite(moments[ids].astype(np.float32)).all():
-                raise ProbeStreamError("probes visibility: non-finite distance moments")
-            probes = (ids, decode_irradiance(codes[ids]), moments[ids].astype(np.float32))
+        sent = {"color", "vis"} & set(update.planes)
+        if not ({"color", "vis", "index"} & set(update.missing)) and sent:
+            if "index" not in update.data:
+                raise ProbeStreamError("probe update: pictures without an index list")
+            ids = decode_index_list(update.data["index"], self.count)
+            irr = mom = None
+            if "color" in sent:
+                irr = decode_irradiance(color_from_frame(update.planes["color"], self.count)[ids])
+            if "vis" in sent:
+                mom = visibility_from_frame(update.planes["vis"], self.count)[ids].astype(np.float32)
+                if not np.isfinite(mom).all():
+                    raise ProbeStreamError("probes visibility: non-finite distance moments")
+            probes = (ids, irr, mom)
         # everything checked: take it
-        for o, m in zip(self.scene.objects, xf):
-            holder = self._moving.get(o.object_id)
-            if holder is not None:
-                holder.m = np.asarray(m, np.float64) @ np.linalg.inv(o.transform)   # model = holder.m @ transform
+        for o, m in zip(moving, xf):
+            self._moving[o.object_id].m = np.asarray(m, np.float64) @ np.linalg.inv(o.transform)  # model = holder.m @ transform
         if self.scene.sun is not None:
             self.scene.sun.intensity = Schedule.constant(float(sun))  # type: ignore[arg-type]
         for pl, v in zip(self.scene.point_lights, lights):

@@ -15,9 +15,14 @@ gives the same codes at every update.
    sent again and the codec restarts with an I-frame;
 2. write the selected probes into their stable slots of the two update pictures (the
    other slots keep what this client last received, so the codec's P-frames skip
-   them) and list them in the ``index`` data stream;
-3. send each frame's object transforms and light intensities in the metadata; the scene
-   itself goes once, in the session data (:mod:`splitrender.scene.wire`).
+   them) and list them in the ``index`` data stream; each picture goes only when some
+   selected probe's colour (or visibility) changed, so a light change sends no
+   visibility and moving geometry no colour it did not change;
+   an update with no probe for this client sends no picture and no index (the codec's
+   frames are probe updates, so ``gop`` counts updates);
+3. send each frame's transforms of the moving objects (in scene order) and light
+   intensities in the metadata; the scene itself goes once, in the session data
+   (:mod:`splitrender.scene.wire`).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ from ...scene.wire import scene_to_data
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import ProbesConfig
 
-META_VERSION = 1
+META_VERSION = 2
 
 
 def _require_gi(scene: Any) -> None:
@@ -164,14 +169,15 @@ class ProbesServer(ServerHalf):
         if full:
             self.sent[:] = False
         visible = self.visible_probes(ctx) if self.config.pvs == "view" else np.ones(self.count, bool)
-        changed = ~self.sent | (codes != self.sent_codes).any(axis=(1, 2, 3)) | \
-            (moments.view(np.uint16) != self.sent_moments.view(np.uint16)).any(axis=(1, 2, 3))
+        changed_c = ~self.sent | (codes != self.sent_codes).any(axis=(1, 2, 3))
+        changed_v = ~self.sent | (moments.view(np.uint16) != self.sent_moments.view(np.uint16)).any(axis=(1, 2, 3))
+        changed = changed_c | changed_v
         sel = np.flatnonzero(active & visible & changed)
         self.sent_codes[sel] = codes[sel]
         self.sent_moments[sel] = moments[sel]
         self.sent[sel] = True
-        models = np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects]).astype(np.float32)
         sc = self.scene
+        models = np.array([o.model_matrix(ctx.t_s) for o in sc.objects if o.dynamic], np.float32).reshape(-1, 4, 4)
         meta = {"v": META_VERSION, "t_gi": float(shared["t_gi"]), "xf": models,
                 "sun": float(sc.sun.intensity.value(ctx.t_s)) if sc.sun is not None else 0.0,
                 "lights": [float(pl.intensity.value(ctx.t_s)) for pl in sc.point_lights]}
@@ -179,9 +185,16 @@ class ProbesServer(ServerHalf):
         self._stats = {"probes_sent": float(sel.size), "probes_active": float(active.sum()),
                        "probes_visible": float((active & visible).sum()), "probes_changed": float((active & changed).sum()),
                        "full": float(full), "probe_ms": (time.perf_counter() - t0) * 1e3}
-        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose,
-                      {"color": color_frame(self.sent_codes), "vis": visibility_frame(self.sent_moments)},
-                      meta, force_idr=full, data={"index": encode_index_list(sel)})
+        if not sel.size and not full:      # nothing new for this client: the probe streams skip the frame
+            return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {}, meta)
+        planes = {}                         # colour and visibility each go only when some selected probe's changed
+        if full or changed_c[sel].any():
+            planes["color"] = color_frame(self.sent_codes)
+        if full or changed_v[sel].any():
+            planes["vis"] = visibility_frame(self.sent_moments)
+        self._stats.update({"color_sent": float("color" in planes), "vis_sent": float("vis" in planes)})
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, planes, meta, force_idr=full,
+                      data={"index": encode_index_list(sel)})
 
     def stats(self) -> dict[str, float]:
         return dict(self._stats)
