@@ -178,3 +178,18 @@ def test_shift_time_runs_the_scene_clock_ahead():
     assert cfg.key() == cfg.replace(scene_time_offset_s=0.0).key() != cfg.replace(scene_time_offset_s=3.5).key()
     with pytest.raises(ConfigError, match="scene_time_offset_s"):
         RunConfig(scene_time_offset_s=-1.0)
+
+
+def test_still_option_stops_the_moving_objects_where_they_start_and_keeps_the_lights() -> None:
+    """``default+gi+still`` (options in either order): every moving object holds its t = 0 place, the lights keep
+    their schedules (the sun still dims between 4 and 5 s), and GI stays on."""
+    from splitrender.scene.loader import get_scene
+
+    moving, still = get_scene("default"), get_scene("default+gi+still")
+    assert still.name == "default+gi+still" and still.gi == "ddgi" and not still.dynamic_ids()
+    assert get_scene("default+still+gi").gi == "ddgi" and not get_scene("default+still+gi").dynamic_ids()
+    for a, b in zip(moving.objects, still.objects):
+        assert np.allclose(a.model_matrix(0.0), b.model_matrix(3.0)), a.name
+    ball = next(o for o in moving.objects if o.name == "ball")
+    assert not np.allclose(ball.model_matrix(0.0), ball.model_matrix(1.0))
+    assert still.sun is not None and still.sun.intensity.value(5.0) < still.sun.intensity.value(3.9)

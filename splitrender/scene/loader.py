@@ -345,21 +345,37 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
 
 
 GROUND_OPTION = "+ground"
-GI_OPTION = "+gi"
 """Suffix of a scene file path that adds the ground plane: ``model.glb+ground``."""
+GI_OPTION = "+gi"
+"""Suffix of any scene that turns on DDGI global illumination: ``default+gi``."""
+STILL_OPTION = "+still"
+"""Suffix of any scene that stops its moving objects where they are at t = 0 (the lights keep their schedules)."""
+
+
+def _with_gi(scene: Scene) -> None:
+    scene.gi = "ddgi"
+
+
+def _still(scene: Scene) -> None:
+    for o in scene.objects:
+        if o.animation is not None:
+            o.transform, o.animation = np.asarray(o.model_matrix(0.0), np.float64).copy(), None
 
 
 def get_scene(name_or_path: str) -> Scene:
     """A built-in scene by name (``default``, ``minimal``) or a scene file by path.
 
     A file is rescaled to 4 m (largest extent); ``path+ground`` adds a ground plane.
-    A trailing ``+gi`` (``default+gi``) turns on DDGI global illumination (``Scene.gi``).
+    Trailing options, in any order: ``+gi`` (``default+gi``) turns on DDGI global
+    illumination (``Scene.gi``); ``+still`` stops every moving object at its t = 0 place
+    (the lights still change: a light change with nothing else moving).
     """
-    if name_or_path.endswith(GI_OPTION):
-        scene = get_scene(name_or_path[: -len(GI_OPTION)])
-        scene.gi = "ddgi"
-        scene.name += GI_OPTION
-        return scene
+    for opt, apply in ((GI_OPTION, _with_gi), (STILL_OPTION, _still)):
+        if name_or_path.endswith(opt):
+            scene = get_scene(name_or_path[: -len(opt)])
+            apply(scene)
+            scene.name += opt
+            return scene
     if name_or_path in BUILTIN_SCENES:
         return BUILTIN_SCENES[name_or_path]()
     ground = name_or_path.endswith(GROUND_OPTION)
