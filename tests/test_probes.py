@@ -185,3 +185,21 @@ def test_probes_needs_a_scene_with_gi_and_sane_settings(renderer) -> None:  # ty
     for params, msg in (({"gi_hz": 0.0}, "gi_hz"), ({"pvs": "cone"}, "pvs"), ({"pvs_res": 4}, "pvs_res")):
         with pytest.raises(ConfigError, match=msg):
             make_config(get_method("probes").config, params)
+
+
+def test_rate_study_counts_what_each_update_carries(renderer) -> None:  # type: ignore[no-untyped-def]
+    """The report's rate evidence (``studies.probes._rate_run``) on ``default+gi+still``: the first update is an
+    I-frame with colour and visibility, a still tick sends nothing at all, the sun dimming sends colour only (its
+    uncompressed size is the sent probes' colour texels), and a keyframe request resends every selected probe."""
+    from splitrender.experiments.studies.probes import COLOR_BITS_PER_PROBE, VIS_BITS_PER_PROBE, _rate_run, _segment_table
+
+    rows = _rate_run(renderer, "default+gi+still", np.array([3.8, 3.9, 4.3]), keyframe_at_end=True)
+    first, still, light, kf = rows
+    assert [r["segment"] for r in rows] == ["first update", "still", "light change", "keyframe request"]
+    assert first["iframe"] and first["vis_bits"] > 0 and first["raw_bits"] == first["sent"] * (COLOR_BITS_PER_PROBE + VIS_BITS_PER_PROBE)
+    assert still["sent"] == still["bits"] == still["zstd_bits"] == 0
+    assert light["sent"] > 0 and light["vis_bits"] == 0 and light["raw_bits"] == light["sent"] * COLOR_BITS_PER_PROBE
+    assert light["ratio"] > 1.5 and not light["iframe"], light
+    assert kf["iframe"] and kf["sent"] == first["sent"] and kf["vis_bits"] > 0
+    seg = {r["segment"]: r for r in _segment_table(rows)}
+    assert seg["still"]["updates_with_probes"] == 0 and seg["light change"]["mean_ratio"] == light["ratio"]

@@ -63,6 +63,8 @@ class ProbesProducer(SceneProducer):
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         _require_gi(self.scene)
+        if self.renderer is not None:      # capture the probes' G-buffers now, with the scene's set-up, not on the clock
+            self.renderer.gi_volume(self.scene)
         self._last: dict[str, Any] | None = None
         self._ms = 0.0
         self.traces = 0
