@@ -8,7 +8,7 @@ Outputs in ``DIR``: ``runs/<key>/`` (per-run CSVs and ``config.toml``), ``runs.c
 
 ``--quick`` (:data:`QUICK`) runs 320x180, 1 s of the walk trace at 30 fps with FLIP
 on every 6th frame, and starts the studies (each in its own process, at low
-priority) alongside the runs; studies still running 480 s after the start are stopped
+priority) alongside the runs; studies still running 720 s after the start are stopped
 and the report says so.  The default (:data:`FULL`)
 runs 640x360 over the full 10 s walk and turn traces.
 """
@@ -42,7 +42,7 @@ QUICK: dict[str, Any] = {"width": 320, "height": 180, "duration_s": 1.0, "client
                          "traces": ("walk",)}
 FULL: dict[str, Any] = {"width": 640, "height": 360, "duration_s": None, "client_fps": 60, "server_fps": 30, "flip_every": 4,
                         "traces": ("walk", "turn")}
-QUICK_BUDGET_S = 600.0
+QUICK_BUDGET_S = 720.0
 FULL_STUDY_TIMEOUT_S = 3600.0
 SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "psnr_mse_db", "p5_psnr_db", "mean_ssim", "mean_dssim",
                    "mean_flip", "flip_frames", "mean_fg_psnr_db", "mean_fg_flip", "mean_fg_pct",

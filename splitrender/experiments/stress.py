@@ -1,6 +1,7 @@
 """``splitrender stress``: the stability suite, where methods fail.
 
-Every available method runs through each :data:`CASES` entry, each run in its own
+Every available method runs through each :data:`CASES` entry its scene allows (see
+:meth:`StressCase.runs`), each run in its own
 spawned process with a time limit (a crash or a hang is a result, not the end of the
 suite):
 
@@ -19,6 +20,15 @@ suite):
                    default scene's sun dims from 2.6 to 0.9 over one second from ``t0``
                    (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
 ``ball_crossing``  a static camera at (0, 1.6, 2.5) looking -Z while the ball crosses at 2.5 m/s
+
+With global illumination (``default+gi``; only ``probes`` and, where named, a baseline):
+
+``gi_light_change`` ``light_change`` on ``default+gi`` for ``atw`` and ``probes``: a
+                   volume-wide change, every active probe's colour goes at every update
+``gi_loss``        ``loss_burst`` for ``probes``: each lost probe update resends every
+                   selected probe as an I-frame
+``gi_fast_moves``  the ``strafe`` trace for ``probes``: steps at up to 2 m/s bring probes
+                   into the 360-degree view that were never sent
 
 Per method x case it reports the worst-frame PSNR, the share of frames below
 :data:`FLOOR_DB`, the time to recover after the disturbance window (first time after
@@ -91,6 +101,14 @@ class StressCase:
     windowed: bool
     baseline_floor_pct: float
     note: str = ""
+    scene: str = "default"
+    methods: tuple[str, ...] = ()
+    """Only these methods run the case (empty: every method that runs on ``scene``)."""
+
+    def runs(self, method: str) -> bool:
+        from ..methods import methods_for_scene
+
+        return method in methods_for_scene(self.scene) and (not self.methods or method in self.methods)
 
 
 def _save_trace(trace: Any, path: Path) -> str:
@@ -203,6 +221,16 @@ CASES: tuple[StressCase, ...] = (
                "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
+    # global illumination (default+gi): the probes method and, where it compares, a baseline
+    StressCase("gi_light_change", "with GI: the sun dims over 1 s from the window's start, every probe changes, lan",
+               lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 100.0,
+               "a volume-wide light change: every active probe's colour is sent at each update", scene="default+gi",
+               methods=("atw", "probes")),
+    StressCase("gi_loss", "with GI: Gilbert-Elliott loss 3% 30% with 20 ms delay (lost probe updates resend every selected "
+               "probe as an I-frame)", lambda d, tm: {"trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0,
+               scene="default+gi", methods=("probes",)),
+    StressCase("gi_fast_moves", "with GI: sideways steps at up to 2 m/s into places whose probes were not yet sent, lan",
+               lambda d, tm: {"trace": "strafe", "network": "lan"}, False, 100.0, scene="default+gi", methods=("probes",)),
 )
 
 
@@ -219,7 +247,7 @@ def case_config(case: StressCase, method: str, tm: Timing, work_dir: Path) -> Ru
     """The RunConfig of ``case`` for ``method`` (trace/network files written under ``work_dir``)."""
     from ..sim.truth import shared_cache_setting
 
-    d = case.build(work_dir, tm)
+    d = {"scene": case.scene, **case.build(work_dir, tm)}
     params = dict(d.pop("method_params", {}))
     # every method of a case sees the same ground truth: rendered once, by whichever run comes first
     return RunConfig.from_dict({"method": method, "method_params": params, "duration_s": tm.duration_s, "width": tm.width,
@@ -372,9 +400,10 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
     out.mkdir(parents=True, exist_ok=True)
     tm = timing or (QUICK if quick else FULL)
     limit = timeout_s or (120.0 if quick else 900.0)
-    methods = list(methods) if methods else methods_for_scene("default")   # the cases' scenes have no GI
+    methods = list(methods) if methods else methods_for_scene("default+gi")
     sel = [get_case(c) for c in cases] if cases else list(CASES)
-    jobs = [_Job(c, m, case_config(c, m, tm, out / "inputs")) for c in sel for m in methods]
+    jobs = [_Job(c, m, case_config(c, m, tm, out / "inputs")) for c in sel for m in methods if c.runs(m)]
+    methods = [m for m in methods if any(j.method == m for j in jobs)]
     ctx = mp.get_context("spawn")
     n = max(1, workers or os.cpu_count() or 1)
     pending = [_Worker(m, [j for j in jobs if j.method == m]) for m in methods]

@@ -389,7 +389,7 @@ def available_methods() -> list[str]:
 def methods_for_scene(scene: str) -> list[str]:
     """The registered methods that can run on scene ``scene`` (a name or path; a ``+gi`` suffix turns GI on):
     what demos, sweeps, the stress suite and the server offer when no method is named."""
-    gi = scene.endswith("+gi")
+    gi = "gi" in scene.split("+")[1:]
     return [m for m in available_methods() if gi or not _REGISTRY[m].needs_gi]
 
 

@@ -91,6 +91,21 @@ def minimal_scene() -> Scene:
     return Scene("minimal", [floor, cube], DirectionalLight(shadow_map_size=1024, shadow_extent_m=8.0), [])
 
 
+def shed_scene() -> Scene:
+    """A closed shed (4 x 3 x 4 m, walls 10 cm thick) on a sunlit 8 m floor under a blue sky: the light-leak case
+    of DDGI's visibility test.  With ``+gi`` the default probe grid is 4 x 2 x 4, so the shed's walls run between
+    the probes inside it and those outside; a point inside by a wall takes light from both unless the
+    visibility (Chebyshev) test rejects the ones beyond the wall."""
+    mat = Material("plaster", (0.7, 0.7, 0.7), None, roughness=1.0)
+    objs = [SceneObject("floor", P.grid_plane(8.0, 8.0, 8, 8), mat, 1)]
+    t, h, w = 0.1, 3.0, 4.0
+    parts = [((t, h, w + t), (-w / 2, h / 2, 0.0)), ((t, h, w + t), (w / 2, h / 2, 0.0)), ((w + t, h, t), (0.0, h / 2, -w / 2)),
+             ((w + t, h, t), (0.0, h / 2, w / 2)), ((w + t, t, w + t), (0.0, h, 0.0))]
+    for i, (size, pos) in enumerate(parts):
+        objs.append(SceneObject(("wall_w", "wall_e", "wall_n", "wall_s", "roof")[i], P.box(size), mat, i + 2, _tr(*pos)))
+    return Scene("shed", objs, DirectionalLight(direction=(-0.3, -1.0, -0.2)), [], ambient=(0.6, 0.7, 0.9), gi_probes=(4, 2, 4))
+
+
 def default_phong_scene() -> Scene:
     """The default scene shaded with the older Blinn-Phong model (base colour only), for comparison."""
     sc = default_scene()
@@ -98,4 +113,4 @@ def default_phong_scene() -> Scene:
     return sc
 
 
-BUILTIN_SCENES = {"default": default_scene, "default_phong": default_phong_scene, "minimal": minimal_scene}
+BUILTIN_SCENES = {"default": default_scene, "default_phong": default_phong_scene, "minimal": minimal_scene, "shed": shed_scene}

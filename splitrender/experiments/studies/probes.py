@@ -17,6 +17,8 @@ Evidence, following the light probe streaming paper's section 5:
    client.
 5. **Savings** of the update textures: guard bands dropped and inactive probes skipped,
    beside the paper's -36 % / -21 % / -25 %.
+6. **Lossy visibility** (ablation): inside a closed shed (``shed+gi``), the visibility
+   picture lossless against lossy HEVC: light leaks through the walls.
 
 ``quick=True`` shortens the rate runs, runs the GI-lag and many-client runs at 160x90 and
 stops at four clients.
@@ -104,6 +106,49 @@ def _rate_run(renderer: Any, scene_name: str, times: np.ndarray, keyframe_at_end
                      "bits": bits, "raw_bits": raw, "zstd_bits": z_bits,
                      "iframe": int(any(e.keyframe for e in coded.values())), "server_ms": server_ms,
                      "ratio": raw / bits if bits else float("nan")})
+    return rows
+
+
+SHED_POSE = ((0.0, 1.5, 1.5), (1.5, 0.5, -1.5))
+"""Eye and target inside the ``shed`` scene, looking at its far corner."""
+
+
+def leak_ablation(renderer: Any, size: tuple[int, int] = (160, 90)) -> list[dict[str, Any]]:
+    """The lossy-visibility ablation on ``shed+gi``: one probe update through the method's streams with the
+    visibility lossless (the method) and lossy (``vis_lossy``), the client's view inside the shed against the truth."""
+    from ...codecs.video import VideoDecoder, VideoEncoder
+    from ...methods import DecodedUpdate, ServerContext, get_method, make_config
+    from ...metrics.image import psnr
+    from ...render.renderer import make_pose_looking
+    from ...scene.loader import get_scene
+    from ...scene.pose import CameraIntrinsics
+
+    scene = get_scene("shed+gi")
+    intr = CameraIntrinsics(*size)
+    pose = make_pose_looking(*SHED_POSE)
+    truth = renderer.render(scene, 0.0, pose, intr).color
+    spec = get_method("probes")
+    rows = []
+    for lossy in (False, True):
+        cfg = make_config(spec.config, {"vis_lossy": lossy})
+        prod = spec.producer_class(cfg, scene, 10, renderer)
+        srv = spec.server_class(cfg, intr, scene, 10, prod)
+        ctx = ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
+                            latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0, predict=lambda _t: pose,
+                            expected_latency_s=0.0, shared=prod.prepare(0, 0.0))
+        upd = srv.produce(ctx)
+        specs = {st.name: st for st in srv.streams() if getattr(st, "kind", "") == "video"}
+        planes, bits = {}, {}
+        for n, img in upd.planes.items():
+            enc = VideoEncoder(specs[n].codec, specs[n].width, specs[n].height).encode(img, force_idr=True)
+            bits[n] = 8 * len(enc.data)
+            planes[n] = VideoDecoder("hevc", specs[n].codec.input_format).decode(enc.data)
+        cli = spec.client_class(cfg, intr, renderer.ctx, srv.session_data())
+        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, planes, upd.meta, dict(upd.data)))
+        shown = cli.render(pose, 0.0).color
+        rows.append({"visibility": "lossy HEVC (crf 23)" if lossy else "lossless HEVC", "psnr_db": psnr(shown, truth),
+                     "brightness_over_truth": float(shown.astype(np.float64).mean() / max(truth.astype(np.float64).mean(), 1e-9)),
+                     "vis_kbit": bits.get("vis", 0) / 1e3, "color_kbit": bits.get("color", 0) / 1e3})
     return rows
 
 
@@ -263,6 +308,11 @@ def run(out_dir: Path, quick: bool) -> Section:
     fig.savefig(figs[-1], dpi=110)
     plt.close(fig)
 
+    # 6. the lossy-visibility ablation (light leaks)
+    leak = leak_ablation(renderer, size)
+    tables.append(out / "probes_leak_ablation.csv")
+    write_csv(tables[-1], leak)
+
     # 5. savings and the uncompressed rate
     gb_c, gb_v = guard_band_savings()
     active = np.array([r["active"] for r in light])
@@ -318,4 +368,11 @@ def run(out_dir: Path, quick: bool) -> Section:
         f"visibility texels; {100 * inactive:.0f} % of the probes are inactive (inside geometry) and never sent "
         "(paper: -36 % / -21 % / -25 %; the default scene's walls and pillars are thin beside the 2 m probe spacing).",
     ]
+    ex, lo = leak
+    text.append(f"- **Lossy visibility** (ablation, `vis_lossy`; inside the closed `shed+gi`, one update): lossless "
+                f"{ex['psnr_db']:.1f} dB against the truth with {ex['vis_kbit']:.0f} kbit of visibility; lossy HEVC at crf "
+                f"23 {lo['psnr_db']:.1f} dB with {lo['vis_kbit']:.0f} kbit, the inside {100 * (lo['brightness_over_truth'] - 1):.0f} % "
+                "brighter than the truth: damaged distance moments let the sunlit outside leak through the walls.  On "
+                "`default+gi`, one room with no such walls, the visibility term hardly shows: the walk's views "
+                "lose 0.4 dB without it at all.")
     return Section("Light probe streaming (probes)", "\n".join(text), figs, tables)

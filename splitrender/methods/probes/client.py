@@ -39,6 +39,7 @@ class ProbesClient(ClientHalf):
             spacing = np.asarray(sd["spacing"], np.float64).reshape(3)
             counts = tuple(int(c) for c in sd["counts"])
             bias = float(sd["bias"])
+            self.vis_lossy = sd.get("vis_lossy", False) is True
         except (KeyError, TypeError, ValueError) as exc:
             raise ProbeStreamError(f"probes session data: missing or malformed grid ({exc})") from None
         if len(counts) != 3 or not all(2 <= c <= 64 for c in counts) or not (np.isfinite(origin).all() and
@@ -77,6 +78,8 @@ class ProbesClient(ClientHalf):
                 irr = decode_irradiance(color_from_frame(update.planes["color"], self.count)[ids])
             if "vis" in sent:
                 mom = visibility_from_frame(update.planes["vis"], self.count)[ids].astype(np.float32)
+                if self.vis_lossy:         # the ablation's damaged bytes: keep what is a distance, zero the rest
+                    mom = np.where(np.isfinite(mom) & (mom >= 0), np.minimum(mom, 1e4), 0.0).astype(np.float32)
                 if not np.isfinite(mom).all():
                     raise ProbeStreamError("probes visibility: non-finite distance moments")
             probes = (ids, irr, mom)

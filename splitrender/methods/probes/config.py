@@ -19,12 +19,15 @@ class ProbesConfig(MethodConfig):
     predicted position (``pvs_res`` pixels a cube face), ``all`` every active probe.
     The probe streams are always lossless HEVC (colour 10-bit 4:4:4 RGB, visibility
     float16 bytes over 8-bit 4:4:4) whatever ``codec``, ``crf`` and ``lossless`` say;
-    ``gop`` (30) sets their I-frame distance.
+    ``gop`` (30) sets their I-frame distance.  ``vis_lossy`` is an ablation: the
+    visibility picture goes through lossy HEVC 4:4:4 at ``crf`` (23 unless set), which
+    damages the float16 bytes (light leaks: the paper's reason to keep it lossless).
     """
 
     gi_hz: float = 10.0
     pvs: Literal["view", "all"] = "view"
     pvs_res: int = 32
+    vis_lossy: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -123,15 +123,19 @@ class ProbesServer(ServerHalf):
         fps, gop = self.server_fps, self.config.gop
         color = VideoCodecConfig(codec="hevc", pix_fmt="gbrp10le", input_format="gbrp10le", lossless=True, crf=None, gop=gop,
                                  preset=self.config.preset, fps=fps)
-        vis = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", input_format="rgb24", lossless=True, crf=None, gop=gop,
-                               preset=self.config.preset, fps=fps)
+        if self.config.vis_lossy:          # the ablation: float16 bytes through a lossy codec
+            vis = VideoCodecConfig(codec="hevc", pix_fmt="yuv444p", input_format="rgb24", crf=self.config.crf or 23.0,
+                                   gop=gop, preset=self.config.preset, fps=fps)
+        else:
+            vis = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", input_format="rgb24", lossless=True, crf=None, gop=gop,
+                                   preset=self.config.preset, fps=fps)
         return [StreamSpec("color", color, *self._color_size), StreamSpec("vis", vis, *self._vis_size),
                 DataStreamSpec("index", "reliable")]
 
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "scene": scene_to_data(self.scene), "origin": [float(x) for x in self.origin],
                 "spacing": [float(x) for x in self.spacing], "counts": list(self.counts),
-                "bias": float(DdgiSettings().bias)}
+                "bias": float(DdgiSettings().bias), "vis_lossy": bool(self.config.vis_lossy)}
 
     # ------------------------------------------------------------------ visibility
     def visible_probes(self, ctx: ServerContext) -> np.ndarray:
