@@ -253,3 +253,33 @@ def test_the_visibility_test_keeps_the_sunlit_outside_out_of_a_closed_shed(rende
         del renderer.gi_sources[id(scene)]
     assert psnr(same, truth) >= 55.0
     assert leaky.mean() >= 1.3 * truth.mean() and psnr(leaky, truth) <= 22.0, (leaky.mean() / truth.mean(), psnr(leaky, truth))
+
+
+def test_a_moving_object_lights_and_blocks_the_probes_as_if_it_stood_there(renderer) -> None:  # type: ignore[no-untyped-def]
+    """A red box patrolling over a grey floor, redrawn at each update into the probes' G-buffer and merged over
+    the static capture (nearer hit wins), gives the probes (visibility moments, active flags, irradiance) that a
+    scene with the box standing still at that place gives: exactly, as the box spans more than two rays for every
+    probe.  And its probes differ from the ones it gave a second earlier (it moves its bounce and its shadow)."""
+    from splitrender.scene.model import Material, Patrol, Scene, SceneObject
+    from splitrender.scene.primitives import box, grid_plane
+
+    def scene(moving: bool, name: str) -> Scene:
+        floor = SceneObject("floor", grid_plane(8.0, 8.0, 4, 4), Material("grey", (0.7, 0.7, 0.7), None, roughness=1.0), 1)
+        lift = np.eye(4)
+        lift[:3, 3] = (0.0, 0.8, 0.0)
+        anim = Patrol((-2.0, 0.0, 0.0), (2.0, 0.0, 0.0), 1.5)
+        if not moving:
+            lift, anim = anim.matrix(1.0) @ lift, None
+        cube = SceneObject("cube", box((1.5, 1.5, 1.5)), Material("red", (0.8, 0.1, 0.1), None, roughness=1.0), 2, lift, anim)
+        return Scene(name, [floor, cube], ambient=(0.5, 0.6, 0.8), gi="ddgi", gi_probes=(3, 2, 3))
+
+    moving, still = scene(True, "patrol"), scene(False, "patrol_still")
+    vm, vs = renderer.gi_volume(moving), renderer.gi_volume(still)
+    vm.update(0.0)
+    before = vm.moments.copy(), vm.irradiance.copy()
+    vm.update(1.0)
+    vs.update(1.0)
+    assert np.array_equal(vm.active, vs.active)
+    assert np.array_equal(vm.moments, vs.moments)
+    assert np.allclose(vm.irradiance, vs.irradiance, rtol=1e-5, atol=1e-6), np.abs(vm.irradiance - vs.irradiance).max()
+    assert not np.array_equal(vm.moments, before[0]) and np.abs(vm.irradiance - before[1]).max() > 0.01

@@ -17,11 +17,13 @@ the background beside the deterministic tests, see ``conftest.py``), with a stat
   the floor (43% measured);
 - fine_texture (backing away from the glyph sign): video at most 25% below the floor
   (19% measured);
-- with GI (``default+gi``, ``probes`` and in gi_light_change ``atw``): gi_light_change,
-  probes at least 8 dB above atw on the mean (33.9 against 22.8 measured); it and
-  gi_fast_moves keep probes' worst frame at 27 dB or more (30.7 and 32.8 measured);
-  gi_loss has the generic bounds (37 of 55 ticks shown, the newest update at most 767 ms
-  old: the first update, 2.3 Mbit, is resent until it arrives whole).
+- with GI (``probes``, and ``atw`` in gi_light_change): gi_light_change, probes at least
+  20 dB above atw on the mean (49.3 against 23.1 measured) and its worst frame at 34 dB
+  or more (37.4); gi_fast_moves at 55 dB or more (60, capped: nothing but the camera
+  moves, and every probe the walk needs was sent in the first update); gi_moving_geometry
+  at 30 dB or more (33.1); gi_loss has the generic bounds: the first update (2.3 Mbit,
+  mostly the visibility picture) never arrives whole under Gilbert-Elliott loss, the
+  client draws direct light only (24.0 dB mean).
 """
 
 from __future__ import annotations
@@ -63,10 +65,11 @@ def test_stress_case(suite: dict, case: str) -> None:
         assert rows["video"]["window_drop_db"] >= 1.0, rows["video"]
     if case == "ball_crossing":
         assert all(r["worst_psnr_db"] > 15.0 for r in rows.values())
-    if case == "gi_light_change":   # the client relights its own scene: 33.9 dB against atw's 22.8 (measured)
-        assert rows["probes"]["mean_psnr_db"] >= rows["atw"]["mean_psnr_db"] + 8.0, (rows["probes"], rows["atw"])
-    if case in ("gi_light_change", "gi_fast_moves"):   # worst frames measured 30.7 and 32.8 dB
-        assert rows["probes"]["worst_psnr_db"] >= 27.0, rows["probes"]
+    if case == "gi_light_change":   # the client relights its own scene: 49.3 dB against atw's 23.1 (measured)
+        assert rows["probes"]["mean_psnr_db"] >= rows["atw"]["mean_psnr_db"] + 20.0, (rows["probes"], rows["atw"])
+    worst = {"gi_light_change": 34.0, "gi_fast_moves": 55.0, "gi_moving_geometry": 30.0}   # measured 37.4, 60, 33.1
+    if case in worst:
+        assert rows["probes"]["worst_psnr_db"] >= worst[case], rows["probes"]
 
 
 def test_recovery_time() -> None:

@@ -21,14 +21,18 @@ suite):
                    (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
 ``ball_crossing``  a static camera at (0, 1.6, 2.5) looking -Z while the ball crosses at 2.5 m/s
 
-With global illumination (``default+gi``; only ``probes`` and, where named, a baseline):
+With global illumination (only ``probes`` and, where named, a baseline):
 
-``gi_light_change`` ``light_change`` on ``default+gi`` for ``atw`` and ``probes``: a
+``gi_light_change`` ``light_change`` with GI for ``atw`` and ``probes``: a
                    volume-wide change, every active probe's colour goes at every update
 ``gi_loss``        ``loss_burst`` for ``probes``: each lost probe update resends every
                    selected probe as an I-frame
 ``gi_fast_moves``  the ``strafe`` trace for ``probes``: steps at up to 2 m/s bring probes
                    into the 360-degree view that were never sent
+``gi_moving_geometry`` ``ball_crossing`` on ``default+gi`` for ``probes``: the moving objects
+                   change what the probes see, so visibility pictures go too
+
+The first three run on ``default+gi+still`` (nothing moves but the camera and the light).
 
 Per method x case it reports the worst-frame PSNR, the share of frames below
 :data:`FLOOR_DB`, the time to recover after the disturbance window (first time after
@@ -221,16 +225,20 @@ CASES: tuple[StressCase, ...] = (
                "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
-    # global illumination (default+gi): the probes method and, where it compares, a baseline
+    # global illumination: the probes method and, where it compares, a baseline; nothing moves but what the case is about
     StressCase("gi_light_change", "with GI: the sun dims over 1 s from the window's start, every probe changes, lan",
                lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 100.0,
-               "a volume-wide light change: every active probe's colour is sent at each update", scene="default+gi",
+               "a volume-wide light change: every active probe's colour is sent at each update", scene="default+gi+still",
                methods=("atw", "probes")),
     StressCase("gi_loss", "with GI: Gilbert-Elliott loss 3% 30% with 20 ms delay (lost probe updates resend every selected "
                "probe as an I-frame)", lambda d, tm: {"trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0,
-               scene="default+gi", methods=("probes",)),
+               scene="default+gi+still", methods=("probes",)),
     StressCase("gi_fast_moves", "with GI: sideways steps at up to 2 m/s into places whose probes were not yet sent, lan",
-               lambda d, tm: {"trace": "strafe", "network": "lan"}, False, 100.0, scene="default+gi", methods=("probes",)),
+               lambda d, tm: {"trace": "strafe", "network": "lan"}, False, 100.0, scene="default+gi+still", methods=("probes",)),
+    StressCase("gi_moving_geometry", "with GI: static camera, the ball crosses at 2.5 m/s and moves the probes' visibility, lan",
+               lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"},
+               False, 100.0, "the moving objects are redrawn into the probes' views at each update: visibility pictures go",
+               scene="default+gi", methods=("probes",)),
 )
 
 

@@ -5,9 +5,11 @@ and light intensities of its frame, and the probes the server selected (the ``in
 stream names their slots in the two lossless pictures).  The client scatters the
 decoded blocks into its probe textures, rebuilds the guard bands, and draws primary
 visibility, direct light with shadows and the probes' indirect light with the same
-shader as the ground truth.  An update whose pictures are missing (lost, or undecodable
-until the next I-frame) still moves the objects; malformed data raises a named error and
-the last good state stays on screen.
+shader as the ground truth.  The client draws from its first update on, before any probe has
+arrived (direct light only; the indirect light fills in as probes arrive).  An update
+whose pictures are missing (lost, or undecodable until the next I-frame) still moves the
+objects and sets the lights; malformed data raises a named error and the last good state
+stays on screen.
 """
 
 from __future__ import annotations
@@ -92,7 +94,7 @@ class ProbesClient(ClientHalf):
             pl.intensity = Schedule.constant(float(v))
         if probes is not None:
             self.probes.scatter(*probes)
-            self._has_content = True
+        self._has_content = True       # the scene is here: draw it, the indirect light filling in as probes arrive
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         out = self.renderer.render(self.scene, t_s, pose, self.intrinsics)

@@ -8,14 +8,14 @@ in vec3 v_normal;
 in vec2 v_uv;
 in vec4 v_tangent;
 in float v_view_depth;
-uniform vec3 u_eye;               // the probe
+flat in vec3 v_eye;           // the probe (per instance)
 layout(location = 0) out vec4 o_pos;     // xyz world, w 1 (a hit)
 layout(location = 1) out vec4 o_nrm;     // xyz normal facing the probe, w 1 on a back face
 layout(location = 2) out vec4 o_diff;    // rgb diffuse colour (linear)
 layout(location = 3) out vec4 o_emit;    // rgb emission (linear)
 void main() {
     vec3 n = normalize(v_normal);
-    float back = dot(n, u_eye - v_world) < 0.0 ? 1.0 : 0.0;
+    float back = dot(n, v_eye - v_world) < 0.0 ? 1.0 : 0.0;
     if (back > 0.5) n = -n;
     vec2 tuv = (u_uv_transform * vec3(v_uv, 1.0)).xy;
     vec3 base = u_base_color;
