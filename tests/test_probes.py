@@ -224,3 +224,40 @@ def test_lossless_visibility_keeps_light_out_of_a_closed_shed_and_lossy_leaks_it
     assert exact["psnr_db"] >= 55.0 and abs(exact["brightness_over_truth"] - 1.0) < 0.01, exact
     assert lossy["psnr_db"] <= 25.0 and lossy["brightness_over_truth"] >= 1.2, lossy
     assert lossy["vis_kbit"] < exact["vis_kbit"], (lossy, exact)
+
+
+def test_a_lost_update_resends_its_probes_on_an_empty_canvas_and_refresh_spreads_them(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``minimal+gi``, still: the client reports the first update lost, so exactly its probes go again, as an
+    I-frame whose pictures hold only them; a keyframe request restarts the codec with nothing to resend; with
+    ``refresh_probes = 32`` the first update's 136 probes go 32 a frame, the nearest first, and through the
+    lossless streams the client ends with every one of them."""
+    from splitrender.gi.stream import decode_index_list
+    from splitrender.methods import ClientFeedback
+
+    srv, spec, cfg, scene, pose, ctx = _server(renderer, "minimal+gi", t=0.0, trace="static")
+    first = srv.produce(ctx(0, 0.0))
+    ids0 = decode_index_list(first.data["index"], srv.count)
+    assert first.force_idr and ids0.size == 136
+    assert not srv.produce(ctx(1, 0.0)).planes                       # still: nothing
+    again = srv.produce(ctx(2, 0.0, feedback=ClientFeedback(lost_since={"vis": (0,)})))
+    assert again.force_idr and np.array_equal(decode_index_list(again.data["index"], srv.count), ids0)
+    kf = srv.produce(ctx(3, 0.0, keyframe_requested=True))
+    assert kf.force_idr and decode_index_list(kf.data["index"], srv.count).size == 0
+    assert not kf.planes["color"].any() and not kf.planes["vis"].any(), "an I-frame on an empty canvas"
+
+    srv, spec, cfg, scene, pose, ctx = _server(renderer, "minimal+gi", {"refresh_probes": 32}, t=0.0, trace="static")
+    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    enc = dec = None
+    counts, dist = [], []
+    eye = np.asarray(pose.position)
+    for f in range(6):
+        upd = srv.produce(ctx(f, 0.0))
+        if upd.planes:
+            d, enc, dec = _coded(srv, upd, enc, dec)
+            cli.apply(d)
+            ids = decode_index_list(upd.data["index"], srv.count)
+            dist.append(np.linalg.norm(srv.positions[ids] - eye, axis=1))
+        counts.append(int(srv.stats()["probes_sent"]))
+    assert counts == [32, 32, 32, 32, 8, 0], counts
+    assert all(a.max() <= b.min() + 1e-9 for a, b in zip(dist, dist[1:])), "the nearest first"
+    assert np.array_equal(cli.probes.received, srv.sent) and srv.sent.sum() == 136

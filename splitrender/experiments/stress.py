@@ -21,9 +21,10 @@ suite):
                    (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
 ``ball_crossing``  a static camera at (0, 1.6, 2.5) looking -Z while the ball crosses at 2.5 m/s
 
-With global illumination (only ``probes`` and, where named, a baseline):
+With global illumination (``probes`` only; the baselines' behaviour under a light change is
+``light_change``'s):
 
-``gi_light_change`` ``light_change`` with GI for ``atw`` and ``probes``: a
+``gi_light_change`` ``light_change`` with GI for ``probes``: a
                    volume-wide change, every active probe's colour goes at every update
 ``gi_loss``        ``loss_burst`` for ``probes``: each lost probe update resends every
                    selected probe as an I-frame
@@ -31,6 +32,8 @@ With global illumination (only ``probes`` and, where named, a baseline):
                    into the 360-degree view that were never sent
 ``gi_moving_geometry`` ``ball_crossing`` on ``default+gi`` for ``probes``: the moving objects
                    change what the probes see, so visibility pictures go too
+``gi_lossy_visibility`` the ablation: ``probes`` with ``vis_lossy`` inside the closed
+                   ``shed+gi``, where damaged visibility lets light leak through the walls
 
 The first three run on ``default+gi+still`` (nothing moves but the camera and the light).
 
@@ -170,6 +173,13 @@ def fine_texture_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     return CameraTrace(t, pos, np.array(q), name="fine_texture")
 
 
+def shed_trace(duration_s: float) -> Any:
+    """Inside the closed ``shed`` scene, at (0, 1.5, 1.5), looking at its far corner (towards (1.5, 0.5, -1.5))."""
+    from ..scene.trace import static_trace
+
+    return static_trace(duration_s, position=(0.0, 1.5, 1.5), yaw_deg=-26.6, pitch_deg=-16.6, name="inside_shed")
+
+
 def ball_trace(duration_s: float) -> Any:
     from ..scene.trace import static_trace
 
@@ -225,11 +235,11 @@ CASES: tuple[StressCase, ...] = (
                "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
-    # global illumination: the probes method and, where it compares, a baseline; nothing moves but what the case is about
+    # global illumination, for probes: nothing moves but what the case is about
     StressCase("gi_light_change", "with GI: the sun dims over 1 s from the window's start, every probe changes, lan",
                lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 100.0,
                "a volume-wide light change: every active probe's colour is sent at each update", scene="default+gi+still",
-               methods=("atw", "probes")),
+               methods=("probes",)),
     StressCase("gi_loss", "with GI: Gilbert-Elliott loss 3% 30% with 20 ms delay (lost probe updates resend every selected "
                "probe as an I-frame)", lambda d, tm: {"trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0,
                scene="default+gi+still", methods=("probes",)),
@@ -239,6 +249,11 @@ CASES: tuple[StressCase, ...] = (
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"},
                False, 100.0, "the moving objects are redrawn into the probes' views at each update: visibility pictures go",
                scene="default+gi", methods=("probes",)),
+    StressCase("gi_lossy_visibility", "ablation: probes with its visibility picture lossy (vis_lossy), inside the closed "
+               "shed on a sunlit floor, lan", lambda d, tm: {"trace": _save_trace(shed_trace(tm.duration_s), d / "inside_shed.csv"),
+                                                             "network": "lan", "method_params": {"vis_lossy": True}},
+               False, 100.0, "damaged distance moments let the outside light leak through the walls", scene="shed+gi",
+               methods=("probes",)),
 )
 
 
@@ -577,5 +592,5 @@ def main_stress(ns: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
-__all__ = ["CASES", "FLOOR_DB", "FULL", "QUICK", "SPIKE_NOTE", "StressCase", "Timing", "ball_trace", "case_config", "case_metrics",
+__all__ = ["CASES", "FLOOR_DB", "FULL", "QUICK", "SPIKE_NOTE", "StressCase", "Timing", "ball_trace", "shed_trace", "case_config", "case_metrics",
            "fine_texture_trace", "get_case", "grazing_trace", "mahimahi_trace", "railing_trace", "recovery_time_s", "run_stress", "main_stress"]

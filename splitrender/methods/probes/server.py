@@ -11,16 +11,24 @@ gives the same codes at every update.
 1. select the probes that are active, differ texel for texel from what this client
    last received, and light points a 360-degree view at its predicted position sees
    (``pvs = "view"``: six ``pvs_res`` depth faces; the eight probes around each
-   visible point); on a keyframe request or a reported loss every selected probe is
-   sent again and the codec restarts with an I-frame;
+   visible point);
 2. write the selected probes into their stable slots of the two update pictures (the
-   other slots keep what this client last received, so the codec's P-frames skip
-   them) and list them in the ``index`` data stream; each picture goes only when some
-   selected probe's colour (or visibility) changed, so a light change sends no
-   visibility and moving geometry no colour it did not change;
-   an update with no probe for this client sends no picture and no index (the codec's
-   frames are probe updates, so ``gop`` counts updates);
-3. send each frame's transforms of the moving objects (in scene order) and light
+   other slots keep what they held, so the codec's P-frames skip them) and list them in
+   the ``index`` data stream; each picture goes only when some selected probe's colour
+   (or visibility) changed, so a light change sends no visibility and moving geometry
+   no colour it did not change; an update with no probe for this client sends no
+   picture and no index (the codec's frames are probe updates, so ``gop`` counts them);
+3. **losses** (ours, where the paper resends every selected probe on a keyframe request
+   or a loss): each update's probe ids are remembered; when the client reports an
+   update lost, its probes count as never sent and go again.  When the loss broke the
+   codec's chain (an update at or after the newest I-frame), or on a keyframe request,
+   the streams restart with an I-frame on an **empty canvas**:
+   the pictures hold only the probes sent from then on, not every slot, so an I-frame
+   after a loss costs what was lost, not the whole volume.  ``refresh_probes`` > 0 also
+   spreads the probes a client lacks (the first update, a keyframe request, a loss)
+   over frames, that many a frame, nearest the client first: smaller frames, each more
+   likely to arrive whole under bursty loss;
+4. send each frame's transforms of the moving objects (in scene order) and light
    intensities in the metadata; the scene itself goes once, in the session data
    (:mod:`splitrender.scene.wire`).
 """
@@ -44,6 +52,8 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from .config import ProbesConfig
 
 META_VERSION = 2
+SENT_HISTORY = 512
+"""Frames whose probe ids a session remembers, to resend them when the client reports the frame lost."""
 
 
 def _require_gi(scene: Any) -> None:
@@ -116,6 +126,12 @@ class ProbesServer(ServerHalf):
         self.sent_codes = np.zeros((self.count, IRR_CORE, IRR_CORE, 3), np.uint16)
         self.sent_moments = np.zeros((self.count, VIS_CORE, VIS_CORE, 2), np.float16)
         self.sent = np.zeros(self.count, bool)
+        self.canvas_codes = np.zeros_like(self.sent_codes)       # what the pictures hold (emptied at each I-frame)
+        self.canvas_moments = np.zeros_like(self.sent_moments)
+        self._sent_in: dict[int, np.ndarray] = {}                 # frame id -> the probes it carried
+        self._idr_frame = 0
+        k, j, i = np.meshgrid(*(np.arange(c) for c in counts[::-1]), indexing="ij")
+        self.positions = self.origin + np.stack([i, j, k], -1).reshape(-1, 3) * self.spacing
         self._stats: dict[str, float] = {}
         self._frames = 0
 
@@ -171,16 +187,39 @@ class ProbesServer(ServerHalf):
         assert isinstance(prod, ProbesProducer)
         shared = ctx.shared if isinstance(ctx.shared, dict) and "codes" in ctx.shared else prod.state(ctx.renderer, ctx.t_s)
         codes, moments, active = shared["codes"], shared["moments"], shared["active"]
-        full = ctx.keyframe_requested or self._frames == 0 or any(ctx.feedback.newly_lost(s) for s in ("color", "vis", "index"))
-        if full:
-            self.sent[:] = False
+        fb = ctx.feedback
+        lost = sorted({f for s in ("color", "vis", "index") for f in fb.newly_lost(s)})
+        for f in lost:                      # the probes of a lost update: the client never took them
+            ids = self._sent_in.pop(f, None)
+            if ids is not None:
+                self.sent[ids] = False
+        # a new I-frame when the client's decoders lost the chain (a loss at or after the newest I-frame), on a
+        # keyframe request, and first; it starts from an empty canvas, so it holds only what goes now.  A keyframe
+        # request restarts the codec only: the client keeps its probe copy, and what it missed it reports lost
+        restart = self._frames == 0 or ctx.keyframe_requested or any(f >= self._idr_frame for f in lost)
+        if restart:
+            self.canvas_codes[:] = 0
+            self.canvas_moments[:] = 0
+            self._idr_frame = ctx.frame_id
         visible = self.visible_probes(ctx) if self.config.pvs == "view" else np.ones(self.count, bool)
         changed_c = ~self.sent | (codes != self.sent_codes).any(axis=(1, 2, 3))
         changed_v = ~self.sent | (moments.view(np.uint16) != self.sent_moments.view(np.uint16)).any(axis=(1, 2, 3))
         changed = changed_c | changed_v
-        sel = np.flatnonzero(active & visible & changed)
+        want = active & visible & changed
+        cap = self.config.refresh_probes
+        backlog = 0
+        if cap > 0:                         # probes the client lacks go at most `cap` a frame, the nearest first
+            fresh = np.flatnonzero(want & ~self.sent)
+            if fresh.size > cap:
+                eye = np.asarray(ctx.target_pose.position, np.float64)
+                near = fresh[np.argsort(np.linalg.norm(self.positions[fresh] - eye, axis=1), kind="stable")]
+                want[near[cap:]] = False
+                backlog = int(near.size - cap)
+        sel = np.flatnonzero(want)
         self.sent_codes[sel] = codes[sel]
         self.sent_moments[sel] = moments[sel]
+        self.canvas_codes[sel] = codes[sel]
+        self.canvas_moments[sel] = moments[sel]
         self.sent[sel] = True
         sc = self.scene
         models = np.array([o.model_matrix(ctx.t_s) for o in sc.objects if o.dynamic], np.float32).reshape(-1, 4, 4)
@@ -190,16 +229,20 @@ class ProbesServer(ServerHalf):
         self._frames += 1
         self._stats = {"probes_sent": float(sel.size), "probes_active": float(active.sum()),
                        "probes_visible": float((active & visible).sum()), "probes_changed": float((active & changed).sum()),
-                       "full": float(full), "probe_ms": (time.perf_counter() - t0) * 1e3}
-        if not sel.size and not full:      # nothing new for this client: the probe streams skip the frame
+                       "probes_backlog": float(backlog), "full": float(restart), "lost_updates": float(len(lost)),
+                       "probe_ms": (time.perf_counter() - t0) * 1e3}
+        if not sel.size and not restart:   # nothing new for this client: the probe streams skip the frame
             return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {}, meta)
         planes = {}                         # colour and visibility each go only when some selected probe's changed
-        if full or changed_c[sel].any():
-            planes["color"] = color_frame(self.sent_codes)
-        if full or changed_v[sel].any():
-            planes["vis"] = visibility_frame(self.sent_moments)
+        if restart or changed_c[sel].any():
+            planes["color"] = color_frame(self.canvas_codes)
+        if restart or changed_v[sel].any():
+            planes["vis"] = visibility_frame(self.canvas_moments)
         self._stats.update({"color_sent": float("color" in planes), "vis_sent": float("vis" in planes)})
-        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, planes, meta, force_idr=full,
+        self._sent_in[ctx.frame_id] = sel
+        while len(self._sent_in) > SENT_HISTORY:
+            self._sent_in.pop(next(iter(self._sent_in)))
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, planes, meta, force_idr=restart,
                       data={"index": encode_index_list(sel)})
 
     def stats(self) -> dict[str, float]:
