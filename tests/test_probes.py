@@ -135,6 +135,7 @@ def test_malformed_probe_updates_are_named_and_the_last_state_stays(renderer) ->
     cases = [
         ({"data": {"index": encode_index_list(np.array([0, 1, 300]))}}, r"^probe index list: index 300 beyond the volume's 256 probes$"),
         ({"data": {"index": b"\x01"}}, r"^probe index list: 1 bytes"),
+        ({"data": {}}, r"^probe update: pictures without an index list$"),
         ({"planes": {**good.planes, "color": good.planes["color"][:8]}}, r"^probe colour picture"),
         ({"planes": {**good.planes, "vis": good.planes["vis"][:, :-2]}}, r"^probe visibility picture"),
         ({"meta": bad_xf}, r"^probes metadata: 'xf' must be finite"),
