@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from splitrender.metrics import psnr
 from splitrender.render.renderer import make_pose_looking
 from splitrender.scene import default_scene
 from splitrender.scene.loader import load_scene_file

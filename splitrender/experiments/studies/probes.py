@@ -343,8 +343,8 @@ def run(out_dir: Path, quick: bool) -> Section:
         f"{PAPER_RAW_MBPS * n_probes / PAPER_RAW_PROBES:.1f}).",
         f"- **Compression ratios** (uncompressed bits of what an update carries over its coded bits; mean / max): "
         f"light change {sg('light change', 'mean_ratio')} / {sg('light change', 'max_ratio')}, moving objects "
-        f"{sg('moving objects', 'mean_ratio')} / {sg('moving objects', 'max_ratio')} (colour only: the geometry the "
-        f"visibility sees is static, so no visibility picture goes); I-frames: the first update "
+        f"{sg('moving objects', 'mean_ratio')} / {sg('moving objects', 'max_ratio')} (both pictures: the objects "
+        f"are redrawn into the probes' view, so their distances change too); I-frames: the first update "
         f"{sg('first update', 'mean_ratio', '.2f')}x and a full refresh {sg('keyframe request', 'mean_ratio', '.2f')}x, "
         f"colour {first['raw_c'] / max(first['color_bits'], 1):.2f}x and visibility "
         f"{first['raw_v'] / max(first['vis_bits'], 1):.2f}x (paper table 2: I-frames 1.1-2x, ratios rising with "
