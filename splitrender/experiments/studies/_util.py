@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -11,3 +12,13 @@ def update_mean(ups: list[dict[str, Any]], key: str) -> float:
     """Mean of ``key`` over a run's updates, the first left out (it compiles shaders); NaN when absent."""
     v = [float(u[key]) for u in ups[1:] if key in u and u[key] == u[key]]
     return float(np.mean(v)) if v else float("nan")
+
+
+def save_figure(fig: Any, path: Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` as PNG at 110 dpi and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

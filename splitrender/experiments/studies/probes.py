@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..sections import Section
+from ._util import save_figure
 
 log = logging.getLogger(__name__)
 
@@ -240,10 +241,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     ax.set_title("probes selected per update (paper figure 7: 0.5-35 % kept)", fontsize=9)
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    figs.append(out / "probes_rate.png")
-    fig.savefig(figs[-1], dpi=110)
-    plt.close(fig)
+    figs.append(save_figure(fig, out / "probes_rate.png"))
 
     # 3. GI lag through the lamp switching on
     size = (160, 90) if quick else (320, 180)
@@ -269,10 +267,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     ax.set_title(f"GI lag: probe update rate and network ({size[0]}x{size[1]}, still camera)", fontsize=9)
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    figs.append(out / "probes_gi_lag.png")
-    fig.savefig(figs[-1], dpi=110)
-    plt.close(fig)
+    figs.append(save_figure(fig, out / "probes_gi_lag.png"))
 
     # 4. many clients
     mc_rows = []
@@ -305,10 +300,7 @@ def run(out_dir: Path, quick: bool) -> Section:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle("many clients: one GI server, per-session selection (default+gi walk, lan, measured costs)", fontsize=9)
-    fig.tight_layout()
-    figs.append(out / "probes_clients.png")
-    fig.savefig(figs[-1], dpi=110)
-    plt.close(fig)
+    figs.append(save_figure(fig, out / "probes_clients.png"))
 
     # 6. the lossy-visibility ablation (light leaks)
     leak = leak_ablation(renderer, size)
