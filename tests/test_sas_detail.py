@@ -246,6 +246,43 @@ def test_gpu_visibility_counts_equal_the_read_back_counts_on_walk() -> None:
     assert ids.drawn_triangles == 0, f"looking away drew {ids.drawn_triangles} of {total} triangles"
 
 
+def test_objects_culled_all_at_once_draw_what_a_test_per_object_draws() -> None:
+    """The ID pass tests every object's sphere against the frustum in one array operation (the still
+    objects' spheres placed once, the animated ones' at each sample's time); it draws the same triangles as
+    placing and testing each object's sphere and clusters one by one, on the default scene's ``walk`` and
+    with the moving objects at different times."""
+    from splitrender.methods.sas import SasConfig, SasServer
+    from splitrender.methods.sas.pvs import CLUSTER_TRIANGLES, PatchIdPass, frustum_planes, spheres_visible
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.procedural import default_scene
+    from splitrender.scene.trace import get_trace
+
+    scene = default_scene()
+    assert any(o.animation is not None for o in scene.objects) and any(o.animation is None for o in scene.objects)
+    srv = SasServer(SasConfig(), INTR, scene, 30)
+    ids = PatchIdPass(Renderer(), scene, srv.patches)
+    cl = ids.clusters
+    trace = get_trace("walk")
+    seen = set()
+    for t in np.linspace(0.2, trace.duration_s - 0.2, 9):
+        pose = trace.pose_at(float(t))
+        planes = frustum_planes(INTR.projection() @ pose.view_matrix())
+        want = 0
+        for k, o in enumerate(scene.objects):
+            n_tri = cl.indices[k].shape[0]
+            model = np.asarray(o.model_matrix(float(t)), np.float64)
+            if n_tri == 0 or not spheres_visible(planes, model, cl.sphere[k][None, :3], cl.sphere[k][3:4])[0]:
+                continue
+            vis = spheres_visible(planes, model, cl.centers[k], cl.radii[k])
+            first = np.flatnonzero(vis) * CLUSTER_TRIANGLES
+            want += int(np.minimum(first + CLUSTER_TRIANGLES, n_tri).sum() - first.sum())
+            if o.animation is not None:
+                seen.add(k)
+        ids.render_ids(pose, INTR, float(t))
+        assert ids.drawn_triangles == want, f"t={t:.2f}: drew {ids.drawn_triangles} triangles, per object {want}"
+    assert seen, "no moving object was in view on the walk"
+
+
 WUSON = "/usr/share/assimp/models/PLY/Wuson.ply"
 
 

@@ -99,6 +99,14 @@ def frustum_planes(view_proj: np.ndarray) -> np.ndarray:
     return pl / np.linalg.norm(pl[:, :3], axis=1, keepdims=True)
 
 
+def world_spheres(models: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-space centres (N, 3) and radii (N,) of one object-space sphere per model (N, 4, 4); a negative
+    radius (an object with no triangles) stays negative."""
+    c = np.einsum("nij,nj->ni", models[:, :3, :3], centers) + models[:, :3, 3]
+    scale = np.linalg.norm(models[:, :3, :3], axis=1).max(axis=1) if len(models) else np.zeros(0)
+    return c, radii * scale
+
+
 def spheres_visible(planes: np.ndarray, model: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Which object-space spheres, placed by ``model`` (4, 4), intersect the frustum ``planes``."""
     c = centers @ model[:3, :3].T + model[:3, 3]
@@ -131,6 +139,16 @@ class PatchIdPass:
             ibo = self.ctx.buffer(idx.tobytes() if idx.size else b"\0" * 12)
             self.objects.append((o, self.ctx.vertex_array(self.prog, [(vbo, "3f", "in_position")], ibo)))
         self._fbos: dict[tuple[int, int], tuple[Any, Any]] = {}
+        self._zero_bytes: dict[tuple[int, int], bytes] = {}
+        # whole-object spheres in world space, tested against a frustum all at once (a scene of a hundred
+        # objects paid more for a numpy call per object than for drawing nothing): the still objects' once,
+        # the animated ones' at each sample's time
+        sph = self.clusters.sphere
+        self._has_tris = np.array([idx.shape[0] > 0 for idx in self.clusters.indices], bool)
+        self._animated = np.array([o.animation is not None for o in scene.objects], bool)
+        models = np.stack([np.asarray(o.model_matrix(0.0), np.float64) for o in scene.objects]) if scene.objects \
+            else np.zeros((0, 4, 4))
+        self._world_c, self._world_r = world_spheres(models, sph[:, :3], sph[:, 3])
         # scene-wide sorted triangle index + 1 -> patch id + 1 (0 stays background)
         self.lookup = np.concatenate([[0], self.clusters.tri_patch.astype(np.int64) + 1])
         self.drawn_triangles = 0
@@ -157,13 +175,19 @@ class PatchIdPass:
             f = self._fbos[(w, h)] = (fbo, tex)
         return f
 
+    def _zeros(self, w: int, h: int) -> bytes:
+        z = self._zero_bytes.get((w, h))
+        if z is None:
+            z = self._zero_bytes[(w, h)] = bytes(4 * w * h)
+        return z
+
     def render_ids(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> Any:
         """Draw the ID buffer (frustum-culled per object and cluster); returns its texture."""
         fbo, tex = self._fbo(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
         fbo.clear(depth=1.0)
-        tex.write(np.zeros((intr.height, intr.width), np.uint32).tobytes())
+        tex.write(self._zeros(intr.width, intr.height))
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.disable(self.ctx.CULL_FACE)
         view, proj = pose.view_matrix(), intr.projection()
@@ -172,14 +196,18 @@ class PatchIdPass:
         self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
         cl = self.clusters
         drawn = 0
-        for k, (obj, vao) in enumerate(self.objects):
-            sph = cl.sphere[k]
+        wc, wr = self._world_c, self._world_r
+        anim = np.flatnonzero(self._animated)
+        models = {int(k): np.asarray(self.scene.objects[k].model_matrix(t_s), np.float64) for k in anim}
+        if anim.size:
+            wc, wr = wc.copy(), wr.copy()
+            wc[anim], wr[anim] = world_spheres(np.stack([models[int(k)] for k in anim]), cl.sphere[anim, :3],
+                                               cl.sphere[anim, 3])
+        in_view = self._has_tris & ((wc @ planes[:, :3].T + planes[:, 3]) >= -wr[:, None]).all(axis=1)
+        for k in np.flatnonzero(in_view).tolist():
+            obj, vao = self.objects[k]
             n_tri = cl.indices[k].shape[0]
-            if n_tri == 0:
-                continue
-            model = np.asarray(obj.model_matrix(t_s), np.float64)
-            if not spheres_visible(planes, model, sph[None, :3], sph[3:4])[0]:
-                continue
+            model = models[k] if k in models else np.asarray(obj.model_matrix(t_s), np.float64)
             vis = spheres_visible(planes, model, cl.centers[k], cl.radii[k])
             if not vis.any():
                 continue
