@@ -103,15 +103,18 @@ def world_spheres(models: np.ndarray, centers: np.ndarray, radii: np.ndarray) ->
     """World-space centres (N, 3) and radii (N,) of one object-space sphere per model (N, 4, 4); a negative
     radius (an object with no triangles) stays negative."""
     c = np.einsum("nij,nj->ni", models[:, :3, :3], centers) + models[:, :3, 3]
-    scale = np.linalg.norm(models[:, :3, :3], axis=1).max(axis=1) if len(models) else np.zeros(0)
-    return c, radii * scale
+    return c, radii * np.linalg.norm(models[:, :3, :3], axis=1).max(axis=1)
+
+
+def in_frustum(planes: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Which world-space spheres (centres (N, 3), radii (N,)) intersect the frustum ``planes``."""
+    return ((centers @ planes[:, :3].T + planes[:, 3]) >= -radii[:, None]).all(axis=1)
 
 
 def spheres_visible(planes: np.ndarray, model: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Which object-space spheres, placed by ``model`` (4, 4), intersect the frustum ``planes``."""
     c = centers @ model[:3, :3].T + model[:3, 3]
-    r = radii * float(np.linalg.norm(model[:3, :3], axis=0).max())
-    return ((c @ planes[:, :3].T + planes[:, 3]) >= -r[:, None]).all(axis=1)
+    return in_frustum(planes, c, radii * float(np.linalg.norm(model[:3, :3], axis=0).max()))
 
 
 class PatchIdPass:
@@ -203,7 +206,7 @@ class PatchIdPass:
             wc, wr = wc.copy(), wr.copy()
             wc[anim], wr[anim] = world_spheres(np.stack([models[int(k)] for k in anim]), cl.sphere[anim, :3],
                                                cl.sphere[anim, 3])
-        in_view = self._has_tris & ((wc @ planes[:, :3].T + planes[:, 3]) >= -wr[:, None]).all(axis=1)
+        in_view = self._has_tris & in_frustum(planes, wc, wr)
         for k in np.flatnonzero(in_view).tolist():
             obj, vao = self.objects[k]
             n_tri = cl.indices[k].shape[0]
