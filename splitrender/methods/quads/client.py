@@ -43,6 +43,13 @@ class QuadsClient(ClientHalf):
             raise QuadsWireError(f"quads session data: {self.slots} slots in a {self.cols}x{self.rows} grid of "
                                  f"{self.slot_size} is not a valid atlas")
         self.atlas_size = (self.cols * self.slot_size[0], self.rows * self.slot_size[1])
+        self.packed: tuple[int, int] | None = None
+        if "packed_atlas" in sd:
+            pa = sd["packed_atlas"]
+            if not (isinstance(pa, list) and len(pa) == 2 and all(isinstance(e, int) and not isinstance(e, bool)
+                                                                 and 16 <= e <= 4096 for e in pa)):
+                raise QuadsWireError(f"quads session data: packed_atlas must be [width, height] in 16..4096, got {pa!r}")
+            self.packed = self.atlas_size = (pa[0], pa[1])
         self.cache = ReferenceCache()
         self._broken = True           # no reference yet: residual frames cannot apply
         self._atlas_tex: Any = None
@@ -91,7 +98,8 @@ class QuadsClient(ClientHalf):
             if s.kind in CACHED_KINDS:
                 continue
             pose, intr = cams[s.camera]
-            parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot)))
+            org = self._origin(s.slot) if s.tex is None else s.tex - np.stack([s.quads.x, s.quads.y], axis=-1)
+            parts.append(build_mesh(s.quads, pose, intr, org))
         self._mesh.upload(*join_meshes(parts))
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
         self._pose0 = cams[0][0]
@@ -116,7 +124,7 @@ class QuadsClient(ClientHalf):
         if not isinstance(atlas, np.ndarray) or atlas.shape != (self.atlas_size[1], self.atlas_size[0], 3) or atlas.dtype != np.uint8:
             raise QuadsWireError(f"quads {where}: plane atlas must be {(self.atlas_size[1], self.atlas_size[0], 3)} uint8")
         sets = decode_sets(update.data.get("quads", b""), update.data.get("offsets", b""), where, self.slot_size, self.slots,
-                           len(cams), self.intrinsics.far_m)
+                           len(cams), self.intrinsics.far_m, self.packed)
         has_ref = self.cache.quads is not None and kind == "residual"
         for k, s in enumerate(sets):
             if s.kind == KIND_REFERENCE:

@@ -9,6 +9,7 @@ from ...errors import ConfigError
 from ..base import MethodConfig
 
 Variant = Literal["quasar", "quadstream"]
+Atlas = Literal["slots", "packed"]
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,9 @@ class QuadsConfig(MethodConfig):
       default is 3: on the default view a third hidden layer held 9 of the 6.1k hidden
       fragments that any eye in a 50 cm view cell sees (and kept 161 fragments to show
       them), for one more G-buffer, a sixth of the server's frame;
-    - ``wide_fov_deg``: vertical field of view of the wide G-buffer (half resolution);
-      0 leaves it out;
+    - ``wide_fov_deg``: vertical field of view of the wide G-buffer; 0 leaves it out;
+    - ``wide_scale``: the wide G-buffer's resolution over the display's; ``None`` takes the
+      variant's (QUASAR 1/2: 960x540 for 1080p; QuadStream 2/3: the paper's 1280x720);
     - ``delta_max``, ``delta_sim``, ``delta_flatten``, ``coarse_passes``: the visible layer's
       thresholds (:class:`QuadParams`); ``None`` takes the variant's defaults (QUASAR 1e-4,
       0.5, 0.2, 3; QuadStream 1e-4, 0.1, 0.05, 1);
@@ -58,13 +60,19 @@ class QuadsConfig(MethodConfig):
       (QUASAR: 10x, 4);
     - ``reference_every``: a reference frame every n frames; the others are residual
       frames (QUASAR only; 1 streams reference frames only);
-    - ``edp_tolerance``: relative depth slack of the parallax test.
+    - ``edp_tolerance``: relative depth slack of the parallax test;
+    - ``atlas``: ``slots`` (QUASAR's linear packing: each G-buffer's colour whole, side by
+      side; a quad's texels follow from its x and y) or ``packed`` (QuadStream's binning:
+      each quad's own texels packed square by square, its atlas position sent with it,
+      :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
+      ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0).
     """
 
     variant: Variant = "quasar"
     view_cell_m: float = 0.5
     layers: int = 3
     wide_fov_deg: float = 120.0
+    wide_scale: float | None = None
     delta_max: float | None = None
     delta_sim: float | None = None
     delta_flatten: float | None = None
@@ -73,6 +81,7 @@ class QuadsConfig(MethodConfig):
     relaxed_coarse_passes: int = 4
     reference_every: int = 5
     edp_tolerance: float = 0.01
+    atlas: Atlas | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -85,6 +94,8 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.layers: must be 1 to 4 (the visible layer and up to 3 hidden ones), got {self.layers}")
         if self.wide_fov_deg != 0.0 and not 60.0 <= self.wide_fov_deg <= 170.0:
             raise ConfigError(f"{n}.wide_fov_deg: must be 0 (off) or in [60, 170] degrees, got {self.wide_fov_deg}")
+        if self.wide_scale is not None and not 0.1 <= self.wide_scale <= 1.0:
+            raise ConfigError(f"{n}.wide_scale: must be in [0.1, 1] (the wide view shares a display-sized slot), got {self.wide_scale}")
         for k in ("delta_max", "delta_sim", "delta_flatten"):
             v = getattr(self, k)
             if v is not None and not 0.0 <= v <= 100.0:
@@ -97,6 +108,10 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.relaxed_coarse_passes: must be in [0, 12], got {self.relaxed_coarse_passes}")
         if not 1 <= self.reference_every <= 1000:
             raise ConfigError(f"{n}.reference_every: must be in [1, 1000], got {self.reference_every}")
+        if self.atlas not in (None, "slots", "packed"):
+            raise ConfigError(f"{n}.atlas: {self.atlas!r} is not one of ['slots', 'packed']")
+        if self.variant == "quasar" and self.atlas == "packed":
+            raise ConfigError(f"{n}.atlas: 'packed' is QuadStream's atlas; QUASAR's cached quads need 'slots'")
         if not 0.0 <= self.edp_tolerance < 0.5:
             raise ConfigError(f"{n}.edp_tolerance: must be in [0, 0.5), got {self.edp_tolerance}")
 
@@ -108,6 +123,20 @@ class QuadsConfig(MethodConfig):
                           d.delta_sim if self.delta_sim is None else self.delta_sim,
                           d.delta_flatten if self.delta_flatten is None else self.delta_flatten,
                           d.coarse_passes if self.coarse_passes is None else self.coarse_passes)
+
+    @property
+    def wide_res(self) -> float:
+        """The wide G-buffer's resolution scale, the variant's own filled in."""
+        if self.wide_scale is not None:
+            return self.wide_scale
+        return 2.0 / 3.0 if self.variant == "quadstream" else 0.5
+
+    @property
+    def atlas_layout(self) -> Atlas:
+        """The atlas layout, the variant's own filled in."""
+        if self.atlas is not None:
+            return self.atlas
+        return "packed" if self.variant == "quadstream" else "slots"
 
     @property
     def hidden_params(self) -> QuadParams:

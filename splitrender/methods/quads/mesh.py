@@ -91,9 +91,13 @@ class ReferenceCache:
         return 0 if self.quads is None else len(self.quads)
 
 
-def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 10) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
     with ``z`` the corner's depth in the source camera, atlas pixel rect; indices (N*24,) uint32).
+
+    ``slot_origin``: where the source camera's pixel (0, 0) lies in the atlas, one (x, y) for
+    the whole set (a slot) or (N, 2) per quad (a packed atlas: its atlas position less its x, y).
 
     The atlas position of a surface point is its projection in the source camera, a
     projective function of the point: ``(u z, v z, z)`` is affine in it, so interpolated
@@ -108,14 +112,15 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     m = pose.matrix()
     world = pts @ m[:3, :3].T + m[:3, 3]
     s = (2.0 ** qs.level[ok].astype(np.float64))
-    x0 = qs.x[ok].astype(np.float64) + slot_origin[0]
-    y0 = qs.y[ok].astype(np.float64) + slot_origin[1]
+    org = np.broadcast_to(np.asarray(slot_origin, np.float64), (len(qs), 2))[ok]
+    x0 = qs.x[ok].astype(np.float64) + org[:, 0]
+    y0 = qs.y[ok].astype(np.float64) + org[:, 1]
     rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
     v = np.empty((n, 16, VERTEX_FLOATS), np.float32)
     v[..., 0:3] = world
     zs = -pts[..., 2]
-    v[..., 3] = (uv[..., 0] + slot_origin[0]) * zs
-    v[..., 4] = (uv[..., 1] + slot_origin[1]) * zs
+    v[..., 3] = (uv[..., 0] + org[:, None, 0]) * zs
+    v[..., 4] = (uv[..., 1] + org[:, None, 1]) * zs
     v[..., 5] = zs
     v[..., 6:10] = rect[:, None, :]
     idx = (np.arange(n, dtype=np.uint32)[:, None] * 16 + SUB_TRIANGLES[None, :]).ravel()

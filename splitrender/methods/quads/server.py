@@ -19,7 +19,8 @@
 
 **QuadStream**: views at the centre and the eight corners of a cube of side
 ``view_cell_m`` plus the wide view, each masked by the mesh of the views before it (with
-one-pixel boundary expansion), the full set every frame.
+one-pixel boundary expansion), the full set every frame; by default its atlas is packed
+quad by quad (:mod:`.packing`), each quad's atlas position on the wire.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
 from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
+from .packing import copy_texels, pack_squares, packed_size, tile_side
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
 
@@ -64,9 +66,10 @@ def n_slots(cfg: QuadsConfig) -> int:
     return 1 + (1 if cfg.reference_every > 1 else 0) + (cfg.layers - 1) + wide
 
 
-def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float) -> CameraIntrinsics:
-    """The wide G-buffer: ``fov_y_deg`` vertically at half the display's resolution (even sizes)."""
-    return CameraIntrinsics(max(2, intr.width // 4 * 2), max(2, intr.height // 4 * 2), fov_y_deg, intr.near_m, intr.far_m)
+def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float, scale: float = 0.5) -> CameraIntrinsics:
+    """The wide G-buffer: ``fov_y_deg`` vertically at ``scale`` times the display's resolution (even sizes)."""
+    return CameraIntrinsics(max(2, int(intr.width * scale / 2) * 2), max(2, int(intr.height * scale / 2) * 2), fov_y_deg,
+                            intr.near_m, intr.far_m)
 
 
 def outside_frustum(wide: CameraIntrinsics, main: CameraIntrinsics) -> np.ndarray:
@@ -89,7 +92,13 @@ class QuadsServer(ServerHalf):
         cfg = self.config
         self.slots = n_slots(cfg)
         self.cols, self.rows = slot_grid(self.slots)
-        self.wide = wide_intrinsics(self.intrinsics, cfg.wide_fov_deg) if cfg.wide_fov_deg else None
+        self.wide = wide_intrinsics(self.intrinsics, cfg.wide_fov_deg, cfg.wide_res) if cfg.wide_fov_deg else None
+        i = self.intrinsics
+        self.packed: tuple[int, int] | None = None
+        if cfg.atlas_layout == "packed":
+            views = [i] * (self.slots - (1 if self.wide else 0)) + ([self.wide] if self.wide else [])
+            self.packed = packed_size(i.width, i.height, sum(v.width * v.height for v in views), i.width * self.cols)
+        self.atlas_wh = self.packed or (i.width * self.cols, i.height * self.rows)
         self._wide_out = outside_frustum(self.wide, self.intrinsics) if self.wide else None
         self.cache = ReferenceCache()
         self._ref_due = True
@@ -102,12 +111,15 @@ class QuadsServer(ServerHalf):
     # ------------------------------------------------------------------ session
     def streams(self) -> list[Any]:
         i = self.intrinsics
-        return [StreamSpec("atlas", self.config.video(self.server_fps), i.width * self.cols, i.height * self.rows),
+        return [StreamSpec("atlas", self.config.video(self.server_fps), *self.atlas_wh),
                 DataStreamSpec("quads"), DataStreamSpec("offsets")]
 
     def session_data(self) -> dict[str, Any]:
-        return {"v": META_VERSION, "wire": WIRE_VERSION, "variant": self.config.variant, "slots": self.slots,
-                "cols": self.cols, "rows": self.rows, "slot_size": [self.intrinsics.width, self.intrinsics.height]}
+        d = {"v": META_VERSION, "wire": WIRE_VERSION, "variant": self.config.variant, "slots": self.slots,
+             "cols": self.cols, "rows": self.rows, "slot_size": [self.intrinsics.width, self.intrinsics.height]}
+        if self.packed is not None:
+            d["packed_atlas"] = list(self.packed)
+        return d
 
     def stats(self) -> dict[str, float]:
         return dict(self._stats)
@@ -132,7 +144,7 @@ class QuadsServer(ServerHalf):
         """A frame's stage times (all zero) and its empty atlas."""
         i = self.intrinsics
         self._stats = {}
-        return dict.fromkeys(STAGES, 0.0), np.zeros((i.height * self.rows, i.width * self.cols, 3), np.uint8)
+        return dict.fromkeys(STAGES, 0.0), np.zeros((self.atlas_wh[1], self.atlas_wh[0], 3), np.uint8)
 
     def _mesh_depth(self, ctx: ServerContext, parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
                     intr: CameraIntrinsics) -> np.ndarray:
@@ -260,6 +272,7 @@ class QuadsServer(ServerHalf):
         sets: list[WireSet] = []
         parts: list[tuple[np.ndarray, np.ndarray]] = []
         cameras = []
+        colors = []
         p = cfg.params
         for v, (vp, vi) in enumerate(views):
             g = self._gbuffer(ctx, vp, vi, times)
@@ -277,9 +290,28 @@ class QuadsServer(ServerHalf):
             kind = KIND_WIDE if vi is self.wide else KIND_VIEW
             sets.append(WireSet(kind, v, v, q))
             cameras.append(encode_camera(vp, vi))
-            self._place(atlas, v, g.color if emit is None else np.where(emit[..., None], g.color, 0).astype(np.uint8))
+            if self.packed is None:
+                self._place(atlas, v, g.color if emit is None else np.where(emit[..., None], g.color, 0).astype(np.uint8))
+            colors.append(g.color)
             parts.append(build_mesh(q, vp, vi, (0, 0)))
+        if self.packed is not None:
+            self._pack(sets, colors, atlas, times)
         return self._finish(ctx, pose, sets, atlas, cameras, times, "reference")
+
+    def _pack(self, sets: list[WireSet], colors: list[np.ndarray], atlas: np.ndarray, times: dict[str, float]) -> None:
+        """QuadStream's packed atlas: every quad's texels at a position of its own, set on its set's ``tex``."""
+        assert self.packed is not None
+        t0 = time.perf_counter()
+        level = np.concatenate([s.quads.level for s in sets])
+        ax, ay = pack_squares(1 << level.astype(np.int64), tile_side(self.intrinsics.width, self.intrinsics.height),
+                              *self.packed)
+        a = 0
+        for s, img in zip(sets, colors):
+            n = len(s.quads)
+            s.tex = np.stack([ax[a:a + n], ay[a:a + n]], axis=-1)
+            copy_texels(atlas, img, s.quads.level, s.quads.x, s.quads.y, ax[a:a + n], ay[a:a + n])
+            a += n
+        times["pack_atlas_ms"] = (time.perf_counter() - t0) * 1e3
 
     def _finish(self, ctx: ServerContext, pose: Pose, sets: list[WireSet], atlas: np.ndarray, cameras: list[list[float]],
                 times: dict[str, float], frame_kind: str) -> Update:

@@ -11,11 +11,15 @@ Per frame, three streams:
   the high bytes of neighbouring quads' positions and depths are nearly equal, and zstd
   finds those runs only when they are adjacent (measured on the default walk at
   320x180: 1.78x fewer ``quads`` bytes than the interleaved arrays, for 0.3 ms).
+  Then, for the sets whose flags say so (QuadStream's packed atlas, :mod:`.packing`),
+  every such quad's atlas position, ``x | y << 12`` in 24 bits, as three byte planes.
   Header: ``b"QD"``, version u8, set count u8, then per set kind u8, atlas slot u8,
-  camera u8, reserved u8, quads u32, non-flat quads u32 (little-endian).
+  camera u8, flags u8 (bit 0: atlas positions follow), quads u32, non-flat quads u32
+  (little-endian).
 - ``offsets`` (reliable data, zstd): 16 float16 depth offsets per non-flat quad, in
   quad order, as two byte planes.
-- ``atlas`` (video): the sets' colour images, one slot each, side by side.
+- ``atlas`` (video): the sets' colour images, one slot each, side by side; or (packed)
+  each quad's own texels at its atlas position.
 
 The frame's metadata names the cameras (pose, size, vertical FOV) the sets refer to
 and, for QUASAR, whether the frame is a reference or a residual frame.
@@ -33,9 +37,10 @@ import numpy as np
 from ...errors import CodecError, RemoteProtocolError
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import MAX_LEVEL, MAX_OFFSET_M, QuadSet
+from .packing import POS_BITS
 
-WIRE_VERSION = 2
-"""2: byte planes for the multi-byte arrays (1 sent them interleaved)."""
+WIRE_VERSION = 3
+"""3: per-set flags, atlas positions for packed sets; 2: byte planes for the multi-byte arrays (1 sent them interleaved)."""
 MAGIC = b"QD"
 HEADER = struct.Struct("<2sBB")
 SET_HEADER = struct.Struct("<BBBBII")
@@ -45,6 +50,9 @@ CACHED_KINDS = (KIND_REFERENCE, KIND_UPDATE)
 """Sets the client keeps across frames (QUASAR's reference frame); the others live for one frame."""
 MAX_QUADS = 1 << 24
 MAX_CAMERAS = 16
+FLAG_TEX = 1
+"""Set flag: the set's quads carry atlas positions (a packed atlas)."""
+TEX_MASK = (1 << POS_BITS) - 1
 
 
 class QuadsWireError(RemoteProtocolError, CodecError):
@@ -53,12 +61,14 @@ class QuadsWireError(RemoteProtocolError, CodecError):
 
 @dataclass
 class WireSet:
-    """One set of quads: what it is, where its colour lies in the atlas, which camera it was made from."""
+    """One set of quads: what it is, where its colour lies in the atlas (a slot, or with ``tex``
+    each quad's own (x, y) atlas position), which camera it was made from."""
 
     kind: int
     slot: int
     camera: int
     quads: QuadSet
+    tex: np.ndarray | None = None
 
 
 def pack(level: np.ndarray, x: np.ndarray, y: np.ndarray, flat: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
@@ -91,20 +101,26 @@ def encode_sets(sets: list[WireSet]) -> tuple[bytes, bytes]:
     """(``quads`` payload, ``offsets`` payload) of a frame's sets."""
     head = [HEADER.pack(MAGIC, WIRE_VERSION, len(sets))]
     for s in sets:
-        head.append(SET_HEADER.pack(s.kind, s.slot, s.camera, 0, len(s.quads), int((~s.quads.flat).sum())))
+        head.append(SET_HEADER.pack(s.kind, s.slot, s.camera, 0 if s.tex is None else FLAG_TEX, len(s.quads),
+                                    int((~s.quads.flat).sum())))
     qs = [s.quads for s in sets]
     cat = lambda name, dt: np.concatenate([getattr(q, name) for q in qs]).astype(dt) if qs else np.zeros(0, dt)  # noqa: E731
     packed = np.concatenate([pack(q.level, q.x, q.y, q.flat) for q in qs]) if qs else np.zeros(0, np.uint32)
     body = (cat("theta", np.uint8).tobytes() + cat("phi", np.uint8).tobytes() + byte_planes(packed, "<u4")
             + byte_planes(cat("depth", np.float32), "<f4"))
+    tex = [s.tex for s in sets if s.tex is not None]
+    if tex:
+        t = np.concatenate(tex).astype(np.uint32)
+        body += byte_planes(t[:, 0] | t[:, 1] << POS_BITS, "<u4")[:3 * len(t)]   # the top byte is always zero
     offs = np.concatenate([q.offsets for q in qs]) if qs else np.zeros((0, 16), np.float16)
     return b"".join(head) + body, byte_planes(offs.reshape(-1), "<f2")
 
 
 def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, int], n_slots: int, n_cameras: int,
-                far_m: float) -> list[WireSet]:
+                far_m: float, packed_atlas: tuple[int, int] | None = None) -> list[WireSet]:
     """Check and decode a frame's ``quads`` and ``offsets`` payloads; anything malformed raises
-    :class:`QuadsWireError` naming the frame and field."""
+    :class:`QuadsWireError` naming the frame and field.  ``packed_atlas``: the (width, height)
+    of the session's packed atlas, whose sets (and only those) carry atlas positions."""
     def bad(msg: str) -> QuadsWireError:
         return QuadsWireError(f"quads {where}: {msg}")
 
@@ -121,7 +137,7 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
         raise bad(f"quads stream: {len(quads)} bytes cannot hold {n_sets} set headers")
     heads = []
     for k in range(n_sets):
-        kind, slot, cam, _, n, nonflat = SET_HEADER.unpack_from(quads, pos)
+        kind, slot, cam, flags, n, nonflat = SET_HEADER.unpack_from(quads, pos)
         pos += SET_HEADER.size
         if kind >= len(KIND_NAMES):
             raise bad(f"set {k}: unknown kind {kind}")
@@ -131,15 +147,28 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
             raise bad(f"set {k}: camera {cam} beyond the frame's {n_cameras}")
         if n > MAX_QUADS or nonflat > n:
             raise bad(f"set {k}: {n} quads with {nonflat} non-flat is not a valid count (at most {MAX_QUADS})")
+        if flags & ~FLAG_TEX:
+            raise bad(f"set {k}: unknown flags 0x{flags:02x}")
+        if bool(flags & FLAG_TEX) != (packed_atlas is not None):
+            raise bad(f"set {k}: atlas positions {'sent' if flags & FLAG_TEX else 'missing'}, but the session's atlas is "
+                      f"{'packed' if packed_atlas is not None else 'slots'}")
         heads.append((kind, slot, cam, n, nonflat))
     total = sum(h[3] for h in heads)
-    if len(quads) - pos != total * 10:
-        raise bad(f"quads stream: {len(quads) - pos} bytes of quad arrays for {total} quads (expected {total * 10})")
+    n_tex = total if packed_atlas is not None else 0
+    if len(quads) - pos != total * 10 + n_tex * 3:
+        raise bad(f"quads stream: {len(quads) - pos} bytes of quad arrays for {total} quads (expected "
+                  f"{total * 10 + n_tex * 3})")
     theta = np.frombuffer(quads, np.uint8, total, pos)
     phi = np.frombuffer(quads, np.uint8, total, pos + total)
     packed = from_byte_planes(quads, "<u4", total, pos + 2 * total)
     depth = from_byte_planes(quads, "<f4", total, pos + 6 * total).astype(np.float32)
     level, x, y, flat, alpha = unpack(packed)
+    tex = None
+    if n_tex:
+        t = np.zeros((n_tex, 4), np.uint8)
+        t[:, :3] = np.frombuffer(quads, np.uint8, 3 * n_tex, pos + 10 * total).reshape(3, n_tex).T
+        tv = t.view("<u4").reshape(n_tex)
+        tex = np.stack([tv & TEX_MASK, tv >> POS_BITS], axis=-1).astype(np.int64)
     n_nonflat = sum(h[4] for h in heads)
     if int((~flat).sum()) != n_nonflat:
         raise bad(f"quads stream: {int((~flat).sum())} quads say non-flat, the set headers {n_nonflat}")
@@ -170,7 +199,13 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
             raise bad(f"set {k}: {int((~flat[sl]).sum())} non-flat quads, the header says {nonflat}")
         q = QuadSet(level[sl].copy(), x[sl].copy(), y[sl].copy(), theta[sl].copy(), phi[sl].copy(), depth[sl].copy(),
                     flat[sl].copy(), offs[b:b + nonflat].copy())
-        out.append(WireSet(kind, slot, cam, q))
+        tq = None
+        if tex is not None and packed_atlas is not None:
+            tq = tex[sl].copy()
+            if n and (int((tq[:, 0] + s).max()) > packed_atlas[0] or int((tq[:, 1] + s).max()) > packed_atlas[1]):
+                raise bad(f"set {k}: a quad's atlas position reaches beyond the {packed_atlas[0]}x{packed_atlas[1]} "
+                          "packed atlas")
+        out.append(WireSet(kind, slot, cam, q, tq))
         a += n
         b += nonflat
     return out

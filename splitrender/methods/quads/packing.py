@@ -1,0 +1,92 @@
+"""QuadStream's packed texture atlas: every quad's own texels, packed square by square.
+
+QuadStream (Hladky et al. 2022) bins its quads' texels into one atlas and sends each quad's
+atlas position with it (24 bits a quad; 103 bits a quad in all, against QUASAR's 80, whose
+atlas holds whole views side by side and derives a quad's texels from its x and y).  The
+QUASAR paper (section 3.4.1, figure 7) measures its linear packing at 1.5-2x fewer video
+bits than this binning.
+
+Our binning: quads are power-of-two squares, so sorted by size (largest first) and laid
+along a Z-order curve in square tiles of side :func:`tile_side` they pack without a gap: each
+square starts at a multiple of its own area along the curve, which is an aligned cell of
+its size in one tile.  The layout is a pure function of the frame's quad sizes (no state,
+no reuse across frames: QuadStream tries to keep a quad's patch from frame to frame, which
+this does not, so its atlas codes with less temporal locality than the original's).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...errors import ConfigError
+
+POS_BITS = 12
+"""Bits of each atlas coordinate on the wire (atlases up to 4096 texels a side)."""
+
+
+def tile_side(slot_w: int, slot_h: int) -> int:
+    """The largest power of two within a view: no quad is larger (a quad lies inside its view)."""
+    return 1 << int(math.floor(math.log2(max(1, min(slot_w, slot_h)))))
+
+
+def packed_size(slot_w: int, slot_h: int, max_texels: int, width_hint: int) -> tuple[int, int]:
+    """(width, height) of an atlas of whole tiles about ``width_hint`` wide holding ``max_texels``
+    (the most texels a frame's quads can cover: every view's pixels)."""
+    t = tile_side(slot_w, slot_h)
+    tiles = max(1, -(-max_texels // (t * t)))
+    tx = max(1, min(tiles, width_hint // t))
+    w, h = tx * t, -(-tiles // tx) * t
+    if max(w, h) > (1 << POS_BITS):
+        raise ConfigError(f"quads packed atlas: {w}x{h} texels exceeds the wire's {1 << POS_BITS} a side "
+                          f"(display {slot_w}x{slot_h}); use atlas = 'slots' or a smaller display")
+    return w, h
+
+
+def morton_decode(code: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of Z-order indices: x from the even bits, y from the odd ones."""
+    c = code.astype(np.int64)
+    x = np.zeros_like(c)
+    y = np.zeros_like(c)
+    for b in range(POS_BITS):
+        x |= ((c >> (2 * b)) & 1) << b
+        y |= ((c >> (2 * b + 1)) & 1) << b
+    return x, y
+
+
+def pack_squares(sizes: np.ndarray, tile: int, atlas_w: int, atlas_h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Atlas positions (x, y) of squares of power-of-two ``sizes`` (each at most ``tile``), packed
+    without overlap: largest first (ties in the given order) along a Z-order curve tile by tile.
+    Raises ``ValueError`` when they do not fit (they cover more than the atlas)."""
+    sizes = np.asarray(sizes, np.int64)
+    n = sizes.size
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if int(sizes.max()) > tile or (sizes & (sizes - 1)).any() or int(sizes.min()) < 1:
+        raise ValueError(f"square sizes must be powers of two up to the tile's {tile}")
+    order = np.argsort(-sizes, kind="stable")
+    area = sizes[order] ** 2
+    start = np.cumsum(area) - area                     # a multiple of each square's own area
+    tiles_x, tiles_y = atlas_w // tile, atlas_h // tile
+    if int(start[-1] + area[-1]) > tiles_x * tiles_y * tile * tile:
+        raise ValueError(f"{int(area.sum())} texels of quads do not fit a {atlas_w}x{atlas_h} atlas")
+    t_idx, within = np.divmod(start, tile * tile)
+    cx, cy = morton_decode(within // area)
+    s = sizes[order]
+    x = np.empty(n, np.int64)
+    y = np.empty(n, np.int64)
+    x[order] = (t_idx % tiles_x) * tile + cx * s
+    y[order] = (t_idx // tiles_x) * tile + cy * s
+    return x, y
+
+
+def copy_texels(atlas: np.ndarray, image: np.ndarray, level: np.ndarray, qx: np.ndarray, qy: np.ndarray,
+                ax: np.ndarray, ay: np.ndarray) -> None:
+    """Copy each quad's square of ``image`` (at ``qx, qy``, side ``2**level``) to the atlas at ``ax, ay``."""
+    for lv in np.unique(level):
+        sel = np.flatnonzero(level == lv)
+        s = 1 << int(lv)
+        dy, dx = np.mgrid[0:s, 0:s]
+        atlas[ay[sel, None, None] + dy, ax[sel, None, None] + dx] = \
+            image[qy[sel, None, None].astype(np.int64) + dy, qx[sel, None, None].astype(np.int64) + dx]
