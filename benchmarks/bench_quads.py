@@ -38,11 +38,12 @@ FRAMES = 10
 
 
 def interleaved(q: bytes) -> bytes:
-    """Wire 1's layout of a wire-2 ``quads`` payload (the arrays' bytes interleaved), the byte planes' baseline."""
+    """Wire 1's layout of a ``quads`` payload (the arrays' bytes interleaved), the byte planes' baseline; a packed
+    atlas's 24-bit positions (wire 3) follow as they are."""
     arrays = 4 + SET_HEADER.size * q[3]
-    n = (len(q) - arrays) // 10
+    n = sum(SET_HEADER.unpack_from(q, 4 + SET_HEADER.size * k)[4] for k in range(q[3]))
     return (q[:arrays + 2 * n] + from_byte_planes(q, "<u4", n, arrays + 2 * n).tobytes()
-            + from_byte_planes(q, "<f4", n, arrays + 6 * n).tobytes())
+            + from_byte_planes(q, "<f4", n, arrays + 6 * n).tobytes() + q[arrays + 10 * n:])
 
 
 def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
