@@ -88,6 +88,12 @@ class QuadSet:
 
 
 # ----------------------------------------------------------------------------- geometry helpers
+def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(a * b).sum(-1)`` over a last axis of 3, without numpy's slow reduction over a short axis
+    (the same additions in the same order, so the same bits)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def rays(intr: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """View-space ray directions (z = -1) through image points ``(u, v)`` (pixels, top-left origin)."""
     f = intr.focal_px()
@@ -120,7 +126,7 @@ def window_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
 def orient(n: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Normals ``n`` turned to face the eye along rays ``d``, and at least 2.5 degrees from edge-on."""
     a = -d / np.linalg.norm(d, axis=-1, keepdims=True)
-    dot = (n * a).sum(-1, keepdims=True)
+    dot = dot3(n, a)[..., None]
     n = np.where(dot < 0, -n, n)
     dot = np.abs(dot)
     low = dot[..., 0] < COS_EDGE_ON
@@ -141,7 +147,7 @@ def quantize(n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def plane_depth(n: np.ndarray, w: np.ndarray, d: np.ndarray) -> np.ndarray:
     """View depth where rays ``d`` (z = -1) meet planes ``n . X + w = 0`` (inf where parallel or behind)."""
-    den = (n * d).sum(-1)
+    den = dot3(n, d)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = -w / den
     return np.where((np.abs(den) > 1e-12) & (z > 0), z, np.inf)
@@ -160,7 +166,7 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
     th, ph, n = quantize(n)
     z = np.where(valid, depth, 1.0)
-    wq = -(n * dc).sum(-1) * z
+    wq = -dot3(n, dc) * z
     need = valid if emit is None else valid & emit
     py, px = np.nonzero(need)
     k = py.size
@@ -172,12 +178,21 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     dl_len = np.linalg.norm(dl, axis=-1)
     own = plane_depth(n[py, px][:, None, None, :], wq[py, px][:, None, None], dl)
 
+    planes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def neighbour(dx: int, dy: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The plane (normal, w) of each emitting pixel's neighbour at (dx, dy), and whether it has one."""
+        if (dx, dy) not in planes:
+            yy, xx = py + dy, px + dx
+            inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+            yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
+            planes[dx, dy] = (n[yc, xc], wq[yc, xc], inside & valid[yc, xc])
+        return planes[dx, dy]
+
     def nb(dx: int, dy: int, j: int, i: int) -> tuple[np.ndarray, np.ndarray]:
-        yy, xx = py + dy, px + dx
-        inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-        yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
-        zz = plane_depth(n[yc, xc], wq[yc, xc], dl[:, j, i])
-        ok = inside & valid[yc, xc] & np.isfinite(zz) & np.isfinite(own[:, j, i])
+        nn, ww, has = neighbour(dx, dy)
+        zz = plane_depth(nn, ww, dl[:, j, i])
+        ok = has & np.isfinite(zz) & np.isfinite(own[:, j, i])
         dist = np.abs(np.where(ok, zz, 0.0) - np.where(ok, own[:, j, i], 0.0)) * dl_len[:, j, i]
         return np.where(ok, zz, 0.0), ok & (window_depth(dist, intr) < params.delta_max)
 
@@ -233,7 +248,7 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     for s, (sy, sx) in enumerate(subs):
         n = child["n"][kids[s]]
         dcen = rays(intr, fx * size + sx * half + half / 2, fy * size + sy * half + half / 2)
-        wv = -(n * dcen).sum(-1) * child["zc"][kids[s]]
+        wv = -dot3(n, dcen) * child["zc"][kids[s]]
         eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
     ok = np.ones(cy.size, bool)
     for a in range(4):
@@ -252,7 +267,7 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     nn = nsum / np.maximum(np.linalg.norm(nsum, axis=-1, keepdims=True), 1e-12)
     th, ph, nq = quantize(orient(nn, dcen))
     zc = sum(zs) / 4.0
-    wq = -(nq * dcen).sum(-1) * zc
+    wq = -dot3(nq, dcen) * zc
     cs = get("corners")
     corners = np.stack([cs[s][:, OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
     u = fx[:, None] * size + SUB_CORNERS[:, 0] * size / 2
@@ -341,7 +356,7 @@ def corner_points(qs: QuadSet, intr: CameraIntrinsics) -> tuple[np.ndarray, np.n
     x0 = qs.x.astype(np.float64)
     y0 = qs.y.astype(np.float64)
     dcen = rays(intr, x0 + s / 2, y0 + s / 2)
-    wv = -(n * dcen).sum(-1) * qs.depth.astype(np.float64)
+    wv = -dot3(n, dcen) * qs.depth.astype(np.float64)
     u = x0[:, None] + SUB_CORNERS[None, :, 0] * s[:, None] / 2
     v = y0[:, None] + SUB_CORNERS[None, :, 1] * s[:, None] / 2
     d = rays(intr, u, v)
