@@ -135,6 +135,25 @@ def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) ->
         assert psnr(moved.color, renderer.render(scene, 0.5, side, INTR).color) > 26.5 and moved.holes.mean() < 0.015
 
 
+def test_a_turned_client_sees_the_wide_views_background(renderer) -> None:  # type: ignore[no-untyped-def]
+    """Turned 12 degrees from the server's pose (and 8 up), the client draws the wide view's quads where the main
+    view ends, sky included: measured holes 0.52 / 0.35 / 0.35 %, 21.84 / 22.88 / 22.16 dB.  Before the mesh was
+    drawn with a far plane past the background quads' (98 % of far along the source axis, much further along a
+    120-degree view's edge rays), the turned client clipped that sky away: 7.6 / 18.5 / 16.7 % holes, 18.2 / 12.4 /
+    13.3 dB (the stress case fast_turn: 34 % of frames under 20 dB, 12 % holes in the worst)."""
+    from scipy.spatial.transform import Rotation
+
+    from splitrender.metrics.image import psnr
+
+    srv, upd, spec, cfg, scene, pose = _frame(renderer, {})
+    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    cli.apply(_decoded(upd))
+    for yaw, pitch in ((-12, 0), (-12, 8), (12, 8)):
+        turned = Pose(pose.position, (Rotation.from_quat(pose.orientation) * Rotation.from_euler("YX", [yaw, pitch], degrees=True)).as_quat())
+        got = cli.render(turned, 0.5)
+        assert got.holes.mean() < 0.01 and psnr(got.color, renderer.render(scene, 0.5, turned, INTR).color) > 21.3, (yaw, pitch)
+
+
 def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(renderer) -> None:  # type: ignore[no-untyped-def]
     """The default walk at 30 Hz, frames 0-5: a reference frame, four residual frames, a reference frame.
     Measured quads payload after zstd (byte planes, wire 2): 51.7 KB and 54.0 KB for the reference frames,

@@ -11,7 +11,7 @@ draws it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,11 @@ from .gen import QuadSet, corner_points
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4
+FAR_SCALE = 16.0
+"""The mesh is drawn with the far plane this many times the camera's: background quads lie at 98 % of the far
+distance along their source camera's axis, so seen from a camera turned towards its edge a wide view's (120
+degrees) background lies well beyond the far plane (1.6x it for a point 75 degrees off axis, seen 9 degrees
+closer) and would be clipped to a hole."""
 SUB_TRIANGLES = np.array([[s * 4 + a for a in tri] for s in range(4) for tri in ((0, 2, 1), (1, 2, 3))], np.uint32).ravel()
 """24 indices into a quad's 16 corners: two triangles per sub-quad (TL, BL, TR) and (TR, BL, BR)."""
 
@@ -189,7 +194,7 @@ class QuadMeshGL:
         if self.vao is not None:
             self.ctx.enable(self.ctx.DEPTH_TEST)
             self.ctx.disable(self.ctx.CULL_FACE | self.ctx.BLEND)
-            vp = intr.projection() @ pose.view_matrix()
+            vp = replace(intr, far_m=intr.far_m * FAR_SCALE).projection() @ pose.view_matrix()
             self.prog["u_vp"].write(np.asarray(vp, "f4").T.tobytes())
             self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             set_uniform(self.prog, "u_atlas_size", (float(atlas_size[0]), float(atlas_size[1])))
