@@ -334,6 +334,30 @@ def test_packed_squares_never_overlap_and_fill_their_tiles() -> None:
                 pack_squares(np.concatenate([sizes, [1]]), tile, w, h)
 
 
+def test_quads_past_the_packed_atlas_are_left_out_and_the_rest_still_draws(renderer) -> None:  # type: ignore[no-untyped-def]
+    """From about 1280x720 up a QuadStream frame's quads could cover more than a 4096x4096 atlas; what does not fit
+    (the last views' quads) is left out and counted, and the client draws the rest.  Here a 512x128 atlas (65.5k
+    texels) takes the centre view (57.6k) and part of the first corner view."""
+    from splitrender.methods import ServerContext
+    from splitrender.methods.quads.packing import fitting
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.trace import get_trace
+
+    assert fitting(np.array([4, 4, 2, 1]), 36) == 3 and fitting(np.array([4, 4, 2, 1]), 32) == 2
+    assert fitting(np.array([4]), 15) == 0
+    srv, _, spec, cfg, scene, pose = _frame(renderer, {"variant": "quadstream"})
+    srv.packed = srv.atlas_wh = (512, 128)
+    ctx = ServerContext(frame_id=1, t_s=0.5, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
+                        latest_pose_t_s=0.5, target_pose=pose, target_t_s=0.5, predict=lambda _t: pose, expected_latency_s=0.0)
+    upd = srv.produce(ctx)
+    st = srv.stats()
+    assert st["atlas_dropped"] > 1000 and sum(s.quads.pixels() for s in srv.last_sets) <= 512 * 128
+    assert srv.last_sets[0].quads.pixels() == INTR.width * INTR.height, "the centre view is whole"
+    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    cli.apply(_decoded(upd))
+    assert cli.render(pose, 0.5).holes.mean() < 0.01
+
+
 def test_quadstreams_packed_atlas_shows_what_the_slot_atlas_shows(renderer) -> None:  # type: ignore[no-untyped-def]
     """With a lossless atlas, QuadStream's packed atlas (each quad's texels at a position of its own, sent in 24
     bits: 104 bits a quad on the wire against 80) draws the same image as the slot layout, at the centre pose and

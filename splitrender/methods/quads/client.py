@@ -47,8 +47,8 @@ class QuadsClient(ClientHalf):
         if "packed_atlas" in sd:
             pa = sd["packed_atlas"]
             if not (isinstance(pa, list) and len(pa) == 2 and all(isinstance(e, int) and not isinstance(e, bool)
-                                                                 and 16 <= e <= 4096 for e in pa)):
-                raise QuadsWireError(f"quads session data: packed_atlas must be [width, height] in 16..4096, got {pa!r}")
+                                                                 and 1 <= e <= 4096 for e in pa)):
+                raise QuadsWireError(f"quads session data: packed_atlas must be [width, height] in 1..4096, got {pa!r}")
             self.packed = self.atlas_size = (pa[0], pa[1])
         self.cache = ReferenceCache()
         self._broken = True           # no reference yet: residual frames cannot apply

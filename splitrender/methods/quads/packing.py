@@ -33,15 +33,23 @@ def tile_side(slot_w: int, slot_h: int) -> int:
 
 def packed_size(slot_w: int, slot_h: int, max_texels: int, width_hint: int) -> tuple[int, int]:
     """(width, height) of an atlas of whole tiles about ``width_hint`` wide holding ``max_texels``
-    (the most texels a frame's quads can cover: every view's pixels)."""
+    (the most texels a frame's quads can cover: every view's pixels), at most 4096 a side (the
+    wire's 12 bits, the papers' 4096x4096 atlases): from about 1280x720 up a frame's quads could
+    cover more than that, and what does not fit is left out (:func:`fitting`)."""
     t = tile_side(slot_w, slot_h)
+    side = (1 << POS_BITS) // t
+    if side < 1:
+        raise ConfigError(f"quads packed atlas: a {slot_w}x{slot_h} view's quads can be {t} texels wide, more than "
+                          f"the wire's {1 << POS_BITS}; use atlas = 'slots'")
     tiles = max(1, -(-max_texels // (t * t)))
-    tx = max(1, min(tiles, width_hint // t))
-    w, h = tx * t, -(-tiles // tx) * t
-    if max(w, h) > (1 << POS_BITS):
-        raise ConfigError(f"quads packed atlas: {w}x{h} texels exceeds the wire's {1 << POS_BITS} a side "
-                          f"(display {slot_w}x{slot_h}); use atlas = 'slots' or a smaller display")
-    return w, h
+    tx = max(1, min(tiles, width_hint // t, side))
+    return tx * t, min(side, -(-tiles // tx)) * t
+
+
+def fitting(sizes: np.ndarray, capacity: int) -> int:
+    """How many of the squares of ``sizes``, taken in order, fit ``capacity`` texels (they pack without a gap)."""
+    area = np.cumsum(np.asarray(sizes, np.int64) ** 2)
+    return int(np.searchsorted(area, capacity, side="right"))
 
 
 def morton_decode(code: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,8 +38,8 @@ from ..base import DataStreamSpec, ServerContext, ServerHalf, StreamSpec, Update
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
-from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
-from .packing import copy_texels, pack_squares, packed_size, tile_side
+from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes, select
+from .packing import copy_texels, fitting, pack_squares, packed_size, tile_side
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
 
@@ -142,7 +142,6 @@ class QuadsServer(ServerHalf):
 
     def _start(self) -> tuple[dict[str, float], np.ndarray]:
         """A frame's stage times (all zero) and its empty atlas."""
-        i = self.intrinsics
         self._stats = {}
         return dict.fromkeys(STAGES, 0.0), np.zeros((self.atlas_wh[1], self.atlas_wh[0], 3), np.uint8)
 
@@ -299,10 +298,20 @@ class QuadsServer(ServerHalf):
         return self._finish(ctx, pose, sets, atlas, cameras, times, "reference")
 
     def _pack(self, sets: list[WireSet], colors: list[np.ndarray], atlas: np.ndarray, times: dict[str, float]) -> None:
-        """QuadStream's packed atlas: every quad's texels at a position of its own, set on its set's ``tex``."""
+        """QuadStream's packed atlas: every quad's texels at a position of its own, set on its set's ``tex``.
+        Quads beyond the atlas's capacity (views in order, the centre first) are left out and counted."""
         assert self.packed is not None
         t0 = time.perf_counter()
         level = np.concatenate([s.quads.level for s in sets])
+        keep = fitting(1 << level.astype(np.int64), self.packed[0] * self.packed[1])
+        self._stats["atlas_dropped"] = float(level.size - keep)
+        if keep < level.size:
+            a = 0
+            for s in sets:
+                n = len(s.quads)
+                s.quads = select(s.quads, np.arange(a, a + n) < keep)
+                a += n
+            level = level[:keep]
         ax, ay = pack_squares(1 << level.astype(np.int64), tile_side(self.intrinsics.width, self.intrinsics.height),
                               *self.packed)
         a = 0
