@@ -302,20 +302,14 @@ class QuadsServer(ServerHalf):
         Quads beyond the atlas's capacity (views in order, the centre first) are left out and counted."""
         assert self.packed is not None
         t0 = time.perf_counter()
-        level = np.concatenate([s.quads.level for s in sets])
-        keep = fitting(1 << level.astype(np.int64), self.packed[0] * self.packed[1])
-        self._stats["atlas_dropped"] = float(level.size - keep)
-        if keep < level.size:
-            a = 0
-            for s in sets:
-                n = len(s.quads)
-                s.quads = select(s.quads, np.arange(a, a + n) < keep)
-                a += n
-            level = level[:keep]
-        ax, ay = pack_squares(1 << level.astype(np.int64), tile_side(self.intrinsics.width, self.intrinsics.height),
-                              *self.packed)
+        sizes = 1 << np.concatenate([s.quads.level for s in sets]).astype(np.int64)
+        keep = fitting(sizes, self.packed[0] * self.packed[1])
+        self._stats["atlas_dropped"] = float(sizes.size - keep)
+        ax, ay = pack_squares(sizes[:keep], tile_side(self.intrinsics.width, self.intrinsics.height), *self.packed)
         a = 0
         for s, img in zip(sets, colors):
+            if a + len(s.quads) > keep:    # the kept quads are a prefix in view order
+                s.quads = select(s.quads, np.arange(len(s.quads)) < keep - a)
             n = len(s.quads)
             s.tex = np.stack([ax[a:a + n], ay[a:a + n]], axis=-1)
             copy_texels(atlas, img, s.quads.level, s.quads.x, s.quads.y, ax[a:a + n], ay[a:a + n])
