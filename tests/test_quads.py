@@ -337,7 +337,8 @@ def test_packed_squares_never_overlap_and_fill_their_tiles() -> None:
 def test_quads_past_the_packed_atlas_are_left_out_and_the_rest_still_draws(renderer) -> None:  # type: ignore[no-untyped-def]
     """From about 1280x720 up a QuadStream frame's quads could cover more than a 4096x4096 atlas; what does not fit
     (the last views' quads) is left out and counted, and the client draws the rest.  Here a 512x128 atlas (65.5k
-    texels) takes the centre view (57.6k) and part of the first corner view."""
+    texels) takes the centre view (57.6k) and part of the first corner view: measured 11529 of 12733 quads left
+    out, 65521 texels kept, no hole at the centre pose."""
     from splitrender.methods import ServerContext
     from splitrender.methods.quads.packing import fitting
     from splitrender.scene.loader import get_scene
@@ -351,17 +352,18 @@ def test_quads_past_the_packed_atlas_are_left_out_and_the_rest_still_draws(rende
                         latest_pose_t_s=0.5, target_pose=pose, target_t_s=0.5, predict=lambda _t: pose, expected_latency_s=0.0)
     upd = srv.produce(ctx)
     st = srv.stats()
-    assert st["atlas_dropped"] > 1000 and sum(s.quads.pixels() for s in srv.last_sets) <= 512 * 128
+    assert st["atlas_dropped"] > 11000 and 65000 < sum(s.quads.pixels() for s in srv.last_sets) <= 512 * 128
     assert srv.last_sets[0].quads.pixels() == INTR.width * INTR.height, "the centre view is whole"
     cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
     cli.apply(_decoded(upd))
-    assert cli.render(pose, 0.5).holes.mean() < 0.01
+    assert cli.render(pose, 0.5).holes.mean() < 0.001
 
 
 def test_quadstreams_packed_atlas_shows_what_the_slot_atlas_shows(renderer) -> None:  # type: ignore[no-untyped-def]
     """With a lossless atlas, QuadStream's packed atlas (each quad's texels at a position of its own, sent in 24
     bits: 104 bits a quad on the wire against 80) draws the same image as the slot layout, at the centre pose and
-    20 cm to the side: every quad reads only its own texels, wherever they lie."""
+    20 cm to the side: every quad reads only its own texels, wherever they lie (measured: every pixel equal at the
+    centre, 99.976 % 20 cm aside)."""
     from splitrender.methods.quads.wire import SET_HEADER
 
     srv_p, upd_p, spec, cfg_p, scene, pose = _frame(renderer, {"variant": "quadstream"})
