@@ -158,3 +158,19 @@ def test_hevc_keyframe_detection() -> None:
     trail = join_annexb([bytes([1 << 1, 1]) + b"\x07" * 100])
     out = [au for p in pk.packetize(trail, 3000) for au in jb.insert(p, 1.0)]
     assert len(out) == 1 and not out[0].keyframe
+
+
+def test_a_frame_larger_than_the_buffer_is_dropped_whole_and_the_next_one_kept() -> None:
+    """A frame of 20 packets through a buffer of 8: it is given up on as one lost frame; the fragments that
+    arrive after the give-up are skipped rather than depacketized as a frame of their own (which logged a
+    corrupt "FU fragment without a start fragment" frame per oversized one), and the next keyframe comes out."""
+    pk = RtpPacketizer("h264", ssrc=1, payload_type=96, mtu=300)
+    jb = JitterBuffer("h264", max_packets=8, frame_timeout_ms=1e9)
+    idr = join_annexb([b"\x67\x42\x00\x1e", b"\x68\xce\x3c\x80", b"\x65" + b"\x11" * 5000])
+    big = pk.packetize(idr, 0)
+    assert len(big) > 16
+    out = [au for p in big for au in jb.insert(p, 0.0)]
+    assert out == [] and jb.frames_lost == 1 and jb.frames_corrupt == 0
+    nxt = [au for p in pk.packetize(join_annexb([b"\x65" + b"\x22" * 900]), 3000) for au in jb.insert(p, 1.0)]
+    assert len(nxt) == 1 and nxt[0].timestamp == 3000 and nxt[0].keyframe
+    assert jb.frames_corrupt == 0 and jb.frames_lost == 1 and len(jb) == 0

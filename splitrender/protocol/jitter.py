@@ -40,7 +40,8 @@ __all__ = ["AccessUnit", "JitterBuffer"]
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_MAX_PACKETS = 2048
+DEFAULT_MAX_PACKETS = 8192
+"""About 10 MB of 1200-byte packets: a lossless 1280x720 atlas frame (tss, sas) runs past 2048."""
 MAX_PENDING_FEC = 64
 DEFAULT_FRAME_TIMEOUT_MS = 100.0
 MAX_NACK_ITEMS = 256
@@ -84,6 +85,8 @@ class JitterBuffer:
         self._unwrap = SequenceUnwrapper()
         self._packets: dict[int, tuple[RtpPacket, float]] = {}
         self._next: int | None = None
+        self._abandoned_ts: int | None = None
+        """RTP timestamp of the frame last given up on: its later packets are dropped, not taken for a frame."""
         self.needs_keyframe = True
         """Decoder sync is lost (or not yet established): request a keyframe (PLI)."""
         self.frames_emitted = 0
@@ -218,6 +221,13 @@ class JitterBuffer:
         out: list[AccessUnit] = []
         while self._packets:
             start = self._next if self._next is not None else min(self._packets)
+            head = self._packets.get(start)
+            if head is not None and self._abandoned_ts is not None and head[0].timestamp == self._abandoned_ts:
+                # the tail of a frame given up on (one larger than max_packets, say): skipped, so that its middle
+                # fragments are not read as a frame of their own
+                del self._packets[start]
+                self._next = start + 1
+                continue
             end = self._frame_end(start)
             if end is not None:
                 au = self._emit(start, end)
@@ -286,6 +296,10 @@ class JitterBuffer:
         dropped = [k for k in keys if k < resync]
         for ts in dict.fromkeys(self._packets[k][0].timestamp for k in dropped):
             self._discard(ts)
+        if dropped:
+            self._abandoned_ts = self._packets[dropped[-1]][0].timestamp
+        if len(self._packets) > self.max_packets and resync > keys[-1]:
+            logger.warning("frame at seq %d is larger than the buffer's %d packets: dropped", start & 0xFFFF, self.max_packets)
         for k in dropped:
             del self._packets[k]
         lo = start if self._next is not None else keys[0]
