@@ -18,7 +18,9 @@ class TssConfig(MethodConfig):
     ``samples_per_px``: shading samples per covered display pixel (the paper's target
     of one).  ``slant_threshold``: a triangle whose longest projected edge over its
     height exceeds this is oversampled, otherwise L-packed (the paper does not give
-    the value).  ``tiny_samples``: triangles needing fewer samples than this get one
+    the value; 16 here: the study's sweep and ``docs/methods.md`` show L-packing
+    spending its samples better than the oversampled staircases at our sizes, and
+    the most slanted slivers still oversampled).  ``tiny_samples``: triangles needing fewer samples than this get one
     texel, unless ``sliver_px`` is set (>= 1) and their longest edge spans that many
     pixels or more: those slivers are sampled along their length as any other triangle
     (the default 0: one texel whatever the length, as the paper).  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
@@ -43,7 +45,7 @@ class TssConfig(MethodConfig):
 
     gop: int = 30
     samples_per_px: float = 1.0
-    slant_threshold: float = 4.0
+    slant_threshold: float = 16.0
     tiny_samples: float = 2.0
     sliver_px: float = 0.0
     atlas_mpix_1080p: float = 24.0
