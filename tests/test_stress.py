@@ -17,6 +17,10 @@ the background beside the deterministic tests, see ``conftest.py``), with a stat
   the floor (43% measured);
 - fine_texture (backing away from the glyph sign): video at most 25% below the floor
   (19% measured);
+- atlas_overflow (sas and tss, an atlas of 1 Mpix at 1080p on the fast turns): tss at
+  19 dB or more on the mean and 13 on its worst frame (21.0 and 15.4 measured: it lowers
+  its rate, then leaves the smallest triangles out; it raised an error before); sas has
+  the generic bounds (11.5 dB mean: its allocations fail and what is not placed is a hole);
 - with GI (``probes``): gi_light_change at 45 dB or more on the mean (49.3 measured; atw
   in light_change 22.7) and 34 dB or more on its worst frame (37.4); gi_fast_moves at
   55 dB or more (60, capped: nothing but the camera moves, and every probe the walk
@@ -65,6 +69,8 @@ def test_stress_case(suite: dict, case: str) -> None:
         assert rows["video"]["window_drop_db"] >= 1.0, rows["video"]
     if case == "ball_crossing":
         assert all(r["worst_psnr_db"] > 15.0 for r in rows.values())
+    if case == "atlas_overflow":   # measured 21.0 dB mean, 15.4 worst (sas 11.5, 9.0)
+        assert rows["tss"]["mean_psnr_db"] >= 19.0 and rows["tss"]["worst_psnr_db"] >= 13.0, rows["tss"]
     if case == "gi_light_change":   # the client relights its own scene: 49.3 dB mean (light_change: atw 22.7)
         assert rows["probes"]["mean_psnr_db"] >= 45.0, rows["probes"]
     if case == "gi_lossy_visibility":   # the ablation's light leak shows on every frame (18.7 dB measured)

@@ -20,6 +20,11 @@ suite):
                    default scene's sun dims from 2.6 to 0.9 over one second from ``t0``
                    (shading cached by sas/tss goes stale; ``scene_time_offset_s``)
 ``ball_crossing``  a static camera at (0, 1.6, 2.5) looking -Z while the ball crosses at 2.5 m/s
+``atlas_overflow`` ``sas`` and ``tss`` only: the fast turns with an atlas of 1 Mpix at 1080p
+                   (``atlas_mpix_1080p = 1``: an eighth of sas's default, a 24th of tss's),
+                   so the visible set outgrows the atlas: tss lowers its sampling rate down
+                   to one texel per triangle and then leaves the smallest out; sas biases
+                   its levels down to the smallest block, then fails allocations
 
 With global illumination (``probes`` only; the baselines' behaviour under a light change is
 ``light_change``'s):
@@ -235,6 +240,10 @@ CASES: tuple[StressCase, ...] = (
                "the default scene's sun dims at 4 s of scene time; the run's scene clock starts 4 s - t0 ahead"),
     StressCase("ball_crossing", "static camera, the ball crosses the view at 2.5 m/s, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"}, False, 10.0),
+    StressCase("atlas_overflow", "fast head turns with an atlas of 1 Mpix at 1080p: the visible set outgrows it, lan",
+               lambda d, tm: {"trace": "turn", "network": "lan", "method_params": {"atlas_mpix_1080p": 1.0}}, False, 100.0,
+               "tss's sampling rate falls to one texel per triangle, then the triangles needing the fewest samples are "
+               "left out (srv_tris_left_out)", methods=("sas", "tss")),
     # global illumination, for probes: nothing moves but what the case is about
     StressCase("gi_light_change", "with GI: the sun dims over 1 s from the window's start, every probe changes, lan",
                lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 100.0,

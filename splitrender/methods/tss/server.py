@@ -16,6 +16,8 @@ Per server frame (paper figure 10):
    repack in (class, id) order, a deterministic prefix sum, on overflow and on I-frames
    past ``high_water`` (every frame with ``layout = "prefix"``) forces an I-frame; when
    the set does not fit, the frame's sampling rate drops until it does (``srv_rate``);
+   when not even one texel each fits, the triangles needing the fewest samples are
+   left out of the frame (``srv_tris_left_out``; the client shows holes there);
 4. **gathering**: one patch per triangle through ``shaders/tss_shade.*`` with the
    rasteriser discarded; each tessellator vertex shades its sample with
    ``shading.glsl`` (the ground truth's shader) and stores it into the atlas;
@@ -247,6 +249,8 @@ class TssServer(ServerHalf):
         self._prev_w2 = np.zeros(n, np.int64)
         self._prev_h = np.zeros(n, np.int64)
         self.last_plan: AtlasPlan | None = None
+        self.left_out = 0
+        """Triangles of the last frame's PVS left out because not even one texel each fitted the atlas."""
         self.last_ids = np.zeros(0, np.int64)
 
     # ------------------------------------------------------------------ interface
@@ -317,10 +321,12 @@ class TssServer(ServerHalf):
         a[:] = np.where(keep_o & (np.abs(a - self._prev_a[ids]) < 0.1 * hy), self._prev_a[ids], a)
 
     def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool, visible: np.ndarray | None = None
-             ) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float]:
+             ) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float, np.ndarray | None]:
         """Classify triangles ``ids`` with pixel corners ``px`` and place them in the atlas; lowers the frame's
         sampling rate (and repacks) until they fit.  Returns the plan, the OS base vertex per triangle, the
-        slantedness and the rate used."""
+        slantedness, the rate used and ``kept``: None when every triangle is placed, else the (sorted) indices
+        into ``ids`` of those placed (the plan's arrays follow them) when not even one texel each fits, the
+        triangles needing the most samples first."""
         c = self.config
         W, H = self.atlas
         rate = c.samples_per_px
@@ -352,23 +358,42 @@ class TssServer(ServerHalf):
             if good[0] is not plan or good[-1] != rate:
                 plan, kind, level, w1, w2, h, a, base, slant, rate = good
                 plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)   # the store holds the last try
+        kept = None
         if plan.overflow:   # the last resort: one texel per triangle
-            log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
             kind[:] = KIND_SINGLE
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)
             if plan.overflow:
-                raise RuntimeError(f"tss: {ids.size} triangles do not fit a {W}x{H} atlas even as single texels")
+                # not even that: the triangles needing the most samples (the largest on screen) first, as many as fit
+                order = np.lexsort((ids, -need))
+                lo, hi = 0, ids.size
+                while hi - lo > 1:
+                    mid = (lo + hi) // 2
+                    sel = np.sort(order[:mid])
+                    if plan_atlas(self.store, ids[sel], kind[sel], level[sel], w1[sel], w2[sel], h[sel], a[sel], reset=True,
+                                  grid=c.os_grid).overflow:
+                        hi = mid
+                    else:
+                        lo = mid
+                kept = np.sort(order[:lo])
+                ids, base, slant = ids[kept], base[kept], slant[kept]
+                kind, level, w1, w2, h, a = (x[kept] for x in (kind, level, w1, w2, h, a))
+                plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)
+                log.warning("tss: %d triangles do not fit the %dx%d atlas even as one texel each: %d left out",
+                            kept.size + (order.size - lo), W, H, order.size - lo)
+            else:
+                log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
         self._prev_kind[:] = -1
         self._prev_kind[ids], self._prev_level[ids] = plan.kind, np.where(plan.kind == KIND_LP, level, 0)
         self._prev_w1[ids], self._prev_w2[ids], self._prev_h[ids] = plan.w, plan.w2, plan.h
         self._prev_a[ids] = plan.a
-        return plan, base, slant, rate
+        return plan, base, slant, rate, kept
 
     def plan_view(self, ctx: ServerContext, iframe: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, AtlasPlan,
                                                                   np.ndarray, np.ndarray, float, float]:
         """The frame's PVS and atlas plan, before any shading: ``pvs`` ids, object ``models`` (O, 4, 4), the PVS's
         pixel corners ``px`` and ``depth``, then :meth:`plan`'s plan, base vertices, slantedness and rate, and the
-        ``perf_counter`` time at which the PVS was done."""
+        ``perf_counter`` time at which the PVS was done.  Triangles the atlas cannot hold at all are left out of
+        ``pvs``, ``px`` and ``depth`` (counted in ``self.left_out``)."""
         c = self.config
         if self._gl is None:
             self._setup_gl(ctx.renderer)
@@ -384,7 +409,10 @@ class TssServer(ServerHalf):
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
         px, depth = project(world, ctx.target_pose, self.intrinsics)
         visible = visible_area(world, ctx.target_pose, self.intrinsics, c.fov_margin)
-        plan, base, slant, rate = self.plan(pvs, px, iframe, visible)
+        plan, base, slant, rate, kept = self.plan(pvs, px, iframe, visible)
+        self.left_out = 0 if kept is None else pvs.size - kept.size
+        if kept is not None:
+            pvs, px, depth = pvs[kept], px[kept], depth[kept]
         return pvs, models, px, depth, plan, base, slant, rate, t1
 
     def produce(self, ctx: ServerContext) -> Update:
@@ -436,6 +464,7 @@ class TssServer(ServerHalf):
             "atlas_used_pct": 100.0 * plan.height / H, "rate": rate, "iframe": float(iframe),
             "geo_sent": float(new.size), "table_rows": float(changed.sum()), "repacked": float(plan.repacked), "atlas_load_pct": 100.0 * self.store.load(),
             "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
+            "tris_left_out": float(self.left_out),
         }
         meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe,
