@@ -112,7 +112,7 @@ def _decoded(upd):  # type: ignore[no-untyped-def]
 
 @pytest.mark.parametrize("variant", ["quasar", "quadstream"])
 def test_at_the_servers_pose_the_mesh_shows_the_truth(renderer, variant: str) -> None:  # type: ignore[no-untyped-def]
-    """A lossless atlas drawn from the pose the quads were made at: QUASAR (one layer, and three with the wide view)
+    """A lossless atlas drawn from the pose the quads were made at: QUASAR (one layer, and the defaults: a hidden layer and the wide view)
     reproduces the truth pixel for pixel (measured: every pixel equal), since every quad projects onto its own
     pixels whatever its depth.  QuadStream's corner views add boundary quads that are not pixel-aligned with the
     centre view (the artefact the QUASAR paper's figure 6 shows): measured 26.78 dB (25.92 dB 20 cm aside).  20 cm to the side, QUASAR
@@ -156,8 +156,9 @@ def test_a_turned_client_sees_the_wide_views_background(renderer) -> None:  # ty
 
 def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(renderer) -> None:  # type: ignore[no-untyped-def]
     """The default walk at 30 Hz, frames 0-5: a reference frame, four residual frames, a reference frame.
-    Measured quads payload after zstd (byte planes, wire 2): 51.7 KB and 54.0 KB for the reference frames,
-    33.4-39.2 KB for the residual frames (1.32-1.55x smaller, 1.46x on average; the paper reports 2-3x).  The
+    Measured quads payload after zstd (byte planes, wire 2, one hidden layer): 49.1 KB and 50.5 KB for the
+    reference frames, 30.5-35.9 KB for the residual frames (1.37-1.61x smaller, 1.49x on average; the paper
+    reports 2-3x; with two hidden layers 51.7 / 54.0 KB and 33.4-39.2 KB, 1.46x).  The
     byte planes shrank reference frames 1.78x and residual frames 1.6x (interleaved: 92 KB against 53-63 KB,
     1.5-1.7x): a dense reference layer's neighbouring quads share more high bytes than a residual frame's
     scattered ones.  The client's cached set equals the server's mirror."""
@@ -180,7 +181,7 @@ def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(ren
         assert len(cli.cache) == len(srv.cache) and np.array_equal(cli.cache.index_map, srv.cache.index_map)
     assert kinds == ["reference"] + ["residual"] * 4 + ["reference"]
     ref = min(sizes[0], sizes[5])
-    assert max(sizes[1:5]) < ref / 1.25 and np.mean(sizes[1:5]) < ref / 1.4, sizes
+    assert max(sizes[1:5]) < ref / 1.3 and np.mean(sizes[1:5]) < ref / 1.45, sizes
 
 
 @pytest.mark.slow
@@ -219,9 +220,11 @@ def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type:
 
 @pytest.mark.slow
 def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(renderer) -> None:  # type: ignore[no-untyped-def]
-    """``cloud`` (50 +- 20 ms each way), 0.4 s of the default walk at 320x180.  Measured: QUASAR 18.49 dB at
-    12.6 Mbit/s, QuadStream 18.38 dB at 35.6 Mbit/s (2.82x QUASAR; the issue asks 3x, the paper reports up to
-    15x at larger view cells), warp 17.81 dB.  QuadStream's own atlas and wide view (the packed atlas with
+    """``cloud`` (50 +- 20 ms each way), 0.4 s of the default walk at 320x180.  Measured: QUASAR 18.48 dB at
+    11.3 Mbit/s, QuadStream 18.38 dB at 35.6 Mbit/s (3.14x QUASAR; the paper reports up to 15x at larger view
+    cells), warp 17.81 dB.  Over 1 s: 20.95 dB at 12.9 Mbit/s against 20.70 at 38.4 (2.97x).  With a second
+    hidden layer (the default until it was measured to carry 84 % false positives) QUASAR sent 12.6 Mbit/s for
+    18.49 dB (2.82x), over 1 s 14.4 Mbit/s for 20.98 dB (2.67x).  QuadStream's own atlas and wide view (the packed atlas with
     24-bit positions, the wide view at 2/3 resolution) took it from 33.3 Mbit/s (2.64x) with the slot atlas.  Over 0.6 s: 19.83 dB at 13.2 Mbit/s, 19.71 dB at 34.7, warp
     19.13.  Wire 1 (interleaved arrays) sent 18.9 and 49.8 Mbit/s over 0.6 s: the byte planes took 1.43x off
     both, so the ratio stayed."""
@@ -233,7 +236,7 @@ def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(renderer) -> No
 
     quasar, qs, warp = go("quads", {}), go("quads", {"variant": "quadstream"}), go("warp", {})
     assert quasar["mean_psnr_db"] >= warp["mean_psnr_db"] + 0.5, (quasar["mean_psnr_db"], warp["mean_psnr_db"])
-    assert qs["mean_kbps"] >= 2.6 * quasar["mean_kbps"], (qs["mean_kbps"], quasar["mean_kbps"])
+    assert qs["mean_kbps"] >= 3.0 * quasar["mean_kbps"], (qs["mean_kbps"], quasar["mean_kbps"])
 
 
 def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(renderer) -> None:  # type: ignore[no-untyped-def]

@@ -46,9 +46,11 @@ class QuadsConfig(MethodConfig):
       ``quadstream`` (a cube view cell sampled by 10 views, the full set every frame);
     - ``view_cell_m``: the view cell's diameter (QUASAR: a sphere; QuadStream: a cube of this side);
     - ``layers``: G-buffer layers in all, the visible one included (QUASAR: at most 4).  The
-      default is 3: on the default view a third hidden layer held 9 of the 6.1k hidden
-      fragments that any eye in a 50 cm view cell sees (and kept 161 fragments to show
-      them), for one more G-buffer, a sixth of the server's frame;
+      default is 2 (one hidden layer): on the default view the second hidden layer keeps
+      1.2k fragments, 84 % of them seen from no eye in a 50 cm view cell, and on the
+      default walk under ``cloud`` it cost 10-11 % of QUASAR's bits for 0.01-0.03 dB (the
+      strafe, railing and latency-spike stress cases alike; see ``docs/methods.md``); a
+      third held 9 of the 6.1k hidden fragments any eye sees;
     - ``wide_fov_deg``: vertical field of view of the wide G-buffer; 0 leaves it out;
     - ``wide_scale``: the wide G-buffer's resolution over the display's; ``None`` takes the
       variant's (QUASAR 1/2: 960x540 for 1080p; QuadStream 2/3: the paper's 1280x720);
@@ -70,7 +72,7 @@ class QuadsConfig(MethodConfig):
 
     variant: Variant = "quasar"
     view_cell_m: float = 0.5
-    layers: int = 3
+    layers: int = 2
     wide_fov_deg: float = 120.0
     wide_scale: float | None = None
     delta_max: float | None = None
