@@ -4,7 +4,7 @@ Evidence, following the QUASAR paper's section 4:
 
 1. table 4's set-up on the default walk: ATW, MeshWarp at 60 and 120 degrees (``warp``
    with ``fov_scale``), QuadStream and QUASAR at several view cells, under ``lan``
-   (20 +- 10 ms) and ``cloud`` (50 +- 20 ms): PSNR, SSIM and Mbit/s per stream;
+   (20 +- 10 ms) and ``cloud`` (50 +- 20 ms): PSNR, SSIM, FLIP and Mbit/s per stream;
 2. rate: QUASAR against QuadStream, residual frames against reference frames only,
    growth with the view cell;
 3. quality and quad count against ``delta_sim``, ``delta_flatten`` and coarse passes on
@@ -32,14 +32,14 @@ STAGES = (*SERVER_STAGES, "pack_ms")
 
 
 def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network: str, dur: float,
-         size: tuple[int, int]) -> dict[str, Any]:
+         size: tuple[int, int], flip_every: int = 0) -> dict[str, Any]:
     from ...sim.runner import RunConfig, run
 
     res = run(RunConfig(method=method, scene="default", trace="walk", network=network, duration_s=dur, width=size[0],
-                        height=size[1], client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
+                        height=size[1], client_fps=30, flip_every=flip_every, seed=0, method_params=params), renderer=renderer)
     s = res.summary
     row = {"label": label, "method": method, "network": network, "psnr_db": float(s["mean_psnr_db"]),
-           "ssim": float(s["mean_ssim"]), "mbps": float(s["mean_kbps"]) / 1e3, "gt_ms": float(s["mean_gt_ms"]),
+           "ssim": float(s["mean_ssim"]), "flip": float(s.get("mean_flip", float("nan"))), "mbps": float(s["mean_kbps"]) / 1e3, "gt_ms": float(s["mean_gt_ms"]),
            "client_ms": float(s["mean_client_ms"]), "quads": _upd_mean(res.updates, "srv_quads"),
            "server_ms": _upd_mean(res.updates, "server_ms"), "holes_pct": float(s.get("mean_hole_pct", float("nan")))}
     for k, v in s.items():
@@ -114,7 +114,8 @@ def run(out_dir: Path, quick: bool) -> Section:
                                                      ("MW120", "warp", {"fov_scale": mw120})]
     setups += [(f"QuadStream {c * 100:.0f} cm", "quads", {"variant": "quadstream", "view_cell_m": c}) for c in cells]
     setups += [(f"QUASAR {c * 100:.0f} cm", "quads", {"view_cell_m": c}) for c in cells]
-    rows = [_run(renderer, lab, m, p, n, dur, size) for n in nets for lab, m, p in setups]
+    # FLIP (the paper's third score) on every third displayed frame
+    rows = [_run(renderer, lab, m, p, n, dur, size, flip_every=3) for n in nets for lab, m, p in setups]
     extra = [_run(renderer, "QUASAR 50 cm, reference frames only", "quads", {"reference_every": 1}, "cloud", dur, size),
              _run(renderer, "QuadStream 50 cm, slot atlas", "quads", {"variant": "quadstream", "atlas": "slots"}, "cloud", dur, size)]
     if quick:
@@ -127,17 +128,20 @@ def run(out_dir: Path, quick: bool) -> Section:
 
     figs = []
     labels = [s[0] for s in setups]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 3.8))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 3.8))
     x = np.arange(len(labels))
     for i, n in enumerate(nets):
         r = [next(rr for rr in rows if rr["label"] == lab and rr["network"] == n) for lab in labels]
         axes[0].bar(x + (i - 0.5) * 0.38, [v["psnr_db"] for v in r], 0.38, label=n)
+        axes[2].bar(x + (i - 0.5) * 0.38, [v["flip"] for v in r], 0.38, label=n)
         axes[1].scatter([v["mbps"] for v in r], [v["psnr_db"] for v in r], label=n, marker="os"[i])
         for v in r:
             axes[1].annotate(v["label"], (v["mbps"], v["psnr_db"]), fontsize=6, xytext=(3, 2), textcoords="offset points")
     axes[0].set_xticks(x, labels, rotation=20, fontsize=7)
     axes[0].set_ylabel("PSNR (dB)")
     axes[0].set_ylim(min(v["psnr_db"] for v in rows) - 2, max(v["psnr_db"] for v in rows) + 1)
+    axes[2].set_xticks(x, labels, rotation=20, fontsize=7)
+    axes[2].set_ylabel("mean FLIP (lower is better)")
     axes[1].set_xscale("log")
     axes[1].xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     axes[1].xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
@@ -187,8 +191,8 @@ def run(out_dir: Path, quick: bool) -> Section:
         f"Quad streaming at {size[0]}x{size[1]}, default scene ({'quick' if quick else 'full'} run, "
         f"{time.perf_counter() - t0:.0f} s).",
         "",
-        "- **Table 4 set-up** (walk, PSNR lan / cloud): " + "; ".join(
-            f"{lab} {get(lab, 'lan'):.2f} / {get(lab, 'cloud'):.2f} dB" for lab in labels) +
+        "- **Table 4 set-up** (walk, PSNR lan / cloud, FLIP under cloud): " + "; ".join(
+            f"{lab} {get(lab, 'lan'):.2f} / {get(lab, 'cloud'):.2f} dB, FLIP {get(lab, 'cloud', 'flip'):.3f}" for lab in labels) +
         ".  The paper orders ATW < MW60 < MW120 < QuadStream ~ QUASAR and has ATW lose ~5 dB from 20 to 50 ms, "
         "MeshWarp 3-4 dB, QUASAR 1-2 dB; here the losses are " + ", ".join(
             f"{lab} {get(lab, 'lan') - get(lab, 'cloud'):.1f} dB" for lab in labels) + ".",
