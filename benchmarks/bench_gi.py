@@ -1,6 +1,6 @@
 """Cost of DDGI global illumination (``splitrender/gi``), as ratios to a ground-truth render without it.
 
-The default scene's probe volume (8 x 4 x 8 probes, 1536 rays each): the one-time capture
+The default scene's probe volume (8 x 4 x 8 probes, 6 x 8^2 = 384 rays each): the one-time capture
 of every probe's cube faces, one update (relighting with two bounces, the irradiance
 and distance reductions, the texture uploads), and a 320x180 render of a walk frame
 with GI on, each as a ratio to the median 320x180 render of the same frame without GI,
