@@ -132,7 +132,10 @@ def boundary_edges(layout_uv: np.ndarray) -> np.ndarray:
 
     Growing such an edge only draws texels outside the block, which the shading stage
     discards: the triangles keep those edges where they are (on the default view the
-    grown triangles covered about 7 times the blocks' texels)."""
+    grown triangles covered about 7 times the blocks' texels).  Nothing inside the block
+    is lost: the grown triangle is the intersection of its edges' half-planes; a point of
+    the block within the growth distance of the triangle lies inside every kept side's
+    half-plane (that side's line bounds the block) and inside every moved one."""
     nxt = np.roll(layout_uv, -1, axis=0)
     side = [(layout_uv[:, c] == nxt[:, c]) & ((layout_uv[:, c] == 0) | (layout_uv[:, c] == 1)) for c in (0, 1)]
     return side[0] | side[1]
