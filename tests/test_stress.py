@@ -18,7 +18,7 @@ the background beside the deterministic tests, see ``conftest.py``), with a stat
 - fine_texture (backing away from the glyph sign): video at most 25% below the floor
   (19% measured);
 - atlas_overflow (sas and tss, an atlas of 1 Mpix at 1080p on the fast turns): tss at
-  19 dB or more on the mean and 13 on its worst frame (21.0 and 15.4 measured: it lowers
+  20 dB or more on the mean and 14.5 on its worst frame (21.0 and 15.4 measured: it lowers
   its rate, then leaves the smallest triangles out; it raised an error before); sas has
   the generic bounds (11.5 dB mean: its allocations fail and what is not placed is a hole);
 - with GI (``probes``; measured with 384 rays per probe, 1536 before in brackets):
@@ -72,7 +72,7 @@ def test_stress_case(suite: dict, case: str) -> None:
     if case == "ball_crossing":
         assert all(r["worst_psnr_db"] > 15.0 for r in rows.values())
     if case == "atlas_overflow":   # measured 21.0 dB mean, 15.4 worst (sas 11.5, 9.0)
-        assert rows["tss"]["mean_psnr_db"] >= 19.0 and rows["tss"]["worst_psnr_db"] >= 13.0, rows["tss"]
+        assert rows["tss"]["mean_psnr_db"] >= 20.0 and rows["tss"]["worst_psnr_db"] >= 14.5, rows["tss"]
     if case == "gi_light_change":   # the client relights its own scene: 49.0 dB mean (light_change: atw 22.7)
         assert rows["probes"]["mean_psnr_db"] >= 45.0, rows["probes"]
     if case == "gi_lossy_visibility":   # the ablation's light leak shows on every frame (17.2 dB measured)

@@ -26,10 +26,11 @@ class SasConfig(MethodConfig):
     until each edge, seen from this distance (metres), fits the largest block
     (``superblock_px`` texels at ``texels_per_px``); the paper's "tessellation of overly
     large triangles" (section 6.4).  0 disables it.  ``split_max_triangles`` caps the
-    split scene (the edge bound grows until it fits).  ``clip_to_blocks``: the shading
-    stage grows each triangle (so every texel a client's tap reads is shaded) only across
-    its edges inside the block, not across those on the block's sides, whose texels would
-    be discarded (the same texels; off only to measure it).
+    split scene (the edge bound grows until it fits).  ``grow_block_sides``: the shading
+    stage grows each triangle (so every texel a client's tap reads is shaded) across its
+    edges inside the block; with this set also across those on the block's sides, whose
+    texels outside are discarded (the same texels, drawn at about twice the cost; on only
+    to measure that).
     """
 
     gop: int = 5
@@ -49,7 +50,7 @@ class SasConfig(MethodConfig):
     pvs_linger_frames: int = 8
     split_near_m: float = 2.0
     split_max_triangles: int = 200_000
-    clip_to_blocks: bool = True
+    grow_block_sides: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()

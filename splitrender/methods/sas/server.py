@@ -373,9 +373,8 @@ class SasServer(ServerHalf):
                 if tri[0] < 0:
                     continue
                 p2 = xy[:, tri]                                        # (n, 3, 2)
-                grow = np.where(boundary_edges(SLOT_LAYOUT[k][tri]), 0.0, EXPAND_TEXELS) if self.config.clip_to_blocks \
-                    else EXPAND_TEXELS
-                w = expand_triangles(p2, grow)                         # (n, 3, 3)
+                sides = boundary_edges(SLOT_LAYOUT[k][tri]) & (not self.config.grow_block_sides)
+                w = expand_triangles(p2, np.where(sides, 0.0, EXPAND_TEXELS))   # (n, 3, 3)
                 q = np.einsum("nkj,njc->nkc", w, p2)
                 pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[sid][:, tri].astype(np.float64))
                 nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[sid][:, tri].astype(np.float64))

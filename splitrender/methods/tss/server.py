@@ -379,7 +379,7 @@ class TssServer(ServerHalf):
                 kind, level, w1, w2, h, a = (x[kept] for x in (kind, level, w1, w2, h, a))
                 plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=True, grid=c.os_grid)
                 log.warning("tss: %d triangles do not fit the %dx%d atlas even as one texel each: %d left out",
-                            kept.size + (order.size - lo), W, H, order.size - lo)
+                            order.size, W, H, order.size - lo)
             else:
                 log.warning("tss: %d triangles do not fit the %dx%d atlas at any rate; one texel each", ids.size, W, H)
         self._prev_kind[:] = -1
