@@ -478,22 +478,28 @@ def test_tss_beats_atw_under_cloud_on_the_default_walk(renderer) -> None:  # typ
     assert tss >= atw + 6.0, (tss, atw)
 
 
+def _small_atlas_frame(renderer, mpix_1080p: float):  # type: ignore[no-untyped-def]
+    """One default walk frame with an atlas of ``mpix_1080p``: the server, its stats, and the PSNR of what the
+    client draws from it at the server's pose."""
+    from splitrender.methods import DecodedUpdate
+    from splitrender.metrics.image import psnr
+
+    srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"atlas_mpix_1080p": mpix_1080p})
+    upd = srv.produce(ctx)
+    cli = _client(renderer, srv, spec, cfg)
+    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
+    truth = renderer.render(scene, ctx.t_s, pose, INTR).color
+    return srv, srv.stats(), psnr(cli.render(pose, ctx.t_s).color, truth)
+
+
 def test_a_visible_set_larger_than_the_atlas_lowers_the_rate_and_still_fits(renderer) -> None:  # type: ignore[no-untyped-def]
     """With an atlas a tenth of the default (2.4 MPix at 1080p, 352x176 here) the frame's sampling rate drops
     until the set fits (measured: rate 0.269, 22.37 dB against 29.72 dB with the full atlas; 0.195 when the
     default slantedness threshold was 4 and more triangles were oversampled); what was planned is shaded, the
     client draws it."""
-    from splitrender.methods import DecodedUpdate
-    from splitrender.metrics.image import psnr
-
-    srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"atlas_mpix_1080p": 2.4})
-    upd = srv.produce(ctx)
-    st = srv.stats()
+    srv, st, shown = _small_atlas_frame(renderer, 2.4)
     assert 0.22 < st["rate"] < 0.32 and st["shaded"] == st["samples"] and not srv.last_plan.overflow, st
-    cli = _client(renderer, srv, spec, cfg)
-    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
-    truth = renderer.render(scene, ctx.t_s, pose, INTR).color
-    assert psnr(cli.render(pose, ctx.t_s).color, truth) > 21.5
+    assert shown > 21.5
 
 
 def test_a_visible_set_past_one_texel_each_leaves_the_smallest_triangles_out(renderer) -> None:  # type: ignore[no-untyped-def]
@@ -501,15 +507,9 @@ def test_a_visible_set_past_one_texel_each_leaves_the_smallest_triangles_out(ren
     server raised an error (the session ended).  Now the triangles needing the most samples are kept, as many as
     fit, the rest are left out and counted, and the client draws what was sent (measured: 2048 kept, 4311 left
     out, 15.09 dB against 29.72 with the full atlas; a black frame scores 4.3 dB, the image's mean colour 11.8)."""
-    from splitrender.methods import DecodedUpdate
-    from splitrender.metrics.image import psnr
+    from splitrender.methods.tss.layout import KIND_SINGLE
 
-    srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"atlas_mpix_1080p": 0.05})
-    upd = srv.produce(ctx)
-    st = srv.stats()
+    srv, st, shown = _small_atlas_frame(renderer, 0.05)
     assert 4000 < st["tris_left_out"] < 4600 and st["shaded"] == st["samples"] == st["pvs_triangles"], st
-    assert (srv.last_plan.kind == 0).all() and not srv.last_plan.overflow
-    cli = _client(renderer, srv, spec, cfg)
-    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
-    truth = renderer.render(scene, ctx.t_s, pose, INTR).color
-    assert psnr(cli.render(pose, ctx.t_s).color, truth) > 14.5
+    assert (srv.last_plan.kind == KIND_SINGLE).all() and not srv.last_plan.overflow
+    assert shown > 14.5
