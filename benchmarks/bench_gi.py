@@ -33,7 +33,7 @@ REPEATS = 7
 def main() -> None:
     r = Renderer()
     intr = CameraIntrinsics(320, 180, 60.0)
-    plain, lit = get_scene("default"), get_scene("default+gi")
+    plain, lit = get_scene("default+nogi"), get_scene("default")
     pose = get_trace("walk", scene=plain).pose_at(1.0)
 
     def timed(fn) -> float:  # type: ignore[no-untyped-def]

@@ -43,7 +43,7 @@ def test_run_uses_the_config_file_and_only_given_options_override_it(tmp_path, c
 def test_run_accepts_a_network_toml_file(tmp_path):
     net = tmp_path / "net.toml"
     net.write_text("[downlink]\ndelay_ms = 40.0\n")
-    assert main(["run", "--network", str(net), "--width", "64", "--height", "36", "--duration", "0.4",
+    assert main(["run", "--network", str(net), "--scene", "default+nogi", "--width", "64", "--height", "36", "--duration", "0.4",
                  "--flip-every", "0", "--out", str(tmp_path / "o")]) == 0
     assert float(_summary(tmp_path / "o")["mean_update_age_ms"]) > 40
 

@@ -52,12 +52,12 @@ def _coded(srv, upd, encoders=None, decoders=None):  # type: ignore[no-untyped-d
 def test_decoded_probes_equal_the_sent_ones_bit_for_bit(renderer) -> None:  # type: ignore[no-untyped-def]
     """Through the lossless streams, the client's probe copy holds exactly what the server selected: the 10-bit
     colour codes' irradiance and the float16 distance moments, bit for bit (an I-frame, then P-frames with the
-    next probe updates).  On ``default+gi`` the moving objects change what the probes see, so the second update
-    carries visibility too (moving geometry forces visibility updates); on ``default+gi+still`` the sun dimming
+    next probe updates).  On ``default`` the moving objects change what the probes see, so the second update
+    carries visibility too (moving geometry forces visibility updates); on ``default+still`` the sun dimming
     changes only colour."""
     from splitrender.gi.stream import decode_irradiance
 
-    for scene, times, vis_later in (("default+gi", (0.5, 0.6), 1.0), ("default+gi+still", (4.3, 4.4), 0.0)):
+    for scene, times, vis_later in (("default", (0.5, 0.6), 1.0), ("default+still", (4.3, 4.4), 0.0)):
         srv, spec, cfg, _, pose, ctx = _server(renderer, scene)
         cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
         enc = dec = None
@@ -102,12 +102,12 @@ def test_a_still_scene_sends_no_probe_after_the_first_update_and_scores_near_the
 
 @pytest.mark.slow
 def test_probes_beats_atw_under_cloud_on_the_default_walk(renderer, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """``default+gi``, the walk, ``cloud`` (50 +- 20 ms each way), 0.3 s at 160x90: the client draws the scene at its
+    """``default``, the walk, ``cloud`` (50 +- 20 ms each way), 0.3 s at 160x90: the client draws the scene at its
     true pose (with the moving objects and the indirect light of its newest update), where ``atw`` shows an old
     image turned.  Measured: probes 24.11 dB, atw 13.21 (23.78 with 6 x 16^2 rays per probe; both means count the frames before the first update)."""
     cache = str(tmp_path / "truth")      # one ground truth for both runs
-    probes = _run("probes", "default+gi", "walk", "cloud", 0.3, (160, 90), renderer, truth_cache=cache).summary["mean_psnr_db"]
-    atw = _run("atw", "default+gi", "walk", "cloud", 0.3, (160, 90), renderer, truth_cache=cache).summary["mean_psnr_db"]
+    probes = _run("probes", "default", "walk", "cloud", 0.3, (160, 90), renderer, truth_cache=cache).summary["mean_psnr_db"]
+    atw = _run("atw", "default", "walk", "cloud", 0.3, (160, 90), renderer, truth_cache=cache).summary["mean_psnr_db"]
     assert probes >= atw + 8.0, (probes, atw)
 
 
@@ -191,20 +191,23 @@ def test_probes_needs_a_scene_with_gi_and_sane_settings(renderer) -> None:  # ty
     from splitrender.errors import ConfigError
     from splitrender.methods import get_method, make_config
 
-    with pytest.raises(ConfigError, match=r"probes: scene 'minimal' has no global illumination to stream; use a '\+gi' scene"):
+    with pytest.raises(ConfigError, match=r"probes: scene 'minimal' has no global illumination to stream; use a scene "
+                                          r"with GI \(the default scene, or e.g. --scene minimal\+gi\)"):
         _server(renderer, "minimal")
+    with pytest.raises(ConfigError, match=r"scene 'default\+nogi' has no global illumination"):
+        _server(renderer, "default+nogi")
     for params, msg in (({"gi_hz": 0.0}, "gi_hz"), ({"pvs": "cone"}, "pvs"), ({"pvs_res": 4}, "pvs_res")):
         with pytest.raises(ConfigError, match=msg):
             make_config(get_method("probes").config, params)
 
 
 def test_rate_study_counts_what_each_update_carries(renderer) -> None:  # type: ignore[no-untyped-def]
-    """The report's rate evidence (``studies.probes._rate_run``) on ``default+gi+still``: the first update is an
+    """The report's rate evidence (``studies.probes._rate_run``) on ``default+still``: the first update is an
     I-frame with colour and visibility, a still tick sends nothing at all, the sun dimming sends colour only (its
     uncompressed size is the sent probes' colour texels), and a keyframe request resends every selected probe."""
     from splitrender.experiments.studies.probes import COLOR_BITS_PER_PROBE, VIS_BITS_PER_PROBE, _rate_run, _segment_table
 
-    rows = _rate_run(renderer, "default+gi+still", np.array([3.8, 3.9, 4.3]), keyframe_at_end=True)
+    rows = _rate_run(renderer, "default+still", np.array([3.8, 3.9, 4.3]), keyframe_at_end=True)
     first, still, light, kf = rows
     assert [r["segment"] for r in rows] == ["first update", "still", "light change", "keyframe request"]
     assert first["iframe"] and first["vis_bits"] > 0 and first["raw_bits"] == first["sent"] * (COLOR_BITS_PER_PROBE + VIS_BITS_PER_PROBE)

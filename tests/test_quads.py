@@ -61,7 +61,7 @@ def _gbuffer(renderer, t: float = 0.5, trace: str = "walk"):  # type: ignore[no-
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
-    scene = get_scene("default")
+    scene = get_scene("default+nogi")
     pose = get_trace(trace, scene=scene).pose_at(t)
     return scene, pose, renderer.render(scene, t, pose, INTR, ("color", "depth", "normal"))
 
@@ -94,7 +94,7 @@ def _frame(renderer, params: dict, t: float = 0.5, frame_id: int = 0, srv=None, 
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
-    scene = get_scene("default")
+    scene = get_scene("default+nogi")
     spec = get_method("quads")
     cfg = make_config(spec.config, {"lossless": True, **params})
     pose = pose or get_trace("walk", scene=scene).pose_at(t)
@@ -167,7 +167,7 @@ def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(ren
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
-    tr = get_trace("walk", scene=get_scene("default"))
+    tr = get_trace("walk", scene=get_scene("default+nogi"))
     srv = cli = None
     sizes, kinds = [], []
     for f in range(6):
@@ -231,7 +231,7 @@ def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(renderer) -> No
     from splitrender.sim.runner import RunConfig, run
 
     def go(method: str, params: dict) -> dict:
-        return run(RunConfig(method=method, scene="default", trace="walk", network="cloud", duration_s=0.4, width=320,
+        return run(RunConfig(method=method, scene="default+nogi", trace="walk", network="cloud", duration_s=0.4, width=320,
                              height=180, client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer).summary
 
     quasar, qs, warp = go("quads", {}), go("quads", {"variant": "quadstream"}), go("warp", {})

@@ -24,7 +24,7 @@ INTR = CameraIntrinsics(320, 180)
 
 # ---------------------------------------------------------------- patches
 def test_patches_partition_triangles_and_prefer_pairs() -> None:
-    scene = default_scene()
+    scene = default_scene(gi=False)
     sp = build_scene_patches(scene)
     assert sp.tri_to_patch.shape == (scene.triangle_count,)
     counts = np.bincount(sp.tri_to_patch, minlength=sp.count)
@@ -165,7 +165,7 @@ def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0, on_frame=N
     from splitrender.scene.trace import get_trace
 
     r = Renderer()
-    scene = scene or default_scene()
+    scene = scene or default_scene(gi=False)
     trace = get_trace("walk")
     cfg = SasConfig(**cfg_kw)
     srv = SasServer(cfg, INTR, scene, 30)
@@ -214,7 +214,7 @@ def test_moving_object_is_drawn_where_the_ground_truth_has_it() -> None:
     """
     from dataclasses import replace
 
-    scene = default_scene()
+    scene = default_scene(gi=False)
     ball = next(o for o in scene.objects if o.name == "ball")
     ball.material = replace(ball.material, base_color=(0.05, 0.9, 0.05), texture=None)
     out, _ = _loopback(10, {"lossless": True}, scene=scene, t0=1.3)
@@ -388,7 +388,7 @@ def test_linear_prediction_covers_99_percent_on_walk() -> None:
     from splitrender.scene.trace import get_trace
 
     r = Renderer()
-    scene = default_scene()
+    scene = default_scene(gi=False)
     trace = get_trace("walk")
     lat = _cloud_latency_s()
     servers = {"none": SasServer(SasConfig(pvs_prediction="none", fov_margin=0.0), INTR, scene, 30),
@@ -430,7 +430,7 @@ def test_pvs_holds_a_moving_object_that_enters_the_view_within_the_window() -> N
     from splitrender.scene.pose import Pose, look_at_quat
 
     r = Renderer()
-    scene = default_scene()
+    scene = default_scene(gi=False)
     srv = SasServer(SasConfig(fov_margin=0.0), INTR, scene, 30)
     ids = PatchIdPass(r, scene, srv.patches)
     ball = next(k for k, o in enumerate(scene.objects) if o.name == "ball")
@@ -460,7 +460,7 @@ def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud_on_strafe() -> None:
     psnr, holes = {}, {}
     runs = {"sas": ("sas", {}), "atw": ("atw", {}), "sas_no_pvs_prediction": ("sas", {"pvs_prediction": "none", "fov_margin": 0.0})}
     for name, (m, params) in runs.items():
-        res = run(RunConfig(method=m, trace="strafe", network="cloud", duration_s=1.0, width=320, height=180,
+        res = run(RunConfig(method=m, scene="default+nogi", trace="strafe", network="cloud", duration_s=1.0, width=320, height=180,
                             client_fps=30, flip_every=0, seed=0, method_params=params), renderer=r)
         shown = [f for f in res.frames if f["update_frame_id"] >= 0]  # the start-up ticks (black) are no PVS miss
         psnr[name] = float(np.mean([f["psnr_db"] for f in shown]))

@@ -71,7 +71,7 @@ def _still(renderer, scene: str, method: str, params: dict | None = None) -> flo
 # patches seen in perspective: BoxTextured 40.23 / 40.72, minimal 30.46 / 42.07, default 30.67 / 32.16.  The
 # rest of the gap on ``minimal`` is resampling at one texel per pixel (a texture filtered into the atlas, the
 # atlas filtered onto the screen): see the next test.
-STILL = [(BOX_TEXTURED, 40.0, 0.8), ("minimal", 30.2, 11.9), ("default", 30.4, 1.8)]
+STILL = [(BOX_TEXTURED, 40.0, 0.8), ("minimal", 30.2, 11.9), ("default+nogi", 30.4, 1.8)]
 
 
 @pytest.mark.parametrize("scene,least_db,max_gap_db", STILL, ids=["BoxTextured", "minimal", "default"])
@@ -149,7 +149,7 @@ def test_moving_object_is_drawn_at_the_display_time() -> None:
     from splitrender.scene.trace import get_trace
 
     r = Renderer()
-    scene = default_scene()
+    scene = default_scene(gi=False)
     ball = next(o for o in scene.objects if o.name == "ball")
     ball.material = replace(ball.material, base_color=(0.05, 0.9, 0.05), texture=None)
     trace = get_trace("walk")
@@ -224,7 +224,7 @@ def test_gpu_visibility_counts_equal_the_read_back_counts_on_walk() -> None:
     from splitrender.scene.trace import get_trace
 
     r = Renderer()
-    scene = default_scene()
+    scene = default_scene(gi=False)
     trace = get_trace("walk")
     srv = SasServer(SasConfig(), INTR, scene, 30)
     ids = PatchIdPass(r, scene, srv.patches)
@@ -257,7 +257,7 @@ def test_objects_culled_all_at_once_draw_what_a_test_per_object_draws() -> None:
     from splitrender.scene.procedural import default_scene
     from splitrender.scene.trace import get_trace
 
-    scene = default_scene()
+    scene = default_scene(gi=False)
     assert any(o.animation is not None for o in scene.objects) and any(o.animation is None for o in scene.objects)
     srv = SasServer(SasConfig(), INTR, scene, 30)
     ids = PatchIdPass(Renderer(), scene, srv.patches)

@@ -181,15 +181,38 @@ def test_shift_time_runs_the_scene_clock_ahead():
 
 
 def test_still_option_stops_the_moving_objects_where_they_start_and_keeps_the_lights() -> None:
-    """``default+gi+still`` (options in either order): every moving object holds its t = 0 place, the lights keep
+    """``+gi+still`` (options in either order): every moving object holds its t = 0 place, the lights keep
     their schedules (the sun still dims between 4 and 5 s), and GI stays on."""
     from splitrender.scene.loader import get_scene
 
-    moving, still = get_scene("default"), get_scene("default+gi+still")
-    assert still.name == "default+gi+still" and still.gi == "ddgi" and not still.dynamic_ids()
-    assert get_scene("default+still+gi").gi == "ddgi" and not get_scene("default+still+gi").dynamic_ids()
+    moving, still = get_scene("default"), get_scene("minimal+gi+still")
+    assert still.name == "minimal+gi+still" and still.gi == "ddgi" and not still.dynamic_ids()
+    assert get_scene("minimal+still+gi").gi == "ddgi" and not get_scene("minimal+still+gi").dynamic_ids()
+    still = get_scene("default+still")
+    assert still.gi == "ddgi" and not still.dynamic_ids()
     for a, b in zip(moving.objects, still.objects):
         assert np.allclose(a.model_matrix(0.0), b.model_matrix(3.0)), a.name
     ball = next(o for o in moving.objects if o.name == "ball")
     assert not np.allclose(ball.model_matrix(0.0), ball.model_matrix(1.0))
     assert still.sun is not None and still.sun.intensity.value(5.0) < still.sun.intensity.value(3.9)
+
+
+def test_the_default_scene_has_global_illumination_unless_nogi_is_given() -> None:
+    """Issue 11: DDGI is on by default for the default scene (and off for the others unless ``+gi``); ``+nogi`` turns
+    it off, the last of ``+gi``/``+nogi`` wins, and :func:`scene_has_gi` tells from the name alone what
+    :func:`get_scene` builds, which decides where ``probes`` runs."""
+    from splitrender.methods import methods_for_scene
+    from splitrender.scene.loader import get_scene, scene_has_gi
+    from splitrender.scene.procedural import BUILTIN_GI, BUILTIN_SCENES
+
+    assert BUILTIN_GI == {n for n, make in BUILTIN_SCENES.items() if make().gi == "ddgi"} == {"default"}
+    cases = {"default": "ddgi", "default+nogi": "none", "default+nogi+still": "none", "default+still": "ddgi",
+             "default+nogi+gi": "ddgi", "default+gi+nogi": "none", "default_phong": "none", "minimal": "none",
+             "minimal+gi": "ddgi", "shed+gi": "ddgi", str(ASSIMP / "PLY/Wuson.ply"): "none",
+             str(ASSIMP / "PLY/Wuson.ply") + "+gi": "ddgi"}
+    for name, gi in cases.items():
+        assert get_scene(name).gi == gi, name
+        assert scene_has_gi(name) == (gi == "ddgi"), name
+    assert get_scene("default+nogi").name == "default+nogi"
+    assert "probes" in methods_for_scene("default") and "probes" not in methods_for_scene("default+nogi")
+    assert "probes" not in methods_for_scene("minimal") and "probes" in methods_for_scene("minimal+gi")

@@ -38,7 +38,7 @@ import math
 
 import pytest
 
-from splitrender.experiments.stress import CASES, QUICK, get_case, recovery_time_s
+from splitrender.experiments.stress import CASES, QUICK, STRESS_SCENE, get_case, recovery_time_s
 
 pytestmark = pytest.mark.slow
 
@@ -63,7 +63,7 @@ def test_stress_case(suite: dict, case: str) -> None:
         assert r["frames_shown"] >= 0.6 * r["display_ticks"], f"{case}/{m}: only {r['frames_shown']} of {r['display_ticks']} shown"
         assert r["longest_stale_ms"] < 1000.0, f"{case}/{m}: an update {r['longest_stale_ms']:.0f} ms old was shown"
         assert r["worst_psnr_db"] > 5.0, f"{case}/{m}: worst frame {r['worst_psnr_db']:.1f} dB (blank?)"
-    for m in [b for b in ("video", "atw") if b in rows] if c.scene == "default" else ():
+    for m in [b for b in ("video", "atw") if b in rows] if c.scene == STRESS_SCENE else ():
         assert rows[m]["below_floor_pct"] <= c.baseline_floor_pct, f"{case}/{m}: {rows[m]['below_floor_pct']:.1f}% below floor"
     if case == "fast_turn":
         assert rows["atw"]["below_floor_pct"] < rows["video"]["below_floor_pct"]

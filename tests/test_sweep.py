@@ -14,6 +14,7 @@ from splitrender.experiments.sweep import load_sweep, parse_sweep, run_sweep
 TINY = """
 [sweep]
 name = "tiny"
+scenes = ["default+nogi"]
 networks = ["ideal", "cloud"]
 [base]
 width = 128
@@ -65,10 +66,13 @@ def test_no_methods_table_means_all_available() -> None:
     """Every method that runs on the sweep's scenes: ``probes`` only where every scene has global illumination."""
     from splitrender.methods import available_methods
 
-    cfgs = _parse("[base]\nwidth = 64\nheight = 64\n")
-    assert [c.method for c in cfgs] == [m for m in available_methods() if m != "probes"]
-    cfgs = _parse("[sweep]\nscenes = [\"minimal+gi\"]\n[base]\nwidth = 64\nheight = 64\n")
+    cfgs = _parse("[base]\nwidth = 64\nheight = 64\n")          # the default scene, which has GI
     assert [c.method for c in cfgs] == available_methods() and "probes" in available_methods()
+    cfgs = _parse("[sweep]\nscenes = [\"minimal+gi\"]\n[base]\nwidth = 64\nheight = 64\n")
+    assert [c.method for c in cfgs] == available_methods()
+    for scenes in ('["default+nogi"]', '["default", "minimal"]'):
+        cfgs = _parse(f"[sweep]\nscenes = {scenes}\n[base]\nwidth = 64\nheight = 64\n")
+        assert list(dict.fromkeys(c.method for c in cfgs)) == [m for m in available_methods() if m != "probes"], scenes
 
 
 def test_scalar_param_is_fixed_and_duplicates_collapse() -> None:

@@ -28,8 +28,8 @@ def _same(a, b):
 
 
 def test_second_run_reuses_every_ground_truth_frame_with_identical_scores(tmp_path, renderer):
-    cfg = RunConfig(method="atw", trace="walk", network="lan", duration_s=0.5, width=160, height=90, flip_every=3,
-                    truth_cache=str(tmp_path / "gt"))
+    cfg = RunConfig(method="atw", scene="default+nogi", trace="walk", network="lan", duration_s=0.5, width=160, height=90,
+                    flip_every=3, truth_cache=str(tmp_path / "gt"))
     first = VirtualTimeRun(cfg, renderer)
     a = first.run()
     n = len(a.frames)
@@ -64,7 +64,9 @@ def test_changing_any_key_part_misses(tmp_path, renderer):
     moved.objects[1].transform = moved.objects[1].transform.copy()
     moved.objects[1].transform[0, 3] += 1e-6                   # a micrometre
     sky = dataclasses.replace(get_scene("minimal"), sky_color=(0.55, 0.7, 0.91))
-    assert len({scene_digest(s) for s in (scene, edited, moved, sky)}) == 4
+    lit = get_scene("minimal+gi")                                 # global illumination changes every pixel
+    assert len({scene_digest(s) for s in (scene, edited, moved, sky, lit)}) == 5
+    assert scene_digest(get_scene("default")) != scene_digest(get_scene("default+nogi"))
     assert scene_digest(get_scene("minimal")) == base.scene        # the same content hashes the same
     other_gl = renderer_version({"GL_RENDERER": "some GPU", "GL_VERSION": "4.6"})
     variants = [

@@ -32,7 +32,7 @@ START = Pose(np.array([0.0, 1.6, 2.5]))
 
 @pytest.fixture(scope="module")
 def scene():  # type: ignore[no-untyped-def]
-    return default_scene()
+    return default_scene(gi=False)
 
 
 def context(scene: Any, renderer: Any, pose: Pose, t_s: float = 0.0, frame_id: int = 0) -> ServerContext:
@@ -113,7 +113,7 @@ def test_mesh_covers_the_border_at_fov_scale_1(renderer: Any) -> None:
 
     db = {}
     for rec in ("mesh", "points"):
-        res = run(RunConfig(method="warp", trace="static", network="ideal", duration_s=0.5, width=320, height=180,
+        res = run(RunConfig(method="warp", scene="default+nogi", trace="static", network="ideal", duration_s=0.5, width=320, height=180,
                             client_fps=30, flip_every=0, seed=0, save_images_every=3,
                             method_params={"reconstruction": rec, "fov_scale": 1.0}), renderer=renderer)
         db[rec] = res.summary["mean_psnr_db"]
@@ -125,7 +125,7 @@ def test_mesh_covers_the_border_at_fov_scale_1(renderer: Any) -> None:
             black = int((border.max(axis=-1) == 0).sum())
             assert black == 0, f"{rec}: {black} black border pixels in frame {frame}"
     assert db["mesh"] >= db["points"] - 0.5, f"mesh {db['mesh']:.2f} dB vs points {db['points']:.2f} dB"
-    _, cli = warp_pair(default_scene(), renderer, reconstruction="mesh", fov_scale=1.0)
+    _, cli = warp_pair(default_scene(gi=False), renderer, reconstruction="mesh", fov_scale=1.0)
     holes = cli.render(START, 0.0).holes
     edge = np.concatenate([holes[0], holes[-1], holes[:, 0], holes[:, -1]])
     assert not edge.any(), f"{int(edge.sum())} border holes at the reference pose"

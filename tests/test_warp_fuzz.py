@@ -30,7 +30,7 @@ WIRE_DTYPES = ("u1", "i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8", "<f2", "<f4
 @pytest.fixture(scope="module", params=["lossless", "bc4"])
 def fuzz_pair(request: Any, renderer: Any) -> tuple[WarpClient, DecodedUpdate]:
     """A two-view client and one good update (raw planes, metadata through the wire codec)."""
-    scene = default_scene()
+    scene = default_scene(gi=False)
     cfg = WarpConfig(views=2, depth_coding=request.param, reconstruction="mesh")
     srv = WarpServer(cfg, INTR, scene, 30)
     ctx = ServerContext(0, T_REF, scene, renderer, INTR, START, T_REF, START, T_REF, lambda t: START, 0.0)

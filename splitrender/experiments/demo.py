@@ -74,8 +74,7 @@ def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Se
         if m not in all_methods:
             raise ConfigError(f"demo --methods: unknown method {m!r}; available: {', '.join(all_methods)}")
         if m not in methods_for_scene("default"):
-            raise ConfigError(f"demo --methods: {m} streams global illumination, which the demo's default scene does not "
-                              f"have; run it with 'splitrender run --method {m} --scene default+gi'")
+            raise ConfigError(f"demo --methods: {m} cannot run on the demo's scene")
     if not networks:
         raise ConfigError("demo --networks: no network given")
     w, h = size or (p["width"], p["height"])

@@ -35,12 +35,15 @@ With global illumination (``probes`` only; the baselines' behaviour under a ligh
                    selected probe as an I-frame
 ``gi_fast_moves``  the ``strafe`` trace for ``probes``: steps at up to 2 m/s bring probes
                    into the 360-degree view that were never sent
-``gi_moving_geometry`` ``ball_crossing`` on ``default+gi`` for ``probes``: the moving objects
+``gi_moving_geometry`` ``ball_crossing`` on ``default`` for ``probes``: the moving objects
                    change what the probes see, so visibility pictures go too
 ``gi_lossy_visibility`` the ablation: ``probes`` with ``vis_lossy`` inside the closed
                    ``shed+gi``, where damaged visibility lets light leak through the walls
 
-The first three run on ``default+gi+still`` (nothing moves but the camera and the light).
+The first three run on ``default+still`` (nothing moves but the camera and the light).
+The cases above them run on :data:`STRESS_SCENE`, the default scene without its global
+illumination: each isolates one disturbance of the network, the motion or the content,
+and the GI cases are where the bounce light is the subject.
 
 Per method x case it reports the worst-frame PSNR, the share of frames below
 :data:`FLOOR_DB`, the time to recover after the disturbance window (first time after
@@ -72,6 +75,8 @@ log = logging.getLogger(__name__)
 FLOOR_DB = 20.0
 SUN_DIMS_AT_S = 4.0
 """Scene time at which the default scene's sun starts dimming (``scene/procedural.py``)."""
+STRESS_SCENE = "default+nogi"
+"""The scene of every case but the GI ones: the default scene without global illumination (see the module text)."""
 RECOVER_WITHIN_DB = 1.0
 RECOVER_HOLD_S = 0.5
 STARTUP_S = 0.2
@@ -113,7 +118,7 @@ class StressCase:
     windowed: bool
     baseline_floor_pct: float
     note: str = ""
-    scene: str = "default"
+    scene: str = STRESS_SCENE
     methods: tuple[str, ...] = ()
     """Only these methods run the case (empty: every method that runs on ``scene``)."""
 
@@ -247,17 +252,17 @@ CASES: tuple[StressCase, ...] = (
     # global illumination, for probes: nothing moves but what the case is about
     StressCase("gi_light_change", "with GI: the sun dims over 1 s from the window's start, every probe changes, lan",
                lambda d, tm: {"trace": "walk", "network": "lan", "scene_time_offset_s": SUN_DIMS_AT_S - tm.t0_s}, False, 100.0,
-               "a volume-wide light change: every active probe's colour is sent at each update", scene="default+gi+still",
+               "a volume-wide light change: every active probe's colour is sent at each update", scene="default+still",
                methods=("probes",)),
     StressCase("gi_loss", "with GI: Gilbert-Elliott loss 3% 30% with 20 ms delay (lost probe updates resend every selected "
                "probe as an I-frame)", lambda d, tm: {"trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0,
-               scene="default+gi+still", methods=("probes",)),
+               scene="default+still", methods=("probes",)),
     StressCase("gi_fast_moves", "with GI: sideways steps at up to 2 m/s into places whose probes were not yet sent, lan",
-               lambda d, tm: {"trace": "strafe", "network": "lan"}, False, 100.0, scene="default+gi+still", methods=("probes",)),
+               lambda d, tm: {"trace": "strafe", "network": "lan"}, False, 100.0, scene="default+still", methods=("probes",)),
     StressCase("gi_moving_geometry", "with GI: static camera, the ball crosses at 2.5 m/s and moves the probes' visibility, lan",
                lambda d, tm: {"trace": _save_trace(ball_trace(tm.duration_s), d / "ball_crossing.csv"), "network": "lan"},
                False, 100.0, "the moving objects are redrawn into the probes' views at each update: visibility pictures go",
-               scene="default+gi", methods=("probes",)),
+               scene="default", methods=("probes",)),
     StressCase("gi_lossy_visibility", "ablation: probes with its visibility picture lossy (vis_lossy), inside the closed "
                "shed on a sunlit floor, lan", lambda d, tm: {"trace": _save_trace(shed_trace(tm.duration_s), d / "inside_shed.csv"),
                                                              "network": "lan", "method_params": {"vis_lossy": True}},
@@ -432,7 +437,7 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
     out.mkdir(parents=True, exist_ok=True)
     tm = timing or (QUICK if quick else FULL)
     limit = timeout_s or (120.0 if quick else 900.0)
-    methods = list(methods) if methods else methods_for_scene("default+gi")
+    methods = list(methods) if methods else methods_for_scene("default")
     sel = [get_case(c) for c in cases] if cases else list(CASES)
     jobs = [_Job(c, m, case_config(c, m, tm, out / "inputs")) for c in sel for m in methods if c.runs(m)]
     methods = [m for m in methods if any(j.method == m for j in jobs)]

@@ -338,7 +338,8 @@ class MethodSpec:
     description: str = ""
     producer: Any = None
     needs_gi: bool = False
-    """The method streams the scene's global illumination: it runs only on scenes with ``gi = "ddgi"`` (``+gi``)."""
+    """The method streams the scene's global illumination: it runs only on scenes with ``gi = "ddgi"`` (``default``,
+    or any scene with ``+gi``)."""
 
     @property
     def server_class(self) -> type[ServerHalf]:
@@ -387,9 +388,12 @@ def available_methods() -> list[str]:
 
 
 def methods_for_scene(scene: str) -> list[str]:
-    """The registered methods that can run on scene ``scene`` (a name or path; a ``+gi`` suffix turns GI on):
-    what demos, sweeps, the stress suite and the server offer when no method is named."""
-    gi = "gi" in scene.split("+")[1:]
+    """The registered methods that can run on scene ``scene`` (a name or path; whether it has GI is read from the name,
+    :func:`~splitrender.scene.loader.scene_has_gi`): what demos, sweeps, the stress suite and the server offer when no
+    method is named."""
+    from ..scene.loader import scene_has_gi
+
+    gi = scene_has_gi(scene)
     return [m for m in available_methods() if gi or not _REGISTRY[m].needs_gi]
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import SceneError
 from .model import MAX_POINT_LIGHTS, DirectionalLight, Material, Mesh, PointLight, Scene, SceneObject, Schedule
-from .procedural import BUILTIN_SCENES
+from .procedural import BUILTIN_GI, BUILTIN_SCENES
 
 log = logging.getLogger(__name__)
 
@@ -347,7 +347,9 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
 GROUND_OPTION = "+ground"
 """Suffix of a scene file path that adds the ground plane: ``model.glb+ground``."""
 GI_OPTION = "+gi"
-"""Suffix of any scene that turns on DDGI global illumination: ``default+gi``."""
+"""Suffix of any scene that turns on DDGI global illumination: ``minimal+gi``, ``model.glb+gi``."""
+NOGI_OPTION = "+nogi"
+"""Suffix of any scene that turns global illumination off: ``default+nogi`` (the default scene has GI)."""
 STILL_OPTION = "+still"
 """Suffix of any scene that stops its moving objects where they are at t = 0 (the lights keep their schedules)."""
 
@@ -356,21 +358,40 @@ def _with_gi(scene: Scene) -> None:
     scene.gi = "ddgi"
 
 
+def _without_gi(scene: Scene) -> None:
+    scene.gi = "none"
+
+
 def _still(scene: Scene) -> None:
     for o in scene.objects:
         if o.animation is not None:
             o.transform, o.animation = np.asarray(o.model_matrix(0.0), np.float64).copy(), None
 
 
+def scene_has_gi(name_or_path: str) -> bool:
+    """Whether :func:`get_scene` gives scene ``name_or_path`` global illumination, from its name alone (no file is
+    read): the last of ``+gi`` / ``+nogi`` wins, else a built-in scene's own setting (files have none)."""
+    name = name_or_path
+    while True:
+        for opt in (GI_OPTION, NOGI_OPTION):
+            if name.endswith(opt):
+                return opt == GI_OPTION
+        if name.endswith(STILL_OPTION):
+            name = name[: -len(STILL_OPTION)]
+            continue
+        return name in BUILTIN_GI
+
+
 def get_scene(name_or_path: str) -> Scene:
     """A built-in scene by name (``default``, ``minimal``) or a scene file by path.
 
     A file is rescaled to 4 m (largest extent); ``path+ground`` adds a ground plane.
-    Trailing options, in any order: ``+gi`` (``default+gi``) turns on DDGI global
-    illumination (``Scene.gi``); ``+still`` stops every moving object at its t = 0 place
-    (the lights still change: a light change with nothing else moving).
+    Trailing options, in any order: ``+gi`` (``minimal+gi``) turns on DDGI global
+    illumination (``Scene.gi``), ``+nogi`` turns it off (``default+nogi``: the default
+    scene has it); ``+still`` stops every moving object at its t = 0 place (the lights
+    still change: a light change with nothing else moving).
     """
-    for opt, apply in ((GI_OPTION, _with_gi), (STILL_OPTION, _still)):
+    for opt, apply in ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTION, _still)):
         if name_or_path.endswith(opt):
             scene = get_scene(name_or_path[: -len(opt)])
             apply(scene)

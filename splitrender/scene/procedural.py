@@ -10,12 +10,15 @@ rendering methods fail on:
 - three moving objects: a spinning torus, a sphere crossing the view at 2.5 m/s,
   and a bobbing crate;
 - a light change: the sun dims from t=4 s to 5 s and recovers at 8 s; a point light
-  switches on at t=6 s.
+  switches on at t=6 s;
+- global illumination: DDGI light probes (``Scene.gi = "ddgi"``) whose bounce light
+  follows the moving objects and the light change; ``default+nogi`` (``default_scene(gi=False)``)
+  is the same scene with the constant ambient term, for what does not need GI.
 
 The camera's walkable box is x in [-3, 3], z in [-4, 3] at eye height 1.6 m, looking
 towards -Z (see ``splitrender.scene.trace``).  ``minimal_scene()`` is one textured
 plane and one box, for tests that need no more; ``default_phong`` is the default scene with
-the older Blinn-Phong shading (``Scene.shading = "phong"``), for comparison.
+the older Blinn-Phong shading (``Scene.shading = "phong"``) and no GI, for comparison.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ def _tr(x: float, y: float, z: float, rot_axis=None, rot_deg: float = 0.0) -> np
     return m
 
 
-def default_scene() -> Scene:
+def default_scene(gi: bool = True) -> Scene:
+    """The default scene, with DDGI global illumination unless ``gi`` is False (``--scene default+nogi``)."""
     sign = T.text_panel(256, seed=3)
     mats = {  # (Blinn-Phong specular and shininess for shading = "phong"; metallic-roughness for "pbr")
         "floor": Material("floor", (0.9, 0.9, 0.9), T.checker(256, 8), roughness=0.35),   # glossy tiles
@@ -81,7 +85,7 @@ def default_scene() -> Scene:
         intensity=Schedule((0.0, 4.0, 5.0, 8.0, 9.0), (2.6, 2.6, 0.9, 0.9, 2.6)),
     )
     lamp = PointLight(position=(0.5, 2.6, -6.5), color=(1.0, 0.75, 0.45), intensity=Schedule((0.0, 6.0, 6.2), (0.0, 0.0, 6.0)), range_m=9.0)
-    return Scene("default", objs, sun, [lamp])
+    return Scene("default", objs, sun, [lamp], gi="ddgi" if gi else "none")
 
 
 def minimal_scene() -> Scene:
@@ -108,9 +112,11 @@ def shed_scene() -> Scene:
 
 def default_phong_scene() -> Scene:
     """The default scene shaded with the older Blinn-Phong model (base colour only), for comparison."""
-    sc = default_scene()
+    sc = default_scene(gi=False)
     sc.name, sc.shading = "default_phong", "phong"
     return sc
 
 
 BUILTIN_SCENES = {"default": default_scene, "default_phong": default_phong_scene, "minimal": minimal_scene, "shed": shed_scene}
+BUILTIN_GI = frozenset({"default"})
+"""The built-in scenes that have global illumination unless ``+nogi`` is given (what their builders set)."""

@@ -7,6 +7,13 @@ from typing import Any
 
 import numpy as np
 
+STUDY_SCENE = "default+nogi"
+"""The scene of the studies that set methods beside each other and beside their papers (sas, tss, warp, quads,
+papers, cost): the default scene without its global illumination.  The papers measured their methods without
+DDGI, and GI's light probes cost about as much per update as rendering the frame three times on llvmpipe
+(``benchmarks/bench_gi.py``); the demo's own runs use the default scene as it is, with GI, and the probes study is
+where GI is the subject."""
+
 
 def update_mean(ups: list[dict[str, Any]], key: str) -> float:
     """Mean of ``key`` over a run's updates, the first left out (it compiles shaders); NaN when absent."""

@@ -1,6 +1,6 @@
 """Study: server and client cost on the simulated clock (``cost_model``).
 
-Every method on the default scene's ``walk`` under ``lan``, twice: with the modelled
+Every method on the default scene's ``walk`` (without GI, ``default+nogi``) under ``lan``, twice: with the modelled
 processing delays (``cost_model = "fixed"``: 10 ms server, 4 ms decode, whatever the
 method costs) and with this machine's measured milliseconds on the clock
 (``"measured"``: a frame leaves after its shared, server and encode work, a tick that
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from ..sections import Section
+from ._util import STUDY_SCENE
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +33,7 @@ def _run(method: str, model: str, scale: float, quick: bool, renderer: Any) -> d
     from ...sim.runner import run
 
     w, h = (320, 180) if quick else (640, 360)
-    cfg = RunConfig(method=method, trace="walk", network="lan", duration_s=0.6 if quick else 3.0, width=w, height=h,
+    cfg = RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network="lan", duration_s=0.6 if quick else 3.0, width=w, height=h,
                     client_fps=30 if quick else 60, seed=0, flip_every=0, cost_model=model, cost_scale=scale)
     s = run(cfg, renderer=renderer).summary
     return {"method": method, "model": model, "cost_scale": scale, "psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"],
@@ -55,7 +56,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     renderer = Renderer()
-    methods = method_order(methods_for_scene("default"))
+    methods = method_order(methods_for_scene(STUDY_SCENE))
     variants = [("fixed", 1.0), ("measured", 1.0)] + ([] if quick else [("measured", 0.1)])
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
@@ -105,7 +106,7 @@ def run(out_dir: Path, quick: bool) -> Section:
         "The same runs with processing time modelled (`cost_model = \"fixed\"`: 10 ms server, 4 ms decode for every "
         "method) and measured on this machine (`\"measured\"`: the shared scene work, the method's server work and the "
         "encoding on the clock, busy ticks skipped, the measured decode time before a frame is applied)"
-        f"{'' if quick else ', and measured times 0.1 (a machine ten times faster)'}. Default scene, `walk`, `lan`, "
+        f"{'' if quick else ', and measured times 0.1 (a machine ten times faster)'}. Default scene without GI (`{STUDY_SCENE}`), `walk`, `lan`, "
         f"{'0.6 s at 320x180' if quick else '3 s at 640x360'}; {len(rows)} runs in {elapsed:.0f} s.\n\n"
         f"{head}\n" + "\n".join(lines) + "\n\n"
         "Measured costs are wall-clock milliseconds of Mesa llvmpipe on this machine's CPU, not of a GPU; "

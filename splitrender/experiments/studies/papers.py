@@ -1,6 +1,6 @@
 """Study: the papers' figures for the methods already built, our numbers beside theirs.
 
-Five experiments on the default scene's ``walk`` trace, all through the virtual-time
+Five experiments on the default scene's ``walk`` trace (without GI, ``default+nogi``), all through the virtual-time
 runner with one shared renderer:
 
 1. **SAS figure 13**: PSNR and SSIM against one-way latency (``delay N ms`` both ways,
@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..sections import Section
+from ._util import STUDY_SCENE
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +123,7 @@ class _Runner:
         from ...sim.runner import run
 
         w, h = size or self.g["size"]
-        cfg = RunConfig(method=method, method_params=dict(params), trace=TRACE, network=network,
+        cfg = RunConfig(method=method, method_params=dict(params), scene=STUDY_SCENE, trace=TRACE, network=network,
                         duration_s=self.g["duration_s"] if duration_s == "grid" else duration_s, width=w, height=h,
                         server_fps=server_fps, client_fps=client_fps, predictor=predictor, seed=0, flip_every=0,
                         metrics=metrics, ssim_sigma=ssim_sigma)
@@ -329,7 +330,7 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
     w, h = g["size"]
     parts = [
         f"Our reproductions of figures and tables of the SAS (Mueller et al.) and QUASAR papers for the methods built "
-        f"here, on the default scene's `{TRACE}` trace at {w}x{h}, {g['duration_s']:g} s per run"
+        f"here, on the default scene's `{TRACE}` trace without GI (`{STUDY_SCENE}`) at {w}x{h}, {g['duration_s']:g} s per run"
         f"{' (quick run: fewer points, client 60 Hz instead of 120 Hz, `warp` left out of figure 15)' if quick else ''}; {nruns} runs in "
         f"{elapsed:.0f} s. The papers measure large game scenes at 1920x1080 for 1200-1500 frames; our scene is small "
         "and procedural, so the shapes of the curves are what can be compared, not the absolute values. "

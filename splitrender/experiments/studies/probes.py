@@ -1,11 +1,11 @@
-"""Study: light probe streaming (``probes``) on the default scene with DDGI (``default+gi``).
+"""Study: light probe streaming (``probes``) on the default scene with DDGI (``default``).
 
 Evidence, following the light probe streaming paper's section 5:
 
 1. **Rate over time** (table 2, figure 6): one client's probe streams, update by update,
    on a still camera while the sun dims (4-5 s) and the lamp switches on (6.0-6.2 s),
-   with nothing else moving (``default+gi+still``), and again with the moving objects
-   (``default+gi``); each update's bits beside the same probes uncompressed (the paper's
+   with nothing else moving (``default+still``), and again with the moving objects
+   (``default``); each update's bits beside the same probes uncompressed (the paper's
    texture formats) and zstd of the same update textures; a full refresh at the end
    (the paper's answer to a keyframe request) resends every selected probe.  Compression ratios per segment (still, light change,
    moving objects, I-frames).
@@ -206,8 +206,8 @@ def run(out_dir: Path, quick: bool) -> Section:
     step = 1.0 / GI_HZ
     t_light = np.round(np.arange(3.5 if quick else 2.5, 6.45 if quick else 7.0, step), 3)
     t_move = np.round(np.arange(3.0, 3.65 if quick else 4.0, step), 3)
-    light = _rate_run(renderer, "default+gi+still", t_light, keyframe_at_end=True)
-    move = _rate_run(renderer, "default+gi", t_move, keyframe_at_end=False)
+    light = _rate_run(renderer, "default+still", t_light, keyframe_at_end=True)
+    move = _rate_run(renderer, "default", t_move, keyframe_at_end=False)
     seg = _segment_table(light + move)
     tables = [out / "probes_rate.csv", out / "probes_segments.csv"]
     write_csv(tables[0], light + move)
@@ -250,7 +250,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     lag_rows, series = [], {}
     cache = out / "truth_cache"
     for lab, net, hz in lag_setups:
-        res = _run(renderer, "default+gi+still", "static", net, 0.5 if quick else 0.8, size, 5.95, {"gi_hz": hz},
+        res = _run(renderer, "default+still", "static", net, 0.5 if quick else 0.8, size, 5.95, {"gi_hz": hz},
                    truth_cache=str(cache))
         fr = [f for f in res.frames if f["t_s"] >= 0.1]          # from the lamp's first change (6.05 s): the light change
         series[lab] = ([f["t_s"] + 5.95 for f in res.frames], [f["psnr_db"] for f in res.frames])
@@ -272,7 +272,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     # 4. many clients
     mc_rows = []
     for n in ((1, 2, 4) if quick else (1, 2, 4, 8)):
-        res = _run(renderer, "default+gi", "walk", "lan", 1.0, (160, 90), 0.0, {}, clients=n, cost_model="measured",
+        res = _run(renderer, "default", "walk", "lan", 1.0, (160, 90), 0.0, {}, clients=n, cost_model="measured",
                    truth_cache=str(cache))
         ups = res.updates
         relit = [u["shared_ms"] for u in ups if u["client"] == 0 and u["shared_ms"] > 0]
@@ -299,7 +299,7 @@ def run(out_dir: Path, quick: bool) -> Section:
         ax.set_xlabel("clients on one server")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle("many clients: one GI server, per-session selection (default+gi walk, lan, measured costs)", fontsize=9)
+    fig.suptitle("many clients: one GI server, per-session selection (default walk, lan, measured costs)", fontsize=9)
     figs.append(save_figure(fig, out / "probes_clients.png"))
 
     # 6. the lossy-visibility ablation (light leaks)
@@ -310,7 +310,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     # 5. savings and the uncompressed rate
     gb_c, gb_v = guard_band_savings()
     active = np.array([r["active"] for r in light])
-    n_probes = int(np.prod(get_scene("default+gi").gi_probes))
+    n_probes = int(np.prod(get_scene("default").gi_probes))
     inactive = 1.0 - float(active.mean()) / n_probes
     raw_mbps = n_probes * (10 * 10 + 18 * 18) * 32 * GI_HZ / 1e6
     segd = {r["segment"]: r for r in seg}
@@ -323,7 +323,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     removed = [100 * (1 - r["sent"] / r["active"]) for r in light[1:-1] + move[1:]]
     first = dict(light[0], raw_c=light[0]["sent"] * COLOR_BITS_PER_PROBE, raw_v=light[0]["sent"] * VIS_BITS_PER_PROBE)
     text = [
-        f"Light probe streaming on `default+gi` ({n_probes} probes; {'quick' if quick else 'full'} run, "
+        f"Light probe streaming on the default scene with GI (`default`, {n_probes} probes; {'quick' if quick else 'full'} run, "
         f"{time.perf_counter() - t0:.0f} s).",
         "",
         f"- **Rate** (one client, still camera, {GI_HZ:g} Hz): with nothing changing no probe, picture or index list "
@@ -367,6 +367,6 @@ def run(out_dir: Path, quick: bool) -> Section:
                 f"{ex['psnr_db']:.1f} dB against the truth with {ex['vis_kbit']:.0f} kbit of visibility; lossy HEVC at crf "
                 f"23 {lo['psnr_db']:.1f} dB with {lo['vis_kbit']:.0f} kbit, the inside {100 * (lo['brightness_over_truth'] - 1):.0f} % "
                 "brighter than the truth: damaged distance moments let the sunlit outside leak through the walls.  On "
-                "`default+gi`, one room with no such walls, the visibility term hardly shows: the walk's views "
+                "the default scene, one room with no such walls, the visibility term hardly shows: the walk's views "
                 "lose 0.4 dB without it at all.")
     return Section("Light probe streaming (probes)", "\n".join(text), figs, tables)

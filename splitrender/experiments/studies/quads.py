@@ -25,7 +25,7 @@ import numpy as np
 
 from ...methods.quads.server import STAGES as SERVER_STAGES
 from ..sections import Section
-from ._util import update_mean as _upd_mean
+from ._util import STUDY_SCENE, update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
 STAGES = (*SERVER_STAGES, "pack_ms")
@@ -35,7 +35,7 @@ def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network
          size: tuple[int, int], flip_every: int = 0) -> dict[str, Any]:
     from ...sim.runner import RunConfig, run
 
-    res = run(RunConfig(method=method, scene="default", trace="walk", network=network, duration_s=dur, width=size[0],
+    res = run(RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network=network, duration_s=dur, width=size[0],
                         height=size[1], client_fps=30, flip_every=flip_every, seed=0, method_params=params), renderer=renderer)
     s = res.summary
     row = {"label": label, "method": method, "network": network, "psnr_db": float(s["mean_psnr_db"]),
@@ -60,7 +60,7 @@ def _threshold_sweep(renderer: Any, size: tuple[int, int], quick: bool = False) 
     from ...scene.trace import get_trace
 
     intr = CameraIntrinsics(*size)
-    scene = get_scene("default")
+    scene = get_scene(STUDY_SCENE)
     spec = get_method("quads")
     t = 0.5
     pose = get_trace("walk", scene=scene).pose_at(t)
@@ -188,7 +188,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     qr = next(r for r in rows if r["label"] == q50 and r["network"] == "cloud")
     stage_txt = ", ".join(f"{st[:-3]} {qr[st] / qr['gt_ms']:.1f}x" for st in STAGES if qr[st] == qr[st])
     text = [
-        f"Quad streaming at {size[0]}x{size[1]}, default scene ({'quick' if quick else 'full'} run, "
+        f"Quad streaming at {size[0]}x{size[1]}, default scene without GI (`{STUDY_SCENE}`; {'quick' if quick else 'full'} run, "
         f"{time.perf_counter() - t0:.0f} s).",
         "",
         "- **Table 4 set-up** (walk, PSNR lan / cloud, FLIP under cloud): " + "; ".join(

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..sections import Section
+from ._util import STUDY_SCENE
 
 log = logging.getLogger(__name__)
 BASELINES = ("video", "atw", "warp")
@@ -53,7 +54,7 @@ def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], lis
     from ...sim.runner import RunConfig, run
 
     dur = 0.5 if quick else 4.0
-    common = dict(scene="default", trace="strafe", width=320, height=180, client_fps=30, duration_s=dur,
+    common = dict(scene=STUDY_SCENE, trace="strafe", width=320, height=180, client_fps=30, duration_s=dur,
                   flip_every=3 if quick else 4, seed=0)
     delays = [0, 50] if quick else [0, 20, 50, 100]
     # (label, method, parameters): the paper compares 4 and 8 MPix atlases (scaled to 320x180)
@@ -94,7 +95,7 @@ def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
     from ...scene.procedural import default_scene
     from ...scene.trace import get_trace
 
-    scene = default_scene()
+    scene = default_scene(gi=False)
     intr = CameraIntrinsics(320, 180)
     ids = PatchIdPass(renderer, scene, build_scene_patches(scene))
     rows = []
@@ -135,7 +136,7 @@ def _allocator(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], list[d
 
     intr = CameraIntrinsics(320, 180)
     frames = 30 if quick else 300
-    patches, seq = record_visibility(renderer, default_scene(), get_trace("walk_fast"), intr, 0.5, frames)
+    patches, seq = record_visibility(renderer, default_scene(gi=False), get_trace("walk_fast"), intr, 0.5, frames)
     mem_rows, ms_rows = [], []
     for mpix in (4.0, 2.0):
         from ...methods.sas.server import SasConfig
@@ -273,7 +274,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     s0 = [r for r in ms if r["strategy"] == "S0"]
     sas_rows = [r for r in lat if r["method"] == "sas"]
     text = [
-        f"Shading atlas streaming at 320x180, default scene, strafe trace ({'quick' if quick else 'full'} run, "
+        f"Shading atlas streaming at 320x180, default scene without GI (`{STUDY_SCENE}`), strafe trace ({'quick' if quick else 'full'} run, "
         f"{time.perf_counter() - t0:.0f} s).",
         "",
         f"- **Latency** ({dmax} ms one-way): sas {q('sas', dmax, 'psnr_db'):.2f} dB / SSIM {q('sas', dmax, 'ssim'):.3f}, "

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..sections import Section
-from ._util import update_mean as _upd_mean
+from ._util import STUDY_SCENE, update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +48,7 @@ def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network
          size: tuple[int, int]) -> dict[str, Any]:
     from ...sim.runner import RunConfig, run
 
-    res = run(RunConfig(method=method, scene="default", trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
+    res = run(RunConfig(method=method, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
                         client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
     s = res.summary
     ssim = float(s["mean_ssim"])
@@ -239,7 +239,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     best = max(sw, key=lambda r: r["psnr_db"])
     far = nets[-1]
     text = [
-        f"Tessellated shading streaming at {size[0]}x{size[1]}, default scene ({'quick' if quick else 'full'} run, "
+        f"Tessellated shading streaming at {size[0]}x{size[1]}, default scene without GI (`{STUDY_SCENE}`; {'quick' if quick else 'full'} run, "
         f"{time.perf_counter() - t0:.0f} s).",
         "",
         f"- **Quality vs latency** (walk, {dur:g} s): " + "; ".join(

@@ -1,6 +1,6 @@
 """Study: depth-image warping (``warp``, the MeshWarp baseline) against ``video`` and ``atw``.
 
-Four experiments on the default scene, all through the virtual-time runner:
+Four experiments on the default scene without GI (``default+nogi``), all through the virtual-time runner:
 
 1. **Frame-ratio trend** (the paper's table 3): error-pixel rate (CIE Lab distance
    > 20) as the server:client frame ratio goes 2:1, 5:1, 10:1, 20:1 (client at 60 Hz,
@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..sections import Section
+from ._util import STUDY_SCENE
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ def _run(method: str, params: dict[str, Any], trace: str, ratio: int, quick: boo
 
     dur = 0.5 if quick else 3.0
     w, h = (320, 180) if quick else (640, 360)
-    cfg = RunConfig(method=method, method_params=params, trace=trace, network=network, duration_s=dur, width=w, height=h,
+    cfg = RunConfig(method=method, method_params=params, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=w, height=h,
                     server_fps=max(1, CLIENT_FPS // ratio), client_fps=CLIENT_FPS, seed=0, flip_every=0 if quick else 6)
     s = run(cfg, renderer=renderer).summary
     return {"psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"], "flip": s.get("mean_flip", math.nan),
@@ -181,7 +182,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     base = trend[0]["lab_err_pct"] if trend else math.nan
     rel = ", ".join(f"{r['ratio']}:1 {r['lab_err_pct']:.2f}% ({(r['lab_err_pct'] / base - 1) * 100:+.0f}%)" for r in trend)
     text = (
-        f"Depth-image warping (`warp`, the MeshWarp baseline) on the default scene, "
+        f"Depth-image warping (`warp`, the MeshWarp baseline) on the default scene without GI (`{STUDY_SCENE}`), "
         f"{'quick run: 0.5 s traces at 320x180' if quick else '3 s traces at 640x360'}, client at {CLIENT_FPS} Hz, "
         f"ideal network unless the row says otherwise; {len(rows)} runs in {elapsed:.0f} s.\n\n"
         f"**Frame-ratio trend** (paper, table 3): error pixels of point-splat warping by server:client ratio: {rel}.\n\n"

@@ -58,8 +58,8 @@ SENT_HISTORY = 512
 
 def _require_gi(scene: Any) -> None:
     if getattr(scene, "gi", "none") != "ddgi":
-        raise ConfigError(f"probes: scene {scene.name!r} has no global illumination to stream; use a '+gi' scene "
-                          f"(e.g. --scene {scene.name}+gi)")
+        raise ConfigError(f"probes: scene {scene.name!r} has no global illumination to stream; use a scene with GI "
+                          f"(the default scene, or e.g. --scene {scene.name}+gi)")
 
 
 def gi_time(t_s: float, hz: float) -> float:
