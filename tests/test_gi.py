@@ -99,19 +99,68 @@ def test_a_probe_above_a_floor_sees_the_sky_above_and_the_bounce_below(renderer)
 
 
 def test_probes_are_deterministic(renderer) -> None:  # type: ignore[no-untyped-def]
-    """The same scene state gives bit-identical probe textures, after an update to another state in between."""
-    scene = _floor_scene()
-    vol = renderer.gi_volume(scene)
-    vol.update(0.0)
-    a = [t.copy() for t in vol.textures()]
-    scene.ambient = (0.2, 0.3, 0.4)          # the sky changes: a new state
-    assert vol.update(0.0)
-    b = vol.textures()
-    assert not np.array_equal(a[0], b[0])
-    scene.ambient = (SKY, SKY, SKY)
-    assert vol.update(0.0) and not vol.update(0.0)
-    c = vol.textures()
-    assert np.array_equal(a[0], c[0]) and np.array_equal(a[1], c[1])
+    """The same scene state gives bit-identical probe textures, after an update to another state in between
+    (relit anew: the renderer's shared states are off here)."""
+    states = renderer.probe_states()
+    states.enabled = False
+    try:
+        scene = _floor_scene()
+        vol = renderer.gi_volume(scene)
+        vol.update(0.0)
+        a = [t.copy() for t in vol.textures()]
+        scene.ambient = (0.2, 0.3, 0.4)          # the sky changes: a new state
+        assert vol.update(0.0)
+        b = vol.textures()
+        assert not np.array_equal(a[0], b[0])
+        scene.ambient = (SKY, SKY, SKY)
+        assert vol.update(0.0) and not vol.update(0.0)
+        c = vol.textures()
+        assert np.array_equal(a[0], c[0]) and np.array_equal(a[1], c[1])
+        assert vol.reused == 0 and vol.updates == 3
+    finally:
+        states.enabled = True
+
+
+def test_volumes_built_alike_share_relit_states_bit_for_bit() -> None:
+    """Two scene objects built alike (as every run builds its own) share what either relit
+    (:class:`~splitrender.gi.ddgi.ProbeStates`, keyed by the scene's content and the state): the second volume relights
+    nothing at times the first has relit, and its probes and textures equal those relit anew bit for bit; another
+    time, a changed light or another scene is a new state; at most ``capacity`` states stay, and ``enabled = False``
+    (what the runner sets under ``cost_model = "measured"``) relights everything."""
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.loader import get_scene
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import VirtualTimeRun
+
+    r = Renderer()                                   # a renderer of its own: states counted from zero
+    first, second = get_scene("default"), get_scene("default")
+    v1 = r.gi_volume(first)
+    for t in (0.5, 0.6):
+        assert v1.update(t)
+    v2 = r.gi_volume(second)
+    assert v2 is not v1
+    assert v2.update(0.6) and v2.update(0.5) and (v2.updates, v2.reused) == (0, 2)
+    fresh = Renderer()
+    fresh.probe_states().enabled = False
+    v3 = fresh.gi_volume(get_scene("default"))
+    v3.update(0.5)
+    for a, b in ((v2.irradiance, v3.irradiance), (v2.moments, v3.moments), (v2.active, v3.active)):
+        assert np.array_equal(a, b)
+    for a, b in zip(v2.textures(), v3.textures()):
+        assert np.array_equal(a, b)
+    assert v2.update(0.7) and v2.updates == 1                              # a new time: relit
+    assert second.sun is not None
+    second.sun.intensity = type(second.sun.intensity).constant(1.0)        # a changed light: a new state
+    assert v2.update(0.5) and v2.updates == 2
+    other = r.gi_volume(get_scene("default+still"))                         # other content: its own states
+    assert other.update(0.5) and (other.updates, other.reused) == (1, 0)
+    assert len(r.gi_states) == 5 and (r.gi_states.hits, r.gi_states.misses) == (2, 5)
+    r.gi_states.capacity = 2
+    assert not other.update(0.6) and other.update(4.5) and len(r.gi_states) == 2   # still: only the light changes it
+    VirtualTimeRun(RunConfig(method="video", cost_model="measured", width=64, height=36, duration_s=0.1), r)
+    assert not r.gi_states.enabled and r.gi_states.get(next(iter(r.gi_states._states))) is None
+    VirtualTimeRun(RunConfig(method="video", width=64, height=36, duration_s=0.1), r)
+    assert r.gi_states.enabled
 
 
 def test_an_open_floor_looks_the_same_with_and_without_gi(renderer) -> None:  # type: ignore[no-untyped-def]

@@ -136,6 +136,7 @@ class Renderer:
         """Probes to shade a scene with instead of computing its own (by ``id(scene)``; a client's received copy)."""
         self._gi_building: set[int] = set()
         self._gi_none: Any = None
+        self.gi_states: Any = None   # made by probe_states() on first use
 
     # ------------------------------------------------------------------ resources
     def upload(self, scene: Scene) -> SceneGPU:
@@ -284,6 +285,14 @@ class Renderer:
                 prog["u_point_color"].write(col.tobytes())
         self._bind_gi(prog, scene, t_s, gi)
 
+    def probe_states(self) -> Any:
+        """The relit probe states this renderer's DDGI volumes share (:class:`~splitrender.gi.ddgi.ProbeStates`)."""
+        if self.gi_states is None:
+            from ..gi.ddgi import ProbeStates
+
+            self.gi_states = ProbeStates()
+        return self.gi_states
+
     def gi_volume(self, scene: Scene) -> Any:
         """The scene's DDGI probes on this renderer (captured on first use; None while being captured)."""
         from ..gi.ddgi import DdgiSettings, DdgiVolume
@@ -295,7 +304,7 @@ class Renderer:
                 return None
             self._gi_building.add(key)
             try:
-                vol = DdgiVolume(self, scene, DdgiSettings(counts=tuple(scene.gi_probes)))  # type: ignore[arg-type]
+                vol = DdgiVolume(self, scene, DdgiSettings(counts=tuple(scene.gi_probes)), self.probe_states())  # type: ignore[arg-type]
             finally:
                 self._gi_building.discard(key)
             self._gi[key] = vol

@@ -220,6 +220,8 @@ class VirtualTimeRun:
         self.intr = CameraIntrinsics(cfg.width, cfg.height, cfg.fov_y_deg)
         self.renderer = renderer or Renderer()
         make_current(self.renderer.ctx)
+        # relit probe states are shared across runs on one renderer, but not where wall-clock costs go on the clock
+        self.renderer.probe_states().enabled = cfg.cost_model != "measured"
         self.truth = truth_source(cfg.truth_cache, self.renderer, self.scene, self.trace, self.intr, cfg.client_fps,
                                   cfg.supersample)
         full = min(t.duration_s for t in self.traces)

@@ -49,6 +49,7 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 import zstandard
 
+from ..scene.digest import feed, scene_digest
 from ..scene.model import Scene
 from ..scene.pose import CameraIntrinsics, Pose
 from ..scene.trace import CameraTrace
@@ -80,54 +81,11 @@ def shared_cache_setting(out: str | Path) -> str:
 
 
 # ----------------------------------------------------------------------------- digests
-def _feed(h: Any, obj: Any, depth: int = 0) -> None:
-    if depth > 32:
-        raise ValueError("truth cache: object nesting too deep to hash")
-    if obj is None:
-        h.update(b"N")
-    elif isinstance(obj, np.ndarray):
-        a = np.ascontiguousarray(obj)
-        h.update(b"A" + str(a.dtype).encode() + str(a.shape).encode())
-        h.update(a.tobytes())
-    elif isinstance(obj, (bool, int, float, str, bytes)):
-        h.update(type(obj).__name__.encode() + b":" + repr(obj).encode() + b";")
-    elif isinstance(obj, (np.integer, np.floating)):
-        _feed(h, obj.item(), depth + 1)
-    elif isinstance(obj, (list, tuple)):
-        h.update(b"L%d" % len(obj))
-        for x in obj:
-            _feed(h, x, depth + 1)
-    elif isinstance(obj, dict):
-        h.update(b"D%d" % len(obj))
-        for k in sorted(obj, key=repr):
-            _feed(h, k, depth + 1)
-            _feed(h, obj[k], depth + 1)
-    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        h.update(b"C" + type(obj).__qualname__.encode())
-        for f in dataclasses.fields(obj):
-            h.update(f.name.encode())
-            _feed(h, getattr(obj, f.name), depth + 1)
-    elif callable(obj):
-        h.update(b"F" + getattr(obj, "__module__", "?").encode() + getattr(obj, "__qualname__", repr(type(obj))).encode())
-    elif hasattr(obj, "__dict__"):
-        h.update(b"O" + type(obj).__qualname__.encode())
-        _feed(h, vars(obj), depth + 1)
-    else:
-        h.update(b"R" + repr(obj).encode())
-
-
-def scene_digest(scene: Scene) -> str:
-    """SHA-256 of everything in ``scene`` that can change a rendered pixel."""
-    h = hashlib.sha256()
-    _feed(h, scene)
-    return h.hexdigest()
-
-
 def trace_digest(trace: CameraTrace) -> str:
     """SHA-256 of a trace's sample times, positions and orientations."""
     h = hashlib.sha256()
     for a in (trace.t_s, trace.positions, trace.orientations):
-        _feed(h, np.asarray(a, np.float64))
+        feed(h, np.asarray(a, np.float64))
     return h.hexdigest()
 
 
@@ -158,7 +116,7 @@ class TruthKey:
 
     def digest(self) -> str:
         h = hashlib.sha256()
-        _feed(h, dataclasses.astuple(self))
+        feed(h, dataclasses.astuple(self))
         return h.hexdigest()[:32]
 
 
@@ -183,9 +141,9 @@ class GroundTruthCache:
 
     def _path(self, key: TruthKey, t_s: float, pose: Pose) -> Path:
         h = hashlib.sha256()
-        _feed(h, float(t_s))
-        _feed(h, np.asarray(pose.position, np.float64))
-        _feed(h, np.asarray(pose.orientation, np.float64))
+        feed(h, float(t_s))
+        feed(h, np.asarray(pose.position, np.float64))
+        feed(h, np.asarray(pose.orientation, np.float64))
         return self.root / key.digest() / f"{h.hexdigest()[:32]}.srgt"
 
     def get(self, key: TruthKey, t_s: float, pose: Pose) -> TruthFrame | None:
