@@ -2,7 +2,9 @@
 
 The default scene's probe volume (8 x 4 x 8 probes, 6 x 8^2 = 384 rays each): the one-time capture
 of every probe's cube faces, one update (relighting with two bounces, the irradiance
-and distance reductions, the texture uploads), and a 320x180 render of a walk frame
+and distance reductions, the texture uploads), an update a volume built alike relit before (a
+shared state, :class:`~splitrender.gi.ddgi.ProbeStates`: what every run after the first
+in a demo worker meets), and a 320x180 render of a walk frame
 with GI on, each as a ratio to the median 320x180 render of the same frame without GI,
 measured in the same process.  An update happens whenever the lights or (with animated
 shadow casters, as in the default scene) the time change.
@@ -47,6 +49,10 @@ def main() -> None:
     vol = r.gi_volume(lit)
     ts = iter([1.0 + 0.01 * k for k in range(1, 100)])
     update = statistics.median(timed(lambda: vol.update(next(ts))) for _ in range(REPEATS))
+    again = r.gi_volume(get_scene("default"))         # the next run's scene, built alike: the same times are kept states
+    ts_again = iter([1.0 + 0.01 * k for k in range(1, 100)])
+    update_shared = statistics.median(timed(lambda: again.update(next(ts_again))) for _ in range(REPEATS))
+    assert again.reused == REPEATS and again.updates == 0
     vol.update(1.0)
     render_cached = statistics.median(timed(lambda: r.render(lit, 1.0, pose, intr)) for _ in range(REPEATS))
     ts2 = iter([2.0 + 0.01 * k for k in range(1, 100)])
@@ -54,7 +60,7 @@ def main() -> None:
     out = {"benchmark": "bench_gi", "machine": platform.platform(), "renderer": r.ctx.info.get("GL_RENDERER"),
            "probes": vol.count, "rays_per_probe": 6 * vol.settings.face_res ** 2, "bounces": vol.settings.bounces,
            "render_ms_without_gi": base,
-           "ratio_to_render": {"capture_once": capture / base, "update": update / base,
+           "ratio_to_render": {"capture_once": capture / base, "update": update / base, "update_shared_state": update_shared / base,
                                "render_probes_cached": render_cached / base, "render_with_update": render_fresh / base}}
     for k, v in out["ratio_to_render"].items():
         print(f"{k:22s} {v:6.2f}x a 320x180 render without GI ({base:.0f} ms)")
