@@ -90,12 +90,12 @@ def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], lis
 def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
     from ...methods.sas.patches import build_scene_patches
     from ...methods.sas.pvs import PatchIdPass, pvs_rates, sample_times
+    from ...scene.loader import get_scene
     from ...scene.pose import CameraIntrinsics
     from ...scene.predict import make_predictor
-    from ...scene.procedural import default_scene
     from ...scene.trace import get_trace
 
-    scene = default_scene(gi=False)
+    scene = get_scene(STUDY_SCENE)
     intr = CameraIntrinsics(320, 180)
     ids = PatchIdPass(renderer, scene, build_scene_patches(scene))
     rows = []
@@ -130,13 +130,13 @@ def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
 def _allocator(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     from ...methods.sas.allocator import STRATEGIES, AtlasLayout
     from ...methods.sas.replay import record_visibility, replay_allocation, replay_baseline
+    from ...scene.loader import get_scene
     from ...scene.pose import CameraIntrinsics
-    from ...scene.procedural import default_scene
     from ...scene.trace import get_trace
 
     intr = CameraIntrinsics(320, 180)
     frames = 30 if quick else 300
-    patches, seq = record_visibility(renderer, default_scene(gi=False), get_trace("walk_fast"), intr, 0.5, frames)
+    patches, seq = record_visibility(renderer, get_scene(STUDY_SCENE), get_trace("walk_fast"), intr, 0.5, frames)
     mem_rows, ms_rows = [], []
     for mpix in (4.0, 2.0):
         from ...methods.sas.server import SasConfig
