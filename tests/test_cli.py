@@ -18,7 +18,7 @@ def _summary(path):
 def test_run_uses_the_config_file_and_only_given_options_override_it(tmp_path, capsys):
     cfg = tmp_path / "run.toml"
     cfg.write_text(
-        '[run]\nmethod = "atw"\nnetwork = "lan"\ntrace = "turn"\nseed = 5\nwidth = 96\nheight = 54\n'
+        '[run]\nmethod = "atw"\nscene = "default+nogi"\nnetwork = "lan"\ntrace = "turn"\nseed = 5\nwidth = 96\nheight = 54\n'
         "duration_s = 0.4\nflip_every = 0\n[run.method_params]\noverscan = 1.5\n"
     )
     assert main(["run", "--config", str(cfg), "--out", str(tmp_path / "a")]) == 0

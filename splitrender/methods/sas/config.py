@@ -19,7 +19,10 @@ class SasConfig(MethodConfig):
     ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
     the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
     override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
-    the atlas eq. 3 aims to fill.  ``strategy``: allocator S0 (paper) .. S3.
+    the atlas eq. 3 aims to fill.  ``fill_atlas``: eq. 3's bias in both directions, as the
+    paper writes it: with room in the atlas every level goes up until the blocks fill
+    ``bias_fill`` of it (the sampling density follows the atlas size); False keeps each
+    patch at its ideal level (as many texels as it covers pixels) unless the atlas is short.  ``strategy``: allocator S0 (paper) .. S3.
     ``pvs_linger_frames``: a patch stays in the PVS for this many server frames after
     it was last in an EVS sample, so small patches flickering at the edge of
     visibility do not re-send geometry and blocks every frame.  ``split_near_m``: at load time every mesh is split (:func:`~.patches.split_mesh`)
@@ -45,6 +48,7 @@ class SasConfig(MethodConfig):
     pvs_prediction: Literal["linear", "none"] = "linear"
     texels_per_px: float = 1.0
     bias_fill: float = 0.75
+    fill_atlas: bool = True
     hysteresis: float = 0.75
     lossless: bool = False
     pvs_linger_frames: int = 8

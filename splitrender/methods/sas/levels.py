@@ -10,7 +10,15 @@
   and clamped; the level is ``(lw, lh) = ((A + a) / 2, (A - a) / 2)``;
 - eq. 3: under memory pressure a bias ``b = log2((I - d) / (S - d))`` is subtracted
   from ``A``: ``I`` is the ideal total block area, ``S`` the atlas space budget and
-  ``d`` the area of blocks already at the smallest level.
+  ``d`` the area of blocks already at the smallest level.  The paper's ``b`` is negative
+  when the atlas has room (``I < S``): the levels go up until the blocks fill it.  With
+  ``fill`` (``SasConfig.fill_atlas``, the default) that is what happens: ``b`` is the
+  smallest bias, negative or positive, for which the blocks, each rounded up from
+  ``A - b``, fit in ``S`` (found by bisection, so the rounding cannot overshoot); so a
+  patch never gets fewer texels than it covers pixels while there is room, and the
+  sampling density then follows the atlas size, as in the paper's figure 13.  Without
+  ``fill`` a patch keeps its ideal level (``A`` rounded up) unless the atlas is short,
+  and a positive ``b`` is rounded to nearest.
 
 Blocks are landscape (``lh <= lw``); a patch that is taller than wide is laid out
 transposed (its block-local ``u, v`` swapped), flagged per patch.  A hysteresis keeps
@@ -127,10 +135,31 @@ def footprint(ext: PatchExtent, lw: np.ndarray, lh: np.ndarray, transposed: np.n
     return np.stack([fx, fy], 1)
 
 
+def fill_bias(A: np.ndarray, amin: int, amax: int, budget_texels: float, steps: int = 16) -> float:
+    """The smallest bias ``b`` (log2 units, either sign) for which the blocks ``2^clip(ceil(A - b))`` fit in
+    ``budget_texels``; the largest level span when even the smallest blocks do not fit."""
+    def total(b: float) -> float:
+        return float((2.0 ** np.clip(np.ceil(A - b - 0.01), amin, amax)).sum())
+
+    lo_b, hi_b = -float(amax - amin), float(amax - amin)
+    if total(lo_b) <= budget_texels:
+        return lo_b
+    if total(hi_b) > budget_texels:
+        return hi_b
+    for _ in range(steps):                     # total(lo_b) > budget >= total(hi_b)
+        mid = (lo_b + hi_b) / 2
+        if total(mid) <= budget_texels:
+            hi_b = mid
+        else:
+            lo_b = mid
+    return hi_b
+
+
 def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texels: float,
                   cur_lw: np.ndarray | None = None, cur_lh: np.ndarray | None = None, cur_t: np.ndarray | None = None,
-                  hysteresis: float = 0.75, max_aspect_log: int = 3) -> LevelChoice:
-    """Eq. 2 and 3: integer levels from continuous ``(A, a)``; ``cur_*`` (-1 = none) enable hysteresis."""
+                  hysteresis: float = 0.75, max_aspect_log: int = 3, fill: bool = False) -> LevelChoice:
+    """Eq. 2 and 3: integer levels from continuous ``(A, a)``; ``cur_*`` (-1 = none) enable hysteresis; ``fill``:
+    eq. 3's bias in both directions (see the module docstring)."""
     lo, hi = layout.min_level, layout.max_level
     amin, amax = 2 * lo, 2 * hi
     # without pressure a patch gets at least as many texels as it covers pixels (A rounded up)
@@ -139,14 +168,19 @@ def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texe
     d = float(at_min.sum()) * 2.0 ** amin
     total = float(ideal.sum())
     bias = 0.0
-    if total > budget_texels and budget_texels > d:
+    if fill:
+        bias = fill_bias(A, amin, amax, budget_texels) if A.size else 0.0
+    elif total > budget_texels and budget_texels > d:
         bias = max(0.0, math.log2((total - d) / max(budget_texels - d, 1.0)))
     elif total > budget_texels:
         bias = float(amax)
     Ab = A - bias
     transposed = a < 0
     aa = np.abs(a)
-    Ar = np.clip(np.ceil(A - 0.01) if bias == 0.0 else np.rint(Ab), amin, amax).astype(np.int64)
+    if fill:
+        Ar = np.clip(np.ceil(Ab - 0.01), amin, amax).astype(np.int64)
+    else:
+        Ar = np.clip(np.ceil(A - 0.01) if bias == 0.0 else np.rint(Ab), amin, amax).astype(np.int64)
     ar = np.rint(aa).astype(np.int64)
     odd = (Ar - ar) % 2 == 1
     up = aa > ar

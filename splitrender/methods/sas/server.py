@@ -268,7 +268,7 @@ class SasServer(ServerHalf):
         A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
         choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
-                               self.transposed[pvs], c.hysteresis)
+                               self.transposed[pvs], c.hysteresis, fill=c.fill_atlas)
         # I-frame / reset decisions
         # the client reported atlas frames it never got (feedback): resend the whole PVS
         lost = ctx.feedback.newly_lost("atlas")
@@ -277,10 +277,10 @@ class SasServer(ServerHalf):
         iframe = full or self._since_i >= c.gop
         reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
         if reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area)
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas)
         res = al.update(pvs, choice.lw, choice.lh, reset=reset)
         if res.failed.size and al.can_reset and not reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area)
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas)
             res2 = al.update(pvs, choice.lw, choice.lh, reset=True)
             res = type(res)(np.union1d(res.placed, res2.placed), res.released, res2.failed, True)
             reset = iframe = True
