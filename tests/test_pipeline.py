@@ -155,8 +155,10 @@ def test_session_data_is_chunked_checked_and_bounded() -> None:
 def test_feedback_reaches_the_server_and_aims_the_prediction(renderer) -> None:  # type: ignore[no-untyped-def]
     """Under loss the client's lost frames reach the server half (``sas`` resends in
     full), and the expected latency is measured, not read from the network model."""
+    # seed 0: 20 frames reported lost, 3 keyframe requests (seed 2, used before, drew the fewest losses of seeds 0-4:
+    # 1 request, then none once sas's atlas frames grew with fill_atlas)
     cfg = RunConfig(method="sas", scene="minimal", trace="walk", network="delay 50ms loss 4%", width=160, height=90,
-                    duration_s=1.5, client_fps=30, flip_every=0, seed=2, metrics=False)
+                    duration_s=1.5, client_fps=30, flip_every=0, seed=0, metrics=False)
     vt = VirtualTimeRun(cfg, renderer)
     res = vt.run()
     c = vt.clients[0]
