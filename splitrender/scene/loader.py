@@ -368,18 +368,21 @@ def _still(scene: Scene) -> None:
             o.transform, o.animation = np.asarray(o.model_matrix(0.0), np.float64).copy(), None
 
 
+SCENE_OPTIONS = ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTION, _still))
+"""The trailing options of a scene name, each with what it does to the scene (:func:`get_scene`)."""
+
+
 def scene_has_gi(name_or_path: str) -> bool:
     """Whether :func:`get_scene` gives scene ``name_or_path`` global illumination, from its name alone (no file is
     read): the last of ``+gi`` / ``+nogi`` wins, else a built-in scene's own setting (files have none)."""
     name = name_or_path
     while True:
-        for opt in (GI_OPTION, NOGI_OPTION):
-            if name.endswith(opt):
-                return opt == GI_OPTION
-        if name.endswith(STILL_OPTION):
-            name = name[: -len(STILL_OPTION)]
-            continue
-        return name in BUILTIN_GI
+        opt = next((o for o, _ in SCENE_OPTIONS if name.endswith(o)), None)
+        if opt is None:
+            return name in BUILTIN_GI
+        if opt in (GI_OPTION, NOGI_OPTION):
+            return opt == GI_OPTION
+        name = name[: -len(opt)]
 
 
 def get_scene(name_or_path: str) -> Scene:
@@ -391,7 +394,7 @@ def get_scene(name_or_path: str) -> Scene:
     scene has it); ``+still`` stops every moving object at its t = 0 place (the lights
     still change: a light change with nothing else moving).
     """
-    for opt, apply in ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTION, _still)):
+    for opt, apply in SCENE_OPTIONS:
         if name_or_path.endswith(opt):
             scene = get_scene(name_or_path[: -len(opt)])
             apply(scene)
