@@ -17,8 +17,11 @@ class SasConfig(MethodConfig):
     """SAS settings.  ``gop`` is the I-frame (and atlas reset) period in frames (paper: 5).
 
     ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
-    the display's pixel count (paper: 4 or 8); ``atlas_width``/``atlas_height`` (texels)
-    override it.  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
+    the display's pixel count (paper: 4 or 8; default 12, where a still camera at zero
+    latency is within 1 dB of ``video`` on every test scene, see ``docs/methods.md``);
+    ``atlas_width``/``atlas_height`` (texels) override it.  ``atlas_filter``: how the
+    client reconstructs the atlas, ``bicubic`` (Catmull-Rom over 4x4 texels, each tap
+    clamped to the block) or ``bilinear`` (the paper's one hardware tap).  ``texels_per_px``: target shading rate.  ``bias_fill``: fraction of
     the atlas eq. 3 aims to fill.  ``fill_atlas``: eq. 3's bias in both directions, as the
     paper writes it: with room in the atlas every level goes up until the blocks fill
     ``bias_fill`` of it (the sampling density follows the atlas size); False keeps each
@@ -37,7 +40,8 @@ class SasConfig(MethodConfig):
     """
 
     gop: int = 5
-    atlas_mpix_1080p: float = 8.0
+    atlas_mpix_1080p: float = 12.0
+    atlas_filter: Literal["bicubic", "bilinear"] = "bicubic"
     atlas_width: int = 0
     atlas_height: int = 0
     superblock_px: int = 32
@@ -78,6 +82,8 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"SasConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
+        if self.atlas_filter not in ("bicubic", "bilinear"):
+            raise ConfigError(f"SasConfig.atlas_filter: {self.atlas_filter!r} is not one of ['bicubic', 'bilinear']")
         if self.atlas_mpix_1080p <= 0:
             raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
 
