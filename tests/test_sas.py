@@ -228,6 +228,31 @@ def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
         assert stats["failed"] == 0
 
 
+@pytest.mark.parametrize("atlas_filter", ["bicubic", "bilinear"])
+def test_atlas_lookups_never_read_outside_the_patch_block(atlas_filter: str) -> None:
+    """Every texel outside the live blocks painted magenta changes no displayed pixel: each of the Catmull-Rom
+    lookup's 16 taps (or the one bilinear tap) stays inside its patch's block.  Painting the blocks too does change
+    the frame (so the check can fail)."""
+    from splitrender.render.canvas import upload_image
+
+    out, cli = _loopback(2, {"lossless": True, "atlas_filter": atlas_filter})
+    u, plane, frame, _gt, _ = out[-1]
+    h, w = plane.shape[:2]
+    inside = np.zeros((h, w), bool)
+    for x, y, lw, lh, _tr in cli.rect.values():
+        inside[int(y):int(y) + (1 << int(lh)), int(x):int(x) + (1 << int(lw))] = True
+    assert 0.3 < inside.mean() < 1.0, inside.mean()
+    pose, t = u.pose, u.t_s
+    clean = cli.render(pose, t).color
+    poisoned = plane.copy()
+    poisoned[~inside] = (255, 0, 255)
+    cli._tex = upload_image(cli.gl, poisoned, cli._tex)
+    assert np.array_equal(cli.render(pose, t).color, clean), "a lookup read a texel outside its block"
+    poisoned[inside] = (255, 0, 255)
+    cli._tex = upload_image(cli.gl, poisoned, cli._tex)
+    assert not np.array_equal(cli.render(pose, t).color, clean)
+
+
 def test_moving_object_is_drawn_where_the_ground_truth_has_it() -> None:
     """Ten frames with the ``ball`` (recoloured pure green, so the client's pixels can be told apart) in view.
 

@@ -309,3 +309,13 @@ def test_metadata_is_at_most_a_third_of_the_bits_on_a_real_model(renderer) -> No
     share = sum(u["bytes_meta"] for u in late) / sum(u["bytes"] for u in late)
     assert share <= 1 / 3, f"metadata is {share:.1%} of sas's bytes after the first second"
     assert res.summary["mean_psnr_db"] >= 50.0, f"quality {res.summary['mean_psnr_db']:.2f} dB"
+
+
+def test_nonsense_atlas_settings_are_named() -> None:
+    from splitrender.errors import ConfigError
+    from splitrender.methods.sas import SasConfig
+
+    with pytest.raises(ConfigError, match=r"SasConfig.atlas_filter: 'lanczos' is not one of"):
+        SasConfig(atlas_filter="lanczos")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"SasConfig.atlas_mpix_1080p: must be > 0"):
+        SasConfig(atlas_mpix_1080p=0.0)
