@@ -72,7 +72,9 @@ def _still(renderer, scene: str, method: str, params: dict | None = None) -> flo
 # bias both ways (``fill_atlas``: the levels rise until the blocks fill the budget): minimal 38.22, default
 # 32.84 in the paper's 8 Mpix atlas.  What was left was resampling (a texture filtered into the atlas, the atlas
 # filtered onto the screen): a Catmull-Rom lookup (``atlas_filter = "bicubic"``) gives minimal 39.22, and the
-# 12 Mpix default atlas BoxTextured 40.71 / 40.72, minimal 41.69 / 42.07, default 34.54 / 32.16.
+# 12 Mpix default atlas BoxTextured 40.71 / 40.72, minimal 41.69 / 42.07, default 34.54 / 32.16; with
+# untextured patches held to 2 texels per pixel per side (``fill_max_density_plain``) minimal's cube leaves room to the
+# floor: 41.85.
 STILL = [(BOX_TEXTURED, 40.5), ("minimal", 41.5), ("default+nogi", 34.3)]
 
 
@@ -90,7 +92,7 @@ def test_still_camera_zero_latency_detail_against_video(renderer, scene: str, le
 
 def test_bicubic_lookup_and_atlas_size_on_the_minimal_scene(renderer) -> None:  # type: ignore[no-untyped-def]
     """What each half of the detail step gives on ``minimal`` (still camera, zero latency): the Catmull-Rom lookup
-    against one bilinear tap (measured 41.69 against 40.91 dB), and the default 12 Mpix atlas against the paper's
+    against one bilinear tap (measured 41.85 against 41.11 dB), and the default 12 Mpix atlas against the paper's
     8 (39.22 dB with bicubic, 38.22 with bilinear: the budget is full and detail follows the texels)."""
     sas = _still(renderer, "minimal", "sas")
     bilinear = _still(renderer, "minimal", "sas", {"atlas_filter": "bilinear"})
@@ -311,6 +313,33 @@ def test_metadata_is_at_most_a_third_of_the_bits_on_a_real_model(renderer) -> No
     assert res.summary["mean_psnr_db"] >= 50.0, f"quality {res.summary['mean_psnr_db']:.2f} dB"
 
 
+def test_only_maps_that_vary_are_texture_detail() -> None:
+    from splitrender.methods.sas.server import has_texture_detail
+    from splitrender.scene.model import Material
+    from splitrender.scene.textures import checker
+
+    assert has_texture_detail(Material("c", (1, 1, 1), checker(64, 8)))
+    assert not has_texture_detail(Material("grey", (1, 1, 1), np.full((2, 2, 3), 100, np.uint8)))   # a loader's placeholder
+    assert not has_texture_detail(Material("plain", (0.8, 0.2, 0.2)))
+
+
+@pytest.mark.skipif(not __import__("os").path.exists(WUSON), reason="assimp-testmodels not installed")
+def test_a_smooth_model_does_not_fill_the_atlas(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``Wuson.ply`` has no texture detail: its patches rise at most 2x their ideal texels per pixel per side
+    (``fill_max_density_plain``), for about half the bits of filling the atlas and no less quality.  Measured
+    (``walk``, ``ideal``, 1 s, 320x180): 52.06 dB at 1.95 Mbit/s against 51.06 dB at 3.66 Mbit/s uncapped (52.31 dB at
+    1.12 Mbit/s at the ideal levels)."""
+    from splitrender.sim.runner import RunConfig, run
+
+    out = {}
+    for name, params in (("capped", {}), ("filled", {"fill_max_density_plain": 64.0})):
+        res = run(RunConfig(method="sas", scene=WUSON, trace="walk", network="ideal", duration_s=1.0, width=320, height=180,
+                            client_fps=30, flip_every=0, seed=0, metrics=True, method_params=params), renderer=renderer)
+        out[name] = (res.summary["mean_psnr_db"], res.summary["mean_kbps"])
+    (q_cap, kb_cap), (q_fill, kb_fill) = out["capped"], out["filled"]
+    assert kb_cap <= 0.65 * kb_fill and q_cap >= q_fill, out
+
+
 def test_nonsense_atlas_settings_are_named() -> None:
     from splitrender.errors import ConfigError
     from splitrender.methods.sas import SasConfig
@@ -319,3 +348,5 @@ def test_nonsense_atlas_settings_are_named() -> None:
         SasConfig(atlas_filter="lanczos")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"SasConfig.atlas_mpix_1080p: must be > 0"):
         SasConfig(atlas_mpix_1080p=0.0)
+    with pytest.raises(ConfigError, match=r"SasConfig.fill_max_density_plain: must be in \[1, 64\], got 0.5"):
+        SasConfig(fill_max_density_plain=0.5)

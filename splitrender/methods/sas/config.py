@@ -25,7 +25,9 @@ class SasConfig(MethodConfig):
     the atlas eq. 3 aims to fill.  ``fill_atlas``: eq. 3's bias in both directions, as the
     paper writes it: with room in the atlas every level goes up until the blocks fill
     ``bias_fill`` of it (the sampling density follows the atlas size); False keeps each
-    patch at its ideal level (as many texels as it covers pixels) unless the atlas is short.  ``strategy``: allocator S0 (paper) .. S3.
+    patch at its ideal level (as many texels as it covers pixels) unless the atlas is short.  ``fill_max_density``: the
+    fill raises a patch at most to this many times its ideal texels per pixel per side; ``fill_max_density_plain``
+    the same for patches whose material has no map that varies (smooth shading, where texels mostly cost bits).  ``strategy``: allocator S0 (paper) .. S3.
     ``pvs_linger_frames``: a patch stays in the PVS for this many server frames after
     it was last in an EVS sample, so small patches flickering at the edge of
     visibility do not re-send geometry and blocks every frame.  ``split_near_m``: at load time every mesh is split (:func:`~.patches.split_mesh`)
@@ -53,6 +55,8 @@ class SasConfig(MethodConfig):
     texels_per_px: float = 1.0
     bias_fill: float = 0.75
     fill_atlas: bool = True
+    fill_max_density: float = 4.0
+    fill_max_density_plain: float = 2.0
     hysteresis: float = 0.75
     lossless: bool = False
     pvs_linger_frames: int = 8
@@ -82,6 +86,10 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.split_near_m: must be in [0, 1000], got {self.split_near_m}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"SasConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
+        if not 1.0 <= self.fill_max_density <= 64.0:
+            raise ConfigError(f"SasConfig.fill_max_density: must be in [1, 64], got {self.fill_max_density}")
+        if not 1.0 <= self.fill_max_density_plain <= 64.0:
+            raise ConfigError(f"SasConfig.fill_max_density_plain: must be in [1, 64], got {self.fill_max_density_plain}")
         if self.atlas_filter not in ("bicubic", "bilinear"):
             raise ConfigError(f"SasConfig.atlas_filter: {self.atlas_filter!r} is not one of ['bicubic', 'bilinear']")
         if self.atlas_mpix_1080p <= 0:

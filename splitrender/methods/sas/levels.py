@@ -135,13 +135,17 @@ def footprint(ext: PatchExtent, lw: np.ndarray, lh: np.ndarray, transposed: np.n
     return np.stack([fx, fy], 1)
 
 
-def fill_bias(A: np.ndarray, amin: int, amax: int, budget_texels: float, steps: int = 16) -> float:
-    """The smallest bias ``b`` (log2 units, either sign) for which the blocks ``2^clip(ceil(A - b))`` fit in
-    ``budget_texels``; the largest level span when even the smallest blocks do not fit."""
-    def total(b: float) -> float:
-        return float((2.0 ** np.clip(np.ceil(A - b - 0.01), amin, amax)).sum())
+def fill_bias(A: np.ndarray, amin: int, amax: int, budget_texels: float, steps: int = 16,
+              min_bias: float | np.ndarray = -math.inf) -> float:
+    """The smallest bias ``b`` (log2 units, either sign) for which the blocks ``2^clip(ceil(A - max(b, min_bias)))``
+    fit in ``budget_texels``; ``min_bias`` (one, or one per patch) bounds how far a patch's level rises; the
+    largest level span when even the smallest blocks do not fit."""
+    floor = np.minimum(np.asarray(min_bias, np.float64), 0.0)
 
-    lo_b, hi_b = -float(amax - amin), float(amax - amin)
+    def total(b: float) -> float:
+        return float((2.0 ** np.clip(np.ceil(A - np.maximum(b, floor) - 0.01), amin, amax)).sum())
+
+    lo_b, hi_b = max(-float(amax - amin), float(np.min(floor)) if floor.size else 0.0), float(amax - amin)
     if total(lo_b) <= budget_texels:
         return lo_b
     if total(hi_b) > budget_texels:
@@ -157,9 +161,12 @@ def fill_bias(A: np.ndarray, amin: int, amax: int, budget_texels: float, steps: 
 
 def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texels: float,
                   cur_lw: np.ndarray | None = None, cur_lh: np.ndarray | None = None, cur_t: np.ndarray | None = None,
-                  hysteresis: float = 0.75, max_aspect_log: int = 3, fill: bool = False) -> LevelChoice:
+                  hysteresis: float = 0.75, max_aspect_log: int = 3, fill: bool = False,
+                  fill_max_density: float | np.ndarray = math.inf) -> LevelChoice:
     """Eq. 2 and 3: integer levels from continuous ``(A, a)``; ``cur_*`` (-1 = none) enable hysteresis; ``fill``:
-    eq. 3's bias in both directions (see the module docstring)."""
+    eq. 3's bias in both directions (see the module docstring), up to ``fill_max_density`` (one, or one per
+    patch) times a patch's ideal texels per display pixel along each side: a patch's bias is at least
+    ``-2 log2`` of it."""
     lo, hi = layout.min_level, layout.max_level
     amin, amax = 2 * lo, 2 * hi
     # without pressure a patch gets at least as many texels as it covers pixels (A rounded up)
@@ -169,12 +176,13 @@ def select_levels(A: np.ndarray, a: np.ndarray, layout: AtlasLayout, budget_texe
     total = float(ideal.sum())
     bias = 0.0
     if fill:
-        bias = fill_bias(A, amin, amax, budget_texels) if A.size else 0.0
+        min_bias = np.broadcast_to(-2.0 * np.log2(np.asarray(fill_max_density, np.float64)), A.shape)
+        bias = fill_bias(A, amin, amax, budget_texels, min_bias=min_bias) if A.size else 0.0
     elif total > budget_texels and budget_texels > d:
         bias = max(0.0, math.log2((total - d) / max(budget_texels - d, 1.0)))
     elif total > budget_texels:
         bias = float(amax)
-    Ab = A - bias
+    Ab = A - (np.maximum(bias, min_bias) if fill else bias)
     transposed = a < 0
     aa = np.abs(a)
     if fill:

@@ -50,8 +50,22 @@ log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 2 + 3 + 3 + 2 + 4 + 4 + 2
 """Floats per atlas-shading vertex: atlas xy, position, normal, uv, tangent, block rect, footprint."""
+TEXTURE_MAPS = ("texture", "normal_texture", "metallic_roughness_texture", "occlusion_texture", "emissive_texture")
+"""Material maps whose detail makes a patch textured (:attr:`SasConfig.fill_max_density` applies, else ``_plain``)."""
 EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
+
+
+def has_texture_detail(material: Any) -> bool:
+    """Whether one of ``material``'s maps (:data:`TEXTURE_MAPS`) varies: a constant map (a loader's 2x2 grey for
+    a model without one) carries no detail more texels could resolve."""
+    for k in TEXTURE_MAPS:
+        m = getattr(material, k, None)
+        if m is not None and m.size:
+            flat = np.asarray(m).reshape(-1, m.shape[-1] if m.ndim == 3 else 1)
+            if bool((flat != flat[0]).any()):
+                return True
+    return False
 
 
 def object_boxes(meshes: list[Any]) -> np.ndarray:
@@ -209,6 +223,11 @@ class SasServer(ServerHalf):
         self.sent_static = np.zeros(self.n_obj, bool)
         self.obj_box = object_boxes(self.patches.meshes)               # (n_obj, 2, 3) metres, object space
         self.vertex_q = quantize_vertices(self.patches.meshes, self.obj_box)
+        # how far the fill may raise each patch's level: texture maps carry detail that more texels resolve,
+        # a material without one shades smoothly (lighting, shadows), where they mostly cost bits
+        textured = np.array([has_texture_detail(o.material) for o in self.scene.objects], bool)
+        self.fill_density = np.where(textured, self.config.fill_max_density, self.config.fill_max_density_plain)[self.patches.object_index] \
+            if self.n_obj else np.zeros(0)
 
     # ------------------------------------------------------------------ interface
     def streams(self) -> list[StreamSpec]:
@@ -268,7 +287,7 @@ class SasServer(ServerHalf):
         A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
         choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
-                               self.transposed[pvs], c.hysteresis, fill=c.fill_atlas)
+                               self.transposed[pvs], c.hysteresis, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
         # I-frame / reset decisions
         # the client reported atlas frames it never got (feedback): resend the whole PVS
         lost = ctx.feedback.newly_lost("atlas")
@@ -277,10 +296,10 @@ class SasServer(ServerHalf):
         iframe = full or self._since_i >= c.gop
         reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
         if reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas)
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
         res = al.update(pvs, choice.lw, choice.lh, reset=reset)
         if res.failed.size and al.can_reset and not reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas)
+            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
             res2 = al.update(pvs, choice.lw, choice.lh, reset=True)
             res = type(res)(np.union1d(res.placed, res2.placed), res.released, res2.failed, True)
             reset = iframe = True
