@@ -238,6 +238,7 @@ class SasClient(ClientHalf):
             self.prog["u_proj"].write(np.asarray(i.projection(), "f4").T.tobytes())
             self._tex.use(location=0)
             self.prog["u_atlas"].value = 0
+            # SasConfig.atlas_filter (read by name: the client imports nothing but the wire format from its package)
             self.prog["u_bicubic"].value = int(getattr(self.config, "atlas_filter", "bicubic") == "bicubic")
             if self._high:
                 self._vao.render(vertices=9 * self._high)
