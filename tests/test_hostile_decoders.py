@@ -285,6 +285,11 @@ def test_sas_floats_checked_in_float32() -> None:
     with pytest.raises(SasMetaError, match=r"^sas session data: 'sky' must be three finite numbers"):
         parse_session({**sd, "obj_box": np.zeros((1, 2, 3)), "sky": [0.0, float("nan"), 0.0]})
     assert parse_session({**sd, "obj_box": np.ones((1, 2, 3))}).obj_box.dtype == np.float32
+    ok = {**sd, "obj_box": np.ones((1, 2, 3))}
+    assert parse_session(ok).inset == 0 and parse_session({**ok, "inset": 8}).inset == 8    # absent: every side spanned
+    for inset in (-1, 4097, 2.5, True, "8"):
+        with pytest.raises(SasMetaError, match=r"^sas session data: 'inset' must be an integer in 0\.\.4096"):
+            parse_session({**ok, "inset": inset})
 
 
 # ------------------------------------------------------------------ 6. send_error after Bye

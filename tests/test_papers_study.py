@@ -37,11 +37,15 @@ def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
         assert len(r) == 1, (exp, kw)
         return {k: float(v) for k, v in r[0].items() if k in ("psnr_db", "ssim", "kbps", "pred_err_cm", "pred_err_deg")}
 
-    # SAS fig. 13: from 0 to 100 ms atw loses more PSNR than sas (measured: sas 8.2 dB, atw 11.6 dB; sas lost
-    # 6.1 dB before its atlas filtered textures per texel for the display, which raised its 0 ms score)
-    loss = {m: get("sas_fig13", method=m, latency_ms="0")["psnr_db"] - get("sas_fig13", method=m, latency_ms="100")["psnr_db"]
-            for m in ("sas", "atw")}
-    assert loss["atw"] - loss["sas"] > 2.5, loss
+    # SAS fig. 13: from 0 to 100 ms atw loses more than sas, and at 100 ms sas is well ahead.  Measured: sas 25.82 ->
+    # 16.51 dB (SSIM 0.895 -> 0.563), atw 21.82 -> 10.27 (0.825 -> 0.260).  sas lost 6.1 dB before its atlas
+    # filtered textures per texel for the display, 8.2 before its 12 Mpix atlas and Catmull-Rom lookup: each raised
+    # its 0 ms score more than its 100 ms one
+    at = {(m, ms): get("sas_fig13", method=m, latency_ms=ms) for m in ("sas", "atw") for ms in ("0", "100")}
+    loss = {m: at[(m, "0")]["psnr_db"] - at[(m, "100")]["psnr_db"] for m in ("sas", "atw")}
+    ssim_loss = {m: at[(m, "0")]["ssim"] - at[(m, "100")]["ssim"] for m in ("sas", "atw")}
+    assert loss["atw"] - loss["sas"] > 1.8 and ssim_loss["atw"] - ssim_loss["sas"] > 0.18, (loss, ssim_loss)
+    assert at[("sas", "100")]["psnr_db"] > at[("atw", "100")]["psnr_db"] + 5.0, at
     # SAS fig. 15: the higher bitrate buys video PSNR (measured 442 -> 2028 kbit/s, +3.9 dB)
     lo, hi = get("sas_fig15", method="video", bitrate_kbps="300"), get("sas_fig15", method="video", bitrate_kbps="2000")
     assert hi["kbps"] > 3 * lo["kbps"] and hi["psnr_db"] - lo["psnr_db"] > 3.0, (lo, hi)

@@ -260,10 +260,11 @@ def test_conservative_oversampling_samples_at_the_papers_resolution(renderer, gr
 
 
 _STILL: dict = {}
-SAS_IDEAL = {"lossless": True, "fill_atlas": False, "atlas_filter": "bilinear", "atlas_mpix_1080p": 8.0}
+SAS_IDEAL = {"lossless": True, "fill_atlas": False, "atlas_filter": "bilinear", "atlas_mpix_1080p": 8.0, "inset_min_texels": 0}
 """sas at its ideal levels (as many texels as a patch covers pixels; ``fill_atlas`` off, or sas spends its whole atlas
-budget), looked up bilinearly as tss's client does, in the paper's 8 Mpix atlas: the tss paper's comparison, quality
-against the samples each shades, with the same reconstruction."""
+budget), looked up bilinearly as tss's client does, in the paper's 8 Mpix atlas, every block side spanned (as tss's
+triangles span their samples): the tss paper's comparison, quality against the samples each shades, with the same
+reconstruction."""
 
 
 def _still(renderer, scene: str, method: str, params: dict, samples: bool = False, size: tuple[int, int] = (320, 180)):  # type: ignore[no-untyped-def]

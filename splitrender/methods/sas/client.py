@@ -181,7 +181,8 @@ class SasClient(ClientHalf):
             sel = np.flatnonzero(size == k)
             if sel.size == 0:
                 continue
-            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], rr[sel, 4] != 0) / wh
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], rr[sel, 4] != 0,
+                                 self.session.inset) / wh
             o = np.broadcast_to(obj[sel][:, None, None], (sel.size, 3, 1))
             clamp = block_clamp_rect(rect[sel]) / np.tile(wh, 2)
             c4 = np.broadcast_to(clamp[:, None, :], (sel.size, 3, 4))

@@ -38,7 +38,9 @@ class SasConfig(MethodConfig):
     stage grows each triangle (so every texel a client's tap reads is shaded) across its
     edges inside the block; with this set also across those on the block's sides, whose
     texels outside are discarded (the same texels, drawn at about twice the cost; on only
-    to measure that).
+    to measure that).  ``inset_min_texels``: along block sides of at least this many texels the patch is inset by
+    half a texel (the paper's figure 6), so lookups inside it only interpolate; shorter sides span the block (more
+    samples per side); 0 spans every side (wire version 3's layout).
     """
 
     gop: int = 5
@@ -63,6 +65,7 @@ class SasConfig(MethodConfig):
     split_near_m: float = 2.0
     split_max_triangles: int = 200_000
     grow_block_sides: bool = False
+    inset_min_texels: int = 8
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -90,6 +93,8 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.fill_max_density: must be in [1, 64], got {self.fill_max_density}")
         if not 1.0 <= self.fill_max_density_plain <= 64.0:
             raise ConfigError(f"SasConfig.fill_max_density_plain: must be in [1, 64], got {self.fill_max_density_plain}")
+        if not 0 <= self.inset_min_texels <= 4096:
+            raise ConfigError(f"SasConfig.inset_min_texels: must be in [0, 4096], got {self.inset_min_texels}")
         if self.atlas_filter not in ("bicubic", "bilinear"):
             raise ConfigError(f"SasConfig.atlas_filter: {self.atlas_filter!r} is not one of ['bicubic', 'bilinear']")
         if self.atlas_mpix_1080p <= 0:

@@ -44,7 +44,7 @@ from .allocator import PatchAllocator
 from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches, split_scene_meshes
 from .pvs import PatchIdPass, PoseSample, evs_samples
-from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_layout_xy, encode_geometry, encode_ids
+from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_inset, block_layout_xy, encode_geometry, encode_ids
 
 log = logging.getLogger(__name__)
 SHADERS = Path(__file__).parent / "shaders"
@@ -54,6 +54,8 @@ TEXTURE_MAPS = ("texture", "normal_texture", "metallic_roughness_texture", "occl
 """Material maps whose detail makes a patch textured (:attr:`SasConfig.fill_max_density` applies, else ``_plain``)."""
 EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
+INSET_GROW_TEXELS = 1.0
+"""How far an edge on an inset block side is grown: past the border texels' centres, half a texel away."""
 
 
 def has_texture_detail(material: Any) -> bool:
@@ -139,6 +141,17 @@ def expand_triangles(p: np.ndarray, d: float | np.ndarray) -> np.ndarray:
     l1 = (w[..., 0] * v1[:, None, 1] - w[..., 1] * v1[:, None, 0]) / dd[:, None]
     l2 = (v0[:, None, 0] * w[..., 1] - v0[:, None, 1] * w[..., 0]) / dd[:, None]
     return np.stack([1 - l1 - l2, l1, l2], axis=-1)
+
+
+def boundary_axes(layout_uv: np.ndarray) -> np.ndarray:
+    """(3,) int per edge of a triangle with block-local corners ``layout_uv`` (3, 2): the layout axis (0 = u,
+    1 = v) across which the edge lies on a side of the block (its coordinate there is 0 or 1), or -1."""
+    nxt = np.roll(layout_uv, -1, axis=0)
+    out = np.full(3, -1, np.int64)
+    for c in (1, 0):
+        on = (layout_uv[:, c] == nxt[:, c]) & ((layout_uv[:, c] == 0) | (layout_uv[:, c] == 1))
+        out[on] = c
+    return out
 
 
 def boundary_edges(layout_uv: np.ndarray) -> np.ndarray:
@@ -241,7 +254,7 @@ class SasServer(ServerHalf):
     def session_data(self) -> dict[str, Any]:
         return {"v": META_VERSION, "atlas": [self.layout.width, self.layout.height], "n_objects": self.n_obj,
                 "n_patches": self.patches.count, "patch_base": self.patches.base.astype(np.int64),
-                "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box}
+                "sky": list(map(float, self.scene.sky_color)), "obj_box": self.obj_box, "inset": int(self.config.inset_min_texels)}
 
     def stats(self) -> dict[str, float]:
         return dict(self._stats)
@@ -387,13 +400,22 @@ class SasServer(ServerHalf):
             if sel.size == 0:
                 continue
             sid = ids[sel]
-            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[sid])
+            inset = self.config.inset_min_texels
+            xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[sid], inset)
+            ins = block_inset(rect[sel], inset) > 0                    # (n, 2) inset along atlas x, y
             for t, tri in enumerate(TRI_SLOTS[k]):
                 if tri[0] < 0:
                     continue
                 p2 = xy[:, tri]                                        # (n, 3, 2)
-                sides = boundary_edges(SLOT_LAYOUT[k][tri]) & (not self.config.grow_block_sides)
-                w = expand_triangles(p2, np.where(sides, 0.0, EXPAND_TEXELS))   # (n, 3, 3)
+                # edges inside the block grow by EXPAND_TEXELS; those on a side stay (texels beyond it are another
+                # block's), or on an inset side grow past the border texels' centres
+                axes = boundary_axes(SLOT_LAYOUT[k][tri])              # layout axis per edge, -1 inside
+                d = np.full((sel.size, 3), EXPAND_TEXELS)
+                if not self.config.grow_block_sides:
+                    for e in np.flatnonzero(axes >= 0).tolist():
+                        atlas_axis = np.where(self.transposed[sid], 1 - axes[e], axes[e])
+                        d[:, e] = np.where(ins[np.arange(sel.size), atlas_axis], INSET_GROW_TEXELS, 0.0)
+                w = expand_triangles(p2, d)   # (n, 3, 3)
                 q = np.einsum("nkj,njc->nkc", w, p2)
                 pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[sid][:, tri].astype(np.float64))
                 nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[sid][:, tri].astype(np.float64))

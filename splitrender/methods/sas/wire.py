@@ -4,7 +4,9 @@ Session data: ``v``, ``atlas`` [W, H] texels, ``n_objects``, ``n_patches`` (patc
 are ``0 .. n_patches - 1``), ``patch_base`` int64 (n_objects,): the first patch id of
 each object (non-decreasing from 0; patch ``p`` belongs to the last object whose base
 is <= ``p``), ``sky`` RGB, ``obj_box`` float32 (n_objects, 2, 3): per object the lo, hi
-corners of its bounding box in object space, metres.
+corners of its bounding box in object space, metres; ``inset`` (0..4096 texels; absent
+= 0): a block side at least this long holds the patch inset by half a texel (0 = never;
+see :func:`block_layout_xy`).
 
 Per-frame metadata (``v = META_VERSION``), all arrays little-endian; an absent array
 is empty and an absent flag false (the server leaves them out):
@@ -29,9 +31,9 @@ delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
   follow from ``patch_base``;
 - ``uv_id`` (U,) patches other than the new ones whose block moved, ``uv_rect``
   uint16 (G + U, 5), the new patches' rows first, then ``uv_id``'s: block x, y (texels, top-left),
-  lw, lh (log2 width and height), transposed flag; the patch spans its whole block
-  (:func:`block_layout_xy`) and lookups are clamped to the block's texel centres
-  (:func:`block_clamp_rect`);
+  lw, lh (log2 width and height), transposed flag; the patch spans its whole block,
+  inset by half a texel along sides of at least ``inset`` texels (:func:`block_layout_xy`),
+  and lookups are clamped to the block's texel centres (:func:`block_clamp_rect`);
 - ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
 
 Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
@@ -39,6 +41,8 @@ the session data carries ``n_patches``.  Version 3: compact geometry (``geo_vtx`
 ``geo_idx`` shared-vertex indices replace ``geo_pos`` and ``geo_obj``), delta-coded
 id lists, block rectangles of new patches without their ids, empty fields and false
 flags left out (and no ``atlas`` per frame), and ``patch_base`` in the session data.
+Version 4: ``inset`` in the session data (long block sides inset the patch again, as
+version 1 did for every side and the paper's figure 6 does).
 """
 
 from __future__ import annotations
@@ -50,7 +54,8 @@ import numpy as np
 
 from ...errors import RemoteProtocolError
 
-META_VERSION = 3
+META_VERSION = 4
+MAX_INSET = 4096
 MAX_LEVEL = 15
 _F32_MAX = float(np.finfo(np.float32).max)
 """Largest block level (log2 texels) a client accepts."""
@@ -126,19 +131,33 @@ def decode_geometry_slots(dvtx: np.ndarray, code: np.ndarray) -> np.ndarray:
     return q[idx] if idx.size else np.zeros((0, 3), np.uint16)
 
 
-def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray) -> np.ndarray:
+def block_inset(rect: np.ndarray, inset: int) -> np.ndarray:
+    """(N, 2) half-texel insets (0 or 0.5) along atlas x and y of blocks ``rect`` (N, 4: x, y, width, height):
+    0.5 where the side is at least ``inset`` texels (``inset`` > 0)."""
+    if inset <= 0:
+        return np.zeros((rect.shape[0], 2))
+    return np.where(rect[:, 2:4] >= inset, 0.5, 0.0)
+
+
+def block_layout_xy(layout_uv: np.ndarray, rect: np.ndarray, transposed: np.ndarray, inset: int = 0) -> np.ndarray:
     """Atlas texel positions (..., 2) of block-local ``layout_uv`` (N, ..., 2): the patch spans the whole block.
 
-    ``rect`` (N, 4) is x, y, width, height in texels.  Texel centres lie inside the
-    patch (a 2x2 block samples it at 1/4 and 3/4 of each side, not on its edges, where
-    the texture filter would mix in the neighbouring surface), so a block of ``2^l``
-    texels holds ``2^l`` samples per side; the client clamps its lookups to the
+    ``rect`` (N, 4) is x, y, width, height in texels.  Along a short side texel centres
+    lie inside the patch (a 2x2 block samples it at 1/4 and 3/4 of each side, not on its
+    edges, where the texture filter would mix in the neighbouring surface), so a block of
+    ``2^l`` texels holds ``2^l`` samples per side.  Along a side of at least ``inset``
+    texels the patch is inset by half a texel (the paper's figure 6): its edges run
+    through the border texels' centres, so a lookup inside the patch only interpolates,
+    where the spanning layout repeats the border texel for the outer half texel (on the
+    `minimal` checker that cost 1.3 dB at 320x180).  The client clamps its lookups to the
     block's texel-centre rectangle (:func:`block_clamp_rect`).
     """
     uv = np.where(transposed.reshape((-1,) + (1,) * (layout_uv.ndim - 1)), layout_uv[..., ::-1], layout_uv)
     shape = (-1,) + (1,) * (layout_uv.ndim - 2)
-    x = rect[:, 0].reshape(shape) + uv[..., 0] * rect[:, 2].reshape(shape)
-    y = rect[:, 1].reshape(shape) + uv[..., 1] * rect[:, 3].reshape(shape)
+    ins = block_inset(rect, inset)
+    ix, iy = ins[:, 0].reshape(shape), ins[:, 1].reshape(shape)
+    x = rect[:, 0].reshape(shape) + ix + uv[..., 0] * (rect[:, 2].reshape(shape) - 2 * ix)
+    y = rect[:, 1].reshape(shape) + iy + uv[..., 1] * (rect[:, 3].reshape(shape) - 2 * iy)
     return np.stack([x, y], axis=-1)
 
 
@@ -161,6 +180,7 @@ class SessionInfo:
     sky: tuple[float, float, float]
     obj_box: np.ndarray
     patch_base: np.ndarray
+    inset: int = 0
 
     def object_of(self, ids: np.ndarray) -> np.ndarray:
         """Object index of patches ``ids`` (validated ids)."""
@@ -224,8 +244,9 @@ def parse_session(sd: Any) -> SessionInfo:
         raise SasMetaError(f"sas session data: 'patch_base' must be {n_obj} non-decreasing integers from 0 to at most n_patches")
     if n_patches and not n_obj:
         raise SasMetaError("sas session data: patches without objects")
+    inset = _count(sd, "inset", 0, MAX_INSET) if "inset" in sd else 0     # absent: every side spanned
     return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box32,
-                       base.astype(np.int64))
+                       base.astype(np.int64), inset)
 
 
 def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
