@@ -54,8 +54,8 @@ TEXTURE_MAPS = ("texture", "normal_texture", "metallic_roughness_texture", "occl
 """Material maps whose detail makes a patch textured (:attr:`SasConfig.fill_max_density` applies, else ``_plain``)."""
 EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
-INSET_GROW_TEXELS = 1.0
-"""How far an edge on an inset block side is grown: past the border texels' centres, half a texel away."""
+INSET_GROW_TEXELS = 0.25
+"""How far an edge on an inset block side is grown: just past the border texels' centres, which it runs through (the block's side is half a texel further)."""
 
 
 def has_texture_detail(material: Any) -> bool:
