@@ -41,7 +41,7 @@ from ...scene.pose import CameraIntrinsics
 from ..base import SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import SasConfig
 from .allocator import PatchAllocator
-from .levels import footprint, log_size, patch_extent_px, patch_world_slots, select_levels
+from .levels import LevelChoice, footprint, log_size, patch_extent_px, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches, split_scene_meshes
 from .pvs import PatchIdPass, PoseSample, evs_samples
 from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_inset, block_layout_xy, encode_geometry, encode_ids
@@ -145,27 +145,21 @@ def expand_triangles(p: np.ndarray, d: float | np.ndarray) -> np.ndarray:
 
 def boundary_axes(layout_uv: np.ndarray) -> np.ndarray:
     """(3,) int per edge of a triangle with block-local corners ``layout_uv`` (3, 2): the layout axis (0 = u,
-    1 = v) across which the edge lies on a side of the block (its coordinate there is 0 or 1), or -1."""
+    1 = v) across which the edge lies on a side of the block (its coordinate there is 0 or 1), or -1.
+
+    Growing an edge on a side only draws texels outside the block, which the shading
+    stage discards: the triangles keep those edges where they are (on the default view the
+    grown triangles covered about 7 times the blocks' texels), or, along an inset side,
+    grow them just past the border texels' centres.  Nothing inside the block is lost: the
+    grown triangle is the intersection of its edges' half-planes; a point of the block
+    within the growth distance of the triangle lies inside every kept side's half-plane
+    (that side's line bounds the block) and inside every moved one."""
     nxt = np.roll(layout_uv, -1, axis=0)
     out = np.full(3, -1, np.int64)
     for c in (1, 0):
         on = (layout_uv[:, c] == nxt[:, c]) & ((layout_uv[:, c] == 0) | (layout_uv[:, c] == 1))
         out[on] = c
     return out
-
-
-def boundary_edges(layout_uv: np.ndarray) -> np.ndarray:
-    """(3,) bool: which edges of a triangle with block-local corners ``layout_uv`` (3, 2) lie on a side of the block.
-
-    Growing such an edge only draws texels outside the block, which the shading stage
-    discards: the triangles keep those edges where they are (on the default view the
-    grown triangles covered about 7 times the blocks' texels).  Nothing inside the block
-    is lost: the grown triangle is the intersection of its edges' half-planes; a point of
-    the block within the growth distance of the triangle lies inside every kept side's
-    half-plane (that side's line bounds the block) and inside every moved one."""
-    nxt = np.roll(layout_uv, -1, axis=0)
-    side = [(layout_uv[:, c] == nxt[:, c]) & ((layout_uv[:, c] == 0) | (layout_uv[:, c] == 1)) for c in (0, 1)]
-    return side[0] | side[1]
 
 
 class SasProducer(SceneProducer):
@@ -177,6 +171,7 @@ class SasProducer(SceneProducer):
         super().__init__(*a, **kw)
         self._patches: dict[tuple[int, int, float], ScenePatches] = {}
         self._ids: dict[tuple[int, int, float], PatchIdPass] = {}
+        self._textured: np.ndarray | None = None
         self.patch_build_ms = 0.0
         self._stats: dict[str, float] = {}
 
@@ -189,6 +184,12 @@ class SasProducer(SceneProducer):
             got = self._patches[key] = load_scene_patches(self.scene, self.config, intr)  # type: ignore[arg-type]
             self.patch_build_ms += (time.perf_counter() - t0) * 1e3
         return got
+
+    def textured_objects(self) -> np.ndarray:
+        """(n_objects,) bool: which objects' materials have texture detail (:func:`has_texture_detail`), scanned once."""
+        if self._textured is None:
+            self._textured = np.array([has_texture_detail(o.material) for o in self.scene.objects], bool)
+        return self._textured
 
     def id_pass(self, renderer: Any, patches: ScenePatches) -> PatchIdPass:
         """The patch-id pass of ``patches`` (GPU buffers and clusters), built on first use on the server's GL thread."""
@@ -238,7 +239,7 @@ class SasServer(ServerHalf):
         self.vertex_q = quantize_vertices(self.patches.meshes, self.obj_box)
         # how far the fill may raise each patch's level: texture maps carry detail that more texels resolve,
         # a material without one shades smoothly (lighting, shadows), where they mostly cost bits
-        textured = np.array([has_texture_detail(o.material) for o in self.scene.objects], bool)
+        textured = self.producer.textured_objects()
         self.fill_density = np.where(textured, self.config.fill_max_density, self.config.fill_max_density_plain)[self.patches.object_index] \
             if self.n_obj else np.zeros(0)
 
@@ -299,8 +300,11 @@ class SasServer(ServerHalf):
         ext = patch_extent_px(self.patches, pvs, world, eye, px_per_rad)
         A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
-        choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, al.level_w[pvs], al.level_h[pvs],
-                               self.transposed[pvs], c.hysteresis, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
+        def levels(*current: Any) -> LevelChoice:   # eq. 1-3 for the PVS; with the current blocks (hysteresis) or afresh
+            return select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, *current,
+                                 fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
+
+        choice = levels(al.level_w[pvs], al.level_h[pvs], self.transposed[pvs], c.hysteresis)
         # I-frame / reset decisions
         # the client reported atlas frames it never got (feedback): resend the whole PVS
         lost = ctx.feedback.newly_lost("atlas")
@@ -309,10 +313,10 @@ class SasServer(ServerHalf):
         iframe = full or self._since_i >= c.gop
         reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
         if reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
+            choice = levels()
         res = al.update(pvs, choice.lw, choice.lh, reset=reset)
         if res.failed.size and al.can_reset and not reset:
-            choice = select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
+            choice = levels()
             res2 = al.update(pvs, choice.lw, choice.lh, reset=True)
             res = type(res)(np.union1d(res.placed, res2.placed), res.released, res2.failed, True)
             reset = iframe = True
