@@ -177,7 +177,7 @@ def test_level_selection_fills_the_atlas_both_ways() -> None:
     # the smallest blocks do not fit: the largest bias, every patch at the smallest level
     assert fill_bias(A, 2, 10, 100.0) == 8.0
     # a density cap per patch (texels per pixel per side): capped patches rise at most 2 log2(cap) levels of area,
-    # the others take the room they leave
+    # the others take the room they leave (measured: capped rise 2.0 levels of area, the others 3.18 on average)
     cap = np.where(np.arange(500) % 2 == 0, 2.0, 64.0)
     capped = select_levels(A, a, lay, 0.75 * lay.area, fill=True, fill_max_density=cap)
     rise = (capped.lw + capped.lh).astype(float) - np.clip(np.ceil(A - 0.01), 2 * lay.min_level, 2 * lay.max_level)
@@ -527,7 +527,7 @@ def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud(trace: str) -> None:
         holes[name] = float(np.mean([f["hole_geom_pct"] for f in shown]))  # the sky counts in hole_pct
     # measured over the ticks that show an update: strafe sas 30.49 dB, atw 19.46 (28.74 for sas before its 12 Mpix
     # atlas, Catmull-Rom lookup and inset layout); walk sas 29.26, atw 18.22
-    assert psnr["sas"] > psnr["atw"] + 8.0, f"mean PSNR under cloud on {trace}: {psnr}"
+    assert psnr["sas"] > psnr["atw"] + (8.0 if trace == "strafe" else 10.0), f"mean PSNR under cloud on {trace}: {psnr}"
     if trace == "strafe":
         # prediction + FOV margin matter: measured 30.49 vs 24.79 dB, holes 0.22% vs 1.49% of the geometry (on the walk
         # 29.26 vs 27.25 dB, 0.26% vs 0.66%)

@@ -341,7 +341,7 @@ def test_a_smooth_model_does_not_fill_the_atlas(renderer) -> None:  # type: igno
                             client_fps=30, flip_every=0, seed=0, metrics=True, method_params=params), renderer=renderer)
         out[name] = (res.summary["mean_psnr_db"], res.summary["mean_kbps"])
     (q_cap, kb_cap), (q_fill, kb_fill) = out["capped"], out["filled"]
-    assert kb_cap <= 0.65 * kb_fill and q_cap >= q_fill, out
+    assert kb_cap <= 0.6 * kb_fill and q_cap >= q_fill + 0.7, out       # measured 0.52x the bits, +1.04 dB
 
 
 def test_long_block_sides_inset_the_patch_by_half_a_texel() -> None:
