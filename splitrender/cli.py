@@ -51,6 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--networks", default="ideal,lan,cloud", help="comma-separated network profiles or netem strings")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
     p.add_argument("--no-studies", action="store_true", help="skip the per-method studies in the report")
+    p.add_argument("--fec", action="store_true", default=None, help="forward error correction on every RTP stream")
+    _session_args(p)
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_demo"))
 
     p = sub.add_parser("run", help="one virtual-time run: writes frames.csv, updates.csv, summary.csv and config.toml")
@@ -72,6 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cost-scale", type=float, default=None, help="scale the measured milliseconds (0.1: a machine 10x faster)")
     p.add_argument("--fec", action="store_true", default=None,
                    help="forward error correction: an RFC 5109 parity packet per group of up to 16 RTP packets")
+    _session_args(p)
     _common_run_args(p)
     p.set_defaults(func=main_run)
 
@@ -130,9 +133,20 @@ def _parse_value(text: str) -> Any:
         return text
 
 
+def _session_args(p: argparse.ArgumentParser) -> None:
+    """The client's loss-recovery options, the same as ``splitrender client`` takes (RunConfig keys)."""
+    p.add_argument("--playout-delay", type=float, default=None, metavar="MS",
+                   help="show each update no earlier than its server time + MS (default 0: as soon as it is ready)")
+    p.add_argument("--nack-tries", type=int, default=None, help="NACKs per lost RTP packet (0 = NACK off; default 3)")
+    p.add_argument("--jitter-timeout", type=float, default=None, metavar="MS",
+                   help="how long a jitter buffer waits for a frame's missing packets (default 100 in virtual time)")
+    p.add_argument("--stall-frames", type=float, default=None,
+                   help="no new frame for this many server intervals is a stall: PLIs on every video stream (default 6)")
+
+
 def main_run(ns: argparse.Namespace) -> int:
     from .errors import ConfigError
-    from .sim.config import RunConfig
+    from .sim.config import RunConfig, session_options
     from .sim.runner import VirtualTimeRun
 
     base = RunConfig.from_toml(ns.config).to_dict() if ns.config else {}
@@ -149,6 +163,7 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
                  ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
+                 *session_options(ns).items(),  # from splitrender.sim.config
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:
             over[k] = v

@@ -355,8 +355,11 @@ def test_live_client_rejects_a_bad_frame_meta_as_a_protocol_error() -> None:
     from splitrender.client.session import ClientConfig, LiveClient
     from splitrender.pipeline import ClientPipeline
 
+    from splitrender.pipeline import ClientOptions, ClientSession
+
     client = LiveClient(ClientConfig())
     client.rx = ClientPipeline((), [])
+    client.core = ClientSession(client.rx, ClientOptions(), 30.0)
     try:
         blobs = [ZSTD_BOMB_1TB, _empty_arrays_blob(1 * MB), pack_meta({**GOOD_ENV, "t_s": "x"}),
                  pack_meta({"t_s": 0.0, "m": {}}), pack_meta({**GOOD_ENV, "timing_us": [1]})]

@@ -133,13 +133,13 @@ class _RecordingClient(LiveClient):
         super().__init__(config)
         self.completed: dict[int, tuple[dict[str, int], dict[str, tuple[tuple[int, ...], str]]]] = {}
 
-    def _collect(self) -> None:
-        n = len(self._ready)
-        super()._collect()
-        for fr in list(self._ready)[n:]:  # frames the pipeline just released for display
+    def _collect(self) -> list:  # type: ignore[type-arg]
+        released = super()._collect()
+        for fr in released:  # frames the pipeline just released for display
             if fr.update.complete:
                 self.completed[fr.update.frame_id] = (dict(fr.meta.rtp_timestamps),
                                                       {n: (p.shape, str(p.dtype)) for n, p in fr.update.planes.items()})
+        return released
 
 
 async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Path) -> None:
@@ -160,7 +160,7 @@ async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Pat
     assert [s.codec for s in client._welcome.streams] == ["h264", "hevc"]  # type: ignore[union-attr]
     assert len(streams) == 2 and streams[0].startswith("color") and streams[1].startswith("depth"), streams
     c = result.counters
-    assert c["frames_complete"] >= 0.4 * duration * 30 and c["frames_skipped"] <= 2, c
+    assert c["frames_complete"] >= 0.4 * duration * 30 and c["frames_partial"] <= 2, c
     assert len(client.completed) == c["frames_complete"]
     for fid, (rtp_ts, planes) in client.completed.items():
         # both streams of the frame, decoded, under the one RTP timestamp of the frame

@@ -322,3 +322,23 @@ def test_latency_spike_delays_only_packets_sent_inside_the_window():
         to_netem(spec)
     with pytest.raises(NetworkConfigError, match="'soon' is not a time"):
         parse_netem("spike 250ms soon 1s")
+
+
+def test_a_lost_tcp_segment_delays_its_own_stream_not_the_datagrams_behind_it() -> None:
+    """One path carries the control channel (reliable) and RTP (datagrams): a segment lost and resent after
+    the RTO delays the segments after it (TCP is in order) but not a datagram sent after it."""
+    import numpy as np
+
+    from splitrender.netsim.models import Link, LinkSpec
+
+    spec = LinkSpec(delay_ms=20.0, loss_pct=100.0)     # every segment is "lost" once: each pays one RTO
+    link = Link(spec, np.random.default_rng(0), rto_s=0.2)
+    (seg,) = link.send(0.0, 1440, reliable=True)
+    (seg2,) = link.send(0.001, 1440, reliable=True)
+    assert seg.time_s == pytest.approx(0.22) and seg2.time_s >= seg.time_s
+    link2 = Link(LinkSpec(delay_ms=20.0), np.random.default_rng(0), rto_s=0.2)
+    link2._lost = lambda: True  # type: ignore[method-assign]  # the segment is lost; the datagram below is not
+    (seg,) = link2.send(0.0, 1440, reliable=True)
+    link2._lost = lambda: False  # type: ignore[method-assign]
+    (dgram,) = link2.send(0.001, 300)
+    assert seg.time_s == pytest.approx(0.22) and dgram.time_s == pytest.approx(0.021)

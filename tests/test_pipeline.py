@@ -230,10 +230,9 @@ def tiny_installed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):  # type: ig
     yield site
     # uninstall: later tests see only the built-in methods again
     from splitrender.methods import base as methods_base
-    from splitrender import methods as methods_pkg
 
     methods_base._REGISTRY.pop("tiny", None)
-    methods_pkg._seen_entry_points.discard("tiny=splitrender_tiny:SPEC")
+    methods_base._seen_entry_points.discard("tiny=splitrender_tiny:SPEC")
     for mod in [m for m in sys.modules if m == "splitrender_tiny" or m.startswith("splitrender_tiny.")]:
         del sys.modules[mod]
 

@@ -197,34 +197,25 @@ def test_malformed_sdes_is_an_rtcp_error() -> None:
         parse_rtcp(b"\x82\xca\x00\x02" + b"\x00\x00\x00\x01" + b"\x01\x01a\x00")  # second chunk missing
 
 
-class _FakeUdp:
-    def __init__(self) -> None:
-        self.sent: list[bytes] = []
-
-    def is_closing(self) -> bool:
-        return False
-
-    def sendto(self, data: bytes) -> None:
-        self.sent.append(data)
-
-
 def test_client_feedback_datagrams_are_compound_rtcp() -> None:
-    from splitrender.client.session import ClientConfig, LiveClient
+    from types import SimpleNamespace
 
-    client = LiveClient(ClientConfig())
-    client.udp = _FakeUdp()  # type: ignore[assignment]
-    client._send_rtcp([GenericNack(0, 0x1234, (5,))])
-    client._send_rtcp([PictureLossIndication(0, 0x1234)])
-    client._send_rtcp([ReceiverReport(0, (ReportBlock(0x1234, 0, 0, 9, 0),)), PictureLossIndication(0, 0x1234)])
+    from splitrender.pipeline import ClientOptions, ClientSession
+
+    core = ClientSession(SimpleNamespace(streams={}), ClientOptions(), 30.0)  # type: ignore[arg-type]
+    core._queue_rtcp([GenericNack(0, 0x1234, (5,))])
+    core._queue_rtcp([PictureLossIndication(0, 0x1234)])
+    core._queue_rtcp([ReceiverReport(0, (ReportBlock(0x1234, 0, 0, 9, 0),)), PictureLossIndication(0, 0x1234)])
     cnames = set()
-    for data in client.udp.sent:  # type: ignore[attr-defined]
+    sent = core.datagrams_to_send()
+    for data in sent:
         packets = parse_rtcp(data)
         assert isinstance(packets[0], ReceiverReport)
         assert isinstance(packets[1], SourceDescription)
         cnames.add(packets[1].chunks[0].cname)
         assert isinstance(packets[-1], (GenericNack, PictureLossIndication))
     assert len(cnames) == 1 and next(iter(cnames))  # one non-empty CNAME per session
-    assert client.counters["rtcp_sent"] == 3
+    assert core.counters["rtcp_sent"] == 3 == len(sent) and core.datagrams_to_send() == []
 
 
 def test_server_routes_compound_and_bare_feedback() -> None:

@@ -22,10 +22,11 @@ import numpy as np
 
 from splitrender import metrics
 from splitrender.errors import ConfigError
+from splitrender.pipeline import session_summary
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
 from splitrender.client.session import JOURNAL
-from splitrender.sim.runner import write_csv
+from splitrender.tabular import write_csv
 
 __all__ = ["score_recording", "read_frames", "read_journal"]
 
@@ -139,8 +140,8 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
         "mean_server_ms": mean("server_render_ms"), "mean_encode_ms": mean("server_encode_ms"),
         "mean_decode_ms": mean("decode_ms"), "mean_client_ms": mean("client_ms"), "mean_gt_ms": mean("gt_ms"),
         "mean_network_ms": mean("network_ms"),
-        "lost_frames": counters.get("frames_skipped", 0), "keyframes": counters.get("keyframes_received", 0),
-        "keyframe_requests": counters.get("plis_sent", 0),
+        **session_summary(counters, {}, rows),
+        "lost_frames": counters.get("frames_partial", 0), "keyframes": counters.get("keyframes_received", 0),
         "mean_pred_err_cm": math.nan, "mean_pred_err_deg": math.nan,
         "flip_every": flip_every, "config_key": rec.get("session_id", ""),
     }

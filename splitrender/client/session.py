@@ -4,9 +4,9 @@ Task layout (one ``asyncio.TaskGroup`` owned by :meth:`LiveClient.run`):
 
 * ``poses``: samples the camera trace at ``tracker_hz`` and sends ``Pose`` messages;
 * ``control``: reads FrameMeta (kept until its planes are decoded), Stats, Bye, Error;
-* ``rtcp``: binds the UDP path (receiver reports until the first RTP packet), sends
-  generic NACKs for holes older than ``nack_delay_ms``, PLIs while a jitter buffer
-  needs a keyframe, periodic receiver reports, and applies jitter-buffer timeouts;
+* ``rtcp``: runs the session core's timer (:class:`splitrender.pipeline.ClientSession`:
+  receiver reports, which bind the UDP path until the first RTP packet, generic NACKs,
+  PLIs, jitter-buffer timeouts and stall detection) and sends the RTCP it queues;
 * ``decode``: decodes every completed access unit in order on a decoder thread and
   matches planes to their FrameMeta by ``(stream, RTP timestamp)``;
 * ``display``: the display clock at ``display_hz``; each tick applies the updates that
@@ -25,7 +25,6 @@ import concurrent.futures
 import json
 import logging
 import math
-import secrets
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -35,32 +34,13 @@ from typing import Any
 import numpy as np
 
 from splitrender.codecs.meta import unpack_meta
-from splitrender.errors import CodecError, ConfigError, RemoteProtocolError, SplitRenderError
+from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import get_method, make_config
-from splitrender.pipeline import ClientPipeline, control_wire_bytes, EnvelopeError, ReceivedFrame, SessionAssembler, Work, specs_from_table
-from splitrender.protocol import (
-    PROTOCOL_VERSION,
-    Bye,
-    ClientConnection,
-    DataChunk,
-    Error,
-    Feedback,
-    FrameMeta,
-    GenericNack,
-    Hello,
-    PictureLossIndication,
-    Pose,
-    ReceiverReport,
-    ReportBlock,
-    SenderReport,
-    Stats,
-    Welcome,
-    is_rtcp,
-    parse_rtcp,
-    serialize_rtcp,
-)
-from splitrender.protocol.errors import RtcpError
-from splitrender.protocol.rtcp import compound_feedback
+from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, EnvelopeError, ReceivedFrame, Resumed,
+                                  SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything,
+                                  specs_from_table)
+from splitrender.protocol import PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, FrameMeta, Hello, Pose, Stats, Welcome
+from splitrender.tabular import write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -71,16 +51,10 @@ __all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "
 
 logger = logging.getLogger(__name__)
 
-MAX_PENDING_FRAMES = 128
-"""FrameMeta / decoded planes kept while waiting for their counterpart."""
-MAX_READY_UPDATES = 16
-"""Matched updates waiting for the display clock (oldest dropped beyond)."""
 DECODE_QUEUE = 64
 """Access units waiting for the decoder; overflow flushes and asks for a keyframe."""
 RTCP_TICK_S = 0.01
-NACK_RETRY_MIN_MS = 30.0
-NACK_RETRY_MAX_MS = 500.0
-BIND_INTERVAL_S = 0.1
+"""The longest the timer task sleeps between two looks at the core's deadline, s."""
 
 
 class StreamStalledError(SplitRenderError):
@@ -136,36 +110,15 @@ class ClientConfig:
     lowest latency).  The delay adds to the motion-to-photon latency of every frame."""
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.playout_delay_ms <= 2000.0:
-            raise ConfigError(f"client playout_delay_ms: must be in [0, 2000], got {self.playout_delay_ms}")
+        self.options()   # raises ConfigError naming a bad option
 
-
-@dataclass
-class _Shown:
-    """The update on screen, with its wall-clock arrival stages (µs)."""
-
-    frame: ReceivedFrame
-    shown: bool = False
-
-    @property
-    def meta(self) -> FrameMeta:
-        return self.frame.meta
-
-    @property
-    def frame_id(self) -> int:
-        return self.frame.update.frame_id
-
-    @property
-    def received_us(self) -> int:
-        return int(self.frame.received_ms * 1000)
-
-    @property
-    def decoded_us(self) -> int:
-        return int(self.frame.decoded_ms * 1000)
-
-    @property
-    def meta_us(self) -> int:
-        return int(self.frame.meta_ms * 1000)
+    def options(self) -> ClientOptions:
+        """The session core's options (the same ones ``splitrender run`` takes)."""
+        return ClientOptions(nack_max_tries=self.nack_max_tries, nack_delay_ms=self.nack_delay_ms,
+                             nack_retry_ms=self.nack_retry_ms, pli_interval_ms=self.pli_interval_ms,
+                             rr_interval_s=self.rr_interval_s, jitter_timeout_ms=self.jitter_timeout_ms,
+                             playout_delay_ms=self.playout_delay_ms, stall_frames=self.stall_frames,
+                             stall_timeout_s=self.stall_timeout_s)
 
 
 @dataclass
@@ -210,18 +163,10 @@ class LiveClient:
         self.channel: ControlChannel | None = None
         self.udp: asyncio.DatagramTransport | None = None
         self.rx: ClientPipeline | None = None
-        self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
-        self.nack_rtt_ms: float | None = None
-        """Smoothed time from a NACK to its retransmission's arrival (RFC 6298's 1/8 gain), monotonic ms."""
-        self._last_pli_ms: dict[str, float] = {}
-        self._last_frame_mono = time.monotonic()
-        """When the last frame with content was released (monotonic s; the session start before)."""
-        self._stalled = False
+        self.core: ClientSession | None = None
+        """The sans-IO session core: RTCP, NACK, PLI, playout delay, stalls, feedback."""
         self._journal: Any = None
         """frames.jsonl, appended as the session goes (see :meth:`_record`)."""
-        self._first_packet_ms: dict[str, float] = {}
-        self._ready: deque[ReceivedFrame] = deque()
-        self._pending_apply: list[ReceivedFrame] = []
         self._rate_window: deque[tuple[float, dict[str, int]]] = deque()
         self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
@@ -229,15 +174,19 @@ class LiveClient:
         self._params: dict[str, Any] = {}
         self._server_epoch_s: float | None = None
         self._t0_wall = 0.0
-        self._rtp_seen = False
         self.rows: list[dict[str, Any]] = []
         self.meta_ids: list[int] = []
-        self.counters: dict[str, Any] = {
-            "rtp_packets": 0, "rtp_bytes": 0, "rtcp_sent": 0, "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0,
-            "frames_meta": 0, "frames_complete": 0, "frames_displayed_updates": 0, "frames_skipped": 0,
-            "decode_errors": 0, "decode_overflows": 0, "udp_bad": 0, "meta_bytes": 0, "late_ticks": 0,
-            "updates_dropped_ready": 0, "keyframes_received": 0, "keyframes_after_pli": 0,
-        }
+        self._counters: dict[str, Any] = {"decode_overflows": 0, "late_ticks": 0}
+
+    @property
+    def counters(self) -> dict[str, Any]:
+        """The session core's counters and the driver's own (late display ticks, decoder overflows)."""
+        core = self.core.counters if self.core is not None else {}
+        return {**core, **self._counters}
+
+    @property
+    def nack_rtt_ms(self) -> float | None:
+        return self.core.nack_rtt_ms if self.core is not None else None
 
     # ------------------------------------------------------------------ run
 
@@ -255,7 +204,9 @@ class LiveClient:
                 await self._handshake()
                 await self._open_udp()
                 self._t0_wall = time.time()
-                self._last_frame_mono = time.monotonic()
+                assert self.core is not None
+                self.core.start(_now_ms())   # the stall clock starts; an empty RR opens the UDP path
+                self._flush_rtcp()
                 self._start_recording()
                 try:
                     async with asyncio.TaskGroup() as tg:
@@ -377,7 +328,7 @@ class LiveClient:
             if not isinstance(chunk, DataChunk):
                 raise ServerRefusedError(f"expected session data after Welcome, got {type(chunk).__name__}")
             asm.add(chunk)
-        self.counters["session_bytes"] = asm.total
+        self._counters["session_bytes"] = asm.total
         try:
             session_data = unpack_meta(asm.blob) if asm.total else {}
         except CodecError as exc:  # the peer's bytes: a protocol error, not our crash
@@ -389,8 +340,10 @@ class LiveClient:
             return spec.client_class(mcfg, intr, get_context(), session_data)
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
-        self.rx = ClientPipeline(msg.streams, specs_from_table(self._params.get("streams", [])), cfg.jitter_timeout_ms,
-                                 resolve_timeout_ms=max(500.0, 2 * cfg.jitter_timeout_ms))
+        opts = cfg.options()
+        self.rx = ClientPipeline(msg.streams, specs_from_table(self._params.get("streams", [])), opts.jitter_timeout_ms,
+                                 resolve_timeout_ms=opts.resolve_timeout_ms)
+        self.core = ClientSession(self.rx, opts, float(self._params.get("server_fps", 30)))
         logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
 
@@ -403,12 +356,6 @@ class LiveClient:
                                                               remote_addr=(self.cfg.server, port))
         except (OSError, OverflowError) as exc:
             raise ConnectError(f"cannot open udp to {self.cfg.server}:{port}: {describe_os_error(exc)}") from exc
-        self._send_rtcp([self._empty_rr()])
-
-    def _empty_rr(self) -> ReceiverReport:
-        assert self.rx is not None
-        blocks = tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.rx.streams.values() if s.ssrc)
-        return ReceiverReport(self._rtcp_identity()[0], blocks)
 
     # ------------------------------------------------------------------ poses
 
@@ -447,14 +394,10 @@ class LiveClient:
         raise ConnectionResetError("server closed the control connection")
 
     def _on_control(self, msg: FrameMeta | DataChunk) -> None:
-        assert self.rx is not None
-        now_ms = wall_us() / 1000
+        assert self.rx is not None and self.core is not None
         if isinstance(msg, FrameMeta):
-            self.counters["frames_meta"] += 1
             self.meta_ids.append(msg.frame_id)
-            if isinstance(msg.method_meta, bytes):
-                self.counters["meta_bytes"] += len(msg.method_meta)
-        self.rx.on_message(msg, now_ms)  # raises RemoteProtocolError on bad input: the session ends with Error
+        self.core.receive_message(msg, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
         if isinstance(msg, FrameMeta):
             env = self.rx.last_envelope
             if env is not None:  # both stamps were taken at the same instant on the server's wall clock
@@ -464,227 +407,89 @@ class LiveClient:
     # ------------------------------------------------------------------ UDP in
 
     def _on_datagram(self, data: bytes) -> None:
-        assert self.rx is not None
-        now_ms = wall_us() / 1000
-        if is_rtcp(data):
-            try:
-                for p in parse_rtcp(data):
-                    if isinstance(p, SenderReport) and p.ssrc in self.rx.by_ssrc:
-                        st = self.rx.by_ssrc[p.ssrc].stats
-                        if st is not None:
-                            st.on_sender_report(p, time.monotonic() * 1000)
-            except RtcpError:
-                self.counters["udp_bad"] += 1
-            return
-        before = self.rx.counters["udp_bad"]
-        works = self.rx.on_datagram(data, now_ms)
-        if self.rx.counters["udp_bad"] != before:
-            self.counters["udp_bad"] += 1
-            return
-        self._rtp_seen = True
-        self.counters["rtp_packets"] += 1
-        self.counters["rtp_bytes"] += len(data)
-        try:
-            ssrc = int.from_bytes(data[8:12], "big")
-            name = self.rx.by_ssrc[ssrc].name
-            mono_ms = time.monotonic() * 1000
-            self._first_packet_ms.setdefault(name, mono_ms)
-            hole = self._holes.get(name, {}).get(int.from_bytes(data[2:4], "big"))
-            if hole is not None and hole[2] > 0:   # a NACKed packet: time its round trip
-                sample = mono_ms - hole[1]
-                self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
-                self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
-        except (KeyError, IndexError):
-            pass
-        self._queue_work(works)
+        assert self.core is not None
+        self._queue_work(self.core.receive_datagram(data, _now_ms()))
 
     def _queue_work(self, works: list[Work]) -> None:
-        assert self.rx is not None
+        assert self.core is not None
         for w in works:
-            if w.unit.keyframe and w.stream.kind == "video":
-                self.counters["keyframes_received"] += 1
-                if self.counters["plis_sent"]:
-                    self.counters["keyframes_after_pli"] += 1
             try:
                 self._decode_q.put_nowait(w)
             except asyncio.QueueFull:
-                self.counters["decode_overflows"] += 1
+                self._counters["decode_overflows"] += 1
                 while not self._decode_q.empty():
                     self._decode_q.get_nowait()
-                for s in self.rx.streams.values():
-                    if s.kind == "video":
-                        s.broken = True
+                self.core.decoder_overflow()
 
     # ------------------------------------------------------------------ decode
 
     async def _decode_loop(self) -> None:
         loop = asyncio.get_running_loop()
-        assert self.rx is not None
+        assert self.rx is not None and self.core is not None
         while True:
             w = await self._decode_q.get()
             if w.stream.kind == "video" and w.stream.broken and not w.unit.keyframe:
-                self.rx.on_decoded(w, CodecError("skipped: waiting for a keyframe"), wall_us() / 1000)
+                self.core.on_decoded(w, CodecError("skipped: waiting for a keyframe"), _now_ms())
                 continue
             res = await loop.run_in_executor(self.decode_executor, self.rx.decode, w)
             if isinstance(res, CodecError):
-                self.counters["decode_errors"] += 1
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
-            self.rx.on_decoded(w, res, wall_us() / 1000)
+            self.core.on_decoded(w, res, _now_ms())
             self._collect()
 
-    def _collect(self) -> None:
-        """Move released frames to the display queue."""
-        assert self.rx is not None
-        for rf in self.rx.ready():
-            if rf.update.complete or rf.update.planes or rf.update.data:
-                self._on_frame(time.monotonic())
-            if rf.update.missing:
-                self.counters["frames_partial"] = self.counters.get("frames_partial", 0) + 1
-            else:
-                self.counters["frames_complete"] += 1
-            self._ready.append(rf)
-            while len(self._ready) > MAX_READY_UPDATES + int(self.cfg.playout_delay_ms / 10):
-                dropped = self._ready.popleft()
-                self.counters["updates_dropped_ready"] += 1
-                self._pending_apply.append(dropped)  # still applied (in order) so the half's state stays consistent
+    def _collect(self) -> list[ReceivedFrame]:
+        """Released frames join the core's display queue; returns them."""
+        assert self.core is not None
+        return self.core.collect(_now_ms())
 
     def _all_counters(self) -> dict[str, Any]:
-        """The session counters plus, per RTP stream, what its jitter buffer dropped: late packets,
-        frames given up (timeout or overflow), frames dropped waiting for a keyframe, corrupt frames;
-        with FEC, the parity packets received, the packets they rebuilt and the malformed ones."""
-        out = dict(self.counters)
-        if self.rx is not None:
-            for rx in self.rx.streams.values():
-                j = rx.jitter
-                if j is not None:
-                    out.update({f"{rx.name}_packets_late": j.packets_late, f"{rx.name}_frames_lost": j.frames_lost,
-                                f"{rx.name}_frames_dropped": j.frames_dropped, f"{rx.name}_frames_corrupt": j.frames_corrupt})
-                    if j.fec_packets:
-                        out.update({f"{rx.name}_fec_packets": j.fec_packets, f"{rx.name}_fec_recovered": j.fec_recovered,
-                                    f"{rx.name}_fec_bad": j.fec_bad})
-        return out
-
-    def _on_frame(self, now: float) -> None:
-        if self._stalled:
-            ms = (now - self._last_frame_mono) * 1000
-            self.counters["longest_stall_ms"] = max(self.counters.get("longest_stall_ms", 0.0), round(ms, 1))
-            logger.info("session %s: frames resumed after %.0f ms", self.session_id, ms)
-            self._stalled = False
-        self._last_frame_mono = now
-
-    def _stall_after_s(self) -> float:
-        return self.cfg.stall_frames / max(1.0, float(self._params.get("server_fps", 30)))
-
-    def _check_stall(self, now: float) -> list[Any]:
-        """Stall detection (called from the RTCP loop): PLIs for every video stream while no frame
-        arrives for ``stall_frames`` server intervals; :class:`StreamStalledError` after ``stall_timeout_s``."""
-        cfg = self.cfg
-        idle = now - self._last_frame_mono
-        if idle < self._stall_after_s():
-            return []
-        if idle >= cfg.stall_timeout_s:
-            raise StreamStalledError(f"session {self.session_id}: no frame for {idle:.1f} s (stall_timeout_s "
-                                     f"{cfg.stall_timeout_s:g} s): the server stopped streaming")
-        if not self._stalled:
-            self._stalled = True
-            self.counters["stalls"] = self.counters.get("stalls", 0) + 1
-            logger.warning("session %s: no new frame for %.0f ms (%g frame intervals): asking for a keyframe",
-                           self.session_id, idle * 1000, cfg.stall_frames)
-        assert self.rx is not None
-        out = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now * 1000))]
-        self.counters["stall_plis"] = self.counters.get("stall_plis", 0) + len(out)
-        return out
-
-    def _pli(self, rx: Any, now_ms: float) -> PictureLossIndication | None:
-        """A PLI for stream ``rx`` unless one went out less than ``pli_interval_ms`` ago (counted)."""
-        if now_ms - self._last_pli_ms.get(rx.name, -math.inf) < self.cfg.pli_interval_ms:
-            return None
-        self._last_pli_ms[rx.name] = now_ms
-        self.counters["plis_sent"] += 1
-        return PictureLossIndication(self._rtcp_identity()[0], rx.ssrc)
+        """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
+        if self.core is None:
+            return dict(self._counters)
+        return {**self.core.all_counters(), **self._counters}
 
     # ------------------------------------------------------------------ RTCP out
 
-    _rtcp_id: tuple[int, bytes] | None = None
-
-    def _rtcp_identity(self) -> tuple[int, bytes]:
-        """This receiver's RTCP SSRC and CNAME (random per session, RFC 7022), chosen on first use."""
-        if self._rtcp_id is None:
-            media = {s.ssrc for s in self.rx.streams.values()} if self.rx is not None else set()
-            ssrc = 0
-            while ssrc == 0 or ssrc in media:
-                ssrc = secrets.randbits(32)
-            self._rtcp_id = (ssrc, f"splitrender-client-{secrets.token_hex(8)}".encode("ascii"))
-        return self._rtcp_id
-
-    def _send_rtcp(self, packets: list[Any]) -> None:
-        """Send ``packets`` as one compound RTCP packet: a report first (an RR with no blocks
-        when none is due), the SDES CNAME, then NACKs and PLIs (RFC 3550 6.1, RFC 4585 3.1)."""
-        if self.udp is not None and not self.udp.is_closing():
-            ssrc, cname = self._rtcp_identity()
-            self.udp.sendto(serialize_rtcp(compound_feedback(ssrc, cname, packets)))
-            self.counters["rtcp_sent"] += 1
+    def _flush_rtcp(self) -> None:
+        """Send the compound RTCP packets the core queued."""
+        assert self.core is not None
+        for data in self.core.datagrams_to_send():
+            if self.udp is not None and not self.udp.is_closing():
+                self.udp.sendto(data)
 
     async def _rtcp_loop(self) -> None:
+        """The core's timer: sleep to its deadline (at most :data:`RTCP_TICK_S`), run it, send what it queued."""
         cfg = self.cfg
-        last_bind = last_rr = last_metrics = time.monotonic()
+        core = self.core
+        assert core is not None
+        last_metrics = time.monotonic()
+        lag_sum, lag_n = 0.0, 0
         while True:
-            await asyncio.sleep(RTCP_TICK_S)
-            now = time.monotonic()
-            now_ms = now * 1000
-            assert self.rx is not None
-            self._queue_work(self.rx.poll(wall_us() / 1000))
-            self._collect()
-            if not self._rtp_seen:
-                if now - last_bind >= BIND_INTERVAL_S:
-                    last_bind = now
-                    self._send_rtcp([self._empty_rr()])
-                if now - self._last_frame_mono >= cfg.stall_timeout_s:
-                    self._check_stall(now)  # raises: nothing ever arrived
-                continue
-            out: list[Any] = []
-            if now - last_rr >= cfg.rr_interval_s:
-                last_rr = now
-                out.append(ReceiverReport(self._rtcp_identity()[0], tuple(
-                    s.stats.report_block(now_ms) for s in self.rx.streams.values() if s.stats is not None)))
-            for rx in self.rx.streams.values():
-                if rx.jitter is None:
-                    continue
-                nack = self._nack_list(rx, now_ms)
-                if nack:
-                    out.append(GenericNack(self._rtcp_identity()[0], rx.ssrc, tuple(nack)))
-                    self.counters["nacks_sent"] += 1
-                    self.counters["nacked_packets"] += len(nack)
-                first = self._first_packet_ms.get(rx.name)
-                started = first is not None and now_ms - first >= cfg.pli_interval_ms
-                if (rx.wants_keyframe or (rx.needs_keyframe and started)) and (pli := self._pli(rx, now_ms)):
-                    out.append(pli)
-            out.extend(self._check_stall(now))
-            if cfg.metrics_interval_s > 0 and now - last_metrics >= cfg.metrics_interval_s:
-                last_metrics = now
+            pause = min(RTCP_TICK_S, max(0.0, (core.next_timer() - _now_ms()) / 1000))
+            w0 = time.monotonic()
+            await asyncio.sleep(pause)
+            lag = (time.monotonic() - w0 - pause) * 1000   # how late the event loop woke us (GIL held by GL or decode)
+            lag_sum, lag_n = lag_sum + lag, lag_n + 1
+            self._counters["timer_lag_ms_mean"] = round(lag_sum / lag_n, 2)
+            self._counters["timer_lag_ms_max"] = round(max(self._counters.get("timer_lag_ms_max", 0.0), lag), 1)
+            now_ms = _now_ms()
+            if now_ms >= core.next_timer():
+                self._queue_work(core.handle_timer(now_ms))
+                self._collect()
+                self._flush_rtcp()
+            for ev in core.take_events():
+                if isinstance(ev, StallTimeout):
+                    raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
+                                             f"(stall_timeout_s {cfg.stall_timeout_s:g} s): the server stopped streaming")
+                if isinstance(ev, Stalled):
+                    logger.warning("session %s: no new frame for %.0f ms (%g frame intervals): asking for a keyframe",
+                                   self.session_id, ev.idle_ms, cfg.stall_frames)
+                elif isinstance(ev, Resumed):
+                    logger.info("session %s: frames resumed after %.0f ms", self.session_id, ev.stall_ms)
+            if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:
+                last_metrics = time.monotonic()
                 logger.info("metrics session=%s %s", self.session_id,
                             " ".join(f"{k}={v}" for k, v in self._all_counters().items()))
-            if out:
-                self._send_rtcp(out)
-
-    def _nack_list(self, rx: Any, now_ms: float) -> list[int]:
-        cfg = self.cfg
-        missing = set(rx.jitter.missing())
-        holes = self._holes.setdefault(rx.name, {})
-        for seq in [s for s in holes if s not in missing]:
-            del holes[seq]
-        out = []
-        retry = cfg.nack_retry_ms if self.nack_rtt_ms is None else \
-            min(NACK_RETRY_MAX_MS, max(NACK_RETRY_MIN_MS, 1.5 * self.nack_rtt_ms + 10.0))
-        for seq in missing:
-            first, last, tries = holes.get(seq, (now_ms, -math.inf, 0))
-            if (tries < cfg.nack_max_tries and now_ms - first >= cfg.nack_delay_ms
-                    and now_ms - last >= retry):
-                out.append(seq)
-                holes[seq] = (first, now_ms, tries + 1)
-            else:
-                holes.setdefault(seq, (first, last, tries))
-        return out
 
     # ------------------------------------------------------------------ display
 
@@ -695,7 +500,9 @@ class LiveClient:
         start = loop.time()
         n = int(cfg.duration_s * cfg.display_hz)
         half = self._half
-        shown: _Shown | None = None
+        core = self.core
+        assert core is not None
+        carry: list[ReceivedFrame] = []
         before_content: list[tuple[int, float, ScenePose]] = []
         saves: list[asyncio.Future[None]] = []
         for tick in range(n):
@@ -703,21 +510,12 @@ class LiveClient:
             if delay > 0:
                 await asyncio.sleep(delay)
             elif delay < -interval:
-                self.counters["late_ticks"] += 1
+                self._counters["late_ticks"] += 1
                 continue  # more than a tick late: skip it rather than bunch renders up
-            if cfg.playout_delay_ms > 0:   # only the updates whose turn has come
-                due_us = wall_us() - int(cfg.playout_delay_ms * 1000)
-                new = list(self._pending_apply)
-                while self._ready and self._ready[0].meta.server_time_us <= due_us:
-                    new.append(self._ready.popleft())
-            else:
-                new = [*self._pending_apply, *self._ready]
-                self._ready.clear()
-            self._pending_apply.clear()
-            useful = [f for f in new if f.update.complete or f.update.planes or f.update.data]
-            if useful and (shown is None or useful[-1].update.frame_id != shown.frame_id):
-                shown = _Shown(useful[-1])  # a frame that lost everything shows nothing new
-            if shown is None or self._server_epoch_s is None:
+            new = [*carry, *core.display(_now_ms())]   # with a playout delay, only the updates whose turn has come
+            carry = []
+            if (core.shown is None and not any(shows_anything(f) for f in new)) or self._server_epoch_s is None:
+                carry = new
                 # nothing to show yet: the black background, recorded (and scored) once the server clock is known
                 w = time.time()
                 before_content.append((tick, w, self._trace_pose(w)))
@@ -735,26 +533,30 @@ class LiveClient:
             pose = self._trace_pose(tick_wall)
             trace_t = tick_wall - self._t0_wall
             scene_t = tick_wall - self._server_epoch_s
-            updates = [f.update for f in new]
-            rx = self.rx
-            assert rx is not None
 
-            def show() -> tuple[Any, float, float]:
+            def show() -> tuple[Any, list[bool], float, float]:
                 w0 = time.perf_counter()
-                for u in updates:
+                ok = []
+                for f in new:
                     try:
-                        half.apply(u)
+                        half.apply(f.update)
+                        ok.append(True)
                     except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                        self.counters["apply_errors"] = self.counters.get("apply_errors", 0) + 1
-                        logger.warning("session %s: update %d rejected by the client half: %s", self.session_id, u.frame_id, exc)
-                    else:
-                        rx.tracker.on_applied(u.frame_id, [*u.planes, *u.data])
+                        ok.append(False)
+                        logger.warning("session %s: update %d rejected by the client half: %s", self.session_id,
+                                       f.update.frame_id, exc)
                 w1 = time.perf_counter()
                 frame = half.render(pose, scene_t)
-                return frame, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
+                return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
 
-            cf, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
+            cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
+            for f, good in zip(new, ok):
+                core.applied(f) if good else core.apply_failed(f)
             displayed_us = wall_us()
+            shown = core.shown
+            if shown is None:   # every update so far was rejected: still the black background
+                self._record(self._empty_row(len(self.rows), tick, trace_t, scene_t, pose, displayed_us))
+                continue
             row = self._row(len(self.rows), tick, trace_t, scene_t, pose, shown, displayed_us,
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
@@ -767,10 +569,10 @@ class LiveClient:
                 if len(saves) > 64:
                     await asyncio.gather(*saves[:32])
                     del saves[:32]
-            if not shown.shown:
-                shown.shown = True
-                self.counters["frames_displayed_updates"] += 1
-                await self._feedback(shown, displayed_us)
+            fb = core.feedback(displayed_us / 1000)
+            if fb is not None:   # the first display of this update
+                assert self.channel is not None
+                await self.channel.send(fb)
         await asyncio.gather(*saves)
         raise _RunDone()
 
@@ -796,35 +598,28 @@ class LiveClient:
                 "client_ms": nan, "decode_ms": nan, "tick": tick, "scene_t_s": scene_t, "displayed_us": displayed_us,
                 "px": p[0], "py": p[1], "pz": p[2], "qx": p[3], "qy": p[4], "qz": p[5], "qw": p[6]}
 
-    def _row(self, index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, fr: _Shown,
+    def _row(self, index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, fr: ReceivedFrame,
              displayed_us: int, client_ms: float) -> dict[str, Any]:
-        timing = fr.frame.env.timing_us
+        timing = fr.env.timing_us
         server_us = fr.meta.server_time_us
+        received_us, decoded_us, meta_us = (int(fr.received_ms * 1000), int(fr.decoded_ms * 1000), int(fr.meta_ms * 1000))
         encoded_at = int(timing.get("encoded_at", server_us))
         p = pose.to_list()
         row: dict[str, Any] = {
-            "frame": index, "t_s": trace_t, "update_frame_id": fr.frame_id,
+            "frame": index, "t_s": trace_t, "update_frame_id": fr.update.frame_id,
             "update_age_ms": (displayed_us - server_us) / 1000.0,
             "motion_to_photon_ms": (displayed_us - fr.meta.pose.client_time_us) / 1000.0,
-            "client_ms": client_ms, "decode_ms": (fr.decoded_us - fr.received_us) / 1000.0,
+            "client_ms": client_ms, "decode_ms": (decoded_us - received_us) / 1000.0,
             "tick": tick, "scene_t_s": scene_t, "displayed_us": displayed_us,
             "px": p[0], "py": p[1], "pz": p[2], "qx": p[3], "qy": p[4], "qz": p[5], "qw": p[6],
             "server_render_ms": timing.get("render", 0) / 1000.0, "server_encode_ms": timing.get("encode", 0) / 1000.0,
-            "network_ms": (fr.received_us - encoded_at) / 1000.0,
-            "meta_network_ms": (fr.meta_us - encoded_at) / 1000.0,
-            "wait_display_ms": (displayed_us - fr.decoded_us) / 1000.0 - client_ms,
+            "network_ms": (received_us - encoded_at) / 1000.0,
+            "meta_network_ms": (meta_us - encoded_at) / 1000.0,
+            "wait_display_ms": (displayed_us - decoded_us) / 1000.0 - client_ms,
             "pose_uplink_age_ms": (server_us - fr.meta.pose.client_time_us) / 1000.0,
-            "keyframe": int(fr.meta.keyframe), "missing": ";".join(sorted(fr.frame.update.missing)),
+            "keyframe": int(fr.meta.keyframe), "missing": ";".join(sorted(fr.update.missing)),
         }
         return row
-
-    async def _feedback(self, fr: _Shown, displayed_us: int) -> None:
-        assert self.channel is not None and self.rx is not None
-        timing = fr.frame.env.timing_us
-        server = {k: int(v) for k, v in timing.items() if k in ("render", "encode", "encoded_at")}
-        applied, lost = self.rx.tracker.take()
-        await self.channel.send(Feedback(fr.frame_id, fr.received_us, fr.decoded_us, displayed_us, 0,
-                                         fr.meta.pose.client_time_us, server, applied, lost))
 
     # ------------------------------------------------------------------ recording
 
@@ -872,8 +667,6 @@ def _save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray 
 
 def write_recording(result: ClientResult, out_dir: Path) -> None:
     """frames.csv (per displayed frame, unscored), recording.json and counters.json."""
-    from splitrender.sim.runner import write_csv
-
     out_dir.mkdir(parents=True, exist_ok=True)
     write_csv(out_dir / "frames.csv", result.rows)
     (out_dir / "recording.json").write_text(json.dumps(result.recording, indent=2, default=str))
@@ -883,3 +676,8 @@ def write_recording(result: ClientResult, out_dir: Path) -> None:
 async def run_client(config: ClientConfig) -> ClientResult:
     """Run one live client session (see :class:`LiveClient`)."""
     return await LiveClient(config).run()
+
+
+def _now_ms() -> float:
+    """The live driver's clock for the session core: the wall clock (the protocol's), ms."""
+    return time.time() * 1000

@@ -63,7 +63,7 @@ class DemoResult:
 
 def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Sequence[str] = NETWORKS,
                  duration_s: float | None = None, size: tuple[int, int] | None = None,
-                 traces: Sequence[str] | None = None) -> list[RunConfig]:
+                 traces: Sequence[str] | None = None, session: dict[str, Any] | None = None) -> list[RunConfig]:
     """The demo's runs: method x network x trace on the default scene."""
     from ..methods import available_methods, methods_for_scene
 
@@ -84,6 +84,7 @@ def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Se
         for net in networks:
             for tr in (traces or p["traces"]):
                 out.append(RunConfig.from_dict({"method": m, "network": net, "trace": tr, "scene": "default", "width": w, "height": h,
+                                                **(session or {}),
                                                 "duration_s": dur, "client_fps": p["client_fps"], "server_fps": p["server_fps"],
                                                 "flip_every": p["flip_every"]}))
     return out
@@ -315,14 +316,14 @@ def _rel(p: Path, root: Path, study_dir: Path) -> Path:
 def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None = None, networks: Sequence[str] = NETWORKS,
              workers: int | None = None, studies: bool = True, duration_s: float | None = None,
              size: tuple[int, int] | None = None, traces: Sequence[str] | None = None,
-             progress: RunProgress | None = None) -> DemoResult:
+             progress: RunProgress | None = None, session: dict[str, Any] | None = None) -> DemoResult:
     """Run the demo into ``out`` and write its report; see the module docstring."""
     t0 = time.monotonic()
     deadline = t0 + QUICK_BUDGET_S if quick else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # one ground truth for every method and network (splitrender.sim.truth)
-    cfgs = [c.replace(truth_cache=shared_cache_setting(out)) for c in demo_configs(quick, methods, networks, duration_s, size, traces)]
+    cfgs = [c.replace(truth_cache=shared_cache_setting(out)) for c in demo_configs(quick, methods, networks, duration_s, size, traces, session)]
     store = ResultStore(out)
     # Studies start first at low priority, so they use whatever CPU the runs leave.
     studies_run = StudyRunner(out, quick, nice=10).start() if studies else None
@@ -356,10 +357,13 @@ def main_demo(ns: argparse.Namespace) -> int:
 
     methods = [m.strip() for m in ns.methods.split(",") if m.strip()] if ns.methods else None
     networks = [n.strip() for n in ns.networks.split(",") if n.strip()]
-    demo_configs(ns.quick, methods, networks)  # validate before the bar shows
+    from ..sim.config import session_options
+
+    session = session_options(ns)   # the client's loss recovery (--playout-delay, --nack-tries, ..., --fec)
+    demo_configs(ns.quick, methods, networks, session=session)  # validate before the bar shows
     with RichRunProgress("demo" + (" --quick" if ns.quick else "")) as bar:
         res = run_demo(ns.out, quick=ns.quick, methods=methods, networks=networks, workers=ns.workers,
-                       studies=not ns.no_studies, progress=bar)
+                       studies=not ns.no_studies, progress=bar, session=session)
     print(f"{'method':10s} {'network':8s} {'PSNR dB':>8s} {'SSIM':>7s} {'FLIP':>7s} {'kbit/s':>8s}")
     for r in res.summary:
         print(f"{r['method']:10s} {r['network']:8s} {r['mean_psnr_db']:8.2f} {r['mean_ssim']:7.4f} {r['mean_flip']:7.4f} "

@@ -276,7 +276,7 @@ class DdgiVolume:
         W, H = self.cols * self.tile[0], self.rows * self.tile[1]
         self._cap = [ctx.texture((W, H), 4, dtype=dt) for dt in ("f4", "f2", "f2", "f2")]
         for t in self._cap:
-            t.filter = (renderer._nearest, renderer._nearest)
+            t.filter = (ctx.NEAREST, ctx.NEAREST)
         self._rad = ctx.texture((W, H), 4, dtype="f4")
         self._rad_fbo = ctx.framebuffer([self._rad])
         self.irr_tex = ctx.texture((self.cols * IRR_TILE, self.rows * IRR_TILE), 4, dtype="f4")

@@ -11,64 +11,20 @@ package adds a method by declaring, in its own ``pyproject.toml``::
 A method that fails to load is logged and left out; the others still load.  When
 splitrender itself runs from a source tree that was never installed (no entry-point
 metadata), the built-in modules are imported directly.
+
+The registry and the loader live in :mod:`.base` (so that :func:`get_method` there
+needs nothing from this package's ``__init__``); this module re-exports them.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
-import logging
-
-from .base import (AnyStreamSpec, ClientFeedback, ClientFrame, ClientHalf, DataStreamSpec, DecodedUpdate, MethodConfig,
-                   MethodSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update, available_methods, get_method,
-                   make_config, methods_for_scene, register_method)
-
-log = logging.getLogger(__name__)
-
-ENTRY_POINT_GROUP = "splitrender.methods"
-BUILTIN_MODULES = ("video", "atw", "warp", "sas", "tss", "quads", "probes")
-_loaded = False
-_seen_entry_points: set[str] = set()
-
-
-def load_methods(rescan: bool = False) -> None:
-    """Register every method of the entry-point group (once; again with ``rescan``)."""
-    global _loaded
-    if _loaded and not rescan:
-        return
-    _loaded = True
-    builtin_found = set()
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        key = f"{ep.name}={ep.value}"
-        if ep.value.startswith(__name__ + "."):
-            builtin_found.add(ep.name)
-        if key in _seen_entry_points:
-            continue
-        _seen_entry_points.add(key)
-        try:
-            obj = ep.load()
-        except Exception:  # noqa: BLE001 - one broken plug-in must not hide the others
-            log.exception("method plug-in %s (%s) failed to load", ep.name, ep.value)
-            continue
-        if isinstance(obj, MethodSpec):
-            register_method(obj)
-        elif obj is None or not hasattr(obj, "__name__"):
-            log.warning("method plug-in %s (%s) is neither a MethodSpec nor a module", ep.name, ep.value)
-    for name in BUILTIN_MODULES:
-        if name in builtin_found:
-            continue
-        try:
-            importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-            log.debug("method module %s not present", name)
-
-
-_load_builtin = load_methods  # the name older callers used
+from .base import (BUILTIN_MODULES, ENTRY_POINT_GROUP, AnyStreamSpec, ClientFeedback, ClientFrame, ClientHalf, DataStreamSpec,
+                   DecodedUpdate, MethodConfig, MethodSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update,
+                   available_methods, get_method, load_methods, make_config, methods_for_scene, register_method)
 
 __all__ = [
     "AnyStreamSpec", "ClientFeedback", "ClientFrame", "ClientHalf", "DataStreamSpec", "DecodedUpdate", "MethodConfig",
     "MethodSpec", "SceneProducer", "ServerContext", "ServerHalf", "StreamSpec", "Update", "available_methods",
-    "get_method", "load_methods", "make_config", "methods_for_scene", "register_method", "ENTRY_POINT_GROUP",
+    "get_method", "load_methods", "make_config", "methods_for_scene", "register_method", "BUILTIN_MODULES",
+    "ENTRY_POINT_GROUP",
 ]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.metadata
 import logging
 import typing
 from abc import ABC, abstractmethod
@@ -38,6 +39,7 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Union
 import numpy as np
 
 from ..codecs.video import VideoCodecConfig
+from ..coerce import coerce_value
 from ..errors import ConfigError
 from ..scene.pose import CameraIntrinsics, Pose
 
@@ -292,6 +294,10 @@ class ServerHalf(ABC):
 class ClientHalf(ABC):
     """Applies updates and renders at any pose/time; one instance per session, in its own GL context."""
 
+    has_content: bool = False
+    """False until the half has something to draw; :meth:`apply` sets it once an update gave it content (until then
+    the runner shows and scores the black background)."""
+
     def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, gl: Any, session_data: dict[str, Any]) -> None:
         self.config = config
         self.intrinsics = intrinsics
@@ -305,11 +311,6 @@ class ClientHalf(ABC):
     @abstractmethod
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         """The image to display for the client's true pose at time ``t_s``."""
-
-    @property
-    def has_content(self) -> bool:
-        """False until the first update was applied."""
-        return getattr(self, "_has_content", False)
 
 
 def _resolve(ref: Any, what: str) -> Any:
@@ -358,6 +359,12 @@ class MethodSpec:
 
 _REGISTRY: dict[str, MethodSpec] = {}
 
+ENTRY_POINT_GROUP = "splitrender.methods"
+BUILTIN_MODULES = ("video", "atw", "warp", "sas", "tss", "quads", "probes")
+_PACKAGE = __name__.rpartition(".")[0]  # splitrender.methods, where the built-in methods live
+_loaded = False
+_seen_entry_points: set[str] = set()
+
 
 def register_method(spec: MethodSpec) -> MethodSpec:
     if spec.name in _REGISTRY and _REGISTRY[spec.name] is not spec:
@@ -366,9 +373,41 @@ def register_method(spec: MethodSpec) -> MethodSpec:
     return spec
 
 
-def get_method(name: str) -> MethodSpec:
-    from . import load_methods
+def load_methods(rescan: bool = False) -> None:
+    """Register every method of the entry-point group (once; again with ``rescan``)."""
+    global _loaded
+    if _loaded and not rescan:
+        return
+    _loaded = True
+    builtin_found = set()
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        key = f"{ep.name}={ep.value}"
+        if ep.value.startswith(_PACKAGE + "."):
+            builtin_found.add(ep.name)
+        if key in _seen_entry_points:
+            continue
+        _seen_entry_points.add(key)
+        try:
+            obj = ep.load()
+        except Exception:  # noqa: BLE001 - one broken plug-in must not hide the others
+            log.exception("method plug-in %s (%s) failed to load", ep.name, ep.value)
+            continue
+        if isinstance(obj, MethodSpec):
+            register_method(obj)
+        elif obj is None or not hasattr(obj, "__name__"):
+            log.warning("method plug-in %s (%s) is neither a MethodSpec nor a module", ep.name, ep.value)
+    for name in BUILTIN_MODULES:
+        if name in builtin_found:
+            continue
+        try:
+            importlib.import_module(f"{_PACKAGE}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{_PACKAGE}.{name}":
+                raise
+            log.debug("method module %s not present", name)
 
+
+def get_method(name: str) -> MethodSpec:
     load_methods()
     if name not in _REGISTRY:
         load_methods(rescan=True)  # a package installed since the first scan
@@ -380,8 +419,6 @@ def get_method(name: str) -> MethodSpec:
 
 def available_methods() -> list[str]:
     """Registered method names: the built-in ones in their canonical order, then others by name."""
-    from . import BUILTIN_MODULES, load_methods
-
     load_methods()
     builtin = [m for m in BUILTIN_MODULES if m in _REGISTRY]
     return builtin + sorted(m for m in _REGISTRY if m not in builtin)
@@ -405,50 +442,5 @@ def make_config(cls: type[MethodConfig], params: dict[str, Any] | None) -> Metho
     for k, v in params.items():
         if k not in names:
             raise ConfigError(f"{cls.__name__}: unknown parameter {k!r} (valid: {', '.join(sorted(names))})")
-        params[k] = _coerce(cls.__name__, k, hints.get(k), v)
+        params[k] = coerce_value(cls.__name__, k, hints.get(k), v)
     return cls(**params)
-
-
-def _coerce(owner: str, key: str, hint: Any, v: Any) -> Any:
-    """Check a TOML/CLI value against a dataclass field type, with ints accepted as floats."""
-    if hint is None:
-        return v
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        if v is None and type(None) in args:
-            return None
-        errs = []
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(owner, key, a, v)
-            except ConfigError as e:
-                errs.append(str(e))
-        raise ConfigError(f"{owner}.{key}: {v!r} does not fit {hint}")
-    if origin is typing.Literal:
-        if v not in args:
-            raise ConfigError(f"{owner}.{key}: {v!r} is not one of {list(args)}")
-        return v
-    if origin in (tuple, list):
-        if not isinstance(v, (list, tuple)):
-            raise ConfigError(f"{owner}.{key}: expected a list, got {type(v).__name__} {v!r}")
-        return tuple(v) if origin is tuple else list(v)
-    if hint is float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ConfigError(f"{owner}.{key}: expected a number, got {type(v).__name__} {v!r}")
-        return float(v)
-    if hint is int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise ConfigError(f"{owner}.{key}: expected an integer, got {type(v).__name__} {v!r}")
-        return v
-    if hint is bool:
-        if not isinstance(v, bool):
-            raise ConfigError(f"{owner}.{key}: expected true/false, got {type(v).__name__} {v!r}")
-        return v
-    if hint is str:
-        if not isinstance(v, str):
-            raise ConfigError(f"{owner}.{key}: expected a string, got {type(v).__name__} {v!r}")
-        return v
-    return v

@@ -9,11 +9,7 @@ strings (:func:`parse_netem`, :func:`parse_path`) or dicts/TOML
 from splitrender.netsim.config import (
     PROFILES,
     get_profile,
-    link_from_dict,
-    link_to_dict,
     parse_path,
-    path_from_dict,
-    path_from_toml,
     profile_names,
 )
 from splitrender.netsim.models import (
@@ -28,7 +24,11 @@ from splitrender.netsim.models import (
     LinkSpec,
     PathSpec,
     corrupt,
+    link_from_dict,
+    link_to_dict,
     load_mahimahi_trace,
+    path_from_dict,
+    path_from_toml,
 )
 from splitrender.netsim.netem import parse_netem, to_netem
 from splitrender.netsim.relay import DirectionStats, Relay, RelayStats, serve_relay

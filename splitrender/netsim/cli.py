@@ -15,8 +15,8 @@ import logging
 import sys
 
 from splitrender.errors import NetworkConfigError
-from splitrender.netsim.config import get_profile, parse_path, path_from_toml, profile_names
-from splitrender.netsim.models import PathSpec
+from splitrender.netsim.config import get_profile, parse_path, profile_names
+from splitrender.netsim.models import PathSpec, path_from_toml
 from splitrender.netsim.relay import Address, RelayStats, is_loopback_host, serve_relay
 
 logger = logging.getLogger(__name__)

@@ -27,6 +27,10 @@ Model, in the order a packet meets it (mirrors ``netem_enqueue``):
 
 All times are in seconds on the caller's clock (``now_s``); spec values use ms,
 percent (0..100) and bits per second as their names say.
+
+The dict/TOML form of a spec (:func:`link_from_dict`, :func:`path_from_dict`,
+:func:`path_from_toml`, :func:`link_to_dict`) is here too, so that :class:`PathSpec`'s
+constructors need nothing above this module; :mod:`.config` re-exports it.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import dataclasses
 import logging
 import math
 import statistics
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -332,6 +337,8 @@ class Link:
         self._reorder_counter = 0
         self._last_now = -math.inf
         self._last_delivery = -math.inf
+        self._last_reliable = -math.inf
+        """When the last reliable (TCP) segment is delivered: TCP's own order, retransmission timeouts included."""
         self._queue: collections.deque[float] = collections.deque()  # departure times
         self._busy_until = -math.inf
         self._trace = (
@@ -423,12 +430,17 @@ class Link:
             else:
                 self._reorder_counter = 0
                 return Delivery(depart + penalty_s, corrupted)  # sent immediately
-        t = depart + self._propagation_s() + penalty_s
+        t = depart + self._propagation_s()
         if spec.spike_ms and spec.spike_start_s <= depart < spec.spike_start_s + spec.spike_duration_s:
             t += spec.spike_ms / 1000.0
         if spec.keep_order or reliable:
             t = max(t, self._last_delivery)
         self._last_delivery = max(self._last_delivery, t)
+        if reliable:
+            # a lost segment's retransmission timeout holds back its own stream (TCP is in order), never the
+            # datagrams behind it on the path: other flows do not wait for one flow's retransmission
+            t = max(t + penalty_s, self._last_reliable)
+            self._last_reliable = t
         return Delivery(t, corrupted)
 
     # -- public -------------------------------------------------------------------
@@ -500,19 +512,122 @@ class PathSpec:
         A missing direction is ideal; unknown keys and bad values raise
         :class:`NetworkConfigError` naming the key.
         """
-        from splitrender.netsim.config import path_from_dict
-
         return path_from_dict(data)
 
     @classmethod
     def from_toml(cls, path: str | Path, table: str | None = None) -> PathSpec:
         """Load from a TOML file (optionally from the dotted ``table`` inside it)."""
-        from splitrender.netsim.config import path_from_toml
-
         return path_from_toml(path, table)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         """The inverse of :meth:`from_dict` (only non-default keys)."""
-        from splitrender.netsim.config import link_to_dict
-
         return {"uplink": link_to_dict(self.uplink), "downlink": link_to_dict(self.downlink)}
+
+
+# -- dict / TOML form ---------------------------------------------------------------
+
+_LINK_FIELDS = {f.name: f for f in dataclasses.fields(LinkSpec)}
+_GE_FIELDS = {f.name for f in dataclasses.fields(GilbertElliott)}
+_INT_KEYS = {"reorder_gap", "limit_packets"}
+_STR_KEYS = {"distribution", "trace_path"}
+
+
+def _check_type(where: str, key: str, value: Any) -> None:
+    if key == "keep_order":
+        ok = isinstance(value, bool)
+        want = "true or false"
+    elif key in _INT_KEYS:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        want = "an integer"
+    elif key in _STR_KEYS:
+        ok = isinstance(value, str)
+        want = "a string"
+    elif key == "gemodel":
+        ok = isinstance(value, dict)
+        want = "a table with " + ", ".join(sorted(_GE_FIELDS))
+    else:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        want = "a number"
+    if not ok:
+        raise NetworkConfigError(f"{where}.{key} must be {want}, got {value!r}")
+
+
+def link_from_dict(data: Any, where: str = "link") -> LinkSpec:
+    """Build a :class:`LinkSpec` from a dict of its field names (``gemodel`` a sub-dict)."""
+    if not isinstance(data, dict):
+        raise NetworkConfigError(f"{where} must be a table/dict, got {type(data).__name__}")
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        if key not in _LINK_FIELDS:
+            raise NetworkConfigError(
+                f"{where}: unknown key {key!r} (valid: {', '.join(sorted(_LINK_FIELDS))})"
+            )
+        if key in ("rate_bps", "trace_path") and value is None:
+            kwargs[key] = None
+            continue
+        _check_type(where, key, value)
+        if key == "gemodel":
+            for gk, gv in value.items():
+                if gk not in _GE_FIELDS:
+                    raise NetworkConfigError(
+                        f"{where}.gemodel: unknown key {gk!r} (valid: {', '.join(sorted(_GE_FIELDS))})"
+                    )
+                _check_type(f"{where}.gemodel", gk, gv)
+            if "p_pct" not in value:
+                raise NetworkConfigError(f"{where}.gemodel: missing key 'p_pct'")
+            try:
+                value = GilbertElliott(**value)
+            except NetworkConfigError as exc:
+                raise NetworkConfigError(f"{where}.{exc}") from None
+        kwargs[key] = value
+    try:
+        return LinkSpec(**kwargs)
+    except NetworkConfigError as exc:
+        raise NetworkConfigError(f"{where}.{exc}") from None
+
+
+def link_to_dict(spec: LinkSpec) -> dict[str, Any]:
+    """The non-default fields of ``spec`` as a dict (``link_from_dict`` inverts it)."""
+    default = LinkSpec()
+    out: dict[str, Any] = {}
+    for name in _LINK_FIELDS:
+        value = getattr(spec, name)
+        if value != getattr(default, name):
+            out[name] = dataclasses.asdict(value) if isinstance(value, GilbertElliott) else value
+    return out
+
+
+def path_from_dict(data: Any) -> PathSpec:
+    """``{"uplink": {...}, "downlink": {...}}`` -> :class:`PathSpec`; missing side = ideal."""
+    if not isinstance(data, dict):
+        raise NetworkConfigError(f"network path must be a table/dict, got {type(data).__name__}")
+    for key in data:
+        if key not in ("uplink", "downlink"):
+            raise NetworkConfigError(
+                f"network path: unknown key {key!r} (valid: downlink, uplink)"
+            )
+    return PathSpec(
+        uplink=link_from_dict(data.get("uplink", {}), "uplink"),
+        downlink=link_from_dict(data.get("downlink", {}), "downlink"),
+    )
+
+
+def path_from_toml(path: str | Path, table: str | None = None) -> PathSpec:
+    """Load a :class:`PathSpec` from a TOML file, optionally from a dotted ``table``."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            data: Any = tomllib.load(fh)
+    except OSError as exc:
+        raise NetworkConfigError(f"{str(p)!r}: cannot read: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise NetworkConfigError(f"{str(p)!r}: invalid TOML: {exc}") from exc
+    if table:
+        for part in table.split("."):
+            if not isinstance(data, dict) or part not in data:
+                raise NetworkConfigError(f"{str(p)!r}: no table [{table}]")
+            data = data[part]
+    try:
+        return path_from_dict(data)
+    except NetworkConfigError as exc:
+        raise NetworkConfigError(f"{str(p)!r}: {exc}") from None

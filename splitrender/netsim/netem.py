@@ -27,7 +27,6 @@ never writes it.  Errors are :class:`NetworkConfigError` naming the token and it
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from typing import Any
@@ -263,7 +262,3 @@ def to_netem(spec: LinkSpec) -> str:
         parts += ["limit", str(spec.limit_packets)]
     return " ".join(parts)
 
-
-def with_keep_order(spec: LinkSpec, keep_order: bool) -> LinkSpec:
-    """``spec`` with ``keep_order`` replaced (netem strings cannot carry it)."""
-    return dataclasses.replace(spec, keep_order=keep_order)

@@ -6,17 +6,22 @@ sans-IO: they take time and bytes in and give bytes and updates out.  The live s
 and client drive them with sockets and the wall clock; the virtual-time runner drives
 them with the network model on a simulated clock.  :mod:`.feedback` holds both ends
 of the feedback loop, :mod:`.producers` the scene producers shared by sessions, and
-:mod:`.wire` the byte-counting model and the update envelope.
+:mod:`.wire` the byte-counting model and the update envelope; :mod:`.session` the sans-IO
+session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run.
 """
 
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
+from .session import (ClientOptions, ClientSession, Resumed, ServerOptions, ServerSession, SessionEvent, Stalled,
+                      StallTimeout, rtcp_media_ssrcs, session_params, session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
 __all__ = [
+    "ClientOptions", "ClientSession", "Resumed", "ServerOptions", "ServerSession", "SessionEvent", "Stalled",
+    "StallTimeout", "rtcp_media_ssrcs", "session_params", "session_summary", "shows_anything",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
     "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",

@@ -40,6 +40,11 @@ class ProducerPool:
             self.build_ms[spec.name] = (time.perf_counter() - w0) * 1000
         return p
 
+    def stats(self, name: str) -> dict[str, Any]:
+        """Method ``name``'s producer's statistics for its newest frame (empty without a producer)."""
+        p = self._producers.get(name)
+        return p.stats() if p is not None else {}
+
     def prepare(self, name: str, frame_id: int, t_s: float) -> Any:
         """Shared state of frame ``frame_id`` for method ``name`` (computed once per frame)."""
         p = self._producers.get(name)

@@ -143,6 +143,11 @@ class SessionAssembler:
         return bytes(self._buf)
 
 
+def _rtp_newer(a: int | None, b: int) -> bool:
+    """Whether RTP timestamp ``a`` is later than ``b`` (32-bit serial arithmetic; ``None`` is never later)."""
+    return a is not None and a != b and ((a - b) & 0xFFFFFFFF) < 0x80000000
+
+
 class ClientPipeline:
     """One session's receiving side; see the module docstring."""
 
@@ -183,6 +188,8 @@ class ClientPipeline:
         self._chunks: dict[tuple[str, int], bytearray] = {}
         self._reliable: dict[int, dict[str, bytes]] = {}
         self._last_released = -1
+        self._newest_ts: dict[str, int] = {}
+        """Per RTP stream, the RTP timestamp of the newest frame decoded (frames of a stream come out in order)."""
         self.wire_bytes: dict[str, int] = {}
         """Bytes received per RTP stream as they crossed the wire (IPv4 + UDP headers included)."""
         self.last_envelope: Envelope | None = None
@@ -263,6 +270,10 @@ class ClientPipeline:
             orphan = self._orphans.pop((name, ts), None)
             if orphan is not None:
                 self._attach(fr, name, *orphan)
+            elif _rtp_newer(self._newest_ts.get(name), ts):
+                # a later frame of this stream was already decoded (this FrameMeta came late, behind a TCP
+                # retransmission): the stream delivers in order, so this frame's part will not come
+                fr.missing.add(name)
         while len(self._pending) > MAX_PENDING_FRAMES:
             _, old = self._pending.popitem(last=False)
             old.missing.update(n for n in old.expect if n not in old.planes and n not in old.data)
@@ -352,6 +363,8 @@ class ClientPipeline:
                 log.info("stream %s: bad data frame: %s", rx.name, result)
             self._mark_lost(rx.name, ts)
             return
+        if not _rtp_newer(self._newest_ts.get(rx.name), ts):
+            self._newest_ts[rx.name] = ts
         fr = self._frame_for(rx.name, ts)
         if fr is None:
             self._orphans[(rx.name, ts)] = (result, work.received_ms, now_ms)

@@ -26,6 +26,7 @@ from typing import Any, Callable
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol.fec import fec_encode
+from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
                         split_annexb)
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
@@ -37,7 +38,6 @@ FIRST_PAYLOAD_TYPE = 96
 """Dynamic RTP payload type of a session's first RTP stream (then 97, 98, ...)."""
 FEC_PAYLOAD_TYPE = 127
 """Payload type of the first RTP stream's FEC stream (then 126, ...), when FEC is on."""
-RTP_CLOCK_HZ = 90000
 
 Framer = Callable[[Message], bytes]
 """Frames one control message for the wire (a :class:`~splitrender.protocol.Connection`'s ``send``)."""

@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Literal, TypeVar, cast
 import msgpack
 
 from splitrender.protocol.errors import MessageError
+from splitrender.protocol.rtp import RTP_CLOCK_HZ
 from splitrender.protocol.msgpack_limits import MsgpackLimitError, MsgpackLimits, bounded_unpackb
 
 __all__ = [
@@ -58,7 +59,7 @@ MAX_TEXT_LEN = 1024
 MAX_LIST_LEN = 64
 MAX_NESTING = 32
 QUATERNION_NORM_TOLERANCE = 1e-3
-RTP_CLOCK_RATE_HZ = 90000
+RTP_CLOCK_RATE_HZ = RTP_CLOCK_HZ
 
 CodecName = Literal["h264", "hevc", "data"]
 CODECS: tuple[str, ...] = ("h264", "hevc")

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Final, Union
 
 from splitrender.protocol.errors import RtcpError
-from splitrender.protocol.rtp import RtpPacket, SequenceUnwrapper, seq_diff
+from splitrender.protocol.rtp import RTP_CLOCK_HZ, RtpPacket, SequenceUnwrapper, seq_diff
 
 __all__ = [
     "RTCP_SR",
@@ -359,7 +359,7 @@ class ReceiverStatistics:
     Times are passed in (ms); ``clock_rate`` is the RTP clock in Hz.
     """
 
-    def __init__(self, ssrc: int, clock_rate: int = 90000) -> None:
+    def __init__(self, ssrc: int, clock_rate: int = RTP_CLOCK_HZ) -> None:
         self.ssrc = ssrc
         self.clock_rate = clock_rate
         self._unwrap = SequenceUnwrapper()

@@ -9,6 +9,7 @@ from typing import Final
 from splitrender.protocol.errors import RtpError
 
 __all__ = [
+    "RTP_CLOCK_HZ",
     "RTP_VERSION",
     "RTP_HEADER_SIZE",
     "RtpPacket",
@@ -18,6 +19,9 @@ __all__ = [
     "SequenceUnwrapper",
     "is_rtcp",
 ]
+
+RTP_CLOCK_HZ: Final = 90000
+"""The RTP timestamp clock of every stream (video and data), Hz: defined here only."""
 
 RTP_VERSION: Final = 2
 RTP_HEADER_SIZE: Final = 12

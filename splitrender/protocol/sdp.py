@@ -21,12 +21,13 @@ from collections.abc import Sequence
 
 from splitrender.protocol.annexb import Codec, nal_type
 from splitrender.protocol.errors import SdpError
+from splitrender.protocol.rtp import RTP_CLOCK_HZ
 from splitrender.protocol.sps import nal_to_rbsp, parse_hevc_sps
 
 __all__ = ["RTPMAP_NAMES", "make_sdp", "parse_fmtp", "parameter_sets_from_sdp", "sdp_attributes"]
 
 RTPMAP_NAMES: dict[str, str] = {"h264": "H264", "hevc": "H265"}
-CLOCK_RATE_HZ = 90000
+CLOCK_RATE_HZ = RTP_CLOCK_HZ
 H264_SPS, H264_PPS = 7, 8
 HEVC_VPS, HEVC_SPS, HEVC_PPS = 32, 33, 34
 

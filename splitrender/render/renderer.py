@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
@@ -102,11 +101,6 @@ def light_view_projection(scene: Scene) -> np.ndarray:
     return proj @ view
 
 
-def gl_mat(m: np.ndarray) -> tuple[float, ...]:
-    """Column-major tuple for a moderngl matrix uniform."""
-    return tuple(np.asarray(m, dtype=np.float32).T.ravel())
-
-
 class Renderer:
     """Renders a :class:`Scene` at any pose and time into numpy images."""
 
@@ -118,9 +112,6 @@ class Renderer:
         self._placeholder_tex: Any = None
         self._peel_tex: Any = None
         self._peel_none: Any = None
-        import moderngl
-
-        self._nearest = moderngl.NEAREST
         self.supersample = 1
         """Samples per pixel along each axis of :meth:`render` (1: none; 2: 4 samples)."""
         self._fbos: dict[tuple[int, int], tuple[Any, ...]] = {}
@@ -368,14 +359,14 @@ class Renderer:
             set_uniform(self.prog, "u_peel_on", 0)
             if self._peel_none is None:
                 self._peel_none = self.ctx.texture((1, 1), 1, np.zeros(1, "f4").tobytes(), dtype="f4")
-                self._peel_none.filter = (self._nearest, self._nearest)
+                self._peel_none.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
             tex = self._peel_none
         else:
             if self._peel_tex is None or self._peel_tex.size != (intr.width, intr.height):
                 if self._peel_tex is not None:
                     self._peel_tex.release()
                 self._peel_tex = self.ctx.texture((intr.width, intr.height), 1, dtype="f4")
-                self._peel_tex.filter = (self._nearest, self._nearest)
+                self._peel_tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
             self._peel_tex.write(np.ascontiguousarray(np.asarray(peel, np.float32)[::-1]).tobytes())
             set_uniform(self.prog, "u_peel_on", 1)
             set_uniform(self.prog, "u_peel_eps", PEEL_EPS)
@@ -479,11 +470,3 @@ def make_pose_looking(eye: tuple[float, float, float], target: tuple[float, floa
 
     return Pose(np.array(eye, float), look_at_quat(np.array(eye, float), np.array(target, float)))
 
-
-def pixel_to_ray(intr: CameraIntrinsics, x: float, y: float) -> np.ndarray:
-    """Camera-space direction through pixel centre (x, y) (top-left origin), z = -1."""
-    f = intr.focal_px()
-    return np.array([(x + 0.5 - intr.width / 2) / f, -(y + 0.5 - intr.height / 2) / f, -1.0])
-
-
-_ = math

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -270,12 +270,6 @@ class Scene:
     def triangle_count(self) -> int:
         return sum(o.mesh.triangle_count for o in self.objects)
 
-    def object_by_id(self, object_id: int) -> SceneObject:
-        for o in self.objects:
-            if o.object_id == object_id:
-                return o
-        raise KeyError(object_id)
-
     def model_matrices(self, t_s: float) -> dict[int, np.ndarray]:
         """Object id -> object-to-world matrix at ``t_s``."""
         return {o.object_id: o.model_matrix(t_s) for o in self.objects}
@@ -304,15 +298,6 @@ def merge_meshes(meshes: Sequence[Mesh], name: str = "merged") -> Mesh:
         idx.append(m.indices + base)
         base += m.vertex_count
     return Mesh(np.concatenate(pos), np.concatenate(nor), np.concatenate(uv), np.concatenate(idx), name)
-
-
-def transform_mesh(mesh: Mesh, m: np.ndarray, name: str | None = None) -> Mesh:
-    """Apply a 4x4 transform to positions and normals (baked)."""
-    p = mesh.positions.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-    nm = np.linalg.inv(m[:3, :3]).T
-    n = mesh.normals.astype(np.float64) @ nm.T
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    return Mesh(p, n, mesh.uvs, mesh.indices, name or mesh.name)
 
 
 def generate_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -347,9 +332,6 @@ def generate_tangents(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarra
     t /= ln[:, None]
     w = np.where(np.sum(np.cross(n, t) * -tt, axis=1) < 0.0, -1.0, 1.0)
     return np.concatenate([t, w[:, None]], axis=1).astype(np.float32)
-
-
-IntensityFn = Callable[[float], float]
 
 
 def shift_time(scene: Scene, offset_s: float) -> Scene:

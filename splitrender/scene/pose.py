@@ -18,8 +18,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-Quat = np.ndarray  # shape (4,), (x, y, z, w)
-
 
 def quat_normalize(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
@@ -165,14 +163,6 @@ class Pose:
     def forward(self) -> np.ndarray:
         return quat_to_matrix3(self.orientation) @ np.array([0.0, 0.0, -1.0])
 
-    @staticmethod
-    def from_matrix(m: np.ndarray) -> "Pose":
-        return Pose(np.asarray(m)[:3, 3].copy(), quat_from_matrix3(np.asarray(m)[:3, :3]))
-
-    def interpolate(self, other: "Pose", u: float) -> "Pose":
-        """Linear position, spherical orientation; u outside [0,1] extrapolates."""
-        return Pose(self.position + u * (other.position - self.position), quat_slerp(self.orientation, other.orientation, u))
-
     def to_list(self) -> list[float]:
         return [*map(float, self.position), *map(float, self.orientation)]
 
@@ -221,11 +211,6 @@ class CameraIntrinsics:
     def focal_px(self) -> float:
         """Focal length in pixels (square pixels)."""
         return self.height / 2.0 / math.tan(math.radians(self.fov_y_deg) / 2.0)
-
-    def K(self) -> np.ndarray:
-        """3x3 pinhole matrix with the image origin at the top-left, +y down."""
-        f = self.focal_px()
-        return np.array([[f, 0, self.width / 2.0], [0, f, self.height / 2.0], [0, 0, 1.0]])
 
     def enlarged(self, factor: float, keep_pixel_density: bool = True) -> "CameraIntrinsics":
         """The same camera with its image plane extent scaled by ``factor`` (overscan).

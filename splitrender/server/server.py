@@ -33,15 +33,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from splitrender.errors import ConfigError
-from splitrender.protocol import (
-    GenericNack,
-    PictureLossIndication,
-    ReceiverReport,
-    RtcpError,
-    SenderReport,
-    is_rtcp,
-    parse_rtcp,
-)
+from splitrender.pipeline.session import rtcp_media_ssrcs
+from splitrender.protocol import RtcpError
 from splitrender.server.worker import RenderWorker, parse_test_hang
 from splitrender.transport.errors import BindError, describe_os_error
 
@@ -389,28 +382,13 @@ class LiveServer:
 
     def _on_datagram(self, data: bytes, addr: Address) -> None:
         """RTCP from clients: find the session by the media SSRCs named, hand it over."""
-        if not is_rtcp(data):
-            self.udp_dropped += 1
-            return
         try:
-            packets = parse_rtcp(data)
+            packets, ssrcs = rtcp_media_ssrcs(data)
         except RtcpError as exc:
             self.udp_dropped += 1
             logger.debug("udp from %s: %s", addr, exc)
             return
-        session = None
-        for p in packets:
-            ssrcs: list[int] = []
-            if isinstance(p, (ReceiverReport, SenderReport)):
-                ssrcs = [b.ssrc for b in p.reports]
-            elif isinstance(p, (GenericNack, PictureLossIndication)):
-                ssrcs = [p.media_ssrc]
-            for s in ssrcs:
-                session = self._by_ssrc.get(s)
-                if session is not None:
-                    break
-            if session is not None:
-                break
+        session = next((s for s in (self._by_ssrc.get(x) for x in ssrcs) if s is not None), None)
         if session is None:
             self.udp_dropped += 1
             return

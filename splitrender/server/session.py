@@ -11,10 +11,14 @@ Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`
   A tick that comes while the previous frame's metadata is still queued in the TCP
   send buffer, or that was missed because rendering overran, is skipped: stale frames
   are dropped, never queued;
-* ``rtcp``: a sender report per stream every ``sr_interval_s``.
+* ``rtcp``: the session core's sender reports when its timer says (every ``sr_interval_s``
+  on average, randomised).
 
 RTCP from the client (receiver reports, generic NACKs, PLIs) arrives through the
-server's shared UDP socket and is handled synchronously in :meth:`on_rtcp`.
+server's shared UDP socket and goes to the session core in :meth:`on_rtcp`; the
+retransmissions it answers with are sent at once.  Everything the protocol decides
+(feedback, keyframe requests, NACK answers, sender reports) is the sans-IO core's
+(:class:`splitrender.pipeline.ServerSession`); this module only moves bytes and time.
 """
 
 from __future__ import annotations
@@ -26,55 +30,66 @@ import math
 import secrets
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import FeedbackState, ServerPipeline, SessionDataError, rtp_timestamp
+from splitrender.pipeline import (ServerOptions, ServerPipeline, ServerSession as SessionCore, SessionDataError,
+                                  rtp_timestamp, session_params)
 from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol import (
     Bye,
     ErrorCode,
     Feedback,
-    GenericNack,
     Hello,
-    KeyframeRateLimiter,
     KeyframeRequest,
     MessageError,
-    PictureLossIndication,
     Pose,
-    ReceiverReport,
-    RetransmissionHistory,
     RtcpPacket,
-    RtpPacketizer,
-    SenderReport,
     ServerConnection,
     State,
     Stats,
     Welcome,
     make_sdp,
     negotiate_method,
-    ntp_from_seconds,
-    ntp_middle32,
-    serialize_rtcp,
 )
+from splitrender.tabular import write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.predict import make_predictor
 from splitrender.transport.control import ControlChannel, wall_us
 
-if TYPE_CHECKING:
-    from splitrender.server.server import Address, LiveServer
+Address = tuple[str, int]
+
+
+class LiveServer(Protocol):
+    """What a session uses of its server (:class:`splitrender.server.server.LiveServer`, which imports this
+    module: the session names the server's interface instead of importing it back)."""
+
+    config: Any
+    epoch_wall_s: float
+    methods: Any
+    scene: Any
+    sessions: dict[str, Any]
+    test_hang: tuple[int, int] | None
+    udp_address: Address
+    udp_dropped: int
+
+    async def acquire_worker(self) -> RenderWorker: ...
+    async def release_worker(self, worker: RenderWorker, session_id: str) -> None: ...
+    def next_mirror_port(self) -> int | None: ...
+    def register(self, session: Any, ssrcs: list[int]) -> None: ...
+    def unregister(self, session: Any) -> None: ...
+    def send_datagram(self, data: bytes, addr: Address) -> None: ...
+    def ssrc_taken(self, ssrc: int) -> bool: ...
+    def tick_of(self, wall_s: float) -> int: ...
 
 __all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE"]
 
 logger = logging.getLogger(__name__)
-
-MAX_NACKED_PER_REQUEST = 128
-"""Most packets resent for one generic NACK."""
 
 
 class _SessionEnded(Exception):
@@ -83,29 +98,12 @@ class _SessionEnded(Exception):
 
 @dataclass
 class _Stream:
-    """One RTP stream of the session (video or datagram data): RTCP state beside the pipeline's packetizer."""
+    """One RTP stream of the session as the driver sees it: where its SDP mirror copy goes."""
 
     spec: AnyStreamSpec
     ssrc: int
     payload_type: int
-    packetizer: RtpPacketizer
-    history: RetransmissionHistory
     mirror: Address | None = None
-    last_rtp_ts: int = 0
-
-
-def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, scene: str,
-                   tx: ServerPipeline, session_blob: bytes, subject: Any = None) -> dict[str, Any]:
-    """The ``Welcome.method_params`` map of a live session (documented in docs/protocol.md).
-
-    ``subject``: a loaded model's world bounds (lo, hi), sent as ``subject`` so that the
-    client places its built-in traces around the model as the simulator does."""
-    cfg = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
-    out = {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
-           **tx.welcome_params(session_blob)}
-    if subject is not None:
-        out["subject"] = [[float(v) for v in subject[0]], [float(v) for v in subject[1]]]
-    return out
 
 
 class ServerSession:
@@ -129,23 +127,32 @@ class ServerSession:
         self.display_hz = 60.0
         self._predictor: Any = None
         self._latest_pose: tuple[float, ScenePose, int, int] | None = None  # wall s, pose, client µs, seq
-        self._kf = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
-        self._kf_wanted = False
         self._frame_id = 0
         self.tx: ServerPipeline | None = None
+        self.core: SessionCore | None = None
+        """The sans-IO session core (feedback, keyframes, NACK answers, sender reports)."""
         self._last_tick = -1
-        self.fb: FeedbackState | None = None
         self.feedback_rows: list[dict[str, Any]] = []
         self.update_rows: list[dict[str, Any]] = []
         """One row per frame sent: wire bytes per stream (as the virtual-time runner's updates.csv)."""
-        self.counters: dict[str, int] = {
-            "frames_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0, "keyframes": 0,
-            "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0, "rtcp_foreign": 0,
-            "rtp_packets": 0, "rtp_bytes": 0, "meta_bytes": 0, "feedback": 0, "data_bytes": 0, "session_bytes": 0,
-            "lost_reported": 0, "fec_packets": 0, "fec_bytes": 0, "render_timeouts": 0,
+        self._counters: dict[str, int] = {
+            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
+            "session_bytes": 0, "render_timeouts": 0,
         }
 
-        self.rtt_ms: float | None = None
+    @property
+    def counters(self) -> dict[str, Any]:
+        """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
+        core = self.core.counters if self.core is not None else {}
+        return {**core, **self._counters}
+
+    @property
+    def rtt_ms(self) -> float | None:
+        return self.core.rtt_ms if self.core is not None else None
+
+    @property
+    def fb(self) -> Any:
+        return self.core.fb if self.core is not None else None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -236,7 +243,7 @@ class ServerSession:
             assert self.tx is not None
             frames = self.tx.session_frames(self._session_blob, self.channel.conn.send)
             await self.channel.write_frames([f for _, f in frames])
-            self.counters["session_bytes"] = sum(len(f) for _, f in frames)
+            self._counters["session_bytes"] = sum(len(f) for _, f in frames)
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
             return False
@@ -263,7 +270,6 @@ class ServerSession:
         self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
         self._predictor = make_predictor(cfg.predictor)
-        self.fb = FeedbackState(self.display_hz)
         server = self.server
         hang = server.test_hang
         self.worker = await server.acquire_worker()
@@ -281,11 +287,14 @@ class ServerSession:
                                           f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
         self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec)
         self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
+        self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
+                                                                        cfg.sr_interval_s),
+                                0, rtp_origin_ms=server.epoch_wall_s * 1000)
+        self.core.start(_now_ms())
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
         for st in self.tx.rtp_streams:
-            assert st.packetizer is not None
-            stream = _Stream(st.spec, st.ssrc, st.payload_type, st.packetizer, RetransmissionHistory(cfg.history_packets))
+            stream = _Stream(st.spec, st.ssrc, st.payload_type)
             self.streams[st.spec.name] = stream
             if isinstance(st.spec, StreamSpec):
                 self._write_sdp(stream)
@@ -323,8 +332,9 @@ class ServerSession:
             elif isinstance(msg, KeyframeRequest):
                 if msg.stream not in self.streams:
                     raise MessageError(f"KeyframeRequest.stream: unknown stream {msg.stream!r}")
-                self.counters["keyframe_requests"] += 1
-                self.request_keyframe(f"KeyframeRequest {msg.stream}: {msg.reason}")
+                assert self.core is not None
+                self.core.receive_message(msg, _now_ms())
+                logger.debug("session %s: KeyframeRequest %s: %s", self.id, msg.stream, msg.reason)
             elif isinstance(msg, Stats):
                 logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
             elif isinstance(msg, Bye):
@@ -345,11 +355,9 @@ class ServerSession:
         self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
 
     def _on_feedback(self, fb: Feedback) -> None:
-        self.counters["feedback"] += 1
-        assert self.fb is not None
-        t_us = self.fb.server_time_us(fb.frame_id)
-        self.fb.on_feedback(fb)
-        self.counters["lost_reported"] += sum(len(v) for v in fb.lost.values())
+        assert self.core is not None
+        t_us = self.core.fb.server_time_us(fb.frame_id)
+        self.core.receive_message(fb, _now_ms())
         row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": t_us if t_us is not None else "",
                                "received_us": fb.received_us, "decoded_us": fb.decoded_us,
                                "displayed_us": fb.displayed_us, "pose_time_us": fb.pose_time_us,
@@ -361,10 +369,10 @@ class ServerSession:
             self.feedback_rows.append(row)
 
     def request_keyframe(self, why: str) -> None:
-        """Ask for an IDR on every stream (rate-limited; a suppressed request is kept)."""
-        if self._kf.request(time.monotonic() * 1000):
-            self._kf_wanted = True
-            logger.debug("session %s: keyframe for %s", self.id, why)
+        """Ask for an IDR on every stream (rate-limited by the core; a suppressed request is kept)."""
+        assert self.core is not None
+        self.core.request_keyframe(_now_ms())
+        logger.debug("session %s: keyframe for %s", self.id, why)
 
     # ------------------------------------------------------------------ frames
 
@@ -384,7 +392,7 @@ class ServerSession:
             behind = loop.time() - next_t
             if behind > 0:  # rendering overran: skip the missed ticks instead of bursting
                 skipped = int(behind / interval) + 1
-                self.counters["frames_skipped_late"] += skipped
+                self._counters["frames_skipped_late"] += skipped
                 next_t += skipped * interval
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
@@ -392,7 +400,7 @@ class ServerSession:
             if self.client_addr is None or self._latest_pose is None:
                 continue  # no UDP path or no pose yet: nothing useful to send
             if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
-                self.counters["frames_skipped_backlog"] += 1
+                self._counters["frames_skipped_backlog"] += 1
                 continue
             await self._send_frame()
 
@@ -403,17 +411,17 @@ class ServerSession:
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
     async def _send_frame(self) -> None:
-        server, intr, tx, fbs = self.server, self.intrinsics, self.tx, self.fb
+        server, intr, tx, core = self.server, self.intrinsics, self.tx, self.core
         assert intr is not None and self._latest_pose is not None and self.client_addr is not None
-        assert tx is not None and fbs is not None
+        assert tx is not None and core is not None
+        fbs = core.fb
         wall = time.time()
         tick = max(server.tick_of(wall), self._last_tick + 1)  # never two frames on one tick
         self._last_tick = tick
         t_us = int(wall * 1e6)
         scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
         epoch = server.epoch_wall_s
-        kf = self._kf_wanted or self._kf.poll(time.monotonic() * 1000)
-        self._kf_wanted = False
+        kf = core.keyframe_due(wall * 1000)
         expected = fbs.latency.value_s
         pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
         target_wall = wall + expected
@@ -427,7 +435,7 @@ class ServerSession:
                 "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
                 self._predictor, epoch, expected, kf, fbs.snapshot(kf), deadline_s=self.cfg.render_deadline_s)
         except WorkerTimeout:
-            self.counters["render_timeouts"] += 1
+            self._counters["render_timeouts"] += 1
             raise
         if self.channel.conn.state is not State.STREAMING:
             # the peer said Bye (or the connection closed) while the worker rendered: the control
@@ -439,47 +447,35 @@ class ServerSession:
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
         out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, target_t_s, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
-        fbs.frame_sent(self._frame_id, t_us)
-        self.counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
-        self.counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
-        if out.keyframe or any(e.keyframe for e in enc.video.values()):
-            self.counters["keyframes"] += 1
-            self._kf.keyframe_sent(time.monotonic() * 1000)
-        for name, pkt, data in out.datagrams:
-            st = self.streams[name]
-            st.last_rtp_ts = rtp_ts
-            st.history.store(pkt)
+        core.frame_sent(self._frame_id, out, _now_ms(), t_us)
+        self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
+        self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
+        for name, _, data in out.datagrams:
             server.send_datagram(data, self.client_addr)
-            if st.mirror is not None:
-                server.send_datagram(data, st.mirror)
-            self.counters["rtp_packets"] += 1
-            self.counters["rtp_bytes"] += len(data)
+            mirror = self.streams[name].mirror
+            if mirror is not None:
+                server.send_datagram(data, mirror)
         for _, data in out.fec:                 # parity packets: neither mirrored nor kept for retransmission
             server.send_datagram(data, self.client_addr)
-            self.counters["fec_packets"] += 1
-            self.counters["fec_bytes"] += len(data)
         if len(self.update_rows) < 1_000_000:
             row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
                                    "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,
                                    "encode_ms": enc.encode_ms, "expected_latency_ms": expected * 1000}
             row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
             self.update_rows.append(row)
-        self.counters["frames_sent"] += 1
         self._frame_id += 1
 
     # ------------------------------------------------------------------ RTCP
 
     async def _rtcp_loop(self) -> None:
+        """Sender reports when the core's timer comes (once the client's address is known)."""
+        assert self.core is not None
         while True:
-            await asyncio.sleep(self.cfg.sr_interval_s)
+            await asyncio.sleep(max(0.001, min(1.0, (self.core.next_timer() - _now_ms()) / 1000)))
             if self.client_addr is None:
                 continue
-            now = time.time()
-            ntp = ntp_from_seconds(now)
-            rtp_now = int(round(self.server.scene_time_s(now) * 90000)) & 0xFFFFFFFF
-            reports = [SenderReport(st.ssrc, ntp, rtp_now, st.packetizer.packets_sent & 0xFFFFFFFF,
-                                    st.packetizer.octets_sent & 0xFFFFFFFF) for st in self.streams.values()]
-            self.server.send_datagram(serialize_rtcp(reports), self.client_addr)
+            for data in self.core.handle_timer(_now_ms()):
+                self.server.send_datagram(data, self.client_addr)
 
     def on_rtcp(self, packets: list[RtcpPacket], addr: Address) -> None:
         """Handle a compound RTCP packet from ``addr`` (bind the client address on first use)."""
@@ -487,40 +483,26 @@ class ServerSession:
             self.client_addr = addr
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
         elif addr != self.client_addr:
-            self.counters["rtcp_foreign"] += 1
+            self._counters["rtcp_foreign"] += 1
             return
-        by_ssrc = {st.ssrc: st for st in self.streams.values()}
-        for p in packets:
-            if isinstance(p, GenericNack):
-                st = by_ssrc.get(p.media_ssrc)
-                if st is None:
-                    continue
-                self.counters["nacks"] += 1
-                for pkt in st.history.answer(p)[:MAX_NACKED_PER_REQUEST]:
-                    self.server.send_datagram(bytes(pkt), addr)
-                    self.counters["retransmitted"] += 1
-            elif isinstance(p, PictureLossIndication):
-                if p.media_ssrc in by_ssrc:
-                    self.counters["plis"] += 1
-                    self.request_keyframe("PLI")
-            elif isinstance(p, ReceiverReport):
-                for b in p.reports:
-                    if b.ssrc in by_ssrc and b.lsr:
-                        now_mid = ntp_middle32(ntp_from_seconds(time.time()))
-                        rtt = ((now_mid - b.lsr - b.dlsr) & 0xFFFFFFFF) / 65536 * 1000
-                        if rtt < 10_000:
-                            self.rtt_ms = rtt
+        if self.core is None:
+            return
+        for data in self.core.receive_rtcp(packets, _now_ms()):
+            self.server.send_datagram(data, addr)
 
     # ------------------------------------------------------------------ records
 
     def _write_feedback(self) -> None:
         if self.cfg.out_dir is None or not (self.feedback_rows or self.update_rows):
             return
-        from splitrender.sim.runner import write_csv
-
         d = self.cfg.out_dir / self.id
         d.mkdir(parents=True, exist_ok=True)
         write_csv(d / "feedback.csv", self.feedback_rows)
         write_csv(d / "updates.csv", self.update_rows)
         write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
                                             server_udp_dropped=self.server.udp_dropped)])
+
+
+def _now_ms() -> float:
+    """The live driver's clock for the session core: the wall clock (the protocol's), ms."""
+    return time.time() * 1000

@@ -5,13 +5,14 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..coerce import coerce_value
 from ..errors import ConfigError
-from ..methods.base import _coerce
 
 
 COST_MODELS = ("fixed", "measured")
@@ -59,6 +60,12 @@ class RunConfig:
     animations and light schedules at run time ``t`` are those at ``t + offset``), so a
     short run can start just before an event such as the default scene's sun dimming at 4 s.
     ``fec``: protect every RTP stream with RFC 5109 parity packets (:mod:`splitrender.protocol.fec`).
+
+    The client's loss recovery is the live client's (:class:`splitrender.pipeline.ClientOptions`):
+    ``nack_tries`` NACKs per lost packet (0 = off), a PLI at most every
+    ``keyframe_request_interval_ms`` per stream, ``playout_delay_ms`` (show each update no earlier
+    than its server time plus this), ``stall_frames`` (no new frame for this many server intervals
+    is a stall), ``jitter_timeout_ms``.
     """
 
     method: str = "video"
@@ -94,6 +101,9 @@ class RunConfig:
     truth_cache: str = ""
     scene_time_offset_s: float = 0.0
     fec: bool = False
+    nack_tries: int = 3
+    playout_delay_ms: float = 0.0
+    stall_frames: float = 6.0
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -134,6 +144,10 @@ class RunConfig:
             raise bad("client_offset_s", f"must be in [0, 3600], got {self.client_offset_s}")
         if not 1 <= self.jitter_timeout_ms <= 10_000 or not 1 <= self.keyframe_request_interval_ms <= 10_000:
             raise bad("jitter_timeout_ms/keyframe_request_interval_ms", "must be in [1, 10000]")
+        try:
+            self.client_options()
+        except ConfigError as exc:
+            raise bad("client options", str(exc)) from None
         if not 1024 <= self.max_session_bytes <= 1 << 34:
             raise bad("max_session_bytes", f"must be in [1024, 2**34], got {self.max_session_bytes}")
         if not 0 <= self.scene_time_offset_s <= 3600:
@@ -154,7 +168,7 @@ class RunConfig:
         for k, v in d.items():
             if k not in names:
                 raise ConfigError(f"run config: unknown key {k!r} (valid: {', '.join(sorted(names))})")
-            kw[k] = v if k == "method_params" else _coerce("run config", k, hints[k], v)
+            kw[k] = v if k == "method_params" else coerce_value("run config", k, hints[k], v)
         return RunConfig(**kw)
 
     @staticmethod
@@ -176,8 +190,24 @@ class RunConfig:
         blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
+    def client_options(self) -> Any:
+        """The session core's client options (:class:`splitrender.pipeline.ClientOptions`) of this run."""
+        from ..pipeline.session import ClientOptions
+
+        return ClientOptions(nack_max_tries=self.nack_tries, pli_interval_ms=self.keyframe_request_interval_ms,
+                             jitter_timeout_ms=self.jitter_timeout_ms, playout_delay_ms=self.playout_delay_ms,
+                             stall_frames=self.stall_frames, stall_timeout_s=math.inf)
+
     def replace(self, **kw: Any) -> "RunConfig":
         return dataclasses.replace(self, **kw)
+
+
+def session_options(ns: Any) -> dict[str, Any]:
+    """The RunConfig keys of the command line's session options (``--playout-delay``, ``--nack-tries``,
+    ``--jitter-timeout``, ``--stall-frames``, ``--fec``) that were given, from an argparse namespace."""
+    out = {"playout_delay_ms": ns.playout_delay, "nack_tries": ns.nack_tries, "jitter_timeout_ms": ns.jitter_timeout,
+           "stall_frames": ns.stall_frames, "fec": getattr(ns, "fec", None)}
+    return {k: v for k, v in out.items() if v is not None}
 
 
 def load_toml(path: str | Path, kind: str) -> dict[str, Any]:

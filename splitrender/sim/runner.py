@@ -25,8 +25,15 @@ count from :data:`SIM_EPOCH_US` so messages have the same sizes as live ones):
   included), RTP packets as datagrams (lost, delayed, reordered, duplicated).
 - The client's pipeline releases each frame in order once every stream it sent is
   present or known lost (partial delivery); ``decode_latency_ms`` (or its measured
-  decode time) later it is applied.  A video stream that lost a frame waits for a keyframe and the client asks
-  for one over the control uplink (at most every ``keyframe_request_interval_ms``).
+  decode time) later it is applied.
+- Everything the protocol decides is the sans-IO session cores' (:mod:`splitrender.pipeline.session`),
+  the same ones the live server and client drive: the client core NACKs holes, sends
+  PLIs while a video stream waits for a keyframe (at most every
+  ``keyframe_request_interval_ms``), receiver reports and stall PLIs; the server core
+  answers NACKs from its retransmission history (down the media path) and PLIs with an
+  IDR, and sends sender reports.  RTCP crosses its own copy of each direction's
+  network model (the same impairment, its own random draws).  The runner schedules
+  each core's timer at the deadline the core names.
 - Each client displays at ``client_fps`` from t = 0: it renders through its client
   half, in its own GL context, at the true pose of that tick (a tick with nothing yet
   shows and scores the black background); the ground truth is rendered at the same
@@ -40,7 +47,6 @@ run is the same on any machine for a given seed.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import heapq
 import logging
@@ -58,11 +64,11 @@ from ..codecs.meta import pack_meta, unpack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline import (META_STREAM, SESSION_STREAM, ClientPipeline, FeedbackState, ProducerPool, ReceivedFrame,
-                        ServerPipeline, SessionAssembler, SessionDataError, rtp_timestamp, specs_from_table, tcp_segments)
+from ..pipeline import (META_STREAM, SESSION_STREAM, ClientPipeline, ClientSession, ProducerPool, ReceivedFrame,
+                        Resumed, ServerOptions, ServerPipeline, ServerSession, SessionAssembler, SessionDataError, Stalled,
+                        rtp_timestamp, session_params, session_summary, specs_from_table, tcp_segments)
 from ..pipeline.wire import control_wire_bytes
-from ..protocol import (PROTOCOL_VERSION, ClientConnection, DataChunk, Feedback, Hello, KeyframeRequest, Message,
-                        ServerConnection, Welcome)
+from ..protocol import PROTOCOL_VERSION, ClientConnection, DataChunk, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -71,6 +77,7 @@ from ..scene.model import shift_time
 from ..scene.pose import CameraIntrinsics, Pose
 from ..scene.predict import PerfectPredictor, make_predictor, prediction_error
 from ..scene.trace import get_trace
+from ..tabular import write_csv
 from .config import RunConfig, to_toml
 from .truth import truth_source
 
@@ -79,12 +86,8 @@ log = logging.getLogger(__name__)
 POSE_MESSAGE_BYTES = 64 + 40
 SIM_EPOCH_US = 1_735_689_600_000_000
 """Simulated wall clock at t = 0 (2025-01-01T00:00:00Z), so timestamps on the wire have live sizes."""
-_DELIVER, _SERVER, _DISPLAY = 0, 1, 2
+_DELIVER, _TIMER, _SERVER, _DISPLAY = 0, 1, 2, 3
 ProgressFn = Callable[[int, int], None]
-
-
-def _plain(d: dict[str, Any]) -> dict[str, Any]:
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
 
 def sim_us(t_s: float) -> int:
@@ -123,25 +126,6 @@ class RunResult:
         return d
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    keys: list[str] = []
-    for r in rows:
-        for k in r:
-            if k not in keys:
-                keys.append(k)
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: _fmt(v) for k, v in r.items()})
-
-
-def _fmt(v: Any) -> Any:
-    if isinstance(v, float):
-        return "" if math.isnan(v) else f"{v:.6g}"
-    return v
-
-
 class _ShiftedTrace:
     """A trace seen ``offset_s`` later (client ``i`` of a many-client run)."""
 
@@ -166,12 +150,16 @@ class _Client:
     sconn: ServerConnection = field(default_factory=ServerConnection)
     half: Any = None
     tx: ServerPipeline | None = None
-    fb: FeedbackState | None = None
+    fb: Any = None
     predictor: Any = None
     arrivals: list[tuple[float, float]] = field(default_factory=list)
     arrival_idx: int = 0
     latest_pose_t: float = 0.0
-    kf_pending: bool = False
+    core_s: ServerSession | None = None
+    """The server's session core (feedback, keyframes, NACK answers, sender reports)."""
+    rtcp_up: Link | None = None
+    rtcp_down: Link | None = None
+    """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # client side
     cconn: ClientConnection = field(default_factory=ClientConnection)
     rx: ClientPipeline | None = None
@@ -179,20 +167,23 @@ class _Client:
     """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
     chalf: Any = None
     gl: Any = None
+    core: ClientSession | None = None
+    """The client's session core (RTCP, NACK, PLI, playout delay, stalls, feedback)."""
     ctrl_free_s: float = -math.inf
     down_ctrl_free_s: float = -math.inf
-    ready: deque[tuple[float, ReceivedFrame, float]] = field(default_factory=deque)
-    shown: ReceivedFrame | None = None
-    shown_fed_back: int = -1
+    sent_s: dict[str, float] = field(default_factory=dict)
+    """The last send time on each link (a link takes sends in time order)."""
+    timer_s: float = math.inf
+    """When the client core's timer event is scheduled (s; ``inf``: none)."""
+    timer_token: int = 0
+    decode_ms_of: dict[int, float] = field(default_factory=dict)
     pose_t: dict[int, float] = field(default_factory=dict)
     pred: dict[int, tuple[float, float]] = field(default_factory=dict)
     update_rows: dict[int, dict[str, Any]] = field(default_factory=dict)
-    last_kf_request_s: float = -math.inf
-    kf_requests: int = 0
-    apply_errors: int = 0
     protocol_errors: int = 0
-    keyframes: int = 0
     lost_frames: int = 0
+    packets_lost: int = 0
+    """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
     bytes: dict[str, int] = field(default_factory=dict)
     window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
     frames: list[dict[str, Any]] = field(default_factory=list)
@@ -246,9 +237,12 @@ class VirtualTimeRun:
 
     def _setup(self, i: int, seeds: list[np.random.SeedSequence], pool: ProducerPool) -> _Client:
         cfg = self.cfg
+        n = cfg.clients
         c = _Client(i, self.traces[i], Link(self.path.uplink, np.random.default_rng(seeds[3 * i])),
                     Link(self.path.uplink, np.random.default_rng(seeds[3 * i + 1])),
-                    Link(self.path.downlink, np.random.default_rng(seeds[3 * i + 2])))
+                    Link(self.path.downlink, np.random.default_rng(seeds[3 * i + 2])),
+                    rtcp_up=Link(self.path.uplink, np.random.default_rng(seeds[4 * n + 2 * i])),
+                    rtcp_down=Link(self.path.downlink, np.random.default_rng(seeds[4 * n + 2 * i + 1])))
         # handshake through a real Connection pair (set-up time is not simulated)
         hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), (self.mcfg.codec,), cfg.width, cfg.height, float(cfg.client_fps))
         self._to_server(c, c.cconn.send(hello))
@@ -261,8 +255,8 @@ class VirtualTimeRun:
             raise SessionDataError(f"method {cfg.method}: session data of {len(session_blob)} bytes exceeds the limit of "
                                    f"{cfg.max_session_bytes} bytes (max_session_bytes)")
         c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec)
-        params = {"config": _plain(dataclasses.asdict(self.mcfg)), "fov_y_deg": cfg.fov_y_deg, "server_fps": cfg.server_fps,
-                  "scene": cfg.scene, **c.tx.welcome_params(session_blob)}
+        params = session_params(cfg.method, self.mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, c.tx, session_blob,
+                                getattr(self.scene, "subject", None))
         c.tx.open_encoders()   # as the live session does: the SDP names the parameter sets the encoders send
         welcome = Welcome(f"sim{i}", cfg.method, params, c.tx.describe("127.0.0.1", 6004, f"splitrender sim{i}"))
         wire = c.sconn.send(welcome)
@@ -278,12 +272,18 @@ class VirtualTimeRun:
             assert isinstance(m, DataChunk)
             asm.add(m)
         c.welcome = w
-        c.rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), cfg.jitter_timeout_ms)
+        opts = cfg.client_options()
+        c.rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), opts.jitter_timeout_ms,
+                              resolve_timeout_ms=opts.resolve_timeout_ms)
+        c.core = ClientSession(c.rx, opts, float(w.method_params["server_fps"]), SIM_EPOCH_US,
+                               np.random.default_rng(seeds[6 * n + 2 * i]))
+        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(), SIM_EPOCH_US, 0.0,
+                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
         c.chalf = self.spec.client_class(self.mcfg, self.intr, c.gl, unpack_meta(asm.blob) if asm.total else {})
         make_current(self.renderer.ctx)
-        c.fb = FeedbackState(cfg.client_fps)
+        c.fb = c.core_s.fb
         c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
         c.predictor.observe(0.0, c.trace.pose_at(0.0))  # the Hello carries the first pose
         # upstream poses: precomputed deliveries (the uplink model is deterministic)
@@ -324,7 +324,7 @@ class VirtualTimeRun:
 
     def _run(self) -> RunResult:
         cfg = self.cfg
-        seeds = np.random.SeedSequence(cfg.seed).spawn(4 * cfg.clients)
+        seeds = np.random.SeedSequence(cfg.seed).spawn(8 * cfg.clients)   # the first 4n as before the session cores
         pool = ProducerPool(self.scene, cfg.server_fps, self.renderer)
         clients = [self._setup(i, seeds, pool) for i in range(cfg.clients)]
         self.clients = clients
@@ -336,6 +336,13 @@ class VirtualTimeRun:
             self._at(f / cfg.server_fps, _SERVER, self._server_tick, f, pool, result)
         for di in range(n_display):
             self._at(di / cfg.client_fps, _DISPLAY, self._display_tick, di, n_display, result)
+        for c in clients:   # both cores start with the session at t = 0
+            assert c.core is not None and c.core_s is not None
+            c.core.start(0.0)
+            c.core_s.start(0.0)
+            self.now = 0.0
+            self._client_out(c)
+            self._arm_server_timer(c)
         while self._events:
             t, _, _, fn, args = heapq.heappop(self._events)
             self.now = t
@@ -365,7 +372,7 @@ class VirtualTimeRun:
         make_current(self.renderer.ctx)
         shared = pool.prepare(self.spec.name, f, t_f)
         shared_ms = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
-        shared_stats = pool._producers[self.spec.name].stats() if self.spec.name in pool._producers else {}
+        shared_stats = pool.stats(self.spec.name)
         busy_ms = shared_ms  # measured server time so far this tick (sessions are served one after another)
         for c in self.clients:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
@@ -375,7 +382,8 @@ class VirtualTimeRun:
                     c.latest_pose_t = ts
                 c.arrival_idx += 1
             assert c.fb is not None and c.tx is not None
-            kf, c.kf_pending = c.kf_pending, False
+            assert c.core_s is not None
+            kf = c.core_s.keyframe_due(t_f * 1000)
             expected = c.fb.latency.value_s
             target_t = t_f + expected
             target_pose = c.predictor.predict(target_t)
@@ -397,8 +405,7 @@ class VirtualTimeRun:
             timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
             out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.latest_pose_t),
                                  int(round(c.latest_pose_t * cfg.tracker_hz)), target_t, timing, c.half.stats())
-            c.fb.frame_sent(f, sim_us(t_f))
-            c.keyframes += int(out.keyframe)
+            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f))
             # control frames: TCP segments over the downlink, in order, head-of-line blocked
             for stream, data in out.control:
                 arrive = send_t
@@ -407,10 +414,7 @@ class VirtualTimeRun:
                 arrive = max(arrive, c.down_ctrl_free_s)
                 c.down_ctrl_free_s = arrive
                 self._at(arrive, _DELIVER, self._deliver_control, c, data)
-            for data in [d for _, _, d in out.datagrams] + [d for _, d in out.fec]:
-                for d in c.down.send(send_t, len(data) + 28):
-                    if not d.corrupted:
-                        self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+            self._send_down(c, [d for _, _, d in out.datagrams] + [d for _, d in out.fec], send_t)
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
@@ -431,47 +435,86 @@ class VirtualTimeRun:
             c.update_rows[f] = row
             c.updates.append(row)
 
+    def _send_down(self, c: _Client, datagrams: list[bytes], t_s: float) -> None:
+        """RTP datagrams (media, FEC, retransmissions) onto the downlink at ``t_s`` (or its last send)."""
+        t_s = max(t_s, c.sent_s.get("down", -math.inf))
+        c.sent_s["down"] = t_s
+        for data in datagrams:
+            deliveries = c.down.send(t_s, len(data) + 28)
+            c.packets_lost += not deliveries
+            for d in deliveries:
+                if not d.corrupted:
+                    self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+
     def _server_receive(self, c: _Client, data: bytes) -> None:
-        assert c.fb is not None
+        assert c.core_s is not None
         for msg in self._to_server(c, data):
-            if isinstance(msg, Feedback):
-                c.fb.on_feedback(msg)
-            elif isinstance(msg, KeyframeRequest):
-                c.kf_pending = True
+            c.core_s.receive_message(msg, self.now * 1000)
+
+    def _server_rtcp(self, c: _Client, data: bytes) -> None:
+        """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
+        assert c.core_s is not None
+        resend = c.core_s.receive_datagram(data, self.now * 1000)
+        if resend:
+            self._send_down(c, resend, self.now)
+
+    def _arm_server_timer(self, c: _Client) -> None:
+        assert c.core_s is not None
+        t = c.core_s.next_timer() / 1000
+        if math.isfinite(t) and t <= self.duration_s + 1.0:
+            self._at(max(t, self.now), _TIMER, self._server_timer, c)
+
+    def _server_timer(self, c: _Client) -> None:
+        """Sender reports, over RTCP's copy of the downlink."""
+        assert c.core_s is not None and c.rtcp_down is not None
+        for data in c.core_s.handle_timer(self.now * 1000):
+            t = max(self.now, c.sent_s.get("rtcp_down", -math.inf))
+            c.sent_s["rtcp_down"] = t
+            for d in c.rtcp_down.send(t, len(data) + 28):
+                if not d.corrupted:
+                    self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+        self._arm_server_timer(c)
 
     # ------------------------------------------------------------------ client
 
     def _deliver_control(self, c: _Client, data: bytes) -> None:
-        assert c.rx is not None
+        assert c.core is not None
         now_ms = self.now * 1000
         try:
             for msg in self._to_client_msgs(c, data):
-                c.rx.on_message(msg, now_ms)
+                c.core.receive_message(msg, now_ms)
         except RemoteProtocolError as exc:  # a malformed update: counted, the run goes on
             c.protocol_errors += 1
             log.warning("run %s client %d: %s", self.cfg.method, c.index, exc)
         self._drain(c)
+        self._client_out(c)
 
     def _deliver_datagram(self, c: _Client, data: bytes) -> None:
-        assert c.rx is not None
-        self._decode(c, c.rx.on_datagram(data, self.now * 1000))
+        assert c.core is not None
+        self._decode(c, c.core.receive_datagram(data, self.now * 1000))
         self._drain(c)
+        self._client_out(c)
 
     def _decode(self, c: _Client, works: list[Any]) -> None:
-        assert c.rx is not None
+        assert c.core is not None
         for w in works:
             w0 = time.perf_counter()
-            res = c.rx.decode(w)
+            res = ClientPipeline.decode(w)
             c.decode_ms += (time.perf_counter() - w0) * 1000
-            c.rx.on_decoded(w, res, self.now * 1000)
+            c.core.on_decoded(w, res, self.now * 1000)
 
     def _drain(self, c: _Client) -> None:
-        assert c.rx is not None
-        for rf in c.rx.ready():
-            dec_ms = c.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
-            release = max(self.now + dec_ms / 1000.0, c.ready[-1][0] if c.ready else -math.inf)
-            c.ready.append((release, rf, c.decode_ms))
+        """Released frames join the display queue, each its modelled (or measured) decode time later."""
+        assert c.core is not None
+        measured = self.cfg.cost_model == "measured"
+
+        def decode_delay_ms(rf: ReceivedFrame) -> float:
+            dec_ms = c.decode_ms * self.cfg.cost_scale if measured else self.cfg.decode_latency_ms
+            c.decode_ms_of[rf.update.frame_id] = c.decode_ms
             c.decode_ms = 0.0
+            return dec_ms
+
+        for rf in c.core.collect(self.now * 1000, decode_delay_ms):
             row = c.update_rows.pop(rf.update.frame_id, None)
             if row is not None:
                 row["delivered"] = int(rf.update.complete)
@@ -480,12 +523,47 @@ class VirtualTimeRun:
             if rf.update.missing:
                 c.lost_frames += 1
 
+    def _client_timer(self, c: _Client, token: int) -> None:
+        if token != c.timer_token:   # superseded by an earlier deadline
+            return
+        c.timer_s = math.inf
+        self._client_timer_now(c)
+
+    def _client_timer_now(self, c: _Client) -> None:
+        assert c.core is not None
+        self._decode(c, c.core.handle_timer(self.now * 1000))
+        self._drain(c)
+        self._client_out(c)
+
+    def _client_out(self, c: _Client) -> None:
+        """What the client core wants sent (RTCP over its copy of the uplink), its events, its next timer."""
+        assert c.core is not None and c.rtcp_up is not None
+        for data in c.core.datagrams_to_send():
+            t = max(self.now, c.sent_s.get("rtcp_up", -math.inf))
+            c.sent_s["rtcp_up"] = t
+            for d in c.rtcp_up.send(t, len(data) + 28):
+                if not d.corrupted:
+                    self._at(d.time_s, _DELIVER, self._server_rtcp, c, data)
+        for ev in c.core.take_events():
+            if isinstance(ev, Stalled):
+                log.debug("run %s client %d: stalled at %.3f s (%.0f ms without a frame)", self.cfg.method, c.index,
+                          ev.now_ms / 1000, ev.idle_ms)
+            elif isinstance(ev, Resumed):
+                log.debug("run %s client %d: frames resumed after %.0f ms", self.cfg.method, c.index, ev.stall_ms)
+        t = c.core.next_timer() / 1000
+        if t < c.timer_s and t <= self.duration_s + 1.0 / self.cfg.client_fps:
+            c.timer_s = max(t, self.now)
+            c.timer_token += 1
+            self._at(c.timer_s, _TIMER, self._client_timer, c, c.timer_token)
+
     def _send_up(self, c: _Client, msg: Message) -> None:
         data = c.cconn.send(msg)
         c.uplink_bytes += control_wire_bytes(len(data))
         arrive = self.now
+        t = max(self.now, c.sent_s.get("ctrl", -math.inf))
+        c.sent_s["ctrl"] = t
         for seg in tcp_segments(len(data)):
-            arrive = max(arrive, c.ctrl.send(max(self.now, c.ctrl._last_now), seg, reliable=True)[0].time_s)
+            arrive = max(arrive, c.ctrl.send(t, seg, reliable=True)[0].time_s)
         arrive = max(arrive, c.ctrl_free_s)
         c.ctrl_free_s = arrive
         self._at(arrive, _DELIVER, self._server_receive, c, data)
@@ -499,42 +577,32 @@ class VirtualTimeRun:
 
     def _display_one(self, c: _Client, di: int, t_d: float, result: RunResult) -> None:
         cfg = self.cfg
-        assert c.rx is not None
-        self._decode(c, c.rx.poll(t_d * 1000))
-        self._drain(c)
+        assert c.core is not None
+        self._client_timer_now(c)   # timeouts due at this tick first, as the live client's timer task would
+        now_ms = t_d * 1000
         applied_ms, decode_ms = 0.0, math.nan
         make_current(c.gl)
-        if True:
-            while c.ready and c.ready[0][0] <= t_d:
-                _, rf, dms = c.ready.popleft()
-                decode_ms = dms
-                w0 = time.perf_counter()
-                try:
-                    c.chalf.apply(rf.update)
-                except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                    c.apply_errors += 1
-                    log.warning("run %s: update %d rejected by the client half: %s", cfg.method, rf.update.frame_id, exc)
-                    continue
-                finally:
-                    applied_ms += (time.perf_counter() - w0) * 1000
-                c.rx.tracker.on_applied(rf.update.frame_id, [*rf.update.planes, *rf.update.data])
-                if rf.update.complete or rf.update.planes or rf.update.data:  # one that lost everything shows nothing new
-                    c.shown = rf
-            true_pose = c.trace.pose_at(t_d)
+        for rf in c.core.display(now_ms):
+            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
             w0 = time.perf_counter()
-            if c.chalf.has_content:
-                cf = c.chalf.render(true_pose, t_d)
-            else:  # nothing to show yet: the black background, every pixel a hole
-                cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
-            client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
+            try:
+                c.chalf.apply(rf.update)
+            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                c.core.apply_failed(rf)
+                log.warning("run %s: update %d rejected by the client half: %s", cfg.method, rf.update.frame_id, exc)
+                continue
+            finally:
+                applied_ms += (time.perf_counter() - w0) * 1000
+            c.core.applied(rf)
+        true_pose = c.trace.pose_at(t_d)
+        w0 = time.perf_counter()
+        if c.chalf.has_content:
+            cf = c.chalf.render(true_pose, t_d)
+        else:  # nothing to show yet: the black background, every pixel a hole
+            cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
+        client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
         make_current(self.renderer.ctx)
-        # keyframe requests: a video stream that lost sync, or whose first IDR was lost
-        want = c.rx.wants_keyframe()
-        if want and (t_d - c.last_kf_request_s) * 1000 >= cfg.keyframe_request_interval_ms:
-            c.last_kf_request_s = t_d
-            c.kf_requests += 1
-            self._send_up(c, KeyframeRequest(want[0], "decoder waits for a keyframe"))
-        shown = c.shown
+        shown = c.core.shown
         while c.window and c.window[0][0] <= t_d - 1.0:
             c.window.popleft()
         row: dict[str, Any] = {"client": c.index, "frame": di, "t_s": t_d}
@@ -545,13 +613,9 @@ class VirtualTimeRun:
             row.update({"update_frame_id": fid, "update_age_ms": (t_d - shown.update.t_s) * 1000,
                         "motion_to_photon_ms": (t_d - pose_t) * 1000, "client_ms": client_ms, "decode_ms": decode_ms,
                         "pred_err_cm": pcm, "pred_err_deg": pdeg})
-            if c.shown_fed_back != fid:
-                c.shown_fed_back = fid
-                applied, lost = c.rx.tracker.take()
-                self._send_up(c, Feedback(fid, sim_us(shown.received_ms / 1000), sim_us(shown.decoded_ms / 1000),
-                                          sim_us(t_d), 0, sim_us(pose_t if math.isfinite(pose_t) else 0.0),
-                                          {k: int(v) for k, v in shown.env.timing_us.items() if k in ("render", "encode")},
-                                          applied, lost))
+            fb = c.core.feedback(now_ms)
+            if fb is not None:
+                self._send_up(c, fb)
         if shown is None or not c.chalf.has_content:
             # a start-up tick: nothing shown yet, or only updates whose content was lost (black)
             row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
@@ -570,6 +634,7 @@ class VirtualTimeRun:
                 result.images.append((di, cf.color, gt))
         row.update({f"cli_{k}": v for k, v in cf.stats.items()})
         c.frames.append(row)
+        self._client_out(c)
 
     def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg
@@ -611,8 +676,8 @@ class VirtualTimeRun:
             "clients": cfg.clients,
             "mean_encode_ms": float(np.mean([u["encode_ms"] for u in ups])) if ups else math.nan,
             "mean_decode_ms": mean("decode_ms"), "mean_client_ms": mean("client_ms"), "mean_gt_ms": mean("gt_ms"),
-            "lost_frames": c.lost_frames, "keyframes": c.keyframes, "keyframe_requests": c.kf_requests,
-            "apply_errors": c.apply_errors, "protocol_errors": c.protocol_errors,
+            "lost_frames": c.lost_frames, "protocol_errors": c.protocol_errors, "packets_lost": c.packets_lost, "rtp_packets": c.core_s.counters["rtp_packets"],
+            **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
             "mean_expected_latency_ms": float(np.mean([u["expected_latency_ms"] for u in ups])) if ups else math.nan,
             "mean_pred_err_cm": float(np.mean([u["pred_err_cm"] for u in ups])) if ups else math.nan,
             "mean_pred_err_deg": float(np.mean([u["pred_err_deg"] for u in ups])) if ups else math.nan,

@@ -84,7 +84,6 @@ QUASAR_T4: dict[tuple[str, str], list[tuple[float, float]]] = {
     ("MW (60°)", "cloud"): [(24.98, 0.820), (27.82, 0.883), (25.74, 0.899), (21.96, 0.744)],
     ("MW (120°)", "cloud"): [(26.72, 0.872), (28.49, 0.914), (25.52, 0.861), (23.13, 0.792)],
 }
-QUASAR_SCENES = ("Robot Lab", "Sun Temple", "Viking Village", "San Miguel")
 #: QUASAR table 1, mean ± std / max: (scene, w/ pred position, w/ pred rotation, w/o pred position, w/o pred rotation)
 QUASAR_T1: dict[str, list[tuple[str, str, str, str, str]]] = {
     "lan": [("RL", "9 ± 6 / 46 cm", "0.9 ± 1.3 / 14.7°", "32 ± 12 / 76 cm", "2.3 ± 3.0 / 22.7°"),

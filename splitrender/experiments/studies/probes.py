@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import save_figure
 
@@ -177,7 +178,8 @@ def _segment_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def _run(renderer: Any, scene: str, trace: str, network: str, dur: float, size: tuple[int, int], offset: float,
          params: dict[str, Any], **kw: Any) -> Any:
-    from ...sim.runner import RunConfig, run
+    from ...sim.config import RunConfig
+    from ...sim.runner import run
 
     return run(RunConfig(method="probes", scene=scene, trace=trace, network=network, duration_s=dur, width=size[0],
                          height=size[1], client_fps=30, flip_every=0, seed=0, scene_time_offset_s=offset,
@@ -194,7 +196,6 @@ def run(out_dir: Path, quick: bool) -> Section:
     from ...gi.stream import guard_band_savings
     from ...render.renderer import Renderer
     from ...scene.loader import get_scene
-    from ...sim.runner import write_csv
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ...methods.quads.server import STAGES as SERVER_STAGES
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE, update_mean as _upd_mean
 
@@ -33,7 +34,8 @@ STAGES = (*SERVER_STAGES, "pack_ms")
 
 def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network: str, dur: float,
          size: tuple[int, int], flip_every: int = 0) -> dict[str, Any]:
-    from ...sim.runner import RunConfig, run
+    from ...sim.config import RunConfig
+    from ...sim.runner import run
 
     res = run(RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network=network, duration_s=dur, width=size[0],
                         height=size[1], client_fps=30, flip_every=flip_every, seed=0, method_params=params), renderer=renderer)
@@ -99,7 +101,6 @@ def run(out_dir: Path, quick: bool) -> Section:
     from ...methods.warp import fov_scale_for
     from ...render.renderer import Renderer
     from ...scene.pose import CameraIntrinsics
-    from ...sim.runner import write_csv
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -51,7 +51,8 @@ def _mean(frames: list[dict[str, Any]], key: str) -> float:
 
 
 def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    from ...sim.runner import RunConfig, run
+    from ...sim.config import RunConfig
+    from ...sim.runner import run
 
     dur = 0.5 if quick else 4.0
     common = dict(scene=STUDY_SCENE, trace="strafe", width=320, height=180, client_fps=30, duration_s=dur,

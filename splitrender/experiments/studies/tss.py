@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE, update_mean as _upd_mean
 
@@ -38,15 +39,14 @@ log = logging.getLogger(__name__)
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
-    from ...sim.runner import write_csv
-
     write_csv(path, rows)
     return path
 
 
 def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network: str, dur: float,
          size: tuple[int, int]) -> dict[str, Any]:
-    from ...sim.runner import RunConfig, run
+    from ...sim.config import RunConfig
+    from ...sim.runner import run
 
     res = run(RunConfig(method=method, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
                         client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)

@@ -7,7 +7,7 @@ import numpy as np
 from ...render.canvas import Canvas, FullscreenPass, upload_image
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-from . import SHADERS, AtwConfig, overscan_intrinsics, rotation_homography
+from .config import SHADERS, AtwConfig, overscan_intrinsics, rotation_homography
 
 
 class AtwClient(ClientHalf):
@@ -27,7 +27,7 @@ class AtwClient(ClientHalf):
             return
         self._tex = upload_image(self.gl, img, self._tex)
         self._ref_q = update.pose.orientation
-        self._has_content = True
+        self.has_content = True
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         i = self.intrinsics

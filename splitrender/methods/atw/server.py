@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..base import ServerContext, ServerHalf, StreamSpec, Update
-from . import AtwConfig, overscan_intrinsics
+from .config import AtwConfig, overscan_intrinsics
 
 
 class AtwServer(ServerHalf):

@@ -53,7 +53,7 @@ class ProbesClient(ClientHalf):
         self.probes = ProbeCopy(self.gl, origin, spacing, counts, bias)   # type: ignore[arg-type]
         self.renderer.gi_sources[id(self.scene)] = self.probes
         self.count = self.probes.count
-        self._has_content = False
+        self.has_content = False
 
     def apply(self, update: DecodedUpdate) -> None:
         meta = update.meta
@@ -94,7 +94,7 @@ class ProbesClient(ClientHalf):
             pl.intensity = Schedule.constant(float(v))
         if probes is not None:
             self.probes.scatter(*probes)
-        self._has_content = True       # the scene is here: draw it, the indirect light filling in as probes arrive
+        self.has_content = True       # the scene is here: draw it, the indirect light filling in as probes arrive
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         out = self.renderer.render(self.scene, t_s, pose, self.intrinsics)

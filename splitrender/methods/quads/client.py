@@ -104,7 +104,7 @@ class QuadsClient(ClientHalf):
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
         self._pose0 = cams[0][0]
         self._broken = False
-        self._has_content = True
+        self.has_content = True
         self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.count // 24),
                        "quads_cached": float(len(self.cache))}
 

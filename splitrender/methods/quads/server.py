@@ -110,7 +110,6 @@ class QuadsServer(ServerHalf):
 
     # ------------------------------------------------------------------ session
     def streams(self) -> list[Any]:
-        i = self.intrinsics
         return [StreamSpec("atlas", self.config.video(self.server_fps), *self.atlas_wh),
                 DataStreamSpec("quads"), DataStreamSpec("offsets")]
 

@@ -392,14 +392,6 @@ class PatchAllocator:
         return np.stack([self.bx[ids], self.by[ids], w, h], axis=1).astype(np.int32)
 
 
-def overlapping_pairs(rects: np.ndarray, width: int, height: int) -> int:
-    """Texels covered by more than one rectangle (``x, y, w, h``), via a coverage count image."""
-    cov = np.zeros((height, width), np.int32)
-    for x, y, w, h in rects.tolist():
-        cov[y:y + h, x:x + w] += 1
-    return int((cov > 1).sum())
-
-
 @dataclass
 class BaselineAllocator:
     """A per-patch Python loop allocator (the "simple CPU baseline" of the benchmark).

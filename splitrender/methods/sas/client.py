@@ -165,7 +165,7 @@ class SasClient(ClientHalf):
                     self._changed.add(pid)
         self.xf.update(m.xf_obj.astype(np.int64), m.xf, update.t_s)
         self._dirty = True
-        self._has_content = True
+        self.has_content = True
 
     def _patch_rows(self, ids: list[int]) -> np.ndarray:
         """(N, 3, 3, 10) float32 vertex rows of patches ``ids`` (unused triangles zero): object-space

@@ -100,7 +100,7 @@ class TssClient(ClientHalf):
         self._tex = upload_image(self.gl, atlas, self._tex)
         self.table = table
         self._upload(table, update.pose, xf)
-        self._has_content = True
+        self.has_content = True
 
     def _upload(self, t: Table, pose: Pose, xf: np.ndarray) -> None:
         """The vertex buffer of table ``t``: per vertex its object-space position, object, reference depths, layout."""

@@ -16,7 +16,7 @@ class VideoClient(ClientHalf):
     def apply(self, update: DecodedUpdate) -> None:
         if "color" in update.planes:
             self._frame = update.planes["color"]
-            self._has_content = True
+            self.has_content = True
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         i = self.intrinsics

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import logging
 import math
 import time
@@ -14,10 +13,7 @@ from ...render.canvas import FullscreenPass, upload_image
 from ...render.gl import load_program, set_uniform
 from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3, quat_slerp, quat_to_matrix3
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-
-log = logging.getLogger(__name__)
-
-from . import SHADERS, WarpConfig, reference_intrinsics
+from .config import SHADERS, WarpConfig, reference_intrinsics
 from .wire import ReferenceFrame, ReferenceView, WarpMetaError, parse_update
 
 log = logging.getLogger(__name__)
@@ -181,7 +177,7 @@ class WarpClient(ClientHalf):
             g.ids = upload_image(self.gl, v.ids, g.ids, linear=False)
         self._frame = frame
         self._n_ids = n_ids
-        self._has_content = True
+        self.has_content = True
 
     # ------------------------------------------------------------------ render
     def _view_order(self, pose: Pose) -> list[int]:

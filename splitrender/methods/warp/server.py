@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import logging
 from typing import Any
 
@@ -12,10 +11,7 @@ from ...codecs.depth import bc4_encode, pack_depth_planes, quantize_depth
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
 from ..base import ServerContext, ServerHalf, StreamSpec, Update
-
-log = logging.getLogger(__name__)
-
-from . import MAX_OBJECT_ID, META_VERSION, WarpConfig, reference_intrinsics, reference_poses
+from .config import MAX_OBJECT_ID, META_VERSION, WarpConfig, reference_intrinsics, reference_poses
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import logging
 import math
 from dataclasses import dataclass
@@ -14,10 +13,9 @@ from ...codecs.depth import bc4_decode, dequantize_depth, unpack_depth_planes
 from ...errors import CodecError, RemoteProtocolError
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DecodedUpdate
+from .config import MAX_COORD_M, MAX_OBJECT_ID, META_VERSION, WarpConfig
 
 log = logging.getLogger(__name__)
-
-from . import MAX_COORD_M, MAX_OBJECT_ID, META_VERSION, WarpConfig
 
 
 # ----------------------------------------------------------------------------- client: data

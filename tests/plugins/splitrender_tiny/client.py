@@ -28,7 +28,7 @@ class TinyClient(ClientHalf):
 
             raise RemoteProtocolError(f"tiny thumb: {len(raw)} bytes, expected {w * h * 3}")
         self.thumb = np.frombuffer(raw, np.uint8).reshape(h, w, 3)
-        self._has_content = True
+        self.has_content = True
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
         i = self.intrinsics

@@ -1,0 +1,137 @@
+"""``warp``: the config, wire constants and view geometry both halves share (the halves and :mod:`.wire` import
+this, never the package)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from ...errors import ConfigError
+from ...scene.pose import CameraIntrinsics, Pose, quat_to_matrix3
+from ..base import MethodConfig
+
+SHADERS = Path(__file__).parent.parent / "shaders"
+META_VERSION = 1
+MAX_OBJECT_ID = 65535
+MAX_COORD_M = 1e6  # largest pose coordinate, matrix entry, near distance or dt accepted from the server (float32 on the GPU)
+Reconstruction = Literal["points", "quads", "mesh"]
+SecondView = Literal["stereo", "back", "motion"]
+ViewMerge = Literal["holes", "depth"]
+DepthCoding = Literal["lossless", "bc4"]
+
+
+@dataclass(frozen=True)
+class WarpConfig(MethodConfig):
+    """Settings of the ``warp`` method.
+
+    - ``views``: reference views per frame (1 or 2);
+    - ``second_view``: where view 2 goes; view 1 is always the predicted pose (moving it
+      off the prediction costs more than view 2 gains): ``stereo`` (view 2 ``baseline_m``
+      to the right along the camera's x axis, the paper's widened eye separation),
+      ``back`` (``baseline_m`` behind), ``motion`` (``baseline_m`` further along the
+      predicted motion; to the right when still);
+    - ``view_merge``: how the other views join the one nearest the display pose:
+      ``holes`` (they only fill pixels the nearest view left uncovered) or ``depth``
+      (the paper's plain depth test; their pixel-phase-shifted silhouettes then widen
+      every foreground edge and thin structure, which costs more PSNR than the filled
+      disocclusions gain);
+    - ``fov_scale``: image-plane scale of the reference views (1 = display FOV;
+      3.0 turns a 60 degree display into about 120 degrees, "MW 120");
+    - ``resolution_scale``: reference pixels per display pixel along each axis at equal
+      pixel density (1 keeps the density; the reference is ``fov_scale *
+      resolution_scale`` times the display size);
+    - ``reconstruction``: ``points``, ``quads`` or ``mesh``;
+    - ``depth_coding``: ``lossless`` (HEVC, bit-exact 16-bit codes) or ``bc4``;
+    - ``depth_near_m``: the depth quantiser's near distance (metres);
+    - ``depth_discontinuity``: relative depth step that cuts mesh triangles and
+      one-sides the Jacobian;
+    - ``hole_fill``: epipolar hole filling on/off; ``max_scan_px``: scan length;
+    - ``extrapolate``: extrapolate object motion between updates (else objects jump);
+      ``max_extrapolation_s`` caps it;
+    - ``max_splat_px``: largest point/quad splat;
+    - ``splat_slack_px``: point size is ``ceil(S - slack)``; 0 is the paper's strict
+      ``ceil`` (every magnification above 1 doubles the splat and thickens edges by half a
+      pixel); the default lets near-1 magnifications keep 1-pixel splats and leaves the
+      rare crack to hole filling.
+    """
+
+    views: int = 1
+    second_view: SecondView = "stereo"
+    view_merge: ViewMerge = "holes"
+    baseline_m: float = 0.3
+    fov_scale: float = 1.3
+    resolution_scale: float = 1.0
+    reconstruction: Reconstruction = "points"
+    depth_coding: DepthCoding = "lossless"
+    depth_near_m: float = 0.1
+    depth_discontinuity: float = 0.15
+    hole_fill: bool = True
+    max_scan_px: int = 64
+    extrapolate: bool = True
+    max_extrapolation_s: float = 0.5
+    max_splat_px: float = 8.0
+    splat_slack_px: float = 0.25
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        n = type(self).__name__
+        if self.views not in (1, 2):
+            raise ConfigError(f"{n}.views: must be 1 or 2, got {self.views}")
+        if self.second_view not in ("stereo", "back", "motion"):
+            raise ConfigError(f"{n}.second_view: {self.second_view!r} is not one of ['stereo', 'back', 'motion']")
+        if self.view_merge not in ("holes", "depth"):
+            raise ConfigError(f"{n}.view_merge: {self.view_merge!r} is not one of ['holes', 'depth']")
+        if self.reconstruction not in ("points", "quads", "mesh"):
+            raise ConfigError(f"{n}.reconstruction: {self.reconstruction!r} is not one of ['points', 'quads', 'mesh']")
+        if self.depth_coding not in ("lossless", "bc4"):
+            raise ConfigError(f"{n}.depth_coding: {self.depth_coding!r} is not one of ['lossless', 'bc4']")
+        if not 0.0 <= self.baseline_m <= 5.0:
+            raise ConfigError(f"{n}.baseline_m: must be in [0, 5] metres, got {self.baseline_m}")
+        if not 1.0 <= self.fov_scale <= 6.0:
+            raise ConfigError(f"{n}.fov_scale: must be in [1, 6], got {self.fov_scale}")
+        if not 0.1 <= self.resolution_scale <= 4.0:
+            raise ConfigError(f"{n}.resolution_scale: must be in [0.1, 4], got {self.resolution_scale}")
+        if not self.depth_near_m > 0:
+            raise ConfigError(f"{n}.depth_near_m: must be > 0, got {self.depth_near_m}")
+        if not self.depth_discontinuity > 0:
+            raise ConfigError(f"{n}.depth_discontinuity: must be > 0, got {self.depth_discontinuity}")
+        if self.max_scan_px < 1:
+            raise ConfigError(f"{n}.max_scan_px: must be >= 1, got {self.max_scan_px}")
+        if not 1.0 <= self.max_splat_px <= 64.0:
+            raise ConfigError(f"{n}.max_splat_px: must be in [1, 64], got {self.max_splat_px}")
+        if not 0.0 <= self.splat_slack_px < 1.0:
+            raise ConfigError(f"{n}.splat_slack_px: must be in [0, 1), got {self.splat_slack_px}")
+        if self.max_extrapolation_s < 0:
+            raise ConfigError(f"{n}.max_extrapolation_s: must be >= 0, got {self.max_extrapolation_s}")
+
+
+def fov_scale_for(display: CameraIntrinsics, fov_y_deg: float) -> float:
+    """The ``fov_scale`` that gives reference views a vertical FOV of ``fov_y_deg``."""
+    return math.tan(math.radians(fov_y_deg) / 2) / math.tan(math.radians(display.fov_y_deg) / 2)
+
+
+def reference_intrinsics(display: CameraIntrinsics, fov_scale: float, resolution_scale: float) -> CameraIntrinsics:
+    """Reference-view camera: display FOV enlarged by ``fov_scale``, even pixel size."""
+    big = display.enlarged(fov_scale, keep_pixel_density=False)
+    w = max(2, int(round(display.width * fov_scale * resolution_scale / 2)) * 2)
+    h = max(2, int(round(display.height * fov_scale * resolution_scale / 2)) * 2)
+    return CameraIntrinsics(w, h, big.fov_y_deg, display.near_m, display.far_m)
+
+
+def reference_poses(cfg: WarpConfig, target: Pose, motion_dir: np.ndarray | None) -> list[Pose]:
+    """The reference view poses for one frame (view 0 first; see ``WarpConfig.second_view``)."""
+    if cfg.views == 1:
+        return [target]
+    r = quat_to_matrix3(target.orientation)
+    right, back = r[:, 0], r[:, 2]
+    b = cfg.baseline_m
+    if cfg.second_view == "stereo":
+        return [target, Pose(target.position + right * b, target.orientation)]
+    if cfg.second_view == "back":
+        return [target, Pose(target.position + back * b, target.orientation)]
+    d = motion_dir if motion_dir is not None and np.linalg.norm(motion_dir) > 1e-9 else right
+    return [target, Pose(target.position + d / np.linalg.norm(d) * b, target.orientation)]

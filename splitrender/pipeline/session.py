@@ -1,0 +1,756 @@
+"""Sans-IO session cores: everything a session decides, for both clocks (the aioquic shape).
+
+:class:`ServerSession` and :class:`ClientSession` wrap the transmission path
+(:class:`~.sender.ServerPipeline`, :class:`~.receiver.ClientPipeline`) with the
+protocol around it: feedback, keyframe requests, RTCP sender and receiver reports at
+randomised intervals (RFC 3550 6.2), generic NACKs and their retransmission from a
+bounded history (RFC 4585), picture loss indications, the playout delay, stall
+detection, and the "does this update show anything" rule.  They never read a clock
+and never touch a socket: time comes in as ``now_ms`` on the driver's clock, bytes come
+in as arguments, and what to send comes out of :meth:`ClientSession.datagrams_to_send`
+and the return values; :meth:`ClientSession.next_timer` / :meth:`ServerSession.next_timer`
+say when to call ``handle_timer`` next.
+
+Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
+network model on a simulated clock, and the live server and client
+(:mod:`splitrender.server.session`, :mod:`splitrender.client.session`) with sockets and
+the wall clock.  ``clock_offset_us`` turns the driver's clock into the protocol's
+wall-clock µs (the live drivers run on the wall clock and pass 0; virtual time passes
+its simulated epoch), so the same session sends the same timestamps either way.
+
+Control-channel framing stays in :class:`~splitrender.protocol.Connection` (sans-IO as
+well): the cores take the messages it parses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import secrets
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import ConfigError
+from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, KeyframeRateLimiter, KeyframeRequest, Message,
+                        MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
+                        RtcpPacket, SenderReport, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp, serialize_rtcp)
+from ..protocol.errors import RtcpError
+from ..protocol.rtcp import compound_feedback
+from ..protocol.rtp import RTP_CLOCK_HZ
+from .feedback import FeedbackState
+from .receiver import ClientPipeline, ReceivedFrame, Work
+from .sender import OutgoingFrame, ServerPipeline
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ClientOptions", "ClientSession", "ServerOptions", "ServerSession", "SessionEvent", "Stalled", "Resumed",
+           "StallTimeout", "rtcp_media_ssrcs", "session_params", "session_summary", "shows_anything"]
+
+TIMER_TICK_MS = 10.0
+"""While packets or frames are outstanding the client core wants its timer this often (ms)."""
+BIND_INTERVAL_MS = 100.0
+"""Until the first RTP packet the client repeats an empty receiver report this often (it opens the UDP path)."""
+NACK_RETRY_MIN_MS = 30.0
+NACK_RETRY_MAX_MS = 500.0
+MAX_NACKED_PER_REQUEST = 128
+"""Most packets resent for one generic NACK."""
+MAX_READY_UPDATES = 16
+"""Released updates waiting for their display turn before the oldest is applied unseen."""
+
+
+def shows_anything(rf: ReceivedFrame) -> bool:
+    """Whether an update can change the picture: complete, or at least one stream of it arrived."""
+    u = rf.update
+    return bool(u.complete or u.planes or u.data)
+
+
+def _rtcp_interval_ms(mean_s: float, rand: Any) -> float:
+    """RFC 3550 6.3.1: the report interval times a uniform factor in [0.5, 1.5], so reports do not synchronise."""
+    return mean_s * 1000.0 * (0.5 + float(rand()))
+
+
+def _uniform(rng: Any) -> Any:
+    """A ``() -> [0, 1)`` draw from a numpy Generator, or from the OS when ``rng`` is None."""
+    if rng is None:
+        return lambda: secrets.randbits(53) / (1 << 53)
+    return lambda: float(rng.random())
+
+
+def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, scene: str,
+                   tx: ServerPipeline, session_blob: bytes, subject: Any = None) -> dict[str, Any]:
+    """The ``Welcome.method_params`` map of a session, in both modes (documented in docs/protocol.md).
+
+    ``subject``: a loaded model's world bounds (lo, hi), sent as ``subject`` so that the
+    client places its built-in traces around the model."""
+    cfg = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+    out = {"config": cfg, "fov_y_deg": float(fov_y_deg), "server_fps": int(server_fps), "scene": scene,
+           **tx.welcome_params(session_blob)}
+    if subject is not None:
+        out["subject"] = [[float(v) for v in subject[0]], [float(v) for v in subject[1]]]
+    return out
+
+
+def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The loss-recovery columns of a session's summary, the same for a virtual-time run and a live recording.
+
+    ``client``: :meth:`ClientSession.all_counters`; ``server``: :attr:`ServerSession.counters`; ``rows``:
+    one per display tick with ``t_s`` (s) and ``update_frame_id`` (-1 before the first update).
+    ``shown_pct``: distinct updates shown over the server frames from the first shown to the last;
+    ``longest_freeze_ms``: the longest time between two new updates reaching the screen."""
+    firsts: dict[int, float] = {}
+    for r in rows:
+        fid = int(r.get("update_frame_id", -1))
+        if fid >= 0 and fid not in firsts:
+            firsts[fid] = float(r["t_s"])
+    ids = sorted(firsts)
+    span = ids[-1] - ids[0] + 1 if ids else 0
+    times = sorted(firsts.values())
+    gaps = [b - a for a, b in zip(times, times[1:])]
+    return {
+        "updates_shown": len(ids), "shown_pct": 100.0 * len(ids) / span if span else math.nan,
+        "longest_freeze_ms": 1000.0 * max(gaps) if gaps else math.nan,
+        "keyframes": int(server.get("keyframes", 0)), "keyframe_requests": int(client.get("plis_sent", 0)),
+        "plis_received": int(server.get("plis", 0)), "nacks": int(client.get("nacks_sent", 0)),
+        "nacked_packets": int(client.get("nacked_packets", 0)), "retransmitted": int(server.get("retransmitted", 0)),
+        "fec_recovered": int(sum(v for k, v in client.items() if k.endswith("_fec_recovered"))),
+        "stalls": int(client.get("stalls", 0)), "longest_stall_ms": float(client.get("longest_stall_ms", 0.0)),
+        "apply_errors": int(client.get("apply_errors", 0)), "decode_errors": int(client.get("decode_errors", 0)),
+        "rtcp_up_bytes": int(client.get("rtcp_bytes_sent", 0)), "rtcp_down_bytes": int(server.get("rtcp_bytes_sent", 0)),
+        "retransmitted_bytes": int(server.get("retransmitted_bytes", 0)),
+    }
+
+
+def rtcp_media_ssrcs(data: bytes) -> tuple[list[RtcpPacket], list[int]]:
+    """A client's RTCP datagram and the media SSRCs it names, in order (report blocks, NACK and PLI
+    targets), so a server can route it to the session that owns them.  Raises ``RtcpError`` for a
+    datagram that is not valid RTCP."""
+    if not is_rtcp(data):
+        raise RtcpError(f"datagram of {len(data)} bytes is not RTCP")
+    packets = parse_rtcp(data)
+    ssrcs: list[int] = []
+    for p in packets:
+        if isinstance(p, (ReceiverReport, SenderReport)):
+            ssrcs += [b.ssrc for b in p.reports]
+        elif isinstance(p, (GenericNack, PictureLossIndication)):
+            ssrcs.append(p.media_ssrc)
+    return packets, ssrcs
+
+
+# --------------------------------------------------------------------------- events
+
+
+@dataclass(frozen=True)
+class SessionEvent:
+    now_ms: float
+
+
+@dataclass(frozen=True)
+class Stalled(SessionEvent):
+    """No frame with content for ``idle_ms`` (``stall_frames`` server intervals): keyframes are asked for."""
+
+    idle_ms: float
+
+
+@dataclass(frozen=True)
+class Resumed(SessionEvent):
+    """Frames flow again after a stall of ``stall_ms``."""
+
+    stall_ms: float
+
+
+@dataclass(frozen=True)
+class StallTimeout(SessionEvent):
+    """No frame for ``stall_timeout_s``: the live client ends the session."""
+
+    idle_ms: float
+
+
+# --------------------------------------------------------------------------- client
+
+
+@dataclass(frozen=True)
+class ClientOptions:
+    """A client's loss-recovery and display options, the same for ``run``, sweeps, the demo and ``client``.
+
+    ``nack_max_tries``: NACKs per lost packet (0 = NACK off); ``nack_delay_ms``: how long a hole
+    waits before its first NACK (reordering); ``nack_retry_ms``: the wait between NACKs until a
+    retransmission's round trip is measured (then 1.5x the smoothed round trip + 10 ms within
+    [30, 500] ms); ``pli_interval_ms``: the least time between two PLIs of a stream;
+    ``rr_interval_s``: the mean receiver-report interval (randomised by 0.5-1.5x);
+    ``jitter_timeout_ms``: how long a jitter buffer waits for a frame's missing packets;
+    ``playout_delay_ms``: show an update no earlier than its server time plus this (0 = as soon
+    as it is ready); ``stall_frames``: no new frame for this many server intervals is a stall
+    (counted; PLIs for every video stream); ``stall_timeout_s``: a stall this long is
+    :class:`StallTimeout` (the live client exits; ``inf`` never).
+    """
+
+    nack_max_tries: int = 3
+    nack_delay_ms: float = 20.0
+    nack_retry_ms: float = 120.0
+    pli_interval_ms: float = 250.0
+    rr_interval_s: float = 0.5
+    jitter_timeout_ms: float = 300.0
+    playout_delay_ms: float = 0.0
+    stall_frames: float = 6.0
+    stall_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        def check(name: str, lo: float, hi: float) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise ConfigError(f"client {name}: must be in [{lo:g}, {hi:g}], got {v!r}")
+
+        if not isinstance(self.nack_max_tries, int):
+            raise ConfigError(f"client nack_max_tries: must be an integer, got {self.nack_max_tries!r}")
+        check("nack_max_tries", 0, 20)
+        check("nack_delay_ms", 0.0, 2000.0)
+        check("nack_retry_ms", 1.0, 5000.0)
+        check("pli_interval_ms", 1.0, 10_000.0)
+        check("rr_interval_s", 0.01, 60.0)
+        check("jitter_timeout_ms", 1.0, 10_000.0)
+        check("playout_delay_ms", 0.0, 2000.0)
+        check("stall_frames", 1.0, 1000.0)
+        if not (self.stall_timeout_s == math.inf or 0.1 <= self.stall_timeout_s <= 3600.0):
+            raise ConfigError(f"client stall_timeout_s: must be in [0.1, 3600] or inf, got {self.stall_timeout_s!r}")
+
+    @property
+    def resolve_timeout_ms(self) -> float:
+        """How long a frame whose FrameMeta arrived may wait for its other streams."""
+        return max(500.0, 2 * self.jitter_timeout_ms)
+
+
+@dataclass
+class _Ready:
+    release_ms: float
+    frame: ReceivedFrame
+
+
+class ClientSession:
+    """The client side of one session (see the module docstring).
+
+    Call :meth:`start` once the streams are known, then feed control messages
+    (:meth:`receive_message`), datagrams (:meth:`receive_datagram`) and timer expiries
+    (:meth:`handle_timer`).  Decoding is the driver's (it may run on another thread):
+    the ``Work`` items returned go to :meth:`ClientPipeline.decode`, their results to
+    :meth:`on_decoded`; :meth:`collect` then moves released frames to the display queue.
+    At each display tick :meth:`display` gives the updates to apply in order; the
+    driver applies them, reports each with :meth:`applied`, renders, and sends
+    :meth:`feedback` when a new update reached the screen.
+    """
+
+    def __init__(self, rx: ClientPipeline, options: ClientOptions, server_fps: float, clock_offset_us: int = 0,
+                 rng: Any = None) -> None:
+        self.rx = rx
+        self.opts = options
+        self.server_fps = max(1.0, float(server_fps))
+        self.clock_offset_us = int(clock_offset_us)
+        self._rand = _uniform(rng)
+        media = {s.ssrc for s in rx.streams.values()}
+        ssrc = 0
+        while ssrc == 0 or ssrc in media:
+            ssrc = int(self._rand() * (1 << 32)) & 0xFFFFFFFF
+        self.ssrc = ssrc
+        """This receiver's RTCP SSRC (random per session)."""
+        self.cname = f"splitrender-client-{int(self._rand() * (1 << 48)):012x}".encode("ascii")
+        self._out: list[bytes] = []
+        self.events: list[SessionEvent] = []
+        self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
+        self.nack_rtt_ms: float | None = None
+        """Smoothed time from a NACK to its retransmission's arrival (RFC 6298's 1/8 gain), ms."""
+        self._last_pli_ms: dict[str, float] = {}
+        self._first_packet_ms: dict[str, float] = {}
+        self.rtp_seen = False
+        self._started = False
+        self._last_frame_ms = 0.0
+        self._stalled = False
+        self._next_rr_ms = math.inf
+        self._next_bind_ms = math.inf
+        self._last_timer_ms = -math.inf
+        self._ready: deque[_Ready] = deque()
+        self._pending_apply: list[ReceivedFrame] = []
+        self.shown: ReceivedFrame | None = None
+        """The update on screen (the newest applied one that showed anything)."""
+        self._fed_back = -1
+        self._last_release_ms = -math.inf
+        self.counters: dict[str, Any] = {
+            "rtp_packets": 0, "rtp_bytes": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "rtcp_received": 0,
+            "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0, "stall_plis": 0, "stalls": 0, "longest_stall_ms": 0.0,
+            "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_displayed_updates": 0,
+            "updates_dropped_ready": 0, "keyframes_received": 0, "keyframes_after_pli": 0, "udp_bad": 0,
+            "meta_bytes": 0, "apply_errors": 0,
+        }
+
+    # ------------------------------------------------------------------ clock
+
+    def protocol_us(self, now_ms: float) -> int:
+        """The protocol's wall-clock µs at driver time ``now_ms``."""
+        return self.clock_offset_us + int(round(now_ms * 1000))
+
+    # ------------------------------------------------------------------ input
+
+    def start(self, now_ms: float) -> None:
+        """The session streams from ``now_ms``: the stall clock starts; an empty RR opens the UDP path."""
+        self._started = True
+        self._last_frame_ms = now_ms
+        self._next_bind_ms = now_ms + BIND_INTERVAL_MS
+        self._next_rr_ms = now_ms + _rtcp_interval_ms(self.opts.rr_interval_s, self._rand)
+        self._queue_rtcp([self._empty_rr()])
+
+    def receive_message(self, msg: Message, now_ms: float) -> None:
+        """A ``FrameMeta`` or ``DataChunk`` from the control channel; raises ``RemoteProtocolError`` on bad input."""
+        if isinstance(msg, FrameMeta):
+            self.counters["frames_meta"] += 1
+            if isinstance(msg.method_meta, bytes):
+                self.counters["meta_bytes"] += len(msg.method_meta)
+        if isinstance(msg, (FrameMeta, DataChunk)):
+            self.rx.on_message(msg, now_ms)
+
+    def receive_datagram(self, data: bytes, now_ms: float) -> list[Work]:
+        """An RTP or RTCP datagram; returns the frames now ready to decode."""
+        rx = self.rx
+        if is_rtcp(data):
+            try:
+                packets = parse_rtcp(data)
+            except RtcpError:
+                self.counters["udp_bad"] += 1
+                return []
+            self.counters["rtcp_received"] += 1
+            for p in packets:
+                if isinstance(p, SenderReport) and p.ssrc in rx.by_ssrc:
+                    st = rx.by_ssrc[p.ssrc].stats
+                    if st is not None:
+                        st.on_sender_report(p, now_ms)
+            return []
+        before = rx.counters["udp_bad"]
+        works = rx.on_datagram(data, now_ms)
+        if rx.counters["udp_bad"] != before:
+            self.counters["udp_bad"] += 1
+            return []
+        self.rtp_seen = True
+        self.counters["rtp_packets"] += 1
+        self.counters["rtp_bytes"] += len(data)
+        ssrc = int.from_bytes(data[8:12], "big")
+        st = rx.by_ssrc.get(ssrc)
+        if st is not None:
+            self._first_packet_ms.setdefault(st.name, now_ms)
+            hole = self._holes.get(st.name, {}).get(int.from_bytes(data[2:4], "big"))
+            if hole is not None and hole[2] > 0:   # a NACKed packet: time its round trip
+                sample = now_ms - hole[1]
+                self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
+                self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
+        return self._count_keyframes(works)
+
+    def _count_keyframes(self, works: list[Work]) -> list[Work]:
+        for w in works:
+            if w.unit.keyframe and w.stream.kind == "video":
+                self.counters["keyframes_received"] += 1
+                if self.counters["plis_sent"]:
+                    self.counters["keyframes_after_pli"] += 1
+        return works
+
+    def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
+        """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``)."""
+        self.rx.on_decoded(work, result, now_ms)
+
+    def decoder_overflow(self) -> None:
+        """The driver's decode queue overflowed and was flushed: every video stream waits for a keyframe."""
+        self.counters["decode_overflows"] = self.counters.get("decode_overflows", 0) + 1
+        for s in self.rx.streams.values():
+            if s.kind == "video":
+                s.broken = True
+
+    def collect(self, now_ms: float, delay_ms: Any = None) -> list[ReceivedFrame]:
+        """Move the frames the pipeline released to the display queue; returns them.
+
+        ``delay_ms(frame)`` (optional): how long after ``now_ms`` the frame is displayable
+        (virtual time models decoding this way); releases stay in frame order."""
+        out = []
+        for rf in self.rx.ready():
+            release = now_ms + (float(delay_ms(rf)) if delay_ms is not None else 0.0)
+            release = max(release, self._last_release_ms)
+            self._last_release_ms = release
+            if shows_anything(rf):
+                self._frame_arrived(now_ms)
+            self.counters["frames_partial" if rf.update.missing else "frames_complete"] += 1
+            self._ready.append(_Ready(release, rf))
+            while len(self._ready) > MAX_READY_UPDATES + int(self.opts.playout_delay_ms / 10):
+                self.counters["updates_dropped_ready"] += 1
+                self._pending_apply.append(self._ready.popleft().frame)  # applied unseen: the half's state stays in order
+            out.append(rf)
+        return out
+
+    def _frame_arrived(self, now_ms: float) -> None:
+        if self._stalled:
+            ms = now_ms - self._last_frame_ms
+            self.counters["longest_stall_ms"] = max(self.counters["longest_stall_ms"], round(ms, 1))
+            self.events.append(Resumed(now_ms, ms))
+            self._stalled = False
+        self._last_frame_ms = now_ms
+
+    # ------------------------------------------------------------------ timers
+
+    def handle_timer(self, now_ms: float) -> list[Work]:
+        """Jitter-buffer and resolution timeouts, receiver reports, NACKs, PLIs and stall detection at ``now_ms``.
+
+        Returns frames ready to decode; RTCP goes to :meth:`datagrams_to_send`, stalls to :attr:`events`."""
+        self._last_timer_ms = now_ms
+        works = self._count_keyframes(self.rx.poll(now_ms))
+        if not self._started:
+            return works
+        if not self.rtp_seen:
+            if now_ms >= self._next_bind_ms:
+                self._next_bind_ms = now_ms + BIND_INTERVAL_MS
+                self._queue_rtcp([self._empty_rr()])
+            idle = now_ms - self._last_frame_ms
+            if idle >= self.opts.stall_timeout_s * 1000:
+                self.events.append(StallTimeout(now_ms, idle))
+            return works
+        out: list[RtcpPacket] = []
+        if now_ms >= self._next_rr_ms:
+            self._next_rr_ms = now_ms + _rtcp_interval_ms(self.opts.rr_interval_s, self._rand)
+            out.append(ReceiverReport(self.ssrc, tuple(
+                s.stats.report_block(now_ms) for s in self.rx.streams.values() if s.stats is not None)))
+        for rx in self.rx.streams.values():
+            if rx.jitter is None:
+                continue
+            nack = self._nack_list(rx, now_ms)
+            if nack:
+                out.append(GenericNack(self.ssrc, rx.ssrc, tuple(nack)))
+                self.counters["nacks_sent"] += 1
+                self.counters["nacked_packets"] += len(nack)
+            first = self._first_packet_ms.get(rx.name)
+            started = first is not None and now_ms - first >= self.opts.pli_interval_ms
+            if (rx.wants_keyframe or (rx.needs_keyframe and started)) and (pli := self._pli(rx, now_ms)):
+                out.append(pli)
+        out.extend(self._check_stall(now_ms))
+        if out:
+            self._queue_rtcp(out)
+        return works
+
+    def next_timer(self) -> float:
+        """When :meth:`handle_timer` wants to run next (driver ms; ``inf`` before :meth:`start`)."""
+        if not self._started:
+            return math.inf
+        t = self._next_bind_ms if not self.rtp_seen else self._next_rr_ms
+        if not self.rtp_seen:
+            t = min(t, self._last_frame_ms + self.opts.stall_timeout_s * 1000)
+        elif self._busy():
+            t = -math.inf   # the next tick
+        elif not self._stalled:
+            t = min(t, self._last_frame_ms + self._stall_after_ms())
+        # never sooner than one tick after the last run: a deadline already passed waits for the next tick
+        after = (math.floor(self._last_timer_ms / TIMER_TICK_MS + 1e-6) + 1) * TIMER_TICK_MS \
+            if math.isfinite(self._last_timer_ms) else -math.inf
+        return max(t, after)
+
+    def _busy(self) -> bool:
+        """Packets missing, frames outstanding or a stream waiting for a keyframe: poll every tick."""
+        if self.rx.pending_frames or self._stalled:
+            return True
+        for s in self.rx.streams.values():
+            if s.jitter is not None and (len(s.jitter) or s.needs_keyframe):
+                return True
+        return False
+
+    def _nack_list(self, rx: Any, now_ms: float) -> list[int]:
+        o = self.opts
+        missing = set(rx.jitter.missing()) if o.nack_max_tries > 0 else set()
+        holes = self._holes.setdefault(rx.name, {})
+        for seq in [s for s in holes if s not in missing]:
+            del holes[seq]
+        out = []
+        retry = o.nack_retry_ms if self.nack_rtt_ms is None else \
+            min(NACK_RETRY_MAX_MS, max(NACK_RETRY_MIN_MS, 1.5 * self.nack_rtt_ms + 10.0))
+        for seq in sorted(missing):
+            first, last, tries = holes.get(seq, (now_ms, -math.inf, 0))
+            if tries < o.nack_max_tries and now_ms - first >= o.nack_delay_ms and now_ms - last >= retry:
+                out.append(seq)
+                holes[seq] = (first, now_ms, tries + 1)
+            else:
+                holes.setdefault(seq, (first, last, tries))
+        return out
+
+    def _pli(self, rx: Any, now_ms: float) -> PictureLossIndication | None:
+        """A PLI for stream ``rx`` unless one went out less than ``pli_interval_ms`` ago (counted)."""
+        if now_ms - self._last_pli_ms.get(rx.name, -math.inf) < self.opts.pli_interval_ms:
+            return None
+        self._last_pli_ms[rx.name] = now_ms
+        self.counters["plis_sent"] += 1
+        return PictureLossIndication(self.ssrc, rx.ssrc)
+
+    def _stall_after_ms(self) -> float:
+        return self.opts.stall_frames / self.server_fps * 1000.0
+
+    def _check_stall(self, now_ms: float) -> list[RtcpPacket]:
+        """PLIs for every video stream while no frame arrives for ``stall_frames`` server intervals."""
+        idle = now_ms - self._last_frame_ms
+        if idle < self._stall_after_ms():
+            return []
+        if idle >= self.opts.stall_timeout_s * 1000:
+            self.events.append(StallTimeout(now_ms, idle))
+        if not self._stalled:
+            self._stalled = True
+            self.counters["stalls"] += 1
+            self.events.append(Stalled(now_ms, idle))
+        out = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now_ms))]
+        self.counters["stall_plis"] += len(out)
+        return out
+
+    # ------------------------------------------------------------------ RTCP out
+
+    def _empty_rr(self) -> ReceiverReport:
+        blocks = tuple(ReportBlock(s.ssrc, 0, 0, 0, 0) for s in self.rx.streams.values() if s.ssrc)
+        return ReceiverReport(self.ssrc, blocks)
+
+    def _queue_rtcp(self, packets: list[Any]) -> None:
+        """``packets`` as one compound RTCP packet: a report first (an RR with no blocks when none is
+        due), the SDES CNAME, then NACKs and PLIs (RFC 3550 6.1, RFC 4585 3.1)."""
+        data = serialize_rtcp(compound_feedback(self.ssrc, self.cname, packets))
+        self._out.append(data)
+        self.counters["rtcp_sent"] += 1
+        self.counters["rtcp_bytes_sent"] += len(data)
+
+    def datagrams_to_send(self) -> list[bytes]:
+        """RTCP datagrams queued since the last call, in order."""
+        out, self._out = self._out, []
+        return out
+
+    def take_events(self) -> list[SessionEvent]:
+        out, self.events = self.events, []
+        return out
+
+    # ------------------------------------------------------------------ display
+
+    def display(self, now_ms: float) -> list[ReceivedFrame]:
+        """The updates to apply at display time ``now_ms``, in frame order: every released one whose
+        decode is done and, with a playout delay, whose server time + the delay has come."""
+        new = list(self._pending_apply)
+        self._pending_apply.clear()
+        playout_us = self.opts.playout_delay_ms * 1000
+        while self._ready and self._ready[0].release_ms <= now_ms:
+            meta = self._ready[0].frame.meta
+            if playout_us > 0 and meta.server_time_us - self.clock_offset_us + playout_us > now_ms * 1000:
+                break
+            new.append(self._ready.popleft().frame)
+        return new
+
+    def applied(self, rf: ReceivedFrame) -> None:
+        """The client half applied ``rf`` (it rejected none of it): it becomes the shown update if it
+        shows anything."""
+        u = rf.update
+        self.rx.tracker.on_applied(u.frame_id, [*u.planes, *u.data])
+        if shows_anything(rf) and (self.shown is None or u.frame_id != self.shown.update.frame_id):
+            self.shown = rf
+
+    def apply_failed(self, rf: ReceivedFrame) -> None:
+        self.counters["apply_errors"] += 1
+
+    def feedback(self, displayed_ms: float) -> Feedback | None:
+        """The ``Feedback`` for the shown update the first time it is displayed (at ``displayed_ms``), else None."""
+        rf = self.shown
+        if rf is None or rf.update.frame_id == self._fed_back:
+            return None
+        self._fed_back = rf.update.frame_id
+        self.counters["frames_displayed_updates"] += 1
+        applied, lost = self.rx.tracker.take()
+        timing = {k: int(v) for k, v in rf.env.timing_us.items() if k in ("render", "encode", "encoded_at")}
+        return Feedback(rf.update.frame_id, self.protocol_us(rf.received_ms), self.protocol_us(rf.decoded_ms),
+                        self.protocol_us(displayed_ms), 0, rf.meta.pose.client_time_us, timing, applied, lost)
+
+    # ------------------------------------------------------------------ counters
+
+    def all_counters(self) -> dict[str, Any]:
+        """The session counters plus, per RTP stream, what its jitter buffer dropped: late packets,
+        frames given up (timeout or overflow), frames dropped waiting for a keyframe, corrupt frames;
+        with FEC, the parity packets received, the packets they rebuilt and the malformed ones."""
+        out = dict(self.counters)
+        out["decode_errors"] = self.rx.counters["decode_errors"]
+        for rx in self.rx.streams.values():
+            j = rx.jitter
+            if j is not None:
+                out.update({f"{rx.name}_packets_late": j.packets_late, f"{rx.name}_frames_lost": j.frames_lost,
+                            f"{rx.name}_frames_dropped": j.frames_dropped, f"{rx.name}_frames_corrupt": j.frames_corrupt})
+                if j.fec_packets:
+                    out.update({f"{rx.name}_fec_packets": j.fec_packets, f"{rx.name}_fec_recovered": j.fec_recovered,
+                                f"{rx.name}_fec_bad": j.fec_bad})
+        return out
+
+
+# --------------------------------------------------------------------------- server
+
+
+@dataclass(frozen=True)
+class ServerOptions:
+    """A server session's protocol options: ``history_packets`` kept per RTP stream to answer NACKs,
+    ``keyframe_min_interval_ms`` between two requested IDRs, the mean ``sr_interval_s`` of sender
+    reports (randomised by 0.5-1.5x)."""
+
+    history_packets: int = 2048
+    keyframe_min_interval_ms: float = 200.0
+    sr_interval_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.history_packets <= 1 << 20:
+            raise ConfigError(f"server history_packets: must be in [1, 1048576], got {self.history_packets}")
+        if not 0 <= self.keyframe_min_interval_ms <= 60_000:
+            raise ConfigError(f"server keyframe_min_interval_ms: must be in [0, 60000], got {self.keyframe_min_interval_ms}")
+        if not 0.01 <= self.sr_interval_s <= 60:
+            raise ConfigError(f"server sr_interval_s: must be in [0.01, 60], got {self.sr_interval_s}")
+
+
+@dataclass
+class _TxState:
+    name: str
+    ssrc: int
+    history: RetransmissionHistory
+    packetizer: Any
+
+
+@dataclass
+class ServerSession:
+    """The server side of one session (see the module docstring).
+
+    ``tx`` is the session's transmission path; ``rtp_origin_ms`` is the driver time of
+    scene time 0 (the RTP clock's origin, for sender reports).  Per frame the driver asks
+    :meth:`keyframe_due`, produces and packetizes the update, and reports it with
+    :meth:`frame_sent`; control messages go to :meth:`receive_message`, RTCP datagrams to
+    :meth:`receive_rtcp` (which returns the retransmissions to send), and
+    :meth:`handle_timer` gives the sender reports when :meth:`next_timer` comes.
+    """
+
+    tx: ServerPipeline
+    display_hz: float
+    options: ServerOptions = field(default_factory=ServerOptions)
+    clock_offset_us: int = 0
+    rtp_origin_ms: float = 0.0
+    rng: Any = None
+
+    def __post_init__(self) -> None:
+        self._rand = _uniform(self.rng)
+        self.fb = FeedbackState(self.display_hz)
+        self._kf = KeyframeRateLimiter(self.options.keyframe_min_interval_ms)
+        self._kf_wanted = False
+        self.streams: dict[str, _TxState] = {}
+        for st in self.tx.rtp_streams:
+            self.streams[st.spec.name] = _TxState(st.spec.name, st.ssrc, RetransmissionHistory(self.options.history_packets),
+                                                  st.packetizer)
+        self._by_ssrc = {s.ssrc: s for s in self.streams.values()}
+        self._next_sr_ms = math.inf
+        self.rtt_ms: float | None = None
+        self.counters: dict[str, int] = {
+            "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0,
+            "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
+            "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0,
+        }
+
+    def owns_ssrc(self, ssrc: int) -> bool:
+        return ssrc in self._by_ssrc
+
+    # ------------------------------------------------------------------ input
+
+    def start(self, now_ms: float) -> None:
+        """Streaming starts at ``now_ms``: sender reports are due from then on."""
+        self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
+
+    def receive_message(self, msg: Message, now_ms: float) -> float | None:
+        """A ``Feedback`` or ``KeyframeRequest`` from the control channel.  Returns the latency a
+        Feedback measured (s), if any; raises ``MessageError`` for a request naming no stream of ours."""
+        if isinstance(msg, Feedback):
+            self.counters["feedback"] += 1
+            self.counters["lost_reported"] += sum(len(v) for v in msg.lost.values())
+            return self.fb.on_feedback(msg)
+        if isinstance(msg, KeyframeRequest):
+            if msg.stream not in self.tx.streams:
+                raise MessageError(f"KeyframeRequest.stream: unknown stream {msg.stream!r}")
+            self.counters["keyframe_requests"] += 1
+            self.request_keyframe(now_ms)
+        return None
+
+    def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> list[bytes]:
+        """A compound RTCP packet from the client; returns the RTP packets to resend (NACKs)."""
+        self.counters["rtcp_received"] += 1
+        resend: list[bytes] = []
+        for p in packets:
+            if isinstance(p, GenericNack):
+                st = self._by_ssrc.get(p.media_ssrc)
+                if st is None:
+                    continue
+                self.counters["nacks"] += 1
+                for pkt in st.history.answer(p)[:MAX_NACKED_PER_REQUEST]:
+                    data = bytes(pkt)
+                    resend.append(data)
+                    self.counters["retransmitted"] += 1
+                    self.counters["retransmitted_bytes"] += len(data)
+            elif isinstance(p, PictureLossIndication):
+                if p.media_ssrc in self._by_ssrc:
+                    self.counters["plis"] += 1
+                    self.request_keyframe(now_ms)
+            elif isinstance(p, ReceiverReport):
+                for b in p.reports:
+                    if b.ssrc in self._by_ssrc and b.lsr:
+                        now_mid = ntp_middle32(ntp_from_seconds(self._protocol_s(now_ms)))
+                        rtt = ((now_mid - b.lsr - b.dlsr) & 0xFFFFFFFF) / 65536 * 1000
+                        if rtt < 10_000:
+                            self.rtt_ms = rtt
+        return resend
+
+    def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
+        """:meth:`receive_rtcp` from bytes; malformed RTCP is counted and ignored."""
+        try:
+            packets = parse_rtcp(data)
+        except RtcpError:
+            self.counters["rtcp_bad"] = self.counters.get("rtcp_bad", 0) + 1
+            return []
+        return self.receive_rtcp(packets, now_ms)
+
+    def request_keyframe(self, now_ms: float) -> None:
+        """Ask for an IDR on every stream (rate-limited; a suppressed request is kept)."""
+        if self._kf.request(now_ms):
+            self._kf_wanted = True
+
+    # ------------------------------------------------------------------ frames
+
+    def keyframe_due(self, now_ms: float) -> bool:
+        """Whether the next frame must be a keyframe (a request was granted); consumes it."""
+        kf = self._kf_wanted or self._kf.poll(now_ms)
+        self._kf_wanted = False
+        return kf
+
+    def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int) -> None:
+        """Frame ``frame_id`` went out: its RTP packets join the retransmission history."""
+        self.fb.frame_sent(frame_id, server_time_us)
+        if out.keyframe:
+            self.counters["keyframes"] += 1
+            self._kf.keyframe_sent(now_ms)
+        for name, pkt, data in out.datagrams:
+            self.streams[name].history.store(pkt)
+            self.counters["rtp_packets"] += 1
+            self.counters["rtp_bytes"] += len(data)
+        for _, data in out.fec:
+            self.counters["fec_packets"] += 1
+            self.counters["fec_bytes"] += len(data)
+        self.counters["frames_sent"] += 1
+
+    # ------------------------------------------------------------------ timers
+
+    def _protocol_s(self, now_ms: float) -> float:
+        return (self.clock_offset_us + now_ms * 1000) / 1e6
+
+    def handle_timer(self, now_ms: float) -> list[bytes]:
+        """Sender reports, one compound packet for every RTP stream, when due."""
+        if now_ms < self._next_sr_ms or not self.streams:
+            return []
+        self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
+        ntp = ntp_from_seconds(self._protocol_s(now_ms))
+        rtp_now = int(round((now_ms - self.rtp_origin_ms) / 1000 * RTP_CLOCK_HZ)) & 0xFFFFFFFF
+        reports = [SenderReport(st.ssrc, ntp, rtp_now, st.packetizer.packets_sent & 0xFFFFFFFF,
+                                st.packetizer.octets_sent & 0xFFFFFFFF) for st in self.streams.values()]
+        data = serialize_rtcp(reports)
+        self.counters["rtcp_sent"] += 1
+        self.counters["rtcp_bytes_sent"] += len(data)
+        return [data]
+
+    def next_timer(self) -> float:
+        return self._next_sr_ms
