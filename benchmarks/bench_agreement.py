@@ -11,6 +11,10 @@ targets each cell meets (frames shown within 5 points, NACK and keyframe counts 
 Run it on an otherwise idle machine: a live server that skips ticks measures the load.
 
     python benchmarks/bench_agreement.py [--duration 8] [--seeds 1,2,3] [--cells "loss 2%/nack,bursty/patient"]
+                                         [--merge earlier.json ...]
+
+``--merge`` adds the runs an earlier invocation recorded (other seeds, same set-up and duration)
+before the means are taken, so seeds can be run in several sittings.
 """
 
 from __future__ import annotations
@@ -53,21 +57,30 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--cells", default="", help="comma-separated impairment/recovery pairs (default: the whole grid)")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--merge", type=Path, nargs="*", default=[], help="earlier results whose runs join these")
     ns = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     logging.getLogger("splitrender.experiments.agreement").setLevel(logging.INFO)
     cells = [tuple(c.split("/", 1)) for c in ns.cells.split(",") if c] or [(i, r) for i in IMPAIRMENTS for r in RECOVERY]
-    seeds = [int(s) for s in ns.seeds.split(",")]
+    seeds = [int(s) for s in ns.seeds.split(",") if s]   # "" with --merge: only average what was recorded
     rows = []
     t0 = time.perf_counter()
+    merged_s = 0.0
     for imp, rec in cells:
         for seed in seeds:
             rows.append(run_cell(imp, rec, ns.duration, seed))
+    for f in ns.merge:
+        old = json.loads(f.read_text())
+        if old.get("setup") != SETUP or old.get("duration_s") != ns.duration:
+            raise SystemExit(f"{f}: recorded with another set-up or duration; not merged")
+        rows += old["runs"]
+        merged_s += float(old.get("elapsed_s", 0.0))
+        seeds += [s for s in old["seeds"] if s not in seeds]
     means = mean_rows(rows)
     result = {"benchmark": "agreement", "setup": SETUP, "duration_s": ns.duration, "seeds": seeds,
               "impairments": IMPAIRMENTS, "recovery": RECOVERY, "machine": {"python": platform.python_version(),
                                                                             "cpus": os.cpu_count()},
-              "elapsed_s": time.perf_counter() - t0, "rows": means, "runs": rows,
+              "elapsed_s": time.perf_counter() - t0 + merged_s, "rows": means, "runs": rows,
               "cells_meeting_all_targets": sum(all(m["targets"].values()) for m in means), "cells": len(means)}
     ns.out.parent.mkdir(parents=True, exist_ok=True)
     ns.out.write_text(json.dumps(result, indent=1, default=str))
