@@ -332,10 +332,10 @@ class ClientSession:
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
         ssrc = int.from_bytes(data[8:12], "big")
-        st = rx.by_ssrc.get(ssrc)
-        if st is not None:
-            self._first_packet_ms.setdefault(st.name, now_ms)
-            hole = self._holes.get(st.name, {}).get(int.from_bytes(data[2:4], "big"))
+        stream = rx.by_ssrc.get(ssrc)
+        if stream is not None:
+            self._first_packet_ms.setdefault(stream.name, now_ms)
+            hole = self._holes.get(stream.name, {}).get(int.from_bytes(data[2:4], "big"))
             if hole is not None and hole[2] > 0:   # a NACKed packet: time its round trip
                 sample = now_ms - hole[1]
                 self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
@@ -494,7 +494,7 @@ class ClientSession:
             self._stalled = True
             self.counters["stalls"] += 1
             self.events.append(Stalled(now_ms, idle))
-        out = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now_ms))]
+        out: list[RtcpPacket] = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now_ms))]
         self.counters["stall_plis"] += len(out)
         return out
 

@@ -640,6 +640,7 @@ class VirtualTimeRun:
         cfg = self.cfg
         fr = c.frames
         bytes_by_stream = c.bytes
+        assert c.core is not None and c.core_s is not None
 
         def col(k: str) -> np.ndarray:
             return np.array([f.get(k, math.nan) for f in fr], dtype=np.float64)
