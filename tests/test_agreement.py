@@ -28,7 +28,9 @@ def _simulated(row: dict) -> dict:  # type: ignore[type-arg]
 def test_patient_client_at_two_percent_loss_agrees_between_virtual_time_and_live() -> None:
     """The README's patient client (FEC, 300 ms playout delay, six NACK tries) at 2 % loss on both
     directions: frames shown within 5 points, NACK and keyframe counts within 20 % (or 2), and the
-    picture and its age close, in one seeded 8 s session run both ways."""
+    picture and its age close, in one seeded 8 s session run both ways.  Measured (seed 1, two runs): shown 100 /
+    100 %, NACKs 1 / 0-4, keyframes 5 / 6, PSNR 19.0 / 17.9-18.0 dB, update age 328 / 327-329 ms; live varies
+    with the machine, hence the PSNR and age bounds of 1.5 dB and 30 ms."""
     row = run_cell("loss 2%", "patient", duration_s=8.0, seed=1)
     assert all(within_targets(row).values()), (within_targets(row), row)
     assert row["shown_pct_vt"] >= 95 and row["shown_pct_live"] >= 95, row

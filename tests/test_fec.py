@@ -96,7 +96,8 @@ def test_the_jitter_buffer_completes_a_frame_from_fec_whichever_arrives_last() -
 def test_fec_keeps_frames_coming_at_two_percent_loss_in_virtual_time() -> None:
     """``video`` on the minimal scene, 160x90, 3 s, ``delay 20ms loss 2%``, seed 0, shown of 91 server frames:
     without any recovery (``nack_tries`` 0) 72, with NACK alone 82, with FEC 89 (over seeds 0-2: none 64-72,
-    NACK 69-82, FEC 83-89).  The bounds: FEC at least 90 % and 10 frames over none, NACK 5 frames over none."""
+    NACK 69-82, FEC 83-89).  The run is seeded, so the bounds sit near the measure: FEC at least 87 frames and 15
+    over none (measured 89, +17), NACK 8 over none (measured +10)."""
     from splitrender.render.renderer import Renderer
     from splitrender.sim.config import RunConfig
     from splitrender.sim.runner import VirtualTimeRun
@@ -109,5 +110,5 @@ def test_fec_keeps_frames_coming_at_two_percent_loss_in_virtual_time() -> None:
                                        nack_tries=nack, metrics=False, seed=0), r).run()
         shown[name] = len({f["update_frame_id"] for f in res.frames if f["update_frame_id"] >= 0})
         assert len(res.updates) == 91
-    assert shown["fec"] >= 0.9 * 91 and shown["fec"] >= shown["none"] + 10, shown
-    assert shown["nack"] >= shown["none"] + 5, shown
+    assert shown["fec"] >= 87 and shown["fec"] >= shown["none"] + 15, shown
+    assert shown["nack"] >= shown["none"] + 8, shown

@@ -176,11 +176,11 @@ class LiveClient:
         self._t0_wall = 0.0
         self.rows: list[dict[str, Any]] = []
         self.meta_ids: list[int] = []
-        self._counters: dict[str, Any] = {"decode_overflows": 0, "late_ticks": 0}
+        self._counters: dict[str, Any] = {"late_ticks": 0}
 
     @property
     def counters(self) -> dict[str, Any]:
-        """The session core's counters and the driver's own (late display ticks, decoder overflows)."""
+        """The session core's counters and the driver's own (late display ticks, the timer task's lag)."""
         core = self.core.counters if self.core is not None else {}
         return {**core, **self._counters}
 
@@ -416,7 +416,6 @@ class LiveClient:
             try:
                 self._decode_q.put_nowait(w)
             except asyncio.QueueFull:
-                self._counters["decode_overflows"] += 1
                 while not self._decode_q.empty():
                     self._decode_q.get_nowait()
                 self.core.decoder_overflow()

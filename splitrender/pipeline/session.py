@@ -278,7 +278,7 @@ class ClientSession:
             "rtp_packets": 0, "rtp_bytes": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "rtcp_received": 0,
             "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0, "stall_plis": 0, "stalls": 0, "longest_stall_ms": 0.0,
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_displayed_updates": 0,
-            "updates_dropped_ready": 0, "keyframes_received": 0, "keyframes_after_pli": 0, "udp_bad": 0,
+            "updates_dropped_ready": 0, "keyframes_after_pli": 0, "udp_bad": 0, "decode_overflows": 0,
             "meta_bytes": 0, "apply_errors": 0,
         }
 
@@ -343,11 +343,9 @@ class ClientSession:
         return self._count_keyframes(works)
 
     def _count_keyframes(self, works: list[Work]) -> list[Work]:
-        for w in works:
-            if w.unit.keyframe and w.stream.kind == "video":
-                self.counters["keyframes_received"] += 1
-                if self.counters["plis_sent"]:
-                    self.counters["keyframes_after_pli"] += 1
+        """Keyframes that came after a PLI (the pipeline counts every keyframe received)."""
+        if self.counters["plis_sent"]:
+            self.counters["keyframes_after_pli"] += sum(1 for w in works if w.unit.keyframe and w.stream.kind == "video")
         return works
 
     def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
@@ -356,7 +354,7 @@ class ClientSession:
 
     def decoder_overflow(self) -> None:
         """The driver's decode queue overflowed and was flushed: every video stream waits for a keyframe."""
-        self.counters["decode_overflows"] = self.counters.get("decode_overflows", 0) + 1
+        self.counters["decode_overflows"] += 1
         for s in self.rx.streams.values():
             if s.kind == "video":
                 s.broken = True
@@ -567,6 +565,7 @@ class ClientSession:
         with FEC, the parity packets received, the packets they rebuilt and the malformed ones."""
         out = dict(self.counters)
         out["decode_errors"] = self.rx.counters["decode_errors"]
+        out["keyframes_received"] = self.rx.counters["keyframes_received"]
         for rx in self.rx.streams.values():
             j = rx.jitter
             if j is not None:
