@@ -37,8 +37,7 @@ from splitrender.codecs.meta import unpack_meta
 from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
 from splitrender.methods.base import get_method, make_config
 from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, EnvelopeError, ReceivedFrame, Resumed,
-                                  SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything,
-                                  specs_from_table)
+                                  SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, FrameMeta, Hello, Pose, Stats, Welcome
 from splitrender.tabular import write_csv
 from splitrender.scene.pose import CameraIntrinsics
@@ -340,10 +339,8 @@ class LiveClient:
             return spec.client_class(mcfg, intr, get_context(), session_data)
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
-        opts = cfg.options()
-        self.rx = ClientPipeline(msg.streams, specs_from_table(self._params.get("streams", [])), opts.jitter_timeout_ms,
-                                 resolve_timeout_ms=opts.resolve_timeout_ms)
-        self.core = ClientSession(self.rx, opts, float(self._params.get("server_fps", 30)))
+        self.core = ClientSession.from_welcome(msg, cfg.options())
+        self.rx = self.core.rx
         logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
 

@@ -35,13 +35,15 @@ from typing import Any
 from ..errors import ConfigError
 from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
-                        RtcpPacket, SenderReport, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp, serialize_rtcp)
+                        RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
+                        serialize_rtcp)
 from ..protocol.errors import RtcpError
 from ..protocol.rtcp import compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
 from .feedback import FeedbackState
 from .receiver import ClientPipeline, ReceivedFrame, Work
 from .sender import OutgoingFrame, ServerPipeline
+from .wire import specs_from_table
 
 log = logging.getLogger(__name__)
 
@@ -281,6 +283,16 @@ class ClientSession:
             "updates_dropped_ready": 0, "keyframes_after_pli": 0, "udp_bad": 0, "decode_overflows": 0,
             "meta_bytes": 0, "apply_errors": 0,
         }
+
+    @classmethod
+    def from_welcome(cls, welcome: Welcome, options: ClientOptions, clock_offset_us: int = 0,
+                     rng: Any = None) -> ClientSession:
+        """The client session a ``Welcome`` describes: its streams' receive path (jitter buffers, decoders) with
+        ``options``' timeouts.  Raises ``RemoteProtocolError`` for a malformed stream table."""
+        params = welcome.method_params
+        rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams", [])), options.jitter_timeout_ms,
+                            resolve_timeout_ms=options.resolve_timeout_ms)
+        return cls(rx, options, float(params.get("server_fps", 30)), clock_offset_us, rng)
 
     # ------------------------------------------------------------------ clock
 

@@ -66,7 +66,7 @@ from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
 from ..pipeline import (META_STREAM, SESSION_STREAM, ClientPipeline, ClientSession, ProducerPool, ReceivedFrame,
                         Resumed, ServerOptions, ServerPipeline, ServerSession, SessionAssembler, SessionDataError, Stalled,
-                        rtp_timestamp, session_params, session_summary, specs_from_table, tcp_segments)
+                        rtp_timestamp, session_params, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, DataChunk, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
@@ -272,11 +272,9 @@ class VirtualTimeRun:
             assert isinstance(m, DataChunk)
             asm.add(m)
         c.welcome = w
-        opts = cfg.client_options()
-        c.rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), opts.jitter_timeout_ms,
-                              resolve_timeout_ms=opts.resolve_timeout_ms)
-        c.core = ClientSession(c.rx, opts, float(w.method_params["server_fps"]), SIM_EPOCH_US,
-                               np.random.default_rng(seeds[6 * n + 2 * i]))
+        c.core = ClientSession.from_welcome(w, cfg.client_options(), SIM_EPOCH_US,
+                                            np.random.default_rng(seeds[6 * n + 2 * i]))
+        c.rx = c.core.rx
         c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(), SIM_EPOCH_US, 0.0,
                                  np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
