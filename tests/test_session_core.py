@@ -189,3 +189,11 @@ def test_bad_options_are_named() -> None:
         RunConfig(nack_tries=-1)
     with pytest.raises(ConfigError, match="playout_delay_ms: must be in \\[0, 2000\\], got 5000"):
         RunConfig.from_dict({"playout_delay_ms": 5000})
+
+
+def test_a_welcome_without_a_stream_table_is_the_peers_error() -> None:
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.protocol import Welcome
+
+    with pytest.raises(RemoteProtocolError, match=r"Welcome.method_params.streams: expected a list"):
+        ClientSession.from_welcome(Welcome("s", "video", {}, ()), ClientOptions())

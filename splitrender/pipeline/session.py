@@ -290,7 +290,7 @@ class ClientSession:
         """The client session a ``Welcome`` describes: its streams' receive path (jitter buffers, decoders) with
         ``options``' timeouts.  Raises ``RemoteProtocolError`` for a malformed stream table."""
         params = welcome.method_params
-        rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams", [])), options.jitter_timeout_ms,
+        rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams")), options.jitter_timeout_ms,
                             resolve_timeout_ms=options.resolve_timeout_ms)
         return cls(rx, options, float(params.get("server_fps", 30)), clock_offset_us, rng)
 
