@@ -208,3 +208,22 @@ def test_cli_runs_bounded() -> None:
     ns = _ns("--udp", "127.0.0.1:0=127.0.0.1:9", "--listen-tcp", "127.0.0.1:0",
              "--to-tcp", "127.0.0.1:9", "--profile", "lan", "--duration", "0.2")
     assert main_shape(ns) == 0
+
+
+async def test_a_full_delay_line_counts_undeliverable_not_dropped() -> None:
+    """The relay's own limits are not the impairment: packets its delay line cannot hold are counted apart
+    from the link model's losses, so ``packets_dropped`` stays what netem would have dropped."""
+    from splitrender.netsim.relay import _Counters, _DelayLine
+
+    loop = asyncio.get_running_loop()
+    sent: list[bytes] = []
+    counters = _Counters()
+    line = _DelayLine(loop, lambda data, addr: sent.append(data), counters, max_packets=2)
+    later = loop.time() + 0.05
+    for i in range(5):
+        line.push(later, bytes([i]), None)
+    await asyncio.sleep(0.1)
+    line.close()
+    snap = counters.snapshot()
+    assert sent == [b"\x00", b"\x01"]
+    assert snap.packets_undeliverable == 3 and snap.packets_dropped == 0 and snap.packets_out == 2

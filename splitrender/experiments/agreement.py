@@ -111,7 +111,9 @@ async def _live(network: str, recovery: dict[str, Any], duration_s: float, seed:
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)
     out_s = session_summary(result.counters, server_counters, result.rows)
+    # the impairment's losses only: sends that failed once the client had left are counted apart
     out_s["packets_lost"] = relay.stats().downlink.packets_dropped
+    out_s["packets_undeliverable"] = relay.stats().downlink.packets_undeliverable
     out_s["frames_skipped_late"] = server_counters.get("frames_skipped_late", 0)
     out_s["late_ticks"] = result.counters.get("late_ticks", 0)
     out_s["rtp_packets"] = server_counters.get("rtp_packets", 0)

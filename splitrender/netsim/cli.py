@@ -89,8 +89,9 @@ def _format_stats(stats: RelayStats) -> str:
     u, d = stats.uplink, stats.downlink
     return (
         f"up: in {u.packets_in} out {u.packets_out} dropped {u.packets_dropped} "
-        f"({u.bytes_out} B) | down: in {d.packets_in} out {d.packets_out} "
-        f"dropped {d.packets_dropped} ({d.bytes_out} B) | tcp open {stats.tcp_connections_open}"
+        f"undeliverable {u.packets_undeliverable} ({u.bytes_out} B) | down: in {d.packets_in} out {d.packets_out} "
+        f"dropped {d.packets_dropped} undeliverable {d.packets_undeliverable} ({d.bytes_out} B) "
+        f"| tcp open {stats.tcp_connections_open}"
     )
 
 

@@ -62,6 +62,10 @@ class DirectionStats:
     packets_in: int = 0
     packets_out: int = 0
     packets_dropped: int = 0
+    """Lost to the impairment: the link model's loss, or its queue full (what netem would drop)."""
+    packets_undeliverable: int = 0
+    """Not lost to the impairment: the relay's own delay line was full, or the send failed (the peer's port
+    closed, e.g. a client that has left while the server still sends)."""
     packets_duplicated: int = 0
     packets_corrupted: int = 0
     bytes_in: int = 0
@@ -126,7 +130,7 @@ class _DelayLine:
             self._deliver(data, addr)
             return
         if len(self._heap) >= self._max:
-            self._counters.packets_dropped += 1
+            self._counters.packets_undeliverable += 1
             return
         heapq.heappush(self._heap, (when_s, next(self._seq), data, addr))
         if self._heap[0][0] == when_s:
@@ -151,7 +155,7 @@ class _DelayLine:
             self._send(data, addr)
         except OSError as exc:  # e.g. the transport is closing
             logger.debug("relay: send failed: %s", exc)
-            self._counters.packets_dropped += 1
+            self._counters.packets_undeliverable += 1
             return
         self._counters.packets_out += 1
         self._counters.bytes_out += len(data)
