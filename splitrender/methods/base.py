@@ -41,6 +41,7 @@ import numpy as np
 from ..codecs.video import VideoCodecConfig
 from ..coerce import coerce_value
 from ..errors import ConfigError
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from ..scene.pose import CameraIntrinsics, Pose
 
 if TYPE_CHECKING:
@@ -298,11 +299,15 @@ class ClientHalf(ABC):
     """False until the half has something to draw; :meth:`apply` sets it once an update gave it content (until then
     the runner shows and scores the black background)."""
 
-    def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, gl: Any, session_data: dict[str, Any]) -> None:
+    def __init__(self, config: MethodConfig, intrinsics: CameraIntrinsics, gl: Any, session_data: dict[str, Any],
+                 limits: ClientLimits | None = None) -> None:
         self.config = config
         self.intrinsics = intrinsics
         self.gl = gl
         self.session_data = session_data
+        self.limits = limits if limits is not None else DEFAULT_CLIENT_LIMITS
+        """What this client accepts from the server (probe counts, scene size, ...): session data that declares
+        more is refused with the method's error naming the field and the limit."""
 
     @abstractmethod
     def apply(self, update: DecodedUpdate) -> None:
