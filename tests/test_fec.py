@@ -65,6 +65,37 @@ def test_malformed_fec_is_named() -> None:
         fec_recover(lying, SSRC, lambda s: None if s == pkts[0].sequence_number else by_seq.get(s))
 
 
+def test_a_short_fec_packet_is_lost_protection_never_an_exception() -> None:
+    """An FEC packet whose protection length is shorter than a media payload it claims to cover (the mutation
+    campaign's find: ``_xor`` raised ValueError, the packet stayed queued and every later insert raised until the
+    jitter timeout): ``fec_recover`` names it, and the jitter buffer counts it (``fec_bad``), drops it, and keeps
+    emitting frames; the frame whose packet is lost is given up and counted, not made to vanish."""
+    pkts = _frame(800, 3)
+    raw = [bytes(p) for p in pkts]
+    f = bytes(fec_encode(raw, FEC_SSRC, 127, 0, pkts[0].timestamp)[0])
+    head, body = f[:12], f[12:]
+    lost = pkts[1].sequence_number
+    others = 0
+    for r in raw:   # a length recovery field that rebuilds a 5-byte packet, inside the 10 protected bytes
+        others ^= len(r) - 12 if r is not raw[1] else 0
+    short = body[:8] + struct.pack("!HH", others ^ 5, 10) + body[12:14] + body[14:24]
+    parsed = parse_fec(short)
+    by_seq = {p.sequence_number: r for p, r in zip(pkts, raw)}
+    with pytest.raises(PayloadError, match="more than the protection length"):
+        fec_recover(parsed, SSRC, lambda s: None if s == lost else by_seq.get(s))
+    before = _frame(300, 6, ts=6000, first_seq=(pkts[0].sequence_number - 2) & 0xFFFF)
+    after = _frame(300, 8, ts=12000, first_seq=(pkts[-1].sequence_number + 1) & 0xFFFF)
+    jb = JitterBuffer("h264", frame_timeout_ms=100.0)
+    out = [au for p in before for au in jb.insert(p, 0.0)]
+    out += jb.insert_fec(RtpPacket.parse(head + short), SSRC, 1.0)
+    out += [au for p in pkts if p.sequence_number != lost for au in jb.insert(p, 2.0)]
+    out += [au for p in after for au in jb.insert(p, 3.0)]
+    out += jb.poll(500.0)
+    assert jb.fec_bad == 1 and jb.fec_recovered == 0
+    assert [au.timestamp for au in out] == [6000, 12000]      # the broken frame given up, the next one shown
+    assert jb.packets_lost == 1
+
+
 def test_the_jitter_buffer_completes_a_frame_from_fec_whichever_arrives_last() -> None:
     """A frame after a first one (so the buffer knows where it starts): any one lost packet is rebuilt
     whether the FEC packet comes before or after the rest."""

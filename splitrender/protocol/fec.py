@@ -162,6 +162,10 @@ def fec_recover(fec: FecPacket, media_ssrc: int, get: Callable[[int], bytes | No
         length ^= len(p) - RTP_HEADER_SIZE
     if length > len(fec.payload):
         raise PayloadError(f"FEC recovery: length {length} exceeds the protection length {len(fec.payload)}")
+    for s, p in have:
+        if p is not None and len(p) - RTP_HEADER_SIZE > len(fec.payload):
+            raise PayloadError(f"FEC recovery: media packet {s} carries {len(p) - RTP_HEADER_SIZE} bytes, more than "
+                               f"the protection length {len(fec.payload)} (the FEC packet does not cover it)")
     tail = _xor([fec.payload] + [_tail(p) for p in others], len(fec.payload))[:length]
     head = struct.pack("!BBHII", 0x80 | (first >> 8), first & 0xFF, missing[0], ts, media_ssrc)
     try:

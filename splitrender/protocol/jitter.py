@@ -169,6 +169,10 @@ class JitterBuffer:
                 self.fec_bad += 1
                 logger.info("FEC recovery failed: %s", exc)
                 continue
+            except Exception:  # noqa: BLE001 - a peer's FEC packet is lost protection, never a failure of the stream
+                self.fec_bad += 1
+                logger.warning("FEC recovery failed unexpectedly; dropping the FEC packet", exc_info=True)
+                continue
             if pkt is not None:
                 self.fec_recovered += 1
                 ext = self._unwrap.unwrap(pkt.sequence_number)
