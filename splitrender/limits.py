@@ -28,8 +28,8 @@ class ClientLimits:
     """A data stream's ``max_bytes`` (one frame's payload, decompressed) in the Welcome stream table."""
     max_session_bytes: int = 256 * 1024 * 1024
     """``session_data_bytes``: the session data after Welcome, compressed as sent."""
-    max_pending_frames: int = 32
-    """Frames announced (FrameMeta) and not yet complete or given up."""
+    max_pending_frames: int = 64
+    """Frames announced (FrameMeta) and not yet released; the oldest is given up (counted lost) beyond it."""
     max_pending_bytes: int = 128 * 1024 * 1024
     """Bytes announced for reliable data still being assembled, over all pending frames."""
     max_video_pixels: int = 4096 * 4096

@@ -1,4 +1,7 @@
-"""Writing result tables: a list of dicts to CSV.
+"""Writing result tables: a list of dicts to CSV, whole (:func:`write_csv`, written to a
+temporary file and renamed, so a reader never sees half a table) or row by row
+(:class:`CsvAppender`, flushed per row, so a process killed at any moment leaves every row
+it had finished).
 
 It imports nothing else from the project, so every layer (the simulator, the live
 client and server, the experiments) can write its tables through it without reaching
@@ -9,23 +12,67 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
-__all__ = ["write_csv"]
+__all__ = ["CsvAppender", "write_csv", "atomic_write_bytes"]
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    keys: list[str] = []
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename: a reader (or a
+    process killed meanwhile) sees the old file or the whole new one, never part of it."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+class CsvAppender:
+    """A CSV file written one row at a time with fixed columns; each row is flushed to the operating system as
+    it is appended.  Keys a row has beyond the columns are left out (counted in :attr:`extra_keys`)."""
+
+    def __init__(self, path: Path, fieldnames: Iterable[str]) -> None:
+        self.path = path
+        self.fieldnames = list(fieldnames)
+        self._cols = set(self.fieldnames)
+        self._f: IO[str] | None = open(path, "w", newline="")
+        self._w = csv.DictWriter(self._f, fieldnames=self.fieldnames, restval="", extrasaction="ignore")
+        self._w.writeheader()
+        self._f.flush()
+        self.rows = 0
+        self.extra_keys = 0
+
+    def append(self, row: dict[str, Any]) -> None:
+        if self._f is None:
+            raise ValueError(f"{self.path}: appended to after close")
+        self.extra_keys += sum(1 for k in row if k not in self._cols)
+        self._w.writerow({k: _fmt(v) for k, v in row.items() if k in self._cols})
+        self._f.flush()
+        self.rows += 1
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+
+def write_csv(path: Path, rows: Iterable[dict[str, Any]]) -> None:
+    """``rows`` as a CSV table whose columns are every key in order of first appearance; written whole through a
+    temporary file and a rename."""
+    rows = list(rows)
+    keys: dict[str, None] = {}
     for r in rows:
         for k in r:
-            if k not in keys:
-                keys.append(k)
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
+            keys.setdefault(k, None)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(keys), restval="")
         w.writeheader()
         for r in rows:
             w.writerow({k: _fmt(v) for k, v in r.items()})
+    os.replace(tmp, path)
 
 
 def _fmt(v: Any) -> Any:

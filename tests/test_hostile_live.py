@@ -274,10 +274,13 @@ async def test_server_cancel_ends_every_session_cleanly() -> None:
     assert not bad, [str(w.message) for w in bad]
 
 
-async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.MonkeyPatch) -> None:
+async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.MonkeyPatch,
+                                                      caplog: pytest.LogCaptureFixture) -> None:
     """Issue 16: a server whose FrameMeta for one session carries a zstd bomb (a frame
     declaring 512 MiB) ends that client's session with a protocol error, without the
-    client allocating it, while a second session on the same server keeps streaming."""
+    client allocating it, while a second session on the same server keeps streaming.
+    Issue 32: the client says why it leaves (``Error`` with the code and reason), and the server
+    records it in the session's counters and closing log line."""
     import resource
 
     from splitrender.codecs import meta as meta_codec
@@ -293,6 +296,7 @@ async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.Monkey
         return real_pack(meta, *args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr("splitrender.pipeline.wire.pack_meta", pack)
+    caplog.set_level("INFO", logger="splitrender.server.session")
     cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", server_fps=30)
     async with LiveServer(cfg) as server:
         serve_task = asyncio.create_task(server.serve_forever())
@@ -318,9 +322,89 @@ async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.Monkey
         assert not server.sessions
         serve_task.cancel()
         await asyncio.gather(serve_task, return_exceptions=True)
+    closed = [r.getMessage() for r in caplog.records if "closed (" in r.getMessage() and "client error" in r.getMessage()]
+    assert len(closed) == 1 and "client_errors=1" in closed[0], closed
+    assert closed[0].endswith("; client error 400: client: FrameMeta 0: metadata: zstd frame declares 536870912 bytes, "
+                              "over the limit of 67108864"), closed
     c = result.counters
     assert c["frames_complete"] >= 30 * 3.0 / 3, c  # a third of 30 fps on 2 shared cores
     assert c["decode_errors"] == 0 and c["frames_partial"] == 0, c
     ids = [r["update_frame_id"] for r in result.rows]
     times = [r["displayed_us"] for k, r in enumerate(result.rows) if k == 0 or ids[k] != ids[k - 1]]
     assert max(b - a for a, b in zip(times, times[1:])) < 1_000_000  # never stalled for a GOP
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carries_on(tmp_path: Path) -> None:
+    """Issue 32's first find, live: 3,000 valid Feedback messages (each listing 256 lost frames and the server
+    timings) from one client grew the server by 514 MB.  Now the server process (this one) grows by less than
+    16 MB over the flood, keeps at most ``ROWS_KEPT`` rows in memory (all 3,000 are in the session's
+    ``feedback.csv``), ends the flooder's session with an Error naming the stream it made up, and a good client
+    on the same server keeps streaming."""
+    from splitrender.protocol import Feedback
+    from splitrender.server.session import ROWS_KEPT
+
+    cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene="minimal", server_fps=30, out_dir=tmp_path)
+    async with LiveServer(cfg) as server:
+        serve_task = asyncio.create_task(server.serve_forever())
+        good = asyncio.create_task(LiveClient(ClientConfig(
+            port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=5.0)).run())
+        await asyncio.sleep(1.0)
+        reader, writer = await asyncio.open_connection(*server.tcp_address)
+        conn = ClientConnection()
+        writer.write(conn.send(_hello()))
+        got: list[object] = []
+        welcome = None
+        async with asyncio.timeout(10):
+            while welcome is None:
+                conn.receive_data(await reader.read(65536))
+                while (ev := conn.next_event()) is not NEED_DATA:
+                    got.append(ev)
+                    if isinstance(ev, Welcome):
+                        welcome = ev
+        (stream,) = [s.name for s in welcome.streams]
+        flooder = next(s for s in server.sessions.values() if s.id == welcome.session_id)
+        rss0 = _rss_mb()
+        for i in range(3000):
+            writer.write(conn.send(Feedback(i, 1, 2, 3, 0, 0, {"render": 1, "encode": 2, "encoded_at": 3},
+                                            {stream: i}, {stream: tuple(range(256 * i, 256 * i + 256))})))
+            if i % 100 == 99:
+                await writer.drain()
+                await asyncio.sleep(0)
+        for _ in range(200):   # the server has read them all
+            if flooder.core is not None and flooder.core.counters["feedback"] >= 3000:
+                break
+            await asyncio.sleep(0.02)
+        grown = _rss_mb() - rss0
+        assert flooder.core is not None and flooder.core.counters["feedback"] == 3000
+        assert len(flooder.feedback_rows) == ROWS_KEPT
+        writer.write(conn.send(Feedback(3000, 1, 2, 3, 0, 0, {}, {}, {"made-up": (1,)})))
+        await writer.drain()
+        msgs: list[object] = []
+        async with asyncio.timeout(10):
+            while not any(isinstance(m, Error) for m in msgs):
+                data = await reader.read(65536)
+                if not data:
+                    break
+                conn.receive_data(data)
+                while (ev := conn.next_event()) is not NEED_DATA and ev is not CONNECTION_CLOSED:
+                    msgs.append(ev)
+        writer.close()
+        err = _only_error([m for m in msgs if isinstance(m, Error)], ErrorCode.BAD_MESSAGE)
+        assert err.text == f"Feedback.lost: stream 'made-up' is not one of this session's ['{stream}']", err
+        result = await good
+        serve_task.cancel()
+        await asyncio.gather(serve_task, return_exceptions=True)
+    assert grown < 16, grown   # the issue's bound; measured 3.5-3.6 MB (the rows kept and the CSV writer)
+    rows = (tmp_path / welcome.session_id / "feedback.csv").read_text().splitlines()
+    assert len(rows) == 1 + 3000
+    c = result.counters
+    assert c["frames_complete"] >= 30 * 5.0 / 3, c
+    assert c["decode_errors"] == 0 and c["frames_partial"] == 0, c

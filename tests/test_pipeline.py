@@ -322,7 +322,7 @@ def test_same_session_counts_the_same_bytes_and_quality_in_virtual_time_and_live
                     await asyncio.sleep(0.01)
                 session = next(iter(srv.sessions.values()))
                 result = await run
-                return result, session.update_rows
+                return result, list(session.update_rows)
             finally:
                 serve.cancel()
                 await asyncio.gather(serve, return_exceptions=True)

@@ -35,7 +35,7 @@ class Pair:
         assert isinstance(w, Welcome)
         opts = ClientOptions(**client_opts)  # type: ignore[arg-type]
         rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), opts.jitter_timeout_ms,
-                            resolve_timeout_ms=opts.resolve_timeout_ms)
+                            resolve_timeout_ms=opts.resolve_timeout_ms, limits=opts.limits)
         self.client = ClientSession(rx, opts, FPS, rng=np.random.default_rng(2))
         self.server = ServerSession(self.tx, 60.0, ServerOptions(keyframe_min_interval_ms=100.0), rng=np.random.default_rng(3))
         self.client.start(0.0)
@@ -197,3 +197,140 @@ def test_a_welcome_without_a_stream_table_is_the_peers_error() -> None:
 
     with pytest.raises(RemoteProtocolError, match=r"Welcome.method_params.streams: expected a list"):
         ClientSession.from_welcome(Welcome("s", "video", {}, ()), ClientOptions())
+
+
+def test_a_feedback_flood_leaves_the_server_core_bounded() -> None:
+    """The hostile-peer campaign's find: 3,000 valid Feedback messages (7.4 MiB) grew a server by 514 MB, because
+    the server kept every stream name a client listed and every row.  Now 3,000 Feedbacks, each listing 256 new
+    lost frames on the session's stream, cost the core under 1 MB (measured 0.33 MB with tracemalloc), and a
+    Feedback naming a stream the session did not declare is the client's protocol error naming it."""
+    import tracemalloc
+
+    from splitrender.pipeline.feedback import MAX_FRAMES_REMEMBERED
+    from splitrender.protocol import Feedback
+    from splitrender.protocol.errors import MessageError
+
+    p = Pair()
+    core = p.server
+    for fid in range(3):
+        p.frame(fid, fid * 33.0)
+
+    def fb(i: int, stream: str = "color") -> Feedback:
+        return Feedback(i, 1, 2, 3, 0, 0, {"render": 1, "encode": 2}, {stream: i}, {stream: tuple(range(256 * i, 256 * i + 256))})
+
+    core.receive_message(fb(0), 100.0)
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    for i in range(1, 3001):
+        core.receive_message(fb(i), 100.0 + i)
+    grown = (tracemalloc.get_traced_memory()[0] - base) / 2**20
+    tracemalloc.stop()
+    assert grown < 1.0, grown
+    assert len(core.fb._fb.lost["color"]) <= 4 * MAX_FRAMES_REMEMBERED
+    snap = core.fb.snapshot(False)
+    assert len(snap.lost_since["color"]) == 4 * MAX_FRAMES_REMEMBERED
+    with pytest.raises(MessageError, match=r"Feedback.lost: stream 'x0' is not one of this session's \['color'\]"):
+        core.receive_message(Feedback(3001, 1, 2, 3, 0, 0, {}, {}, {"x0": (1,)}), 4000.0)
+    with pytest.raises(MessageError, match=r"Feedback.applied: stream"):
+        core.receive_message(Feedback(3002, 1, 2, 3, 0, 0, {}, {"nope": 1}, {}), 4000.0)
+
+
+# ---------------------------------------------------------------------------- what a client accepts from a server
+
+def test_a_client_refuses_stream_sizes_over_its_limits() -> None:
+    """The campaign's find: a data stream's ``max_bytes`` up to 2 GiB was accepted from Welcome (a 24 KB DataChunk
+    then decompressed to 768 MiB).  The client's limits (``ClientLimits``) refuse the session at Welcome, naming
+    the stream, the field and the limit; raising the limit accepts it."""
+    from splitrender.limits import ClientLimits
+    from splitrender.pipeline import SessionDataError
+
+    big = [{"name": "blob", "kind": "data", "delivery": "reliable", "compression": "zstd", "max_bytes": 2**31}]
+    w = Welcome("s", "x", {"streams": big, "server_fps": 30}, ())
+    with pytest.raises(SessionDataError, match=r"streams\['blob'\].max_bytes: 2147483648 bytes exceeds this client's "
+                                               r"limit of 67108864 \(max_stream_bytes\)"):
+        ClientSession.from_welcome(w, ClientOptions())
+    ClientSession.from_welcome(w, ClientOptions(limits=ClientLimits(max_stream_bytes=2**31)))
+    p = Pair()
+    huge = [dict(r) for r in p.tx.welcome_params(b"")["streams"]]
+    huge[0].update(width=8192, height=8192)
+    w = Welcome("s", "x", {"streams": huge}, p.tx.describe("127.0.0.1", 5000, "t"))
+    with pytest.raises(SessionDataError, match=r"8192x8192 video exceeds this client's limit of 16777216 pixels"):
+        ClientSession.from_welcome(w, ClientOptions())
+
+
+def test_frames_whose_streams_never_arrive_cannot_pin_the_clients_memory() -> None:
+    """The campaign's find: 8 FrameMeta messages whose streams never arrive pinned 640 MB.  Now what frames not yet
+    complete hold is capped (``max_pending_bytes``): the oldest are given up (reported lost) to stay under it, and
+    a single frame over it is the server's error.  Eight frames each carrying 8 MiB of metadata under a 20 MiB cap
+    hold at most two; the peak traced memory stays under 48 MiB (measured 40: two held, one arriving, its decoding;
+    before, all eight: 64 MiB and more)."""
+    import tracemalloc
+
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.limits import ClientLimits
+    from splitrender.pipeline import EnvelopeError
+    from splitrender.protocol import FrameMeta, Pose as WirePose
+
+    p = Pair(limits=ClientLimits(max_pending_bytes=20 * 2**20))
+    rx = p.client.rx
+    env = {"t_s": 0.0, "pose": [0.0, 1.6, 2.5, 0.0, 0.0, 0.0, 1.0], "m": {"a": np.ones(2 * 2**20, np.float32)},
+           "target_t_s": 0.0, "timing_us": {}, "srv": {}}
+    blob = pack_meta(env)
+    wpose = WirePose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    tracemalloc.start()
+    for fid in range(8):
+        p.client.receive_message(FrameMeta(fid, 0, {"color": 3000 * fid}, wpose, blob, False), float(fid))
+        assert rx.held_bytes() <= 20 * 2**20
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    assert rx.pending_frames == 2 and rx.counters["frames_given_up"] == 6
+    assert peak < 48, peak
+    one = dict(env, m={"a": np.ones(6 * 2**20, np.float32)})    # 24 MiB in one frame
+    with pytest.raises(EnvelopeError, match=r"FrameMeta 8: frames not yet complete hold \d+ bytes, over this client's "
+                                            r"limit of 20971520 bytes \(max_pending_bytes\)"):
+        p.client.receive_message(FrameMeta(8, 0, {"color": 24000}, wpose, pack_meta(one), False), 8.0)
+
+
+def test_a_decoded_frame_of_the_wrong_size_is_dropped_and_counted() -> None:
+    """The campaign's find: the video client showed decoded frames of any size.  The receive path checks each
+    decoded frame against the size the Welcome table declared (counted ``frames_wrong_size``, handled as a decode
+    error: the stream waits for a keyframe); the video client half refuses a plane that is not its display's."""
+    from splitrender.methods.base import DecodedUpdate
+    from splitrender.methods.video.client import VideoClient, VideoFrameError
+    from splitrender.scene.pose import CameraIntrinsics
+
+    p = Pair()
+    ctrl, dgrams = p.frame(0, 0.0)
+    for data in ctrl:
+        p.cconn.receive_data(data)
+        while (ev := p.cconn.next_event()) is not NEED_DATA:
+            p.client.receive_message(ev, 1.0)  # type: ignore[arg-type]
+    works = [w for d in dgrams for w in p.client.receive_datagram(d, 2.0)]
+    assert len(works) == 1
+    p.client.on_decoded(works[0], np.zeros((H * 2, W * 2, 3), np.uint8), 3.0)
+    p.client.collect(3.0)
+    assert p.client.rx.counters["frames_wrong_size"] == 1 and p.client.rx.counters["decode_errors"] == 1
+    assert p.client.rx.needs_keyframe() == ["color"]
+    half = VideoClient(None, CameraIntrinsics(W, H, 60.0), None, {})  # type: ignore[arg-type]
+    with pytest.raises(VideoFrameError, match=rf"colour plane of shape \(10, 10, 3\), this client displays {W}x{H}"):
+        half.apply(DecodedUpdate(0, 0.0, Pose(), {"color": np.zeros((10, 10, 3), np.uint8)}, {}, {}, frozenset()))
+    half.apply(DecodedUpdate(1, 0.0, Pose(), {"color": np.zeros((H, W, 3), np.uint8)}, {}, {}, frozenset()))
+    assert half.has_content
+
+
+def test_client_limits_are_configurable_from_the_command_line_and_named_when_wrong() -> None:
+    import argparse
+
+    from splitrender.client.cli import add_client_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_client_arguments(p)
+    cfg = config_from_args(p.parse_args(["--limit", "max_probes=4096", "--limit", "max_pending_frames=8"]))
+    assert cfg.limits.max_probes == 4096 and cfg.limits.max_pending_frames == 8  # type: ignore[attr-defined]
+    assert cfg.options().limits is cfg.limits  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError, match=r"client limits: unknown key\(s\) \['max_nothing'\]"):
+        config_from_args(p.parse_args(["--limit", "max_nothing=1"]))
+    with pytest.raises(ConfigError, match=r"--limit: expected KEY=N with an integer N, got 'max_probes=lots'"):
+        config_from_args(p.parse_args(["--limit", "max_probes=lots"]))
+    with pytest.raises(ConfigError, match=r"client limits: max_probes must be a positive integer, got 0"):
+        config_from_args(p.parse_args(["--limit", "max_probes=0"]))

@@ -39,6 +39,10 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jitter-timeout", type=float, default=300.0, metavar="MS",
                    help="give up a frame whose packets are still missing after MS (then wait for a keyframe; default 300)")
     p.add_argument("--nack-tries", type=int, default=3, help="NACKs sent for one missing packet (default 3)")
+    p.add_argument("--limit", action="append", default=[], metavar="KEY=N",
+                   help="what this client accepts from a server (repeatable), e.g. --limit max_probes=65536; keys: "
+                        "max_stream_bytes, max_session_bytes, max_pending_frames, max_pending_bytes, max_video_pixels, "
+                        "max_probes, max_scene_triangles, max_scene_objects (docs/protocol.md, Limits)")
     p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
                    help="show each update no earlier than its server time + MS: frames held behind a retransmission "
                         "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
@@ -67,6 +71,16 @@ def config_from_args(ns: argparse.Namespace) -> object:
         raise ConfigError(f"--nack-tries: must be in [0, 20], got {ns.nack_tries}")
     if not 0 <= ns.playout_delay <= 2000:
         raise ConfigError(f"--playout-delay: must be in [0, 2000] ms, got {ns.playout_delay}")
+    limits: dict[str, int] = {}
+    for item in getattr(ns, "limit", []) or []:
+        key, sep, value = item.partition("=")
+        try:
+            limits[key.strip()] = int(value) if sep else int("")
+        except ValueError:
+            raise ConfigError(f"--limit: expected KEY=N with an integer N, got {item!r}") from None
+    from splitrender.limits import ClientLimits
+
+    client_limits = ClientLimits.from_dict(limits)
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
     codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
     return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
@@ -75,7 +89,7 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
                         stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval,
                         playout_delay_ms=ns.playout_delay, jitter_timeout_ms=ns.jitter_timeout,
-                        nack_max_tries=ns.nack_tries)
+                        nack_max_tries=ns.nack_tries, limits=client_limits)
 
 
 def main_client(ns: argparse.Namespace) -> int:

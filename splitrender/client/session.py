@@ -34,11 +34,13 @@ from typing import Any
 import numpy as np
 
 from splitrender.codecs.meta import unpack_meta
-from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError
+from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError, describe_error
+from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.methods.base import get_method, make_config
 from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, EnvelopeError, ReceivedFrame, Resumed,
                                   SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
-from splitrender.protocol import PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, FrameMeta, Hello, Pose, Stats, Welcome
+from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
+                                  Stats, Welcome)
 from splitrender.tabular import write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
@@ -95,7 +97,9 @@ class ClientConfig:
     pli_interval_ms: float = 250.0
     rr_interval_s: float = 0.5
     connect_timeout_s: float = 5.0
-    max_session_bytes: int = 256 * 1024 * 1024
+    limits: ClientLimits = DEFAULT_CLIENT_LIMITS
+    """What this client accepts from a server: stream and session-data sizes, pending frames, probes, scene size
+    (:class:`~splitrender.limits.ClientLimits`); a server declaring more is refused with an error naming it."""
     stall_frames: float = 6.0
     """No new frame for this many server frame intervals is a stall: logged, counted, a keyframe requested."""
     stall_timeout_s: float = 5.0
@@ -117,7 +121,7 @@ class ClientConfig:
                              nack_retry_ms=self.nack_retry_ms, pli_interval_ms=self.pli_interval_ms,
                              rr_interval_s=self.rr_interval_s, jitter_timeout_ms=self.jitter_timeout_ms,
                              playout_delay_ms=self.playout_delay_ms, stall_frames=self.stall_frames,
-                             stall_timeout_s=self.stall_timeout_s)
+                             stall_timeout_s=self.stall_timeout_s, limits=self.limits)
 
 
 @dataclass
@@ -222,6 +226,9 @@ class LiveClient:
                             first = first.exceptions[0]
                         raise first from None
                 await self._say_bye("duration reached")
+            except Exception as exc:
+                await self._say_error(exc)
+                raise
             finally:
                 if self.udp is not None:
                     self.udp.close()
@@ -288,6 +295,21 @@ class LiveClient:
         for ex in (self.gl_executor, self.decode_executor, self.io_executor):
             ex.shutdown(wait=True)
 
+    async def _say_error(self, exc: BaseException) -> None:
+        """Tell the server why this client is leaving (best effort): ``Error`` with the peer error's code for bad
+        input from the server, 408 for a stream that stalled, 500 for a failure of our own.  Nothing when the
+        server ended the session or the connection is gone."""
+        if self.channel is None or isinstance(exc, (ServerRefusedError, ConnectionError, asyncio.IncompleteReadError)):
+            return
+        if isinstance(exc, RemoteProtocolError):
+            code, text = exc.code, f"client: {exc}"
+        elif isinstance(exc, StreamStalledError):
+            code, text = ErrorCode.TIMEOUT, f"client: {exc}"
+        else:
+            code, text = ErrorCode.INTERNAL, f"client failed: {describe_error(exc)}"
+        logger.info("session %s: leaving with Error %d: %s", self.session_id, code, text)
+        await self.channel.send_error(int(code), text)
+
     async def _say_bye(self, reason: str) -> None:
         assert self.channel is not None
         try:
@@ -319,7 +341,7 @@ class LiveClient:
                                    aspect=cfg.width / cfg.height)
         # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
         asm = SessionAssembler(self._params.get("session_data_bytes", 0), self._params.get("session_data_crc"),
-                               cfg.max_session_bytes)
+                               cfg.limits.max_session_bytes)
         while not asm.done:
             chunk = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
             if isinstance(chunk, Error):
@@ -336,7 +358,7 @@ class LiveClient:
         def make_half() -> Any:
             from splitrender.render.gl import get_context
 
-            return spec.client_class(mcfg, intr, get_context(), session_data)
+            return spec.client_class(mcfg, intr, get_context(), session_data, limits=cfg.limits)
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
         self.core = ClientSession.from_welcome(msg, cfg.options())

@@ -8,12 +8,20 @@ what changed since the previous one.  The server's :class:`FeedbackState` merges
 :class:`LatencyEstimator` turns (server time, display time) pairs into the expected
 latency that aims the pose prediction.  The virtual-time runner and the live server
 use these same classes, so both aim their predictions from what they measure.
+
+The server's state is bounded whatever a client sends: a ``Feedback`` naming a stream the
+session did not declare is the client's protocol error (:class:`MessageError` naming the
+stream), and per stream at most ``4 x MAX_FRAMES_REMEMBERED`` lost frame ids are kept
+(and as many reported to the server half between two updates).
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 from ..methods.base import ClientFeedback
 from ..protocol import Feedback
+from ..protocol.errors import MessageError
 
 DEFAULT_DECODE_MS = 5.0
 """Client decode time assumed before feedback arrives, ms."""
@@ -23,6 +31,7 @@ MAX_EXPECTED_LATENCY_S = 1.0
 INITIAL_NETWORK_S = 0.02
 """One-way network delay assumed before any feedback, s."""
 MAX_FRAMES_REMEMBERED = 512
+"""Frames whose send time the server keeps (for latency); lost ids kept per stream: four times as many."""
 
 
 class LatencyEstimator:
@@ -45,8 +54,10 @@ class LatencyEstimator:
 class FeedbackState:
     """The server's merged view of a client's feedback; see the module docstring."""
 
-    def __init__(self, display_hz: float) -> None:
+    def __init__(self, display_hz: float, streams: Collection[str] | None = None) -> None:
         self.latency = LatencyEstimator(display_hz)
+        self.streams = frozenset(streams) if streams is not None else None
+        """The session's stream names (None: any, for a bare state in tests); Feedback naming others is refused."""
         self._fb = ClientFeedback()
         self._lost_since: dict[str, list[int]] = {}
         self._sent_us: dict[int, int] = {}
@@ -64,6 +75,12 @@ class FeedbackState:
 
     def on_feedback(self, fb: Feedback) -> float | None:
         """Merge one ``Feedback``; returns the measured latency (s) when the frame is known."""
+        if self.streams is not None:
+            for where, names in (("applied", fb.applied), ("lost", fb.lost)):
+                for name in names:
+                    if name not in self.streams:
+                        raise MessageError(f"Feedback.{where}: stream {name!r} is not one of this session's "
+                                           f"{sorted(self.streams)}")
         self.reports += 1
         f = self._fb
         for name, fid in fb.applied.items():
@@ -79,7 +96,10 @@ class FeedbackState:
             if len(seen) > 4 * MAX_FRAMES_REMEMBERED:
                 for old in sorted(seen)[: len(seen) - 4 * MAX_FRAMES_REMEMBERED]:
                     seen.discard(old)
-            self._lost_since.setdefault(name, []).extend(new)
+            since = self._lost_since.setdefault(name, [])
+            since.extend(new)
+            if len(since) > 4 * MAX_FRAMES_REMEMBERED:
+                del since[: len(since) - 4 * MAX_FRAMES_REMEMBERED]
             frames_lost.update(new)
         f.lost_frames += len(frames_lost)
         t_us = self._sent_us.get(fb.frame_id)

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..codecs.video import VideoDecoder
 from ..errors import CodecError
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from ..methods.base import DataStreamSpec, DecodedUpdate
 from ..protocol import (AccessUnit, DataChunk, FrameMeta, JitterBuffer, Message, ReceiverStatistics, RtpError, RtpPacket,
                         StreamDescription)
@@ -35,7 +36,8 @@ from .wire import SESSION_STREAM, Envelope, datagram_wire_bytes, EnvelopeError, 
 
 log = logging.getLogger(__name__)
 
-MAX_PENDING_FRAMES = 128
+MAX_PENDING_FRAMES = DEFAULT_CLIENT_LIMITS.max_pending_frames
+"""The default bound on frames announced and not complete (``ClientLimits.max_pending_frames``)."""
 """Frames (FrameMeta seen, streams outstanding) kept before the oldest is given up."""
 MAX_ORPHANS = 128
 """Decoded payloads kept while their FrameMeta has not arrived."""
@@ -56,6 +58,9 @@ class RxStream:
     jitter: JitterBuffer | None = None
     stats: ReceiverStatistics | None = None
     decoder: VideoDecoder | None = None
+    size: tuple[int, int] | None = None
+    """A video stream's (height, width) as the Welcome table declares it: a decoded frame of another size is
+    counted (``frames_wrong_size``) and dropped like a decode error."""
     broken: bool = False
     """A decode failed: frames are skipped until a keyframe."""
 
@@ -94,6 +99,13 @@ class _Pending:
     missing: set[str] = field(default_factory=set)
     received_ms: float = 0.0
     decoded_ms: float = 0.0
+    meta_nbytes: int = 0
+    """What the frame's decoded metadata holds (arrays and byte strings), counted against ``max_pending_bytes``."""
+
+    @property
+    def nbytes(self) -> int:
+        return (self.meta_nbytes + sum(len(d) for d in self.data.values())
+                + sum(int(getattr(p, "nbytes", 0)) for p in self.planes.values()))
 
     @property
     def resolved(self) -> bool:
@@ -110,6 +122,20 @@ class ReceivedFrame:
     meta_ms: float
     received_ms: float
     decoded_ms: float
+
+
+def held_nbytes(obj: Any, depth: int = 0) -> int:
+    """Bytes held by a decoded metadata value: its arrays and byte/text strings (containers as 64 bytes an item;
+    the msgpack limits bound how many there are)."""
+    if isinstance(obj, np.ndarray):
+        return int(obj.nbytes)
+    if isinstance(obj, (bytes, bytearray, str)):
+        return len(obj)
+    if depth < 64 and isinstance(obj, dict):
+        return sum(64 + held_nbytes(k, depth + 1) + held_nbytes(v, depth + 1) for k, v in obj.items())
+    if depth < 64 and isinstance(obj, (list, tuple)):
+        return sum(64 + held_nbytes(v, depth + 1) for v in obj)
+    return 32
 
 
 class SessionAssembler:
@@ -143,6 +169,23 @@ class SessionAssembler:
         return bytes(self._buf)
 
 
+def check_stream_limits(row: Any, limits: ClientLimits) -> None:
+    """A stream of the Welcome table within what this client accepts; :class:`SessionDataError` naming the field and
+    the limit otherwise."""
+    if isinstance(row, DataStreamSpec):
+        if row.max_bytes > limits.max_stream_bytes:
+            raise SessionDataError(f"Welcome.method_params.streams[{row.name!r}].max_bytes: {row.max_bytes} bytes exceeds "
+                                   f"this client's limit of {limits.max_stream_bytes} (max_stream_bytes)")
+        return
+    w, h = row.get("width", 0), row.get("height", 0)
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384 for v in (w, h)):
+        raise EnvelopeError(f"Welcome.method_params.streams[{row.get('name')!r}]: width/height {w!r}x{h!r} is not a "
+                            "frame size")
+    if w * h > limits.max_video_pixels:
+        raise SessionDataError(f"Welcome.method_params.streams[{row.get('name')!r}]: {w}x{h} video exceeds this client's "
+                               f"limit of {limits.max_video_pixels} pixels (max_video_pixels)")
+
+
 def _rtp_newer(a: int | None, b: int) -> bool:
     """Whether RTP timestamp ``a`` is later than ``b`` (32-bit serial arithmetic; ``None`` is never later)."""
     return a is not None and a != b and ((a - b) & 0xFFFFFFFF) < 0x80000000
@@ -152,7 +195,10 @@ class ClientPipeline:
     """One session's receiving side; see the module docstring."""
 
     def __init__(self, descriptions: tuple[StreamDescription, ...], table: list[Any], jitter_timeout_ms: float = 300.0,
-                 resolve_timeout_ms: float = 500.0, meta_max_bytes: int = DEFAULT_META_MAX_BYTES) -> None:
+                 resolve_timeout_ms: float = 500.0, meta_max_bytes: int = DEFAULT_META_MAX_BYTES,
+                 limits: ClientLimits = DEFAULT_CLIENT_LIMITS) -> None:
+        self.limits = limits
+        """What this client holds at most: pending frames (oldest given up beyond it), pending bytes, stream sizes."""
         self.jitter_timeout_ms = jitter_timeout_ms
         self.resolve_timeout_ms = resolve_timeout_ms
         self.meta_max_bytes = meta_max_bytes
@@ -163,10 +209,12 @@ class ClientPipeline:
         FEC packets it took and the packets they rebuilt (``fec_packets``, ``fec_recovered``, ``fec_bad``)."""
         by_desc = {d.name: d for d in descriptions}
         for row in table:
+            check_stream_limits(row, limits)
             if isinstance(row, DataStreamSpec):
                 rx = RxStream(row.name, row.delivery, spec=row)
             else:
-                rx = RxStream(row["name"], "video", output_format=str(row.get("format", "rgb24")))
+                rx = RxStream(row["name"], "video", output_format=str(row.get("format", "rgb24")),
+                              size=(row["height"], row["width"]))
             d = by_desc.get(rx.name)
             if rx.kind != "reliable":
                 if d is None:
@@ -198,7 +246,7 @@ class ClientPipeline:
         self.counters: dict[str, int] = {
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_given_up": 0, "decode_errors": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "udp_bad": 0, "meta_bytes": 0, "data_bytes": 0, "keyframes_received": 0,
-            "data_errors": 0,
+            "data_errors": 0, "frames_wrong_size": 0,
         }
 
     # ------------------------------------------------------------------ input
@@ -228,6 +276,7 @@ class ClientPipeline:
             raise EnvelopeError(f"DataChunk {msg.stream}/{msg.frame_id}: chunk at offset {msg.offset}, expected {len(buf)}")
         buf += msg.payload
         if len(buf) < msg.total:
+            self._check_held(f"DataChunk {msg.stream}/{msg.frame_id}")
             return
         del self._chunks[key]
         self.counters["data_bytes"] += len(buf)
@@ -236,8 +285,33 @@ class ClientPipeline:
         except CodecError as exc:
             raise EnvelopeError(f"DataChunk {msg.stream}/{msg.frame_id}: {exc}") from None
         self._reliable.setdefault(msg.frame_id, {})[msg.stream] = payload
-        while len(self._reliable) > MAX_PENDING_FRAMES:
+        while len(self._reliable) > self.limits.max_pending_frames:
             del self._reliable[next(iter(self._reliable))]
+        self._check_held(f"DataChunk {msg.stream}/{msg.frame_id}")
+
+    def held_bytes(self) -> int:
+        """Bytes held for frames not yet released: reliable payloads in flight and complete, and pending frames'
+        metadata, data and decoded planes."""
+        return (sum(len(b) for b in self._chunks.values())
+                + sum(len(p) for d in self._reliable.values() for p in d.values())
+                + sum(fr.nbytes for fr in self._pending.values()))
+
+    def _check_held(self, what: str) -> None:
+        """Keep :meth:`held_bytes` within ``max_pending_bytes``: give up the oldest frames (counted, reported
+        lost) while that helps; the server's error, named, when what is left is still over."""
+        limit = self.limits.max_pending_bytes
+        held = self.held_bytes()
+        while held > limit and (self._reliable or len(self._pending) > 1):
+            if self._reliable and (not self._pending or next(iter(self._reliable)) < next(iter(self._pending))):
+                del self._reliable[next(iter(self._reliable))]
+            else:
+                _, old = self._pending.popitem(last=False)
+                old.missing.update(n for n in old.expect if n not in old.planes and n not in old.data)
+                self._release_forced(old)
+            held = self.held_bytes()
+        if held > limit:
+            raise EnvelopeError(f"{what}: frames not yet complete hold {held} bytes, over this client's limit of "
+                                f"{limit} bytes (max_pending_bytes)")
 
     def _on_meta(self, msg: FrameMeta, now_ms: float) -> None:
         self.counters["frames_meta"] += 1
@@ -256,7 +330,7 @@ class ClientPipeline:
         if msg.frame_id <= self._last_released or msg.frame_id in self._pending:
             raise EnvelopeError(f"FrameMeta.frame_id: {msg.frame_id} is not newer than frame {self._last_released}")
         fr = _Pending(msg.frame_id, msg, env, now_ms, set(msg.rtp_timestamps) | set(env.reliable), received_ms=now_ms,
-                      decoded_ms=now_ms)
+                      decoded_ms=now_ms, meta_nbytes=held_nbytes(env.meta))
         got = self._reliable.pop(msg.frame_id, {})
         for name in env.reliable:
             if name in got:
@@ -274,10 +348,11 @@ class ClientPipeline:
                 # a later frame of this stream was already decoded (this FrameMeta came late, behind a TCP
                 # retransmission): the stream delivers in order, so this frame's part will not come
                 fr.missing.add(name)
-        while len(self._pending) > MAX_PENDING_FRAMES:
+        while len(self._pending) > self.limits.max_pending_frames:
             _, old = self._pending.popitem(last=False)
             old.missing.update(n for n in old.expect if n not in old.planes and n not in old.data)
             self._release_forced(old)
+        self._check_held(f"FrameMeta {msg.frame_id}")
 
     def on_datagram(self, data: bytes, now_ms: float) -> list[Work]:
         """An RTP datagram (RTCP is the driver's); returns frames ready to decode."""
@@ -353,6 +428,10 @@ class ClientPipeline:
     def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
         """Take the result of :meth:`decode` for ``work``."""
         rx, ts = work.stream, work.unit.timestamp
+        if rx.size is not None and not isinstance(result, CodecError) and tuple(getattr(result, "shape", ())[:2]) != rx.size:
+            self.counters["frames_wrong_size"] += 1
+            result = CodecError(f"stream {rx.name}: decoded a {'x'.join(map(str, getattr(result, 'shape', ())[1::-1]))} "
+                                f"frame, the session declared {rx.size[1]}x{rx.size[0]}")
         if isinstance(result, CodecError):
             if rx.kind == "video":
                 self.counters["decode_errors"] += 1

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import ConfigError
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
@@ -197,6 +198,8 @@ class ClientOptions:
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
     stall_timeout_s: float = 5.0
+    limits: ClientLimits = DEFAULT_CLIENT_LIMITS
+    """What the client accepts from the server (:mod:`splitrender.limits`)."""
 
     def __post_init__(self) -> None:
         def check(name: str, lo: float, hi: float) -> None:
@@ -291,7 +294,7 @@ class ClientSession:
         ``options``' timeouts.  Raises ``RemoteProtocolError`` for a malformed stream table."""
         params = welcome.method_params
         rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams")), options.jitter_timeout_ms,
-                            resolve_timeout_ms=options.resolve_timeout_ms)
+                            resolve_timeout_ms=options.resolve_timeout_ms, limits=options.limits)
         return cls(rx, options, float(params.get("server_fps", 30)), clock_offset_us, rng)
 
     # ------------------------------------------------------------------ clock
@@ -640,7 +643,7 @@ class ServerSession:
 
     def __post_init__(self) -> None:
         self._rand = _uniform(self.rng)
-        self.fb = FeedbackState(self.display_hz)
+        self.fb = FeedbackState(self.display_hz, streams=self.tx.streams)
         self._kf = KeyframeRateLimiter(self.options.keyframe_min_interval_ms)
         self._kf_wanted = False
         self.streams: dict[str, _TxState] = {}

@@ -31,6 +31,8 @@ class ErrorCode(IntEnum):
 
     BAD_MESSAGE = 400
     UNAUTHORIZED = 401
+    TIMEOUT = 408
+    """The peer stopped sending what the session needs (a client whose stream stalled past its timeout)."""
     ILLEGAL_STATE = 409
     TOO_LARGE = 413
     UNSUPPORTED_METHOD = 415

@@ -29,6 +29,7 @@ import logging
 import math
 import secrets
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -42,6 +43,7 @@ from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, Wor
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol import (
     Bye,
+    Error,
     ErrorCode,
     Feedback,
     Hello,
@@ -56,7 +58,7 @@ from splitrender.protocol import (
     make_sdp,
     negotiate_method,
 )
-from splitrender.tabular import write_csv
+from splitrender.tabular import CsvAppender, write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.predict import make_predictor
@@ -87,7 +89,14 @@ class LiveServer(Protocol):
     def ssrc_taken(self, ssrc: int) -> bool: ...
     def tick_of(self, wall_s: float) -> int: ...
 
-__all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE"]
+__all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
+
+ROWS_KEPT = 1024
+"""Feedback and update rows a session keeps in memory (the newest; the row logs on disk have them all)."""
+FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
+"""The server timings a client echoes in Feedback (those the server put in FrameMeta); others are ignored."""
+FEEDBACK_COLUMNS = ("frame_id", "server_us", "received_us", "decoded_us", "displayed_us", "pose_time_us", "lost_packets",
+                    "motion_to_photon_ms", "lost_frames", *(f"server_{k}_us" for k in FEEDBACK_TIMINGS))
 
 logger = logging.getLogger(__name__)
 
@@ -132,13 +141,18 @@ class ServerSession:
         self.core: SessionCore | None = None
         """The sans-IO session core (feedback, keyframes, NACK answers, sender reports)."""
         self._last_tick = -1
-        self.feedback_rows: list[dict[str, Any]] = []
-        self.update_rows: list[dict[str, Any]] = []
-        """One row per frame sent: wire bytes per stream (as the virtual-time runner's updates.csv)."""
+        self.feedback_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
+        """The newest Feedback rows (all of them go to ``feedback.csv`` as they come when ``out_dir`` is set)."""
+        self.update_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
+        """The newest rows of frames sent: wire bytes per stream (as the virtual-time runner's updates.csv; all of
+        them go to ``updates.csv`` as they are sent when ``out_dir`` is set)."""
+        self._logs: dict[str, CsvAppender] = {}
         self._counters: dict[str, int] = {
             "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
-            "session_bytes": 0, "render_timeouts": 0,
+            "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
         }
+        self.client_error: tuple[int, str] | None = None
+        """The client's ``Error`` (code, reason) when it left with one."""
 
     @property
     def counters(self) -> dict[str, Any]:
@@ -195,8 +209,9 @@ class ServerSession:
             await self.channel.close()
             if self.worker is not None:
                 await self.server.release_worker(self.worker, self.id)
-            logger.info("session %s: closed (%s)", self.id,
-                        ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
+            why = f"; client error {self.client_error[0]}: {self.client_error[1]}" if self.client_error else ""
+            logger.info("session %s: closed (%s)%s", self.id,
+                        ", ".join(f"{k}={v}" for k, v in self.counters.items() if v), why)
 
     def _say_bye(self, reason: str) -> None:
         """Best-effort Bye without waiting (used while being cancelled)."""
@@ -341,7 +356,10 @@ class ServerSession:
                 logger.info("session %s: client says bye: %s", self.id, msg.reason)
                 raise _SessionEnded()
             else:  # Error: the state machine allows nothing else
-                logger.warning("session %s: client error %s", self.id, msg)
+                assert isinstance(msg, Error)
+                self._counters["client_errors"] += 1
+                self.client_error = (msg.code, msg.text)
+                logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
                 raise _SessionEnded()
         logger.info("session %s: client closed the connection", self.id)
         raise _SessionEnded()
@@ -364,9 +382,9 @@ class ServerSession:
                                "lost_packets": fb.lost_packets,
                                "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0,
                                "lost_frames": ";".join(f"{k}:{','.join(map(str, v))}" for k, v in fb.lost.items())}
-        row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items()})
-        if len(self.feedback_rows) < 1_000_000:
-            self.feedback_rows.append(row)
+        row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items() if k in FEEDBACK_TIMINGS})
+        self.feedback_rows.append(row)
+        self._log("feedback", row)
 
     def request_keyframe(self, why: str) -> None:
         """Ask for an IDR on every stream (rate-limited by the core; a suppressed request is kept)."""
@@ -457,12 +475,12 @@ class ServerSession:
                 server.send_datagram(data, mirror)
         for _, data in out.fec:                 # parity packets: neither mirrored nor kept for retransmission
             server.send_datagram(data, self.client_addr)
-        if len(self.update_rows) < 1_000_000:
-            row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
-                                   "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,
-                                   "encode_ms": enc.encode_ms, "expected_latency_ms": expected * 1000}
-            row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
-            self.update_rows.append(row)
+        row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
+                               "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,
+                               "encode_ms": enc.encode_ms, "expected_latency_ms": expected * 1000}
+        row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
+        self.update_rows.append(row)
+        self._log("updates", row)
         self._frame_id += 1
 
     # ------------------------------------------------------------------ RTCP
@@ -492,15 +510,27 @@ class ServerSession:
 
     # ------------------------------------------------------------------ records
 
-    def _write_feedback(self) -> None:
-        if self.cfg.out_dir is None or not (self.feedback_rows or self.update_rows):
+    def _log(self, name: str, row: dict[str, Any]) -> None:
+        """Append ``row`` to ``<out_dir>/<session>/<name>.csv`` (opened with the first row; columns fixed then)."""
+        if self.cfg.out_dir is None:
             return
-        d = self.cfg.out_dir / self.id
-        d.mkdir(parents=True, exist_ok=True)
-        write_csv(d / "feedback.csv", self.feedback_rows)
-        write_csv(d / "updates.csv", self.update_rows)
-        write_csv(d / "counters.csv", [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
-                                            server_udp_dropped=self.server.udp_dropped)])
+        log = self._logs.get(name)
+        if log is None:
+            d = self.cfg.out_dir / self.id
+            d.mkdir(parents=True, exist_ok=True)
+            cols = list(row) if name == "updates" else FEEDBACK_COLUMNS
+            log = self._logs[name] = CsvAppender(d / f"{name}.csv", cols)
+        log.append(row)
+
+    def _write_feedback(self) -> None:
+        """Close the row logs and write the session's counters (nothing without ``out_dir`` or frames)."""
+        for log in self._logs.values():
+            log.close()
+        if self.cfg.out_dir is None or not self._logs:
+            return
+        write_csv(self.cfg.out_dir / self.id / "counters.csv",
+                  [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
+                        server_udp_dropped=self.server.udp_dropped)])
 
 
 def _now_ms() -> float:

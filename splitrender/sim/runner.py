@@ -279,7 +279,8 @@ class VirtualTimeRun:
                                  np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
-        c.chalf = self.spec.client_class(self.mcfg, self.intr, c.gl, unpack_meta(asm.blob) if asm.total else {})
+        c.chalf = self.spec.client_class(self.mcfg, self.intr, c.gl, unpack_meta(asm.blob) if asm.total else {},
+                                         limits=c.core.opts.limits)
         make_current(self.renderer.ctx)
         c.fb = c.core_s.fb
         c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)

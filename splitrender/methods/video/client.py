@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import RemoteProtocolError
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
+
+
+class VideoFrameError(RemoteProtocolError):
+    """A decoded colour frame that is not the size of this client's display."""
 
 
 class VideoClient(ClientHalf):
@@ -15,7 +20,12 @@ class VideoClient(ClientHalf):
 
     def apply(self, update: DecodedUpdate) -> None:
         if "color" in update.planes:
-            self._frame = update.planes["color"]
+            frame = update.planes["color"]
+            i = self.intrinsics
+            if getattr(frame, "shape", None) != (i.height, i.width, 3):
+                raise VideoFrameError(f"video: frame {update.frame_id}: colour plane of shape {getattr(frame, 'shape', None)}, "
+                                      f"this client displays {i.width}x{i.height} (expected ({i.height}, {i.width}, 3))")
+            self._frame = frame
             self.has_content = True
 
     def render(self, pose: Pose, t_s: float) -> ClientFrame:
