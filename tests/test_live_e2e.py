@@ -462,8 +462,16 @@ def test_killed_server_or_client_leaves_a_scoreable_partial_recording(tmp_path: 
         cli.communicate(timeout=10)
         rec2 = json.loads((out2 / "recording.json").read_text())
         assert rec2["complete"] is False and not (out2 / "frames.csv").exists()
+        # images are written to a temporary name and renamed: every one the kill left is whole
+        images = sorted((out2 / "images").glob("*.npz"))
+        assert len(images) >= 20
+        for path in images:
+            with np.load(path) as z:
+                assert z["color"].shape == (90, 160, 3), path
+        # one cut short (as an older client writing in place left them) is skipped and counted
+        images[0].write_bytes(images[0].read_bytes()[:100])
         s2 = score_recording(out2, flip_every=0)
-        assert s2["frames"] >= 20, s2
+        assert s2["frames"] >= 20 and s2["images_damaged"] == 1, s2
         nxt_cmd = [a if a != "15" else "1.0" for a in client_cmd] + ["--out", str(tmp_path / "next")]
         nxt = subprocess.run(nxt_cmd, capture_output=True, text=True, timeout=60)
         assert nxt.returncode == 0, nxt.stderr[-2000:]

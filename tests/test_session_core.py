@@ -127,23 +127,48 @@ def test_a_lost_keyframe_is_answered_with_a_pli_and_the_server_sends_an_idr() ->
     assert p.client.counters["keyframes_after_pli"] == 1
 
 
-def test_a_stall_is_reported_after_stall_frames_intervals_and_asks_for_keyframes() -> None:
+def test_a_stall_is_reported_after_stall_frames_intervals_and_asks_for_keyframes_only_after_loss() -> None:
     p = Pair(stall_frames=6.0, stall_timeout_s=1.0, pli_interval_ms=100.0)
     ctrl, dgrams = p.frame(0, 0.0)
     p.to_client(ctrl, dgrams, 5.0)                   # the last frame arrives at 5 ms
     p.timer(100.0)
     assert p.client.take_events() == []
-    stall_ms = 6.0 / FPS * 1000                      # 200 ms
+    stall_ms = 6.0 / FPS * 1000                      # 200 ms: nothing measured yet, the nominal rate
     assert p.client.next_timer() == pytest.approx(5.0 + stall_ms)
     rtcp = p.timer(5.0 + stall_ms)
     (ev,) = p.client.take_events()
     assert isinstance(ev, Stalled) and ev.idle_ms == pytest.approx(stall_ms)
-    assert any(isinstance(x, PictureLossIndication) for c in rtcp for x in c)
-    assert p.client.counters["stalls"] == 1 and p.client.counters["stall_plis"] == 1
+    # nothing was lost: a slow server, not a broken stream, so no keyframe is asked for
+    assert not any(isinstance(x, PictureLossIndication) for c in rtcp for x in c)
+    assert p.client.counters["stalls"] == 1 and p.client.counters["stall_plis"] == 0
     p.timer(1004.0)
     assert p.client.take_events() == []
     p.timer(1006.0)
     assert any(isinstance(e, StallTimeout) for e in p.client.take_events())
+    # a frame loses a packet and is given up (jitter timeout): the next stall asks for a keyframe
+    ctrl, dgrams = p.frame(1, 1010.0)
+    p.to_client(ctrl, dgrams[:1] + dgrams[2:], 1015.0)
+    p.timer(1400.0)
+    rtcp = p.timer(1500.0)
+    assert p.client.counters["plis_sent"] >= 1
+
+
+def test_a_slow_server_is_not_a_stall_once_its_rate_is_measured() -> None:
+    """The keyframe storm of issue 37: at 2-4 server updates a second every gap was a stall (six nominal 33 ms
+    intervals), a PLI and a keyframe.  Stalls are now measured in the achieved interval (the last second's
+    frames, at least the nominal one, at most 500 ms), and a stall without loss asks for no keyframe: a lossless
+    server at 3 frames a second stalls once, at its second frame (before a rate is measured), and never asks for
+    a keyframe."""
+    p = Pair(stall_frames=6.0, pli_interval_ms=100.0)
+    t = 0.0
+    for fid in range(30):                            # 10 s at 3 frames a second, nominal 30
+        ctrl, dgrams = p.frame(fid, t)
+        p.to_client(ctrl, dgrams, t + 5.0)
+        for k in range(1, 33):
+            p.timer(t + 5.0 + 10.0 * k)
+        t += 1000.0 / 3
+    assert p.client.counters["stalls"] == 1 and p.client.counters["plis_sent"] == 0, p.client.counters
+    assert p.client._achieved_ms == pytest.approx(1000.0 / 3, rel=0.01)
 
 
 def test_rtcp_report_intervals_are_randomised_around_their_mean() -> None:

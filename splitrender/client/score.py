@@ -14,6 +14,7 @@ import csv
 import json
 import logging
 import math
+import zipfile
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -89,13 +90,21 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
         renderer = Renderer()
     scene = get_scene(rec["scene"])
     intr = CameraIntrinsics(int(rec["width"]), int(rec["height"]), float(rec["fov_y_deg"]))
+    damaged = 0
     for i, row in enumerate(rows):
         img_path = d / "images" / f"{int(row['frame']):06d}.npz"
         if not img_path.exists():
             continue
-        with np.load(img_path) as z:
-            color = z["color"]
-            holes = z["holes"] if "holes" in z.files else None
+        try:
+            with np.load(img_path) as z:
+                color = z["color"]
+                holes = z["holes"] if "holes" in z.files else None
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            # a recording made before images were written atomically, or damaged since: skip and count it
+            damaged += 1
+            logger.warning("%s: image %s is damaged (%s: %s); frame %s not scored", d, img_path.name,
+                           type(exc).__name__, exc, row["frame"])
+            continue
         pose = Pose(np.array([row["px"], row["py"], row["pz"]]), np.array([row["qx"], row["qy"], row["qz"], row["qw"]]))
         w0 = time.perf_counter()
         gt = renderer.render(scene, float(row["scene_t_s"]), pose, intr, ("color", "object_id"))
@@ -106,6 +115,7 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
         if progress:
             progress(i + 1, len(rows))
     summary = _summary(rec, rows, counters, flip_every)
+    summary["images_damaged"] = damaged
     write_csv(d / "frames.csv", rows)
     write_csv(d / "summary.csv", [summary])
     logger.info("scored %s: %d frames, mean PSNR %.2f dB", d, len(rows), summary["mean_psnr_db"])

@@ -25,6 +25,7 @@ import concurrent.futures
 import json
 import logging
 import math
+import os
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -41,7 +42,7 @@ from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, 
                                   SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
-from splitrender.tabular import write_csv
+from splitrender.tabular import atomic_write_bytes, write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -261,7 +262,8 @@ class LiveClient:
         d.mkdir(parents=True, exist_ok=True)
         for stale in ("frames.csv", "summary.csv", "counters.json"):
             (d / stale).unlink(missing_ok=True)
-        (d / "recording.json").write_text(json.dumps({**self._recording(), "complete": False}, indent=2, default=str))
+        atomic_write_bytes(d / "recording.json", json.dumps({**self._recording(), "complete": False}, indent=2,
+                                                            default=str).encode())
         self._journal = open(d / JOURNAL, "w", buffering=1 << 16)
         self._journal_flushed = time.monotonic()
 
@@ -500,8 +502,9 @@ class LiveClient:
                     raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
                                              f"(stall_timeout_s {cfg.stall_timeout_s:g} s): the server stopped streaming")
                 if isinstance(ev, Stalled):
-                    logger.warning("session %s: no new frame for %.0f ms (%g frame intervals): asking for a keyframe",
-                                   self.session_id, ev.idle_ms, cfg.stall_frames)
+                    logger.warning("session %s: no new frame for %.0f ms (%g of the server's frame intervals); a "
+                                   "keyframe is asked for where packets were lost", self.session_id, ev.idle_ms,
+                                   cfg.stall_frames)
                 elif isinstance(ev, Resumed):
                     logger.info("session %s: frames resumed after %.0f ms", self.session_id, ev.stall_ms)
             if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:
@@ -680,15 +683,20 @@ def _save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray 
     arrays: dict[str, np.ndarray] = {"color": color}
     if holes is not None:
         arrays["holes"] = holes
-    np.savez_compressed(d / f"{index:06d}.npz", **arrays)  # type: ignore[arg-type]
+    # through a temporary file and a rename: a client killed mid-write leaves no truncated image
+    path = d / f"{index:06d}.npz"
+    tmp = d / f".{index:06d}.npz.tmp"
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
+    os.replace(tmp, path)
 
 
 def write_recording(result: ClientResult, out_dir: Path) -> None:
     """frames.csv (per displayed frame, unscored), recording.json and counters.json."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_csv(out_dir / "frames.csv", result.rows)
-    (out_dir / "recording.json").write_text(json.dumps(result.recording, indent=2, default=str))
-    (out_dir / "counters.json").write_text(json.dumps(result.counters, indent=2))
+    atomic_write_bytes(out_dir / "recording.json", json.dumps(result.recording, indent=2, default=str).encode())
+    atomic_write_bytes(out_dir / "counters.json", json.dumps(result.counters, indent=2).encode())
 
 
 async def run_client(config: ClientConfig) -> ClientResult:

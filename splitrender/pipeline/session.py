@@ -173,6 +173,17 @@ class StallTimeout(SessionEvent):
 # --------------------------------------------------------------------------- client
 
 
+STALL_MAX_INTERVAL_MS = 500.0
+"""The longest achieved frame interval a stall is measured in (a floor of 2 frames a second): ``stall_frames``
+of them stays well under ``stall_timeout_s``."""
+
+
+def _losses(rx: Any) -> int:
+    """What a video stream has lost so far: packets, frames given up or corrupt (its jitter buffer's counts)."""
+    j = rx.jitter
+    return int(j.packets_lost + j.frames_lost + j.frames_corrupt) if j is not None else 0
+
+
 @dataclass(frozen=True)
 class ClientOptions:
     """A client's loss-recovery and display options, the same for ``run``, sweeps, the demo and ``client``.
@@ -270,6 +281,12 @@ class ClientSession:
         self._started = False
         self._last_frame_ms = 0.0
         self._stalled = False
+        self._arrivals: deque[float] = deque()
+        """When frames with content arrived over the last second (the achieved server rate)."""
+        self._achieved_ms = 1000.0 / self.server_fps
+        """The server's achieved frame interval (ms): over the last second, within [nominal, STALL_MAX_INTERVAL_MS]."""
+        self._loss_mark: dict[str, int] = {}
+        """Per video stream, its loss count when the last frame arrived (a stall asks for a keyframe only past it)."""
         self._next_rr_ms = math.inf
         self._next_bind_ms = math.inf
         self._last_timer_ms = -math.inf
@@ -400,7 +417,16 @@ class ClientSession:
             self.counters["longest_stall_ms"] = max(self.counters["longest_stall_ms"], round(ms, 1))
             self.events.append(Resumed(now_ms, ms))
             self._stalled = False
+        # the achieved rate: the mean interval between the frames that arrived over the last second
+        arr = self._arrivals
+        arr.append(now_ms)
+        while arr[0] < now_ms - 1000.0:
+            arr.popleft()
+        if len(arr) >= 2:
+            interval = (arr[-1] - arr[0]) / (len(arr) - 1)
+            self._achieved_ms = min(max(interval, 1000.0 / self.server_fps), STALL_MAX_INTERVAL_MS)
         self._last_frame_ms = now_ms
+        self._loss_mark = {rx.name: _losses(rx) for rx in self.rx.streams.values() if rx.kind == "video"}
 
     # ------------------------------------------------------------------ timers
 
@@ -494,10 +520,12 @@ class ClientSession:
         return PictureLossIndication(self.ssrc, rx.ssrc)
 
     def _stall_after_ms(self) -> float:
-        return self.opts.stall_frames / self.server_fps * 1000.0
+        """``stall_frames`` of the server's achieved frame intervals (never fewer than nominal ones)."""
+        return self.opts.stall_frames * self._achieved_ms
 
     def _check_stall(self, now_ms: float) -> list[RtcpPacket]:
-        """PLIs for every video stream while no frame arrives for ``stall_frames`` server intervals."""
+        """A stall once no frame arrived for ``stall_frames`` achieved intervals; PLIs then for the video streams
+        that lost packets or frames since the last frame arrived (a slow server's gaps ask for no keyframe)."""
         idle = now_ms - self._last_frame_ms
         if idle < self._stall_after_ms():
             return []
@@ -507,7 +535,9 @@ class ClientSession:
             self._stalled = True
             self.counters["stalls"] += 1
             self.events.append(Stalled(now_ms, idle))
-        out: list[RtcpPacket] = [p for rx in self.rx.streams.values() if rx.kind == "video" and (p := self._pli(rx, now_ms))]
+        out: list[RtcpPacket] = [p for rx in self.rx.streams.values()
+                                 if rx.kind == "video" and (rx.needs_keyframe or _losses(rx) > self._loss_mark.get(rx.name, 0))
+                                 and (p := self._pli(rx, now_ms))]
         self.counters["stall_plis"] += len(out)
         return out
 
