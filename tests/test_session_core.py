@@ -359,3 +359,20 @@ def test_client_limits_are_configurable_from_the_command_line_and_named_when_wro
         config_from_args(p.parse_args(["--limit", "max_probes=lots"]))
     with pytest.raises(ConfigError, match=r"client limits: max_probes must be a positive integer, got 0"):
         config_from_args(p.parse_args(["--limit", "max_probes=0"]))
+
+
+def test_every_sender_report_compound_carries_the_sessions_cname() -> None:
+    """RFC 3550 6.1: every compound RTCP packet has an SDES CNAME; the server's SR compounds lacked it (issue 37).
+    One CNAME names all the session's streams (so a receiver synchronises them), derived from its SSRCs."""
+    from splitrender.protocol import SourceDescription
+
+    p = Pair()
+    p.frame(0, 0.0)
+    sent = [d for t in np.arange(10.0, 3000.0, 10.0) for d in p.server.handle_timer(float(t))]
+    assert len(sent) >= 2
+    for data in sent:
+        packets = parse_rtcp(data)
+        assert isinstance(packets[0], SenderReport)
+        (sdes,) = [x for x in packets if isinstance(x, SourceDescription)]
+        assert [c.ssrc for c in sdes.chunks] == [x.ssrc for x in packets if isinstance(x, SenderReport)]
+        assert {c.cname for c in sdes.chunks} == {p.server.cname} and p.server.cname.startswith(b"splitrender-server-")

@@ -39,7 +39,7 @@ from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, KeyframeRat
                         RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
 from ..protocol.errors import RtcpError
-from ..protocol.rtcp import compound_feedback
+from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
 from .feedback import FeedbackState
 from .receiver import ClientPipeline, ReceivedFrame, Work
@@ -681,6 +681,9 @@ class ServerSession:
             self.streams[st.spec.name] = _TxState(st.spec.name, st.ssrc, RetransmissionHistory(self.options.history_packets),
                                                   st.packetizer)
         self._by_ssrc = {s.ssrc: s for s in self.streams.values()}
+        first = min(self._by_ssrc) if self._by_ssrc else 0
+        self.cname = f"splitrender-server-{first:08x}".encode("ascii")
+        """The session's RTCP CNAME (from its SSRCs, which are random: no draw of its own, so seeded runs keep theirs)."""
         self._next_sr_ms = math.inf
         self.rtt_ms: float | None = None
         self.counters: dict[str, int] = {
@@ -789,8 +792,12 @@ class ServerSession:
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
         ntp = ntp_from_seconds(self._protocol_s(now_ms))
         rtp_now = int(round((now_ms - self.rtp_origin_ms) / 1000 * RTP_CLOCK_HZ)) & 0xFFFFFFFF
-        reports = [SenderReport(st.ssrc, ntp, rtp_now, st.packetizer.packets_sent & 0xFFFFFFFF,
-                                st.packetizer.octets_sent & 0xFFFFFFFF) for st in self.streams.values()]
+        reports: list[RtcpPacket] = [SenderReport(st.ssrc, ntp, rtp_now, st.packetizer.packets_sent & 0xFFFFFFFF,
+                                                  st.packetizer.octets_sent & 0xFFFFFFFF) for st in self.streams.values()]
+        # every compound packet carries SDES CNAME (RFC 3550 6.1): one name for all the session's streams, so a
+        # receiver knows to synchronise them
+        cname = self.cname
+        reports.append(SourceDescription(tuple(SdesChunk(st.ssrc, ((SDES_CNAME, cname),)) for st in self.streams.values())))
         data = serialize_rtcp(reports)
         self.counters["rtcp_sent"] += 1
         self.counters["rtcp_bytes_sent"] += len(data)
