@@ -272,8 +272,12 @@ def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(rendere
         with pytest.raises(QuadsWireError, match=msg):
             cli.apply(bad)
         assert np.array_equal(cli.render(pose, 0.5).color, before), msg
-    for meta, msg in (({**upd.meta, "v": 7}, "unsupported version"), ({**upd.meta, "frame": "x"}, "frame must be"),
-                      ({**upd.meta, "cameras": [[0] * 10]}, "unit quaternion"), ({**upd.meta, "cameras": "x"}, "cameras must")):
+    for meta, msg in (({**upd.meta, "v": 7}, r"^quads metadata frame 1: v: version 7, this client speaks 1$"),
+                      ({**upd.meta, "frame": "x"}, r"^quads metadata frame 1: frame: 'x' is not one of"),
+                      ({**upd.meta, "cameras": [[0] * 7 + [320, 180, 60.0]]},
+                       r"^quads metadata frame 1: cameras\[0\]: pose orientation is not a unit quaternion$"),
+                      ({**upd.meta, "cameras": [[0] * 10]}, r"^quads metadata frame 1: cameras\[0\]\[7\]: expected an integer in 1\.\.320"),
+                      ({**upd.meta, "cameras": "x"}, r"^quads metadata frame 1: cameras: expected a list of 1 to 16, got 'x'$")):
         with pytest.raises(QuadsWireError, match=msg):
             cli.apply(DecodedUpdate(upd.frame_id + 1, upd.t_s, upd.pose, upd.planes, meta, dict(upd.data)))
         assert np.array_equal(cli.render(pose, 0.5).color, before), msg
@@ -288,8 +292,11 @@ def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(rendere
         bad = DecodedUpdate(upd.frame_id + 1, upd.t_s, upd.pose, upd.planes, upd.meta, {"quads": q2, "offsets": o2})
         with pytest.raises(QuadsWireError, match=msg):
             spec.client_class(cfg, INTR, renderer.ctx, srv.session_data()).apply(bad)
-    for sd, msg in (({**srv.session_data(), "wire": 9}, "wire 9 unsupported"), ({**srv.session_data(), "slots": 99}, "not a valid atlas"),
-                    ({**srv.session_data(), "packed_atlas": [8192, 16]}, "packed_atlas must be")):
+    for sd, msg in (({**srv.session_data(), "wire": 9}, r"^quads session data: wire: version 9, this client speaks 3$"),
+                    ({**srv.session_data(), "slots": 99}, r"^quads session data: slots: expected an integer in 1\.\.64, got 99$"),
+                    ({**srv.session_data(), "slots": 7, "cols": 2, "rows": 2}, r"^quads session data: slots: 7 slots in a 2x2 grid"),
+                    ({**srv.session_data(), "packed_atlas": [8192, 16]},
+                     r"^quads session data: packed_atlas\[0\]: expected an integer in 1\.\.4096, got 8192$")):
         with pytest.raises(QuadsWireError, match=msg):
             spec.client_class(cfg, INTR, renderer.ctx, sd)
     # QuadStream's packed atlas: positions beyond it, positions a session without one did not ask for, unknown flags

@@ -101,6 +101,22 @@ def light_view_projection(scene: Scene) -> np.ndarray:
     return proj @ view
 
 
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def normal_matrix(model: np.ndarray) -> np.ndarray | None:
+    """The normal matrix (inverse transpose of the 3x3 part) of ``model``, or ``None`` when that part is not finite
+    or not invertible (the object cannot be drawn; rendering never raises on it)."""
+    mm = np.asarray(model, np.float64)
+    if not np.abs(mm).max() <= _F32_MAX:       # not finite (NaN too), or not in the GPU's float32
+        return None
+    try:
+        inv = np.linalg.inv(mm[:3, :3])
+    except np.linalg.LinAlgError:
+        return None
+    return inv.T if np.isfinite(inv).all() else None
+
+
 class Renderer:
     """Renders a :class:`Scene` at any pose and time into numpy images."""
 
@@ -441,8 +457,10 @@ class Renderer:
             if object_ids is not None and og.obj.object_id not in object_ids:
                 continue
             model = og.obj.model_matrix(t_s)
+            nm = normal_matrix(model)
+            if nm is None:      # a transform nothing sensible can be drawn with (a client's scene): skip the object
+                continue
             self.prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
-            nm = np.linalg.inv(model[:3, :3]).T
             self.prog["u_normal_matrix"].write(np.asarray(nm, "f4").T.tobytes())
             set_uniform(self.prog, "u_object_id", og.obj.object_id)
             set_uniform(self.prog, "u_primitive_base", og.tri_base)

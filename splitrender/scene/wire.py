@@ -5,8 +5,11 @@ array extension): objects (name, id, mesh arrays, material fields and textures, 
 transform, whether it moves), the sun, the point lights, ``ambient``, ``sky``,
 ``shading``, ``gi_probes``.  Animations and light schedules are not sent: the server
 sends each frame's object transforms and light intensities instead, so the client shows
-the scene as of its newest update.  :func:`scene_from_data` checks everything and raises
-:class:`SceneWireError` naming the field.
+the scene as of its newest update.  :func:`scene_from_data` checks everything against
+:data:`SCENE` (:mod:`splitrender.protocol.schema`) and the client's
+:class:`~splitrender.limits.ClientLimits` (objects, triangles, probes) and raises
+:class:`SceneWireError` naming the field (``scene: objects[0].transform: singular
+transform (|det| 0 < 1e-12)``).
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import RemoteProtocolError
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
+from ..protocol.schema import Array, Bool, Check, Dim, Float, Int, Invalid, Map, Nullable, Opt, Schema, Seq, Str, Transforms, Version
 from .model import (DirectionalLight, GI_MODES, MAX_POINT_LIGHTS, SHADING_MODELS, Material, Mesh, PointLight, Scene,
                     SceneObject, Schedule)
 
@@ -72,119 +77,98 @@ def scene_to_data(scene: Scene) -> dict[str, Any]:
             "shading": scene.shading, "gi": scene.gi, "gi_probes": list(map(int, scene.gi_probes))}
 
 
-def _vec(d: dict[str, Any], key: str, n: int, where: str) -> tuple[float, ...]:
-    v = d.get(key)
-    if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise SceneWireError(f"{where}.{key}: expected {n} numbers")
-    try:
-        out = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
-        raise SceneWireError(f"{where}.{key}: expected {n} numbers") from None
-    if not all(np.isfinite(out)):
-        raise SceneWireError(f"{where}.{key}: not finite")
-    return out
+MAX_COORD_M = 1e6
+"""Largest position, direction or colour component accepted (metres for positions)."""
 
 
-def _num(d: dict[str, Any], key: str, where: str, lo: float = -1e9, hi: float = 1e9) -> float:
-    v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not lo <= v <= hi:
-        raise SceneWireError(f"{where}.{key}: expected a number in [{lo:g}, {hi:g}], got {v!r}")
-    return float(v)
+class _Indices(Array):
+    """An object's (T, 3) uint32 triangle indices, each below its vertex count ``V`` (bound by ``positions``)."""
+
+    def __init__(self) -> None:
+        super().__init__(dtype=np.uint32, shape=(Dim("T", 0, MAX_VERTICES), 3))
+
+    def check(self, v: Any, ctx: dict[str, Any]) -> np.ndarray:
+        out = super().check(v, ctx)
+        if out.size and int(out.max()) >= ctx["V"]:
+            raise Invalid(f"index {int(out.max())} beyond the {ctx['V']} vertices")
+        return out
 
 
-def _array(d: dict[str, Any], key: str, where: str, dtype: Any, cols: int, max_rows: int) -> np.ndarray:
-    a = d.get(key)
-    if not isinstance(a, np.ndarray) or a.ndim != 2 or a.shape[1] != cols or a.shape[0] > max_rows or a.dtype != np.dtype(dtype):
-        raise SceneWireError(f"{where}.{key}: expected a (N, {cols}) {np.dtype(dtype).name} array, got "
-                             f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        raise SceneWireError(f"{where}.{key}: not finite")
-    return a
+_V3 = Seq(Float(-MAX_COORD_M, MAX_COORD_M), 3)
+_NAME = Opt(Nullable(Str()), None)
+_TEXTURE = Opt(Nullable(Array(dtype=np.uint8, shape=(Dim(None, 1, MAX_TEXTURE_SIDE), Dim(None, 1, MAX_TEXTURE_SIDE), 3))))
+_MATERIAL = Map({"name": _NAME, "base_color": _V3, "emissive": _V3, **{k: Float(0.0, 1e4) for k in FLOATS},
+                 **{k: _TEXTURE for k in TEXTURES}, "uv_transform": Opt(Nullable(Array("f", (3, 3), finite=True)))})
+_OBJECT = Map({
+    "positions": Array(dtype=np.float32, shape=(Dim("V", 0, MAX_VERTICES), 3), finite=True),
+    "normals": Array(dtype=np.float32, shape=("V", 3), finite=True),
+    "uvs": Array(dtype=np.float32, shape=("V", 2), finite=True),
+    "tangents": Array(dtype=np.float32, shape=("V", 4), finite=True),
+    "indices": _Indices(),
+    "id": Int(1, 1 << 24),
+    "transform": Transforms(),                   # the rest transform: affine, within +-1e6, invertible (the client inverts it)
+    "material": _MATERIAL,
+    "name": _NAME,
+    "dynamic": Opt(Bool(), False),
+}, scope=True)                                   # V and T per object
+_SUN = Map({"direction": Check(_V3, lambda d: sum(x * x for x in d) > 1e-12, "must not be zero"), "color": _V3,
+            "intensity": Float(0.0, 1e6), "shadow_map_size": Int(16, 8192), "shadow_extent_m": Float(0.01, 1e5)})
+_LIGHT = Map({"position": _V3, "color": _V3, "intensity": Float(0.0, 1e6), "range_m": Float(0.0, 1e5)})
+
+SCENE = Schema("scene", SceneWireError, Map({
+    "v": Version(WIRE_VERSION),
+    "gi_probes": Seq(Int(2, 64), 3),
+    "objects": Seq(_OBJECT, min_len=1, max_len="max_objects"),
+    "sun": Opt(Nullable(_SUN)),
+    "lights": Seq(_LIGHT, max_len=MAX_POINT_LIGHTS),
+    "shading": Str(SHADING_MODELS),
+    "gi": Str(GI_MODES),
+    "ambient": _V3,
+    "sky": _V3,
+    "name": _NAME,
+}))
+"""The scene's fields (:func:`scene_to_data`); :func:`scene_from_data` adds the client's limits."""
 
 
-def scene_from_data(data: Any) -> tuple[Scene, dict[int, _Fixed]]:
+def _name(v: str | None, default: str) -> str:
+    return default if v is None else v[:256]
+
+
+def scene_from_data(data: Any, limits: ClientLimits = DEFAULT_CLIENT_LIMITS) -> tuple[Scene, dict[int, _Fixed]]:
     """A client-side :class:`Scene` from :func:`scene_to_data`'s map, and the per-object transform holders of its
-    moving objects (set them from each update's transforms)."""
-    if not isinstance(data, dict) or data.get("v") != WIRE_VERSION:
-        raise SceneWireError(f"scene: expected a map with v={WIRE_VERSION}")
-    objs = data.get("objects")
-    if not isinstance(objs, list) or not 1 <= len(objs) <= MAX_OBJECTS:
-        raise SceneWireError(f"scene.objects: expected a list of 1..{MAX_OBJECTS} objects")
+    moving objects (set them from each update's transforms).  Raises :class:`SceneWireError` naming the field, also
+    when the scene has more objects, triangles or probes than ``limits`` allow."""
+    d = SCENE.parse(data, {"max_objects": min(MAX_OBJECTS, limits.max_scene_objects)})
+    cx, cy, cz = d["gi_probes"]
+    if cx * cy * cz > limits.max_probes:
+        raise SCENE.error_at("gi_probes", f"{cx}x{cy}x{cz} = {cx * cy * cz} probes, over this client's limit of "
+                                          f"{limits.max_probes} (ClientLimits.max_probes)")
+    tris = sum(int(od["indices"].shape[0]) for od in d["objects"])
+    if tris > limits.max_scene_triangles:
+        raise SCENE.error_at("objects", f"{tris} triangles, over this client's limit of {limits.max_scene_triangles} "
+                                        "(ClientLimits.max_scene_triangles)")
     objects, holders = [], {}
-    for k, od in enumerate(objs):
-        w = f"scene.objects[{k}]"
-        if not isinstance(od, dict):
-            raise SceneWireError(f"{w}: expected a map")
-        pos = _array(od, "positions", w, np.float32, 3, MAX_VERTICES)
-        n = pos.shape[0]
-        nrm = _array(od, "normals", w, np.float32, 3, MAX_VERTICES)
-        uvs = _array(od, "uvs", w, np.float32, 2, MAX_VERTICES)
-        tan = _array(od, "tangents", w, np.float32, 4, MAX_VERTICES)
-        idx = _array(od, "indices", w, np.uint32, 3, MAX_VERTICES)
-        if not (nrm.shape[0] == uvs.shape[0] == tan.shape[0] == n):
-            raise SceneWireError(f"{w}: positions, normals, uvs and tangents differ in length")
-        if idx.size and int(idx.max()) >= n:
-            raise SceneWireError(f"{w}.indices: index {int(idx.max())} beyond the {n} vertices")
-        oid = od.get("id")
-        if isinstance(oid, bool) or not isinstance(oid, int) or not 1 <= oid <= 1 << 24:
-            raise SceneWireError(f"{w}.id: expected an id >= 1, got {oid!r}")
-        tf = od.get("transform")
-        if not isinstance(tf, np.ndarray) or tf.shape != (4, 4) or not np.isfinite(tf).all():
-            raise SceneWireError(f"{w}.transform: expected a finite 4x4 array")
-        md = od.get("material")
-        if not isinstance(md, dict):
-            raise SceneWireError(f"{w}.material: expected a map")
-        mw = w + ".material"
-        tex: dict[str, np.ndarray | None] = {}
-        for key in TEXTURES:
-            t = md.get(key)
-            if t is not None and (not isinstance(t, np.ndarray) or t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] != 3
-                                  or not 1 <= t.shape[0] <= MAX_TEXTURE_SIDE or not 1 <= t.shape[1] <= MAX_TEXTURE_SIDE):
-                raise SceneWireError(f"{mw}.{key}: expected an (H, W, 3) uint8 image up to {MAX_TEXTURE_SIDE} a side")
-            tex[key] = t
-        uvt = md.get("uv_transform")
-        if uvt is not None and (not isinstance(uvt, np.ndarray) or uvt.shape != (3, 3) or not np.isfinite(uvt).all()):
-            raise SceneWireError(f"{mw}.uv_transform: expected a finite 3x3 array")
-        name = md.get("name", "default")
-        mat = Material(name=str(name)[:256], base_color=_vec(md, "base_color", 3, mw), emissive=_vec(md, "emissive", 3, mw),
-                       **{key: _num(md, key, mw, 0.0, 1e4) for key in FLOATS}, uv_transform=uvt,  # type: ignore[arg-type]
-                       **tex)  # type: ignore[arg-type]
-        mesh = Mesh(pos, nrm, uvs, idx, str(od.get("name", "mesh"))[:256], tan)
-        fixed = _Fixed() if od.get("dynamic") is True else None
+    for od in d["objects"]:
+        md = od["material"]
+        mat = Material(name=_name(md["name"], "default"), base_color=tuple(md["base_color"]),
+                       emissive=tuple(md["emissive"]), uv_transform=md["uv_transform"],
+                       **{key: md[key] for key in FLOATS + TEXTURES})
+        name = _name(od["name"], "object")
+        mesh = Mesh(od["positions"], od["normals"], od["uvs"], od["indices"], _name(od["name"], "mesh"), od["tangents"])
+        fixed = _Fixed() if od["dynamic"] else None
         if fixed is not None:
-            holders[oid] = fixed
-        objects.append(SceneObject(str(od.get("name", "object"))[:256], mesh, mat, oid, np.asarray(tf, np.float64),
-                                   fixed))  # type: ignore[arg-type]
+            holders[od["id"]] = fixed
+        objects.append(SceneObject(name, mesh, mat, od["id"], od["transform"].astype(np.float64), fixed))  # type: ignore[arg-type]
     sun = None
-    sd = data.get("sun")
-    if sd is not None:
-        if not isinstance(sd, dict):
-            raise SceneWireError("scene.sun: expected a map or nil")
-        sun = DirectionalLight(_vec(sd, "direction", 3, "scene.sun"), _vec(sd, "color", 3, "scene.sun"),
-                               Schedule.constant(_num(sd, "intensity", "scene.sun", 0.0, 1e6)),
-                               int(_num(sd, "shadow_map_size", "scene.sun", 16, 8192)),
-                               _num(sd, "shadow_extent_m", "scene.sun", 0.01, 1e5))
-    lds = data.get("lights")
-    if not isinstance(lds, list) or len(lds) > MAX_POINT_LIGHTS:
-        raise SceneWireError(f"scene.lights: expected a list of at most {MAX_POINT_LIGHTS}")
-    lights = []
-    for i, ld in enumerate(lds):
-        w = f"scene.lights[{i}]"
-        if not isinstance(ld, dict):
-            raise SceneWireError(f"{w}: expected a map")
-        lights.append(PointLight(_vec(ld, "position", 3, w), _vec(ld, "color", 3, w),
-                                 Schedule.constant(_num(ld, "intensity", w, 0.0, 1e6)), _num(ld, "range_m", w, 0.0, 1e5)))
-    shading, gi = data.get("shading"), data.get("gi")
-    if shading not in SHADING_MODELS or gi not in GI_MODES:
-        raise SceneWireError(f"scene: shading {shading!r} / gi {gi!r} unsupported")
-    probes = data.get("gi_probes")
-    if not isinstance(probes, list) or len(probes) != 3 or not all(isinstance(c, int) and 2 <= c <= 64 for c in probes):
-        raise SceneWireError("scene.gi_probes: expected three counts in [2, 64]")
-    ambient, sky = _vec(data, "ambient", 3, "scene"), _vec(data, "sky", 3, "scene")
+    if d["sun"] is not None:
+        sd = d["sun"]
+        sun = DirectionalLight(tuple(sd["direction"]), tuple(sd["color"]), Schedule.constant(sd["intensity"]),
+                               sd["shadow_map_size"], sd["shadow_extent_m"])
+    lights = [PointLight(tuple(ld["position"]), tuple(ld["color"]), Schedule.constant(ld["intensity"]),
+                         ld["range_m"]) for ld in d["lights"]]
     try:
-        scene = Scene(str(data.get("name", "scene"))[:256], objects, sun, lights, ambient, sky, shading=shading, gi=gi,
-                      gi_probes=tuple(probes))  # type: ignore[arg-type]
+        scene = Scene(_name(d["name"], "scene"), objects, sun, lights, tuple(d["ambient"]), tuple(d["sky"]),
+                      shading=d["shading"], gi=d["gi"], gi_probes=(cx, cy, cz))
     except ValueError as exc:
         raise SceneWireError(f"scene: {exc}") from None
     return scene, holders
-

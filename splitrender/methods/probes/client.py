@@ -9,7 +9,9 @@ shader as the ground truth.  The client draws from its first update on, before a
 arrived (direct light only; the indirect light fills in as probes arrive).  An update
 whose pictures are missing (lost, or undecodable until the next I-frame) still moves the
 objects and sets the lights; malformed data raises a named error and the last good state
-stays on screen.
+stays on screen.  The session data and metadata are checked by :mod:`.wire` and
+:mod:`splitrender.scene.wire` (against this client's ``limits``) before anything is
+allocated or applied.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from ...scene.model import Schedule
 from ...scene.pose import Pose
 from ...scene.wire import scene_from_data
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-from .server import META_VERSION
+from .wire import parse_frame_meta, parse_grid
 
 
 class ProbesClient(ClientHalf):
@@ -33,42 +35,20 @@ class ProbesClient(ClientHalf):
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         sd = self.session_data
-        if not isinstance(sd, dict) or sd.get("v") != META_VERSION:
-            raise ProbeStreamError(f"probes session data: expected a map with v={META_VERSION}")
-        self.scene, self._moving = scene_from_data(sd.get("scene"))
-        try:
-            origin = np.asarray(sd["origin"], np.float64).reshape(3)
-            spacing = np.asarray(sd["spacing"], np.float64).reshape(3)
-            counts = tuple(int(c) for c in sd["counts"])
-            bias = float(sd["bias"])
-            self.vis_lossy = sd.get("vis_lossy", False) is True
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ProbeStreamError(f"probes session data: missing or malformed grid ({exc})") from None
-        if len(counts) != 3 or not all(2 <= c <= 64 for c in counts) or not (np.isfinite(origin).all() and
-                                                                             (spacing > 0).all() and np.isfinite(bias)):
-            raise ProbeStreamError("probes session data: the probe grid is out of range")
+        grid = parse_grid(sd, self.limits)              # the grid first: a huge one is refused before the scene is read
+        self.scene, self._moving = scene_from_data(sd.get("scene"), self.limits)
+        self.vis_lossy = grid.vis_lossy
         from ...render.renderer import Renderer
 
         self.renderer = Renderer(self.gl)
-        self.probes = ProbeCopy(self.gl, origin, spacing, counts, bias)   # type: ignore[arg-type]
+        self.probes = ProbeCopy(self.gl, grid.origin, grid.spacing, grid.counts, grid.bias)
         self.renderer.gi_sources[id(self.scene)] = self.probes
         self.count = self.probes.count
         self.has_content = False
 
     def apply(self, update: DecodedUpdate) -> None:
-        meta = update.meta
-        if not isinstance(meta, dict) or meta.get("v") != META_VERSION:
-            raise ProbeStreamError(f"probes metadata: expected a map with v={META_VERSION}")
-        xf = meta.get("xf")
         moving = [o for o in self.scene.objects if o.object_id in self._moving]
-        n_obj = len(moving)
-        if not isinstance(xf, np.ndarray) or xf.shape != (n_obj, 4, 4) or not np.isfinite(xf).all():
-            raise ProbeStreamError(f"probes metadata: 'xf' must be finite ({n_obj}, 4, 4), got {getattr(xf, 'shape', type(xf).__name__)}")
-        lights = meta.get("lights")
-        sun = meta.get("sun")
-        if (not isinstance(lights, list) or len(lights) != len(self.scene.point_lights)
-                or not all(isinstance(v, (int, float)) and 0 <= v < 1e6 for v in [*lights, sun])):
-            raise ProbeStreamError("probes metadata: 'sun' and 'lights' must be intensities in [0, 1e6)")
+        m = parse_frame_meta(update.meta, len(moving), len(self.scene.point_lights))
         probes = None
         sent = {"color", "vis"} & set(update.planes)
         if not ({"color", "vis", "index"} & set(update.missing)) and sent:
@@ -86,11 +66,11 @@ class ProbesClient(ClientHalf):
                     raise ProbeStreamError("probes visibility: non-finite distance moments")
             probes = (ids, irr, mom)
         # everything checked: take it
-        for o, m in zip(moving, xf):
-            self._moving[o.object_id].m = np.asarray(m, np.float64) @ np.linalg.inv(o.transform)  # model = holder.m @ transform
+        for o, xf in zip(moving, m.xf):   # both checked invertible (scene.wire, .wire)
+            self._moving[o.object_id].m = xf.astype(np.float64) @ np.linalg.inv(o.transform)  # model = holder.m @ transform
         if self.scene.sun is not None:
-            self.scene.sun.intensity = Schedule.constant(float(sun))  # type: ignore[arg-type]
-        for pl, v in zip(self.scene.point_lights, lights):
+            self.scene.sun.intensity = Schedule.constant(m.sun)
+        for pl, v in zip(self.scene.point_lights, m.lights):
             pl.intensity = Schedule.constant(float(v))
         if probes is not None:
             self.probes.scatter(*probes)

@@ -15,10 +15,9 @@ from ..warp import SHADERS as WARP_SHADERS
 from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
-from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, WIRE_VERSION, QuadsWireError, decode_cameras, decode_sets
+from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
 log = logging.getLogger(__name__)
-META_VERSION = 1
 
 
 class QuadsClient(ClientHalf):
@@ -28,33 +27,16 @@ class QuadsClient(ClientHalf):
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
-        sd = self.session_data
-        if not isinstance(sd, dict) or sd.get("v") != META_VERSION or sd.get("wire") != WIRE_VERSION:
-            raise QuadsWireError(f"quads session data: version {sd.get('v') if isinstance(sd, dict) else sd!r} / wire "
-                                 f"{sd.get('wire') if isinstance(sd, dict) else '?'} unsupported (this client speaks "
-                                 f"{META_VERSION} / {WIRE_VERSION})")
-        try:
-            self.slots = int(sd["slots"])
-            self.cols, self.rows = int(sd["cols"]), int(sd["rows"])
-            self.slot_size = (int(sd["slot_size"][0]), int(sd["slot_size"][1]))
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise QuadsWireError(f"quads session data: missing or malformed slot layout ({exc!r})") from exc
-        if not (1 <= self.slots <= self.cols * self.rows <= 64 and 0 < self.slot_size[0] <= 4096 and 0 < self.slot_size[1] <= 4096):
-            raise QuadsWireError(f"quads session data: {self.slots} slots in a {self.cols}x{self.rows} grid of "
-                                 f"{self.slot_size} is not a valid atlas")
-        self.atlas_size = (self.cols * self.slot_size[0], self.rows * self.slot_size[1])
-        self.packed: tuple[int, int] | None = None
-        if "packed_atlas" in sd:
-            pa = sd["packed_atlas"]
-            if not (isinstance(pa, list) and len(pa) == 2 and all(isinstance(e, int) and not isinstance(e, bool)
-                                                                 and 1 <= e <= 4096 for e in pa)):
-                raise QuadsWireError(f"quads session data: packed_atlas must be [width, height] in 1..4096, got {pa!r}")
-            self.packed = self.atlas_size = (pa[0], pa[1])
+        sess = parse_session(self.session_data)
+        self.slots, self.cols, self.rows = sess.slots, sess.cols, sess.rows
+        self.slot_size = sess.slot_size
+        self.atlas_size = sess.atlas_size
+        self.packed: tuple[int, int] | None = sess.packed
         self.cache = ReferenceCache()
         self._broken = True           # no reference yet: residual frames cannot apply
         self._atlas_tex: Any = None
         self._mesh = QuadMeshGL(self.gl)
-        self._fill = FullscreenPass(self.gl, WARP_SHADERS / "warp_holefill.frag")
+        self._fill = FullscreenPass(self.gl, str(WARP_SHADERS / "warp_holefill.frag"))
         i = self.intrinsics
         self._out = self.gl.texture((i.width, i.height), 4, dtype="f1")
         self._out_fbo = self.gl.framebuffer([self._out])
@@ -110,16 +92,8 @@ class QuadsClient(ClientHalf):
 
     def _check(self, update: DecodedUpdate, where: str) -> tuple[Any, Any, str, int, np.ndarray]:
         """Everything of an update checked, nothing changed yet: (cameras, sets, frame kind, reference id, atlas)."""
-        m = update.meta
-        if not isinstance(m, dict) or m.get("v") != META_VERSION:
-            raise QuadsWireError(f"quads metadata {where}: missing or unsupported version {m.get('v') if isinstance(m, dict) else m!r}")
-        kind = m.get("frame")
-        if kind not in ("reference", "residual"):
-            raise QuadsWireError(f"quads metadata {where}: frame must be 'reference' or 'residual', got {kind!r}")
-        ref_frame = m.get("ref_frame")
-        if not isinstance(ref_frame, int) or isinstance(ref_frame, bool):
-            raise QuadsWireError(f"quads metadata {where}: ref_frame must be an integer, got {ref_frame!r}")
-        cams = decode_cameras(m.get("cameras"), where, self.slot_size)
+        info = parse_frame_meta(update.meta, where, self.slot_size)
+        cams, kind, ref_frame = info.cameras, info.kind, info.ref_frame
         atlas = update.planes.get("atlas")
         if not isinstance(atlas, np.ndarray) or atlas.shape != (self.atlas_size[1], self.atlas_size[0], 3) or atlas.dtype != np.uint8:
             raise QuadsWireError(f"quads {where}: plane atlas must be {(self.atlas_size[1], self.atlas_size[0], 3)} uint8")

@@ -21,8 +21,11 @@ Per frame, three streams:
 - ``atlas`` (video): the sets' colour images, one slot each, side by side; or (packed)
   each quad's own texels at its atlas position.
 
-The frame's metadata names the cameras (pose, size, vertical FOV) the sets refer to
-and, for QUASAR, whether the frame is a reference or a residual frame.
+The frame's metadata (``v`` :data:`META_VERSION`) names the cameras (pose, size,
+vertical FOV) the sets refer to and, for QUASAR, whether the frame is a reference or a
+residual frame.  Session data and metadata are checked against :data:`SESSION` and
+:data:`META` (:mod:`splitrender.protocol.schema`); errors name the field
+(``quads metadata frame 3: cameras[0][7]: expected an integer in 1..320, got 0``).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import CodecError, RemoteProtocolError
+from ...protocol.schema import Check, Float, Int, Map, Opt, Schema, Seq, Str, Tup, Version
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import MAX_LEVEL, MAX_OFFSET_M, QuadSet
 from .packing import POS_BITS
@@ -211,26 +215,80 @@ def decode_sets(quads: bytes, offsets: bytes, where: str, slot_size: tuple[int, 
     return out
 
 
-def _real(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+META_VERSION = 1
+"""Version of the session data and per-frame metadata maps (the byte streams carry :data:`WIRE_VERSION`)."""
+MAX_SLOTS = 64
+MAX_SIDE = 4096
 
 
-def decode_cameras(v: Any, where: str, slot_size: tuple[int, int]) -> list[tuple[Pose, CameraIntrinsics]]:
-    """The frame's cameras from its metadata: ``[[x, y, z, qx, qy, qz, qw, width, height, fov_y_deg], ...]``."""
-    if not isinstance(v, list) or not 1 <= len(v) <= MAX_CAMERAS:
-        raise QuadsWireError(f"quads metadata {where}: cameras must be a list of 1 to {MAX_CAMERAS}, got {type(v).__name__}")
-    out = []
-    for k, c in enumerate(v):
-        if not isinstance(c, list) or len(c) != 10 or not all(_real(e) for e in c):
-            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] must be 10 numbers (pose, width, height, fov)")
-        if any(abs(e) > 1e6 for e in c[:3]) or not 0.5 < float(np.linalg.norm(c[3:7])) < 2.0:
-            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] pose is out of range or not a unit quaternion")
-        w, h, fov = int(c[7]), int(c[8]), float(c[9])
-        if not (1 <= w <= slot_size[0] and 1 <= h <= slot_size[1] and 1.0 <= fov <= 179.0):
-            raise QuadsWireError(f"quads metadata {where}: cameras[{k}] {w}x{h} at {fov:g} degrees does not fit a "
-                                 f"{slot_size[0]}x{slot_size[1]} slot")
-        out.append((Pose.from_list(c[:7]), CameraIntrinsics(w, h, fov)))
-    return out
+@dataclass(frozen=True)
+class Session:
+    """Validated session data: ``slots`` atlas slots of ``slot_size`` (W, H) pixels in a ``cols`` x ``rows`` grid,
+    the atlas (W, H) it makes, and QuadStream's ``packed`` atlas size (W, H), or ``None``."""
+
+    slots: int
+    cols: int
+    rows: int
+    slot_size: tuple[int, int]
+    atlas_size: tuple[int, int]
+    packed: tuple[int, int] | None
+
+
+SESSION = Schema("quads session data", QuadsWireError, Map({
+    "v": Version(META_VERSION),
+    "wire": Version(WIRE_VERSION),
+    "slots": Int(1, MAX_SLOTS),
+    "cols": Int(1, MAX_SLOTS),
+    "rows": Int(1, MAX_SLOTS),
+    "slot_size": Seq(Int(1, MAX_SIDE), 2),
+    "packed_atlas": Opt(Seq(Int(1, MAX_SIDE), 2), None),
+}))
+
+
+def parse_session(sd: Any) -> Session:
+    """Validate the server's session data; raises :class:`QuadsWireError` naming the field."""
+    d = SESSION.parse(sd)
+    slots, cols, rows = d["slots"], d["cols"], d["rows"]
+    w, h = d["slot_size"]
+    if not slots <= cols * rows <= MAX_SLOTS:
+        raise SESSION.error_at("slots", f"{slots} slots in a {cols}x{rows} grid of {w}x{h} is not a valid atlas "
+                                        f"(at most {MAX_SLOTS} cells)")
+    pa = d["packed_atlas"]
+    packed = None if pa is None else (pa[0], pa[1])
+    return Session(slots, cols, rows, (w, h), packed or (cols * w, rows * h), packed)
+
+
+def _unit_quaternion(c: list[Any]) -> bool:
+    return 0.5 < math.sqrt(sum(x * x for x in c[3:7])) < 2.0
+
+
+_CAMERA = Check(Tup(*[Float(-1e6, 1e6)] * 3, *[Float(-2.0, 2.0)] * 4, Int(1, "slot_w"), Int(1, "slot_h"), Float(1.0, 179.0)),
+                _unit_quaternion, "pose orientation is not a unit quaternion")
+"""A camera: ``[x, y, z, qx, qy, qz, qw, width, height, fov_y_deg]`` (metres, a unit quaternion, pixels within the
+slot, degrees)."""
+META = Schema("quads metadata", QuadsWireError, Map({
+    "v": Version(META_VERSION),
+    "frame": Str(("reference", "residual")),
+    "ref_frame": Int(-(2**63), 2**63 - 1),
+    "cameras": Seq(_CAMERA, min_len=1, max_len=MAX_CAMERAS),
+}))
+
+
+@dataclass(frozen=True)
+class FrameInfo:
+    """A frame's validated metadata: ``kind`` (reference or residual), the reference frame it builds on, and its
+    cameras (pose, intrinsics) that the sets refer to."""
+
+    kind: str
+    ref_frame: int
+    cameras: list[tuple[Pose, CameraIntrinsics]]
+
+
+def parse_frame_meta(meta: Any, where: str, slot_size: tuple[int, int]) -> FrameInfo:
+    """Validate one frame's metadata (``where``: e.g. ``frame 3``); raises :class:`QuadsWireError` naming the field."""
+    m = META.parse(meta, {"slot_w": slot_size[0], "slot_h": slot_size[1]}, f"quads metadata {where}")
+    cams = [(Pose.from_list(c[:7]), CameraIntrinsics(c[7], c[8], c[9])) for c in m["cameras"]]
+    return FrameInfo(m["frame"], m["ref_frame"], cams)
 
 
 def encode_camera(pose: Pose, intr: CameraIntrinsics) -> list[float]:

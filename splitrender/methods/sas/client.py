@@ -43,32 +43,45 @@ def extrapolate_transforms(prev: np.ndarray, prev_t: np.ndarray, cur: np.ndarray
     Translation moves linearly; the linear part turns by the rotation between the two
     samples, scaled in angle (Rodrigues).  Objects with one sample, samples at the same
     time, or a linear part that is not a rotation times the previous one keep ``cur``;
-    extrapolation stops :data:`MAX_EXTRAPOLATION_S` past the newest sample.
+    extrapolation stops :data:`MAX_EXTRAPOLATION_S` past the newest sample.  Never raises:
+    an object whose previous sample is not invertible or whose extrapolated transform is not
+    finite in float32 keeps ``cur`` (the wire checks every sample, so neither happens with
+    a well-behaved server; a display frame must not fail on it either way).
     """
     out = cur.astype(np.float64).copy()
     dt = cur_t - prev_t
     ok = np.isfinite(dt) & (dt > 1e-6)
+    if ok.any():
+        a0_all = prev[:, :3, :3].astype(np.float64)
+        with np.errstate(all="ignore"):
+            det = np.linalg.det(a0_all) if a0_all.size else np.zeros(0)
+        ok &= np.isfinite(det) & (np.abs(det) > 1e-12) & np.isfinite(prev).all(axis=(1, 2)) & np.isfinite(cur).all(axis=(1, 2))
     if not ok.any():
         return out.astype(np.float32)
     k = np.flatnonzero(ok)
-    alpha = np.clip(t_s - cur_t[k], 0.0, MAX_EXTRAPOLATION_S) / dt[k]              # (K,) in units of dt
-    a0, a1 = prev[k, :3, :3].astype(np.float64), cur[k, :3, :3].astype(np.float64)
-    d = a1 @ np.linalg.inv(a0)                                                     # rotation from prev to cur
-    orthonormal = np.abs(d @ d.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)) < 1e-3
-    cos = np.clip((np.trace(d, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    ang = np.arccos(cos)
-    axis = np.stack([d[:, 2, 1] - d[:, 1, 2], d[:, 0, 2] - d[:, 2, 0], d[:, 1, 0] - d[:, 0, 1]], 1)
-    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-    th = (ang * alpha)[:, None, None]
-    kx = np.zeros((k.size, 3, 3))
-    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
-    kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
-    rot = np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * (kx @ kx)
-    rot = np.where(((ang > 1e-9) & orthonormal)[:, None, None], rot, np.eye(3))
-    out[k, :3, :3] = rot @ a1
-    t0, t1 = prev[k, :3, 3].astype(np.float64), cur[k, :3, 3].astype(np.float64)
-    out[k, :3, 3] = t1 + (t1 - t0) * alpha[:, None]
-    return out.astype(np.float32)
+    with np.errstate(all="ignore"):      # non-finite results are replaced below
+        alpha = np.clip(t_s - cur_t[k], 0.0, MAX_EXTRAPOLATION_S) / dt[k]              # (K,) in units of dt
+        a0, a1 = prev[k, :3, :3].astype(np.float64), cur[k, :3, :3].astype(np.float64)
+        d = a1 @ np.linalg.inv(a0)                                                     # rotation from prev to cur
+        orthonormal = np.abs(d @ d.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)) < 1e-3
+        cos = np.clip((np.trace(d, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+        ang = np.arccos(cos)
+        axis = np.stack([d[:, 2, 1] - d[:, 1, 2], d[:, 0, 2] - d[:, 2, 0], d[:, 1, 0] - d[:, 0, 1]], 1)
+        axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+        th = (ang * alpha)[:, None, None]
+        kx = np.zeros((k.size, 3, 3))
+        kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+        kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
+        rot = np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * (kx @ kx)
+        rot = np.where(((ang > 1e-9) & orthonormal)[:, None, None], rot, np.eye(3))
+        out[k, :3, :3] = rot @ a1
+        t0, t1 = prev[k, :3, 3].astype(np.float64), cur[k, :3, 3].astype(np.float64)
+        out[k, :3, 3] = t1 + (t1 - t0) * alpha[:, None]
+        shown = out.astype(np.float32)
+    bad = ~np.isfinite(shown).all(axis=(1, 2))
+    if bad.any():                        # e.g. 3e38 m moving at 6e38 m per update: show the newest sample
+        shown[bad] = cur[bad]
+    return shown
 
 
 class ObjectTransforms:

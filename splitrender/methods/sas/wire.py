@@ -34,7 +34,12 @@ delta-coded (:func:`encode_ids`: uint32, the first id, then differences >= 1).
   lw, lh (log2 width and height), transposed flag; the patch spans its whole block,
   inset by half a texel along sides of at least ``inset`` texels (:func:`block_layout_xy`),
   and lookups are clamped to the block's texel centres (:func:`block_clamp_rect`);
-- ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices.
+- ``xf_obj`` uint16 (X,), ``xf`` float32 (X, 4, 4) object-to-world matrices (affine,
+  entries within +-1e6, the 3x3 part invertible: :class:`~splitrender.protocol.schema.Transforms`).
+
+The client validates each map against :data:`SESSION` / :data:`FRAME`
+(:mod:`splitrender.protocol.schema`), then the rules between fields, before anything is
+applied; an error names the field (``sas metadata: xf[0]: singular transform ...``).
 
 Version 2: the patch spans its whole block (version 1 inset it by half a texel) and
 the session data carries ``n_patches``.  Version 3: compact geometry (``geo_vtx`` +
@@ -53,11 +58,11 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
+from ...protocol.schema import Array, Bool, Float, Int, Invalid, Map, Opt, Schema, Seq, Transforms, Version
 
 META_VERSION = 4
 MAX_INSET = 4096
 MAX_LEVEL = 15
-_F32_MAX = float(np.finfo(np.float32).max)
 """Largest block level (log2 texels) a client accepts."""
 
 #: Layout coordinates of the slots per patch size (index = triangles in the patch):
@@ -204,96 +209,69 @@ class FrameMeta:
     xf: np.ndarray
 
 
-def _is_version(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool) and v == META_VERSION
-
-
-def _count(sd: dict[str, Any], key: str, lo: int, hi: int) -> int:
-    v = sd.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
-        raise SasMetaError(f"sas session data: {key!r} must be an integer in {lo}..{hi}, got {v!r}")
-    return int(v)
-
-
-def parse_session(sd: Any) -> SessionInfo:
-    """Validate the server's session data; raises :class:`SasMetaError` naming the field."""
-    if not isinstance(sd, dict):
-        raise SasMetaError(f"sas session data: expected a map, got {type(sd).__name__}")
-    if not _is_version(sd.get("v")):
-        raise SasMetaError(f"sas session data: version {sd.get('v')!r}, expected {META_VERSION}")
-    atlas = sd.get("atlas")
-    if not isinstance(atlas, (list, tuple)) or len(atlas) != 2:
-        raise SasMetaError(f"sas session data: 'atlas' must be [width, height], got {atlas!r}")
-    size = _count({"atlas": atlas[0]}, "atlas", 1, 1 << MAX_LEVEL), _count({"atlas": atlas[1]}, "atlas", 1, 1 << MAX_LEVEL)
-    n_obj = _count(sd, "n_objects", 0, 65535)
-    n_patches = _count(sd, "n_patches", 0, 2**31 - 1)
-    sky = sd.get("sky", [0.0, 0.0, 0.0])
-    if (not isinstance(sky, (list, tuple)) or len(sky) != 3
-            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and abs(c) <= _F32_MAX for c in sky)):
-        raise SasMetaError(f"sas session data: 'sky' must be three finite numbers, got {sky!r}"[:200])
-    box = sd.get("obj_box")
-    if not isinstance(box, np.ndarray) or box.shape != (n_obj, 2, 3) or box.dtype.kind != "f":
-        raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
-    with np.errstate(over="ignore"):
-        box32 = box.astype(np.float32)
-    if not np.isfinite(box32).all():  # checked as float32, the dtype used: 1e39 is finite only in float64
-        raise SasMetaError(f"sas session data: 'obj_box' must be a finite float array of shape ({n_obj}, 2, 3)")
-    base = sd.get("patch_base")
-    if (not isinstance(base, np.ndarray) or base.shape != (n_obj,) or base.dtype.kind not in "iu"
-            or (n_obj and (int(base[0]) != 0 or (np.diff(base.astype(np.int64)) < 0).any() or int(base[-1]) > n_patches))):
-        raise SasMetaError(f"sas session data: 'patch_base' must be {n_obj} non-decreasing integers from 0 to at most n_patches")
-    if n_patches and not n_obj:
-        raise SasMetaError("sas session data: patches without objects")
-    inset = _count(sd, "inset", 0, MAX_INSET) if "inset" in sd else 0     # absent: every side spanned
-    return SessionInfo(size, n_obj, n_patches, (float(sky[0]), float(sky[1]), float(sky[2])), box32,
-                       base.astype(np.int64), inset)
-
-
-def _arr(meta: dict[str, Any], key: str, kind: str, shape_tail: tuple[int, ...], n: int | None = None) -> np.ndarray:
-    """Field ``key`` as an int64 (``kind="i"``) or float32 (``"f"``) array of shape (N, *shape_tail); absent = empty."""
-    v = meta.get(key)
-    out_dtype = np.int64 if kind == "i" else np.float32
-    if v is None:
-        if n:
-            raise SasMetaError(f"sas metadata: {key!r} is missing, expected {n} rows")
-        return np.zeros((0,) + shape_tail, out_dtype)
-    if not isinstance(v, np.ndarray):
-        raise SasMetaError(f"sas metadata: {key!r} must be an array, got {type(v).__name__}")
-    if v.ndim != 1 + len(shape_tail) or v.shape[1:] != shape_tail:
-        raise SasMetaError(f"sas metadata: {key!r} has shape {v.shape}, expected (N, {', '.join(map(str, shape_tail))})".replace(", )", ")"))
-    if n is not None and v.shape[0] != n:
-        raise SasMetaError(f"sas metadata: {key!r} has {v.shape[0]} rows, expected {n}")
-    if (kind == "i" and v.dtype.kind not in "iu") or (kind == "f" and v.dtype.kind != "f"):
-        raise SasMetaError(f"sas metadata: {key!r} has dtype {v.dtype}, expected {'integers' if kind == 'i' else 'floats'}")
-    if kind == "i" and v.dtype.kind == "u" and v.dtype.itemsize >= 8 and v.size and int(v.max()) >= 2**63:
-        raise SasMetaError(f"sas metadata: {key!r} has values beyond int64")
-    with np.errstate(over="ignore"):
-        out = v.astype(out_dtype)
-    if kind == "f" and not np.isfinite(out).all():  # after the cast: 1e39 overflows float32
-        raise SasMetaError(f"sas metadata: {key!r} has values that are not finite in float32")
-    return out
-
-
-def _in_range(key: str, v: np.ndarray, lo: int, hi: int) -> None:
-    """Every value of field ``key`` in ``lo..hi`` (inclusive)."""
-    if v.size and (int(v.min()) < lo or int(v.max()) > hi):
-        raise SasMetaError(f"sas metadata: {key!r} must be in {lo}..{hi}, got {int(v.min())}..{int(v.max())}")
-
-
 def encode_ids(ids: np.ndarray) -> np.ndarray:
     """Sorted distinct patch ids as the wire's delta code: uint32, the first id, then differences >= 1."""
     return np.diff(np.asarray(ids, np.int64), prepend=0).astype(np.uint32)
 
 
-def _ids(meta: dict[str, Any], key: str, last_id: int) -> np.ndarray:
-    """Decode the delta-coded id list ``key`` (:func:`encode_ids`): strictly increasing int64 ids in ``0..last_id``."""
-    d = _arr(meta, key, "i", ())
-    _in_range(key, d, 0, last_id)
-    if d.size > 1 and (d[1:] < 1).any():
-        raise SasMetaError(f"sas metadata: {key!r} differences must be >= 1 (strictly increasing ids)")
-    ids = np.cumsum(d)
-    _in_range(key, ids, 0, last_id)
-    return ids
+class DeltaIds(Array):
+    """A delta-coded id list (:func:`encode_ids`) decoded: strictly increasing int64 ids in ``0..last_id``;
+    absent is empty.  ``dim`` names the number of ids for the fields after it."""
+
+    def __init__(self, dim: str | None = None) -> None:
+        super().__init__("iu", (dim,), cast=np.int64, lo=0, hi="last_id", empty_if_absent=True)
+
+    def check(self, v: Any, ctx: dict[str, Any]) -> np.ndarray:
+        d = super().check(v, ctx)
+        if d.size > 1 and (d[1:] < 1).any():
+            raise Invalid("differences must be >= 1 (strictly increasing ids)")
+        ids = np.cumsum(d)
+        if ids.size and int(ids[-1]) > ctx["last_id"]:
+            raise Invalid(f"decoded ids must be in 0..{ctx['last_id']}, got up to {int(ids[-1])}")
+        return ids
+
+
+SESSION = Schema("sas session data", SasMetaError, Map({
+    "v": Version(META_VERSION),
+    "atlas": Seq(Int(1, 1 << MAX_LEVEL), 2),
+    "n_objects": Int(0, 65535, bind="n_objects"),
+    "n_patches": Int(0, 2**31 - 1, bind="n_patches"),
+    "sky": Opt(Seq(Float(-1e6, 1e6), 3), (0.0, 0.0, 0.0)),
+    # finite as float32 (the dtype used) and within +-1e6 m, so dequantised positions stay finite
+    "obj_box": Array("f", ("n_objects", 2, 3), cast=np.float32, finite=True, lo=-1e6, hi=1e6),
+    "patch_base": Array("iu", ("n_objects",), cast=np.int64, lo=0, hi="n_patches"),
+    "inset": Opt(Int(0, MAX_INSET), 0),                                          # absent: every side spanned
+}))
+"""The session data's fields (see the module docstring); :func:`parse_session` adds the rules between them."""
+
+FRAME = Schema("sas metadata", SasMetaError, Map({
+    "v": Version(META_VERSION),
+    "full": Opt(Bool(), False),
+    "pvs": Opt(DeltaIds(), None),
+    "drop": DeltaIds(),
+    "geo_id": DeltaIds("G"),
+    "geo_size": Array("iu", ("G",), cast=np.int64, lo=1, hi=3, empty_if_absent=True),
+    "geo_vtx": Array("iu", (None, 3), cast=np.int64, lo=0, hi=65535, empty_if_absent=True),
+    "geo_idx": Array("iu", (None,), cast=np.int64, empty_if_absent=True),
+    "uv_id": DeltaIds(),
+    "uv_rect": Array("iu", (None, 5), cast=np.int64, empty_if_absent=True),
+    "xf_obj": Array("iu", ("X",), cast=np.int64, lo=0, hi="last_obj", empty_if_absent=True),
+    "xf": Transforms("X", empty_if_absent=True),
+}))
+"""One frame's metadata fields; :func:`parse_frame_meta` adds the rules between them and the session."""
+
+
+def parse_session(sd: Any) -> SessionInfo:
+    """Validate the server's session data; raises :class:`SasMetaError` naming the field."""
+    d = SESSION.parse(sd)
+    n_obj, n_patches, base = d["n_objects"], d["n_patches"], d["patch_base"]
+    if n_obj and (int(base[0]) != 0 or (np.diff(base) < 0).any()):
+        raise SESSION.error_at("patch_base", "must be non-decreasing from 0")
+    if n_patches and not n_obj:
+        raise SESSION.error_at("n_patches", f"{n_patches} patches without objects")
+    sky = d["sky"]
+    return SessionInfo((d["atlas"][0], d["atlas"][1]), n_obj, n_patches, (sky[0], sky[1], sky[2]), d["obj_box"], base,
+                       d["inset"])
 
 
 def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
@@ -301,46 +279,34 @@ def parse_frame_meta(meta: Any, session: SessionInfo) -> FrameMeta:
 
     Nothing is applied here, so a client can reject a frame without touching its state.
     """
-    if not isinstance(meta, dict):
-        raise SasMetaError(f"sas metadata: expected a map, got {type(meta).__name__}")
-    if not _is_version(meta.get("v")):
-        raise SasMetaError(f"sas metadata: version {meta.get('v')!r}, expected {META_VERSION}")
-    full = meta.get("full", False)
-    if not isinstance(full, bool):
-        raise SasMetaError(f"sas metadata: 'full' must be a bool, got {type(full).__name__}")
-    last_id, last_obj = session.n_patches - 1, session.n_objects - 1
-    pvs = _ids(meta, "pvs", last_id) if "pvs" in meta else None
-    drop = _ids(meta, "drop", last_id)
-    gid = _ids(meta, "geo_id", last_id)
-    gsz = _arr(meta, "geo_size", "i", (), gid.size)
-    _in_range("geo_size", gsz, 1, 3)
-    dvtx = _arr(meta, "geo_vtx", "i", (3,))
-    _in_range("geo_vtx", dvtx, 0, 65535)
-    code = _arr(meta, "geo_idx", "i", (), int((gsz + 2).sum()))
+    m = FRAME.parse(meta, {"last_id": session.n_patches - 1, "last_obj": session.n_objects - 1})
+    gid, gsz, dvtx, code = m["geo_id"], m["geo_size"], m["geo_vtx"], m["geo_idx"]
+    want = int((gsz + 2).sum())
+    if code.size != want:
+        raise FRAME.error_at("geo_idx", f"{code.size} entries, expected {want} (the used slots of geo_size)")
     is_new = (code == 0).astype(np.int64)
     new_before = np.cumsum(is_new) - is_new
     if code.size and ((code < 0).any() or (code > new_before).any()):
-        raise SasMetaError("sas metadata: 'geo_idx' refers to a vertex not yet introduced")
+        raise FRAME.error_at("geo_idx", "refers to a vertex not yet introduced")
     if int(is_new.sum()) != dvtx.shape[0]:
-        raise SasMetaError(f"sas metadata: 'geo_idx' introduces {int(is_new.sum())} vertices, 'geo_vtx' has {dvtx.shape[0]}")
+        raise FRAME.error_at("geo_idx", f"introduces {int(is_new.sum())} vertices, geo_vtx has {dvtx.shape[0]}")
     gq = decode_geometry_slots(dvtx, code)
     gobj = session.object_of(gid)
-    uid = np.concatenate([gid, _ids(meta, "uv_id", last_id)])   # rect rows: the new patches', then uv_id's
-    urect = _arr(meta, "uv_rect", "i", (5,), uid.size)
+    uid = np.concatenate([gid, m["uv_id"]])   # rect rows: the new patches', then uv_id's
+    urect = m["uv_rect"]
+    if urect.shape[0] != uid.size:
+        raise FRAME.error_at("uv_rect", f"{urect.shape[0]} rows, expected {uid.size} (geo_id, then uv_id)")
     if uid.size:
         w, h = session.atlas_size
         x, y, lw, lh, t = urect.T
         if (x < 0).any() or (y < 0).any():
-            raise SasMetaError("sas metadata: 'uv_rect' has a negative block x or y")
+            raise FRAME.error_at("uv_rect", "a block has a negative x or y")
         if (lw < 0).any() or (lh < 0).any() or (lw > MAX_LEVEL).any() or (lh > MAX_LEVEL).any():
-            raise SasMetaError(f"sas metadata: 'uv_rect' levels must be in 0..{MAX_LEVEL}")
+            raise FRAME.error_at("uv_rect", f"levels must be in 0..{MAX_LEVEL}")
         if ((t != 0) & (t != 1)).any():
-            raise SasMetaError("sas metadata: 'uv_rect' transposed flag must be 0 or 1")
+            raise FRAME.error_at("uv_rect", "transposed flag must be 0 or 1")
         # levels are in 0..MAX_LEVEL here, so 1 << level and the atlas size minus it
         # fit easily; comparing x against that (not x + width) cannot wrap int64
         if (x > w - (1 << lw)).any() or (y > h - (1 << lh)).any():
-            raise SasMetaError("sas metadata: 'uv_rect' has a block outside the atlas")
-    xo = _arr(meta, "xf_obj", "i", ())
-    xf = _arr(meta, "xf", "f", (4, 4), xo.size)
-    _in_range("xf_obj", xo, 0, last_obj)
-    return FrameMeta(full, pvs, drop, gid, gobj, gsz, gq.astype(np.uint16), uid, urect, xo, xf)
+            raise FRAME.error_at("uv_rect", "a block lies outside the atlas")
+    return FrameMeta(m["full"], m["pvs"], m["drop"], gid, gobj, gsz, gq.astype(np.uint16), uid, urect, m["xf_obj"], m["xf"])

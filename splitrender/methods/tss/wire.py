@@ -44,7 +44,13 @@ table every frame (20 KB of a 30 KB frame on the walk at 160x90).
 
 Per-frame metadata: ``v``, ``xf`` float32 (n_objects, 4, 4) object-to-world matrices
 at the frame's time (what the atlas was shaded with; the frame's pose is the
-reference view of the perspective correction).
+reference view of the perspective correction): affine, entries within +-1e6, the 3x3
+part invertible (:class:`~splitrender.protocol.schema.Transforms`).
+
+The client checks the session data and metadata against :data:`SESSION` and
+:data:`META` (:mod:`splitrender.protocol.schema`: an error names the field, e.g.
+``tss metadata: xf[3]: singular transform (|det| 0 < 1e-12)``); the binary ``geo`` and
+``tris`` payloads are decoded by hand, every count and offset checked before use.
 """
 
 from __future__ import annotations
@@ -56,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
+from ...protocol.schema import Float, Int, Map, Schema, Seq, Str, Transforms, Version
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins,
                      os_rows, os_sizes, tip_dim)
 
@@ -175,7 +182,7 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.nd
         rows = np.arange(ids.size)
     else:
         head = struct.pack("<BBI", WIRE_VERSION, 0, gone.size) + encode_ids(gone)
-        rows = np.flatnonzero(changed)
+        rows = np.flatnonzero(changed) if changed is not None else np.arange(ids.size)   # no mask: every row
     kind = plan.kind[rows]
     sel = [rows[kind == k] for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
     out = [head, struct.pack("<IIIH", *(s.size for s in sel), len(plan.bins))]
@@ -318,37 +325,39 @@ class Session:
     sky: tuple[float, float, float]
 
 
+SESSION = Schema("tss session data", TssWireError, Map({
+    "v": Version(WIRE_VERSION),
+    "atlas": Seq(Int(2, 16384), 2),
+    "strip": Int(1, 16384),
+    "os_grid": Str(tuple(OS_GRIDS)),
+    "n_objects": Int(0, 65535),
+    "n_triangles": Int(0, (1 << 25) - 1),
+    "sky": Seq(Float(-1e6, 1e6), 3),
+}))
+"""The session data's fields; :func:`parse_session` adds the rules between them."""
+
+META = Schema("tss metadata", TssWireError, Map({
+    "v": Version(WIRE_VERSION),
+    "xf": Transforms("n_objects"),
+}))
+"""Per-frame metadata: the version and every object's transform (affine, entries within +-1e6, invertible)."""
+
+
 def parse_session(data: Any) -> Session:
     """Validate the session data; raises :class:`TssWireError` naming the field."""
-    if not isinstance(data, dict):
-        raise TssWireError(f"tss session data: expected a map, got {type(data).__name__}")
-    if data.get("v") != WIRE_VERSION:
-        raise TssWireError(f"tss session data: version {data.get('v')!r}, this client speaks {WIRE_VERSION}")
-    try:
-        W, H = (int(x) for x in data["atlas"])
-        strip = int(data["strip"])
-        grid = data["os_grid"]
-        n_obj, n_tri = int(data["n_objects"]), int(data["n_triangles"])
-        sky = tuple(float(x) for x in data["sky"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise TssWireError(f"tss session data: missing or malformed field ({exc})") from None
-    if not (0 < W <= 16384 and 0 < H <= 16384 and W % 2 == 0 and H % 2 == 0):
-        raise TssWireError(f"tss session data: atlas {W}x{H} must be even and at most 16384")
+    d = SESSION.parse(data)
+    W, H = d["atlas"]
+    strip = d["strip"]
+    if W % 2 or H % 2:
+        raise SESSION.error_at("atlas", f"{W}x{H} must be even")
     if not min(W, 128) <= strip <= W:
-        raise TssWireError(f"tss session data: strip {strip} must be in [min(128, W), W] for an atlas {W} wide")
-    if grid not in OS_GRIDS:
-        raise TssWireError(f"tss session data: os_grid {grid!r} is not one of {list(OS_GRIDS)}")
-    if not (0 <= n_obj <= 65535 and 0 <= n_tri < 1 << 25) or len(sky) != 3:
-        raise TssWireError("tss session data: n_objects, n_triangles or sky out of range")
-    return Session((W, H), strip, grid, n_obj, n_tri, sky)  # type: ignore[arg-type]
+        raise SESSION.error_at("strip", f"{strip} must be in [min(128, W), W] for an atlas {W} wide")
+    sky = d["sky"]
+    return Session((W, H), strip, d["os_grid"], d["n_objects"], d["n_triangles"], (sky[0], sky[1], sky[2]))
 
 
 def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:
-    """The frame's (n_objects, 4, 4) object transforms from the metadata."""
-    if not isinstance(meta, dict) or meta.get("v") != WIRE_VERSION:
-        raise TssWireError(f"tss metadata: expected a map with v={WIRE_VERSION}")
-    xf = meta.get("xf")
-    if not isinstance(xf, np.ndarray) or xf.shape != (n_objects, 4, 4) or not np.isfinite(xf).all():
-        raise TssWireError(f"tss metadata: 'xf' must be finite float ({n_objects}, 4, 4), got "
-                           f"{getattr(xf, 'shape', type(xf).__name__)}")
-    return xf.astype(np.float32)
+    """The frame's (n_objects, 4, 4) float32 object transforms from the metadata; raises :class:`TssWireError`
+    naming the field (and the object) when one is not finite, too large or not invertible."""
+    xf: np.ndarray = META.parse(meta, {"n_objects": n_objects})["xf"]
+    return xf
