@@ -561,3 +561,27 @@ async def test_quads_live_through_a_lan_relay(tmp_path: Path) -> None:
     assert c["decode_errors"] == 0 and c["atlas_frames_corrupt"] == 0, c
     shown = {int(r["update_frame_id"]) for r in result.rows} - {-1}
     assert len(shown) >= 3, (sorted(shown), c)
+
+
+async def test_the_client_keeps_a_bounded_window_of_rows_and_records_them_all(tmp_path: Path) -> None:
+    """Issue 37: the client kept every displayed row in memory (131 to 171 MB over a 5-minute soak).  It keeps the
+    newest ``rows_kept`` (here 20) and appends every row to the recording as it is shown; ``frames.csv`` is made
+    from that journal at the end, so it has them all, numbered in order."""
+    import csv
+
+    async with LiveServer(_server_config()) as srv:
+        serve = asyncio.create_task(srv.serve_forever())
+        try:
+            cfg = ClientConfig(server=LOOPBACK, port=srv.tcp_address[1], methods=("video",), width=160, height=90,
+                               display_hz=30, duration_s=3.0, out_dir=tmp_path, rows_kept=20)
+            result = await asyncio.wait_for(LiveClient(cfg).run(), 30)
+        finally:
+            serve.cancel()
+            await asyncio.gather(serve, return_exceptions=True)
+    with open(tmp_path / "frames.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(result.rows) == 20
+    assert len(rows) >= 60, len(rows)                      # 90 ticks less the late ones on a busy machine
+    assert [int(r["frame"]) for r in rows] == list(range(len(rows)))
+    assert [r["frame"] for r in rows[-20:]] == [str(r["frame"]) for r in result.rows]
+    assert not (tmp_path / "frames.jsonl").exists()

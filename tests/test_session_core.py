@@ -376,3 +376,41 @@ def test_every_sender_report_compound_carries_the_sessions_cname() -> None:
         (sdes,) = [x for x in packets if isinstance(x, SourceDescription)]
         assert [c.ssrc for c in sdes.chunks] == [x.ssrc for x in packets if isinstance(x, SenderReport)]
         assert {c.cname for c in sdes.chunks} == {p.server.cname} and p.server.cname.startswith(b"splitrender-server-")
+
+
+def test_the_client_handshake_core_names_what_a_welcome_got_wrong() -> None:
+    """The client's handshake is one sans-IO core (``ClientHandshake``) that the live client and the runner drive.
+    The fuzz harness found the live client letting a Welcome's bad fields out as its own ConfigError, ValueError
+    or TypeError; each is now the peer's EnvelopeError naming the field."""
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.pipeline import ClientHandshake, EnvelopeError
+    from splitrender.protocol import DataChunk
+
+    p = Pair()
+    blob = pack_meta({"hello": 1})
+    good = Welcome("s", "video", {"config": {}, "fov_y_deg": 60.0, "server_fps": 30, **p.tx.welcome_params(blob)},
+                   p.tx.describe("127.0.0.1", 5000, "t"))
+    cases = [
+        ({"method": "nosuch"}, r"Welcome.method: 'nosuch' is not one this client offered"),
+        ({"method": "atw"}, r"Welcome.method: 'atw' is not one this client offered \(\['video'\]\)"),
+        ({"config": [1]}, r"Welcome.method_params.config: expected a map of parameter names, got list"),
+        ({"config": {"bitrate_kbpq": 1}}, r"Welcome.method_params.config: .*unknown parameter 'bitrate_kbpq'"),
+        ({"fov_y_deg": "h264"}, r"Welcome.method_params.fov_y_deg: expected a number in \(0, 179\], got 'h264'"),
+        ({"server_fps": [30]}, r"Welcome.method_params.server_fps: expected a number in \(0, 1000\], got \[30\]"),
+        ({"subject": [[0, 0, 0], [1, "x", 1]]}, r"Welcome.method_params.subject"),
+    ]
+    for change, text in cases:
+        method = change.pop("method", "video")
+        w = Welcome("s", method, {**good.method_params, **change}, good.streams)
+        with pytest.raises(EnvelopeError, match=text):
+            ClientHandshake(("video",)).receive_message(w)
+    hs = ClientHandshake(("video",))
+    assert not hs.receive_message(good)
+    twice = ClientHandshake(("video",))
+    twice.receive_message(good)
+    with pytest.raises(EnvelopeError, match="handshake: expected session data after Welcome, got Welcome"):
+        twice.receive_message(good)
+    assert hs.receive_message(DataChunk("session", 0, 0, len(blob), blob))
+    assert hs.session_data == {"hello": 1} and hs.terms is not None and hs.terms.server_fps == 30.0
+    core = hs.session(ClientOptions())
+    assert core.server_fps == 30.0 and set(core.rx.streams) == {"color"}

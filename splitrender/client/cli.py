@@ -106,7 +106,7 @@ def main_client(ns: argparse.Namespace) -> int:
     except OSError as exc:  # the connection broke or timed out mid-session
         raise ConnectError(f"session with {ns.server}:{ns.port} failed: {describe_os_error(exc)}") from exc
     c = result.counters
-    print(f"splitrender client: {len(result.rows)} frames displayed, {c['frames_complete']} updates, "
+    print(f"splitrender client: {c.get('rows_recorded', len(result.rows))} frames displayed, {c['frames_complete']} updates, "
           f"{c['rtp_packets']} RTP packets, {c['nacked_packets']} NACKed, {c['plis_sent']} PLIs -> {ns.out}")
     if ns.score:
         from splitrender.client.score import score_recording

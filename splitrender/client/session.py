@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import csv
 import json
 import logging
 import math
@@ -30,16 +31,15 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
-from splitrender.codecs.meta import unpack_meta
-from splitrender.errors import CodecError, RemoteProtocolError, SplitRenderError, describe_error
+from splitrender.errors import CodecError, ConfigError, RemoteProtocolError, SplitRenderError, describe_error
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from splitrender.methods.base import get_method, make_config
-from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, EnvelopeError, ReceivedFrame, Resumed,
-                                  SessionAssembler, Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
+from splitrender.methods.base import get_method
+from splitrender.pipeline import (ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
+                                  Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
 from splitrender.tabular import atomic_write_bytes, write_csv
@@ -105,6 +105,9 @@ class ClientConfig:
     """No new frame for this many server frame intervals is a stall: logged, counted, a keyframe requested."""
     stall_timeout_s: float = 5.0
     """A stall this long ends the session with :class:`StreamStalledError` (a non-zero exit)."""
+    rows_kept: int = 4096
+    """Displayed rows kept in memory (``ClientResult.rows``: the newest); the recording has every row, appended to
+    ``frames.jsonl`` as it is shown, so memory stays flat however long the session."""
     metrics_interval_s: float = 5.0
     """Log a ``metrics`` line (the counters, the jitter buffers' drops included) this often; 0 = never."""
     playout_delay_ms: float = 0.0
@@ -115,6 +118,8 @@ class ClientConfig:
 
     def __post_init__(self) -> None:
         self.options()   # raises ConfigError naming a bad option
+        if isinstance(self.rows_kept, bool) or not isinstance(self.rows_kept, int) or self.rows_kept < 1:
+            raise ConfigError(f"client rows_kept: must be a positive integer, got {self.rows_kept!r}")
 
     def options(self) -> ClientOptions:
         """The session core's options (the same ones ``splitrender run`` takes)."""
@@ -143,17 +148,6 @@ class _Subject:
     subject: tuple[np.ndarray, np.ndarray]
 
 
-def _parse_subject(v: Any) -> tuple[np.ndarray, np.ndarray]:
-    """``Welcome.method_params.subject``: [[x, y, z], [x, y, z]], finite, lo <= hi."""
-    try:
-        lo, hi = (np.asarray(b, np.float64).reshape(3) for b in v)
-    except (TypeError, ValueError):
-        raise EnvelopeError(f"Welcome.method_params.subject: expected [[x, y, z], [x, y, z]], got {v!r:.80}") from None
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
-        raise EnvelopeError(f"Welcome.method_params.subject: bounds must be finite with lo <= hi, got {v!r:.80}")
-    return lo, hi
-
-
 class LiveClient:
     """One session against a live server; ``await LiveClient(cfg).run()``."""
 
@@ -178,7 +172,9 @@ class LiveClient:
         self._params: dict[str, Any] = {}
         self._server_epoch_s: float | None = None
         self._t0_wall = 0.0
-        self.rows: list[dict[str, Any]] = []
+        self.rows: deque[dict[str, Any]] = deque(maxlen=config.rows_kept)
+        """The newest ``rows_kept`` displayed rows (the recording's ``frames.jsonl``/``frames.csv`` has them all)."""
+        self._rows_recorded = 0
         self.meta_ids: list[int] = []
         self._counters: dict[str, Any] = {"late_ticks": 0}
 
@@ -237,16 +233,16 @@ class LiveClient:
         except BaseException as exc:
             await self._release()
             if self._journal is not None:  # a broken session: keep what was recorded, marked incomplete
-                result = ClientResult(self.rows, self._all_counters(), {**self._recording(), "complete": False,
+                result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": False,
                                       "error": f"{type(exc).__name__}: {exc}"}, list(self.meta_ids), cfg.out_dir)
                 self._finish_recording(result)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
-                             exc, len(self.rows), cfg.out_dir)
+                             exc, self._rows_recorded, cfg.out_dir)
             raise
         await self._release()
-        logger.info("session %s: client done: %d displayed rows, %s", self.session_id, len(self.rows),
+        logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self._rows_recorded,
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(self.rows, self._all_counters(), {**self._recording(), "complete": True}, list(self.meta_ids),
+        result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": True}, list(self.meta_ids),
                               cfg.out_dir)
         if cfg.out_dir is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._finish_recording, result)
@@ -269,6 +265,7 @@ class LiveClient:
 
     def _record(self, row: dict[str, Any]) -> None:
         self.rows.append(row)
+        self._rows_recorded += 1
         if self._journal is not None:
             self._journal.write(json.dumps(row, default=float) + "\n")
             now = time.monotonic()
@@ -283,7 +280,10 @@ class LiveClient:
             return
         if self._journal is not None:
             self._journal.close()
-        write_recording(result, d)
+            journal_to_csv(d / JOURNAL, d / "frames.csv")     # every row, not only those kept in memory
+            write_recording(result, d, frames=False)
+        else:
+            write_recording(result, d)
         (d / JOURNAL).unlink(missing_ok=True)
 
     async def _release(self) -> None:
@@ -331,31 +331,29 @@ class LiveClient:
             raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
         if not isinstance(msg, Welcome):
             raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
+        hs = ClientHandshake(cfg.methods, cfg.limits)   # the sans-IO handshake both modes share
+        hs.receive_message(msg)
+        terms = hs.terms
+        assert terms is not None
         self._welcome = msg
         self.session_id = msg.session_id
         self._params = dict(msg.method_params)
-        spec = get_method(msg.method)
-        mcfg = make_config(spec.config, dict(self._params.get("config", {})))
-        intr = CameraIntrinsics(cfg.width, cfg.height, float(self._params.get("fov_y_deg", 60.0)))
-        subject = self._params.get("subject")
-        if subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
-            self.trace = get_trace(cfg.trace, scene=_Subject(_parse_subject(subject)), fov_y_deg=intr.fov_y_deg,
+        spec = get_method(terms.method)
+        mcfg = terms.config
+        intr = CameraIntrinsics(cfg.width, cfg.height, terms.fov_y_deg)
+        if terms.subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
+            self.trace = get_trace(cfg.trace, scene=_Subject(terms.subject), fov_y_deg=intr.fov_y_deg,  # type: ignore[arg-type]
                                    aspect=cfg.width / cfg.height)
         # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
-        asm = SessionAssembler(self._params.get("session_data_bytes", 0), self._params.get("session_data_crc"),
-                               cfg.limits.max_session_bytes)
-        while not asm.done:
+        while not hs.done:
             chunk = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
             if isinstance(chunk, Error):
                 raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(chunk)}")
-            if not isinstance(chunk, DataChunk):
-                raise ServerRefusedError(f"expected session data after Welcome, got {type(chunk).__name__}")
-            asm.add(chunk)
-        self._counters["session_bytes"] = asm.total
-        try:
-            session_data = unpack_meta(asm.blob) if asm.total else {}
-        except CodecError as exc:  # the peer's bytes: a protocol error, not our crash
-            raise EnvelopeError(f"session data: {exc}") from None
+            if chunk is None:
+                raise ServerRefusedError("server closed the connection during the session data")
+            hs.receive_message(chunk)
+        self._counters["session_bytes"] = hs.session_bytes
+        session_data = hs.session_data
 
         def make_half() -> Any:
             from splitrender.render.gl import get_context
@@ -363,7 +361,7 @@ class LiveClient:
             return spec.client_class(mcfg, intr, get_context(), session_data, limits=cfg.limits)
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
-        self.core = ClientSession.from_welcome(msg, cfg.options())
+        self.core = hs.session(cfg.options())
         self.rx = self.core.rx
         logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
@@ -464,9 +462,8 @@ class LiveClient:
 
     def _all_counters(self) -> dict[str, Any]:
         """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
-        if self.core is None:
-            return dict(self._counters)
-        return {**self.core.all_counters(), **self._counters}
+        base = self.core.all_counters() if self.core is not None else {}
+        return {**base, **self._counters, "rows_recorded": self._rows_recorded}
 
     # ------------------------------------------------------------------ RTCP out
 
@@ -535,21 +532,19 @@ class LiveClient:
                 continue  # more than a tick late: skip it rather than bunch renders up
             new = [*carry, *core.display(_now_ms())]   # with a playout delay, only the updates whose turn has come
             carry = []
-            if (core.shown is None and not any(shows_anything(f) for f in new)) or self._server_epoch_s is None:
+            w = time.time()
+            if self._server_epoch_s is None:
+                # nothing from the server yet: the ticks wait for its clock (the first FrameMeta) to be recorded
                 carry = new
-                # nothing to show yet: the black background, recorded (and scored) once the server clock is known
-                w = time.time()
                 before_content.append((tick, w, self._trace_pose(w)))
                 continue
-            for b_tick, b_wall, b_pose in before_content:
-                row = self._empty_row(len(self.rows), b_tick, b_wall - self._t0_wall, b_wall - self._server_epoch_s, b_pose,
-                                      int(b_wall * 1e6))
-                self._record(row)
-                if cfg.save_images and cfg.out_dir is not None:
-                    black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
-                    saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], black,
-                                                      np.ones((cfg.height, cfg.width), bool)))
+            for b_tick, b_wall, b_pose in before_content:      # recorded now that the server clock is known
+                self._record_blank(b_tick, b_wall, b_pose, saves)
             before_content.clear()
+            if core.shown is None and not any(shows_anything(f) for f in new):
+                carry = new                                    # nothing to show yet: the black background
+                self._record_blank(tick, w, self._trace_pose(w), saves)
+                continue
             tick_wall = time.time()
             pose = self._trace_pose(tick_wall)
             trace_t = tick_wall - self._t0_wall
@@ -576,9 +571,9 @@ class LiveClient:
             displayed_us = wall_us()
             shown = core.shown
             if shown is None:   # every update so far was rejected: still the black background
-                self._record(self._empty_row(len(self.rows), tick, trace_t, scene_t, pose, displayed_us))
+                self._record(self._empty_row(self._rows_recorded, tick, trace_t, scene_t, pose, displayed_us))
                 continue
-            row = self._row(len(self.rows), tick, trace_t, scene_t, pose, shown, displayed_us,
+            row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, shown, displayed_us,
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
             row.update(self._kbps(displayed_us / 1e6))
@@ -594,8 +589,22 @@ class LiveClient:
             if fb is not None:   # the first display of this update
                 assert self.channel is not None
                 await self.channel.send(fb)
+        for b_tick, b_wall, b_pose in before_content:   # the server never sent a frame: the ticks, without a scene time
+            self._record_blank(b_tick, b_wall, b_pose, None)
         await asyncio.gather(*saves)
         raise _RunDone()
+
+    def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
+        """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
+        kept; without the server clock, ``saves`` is None and the row has no scene time)."""
+        cfg = self.cfg
+        scene_t = wall_s - self._server_epoch_s if self._server_epoch_s is not None else math.nan
+        row = self._empty_row(self._rows_recorded, tick, wall_s - self._t0_wall, scene_t, pose, int(wall_s * 1e6))
+        self._record(row)
+        if saves is not None and cfg.save_images and cfg.out_dir is not None:
+            black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
+            saves.append(asyncio.get_running_loop().run_in_executor(
+                self.io_executor, _save_image, cfg.out_dir, row["frame"], black, np.ones((cfg.height, cfg.width), bool)))
 
     def _kbps(self, now_s: float) -> dict[str, float]:
         """``kbps_<stream>`` over the last second for each RTP stream (wire bytes received) and
@@ -691,10 +700,40 @@ def _save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray 
     os.replace(tmp, path)
 
 
-def write_recording(result: ClientResult, out_dir: Path) -> None:
-    """frames.csv (per displayed frame, unscored), recording.json and counters.json."""
+def journal_to_csv(journal: Path, out: Path) -> int:
+    """``frames.jsonl`` as ``frames.csv`` (columns: every key, in order of first appearance), two passes over the
+    file so that memory stays flat whatever its length; a torn last line is dropped.  Returns the rows written."""
+    def rows() -> Iterator[dict[str, Any]]:
+        with open(journal) as f:
+            for line in f:
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError:
+                    return   # the client died mid-write
+                if isinstance(row, dict):
+                    yield {k: (math.nan if v is None else v) for k, v in row.items()}
+
+    keys: dict[str, None] = {}
+    for r in rows():
+        keys.update(dict.fromkeys(r))
+    n = 0
+    tmp = out.with_name(f".{out.name}.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(keys), restval="")
+        w.writeheader()
+        for r in rows():
+            w.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else (f"{v:.6g}" if isinstance(v, float) else v))
+                        for k, v in r.items()})
+            n += 1
+    os.replace(tmp, out)
+    return n
+
+
+def write_recording(result: ClientResult, out_dir: Path, frames: bool = True) -> None:
+    """frames.csv (per displayed frame, unscored; unless ``frames`` is False), recording.json and counters.json."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_csv(out_dir / "frames.csv", result.rows)
+    if frames:
+        write_csv(out_dir / "frames.csv", result.rows)
     atomic_write_bytes(out_dir / "recording.json", json.dumps(result.recording, indent=2, default=str).encode())
     atomic_write_bytes(out_dir / "counters.json", json.dumps(result.counters, indent=2).encode())
 

@@ -13,15 +13,17 @@ session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run.
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
-from .session import (ClientOptions, ClientSession, Resumed, ServerOptions, ServerSession, SessionEvent, Stalled,
-                      StallTimeout, rtcp_media_ssrcs, session_params, session_summary, shows_anything)
+from .session import (ClientHandshake, ClientOptions, ClientSession, Resumed, ServerOptions, ServerSession, SessionEvent,
+                      SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, rtcp_media_ssrcs, session_params,
+                      session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
 __all__ = [
-    "ClientOptions", "ClientSession", "Resumed", "ServerOptions", "ServerSession", "SessionEvent", "Stalled",
-    "StallTimeout", "rtcp_media_ssrcs", "session_params", "session_summary", "shows_anything",
+    "ClientHandshake", "ClientOptions", "ClientSession", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
+    "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "rtcp_media_ssrcs", "session_params",
+    "session_summary", "shows_anything",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
     "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",

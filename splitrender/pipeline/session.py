@@ -29,12 +29,16 @@ import logging
 import math
 import secrets
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..errors import ConfigError
+import numpy as np
+
+from ..codecs.meta import unpack_meta
+from ..errors import CodecError, ConfigError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, KeyframeRateLimiter, KeyframeRequest, Message,
+from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -42,14 +46,15 @@ from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
 from .feedback import FeedbackState
-from .receiver import ClientPipeline, ReceivedFrame, Work
+from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .sender import OutgoingFrame, ServerPipeline
-from .wire import specs_from_table
+from .wire import EnvelopeError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClientOptions", "ClientSession", "ServerOptions", "ServerSession", "SessionEvent", "Stalled", "Resumed",
-           "StallTimeout", "rtcp_media_ssrcs", "session_params", "session_summary", "shows_anything"]
+__all__ = ["ClientHandshake", "ClientOptions", "ClientSession", "ServerOptions", "ServerSession", "SessionEvent",
+           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome", "rtcp_media_ssrcs",
+           "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
 """While packets or frames are outstanding the client core wants its timer this often (ms)."""
@@ -93,6 +98,131 @@ def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, 
     if subject is not None:
         out["subject"] = [[float(v) for v in subject[0]], [float(v) for v in subject[1]]]
     return out
+
+
+def check_hello(hello: Hello, max_pixels: int) -> None:
+    """What a server asks of every ``Hello`` before it opens a session, in both modes; :class:`MessageError` naming
+    the field otherwise."""
+    if hello.width % 2 or hello.height % 2:
+        raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} must be even")
+    if hello.width * hello.height > max_pixels:
+        raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} exceeds this server's "
+                           f"limit of {max_pixels} pixels")
+    if not hello.codecs:
+        raise MessageError("Hello.codecs: empty")
+
+
+@dataclass(frozen=True)
+class SessionTerms:
+    """What a ``Welcome`` settles, checked (:func:`parse_welcome`)."""
+
+    session_id: str
+    method: str
+    config: Any
+    """The method's config (its ``MethodConfig``), from ``method_params.config``."""
+    fov_y_deg: float
+    server_fps: float
+    subject: tuple[np.ndarray, np.ndarray] | None
+    """A loaded model's world bounds (lo, hi): built-in traces go around it."""
+
+
+def _finite_param(params: Any, key: str, default: float, lo: float, hi: float) -> float:
+    v = params.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo < v <= hi:
+        raise EnvelopeError(f"Welcome.method_params.{key}: expected a number in ({lo:g}, {hi:g}], got {v!r:.80}")
+    return float(v)
+
+
+def parse_subject(v: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``Welcome.method_params.subject``: [[x, y, z], [x, y, z]], finite, lo <= hi."""
+    try:
+        lo, hi = (np.asarray(b, np.float64).reshape(3) for b in v)
+    except (TypeError, ValueError):
+        raise EnvelopeError(f"Welcome.method_params.subject: expected [[x, y, z], [x, y, z]], got {v!r:.80}") from None
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+        raise EnvelopeError(f"Welcome.method_params.subject: bounds must be finite with lo <= hi, got {v!r:.80}")
+    return lo, hi
+
+
+def parse_welcome(welcome: Welcome, offered: Any = None) -> SessionTerms:
+    """The terms of ``welcome``, every field a client builds on checked: the method is one the client offered
+    (``offered``: its ``Hello.methods``; any registered one when None) and its config is valid for it, the field of
+    view and server rate are finite and in range, the subject's bounds are finite.  :class:`EnvelopeError` (400)
+    naming the field otherwise; a server's word is never a ``ConfigError`` of the client's."""
+    from ..methods.base import get_method, make_config
+
+    params = welcome.method_params
+    if offered is not None and welcome.method not in offered:
+        raise EnvelopeError(f"Welcome.method: {welcome.method!r:.80} is not one this client offered ({list(offered)})")
+    try:
+        spec = get_method(welcome.method)
+    except ConfigError as exc:
+        raise EnvelopeError(f"Welcome.method: {exc}") from None
+    raw = params.get("config", {})
+    if not isinstance(raw, Mapping) or not all(isinstance(k, str) for k in raw):
+        raise EnvelopeError(f"Welcome.method_params.config: expected a map of parameter names, got {type(raw).__name__}")
+    try:
+        config = make_config(spec.config, dict(raw))
+    except (ConfigError, TypeError, ValueError, OverflowError) as exc:
+        raise EnvelopeError(f"Welcome.method_params.config: {exc}") from None
+    fov = _finite_param(params, "fov_y_deg", 60.0, 0.0, 179.0)
+    fps = _finite_param(params, "server_fps", 30.0, 0.0, 1000.0)
+    subject = params.get("subject")
+    return SessionTerms(welcome.session_id, welcome.method, config, fov, fps,
+                        parse_subject(subject) if subject is not None else None)
+
+
+class ClientHandshake:
+    """The client's side of the handshake, sans-IO, in both modes: a ``Welcome`` (its terms checked by
+    :func:`parse_welcome`), then the session data in ``DataChunk`` messages, bounded by ``limits``.
+
+    Feed it every message after ``Hello`` with :meth:`receive_message` until it returns True; then
+    :attr:`terms`, :attr:`session_data` and :meth:`session` give what the session is built from.  Raises
+    ``RemoteProtocolError`` naming what was wrong; an ``Error`` or a closed connection is the driver's to report."""
+
+    def __init__(self, offered: Any = None, limits: ClientLimits = DEFAULT_CLIENT_LIMITS) -> None:
+        self.offered = tuple(offered) if offered is not None else None
+        self.limits = limits
+        self.welcome: Welcome | None = None
+        self.terms: SessionTerms | None = None
+        self._asm: SessionAssembler | None = None
+        self.session_data: dict[str, Any] = {}
+        self.session_bytes = 0
+        self.done = False
+
+    def receive_message(self, msg: Message) -> bool:
+        """One message from the server; True once the session data is complete."""
+        if self.done:
+            raise EnvelopeError(f"handshake: {type(msg).__name__} after the session data was complete")
+        if self.welcome is None:
+            if not isinstance(msg, Welcome):
+                raise EnvelopeError(f"handshake: expected Welcome, got {type(msg).__name__}")
+            self.terms = parse_welcome(msg, self.offered)
+            params = msg.method_params
+            self._asm = SessionAssembler(params.get("session_data_bytes", 0), params.get("session_data_crc"),
+                                         self.limits.max_session_bytes)
+            self.welcome = msg
+        else:
+            if not isinstance(msg, DataChunk):
+                raise EnvelopeError(f"handshake: expected session data after Welcome, got {type(msg).__name__}")
+            assert self._asm is not None
+            self._asm.add(msg)
+        assert self._asm is not None
+        if self._asm.done:
+            self.session_bytes = self._asm.total
+            try:
+                self.session_data = unpack_meta(self._asm.blob) if self._asm.total else {}
+            except CodecError as exc:   # the peer's bytes: a protocol error, not our crash
+                raise EnvelopeError(f"session data: {exc}") from None
+            if not isinstance(self.session_data, dict):
+                raise EnvelopeError(f"session data: expected a map, got {type(self.session_data).__name__}")
+            self.done = True
+        return self.done
+
+    def session(self, options: ClientOptions, clock_offset_us: int = 0, rng: Any = None) -> ClientSession:
+        """The client session core the Welcome describes (:meth:`ClientSession.from_welcome`)."""
+        assert self.welcome is not None and self.done
+        return ClientSession.from_welcome(self.welcome, options, clock_offset_us, rng)
 
 
 def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -312,7 +442,7 @@ class ClientSession:
         params = welcome.method_params
         rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams")), options.jitter_timeout_ms,
                             resolve_timeout_ms=options.resolve_timeout_ms, limits=options.limits)
-        return cls(rx, options, float(params.get("server_fps", 30)), clock_offset_us, rng)
+        return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng)
 
     # ------------------------------------------------------------------ clock
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (ServerOptions, ServerPipeline, ServerSession as SessionCore, SessionDataError,
+from splitrender.pipeline import (ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
                                   rtp_timestamp, session_params)
 from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -269,13 +269,7 @@ class ServerSession:
     async def _setup(self, hello: Hello) -> Welcome:
         """Choose method and codec, build the halves and encoders; raises RemoteProtocolError."""
         cfg = self.cfg
-        if hello.width % 2 or hello.height % 2:
-            raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} must be even")
-        if hello.width * hello.height > cfg.max_pixels:
-            raise MessageError(f"Hello.width/height: {hello.width}x{hello.height} exceeds this server's "
-                               f"limit of {cfg.max_pixels} pixels")
-        if not hello.codecs:
-            raise MessageError("Hello.codecs: empty")
+        check_hello(hello, cfg.max_pixels)
         self.method = negotiate_method(hello.methods, self.server.methods)
         spec = get_method(self.method)
         params = dict(cfg.method_params.get(self.method, {}))

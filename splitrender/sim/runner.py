@@ -60,15 +60,15 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import metrics
-from ..codecs.meta import pack_meta, unpack_meta
+from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline import (META_STREAM, SESSION_STREAM, ClientPipeline, ClientSession, ProducerPool, ReceivedFrame,
-                        Resumed, ServerOptions, ServerPipeline, ServerSession, SessionAssembler, SessionDataError, Stalled,
-                        rtp_timestamp, session_params, session_summary, tcp_segments)
+from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
+                        ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, SessionDataError, Stalled,
+                        check_hello, rtp_timestamp, session_params, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes
-from ..protocol import PROTOCOL_VERSION, ClientConnection, DataChunk, Hello, Message, ServerConnection, Welcome
+from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -245,6 +245,7 @@ class VirtualTimeRun:
                     rtcp_down=Link(self.path.downlink, np.random.default_rng(seeds[4 * n + 2 * i + 1])))
         # handshake through a real Connection pair (set-up time is not simulated)
         hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), (self.mcfg.codec,), cfg.width, cfg.height, float(cfg.client_fps))
+        check_hello(hello, cfg.width * cfg.height)
         self._to_server(c, c.cconn.send(hello))
         make_current(self.renderer.ctx)
         producer = pool.producer(self.spec, self.mcfg)
@@ -263,24 +264,20 @@ class VirtualTimeRun:
         c.bytes[SESSION_STREAM] = control_wire_bytes(len(wire))
         frames = c.tx.session_frames(session_blob, c.sconn.send)
         c.bytes[SESSION_STREAM] += sum(control_wire_bytes(len(f)) for _, f in frames)
-        msgs = self._to_client_msgs(c, wire + b"".join(f for _, f in frames))
-        w = msgs[0]
-        assert isinstance(w, Welcome)
-        asm = SessionAssembler(w.method_params["session_data_bytes"], w.method_params.get("session_data_crc"),
-                               cfg.max_session_bytes)
-        for m in msgs[1:]:
-            assert isinstance(m, DataChunk)
-            asm.add(m)
-        c.welcome = w
-        c.core = ClientSession.from_welcome(w, cfg.client_options(), SIM_EPOCH_US,
-                                            np.random.default_rng(seeds[6 * n + 2 * i]))
+        # the client's side of the handshake: the same sans-IO core as the live client's
+        opts = cfg.client_options()
+        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes))
+        for m in self._to_client_msgs(c, wire + b"".join(f for _, f in frames)):
+            hs.receive_message(m)
+        assert hs.done and hs.welcome is not None and hs.terms is not None
+        c.welcome = hs.welcome
+        c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
         c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(), SIM_EPOCH_US, 0.0,
                                  np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
-        c.chalf = self.spec.client_class(self.mcfg, self.intr, c.gl, unpack_meta(asm.blob) if asm.total else {},
-                                         limits=c.core.opts.limits)
+        c.chalf = self.spec.client_class(hs.terms.config, self.intr, c.gl, hs.session_data, limits=opts.limits)
         make_current(self.renderer.ctx)
         c.fb = c.core_s.fb
         c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
