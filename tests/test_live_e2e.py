@@ -585,3 +585,34 @@ async def test_the_client_keeps_a_bounded_window_of_rows_and_records_them_all(tm
     assert [int(r["frame"]) for r in rows] == list(range(len(rows)))
     assert [r["frame"] for r in rows[-20:]] == [str(r["frame"]) for r in result.rows]
     assert not (tmp_path / "frames.jsonl").exists()
+
+
+async def test_an_h264_only_client_gets_warp_with_depth_it_can_decode(tmp_path: Path) -> None:
+    """Issue 37: a client that decodes H.264 only was refused warp (415) although BC4 depth over a data stream
+    serves it.  The server now chooses each method's streams from what the client decodes: warp's depth goes
+    as BC4, the session shows frames and its SDP files name no H.265; where nothing fits (probes' 10-bit
+    lossless HEVC irradiance) the 415 names the stream."""
+    from splitrender.client.session import ServerRefusedError
+
+    sdp = tmp_path / "sdp"
+    async with LiveServer(_server_config(methods=("warp", "probes"), scene="minimal+gi", sdp_dir=sdp)) as srv:
+        serve = asyncio.create_task(srv.serve_forever())
+        try:
+            cfg = ClientConfig(server=LOOPBACK, port=srv.tcp_address[1], methods=("warp",), codecs=("h264",),
+                               width=160, height=90, display_hz=30, duration_s=2.0)
+            client = LiveClient(cfg)
+            result = await asyncio.wait_for(client.run(), 40)
+            with pytest.raises(ServerRefusedError, match=r"415.*hevc"):
+                await asyncio.wait_for(LiveClient(ClientConfig(
+                    server=LOOPBACK, port=srv.tcp_address[1], methods=("probes",), codecs=("h264",), width=160,
+                    height=90, display_hz=30, duration_s=1.0)).run(), 60)
+        finally:
+            serve.cancel()
+            await asyncio.gather(serve, return_exceptions=True)
+    assert client._welcome is not None
+    assert [(s.name, s.codec) for s in client._welcome.streams] == [("color0", "h264")]   # depth in the metadata
+    assert client._welcome.method_params["config"]["depth_coding"] == "bc4"
+    texts = [p.read_text() for p in sdp.glob("*.sdp")]
+    assert texts and all("H264/90000" in t and "H265" not in t for t in texts), texts
+    c = result.counters
+    assert c["frames_complete"] >= 3 and c["decode_errors"] == 0, c

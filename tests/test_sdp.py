@@ -70,7 +70,7 @@ def test_sdp_is_avpf_with_nack_pli_and_rtcp_mux(codec: str) -> None:
     sdp = make_sdp(codec, 5004, 97)  # type: ignore[arg-type]
     lines = sdp.split("\r\n")
     assert "m=video 5004 RTP/AVPF 97" in lines
-    assert sdp_attributes(sdp, "rtcp-fb") == ["97 nack", "97 nack pli"]
+    assert sdp_attributes(sdp, "rtcp-fb") == ["97 nack", "97 nack pli", "97 ccm fir"]
     assert sdp_attributes(sdp, "rtcp-mux") == [""]
     assert sdp.endswith("\r\n")
 

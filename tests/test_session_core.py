@@ -11,7 +11,7 @@ from splitrender.errors import ConfigError
 from splitrender.methods import StreamSpec, Update
 from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, ServerOptions, ServerPipeline, ServerSession,
                                   Stalled, StallTimeout, specs_from_table)
-from splitrender.protocol import (PROTOCOL_VERSION, ClientConnection, GenericNack, Hello, PictureLossIndication,
+from splitrender.protocol import (PROTOCOL_VERSION, ClientConnection, GenericNack, Hello, PictureLossIndication, serialize_rtcp,
                                   ReceiverReport, SenderReport, ServerConnection, Welcome, parse_rtcp)
 from splitrender.protocol.framing import NEED_DATA
 from splitrender.scene.pose import Pose
@@ -414,3 +414,25 @@ def test_the_client_handshake_core_names_what_a_welcome_got_wrong() -> None:
     assert hs.session_data == {"hello": 1} and hs.terms is not None and hs.terms.server_fps == 30.0
     core = hs.session(ClientOptions())
     assert core.server_fps == 30.0 and set(core.rx.streams) == {"color"}
+
+
+def test_a_full_intra_request_is_answered_once_per_sequence_number() -> None:
+    """RFC 5104 4.3.1 (offered in the SDP as ``ccm fir``): a FIR naming one of the session's streams asks for an
+    IDR; the same sequence number again is the same request resent (answered once), a new one a new request; FIRs
+    for another SSRC are ignored.  The bytes round-trip through the project's parser."""
+    from splitrender.protocol import FullIntraRequest
+    from splitrender.pipeline import rtcp_media_ssrcs
+
+    p = Pair()
+    p.frame(0, 0.0)
+    (ssrc,) = [s.ssrc for s in p.server.streams.values()]
+    fir = FullIntraRequest(0x1234, ((ssrc, 7),))
+    data = serialize_rtcp([ReceiverReport(0x1234), fir])
+    packets, ssrcs = rtcp_media_ssrcs(data)
+    assert packets[1] == fir and ssrcs == [ssrc]
+    p.server.receive_rtcp(packets, 1000.0)
+    p.server.receive_rtcp(packets, 1010.0)                 # resent: the same request
+    p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc + 1, 8),))], 1020.0)
+    assert p.server.counters["firs"] == 1 and p.server.keyframe_due(1030.0)
+    p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc, 8),))], 1500.0)
+    assert p.server.counters["firs"] == 2

@@ -233,6 +233,15 @@ class MethodConfig:
         if self.crf is not None and not 0 <= self.crf <= 51:
             raise ConfigError(f"{type(self).__name__}.crf: must be in [0, 51], got {self.crf}")
 
+    def for_codecs(self, codecs: tuple[str, ...]) -> MethodConfig:
+        """This config adapted to a client that decodes only ``codecs`` (its ``Hello.codecs``, in preference order):
+        the colour codec becomes the client's first choice when it does not take this one.  Methods with other
+        coded streams override this to choose what the client can decode; a stream that still does not fit is
+        refused at set-up with 415 naming it."""
+        if codecs and self.codec not in codecs:
+            return dataclasses.replace(self, codec=codecs[0])
+        return self
+
     def video(self, fps: int, share: float = 1.0, **kw: Any) -> VideoCodecConfig:
         """The codec config for a stream getting ``share`` of the bitrate budget."""
         if self.lossless:

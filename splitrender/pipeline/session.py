@@ -38,7 +38,7 @@ import numpy as np
 from ..codecs.meta import unpack_meta
 from ..errors import CodecError, ConfigError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from ..protocol import (Feedback, FrameMeta, DataChunk, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
+from ..protocol import (Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -268,6 +268,8 @@ def rtcp_media_ssrcs(data: bytes) -> tuple[list[RtcpPacket], list[int]]:
             ssrcs += [b.ssrc for b in p.reports]
         elif isinstance(p, (GenericNack, PictureLossIndication)):
             ssrcs.append(p.media_ssrc)
+        elif isinstance(p, FullIntraRequest):
+            ssrcs += [m for m, _ in p.requests]
     return packets, ssrcs
 
 
@@ -811,13 +813,14 @@ class ServerSession:
             self.streams[st.spec.name] = _TxState(st.spec.name, st.ssrc, RetransmissionHistory(self.options.history_packets),
                                                   st.packetizer)
         self._by_ssrc = {s.ssrc: s for s in self.streams.values()}
+        self._fir_seq: dict[int, int] = {}
         first = min(self._by_ssrc) if self._by_ssrc else 0
         self.cname = f"splitrender-server-{first:08x}".encode("ascii")
         """The session's RTCP CNAME (from its SSRCs, which are random: no draw of its own, so seeded runs keep theirs)."""
         self._next_sr_ms = math.inf
         self.rtt_ms: float | None = None
         self.counters: dict[str, int] = {
-            "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "nacks": 0, "retransmitted": 0,
+            "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
             "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0,
         }
@@ -864,6 +867,12 @@ class ServerSession:
                 if p.media_ssrc in self._by_ssrc:
                     self.counters["plis"] += 1
                     self.request_keyframe(now_ms)
+            elif isinstance(p, FullIntraRequest):   # RFC 5104 4.3.1.2: a repeated sequence number is the same request
+                for media, seq in p.requests:
+                    if media in self._by_ssrc and self._fir_seq.get(media) != seq:
+                        self._fir_seq[media] = seq
+                        self.counters["firs"] += 1
+                        self.request_keyframe(now_ms)
             elif isinstance(p, ReceiverReport):
                 for b in p.reports:
                     if b.ssrc in self._by_ssrc and b.lsr:

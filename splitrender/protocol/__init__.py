@@ -74,6 +74,7 @@ from splitrender.protocol.rtcp import (
     GenericNack,
     KeyframeRateLimiter,
     PictureLossIndication,
+    FullIntraRequest,
     ReceiverReport,
     ReceiverStatistics,
     ReportBlock,
@@ -113,7 +114,7 @@ __all__ = [
     "DEFAULT_MTU", "RtpPacketizer", "payloads_for", "depacketize",
     "AccessUnit", "JitterBuffer",
     # RTCP
-    "ReportBlock", "SenderReport", "ReceiverReport", "GenericNack", "PictureLossIndication",
+    "ReportBlock", "SenderReport", "ReceiverReport", "GenericNack", "PictureLossIndication", "FullIntraRequest",
     "RtcpUnknown", "RtcpPacket", "SdesChunk", "SourceDescription", "compound_feedback",
     "parse_rtcp", "serialize_rtcp", "ntp_from_seconds",
     "ntp_middle32", "ReceiverStatistics", "RetransmissionHistory", "KeyframeRateLimiter",

@@ -39,6 +39,8 @@ __all__ = [
     "SDES_CNAME",
     "GenericNack",
     "PictureLossIndication",
+    "FullIntraRequest",
+    "PSFB_FIR",
     "RtcpUnknown",
     "RtcpPacket",
     "parse_rtcp",
@@ -62,6 +64,7 @@ RTCP_RTPFB: Final = 205
 RTCP_PSFB: Final = 206
 RTPFB_NACK: Final = 1
 PSFB_PLI: Final = 1
+PSFB_FIR: Final = 4
 SDES_CNAME: Final = 1
 
 RTCP_VERSION: Final = 2
@@ -226,6 +229,19 @@ class PictureLossIndication:
 
 
 @dataclass(frozen=True, slots=True)
+class FullIntraRequest:
+    """PSFB FMT 4 (RFC 5104 4.3.1): send a decoder refresh point (an IDR) on each named stream.  ``requests``: per
+    media SSRC, the request's 8-bit sequence number (a repeated number is the same request sent again)."""
+
+    ssrc: int
+    requests: tuple[tuple[int, int], ...]
+
+    def __bytes__(self) -> bytes:
+        body = _FB.pack(self.ssrc, 0) + b"".join(struct.pack("!IB3x", m, seq & 0xFF) for m, seq in self.requests)
+        return _header(PSFB_FIR, RTCP_PSFB, len(body)) + body
+
+
+@dataclass(frozen=True, slots=True)
 class RtcpUnknown:
     """Any other RTCP packet (SDES, BYE, APP, other feedback), kept as raw body."""
 
@@ -238,7 +254,8 @@ class RtcpUnknown:
         return _header(self.count, self.packet_type, len(self.body)) + self.body
 
 
-RtcpPacket = Union[SenderReport, ReceiverReport, SourceDescription, GenericNack, PictureLossIndication, RtcpUnknown]
+RtcpPacket = Union[SenderReport, ReceiverReport, SourceDescription, GenericNack, PictureLossIndication, FullIntraRequest,
+                   RtcpUnknown]
 
 
 def serialize_rtcp(packets: Iterable[RtcpPacket]) -> bytes:
@@ -347,6 +364,12 @@ def parse_rtcp(data: bytes) -> list[RtcpPacket]:
                     lost.append(pid)
                     lost.extend((pid + k + 1) & 0xFFFF for k in range(16) if blp >> k & 1)
                 packets.append(GenericNack(ssrc, media, tuple(lost)))
+        elif pt == RTCP_PSFB and count == PSFB_FIR:
+            if body + 8 > body_end or (body_end - body - 8) % 8:
+                raise RtcpError(f"RTCP FIR at offset {pos}: body of {body_end - body} bytes is not 8 + 8 x n")
+            (ssrc,) = struct.unpack_from("!I", data, body)
+            reqs = tuple(struct.unpack_from("!IB", data, off) for off in range(body + 8, body_end, 8))
+            packets.append(FullIntraRequest(ssrc, reqs))
         else:
             packets.append(RtcpUnknown(pt, count, bytes(data[body:body_end])))
         pos = end

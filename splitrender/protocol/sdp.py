@@ -1,7 +1,7 @@
 """SDP (RFC 4566) descriptions of one RTP video stream, as FFmpeg/PyAV open them.
 
 The media line is ``RTP/AVPF`` (RFC 4585): the receiver sends generic NACKs and PLIs
-(``a=rtcp-fb:<pt> nack`` and ``nack pli``), RTP and RTCP share one port
+(``a=rtcp-fb:<pt> nack``, ``nack pli`` and ``ccm fir``), RTP and RTCP share one port
 (``a=rtcp-mux``, RFC 5761).  With the parameter sets the encoder sends, the ``fmtp``
 line names the stream exactly: H.264 (RFC 6184) ``profile-level-id`` from the SPS and
 ``sprop-parameter-sets``; HEVC (RFC 7798) ``profile-id``, ``tier-flag``, ``level-id``
@@ -93,7 +93,8 @@ def make_sdp(
     ]
     if fmtp:
         lines.append(f"a=fmtp:{payload_type} " + "; ".join(fmtp))
-    lines += [f"a=rtcp-fb:{payload_type} nack", f"a=rtcp-fb:{payload_type} nack pli", "a=rtcp-mux"]
+    lines += [f"a=rtcp-fb:{payload_type} nack", f"a=rtcp-fb:{payload_type} nack pli",
+              f"a=rtcp-fb:{payload_type} ccm fir", "a=rtcp-mux"]
     return "\r\n".join(lines) + "\r\n"
 
 

@@ -24,7 +24,6 @@ retransmissions it answers with are sent at once.  Everything the protocol decid
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import math
 import secrets
@@ -273,9 +272,7 @@ class ServerSession:
         self.method = negotiate_method(hello.methods, self.server.methods)
         spec = get_method(self.method)
         params = dict(cfg.method_params.get(self.method, {}))
-        mcfg = make_config(spec.config, params)
-        if mcfg.codec not in hello.codecs:
-            mcfg = dataclasses.replace(mcfg, codec=hello.codecs[0])
+        mcfg = make_config(spec.config, params).for_codecs(tuple(hello.codecs))
         self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
         self._predictor = make_predictor(cfg.predictor)

@@ -3,6 +3,8 @@ this, never the package)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +77,15 @@ class WarpConfig(MethodConfig):
     max_extrapolation_s: float = 0.5
     max_splat_px: float = 8.0
     splat_slack_px: float = 0.25
+
+    def for_codecs(self, codecs: tuple[str, ...]) -> WarpConfig:
+        """As :meth:`MethodConfig.for_codecs`; a client that does not decode HEVC gets its depth as BC4 over a data
+        stream instead of lossless HEVC."""
+        out = super().for_codecs(codecs)
+        assert isinstance(out, WarpConfig)
+        if codecs and "hevc" not in codecs and out.depth_coding == "lossless":
+            out = dataclasses.replace(out, depth_coding="bc4")
+        return out
 
     def __post_init__(self) -> None:
         super().__post_init__()
