@@ -616,3 +616,39 @@ async def test_an_h264_only_client_gets_warp_with_depth_it_can_decode(tmp_path: 
     assert texts and all("H264/90000" in t and "H265" not in t for t in texts), texts
     c = result.counters
     assert c["frames_complete"] >= 3 and c["decode_errors"] == 0, c
+
+
+async def test_a_slow_server_without_loss_gets_no_keyframe_storm(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 37: with the server at 2-4 updates a second (a nominal 30), every gap was a stall, a PLI and a
+    keyframe (85-92 % of frames keyframes with no loss).  A server that sends one tick in ten (3 a second) for
+    6 s with no loss now gets at most one PLI per GOP of its own (here the GOP is 30 frames, 10 s at that rate),
+    and its client stalls at most once (before the rate is measured)."""
+    from splitrender.server.session import ServerSession
+
+    send = ServerSession._send_frame
+    ticks = {"n": 0}
+
+    async def one_in_ten(self: ServerSession) -> None:
+        ticks["n"] += 1
+        if ticks["n"] % 10 == 1:
+            await send(self)
+
+    monkeypatch.setattr(ServerSession, "_send_frame", one_in_ten)
+    async with LiveServer(_server_config()) as srv:
+        serve = asyncio.create_task(srv.serve_forever())
+        try:
+            cfg = ClientConfig(server=LOOPBACK, port=srv.tcp_address[1], methods=("video",), width=160, height=90,
+                               display_hz=30, duration_s=6.0)
+            run = asyncio.create_task(asyncio.wait_for(LiveClient(cfg).run(), 40))
+            while not srv.sessions and not run.done():
+                await asyncio.sleep(0.01)
+            session = next(iter(srv.sessions.values()))
+            result = await run
+            server_counters = dict(session.counters)
+        finally:
+            serve.cancel()
+            await asyncio.gather(serve, return_exceptions=True)
+    c = result.counters
+    assert c["frames_complete"] >= 10, c                     # about 18 in 6 s at 3 a second
+    assert c["plis_sent"] <= 1 and c["stalls"] <= 1, c
+    assert server_counters["keyframes"] <= 2, server_counters   # the first, and at most one asked for
