@@ -185,3 +185,20 @@ def test_fuzz_framing_mutated_stream(pos: int, value: int, chunk: int) -> None:
         _events([bytes(data[i : i + chunk]) for i in range(0, len(data), chunk)])
     except RemoteProtocolError:
         pass
+
+
+def test_the_protocol_document_gives_the_version_the_code_speaks() -> None:
+    """docs/protocol.md said version 1 in the frame table while the code sent 2 (issue 34): the title, the frame
+    header table, the version check and Hello's field all give ``PROTOCOL_VERSION``."""
+    import re
+    from pathlib import Path
+
+    from splitrender.protocol import PROTOCOL_VERSION
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
+    v = str(PROTOCOL_VERSION)
+    assert re.search(r"^# splitrender wire protocol \(version (\d+)\)", doc, re.M).group(1) == v  # type: ignore[union-attr]
+    assert re.search(r"\| protocol version \| `(\d+)` \(`PROTOCOL_VERSION`\) \|", doc).group(1) == v  # type: ignore[union-attr]
+    assert re.search(r"version ≠ (\d+) → `VersionError\(\"peer speaks protocol version \d+, this side speaks version (\d+)\"\)",
+                     doc).groups() == (v, v)  # type: ignore[union-attr]
+    assert re.search(r"protocol version the client speaks \(must be (\d+)\)", doc).group(1) == v  # type: ignore[union-attr]
