@@ -50,10 +50,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default=None, help="comma-separated methods (default: all available)")
     p.add_argument("--networks", default="ideal,lan,cloud", help="comma-separated network profiles or netem strings")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
-    p.add_argument("--no-studies", action="store_true", help="skip the per-method studies in the report")
+    p.add_argument("--studies", action="store_true",
+                   help="also run the studies that set methods beside their papers (the full demo does; with --quick "
+                        "they are `splitrender study all` on their own)")
+    p.add_argument("--no-studies", action="store_true", help="skip the studies (the full demo runs them)")
     p.add_argument("--fec", action="store_true", default=None, help="forward error correction on every RTP stream")
     _session_args(p)
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_demo"))
+
+    p = sub.add_parser("study", help="the studies that set methods beside their papers, added to a demo's report")
+    p.add_argument("names", help="a study's name, comma-separated names, or all (a wrong name lists them)")
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="the demo folder (default out/demo): studies go to "
+                   "OUT/studies/NAME and the report is written again")
+    p.add_argument("--quick", action="store_true", help="the studies' quick settings")
+    p.add_argument("--timeout", type=float, default=3600.0, help="stop studies still running after this many seconds")
+    p.set_defaults(func=_lazy("splitrender.experiments.demo:main_study"))
 
     p = sub.add_parser("run", help="one virtual-time run: writes frames.csv, updates.csv, summary.csv and config.toml")
     p.add_argument("--method", default=None, help="streaming method (see `splitrender methods`; default video)")

@@ -45,6 +45,9 @@ def test_demo_tiny(tmp_path: Path) -> None:
     for name in ("quality_vs_latency", "psnr_timeline", "bitrate_by_stream", "client_cost"):
         assert (tmp_path / "figures" / f"{name}.png").is_file() and (tmp_path / "figures" / f"{name}.svg").is_file()
     html = (tmp_path / "report.html").read_text()
+    # the answer first: the headline table per network, then speed against accuracy, then how it was scored
+    assert html.index("id='answer'") < html.index('id="speed_vs_accuracy"') < html.index("What ran")
+    assert re.search(r"<h3>cloud</h3><table><tr><th>front</th><th>method</th>", html)
     assert len(re.findall(r'src="data:image/png;base64,', html)) >= 6
     for needle in ('id="quality_vs_latency"', 'id="psnr_timeline"', 'id="bitrate_by_stream"', 'id="client_cost"',
                    "flip_every = 6", "50 ms +- 20 ms", "Quality over time (cloud)"):
@@ -95,3 +98,35 @@ def test_study_runner_isolates_errors_and_timeouts(tmp_path: Path, fake_studies:
     assert boom.title.endswith("(failed)") and "study exploded" in boom.text_md
     hang = run_study(f"{fake_studies}.hang", tmp_path / "hang", True, 3)
     assert hang.title.endswith("(not completed)") and "stopped after" in hang.text_md
+
+
+def test_the_study_command_adds_studies_to_a_folders_report(tmp_path: Path, fake_studies: str,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """``splitrender study NAME|all --out DIR``: each study in its own process into ``DIR/studies/NAME`` with its
+    ``section.json`` (the section and its time); the report of DIR lists each with its time; a failing study is
+    reported, not raised, and makes the exit status 1; an unknown name is a ConfigError listing the studies."""
+    import argparse
+
+    from splitrender.experiments import demo
+
+    names = [f"{fake_studies}.ok", f"{fake_studies}.boom"]
+    monkeypatch.setattr(demo, "discover_studies", lambda: names)
+    ns = argparse.Namespace(names="all", out=tmp_path / "d", quick=True, timeout=60.0)
+    assert demo.main_study(ns) == 1                           # boom failed
+    for n in names:
+        assert (tmp_path / "d" / "studies" / n / "section.json").is_file()
+    html = (tmp_path / "d" / "report.html").read_text()
+    assert "Study: ok" in html and "study time:" in html and "study exploded" in html
+    assert re.search(r"<li>Study: ok \(\d+ s\)</li>", html)
+    ns.names = f"{fake_studies}.ok"
+    assert demo.main_study(ns) == 0
+    with pytest.raises(ConfigError, match=r"study: unknown study nope; available: all, fakestudies.ok"):
+        demo.main_study(argparse.Namespace(names="nope", out=tmp_path / "d", quick=True, timeout=60.0))
+
+
+def test_front_ranks_are_non_dominated_layers() -> None:
+    from splitrender.experiments.headline import front_ranks
+
+    # (client cost, PSNR): a and b on the front, c dominated by a, d dominated by c (and a), e unranked
+    pts = [(1.0, 30.0), (0.1, 20.0), (2.0, 25.0), (3.0, 24.0), (float("nan"), 40.0)]
+    assert front_ranks(pts) == [1, 1, 2, 3, 0]

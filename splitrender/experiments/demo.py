@@ -1,16 +1,19 @@
 """``splitrender demo``: every available method on the default scene under ideal, lan and
-cloud, in a process pool, then a self-contained HTML report plus each method's study.
+cloud, in a process pool, then a self-contained HTML report; the full demo also runs the
+studies that set each method beside its paper (``splitrender study`` runs them on their own).
 
 Outputs in ``DIR``: ``runs/<key>/`` (per-run CSVs and ``config.toml``), ``runs.csv``
 (one row per run), ``summary.csv`` (one row per method x network, mean over traces),
 ``frames.csv`` (every displayed frame with ``run``/``method``/``network`` columns),
-``figures/`` (PNG + SVG + CSV per chart), ``studies/<name>/`` and ``report.html``.
+``figures/`` (PNG + SVG + CSV per chart), ``studies/<name>/`` (each with its
+``section.json``) and ``report.html``, which opens with the headline tables
+(:mod:`.headline`) and the speed-against-accuracy chart.
 
 ``--quick`` (:data:`QUICK`) runs 320x180, 1 s of the walk trace at 30 fps with FLIP
-on every 6th frame, and starts the studies (each in its own process, at low
-priority) alongside the runs; studies still running 720 s after the start are stopped
-and the report says so.  The default (:data:`FULL`)
-runs 640x360 over the full 10 s walk and turn traces.
+on every 6th frame, without the studies (``--studies`` starts them alongside the runs,
+at low priority, stopping any still running 720 s after the start; ``splitrender study
+all --out DIR --quick`` runs them afterwards and adds them to the report).  The default
+(:data:`FULL`) runs 640x360 over the full 10 s walk and turn traces, and the studies.
 """
 
 from __future__ import annotations
@@ -253,9 +256,9 @@ class StudyRunner:
     still running at ``deadline`` (monotonic s; ``None``: :data:`FULL_STUDY_TIMEOUT_S`).
     """
 
-    def __init__(self, out: Path, quick: bool, nice: int = 0) -> None:
+    def __init__(self, out: Path, quick: bool, nice: int = 0, names: Sequence[str] | None = None) -> None:
         self.out, self.quick, self.nice = out, quick, nice
-        self.names = discover_studies()
+        self.names = list(names) if names is not None else discover_studies()
         self.procs: list[_StudyProc] = []
 
     def start(self) -> "StudyRunner":
@@ -287,10 +290,42 @@ class StudyRunner:
             sec = results[name]
             sec.figures = [_rel(Path(f), self.out, self.out / "studies" / name) for f in sec.figures]
             sec.tables = [_rel(Path(t), self.out, self.out / "studies" / name) for t in sec.tables]
+            sec.elapsed_s = round(took[name], 1)
+            save_study_section(self.out, name, sec)
             status = " - " + sec.title if sec.title.endswith(("(not completed)", "(failed)", "(skipped)")) else ""
-            notes.append(f"study `{name}`: {took[name]:.0f} s (started with the runs)" + status)
+            notes.append(f"study `{name}`: {took[name]:.0f} s" + status)
             secs.append(sec)
         return secs, notes
+
+
+STUDY_SECTION_FILE = "section.json"
+
+
+def save_study_section(out: Path, name: str, sec: Section) -> Path:
+    """``out/studies/<name>/section.json``: the study's section (paths relative to ``out``) and its time, for the
+    report of ``out`` whichever command ran the study."""
+    import json
+
+    p = out / "studies" / name / STUDY_SECTION_FILE
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(sec.to_dict(), indent=1))
+    return p
+
+
+def load_study_sections(out: Path) -> list[Section]:
+    """Every study section saved under ``out/studies`` (in the studies' order, unknown names after)."""
+    import json
+
+    order = {n: i for i, n in enumerate(discover_studies())}
+    found = sorted((p for p in (out / "studies").glob(f"*/{STUDY_SECTION_FILE}")),
+                   key=lambda p: (order.get(p.parent.name, len(order)), p.parent.name))
+    out_secs = []
+    for p in found:
+        try:
+            out_secs.append(Section.from_dict(json.loads(p.read_text())))
+        except (ValueError, KeyError, TypeError) as exc:
+            log.warning("%s: not a study section (%s); left out of the report", p, exc)
+    return out_secs
 
 
 def run_studies(out: Path, quick: bool, deadline: float | None) -> tuple[list[Section], list[str]]:
@@ -314,11 +349,14 @@ def _rel(p: Path, root: Path, study_dir: Path) -> Path:
 
 
 def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None = None, networks: Sequence[str] = NETWORKS,
-             workers: int | None = None, studies: bool = True, duration_s: float | None = None,
+             workers: int | None = None, studies: bool | None = None, duration_s: float | None = None,
              size: tuple[int, int] | None = None, traces: Sequence[str] | None = None,
              progress: RunProgress | None = None, session: dict[str, Any] | None = None) -> DemoResult:
-    """Run the demo into ``out`` and write its report; see the module docstring."""
+    """Run the demo into ``out`` and write its report; see the module docstring.  ``studies``: run the studies too
+    (default: in the full demo, not with ``quick``; ``splitrender study`` runs them on their own)."""
     t0 = time.monotonic()
+    if studies is None:
+        studies = not quick
     deadline = t0 + QUICK_BUDGET_S if quick else None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,11 +381,12 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
         sections, snotes = studies_run.collect(deadline)
         notes += snotes
     else:
-        notes.append("studies skipped (--no-studies).")
+        notes.append("studies not run with this demo: `splitrender study all --out " + str(out) + (" --quick" if quick else "")
+                     + "` runs them and adds them to this report.")
     title = "splitrender demo" + (" (quick)" if quick else "")
     intro = intro_markdown(cfgs, quick, runs, notes)
-    save_meta(out, title, intro, sections)
-    report = build_report(out, title=title, intro_md=intro, sections=sections)
+    save_meta(out, title, intro, [])
+    report = build_report(out, title=title, intro_md=intro)
     return DemoResult(out, report, summary, cfgs, time.monotonic() - t0, notes, [f.error for f in ex.failures])
 
 
@@ -361,13 +400,13 @@ def main_demo(ns: argparse.Namespace) -> int:
 
     session = session_options(ns)   # the client's loss recovery (--playout-delay, --nack-tries, ..., --fec)
     demo_configs(ns.quick, methods, networks, session=session)  # validate before the bar shows
+    from .headline import headline_rows, headline_text
+
+    studies = True if ns.studies else (False if ns.no_studies else None)
     with RichRunProgress("demo" + (" --quick" if ns.quick else "")) as bar:
         res = run_demo(ns.out, quick=ns.quick, methods=methods, networks=networks, workers=ns.workers,
-                       studies=not ns.no_studies, progress=bar, session=session)
-    print(f"{'method':10s} {'network':8s} {'PSNR dB':>8s} {'SSIM':>7s} {'FLIP':>7s} {'kbit/s':>8s}")
-    for r in res.summary:
-        print(f"{r['method']:10s} {r['network']:8s} {r['mean_psnr_db']:8.2f} {r['mean_ssim']:7.4f} {r['mean_flip']:7.4f} "
-              f"{r['mean_kbps']:8.0f}")
+                       studies=studies, progress=bar, session=session)
+    print(headline_text(headline_rows(res.summary)))
     for n in res.study_notes:
         if "FAILED" in n or "not completed" in n or "failed" in n:
             print(f"note: {n}")
@@ -375,5 +414,31 @@ def main_demo(ns: argparse.Namespace) -> int:
     return 1 if res.failures else 0
 
 
-__all__ = ["DemoResult", "FULL", "NETWORKS", "QUICK", "demo_configs", "discover_studies", "main_demo", "run_demo", "run_studies",
-           "run_study", "summarise"]
+def main_study(ns: argparse.Namespace) -> int:
+    """``splitrender study NAME[,NAME]|all [--out DIR] [--quick] [--timeout S]``: the studies that set methods beside
+    their papers, each in its own process, into ``DIR/studies/<name>/``; the report of ``DIR`` (a demo's folder, or
+    a folder of its own) is written again with them."""
+    known = discover_studies()
+    names = known if ns.names.strip() == "all" else [n.strip() for n in ns.names.split(",") if n.strip()]
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise ConfigError(f"study: unknown study {', '.join(unknown) or '(none given)'}; available: all, {', '.join(known)}")
+    if not ns.timeout > 0:
+        raise ConfigError(f"study --timeout: must be > 0 s, got {ns.timeout}")
+    out = Path(ns.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    secs, notes = StudyRunner(out, ns.quick, names=names).start().collect(t0 + ns.timeout)
+    for n in notes:
+        print(n)
+    from .report import META_FILE
+
+    if not (out / META_FILE).exists() and not (out / "runs.csv").exists():
+        save_meta(out, "splitrender studies", "", [])
+    report = build_report(out)
+    print(f"{len(secs)} studies done in {time.monotonic() - t0:.0f} s -> {report}")
+    return 1 if any(s.title.endswith(("(failed)", "(not completed)")) for s in secs) else 0
+
+
+__all__ = ["DemoResult", "FULL", "NETWORKS", "QUICK", "demo_configs", "discover_studies", "load_study_sections", "main_demo",
+           "main_study", "run_demo", "run_studies", "run_study", "save_study_section", "summarise"]

@@ -132,7 +132,8 @@ def _chart_html(ch: Chart, root: Path) -> str:
 
 def section_html(sec: Section, root: Path) -> str:
     """A study's section: Markdown text, its figures (embedded) and tables."""
-    parts = [f"<section><h2>{html.escape(sec.title)}</h2>", markdown_to_html(sec.text_md)]
+    took = f"<p><small>study time: {sec.elapsed_s:.0f} s wall clock</small></p>" if sec.elapsed_s is not None else ""
+    parts = [f"<section><h2>{html.escape(sec.title)}</h2>", took, markdown_to_html(sec.text_md)]
     for f in sec.figures:
         p = Path(f)
         p = p if p.is_absolute() else root / p
@@ -230,26 +231,47 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
                  sections: Sequence[Section] | None = None) -> Path:
     """Write ``root/report.html`` (self-contained) and ``root/figures/*``; returns the HTML path."""
     root = Path(root)
-    runs, frames = load_results(root)
+    if (root / "runs.csv").is_file() or (root / "summary.csv").is_file() or not (root / "studies").is_dir():
+        runs, frames = load_results(root)
+    else:   # a folder of studies alone (``splitrender study --out DIR``)
+        runs, frames = [], []
     mtitle, mintro, msections = load_meta(root)
     title = title or mtitle or f"splitrender results: {root.name}"
     intro_md = intro_md if intro_md is not None else mintro
-    sections = list(sections) if sections is not None else msections
+    if sections is None:   # the demo's own (older folders kept them in the meta file) and every study run into root
+        from .demo import load_study_sections
+
+        studies = load_study_sections(root)
+        titles = {s.title for s in studies}
+        sections = [s for s in msections if s.title not in titles] + studies
+    sections = list(sections)
     charts = build_charts(root, runs, frames, run_key)
 
     methods = method_order([str(r["method"]) for r in runs])
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
              f"<h1>{html.escape(title)}</h1>",
              f"<p>{len(runs)} runs; methods: {', '.join(methods)} (baselines: video, atw); networks: "
-             f"{html.escape(', '.join(dict.fromkeys(str(r['network']) for r in runs)))}.</p>"]
+             f"{html.escape(', '.join(dict.fromkeys(str(r['network']) for r in runs)))}.</p>" if runs else
+             "<p>Studies only: this folder has no demo runs.</p>"]
     missing = [b for b in ("video", "atw") if b not in methods]
-    if missing:
+    if missing and runs:
         parts.append(f'<p class="err">These results lack the baseline(s) {", ".join(missing)}: the charts cannot show them.</p>')
+    # the answer first: what each method buys and costs per network, then speed against accuracy
+    if runs:
+        from .demo import summarise
+        from .headline import headline_html, headline_rows
+
+        parts.append(headline_html(headline_rows(summarise(runs))))
+        for heading, ch in [(h, c) for h, c in charts if c.name == "speed_vs_accuracy"]:
+            parts.append(f"<h2>{html.escape(heading)}</h2>")
+            parts.append(_chart_html(ch, root))
+        charts = [(h, c) for h, c in charts if c.name != "speed_vs_accuracy"]
     if intro_md:
         parts.append(markdown_to_html(intro_md))
     parts.append(f"<p>Failure frames: PSNR below {FAIL_PSNR_DB:g} dB or more than {FAIL_HOLE_PCT:g}% hole pixels where the ground truth shows geometry.</p>")
     parts.append("<h2>Contents</h2><ul>" + "".join(f'<li><a href="#{c.name}">{html.escape(h)}</a></li>' for h, c in charts)
-                 + "".join(f"<li>{html.escape(s.title)}</li>" for s in sections) + "</ul>")
+                 + "".join(f"<li>{html.escape(s.title)}" + (f" ({s.elapsed_s:.0f} s)" if s.elapsed_s is not None else "")
+                           + "</li>" for s in sections) + "</ul>")
     for heading, ch in charts:
         parts.append(f"<h2>{html.escape(heading)}</h2>")
         parts.append(_chart_html(ch, root))

@@ -355,6 +355,9 @@ class MethodSpec:
     needs_gi: bool = False
     """The method streams the scene's global illumination: it runs only on scenes with ``gi = "ddgi"`` (``default``,
     or any scene with ``+gi``)."""
+    client_draws_scene: bool = False
+    """The client half holds the whole scene and renders it (what it streams is lighting): a different kind of thin
+    client, marked as such where methods are compared."""
 
     @property
     def server_class(self) -> type[ServerHalf]:

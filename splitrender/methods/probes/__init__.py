@@ -17,6 +17,7 @@ from .config import ProbesConfig
 SPEC = register_method(MethodSpec("probes", "splitrender.methods.probes.server:ProbesServer",
                                   "splitrender.methods.probes.client:ProbesClient", ProbesConfig,
                                   "light probe streaming: DDGI probes traced once, streamed losslessly, shaded by the client",
-                                  producer="splitrender.methods.probes.server:ProbesProducer", needs_gi=True))
+                                  producer="splitrender.methods.probes.server:ProbesProducer", needs_gi=True,
+                                  client_draws_scene=True))
 
 __all__ = ["SPEC", "ProbesConfig"]
