@@ -482,8 +482,10 @@ def test_killed_server_or_client_leaves_a_scoreable_partial_recording(tmp_path: 
 
 
 async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    """The server stops sending frames after 0.5 s (a test hook): the client counts a stall, sends PLIs while it
-    lasts, and after ``stall_timeout_s`` ends the session with StreamStalledError and a partial recording."""
+    """The server stops sending frames after 1 s (a test hook): the client counts a stall and after
+    ``stall_timeout_s`` ends the session with StreamStalledError and a partial recording.  Nothing was lost (the
+    server simply stopped), so the stall asks for no keyframe (issue 37: a keyframe would not help a server that
+    sends nothing, and a slow server's gaps must not each cost an IDR)."""
     import json
     import time
 
@@ -514,8 +516,7 @@ async def test_client_detects_a_stalled_stream_asks_for_keyframes_and_gives_up(t
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)
     c = client.counters
-    # measured: 1 stall, 5 stall PLIs (6 frames = 200 ms in, then one every pli_interval_ms = 250 ms of the 1.5 s)
-    assert c["stalls"] == 1 and c["stall_plis"] >= 4, c
+    assert c["stalls"] == 1 and c["stall_plis"] == 0 and c["plis_sent"] == 0, c
     assert 2.4 < took < 3.5, took  # 1 s streaming (+ set-up), then 1.5 s of stall; measured 2.50 s
     rec = json.loads((tmp_path / "recording.json").read_text())
     assert rec["complete"] is False and "StreamStalledError" in rec["error"]

@@ -143,7 +143,7 @@ async def test_sdp_dir_without_mirror_port_logs_a_hint(tmp_path: Path, caplog: p
 
 @pytest.mark.parametrize("bad", [[[0, 0, 0]], [[0, 0, "x"], [1, 1, 1]], [[0, 0, 0], [1, float("nan"), 1]], [[2, 0, 0], [1, 1, 1]], 7])
 def test_malformed_subject_bounds_name_the_field(bad) -> None:  # type: ignore[no-untyped-def]
-    from splitrender.client.session import _parse_subject
+    from splitrender.pipeline.session import parse_subject as _parse_subject
     from splitrender.pipeline import EnvelopeError
 
     with pytest.raises(EnvelopeError, match="Welcome.method_params.subject"):
