@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import multiprocessing as mp
 import os
-import pkgutil
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -34,8 +32,8 @@ from ..errors import ConfigError
 from ..sim.config import RunConfig
 from ..sim.truth import shared_cache_setting
 from .report import build_report, save_meta
-from .sections import Section
-from .store import ResultStore, Row, fnum, network_columns, read_csv, write_csv
+from .sections import Section, discover_studies, load_study_sections, save_study_section
+from .store import ResultStore, Row, fnum, network_columns, read_csv, summarise, write_csv
 from .sweep import RunProgress, run_configs
 
 log = logging.getLogger(__name__)
@@ -93,25 +91,6 @@ def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Se
     return out
 
 
-def summarise(runs: Sequence[Row]) -> list[Row]:
-    """One row per method x network: means over traces (and seeds) of the runs' summaries."""
-    groups: dict[tuple[str, str], list[Row]] = {}
-    for r in runs:
-        groups.setdefault((str(r["method"]), str(r["network"])), []).append(r)
-    out = []
-    for (m, net), rr in groups.items():
-        row: Row = {"method": m, "network": net, "traces": "|".join(dict.fromkeys(str(r["trace"]) for r in rr)), "runs": len(rr)}
-        keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k in ("flip_frames", "lost_frames", "net_delay_ms",
-                                                                                      "net_jitter_ms", "psnr_mse_db", "fg_psnr_mse_db")]
-        for k in keys:
-            vals = [fnum(r.get(k)) for r in rr if not math.isnan(fnum(r.get(k)))]
-            row[k] = sum(vals) / len(vals) if vals else math.nan
-        g = fnum(row.get("mean_gt_ms"))
-        row["client_over_gt"] = fnum(row.get("mean_client_ms")) / g if g > 0 else math.nan
-        out.append(row)
-    return out
-
-
 def intro_markdown(cfgs: Sequence[RunConfig], quick: bool, runs: Sequence[Row], notes: Sequence[str]) -> str:
     """What was run, how FLIP was sampled and what latencies were modelled."""
     c = cfgs[0]
@@ -156,13 +135,6 @@ def intro_markdown(cfgs: Sequence[RunConfig], quick: bool, runs: Sequence[Row], 
 # ---------------------------------------------------------------------------------
 # Studies, each in its own process with a time limit
 # ---------------------------------------------------------------------------------
-
-
-def discover_studies() -> list[str]:
-    """Names of the modules in :mod:`splitrender.experiments.studies` (sorted)."""
-    from . import studies
-
-    return sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if not m.name.startswith("_"))
 
 
 def _study_child(name: str, out_dir: str, quick: bool, nice: int, conn: Any) -> None:
@@ -296,36 +268,6 @@ class StudyRunner:
             notes.append(f"study `{name}`: {took[name]:.0f} s" + status)
             secs.append(sec)
         return secs, notes
-
-
-STUDY_SECTION_FILE = "section.json"
-
-
-def save_study_section(out: Path, name: str, sec: Section) -> Path:
-    """``out/studies/<name>/section.json``: the study's section (paths relative to ``out``) and its time, for the
-    report of ``out`` whichever command ran the study."""
-    import json
-
-    p = out / "studies" / name / STUDY_SECTION_FILE
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(sec.to_dict(), indent=1))
-    return p
-
-
-def load_study_sections(out: Path) -> list[Section]:
-    """Every study section saved under ``out/studies`` (in the studies' order, unknown names after)."""
-    import json
-
-    order = {n: i for i, n in enumerate(discover_studies())}
-    found = sorted((p for p in (out / "studies").glob(f"*/{STUDY_SECTION_FILE}")),
-                   key=lambda p: (order.get(p.parent.name, len(order)), p.parent.name))
-    out_secs = []
-    for p in found:
-        try:
-            out_secs.append(Section.from_dict(json.loads(p.read_text())))
-        except (ValueError, KeyError, TypeError) as exc:
-            log.warning("%s: not a study section (%s); left out of the report", p, exc)
-    return out_secs
 
 
 def run_studies(out: Path, quick: bool, deadline: float | None) -> tuple[list[Section], list[str]]:

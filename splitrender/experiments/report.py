@@ -239,7 +239,7 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
     title = title or mtitle or f"splitrender results: {root.name}"
     intro_md = intro_md if intro_md is not None else mintro
     if sections is None:   # the demo's own (older folders kept them in the meta file) and every study run into root
-        from .demo import load_study_sections
+        from .sections import load_study_sections
 
         studies = load_study_sections(root)
         titles = {s.title for s in studies}
@@ -258,8 +258,8 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
         parts.append(f'<p class="err">These results lack the baseline(s) {", ".join(missing)}: the charts cannot show them.</p>')
     # the answer first: what each method buys and costs per network, then speed against accuracy
     if runs:
-        from .demo import summarise
         from .headline import headline_html, headline_rows
+        from .store import summarise
 
         parts.append(headline_html(headline_rows(summarise(runs))))
         for heading, ch in [(h, c) for h, c in charts if c.name == "speed_vs_accuracy"]:

@@ -189,5 +189,24 @@ def load_results(root: str | Path) -> tuple[list[Row], list[Row]]:
     return read_csv(runs_p), (read_csv(frames_p) if frames_p.is_file() else [])
 
 
-__all__ = ["ResultStore", "Row", "TIMING_COLUMNS", "column", "fnum", "is_timing_column", "load_results",
+__all__ = ["ResultStore", "Row", "TIMING_COLUMNS", "column", "fnum", "is_timing_column", "load_results", "summarise",
            "network_columns", "parse_value", "read_csv", "run_row", "write_csv"]
+
+
+def summarise(runs: Sequence[Row]) -> list[Row]:
+    """One row per method x network: means over traces (and seeds) of the runs' summaries."""
+    groups: dict[tuple[str, str], list[Row]] = {}
+    for r in runs:
+        groups.setdefault((str(r["method"]), str(r["network"])), []).append(r)
+    out = []
+    for (m, net), rr in groups.items():
+        row: Row = {"method": m, "network": net, "traces": "|".join(dict.fromkeys(str(r["trace"]) for r in rr)), "runs": len(rr)}
+        keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k in ("flip_frames", "lost_frames", "net_delay_ms",
+                                                                                      "net_jitter_ms", "psnr_mse_db", "fg_psnr_mse_db")]
+        for k in keys:
+            vals = [fnum(r.get(k)) for r in rr if not math.isnan(fnum(r.get(k)))]
+            row[k] = sum(vals) / len(vals) if vals else math.nan
+        g = fnum(row.get("mean_gt_ms"))
+        row["client_over_gt"] = fnum(row.get("mean_client_ms")) / g if g > 0 else math.nan
+        out.append(row)
+    return out
