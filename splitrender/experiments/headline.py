@@ -1,6 +1,6 @@
 """The answer first: one table per network of what each method buys and costs.
 
-For every method on a network (its runs averaged over traces, :func:`~.demo.summarise`):
+For every method on a network (its runs averaged over traces, :func:`~.store.summarise`):
 
 * quality where it matters: PSNR over the foreground (the pixels where the ground truth
   shows geometry, ``mean_fg_psnr_db``) and over the whole frame, and FLIP (lower is
