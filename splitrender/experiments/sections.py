@@ -13,6 +13,7 @@ import logging
 import pkgutil
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -31,11 +32,10 @@ class Section:
                 "tables": [str(t) for t in self.tables], "elapsed_s": self.elapsed_s}
 
     @classmethod
-    def from_dict(cls, d: dict[str, object]) -> "Section":
+    def from_dict(cls, d: dict[str, Any]) -> "Section":
         el = d.get("elapsed_s")
-        return cls(str(d["title"]), str(d.get("text_md", "")), [Path(str(f)) for f in d.get("figures", []) or []],  # type: ignore[union-attr]
-                   [Path(str(t)) for t in d.get("tables", []) or []],  # type: ignore[union-attr]
-                   float(el) if isinstance(el, (int, float)) else None)
+        return cls(str(d["title"]), str(d.get("text_md", "")), [Path(str(f)) for f in d.get("figures") or []],
+                   [Path(str(t)) for t in d.get("tables") or []], float(el) if isinstance(el, (int, float)) else None)
 
 
 def discover_studies() -> list[str]:
