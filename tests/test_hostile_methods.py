@@ -387,3 +387,16 @@ def test_probes_wire_version_is_the_servers() -> None:
     from splitrender.methods.probes import server, wire
 
     assert wire.META_VERSION == server.META_VERSION
+
+
+@pytest.mark.parametrize("method", ["probes"])
+def test_an_object_without_triangles_in_the_scene_is_refused(pair: Pair, method: str) -> None:
+    """The long fuzz run's find: a probes scene whose object has an empty index array passed the checks and
+    the first render raised moderngl's "the buffer cannot be empty".  An object draws at least one triangle."""
+    scene = pair.session["scene"]
+    objects = [dict(o) for o in scene["objects"]]
+    objects[-1]["indices"] = np.zeros((0, 3), np.uint32)
+    err, peak = _peak(lambda: pair.client({**pair.session, "scene": {**scene, "objects": objects}}))
+    _assert_rejected(err, SceneWireError, f"scene: objects[{len(objects) - 1}].indices: shape (0, 3): a dimension of 0 is "
+                                          "not in 1..16777216")
+    assert peak < 256 * KB, peak

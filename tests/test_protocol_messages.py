@@ -178,3 +178,14 @@ def test_stream_description_fec_field_round_trips_and_is_checked() -> None:
                       ([0x11223344, 127], "the FEC stream must differ"), ([5, 96], "the FEC stream must differ"), ([True, 127], "expected \\[ssrc")):
         with pytest.raises(MessageError, match=r"^s\.fec: " + text):
             StreamDescription.from_wire("s", {**w, "fec": bad})
+
+
+def test_a_pose_far_beyond_any_scene_is_the_peers_error() -> None:
+    """The long fuzz run's find: a Pose at x = 1.8e306 (finite) passed, and the server's predictor extrapolated it
+    to inf.  Coordinates are bounded (``MAX_POSITION_M``, 1e6 m)."""
+    from splitrender.protocol import MessageError, Pose
+
+    wire = Pose(1, 2, (0.0, 1.6, 2.5), (0.0, 0.0, 0.0, 1.0)).to_wire()
+    with pytest.raises(MessageError, match=r"Pose.position: \[1.797693134862316e\+306, 1.6, 2.49\] is more than 1e\+06 m"):
+        Pose.from_wire({**wire, "position": [1.797693134862316e306, 1.6, 2.49]})
+    assert Pose.from_wire({**wire, "position": [999_999.0, 1.6, -2.5]}).position == (999_999.0, 1.6, -2.5)

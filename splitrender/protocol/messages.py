@@ -54,6 +54,8 @@ U64_MAX = 0xFFFFFFFFFFFFFFFF
 I64_MIN = -(2**63)
 I64_MAX = 2**63 - 1
 MAX_DIMENSION_PX = 16384
+MAX_POSITION_M = 1e6
+"""A pose's coordinates, metres: farther is a peer error (a predictor extrapolating from 1e306 overflows)."""
 MAX_NAME_LEN = 64
 MAX_TEXT_LEN = 1024
 MAX_LIST_LEN = 64
@@ -456,10 +458,13 @@ class Pose(Message):
         norm = math.sqrt(sum(v * v for v in q))
         if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
             raise MessageError(f"{name}.orientation: quaternion norm {norm:.6g} is not 1")
+        pos = _floats(name, d, "position", 3)
+        if max(abs(v) for v in pos) > MAX_POSITION_M:
+            raise MessageError(f"{name}.position: {list(pos)} is more than {MAX_POSITION_M:g} m from the origin")
         return cls(
             client_time_us=_int(name, d, "t_us", I64_MIN, I64_MAX),
             seq=_int(name, d, "seq", 0, U32_MAX),
-            position=cast(tuple[float, float, float], _floats(name, d, "position", 3)),
+            position=cast(tuple[float, float, float], pos),
             orientation=cast(tuple[float, float, float, float], q),
         )
 

@@ -85,7 +85,7 @@ class _Indices(Array):
     """An object's (T, 3) uint32 triangle indices, each below its vertex count ``V`` (bound by ``positions``)."""
 
     def __init__(self) -> None:
-        super().__init__(dtype=np.uint32, shape=(Dim("T", 0, MAX_VERTICES), 3))
+        super().__init__(dtype=np.uint32, shape=(Dim("T", 1, MAX_VERTICES), 3))   # an object draws at least one triangle
 
     def check(self, v: Any, ctx: dict[str, Any]) -> np.ndarray:
         out = super().check(v, ctx)
