@@ -44,6 +44,9 @@ QUICK: dict[str, Any] = {"width": 320, "height": 180, "duration_s": 1.0, "client
 FULL: dict[str, Any] = {"width": 640, "height": 360, "duration_s": None, "client_fps": 60, "server_fps": 30, "flip_every": 4,
                         "traces": ("walk", "turn")}
 QUICK_BUDGET_S = 720.0
+RUN_COST: dict[str, float] = {"sas": 7.0, "quads": 5.5, "tss": 4.0, "video": 3.5, "warp": 2.5, "atw": 2.0, "probes": 1.5}
+"""Relative wall time of a demo run per method (server plus client ms over the ground truth's, measured on the quick
+demo): the pool takes the slowest first.  Unknown methods count 3."""
 FULL_STUDY_TIMEOUT_S = 3600.0
 SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "psnr_mse_db", "p5_psnr_db", "mean_ssim", "mean_dssim",
                    "mean_flip", "flip_frames", "mean_fg_psnr_db", "mean_fg_flip", "mean_fg_pct",
@@ -304,6 +307,8 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
     out.mkdir(parents=True, exist_ok=True)
     # one ground truth for every method and network (splitrender.sim.truth)
     cfgs = [c.replace(truth_cache=shared_cache_setting(out)) for c in demo_configs(quick, methods, networks, duration_s, size, traces, session)]
+    # the slowest runs first, so that the pool does not end with one worker busy on a long run and the other idle
+    cfgs.sort(key=lambda c: -RUN_COST.get(c.method, 3.0))
     store = ResultStore(out)
     # Studies start first at low priority, so they use whatever CPU the runs leave.
     studies_run = StudyRunner(out, quick, nice=10).start() if studies else None
