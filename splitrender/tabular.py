@@ -13,20 +13,28 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["CsvAppender", "write_csv", "atomic_write_bytes"]
+__all__ = ["CsvAppender", "atomic_file", "atomic_write_bytes", "write_csv", "write_csv_passes"]
+
+
+@contextmanager
+def atomic_file(path: Path, mode: str = "w", newline: str | None = None) -> Iterator[IO[Any]]:
+    """A file opened at a temporary name in ``path``'s folder and renamed to ``path`` once written: a reader (or
+    a process killed meanwhile) sees the old file or the whole new one, never part of it."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, mode, newline=newline) as f:
+        yield f
+    os.replace(tmp, path)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename: a reader (or a
-    process killed meanwhile) sees the old file or the whole new one, never part of it."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
+    """``data`` to ``path`` through :func:`atomic_file`."""
+    with atomic_file(path, "wb") as f:
         f.write(data)
-    os.replace(tmp, path)
 
 
 class CsvAppender:
@@ -59,20 +67,27 @@ class CsvAppender:
 
 
 def write_csv(path: Path, rows: Iterable[dict[str, Any]]) -> None:
-    """``rows`` as a CSV table whose columns are every key in order of first appearance; written whole through a
-    temporary file and a rename."""
+    """``rows`` as a CSV table whose columns are every key in order of first appearance; written whole through
+    :func:`atomic_file`."""
     rows = list(rows)
+    write_csv_passes(path, lambda: rows)
+
+
+def write_csv_passes(path: Path, rows: Callable[[], Iterable[dict[str, Any]]]) -> int:
+    """:func:`write_csv` for rows read twice from their source (``rows()`` gives a fresh iterable each call: once
+    for the columns, once to write), so that memory stays flat however many there are.  Returns the rows
+    written."""
     keys: dict[str, None] = {}
-    for r in rows:
-        for k in r:
-            keys.setdefault(k, None)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", newline="") as f:
+    for r in rows():
+        keys.update(dict.fromkeys(r))
+    n = 0
+    with atomic_file(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(keys), restval="")
         w.writeheader()
-        for r in rows:
+        for r in rows():
             w.writerow({k: _fmt(v) for k, v in r.items()})
-    os.replace(tmp, path)
+            n += 1
+    return n
 
 
 def _fmt(v: Any) -> Any:

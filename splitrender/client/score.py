@@ -26,7 +26,7 @@ from splitrender.errors import ConfigError
 from splitrender.pipeline import session_summary
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
-from splitrender.client.session import JOURNAL
+from splitrender.client.session import JOURNAL, iter_journal
 from splitrender.tabular import write_csv
 
 __all__ = ["score_recording", "read_frames", "read_journal"]
@@ -51,16 +51,7 @@ def read_frames(path: Path) -> list[dict[str, Any]]:
 
 def read_journal(path: Path) -> list[dict[str, Any]]:
     """Rows of a frames.jsonl (one JSON object per line); a torn last line is dropped."""
-    rows = []
-    with open(path) as f:
-        for line in f:
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                break  # the client died mid-write
-            if isinstance(row, dict):
-                rows.append({k: (math.nan if v is None else v) for k, v in row.items()})
-    return rows
+    return list(iter_journal(path))
 
 
 def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every: int = 4,

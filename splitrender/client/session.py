@@ -22,11 +22,9 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import csv
 import json
 import logging
 import math
-import os
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -42,7 +40,7 @@ from splitrender.pipeline import (ClientHandshake, ClientOptions, ClientPipeline
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
-from splitrender.tabular import atomic_write_bytes, write_csv
+from splitrender.tabular import atomic_file, atomic_write_bytes, write_csv, write_csv_passes
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -692,41 +690,27 @@ def _save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray 
     arrays: dict[str, np.ndarray] = {"color": color}
     if holes is not None:
         arrays["holes"] = holes
-    # through a temporary file and a rename: a client killed mid-write leaves no truncated image
-    path = d / f"{index:06d}.npz"
-    tmp = d / f".{index:06d}.npz.tmp"
-    with open(tmp, "wb") as f:
+    with atomic_file(d / f"{index:06d}.npz", "wb") as f:   # a client killed mid-write leaves no truncated image
         np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
-    os.replace(tmp, path)
+
+
+def iter_journal(path: Path) -> Iterator[dict[str, Any]]:
+    """The rows of a ``frames.jsonl`` (one JSON object per line, ``null`` read as NaN), one at a time; a torn last
+    line (a client killed mid-write) ends them."""
+    with open(path) as f:
+        for line in f:
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                return
+            if isinstance(row, dict):
+                yield {k: (math.nan if v is None else v) for k, v in row.items()}
 
 
 def journal_to_csv(journal: Path, out: Path) -> int:
-    """``frames.jsonl`` as ``frames.csv`` (columns: every key, in order of first appearance), two passes over the
-    file so that memory stays flat whatever its length; a torn last line is dropped.  Returns the rows written."""
-    def rows() -> Iterator[dict[str, Any]]:
-        with open(journal) as f:
-            for line in f:
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:
-                    return   # the client died mid-write
-                if isinstance(row, dict):
-                    yield {k: (math.nan if v is None else v) for k, v in row.items()}
-
-    keys: dict[str, None] = {}
-    for r in rows():
-        keys.update(dict.fromkeys(r))
-    n = 0
-    tmp = out.with_name(f".{out.name}.tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(keys), restval="")
-        w.writeheader()
-        for r in rows():
-            w.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else (f"{v:.6g}" if isinstance(v, float) else v))
-                        for k, v in r.items()})
-            n += 1
-    os.replace(tmp, out)
-    return n
+    """``frames.jsonl`` as ``frames.csv`` (every key a column, in order of first appearance), in two passes over
+    the file so that memory stays flat whatever its length.  Returns the rows written."""
+    return write_csv_passes(out, lambda: iter_journal(journal))
 
 
 def write_recording(result: ClientResult, out_dir: Path, frames: bool = True) -> None:
