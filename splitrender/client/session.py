@@ -35,7 +35,6 @@ import numpy as np
 
 from splitrender.errors import CodecError, ConfigError, RemoteProtocolError, SplitRenderError, describe_error
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from splitrender.methods.base import get_method
 from splitrender.pipeline import (ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
@@ -336,7 +335,7 @@ class LiveClient:
         self._welcome = msg
         self.session_id = msg.session_id
         self._params = dict(msg.method_params)
-        spec = get_method(terms.method)
+        spec = terms.spec
         mcfg = terms.config
         intr = CameraIntrinsics(cfg.width, cfg.height, terms.fov_y_deg)
         if terms.subject is not None:  # a loaded model: built-in traces go around it, as in the simulator

@@ -36,9 +36,6 @@ from .wire import SESSION_STREAM, Envelope, datagram_wire_bytes, EnvelopeError, 
 
 log = logging.getLogger(__name__)
 
-MAX_PENDING_FRAMES = DEFAULT_CLIENT_LIMITS.max_pending_frames
-"""The default bound on frames announced and not complete (``ClientLimits.max_pending_frames``)."""
-"""Frames (FrameMeta seen, streams outstanding) kept before the oldest is given up."""
 MAX_ORPHANS = 128
 """Decoded payloads kept while their FrameMeta has not arrived."""
 DEFAULT_META_MAX_BYTES = 64 * 1024 * 1024

@@ -118,6 +118,8 @@ class SessionTerms:
 
     session_id: str
     method: str
+    spec: Any
+    """The method's registered ``MethodSpec``."""
     config: Any
     """The method's config (its ``MethodConfig``), from ``method_params.config``."""
     fov_y_deg: float
@@ -168,7 +170,7 @@ def parse_welcome(welcome: Welcome, offered: Any = None) -> SessionTerms:
     fov = _finite_param(params, "fov_y_deg", 60.0, 0.0, 179.0)
     fps = _finite_param(params, "server_fps", 30.0, 0.0, 1000.0)
     subject = params.get("subject")
-    return SessionTerms(welcome.session_id, welcome.method, config, fov, fps,
+    return SessionTerms(welcome.session_id, welcome.method, spec, config, fov, fps,
                         parse_subject(subject) if subject is not None else None)
 
 
