@@ -5,6 +5,17 @@ frame in, no lookahead), a fixed GOP with IDR on request, constant bitrate (with
 VBV buffer of one frame) or CRF, and a lossless mode (HEVC ``lossless=1``, or x264
 ``qp=0``).  Encoded frames are Annex-B byte strings, ready for the RTP payloaders.
 
+HEVC level: x265 picks the lowest level that fits the size, rate and bit rate itself,
+except in lossless mode, where it writes general_level_idc 255 (level 8.5, "no limits")
+and refuses ``level-idc`` (lossless is constant QP, which x265 will not pair with a
+level).  An HEVC stream whose VPS/SPS say no level of H.265 Table A.8 gets the lowest
+level whose picture size and sample rate limits fit it
+(:func:`splitrender.protocol.sps.hevc_level_idc`) written into its VPS and SPS, in
+:meth:`VideoEncoder.parameter_sets` and in-band alike, so the SDP's ``level-id`` (read
+from the SPS) names a real level.  ``level-idc`` is not passed to x265 for lossy streams
+either: there it would switch on VBV under CRF and cut a bit rate above the level's
+MaxBR, while x265's own choice already is a real level.
+
 Input planes are numpy arrays, row 0 at the top:
 
 - ``rgb24``: (H, W, 3) uint8 sRGB.  Into ``yuv420p`` / ``yuv444p`` it is converted
@@ -33,6 +44,8 @@ import numpy as np
 
 from ..errors import CodecError, ConfigError
 from ..protocol.annexb import nal_type
+from ..protocol.errors import SdpError
+from ..protocol.sps import hevc_level_idc, hevc_level_of, is_hevc_level, set_hevc_level
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +178,9 @@ class VideoEncoder:
         self._since_idr = 0
         self._parameter_sets: tuple[bytes, ...] | None = None
         self._yuv_sub = _YUV_FORMATS.get(cfg.pix_fmt) if cfg.input_format == "rgb24" else None
+        self.level_idc = hevc_level_idc(width, height, cfg.fps) if cfg.codec == "hevc" else None
+        """HEVC: the general_level_idc written into VPS and SPS that name no real level (x265's lossless 255)."""
+        self._level_fixed: dict[bytes, bytes] = {}
         self._ctx = self._open(global_header=False)
 
     def _open(self, global_header: bool):  # type: ignore[no-untyped-def]
@@ -235,9 +251,49 @@ class VideoEncoder:
             finally:
                 del ctx
             keep = {7, 8} if self.cfg.codec == "h264" else {32, 33, 34}
-            self._parameter_sets = tuple(bytes(nal) for nal in iter_nal_units(extra)
+            self._parameter_sets = tuple(self._with_level(bytes(nal)) for nal in iter_nal_units(extra)
                                          if nal and nal_type(self.cfg.codec, nal) in keep)
         return self._parameter_sets
+
+    def _with_level(self, nal: bytes) -> bytes:
+        """An HEVC VPS or SPS with a real level: itself when it names one, else with :attr:`level_idc`."""
+        if self.level_idc is None or not nal or (nal[0] >> 1) & 0x3F not in (32, 33):
+            return nal
+        fixed = self._level_fixed.get(nal)
+        if fixed is None:
+            try:
+                fixed = nal if is_hevc_level(hevc_level_of(nal)) else set_hevc_level(nal, self.level_idc)
+            except SdpError:  # too short to carry a level: leave it
+                fixed = nal
+            if len(self._level_fixed) < 16:
+                self._level_fixed[nal] = fixed
+        return fixed
+
+    def _levels_in_band(self, data: bytes) -> bytes:
+        """``data`` with :meth:`_with_level` applied to the VPS and SPS in front of its first VCL NAL unit."""
+        parts: list[bytes] = []
+        last = 0
+        i = data.find(b"\x00\x00\x01")
+        while 0 <= i and i + 3 < len(data):
+            s = i + 3
+            t = (data[s] >> 1) & 0x3F
+            if t < 32:  # a slice: no parameter sets after it
+                break
+            j = data.find(b"\x00\x00\x01", s)
+            e = len(data) if j < 0 else j
+            while e > s and data[e - 1] == 0:  # a four-byte start code's zero, trailing_zero_8bits
+                e -= 1
+            if t in (32, 33):
+                nal = data[s:e]
+                fixed = self._with_level(nal)
+                if fixed != nal:
+                    parts += [data[last:s], fixed]
+                    last = e
+            i = j
+        if not parts:
+            return data
+        parts.append(data[last:])
+        return b"".join(parts)
 
     def _frame(self, plane: np.ndarray):  # type: ignore[no-untyped-def]
         import av
@@ -283,6 +339,8 @@ class VideoEncoder:
         data = b"".join(bytes(p) for p in packets)
         if not data:
             raise CodecError(f"{ENCODERS[self.cfg.codec]} produced no packet for frame {self._index} (zerolatency expected one)")
+        if self.level_idc is not None:
+            data = self._levels_in_band(data)
         key = any(p.is_keyframe for p in packets) or contains_idr(data, self.cfg.codec)
         ef = EncodedFrame(data, key, self._index)
         self._index += 1

@@ -8,6 +8,12 @@ line names the stream exactly: H.264 (RFC 6184) ``profile-level-id`` from the SP
 (and ``profile-space`` when not 0) from the SPS, and ``sprop-vps/sps/pps``.  The stream
 repeats them in-band before every IDR as well.
 
+``level-id`` names a real level (H.265 Table A.8, 30 x the level): our encoder writes
+one into every SPS, lossless included (see :mod:`splitrender.codecs.video`).  An SPS from
+elsewhere whose general_level_idc names none (255, level 8.5, or 0) gets, in the SDP only,
+the lowest level that fits its picture size and its VUI frame rate
+(:func:`splitrender.protocol.sps.hevc_level_idc`); without a frame rate it is left as is.
+
 Open the file with ``av.open(path, options={"protocol_whitelist": "file,udp,rtp"})``
 or ``ffmpeg -protocol_whitelist file,udp,rtp -i stream.sdp``.
 """
@@ -22,7 +28,7 @@ from collections.abc import Sequence
 from splitrender.protocol.annexb import Codec, nal_type
 from splitrender.protocol.errors import SdpError
 from splitrender.protocol.rtp import RTP_CLOCK_HZ
-from splitrender.protocol.sps import nal_to_rbsp, parse_hevc_sps
+from splitrender.protocol.sps import HevcSps, hevc_level_idc, is_hevc_level, nal_to_rbsp, parse_hevc_sps
 
 __all__ = ["RTPMAP_NAMES", "make_sdp", "parse_fmtp", "parameter_sets_from_sdp", "sdp_attributes"]
 
@@ -34,6 +40,14 @@ HEVC_VPS, HEVC_SPS, HEVC_PPS = 32, 33, 34
 
 def _b64(nal: bytes) -> str:
     return base64.b64encode(nal).decode("ascii")
+
+
+def _level_id(info: HevcSps) -> int:
+    """RFC 7798 ``level-id``: the SPS's general_level_idc, or when that names no level of Table A.8 the lowest
+    level that fits the SPS's picture size and VUI frame rate (when it has one)."""
+    if is_hevc_level(info.level_idc) or info.frame_rate is None or info.width <= 0 or info.height <= 0:
+        return info.level_idc
+    return hevc_level_idc(info.width, info.height, float(info.frame_rate))
 
 
 def make_sdp(
@@ -77,7 +91,7 @@ def make_sdp(
             if info is not None:
                 if info.profile_space:
                     fmtp.append(f"profile-space={info.profile_space}")
-                fmtp += [f"profile-id={info.profile_idc}", f"tier-flag={info.tier_flag}", f"level-id={info.level_idc}"]
+                fmtp += [f"profile-id={info.profile_idc}", f"tier-flag={info.tier_flag}", f"level-id={_level_id(info)}"]
         for name, t in (("vps", HEVC_VPS), ("sps", HEVC_SPS), ("pps", HEVC_PPS)):
             sets = [n for n in parameter_sets if nal_type("hevc", n) == t]
             if sets:
