@@ -130,3 +130,30 @@ def test_front_ranks_are_non_dominated_layers() -> None:
     # (client cost, PSNR): a and b on the front, c dominated by a, d dominated by c (and a), e unranked
     pts = [(1.0, 30.0), (0.1, 20.0), (2.0, 25.0), (3.0, 24.0), (float("nan"), 40.0)]
     assert front_ranks(pts) == [1, 1, 2, 3, 0]
+
+
+def test_a_study_that_measures_speed_runs_alone_after_the_others(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ``live`` study measures wall-clock rates: it starts only once every other study has ended."""
+    import splitrender.experiments.demo as demo
+
+    pkg = tmp_path / "timedstudies"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    body = textwrap.dedent("""
+        import time
+        from splitrender.experiments.sections import Section
+        def run(out_dir, quick):
+            t0 = time.time()
+            time.sleep({sleep})
+            return Section("{name}", f"{{t0}} {{time.time()}}")
+    """)
+    for name, sleep in (("slow", 1.5), ("quick", 0.2), ("alone", 0.2)):
+        (pkg / f"{name}.py").write_text(body.format(name=name, sleep=sleep))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(demo, "EXCLUSIVE_STUDIES", ("timedstudies.alone",))
+    names = ["timedstudies.alone", "timedstudies.slow", "timedstudies.quick"]
+    secs, notes = demo.StudyRunner(tmp_path / "out", True, names=names).start().collect(None)
+    spans = {s.title: tuple(map(float, s.text_md.split())) for s in secs}
+    assert [s.title for s in secs] == ["alone", "slow", "quick"]          # reported in the order asked for
+    assert spans["alone"][0] >= max(spans["slow"][1], spans["quick"][1])   # started after both had ended
+    assert spans["slow"][0] < spans["quick"][1] and spans["quick"][0] < spans["slow"][1]   # those two together

@@ -136,6 +136,13 @@ class ProbeStates:
         return len(self._states)
 
 
+def gi_time(t_s: float, hz: float) -> float:
+    """The newest probe update time at or before ``t_s`` on the ``hz`` grid (``hz`` <= 0: ``t_s`` itself)."""
+    if hz <= 0:
+        return t_s
+    return math.floor(t_s * hz + 1e-9) / hz
+
+
 def probe_grid(lo: np.ndarray, hi: np.ndarray, counts: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
     """(origin, spacing): probe ``(i, j, k)`` sits at ``origin + (i, j, k) * spacing``, the centres of a
     ``counts`` grid of cells over the box ``lo``..``hi``."""

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
@@ -144,6 +145,11 @@ class Renderer:
         self._gi_building: set[int] = set()
         self._gi_none: Any = None
         self.gi_states: Any = None   # made by probe_states() on first use
+        self.gi_hz = 0.0
+        """The rate the scene's DDGI probes are relit at (0: for every time a render asks; see :func:`gi_time`): a live
+        server relights them at its own rate, paid once per period whatever its frame rate, as DDGI engines do."""
+        self.gi_ms = 0.0
+        """Milliseconds spent relighting probes in renders so far (a caller differences it around a frame)."""
 
     # ------------------------------------------------------------------ resources
     def upload(self, scene: Scene) -> SceneGPU:
@@ -257,6 +263,9 @@ class Renderer:
     def bind_shading(self, prog: Any, scene: Scene, t_s: float, shadow_unit: int = 1, gi: bool = True) -> None:
         """Set the lighting uniforms of ``shading.glsl`` on ``prog`` for time ``t_s``; ``gi=False`` leaves the scene's
         global illumination off (a pass that writes no colour need not relight the probes)."""
+        # the probes first: relighting them (at a GI rate, for an earlier time) draws the moving objects' shadow map
+        # for their own time and binds textures of its own, which must not undo the frame's bindings below
+        self._bind_gi(prog, scene, t_s, gi)
         self.shadow_pass(scene, t_s)
         sun = scene.sun
         if sun is not None:
@@ -290,7 +299,6 @@ class Renderer:
                 prog["u_point_pos"].write(pos.tobytes())
             if "u_point_color" in prog:
                 prog["u_point_color"].write(col.tobytes())
-        self._bind_gi(prog, scene, t_s, gi)
 
     def probe_states(self) -> Any:
         """The relit probe states this renderer's DDGI volumes share (:class:`~splitrender.gi.ddgi.ProbeStates`)."""
@@ -328,7 +336,11 @@ class Renderer:
         vol = self.gi_volume(scene) if on and scene.gi == "ddgi" else None
         if vol is not None:
             if not vol.updating:
-                vol.update(t_s)
+                from ..gi.ddgi import gi_time
+
+                w0 = time.perf_counter()
+                vol.update(gi_time(t_s, self.gi_hz))
+                self.gi_ms += (time.perf_counter() - w0) * 1e3
             vol.bind(prog)
             set_uniform(prog, "u_gi", 1)
             return

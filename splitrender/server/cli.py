@@ -19,7 +19,7 @@ logger = logging.getLogger(__name__)
 
 def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``splitrender serve``."""
-    from splitrender.server.server import DEFAULT_PORT, DEFAULT_UDP_PORT
+    from splitrender.server.server import DEFAULT_GI_HZ, DEFAULT_PORT, DEFAULT_UDP_PORT
 
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 for all)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"TCP control port (default {DEFAULT_PORT})")
@@ -43,6 +43,10 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--isolation", choices=("session", "server"), default="session",
                    help="render workers: one process per session (a hung render ends that session only; default) "
                         "or one for the server (scene producers shared by every session)")
+    p.add_argument("--gi-hz", type=float, default=None,
+                   help="relight the scene's global illumination (DDGI probes) this many times a second, whatever "
+                        "the frame rate (0: every frame, as the ground truth does; default "
+                        f"{DEFAULT_GI_HZ:g})")
     p.add_argument("--render-deadline", type=float, default=10.0,
                    help="watchdog: seconds a frame's render and encode may take before its worker is killed and "
                         "its session ends with an error (default 10)")
@@ -62,7 +66,7 @@ def _parse_value(text: str) -> Any:
 def config_from_args(ns: argparse.Namespace) -> Any:
     """A :class:`ServerConfig` from parsed arguments."""
     from splitrender.methods import available_methods, get_method
-    from splitrender.server.server import ServerConfig, check_method_params
+    from splitrender.server.server import DEFAULT_GI_HZ, ServerConfig, check_method_params
 
     params: dict[str, dict[str, Any]] = {}
     for kv in ns.param:
@@ -84,13 +88,16 @@ def config_from_args(ns: argparse.Namespace) -> Any:
             raise ConfigError(f"{opt}: must be in [{low}, 65535], got {port}")
     if not 0.05 <= ns.render_deadline <= 3600:
         raise ConfigError(f"--render-deadline: must be in [0.05, 3600] s, got {ns.render_deadline}")
+    gi_hz = DEFAULT_GI_HZ if ns.gi_hz is None else ns.gi_hz
+    if not (gi_hz == 0 or 0.1 <= gi_hz <= 240):
+        raise ConfigError(f"--gi-hz: must be 0 (every frame) or in [0.1, 240], got {gi_hz:g}")
     if not 0 <= ns.metrics_interval <= 3600:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
     return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
                         mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
-                        fec=ns.fec, isolation=ns.isolation, render_deadline_s=ns.render_deadline)
+                        fec=ns.fec, isolation=ns.isolation, render_deadline_s=ns.render_deadline, gi_hz=gi_hz)
 
 
 async def _serve_until_signal(cfg: Any) -> None:

@@ -50,6 +50,8 @@ DEFAULT_PORT = 9100
 """TCP control port."""
 DEFAULT_UDP_PORT = 6004
 """UDP port for RTP (out) and RTCP (in), shared by all sessions."""
+DEFAULT_GI_HZ = 5.0
+"""Live servers relight the scene's DDGI probes at this rate (0: every frame)."""
 
 Address = tuple[str, int]
 
@@ -99,6 +101,9 @@ class ServerConfig:
     """``"session"``: a render worker process per session (a hung render ends that session only);
     ``"server"``: one worker for every session, sharing the scene producers' per-frame work (a hung render
     ends every session, and the next session gets a fresh worker)."""
+    gi_hz: float = DEFAULT_GI_HZ
+    """The rate the scene's DDGI probes are relit at in the render workers (0: for every frame, as the virtual-time
+    runner and the ground truth do); see ``Renderer.gi_hz``."""
     render_deadline_s: float = 10.0
     """Watchdog: a frame's render and encode must finish within this, or its worker is killed and its
     session(s) end with an error."""
@@ -111,6 +116,8 @@ class ServerConfig:
     def __post_init__(self) -> None:
         if self.isolation not in ("session", "server"):
             raise ConfigError(f"server isolation: {self.isolation!r} is not one of ['session', 'server']")
+        if not (self.gi_hz == 0 or 0.1 <= self.gi_hz <= 240):
+            raise ConfigError(f"server gi_hz: must be 0 (every frame) or in [0.1, 240], got {self.gi_hz}")
         for k in ("render_deadline_s", "setup_deadline_s"):
             v = getattr(self, k)
             if not 0.05 <= v <= 3600:
@@ -204,7 +211,7 @@ class LiveServer:
     # -- render workers ------------------------------------------------------------
 
     async def _new_worker(self) -> RenderWorker:
-        w = RenderWorker(self.config.scene, self.config.server_fps)
+        w = RenderWorker(self.config.scene, self.config.server_fps, self.config.gi_hz)
         self.workers.add(w)
         try:
             await w.start(self.config.setup_deadline_s)    # closes the worker itself when it fails

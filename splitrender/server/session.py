@@ -439,8 +439,9 @@ class ServerSession:
         assert self.worker is not None
         # the worker gets a copy of the predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)
+        c0 = time.perf_counter()
         try:
-            enc, stats, render_us, shared_us = await self.worker.call(
+            enc, stats, stages = await self.worker.call(
                 "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
                 self._predictor, epoch, expected, kf, fbs.snapshot(kf), deadline_s=self.cfg.render_deadline_s)
         except WorkerTimeout:
@@ -450,8 +451,10 @@ class ServerSession:
             # the peer said Bye (or the connection closed) while the worker rendered: the control
             # task is ending the session in this same loop turn; this frame has nowhere to go
             raise _SessionEnded()
-        timing = {"render": int(render_us), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
-                  "shared": int(shared_us)}
+        c1 = time.perf_counter()
+        render_ms, shared_ms = stages["produce_ms"], stages["shared_ms"]
+        timing = {"render": int(render_ms * 1000), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
+                  "shared": int(shared_ms * 1000)}
         rtp_ts = rtp_timestamp(scene_t)
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
         out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, target_t_s, timing, stats)
@@ -466,9 +469,15 @@ class ServerSession:
                 server.send_datagram(data, mirror)
         for _, data in out.fec:                 # parity packets: neither mirrored nor kept for retransmission
             server.send_datagram(data, self.client_addr)
+        c2 = time.perf_counter()
+        # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
+        # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
+        # latency), and packetizing and sending here
         row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
-                               "keyframe": int(out.keyframe), "shared_ms": shared_us / 1000, "server_ms": render_us / 1000,
-                               "encode_ms": enc.encode_ms, "expected_latency_ms": expected * 1000}
+                               "keyframe": int(out.keyframe), "shared_ms": shared_ms, "server_ms": render_ms,
+                               "gi_ms": stages["gi_ms"], "encode_ms": enc.encode_ms,
+                               "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
+                               "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": expected * 1000}
         row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
         self.update_rows.append(row)
         self._log("updates", row)

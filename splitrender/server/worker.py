@@ -110,9 +110,10 @@ class RenderWorker:
 
     _ids = itertools.count(1)
 
-    def __init__(self, scene: str, server_fps: int) -> None:
+    def __init__(self, scene: str, server_fps: int, gi_hz: float = 0.0) -> None:
         self.scene = scene
         self.server_fps = server_fps
+        self.gi_hz = gi_hz
         self.name = f"sr-render-{next(self._ids)}"
         self.process: Any = None
         self.dead: str | None = None
@@ -129,7 +130,7 @@ class RenderWorker:
         """Start the process and wait until it has its scene, renderer and compiled shaders."""
         ctx = worker_context()
         parent, child = ctx.Pipe(duplex=True)
-        self.process = ctx.Process(target=_worker_main, args=(child, self.scene, self.server_fps), name=self.name,
+        self.process = ctx.Process(target=_worker_main, args=(child, self.scene, self.server_fps, self.gi_hz), name=self.name,
                                    daemon=True)
         # a few milliseconds from the fork server (its own start, once per server process, takes longer);
         # synchronous, so a cancelled start never leaves a process behind
@@ -245,7 +246,7 @@ class _Half:
 
 
 class _Worker:
-    def __init__(self, scene_name: str, server_fps: int) -> None:
+    def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
         from splitrender.pipeline import ProducerPool
         from splitrender.render import Renderer
         from splitrender.scene.loader import get_scene
@@ -254,6 +255,7 @@ class _Worker:
         self.scene = get_scene(scene_name)
         self.server_fps = server_fps
         self.renderer = Renderer()
+        self.renderer.gi_hz = gi_hz
         self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36), ("color",))   # compile shaders now
         self.producers = ProducerPool(self.scene, server_fps, self.renderer)
         self.halves: dict[str, _Half] = {}
@@ -281,7 +283,9 @@ class _Worker:
     def frame(self, sid: str, frame_id: int, tick: int, scene_t: float, poses: tuple[Any, ...], predictor: Any,
               epoch: float, expected_s: float, keyframe: bool, feedback: Any) -> Any:
         """Render and encode one frame of session ``sid``; returns the coded update without its raw planes,
-        the half's stats, and the render and shared-work microseconds."""
+        the half's stats, and the frame's stages in milliseconds: the producers' shared work, the half's own
+        (``produce_ms``), the probes' relighting within those two (``gi_ms``), the encoders' (``encode_ms``), and
+        the whole frame in this process (``worker_ms``)."""
         from splitrender.methods.base import ServerContext
 
         h = self.halves[sid]
@@ -293,6 +297,7 @@ class _Worker:
                             target_pose=target_pose, target_t_s=target_t,
                             predict=lambda t: predictor.predict(t + epoch), expected_latency_s=expected_s,
                             keyframe_requested=keyframe, feedback=feedback)
+        gi0 = self.renderer.gi_ms
         w0 = time.perf_counter()
         ctx.shared = self.producers.prepare(h.method, tick, scene_t)
         w1 = time.perf_counter()
@@ -300,7 +305,10 @@ class _Worker:
         w2 = time.perf_counter()
         enc = h.tx.encode(upd, bool(upd.force_idr or keyframe))
         enc.update = dataclasses.replace(upd, planes={}, data={})     # the raw planes stay here
-        return enc, h.half.stats(), (w2 - w1) * 1e6, (w1 - w0) * 1e6
+        w3 = time.perf_counter()
+        stages = {"shared_ms": (w1 - w0) * 1e3, "produce_ms": (w2 - w1) * 1e3, "gi_ms": self.renderer.gi_ms - gi0,
+                  "encode_ms": enc.encode_ms, "worker_ms": (w3 - w0) * 1e3}
+        return enc, h.half.stats(), stages
 
     def close(self, sid: str) -> None:
         self.halves.pop(sid, None)
@@ -312,11 +320,11 @@ def _hang() -> None:
         pass
 
 
-def _worker_main(conn: Any, scene_name: str, server_fps: int) -> None:
+def _worker_main(conn: Any, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C reaches the whole group; the server stops us
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
-        worker: _Worker | None = _Worker(scene_name, server_fps)
+        worker: _Worker | None = _Worker(scene_name, server_fps, gi_hz)
         setup_error = None
     except Exception as exc:  # noqa: BLE001 - reported on the first request
         worker, setup_error = None, f"worker start failed: {describe_error(exc)}"

@@ -35,7 +35,6 @@ gives the same codes at every update.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -43,7 +42,7 @@ import numpy as np
 
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
-from ...gi.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, probe_grid
+from ...gi.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, gi_time, probe_grid
 from ...gi.stream import color_frame, encode_index_list, encode_irradiance, grid_shape, visibility_frame, visibility_width
 from ...gi.octa import CUBE_FACES
 from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3
@@ -60,11 +59,6 @@ def _require_gi(scene: Any) -> None:
     if getattr(scene, "gi", "none") != "ddgi":
         raise ConfigError(f"probes: scene {scene.name!r} has no global illumination to stream; use a scene with GI "
                           f"(the default scene, or e.g. --scene {scene.name}+gi)")
-
-
-def gi_time(t_s: float, hz: float) -> float:
-    """The newest probe update time at or before ``t_s`` on the ``hz`` grid."""
-    return math.floor(t_s * hz + 1e-9) / hz
 
 
 class ProbesProducer(SceneProducer):
