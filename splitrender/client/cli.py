@@ -46,6 +46,9 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
                    help="show each update no earlier than its server time + MS: frames held behind a retransmission "
                         "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
+    p.add_argument("--rows-kept", type=int, default=4096, metavar="N",
+                   help="displayed-frame rows kept in memory (every row goes to the recording as it is shown; "
+                        "default 4096)")
 
 
 def config_from_args(ns: argparse.Namespace) -> object:
@@ -71,6 +74,8 @@ def config_from_args(ns: argparse.Namespace) -> object:
         raise ConfigError(f"--nack-tries: must be in [0, 20], got {ns.nack_tries}")
     if not 0 <= ns.playout_delay <= 2000:
         raise ConfigError(f"--playout-delay: must be in [0, 2000] ms, got {ns.playout_delay}")
+    if not 1 <= ns.rows_kept <= 10_000_000:
+        raise ConfigError(f"--rows-kept: must be in [1, 10000000], got {ns.rows_kept}")
     limits: dict[str, int] = {}
     for item in getattr(ns, "limit", []) or []:
         key, sep, value = item.partition("=")
@@ -89,7 +94,7 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
                         stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval,
                         playout_delay_ms=ns.playout_delay, jitter_timeout_ms=ns.jitter_timeout,
-                        nack_max_tries=ns.nack_tries, limits=client_limits)
+                        nack_max_tries=ns.nack_tries, limits=client_limits, rows_kept=ns.rows_kept)
 
 
 def main_client(ns: argparse.Namespace) -> int:
