@@ -96,9 +96,10 @@ def _cells(t: Row) -> list[str]:
 
 
 _HEAD = ["front", "method", "fg PSNR dB", "PSNR dB", "FLIP", "kbit/s", "server / GT", "client / GT"]
-_FOOT = ("front: rank on the speed-against-accuracy front (client cost against PSNR; 1 = no method is both cheaper and "
-         "better); costs are milliseconds per frame over the ground-truth render's on this machine; * the client holds "
-         "and renders the whole scene (it streams lighting).")
+_FOOT = ("fg PSNR: over the pixels where scene geometry is, in the ground truth or in the shown frame (the sky left "
+         "out); front: rank on the speed-against-accuracy front (client cost against PSNR; 1 = no method is both cheaper "
+         "and better); server / GT and client / GT: each side's milliseconds per frame divided by the ground-truth "
+         "render's on this machine; * the client holds and renders the whole scene (it streams lighting).")
 
 
 def headline_markdown(tables: dict[str, list[Row]]) -> str:
@@ -130,10 +131,11 @@ def headline_html(tables: dict[str, list[Row]]) -> str:
     """The headline tables as HTML (the report opens with them)."""
     import html
 
-    parts = ["<h2 id='answer'>The answer</h2>"]
+    parts = ["<h2 id='answer'>The answer</h2><div class='nets'>"]     # the networks side by side: the chart fits below
     for net, rows in tables.items():
         head = "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _cells(t)) + "</tr>" for t in rows)
-        parts.append(f"<h3>{html.escape(net)}</h3><table><tr>{head}</tr>{body}</table>")
-    parts.append(f"<p><small>{html.escape(_FOOT)}</small></p>")
+        body = "".join("<tr>" + "".join(f"<td{' class=name' if i == 1 else ''}>{html.escape(c)}</td>"
+                                        for i, c in enumerate(_cells(t))) + "</tr>" for t in rows)
+        parts.append(f"<div><h3>{html.escape(net)}</h3><table><tr>{head}</tr>{body}</table></div>")
+    parts.append(f"</div><p><small>{html.escape(_FOOT)}</small></p>")
     return "".join(parts)

@@ -156,7 +156,8 @@ CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:1em auto;
 img{max-width:100%}figure{margin:1.5em 0}figcaption{font-size:90%;color:#444}
 table{border-collapse:collapse;font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}
 th{background:#f0f0f0}.tbl{overflow-x:auto}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;font-size:12px}
-.err{color:#a00;font-weight:bold}code{background:#f3f3f3;padding:0 2px}"""
+.err{color:#a00;font-weight:bold}code{background:#f3f3f3;padding:0 2px}
+.nets{display:flex;flex-wrap:wrap;gap:0 1.5em}.nets h3{margin:.4em 0}td.name{text-align:left}"""
 
 
 # ---------------------------------------------------------------------------------
