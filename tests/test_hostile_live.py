@@ -45,6 +45,14 @@ def _pose() -> Pose:
     return Pose(0, 0, (0.0, 1.6, 3.0), (0.0, 0.0, 0.0, 1.0))
 
 
+async def _streaming(server: LiveServer, timeout_s: float = 30.0) -> None:
+    """Wait until a session of ``server`` has sent frames (the good client is streaming; under a second idle),
+    instead of sleeping a fixed time that a loaded machine may not honour."""
+    async with asyncio.timeout(timeout_s):
+        while not any(s.update_rows for s in server.sessions.values()):
+            await asyncio.sleep(0.02)
+
+
 async def _exchange(address: tuple[str, int], data: bytes, *, close_after: bool = False,
                     timeout: float = 5.0) -> list[object]:
     """Send raw ``data``; return every message the server sends until it closes."""
@@ -175,7 +183,7 @@ async def test_hostile_clients_are_dropped_and_a_good_session_carries_on(
         serve_task = asyncio.create_task(server.serve_forever())
         good = asyncio.create_task(LiveClient(ClientConfig(
             port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=6.0)).run())
-        await asyncio.sleep(1.0)
+        await _streaming(server)
         for name, data, code, text in CASES:
             msgs = await _exchange(server.tcp_address, data)
             err = _only_error(msgs, code)
@@ -302,7 +310,7 @@ async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.Monkey
         serve_task = asyncio.create_task(server.serve_forever())
         good = asyncio.create_task(LiveClient(ClientConfig(
             port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=3.0)).run())
-        await asyncio.sleep(1.0)
+        await _streaming(server)
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MB
         bad = LiveClient(ClientConfig(port=server.tcp_address[1], methods=("atw",), width=160, height=90,
                                       display_hz=30, duration_s=10.0))
@@ -356,7 +364,7 @@ async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carri
         serve_task = asyncio.create_task(server.serve_forever())
         good = asyncio.create_task(LiveClient(ClientConfig(
             port=server.tcp_address[1], width=160, height=90, display_hz=30, duration_s=5.0)).run())
-        await asyncio.sleep(1.0)
+        await _streaming(server)
         reader, writer = await asyncio.open_connection(*server.tcp_address)
         conn = ClientConnection()
         writer.write(conn.send(_hello()))
