@@ -15,15 +15,51 @@ settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 
 @pytest.fixture(scope="session")
-def renderer():
+def session_renderer():  # type: ignore[no-untyped-def]
+    """The session's renderer, by a name no test module overrides (``test_tss`` and ``test_probes`` have a
+    ``renderer`` of their own)."""
     from splitrender.render import Renderer
 
     return Renderer()
 
 
 @pytest.fixture(scope="session")
+def renderer(session_renderer):  # type: ignore[no-untyped-def]
+    return session_renderer
+
+
+@pytest.fixture(scope="session")
 def gl(renderer):
     return renderer.ctx
+
+
+@pytest.fixture(scope="session")
+def truth_cache(tmp_path_factory) -> str:  # type: ignore[no-untyped-def]
+    """One ground-truth cache folder (``RunConfig.truth_cache``, :mod:`splitrender.sim.truth`) for the session's
+    virtual-time runs.  A truth frame depends only on the scene, the trace, the image size, the field of view and
+    the display rate, not on the method or the network, so the runs of every test on the same trace render each
+    frame once; a hit is the rendered frame bit for bit, so no score changes."""
+    return str(tmp_path_factory.mktemp("truth_cache"))
+
+
+@pytest.fixture(scope="session")
+def shared_run(session_renderer, truth_cache):  # type: ignore[no-untyped-def]
+    """``shared_run(cfg)``: the virtual-time run of ``cfg`` (with the session's renderer and truth cache), made once
+    per session.  Runs with the fixed cost model are deterministic, and several tests assert on the same run (e.g.
+    ``atw`` on the default walk under ``cloud`` beside ``sas`` and beside ``tss``).  The result is shared: read it,
+    never change it.  Not for runs that measure wall-clock costs or that a test has monkeypatched."""
+    from splitrender.sim.runner import run
+
+    memo: dict = {}
+
+    def get(cfg):  # type: ignore[no-untyped-def]
+        assert cfg.cost_model == "fixed", "a measured-cost run is not repeatable: run it, do not share it"
+        key = cfg.key()
+        if key not in memo:
+            memo[key] = run(cfg.replace(truth_cache=truth_cache), renderer=session_renderer)
+        return memo[key]
+
+    return get
 
 
 # ----------------------------------------------------------------------------- ordering and the stress suite

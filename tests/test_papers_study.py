@@ -19,8 +19,14 @@ TINY = {
 }
 
 
-def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, truth_cache: str) -> None:
     monkeypatch.setitem(papers.GRID, True, TINY)
+    # the study's runs (all on the walk at 160x90, shown at 60 Hz) take their ground truth from the session's truth
+    # cache: rendered once for the seven scored runs here and shared with test_runner's (a hit is the same frame)
+    from splitrender.sim import runner
+
+    real_run = runner.run
+    monkeypatch.setattr(runner, "run", lambda cfg, *a, **kw: real_run(cfg.replace(truth_cache=truth_cache), *a, **kw))
     sec = papers.run(tmp_path, quick=True)
     names = {p.name for p in sec.figures}
     assert names == {"papers_sas_fig13.png", "papers_sas_fig14.png", "papers_sas_fig15.png", "papers_quasar_t4.png",
