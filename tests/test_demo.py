@@ -147,7 +147,7 @@ def test_a_study_that_measures_speed_runs_alone_after_the_others(tmp_path: Path,
             time.sleep({sleep})
             return Section("{name}", f"{{t0}} {{time.time()}}")
     """)
-    for name, sleep in (("slow", 1.5), ("quick", 0.2), ("alone", 0.2)):
+    for name, sleep in (("slow", 3.0), ("quick", 2.5), ("alone", 0.2)):   # long enough to overlap on a busy machine
         (pkg / f"{name}.py").write_text(body.format(name=name, sleep=sleep))
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(demo, "EXCLUSIVE_STUDIES", ("timedstudies.alone",))
