@@ -43,7 +43,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import CodecError, ConfigError
-from ..protocol.annexb import nal_type
+from ..protocol.annexb import join_annexb, nal_type, split_annexb
 from ..protocol.errors import SdpError
 from ..protocol.sps import hevc_level_idc, hevc_level_of, is_hevc_level, set_hevc_level
 
@@ -257,7 +257,7 @@ class VideoEncoder:
 
     def _with_level(self, nal: bytes) -> bytes:
         """An HEVC VPS or SPS with a real level: itself when it names one, else with :attr:`level_idc`."""
-        if self.level_idc is None or not nal or (nal[0] >> 1) & 0x3F not in (32, 33):
+        if self.level_idc is None or not nal or nal_type("hevc", nal) not in (32, 33):
             return nal
         fixed = self._level_fixed.get(nal)
         if fixed is None:
@@ -270,30 +270,10 @@ class VideoEncoder:
         return fixed
 
     def _levels_in_band(self, data: bytes) -> bytes:
-        """``data`` with :meth:`_with_level` applied to the VPS and SPS in front of its first VCL NAL unit."""
-        parts: list[bytes] = []
-        last = 0
-        i = data.find(b"\x00\x00\x01")
-        while 0 <= i and i + 3 < len(data):
-            s = i + 3
-            t = (data[s] >> 1) & 0x3F
-            if t < 32:  # a slice: no parameter sets after it
-                break
-            j = data.find(b"\x00\x00\x01", s)
-            e = len(data) if j < 0 else j
-            while e > s and data[e - 1] == 0:  # a four-byte start code's zero, trailing_zero_8bits
-                e -= 1
-            if t in (32, 33):
-                nal = data[s:e]
-                fixed = self._with_level(nal)
-                if fixed != nal:
-                    parts += [data[last:s], fixed]
-                    last = e
-            i = j
-        if not parts:
-            return data
-        parts.append(data[last:])
-        return b"".join(parts)
+        """``data`` with :meth:`_with_level` applied to its VPS and SPS (itself when none needed a level)."""
+        nals = split_annexb(data)
+        fixed = [self._with_level(n) for n in nals]
+        return data if fixed == nals else join_annexb(fixed)
 
     def _frame(self, plane: np.ndarray):  # type: ignore[no-untyped-def]
         import av

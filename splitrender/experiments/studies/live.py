@@ -11,7 +11,6 @@ alike: what one needs the others wait for.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import platform
@@ -19,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import save_figure
 
@@ -92,11 +92,7 @@ def run(out_dir: Path, quick: bool) -> Section:
                  r["target_ups"], r["client_displayed_per_s"])
     elapsed = time.perf_counter() - t0
     table = out_dir / "live_rates.csv"
-    with table.open("w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=list(COLUMNS), extrasaction="ignore")
-        wr.writeheader()
-        for r in rows:
-            wr.writerow({k: (f"{r[k]:.4g}" if isinstance(r.get(k), float) else r.get(k, "")) for k in COLUMNS})
+    write_csv(table, [{k: r.get(k, "") for k in COLUMNS} for r in rows])
     png = chart(rows, out_dir / "live_rates.png")
     met = [r["method"] for r in rows if r["updates_per_s"] >= r["target_ups"]]
     missed = [r for r in rows if r["updates_per_s"] < r["target_ups"]]
