@@ -65,6 +65,9 @@ def closed_port() -> int:
     (["client", "--jitter-timeout", "5"], "--jitter-timeout: must be in [20, 10000] ms, got 5.0"),
     (["client", "--nack-tries", "99"], "--nack-tries: must be in [0, 20], got 99"),
     (["serve", "--render-deadline", "0"], "--render-deadline: must be in [0.05, 3600] s, got 0.0"),
+    (["serve", "--gi-hz", "-1"], "--gi-hz: must be 0 (every frame) or in [0.1, 240], got -1"),
+    (["serve", "--gi-hz", "0.05"], "--gi-hz: must be 0 (every frame) or in [0.1, 240], got 0.05"),
+    (["client", "--rows-kept", "0"], "--rows-kept: must be in [1, 10000000], got 0"),
 ])
 def test_bad_arguments_are_refused_at_startup(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
     if argv[0] == "serve":  # should a check regress, the server fails to bind instead of serving forever

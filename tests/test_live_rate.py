@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,17 +53,15 @@ def test_a_renderer_at_a_gi_rate_relights_once_a_period_and_differs_little() -> 
     late = every.render(scene, 0.19, pose, intr).color
     diff = np.abs(late.astype(int) - imgs[0.19])
     assert diff.max() > 0                              # the probes moved with the objects in 190 ms ...
-    assert psnr(late, imgs[0.19]) >= 55 and diff.max() <= 8 and (diff > 0).mean() < 0.1   # ... by little
+    assert psnr(late, imgs[0.19]) >= 55 and diff.max() <= 6 and (diff > 0).mean() < 0.06   # ... by little
 
 
-def test_server_and_cli_refuse_a_nonsense_gi_rate(tmp_path: Path) -> None:
+def test_the_server_refuses_a_nonsense_gi_rate() -> None:
+    """(The CLI's ``--gi-hz`` is in ``test_live_errors``' table.)"""
     assert ServerConfig().gi_hz == DEFAULT_GI_HZ > 0
     assert ServerConfig(gi_hz=0).gi_hz == 0
     with pytest.raises(ConfigError, match=r"server gi_hz: must be 0 \(every frame\) or in \[0.1, 240\], got 0.01"):
         ServerConfig(gi_hz=0.01)
-    r = subprocess.run([sys.executable, "-c", "from splitrender.cli import main; raise SystemExit(main())", "serve",
-                        "--gi-hz", "-1", "--port", "0"], capture_output=True, text=True, timeout=60)
-    assert r.returncode != 0 and "--gi-hz: must be 0 (every frame) or in [0.1, 240], got -1" in r.stderr, r.stderr[-800:]
 
 
 def test_server_rows_summarise_into_rates_and_stages() -> None:
@@ -88,13 +84,13 @@ def test_server_rows_summarise_into_rates_and_stages() -> None:
 @pytest.mark.slow
 def test_a_live_session_reports_its_rate_and_every_stage(tmp_path: Path) -> None:
     """One real live session (server here, ``splitrender client`` a process of its own) measured as the ``live``
-    study measures every method, and its chart.  On the minimal scene at 160x90 video reached 25-30 updates a
-    second here (idle); the bound below is what any working session reaches on a loaded machine."""
+    study measures every method, and its chart.  On the minimal scene at 160x90 video kept up with the 30 Hz frame
+    clock here, idle and with two busy loops beside it alike (30.0 updates a second, 86-88 of 90 ticks shown)."""
     from splitrender.experiments.studies.live import chart, target_ups
 
     r = measure("video", seconds=3.0, scene="minimal", width=160, height=90, out=tmp_path / "s")
     assert r["client_rc"] == 0, r.get("client_error")
-    assert r["updates_per_s"] > 3 and r["client_shown"] > 30, r
+    assert r["updates_per_s"] > 20 and r["client_shown"] > 60, r
     for s in STAGES:
         assert math.isfinite(r[f"{s}_ms"]) and r[f"{s}_ms"] >= 0, (s, r)
     assert r["gi_ms"] == 0.0                         # the minimal scene has no GI
