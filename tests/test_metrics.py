@@ -142,3 +142,67 @@ def test_foreground_covers_geometry_in_either_image():
     assert math.isnan(e["fg_psnr_db"]) and math.isnan(e["fg_flip"])
     q = metrics.quality_summary([s, e])
     assert q["fg_frames"] == 1 and q["mean_fg_psnr_db"] == pytest.approx(s["fg_psnr_db"])
+
+
+def test_region_masks_ring_both_sides_of_the_outline_not_the_frame_border():
+    m = np.zeros((40, 60), bool)
+    m[10:30, 20:40] = True                      # a 20 x 20 model
+    m[0:6, 0:8] = True                          # a model cut by the frame's corner
+    r = metrics.region_masks(m)
+    assert r["model"] is not None and (r["model"] == m).all()
+    # the ring about the square: every pixel within 2 px (Chebyshev) of its outline, inside and out
+    sq = np.zeros_like(m)
+    sq[8:32, 18:42] = True
+    sq[12:28, 22:38] = False
+    assert (r["edge"][:, 12:] == sq[:, 12:]).all() and r["edge"][:, 12:].sum() == 24 * 24 - 16 * 16
+    assert r["interior"][12:28, 22:38].all() and r["interior"][10:30, 20:40].sum() == 16 * 16
+    # the corner model: no ring along the frame's border, only along its two inner sides
+    assert r["interior"][0:4, 0:6].all() and not r["edge"][0:4, 0:6].any() and r["edge"][0:8, 0:10].sum() == 8 * 10 - 4 * 6
+    assert not (r["interior"] & r["edge"]).any() and not (r["interior"] & ~m).any()
+
+
+def test_region_scores_on_a_frame_with_known_error_per_region():
+    """Interior off by 4 code values, the outline ring by 10, the rest exact: each region's MSE is known."""
+    truth = np.full((40, 60, 3), 100, np.uint8)
+    model = np.zeros((40, 60), bool)
+    model[10:30, 20:40] = True
+    truth[model] = (180, 60, 40)
+    r = metrics.region_masks(model)
+    shown = truth.copy()
+    shown[r["interior"]] += 4
+    shown[r["edge"]] += 10
+    s = metrics.score_frame(shown, None, truth, model, with_flip=True, truth_model=model)
+    assert s["interior_mse"] == pytest.approx(16.0) and s["edge_mse"] == pytest.approx(100.0)
+    n_in, n_ring_in = 16 * 16, 20 * 20 - 16 * 16
+    assert s["model_mse"] == pytest.approx((n_in * 16 + n_ring_in * 100) / 400)
+    assert s["model_pct"] == pytest.approx(100 * 400 / 2400) and s["edge_pct"] == pytest.approx(100 * 320 / 2400)
+    assert s["interior_psnr_db"] == pytest.approx(10 * math.log10(255**2 / 16))
+    assert s["mse"] == pytest.approx((n_in * 16 + 320 * 100) / 2400)
+    # SSIM and FLIP are means of their maps over each region: the ring, with the larger error, scores worse
+    assert s["edge_ssim"] < s["interior_ssim"] < 1.0 and s["edge_dssim"] == pytest.approx((1 - s["edge_ssim"]) / 2)
+    assert s["edge_flip"] > s["interior_flip"] > 0
+    # no model in view: the regions are empty (0 %, NaN scores) and the summary leaves the frame out
+    e = metrics.score_frame(truth, None, truth, model, with_flip=False, truth_model=np.zeros_like(model))
+    assert e["model_pct"] == 0 and math.isnan(e["model_psnr_db"]) and math.isnan(e["edge_ssim"])
+    q = metrics.quality_summary([s, e])
+    assert q["model_frames"] == 1 and q["mean_model_psnr_db"] == pytest.approx(s["model_psnr_db"])
+    assert q["edge_psnr_mse_db"] == pytest.approx(10 * math.log10(255**2 / 100))
+    # without a model mask there are no region scores at all
+    none = metrics.score_frame(shown, None, truth, model, with_flip=False)
+    assert all(math.isnan(none[f"{g}_{k}"]) for g in metrics.REGIONS for k in ("pct", "mse", "psnr_db", "ssim"))
+
+
+def test_scene_model_leaves_out_the_floor_and_the_added_ground(tmp_path):
+    import trimesh
+
+    from splitrender.scene.loader import get_scene
+
+    default = get_scene("default+nogi")
+    floor = [o.object_id for o in default.objects if o.name == "floor"]
+    assert floor and set(default.model_ids()) == {o.object_id for o in default.objects} - set(floor)
+    path = tmp_path / "box.obj"
+    trimesh.creation.box().export(path)
+    plain, grounded = get_scene(str(path)), get_scene(f"{path}+ground")
+    assert list(plain.model_ids()) == [1] and list(grounded.model_ids()) == [1] and len(grounded.objects) == 2
+    ids = np.array([[0, 1], [2, 1]])
+    assert (grounded.model_mask(ids) == np.array([[False, True], [False, True]])).all()

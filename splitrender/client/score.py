@@ -102,7 +102,7 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
         row["gt_ms"] = (time.perf_counter() - w0) * 1000
         # the same per-frame scoring as the virtual-time runner
         row.update(metrics.score_frame(color, holes, gt.color, gt.object_id > 0, bool(flip_every) and i % flip_every == 0,
-                                         ssim_sigma))
+                                         ssim_sigma, truth_model=scene.model_mask(gt.object_id)))
         if progress:
             progress(i + 1, len(rows))
     summary = _summary(rec, rows, counters, flip_every)
@@ -129,13 +129,15 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
     dur = float(rec.get("duration_s", 0.0)) or math.nan
     kbps = counters.get("rtp_bytes", 0) * 8 / dur / 1000.0
     meta_kbps = counters.get("meta_bytes", 0) * 8 / dur / 1000.0
+    once_kb = counters.get("session_bytes", 0) / 1000.0  # the one-off session data, as virtual time counts it
     params = rec.get("params", {})
     return {
         "method": rec["method"], "network": rec.get("network", "live"), "scene": rec["scene"], "trace": rec["trace"],
         "seed": 0, "params": ";".join(f"{k}={v}" for k, v in sorted(params.items())),
         "width": rec["width"], "height": rec["height"], "server_fps": rec.get("server_fps"),
         "client_fps": rec.get("display_hz"), "frames": len(rows),
-        **metrics.quality_summary(rows), "mean_kbps": kbps + meta_kbps, "kbps_video": kbps, "kbps_meta": meta_kbps,
+        **metrics.quality_summary(rows), "mean_kbps": kbps + meta_kbps + once_kb * 8 / dur, "kbps_video": kbps,
+        "kbps_meta": meta_kbps, "session_kb": once_kb, "steady_kbps": kbps + meta_kbps,
         "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
         "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
         "mean_server_ms": mean("server_render_ms"), "mean_encode_ms": mean("server_encode_ms"),

@@ -13,6 +13,11 @@
 - :func:`lab_error_rate`: share of pixels whose CIE L*a*b* distance (CIE76, D65)
   exceeds 20, the "error pixel" measure of the image-warping paper.
 - :func:`hole_rate`: share of pixels a method did not draw from received content.
+- :func:`region_masks`: the ``model`` region (pixels the ground truth shows the scene's
+  model on: a loaded model, or a built-in scene less its floor), its ``interior`` (model
+  pixels more than :data:`REGION_RING_PX` px from the model's outline) and its ``edge``
+  (every pixel within that distance of the outline, on either side of it).  Scores over
+  a region (:func:`score_frame`) use the same metrics over its pixels only.
 
 This module imports nothing else from splitrender.
 """
@@ -30,6 +35,9 @@ BACKGROUND_TOLERANCE = 6  # code values: a shown pixel this far from a backgroun
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 LAB_ERROR_THRESHOLD = 20.0
+REGION_RING_PX = 2
+"""Half-width of the ``edge`` ring about a model's outline (Chebyshev distance, pixels)."""
+REGIONS = ("model", "interior", "edge")
 
 
 def _check(a: np.ndarray, b: np.ndarray) -> None:
@@ -71,15 +79,36 @@ def luma(img: np.ndarray) -> np.ndarray:
 
 def ssim(a: np.ndarray, b: np.ndarray, sigma: float = SSIM_SIGMA) -> float:
     """Mean SSIM of the luma channel; ``sigma`` is the Gaussian window in pixels (constants in the module docstring)."""
+    return ssim_map(a, b, sigma)[0]
+
+
+def ssim_map(a: np.ndarray, b: np.ndarray, sigma: float = SSIM_SIGMA) -> tuple[float, np.ndarray]:
+    """:func:`ssim` and the per-pixel SSIM map (H, W) it averages; the mean leaves out a border as wide as half
+    the window (scikit-image's rule), which is NaN in the map returned so masked means leave it out too."""
     from skimage.metrics import structural_similarity
 
     _check(a, b)
-    return float(
-        structural_similarity(
-            luma(a), luma(b), data_range=255.0, gaussian_weights=True, sigma=sigma,
-            use_sample_covariance=False, K1=SSIM_K1, K2=SSIM_K2,
-        )
-    )
+    m, s = structural_similarity(luma(a), luma(b), data_range=255.0, gaussian_weights=True, sigma=sigma,
+                                 use_sample_covariance=False, K1=SSIM_K1, K2=SSIM_K2, full=True)
+    pad = int(3.5 * sigma + 0.5)  # skimage's window radius for gaussian_weights (truncate = 3.5)
+    s = np.array(s, np.float64)
+    if pad:
+        s[:pad], s[-pad:], s[:, :pad], s[:, -pad:] = np.nan, np.nan, np.nan, np.nan
+    return float(m), s
+
+
+def region_masks(model: np.ndarray, ring_px: int = REGION_RING_PX) -> dict[str, np.ndarray]:
+    """The scoring regions of a frame from its ground-truth model mask (H, W) bool: ``model`` itself,
+    ``interior`` (model pixels whose every neighbour within ``ring_px`` (Chebyshev) is model too) and ``edge``
+    (pixels with both model and non-model pixels within ``ring_px``: the outline's ring, both sides of it).
+    The frame's border is not an outline: a model running off screen has no edge there."""
+    from scipy.ndimage import binary_dilation, binary_erosion
+
+    m = np.asarray(model, bool)
+    k = np.ones((2 * ring_px + 1, 2 * ring_px + 1), bool)
+    inner = binary_erosion(m, k, border_value=1)
+    outer = binary_dilation(m, k, border_value=0)
+    return {"model": m, "interior": inner, "edge": outer & ~inner}
 
 
 def flip_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -148,7 +177,8 @@ def foreground_mask(shown: np.ndarray, truth: np.ndarray, truth_geometry: np.nda
 
 
 def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, truth_geometry: np.ndarray | None,
-                with_flip: bool, ssim_sigma: float = SSIM_SIGMA, shown_geometry: np.ndarray | None = None) -> dict[str, float]:
+                with_flip: bool, ssim_sigma: float = SSIM_SIGMA, shown_geometry: np.ndarray | None = None,
+                truth_model: np.ndarray | None = None) -> dict[str, float]:
     """Every per-frame quality number of one displayed image against its ground truth.
 
     ``holes`` (bool, H x W) marks the pixels the client did not draw from received content;
@@ -159,6 +189,12 @@ def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, 
     ``flip`` (NaN unless ``with_flip``), ``lab_err_pct``, ``hole_pct``, ``hole_geom_pct``
     and the foreground scores over :func:`foreground_mask`: ``fg_pct`` (its share of the
     frame), ``fg_mse``, ``fg_psnr_db`` and ``fg_flip`` (NaN on a frame without foreground).
+
+    ``truth_model`` (bool, H x W: where the ground truth shows the scene's model) adds, for each
+    region of :func:`region_masks` (``model``, ``interior``, ``edge``), ``<region>_pct`` (its share of
+    the frame), ``<region>_mse``, ``<region>_psnr_db``, ``<region>_ssim`` (the mean of the SSIM map over
+    the region), ``<region>_dssim`` and ``<region>_flip`` (NaN unless ``with_flip``): NaN for a region
+    the frame does not have, and all NaN without ``truth_model``.
     """
     geom_pct = float("nan")
     if truth_geometry is not None:
@@ -167,11 +203,11 @@ def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, 
     if truth_geometry is not None:
         fg = foreground_mask(shown, truth, truth_geometry, shown_geometry)
     m = mse(shown, truth)
-    s = ssim(shown, truth, ssim_sigma)
+    s, smap = ssim_map(shown, truth, ssim_sigma)
     fmap = flip_map(shown, truth) if with_flip else None
     fg_mse = mse(shown, truth, fg) if fg is not None else float("nan")
     has_fg = fg is not None and bool(fg.any())
-    return {
+    return {**_region_scores(shown, truth, truth_model, smap, fmap),
         "mse": m,
         "psnr_db": psnr_from_mse(m),
         "ssim": s,
@@ -187,6 +223,26 @@ def score_frame(shown: np.ndarray, holes: np.ndarray | None, truth: np.ndarray, 
     }
 
 
+def _region_scores(shown: np.ndarray, truth: np.ndarray, truth_model: np.ndarray | None, smap: np.ndarray,
+                   fmap: np.ndarray | None) -> dict[str, float]:
+    nan = float("nan")
+    out: dict[str, float] = {}
+    masks = region_masks(truth_model) if truth_model is not None else {}
+    for r in REGIONS:
+        mask = masks.get(r)
+        if mask is None or not mask.any():
+            out.update({f"{r}_pct": 0.0 if mask is not None else nan, f"{r}_mse": nan, f"{r}_psnr_db": nan,
+                        f"{r}_ssim": nan, f"{r}_dssim": nan, f"{r}_flip": nan})
+            continue
+        e = mse(shown, truth, mask)
+        sv = smap[mask]
+        sv = sv[~np.isnan(sv)]
+        sm = float(sv.mean()) if sv.size else nan
+        out.update({f"{r}_pct": 100.0 * float(mask.mean()), f"{r}_mse": e, f"{r}_psnr_db": psnr_from_mse(e),
+                    f"{r}_ssim": sm, f"{r}_dssim": (1.0 - sm) / 2.0, f"{r}_flip": float(fmap[mask].mean()) if fmap is not None else nan})
+    return out
+
+
 def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     """The run's quality aggregates from per-frame rows of :func:`score_frame` (NaN cells skipped).
 
@@ -195,7 +251,9 @@ def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     ``mean_ssim`` and ``mean_dssim``; ``mean_flip`` over the ``flip_frames`` scored;
     ``mean_lab_err_pct``, ``mean_hole_pct``; foreground: ``mean_fg_psnr_db`` (mean of
     capped per-frame foreground PSNRs), ``fg_psnr_mse_db`` (from the mean foreground
-    MSE), ``mean_fg_flip``, ``mean_fg_pct`` and ``fg_frames`` (frames with foreground).
+    MSE), ``mean_fg_flip``, ``mean_fg_pct`` and ``fg_frames`` (frames with foreground); per region of
+    :func:`region_masks`, e.g. ``model``: ``mean_model_psnr_db``, ``model_psnr_mse_db``, ``mean_model_ssim``,
+    ``mean_model_dssim``, ``mean_model_flip``, ``mean_model_pct`` and ``model_frames`` (frames showing it).
     """
     def col(k: str) -> np.ndarray:
         a = np.array([float(r.get(k, math.nan)) for r in rows], dtype=np.float64)
@@ -215,4 +273,9 @@ def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
         "mean_hole_geom_pct": mean("hole_geom_pct"),
         "mean_fg_psnr_db": mean("fg_psnr_db"), "fg_psnr_mse_db": psnr_from_mse(mean("fg_mse")),
         "mean_fg_flip": mean("fg_flip"), "mean_fg_pct": mean("fg_pct"), "fg_frames": int(col("fg_psnr_db").size),
+        **{k: v for r in REGIONS for k, v in (
+            (f"mean_{r}_psnr_db", mean(f"{r}_psnr_db")), (f"{r}_psnr_mse_db", psnr_from_mse(mean(f"{r}_mse"))),
+            (f"mean_{r}_ssim", mean(f"{r}_ssim")), (f"mean_{r}_dssim", mean(f"{r}_dssim")),
+            (f"mean_{r}_flip", mean(f"{r}_flip")), (f"mean_{r}_pct", mean(f"{r}_pct")),
+            (f"{r}_frames", int(col(f"{r}_psnr_db").size)))},
     }

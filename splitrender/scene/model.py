@@ -188,7 +188,11 @@ class Delayed(Animation):
 
 @dataclass
 class SceneObject:
-    """A mesh with a material placed in the world; ``object_id`` >= 1 (0 is background)."""
+    """A mesh with a material placed in the world; ``object_id`` >= 1 (0 is background).
+
+    ``backdrop``: the object sets the stage rather than being what a test looks at (a floor, an added
+    ground plane); region scores (:meth:`Scene.model_ids`) leave it out of the ``model`` region.
+    """
 
     name: str
     mesh: Mesh
@@ -196,6 +200,7 @@ class SceneObject:
     object_id: int
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     animation: Animation | None = None
+    backdrop: bool = False
 
     @property
     def dynamic(self) -> bool:
@@ -254,6 +259,8 @@ class Scene:
     subject: tuple[np.ndarray, np.ndarray] | None = None
     gi: str = "none"
     gi_probes: tuple[int, int, int] = (8, 4, 8)
+    spec: str | None = None
+    """What the scene was loaded from (``get_scene``'s argument: a name or a path with its options), for messages."""
 
     def __post_init__(self) -> None:
         if self.shading not in SHADING_MODELS:
@@ -273,6 +280,15 @@ class Scene:
     def model_matrices(self, t_s: float) -> dict[int, np.ndarray]:
         """Object id -> object-to-world matrix at ``t_s``."""
         return {o.object_id: o.model_matrix(t_s) for o in self.objects}
+
+    def model_ids(self) -> np.ndarray:
+        """Object ids of the scene's model (every object but its backdrop: a loaded file's model without the
+        ``+ground`` plane; a built-in scene less its floor), sorted, for the ``model`` scoring region."""
+        return np.array(sorted(o.object_id for o in self.objects if not o.backdrop), np.int64)
+
+    def model_mask(self, object_id: np.ndarray) -> np.ndarray:
+        """Where an object-id image (0 = background) shows the scene's model (bool, same shape)."""
+        return np.isin(object_id, self.model_ids())
 
     def dynamic_ids(self) -> list[int]:
         return [o.object_id for o in self.objects if o.dynamic]

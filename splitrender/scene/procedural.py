@@ -58,7 +58,8 @@ def default_scene(gi: bool = True) -> Scene:
     objs: list[SceneObject] = []
 
     def add(name: str, mesh: Mesh, mat: str, transform: np.ndarray | None = None, animation=None) -> None:
-        objs.append(SceneObject(name, mesh, mats[mat], len(objs) + 1, np.eye(4) if transform is None else transform, animation))
+        objs.append(SceneObject(name, mesh, mats[mat], len(objs) + 1, np.eye(4) if transform is None else transform, animation,
+                                backdrop=name == "floor"))
 
     add("floor", P.grid_plane(16.0, 16.0, 64, 64, uv_scale_m=2.0), "floor", _tr(0, 0, -4))
     add("back_wall", P.box((16.0, 5.0, 0.3), uv_scale_m=2.0, subdiv=8), "brick", _tr(0, 2.5, -12))
@@ -90,7 +91,8 @@ def default_scene(gi: bool = True) -> Scene:
 
 def minimal_scene() -> Scene:
     """A textured floor and one box: the least a renderer or codec test needs."""
-    floor = SceneObject("floor", P.grid_plane(10.0, 10.0, 4, 4, 1.0), Material("floor", (1, 1, 1), T.checker(128, 8)), 1, _tr(0, 0, -3))
+    floor = SceneObject("floor", P.grid_plane(10.0, 10.0, 4, 4, 1.0), Material("floor", (1, 1, 1), T.checker(128, 8)), 1, _tr(0, 0, -3),
+                        backdrop=True)
     cube = SceneObject("cube", P.box((1.0, 1.0, 1.0)), Material("cube", (0.8, 0.2, 0.2)), 2, _tr(0, 0.5, -3))
     return Scene("minimal", [floor, cube], DirectionalLight(shadow_map_size=1024, shadow_extent_m=8.0), [])
 
@@ -101,7 +103,7 @@ def shed_scene() -> Scene:
     the probes inside it and those outside; a point inside by a wall takes light from both unless the
     visibility (Chebyshev) test rejects the ones beyond the wall."""
     mat = Material("plaster", (0.7, 0.7, 0.7), None, roughness=1.0)
-    objs = [SceneObject("floor", P.grid_plane(8.0, 8.0, 8, 8), mat, 1)]
+    objs = [SceneObject("floor", P.grid_plane(8.0, 8.0, 8, 8), mat, 1, backdrop=True)]
     t, h, w = 0.1, 3.0, 4.0
     parts = [((t, h, w + t), (-w / 2, h / 2, 0.0)), ((t, h, w + t), (w / 2, h / 2, 0.0)), ((w + t, h, t), (0.0, h / 2, -w / 2)),
              ((w + t, h, t), (0.0, h / 2, w / 2)), ((w + t, t, w + t), (0.0, h, 0.0))]

@@ -625,7 +625,8 @@ class VirtualTimeRun:
             gt = gt_out.color
             row["gt_ms"] = getattr(gt_out, "render_ms", None) or (time.perf_counter() - w0) * 1000  # a cache hit: its render time
             row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
-                                           bool(cfg.flip_every) and di % cfg.flip_every == 0, cfg.ssim_sigma))
+                                           bool(cfg.flip_every) and di % cfg.flip_every == 0, cfg.ssim_sigma,
+                                           truth_model=self.scene.model_mask(gt_out.object_id)))
             if cfg.save_images_every and di % cfg.save_images_every == 0 and c.index == 0:
                 result.images.append((di, cf.color, gt))
         row.update({f"cli_{k}": v for k, v in cf.stats.items()})
@@ -662,6 +663,9 @@ class VirtualTimeRun:
         }
         for name, b in bytes_by_stream.items():
             s[f"kbps_{name}"] = b * 8 / dur / 1000.0
+        once = bytes_by_stream.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
+        s["session_kb"] = once / 1000.0
+        s["steady_kbps"] = (total - once) * 8 / dur / 1000.0
         ups = c.updates
         s.update({
             "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
