@@ -187,7 +187,8 @@ def main_run(ns: argparse.Namespace) -> int:
     res.write(ns.out)
     for s in res.client_summaries:
         who = f" client {s['client']}" if cfg.clients > 1 else ""
-        print(f"{cfg.method} on {cfg.network}{who}: PSNR {s['mean_psnr_db']:.2f} dB, SSIM {s['mean_ssim']:.4f}, "
+        print(f"{cfg.method} on {cfg.network}{who}: PSNR {s['mean_psnr_db']:.2f} dB "
+              f"(model {s.get('mean_model_psnr_db', float('nan')):.2f}), SSIM {s['mean_ssim']:.4f}, "
               f"FLIP {s['mean_flip']:.4f}, {s['mean_kbps']:.0f} kbit/s, holes {s['mean_hole_pct']:.2f}%, "
               f"update age {s['mean_update_age_ms']:.0f} ms -> {ns.out}")
     return 0
@@ -198,10 +199,17 @@ def main_methods(ns: argparse.Namespace) -> int:
 
     from .methods import available_methods, get_method
 
-    for name in available_methods():
-        spec = get_method(name)
-        fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(spec.config))
-        print(f"{name:8s} {spec.description}\n         {fields}")
+    specs = {name: get_method(name) for name in available_methods()}
+    for scene, title in ((False, "thin clients: the client draws only what the server sends"),
+                         (True, "client renders the scene: it holds the whole scene (uploaded once at session start) and "
+                                "draws it itself; a different class of client, scored and charted apart")):
+        names = [n for n, spec in specs.items() if bool(spec.client_draws_scene) == scene]
+        if not names:
+            continue
+        print(f"{title}:")
+        for name in names:
+            fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(specs[name].config))
+            print(f"  {name:8s} {specs[name].description}\n           {fields}")
     return 0
 
 

@@ -74,13 +74,18 @@ def test_bad_input_gives_one_clear_line_and_exit_2(args, message, capsys):
     assert "Traceback" not in err
 
 
-def test_methods_lists_every_registered_method(capsys):
-    from splitrender.methods import available_methods
+def test_methods_lists_every_registered_method_in_its_class(capsys):
+    """Thin clients first; methods whose client renders the scene (probes) under their own heading."""
+    from splitrender.methods import available_methods, get_method
 
     assert main(["methods"]) == 0
     out = capsys.readouterr().out
     for m in available_methods():
-        assert out.count(f"\n{m} ") + out.startswith(f"{m} ") == 1, m
+        assert out.count(f"\n  {m} ") == 1, m
+    thin, scene = out.split("client renders the scene:")
+    assert thin.startswith("thin clients:") and "\n  probes " in scene and "\n  sas " in thin
+    assert {m for m in available_methods() if f"\n  {m} " in scene} == {m for m in available_methods()
+                                                                         if get_method(m).client_draws_scene} == {"probes"}
 
 
 def test_console_script_help():

@@ -30,6 +30,7 @@ def test_demo_tiny(tmp_path: Path) -> None:
     by = {(r["method"], r["network"]): r for r in summ}
     for r in summ:
         assert 10 < r["mean_psnr_db"] < 60 and 0 < r["mean_ssim"] <= 1 and r["mean_kbps"] > 0
+        assert 10 < r["mean_model_psnr_db"] < 60 and 0 < r["mean_model_pct"] < 100  # the default scene less its floor
         assert 0 < r["mean_flip"] < 1  # FLIP sampled every 6th frame
     # latency costs quality for plain video; ATW recovers part of it
     assert by[("video", "cloud")]["mean_psnr_db"] < by[("video", "ideal")]["mean_psnr_db"]
@@ -47,7 +48,7 @@ def test_demo_tiny(tmp_path: Path) -> None:
     html = (tmp_path / "report.html").read_text()
     # the answer first: the headline table per network, then speed against accuracy, then how it was scored
     assert html.index("id='answer'") < html.index('id="speed_vs_accuracy"') < html.index("What ran")
-    assert re.search(r"<h3>cloud</h3><table><tr><th>front</th><th>method</th>", html)
+    assert re.search(r"<h3>cloud</h3><table><tr><th>front</th><th>method</th><th>model PSNR dB</th>", html)
     assert len(re.findall(r'src="data:image/png;base64,', html)) >= 6
     for needle in ('id="quality_vs_latency"', 'id="psnr_timeline"', 'id="bitrate_by_stream"', 'id="client_cost"',
                    "flip_every = 6", "50 ms +- 20 ms", "Quality over time (cloud)"):
@@ -122,6 +123,26 @@ def test_the_study_command_adds_studies_to_a_folders_report(tmp_path: Path, fake
     assert demo.main_study(ns) == 0
     with pytest.raises(ConfigError, match=r"study: unknown study nope; available: all, fakestudies.ok"):
         demo.main_study(argparse.Namespace(names="nope", out=tmp_path / "d", quick=True, timeout=60.0))
+
+
+def test_headline_ranks_by_model_psnr_and_lists_scene_rendering_clients_apart() -> None:
+    """Thin clients ranked among themselves on (client cost, model PSNR); probes below its own heading, with its
+    scene upload beside the score, even though its PSNR beats every thin client's."""
+    from splitrender.experiments.headline import headline_markdown, headline_rows, headline_text
+
+    def row(m: str, model: float, whole: float, client: float, upload: float = 0.0) -> dict:
+        return {"method": m, "network": "ideal", "mean_model_psnr_db": model, "mean_psnr_db": whole, "mean_flip": 0.1,
+                "mean_kbps": 1000.0, "session_kb": upload, "mean_gt_ms": 10.0, "mean_server_ms": 20.0, "client_over_gt": client}
+
+    summ = [row("video", 30.0, 36.0, 0.1), row("probes", 55.0, 58.0, 1.5, 600.0), row("sas", 33.0, 34.0, 0.1),
+            row("atw", 31.0, 37.0, 0.05)]
+    t = headline_rows(summ)["ideal"]
+    # whole-frame PSNR would put video on the front beside atw; over the model sas dominates it
+    assert [(x["method"], x["rank"]) for x in t] == [("sas", 1), ("atw", 1), ("video", 2), ("probes", 1)]
+    md = headline_markdown({"ideal": t})
+    assert md.index("| 2 | video |") < md.index("*client renders the scene:*") < md.index("| 1 | probes * | 55.0 | 58.0 |")
+    assert "| 1 | probes * | 55.0 | 58.0 | 0.100 | 1000 | 600 |" in md and "| 1 | sas | 33.0 | 34.0 | 0.100 | 1000 | - |" in md
+    assert "client renders the scene:" in headline_text({"ideal": t})
 
 
 def test_front_ranks_are_non_dominated_layers() -> None:

@@ -129,3 +129,28 @@ def test_markdown_subset() -> None:
     h = markdown_to_html("# Title\n\ntext `a<b>` and *em*\n\n- x\n- y\n\n```\n<code>\n```")
     assert h == ("<h3>Title</h3>\n<p>text <code>a&lt;b&gt;</code> and <i>em</i></p>\n<ul>\n<li>x</li>\n<li>y</li>\n</ul>\n"
                  "<pre>\n&lt;code&gt;\n</pre>")
+
+
+def test_charts_keep_the_scene_upload_out_of_the_rate_and_the_front(tmp_path: Path) -> None:
+    """The probes client renders the scene: its one-off upload is written above its bar in kB, not averaged into a
+    rate or the rate-distortion x axis, and its runs are drawn but left off the thin clients' Pareto front."""
+    from splitrender.experiments.charts import bitrate_stacked, rate_distortion, speed_accuracy
+
+    base = {"network": "ideal", "trace": "walk", "params": "", "mean_ssim": 0.9, "mean_flip": 0.1, "mean_gt_ms": 50}
+    runs = [{**base, "run": "a", "method": "video", "mean_kbps": 1100, "steady_kbps": 1100, "session_kb": 0.1,
+             "kbps_color": 1000, "kbps_meta": 100, "kbps_session": 0.2, "mean_psnr_db": 30, "mean_model_psnr_db": 28,
+             "mean_server_ms": 10, "mean_client_ms": 1},
+            {**base, "run": "b", "method": "probes", "mean_kbps": 5000, "steady_kbps": 1000, "session_kb": 500,
+             "kbps_color": 900, "kbps_meta": 100, "kbps_session": 4000, "mean_psnr_db": 55, "mean_model_psnr_db": 54,
+             "mean_server_ms": 10, "mean_client_ms": 2}]
+    bitrate_stacked(runs, tmp_path)
+    bs = {r["method"]: r for r in read_csv(tmp_path / "bitrate_by_stream.csv")}
+    assert "kbps_session" not in bs["probes"] and bs["probes"]["total_kbps"] == pytest.approx(1000)
+    assert bs["probes"]["session_kb"] == pytest.approx(500) and bs["video"]["session_kb"] == 0
+    rate_distortion(runs, tmp_path)
+    rd = {r["method"]: r for r in read_csv(tmp_path / "rate_distortion.csv")}
+    assert rd["probes"]["mean_kbps"] == pytest.approx(1000)
+    speed_accuracy(runs, tmp_path)
+    sa = read_csv(tmp_path / "speed_vs_accuracy.csv")
+    front = [r for r in sa if r["axis"] == "mean_client_ms"]
+    assert [(r["x_ms"], r["model_psnr_db"]) for r in front] == [(1, 28)]  # probes (2 ms, 54 dB) is not on it

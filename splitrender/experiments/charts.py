@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .headline import draws_scene  # noqa: E402
 from .store import Row, fnum, write_csv  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -51,11 +52,14 @@ def method_order(methods: Sequence[str]) -> list[str]:
 
 
 def style(method: str, methods: Sequence[str]) -> dict[str, Any]:
-    """Line style per method: baselines dashed grey/blue, methods solid in distinct colours."""
+    """Line style per method: baselines dashed grey/blue, methods solid in distinct colours, methods whose client
+    renders the scene dotted and labelled so."""
     order = method_order(methods)
     i = order.index(method) if method in order else len(order)
-    return {"color": _PALETTE[i % len(_PALETTE)], "linestyle": "--" if method in BASELINES else "-",
-            "marker": "os^Dv<>pPX"[i % 10], "label": method + (" (baseline)" if method in BASELINES else "")}
+    scene = draws_scene(method)
+    return {"color": _PALETTE[i % len(_PALETTE)], "linestyle": "--" if method in BASELINES else ":" if scene else "-",
+            "marker": "os^Dv<>pPX"[i % 10],
+            "label": method + (" (baseline)" if method in BASELINES else " (client renders the scene)" if scene else "")}
 
 
 def _save(fig: Any, figdir: Path, name: str, caption: str, data: Sequence[Row] | None) -> Chart:
@@ -117,7 +121,7 @@ def quality_vs_latency(runs: Sequence[Row], figdir: Path, name: str = "quality_v
     _missing_baselines_note(axes[0], methods)
     fig.suptitle("Quality against network latency")
     return _save(fig, figdir, name, "Mean quality per method against the modelled one-way delay (mean over traces, seeds "
-                 "and parameters at each delay).", data)
+                 "and parameters at each delay); whole-frame scores.", data)
 
 
 def quality_timeline(frames: Sequence[Row], figdir: Path, network: str, trace: str | None = None,
@@ -143,7 +147,7 @@ def quality_timeline(frames: Sequence[Row], figdir: Path, network: str, trace: s
     _missing_baselines_note(ax, methods)
     tr = f", trace {trace}" if trace else ""
     ax.set_title(f"Quality over time on {network}{tr}")
-    return _save(fig, figdir, name, f"Per-frame PSNR over time for each method on `{network}`{tr}.", data)
+    return _save(fig, figdir, name, f"Per-frame PSNR over the whole frame, over time, for each method on `{network}`{tr}.", data)
 
 
 def bitrate_stacked(runs: Sequence[Row], figdir: Path, name: str = "bitrate_by_stream") -> Chart | None:
@@ -156,6 +160,9 @@ def bitrate_stacked(runs: Sequence[Row], figdir: Path, name: str = "bitrate_by_s
         for k in r:
             if k.startswith("kbps_") and k not in streams and not math.isnan(fnum(r[k])):
                 streams.append(k)
+    once = [_mean([r.get("session_kb", math.nan) for r in runs if r["method"] == m]) for m in methods]
+    if "kbps_session" in streams and not all(math.isnan(v) for v in once):
+        streams.remove("kbps_session")  # one-off data: written beside the bar in kB, not averaged into a rate
     streams.sort(key=lambda s: (s in ("kbps_meta", "kbps_session"), s))
     fig, ax = plt.subplots(figsize=(max(5, 1.4 * len(methods) + 2), 4))
     bottom = np.zeros(len(methods))
@@ -170,14 +177,17 @@ def bitrate_stacked(runs: Sequence[Row], figdir: Path, name: str = "bitrate_by_s
         for d, v in zip(data, vals):
             d[s] = float(v)
     for i, m in enumerate(methods):
-        ax.text(i, bottom[i], f"{bottom[i]:.0f}", ha="center", va="bottom", fontsize=8)
+        up = once[i] if not math.isnan(once[i]) and once[i] >= 0.5 else 0.0
+        ax.text(i, bottom[i], f"{bottom[i]:.0f}" + (f"\n+ {up:.0f} kB once" if up else ""), ha="center", va="bottom", fontsize=8)
         data[i]["total_kbps"] = float(bottom[i])
+        data[i]["session_kb"] = up
     ax.set_ylabel("mean bitrate (kbit/s)")
-    ax.set_title("Bitrate per method by stream (mean over runs)")
+    ax.set_title("Steady bitrate per method by stream (mean over runs)")
     ax.legend(fontsize=8)
     ax.grid(axis="y", alpha=0.3)
-    return _save(fig, figdir, name, "Bits on the wire per method, stacked by stream; `meta` is the msgpack+zstd metadata, "
-                 "`session` the one-time session data.", data)
+    return _save(fig, figdir, name, "Bits on the wire per method, stacked by stream; `meta` is the msgpack+zstd metadata. "
+                 "One-off session data (a scene upload) is not a rate: it is written above the bar in kB (`+ N kB once`).",
+                 data)
 
 
 def client_cost(runs: Sequence[Row], figdir: Path, name: str = "client_cost") -> Chart | None:
@@ -215,13 +225,13 @@ def rate_distortion(runs: Sequence[Row], figdir: Path, name: str = "rate_distort
     data: list[Row] = []
     for j, net in enumerate(nets):
         for m in methods:
-            rr = sorted((r for r in runs if r["network"] == net and r["method"] == m), key=lambda r: fnum(r["mean_kbps"]))
+            rr = [r for r in runs if r["network"] == net and r["method"] == m]
             if not rr:
                 continue
             # one point per distinct parameter set (means over traces/seeds)
             pts = []
             for params, grp in _group(rr, "params").items():
-                pts.append((_mean([g["mean_kbps"] for g in grp]), {c: _mean([g[c] for g in grp]) for c, _, _ in QUALITY}, params[0]))
+                pts.append((_mean([_steady_kbps(g) for g in grp]), {c: _mean([g[c] for g in grp]) for c, _, _ in QUALITY}, params[0]))
             pts.sort(key=lambda p: p[0])
             for i, (col, label, _) in enumerate(QUALITY):
                 ax = axes[i][j]
@@ -230,13 +240,25 @@ def rate_distortion(runs: Sequence[Row], figdir: Path, name: str = "rate_distort
         for i, (_, label, _) in enumerate(QUALITY):
             axes[i][j].set_ylabel(label)
             axes[i][j].grid(alpha=0.3)
-            axes[2][j].set_xlabel("bitrate (kbit/s)")
+            axes[2][j].set_xlabel("steady bitrate (kbit/s)")
         axes[0][j].set_title(net if len(net) < 40 else net[:37] + "...")
     axes[0][0].legend(fontsize=7)
     _missing_baselines_note(axes[0][0], methods)
     fig.suptitle("Rate-distortion per latency profile")
-    return _save(fig, figdir, name, "Quality against bitrate; each point is one parameter set (mean over traces and seeds), "
-                 "one column per network.", data)
+    return _save(fig, figdir, name, "Whole-frame quality against the steady bitrate (every stream but one-off session "
+                 "data); each point is one parameter set (mean over traces and seeds), one column per network.", data)
+
+
+def _steady_kbps(r: Row) -> float:
+    """A run's rate without its one-off session data (``steady_kbps``; ``mean_kbps`` for results from before it)."""
+    v = fnum(r.get("steady_kbps"))
+    return v if not math.isnan(v) else fnum(r.get("mean_kbps"))
+
+
+def model_psnr(r: Row) -> float:
+    """A run's PSNR over the scene's model (``mean_model_psnr_db``), whole-frame for runs without one."""
+    v = fnum(r.get("mean_model_psnr_db"))
+    return v if not math.isnan(v) else fnum(r.get("mean_psnr_db"))
 
 
 def quality_vs_frame_ratio(runs: Sequence[Row], figdir: Path, name: str = "quality_vs_frame_ratio") -> Chart | None:
@@ -260,7 +282,7 @@ def quality_vs_frame_ratio(runs: Sequence[Row], figdir: Path, name: str = "quali
     axes[0].legend(fontsize=8)
     _missing_baselines_note(axes[0], methods)
     fig.suptitle("Quality against the server:client frame ratio")
-    return _save(fig, figdir, name, "Mean quality against the ratio of server to client frame rate.", data)
+    return _save(fig, figdir, name, "Mean whole-frame quality against the ratio of server to client frame rate.", data)
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -276,7 +298,8 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, flo
 
 
 def speed_accuracy(runs: Sequence[Row], figdir: Path, name: str = "speed_vs_accuracy") -> Chart | None:
-    """PSNR against server ms/frame and client ms/frame; every run a point, Pareto front marked."""
+    """Model PSNR (:func:`model_psnr`) against server ms/frame and client ms/frame; every run a point, Pareto front
+    marked."""
     if not runs:
         return None
     methods = _methods(runs)
@@ -287,26 +310,30 @@ def speed_accuracy(runs: Sequence[Row], figdir: Path, name: str = "speed_vs_accu
         allpts = []
         for m in methods:
             rr = [r for r in runs if r["method"] == m]
-            xs, ys = [fnum(r[col]) for r in rr], [fnum(r["mean_psnr_db"]) for r in rr]
+            xs, ys = [fnum(r[col]) for r in rr], [model_psnr(r) for r in rr]
             st = style(m, methods)
             ax.scatter(xs, ys, color=st["color"], marker=st["marker"], label=st["label"], alpha=0.8)
-            allpts += list(zip(xs, ys))
+            if not draws_scene(m):  # the front is the thin clients'
+                allpts += list(zip(xs, ys))
         front = pareto_front(allpts)
         if front:
             ax.step([p[0] for p in front], [p[1] for p in front], where="post", color="k", lw=1, label="Pareto front")
             ax.scatter([p[0] for p in front], [p[1] for p in front], facecolors="none", edgecolors="k", s=90)
-        data += [{"axis": col, "x_ms": x, "mean_psnr_db": y, "pareto": 1} for x, y in front]
+        data += [{"axis": col, "x_ms": x, "model_psnr_db": y, "pareto": 1} for x, y in front]
         ax.set_xlabel(lab)
-        ax.set_ylabel("mean PSNR (dB)")
+        ax.set_ylabel("model PSNR (dB)")
         ax.grid(alpha=0.3)
     data += [{"axis": "run", "run": r.get("run"), "method": r["method"], "params": r.get("params"), "network": r["network"],
-              "mean_server_ms": r["mean_server_ms"], "mean_client_ms": r["mean_client_ms"], "mean_psnr_db": r["mean_psnr_db"]}
+              "mean_server_ms": r["mean_server_ms"], "mean_client_ms": r["mean_client_ms"], "mean_psnr_db": r["mean_psnr_db"],
+              "model_psnr_db": model_psnr(r)}
              for r in runs]
     axes[0].legend(fontsize=8)
     _missing_baselines_note(axes[0], methods)
     fig.suptitle("Speed against accuracy (wall clock on this machine)")
-    return _save(fig, figdir, name, "Each point is one run; the black step line is the Pareto front (no other run is both "
-                 "faster and better).", data)
+    return _save(fig, figdir, name, "Each point is one run, scored over the scene's model (model PSNR: the pixels where "
+                 "the ground truth shows the model, the sky and the floor left out; whole-frame PSNR for results without it); "
+                 "the black step line is the thin clients' Pareto front (no other run is both faster and better); methods "
+                 "whose client renders the scene itself are a different class, drawn but not on the front.", data)
 
 
 def failure_mask(frames: Sequence[Row], floor_db: float = FAIL_PSNR_DB, hole_pct: float = FAIL_HOLE_PCT) -> list[bool]:

@@ -2,21 +2,24 @@
 
 For every method on a network (its runs averaged over traces, :func:`~.store.summarise`):
 
-* quality where it matters: PSNR over the foreground (the pixels where the ground truth
-  shows geometry, ``mean_fg_psnr_db``) and over the whole frame, and FLIP (lower is
-  better);
-* its bits (``mean_kbps``: every stream, metadata included);
+* quality where it matters: PSNR over the scene's model (``mean_model_psnr_db``: the
+  pixels where the ground truth shows the model, a loaded file's or a built-in scene's
+  objects less its floor; :func:`splitrender.metrics.region_masks`) and over the whole
+  frame, and FLIP (lower is better);
+* its bits (``mean_kbps``: every stream, metadata included), and the one-off session data
+  (``session_kb``, a scene upload) apart from it;
 * what it costs: server and client milliseconds per frame as a ratio of the ground-truth
   render of the same frame on the same machine (``server / GT``, ``client / GT``), so the
   figure travels between machines better than milliseconds do;
 * its rank on the speed-against-accuracy front: non-dominated sorting on (client cost
-  ratio, lower is better; whole-frame PSNR, higher is better).  Rank 1 is the front
-  itself (no other method on that network is both cheaper for the client and better),
-  rank 2 the front once rank 1 is set aside, and so on.
+  ratio, lower is better; model PSNR, or whole-frame PSNR where a run has no model
+  score, higher is better).  Rank 1 is the front itself (no other method on that
+  network is both cheaper for the client and better), rank 2 the front once rank 1 is
+  set aside, and so on.
 
 Methods whose client holds and renders the whole scene (``MethodSpec.client_draws_scene``:
-probes) are marked: they are a different kind of thin client, and their cost ratio says
-so.
+probes) are a different class of client: they are listed apart, below the thin clients,
+ranked among themselves, with their scene upload beside the score.
 """
 
 from __future__ import annotations
@@ -27,9 +30,9 @@ from typing import Any
 
 from .store import Row, fnum
 
-__all__ = ["HEADLINE_COLUMNS", "front_ranks", "headline_html", "headline_rows", "headline_markdown", "headline_text"]
+__all__ = ["HEADLINE_COLUMNS", "draws_scene", "front_ranks", "headline_html", "headline_rows", "headline_markdown", "headline_text"]
 
-HEADLINE_COLUMNS = ("rank", "method", "fg_psnr_db", "psnr_db", "flip", "kbps", "server_over_gt", "client_over_gt")
+HEADLINE_COLUMNS = ("rank", "method", "model_psnr_db", "psnr_db", "flip", "kbps", "session_kb", "server_over_gt", "client_over_gt")
 
 
 def front_ranks(points: Sequence[tuple[float, float]]) -> list[int]:
@@ -49,7 +52,8 @@ def front_ranks(points: Sequence[tuple[float, float]]) -> list[int]:
     return ranks
 
 
-def _draws_scene(method: str) -> bool:
+def draws_scene(method: str) -> bool:
+    """Whether ``method``'s client holds and renders the whole scene (a different class of client: probes)."""
     try:
         from ..methods import get_method
 
@@ -59,7 +63,8 @@ def _draws_scene(method: str) -> bool:
 
 
 def headline_rows(summary: Sequence[Row]) -> dict[str, list[Row]]:
-    """Per network (in the order the summary has them), one row per method sorted by rank then PSNR."""
+    """Per network (in the order the summary has them), one row per method: the thin clients sorted by rank then
+    quality, then the methods whose client draws the scene (``draws_scene``), ranked among themselves."""
     by_net: dict[str, list[Row]] = {}
     for r in summary:
         by_net.setdefault(str(r["network"]), []).append(r)
@@ -68,17 +73,27 @@ def headline_rows(summary: Sequence[Row]) -> dict[str, list[Row]]:
         table: list[Row] = []
         for r in rows:
             gt = fnum(r.get("mean_gt_ms"))
-            table.append({"method": str(r["method"]), "draws_scene": _draws_scene(str(r["method"])),
-                          "fg_psnr_db": fnum(r.get("mean_fg_psnr_db")), "psnr_db": fnum(r.get("mean_psnr_db")),
+            table.append({"method": str(r["method"]), "draws_scene": draws_scene(str(r["method"])),
+                          "model_psnr_db": fnum(r.get("mean_model_psnr_db")), "psnr_db": fnum(r.get("mean_psnr_db")),
                           "flip": fnum(r.get("mean_flip")), "kbps": fnum(r.get("mean_kbps")),
+                          "session_kb": fnum(r.get("session_kb")),
                           "server_over_gt": fnum(r.get("mean_server_ms")) / gt if gt > 0 else math.nan,
                           "client_over_gt": fnum(r.get("client_over_gt"))})
-        ranks = front_ranks([(t["client_over_gt"], t["psnr_db"]) for t in table])
-        for t, k in zip(table, ranks):
-            t["rank"] = k
-        table.sort(key=lambda t: (t["rank"] or 10**6, -(t["psnr_db"] if not math.isnan(t["psnr_db"]) else -1e9)))
-        out[net] = table
+        sorted_rows: list[Row] = []
+        for cls in (False, True):
+            part = [t for t in table if t["draws_scene"] == cls]
+            ranks = front_ranks([(t["client_over_gt"], _quality(t)) for t in part])
+            for t, k in zip(part, ranks):
+                t["rank"] = k
+            part.sort(key=lambda t: (t["rank"] or 10**6, -(_quality(t) if not math.isnan(_quality(t)) else -1e9)))
+            sorted_rows += part
+        out[net] = sorted_rows
     return out
+
+
+def _quality(t: Row) -> float:
+    """The score a method is ranked by: model PSNR where the run has it, whole-frame PSNR otherwise."""
+    return t["model_psnr_db"] if not math.isnan(t["model_psnr_db"]) else t["psnr_db"]
 
 
 def _fmt(v: Any, spec: str) -> str:
@@ -91,15 +106,31 @@ def _fmt(v: Any, spec: str) -> str:
 
 def _cells(t: Row) -> list[str]:
     name = t["method"] + (" *" if t["draws_scene"] else "")
-    return [str(t["rank"] or "-"), name, _fmt(t["fg_psnr_db"], ".1f"), _fmt(t["psnr_db"], ".1f"), _fmt(t["flip"], ".3f"),
-            _fmt(t["kbps"], ".0f"), _fmt(t["server_over_gt"], ".2f"), _fmt(t["client_over_gt"], ".2f")]
+    once = t.get("session_kb", math.nan)
+    return [str(t["rank"] or "-"), name, _fmt(t["model_psnr_db"], ".1f"), _fmt(t["psnr_db"], ".1f"), _fmt(t["flip"], ".3f"),
+            _fmt(t["kbps"], ".0f"), _fmt(once, ".0f") if once >= 0.5 else "-", _fmt(t["server_over_gt"], ".2f"),
+            _fmt(t["client_over_gt"], ".2f")]
 
 
-_HEAD = ["front", "method", "fg PSNR dB", "PSNR dB", "FLIP", "kbit/s", "server / GT", "client / GT"]
-_FOOT = ("fg PSNR: over the pixels where scene geometry is, in the ground truth or in the shown frame (the sky left "
-         "out); front: rank on the speed-against-accuracy front (client cost against PSNR; 1 = no method is both cheaper "
-         "and better); server / GT and client / GT: each side's milliseconds per frame divided by the ground-truth "
-         "render's on this machine; * the client holds and renders the whole scene (it streams lighting).")
+_HEAD = ["front", "method", "model PSNR dB", "PSNR dB", "FLIP", "kbit/s", "upload kB", "server / GT", "client / GT"]
+_FOOT = ("model PSNR: over the pixels where the ground truth shows the scene's model (a loaded file's model, or a "
+         "built-in scene less its floor; the sky and the floor left out); PSNR: the whole frame; front: rank on the "
+         "speed-against-accuracy front (client cost against model PSNR; 1 = no method is both cheaper and better), "
+         "ranked within each class; kbit/s: every stream, the upload included; upload kB: one-off session data; "
+         "server / GT and client / GT: each side's milliseconds per frame divided by the ground-truth render's on this "
+         "machine; * a different class of client, listed apart: it holds and renders the whole scene (uploaded once) "
+         "and streams only lighting.")
+_CLASS_ROW = "client renders the scene:"
+
+
+def _class_breaks(rows: list[Row]) -> list[Row | None]:
+    """The rows with ``None`` where the class changes to clients that render the scene."""
+    out: list[Row | None] = []
+    for i, t in enumerate(rows):
+        if t["draws_scene"] and (i == 0 or not rows[i - 1]["draws_scene"]):
+            out.append(None)
+        out.append(t)
+    return out
 
 
 def headline_markdown(tables: dict[str, list[Row]]) -> str:
@@ -107,7 +138,8 @@ def headline_markdown(tables: dict[str, list[Row]]) -> str:
     lines = ["## The answer", ""]
     for net, rows in tables.items():
         lines += [f"**{net}**", "", "| " + " | ".join(_HEAD) + " |", "|" + "---|" * len(_HEAD)]
-        lines += ["| " + " | ".join(_cells(t)) + " |" for t in rows]
+        lines += ["| " + " | ".join(_cells(t) if t else ["", f"*{_CLASS_ROW}*"] + [""] * (len(_HEAD) - 2)) + " |"
+                  for t in _class_breaks(rows)]
         lines.append("")
     lines.append(_FOOT)
     return "\n".join(lines)
@@ -115,12 +147,15 @@ def headline_markdown(tables: dict[str, list[Row]]) -> str:
 
 def headline_text(tables: dict[str, list[Row]]) -> str:
     """The headline tables for a terminal."""
-    widths = [5, 10, 10, 7, 6, 7, 11, 11]
+    widths = [5, 10, 13, 7, 6, 7, 9, 11, 11]
     out = []
     for net, rows in tables.items():
         out.append(f"{net}:")
         out.append("  " + " ".join(h.rjust(w) if i not in (1,) else h.ljust(w) for i, (h, w) in enumerate(zip(_HEAD, widths))))
-        for t in rows:
+        for t in _class_breaks(rows):
+            if t is None:
+                out.append("  " + " " * (widths[0] + 1) + _CLASS_ROW)
+                continue
             cells = _cells(t)
             out.append("  " + " ".join(c.rjust(w) if i not in (1,) else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))))
     out.append(_FOOT)
@@ -134,8 +169,10 @@ def headline_html(tables: dict[str, list[Row]]) -> str:
     parts = ["<h2 id='answer'>The answer</h2><div class='nets'>"]     # the networks side by side: the chart fits below
     for net, rows in tables.items():
         head = "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD)
-        body = "".join("<tr>" + "".join(f"<td{' class=name' if i == 1 else ''}>{html.escape(c)}</td>"
-                                        for i, c in enumerate(_cells(t))) + "</tr>" for t in rows)
+        body = "".join(
+            f"<tr class=cls><td></td><td colspan={len(_HEAD) - 1}><i>{html.escape(_CLASS_ROW)}</i></td></tr>" if t is None else
+            "<tr>" + "".join(f"<td{' class=name' if i == 1 else ''}>{html.escape(c)}</td>" for i, c in enumerate(_cells(t))) + "</tr>"
+            for t in _class_breaks(rows))
         parts.append(f"<div><h3>{html.escape(net)}</h3><table><tr>{head}</tr>{body}</table></div>")
     parts.append(f"</div><p><small>{html.escape(_FOOT)}</small></p>")
     return "".join(parts)
