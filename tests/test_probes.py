@@ -188,15 +188,24 @@ def test_malformed_scene_data_is_named() -> None:
             scene_from_data(data)
 
 
-def test_probes_needs_a_scene_with_gi_and_sane_settings(renderer) -> None:  # type: ignore[no-untyped-def]
+def test_probes_needs_a_scene_with_gi_and_sane_settings(renderer, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The no-GI error suggests the user's own scene with GI: its path and options kept, ``+nogi`` turned round."""
+    import trimesh
+
     from splitrender.errors import ConfigError
     from splitrender.methods import get_method, make_config
 
     with pytest.raises(ConfigError, match=r"probes: scene 'minimal' has no global illumination to stream; use a scene "
-                                          r"with GI \(the default scene, or e.g. --scene minimal\+gi\)"):
+                                          r"with GI \(the default scene, or this one with it: --scene minimal\+gi\)"):
         _server(renderer, "minimal")
-    with pytest.raises(ConfigError, match=r"scene 'default\+nogi' has no global illumination"):
+    with pytest.raises(ConfigError, match=r"scene 'default\+nogi' has no global illumination.* --scene default\+gi\)"):
         _server(renderer, "default+nogi")
+    path = tmp_path / "my models" / "box.obj"
+    path.parent.mkdir()
+    trimesh.creation.box().export(path)
+    with pytest.raises(ConfigError) as e:
+        _server(renderer, f"{path}+ground+still")
+    assert str(e.value).endswith(f"--scene '{path}+ground+still+gi')")  # quoted for the shell: the folder has a space
     for params, msg in (({"gi_hz": 0.0}, "gi_hz"), ({"pvs": "cone"}, "pvs"), ({"pvs_res": 4}, "pvs_res")):
         with pytest.raises(ConfigError, match=msg):
             make_config(get_method("probes").config, params)

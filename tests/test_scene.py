@@ -58,6 +58,32 @@ def test_corrupt_files_name_the_file(tmp_path):
         load_scene_file(txt)
 
 
+@pytest.mark.parametrize("name, data, message", [
+    ("empty.glb", b"", r"empty\.glb is empty \(0 bytes\)"),
+    ("empty.obj", b"", r"empty\.obj is empty \(0 bytes\)"),
+    ("v1.glb", b"glTF\x01\x00\x00\x00\x20\x00\x00\x00" + b"\x00" * 20, r"v1\.glb: glTF 1 is not supported: convert it to glTF 2"),
+    ("v1.gltf", b'{"asset": {"version": "1.0"}, "meshes": {}}', r"v1\.gltf: glTF 1 is not supported: convert it to glTF 2"),
+    ("unversioned.gltf", b'{"meshes": {"m0": {"primitives": []}}}', r"glTF 1 is not supported"),
+    ("v3.glb", b"glTF\x03\x00\x00\x00\x20\x00\x00\x00" + b"\x00" * 20, r"binary glTF version 3 is not supported"),
+    ("nomagic.glb", b"PK\x03\x04" + b"\x00" * 40, r"nomagic\.glb is not a binary glTF file"),
+    ("list.gltf", b"[1, 2]", r"list\.gltf is not a glTF document \(a JSON list"),
+    ("bad.gltf", b"{not json", r"bad\.gltf is not valid glTF JSON"),
+])
+def test_file_headers_are_checked_before_parsing(tmp_path, name, data, message):
+    """An empty file and a glTF 1 file are named as such, not as an index error or a generic 'corrupt'."""
+    p = tmp_path / name
+    p.write_bytes(data)
+    with pytest.raises(SceneError, match=message):
+        get_scene(str(p))
+
+
+@pytest.mark.skipif(not (ASSIMP / "glTF/CesiumMilkTruck/CesiumMilkTruck.gltf").exists(), reason="assimp-testmodels not installed")
+@pytest.mark.parametrize("rel", ["glTF/CesiumMilkTruck/CesiumMilkTruck.gltf", "glTF/BoxTextured-glTF-Binary/BoxTextured.glb"])
+def test_assimps_gltf1_models_are_named_gltf1(rel):
+    with pytest.raises(SceneError, match="glTF 1 is not supported: convert it to glTF 2"):
+        get_scene(str(ASSIMP / rel))
+
+
 def test_obj_round_trip(tmp_path):
     p = tmp_path / "tri.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")

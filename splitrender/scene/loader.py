@@ -253,6 +253,43 @@ GROUND_SIZE_MIN_M = 20.0
 """Side of the optional ground plane: at least this, or 5x the model's footprint (metres)."""
 
 
+_GLTF1 = "glTF 1 is not supported: convert it to glTF 2 (e.g. with the Khronos glTF 1-to-2 converter or Blender)"
+
+
+def _check_header(p: Path) -> None:
+    """What can be told before parsing: an empty file, and glTF 1 (a .glb's header version, or a .gltf's
+    ``asset.version``, or glTF 1's objects keyed by id where glTF 2 has lists)."""
+    try:
+        size = p.stat().st_size
+        head = p.read_bytes()[:12] if size else b""
+    except OSError as exc:
+        raise SceneError(f"scene file {p} is unreadable: {exc}") from exc
+    if size == 0:
+        raise SceneError(f"scene file {p} is empty (0 bytes)")
+    suffix = p.suffix.lower()
+    if suffix == ".glb":
+        if len(head) < 12 or head[:4] != b"glTF":
+            raise SceneError(f"scene file {p} is not a binary glTF file (no 'glTF' magic in its 12-byte header)")
+        version = int.from_bytes(head[4:8], "little")
+        if version == 1:
+            raise SceneError(f"scene file {p}: {_GLTF1}")
+        if version != 2:
+            raise SceneError(f"scene file {p}: binary glTF version {version} is not supported (only glTF 2)")
+    elif suffix == ".gltf":
+        import json
+
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise SceneError(f"scene file {p} is not valid glTF JSON: {exc}") from exc
+        if not isinstance(doc, dict):
+            raise SceneError(f"scene file {p} is not a glTF document (a JSON {type(doc).__name__}, expected an object)")
+        asset = doc.get("asset")
+        version = str(asset.get("version", "")) if isinstance(asset, dict) else ""
+        if version.startswith("1") or (not version.startswith("2") and isinstance(doc.get("meshes"), dict)):
+            raise SceneError(f"scene file {p}: {_GLTF1}")
+
+
 def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None, ground: bool = False) -> Scene:
     """Load a mesh file into a static :class:`Scene` with a default sun.
 
@@ -273,6 +310,7 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
         raise SceneError(f"scene file not found: {p}")
     if p.suffix.lower() not in SUPPORTED_SUFFIXES:
         raise SceneError(f"scene file {p}: unsupported format {p.suffix!r} (supported: {', '.join(SUPPORTED_SUFFIXES)})")
+    _check_header(p)
     try:
         loaded = trimesh.load(str(p), force="scene")
     except Exception as exc:
@@ -340,7 +378,7 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
         t[:3, 3] = [(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2]
         plane = primitives.grid_plane(size, size, 16, 16, uv_scale_m=2.0, name="ground")
         scene.objects.append(SceneObject("ground", plane, Material("ground", (0.9, 0.9, 0.9), textures.checker(256, 8)),
-                                         len(objects) + 1, t))
+                                         len(objects) + 1, t, backdrop=True))
     return scene
 
 
@@ -372,6 +410,14 @@ SCENE_OPTIONS = ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTIO
 """The trailing options of a scene name, each with what it does to the scene (:func:`get_scene`)."""
 
 
+def with_gi_spec(name_or_path: str) -> str:
+    """``name_or_path`` with global illumination on, its path and other options kept: a trailing ``+nogi``
+    becomes ``+gi``, otherwise ``+gi`` is appended (``duck.dae+ground`` -> ``duck.dae+ground+gi``)."""
+    if name_or_path.endswith(NOGI_OPTION):
+        return name_or_path[: -len(NOGI_OPTION)] + GI_OPTION
+    return name_or_path + GI_OPTION
+
+
 def scene_has_gi(name_or_path: str) -> bool:
     """Whether :func:`get_scene` gives scene ``name_or_path`` global illumination, from its name alone (no file is
     read): the last of ``+gi`` / ``+nogi`` wins, else a built-in scene's own setting (files have none)."""
@@ -399,11 +445,16 @@ def get_scene(name_or_path: str) -> Scene:
             scene = get_scene(name_or_path[: -len(opt)])
             apply(scene)
             scene.name += opt
+            scene.spec = name_or_path
             return scene
     if name_or_path in BUILTIN_SCENES:
-        return BUILTIN_SCENES[name_or_path]()
+        scene = BUILTIN_SCENES[name_or_path]()
+        scene.spec = name_or_path
+        return scene
     ground = name_or_path.endswith(GROUND_OPTION)
     path = name_or_path[: -len(GROUND_OPTION)] if ground else name_or_path
     if any(path.lower().endswith(s) for s in SUPPORTED_SUFFIXES) or os.sep in path:
-        return load_scene_file(path, target_size_m=4.0, ground=ground)
+        scene = load_scene_file(path, target_size_m=4.0, ground=ground)
+        scene.spec = name_or_path
+        return scene
     raise SceneError(f"unknown scene {name_or_path!r}: use one of {sorted(BUILTIN_SCENES)} or a path to a {'/'.join(SUPPORTED_SUFFIXES)} file")

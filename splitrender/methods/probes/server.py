@@ -57,8 +57,13 @@ SENT_HISTORY = 512
 
 def _require_gi(scene: Any) -> None:
     if getattr(scene, "gi", "none") != "ddgi":
-        raise ConfigError(f"probes: scene {scene.name!r} has no global illumination to stream; use a scene with GI "
-                          f"(the default scene, or e.g. --scene {scene.name}+gi)")
+        import shlex
+
+        from ...scene.loader import with_gi_spec
+
+        spec = getattr(scene, "spec", None) or scene.name
+        raise ConfigError(f"probes: scene {spec!r} has no global illumination to stream; use a scene with GI "
+                          f"(the default scene, or this one with it: --scene {shlex.quote(with_gi_spec(spec))})")
 
 
 class ProbesProducer(SceneProducer):
