@@ -63,21 +63,21 @@ def write_pcap(path: Path, datagrams: list[tuple[float, int, int, bytes]]) -> No
     path.write_bytes(bytes(out))
 
 
-def tshark_fields(path: Path) -> list[dict[str, list[str]]]:
-    """Per frame, every occurrence of each of :data:`FIELDS` as tshark decodes the capture (UDP on the
+def tshark_fields(path: Path, fields: tuple[str, ...] = FIELDS) -> list[dict[str, list[str]]]:
+    """Per frame, every occurrence of each of ``fields`` as tshark decodes the capture (UDP on the
     server's port as RTCP)."""
     assert TSHARK is not None
     cmd = [TSHARK, "-n", "-r", str(path), "-d", f"udp.port=={SERVER_PORT},rtcp", "-T", "fields",
            "-E", "separator=|", "-E", "aggregator=;", "-E", "occurrence=a"]
-    for f in FIELDS:
+    for f in fields:
         cmd += ["-e", f]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     rows = []
     for line in res.stdout.splitlines():
         values = line.split("|")
-        assert len(values) == len(FIELDS), line
-        rows.append({f: (v.split(";") if v else []) for f, v in zip(FIELDS, values)})
+        assert len(values) == len(fields), line
+        rows.append({f: (v.split(";") if v else []) for f, v in zip(fields, values)})
     return rows
 
 
@@ -197,3 +197,43 @@ def test_the_tshark_check_catches_malformed_rtcp(tmp_path: Path) -> None:
             assert_whole(row)
     assert_whole(rows[2])
     assert rows[2]["rtcp.pt"] == ["200", "202"] and rows[2]["rtcp.sdes.text"] == ["abc"]
+
+
+TWCC_FIELDS = FIELDS + ("rtcp.rtpfb.fmt", "rtcp.rtpfb.transportcc.baseseq", "rtcp.rtpfb.transportcc.statuscount",
+                        "rtcp.rtpfb.transportcc.reftime", "rtcp.rtpfb.transportcc.pktcount",
+                        "rtcp.rtpfb.transportcc.recv_delta", "rtcp.rtpfb.transportcc_bad")
+
+
+def test_tshark_reads_transport_cc_feedback_as_we_write_it(tmp_path: Path) -> None:
+    """The receiver's transport-cc feedback (issue 35) in an RR compound, as tshark reads it: base sequence, status
+    count, reference time and feedback count as written, a receive delta per received packet, nothing malformed.
+    Arrivals cover losses, a run, a 0/1 pattern, 2-byte deltas, a negative delta and the sequence wrap."""
+    from splitrender.protocol.rtcp import ReceiverReport, serialize_rtcp
+    from splitrender.protocol.twcc import FeedbackRecorder
+
+    rec = FeedbackRecorder(ssrc=0x1234, media_ssrc=0x5678)
+    seq, t_us, received = 65500, 2_000_000, []
+    for i in range(120):
+        if i % 7 != 3:                                   # every 7th lost
+            arrival = t_us + (-3_000 if i == 50 else 0)  # one arrives 3 ms before the previous: negative delta
+            rec.on_packet((seq + i) & 0xFFFF, arrival)
+            received.append(i)
+        t_us += 500 if i < 40 else 70_000 if i % 10 == 0 else 2_000
+    fbs = rec.feedback()
+    capture = [(float(k), CLIENT_PORT, SERVER_PORT, serialize_rtcp([ReceiverReport(0x1234, ()), fb])) for k, fb in enumerate(fbs)]
+    path = tmp_path / "twcc.pcap"
+    write_pcap(path, capture)
+    rows = tshark_fields(path, TWCC_FIELDS)
+    assert len(rows) == len(fbs) >= 1
+    deltas = 0
+    for row, fb in zip(rows, fbs):
+        assert_whole(row)
+        assert not row["rtcp.rtpfb.transportcc_bad"]
+        assert row["rtcp.pt"] == ["201", "205"] and row["rtcp.rtpfb.fmt"] == ["15"]
+        assert row["rtcp.rtpfb.transportcc.baseseq"] == [str(fb.base_seq)]
+        assert row["rtcp.rtpfb.transportcc.statuscount"] == [str(len(fb.arrivals))]
+        assert row["rtcp.rtpfb.transportcc.reftime"] == [str(fb.reference_time)]
+        assert row["rtcp.rtpfb.transportcc.pktcount"] == [str(fb.fb_count)]
+        deltas += len(row["rtcp.rtpfb.transportcc.recv_delta"])
+    assert fbs[0].base_seq == 65500 and sum(len(f.arrivals) for f in fbs) == 120  # every status to the last received
+    assert deltas == len(received)

@@ -1,8 +1,9 @@
 """RTCP (RFC 3550 section 6, RFC 4585 feedback) packets and sans-IO helpers.
 
 Packets: sender report (SR, PT 200), receiver report (RR, 201), source description
-(SDES, 202), generic NACK (RTPFB, PT 205, FMT 1) and picture loss indication (PSFB,
-PT 206, FMT 1); other types parse as :class:`RtcpUnknown`.  :func:`compound_feedback`
+(SDES, 202), generic NACK (RTPFB, PT 205, FMT 1), transport-wide congestion control
+feedback (RTPFB FMT 15, :mod:`.twcc`), picture loss indication (PSFB, PT 206, FMT 1) and
+full intra request (PSFB FMT 4); other types parse as :class:`RtcpUnknown`.  :func:`compound_feedback`
 builds the compound packet RFC 3550 6.1 and RFC 4585 3.1 ask of a receiver: a report
 first (an RR, with zero report blocks when none is due), then SDES with the CNAME,
 then the feedback messages.  Helpers: :class:`ReceiverStatistics` (RFC 3550 A.1, A.3,
@@ -20,6 +21,7 @@ from typing import Final, Union
 
 from splitrender.protocol.errors import RtcpError
 from splitrender.protocol.rtp import RTP_CLOCK_HZ, RtpPacket, SequenceUnwrapper, seq_diff
+from splitrender.protocol.twcc import RTPFB_TWCC, TransportFeedback, parse_transport_feedback
 
 __all__ = [
     "RTCP_SR",
@@ -255,7 +257,7 @@ class RtcpUnknown:
 
 
 RtcpPacket = Union[SenderReport, ReceiverReport, SourceDescription, GenericNack, PictureLossIndication, FullIntraRequest,
-                   RtcpUnknown]
+                   TransportFeedback, RtcpUnknown]
 
 
 def serialize_rtcp(packets: Iterable[RtcpPacket]) -> bytes:
@@ -364,6 +366,8 @@ def parse_rtcp(data: bytes) -> list[RtcpPacket]:
                     lost.append(pid)
                     lost.extend((pid + k + 1) & 0xFFFF for k in range(16) if blp >> k & 1)
                 packets.append(GenericNack(ssrc, media, tuple(lost)))
+        elif pt == RTCP_RTPFB and count == RTPFB_TWCC:
+            packets.append(parse_transport_feedback(bytes(data[body:body_end]), f"RTCP transport-cc feedback at offset {pos}"))
         elif pt == RTCP_PSFB and count == PSFB_FIR:
             if body + 8 > body_end or (body_end - body - 8) % 8:
                 raise RtcpError(f"RTCP FIR at offset {pos}: body of {body_end - body} bytes is not 8 + 8 x n")
