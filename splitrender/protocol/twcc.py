@@ -277,6 +277,8 @@ class PacketResult:
     send_us: int
     size: int
     arrival_us: int | None
+    probe: int = -1
+    """The probe cluster the packet belonged to (-1: media)."""
 
 
 class SendHistory:
@@ -287,7 +289,7 @@ class SendHistory:
     def __init__(self, window_us: int = 2_000_000, max_packets: int = 1 << 15) -> None:
         self.window_us, self.max_packets = window_us, max_packets
         self._seq = 0
-        self._sent: OrderedDict[int, tuple[int, int]] = OrderedDict()   # extended seq -> (send us, size)
+        self._sent: OrderedDict[int, tuple[int, int, int]] = OrderedDict()   # extended seq -> (send us, size, probe)
         self._unwrap = SequenceUnwrapper()
         self.unknown = 0
 
@@ -295,11 +297,12 @@ class SendHistory:
         """The transport sequence number for the next packet (16 bits on the wire)."""
         return self._seq & 0xFFFF
 
-    def on_sent(self, send_us: int, size: int) -> int:
-        """Record the packet that carries :meth:`next_seq`; returns that number."""
+    def on_sent(self, send_us: int, size: int, probe: int = -1) -> int:
+        """Record the packet that carries :meth:`next_seq` (``probe``: its probe cluster, -1 for media); returns
+        that number."""
         seq = self._seq
         self._seq += 1
-        self._sent[seq] = (int(send_us), int(size))
+        self._sent[seq] = (int(send_us), int(size), int(probe))
         while self._sent and (len(self._sent) > self.max_packets or next(iter(self._sent.values()))[0] < send_us - self.window_us):
             self._sent.popitem(last=False)
         return seq & 0xFFFF
@@ -318,7 +321,7 @@ class SendHistory:
             if sent is None:
                 self.unknown += 1
                 continue
-            out.append(PacketResult(base + i, sent[0], sent[1], fb.arrival_us(i)))
+            out.append(PacketResult(base + i, sent[0], sent[1], fb.arrival_us(i), sent[2]))
         return out
 
     @property

@@ -1,0 +1,197 @@
+"""The rate estimator's pieces sans-IO on synthetic arrivals, the pacer's spacing, capacity traces, and the closed
+loop over a step trace (issue 35)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from splitrender.errors import ConfigError, NetworkConfigError
+from splitrender.netsim.models import LinkSpec, load_mahimahi_trace
+from splitrender.netsim.traces import cellular_trace, rate_series, step_trace, trace_stats, write_mahimahi
+from splitrender.pipeline.gcc import (AimdRateControl, BandwidthEstimator, GccConfig, InterArrival, Pacer, Trendline,
+                                      Usage)
+from splitrender.protocol.twcc import PacketResult
+
+
+def _groups(n: int, queue_step_us: int, noise_us: int = 0, seed: int = 0) -> list[tuple[int, int, int]]:
+    """(send delta, arrival delta, arrival time) per frame group 33 ms apart, each arriving ``queue_step_us`` later
+    than the last relative to its send time (a queue that grows, or drains when negative)."""
+    rng = np.random.default_rng(seed)
+    out, t = [], 1_000_000
+    for _ in range(n):
+        d = 33_333 + queue_step_us + int(rng.integers(-noise_us, noise_us + 1)) if noise_us else 33_333 + queue_step_us
+        t += d
+        out.append((33_333, d, t))
+    return out
+
+
+def _usages(groups: list[tuple[int, int, int]]) -> list[str]:
+    tl = Trendline(GccConfig())
+    return [tl.update(s, a, t) for s, a, t in groups]
+
+
+def test_over_use_is_detected_on_a_growing_queue_and_only_there() -> None:
+    """A queue growing 2 ms a frame is over-use within a second of frames; +-1 ms of jitter on a steady queue
+    never is (300 frames); a draining queue is under-use."""
+    grow = _usages(_groups(60, 2_000))
+    first = grow.index(Usage.OVERUSE)
+    assert 19 <= first <= 34, first              # 31: the 20-point window, then the smoothed slope's rise
+    steady = _usages(_groups(300, 0, noise_us=1_000, seed=1))
+    assert Usage.OVERUSE not in steady and Usage.UNDERUSE not in steady
+    assert _usages(_groups(60, -2_000))[-1] == Usage.UNDERUSE
+
+
+def test_the_threshold_adapts_towards_the_trend() -> None:
+    """The threshold falls from 12.5 to its floor of 6 while nothing happens (k_down), climbs towards a persistent
+    trend (k_up: a queue growing 2 ms a frame, modified trend 13.6) and falls back when the trend goes."""
+    tl = Trendline(GccConfig())
+    groups = _groups(200, 2_000)
+    for s, a, t in _groups(40, 0):
+        tl.update(s, a, t)
+    assert tl.threshold == 6.0
+    t0 = groups[0][2]
+    for s, a, t in groups:
+        tl.update(s, a, t + 40 * 33_333)
+    assert tl.threshold == pytest.approx(tl.trend, rel=0.05) and tl.threshold > 12
+    high, t1 = tl.threshold, groups[-1][2] + 40 * 33_333
+    for i in range(1, 200):
+        tl.update(33_333, 33_333, t1 + i * 33_333)
+    assert tl.threshold < high / 2 and t0 > 0
+
+
+def test_inter_arrival_groups_bursts() -> None:
+    ia = InterArrival(5_000)
+    got = []
+    for frame in range(3):
+        for k in range(4):                       # four packets 1 ms apart: one group
+            r = ia.add(frame * 33_000 + k * 1_000, 50_000 + frame * 40_000 + k * 1_000, 1000)
+            if r:
+                got.append(r)
+    assert got == [(33_000, 40_000, 0)]          # groups 0 and 1 compared when group 2 starts
+
+
+def test_aimd_decreases_to_beta_of_the_acked_rate_and_increases_slowly() -> None:
+    cfg = GccConfig(start_bps=5e6)
+    a = AimdRateControl(cfg)
+    assert a.update(Usage.OVERUSE, 4e6, 0) == pytest.approx(0.85 * 4e6)
+    assert a.state == "hold"
+    r1 = a.update(Usage.NORMAL, 3.4e6, 100_000)
+    r2 = a.update(Usage.NORMAL, 3.4e6, 1_100_000)
+    assert 3.4e6 <= r1 <= r2 <= 3.4e6 * 1.09      # additive near the capacity just seen: slow
+    assert a.update(Usage.UNDERUSE, 3.4e6, 1_200_000) == r2
+    far = AimdRateControl(GccConfig(start_bps=1e6))
+    far.update(Usage.NORMAL, None, 0)
+    assert far.update(Usage.NORMAL, None, 1_000_000) == pytest.approx(1.08e6)   # multiplicative, 8 % a second
+
+
+def test_pacer_spaces_packets_at_the_paced_rate() -> None:
+    """1 Mbit/s, pacing factor 1, no burst: 1250-byte packets leave 10 ms apart however they were queued."""
+    p: Pacer[int] = Pacer(1e6, pacing_factor=1.0, burst_us=0)
+    for i in range(10):
+        p.enqueue(i, 1250, 0)
+    sent: list[tuple[int, int]] = []
+    now = 0
+    while p.queued:
+        sent += [(now, i) for i in p.poll(now)]
+        nxt = p.next_send_us(now)
+        now = nxt if nxt is not None and nxt > now else now + 1
+    assert [i for _, i in sent] == list(range(10))
+    assert [t for t, _ in sent] == [k * 10_000 for k in range(10)]
+
+
+def test_pacer_drains_a_queue_that_would_wait_too_long() -> None:
+    p: Pacer[int] = Pacer(1e6, pacing_factor=1.0, burst_us=0, max_queue_us=200_000)
+    for i in range(100):                          # 1 Mbit: 1 s at the paced rate
+        p.enqueue(i, 1250, 0)
+    assert p.pace_bps(0) == pytest.approx(100 * 1250 * 8 / 0.2)
+    with pytest.raises(ConfigError, match="rate_bps and pacing_factor must be > 0"):
+        Pacer(0.0)
+
+
+def test_a_probe_measures_what_the_link_delivers() -> None:
+    """A cluster sent at 12 Mbit/s through a 6 Mbit/s bottleneck reads as 6 and raises a 2 Mbit/s estimate."""
+    est = BandwidthEstimator(GccConfig(start_bps=2e6))
+    cl = est.probe(0)
+    assert cl is not None and cl.rate_bps == pytest.approx(6e6)       # the first probe: 3x the start rate
+    est.probes._sent.clear()
+    est.probes._pending.clear()
+    est.probes._last_probe_us = -10**9
+    est.probes._last_decrease_us = -10**9
+    cl = est.probes.next_cluster(6e6, 10_000_000)                    # a periodic probe: 2x the estimate
+    assert cl is not None and cl.rate_bps == pytest.approx(12e6)
+    results, t_free = [], 10_020_000
+    for k in range(cl.packets):
+        send = cl.start_us + int(k * cl.spacing_us())
+        t_free = max(t_free, send + 20_000) + int(cl.packet_bytes * 8e6 / 6e6)
+        results.append(PacketResult(k, send, cl.packet_bytes, t_free, cl.cluster))
+    results.append(PacketResult(cl.packets, cl.end_us + 1, 1000, t_free + 5_000))   # a later media packet
+    est.on_feedback(results, 10_200_000)
+    assert est.probes.found[-1][1] == pytest.approx(6e6, rel=0.02)
+    assert est.target_bps == pytest.approx(0.9 * 6e6, rel=0.03)
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ConfigError, match="need 0 < min_bps <= start_bps <= max_bps"):
+        GccConfig(start_bps=1.0)
+    with pytest.raises(ConfigError, match="beta: must be in"):
+        GccConfig(beta=1.5)
+
+
+# --------------------------------------------------------------------------- capacity traces
+
+
+def test_step_trace_rates_and_round_trip(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    st = step_trace([(1.0, 12.0), (1.0, 2.4)])
+    r = rate_series(st, 100)
+    assert r[:10] == pytest.approx([12.0] * 10, rel=0.02) and r[10:] == pytest.approx([2.4] * 10, rel=0.06)
+    back = load_mahimahi_trace(write_mahimahi(st, tmp_path / "s.mm"))
+    assert (back == st).all() and back[-1] == 2000
+    for bad, msg in (([], "no steps"), ([(0.0, 5.0)], "lasts 0.0 s"), ([(1.0, -1.0)], "rate -1.0"), ([(1.0, 0.0)], "delivers nothing")):
+        with pytest.raises(NetworkConfigError, match=msg):
+            step_trace(bad)
+
+
+def test_cellular_trace_has_its_stated_statistics() -> None:
+    """Over 10 minutes the generator's mean (outages included), variation, outage share and correlation are what
+    was asked, within sampling error; the same seed gives the same trace."""
+    st = cellular_trace(600, mean_mbps=8.0, cv=0.5, corr_time_s=1.0, outage_share=0.02, outage_mean_s=0.3, seed=3)
+    s = trace_stats(st, 50)
+    assert s["mean_mbps"] == pytest.approx(8.0 * 0.98, rel=0.08)
+    assert s["cv"] == pytest.approx(0.5, rel=0.15)
+    assert s["outage_share"] == pytest.approx(0.02, abs=0.008)
+    assert s["lag1_corr"] > 0.85                      # e^(-50 ms / 1 s) = 0.95 for the log-rate; outages lower it
+    assert (cellular_trace(5, seed=3) == cellular_trace(5, seed=3)).all()
+    with pytest.raises(NetworkConfigError, match="cv = -1"):
+        cellular_trace(5, cv=-1)
+
+
+# --------------------------------------------------------------------------- the closed loop
+
+
+@pytest.fixture(scope="module")
+def step_loop(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    from splitrender.sim.cc_loop import run_loop
+
+    path = write_mahimahi(step_trace([(5, 20), (5, 2), (10, 20)]), tmp_path_factory.mktemp("cc") / "step.mm")
+    return run_loop(LinkSpec(delay_ms=20, trace_path=str(path), limit_packets=300), 20.0)
+
+
+def test_the_loop_follows_a_step_down_and_up(step_loop) -> None:  # type: ignore[no-untyped-def]
+    """20 -> 2 -> 20 Mbit/s, 20 ms each way: the encoder rate is under 1.2x the new capacity 0.32 s after the drop
+    (the queue it measures), the delay-based target 1.12 s after (its trendline window); after the rise a probe
+    finds the capacity and the target passes 14 Mbit/s 1.9 s later, where multiplicative increase alone would
+    take half a minute; 86 % of the capacity is used over the steady parts."""
+    t, enc, tgt = step_loop.column("t_s"), step_loop.column("encoder_mbps"), step_loop.column("target_mbps")
+    assert t[(t > 5) & (enc <= 2.4)][0] - 5 < 0.5
+    assert t[(t > 5) & (tgt <= 2.4)][0] - 5 < 1.3
+    assert t[(t > 10) & (tgt >= 14)][0] - 10 < 2.5
+    sent, cap = step_loop.column("sent_mbps"), step_loop.column("capacity_mbps")
+    steady = ((t > 2) & (t < 5)) | ((t > 7) & (t < 10)) | ((t > 13) & (t < 20))
+    assert sent[steady].sum() / cap[steady].sum() > 0.8
+    d = step_loop.column("delay_ms")
+    assert np.nanpercentile(d[steady], 95) < 60                         # 52 ms: 20 ms path, frame bursts queue
+    assert step_loop.probe_bytes < 0.05 * step_loop.media_bytes          # probing costs 3.4 %
+    assert math.isfinite(float(np.nanmax(d)))
