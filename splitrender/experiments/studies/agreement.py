@@ -14,13 +14,13 @@ only the 2 % loss cell with NACK anew; the full run runs the whole grid.
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import math
 from pathlib import Path
 from typing import Any
 
+from ...tabular import write_csv
 from ..agreement import COMPARED, IMPAIRMENTS, RECOVERY, run_cell, within_targets
 from ..sections import Section
 from ._util import save_figure
@@ -60,11 +60,7 @@ def chart(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, keys)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(path, rows)
     return path
 
 

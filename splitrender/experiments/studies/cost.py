@@ -12,13 +12,13 @@ measured one shows what software GL on this machine does to each of them.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import time
 from pathlib import Path
 from typing import Any
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE
 
@@ -69,11 +69,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     elapsed = time.perf_counter() - t0
 
     table = out_dir / "cost_results.csv"
-    with table.open("w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=list(COLUMNS))
-        wr.writeheader()
-        for r in rows:
-            wr.writerow({k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in COLUMNS})
+    write_csv(table, ({k: r[k] for k in COLUMNS} for r in rows))
 
     def label(model: str, scale: float) -> str:
         return model if scale == 1.0 else f"{model} x{scale:g}"

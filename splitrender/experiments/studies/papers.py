@@ -32,13 +32,13 @@ shrink it.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import time
 from pathlib import Path
 from typing import Any, Callable
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE
 
@@ -206,11 +206,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     elapsed = time.perf_counter() - t0
 
     table = out_dir / "papers_results.csv"
-    with table.open("w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=list(COLUMNS), restval="")
-        wr.writeheader()
-        for r in rows:
-            wr.writerow({k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in COLUMNS if k in r})
+    write_csv(table, ({k: r[k] for k in COLUMNS if k in r} for r in rows))
 
     figs: list[Path] = []
     markers = {"sas": "o", "warp": "s", "atw": "^", "video": "v"}

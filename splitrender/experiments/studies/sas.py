@@ -17,7 +17,6 @@ cores); the full study runs longer traces and more points.
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import time
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE
 
@@ -35,13 +35,7 @@ BENCH_JSON = Path(__file__).resolve().parents[3] / "benchmarks" / "results" / "b
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(path, rows)
     return path
 
 

@@ -19,13 +19,13 @@ Every row records PSNR, SSIM, FLIP, error pixels, holes, bitrate and client ms.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import time
 from pathlib import Path
 from typing import Any
 
+from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE
 
@@ -113,11 +113,7 @@ def run(out_dir: Path, quick: bool) -> Section:
     elapsed = time.perf_counter() - t0
 
     table = out_dir / "warp_results.csv"
-    with table.open("w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=list(COLUMNS))
-        wr.writeheader()
-        for r in rows:
-            wr.writerow({k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in COLUMNS})
+    write_csv(table, ({k: r[k] for k in COLUMNS} for r in rows))
 
     figs = []
     # chart 1: error pixels vs ratio
