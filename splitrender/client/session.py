@@ -135,6 +135,8 @@ class ClientResult:
     counters: dict[str, Any]
     recording: dict[str, Any]
     meta_frame_ids: list[int]
+    """The newest ``rows_kept`` FrameMeta frame ids, in arrival order (the counters have ``meta_frames``, the first
+    id ``meta_first_id`` and ``meta_gaps``, FrameMetas that did not follow the previous one)."""
     out_dir: Path | None = None
 
 
@@ -172,7 +174,7 @@ class LiveClient:
         self.rows: deque[dict[str, Any]] = deque(maxlen=config.rows_kept)
         """The newest ``rows_kept`` displayed rows (the recording's ``frames.jsonl``/``frames.csv`` has them all)."""
         self._rows_recorded = 0
-        self.meta_ids: list[int] = []
+        self.meta_ids: deque[int] = deque(maxlen=config.rows_kept)
         self._counters: dict[str, Any] = {"late_ticks": 0}
 
     @property
@@ -412,6 +414,11 @@ class LiveClient:
     def _on_control(self, msg: FrameMeta | DataChunk) -> None:
         assert self.rx is not None and self.core is not None
         if isinstance(msg, FrameMeta):
+            c = self._counters
+            if self.meta_ids and msg.frame_id != self.meta_ids[-1] + 1:
+                c["meta_gaps"] = c.get("meta_gaps", 0) + 1
+            c.setdefault("meta_first_id", msg.frame_id)
+            c["meta_frames"] = c.get("meta_frames", 0) + 1
             self.meta_ids.append(msg.frame_id)
         self.core.receive_message(msg, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
         if isinstance(msg, FrameMeta):
