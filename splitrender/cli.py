@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cost-scale", type=float, default=None, help="scale the measured milliseconds (0.1: a machine 10x faster)")
     p.add_argument("--fec", action="store_true", default=None,
                    help="forward error correction: an RFC 5109 parity packet per group of up to 16 RTP packets")
+    p.add_argument("--transport-cc", action="store_true", default=None,
+                   help="transport-wide congestion control feedback: the server estimates the path's rate "
+                        "(updates.csv cc_* columns)")
     _session_args(p)
     _common_run_args(p)
     p.set_defaults(func=main_run)
@@ -174,6 +177,7 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
                  ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
+                 ("transport_cc", ns.transport_cc),
                  *session_options(ns).items(),  # from splitrender.sim.config
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:

@@ -23,9 +23,9 @@ FPS = 30.0
 class Pair:
     """A server core and a client core over hand-moved bytes and time (no network, no clock)."""
 
-    def __init__(self, **client_opts: object) -> None:
+    def __init__(self, transport_cc: bool = False, **client_opts: object) -> None:
         spec = StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)
-        self.tx = ServerPipeline([spec], mtu=300, rng=np.random.default_rng(1))
+        self.tx = ServerPipeline([spec], mtu=300, rng=np.random.default_rng(1), transport_cc_id=5 if transport_cc else None)
         self.sconn, self.cconn = ServerConnection(), ClientConnection()
         self.sconn.receive_data(self.cconn.send(Hello(PROTOCOL_VERSION, "", ("x",), ("h264",), W, H, FPS)))
         self.sconn.next_event()
@@ -36,7 +36,8 @@ class Pair:
         opts = ClientOptions(**client_opts)  # type: ignore[arg-type]
         rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), opts.jitter_timeout_ms,
                             resolve_timeout_ms=opts.resolve_timeout_ms, limits=opts.limits)
-        self.client = ClientSession(rx, opts, FPS, rng=np.random.default_rng(2))
+        self.client = ClientSession(rx, opts, FPS, rng=np.random.default_rng(2),
+                                    transport_cc_id=w.method_params.get("transport_cc"))
         self.server = ServerSession(self.tx, 60.0, ServerOptions(keyframe_min_interval_ms=100.0), rng=np.random.default_rng(3))
         self.client.start(0.0)
         self.server.start(0.0)
@@ -436,3 +437,47 @@ def test_a_full_intra_request_is_answered_once_per_sequence_number() -> None:
     assert p.server.counters["firs"] == 1 and p.server.keyframe_due(1030.0)
     p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc, 8),))], 1500.0)
     assert p.server.counters["firs"] == 2
+
+
+def test_transport_wide_feedback_reports_every_stamped_packet_and_a_loss() -> None:
+    """With transport-wide feedback each RTP packet leaves with the next transport sequence number (a retransmission
+    too); the client reports arrivals 100 ms after the first unreported one, a lost packet as not received; the
+    server matches every status with what it sent and its estimator takes the results."""
+    from splitrender.protocol.rtp import RtpPacket
+    from splitrender.protocol.twcc import TransportFeedback, read_transport_seq
+
+    p = Pair(transport_cc=True)
+    ctrl, dgrams = p.frame(0, 0.0)
+    assert len(dgrams) >= 4 and all(read_transport_seq(d, 5) == 0 for d in dgrams)    # reserved, written at send
+    sent = [p.server.stamp(d, 1.0 + 0.5 * k) for k, d in enumerate(dgrams)]
+    assert [read_transport_seq(d, 5) for d in sent] == list(range(len(sent)))
+    assert [RtpPacket.parse(a).payload for a in sent] == [RtpPacket.parse(b).payload for b in dgrams]
+    p.to_client(ctrl, sent[:2] + sent[3:], 20.0)                                      # packet 2 lost
+    assert not any(isinstance(x, TransportFeedback) for c in p.timer(60.0) for x in c)
+    fbs = [x for c in p.timer(120.0) for x in c if isinstance(x, TransportFeedback)]
+    assert len(fbs) == 1 and fbs[0].base_seq == 0 and len(fbs[0].arrivals) == len(sent)
+    assert [a is None for a in fbs[0].arrivals] == [k == 2 for k in range(len(sent))]
+    p.server.receive_rtcp(fbs, 140.0)
+    assert p.server.counters["twcc_feedback"] == 1 and p.server.counters["twcc_unknown"] == 0
+    assert p.server.send_history is not None and p.server.send_history.in_flight == 0
+    assert p.server.estimator is not None and len(p.server.estimator.history) == 1
+    assert set(p.server.congestion()) == {"cc_target_kbps", "cc_encoder_kbps", "cc_acked_kbps", "cc_queue_ms"}
+    resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
+                                                (int.from_bytes(sent[2][2:4], "big"),))], 150.0)
+    assert len(resend) == 1 and read_transport_seq(p.server.stamp(resend[0], 150.0), 5) == len(sent)
+    assert p.client.counters["twcc_feedback_sent"] == 1
+
+
+def test_without_transport_wide_feedback_packets_carry_no_extension() -> None:
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.protocol.rtp import RtpPacket
+
+    p = Pair()
+    _, dgrams = p.frame(0, 0.0)
+    assert all(RtpPacket.parse(d).extension_profile is None and p.server.stamp(d, 1.0) == d for d in dgrams)
+    assert p.server.congestion() == {} and "transport_cc" not in p.tx.welcome_params(b"")
+    q = Pair(transport_cc=True)
+    w = Welcome("s", "x", {**q.tx.welcome_params(b""), "transport_cc": 15}, q.tx.describe("127.0.0.1", 5000, "t"))
+    with pytest.raises(RemoteProtocolError, match=r"Welcome.method_params.transport_cc: expected a header extension id in "
+                                                  r"1..14, got 15"):
+        ClientSession.from_welcome(w, ClientOptions())

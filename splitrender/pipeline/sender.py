@@ -27,6 +27,7 @@ from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol.fec import fec_encode
 from ..protocol.rtp import RTP_CLOCK_HZ
+from ..protocol.twcc import one_byte_extension
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
                         split_annexb)
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
@@ -98,7 +99,7 @@ class ServerPipeline:
     """One session's sending side; see the module docstring."""
 
     def __init__(self, specs: list[AnyStreamSpec], mtu: int = 1200, ssrc_taken: Callable[[int], bool] | None = None,
-                 rng: Any = None, fec: bool = False) -> None:
+                 rng: Any = None, fec: bool = False, transport_cc_id: int | None = None) -> None:
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
             raise ValueError(f"duplicate stream names in {names}")
@@ -116,6 +117,10 @@ class ServerPipeline:
             used.add(ssrc)
             return ssrc
 
+        self.transport_cc_id = transport_cc_id
+        """One-byte header extension id of the transport sequence number every RTP packet carries (reserved here,
+        written at send time by :meth:`ServerSession.stamp`), or None: no transport-wide feedback."""
+        ext = one_byte_extension({transport_cc_id: b"\0\0"}) if transport_cc_id is not None else None
         k = 0
         for s in specs:
             st = TxStream(s)
@@ -123,7 +128,8 @@ class ServerPipeline:
                 ssrc = new_ssrc()
                 st.ssrc, st.payload_type = ssrc, FIRST_PAYLOAD_TYPE + k
                 k += 1
-                st.packetizer = RtpPacketizer(rtp_format(s), ssrc, st.payload_type, mtu, self._rand(16))  # type: ignore[arg-type]
+                st.packetizer = RtpPacketizer(rtp_format(s), ssrc, st.payload_type, mtu, self._rand(16),  # type: ignore[arg-type]
+                                              extension=ext)
             self.streams[s.name] = st
         self.fec = fec
         if fec:   # one FEC stream per RTP stream: its own SSRC, payload type 127, 126, ... and sequence numbers
@@ -173,8 +179,11 @@ class ServerPipeline:
 
     def welcome_params(self, session_blob: bytes) -> dict[str, Any]:
         """The stream table and session data size for ``Welcome.method_params``."""
-        return {"streams": stream_table(self.specs), "session_data_bytes": len(session_blob),
-                "session_data_crc": checksum(session_blob)}
+        out = {"streams": stream_table(self.specs), "session_data_bytes": len(session_blob),
+               "session_data_crc": checksum(session_blob)}
+        if self.transport_cc_id is not None:
+            out["transport_cc"] = self.transport_cc_id
+        return out
 
     def session_frames(self, session_blob: bytes, framer: Framer) -> list[tuple[str, bytes]]:
         """The session data as ``DataChunk`` control frames (sent right after ``Welcome``); counted as ``session``."""

@@ -45,7 +45,9 @@ from ..protocol import (Feedback, FrameMeta, DataChunk, FullIntraRequest, Generi
 from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
+from ..protocol.twcc import FeedbackRecorder, SendHistory, TransportFeedback, read_transport_seq, write_transport_seq
 from .feedback import FeedbackState
+from .gcc import BandwidthEstimator, GccConfig
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .sender import OutgoingFrame, ServerPipeline
 from .wire import EnvelopeError, specs_from_table
@@ -258,8 +260,8 @@ def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[d
 
 
 def rtcp_media_ssrcs(data: bytes) -> tuple[list[RtcpPacket], list[int]]:
-    """A client's RTCP datagram and the media SSRCs it names, in order (report blocks, NACK and PLI
-    targets), so a server can route it to the session that owns them.  Raises ``RtcpError`` for a
+    """A client's RTCP datagram and the media SSRCs it names, in order (report blocks, NACK, PLI and
+    transport-wide feedback targets), so a server can route it to the session that owns them.  Raises ``RtcpError`` for a
     datagram that is not valid RTCP."""
     if not is_rtcp(data):
         raise RtcpError(f"datagram of {len(data)} bytes is not RTCP")
@@ -268,7 +270,7 @@ def rtcp_media_ssrcs(data: bytes) -> tuple[list[RtcpPacket], list[int]]:
     for p in packets:
         if isinstance(p, (ReceiverReport, SenderReport)):
             ssrcs += [b.ssrc for b in p.reports]
-        elif isinstance(p, (GenericNack, PictureLossIndication)):
+        elif isinstance(p, (GenericNack, PictureLossIndication, TransportFeedback)):
             ssrcs.append(p.media_ssrc)
         elif isinstance(p, FullIntraRequest):
             ssrcs += [m for m, _ in p.requests]
@@ -343,6 +345,8 @@ class ClientOptions:
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
     stall_timeout_s: float = 5.0
+    twcc_interval_ms: float = 100.0
+    """How often transport-wide feedback goes out while arrivals wait to be reported (sessions that ask for it)."""
     limits: ClientLimits = DEFAULT_CLIENT_LIMITS
     """What the client accepts from the server (:mod:`splitrender.limits`)."""
 
@@ -362,6 +366,7 @@ class ClientOptions:
         check("jitter_timeout_ms", 1.0, 10_000.0)
         check("playout_delay_ms", 0.0, 2000.0)
         check("stall_frames", 1.0, 1000.0)
+        check("twcc_interval_ms", 10.0, 1000.0)
         if not (self.stall_timeout_s == math.inf or 0.1 <= self.stall_timeout_s <= 3600.0):
             raise ConfigError(f"client stall_timeout_s: must be in [0.1, 3600] or inf, got {self.stall_timeout_s!r}")
 
@@ -391,7 +396,7 @@ class ClientSession:
     """
 
     def __init__(self, rx: ClientPipeline, options: ClientOptions, server_fps: float, clock_offset_us: int = 0,
-                 rng: Any = None) -> None:
+                 rng: Any = None, transport_cc_id: int | None = None) -> None:
         self.rx = rx
         self.opts = options
         self.server_fps = max(1.0, float(server_fps))
@@ -404,6 +409,10 @@ class ClientSession:
         self.ssrc = ssrc
         """This receiver's RTCP SSRC (random per session)."""
         self.cname = f"splitrender-client-{int(self._rand() * (1 << 48)):012x}".encode("ascii")
+        self.transport_cc_id = transport_cc_id
+        """The Welcome's transport sequence extension id: arrivals are reported with transport-wide feedback."""
+        self._twcc = FeedbackRecorder(self.ssrc, min(media) if media else 0) if transport_cc_id is not None else None
+        self._next_twcc_ms = math.inf
         self._out: list[bytes] = []
         self.events: list[SessionEvent] = []
         self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
@@ -435,7 +444,7 @@ class ClientSession:
             "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0, "stall_plis": 0, "stalls": 0, "longest_stall_ms": 0.0,
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_displayed_updates": 0,
             "updates_dropped_ready": 0, "keyframes_after_pli": 0, "udp_bad": 0, "decode_overflows": 0,
-            "meta_bytes": 0, "apply_errors": 0,
+            "meta_bytes": 0, "apply_errors": 0, "twcc_feedback_sent": 0,
         }
 
     @classmethod
@@ -446,7 +455,10 @@ class ClientSession:
         params = welcome.method_params
         rx = ClientPipeline(welcome.streams, specs_from_table(params.get("streams")), options.jitter_timeout_ms,
                             resolve_timeout_ms=options.resolve_timeout_ms, limits=options.limits)
-        return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng)
+        cc = params.get("transport_cc")
+        if cc is not None and (isinstance(cc, bool) or not isinstance(cc, int) or not 1 <= cc <= 14):
+            raise EnvelopeError(f"Welcome.method_params.transport_cc: expected a header extension id in 1..14, got {cc!r:.80}")
+        return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng, cc)
 
     # ------------------------------------------------------------------ clock
 
@@ -497,6 +509,12 @@ class ClientSession:
         self.rtp_seen = True
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
+        if self._twcc is not None and self.transport_cc_id is not None:
+            tseq = read_transport_seq(data, self.transport_cc_id)
+            if tseq is not None:
+                self._twcc.on_packet(tseq, self.protocol_us(now_ms))
+                if not math.isfinite(self._next_twcc_ms):
+                    self._next_twcc_ms = now_ms + self.opts.twcc_interval_ms
         ssrc = int.from_bytes(data[8:12], "big")
         stream = rx.by_ssrc.get(ssrc)
         if stream is not None:
@@ -598,6 +616,12 @@ class ClientSession:
             if (rx.wants_keyframe or (rx.needs_keyframe and started)) and (pli := self._pli(rx, now_ms)):
                 out.append(pli)
         out.extend(self._check_stall(now_ms))
+        if self._twcc is not None and now_ms >= self._next_twcc_ms:
+            fbs = self._twcc.feedback()
+            self.counters["twcc_feedback_sent"] += len(fbs)
+            self.counters["twcc_late"] = self._twcc.late
+            out.extend(fbs)
+            self._next_twcc_ms = math.inf   # armed again by the next arrival
         if out:
             self._queue_rtcp(out)
         return works
@@ -613,6 +637,7 @@ class ClientSession:
             t = -math.inf   # the next tick
         elif not self._stalled:
             t = min(t, self._last_frame_ms + self._stall_after_ms())
+        t = min(t, self._next_twcc_ms)
         # never sooner than one tick after the last run: a deadline already passed waits for the next tick
         after = (math.floor(self._last_timer_ms / TIMER_TICK_MS + 1e-6) + 1) * TIMER_TICK_MS \
             if math.isfinite(self._last_timer_ms) else -math.inf
@@ -768,6 +793,8 @@ class ServerOptions:
     history_packets: int = 2048
     keyframe_min_interval_ms: float = 200.0
     sr_interval_s: float = 1.0
+    gcc: GccConfig = field(default_factory=GccConfig)
+    """The send-rate estimator's settings (sessions with transport-wide feedback)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.history_packets <= 1 << 20:
@@ -821,10 +848,16 @@ class ServerSession:
         """The session's RTCP CNAME (from its SSRCs, which are random: no draw of its own, so seeded runs keep theirs)."""
         self._next_sr_ms = math.inf
         self.rtt_ms: float | None = None
+        cc = self.tx.transport_cc_id is not None
+        self.send_history = SendHistory(window_us=5_000_000) if cc else None
+        """Transport sequence numbers sent, for the client's transport-wide feedback (sessions with it only)."""
+        self.estimator = BandwidthEstimator(self.options.gcc) if cc else None
+        """The path's send-rate estimate from that feedback (:mod:`.gcc`)."""
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
-            "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0,
+            "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0, "twcc_feedback": 0,
+            "twcc_unknown": 0, "twcc_stamped": 0,
         }
 
     def owns_ssrc(self, ssrc: int) -> bool:
@@ -882,7 +915,36 @@ class ServerSession:
                         rtt = ((now_mid - b.lsr - b.dlsr) & 0xFFFFFFFF) / 65536 * 1000
                         if rtt < 10_000:
                             self.rtt_ms = rtt
+                            if self.estimator is not None:
+                                self.estimator.set_rtt(int(rtt * 1000))
+            elif isinstance(p, TransportFeedback) and self.estimator is not None and self.send_history is not None:
+                self.counters["twcc_feedback"] += 1
+                before = self.send_history.unknown
+                results = self.send_history.on_feedback(p)
+                self.counters["twcc_unknown"] += self.send_history.unknown - before
+                self.estimator.on_feedback(results, int(round(now_ms * 1000)))
         return resend
+
+    def stamp(self, data: bytes, now_ms: float) -> bytes:
+        """An RTP datagram as it leaves now: with transport-wide feedback on, its next transport sequence number
+        written in and its send time and size remembered (media and retransmissions; FEC carries none)."""
+        if self.send_history is None or self.tx.transport_cc_id is None:
+            return data
+        if read_transport_seq(data, self.tx.transport_cc_id) is None:
+            return data
+        seq = self.send_history.on_sent(int(round(now_ms * 1000)), len(data))
+        self.counters["twcc_stamped"] += 1
+        return write_transport_seq(data, self.tx.transport_cc_id, seq)
+
+    def congestion(self) -> dict[str, float]:
+        """The estimator's view now (empty without transport-wide feedback): ``cc_target_kbps`` (delay and loss
+        based), ``cc_encoder_kbps`` (that less what drains a standing queue), ``cc_acked_kbps``, ``cc_queue_ms``."""
+        est = self.estimator
+        if est is None:
+            return {}
+        acked = est.acked_bps()
+        return {"cc_target_kbps": est.target_bps / 1000, "cc_encoder_kbps": est.encoder_bps() / 1000,
+                "cc_acked_kbps": acked / 1000 if acked is not None else math.nan, "cc_queue_ms": est.queue_ms()}
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
         """:meth:`receive_rtcp` from bytes; malformed RTCP is counted and ignored."""

@@ -55,6 +55,7 @@ class RtpPacketizer:
         payload_type: int,
         mtu: int = DEFAULT_MTU,
         first_sequence: int = 0,
+        extension: tuple[int, bytes] | None = None,
     ) -> None:
         if codec not in ("h264", "hevc", "data"):
             raise ValueError(f"unknown codec {codec!r}")
@@ -64,6 +65,9 @@ class RtpPacketizer:
         self.mtu = mtu
         self.sequence_number = first_sequence & 0xFFFF
         """Sequence number the next packet will get."""
+        self.extension = extension
+        """(profile, body) of a header extension every packet carries (e.g. a transport sequence number reserved
+        to be written at send time), or None."""
         self.packets_sent = 0
         self.octets_sent = 0
         """Payload bytes sent (RTCP sender report ``octet count``)."""
@@ -80,6 +84,8 @@ class RtpPacketizer:
                 ssrc=self.ssrc,
                 payload=p,
                 marker=k == last,
+                extension_profile=self.extension[0] if self.extension else None,
+                extension_data=self.extension[1] if self.extension else b"",
             )
             for k, p in enumerate(payloads)
         ]

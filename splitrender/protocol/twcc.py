@@ -36,8 +36,9 @@ from typing import Final, Iterable, Sequence
 from splitrender.protocol.errors import RtcpError, RtpError
 from splitrender.protocol.rtp import SequenceUnwrapper
 
-__all__ = ["TWCC_URI", "RTPFB_TWCC", "TICK_US", "REFERENCE_US", "TransportFeedback", "PacketResult", "FeedbackRecorder",
-           "SendHistory", "one_byte_extension", "parse_one_byte_extension", "parse_transport_feedback"]
+__all__ = ["TWCC_URI", "RTPFB_TWCC", "TICK_US", "REFERENCE_US", "DEFAULT_EXTENSION_ID", "TransportFeedback", "PacketResult",
+           "FeedbackRecorder", "SendHistory", "one_byte_extension", "parse_one_byte_extension", "parse_transport_feedback",
+           "read_transport_seq", "write_transport_seq"]
 
 TWCC_URI: Final = "http://www.ietf.org/id/draft-holmer-rmcat-transport-wide-cc-extensions-01"
 RTPFB_TWCC: Final = 15
@@ -49,6 +50,8 @@ REFERENCE_US: Final = 64_000
 _TICKS_PER_REF: Final = REFERENCE_US // TICK_US
 _REF_MOD: Final = 1 << 24
 MAX_STATUS_COUNT: Final = 0xFFFF
+DEFAULT_EXTENSION_ID: Final = 5
+"""The one-byte header extension element id of the transport sequence number in this project's sessions."""
 _RUN_MAX: Final = 0x1FFF
 _FIXED: Final = struct.Struct("!IIHHI")  # sender SSRC, media SSRC, base, count, (reference << 8) | fb count
 
@@ -85,6 +88,46 @@ def parse_one_byte_extension(profile: int | None, data: bytes) -> dict[int, byte
         out[eid] = bytes(data[i + 1:i + 1 + n])
         i += 1 + n
     return out
+
+
+def _element_offset(data: bytes, ext_id: int) -> int | None:
+    """Byte offset of one-byte extension element ``ext_id``'s data in an RTP packet, or None."""
+    if len(data) < 12 or not data[0] & 0x10:
+        return None
+    pos = 12 + 4 * (data[0] & 0x0F)
+    if pos + 4 > len(data) or data[pos:pos + 2] != b"\xbe\xde":
+        return None
+    end = pos + 4 + 4 * int.from_bytes(data[pos + 2:pos + 4], "big")
+    i = pos + 4
+    if end > len(data):
+        return None
+    while i < end:
+        b = data[i]
+        if b == 0:
+            i += 1
+            continue
+        eid, n = b >> 4, (b & 0x0F) + 1
+        if eid == 15 or i + 1 + n > end:
+            return None
+        if eid == ext_id:
+            return i + 1 if n == 2 else None
+        i += 1 + n
+    return None
+
+
+def read_transport_seq(data: bytes, ext_id: int) -> int | None:
+    """The transport sequence number an RTP packet carries in element ``ext_id`` (None when it has none)."""
+    off = _element_offset(data, ext_id)
+    return None if off is None else int.from_bytes(data[off:off + 2], "big")
+
+
+def write_transport_seq(data: bytes, ext_id: int, seq: int) -> bytes:
+    """``data`` with its transport sequence number (element ``ext_id``, reserved by the packetizer) set to ``seq``;
+    unchanged when it has no such element (FEC packets, RTCP)."""
+    off = _element_offset(data, ext_id)
+    if off is None:
+        return data
+    return data[:off] + (seq & 0xFFFF).to_bytes(2, "big") + data[off + 2:]
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,7 +287,7 @@ class FeedbackRecorder:
         start = seqs[0] if self._next is None or seqs[0] - self._next > MAX_STATUS_COUNT else self._next
         out: list[TransportFeedback] = []
         arrivals: list[int | None] = []
-        base, ref, last = start, None, 0
+        base, ref, last, shift = start, None, 0, 0
         for ext in range(start, seqs[-1] + 1):
             a = self._pending.get(ext)
             tick = None if a is None else a // TICK_US
@@ -253,9 +296,11 @@ class FeedbackRecorder:
                 out.append(self._packet(base, ref or 0, arrivals))
                 arrivals, base, ref = [], ext, None
             if tick is not None:
-                if ref is None:           # the packet's reference time: its first arrival's 64 ms period
+                if ref is None:           # the packet's reference time: its first arrival's 64 ms period (24 bits)
                     ref = (tick // _TICKS_PER_REF) % _REF_MOD
+                    shift = (tick // _TICKS_PER_REF - ref) * _TICKS_PER_REF   # whole wraps of the 24-bit reference
                 last = tick
+                tick -= shift
             arrivals.append(tick)
         if arrivals:
             out.append(self._packet(base, ref or 0, arrivals))

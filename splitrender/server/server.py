@@ -95,6 +95,9 @@ class ServerConfig:
     out_dir: Path | None = None
     max_session_bytes: int = 256 * 1024 * 1024
     fec: bool = False
+    transport_cc: bool = False
+    """Transport-wide congestion control feedback (``serve --transport-cc``): sessions' RTP packets carry transport
+    sequence numbers, clients report arrivals, each session's estimator follows its path (updates.csv ``cc_*``)."""
     metrics_interval_s: float = 5.0
     """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
     isolation: str = "session"

@@ -40,6 +40,7 @@ from splitrender.pipeline import (ServerOptions, check_hello, ServerPipeline, Se
                                   rtp_timestamp, session_params)
 from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
+from splitrender.protocol.twcc import DEFAULT_EXTENSION_ID
 from splitrender.protocol import (
     Bye,
     Error,
@@ -291,7 +292,8 @@ class ServerSession:
             if isinstance(s, StreamSpec) and s.codec.codec not in hello.codecs:
                 raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
                                           f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
-        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec)
+        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec,
+                                 transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
         self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
         self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
                                                                         cfg.sr_interval_s),
@@ -463,6 +465,7 @@ class ServerSession:
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
         for name, _, data in out.datagrams:
+            data = core.stamp(data, _now_ms())
             server.send_datagram(data, self.client_addr)
             mirror = self.streams[name].mirror
             if mirror is not None:
@@ -479,6 +482,7 @@ class ServerSession:
                                "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
                                "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": expected * 1000}
         row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
+        row.update(core.congestion())
         self.update_rows.append(row)
         self._log("updates", row)
         self._frame_id += 1
@@ -506,7 +510,7 @@ class ServerSession:
         if self.core is None:
             return
         for data in self.core.receive_rtcp(packets, _now_ms()):
-            self.server.send_datagram(data, addr)
+            self.server.send_datagram(self.core.stamp(data, _now_ms()), addr)
 
     # ------------------------------------------------------------------ records
 

@@ -101,6 +101,10 @@ class RunConfig:
     truth_cache: str = ""
     scene_time_offset_s: float = 0.0
     fec: bool = False
+    transport_cc: bool = False
+    """Transport-wide congestion control feedback: every RTP packet carries a transport sequence number, the client
+    reports arrivals every 100 ms, the server's estimator follows the path's rate (written to updates.csv as
+    ``cc_*``; nothing acts on it yet)."""
     nack_tries: int = 3
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
@@ -184,7 +188,7 @@ class RunConfig:
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
         for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
-                           ("fec", False)):
+                           ("fec", False), ("transport_cc", False)):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)

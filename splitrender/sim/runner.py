@@ -70,6 +70,7 @@ from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipe
 from ..pipeline.wire import control_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
+from ..protocol.twcc import DEFAULT_EXTENSION_ID
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
 from ..scene.loader import get_scene
@@ -255,7 +256,8 @@ class VirtualTimeRun:
         if len(session_blob) > cfg.max_session_bytes:
             raise SessionDataError(f"method {cfg.method}: session data of {len(session_blob)} bytes exceeds the limit of "
                                    f"{cfg.max_session_bytes} bytes (max_session_bytes)")
-        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec)
+        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec,
+                              transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
         params = session_params(cfg.method, self.mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, c.tx, session_blob,
                                 getattr(self.scene, "subject", None))
         c.tx.open_encoders()   # as the live session does: the SDP names the parameter sets the encoders send
@@ -428,6 +430,7 @@ class VirtualTimeRun:
                     row[f"bytes_{name}"] = out.wire_bytes.get(name, 0)
             row.update({f"srv_{k}": v for k, v in c.half.stats().items()})
             row.update({f"shared_{k}": v for k, v in shared_stats.items()})
+            row.update(c.core_s.congestion())
             c.update_rows[f] = row
             c.updates.append(row)
 
@@ -435,7 +438,9 @@ class VirtualTimeRun:
         """RTP datagrams (media, FEC, retransmissions) onto the downlink at ``t_s`` (or its last send)."""
         t_s = max(t_s, c.sent_s.get("down", -math.inf))
         c.sent_s["down"] = t_s
+        assert c.core_s is not None
         for data in datagrams:
+            data = c.core_s.stamp(data, t_s * 1000)
             deliveries = c.down.send(t_s, len(data) + 28)
             c.packets_lost += not deliveries
             for d in deliveries:
@@ -685,6 +690,11 @@ class VirtualTimeRun:
             "flip_every": cfg.flip_every, "config_key": cfg.key(),
             "frames_before_content": int(sum(1 for f in fr if f.get("update_frame_id", -1) == -1)),
         })
+        if c.core_s.estimator is not None:    # transport-wide feedback: what the estimator made of the path
+            cc = [u["cc_target_kbps"] for u in ups if "cc_target_kbps" in u]
+            s.update({"mean_cc_target_kbps": float(np.mean(cc)) if cc else math.nan,
+                      "twcc_feedback": c.core_s.counters["twcc_feedback"], "twcc_unknown": c.core_s.counters["twcc_unknown"],
+                      "cc_overuses": c.core_s.estimator.overuses})
         return s
 
 
