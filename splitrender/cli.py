@@ -88,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transport-cc", action="store_true", default=None,
                    help="transport-wide congestion control feedback: the server estimates the path's rate "
                         "(updates.csv cc_* columns)")
+    p.add_argument("--pacing", action="store_true", default=None,
+                   help="with --transport-cc: RTP leaves through a pacer at 2.5x the estimated rate, not in bursts")
     _session_args(p)
     _common_run_args(p)
     p.set_defaults(func=main_run)
@@ -177,7 +179,7 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
                  ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
-                 ("transport_cc", ns.transport_cc),
+                 ("transport_cc", ns.transport_cc), ("pacing", ns.pacing),
                  *session_options(ns).items(),  # from splitrender.sim.config
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:

@@ -687,3 +687,15 @@ async def test_transport_wide_feedback_sees_the_same_standing_queue_live_and_in_
     for name, r in (("live", live[-1]), ("virtual time", rows[-1])):
         assert r["cc_queue_ms"] > 500, (name, r)
         assert r["cc_encoder_kbps"] < 500 < r["cc_acked_kbps"] < 1100, (name, r)
+
+
+@pytest.mark.slow
+async def test_a_paced_live_session_streams_and_is_reported(tmp_path: Path) -> None:
+    """``serve --pacing`` (transport-wide feedback implied): the pacer task sends every frame's packets, the client
+    shows the stream and reports it, and no packet is left unaccounted for."""
+    result, _, sc = await _run_through_relay(tmp_path, "delay 10ms rate 4mbit", server_kw={"transport_cc": True, "pacing": True},
+                                             duration_s=2.0)
+    c = result.counters
+    assert c["frames_complete"] >= 40 and sc["twcc_feedback"] >= 10 and sc["twcc_unknown"] == 0, (c, sc)
+    assert sc["twcc_stamped"] >= sc["rtp_packets"]
+    assert any("cc_pacer_packets" in r for r in sc["update_rows"])

@@ -47,7 +47,7 @@ from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_f
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import FeedbackRecorder, SendHistory, TransportFeedback, read_transport_seq, write_transport_seq
 from .feedback import FeedbackState
-from .gcc import BandwidthEstimator, GccConfig
+from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .sender import OutgoingFrame, ServerPipeline
 from .wire import EnvelopeError, specs_from_table
@@ -795,6 +795,9 @@ class ServerOptions:
     sr_interval_s: float = 1.0
     gcc: GccConfig = field(default_factory=GccConfig)
     """The send-rate estimator's settings (sessions with transport-wide feedback)."""
+    pacing: bool = False
+    """With transport-wide feedback: RTP packets leave through a pacer at 2.5x the estimated rate
+    (:class:`~.gcc.Pacer`) instead of in one burst per frame."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.history_packets <= 1 << 20:
@@ -853,6 +856,8 @@ class ServerSession:
         """Transport sequence numbers sent, for the client's transport-wide feedback (sessions with it only)."""
         self.estimator = BandwidthEstimator(self.options.gcc) if cc else None
         """The path's send-rate estimate from that feedback (:mod:`.gcc`)."""
+        self.pacer: Pacer[tuple[Any, bytes]] | None = \
+            Pacer(self.estimator.target_bps) if self.estimator is not None and self.options.pacing else None
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
@@ -936,6 +941,31 @@ class ServerSession:
         self.counters["twcc_stamped"] += 1
         return write_transport_seq(data, self.tx.transport_cc_id, seq)
 
+    def send(self, items: list[tuple[Any, bytes]], now_ms: float) -> list[tuple[Any, bytes]]:
+        """RTP datagrams ``(tag, bytes)`` the driver wants to send at ``now_ms`` (the tag is the driver's, e.g. the
+        stream name): those to send now, stamped.  Without a pacer that is all of them; with one, what its budget
+        lets go now, the rest from :meth:`paced` at :meth:`next_send_ms`."""
+        if self.pacer is None:
+            return [(tag, self.stamp(d, now_ms)) for tag, d in items]
+        us = int(round(now_ms * 1000))
+        for tag, d in items:
+            self.pacer.enqueue((tag, d), len(d), us)
+        return self.paced(now_ms)
+
+    def paced(self, now_ms: float) -> list[tuple[Any, bytes]]:
+        """The queued datagrams the pacer lets go at ``now_ms``, stamped (none without a pacer)."""
+        if self.pacer is None or self.estimator is None:
+            return []
+        self.pacer.rate_bps = self.estimator.target_bps
+        return [(tag, self.stamp(d, now_ms)) for tag, d in self.pacer.poll(int(round(now_ms * 1000)))]
+
+    def next_send_ms(self, now_ms: float) -> float:
+        """When :meth:`paced` has the next datagram (``inf`` when nothing waits)."""
+        if self.pacer is None:
+            return math.inf
+        t = self.pacer.next_send_us(int(round(now_ms * 1000)))
+        return math.inf if t is None else t / 1000.0
+
     def congestion(self) -> dict[str, float]:
         """The estimator's view now (empty without transport-wide feedback): ``cc_target_kbps`` (delay and loss
         based), ``cc_encoder_kbps`` (that less what drains a standing queue), ``cc_acked_kbps``, ``cc_queue_ms``."""
@@ -943,8 +973,11 @@ class ServerSession:
         if est is None:
             return {}
         acked = est.acked_bps()
-        return {"cc_target_kbps": est.target_bps / 1000, "cc_encoder_kbps": est.encoder_bps() / 1000,
-                "cc_acked_kbps": acked / 1000 if acked is not None else math.nan, "cc_queue_ms": est.queue_ms()}
+        out = {"cc_target_kbps": est.target_bps / 1000, "cc_encoder_kbps": est.encoder_bps() / 1000,
+               "cc_acked_kbps": acked / 1000 if acked is not None else math.nan, "cc_queue_ms": est.queue_ms()}
+        if self.pacer is not None:
+            out["cc_pacer_packets"] = self.pacer.queued
+        return out
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
         """:meth:`receive_rtcp` from bytes; malformed RTCP is counted and ignored."""

@@ -98,6 +98,8 @@ class ServerConfig:
     transport_cc: bool = False
     """Transport-wide congestion control feedback (``serve --transport-cc``): sessions' RTP packets carry transport
     sequence numbers, clients report arrivals, each session's estimator follows its path (updates.csv ``cc_*``)."""
+    pacing: bool = False
+    """With ``transport_cc``: RTP leaves through a pacer at 2.5x the estimated rate (``serve --pacing``)."""
     metrics_interval_s: float = 5.0
     """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
     isolation: str = "session"

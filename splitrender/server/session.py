@@ -147,6 +147,7 @@ class ServerSession:
         """The newest rows of frames sent: wire bytes per stream (as the virtual-time runner's updates.csv; all of
         them go to ``updates.csv`` as they are sent when ``out_dir`` is set)."""
         self._logs: dict[str, CsvAppender] = {}
+        self._pace_wake = asyncio.Event()
         self._counters: dict[str, int] = {
             "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
             "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
@@ -184,6 +185,8 @@ class ServerSession:
                     tg.create_task(self._control_loop(), name=f"session-{self.id}-control")
                     tg.create_task(self._frame_loop(), name=f"session-{self.id}-frames")
                     tg.create_task(self._rtcp_loop(), name=f"session-{self.id}-rtcp")
+                    if self.core is not None and self.core.pacer is not None:
+                        tg.create_task(self._pace_loop(), name=f"session-{self.id}-pacer")
             except* _SessionEnded:
                 pass
             except* RemoteProtocolError as eg:
@@ -296,7 +299,7 @@ class ServerSession:
                                  transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
         self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
         self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
-                                                                        cfg.sr_interval_s),
+                                                                        cfg.sr_interval_s, pacing=cfg.pacing),
                                 0, rtp_origin_ms=server.epoch_wall_s * 1000)
         self.core.start(_now_ms())
         host, port = server.udp_address
@@ -464,14 +467,9 @@ class ServerSession:
         core.frame_sent(self._frame_id, out, _now_ms(), t_us)
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
-        for name, _, data in out.datagrams:
-            data = core.stamp(data, _now_ms())
-            server.send_datagram(data, self.client_addr)
-            mirror = self.streams[name].mirror
-            if mirror is not None:
-                server.send_datagram(data, mirror)
-        for _, data in out.fec:                 # parity packets: neither mirrored nor kept for retransmission
-            server.send_datagram(data, self.client_addr)
+        # media, then parity packets (neither mirrored nor kept for retransmission: tagged None), as the core lets them go
+        self._send_rtp(core.send([(name, data) for name, _, data in out.datagrams] + [(None, data) for _, data in out.fec],
+                                 _now_ms()))
         c2 = time.perf_counter()
         # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
         # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
@@ -509,8 +507,38 @@ class ServerSession:
             return
         if self.core is None:
             return
-        for data in self.core.receive_rtcp(packets, _now_ms()):
-            self.server.send_datagram(self.core.stamp(data, _now_ms()), addr)
+        resend = self.core.receive_rtcp(packets, _now_ms())
+        if resend:
+            self._send_rtp(self.core.send([(None, d) for d in resend], _now_ms()))
+
+    def _send_rtp(self, items: list[tuple[str | None, bytes]]) -> None:
+        """RTP datagrams to the client as the core lets them go; with a pacer the rest follow from
+        :meth:`_pace_loop`, woken here."""
+        self._send_rtp_now(items)
+        if self.core is not None and self.core.pacer is not None:
+            self._pace_wake.set()
+
+    async def _pace_loop(self) -> None:
+        """Sends what the core's pacer lets go, when it lets it go (sessions with pacing)."""
+        assert self.core is not None
+        while True:
+            nxt = self.core.next_send_ms(_now_ms())
+            if not math.isfinite(nxt):
+                self._pace_wake.clear()
+                await self._pace_wake.wait()
+                continue
+            await asyncio.sleep(max(0.0, (nxt - _now_ms()) / 1000))
+            self._send_rtp_now(self.core.paced(_now_ms()))
+
+    def _send_rtp_now(self, items: list[tuple[str | None, bytes]]) -> None:
+        """Send RTP datagrams ``(stream or None, bytes)`` to the client, a stream's to its mirror as well."""
+        if self.client_addr is None:
+            return
+        for name, data in items:
+            self.server.send_datagram(data, self.client_addr)
+            mirror = self.streams[name].mirror if name is not None else None
+            if mirror is not None:
+                self.server.send_datagram(data, mirror)
 
     # ------------------------------------------------------------------ records
 

@@ -105,6 +105,8 @@ class RunConfig:
     """Transport-wide congestion control feedback: every RTP packet carries a transport sequence number, the client
     reports arrivals every 100 ms, the server's estimator follows the path's rate (written to updates.csv as
     ``cc_*``; nothing acts on it yet)."""
+    pacing: bool = False
+    """With ``transport_cc``: RTP leaves through a pacer at 2.5x the estimated rate instead of in a burst."""
     nack_tries: int = 3
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
@@ -115,6 +117,8 @@ class RunConfig:
 
         if self.width <= 0 or self.height <= 0 or self.width % 2 or self.height % 2:
             raise bad("width/height", f"must be positive and even, got {self.width}x{self.height}")
+        if self.pacing and not self.transport_cc:
+            raise bad("pacing", "paces at the estimated rate, so it needs transport_cc (--transport-cc)")
         if self.width * self.height > 3840 * 2160:
             raise bad("width/height", f"{self.width}x{self.height} is larger than 3840x2160")
         if not 10.0 <= self.fov_y_deg <= 150.0:
@@ -188,7 +192,7 @@ class RunConfig:
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
         for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
-                           ("fec", False), ("transport_cc", False)):
+                           ("fec", False), ("transport_cc", False), ("pacing", False)):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)

@@ -185,6 +185,8 @@ class _Client:
     lost_frames: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
+    pace_at_s: float = math.inf
+    """When the server core's pacer next sends (armed once)."""
     bytes: dict[str, int] = field(default_factory=dict)
     window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
     frames: list[dict[str, Any]] = field(default_factory=list)
@@ -275,7 +277,7 @@ class VirtualTimeRun:
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
-        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(), SIM_EPOCH_US, 0.0,
+        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing), SIM_EPOCH_US, 0.0,
                                  np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
@@ -439,13 +441,34 @@ class VirtualTimeRun:
         t_s = max(t_s, c.sent_s.get("down", -math.inf))
         c.sent_s["down"] = t_s
         assert c.core_s is not None
-        for data in datagrams:
-            data = c.core_s.stamp(data, t_s * 1000)
+        self._onto_link(c, c.core_s.send([(None, d) for d in datagrams], t_s * 1000), t_s)
+        self._arm_pacer(c, t_s)
+
+    def _onto_link(self, c: _Client, items: list[tuple[Any, bytes]], t_s: float) -> None:
+        for _, data in items:
             deliveries = c.down.send(t_s, len(data) + 28)
             c.packets_lost += not deliveries
             for d in deliveries:
                 if not d.corrupted:
                     self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+
+    def _arm_pacer(self, c: _Client, now_s: float) -> None:
+        """The next paced send of ``c``'s server core, once (an earlier one already armed stays)."""
+        assert c.core_s is not None
+        t = c.core_s.next_send_ms(now_s * 1000) / 1000
+        if math.isfinite(t) and t < c.pace_at_s:
+            c.pace_at_s = t
+            self._at(t, _TIMER, self._pace, c, t)
+
+    def _pace(self, c: _Client, armed_s: float) -> None:
+        assert c.core_s is not None
+        if armed_s != c.pace_at_s:           # a later arming replaced this one
+            return
+        c.pace_at_s = math.inf
+        t_s = max(self.now, c.sent_s.get("down", -math.inf))
+        c.sent_s["down"] = t_s
+        self._onto_link(c, c.core_s.paced(t_s * 1000), t_s)
+        self._arm_pacer(c, t_s)
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
