@@ -75,8 +75,11 @@ def _still(renderer, scene: str, method: str, params: dict | None = None) -> flo
 # 12 Mpix default atlas BoxTextured 40.71 / 40.72, minimal 41.69 / 42.07, default 34.54 / 32.16; with
 # untextured patches held to 2 texels per pixel per side (``fill_max_density_plain``) minimal's cube leaves room to the
 # floor: 41.85; with long block sides inset by half a texel (wire v4, ``inset_min_texels``): BoxTextured 40.83,
-# minimal 43.15, default 34.55.
-STILL = [(BOX_TEXTURED, 40.6), ("minimal", 42.8), ("default+nogi", 34.3)]
+# minimal 43.15, default 34.55.  Load-time splitting then took the bound into each object's own units (issue 33:
+# BoxTextured is placed at 4x, and its box split to 384 triangles instead of 6144): BoxTextured 47.29.  Video's
+# default became 4:4:4 in issue 33 (BoxTextured 44.17, minimal 43.60, default 34.23; in 4:2:0 40.72 / 42.07 /
+# 32.16); the bar holds against it.
+STILL = [(BOX_TEXTURED, 47.0), ("minimal", 42.8), ("default+nogi", 34.3)]
 
 
 @pytest.mark.parametrize("scene,least_db", STILL, ids=["BoxTextured", "minimal", "default"])

@@ -131,7 +131,9 @@ def build_mesh_patches(mesh: Mesh) -> MeshPatches:
                     third[n] = s
                     partner[s] = -2  # consumed
                     break
-    slots, tris, size = [], [], []
+    slots: list[list[int]] = []
+    tris: list[list[int]] = []
+    size: list[int] = []
     tri_patch = np.full(t, -1, np.int32)
     idx_l = idx.tolist()
     for i in range(t):
@@ -314,20 +316,24 @@ def _refine(idx: np.ndarray, mid: np.ndarray, long: np.ndarray) -> np.ndarray:
 
 
 def split_scene_meshes(scene: Scene, max_edge_m: float, max_triangles: int) -> tuple[list[Mesh], float]:
-    """Every object's mesh split to edges of at most ``max_edge_m`` metres (object space, :func:`split_mesh`).
+    """Every object's mesh split to edges of at most ``max_edge_m`` metres in the world (:func:`split_mesh`).
 
-    Should that exceed ``max_triangles`` in all, the edge bound grows by sqrt(2) until
-    it fits (never below the original meshes).  Returns the meshes and the bound used.
+    The bound is taken into each object's own space through its placement's largest stretch
+    (a model loaded at 1/40 scale splits to edges 40x longer in its own units; animations are
+    taken as rigid).  Should that exceed ``max_triangles`` in all, the edge bound grows by
+    sqrt(2) until it fits (never below the original meshes).  Returns the meshes and the
+    (world) bound used.
     """
     if not np.isfinite(max_edge_m) or max_edge_m <= 0:
         return [o.mesh for o in scene.objects], math.inf
     limit = max(max_triangles, scene.triangle_count)
+    stretch = [float(np.linalg.norm(np.asarray(o.transform, np.float64)[:3, :3], 2)) or 1.0 for o in scene.objects]
     edge = max_edge_m
     while True:
         meshes: list[Mesh] = []
         total = 0
-        for o in scene.objects:
-            meshes.append(split_mesh(o.mesh, edge, max_triangles=limit - total))
+        for o, k in zip(scene.objects, stretch):
+            meshes.append(split_mesh(o.mesh, edge / k, max_triangles=limit - total))
             total += meshes[-1].triangle_count
             if total > limit:
                 break
