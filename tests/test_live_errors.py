@@ -51,7 +51,7 @@ def closed_port() -> int:
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["serve", "--param", "atw.nosuch=1"],
-     "--param atw.*: AtwConfig: unknown parameter 'nosuch' (valid: bitrate_kbps, codec, crf, fill, gop, lossless, overscan, "
+     "--param atw.*: AtwConfig: unknown parameter 'nosuch' (valid: bitrate_kbps, chroma, codec, crf, fill, gop, lossless, overscan, "
      "preset)"),
     (["serve", "--param", "atw.overscan=abc"], "--param atw.*: AtwConfig.overscan: expected a number, got str 'abc'"),
     (["serve", "--param", "video.gop=0"], "--param video.*: VideoConfig.gop: must be >= 1, got 0"),

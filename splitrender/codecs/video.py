@@ -27,7 +27,14 @@ Input planes are numpy arrays, row 0 at the top:
   flat colour comes back within one code value per channel (exhaustively checked:
   full range loses at most 1; the old swscale path turned the sky (140, 178, 230)
   into (138, 178, 228), limited range loses up to 2).  Into ``gbrp`` (lossless RGB
-  4:4:4) the planes are only reordered;
+  4:4:4) the planes are only reordered.  ``yuv444p`` (``MethodConfig.chroma = "444"``)
+  keeps every pixel's chroma: the stream is H.264 High 4:4:4 Predictive (profile_idc
+  244) or HEVC Main 4:4:4 (profile_idc 4, Range Extensions); the conversion alone gives
+  back every pixel within one code value, where 4:2:0 gives each 2x2 block one chroma
+  pair (the edge pixels of a silhouette take a mix of its colour and the background's);
+- ``yuv444p``: (3, H, W) uint8 Y, Cb, Cr planes as :func:`rgb_to_yuv` makes them (BT.709,
+  full range), sent as they are (pixel format ``yuv444p`` only): what a test needs to check
+  the codec's lossless mode plane for plane;
 - ``gray``: (H, W) uint8;
 - ``gray16le`` / ``gray10le`` / ``gray12le``: (H, W) uint16 (lossless depth, probes);
 - ``gbrp10le`` / ``gbrp16le``: (H, W, 3) uint16 high-bit-depth colour.
@@ -178,6 +185,8 @@ class VideoEncoder:
         self._since_idr = 0
         self._parameter_sets: tuple[bytes, ...] | None = None
         self._yuv_sub = _YUV_FORMATS.get(cfg.pix_fmt) if cfg.input_format == "rgb24" else None
+        if cfg.input_format == "yuv444p" and cfg.pix_fmt != "yuv444p":
+            raise ConfigError(f"video input_format yuv444p: pixel format must be yuv444p, got {cfg.pix_fmt}")
         self.level_idc = hevc_level_idc(width, height, cfg.fps) if cfg.codec == "hevc" else None
         """HEVC: the general_level_idc written into VPS and SPS that name no real level (x265's lossless 255)."""
         self._level_fixed: dict[bytes, bytes] = {}
@@ -197,10 +206,10 @@ class VideoEncoder:
         ctx.max_b_frames = 0
         if global_header:
             ctx.flags |= av.codec.context.Flags.global_header
-        if cfg.input_format in ("rgb24", "gbrp10le", "gbrp16le"):  # colour: say what the samples mean
+        if cfg.input_format in ("rgb24", "yuv444p", "gbrp10le", "gbrp16le"):  # colour: say what the samples mean
             ctx.color_primaries = COLOR_PRIMARIES_BT709
             ctx.color_trc = COLOR_TRC_SRGB
-            ctx.colorspace = COLOR_MATRIX_BT709 if self._yuv_sub else 0   # 0: RGB (gbrp)
+            ctx.colorspace = COLOR_MATRIX_BT709 if self._yuv_sub or cfg.input_format == "yuv444p" else 0   # 0: RGB (gbrp)
             ctx.color_range = COLOR_RANGE_FULL
         opts: dict[str, str] = {"preset": cfg.preset, "tune": "zerolatency"}
         if cfg.codec == "h264":
@@ -280,6 +289,16 @@ class VideoEncoder:
 
         fmt = self.cfg.input_format
         expect = (self.height, self.width)
+        if fmt == "yuv444p":
+            if plane.shape != (3, *expect):
+                raise CodecError(f"encoder {self.width}x{self.height} yuv444p: got planes of shape {plane.shape}, "
+                                 f"expected {(3, *expect)}")
+            frame = av.VideoFrame(self.width, self.height, "yuv444p")
+            for p, data in zip(frame.planes, np.ascontiguousarray(plane, dtype=np.uint8)):
+                p.update(_pad_rows(data, p.line_size).tobytes())
+            frame.colorspace = COLOR_MATRIX_BT709
+            frame.color_range = COLOR_RANGE_FULL
+            return frame
         if plane.shape[:2] != expect:
             raise CodecError(f"encoder {self.width}x{self.height}: got a plane of shape {plane.shape}")
         if fmt in ("rgb24", "gray"):
@@ -328,7 +347,9 @@ class VideoEncoder:
 
 
 class VideoDecoder:
-    """Decodes Annex-B access units back into numpy planes of ``output_format``."""
+    """Decodes Annex-B access units back into numpy planes of ``output_format``: ``rgb24`` (H, W, 3) from any
+    4:2:0 or 4:4:4 YUV stream (inverted with the matrix and range it signals), ``yuv444p`` the coded planes
+    (3, H, W) as they are, other formats as PyAV converts them."""
 
     def __init__(self, codec: CodecName, output_format: str = "rgb24") -> None:
         import av

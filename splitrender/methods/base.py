@@ -102,6 +102,10 @@ AnyStreamSpec = Union[StreamSpec, DataStreamSpec]
 RESERVED_STREAMS = ("meta", "session", "pose", "control")
 """Names the pipeline uses for its own byte counts."""
 
+CHROMA_PIX_FMT: dict[str, str] = {"420": "yuv420p", "444": "yuv444p"}
+"""``MethodConfig.chroma`` -> the encoder's pixel format for lossy colour (converted from rgb24 by
+:func:`splitrender.codecs.video.rgb_to_yuv`: BT.709, full range)."""
+
 
 @dataclass
 class ClientFeedback:
@@ -214,6 +218,34 @@ class MethodConfig:
     its streams as the method sees fit; otherwise streams use ``crf``.  ``lossless``
     sends the colour streams as lossless HEVC in 8-bit planar RGB 4:4:4 (``gbrp``),
     whatever ``codec`` says: bit-exact colour, no bitrate control.
+
+    ``chroma``: how the lossy colour streams sample chroma, ``"420"`` (``yuv420p``: one
+    Cb/Cr pair per 2x2 pixels; H.264 Constrained Baseline at the ``ultrafast`` preset,
+    HEVC Main) or ``"444"`` (``yuv444p``: chroma at every pixel; H.264 High 4:4:4
+    Predictive, profile_idc 244, HEVC Main 4:4:4, a Range Extensions profile, id 4).
+    ``lossless`` ignores it (``gbrp`` is 4:4:4 already).  TOML and ``--param chroma=444``
+    give the number; it is kept as the string.
+
+    The default is per method, from ``benchmarks/bench_chroma.py`` (320x180, 1 s, H.264
+    crf 23; duck, 2CylinderEngine and ``default+nogi``; ``static`` and ``walk``; ``ideal``
+    and ``cloud``: 12 cells a method; ``results/bench_chroma.json``).  4:2:0 puts colour
+    edges into 2x2 blocks: at a model's outline against the sky an edge pixel shows its
+    own luma with the block's mixed chroma, which the 2-px ring about the outline pays
+    for (the conversion alone takes a still view of the duck to 33.3 dB, 4:4:4's to 53.0).
+    Where the picture shown is the one sent (``video``, ``atw``, ``warp``, ``quads``),
+    4:4:4 costs 16 % more colour bits at the same crf and, given only the bits of 4:2:0
+    (its crf raised until they match within 3 %, 23 -> 23.8-27.7), still gains at the
+    median of the cells +1.4 to +2.1 dB on the model, +1.1 to +1.6 dB on the whole frame
+    and +1.7 to +3.2 dB on the ring (+14 dB on the still duck; the worst cells, walks
+    through the default scene where motion error dominates, -0.1 dB): those methods
+    default to ``"444"``.  Where the colour is an atlas the client resamples onto geometry
+    it draws itself (``sas``, ``tss``), no silhouette is coded in the video: 4:4:4 costs
+    6 % more bits and gains 0.1 dB at the same crf, at equal bits -0.02 (``sas``) and
+    +0.04 dB (``tss``) on the model, under the 0.25 dB that pays for a profile fewer
+    decoders take; they stay ``"420"``, as does this base (``probes`` sends no lossy
+    colour).  HEVC (``video``, same grid) agrees:
+    +1.75 dB model at equal bits.  A client that decodes in hardware may need ``"420"``:
+    many hardware decoders take neither H.264 High 4:4:4 nor HEVC Range Extensions.
     """
 
     codec: str = "h264"
@@ -222,6 +254,7 @@ class MethodConfig:
     gop: int = 30
     preset: str = "ultrafast"
     lossless: bool = False
+    chroma: str | int = "420"
 
     def __post_init__(self) -> None:
         if self.codec not in ("h264", "hevc"):
@@ -232,6 +265,10 @@ class MethodConfig:
             raise ConfigError(f"{type(self).__name__}.bitrate_kbps: must be > 0, got {self.bitrate_kbps}")
         if self.crf is not None and not 0 <= self.crf <= 51:
             raise ConfigError(f"{type(self).__name__}.crf: must be in [0, 51], got {self.crf}")
+        chroma = str(self.chroma) if isinstance(self.chroma, int) and not isinstance(self.chroma, bool) else self.chroma
+        if chroma not in CHROMA_PIX_FMT:
+            raise ConfigError(f"{type(self).__name__}.chroma: {self.chroma!r} is not one of {list(CHROMA_PIX_FMT)}")
+        object.__setattr__(self, "chroma", chroma)  # 444 from TOML or --param is kept as "444"
 
     def for_codecs(self, codecs: tuple[str, ...]) -> MethodConfig:
         """This config adapted to a client that decodes only ``codecs`` (its ``Hello.codecs``, in preference order):
@@ -247,6 +284,7 @@ class MethodConfig:
         if self.lossless:
             return VideoCodecConfig(codec="hevc", pix_fmt="gbrp", lossless=True, crf=None, gop=self.gop, preset=self.preset, fps=fps, **kw)
         br = None if self.bitrate_kbps is None else self.bitrate_kbps * share
+        kw.setdefault("pix_fmt", CHROMA_PIX_FMT[str(self.chroma)])
         return VideoCodecConfig(codec=self.codec, bitrate_kbps=br, crf=self.crf, gop=self.gop, preset=self.preset, fps=fps, **kw)  # type: ignore[arg-type]
 
 

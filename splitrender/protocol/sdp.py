@@ -6,7 +6,12 @@ The media line is ``RTP/AVPF`` (RFC 4585): the receiver sends generic NACKs and 
 line names the stream exactly: H.264 (RFC 6184) ``profile-level-id`` from the SPS and
 ``sprop-parameter-sets``; HEVC (RFC 7798) ``profile-id``, ``tier-flag``, ``level-id``
 (and ``profile-space`` when not 0) from the SPS, and ``sprop-vps/sps/pps``.  The stream
-repeats them in-band before every IDR as well.
+repeats them in-band before every IDR as well.  4:4:4 colour (``chroma="444"``, or lossless)
+is H.264 High 4:4:4 Predictive (``profile-level-id=f400..``) or an HEVC Range Extensions
+profile (``profile-id=4``), whose fmtp also carries ``interop-constraints``, the SPS's 48
+general constraint bits, since the Range Extensions profiles share profile-id 4 and only
+those bits tell them apart (RFC 7798 7.1; absent, a receiver must infer them all zero
+past the first four, which names none of those profiles).
 
 ``level-id`` names a real level (H.265 Table A.8, 30 x the level): our encoder writes
 one into every SPS, lossless included (see :mod:`splitrender.codecs.video`).  An SPS from
@@ -36,6 +41,9 @@ RTPMAP_NAMES: dict[str, str] = {"h264": "H264", "hevc": "H265"}
 CLOCK_RATE_HZ = RTP_CLOCK_HZ
 H264_SPS, H264_PPS = 7, 8
 HEVC_VPS, HEVC_SPS, HEVC_PPS = 32, 33, 34
+HEVC_REXT_PROFILE = 4
+"""general_profile_idc of the Format Range Extensions profiles (H.265 A.3.5: Main 4:4:4, Monochrome, Main 4:4:4 10,
+...), which share it and differ in the general constraint flags, so their SDP carries ``interop-constraints``."""
 
 
 def _b64(nal: bytes) -> str:
@@ -92,6 +100,8 @@ def make_sdp(
                 if info.profile_space:
                     fmtp.append(f"profile-space={info.profile_space}")
                 fmtp += [f"profile-id={info.profile_idc}", f"tier-flag={info.tier_flag}", f"level-id={_level_id(info)}"]
+                if info.profile_idc >= HEVC_REXT_PROFILE:  # profile-id 4 is 19 profiles: the constraint bits say which
+                    fmtp.append(f"interop-constraints={info.interop_constraints}")
         for name, t in (("vps", HEVC_VPS), ("sps", HEVC_SPS), ("pps", HEVC_PPS)):
             sets = [n for n in parameter_sets if nal_type("hevc", n) == t]
             if sets:

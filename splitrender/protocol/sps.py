@@ -137,6 +137,13 @@ class HevcSps:
     """vui_time_scale / vui_num_units_in_tick, when the SPS's VUI carries timing information
     (x265 writes it); None when it does not, or the SPS ends (or is malformed) before it."""
 
+    @property
+    def interop_constraints(self) -> str:
+        """RFC 7798 ``interop-constraints``: the 48 constraint bits as twelve hex digits.  For the Range Extensions
+        profiles (profile_idc 4: Main 4:4:4, Monochrome, ...) these bits tell the profiles apart, e.g. ``9e0800000000``
+        (max 12, 10 and 8 bits, no 4:2:2 or 4:2:0 limit, lower bit rate) for Main 4:4:4."""
+        return f"{self.constraint_flags:012x}"
+
 
 _H264_HIGH_PROFILES = {100, 110, 122, 244, 44, 83, 86, 118, 128, 138, 139, 134, 135}
 

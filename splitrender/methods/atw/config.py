@@ -17,8 +17,11 @@ SHADERS = Path(__file__).parent.parent / "shaders"
 
 @dataclass(frozen=True)
 class AtwConfig(MethodConfig):
-    """``overscan``: image-plane scale of the server frame (1.3 = 30% wider and taller)."""
+    """``overscan``: image-plane scale of the server frame (1.3 = 30% wider and taller).  ``chroma``: 4:4:4 by
+    default (at the bits of 4:2:0: model +1.4 dB, whole frame +1.1 dB, median of 12 cells,
+    ``benchmarks/bench_chroma.py``)."""
 
+    chroma: str | int = "444"
     overscan: float = 1.3
     fill: Literal["edge", "black"] = "edge"
 

@@ -67,9 +67,12 @@ class QuadsConfig(MethodConfig):
       side; a quad's texels follow from its x and y) or ``packed`` (QuadStream's binning:
       each quad's own texels packed square by square, its atlas position sent with it,
       :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
-      ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0).
+      ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0);
+    - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
+      frame +1.6 dB, median of 12 cells, ``benchmarks/bench_chroma.py``).
     """
 
+    chroma: str | int = "444"
     variant: Variant = "quasar"
     view_cell_m: float = 0.5
     layers: int = 2

@@ -58,9 +58,13 @@ class WarpConfig(MethodConfig):
     - ``splat_slack_px``: point size is ``ceil(S - slack)``; 0 is the paper's strict
       ``ceil`` (every magnification above 1 doubles the splat and thickens edges by half a
       pixel); the default lets near-1 magnifications keep 1-pixel splats and leaves the
-      rare crack to hole filling.
+      rare crack to hole filling;
+    - ``chroma``: the colour views in 4:4:4 by default (at the bits of 4:2:0: model +1.9 dB,
+      whole frame +1.5 dB, median of 12 cells, ``benchmarks/bench_chroma.py``); the depth
+      stream is 4:0:0 whatever it says.
     """
 
+    chroma: str | int = "444"
     views: int = 1
     second_view: SecondView = "stereo"
     view_merge: ViewMerge = "holes"
