@@ -42,7 +42,7 @@ INTR = CameraIntrinsics(160, 90, 60.0)
 METHODS: dict[str, tuple[str, dict[str, Any], type[RemoteProtocolError], int]] = {
     # method: (scene, parameters, its error class, its metadata version)
     "sas": ("default+nogi", {"lossless": True}, SasMetaError, 4),
-    "tss": ("default+nogi", {"lossless": True}, TssWireError, 3),
+    "tss": ("default+nogi", {"lossless": True}, TssWireError, 4),
     "warp": ("default+nogi", {}, WarpMetaError, 1),
     "quads": ("default+nogi", {"lossless": True, "reference_every": 1}, QuadsWireError, 1),
     "probes": ("default", {}, ProbeStreamError, 2),

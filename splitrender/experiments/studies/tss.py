@@ -17,7 +17,16 @@ Evidence, following the paper's section 5:
    samples as the sampling rate varies, ``sas`` beside them;
 6. PSNR against shaded samples at 320x180 and 640x360 for ``sas``, the default and the
    paper-like threshold 4 (the paper's claim, TSS better with fewer samples, holds from
-   480x270 up at the default).
+   480x270 up at the default);
+7. rate-distortion at equal bits (issue 33): PSNR against kbit/s (every stream: atlas,
+   tables, geometry, metadata) over each method's atlas budget, ``tss``'s sampling rate
+   (``samples_per_px``) and ``sas``'s atlas size (``atlas_mpix_1080p``; it fills its
+   atlas), still and walk traces under ``ideal`` and ``cloud``, at 320x180 and 640x360,
+   lossy 4:2:0 atlases at the default ``crf``; ``tss``'s PSNR interpolated (linear in
+   log kbit/s) at each ``sas`` point's bits;
+8. stage by stage at one or two budgets per method (640x360; 320x180 when quick): samples
+   and the lossless PSNR (sampling and reconstruction), the dB the lossy atlas loses
+   (codec), atlas bits per sample in I- and P-frames (packing), the side streams' kbit/s.
 
 ``quick=True`` keeps to 320x180 and short runs; the full study runs longer.
 """
@@ -44,12 +53,12 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
 
 
 def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network: str, dur: float,
-         size: tuple[int, int]) -> dict[str, Any]:
+         size: tuple[int, int], truth_cache: str = "") -> dict[str, Any]:
     from ...sim.config import RunConfig
     from ...sim.runner import run
 
     res = run(RunConfig(method=method, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
-                        client_fps=30, flip_every=0, seed=0, method_params=params), renderer=renderer)
+                        client_fps=30, flip_every=0, seed=0, method_params=params, truth_cache=truth_cache), renderer=renderer)
     s = res.summary
     ssim = float(s["mean_ssim"])
     ups = res.updates
@@ -63,7 +72,134 @@ def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network
             "server_ms": _upd_mean(ups, "server_ms"), "shade_ms": _upd_mean(ups, "srv_shade_ms"),
             "client_ms": float(s["mean_client_ms"]), "gt_ms": float(s["mean_gt_ms"]),
             "os_samples": _upd_mean(ups, "srv_os_samples"), "os_inside": _upd_mean(ups, "srv_os_inside"),
-            "lp_samples": _upd_mean(ups, "srv_lp_samples"), "rate": _upd_mean(ups, "srv_rate")}
+            "lp_samples": _upd_mean(ups, "srv_lp_samples"), "rate": _upd_mean(ups, "srv_rate"),
+            "atlas_i_bytes": _atlas_bytes(ups, True), "atlas_p_bytes": _atlas_bytes(ups, False),
+            "side_kbps": float(s["mean_kbps"]) - float(s.get("kbps_atlas", float("nan")))}
+
+
+def _atlas_bytes(ups: list[dict[str, Any]], keyframe: bool) -> float:
+    """Mean bytes of the atlas stream per I-frame (``keyframe``) or per P-frame; NaN when there is none."""
+    v = [float(u["bytes_atlas"]) for u in ups if "bytes_atlas" in u and bool(u.get("keyframe")) == keyframe]
+    return float(np.mean(v)) if v else float("nan")
+
+
+RD_BUDGETS: dict[str, tuple[str, tuple[float, ...]]] = {
+    "tss": ("samples_per_px", (0.5, 1.0, 2.0, 3.0)),
+    "sas": ("atlas_mpix_1080p", (3.0, 6.0, 12.0, 24.0)),
+}
+"""Each method's atlas budget for the rate-distortion curves: the parameter and its values (the first three in a
+quick run).  ``sas`` fills its atlas (``fill_atlas``), so its atlas size sets its sampling rate; ``tss`` stops at 3
+samples per pixel, as at 4 its default atlas overflows on the walk at 320x180 and repacks (an I-frame) nearly every
+frame (29 Mbit/s before issue 33's layout, 27 after)."""
+
+RD_CURVES: tuple[tuple[str, str, dict[str, Any], tuple[str, ...]], ...] = (
+    ("tss", "tss", {}, ("static", "walk")),
+    ("tss, hysteresis 0.75", "tss", {"hysteresis": 0.75}, ("walk",)),
+    ("sas", "sas", {}, ("static", "walk")),
+)
+"""The rate-distortion curves: label, method, fixed parameters and the traces each is run on, its atlas budget swept
+(:data:`RD_BUDGETS`).  Under motion most of tss's bits go to cells that move when a triangle's level changes, so a
+wider hysteresis is a second budget beside the sampling rate (it changes nothing for a still camera)."""
+
+
+def rd_runs(renderer: Any, sizes: tuple[tuple[int, int], ...], traces: tuple[str, ...], nets: tuple[str, ...], dur: float,
+            points: int = 4, truth_cache: str = "") -> list[dict[str, Any]]:
+    """One run per size, trace, network, curve (:data:`RD_CURVES`) and atlas budget (:data:`RD_BUDGETS`, the first
+    ``points`` values)."""
+    rows = []
+    for sz in sizes:
+        for trace in traces:
+            for net in nets:
+                for label, m, fixed, on in RD_CURVES:
+                    if trace not in on:
+                        continue
+                    key, vals = RD_BUDGETS[m]
+                    for v in vals[:points]:
+                        r = _run(renderer, m, {**fixed, key: v}, trace, net, dur, sz, truth_cache)
+                        rows.append({**r, "curve": label, "width": sz[0], "height": sz[1], "budget_param": key, "budget": v})
+                        log.info("tss study rd %dx%d %s %s %s %s=%g: %.2f dB, %.0f kbit/s", sz[0], sz[1], trace, net, label, key, v,
+                                 r["psnr_db"], r["kbps"])
+    return rows
+
+
+def equal_bits(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per size, trace, network and tss curve, at each ``sas`` point's kbit/s inside the curve's range: the curve's PSNR
+    there (linear in log kbit/s between its two nearest points) and its difference to ``sas``'s (dB, + = tss ahead)."""
+    out = []
+    for key in sorted({(r["width"], r["height"], r["trace"], r["network"]) for r in rows}):
+        pick = lambda c: sorted((r["kbps"], r["psnr_db"]) for r in rows  # noqa: E731
+                                if (r["width"], r["height"], r["trace"], r["network"]) == key and r["curve"] == c)
+        sas = pick("sas")
+        for curve in sorted({r["curve"] for r in rows if r["method"] == "tss"}):
+            tss = pick(curve)
+            if len(tss) < 2:
+                continue
+            lk = np.log([k for k, _ in tss])
+            for kbps, db in sas:
+                if not lk[0] <= np.log(kbps) <= lk[-1]:
+                    continue
+                at = float(np.interp(np.log(kbps), lk, [d for _, d in tss]))
+                out.append({"width": key[0], "height": key[1], "trace": key[2], "network": key[3], "curve": curve, "kbps": kbps,
+                            "sas_psnr_db": db, "tss_psnr_db": at, "tss_minus_sas_db": at - db})
+    return out
+
+
+def stage_runs(renderer: Any, size: tuple[int, int], traces: tuple[str, ...], dur: float, points: dict[str, tuple[float, ...]],
+               truth_cache: str = "") -> list[dict[str, Any]]:
+    """Where the bits go, stage by stage: per trace and atlas budget (``points``: method -> values of its
+    :data:`RD_BUDGETS` parameter, ``ideal``), the lossy run and the lossless one.  Sampling and reconstruction: the
+    lossless PSNR against the samples shaded; packing: atlas bytes per sample in I- and P-frames; codec: the dB the
+    lossy atlas loses; side streams: the kbit/s besides the atlas (tables, geometry, metadata)."""
+    rows = []
+    for trace in traces:
+        for m, vals in points.items():
+            key = RD_BUDGETS[m][0]
+            for v in vals:
+                lossy = _run(renderer, m, {key: v}, trace, "ideal", dur, size, truth_cache)
+                exact = _run(renderer, m, {key: v, "lossless": True}, trace, "ideal", dur, size, truth_cache)
+                n = lossy["samples"]
+                rows.append({"method": m, "trace": trace, "width": size[0], "height": size[1], "budget_param": key, "budget": v,
+                             "samples": n, "psnr_db": lossy["psnr_db"], "lossless_psnr_db": exact["psnr_db"],
+                             "codec_loss_db": exact["psnr_db"] - lossy["psnr_db"], "kbps": lossy["kbps"],
+                             "side_kbps": lossy["side_kbps"], "i_bits_per_sample": 8 * lossy["atlas_i_bytes"] / n,
+                             "p_bits_per_sample": 8 * lossy["atlas_p_bytes"] / n})
+    return rows
+
+
+def rd_chart(rows: list[dict[str, Any]], path: Path) -> Path:
+    """PSNR against kbit/s, one panel per size (rows) and trace and network (columns), a curve per method."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter
+
+    from ..charts import style
+    from ._util import save_figure
+
+    sizes = sorted({(r["width"], r["height"]) for r in rows})
+    cols = sorted({(r["trace"], r["network"]) for r in rows})
+    curves = [c for c, *_ in RD_CURVES if any(r["curve"] == c for r in rows)]
+    fig, axes = plt.subplots(len(sizes), len(cols), figsize=(3.4 * len(cols) + 0.6, 3.0 * len(sizes)), squeeze=False)
+    for i, sz in enumerate(sizes):
+        for j, (trace, net) in enumerate(cols):
+            ax = axes[i][j]
+            for c in curves:
+                pts = sorted((r["kbps"] / 1e3, r["psnr_db"]) for r in rows
+                             if (r["width"], r["height"], r["trace"], r["network"], r["curve"]) == (*sz, trace, net, c))
+                if pts:
+                    ax.plot(*zip(*pts), **style(c, curves))
+            ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
+            ax.tick_params(axis="x", which="both", labelsize=7)
+            ax.set_title(f"{sz[0]}x{sz[1]}, {trace}, {net}", fontsize=9)
+            ax.grid(alpha=0.3, which="both")
+            if i == len(sizes) - 1:
+                ax.set_xlabel("Mbit/s (all streams)")
+            if j == 0:
+                ax.set_ylabel("PSNR (dB)")
+    shown = {lab: h for ax in axes.ravel() for h, lab in zip(*ax.get_legend_handles_labels())}
+    axes[0][0].legend(list(shown.values()), list(shown), fontsize=7)
+    fig.suptitle("tss and sas at equal bits: each method's atlas budget swept (tss samples per pixel, sas atlas size)")
+    return save_figure(fig, path)
 
 
 def run(out_dir: Path, quick: bool) -> Section:
@@ -124,6 +260,16 @@ def run(out_dir: Path, quick: bool) -> Section:
                  _run(renderer, m, {"lossless": True, **p}, "static", "ideal", 0.3, sz))
             by_size.append({k: r[k] for k in ("method", "psnr_db", "ssim", "samples", "server_ms")} |
                            {"variant": label, "width": sz[0], "height": sz[1]})
+    # rate-distortion at equal bits: each method's atlas budget swept, lossy atlases, every stream's bits
+    from ...sim.truth import shared_cache_setting
+
+    rd_dur = 0.5 if quick else 1.0
+    rd = rd_runs(renderer, ((320, 180),) if quick else ((320, 180), (640, 360)), ("static", "walk"), ("ideal", "cloud"),
+                 rd_dur, 3 if quick else 4, shared_cache_setting(out))
+    eq = equal_bits(rd)
+    stage_size = (320, 180) if quick else (640, 360)
+    stages = stage_runs(renderer, stage_size, ("static", "walk"), 0.5 if quick else 1.0,
+                        {"tss": (1.0,), "sas": (6.0,)} if quick else {"tss": (1.0, 2.0), "sas": (6.0, 12.0)}, shared_cache_setting(out))
     px = size[0] * size[1]
     fw_ns = float(np.mean([r["gt_ms"] for r in still])) * 1e6 / px
     for r in still:
@@ -134,7 +280,8 @@ def run(out_dir: Path, quick: bool) -> Section:
         r["ratio_to_forward"] = r["ns_per_sample"] / fw_ns
     tables = [_write_csv(out / "tss_quality_latency.csv", lat), _write_csv(out / "tss_still.csv", still),
               _write_csv(out / "tss_layouts.csv", layouts), _write_csv(out / "tss_grids.csv", grids),
-              _write_csv(out / "tss_by_size.csv", by_size)]
+              _write_csv(out / "tss_by_size.csv", by_size), _write_csv(out / "tss_rd.csv", rd),
+              _write_csv(out / "tss_rd_equal_bits.csv", eq), _write_csv(out / "tss_stages.csv", stages)]
 
     figs = []
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
@@ -230,6 +377,13 @@ def run(out_dir: Path, quick: bool) -> Section:
     fig.savefig(figs[-1], dpi=110)
     plt.close(fig)
 
+    figs.append(rd_chart(rd, out / "tss_rd.png"))
+
+    def gap(key: tuple[Any, ...], curve: str) -> str:
+        d = [e["tss_minus_sas_db"] for e in eq if (e["width"], e["height"], e["trace"], e["network"], e["curve"]) == (*key, curve)]
+        return (f"{curve} {np.mean(d):+.2f} dB ({min(d):+.2f} to {max(d):+.2f}, {len(d)} points)" if d else
+                f"{curve}: no sas point inside its range")
+
     def get(m: str, n: str, k: str) -> float:
         return float(next(r[k] for r in lat if r["method"] == m and r["network"] == n))
 
@@ -278,5 +432,17 @@ def run(out_dir: Path, quick: bool) -> Section:
         ".  The paper's claim, TSS better than SAS with fewer samples, at the default from 480x270 up; at 320x180 most "
         "triangles are a few pixels across and sas's shared blocks are ahead.",
         f"- **Client ms per frame** (walk, {far}): tss {get('tss', far, 'client_ms'):.1f} ms, sas {get('sas', far, 'client_ms'):.1f} ms.",
+        f"- **At equal bits** ({rd_dur:g} s runs, lossy atlases, every stream's bits; tss's samples per pixel "
+        f"{', '.join(f'{v:g}' for v in RD_BUDGETS['tss'][1][:3 if quick else 4])} against sas's atlas of "
+        f"{', '.join(f'{v:g}' for v in RD_BUDGETS['sas'][1][:3 if quick else 4])} Mpix at 1080p; tss's PSNR at sas's bits, "
+        "minus sas's): " + "; ".join(f"{k[0]}x{k[1]} {k[2]} {k[3]}: " + ", ".join(
+            gap(k, c) for c in sorted({r["curve"] for r in rd if r["method"] == "tss" and r["trace"] == k[2]}))
+            for k in sorted({(r['width'], r['height'], r['trace'], r['network']) for r in rd})) + ".",
+        f"- **Stage by stage** ({stage_size[0]}x{stage_size[1]}, ideal; samples, lossless PSNR (sampling and reconstruction), "
+        "dB lost to the codec, atlas bits per sample in I- / P-frames (packing), side kbit/s): " + "; ".join(
+            f"{r['trace']} {r['method']} {r['budget_param']}={r['budget']:g}: {r['samples'] / 1e3:.0f}k, {r['lossless_psnr_db']:.2f} dB, "
+            f"-{r['codec_loss_db']:.2f} dB, {r['i_bits_per_sample']:.2f} / {r['p_bits_per_sample']:.2f} bit, {r['side_kbps']:.0f}"
+            for r in stages) + ".  Short runs favour tss: its geometry and first I-frame weigh most there, and "
+        "sas's 5-frame GOP pays an I-frame more often as a run lengthens.",
     ]
     return Section("Tessellated shading streaming (tss)", "\n".join(text), figs, tables)

@@ -68,7 +68,7 @@ class TssClient(ClientHalf):
         xf = parse_transforms(update.meta, s.n_objects)
         geo = update.data.get("geo")
         if geo is not None:
-            g = decode_geometry(geo, s.n_triangles, s.n_objects)
+            g = decode_geometry(geo, s.n_triangles, s.tri_base, s.box)
             self.has[g.ids] = True
             self.obj[g.ids] = g.obj
             self.pos[g.ids] = g.pos
@@ -79,6 +79,9 @@ class TssClient(ClientHalf):
             raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
         if tris is not None:
             rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip, s.os_grid)
+            if gone is not None and rows.single_px != self.st.single_px:
+                raise TssWireError(f"tss tris: a delta table changes the single-texel cell side from {self.st.single_px} "
+                                   f"to {rows.single_px}")
             if gone is not None and gone.size and not self.live[gone].all():
                 raise TssWireError(f"tss tris: {int((~self.live[gone]).sum())} triangles leave that were not live")
             if rows.ids.size and not self.has[rows.ids].all():
@@ -91,11 +94,13 @@ class TssClient(ClientHalf):
             st, i = self.st, rows.ids
             st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i] = rows.kind, rows.level, rows.origin, rows.w, rows.w2
             st.h[i], st.a[i], st.persp[i], st.base[i] = rows.h, rows.a, rows.persp, rows.base
+            st.single_px = rows.single_px
         if atlas is None or tris is None:
             return
         st = self.st
         i = np.flatnonzero(self.live)
-        table = Table(i, st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i], st.h[i], st.a[i], st.persp[i], st.base[i])
+        table = Table(i, st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i], st.h[i], st.a[i], st.persp[i], st.base[i],
+                      st.single_px)
         self.xf.update(slice(None), xf, update.t_s)
         self._tex = upload_image(self.gl, atlas, self._tex)
         self.table = table
@@ -138,6 +143,7 @@ class TssClient(ClientHalf):
             self.prog["u_atlas"].value = 0
             self.prog["u_atlas_size"].value = tuple(float(x) for x in self.session.atlas)
             set_uniform(self.prog, "u_os_centred", int(self.session.os_grid == "centred"))
+            set_uniform(self.prog, "u_single_px", self.table.single_px if self.table is not None else 1)
             self._vao.render(vertices=3 * self._n)
         color, covered = self.canvas.read()
         return ClientFrame(color, ~covered, {"cli_triangles": float(self._n)})

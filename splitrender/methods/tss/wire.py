@@ -4,34 +4,45 @@ Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels, `
 (width of the atlas's shelf strips, texels, :func:`~.layout.strip_width`),
 ``os_grid`` (``centred`` or ``paper``: where oversampled triangles' samples sit,
 :func:`~.layout.os_row_lengths`), ``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
-scene's triangles in object order), ``sky`` RGB.
+scene's triangles in object order), ``sky`` RGB, ``tri_base`` int (n_objects,): each
+object's first triangle id (non-decreasing from 0; triangle ``t`` belongs to the last
+object whose base is <= ``t``), ``obj_box`` float32 (n_objects, 2, 3): per object the
+lo, hi corners of its box in object space, metres, in which positions are quantised.
 
 Per frame, two ``reliable`` data streams (zstd-compressed by the pipeline) and the
 atlas video stream.  All integers little-endian.
 
 ``geo`` -- geometry of the triangles entering the client's cache (sent once per
-triangle and session): ``u8 version, u32 n``, then ``n`` delta-coded ``u32`` ids
-(the first id, then differences >= 1), ``n`` ``u16`` object indices, and ``n x 9``
-``f32`` object-space vertex positions (metres).
+triangle and session): ``u8 version, u32 n, u32 nv, u8 wide``, then ``n`` delta-coded
+``u32`` ids (the first id, then differences >= 1), ``nv x 3`` ``u16`` positions of the
+distinct vertices these triangles use, in order of first use, quantised to 16 bits in
+their object's box (:func:`quantize_positions`) and delta-coded per component modulo
+2^16, then ``3 n`` vertex codes (``u16``, ``u32`` when ``wide``), corner after corner:
+``0`` introduces the next vertex, ``k >= 1`` reuses the ``k``-th most recently
+introduced one.  The server draws the mesh snapped to the same grid, so the client
+rasterises exactly the triangles the PVS pass saw.
 
-``tris`` -- the live triangles and where their samples are: ``u8 version, u8 full``;
-a delta (``full = 0``, between I-frames) then lists the triangles that left, ``u32 n``
+``tris`` -- the live triangles and where their samples are: ``u8 version, u8 full,
+u8 single_px`` (the side of a single texel's cell in this table, 1, 2 or 4; a delta
+keeps the state's); a delta (``full = 0``, between I-frames) then lists the triangles that left, ``u32 n``
 and ``n`` delta-coded ``u32`` ids, and carries only the triangles that are new or whose
 descriptor changed (the layout is stable, so most do not); a full table (I-frames,
 keyframe requests) carries every live triangle.  Then ``u32 n_single, u32 n_lp, u32
 n_os, u16 n_bins``; ``n_bins`` bins (every bin, in both kinds) ``u8 level, u16 n`` and
 ``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
-session's ``strip``; level 0 = the single-texel shelves, one row each; cell level
+session's ``strip``; level 0 = the single-texel shelves, 16 rows each, tiles of 16 x 16
+texels whose ``single_px``-square cells follow a Z-order curve, :func:`~.layout.single_origins`; cell level
 ``L``: shelves of ``2 D(L)`` rows, each ``S // (3 D(L))`` pair cells of two slots,
 holding the L-packed triangles whose level rounds up to ``L``,
 :func:`~.layout.lp_cell_level`); then the
 delta-coded ``u32`` ids of each kind (single, L-packing, oversampling; each sorted),
 then
 
-- one ``u32`` per single texel: its slot (texel ``slot % S`` of shelf ``slot // S``);
-- one ``u32`` per L-packing triangle (4 B, paper section 4): bits 0-5 level - 1,
-  bit 6 no perspective correction, bits 7-31 the slot in its cell level's bin
-  (:func:`~.layout.lp_tip_origins`);
+- the single texels' slots, as ``u32`` zigzag-coded differences (:func:`zigzag_deltas`:
+  slots given in id order are mostly consecutive);
+- one ``u8`` per L-packing triangle: bits 0-5 level - 1, bit 6 no perspective
+  correction, bit 7 0; then their slots in their cell levels' bins as ``u32`` zigzag
+  differences (:func:`~.layout.lp_tip_origins`);
 - 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
   ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
   and common height (samples; the rectangle has ``h`` rows on the centred grid,
@@ -39,7 +50,11 @@ then
   65535), ``u8 flags`` (bit 1 no perspective correction, others 0), ``u8 base`` (the
   vertex starting the base; the client rotates its vertices so it comes first).
 
-Version 3 added ``os_grid``; version 2 added delta tables; version 1 sent the full
+Version 4 (issue 33, lossy atlases of fine meshes): single texels in Z-ordered tiles
+of cells ``single_px`` square, compact geometry (quantised shared vertices instead of
+``f32`` corners and ``u16`` objects: less than half the bytes), slots as differences
+(a full table of single texels shrank fourfold after zstd), ``tri_base`` and ``obj_box``
+in the session data.  Version 3 added ``os_grid``; version 2 added delta tables; version 1 sent the full
 table every frame (20 KB of a 30 KB frame on the walk at 160x90).
 
 Per-frame metadata: ``v``, ``xf`` float32 (n_objects, 4, 4) object-to-world matrices
@@ -62,11 +77,11 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from ...protocol.schema import Float, Int, Map, Schema, Seq, Str, Transforms, Version
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, AtlasPlan, lp_cell_level, lp_per_shelf, lp_tip_origins,
-                     os_rows, os_sizes, tip_dim)
+from ...protocol.schema import Array, Float, Int, Map, Schema, Seq, Str, Transforms, Version
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, SINGLE_PX, SINGLE_TILE, AtlasPlan, lp_cell_level, lp_per_shelf,
+                     lp_tip_origins, os_rows, os_sizes, single_origins, single_per_shelf, tip_dim)
 
-WIRE_VERSION = 3
+WIRE_VERSION = 4
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
                      ("flags", "u1"), ("base", "u1")])
 """The 16-byte oversampling descriptor."""
@@ -82,6 +97,18 @@ class TssWireError(RemoteProtocolError):
 def encode_ids(ids: np.ndarray) -> bytes:
     """Sorted distinct ids as ``u32`` deltas (the first id, then differences >= 1)."""
     return np.diff(np.asarray(ids, np.int64), prepend=0).astype("<u4").tobytes()
+
+
+def zigzag_deltas(v: np.ndarray) -> bytes:
+    """Integers ``v`` (each within +-2^30 of the one before, the first of 0) as ``u32`` zigzag-coded differences."""
+    d: np.ndarray = np.diff(np.asarray(v, np.int64), prepend=0)
+    return ((d << 1) ^ (d >> 63)).astype("<u4").tobytes()
+
+
+def unzigzag_deltas(z: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`zigzag_deltas` (int64; the sums of hostile input stay far inside int64)."""
+    z = z.astype(np.int64)
+    return np.cumsum((z >> 1) ^ -(z & 1))
 
 
 def decode_ids(d: np.ndarray, what: str, n_max: int) -> np.ndarray:
@@ -119,10 +146,40 @@ class _Reader:
 
 
 # ---------------------------------------------------------------------------- geometry
-def encode_geometry(ids: np.ndarray, obj: np.ndarray, pos: np.ndarray) -> bytes:
-    """The ``geo`` payload: triangles ``ids`` (sorted), their objects and (n, 3, 3) object-space positions."""
-    return (struct.pack("<BI", WIRE_VERSION, ids.size) + encode_ids(ids) + obj.astype("<u2").tobytes()
-            + np.ascontiguousarray(pos, "<f4").tobytes())
+GEO_HEAD = struct.Struct("<BIIB")
+"""``geo`` header: version, triangles, new vertices, vertex-code width (0: u16, 1: u32)."""
+
+
+def quantize_positions(pos: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """``pos`` (..., 3) object-space metres as uint16 in ``box`` (..., 2, 3) (lo, hi corners), rounded."""
+    ext = np.maximum(box[..., 1, :] - box[..., 0, :], 1e-9)
+    return np.rint((pos - box[..., 0, :]) / ext * 65535.0).clip(0, 65535).astype(np.uint16)
+
+
+def dequantize_positions(q: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quantize_positions`: float32 metres."""
+    ext = np.maximum(box[..., 1, :] - box[..., 0, :], 1e-9)
+    return (box[..., 0, :] + q.astype(np.float32) / 65535.0 * ext).astype(np.float32)
+
+
+def encode_geometry(ids: np.ndarray, tri_vertex: np.ndarray, vertex_q: np.ndarray) -> bytes:
+    """The ``geo`` payload for triangles ``ids`` (sorted, distinct): ``tri_vertex`` (T, 3) scene-wide vertex ids of
+    every triangle, ``vertex_q`` (V, 3) uint16 every scene vertex quantised in its object's box."""
+    ids = np.asarray(ids, np.int64)
+    flat = tri_vertex[ids].reshape(-1).astype(np.int64)
+    uniq, first, inv = np.unique(flat, return_index=True, return_inverse=True)
+    by_first = np.argsort(first, kind="stable")
+    rank = np.empty_like(by_first)
+    rank[by_first] = np.arange(by_first.size)
+    idx = rank[inv.reshape(-1)]
+    is_new = np.zeros(flat.size, np.int64)
+    is_new[first] = 1
+    code = np.cumsum(is_new) - is_new - idx                 # 0: the next new vertex; k: the k-th most recent one
+    q = vertex_q[uniq[by_first]].astype(np.int64)
+    dq = (np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536).astype("<u2")
+    wide = int(code.size > 0 and code.max() > 65535)
+    return (GEO_HEAD.pack(WIRE_VERSION, ids.size, q.shape[0], wide) + encode_ids(ids) + dq.tobytes()
+            + code.astype("<u4" if wide else "<u2").tobytes())
 
 
 @dataclass
@@ -132,35 +189,51 @@ class Geometry:
     pos: np.ndarray
 
 
-def decode_geometry(buf: bytes, n_triangles: int, n_objects: int) -> Geometry:
+def object_of(ids: np.ndarray, tri_base: np.ndarray) -> np.ndarray:
+    """The object of each triangle id: the last whose first triangle ``tri_base`` is <= the id."""
+    return np.searchsorted(tri_base, ids, side="right") - 1
+
+
+def decode_geometry(buf: bytes, n_triangles: int, tri_base: np.ndarray, box: np.ndarray) -> Geometry:
+    """Validate and decode a ``geo`` payload: triangle ids, objects (from ``tri_base``) and (n, 3, 3) float32
+    object-space corners (dequantised in their object's ``box``)."""
     r = _Reader(buf, "geo")
-    v, n = struct.unpack("<BI", r.take(5, "header"))
+    v, n, nv, wide = GEO_HEAD.unpack(r.take(GEO_HEAD.size, "header"))
     if v != WIRE_VERSION:
         raise TssWireError(f"tss geo: version {v}, this client speaks {WIRE_VERSION}")
     if n > n_triangles:
         raise TssWireError(f"tss geo: {n} triangles, the scene has {n_triangles}")
+    if nv > 3 * n or wide > 1:
+        raise TssWireError(f"tss geo: {nv} new vertices for {n} triangles, code width {wide}")
     ids = decode_ids(r.array("<u4", n, "ids"), "geo ids", n_triangles)
-    obj = r.array("<u2", n, "objects").astype(np.int64)
-    if obj.size and obj.max() >= n_objects:
-        raise TssWireError(f"tss geo: object index {int(obj.max())} >= {n_objects} objects")
-    pos = r.array("<f4", 9 * n, "positions").reshape(n, 3, 3)
-    if not np.isfinite(pos).all():
-        raise TssWireError("tss geo: non-finite vertex positions")
+    dq = r.array("<u2", 3 * nv, "vertices").astype(np.int64).reshape(nv, 3)
+    code = r.array("<u4" if wide else "<u2", 3 * n, "vertex codes").astype(np.int64)
     r.done()
+    is_new = (code == 0).astype(np.int64)
+    new_before = np.cumsum(is_new) - is_new
+    if code.size and (code > new_before).any():
+        k = int(np.argmax(code > new_before))
+        raise TssWireError(f"tss geo: vertex code {int(code[k])} at corner {k} refers to a vertex not yet introduced")
+    if int(is_new.sum()) != nv:
+        raise TssWireError(f"tss geo: the codes introduce {int(is_new.sum())} vertices, the header says {nv}")
+    q = (np.cumsum(dq, axis=0) % 65536).astype(np.uint16)
+    obj = object_of(ids, tri_base)
+    corner_q = q[new_before - code] if code.size else np.zeros((0, 3), np.uint16)
+    pos = dequantize_positions(corner_q.reshape(n, 3, 3), box[obj][:, None])
     return Geometry(ids, obj, pos)
 
 
 # ---------------------------------------------------------------------------- triangle table
 def descriptors(plan: AtlasPlan, persp: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """(N, 17) uint8: each triangle's kind byte and its wire descriptor, zero-padded: bytes 1-4 the ``u32`` slot
-    (single texel) or L-packing word, bytes 1-16 the oversampling record.  What a delta table compares and
-    :func:`encode_table` sends."""
+    """(N, 17) uint8: each triangle's kind byte and its wire descriptor, zero-padded: byte 1 the L-packing level
+    byte and bytes 2-5 the ``u32`` slot (single texels, L-packing), bytes 1-16 the oversampling record.  What a
+    delta table compares and :func:`encode_table` sends."""
     out = np.zeros((plan.kind.size, 17), np.uint8)
     out[:, 0] = plan.kind
     one = plan.kind != KIND_OS
-    d = np.where(plan.kind == KIND_SINGLE, plan.slot,
-                 (plan.level - 1) | np.where(persp, 0, LP_PERSP_OFF) | (plan.slot << 7)).astype("<u4")
-    out[one, 1:5] = np.ascontiguousarray(d[one]).view(np.uint8).reshape(-1, 4)
+    lp = plan.kind == KIND_LP
+    out[lp, 1] = (plan.level[lp] - 1) | np.where(persp[lp], 0, LP_PERSP_OFF)
+    out[one, 2:6] = np.ascontiguousarray(plan.slot[one].astype("<u4")).view(np.uint8).reshape(-1, 4)
     os_ = np.flatnonzero(~one)
     rec = np.zeros(os_.size, OS_DTYPE)
     rec["x"], rec["y"], rec["pw"] = plan.origin[os_, 0, 0], plan.origin[os_, 0, 1], plan.origin[os_, 1, 0]
@@ -178,10 +251,10 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.nd
     :func:`descriptors` ``desc``.  A full table without ``gone``; else a delta: the ids that left (``gone``,
     sorted) and only the rows ``changed`` (a mask over ``ids``: new triangles and those whose descriptor changed)."""
     if gone is None:
-        head = struct.pack("<BB", WIRE_VERSION, 1)
+        head = struct.pack("<BBB", WIRE_VERSION, 1, plan.single_px)
         rows = np.arange(ids.size)
     else:
-        head = struct.pack("<BBI", WIRE_VERSION, 0, gone.size) + encode_ids(gone)
+        head = struct.pack("<BBBI", WIRE_VERSION, 0, plan.single_px, gone.size) + encode_ids(gone)
         rows = np.flatnonzero(changed) if changed is not None else np.arange(ids.size)   # no mask: every row
     kind = plan.kind[rows]
     sel = [rows[kind == k] for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
@@ -190,8 +263,9 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.nd
         out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
     for s in sel:
         out.append(encode_ids(ids[s]))
-    # the descriptors' bytes as they go on the wire: u32 slots, u32 L-packing words, 16-byte records
-    out += [desc[sel[0], 1:5].tobytes(), desc[sel[1], 1:5].tobytes(), desc[sel[2], 1:17].tobytes()]
+    # from the descriptors: slot deltas of single texels, L-packing level bytes and slot deltas, 16-byte records
+    slots = [np.ascontiguousarray(desc[s, 2:6]).view("<u4").reshape(-1).astype(np.int64) for s in sel[:2]]
+    out += [zigzag_deltas(slots[0]), desc[sel[1], 1].tobytes(), zigzag_deltas(slots[1]), desc[sel[2], 1:17].tobytes()]
     return b"".join(out)
 
 
@@ -212,31 +286,35 @@ class Table:
     a: np.ndarray
     persp: np.ndarray
     base: np.ndarray
+    single_px: int = 1
 
 
 def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int,
                  grid: str = "centred") -> tuple[Table, np.ndarray | None]:
-    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width).
+    """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width, the
+    oversampling ``grid``).
 
     Returns the table's rows (all live triangles for a full table, the changed ones for a delta) and, for a
     delta, the ids that left (``None`` for a full table).
     """
     r = _Reader(buf, "tris")
-    v, full = struct.unpack("<BB", r.take(2, "header"))
+    v, full, single_px = struct.unpack("<BBB", r.take(3, "header"))
     if v != WIRE_VERSION:
         raise TssWireError(f"tss tris: version {v}, this client speaks {WIRE_VERSION}")
     if full not in (0, 1):
         raise TssWireError(f"tss tris: full flag {full} is not 0 or 1")
+    if single_px not in SINGLE_PX:
+        raise TssWireError(f"tss tris: single-texel cell side {single_px} is not one of {list(SINGLE_PX)}")
     gone = None
     if not full:
         (ng,) = struct.unpack("<I", r.take(4, "gone count"))
         if ng > n_triangles:
             raise TssWireError(f"tss tris: {ng} triangles gone, the scene has {n_triangles}")
         gone = decode_ids(r.array("<u4", ng, "gone ids"), "tris gone ids", n_triangles)
-    return _decode_body(r, n_triangles, atlas, strip, grid), gone
+    return _decode_body(r, n_triangles, atlas, strip, grid, single_px), gone
 
 
-def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int, grid: str) -> Table:
+def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int, grid: str, single_px: int) -> Table:
     W, H = atlas
     S = strip
     n0, n1, n2, nb = struct.unpack("<IIIH", r.take(14, "counts"))
@@ -248,14 +326,15 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         if lv > MAX_LEVEL or lv in bins:
             raise TssWireError(f"tss tris: bin level {lv} repeated or above {MAX_LEVEL}")
         shelves = r.array("<u2", 2 * ns, "bin shelves").astype(np.int64).reshape(-1, 2)
-        tall = 1 if lv == 0 else 2 * int(tip_dim(lv))
+        tall = SINGLE_TILE if lv == 0 else 2 * int(tip_dim(lv))
         if shelves.size and ((shelves[:, 1] + tall > H).any() or (shelves[:, 0] + S > W).any()):
             raise TssWireError(f"tss tris: a level-{lv} shelf reaches outside the {W}x{H} atlas")
         bins[lv] = shelves
     ids = [decode_ids(r.array("<u4", n, f"{k} ids"), f"tris {k} ids", n_triangles) for n, k in
            ((n0, "single"), (n1, "lp"), (n2, "os"))]
-    s0 = r.array("<u4", n0, "single slots").astype(np.int64)
-    d1 = r.array("<u4", n1, "lp descriptors").astype(np.int64)
+    s0 = unzigzag_deltas(r.array("<u4", n0, "single slots"))
+    b1 = r.array("u1", n1, "lp levels").astype(np.int64)
+    slot = unzigzag_deltas(r.array("<u4", n1, "lp slots"))
     rec = r.array(OS_DTYPE, n2, "os descriptors")
     r.done()
     allids = np.concatenate(ids)
@@ -275,15 +354,17 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         if 0 not in bins:
             raise TssWireError("tss tris: single texels without a level-0 bin")
         sh = bins[0]
-        if (s0 >= len(sh) * S).any():
-            raise TssWireError(f"tss tris: single-texel slot beyond its {len(sh)} shelves")
-        origin[:n0, 0, 0] = sh[s0 // S, 0] + s0 % S
-        origin[:n0, 0, 1] = sh[s0 // S, 1]
+        cap = len(sh) * single_per_shelf(S, single_px)
+        if (s0 < 0).any() or (s0 >= cap).any():
+            v = int(s0[(s0 < 0) | (s0 >= cap)][0])
+            raise TssWireError(f"tss tris: single-texel slot {v} outside its {len(sh)} shelves ({cap} slots)")
+        origin[:n0, 0] = single_origins(s0, sh, S, single_px)
         level[:n0] = 1
     if n1:
-        lv = (d1 & 63) + 1
-        slot = d1 >> 7
-        persp[n0:n0 + n1] = (d1 & LP_PERSP_OFF) == 0
+        if (b1 & ~np.int64(63 | LP_PERSP_OFF)).any():
+            raise TssWireError("tss tris: L-packing level byte with its reserved bit set")
+        lv = (b1 & 63) + 1
+        persp[n0:n0 + n1] = (b1 & LP_PERSP_OFF) == 0
         level[n0:n0 + n1] = lv
         cell = lp_cell_level(lv)
         for L in np.unique(cell).tolist():
@@ -291,8 +372,10 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
                 raise TssWireError(f"tss tris: L-packed triangles of cell level {L} without a level-{L} bin")
             sh = bins[L]
             k = np.flatnonzero(cell == L)
-            if slot[k].max() >= lp_per_shelf(L, S) * len(sh):
-                raise TssWireError(f"tss tris: level-{L} slot {int(slot[k].max())} beyond its bin of {len(sh)} shelves")
+            cap = lp_per_shelf(L, S) * len(sh)
+            if slot[k].min() < 0 or slot[k].max() >= cap:
+                v = int(slot[k][(slot[k] < 0) | (slot[k] >= cap)][0])
+                raise TssWireError(f"tss tris: level-{L} slot {v} outside its bin of {len(sh)} shelves ({cap} slots)")
             origin[n0 + k] = lp_tip_origins(L, slot[k], sh, S)
     if n2:
         sl = slice(n0 + n1, n)
@@ -312,7 +395,7 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         a[sl] = rec["a"] / 65535.0
         persp[sl] = (rec["flags"] & OS_PERSP_OFF) == 0
         base[sl] = rec["base"]
-    return Table(allids, kind, level, origin, w, w2, h, a, persp, base)
+    return Table(allids, kind, level, origin, w, w2, h, a, persp, base, single_px)
 
 
 @dataclass(frozen=True)
@@ -323,6 +406,8 @@ class Session:
     n_objects: int
     n_triangles: int
     sky: tuple[float, float, float]
+    tri_base: np.ndarray
+    box: np.ndarray
 
 
 SESSION = Schema("tss session data", TssWireError, Map({
@@ -330,9 +415,12 @@ SESSION = Schema("tss session data", TssWireError, Map({
     "atlas": Seq(Int(2, 16384), 2),
     "strip": Int(1, 16384),
     "os_grid": Str(tuple(OS_GRIDS)),
-    "n_objects": Int(0, 65535),
-    "n_triangles": Int(0, (1 << 25) - 1),
+    "n_objects": Int(0, 65535, bind="n_objects"),
+    "n_triangles": Int(0, (1 << 25) - 1, bind="n_triangles"),
     "sky": Seq(Float(-1e6, 1e6), 3),
+    "tri_base": Array("iu", ("n_objects",), cast=np.int64, lo=0, hi="n_triangles"),
+    # finite as float32 and within +-1e6 m, so dequantised positions stay finite
+    "obj_box": Array("f", ("n_objects", 2, 3), cast=np.float32, finite=True, lo=-1e6, hi=1e6),
 }))
 """The session data's fields; :func:`parse_session` adds the rules between them."""
 
@@ -352,8 +440,14 @@ def parse_session(data: Any) -> Session:
         raise SESSION.error_at("atlas", f"{W}x{H} must be even")
     if not min(W, 128) <= strip <= W:
         raise SESSION.error_at("strip", f"{strip} must be in [min(128, W), W] for an atlas {W} wide")
+    base = d["tri_base"]
+    if base.size and (int(base[0]) != 0 or (np.diff(base) < 0).any()):
+        raise SESSION.error_at("tri_base", "must be non-decreasing from 0")
+    if d["n_triangles"] and not d["n_objects"]:
+        raise SESSION.error_at("n_triangles", f"{d['n_triangles']} triangles without objects")
     sky = d["sky"]
-    return Session((W, H), strip, d["os_grid"], d["n_objects"], d["n_triangles"], (sky[0], sky[1], sky[2]))
+    return Session((W, H), strip, d["os_grid"], d["n_objects"], d["n_triangles"], (sky[0], sky[1], sky[2]),
+                   base, d["obj_box"])
 
 
 def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:

@@ -8,6 +8,7 @@ flat in vec4 v_o0;
 flat in vec4 v_o1;
 uniform sampler2D u_atlas;
 uniform vec2 u_atlas_size;
+uniform int u_single_px;    // side of a single texel's cell (layout.single_origins)
 uniform int u_os_centred;   // oversampling grid: 1 cell centres, taps clamped to each row (layout.os_centred_taps)
 layout(location = 0) out vec4 f_color;
 
@@ -23,8 +24,8 @@ void main() {
     }
     int kind = int(v_info.x + 0.5);
     vec2 p;
-    if (kind == 0) {
-        p = v_o0.xy + 0.5;
+    if (kind == 0) {                 // the cell's centre: a u_single_px square cell is averaged
+        p = v_o0.xy + 0.5 * float(u_single_px);
     } else if (kind == 1) {
         float l = v_info.y;
         int t = B.x >= B.y && B.x >= B.z ? 0 : (B.y >= B.z ? 1 : 2);

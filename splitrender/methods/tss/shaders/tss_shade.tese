@@ -15,6 +15,7 @@ patch in vec4 p_o1;
 layout(rgba8, binding = 0) uniform writeonly image2D u_atlas;
 layout(std430, binding = 1) buffer Counters { uint n_shaded; };
 uniform vec3 u_eye;
+uniform int u_single_px;   // single texels fill a cell this many texels square (layout.single_origins)
 #include "tss_gather.glsl"
 // The sample an invocation shades (oversampling: from its linear thread id), and whether it shades one.
 bool os_sample(vec3 B, int l, out vec3 Bs, out ivec2 at) {
@@ -55,7 +56,12 @@ void main() {
     }
     if (!valid) return;
     vec3 c = shade_at(Bs);
-    if (kind != 1) {
+    if (kind == 0) {                       // the texel's cell, u_single_px square
+        for (int k = 0; k < u_single_px * u_single_px; ++k)
+            imageStore(u_atlas, at + ivec2(k % u_single_px, k / u_single_px), vec4(c, 1.0));
+        return;
+    }
+    if (kind == 2) {
         imageStore(u_atlas, at, vec4(c, 1.0));
         return;
     }
@@ -72,6 +78,9 @@ void main() {
             if (!ok || col > D - 1 || B[m] > B[t] + EPS) continue;
             if (side == 0) store(tip_origin(t), col, r, c);
             else store(tip_origin(t), r, col, c);
+            // odd levels leave each block's far corner empty and no tap reads it: a copy of its neighbour there
+            // spares the codec a black texel (and its chroma) inside the block
+            if (side == 0 && (l & 1) == 1 && col == D - 1 && r == D - 2) store(tip_origin(t), D - 1, D - 1, c);
         }
     }
 }
