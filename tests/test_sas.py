@@ -537,3 +537,78 @@ def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud(shared_run, trace: s
         # 29.26 vs 27.25 dB, 0.26% vs 0.66%)
         assert psnr["sas"] > psnr["sas_no_pvs_prediction"] + 3.5, f"mean PSNR with and without PVS prediction + margin: {psnr}"
         assert holes["sas_no_pvs_prediction"] > 5 * holes["sas"], f"mean hole % with and without PVS prediction + margin: {holes}"
+
+
+# ---------------------------------------------------------------- many clients on one server
+def test_shared_frame_places_patches_as_each_session_did() -> None:
+    """The producer's frame (:class:`SasFrame`) gives the slots of any patches in world space bit for bit as
+    :func:`patch_world_slots` does from the frame's transforms (the still objects' placed once, the animated ones'
+    once per frame), and the matrices' uniform bytes as the shading stage made them; on the default scene, whose
+    torus, ball and bobber move."""
+    from splitrender.methods.sas import SasConfig, SasProducer
+    from splitrender.methods.sas.levels import patch_world_slots
+
+    scene = default_scene(gi=False)
+    prod = SasProducer(SasConfig(), scene, 30)
+    ps = prod.patch_set(INTR)
+    assert prod.patch_set(INTR) is ps and prod.patches_for(INTR) is ps.patches, "one patch set per display size"
+    assert 0 < ps.animated.size < ps.patches.count
+    rng = np.random.default_rng(3)
+    for f, t in enumerate((0.0, 0.37, 2.9)):
+        frame = prod.prepare(f, t)
+        assert prod.prepare(f, t) is frame, "prepared once per frame"
+        models = np.stack([o.model_matrix(t) for o in scene.objects])
+        assert np.array_equal(frame.models, models)
+        for n in (1, 50, 5000, ps.patches.count):
+            ids = np.sort(rng.choice(ps.patches.count, n, replace=False))
+            assert np.array_equal(frame.world_slots(ps, ids), patch_world_slots(ps.patches, ids, models)), (t, n)
+        for k in range(len(scene.objects)):
+            m = models[k]
+            assert frame.model_uniform(k) == np.asarray(m, "f4").T.tobytes()
+            assert frame.normal_uniform(k) == np.asarray(np.linalg.inv(m[:3, :3]).T, "f4").T.tobytes()
+
+
+def test_a_session_sends_the_same_updates_alone_and_with_three_others(renderer) -> None:  # type: ignore[no-untyped-def]
+    """Client 0's updates (atlas bytes and metadata, frame by frame) are the same whether it has the server to
+    itself or shares it, its patches, patch-id pass, shading program and per-frame scene state, with three
+    sessions elsewhere on the walk and the orbit (``ideal``, so nothing random tells the runs apart); the shared
+    state is built once."""
+    import hashlib
+
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.methods.sas.server import SasServer
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import VirtualTimeRun
+
+    digests: dict[int, dict[tuple[int, int], str]] = {}
+    produce = SasServer.produce
+
+    def recording(self, ctx):  # type: ignore[no-untyped-def]
+        u = produce(self, ctx)
+        digests[n][(ctx.client, ctx.frame_id)] = hashlib.sha1(u.planes["atlas"].tobytes() + pack_meta(u.meta)).hexdigest()
+        return u
+
+    base = RunConfig(method="sas", scene="default+nogi", trace="walk", client_traces=("walk", "orbit"), network="ideal",
+                     width=160, height=90, duration_s=0.3, client_fps=30, flip_every=0, metrics=False, client_offset_s=0.5)
+    runs = {}
+    SasServer.produce = recording  # type: ignore[method-assign]
+    try:
+        for n in (1, 4):
+            digests[n] = {}
+            vt = VirtualTimeRun(base.replace(clients=n), renderer)
+            runs[n] = (vt, vt.run())
+    finally:
+        SasServer.produce = produce  # type: ignore[method-assign]
+    alone = digests[1]
+    shared = {k: v for k, v in digests[4].items() if k[0] == 0}
+    assert len(alone) == 10 and alone == shared, [k for k in alone if alone[k] != shared.get(k)]
+    assert len(set(digests[4].values())) == 40, "the other sessions' updates differ from client 0's and each other's"
+    # the atlas stream's wire bytes too (the metadata's vary from run to run: FrameMeta carries the stage timings)
+    rows = {n: [(u["frame_id"], u["bytes_atlas"], u["keyframe"], u["srv_pvs_patches"], u["srv_samples"])
+                for u in res.updates if u["client"] == 0] for n, (_, res) in runs.items()}
+    assert rows[1] == rows[4]
+    vt = runs[4][0]
+    halves = [c.half for c in vt.clients]
+    assert all(h.patch_set is halves[0].patch_set and h._ids is halves[0]._ids and h._prog is halves[0]._prog
+               for h in halves), "one patch set, patch-id pass and shading program for every session"
+    assert vt.pool.frames_prepared["sas"] == 10

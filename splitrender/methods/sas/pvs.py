@@ -107,24 +107,44 @@ def world_spheres(models: np.ndarray, centers: np.ndarray, radii: np.ndarray) ->
 
 
 def in_frustum(planes: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """Which world-space spheres (centres (N, 3), radii (N,)) intersect the frustum ``planes``."""
-    return ((centers @ planes[:, :3].T + planes[:, 3]) >= -radii[:, None]).all(axis=1)
+    """Which world-space spheres (centres (N, 3), radii (N,)) intersect the frustum ``planes``.
+
+    Element by element, not a matrix product: a sphere's answer does not depend on the
+    spheres tested with it (BLAS rounds a product differently for different row counts),
+    so one test over every object's clusters answers what a test per object does."""
+    d = (centers[:, 0, None] * planes[:, 0] + centers[:, 1, None] * planes[:, 1]
+         + centers[:, 2, None] * planes[:, 2] + planes[:, 3])
+    return (d >= -radii[:, None]).all(axis=1)
+
+
+def placed_spheres(model: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-space centres (N, 3) and radii (N,) of object-space spheres placed by ``model`` (4, 4)."""
+    return centers @ model[:3, :3].T + model[:3, 3], radii * float(np.linalg.norm(model[:3, :3], axis=0).max())
 
 
 def spheres_visible(planes: np.ndarray, model: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Which object-space spheres, placed by ``model`` (4, 4), intersect the frustum ``planes``."""
-    c = centers @ model[:3, :3].T + model[:3, 3]
-    return in_frustum(planes, c, radii * float(np.linalg.norm(model[:3, :3], axis=0).max()))
+    return in_frustum(planes, *placed_spheres(model, centers, radii))
+
+
+def model_bytes(model: np.ndarray) -> bytes:
+    """``model`` (4, 4) as a GLSL ``mat4`` uniform's bytes (float32, column-major)."""
+    return np.asarray(model, "f4").T.tobytes()
 
 
 class PatchIdPass:
     """Renders depth-tested patch-ID buffers of ``scene`` and turns them into EVS areas.
 
     Only objects and clusters of :class:`PatchClusters` that intersect the sample's
-    frustum are drawn.  :meth:`pvs_area` counts pixels per patch on the GPU (a compute
-    pass with atomic counters, then a max over the samples) and reads back one count
-    per patch; :meth:`evs_area` reads the ID buffer back and counts on the CPU (the
-    reference path, also used by :func:`pvs_rates`).
+    frustum are drawn: one frustum test per sample over every cluster of the objects in
+    view, whose world-space spheres (and model-matrix bytes) are placed once for the
+    still objects and at the sample's time for the animated ones.  A pass depends only
+    on the scene and its patches, so one pass (one set of GPU buffers) serves every
+    session of a server (``sas``'s and ``tss``'s scene producers hold it).
+    :meth:`pvs_area` counts pixels per patch on the GPU (a compute pass with atomic
+    counters, then a max over the samples) and reads back one count per patch;
+    :meth:`evs_area` reads the ID buffer back and counts on the CPU (the reference
+    path, also used by :func:`pvs_rates`).
     """
 
     def __init__(self, renderer: Any, scene: Scene, patches: ScenePatches, clusters: PatchClusters | None = None,
@@ -152,6 +172,18 @@ class PatchIdPass:
         models = np.stack([np.asarray(o.model_matrix(0.0), np.float64) for o in scene.objects]) if scene.objects \
             else np.zeros((0, 4, 4))
         self._world_c, self._world_r = world_spheres(models, sph[:, :3], sph[:, 3])
+        # every object's clusters one after another: the still objects' placed in the world once
+        cl = self.clusters
+        n_cl = np.array([c.shape[0] for c in cl.centers], np.int64)
+        self._cl_first = np.concatenate([[0], np.cumsum(n_cl)])          # (n_objects + 1,) first cluster
+        self._cl_obj = np.repeat(np.arange(len(n_cl)), n_cl)            # (C,) object of each cluster
+        self._cl_c = np.zeros((int(self._cl_first[-1]), 3))
+        self._cl_r = np.zeros(int(self._cl_first[-1]))
+        self._model_bytes: list[bytes | None] = [None] * len(n_cl)
+        for k in np.flatnonzero(~self._animated).tolist():
+            a, b = self._cl_first[k], self._cl_first[k + 1]
+            self._cl_c[a:b], self._cl_r[a:b] = placed_spheres(models[k], cl.centers[k], cl.radii[k])
+            self._model_bytes[k] = model_bytes(models[k])
         # scene-wide sorted triangle index + 1 -> patch id + 1 (0 stays background)
         self.lookup = np.concatenate([[0], self.clusters.tri_patch.astype(np.int64) + 1])
         self.drawn_triangles = 0
@@ -206,22 +238,46 @@ class PatchIdPass:
             wc, wr = wc.copy(), wr.copy()
             wc[anim], wr[anim] = world_spheres(np.stack([models[int(k)] for k in anim]), cl.sphere[anim, :3],
                                                cl.sphere[anim, 3])
-        in_view = self._has_tris & in_frustum(planes, wc, wr)
-        for k in np.flatnonzero(in_view).tolist():
-            obj, vao = self.objects[k]
-            n_tri = cl.indices[k].shape[0]
-            model = models[k] if k in models else np.asarray(obj.model_matrix(t_s), np.float64)
-            vis = spheres_visible(planes, model, cl.centers[k], cl.radii[k])
-            if not vis.any():
-                continue
-            self.prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
-            # runs of visible clusters -> triangle ranges
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], vis.astype(np.int8), [0]])))
-            for a, b in zip(edges[0::2].tolist(), edges[1::2].tolist()):
-                t0, t1 = a * CLUSTER_TRIANGLES, min(b * CLUSTER_TRIANGLES, n_tri)
-                self.prog["u_tri_base"].value = int(cl.tri_base[k]) + t0
-                vao.render(first=3 * t0, vertices=3 * (t1 - t0))
-                drawn += t1 - t0
+        objs = np.flatnonzero(self._has_tris & in_frustum(planes, wc, wr))
+        if objs.size == 0:
+            self.drawn_triangles = 0
+            return tex
+        # the clusters of the objects in view, the animated ones placed at t_s, tested at once
+        first, last = self._cl_first[objs], self._cl_first[objs + 1]
+        n = last - first
+        sel = np.repeat(first - np.concatenate([[0], np.cumsum(n)[:-1]]), n) + np.arange(int(n.sum()))
+        cc, cr = self._cl_c[sel], self._cl_r[sel]
+        moving = [k for k in objs.tolist() if k in models]
+        model_b = self._model_bytes
+        if moving:
+            model_b = list(model_b)
+            at = np.concatenate([[0], np.cumsum(n)])
+            pos = {k: i for i, k in enumerate(objs.tolist())}
+            for k in moving:
+                a, b = at[pos[k]], at[pos[k] + 1]
+                cc[a:b], cr[a:b] = placed_spheres(models[k], cl.centers[k], cl.radii[k])
+                model_b[k] = model_bytes(models[k])
+        vis = sel[in_frustum(planes, cc, cr)]          # visible clusters, ascending: objects, then clusters in order
+        if vis.size == 0:
+            self.drawn_triangles = 0
+            return tex
+        # runs of consecutive visible clusters of one object -> triangle ranges, drawn in object order
+        obj = self._cl_obj[vis]
+        brk = np.flatnonzero((np.diff(vis) != 1) | (np.diff(obj) != 0)) + 1
+        starts = vis[np.concatenate([[0], brk])]
+        ends = vis[np.concatenate([brk - 1, [vis.size - 1]])] + 1
+        current = -1
+        for a, b, k in zip(starts.tolist(), ends.tolist(), obj[np.concatenate([[0], brk])].tolist()):
+            if k != current:
+                current = k
+                vao = self.objects[k][1]
+                n_tri = cl.indices[k].shape[0]
+                base = int(self._cl_first[k])
+                self.prog["u_model"].write(model_b[k])
+            t0, t1 = (a - base) * CLUSTER_TRIANGLES, min((b - base) * CLUSTER_TRIANGLES, n_tri)
+            self.prog["u_tri_base"].value = int(cl.tri_base[k]) + t0
+            vao.render(first=3 * t0, vertices=3 * (t1 - t0))
+            drawn += t1 - t0
         self.drawn_triangles = drawn
         return tex
 

@@ -22,6 +22,11 @@ and all geometry (the client may have missed geometry sent "once"); the client
 replaces its state with it.  Atlas resets also carry the full PVS list and block
 table (every block moved) but no geometry the client already has.
 
+Several sessions on one server share :class:`SasProducer`: the scene's patches, the
+patch-id pass, the shading program and each frame's scene state (transforms, patches
+in world space) are made once; a session keeps what depends on its client: its PVS,
+levels, atlas, shading at its client's eye, metadata and encoder.
+
 The wire format is in :mod:`.wire`.
 """
 
@@ -30,6 +35,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,12 +44,12 @@ import numpy as np
 from ...codecs.video import VideoCodecConfig
 from ...render.gl import grow_vertex_buffer, load_program, runs, set_reference_view
 from ...scene.pose import CameraIntrinsics
-from ..base import SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
+from ..base import AnyStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import SasConfig
 from .allocator import PatchAllocator
 from .levels import LevelChoice, footprint, log_size, patch_extent_px, patch_world_slots, select_levels
 from .patches import ScenePatches, build_scene_patches, split_scene_meshes
-from .pvs import PatchIdPass, PoseSample, evs_samples
+from .pvs import PatchIdPass, PoseSample, evs_samples, model_bytes
 from .wire import META_VERSION, SLOT_LAYOUT, TRI_SLOTS, block_inset, block_layout_xy, encode_geometry, encode_ids
 
 log = logging.getLogger(__name__)
@@ -162,26 +168,125 @@ def boundary_axes(layout_uv: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass
+class PatchSet:
+    """The scene-level state of one patch set (one display size), built once and shared by every session.
+
+    ``patches`` (:func:`load_scene_patches`); ``obj_box`` (n_obj, 2, 3) object-space boxes (metres, the
+    geometry's quantisation boxes, :func:`object_boxes`) and ``vertex_q`` (V_scene, 3) every vertex quantised
+    in them (:func:`quantize_vertices`); ``animated`` (A,) the patches of animated objects, ascending, and
+    ``animated_row`` (P,) each patch's row among them (-1: a still object's); ``still_world`` (P, 5, 3) the
+    still objects' slots in world space (metres; placed once, a still object's model matrix never changes;
+    animated rows unused)."""
+
+    patches: ScenePatches
+    obj_box: np.ndarray
+    vertex_q: np.ndarray
+    animated: np.ndarray
+    animated_row: np.ndarray
+    still_world: np.ndarray
+
+    @staticmethod
+    def build(scene: Any, patches: ScenePatches) -> "PatchSet":
+        obj_box = object_boxes(patches.meshes)
+        animated_obj = np.array([o.animation is not None for o in scene.objects], bool)
+        is_anim = animated_obj[patches.object_index] if patches.count else np.zeros(0, bool)
+        animated = np.flatnonzero(is_anim)
+        row = np.full(patches.count, -1, np.int64)
+        row[animated] = np.arange(animated.size)
+        still = np.flatnonzero(~is_anim)
+        world = np.zeros((patches.count, patches.slot_pos.shape[1], 3))
+        if still.size:
+            world[still] = patch_world_slots(patches, still, np.stack([o.model_matrix(0.0) for o in scene.objects]))
+        return PatchSet(patches, obj_box, quantize_vertices(patches.meshes, obj_box), animated, row, world)
+
+
+@dataclass
+class SasFrame:
+    """One server frame's scene state, prepared once for every session (:meth:`SasProducer.prepare`).
+
+    ``models`` (n_obj, 4, 4) object-to-world at ``t_s``; ``animated_world`` per patch set (keyed by
+    ``id``) the animated patches' slots in world space at ``t_s``; the model and normal matrices' uniform
+    bytes per object, made by the first session that draws the object.
+    """
+
+    frame_id: int
+    t_s: float
+    models: np.ndarray
+    animated_world: dict[int, np.ndarray] = field(default_factory=dict)
+    _model_u: dict[int, bytes] = field(default_factory=dict)
+    _normal_u: dict[int, bytes] = field(default_factory=dict)
+
+    def place(self, ps: PatchSet) -> np.ndarray:
+        """The animated patches of ``ps`` in world space at this frame's time ((A, 5, 3) metres), placed once."""
+        got = self.animated_world.get(id(ps))
+        if got is None:
+            got = self.animated_world[id(ps)] = patch_world_slots(ps.patches, ps.animated, self.models)
+        return got
+
+    def world_slots(self, ps: PatchSet, ids: np.ndarray) -> np.ndarray:
+        """(N, 5, 3) world positions of the slots of patches ``ids`` at this frame's time: the same numbers as
+        :func:`~.levels.patch_world_slots` gives (each row is computed on its own either way)."""
+        out = ps.still_world[ids]
+        row = ps.animated_row[ids]
+        moving = row >= 0
+        if moving.any():
+            out[moving] = self.place(ps)[row[moving]]
+        return out
+
+    def model_uniform(self, k: int) -> bytes:
+        """Object ``k``'s model matrix as ``u_model`` bytes."""
+        got = self._model_u.get(k)
+        if got is None:
+            got = self._model_u[k] = model_bytes(self.models[k])
+        return got
+
+    def normal_uniform(self, k: int) -> bytes:
+        """Object ``k``'s normal matrix (inverse transpose of the model's 3x3) as ``u_normal_matrix`` bytes."""
+        got = self._normal_u.get(k)
+        if got is None:
+            got = self._normal_u[k] = np.asarray(np.linalg.inv(self.models[k][:3, :3]).T, "f4").T.tobytes()
+        return got
+
+
 class SasProducer(SceneProducer):
-    """The scene-level half of SAS, shared by every session: the split meshes and their
-    patches (built once per display size, :func:`load_scene_patches`), the patch-id
-    pass's GPU buffers and clusters, and each frame's object transforms."""
+    """The scene-level half of SAS, shared by every session of a server.
+
+    Built once per display size (:class:`PatchSet`): the split meshes and their patches
+    (:func:`load_scene_patches`), the geometry's quantisation boxes and quantised
+    vertices, the still objects' patches in world space, the patch-id pass's GPU buffers
+    and culling clusters (with the still clusters' world-space spheres); once per GL
+    context, the atlas-shading program; once per server frame (:meth:`prepare`,
+    :class:`SasFrame`), the object transforms, the animated objects' patches in world
+    space and the matrices' uniform bytes.  What is left to a session depends on its
+    client's pose or its own atlas: the patch-id passes at the client's poses, level
+    selection, allocation, shading (view-dependent: specular and texture filtering
+    follow the client's eye), metadata and encoding.
+    """
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         self._patches: dict[tuple[int, int, float], ScenePatches] = {}
+        self._sets: dict[tuple[int, int, float], PatchSet] = {}
         self._ids: dict[tuple[int, int, float], PatchIdPass] = {}
+        self._programs: dict[int, tuple[Any, Any]] = {}
         self._textured: np.ndarray | None = None
+        self._frame: SasFrame | None = None
         self.patch_build_ms = 0.0
         self._stats: dict[str, float] = {}
 
     def patches_for(self, intr: CameraIntrinsics) -> ScenePatches:
         """The scene's patches for a display of ``intr`` (the split edge length depends on it); built once per size."""
+        return self.patch_set(intr).patches
+
+    def patch_set(self, intr: CameraIntrinsics) -> PatchSet:
+        """The scene-level state of a display of ``intr`` (:class:`PatchSet`); built once per size."""
         key = (intr.width, intr.height, float(intr.fov_y_deg))
-        got = self._patches.get(key)
+        got = self._sets.get(key)
         if got is None:
             t0 = time.perf_counter()
-            got = self._patches[key] = load_scene_patches(self.scene, self.config, intr)  # type: ignore[arg-type]
+            patches = self._patches[key] = load_scene_patches(self.scene, self.config, intr)  # type: ignore[arg-type]
+            got = self._sets[key] = PatchSet.build(self.scene, patches)
             self.patch_build_ms += (time.perf_counter() - t0) * 1e3
         return got
 
@@ -198,18 +303,40 @@ class SasProducer(SceneProducer):
             self._ids[key] = PatchIdPass(renderer, self.scene, patches)
         return self._ids[key]
 
-    def prepare(self, frame_id: int, t_s: float) -> dict[str, Any]:
-        """Object model matrices at ``t_s`` (the scene's animation), shared by all sessions."""
-        models = np.stack([o.model_matrix(t_s) for o in self.scene.objects])
-        self._stats = {"patch_sets": float(len(self._patches))}
-        return {"t_s": t_s, "models": models}
+    def shade_program(self, ctx: Any) -> Any:
+        """The atlas-shading program on GL context ``ctx``, compiled once.  Every session sets every uniform it
+        reads before each draw (lighting, its view, its atlas size, each object's matrices and material), so
+        the sessions share it."""
+        got = self._programs.get(id(ctx))
+        if got is None or got[0] is not ctx:
+            got = self._programs[id(ctx)] = (ctx, load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag"))
+        return got[1]
+
+    def prepare(self, frame_id: int, t_s: float) -> SasFrame:
+        """Server frame ``frame_id`` at scene time ``t_s``, shared by all sessions (:class:`SasFrame`): the object
+        transforms and every patch set's animated patches in world space."""
+        f = self._frame
+        if f is not None and f.frame_id == frame_id and f.t_s == t_s:
+            return f
+        models = np.stack([o.model_matrix(t_s) for o in self.scene.objects]) if self.scene.objects else np.zeros((0, 4, 4))
+        f = self._frame = SasFrame(frame_id, t_s, models)
+        for ps in self._sets.values():
+            f.place(ps)
+        self._stats = {"patch_sets": float(len(self._sets)),
+                       "animated_patches": float(sum(ps.animated.size for ps in self._sets.values()))}
+        return f
 
     def stats(self) -> dict[str, float]:
         return dict(self._stats)
 
 
 class SasServer(ServerHalf):
-    """Shading atlas streaming, server half (per session); scene patches come from the shared :class:`SasProducer`."""
+    """Shading atlas streaming, server half (per session).
+
+    Scene-level state (patches, quantised geometry, the patch-id pass, the shading program, each frame's
+    :class:`SasFrame`) comes from the shared :class:`SasProducer`; a session holds its allocator, the patches'
+    shading vertices at their blocks, its PVS history, what its client has, its atlas texture and vertex buffer.
+    """
 
     config: SasConfig
 
@@ -217,7 +344,8 @@ class SasServer(ServerHalf):
         super().__init__(*a, **kw)
         if not isinstance(self.producer, SasProducer):  # a half used on its own builds its own scene state
             self.producer = SasProducer(self.config, self.scene, self.server_fps)
-        self.patches: ScenePatches = self.producer.patches_for(self.intrinsics)
+        self.patch_set = self.producer.patch_set(self.intrinsics)
+        self.patches: ScenePatches = self.patch_set.patches
         self.patch_build_ms = self.producer.patch_build_ms
         self.layout = self.config.atlas_layout(self.intrinsics)
         self.allocator = PatchAllocator(self.patches.count, self.layout, self.config.strategy)
@@ -235,8 +363,8 @@ class SasServer(ServerHalf):
         self._stats: dict[str, float] = {}
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
         self.sent_static = np.zeros(self.n_obj, bool)
-        self.obj_box = object_boxes(self.patches.meshes)               # (n_obj, 2, 3) metres, object space
-        self.vertex_q = quantize_vertices(self.patches.meshes, self.obj_box)
+        self.obj_box = self.patch_set.obj_box                          # (n_obj, 2, 3) metres, object space
+        self.vertex_q = self.patch_set.vertex_q
         # how far the fill may raise each patch's level: texture maps carry detail that more texels resolve,
         # a material without one shades smoothly (lighting, shadows), where they mostly cost bits
         textured = self.producer.textured_objects()
@@ -244,7 +372,7 @@ class SasServer(ServerHalf):
             if self.n_obj else np.zeros(0)
 
     # ------------------------------------------------------------------ interface
-    def streams(self) -> list[StreamSpec]:
+    def streams(self) -> list[AnyStreamSpec]:
         c = self.config
         if c.lossless:   # bit-exact atlas: HEVC lossless in planar RGB
             v = VideoCodecConfig(codec="hevc", pix_fmt="gbrp", lossless=True, crf=None, gop=c.gop, preset=c.preset, fps=self.server_fps)
@@ -265,7 +393,7 @@ class SasServer(ServerHalf):
         ctx = renderer.ctx
         assert isinstance(self.producer, SasProducer)
         self._ids = self.producer.id_pass(renderer, self.patches)
-        self._prog = load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag")
+        self._prog = self.producer.shade_program(ctx)
         self._tex = ctx.texture((self.layout.width, self.layout.height), 4, dtype="f1")
         self._fbo = ctx.framebuffer([self._tex])
         self._fbo.use()
@@ -280,31 +408,41 @@ class SasServer(ServerHalf):
         """EVS samples of the PVS (:func:`~.pvs.evs_samples`)."""
         return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps)
 
+    def frame_state(self, ctx: ServerContext) -> SasFrame:
+        """The shared state of ``ctx``'s server frame: the producer's (``ctx.shared``), or prepared here when the
+        half runs without one."""
+        if isinstance(ctx.shared, SasFrame) and ctx.shared.t_s == ctx.t_s:
+            return ctx.shared
+        assert isinstance(self.producer, SasProducer)
+        return self.producer.prepare(ctx.frame_id, ctx.t_s)
+
     def produce(self, ctx: ServerContext) -> Update:
         c = self.config
         if self._gl is None:
             self._setup_gl(ctx.renderer)
         assert self._ids is not None
-        t0 = time.perf_counter()
+        frame = self.frame_state(ctx)
+        t0, u0 = time.perf_counter(), time.process_time()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
         area = self._ids.pvs_area(self.pvs_samples(ctx), big)
         self._last_seen[area > 0] = self._frames
         pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
-        t1 = time.perf_counter()
+        t1, u1 = time.perf_counter(), time.process_time()
         # level selection at the predicted eye
-        shared = ctx.shared if isinstance(ctx.shared, dict) and ctx.shared.get("t_s") == ctx.t_s else None
-        models = shared["models"] if shared is not None else np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
-        world = patch_world_slots(self.patches, pvs, models)
+        models = frame.models
+        world = frame.world_slots(self.patch_set, pvs)
         eye = np.asarray(ctx.target_pose.position, np.float64)
         px_per_rad = self.intrinsics.width / math.radians(self.intrinsics.fov_x_deg)
         ext = patch_extent_px(self.patches, pvs, world, eye, px_per_rad)
         A, asp = log_size(ext, c.texels_per_px)
         al = self.allocator
-        def levels(*current: Any) -> LevelChoice:   # eq. 1-3 for the PVS; with the current blocks (hysteresis) or afresh
-            return select_levels(A, asp, self.layout, c.bias_fill * self.layout.area, *current,
+        def levels(current: bool = False) -> LevelChoice:   # eq. 1-3 for the PVS; with the current blocks (hysteresis) or afresh
+            return select_levels(A, asp, self.layout, c.bias_fill * self.layout.area,
+                                 al.level_w[pvs] if current else None, al.level_h[pvs] if current else None,
+                                 self.transposed[pvs] if current else None, c.hysteresis,
                                  fill=c.fill_atlas, fill_max_density=self.fill_density[pvs])
 
-        choice = levels(al.level_w[pvs], al.level_h[pvs], self.transposed[pvs], c.hysteresis)
+        choice = levels(current=True)
         # I-frame / reset decisions
         # the client reported atlas frames it never got (feedback): resend the whole PVS
         lost = ctx.feedback.newly_lost("atlas")
@@ -323,21 +461,26 @@ class SasServer(ServerHalf):
         # a block's layout orientation only changes when the patch is (re)placed
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
         self._vcache_ok[res.placed] = False
-        t2 = time.perf_counter()
+        t2, u2 = time.perf_counter(), time.process_time()
         live = pvs[al.level_w[pvs] >= 0]
         in_live = np.searchsorted(pvs, live)
         foot = footprint(type(ext)(ext.width[in_live], ext.height[in_live], ext.area[in_live]),
                          al.level_w[live], al.level_h[live], self.transposed[live])
-        self._shade(ctx, live, models, foot, clear=iframe)
+        self._shade(ctx, live, frame, foot, clear=iframe)
         atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(self.layout.height, self.layout.width, 3).copy()
-        t3 = time.perf_counter()
+        t3, u3 = time.perf_counter(), time.process_time()
         meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
         self._since_i = 1 if iframe else self._since_i + 1
         self._frames += 1
         mem = al.memory()
+        t4, u4 = time.perf_counter(), time.process_time()
         self._stats = {
             "pvs_patches": float(pvs.size), "pvs_ms": (t1 - t0) * 1e3, "alloc_ms": (t2 - t1) * 1e3,
-            "shade_ms": (t3 - t2) * 1e3, "atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
+            "shade_ms": (t3 - t2) * 1e3, "meta_ms": (t4 - t3) * 1e3,
+            # process CPU time of the same stages (llvmpipe's rasterising threads included)
+            "pvs_cpu_ms": (u1 - u0) * 1e3, "alloc_cpu_ms": (u2 - u1) * 1e3, "shade_cpu_ms": (u3 - u2) * 1e3,
+            "meta_cpu_ms": (u4 - u3) * 1e3,
+            "atlas_used_pct": 100.0 * mem.allocated / self.layout.area,
             "atlas_load_pct": 100.0 * al.memory_load(), "reset": float(reset), "iframe": float(iframe),
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
@@ -345,8 +488,9 @@ class SasServer(ServerHalf):
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
-    def _shade(self, ctx: ServerContext, live: np.ndarray, models: np.ndarray, foot: np.ndarray, clear: bool) -> None:
-        """Shading stage: every live PVS patch into its block (one draw per object)."""
+    def _shade(self, ctx: ServerContext, live: np.ndarray, frame: SasFrame, foot: np.ndarray, clear: bool) -> None:
+        """Shading stage: every live PVS patch into its block (one draw per object; the objects' matrices from the
+        shared ``frame``)."""
         gl = self._gl
         self._fbo.use()
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
@@ -381,10 +525,10 @@ class SasServer(ServerHalf):
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         gl.disable(gl.DEPTH_TEST)
         for s, e in runs(o):
-            og = self._sg.objects[int(o[s])]
-            m = models[int(o[s])]
-            prog["u_model"].write(np.asarray(m, "f4").T.tobytes())
-            prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(m[:3, :3]).T, "f4").T.tobytes())
+            k = int(o[s])
+            og = self._sg.objects[k]
+            prog["u_model"].write(frame.model_uniform(k))
+            prog["u_normal_matrix"].write(frame.normal_uniform(k))
             ctx.renderer.bind_material(prog, og)
             vao.render(first=3 * s, vertices=3 * (e - s))
 
