@@ -47,6 +47,23 @@ def test_split_mesh_is_conforming_and_renders_the_same() -> None:
     assert sum(x.triangle_count for x in meshes) <= 2000 and bound > 0.15
 
 
+def test_the_split_bound_is_in_world_metres_whatever_an_object_s_scale() -> None:
+    """A model placed at 1/4 scale with its vertices 4x further out is the same object in the world: it splits to
+    the same triangles (the bound used to be compared with object-space edges: 16x more triangles here)."""
+    from splitrender.methods.sas.patches import split_scene_meshes
+    from splitrender.scene.loader import get_scene
+
+    plain = get_scene("minimal")
+    scaled = get_scene("minimal")
+    for o in scaled.objects:
+        o.mesh.positions = o.mesh.positions * 4.0
+        o.transform = o.transform @ np.diag([0.25, 0.25, 0.25, 1.0])
+    a, _ = split_scene_meshes(plain, 0.3, 10**6)
+    b, _ = split_scene_meshes(scaled, 0.3, 10**6)
+    assert [m.triangle_count for m in b] == [m.triangle_count for m in a], ([m.triangle_count for m in a], [m.triangle_count for m in b])
+    assert sum(m.triangle_count for m in a) > 2 * plain.triangle_count     # the bound did split something
+
+
 @pytest.fixture(scope="module")
 def renderer():  # type: ignore[no-untyped-def]
     from splitrender.render.renderer import Renderer
