@@ -174,3 +174,24 @@ def test_a_frame_larger_than_the_buffer_is_dropped_whole_and_the_next_one_kept()
     nxt = [au for p in pk.packetize(join_annexb([b"\x65" + b"\x22" * 900]), 3000) for au in jb.insert(p, 1.0)]
     assert len(nxt) == 1 and nxt[0].timestamp == 3000 and nxt[0].keyframe
     assert jb.frames_corrupt == 0 and jb.frames_lost == 1 and len(jb) == 0
+
+
+def test_a_large_frame_crossing_a_slow_link_is_waited_for_while_it_flows() -> None:
+    """A 20 KB IDR at 0.6 Mbit/s takes about 270 ms to arrive, in order: the buffer waits while packets keep coming
+    (it gave such a frame up 100 ms after its first packet, asked for a keyframe, and the next IDR met the same fate
+    on every slow link).  Its tail lost for good, the frame is given up 100 ms after the last packet came."""
+    frames = _stream(2, 500, idr_every=1, size=20_000)
+    jb = JitterBuffer("h264", frame_timeout_ms=100)
+    big = frames[0]
+    spacing = 270.0 / len(big)
+    out = []
+    for k, p in enumerate(big):
+        out += jb.poll(k * spacing) + jb.insert(p, k * spacing)
+    assert [a.timestamp for a in out] == [0] and out[0].keyframe and jb.frames_lost == 0
+    t0 = 400.0
+    for k, p in enumerate(frames[1][:-1]):             # the marker packet never comes
+        assert jb.insert(p, t0 + k * spacing) == []
+    last = t0 + (len(frames[1]) - 2) * spacing
+    assert jb.poll(last + 99.0) == [] and jb.frames_lost == 0
+    jb.poll(last + 100.0)
+    assert jb.frames_lost == 1

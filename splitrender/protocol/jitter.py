@@ -10,7 +10,9 @@ Behaviour (times are passed in, in ms):
 * :meth:`JitterBuffer.missing` lists holes between the next expected packet and the
   highest received one (for generic NACKs);
 * if the head of the buffer cannot complete within ``frame_timeout_ms`` of its oldest
-  packet's arrival (or the buffer holds more than ``max_packets``), the broken frame is
+  packet's arrival while a packet is missing, or of its newest packet's while the head
+  frame still arrives in order with no hole (a large frame crossing a slow link), or
+  the buffer holds more than ``max_packets``, the broken frame is
   dropped, the buffer resynchronises on the next frame boundary it can see, and
   ``needs_keyframe`` is set; it is cleared by the next frame containing an IDR (H.264
   type 5) / IRAP (HEVC types 16..21) NAL unit.  While it is set, non-keyframes are
@@ -238,8 +240,14 @@ class JitterBuffer:
                 if au is not None:
                     out.append(au)
                 continue
-            oldest = min(t for _, t in self._packets.values())
-            if now_ms - oldest >= self.frame_timeout_ms or len(self._packets) > self.max_packets:
+            # a frame still arriving in order (no hole from its start to the newest packet: a large frame crossing
+            # a slow link) is waited for while packets keep coming; a hole is given up on once its oldest packet
+            # has waited frame_timeout_ms
+            keys = self._packets.keys()
+            arrivals = [t for _, t in self._packets.values()]
+            flowing = head is not None and max(keys) - start + 1 == len(keys)
+            waited = now_ms - (max(arrivals) if flowing else min(arrivals))
+            if waited >= self.frame_timeout_ms or len(self._packets) > self.max_packets:
                 self._give_up(start)
                 continue
             break
