@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(updates.csv cc_* columns)")
     p.add_argument("--pacing", action="store_true", default=None,
                    help="with --transport-cc: RTP leaves through a pacer at 2.5x the estimated rate, not in bursts")
+    p.add_argument("--adapt", choices=("off", "rate"), default=None,  # pipeline.adapt.ADAPT_MODES (not imported: it loads the pipeline)
+                   help="rate: every lossy video stream's encoder follows the estimated rate (turns --transport-cc on); "
+                        "off (default): fixed operating points")
     _session_args(p)
     _common_run_args(p)
     p.set_defaults(func=main_run)
@@ -179,7 +182,8 @@ def main_run(ns: argparse.Namespace) -> int:
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
                  ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
-                 ("transport_cc", ns.transport_cc), ("pacing", ns.pacing),
+                 ("transport_cc", True if ns.adapt not in (None, "off") else ns.transport_cc), ("pacing", ns.pacing),
+                 ("adapt", ns.adapt),
                  *session_options(ns).items(),  # from splitrender.sim.config
                  ("client_traces", ns.client_traces.split(",") if ns.client_traces else None)):
         if v is not None:

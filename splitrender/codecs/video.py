@@ -343,7 +343,17 @@ class VideoEncoder:
         key = any(p.is_keyframe for p in packets) or contains_idr(data, self.cfg.codec)
         ef = EncodedFrame(data, key, self._index)
         self._index += 1
+        self._since_idr = 0 if key else self._since_idr + 1
         return ef
+
+    @property
+    def idr_due(self) -> bool:
+        """The next frame is an IDR whatever is asked (the first, or the GOP's ``keyint`` is reached)."""
+        return self._index == 0 or self._since_idr + 1 >= self.cfg.gop
+
+    @property
+    def frames_encoded(self) -> int:
+        return self._index
 
 
 class VideoDecoder:

@@ -17,6 +17,7 @@ virtual-time runner delays them through the network model.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import secrets
 import time
@@ -26,6 +27,7 @@ from typing import Any, Callable
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol.fec import fec_encode
+from .adapt import AdaptConfig, retarget
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import one_byte_extension
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
@@ -52,6 +54,11 @@ class EncodedUpdate:
     video: dict[str, EncodedFrame]
     data: dict[str, bytes]
     encode_ms: float
+    rates_kbps: dict[str, float] = field(default_factory=dict)
+    """The bit rate each rate-controlled video stream's encoder ran at for this frame (``encode``'s
+    ``rates_kbps``; empty without rate adaptation)."""
+    restarts: int = 0
+    """Encoders restarted at a new rate for this frame."""
 
     @property
     def keyframe(self) -> bool:
@@ -137,6 +144,10 @@ class ServerPipeline:
                 st.fec_ssrc, st.fec_payload_type, st.fec_seq = new_ssrc(), FEC_PAYLOAD_TYPE - k, self._rand(16)
             if FEC_PAYLOAD_TYPE - len(self.rtp_streams) < FIRST_PAYLOAD_TYPE + len(self.rtp_streams):
                 raise ValueError(f"{len(self.rtp_streams)} RTP streams leave no payload types for FEC")
+        self.probe_ssrc: int | None = new_ssrc() if transport_cc_id is not None else None
+        """SSRC of the session's probe packets (padding the rate estimator sends to find capacity, with transport-wide
+        feedback only); named to the client in ``Welcome.method_params.probe_ssrc``."""
+        self.probe_payload_type = FIRST_PAYLOAD_TYPE + len(self.rtp_streams)
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
         self.described_sets: dict[str, tuple[bytes, ...]] = {}
         """Parameter sets per stream of encoders that run elsewhere (the live server's render worker)."""
@@ -183,6 +194,7 @@ class ServerPipeline:
                "session_data_crc": checksum(session_blob)}
         if self.transport_cc_id is not None:
             out["transport_cc"] = self.transport_cc_id
+            out["probe_ssrc"] = self.probe_ssrc
         return out
 
     def session_frames(self, session_blob: bytes, framer: Framer) -> list[tuple[str, bytes]]:
@@ -197,18 +209,41 @@ class ServerPipeline:
 
     # ------------------------------------------------------------------ per frame
 
-    def encode(self, update: Update, force_idr: bool = False) -> EncodedUpdate:
-        """Code every payload of ``update`` (live, in the render worker)."""
+    def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
+               adapt: AdaptConfig | None = None) -> EncodedUpdate:
+        """Code every payload of ``update`` (live, in the render worker).
+
+        ``rates_kbps``: bit rates for lossy video streams (rate adaptation, :mod:`.adapt`); a stream whose
+        encoder runs at a rate that far from it (``adapt``'s ``change_ratio``) gets a new encoder at that rate,
+        at its next IDR or, for a steep fall, now with an IDR (:func:`~.adapt.retarget`)."""
         w0 = time.perf_counter()
         video: dict[str, EncodedFrame] = {}
         data: dict[str, bytes] = {}
+        given: dict[str, float] = {}
+        restarts = 0
         for name, plane in update.planes.items():
             st = self.streams.get(name)
             if st is None or not isinstance(st.spec, StreamSpec):
                 raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
+            idr = force_idr
+            want = rates_kbps.get(name) if rates_kbps else None
+            if want is not None and not st.spec.codec.lossless:
+                cur = st.encoder.cfg.bitrate_kbps if st.encoder is not None else None
+                fresh = st.encoder is None or st.encoder.frames_encoded == 0
+                due = fresh or force_idr or st.encoder.idr_due  # type: ignore[union-attr]
+                restart, urgent = retarget(cur, want, due, adapt or AdaptConfig())
+                if restart:
+                    cfg = dataclasses.replace(st.encoder.cfg if st.encoder is not None else st.spec.codec,
+                                              bitrate_kbps=float(want), crf=None)
+                    st.encoder = VideoEncoder(cfg, st.spec.width, st.spec.height)
+                    st.sets_checked = True   # the described sets were the first encoder's; each IDR carries its own
+                    restarts += not fresh
+                    idr = idr or urgent
             if st.encoder is None:
                 st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
-            video[name] = ef = st.encoder.encode(plane, force_idr=force_idr)
+            if st.encoder.cfg.bitrate_kbps is not None and want is not None:
+                given[name] = float(st.encoder.cfg.bitrate_kbps)
+            video[name] = ef = st.encoder.encode(plane, force_idr=idr)
             if ef.keyframe and not st.sets_checked and st.encoder.parameter_sets_known:
                 st.sets_checked = True
                 described = st.encoder.parameter_sets()
@@ -221,7 +256,7 @@ class ServerPipeline:
             if st is None or not isinstance(st.spec, DataStreamSpec):
                 raise ValueError(f"update {update.frame_id}: data {name!r} is not a declared data stream")
             data[name] = compress_data(st.spec, payload)
-        return EncodedUpdate(update, video, data, (time.perf_counter() - w0) * 1000)
+        return EncodedUpdate(update, video, data, (time.perf_counter() - w0) * 1000, given, restarts)
 
     def packetize(self, enc: EncodedUpdate, framer: Framer, server_time_us: int, rtp_ts: int, pose_sample_us: int,
                   pose_seq: int, target_t_s: float, timing_us: dict[str, int], srv: dict[str, float]) -> OutgoingFrame:

@@ -40,12 +40,14 @@ from ..errors import CodecError, ConfigError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from ..protocol import (Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
-                        RtcpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
+                        RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
 from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
-from ..protocol.twcc import FeedbackRecorder, SendHistory, TransportFeedback, read_transport_seq, write_transport_seq
+from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
+                             write_transport_seq)
+from .adapt import AdaptConfig, RateController, check_adapt_mode, controlled_streams, stream_fps
 from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
@@ -396,7 +398,7 @@ class ClientSession:
     """
 
     def __init__(self, rx: ClientPipeline, options: ClientOptions, server_fps: float, clock_offset_us: int = 0,
-                 rng: Any = None, transport_cc_id: int | None = None) -> None:
+                 rng: Any = None, transport_cc_id: int | None = None, probe_ssrc: int | None = None) -> None:
         self.rx = rx
         self.opts = options
         self.server_fps = max(1.0, float(server_fps))
@@ -413,6 +415,8 @@ class ClientSession:
         """The Welcome's transport sequence extension id: arrivals are reported with transport-wide feedback."""
         self._twcc = FeedbackRecorder(self.ssrc, min(media) if media else 0) if transport_cc_id is not None else None
         self._next_twcc_ms = math.inf
+        self.probe_ssrc = probe_ssrc
+        """The server's probe packets (padding for its rate estimator): their arrivals are reported, then dropped."""
         self._out: list[bytes] = []
         self.events: list[SessionEvent] = []
         self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
@@ -444,7 +448,7 @@ class ClientSession:
             "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0, "stall_plis": 0, "stalls": 0, "longest_stall_ms": 0.0,
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_displayed_updates": 0,
             "updates_dropped_ready": 0, "keyframes_after_pli": 0, "udp_bad": 0, "decode_overflows": 0,
-            "meta_bytes": 0, "apply_errors": 0, "twcc_feedback_sent": 0,
+            "meta_bytes": 0, "apply_errors": 0, "twcc_feedback_sent": 0, "probe_packets": 0, "probe_bytes": 0,
         }
 
     @classmethod
@@ -458,7 +462,12 @@ class ClientSession:
         cc = params.get("transport_cc")
         if cc is not None and (isinstance(cc, bool) or not isinstance(cc, int) or not 1 <= cc <= 14):
             raise EnvelopeError(f"Welcome.method_params.transport_cc: expected a header extension id in 1..14, got {cc!r:.80}")
-        return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng, cc)
+        probe = params.get("probe_ssrc")
+        if probe is not None and (isinstance(probe, bool) or not isinstance(probe, int) or not 0 <= probe < 1 << 32
+                                  or probe in rx.by_ssrc):
+            raise EnvelopeError(f"Welcome.method_params.probe_ssrc: expected an SSRC no stream uses, got {probe!r:.80}")
+        return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng, cc,
+                   probe if cc is not None else None)
 
     # ------------------------------------------------------------------ clock
 
@@ -501,6 +510,11 @@ class ClientSession:
                     if st is not None:
                         st.on_sender_report(p, now_ms)
             return []
+        if self.probe_ssrc is not None and len(data) >= 12 and int.from_bytes(data[8:12], "big") == self.probe_ssrc:
+            self.counters["probe_packets"] += 1
+            self.counters["probe_bytes"] += len(data)
+            self._record_transport_seq(data, now_ms)
+            return []
         before = rx.counters["udp_bad"]
         works = rx.on_datagram(data, now_ms)
         if rx.counters["udp_bad"] != before:
@@ -509,12 +523,7 @@ class ClientSession:
         self.rtp_seen = True
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
-        if self._twcc is not None and self.transport_cc_id is not None:
-            tseq = read_transport_seq(data, self.transport_cc_id)
-            if tseq is not None:
-                self._twcc.on_packet(tseq, self.protocol_us(now_ms))
-                if not math.isfinite(self._next_twcc_ms):
-                    self._next_twcc_ms = now_ms + self.opts.twcc_interval_ms
+        self._record_transport_seq(data, now_ms)
         ssrc = int.from_bytes(data[8:12], "big")
         stream = rx.by_ssrc.get(ssrc)
         if stream is not None:
@@ -525,6 +534,14 @@ class ClientSession:
                 self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
                 self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
         return self._count_keyframes(works)
+
+    def _record_transport_seq(self, data: bytes, now_ms: float) -> None:
+        if self._twcc is not None and self.transport_cc_id is not None:
+            tseq = read_transport_seq(data, self.transport_cc_id)
+            if tseq is not None:
+                self._twcc.on_packet(tseq, self.protocol_us(now_ms))
+                if not math.isfinite(self._next_twcc_ms):
+                    self._next_twcc_ms = now_ms + self.opts.twcc_interval_ms
 
     def _count_keyframes(self, works: list[Work]) -> list[Work]:
         """Keyframes that came after a PLI (the pipeline counts every keyframe received)."""
@@ -798,6 +815,10 @@ class ServerOptions:
     pacing: bool = False
     """With transport-wide feedback: RTP packets leave through a pacer at 2.5x the estimated rate
     (:class:`~.gcc.Pacer`) instead of in one burst per frame."""
+    adapt: str = "off"
+    """``"rate"``, with transport-wide feedback: every lossy video stream's encoder follows the estimate
+    (:class:`~.adapt.RateController`; :meth:`ServerSession.encoder_rates`)."""
+    adapt_cfg: AdaptConfig = field(default_factory=AdaptConfig)
 
     def __post_init__(self) -> None:
         if not 1 <= self.history_packets <= 1 << 20:
@@ -806,6 +827,7 @@ class ServerOptions:
             raise ConfigError(f"server keyframe_min_interval_ms: must be in [0, 60000], got {self.keyframe_min_interval_ms}")
         if not 0.01 <= self.sr_interval_s <= 60:
             raise ConfigError(f"server sr_interval_s: must be in [0.01, 60], got {self.sr_interval_s}")
+        check_adapt_mode(self.adapt, "server")
 
 
 @dataclass
@@ -858,6 +880,14 @@ class ServerSession:
         """The path's send-rate estimate from that feedback (:mod:`.gcc`)."""
         self.pacer: Pacer[tuple[Any, bytes]] | None = \
             Pacer(self.estimator.target_bps) if self.estimator is not None and self.options.pacing else None
+        if self.options.adapt != "off" and self.estimator is None:
+            raise ConfigError(f"server adapt {self.options.adapt}: follows the estimated rate, so it needs transport-wide "
+                              "feedback (transport_cc)")
+        self.rate: RateController | None = \
+            RateController(controlled_streams(self.tx.specs), stream_fps(self.tx.specs), self.options.adapt_cfg) \
+            if self.options.adapt == "rate" else None
+        """Each lossy video stream's encoder rate from the estimate (``adapt = "rate"``)."""
+        self._probe_seq = 0
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
@@ -930,14 +960,15 @@ class ServerSession:
                 self.estimator.on_feedback(results, int(round(now_ms * 1000)))
         return resend
 
-    def stamp(self, data: bytes, now_ms: float) -> bytes:
+    def stamp(self, data: bytes, now_ms: float, probe: int = -1) -> bytes:
         """An RTP datagram as it leaves now: with transport-wide feedback on, its next transport sequence number
-        written in and its send time and size remembered (media and retransmissions; FEC carries none)."""
+        written in and its send time and size remembered (media, retransmissions and probes, ``probe`` naming a
+        probe's cluster; FEC carries none)."""
         if self.send_history is None or self.tx.transport_cc_id is None:
             return data
         if read_transport_seq(data, self.tx.transport_cc_id) is None:
             return data
-        seq = self.send_history.on_sent(int(round(now_ms * 1000)), len(data))
+        seq = self.send_history.on_sent(int(round(now_ms * 1000)), len(data), probe)
         self.counters["twcc_stamped"] += 1
         return write_transport_seq(data, self.tx.transport_cc_id, seq)
 
@@ -966,6 +997,36 @@ class ServerSession:
         t = self.pacer.next_send_us(int(round(now_ms * 1000)))
         return math.inf if t is None else t / 1000.0
 
+    def probe(self, now_ms: float) -> list[tuple[float, bytes, int]]:
+        """The probe cluster the estimator wants sent now (sessions that adapt; nothing otherwise): ``(send time in
+        ms, datagram, cluster)`` per padding packet, spaced at the probe's rate.  The driver sends each at its time
+        through :meth:`stamp` with its cluster, bypassing the pacer (the probe sets its own pace).  A probe packet is
+        an RTP packet of the session's probe SSRC (``Welcome.method_params.probe_ssrc``) whose payload is zeros."""
+        if self.estimator is None or self.rate is None or self.tx.probe_ssrc is None or self.tx.transport_cc_id is None:
+            return []
+        cl = self.estimator.probe(int(round(now_ms * 1000)))
+        if cl is None:
+            return []
+        profile, body = one_byte_extension({self.tx.transport_cc_id: b"\0\0"})
+        out = []
+        for k in range(cl.packets):
+            header = 12 + 4 + len(body)
+            pkt = RtpPacket(self.tx.probe_payload_type, self._probe_seq & 0xFFFF, 0, self.tx.probe_ssrc,
+                            bytes(max(0, cl.packet_bytes - header)), extension_profile=profile, extension_data=body)
+            self._probe_seq += 1
+            out.append((now_ms + k * cl.spacing_us() / 1000, bytes(pkt), cl.cluster))
+        self.counters["probe_clusters"] = self.counters.get("probe_clusters", 0) + 1
+        self.counters["probe_packets"] = self.counters.get("probe_packets", 0) + len(out)
+        self.counters["probe_bytes"] = self.counters.get("probe_bytes", 0) + sum(len(d) for _, d, _ in out)
+        return out
+
+    def encoder_rates(self) -> dict[str, float] | None:
+        """The bit rate (kbit/s) each lossy video stream should encode the next frame at (``adapt = "rate"``), for
+        :meth:`~.sender.ServerPipeline.encode`; None without rate adaptation."""
+        if self.rate is None or self.estimator is None:
+            return None
+        return self.rate.targets_kbps(self.estimator.encoder_bps())
+
     def congestion(self) -> dict[str, float]:
         """The estimator's view now (empty without transport-wide feedback): ``cc_target_kbps`` (delay and loss
         based), ``cc_encoder_kbps`` (that less what drains a standing queue), ``cc_acked_kbps``, ``cc_queue_ms``."""
@@ -977,6 +1038,8 @@ class ServerSession:
                "cc_acked_kbps": acked / 1000 if acked is not None else math.nan, "cc_queue_ms": est.queue_ms()}
         if self.pacer is not None:
             out["cc_pacer_packets"] = self.pacer.queued
+        if self.rate is not None:
+            out.update(self.rate.state())
         return out
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
@@ -1001,8 +1064,11 @@ class ServerSession:
         self._kf_wanted = False
         return kf
 
-    def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int) -> None:
-        """Frame ``frame_id`` went out: its RTP packets join the retransmission history."""
+    def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
+                   rates_kbps: dict[str, float] | None = None, restarts: int = 0) -> None:
+        """Frame ``frame_id`` went out: its RTP packets join the retransmission history.  ``rates_kbps`` and
+        ``restarts``: the encoder rates it was coded at and the encoders restarted for it (its
+        :class:`~.sender.EncodedUpdate`'s), for the rate controller."""
         self.fb.frame_sent(frame_id, server_time_us)
         if out.keyframe:
             self.counters["keyframes"] += 1
@@ -1015,6 +1081,9 @@ class ServerSession:
             self.counters["fec_packets"] += 1
             self.counters["fec_bytes"] += len(data)
         self.counters["frames_sent"] += 1
+        if self.rate is not None:
+            self.rate.on_frame_sent(out.wire_bytes, rates_kbps)
+            self.counters["encoder_restarts"] = self.counters.get("encoder_restarts", 0) + restarts
 
     # ------------------------------------------------------------------ timers
 

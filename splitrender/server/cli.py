@@ -45,6 +45,9 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
                         "(updates.csv cc_* columns with --out)")
     p.add_argument("--pacing", action="store_true",
                    help="RTP leaves through a pacer at 2.5x each session's estimated rate (implies --transport-cc)")
+    p.add_argument("--adapt", choices=("off", "rate"), default="off",
+                   help="rate: each session's lossy video encoders follow its estimated rate, and the estimator probes "
+                        "for capacity (implies --transport-cc); off (default): fixed operating points")
     p.add_argument("--isolation", choices=("session", "server"), default="session",
                    help="render workers: one process per session (a hung render ends that session only; default) "
                         "or one for the server (scene producers shared by every session)")
@@ -102,7 +105,7 @@ def config_from_args(ns: argparse.Namespace) -> Any:
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
                         mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
-                        fec=ns.fec, transport_cc=ns.transport_cc or ns.pacing, pacing=ns.pacing, isolation=ns.isolation, render_deadline_s=ns.render_deadline, gi_hz=gi_hz)
+                        fec=ns.fec, transport_cc=ns.transport_cc or ns.pacing or ns.adapt != "off", pacing=ns.pacing, adapt=ns.adapt, isolation=ns.isolation, render_deadline_s=ns.render_deadline, gi_hz=gi_hz)
 
 
 async def _serve_until_signal(cfg: Any) -> None:

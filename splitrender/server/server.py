@@ -100,6 +100,9 @@ class ServerConfig:
     sequence numbers, clients report arrivals, each session's estimator follows its path (updates.csv ``cc_*``)."""
     pacing: bool = False
     """With ``transport_cc``: RTP leaves through a pacer at 2.5x the estimated rate (``serve --pacing``)."""
+    adapt: str = "off"
+    """``rate``, with ``transport_cc``: each session's lossy video encoders follow its estimated rate, and the
+    estimator probes for capacity (``serve --adapt rate``; :mod:`splitrender.pipeline.adapt`)."""
     metrics_interval_s: float = 5.0
     """Each session logs a ``metrics`` line (its counters, the server's dropped datagrams) this often; 0 = never."""
     isolation: str = "session"
@@ -127,6 +130,11 @@ class ServerConfig:
             v = getattr(self, k)
             if not 0.05 <= v <= 3600:
                 raise ConfigError(f"server {k}: must be in [0.05, 3600] s, got {v}")
+        if self.adapt not in ("off", "rate"):
+            raise ConfigError(f"server adapt: must be one of off, rate, got {self.adapt!r:.40}")
+        if self.adapt != "off" and not self.transport_cc:
+            raise ConfigError(f"server adapt {self.adapt}: follows the estimated rate, so it needs transport_cc "
+                              "(--transport-cc)")
         try:
             parse_test_hang(self.test_hang)
         except ValueError as exc:

@@ -299,7 +299,8 @@ class ServerSession:
                                  transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
         self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
         self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
-                                                                        cfg.sr_interval_s, pacing=cfg.pacing),
+                                                                        cfg.sr_interval_s, pacing=cfg.pacing,
+                                                                        adapt=cfg.adapt),
                                 0, rtp_origin_ms=server.epoch_wall_s * 1000)
         self.core.start(_now_ms())
         host, port = server.udp_address
@@ -448,7 +449,8 @@ class ServerSession:
         try:
             enc, stats, stages = await self.worker.call(
                 "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
-                self._predictor, epoch, expected, kf, fbs.snapshot(kf), deadline_s=self.cfg.render_deadline_s)
+                self._predictor, epoch, expected, kf, fbs.snapshot(kf), core.encoder_rates(), core.options.adapt_cfg,
+                deadline_s=self.cfg.render_deadline_s)
         except WorkerTimeout:
             self._counters["render_timeouts"] += 1
             raise
@@ -464,12 +466,15 @@ class ServerSession:
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
         out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, target_t_s, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
-        core.frame_sent(self._frame_id, out, _now_ms(), t_us)
+        core.frame_sent(self._frame_id, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
         # media, then parity packets (neither mirrored nor kept for retransmission: tagged None), as the core lets them go
         self._send_rtp(core.send([(name, data) for name, _, data in out.datagrams] + [(None, data) for _, data in out.fec],
                                  _now_ms()))
+        loop = asyncio.get_running_loop()
+        for at_ms, data, cluster in core.probe(_now_ms()):   # the estimator's probe cluster, at its own pace
+            loop.call_later(max(0.0, (at_ms - _now_ms()) / 1000), self._send_probe, data, cluster)
         c2 = time.perf_counter()
         # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
         # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
@@ -529,6 +534,11 @@ class ServerSession:
                 continue
             await asyncio.sleep(max(0.0, (nxt - _now_ms()) / 1000))
             self._send_rtp_now(self.core.paced(_now_ms()))
+
+    def _send_probe(self, data: bytes, cluster: int) -> None:
+        """One packet of a probe cluster, stamped as it leaves."""
+        if self.core is not None:
+            self._send_rtp_now([(None, self.core.stamp(data, _now_ms(), cluster))])
 
     def _send_rtp_now(self, items: list[tuple[str | None, bytes]]) -> None:
         """Send RTP datagrams ``(stream or None, bytes)`` to the client, a stream's to its mirror as well."""

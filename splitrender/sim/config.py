@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..coerce import coerce_value
+from ..pipeline.adapt import ADAPT_MODES
 from ..errors import ConfigError
 
 
@@ -107,6 +108,9 @@ class RunConfig:
     ``cc_*``; nothing acts on it yet)."""
     pacing: bool = False
     """With ``transport_cc``: RTP leaves through a pacer at 2.5x the estimated rate instead of in a burst."""
+    adapt: str = "off"
+    """``rate``, with ``transport_cc``: every lossy video stream's encoder rate follows the estimate
+    (:mod:`splitrender.pipeline.adapt`)."""
     nack_tries: int = 3
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
@@ -119,6 +123,10 @@ class RunConfig:
             raise bad("width/height", f"must be positive and even, got {self.width}x{self.height}")
         if self.pacing and not self.transport_cc:
             raise bad("pacing", "paces at the estimated rate, so it needs transport_cc (--transport-cc)")
+        if self.adapt not in ADAPT_MODES:
+            raise bad("adapt", f"must be one of {', '.join(ADAPT_MODES)}, got {self.adapt!r:.40}")
+        if self.adapt != "off" and not self.transport_cc:
+            raise bad("adapt", f"{self.adapt} follows the estimated rate, so it needs transport_cc (--transport-cc)")
         if self.width * self.height > 3840 * 2160:
             raise bad("width/height", f"{self.width}x{self.height} is larger than 3840x2160")
         if not 10.0 <= self.fov_y_deg <= 150.0:
@@ -192,7 +200,7 @@ class RunConfig:
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
         for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
-                           ("fec", False), ("transport_cc", False), ("pacing", False)):
+                           ("fec", False), ("transport_cc", False), ("pacing", False), ("adapt", "off")):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)

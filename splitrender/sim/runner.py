@@ -67,7 +67,7 @@ from ..netsim import Link, parse_path
 from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, SessionDataError, Stalled,
                         check_hello, rtp_timestamp, session_params, session_summary, tcp_segments)
-from ..pipeline.wire import control_wire_bytes
+from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..protocol.twcc import DEFAULT_EXTENSION_ID
@@ -277,7 +277,7 @@ class VirtualTimeRun:
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
-        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing), SIM_EPOCH_US, 0.0,
+        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), SIM_EPOCH_US, 0.0,
                                  np.random.default_rng(seeds[6 * n + 2 * i + 1]))
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
@@ -397,7 +397,8 @@ class VirtualTimeRun:
             w0 = time.perf_counter()
             upd = c.half.produce(ctx)
             server_ms = (time.perf_counter() - w0) * 1000
-            enc = c.tx.encode(upd, force_idr=upd.force_idr or kf)
+            enc = c.tx.encode(upd, force_idr=upd.force_idr or kf, rates_kbps=c.core_s.encoder_rates(),
+                              adapt=c.core_s.options.adapt_cfg)
             busy_ms += server_ms + enc.encode_ms
             cost_ms = busy_ms * cfg.cost_scale if measured else cfg.server_latency_ms
             send_t = t_f + cost_ms / 1000.0
@@ -405,7 +406,7 @@ class VirtualTimeRun:
             timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
             out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.latest_pose_t),
                                  int(round(c.latest_pose_t * cfg.tracker_hz)), target_t, timing, c.half.stats())
-            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f))
+            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts)
             # control frames: TCP segments over the downlink, in order, head-of-line blocked
             for stream, data in out.control:
                 arrive = send_t
@@ -415,6 +416,8 @@ class VirtualTimeRun:
                 c.down_ctrl_free_s = arrive
                 self._at(arrive, _DELIVER, self._deliver_control, c, data)
             self._send_down(c, [d for _, _, d in out.datagrams] + [d for _, d in out.fec], send_t)
+            for at_ms, data, cluster in c.core_s.probe(send_t * 1000):
+                self._at(at_ms / 1000, _TIMER, self._send_probe, c, data, cluster)
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
@@ -443,6 +446,14 @@ class VirtualTimeRun:
         assert c.core_s is not None
         self._onto_link(c, c.core_s.send([(None, d) for d in datagrams], t_s * 1000), t_s)
         self._arm_pacer(c, t_s)
+
+    def _send_probe(self, c: _Client, data: bytes, cluster: int) -> None:
+        """One packet of a probe cluster leaves now (its own pace, beside the pacer's)."""
+        assert c.core_s is not None
+        t_s = max(self.now, c.sent_s.get("down", -math.inf))
+        c.sent_s["down"] = t_s
+        self._onto_link(c, [(None, c.core_s.stamp(data, t_s * 1000, cluster))], t_s)
+        c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(data))
 
     def _onto_link(self, c: _Client, items: list[tuple[Any, bytes]], t_s: float) -> None:
         for _, data in items:
@@ -718,6 +729,8 @@ class VirtualTimeRun:
             s.update({"mean_cc_target_kbps": float(np.mean(cc)) if cc else math.nan,
                       "twcc_feedback": c.core_s.counters["twcc_feedback"], "twcc_unknown": c.core_s.counters["twcc_unknown"],
                       "cc_overuses": c.core_s.estimator.overuses})
+        if c.core_s.rate is not None:         # rate adaptation: encoder restarts and the estimator's probes
+            s.update({k: c.core_s.counters.get(k, 0) for k in ("encoder_restarts", "probe_clusters", "probe_packets")})
         return s
 
 
