@@ -129,6 +129,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_optional(p, "splitrender.client.cli:add_client_arguments")
     p.set_defaults(func=_lazy("splitrender.client.cli:main_client"))
 
+    p = sub.add_parser("capacity-trace", help="write a generated mahimahi capacity trace (steps, or cellular-like)")
+    _add_optional(p, "splitrender.netsim.cli:add_trace_arguments")
+    p.set_defaults(func=_lazy("splitrender.netsim.cli:main_trace"))
+
     p = sub.add_parser("shape", help="netem-style UDP/TCP shaping relay on loopback")
     _add_optional(p, "splitrender.netsim.cli:add_shape_arguments")
     p.set_defaults(func=_lazy("splitrender.netsim.cli:main_shape"))

@@ -132,3 +132,43 @@ def main_shape(ns: argparse.Namespace) -> int:
         return 1
     print(_format_stats(stats), flush=True)
     return 0
+
+
+def add_trace_arguments(p: argparse.ArgumentParser) -> None:
+    """``splitrender capacity-trace``: write a generated mahimahi capacity trace (:mod:`splitrender.netsim.traces`)."""
+    kind = p.add_subparsers(dest="kind", required=True)
+    s = kind.add_parser("step", help="piecewise-constant capacity")
+    s.add_argument("steps", help="seconds:Mbit/s pairs, comma-separated, e.g. 5:20,5:2,10:20")
+    s.add_argument("out", help="the trace file to write")
+    c = kind.add_parser("cellular", help="cellular-like capacity with stated statistics")
+    c.add_argument("duration", type=float, help="seconds")
+    c.add_argument("out", help="the trace file to write")
+    c.add_argument("--mean", type=float, default=8.0, help="mean Mbit/s outside outages (default 8)")
+    c.add_argument("--cv", type=float, default=0.5, help="coefficient of variation of the rate (default 0.5)")
+    c.add_argument("--corr-time", type=float, default=1.0, help="e-folding time of the log-rate, seconds (default 1)")
+    c.add_argument("--outage-share", type=float, default=0.02, help="share of time in outages (default 0.02)")
+    c.add_argument("--outage-mean", type=float, default=0.3, help="mean outage length, seconds (default 0.3)")
+    c.add_argument("--seed", type=int, default=0)
+
+
+def main_trace(ns: argparse.Namespace) -> int:
+    from splitrender.netsim.traces import cellular_trace, step_trace, trace_stats, write_mahimahi
+
+    if ns.kind == "step":
+        steps = []
+        for item in ns.steps.split(","):
+            dur, sep, mbps = item.partition(":")
+            try:
+                if not sep:
+                    raise ValueError
+                steps.append((float(dur), float(mbps)))
+            except ValueError:
+                raise NetworkConfigError(f"capacity-trace step: {item!r} is not seconds:Mbit/s (e.g. 5:20)") from None
+        stamps = step_trace(steps)
+    else:
+        stamps = cellular_trace(ns.duration, ns.mean, ns.cv, ns.corr_time, ns.outage_share, ns.outage_mean, seed=ns.seed)
+    path = write_mahimahi(stamps, ns.out)
+    st = trace_stats(stamps)
+    print(f"{path}: {len(stamps)} delivery opportunities over {stamps[-1] / 1000:.1f} s, mean "
+          f"{st.get('mean_mbps', float('nan')):.2f} Mbit/s; use it as --network \"delay 20ms trace {path}\"")
+    return 0

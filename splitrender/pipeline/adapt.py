@@ -17,6 +17,17 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    each stream's sent bits over its target and divides the next target by it (held in
    0.5-2), so the session's total follows the estimate rather than the encoders' habits.
 
+4. **No more than the method's own operating point needs.**  For its first
+   ``calibrate_frames`` a stream keeps the method's configured rate control (its crf)
+   unless the estimate is already below what it sends; what it took then, times
+   ``ceiling`` (1 by default), caps its target from then on: adaptation degrades a
+   method's operating point where the link cannot carry it, and gives it back when it
+   can.  Beyond it, bits buy little (the quality of crf 23 or so) and cost the queue a
+   sudden drop in capacity catches: uncapped, a session that probed its way to 15 Mbit/s
+   on a 20 Mbit/s link at 320x180 and met a drop to 2 held a 2 s queue (1.5x its own
+   rate: 0.9 s; ``benchmarks/bench_adapt.py``).  (libwebrtc caps by resolution, 600 kbit/s up to 320x240; a per-stream
+   measure suits atlases, whose size is no measure of their content.)
+
 Targets are per second of the streams' own frame rate.  The encoder side
 (:meth:`~.sender.ServerPipeline.encode` with ``rates_kbps``) restarts a stream's encoder
 at the new rate when the target moves by more than ``change_ratio``: at the stream's next
@@ -49,7 +60,10 @@ class AdaptConfig:
     target must move from the encoder's rate before the encoder is restarted;
     ``urgent_ratio``: a target under this fraction of the encoder's rate restarts it at once
     (with an IDR) instead of at its next IDR; ``headroom``: the fraction of the estimate the
-    session aims to use (what is left absorbs the encoders' frame-to-frame variation).
+    session aims to use (what is left absorbs the encoders' frame-to-frame variation);
+    ``calibrate_frames``, ``ceiling``: a stream first runs at the method's own rate control
+    for this many frames, and its target never exceeds ``ceiling`` times what it took then
+    (0 frames: no calibration, no cap but ``max_kbps``).
     """
 
     min_kbps: float = 50.0
@@ -58,6 +72,8 @@ class AdaptConfig:
     change_ratio: float = 0.15
     urgent_ratio: float = 0.7
     headroom: float = 0.9
+    calibrate_frames: int = 30
+    ceiling: float = 1.0
 
     def __post_init__(self) -> None:
         if not 0 < self.min_kbps <= self.max_kbps:
@@ -70,6 +86,10 @@ class AdaptConfig:
             raise ConfigError(f"AdaptConfig.urgent_ratio: must be in (0, 1], got {self.urgent_ratio}")
         if not 0 < self.headroom <= 1:
             raise ConfigError(f"AdaptConfig.headroom: must be in (0, 1], got {self.headroom}")
+        if not 0 <= self.calibrate_frames <= 10_000:
+            raise ConfigError(f"AdaptConfig.calibrate_frames: must be in [0, 10000], got {self.calibrate_frames}")
+        if not 1 <= self.ceiling <= 100:
+            raise ConfigError(f"AdaptConfig.ceiling: must be in [1, 100], got {self.ceiling}")
 
 
 def check_adapt_mode(mode: str, where: str) -> str:
@@ -110,6 +130,9 @@ class RateController:
         self._share: dict[str, float] = {n: 1.0 / len(self.video) for n in self.video} if self.video else {}
         self._miss: dict[str, float] = {n: 1.0 for n in self.video}
         self._target: dict[str, float] = {}
+        self._seen: dict[str, list[int]] = {n: [] for n in self.video}     # calibration: bytes per frame at the method's own
+        self._cap: dict[str, float] = {}                                     # kbit/s, once calibrated
+        self._controlled: set[str] = set()
         self.frames = 0
 
     def _avg(self, old: float | None, new: float) -> float:
@@ -122,6 +145,15 @@ class RateController:
         other = sum(b for n, b in wire_bytes.items() if n not in self._share)
         self._overhead_bps = self._avg(self._overhead_bps, other * 8 * self.fps)
         ours = {n: wire_bytes.get(n, 0) for n in self.video}
+        for n, b in ours.items():
+            seen = self._seen[n]
+            if n not in self._cap and self.cfg.calibrate_frames:
+                if n in self._controlled:      # the link forced control before calibration ended: cap from what was seen
+                    self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen) if seen else self.cfg.max_kbps
+                else:
+                    seen.append(b)
+                    if len(seen) >= self.cfg.calibrate_frames:
+                        self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen)
         total = sum(ours.values())
         if total > 0:
             for n, b in ours.items():
@@ -132,17 +164,36 @@ class RateController:
                 ratio = min(2.0, max(0.5, sent_kbps / kbps))
                 self._miss[n] = self._avg(self._miss[n], ratio)
 
+    def _rate_kbps(self, per_frame: list[int]) -> float:
+        return float(sum(per_frame)) / len(per_frame) * 8 * self.fps / 1000
+
     def targets_kbps(self, encoder_bps: float) -> dict[str, float]:
-        """Each controlled stream's encoder target (kbit/s) for an estimated encoder rate of ``encoder_bps``."""
+        """Each controlled stream's encoder target (kbit/s) for an estimated encoder rate of ``encoder_bps``; a stream
+        still calibrating is left out (it keeps the method's own rate control) unless the estimate is below what it
+        has been sending."""
         if not self.video or not math.isfinite(encoder_bps):
             return {}
         budget = self.cfg.headroom * encoder_bps - (self._overhead_bps or 0.0)
         out = {}
         for n in self.video:
-            kbps = budget * self._share[n] / self._miss[n] / 1000
-            out[n] = min(self.cfg.max_kbps, max(self.cfg.min_kbps, kbps))
+            kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
+            if self.cfg.calibrate_frames and n not in self._cap and n not in self._controlled:
+                seen = self._seen[n]
+                if len(seen) < min(self.cfg.calibrate_frames, 10) or kbps >= self._rate_kbps(seen):
+                    continue       # calibrating, and the link carries what the method sends (or too few frames to tell:
+                    #                the first is an IDR, and the estimate starts from a guess)
+                self._controlled.add(n)
+            self._controlled.add(n)
+            out[n] = min(kbps, self._cap.get(n, self.cfg.max_kbps))
         self._target = out
         return dict(out)
+
+    def wanted_bps(self) -> float | None:
+        """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
+        once every stream is calibrated; None before.  The estimator need not probe past it."""
+        if not self.cfg.calibrate_frames or any(n not in self._cap for n in self.video):
+            return None
+        return (sum(self._cap.values()) * 1000 + (self._overhead_bps or 0.0)) / self.cfg.headroom
 
     def state(self) -> dict[str, float]:
         """For updates.csv: the overhead the controller pays first and each stream's latest target and learnt miss."""
@@ -150,6 +201,8 @@ class RateController:
         for n in self.video:
             if n in self._target:
                 out[f"adapt_{n}_kbps"] = self._target[n]
+            if n in self._cap:
+                out[f"adapt_{n}_cap_kbps"] = self._cap[n]
             out[f"adapt_{n}_miss"] = self._miss[n]
         return out
 

@@ -1004,9 +1004,14 @@ class ServerSession:
         an RTP packet of the session's probe SSRC (``Welcome.method_params.probe_ssrc``) whose payload is zeros."""
         if self.estimator is None or self.rate is None or self.tx.probe_ssrc is None or self.tx.transport_cc_id is None:
             return []
+        wanted = self.rate.wanted_bps()
+        if wanted is not None and self.estimator.target_bps >= wanted:
+            return []           # the estimate already carries all the session would send: nothing to find
         cl = self.estimator.probe(int(round(now_ms * 1000)))
         if cl is None:
             return []
+        if wanted is not None and cl.rate_bps > 1.5 * wanted:   # no faster than 1.5x what the session could use
+            cl = dataclasses.replace(cl, rate_bps=1.5 * wanted)
         profile, body = one_byte_extension({self.tx.transport_cc_id: b"\0\0"})
         out = []
         for k in range(cl.packets):
