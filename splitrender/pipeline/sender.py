@@ -27,11 +27,11 @@ from typing import Any, Callable
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol.fec import fec_encode
-from .adapt import AdaptConfig, retarget
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import one_byte_extension
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
                         split_annexb)
+from .adapt import AdaptConfig, retarget
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
                    datagram_wire_bytes, pack_envelope, rtp_format, stream_table)
 
