@@ -227,3 +227,17 @@ async def test_a_full_delay_line_counts_undeliverable_not_dropped() -> None:
     snap = counters.snapshot()
     assert sent == [b"\x00", b"\x01"]
     assert snap.packets_undeliverable == 3 and snap.packets_dropped == 0 and snap.packets_out == 2
+
+
+async def test_a_time_window_begins_when_the_relay_does() -> None:
+    """Link time starts at the relay's first listener, as virtual time starts at 0: a delay spike at 300-500 ms
+    holds the datagrams sent inside it and none before (the loop's own clock, which it used, put the window at an
+    arbitrary moment, so live and virtual time saw a trace or a spike at different phases)."""
+    path = parse_path("delay 5ms spike 200ms 300ms 200ms")
+    async with asyncio.timeout(10):
+        sent, at_server, _, _ = await _udp_round(path, 12, 0.05)
+    one_way = {k: (at_server[k] - sent[k]) * 1000 for k in at_server}
+    early = [v for k, v in one_way.items() if k <= 4]          # sent before 250 ms
+    inside = [v for k, v in one_way.items() if 7 <= k <= 8]     # sent at 350-400 ms
+    assert early and max(early) < 60, one_way
+    assert inside and min(inside) > 150, one_way

@@ -3,7 +3,11 @@
 Client -> server traffic goes through the path's ``uplink`` :class:`Link`, server ->
 client traffic through its ``downlink``.  One Link per direction is shared by every
 UDP mapping and TCP connection of the relay, like one bottleneck per direction of a
-real path.  Link time is the event loop's clock (``loop.time()``, s).
+real path.  Link time is the event loop's clock (``loop.time()``, s) less the relay's
+origin, the moment its first listener started (:attr:`Relay.origin_wall_s` gives it on
+the wall clock): a time-windowed impairment (a delay spike) and a mahimahi trace begin
+there, as they begin at 0 in virtual time, instead of at an arbitrary phase of the
+loop's clock.
 
 UDP: the relay listens on ``listen``, learns the client's address from the first
 datagram (datagrams from other addresses are dropped and counted), and forwards each
@@ -30,13 +34,14 @@ import ipaddress
 import itertools
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from splitrender.errors import NetworkConfigError
-from splitrender.netsim.models import Link, PathSpec, corrupt
+from splitrender.netsim.models import Delivery, Link, PathSpec, corrupt
 
 logger = logging.getLogger(__name__)
 
@@ -204,8 +209,22 @@ class Relay:
         self._servers: list[asyncio.Server] = []
         self._tcp_tasks: set[asyncio.Task[None]] = set()
         self._closed = False
+        self._origin: float | None = None
+        self.origin_wall_s: float | None = None
+        """Wall-clock time (``time.time()``) of link time 0: when the first listener started."""
 
     # -- helpers ------------------------------------------------------------------
+
+    def _start_clock(self) -> None:
+        if self._origin is None:
+            self._origin = asyncio.get_running_loop().time()
+            self.origin_wall_s = time.time()
+
+    def _send(self, link: Link, now_loop_s: float, size: int, reliable: bool = False) -> list[Delivery]:
+        """``link.send`` on link time (the loop's clock less the origin), deliveries back on the loop's clock."""
+        origin = self._origin or 0.0
+        return [dataclasses.replace(d, time_s=d.time_s + origin)
+                for d in link.send(now_loop_s - origin, size, reliable=reliable)]
 
     def _check_address(self, role: str, addr: Address) -> None:
         host, port = addr
@@ -232,6 +251,7 @@ class Relay:
         """Relay UDP from ``listen`` to ``target``; returns the bound listen address."""
         self._check_address("listen", listen)
         self._check_address("target", target)
+        self._start_clock()
         loop = asyncio.get_running_loop()
         client_addr: list[Address] = []
 
@@ -248,7 +268,7 @@ class Relay:
                   addr: Address | None) -> None:
             counters.packets_in += 1
             counters.bytes_in += len(data)
-            deliveries = link.send(loop.time(), len(data) + UDP_OVERHEAD_BYTES)
+            deliveries = self._send(link, loop.time(), len(data) + UDP_OVERHEAD_BYTES)
             if not deliveries:
                 counters.packets_dropped += 1
                 return
@@ -296,6 +316,7 @@ class Relay:
         """Relay TCP connections from ``listen`` to ``target``; returns the bound address."""
         self._check_address("listen", listen)
         self._check_address("target", target)
+        self._start_clock()
 
         async def on_connect(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
             task = asyncio.current_task()
@@ -366,7 +387,7 @@ class Relay:
                 for off in range(0, len(data), TCP_SEGMENT_BYTES):
                     seg = data[off : off + TCP_SEGMENT_BYTES]
                     counters.packets_in += 1
-                    (d,) = link.send(loop.time(), len(seg) + TCP_OVERHEAD_BYTES, reliable=True)
+                    (d,) = self._send(link, loop.time(), len(seg) + TCP_OVERHEAD_BYTES, reliable=True)
                     last = max(last, d.time_s)
                     await queue.put((last, seg))
             await queue.put(None)
