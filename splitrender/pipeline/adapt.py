@@ -198,11 +198,9 @@ class RateController:
     def state(self) -> dict[str, float]:
         """For updates.csv: the overhead the controller pays first and each stream's latest target and learnt miss."""
         out = {"adapt_overhead_kbps": (self._overhead_bps or 0.0) / 1000}
-        for n in self.video:
-            if n in self._target:
-                out[f"adapt_{n}_kbps"] = self._target[n]
-            if n in self._cap:
-                out[f"adapt_{n}_cap_kbps"] = self._cap[n]
+        for n in self.video:     # every key from the first frame (NaN until known): row logs fix their columns then
+            out[f"adapt_{n}_kbps"] = self._target.get(n, math.nan)
+            out[f"adapt_{n}_cap_kbps"] = self._cap.get(n, math.nan)
             out[f"adapt_{n}_miss"] = self._miss[n]
         return out
 
