@@ -19,7 +19,7 @@ released in order once every stream they sent is present or known missing.
 from __future__ import annotations
 
 import logging
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -233,6 +233,10 @@ class ClientPipeline:
         self._chunks: dict[tuple[str, int], bytearray] = {}
         self._reliable: dict[int, dict[str, bytes]] = {}
         self._last_released = -1
+        self._given_up: deque[tuple[ReceivedFrame, int]] = deque()
+        """Frames given up for the frame-count bound, without their pictures but with their reliable data (and the
+        bytes they hold), for :meth:`ready` to hand over first: a method's cumulative state (geometry, tables) stays
+        whole.  They count toward ``max_pending_bytes`` and go first when it is exceeded."""
         self._newest_ts: dict[str, int] = {}
         """Per RTP stream, the RTP timestamp of the newest frame decoded (frames of a stream come out in order)."""
         self.wire_bytes: dict[str, int] = {}
@@ -291,15 +295,17 @@ class ClientPipeline:
         metadata, data and decoded planes."""
         return (sum(len(b) for b in self._chunks.values())
                 + sum(len(p) for d in self._reliable.values() for p in d.values())
-                + sum(fr.nbytes for fr in self._pending.values()))
+                + sum(fr.nbytes for fr in self._pending.values()) + sum(n for _, n in self._given_up))
 
     def _check_held(self, what: str) -> None:
         """Keep :meth:`held_bytes` within ``max_pending_bytes``: give up the oldest frames (counted, reported
         lost) while that helps; the server's error, named, when what is left is still over."""
         limit = self.limits.max_pending_bytes
         held = self.held_bytes()
-        while held > limit and (self._reliable or len(self._pending) > 1):
-            if self._reliable and (not self._pending or next(iter(self._reliable)) < next(iter(self._pending))):
+        while held > limit and (self._given_up or self._reliable or len(self._pending) > 1):
+            if self._given_up:
+                self._drop_given_up()
+            elif self._reliable and (not self._pending or next(iter(self._reliable)) < next(iter(self._pending))):
                 del self._reliable[next(iter(self._reliable))]
             else:
                 _, old = self._pending.popitem(last=False)
@@ -483,8 +489,10 @@ class ClientPipeline:
     # ------------------------------------------------------------------ output
 
     def ready(self) -> list[ReceivedFrame]:
-        """Frames whose every stream is present or known missing, in frame order."""
-        out = []
+        """Frames whose every stream is present or known missing, in frame order (frames given up for the memory
+        bounds first, as partial frames with their reliable data only)."""
+        out = [rf for rf, _ in self._given_up]
+        self._given_up.clear()
         while self._pending:
             fid, fr = next(iter(self._pending.items()))
             if not fr.resolved:
@@ -494,9 +502,23 @@ class ClientPipeline:
         return out
 
     def _release_forced(self, fr: _Pending) -> None:
+        """Give ``fr`` up for the memory bounds: its pictures go, its reliable data still reaches the half in order
+        (a delta left out would put every later one out of step with the server; at most ``max_pending_frames``
+        such frames wait for :meth:`ready`, the oldest dropped beyond)."""
         self.counters["frames_given_up"] += 1
-        self.tracker.on_lost(fr.frame_id, sorted(fr.missing))
+        missing = set(fr.missing) | set(fr.planes)
+        self.tracker.on_lost(fr.frame_id, sorted(missing))
         self._last_released = max(self._last_released, fr.frame_id)
+        if fr.data:
+            upd = DecodedUpdate(fr.frame_id, fr.env.t_s, fr.env.pose, {}, fr.env.meta, dict(fr.data), frozenset(missing))
+            nbytes = fr.meta_nbytes + sum(len(d) for d in fr.data.values())
+            self._given_up.append((ReceivedFrame(upd, fr.meta, fr.env, fr.meta_ms, fr.received_ms, fr.decoded_ms), nbytes))
+            while len(self._given_up) > self.limits.max_pending_frames:
+                self._drop_given_up()
+
+    def _drop_given_up(self) -> None:
+        self._given_up.popleft()
+        self.counters["given_up_data_dropped"] = self.counters.get("given_up_data_dropped", 0) + 1
 
     def _release(self, fr: _Pending) -> ReceivedFrame:
         self._last_released = fr.frame_id
