@@ -112,7 +112,18 @@ def encode_geometry(ids: np.ndarray, size: np.ndarray, slot_vertex: np.ndarray, 
     """
     ids = np.asarray(ids, np.int64)
     used = np.arange(5)[None, :] < (size.astype(np.int64) + 2)[:, None]
-    flat = slot_vertex[used].astype(np.int64)
+    dq, code = encode_vertex_codes(slot_vertex[used], vertex_q)
+    return {"geo_id": encode_ids(ids), "geo_size": size.astype(np.uint8), "geo_vtx": dq.astype(np.uint16),
+            "geo_idx": code.astype(np.uint16 if code.size == 0 or code.max() < 65536 else np.uint32)}
+
+
+def encode_vertex_codes(flat: np.ndarray, vertex_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertex coding of ``sas`` and ``tss`` geometry: for scene-wide vertex ids ``flat`` (one per corner, in
+    order) and ``vertex_q`` (V_scene, 3) uint16 quantised positions, the distinct vertices' positions in order of
+    first use as deltas modulo 2^16 ((V, 3) int64 in 0..65535), and per corner its code (int64): 0 introduces the
+    next new vertex, ``k`` >= 1 reuses the ``k``-th most recently introduced one.  :func:`decode_geometry_slots`
+    inverts it."""
+    flat = np.asarray(flat, np.int64).reshape(-1)
     uniq, first, inv = np.unique(flat, return_index=True, return_inverse=True)
     by_first = np.argsort(first, kind="stable")
     rank = np.empty_like(by_first)
@@ -120,12 +131,9 @@ def encode_geometry(ids: np.ndarray, size: np.ndarray, slot_vertex: np.ndarray, 
     idx = rank[inv.reshape(-1)]
     is_new = np.zeros(flat.size, np.int64)
     is_new[first] = 1
-    new_before = np.cumsum(is_new) - is_new
-    code = new_before - idx
+    code = np.cumsum(is_new) - is_new - idx
     q = vertex_q[uniq[by_first]].astype(np.int64)
-    dq = np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536
-    return {"geo_id": encode_ids(ids), "geo_size": size.astype(np.uint8), "geo_vtx": dq.astype(np.uint16),
-            "geo_idx": code.astype(np.uint16 if code.size == 0 or code.max() < 65536 else np.uint32)}
+    return np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536, code
 
 
 def decode_geometry_slots(dvtx: np.ndarray, code: np.ndarray) -> np.ndarray:

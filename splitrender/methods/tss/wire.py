@@ -78,6 +78,7 @@ import numpy as np
 
 from ...errors import RemoteProtocolError
 from ...protocol.schema import Array, Float, Int, Map, Schema, Seq, Str, Transforms, Version
+from ..sas.wire import decode_geometry_slots, encode_vertex_codes
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, SINGLE_PX, SINGLE_TILE, AtlasPlan, lp_cell_level, lp_per_shelf,
                      lp_tip_origins, os_rows, os_sizes, single_origins, single_per_shelf, tip_dim)
 
@@ -166,19 +167,9 @@ def encode_geometry(ids: np.ndarray, tri_vertex: np.ndarray, vertex_q: np.ndarra
     """The ``geo`` payload for triangles ``ids`` (sorted, distinct): ``tri_vertex`` (T, 3) scene-wide vertex ids of
     every triangle, ``vertex_q`` (V, 3) uint16 every scene vertex quantised in its object's box."""
     ids = np.asarray(ids, np.int64)
-    flat = tri_vertex[ids].reshape(-1).astype(np.int64)
-    uniq, first, inv = np.unique(flat, return_index=True, return_inverse=True)
-    by_first = np.argsort(first, kind="stable")
-    rank = np.empty_like(by_first)
-    rank[by_first] = np.arange(by_first.size)
-    idx = rank[inv.reshape(-1)]
-    is_new = np.zeros(flat.size, np.int64)
-    is_new[first] = 1
-    code = np.cumsum(is_new) - is_new - idx                 # 0: the next new vertex; k: the k-th most recent one
-    q = vertex_q[uniq[by_first]].astype(np.int64)
-    dq = (np.diff(q, axis=0, prepend=np.zeros((1, 3), np.int64)) % 65536).astype("<u2")
+    dq, code = encode_vertex_codes(tri_vertex[ids], vertex_q)   # code 0: the next new vertex; k: the k-th most recent
     wide = int(code.size > 0 and code.max() > 65535)
-    return (GEO_HEAD.pack(WIRE_VERSION, ids.size, q.shape[0], wide) + encode_ids(ids) + dq.tobytes()
+    return (GEO_HEAD.pack(WIRE_VERSION, ids.size, dq.shape[0], wide) + encode_ids(ids) + dq.astype("<u2").tobytes()
             + code.astype("<u4" if wide else "<u2").tobytes())
 
 
@@ -216,10 +207,8 @@ def decode_geometry(buf: bytes, n_triangles: int, tri_base: np.ndarray, box: np.
         raise TssWireError(f"tss geo: vertex code {int(code[k])} at corner {k} refers to a vertex not yet introduced")
     if int(is_new.sum()) != nv:
         raise TssWireError(f"tss geo: the codes introduce {int(is_new.sum())} vertices, the header says {nv}")
-    q = (np.cumsum(dq, axis=0) % 65536).astype(np.uint16)
     obj = object_of(ids, tri_base)
-    corner_q = q[new_before - code] if code.size else np.zeros((0, 3), np.uint16)
-    pos = dequantize_positions(corner_q.reshape(n, 3, 3), box[obj][:, None])
+    pos = dequantize_positions(decode_geometry_slots(dq, code).reshape(n, 3, 3), box[obj][:, None])
     return Geometry(ids, obj, pos)
 
 
