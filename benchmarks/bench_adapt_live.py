@@ -28,11 +28,9 @@ import json
 import math
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -42,17 +40,10 @@ from splitrender.client.session import ClientConfig, LiveClient  # noqa: E402
 from splitrender.netsim import Relay, parse_path  # noqa: E402
 from splitrender.netsim.traces import step_trace, write_mahimahi  # noqa: E402
 
-LOOPBACK = "127.0.0.1"
+from _live import LOOPBACK, served  # noqa: E402  (beside this script)
+
 OUT = Path(__file__).resolve().parent / "results"
 ASK_KBPS = 3000.0
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as sk:
-        sk.bind((LOOPBACK, 0))
-        return int(sk.getsockname()[1])
 
 
 def _network(trace: Path) -> str:
@@ -60,17 +51,10 @@ def _network(trace: Path) -> str:
 
 
 async def live(trace: Path, duration_s: float, seed: int, work: Path) -> list[dict[str, float]]:
-    port, udp_port = _free_port(), _free_port()
     out = work / "live"
-    srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--host", LOOPBACK, "--port", str(port),
-                            "--udp-port", str(udp_port), "--scene", "minimal", "--methods", "video", "--adapt", "rate",
-                            "--param", f"video.bitrate_kbps={ASK_KBPS:g}", "--out", str(out)],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        assert srv.stderr is not None
-        line = await asyncio.get_running_loop().run_in_executor(None, srv.stderr.readline)
-        if "serving on" not in line:
-            raise RuntimeError(f"server did not start: {line}")
+    args = ["--scene", "minimal", "--methods", "video", "--adapt", "rate", "--param", f"video.bitrate_kbps={ASK_KBPS:g}",
+            "--out", str(out)]
+    async with served(args) as (port, udp_port):
         relay = Relay(parse_path(_network(trace)), seed=seed)
         try:
             tcp = await relay.start_tcp((LOOPBACK, 0), (LOOPBACK, port))
@@ -82,9 +66,6 @@ async def live(trace: Path, duration_s: float, seed: int, work: Path) -> list[di
         finally:
             await relay.wait_tcp_idle(1.0)
             await relay.close()
-    finally:
-        srv.terminate()
-        srv.communicate(timeout=15)
     path = next(out.glob("*/updates.csv"))
     rows = []
     for r in csv.DictReader(open(path)):

@@ -68,7 +68,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 from splitrender.client.session import ClientConfig, LiveClient  # noqa: E402
 from splitrender.netsim import Relay, parse_path  # noqa: E402
 
-LOOPBACK = "127.0.0.1"
+from _live import LOOPBACK, served  # noqa: E402  (beside this script)
+
 RESULTS = Path(__file__).parent / "results" / "bench_loss_recovery.json"
 PROFILES = ("delay 20ms", "delay 20ms loss 2%", "delay 20ms loss gemodel 4% 30% 70% 0.5%")
 GOP_S = 1.0
@@ -80,30 +81,11 @@ TARGET_SHOWN = 0.9
 TARGET_FREEZE_MS = 250.0
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as sk:
-        sk.bind((LOOPBACK, 0))
-        return int(sk.getsockname()[1])
-
-
 async def one_run(network: str, duration_s: float, width: int, height: int, seed: int, fec: bool = False,
                   playout_ms: float = 0.0) -> dict[str, Any]:
-    """One session; with ``playout_ms`` > 0 the client is also :data:`PATIENT_KW`."""
-    """The server in its own process (``splitrender serve``), as deployed: in one process with the client
-    and the relay, the three compete for one interpreter lock and delay each other's datagrams by 100s of ms."""
-    import subprocess
-
-    port, udp_port = _free_port(), _free_port()
-    srv = subprocess.Popen([sys.executable, "-m", "splitrender.cli", "serve", "--host", LOOPBACK, "--port", str(port),
-                            "--udp-port", str(udp_port), "--scene", "minimal", "--methods", "video", *(["--fec"] if fec else [])],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        assert srv.stderr is not None
-        line = await asyncio.get_running_loop().run_in_executor(None, srv.stderr.readline)
-        if "serving on" not in line:
-            raise RuntimeError(f"server did not start: {line}")
+    """One session; with ``playout_ms`` > 0 the client is also :data:`PATIENT_KW`.  The server runs in its own
+    process (:func:`_live.served`)."""
+    async with served(["--scene", "minimal", "--methods", "video", *(["--fec"] if fec else [])]) as (port, udp_port):
         relay = Relay(parse_path(network), seed=seed)
         try:
             tcp = await relay.start_tcp((LOOPBACK, 0), (LOOPBACK, port))
@@ -117,9 +99,6 @@ async def one_run(network: str, duration_s: float, width: int, height: int, seed
             await relay.wait_tcp_idle(1.0)  # let the relay see both TCP sides close before closing it
             stats = relay.stats()
             await relay.close()
-    finally:
-        srv.terminate()
-        srv.communicate(timeout=15)
     rows = [r for r in result.rows if r["update_frame_id"] != -1]
     ids = [int(r["update_frame_id"]) for r in rows]
     new_at = [r["displayed_us"] / 1e6 for k, r in enumerate(rows) if k == 0 or ids[k] != ids[k - 1]]
