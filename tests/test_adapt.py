@@ -73,6 +73,15 @@ def test_config_errors_name_what_is_wrong() -> None:
         RunConfig(adapt="rate")
     with pytest.raises(ConfigError, match="smoothing"):
         AdaptConfig(smoothing=0)
+    from splitrender.pipeline.session import ServerOptions
+    from splitrender.server.server import ServerConfig
+
+    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, got 'full'"):
+        ServerConfig(adapt="full", transport_cc=True)
+    with pytest.raises(ConfigError, match="server adapt rate: follows the estimated rate, so it needs transport_cc"):
+        ServerConfig(adapt="rate")
+    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, got 'on'"):
+        ServerOptions(adapt="on")
 
 
 def _noise(rng: np.random.Generator) -> np.ndarray:

@@ -95,7 +95,7 @@ class AdaptConfig:
 def check_adapt_mode(mode: str, where: str) -> str:
     """``mode`` when it names an adaptation mode, else a :class:`ConfigError` naming ``where``."""
     if mode not in ADAPT_MODES:
-        raise ConfigError(f"{where}: adapt must be one of {', '.join(ADAPT_MODES)}, got {mode!r:.40}")
+        raise ConfigError(f"{where} adapt: must be one of {', '.join(ADAPT_MODES)}, got {mode!r:.40}")
     return mode
 
 

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from splitrender.errors import ConfigError
+from splitrender.pipeline.adapt import check_adapt_mode
 from splitrender.pipeline.session import rtcp_media_ssrcs
 from splitrender.protocol import RtcpError
 from splitrender.server.worker import RenderWorker, parse_test_hang
@@ -130,8 +131,7 @@ class ServerConfig:
             v = getattr(self, k)
             if not 0.05 <= v <= 3600:
                 raise ConfigError(f"server {k}: must be in [0.05, 3600] s, got {v}")
-        if self.adapt not in ("off", "rate"):
-            raise ConfigError(f"server adapt: must be one of off, rate, got {self.adapt!r:.40}")
+        check_adapt_mode(self.adapt, "server")
         if self.adapt != "off" and not self.transport_cc:
             raise ConfigError(f"server adapt {self.adapt}: follows the estimated rate, so it needs transport_cc "
                               "(--transport-cc)")

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..coerce import coerce_value
-from ..pipeline.adapt import ADAPT_MODES
+from ..pipeline.adapt import check_adapt_mode
 from ..errors import ConfigError
 
 
@@ -105,7 +105,7 @@ class RunConfig:
     transport_cc: bool = False
     """Transport-wide congestion control feedback: every RTP packet carries a transport sequence number, the client
     reports arrivals every 100 ms, the server's estimator follows the path's rate (written to updates.csv as
-    ``cc_*``; nothing acts on it yet)."""
+    ``cc_*``; with ``adapt`` the encoders follow it)."""
     pacing: bool = False
     """With ``transport_cc``: RTP leaves through a pacer at 2.5x the estimated rate instead of in a burst."""
     adapt: str = "off"
@@ -123,8 +123,7 @@ class RunConfig:
             raise bad("width/height", f"must be positive and even, got {self.width}x{self.height}")
         if self.pacing and not self.transport_cc:
             raise bad("pacing", "paces at the estimated rate, so it needs transport_cc (--transport-cc)")
-        if self.adapt not in ADAPT_MODES:
-            raise bad("adapt", f"must be one of {', '.join(ADAPT_MODES)}, got {self.adapt!r:.40}")
+        check_adapt_mode(self.adapt, "run config")
         if self.adapt != "off" and not self.transport_cc:
             raise bad("adapt", f"{self.adapt} follows the estimated rate, so it needs transport_cc (--transport-cc)")
         if self.width * self.height > 3840 * 2160:
