@@ -162,11 +162,11 @@ def test_a_step_down_is_followed_within_the_recovery_bound(step_trace_path) -> N
                                               height=180, network=f"delay 20ms trace {step_trace_path}",
                                               transport_cc=True, adapt=adapt, metrics=False, seed=0)).run()
     off, rate = (float(np.percentile(_ages(res[a], 3.0, 4.0), 95)) for a in ("off", "rate"))
-    assert rate < 150 and off > 1000, (off, rate)
+    assert rate < 150 and off > 1300, (off, rate)
     s = res["rate"].summary
     assert s["encoder_restarts"] >= 1 and s["probe_clusters"] >= 1, s
     targets = [u["adapt_color_kbps"] for u in res["rate"].updates if u["t_s"] >= 2.5]
-    assert max(targets) < 600, max(targets)          # under the new capacity, with room for metadata
+    assert max(targets) < 400, max(targets)   # under the new capacity, room for metadata (316 kbit/s at most measured)
 
 
 def _adapt_run(path, method: str):  # type: ignore[no-untyped-def]
@@ -187,22 +187,22 @@ def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> N
     res = _adapt_run(step_trace_path, "sas")
     before = np.mean([u["bytes_atlas"] for u in res.updates if 0.5 <= u["t_s"] < 1.5]) * 8 * 30 / 1000   # kbit/s
     after = np.mean([u["adapt_atlas_kbps"] for u in res.updates if u["t_s"] >= 2.5])
-    assert after < 0.2 * before and after < 300, (before, after)
-    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 200
+    assert after < 0.16 * before and after < 170, (before, after)      # measured 1056 -> 133 kbit/s (0.126)
+    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 150            # measured 117 ms
 
 
 @pytest.mark.slow
 def test_rate_alone_cannot_save_a_lossless_depth_stream(step_trace_path) -> None:  # type: ignore[no-untyped-def]
     """``warp``'s depth is lossless HEVC (16-bit): the controller pays for it first and takes the colour down to its
     floor, but the depth alone (1.3-2.2 Mbit/s here) outweighs a 0.6 Mbit/s link, so the queue and the update age
-    keep growing (measured 2.4 s at the end).  Depth precision is a knob for a per-method operating-point
+    keep growing (measured 2.5 s at the end).  Depth precision is a knob for a per-method operating-point
     controller (issue 35, not built yet), not for the encoder rate."""
     res = _adapt_run(step_trace_path, "warp")
     assert "adapt_depth0_kbps" not in res.updates[-1]                      # not controlled: paid for
     late = [u for u in res.updates if u["t_s"] >= 2.5]
     assert all(u["adapt_color0_kbps"] == AdaptConfig().min_kbps for u in late)
-    assert min(u["adapt_overhead_kbps"] for u in late) > 600
-    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) > 1000
+    assert min(u["adapt_overhead_kbps"] for u in late) > 1000               # measured 1276 kbit/s at least
+    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) > 2000            # measured 2518 ms
 
 
 def test_run_adapt_rate_turns_the_feedback_on_and_is_written_with_the_run(tmp_path) -> None:  # type: ignore[no-untyped-def]
