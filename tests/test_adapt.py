@@ -235,3 +235,19 @@ def test_capacity_trace_writes_a_trace_the_links_read(tmp_path, capsys) -> None:
     assert main(["capacity-trace", "cellular", "4", str(tmp_path / "cell.trace"), "--mean", "6", "--seed", "3"]) == 0
     assert main(["capacity-trace", "step", "1-20", str(out)]) == 2
     assert "capacity-trace step: '1-20' is not seconds:Mbit/s (e.g. 5:20)" in capsys.readouterr().err
+
+
+def test_a_welcome_with_a_bad_probe_ssrc_is_refused_by_name() -> None:
+    """``Welcome.method_params.probe_ssrc`` must be an SSRC no stream of the session uses."""
+    from splitrender.codecs.video import VideoCodecConfig
+    from splitrender.methods.base import StreamSpec
+    from splitrender.pipeline import ClientOptions, ClientSession, EnvelopeError, ServerPipeline
+    from splitrender.protocol import Welcome
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig(), 160, 90)], transport_cc_id=5)
+    good = tx.welcome_params(b"")
+    streams = tx.describe("127.0.0.1", 5000, "t")
+    assert ClientSession.from_welcome(Welcome("s", "video", good, streams), ClientOptions()).probe_ssrc == tx.probe_ssrc
+    for bad in ("1234", -1, 1 << 32, True, streams[0].ssrc):
+        with pytest.raises(EnvelopeError, match="Welcome.method_params.probe_ssrc: expected an SSRC no stream uses, got"):
+            ClientSession.from_welcome(Welcome("s", "video", {**good, "probe_ssrc": bad}, streams), ClientOptions())
