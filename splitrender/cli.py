@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "they are `splitrender study all` on their own)")
     p.add_argument("--no-studies", action="store_true", help="skip the studies (the full demo runs them)")
     p.add_argument("--fec", action="store_true", default=None, help="forward error correction on every RTP stream")
+    p.add_argument("--adapt", choices=("off", "rate", "full"), default=None,
+                   help="rate adaptation in every run (as run --adapt; turns transport-wide feedback on): rate, full, "
+                        "or off (default)")
     _session_args(p)
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_demo"))
 
@@ -90,9 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(updates.csv cc_* columns)")
     p.add_argument("--pacing", action="store_true", default=None,
                    help="with --transport-cc: RTP leaves through a pacer at 2.5x the estimated rate, not in bursts")
-    p.add_argument("--adapt", choices=("off", "rate"), default=None,  # pipeline.adapt.ADAPT_MODES (not imported: it loads the pipeline)
+    p.add_argument("--adapt", choices=("off", "rate", "full"), default=None,  # pipeline.adapt.ADAPT_MODES (not imported: it loads the pipeline)
                    help="rate: every lossy video stream's encoder follows the estimated rate (turns --transport-cc on); "
-                        "off (default): fixed operating points")
+                        "full: that, and the method's own knobs (resolution, atlas budget, depth bits, quad detail) "
+                        "choose its operating point; off (default): fixed operating points")
     _session_args(p)
     _common_run_args(p)
     p.set_defaults(func=main_run)
@@ -224,6 +228,10 @@ def main_methods(ns: argparse.Namespace) -> int:
         for name in names:
             fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(specs[name].config))
             print(f"  {name:8s} {specs[name].description}\n           {fields}")
+            knobs = specs[name].config().adapt_knobs()
+            if knobs:   # what --adapt full may lower, beside the encoders' rate (and the scalable colour's resolution)
+                print("           --adapt full: " + ", ".join(f"{k.name} {'/'.join(f'{v:g}' for v in k.levels)}"
+                                                           for k in knobs))
     return 0
 
 

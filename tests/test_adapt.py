@@ -67,8 +67,8 @@ def test_when_an_encoder_restarts() -> None:
 def test_config_errors_name_what_is_wrong() -> None:
     from splitrender.sim.config import RunConfig
 
-    with pytest.raises(ConfigError, match="run config adapt: must be one of off, rate, got .full."):
-        RunConfig(adapt="full", transport_cc=True)
+    with pytest.raises(ConfigError, match="run config adapt: must be one of off, rate, full, got .fast."):
+        RunConfig(adapt="fast", transport_cc=True)
     with pytest.raises(ConfigError, match="run config adapt: rate follows the estimated rate, so it needs transport_cc"):
         RunConfig(adapt="rate")
     with pytest.raises(ConfigError, match="smoothing"):
@@ -76,11 +76,11 @@ def test_config_errors_name_what_is_wrong() -> None:
     from splitrender.pipeline.session import ServerOptions
     from splitrender.server.server import ServerConfig
 
-    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, got 'full'"):
-        ServerConfig(adapt="full", transport_cc=True)
+    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, full, got 'fast'"):
+        ServerConfig(adapt="fast", transport_cc=True)
     with pytest.raises(ConfigError, match="server adapt rate: follows the estimated rate, so it needs transport_cc"):
         ServerConfig(adapt="rate")
-    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, got 'on'"):
+    with pytest.raises(ConfigError, match="server adapt: must be one of off, rate, full, got 'on'"):
         ServerOptions(adapt="on")
 
 

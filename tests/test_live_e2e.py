@@ -714,6 +714,24 @@ async def test_an_adapting_live_session_follows_a_narrow_link(tmp_path: Path) ->
 
 
 @pytest.mark.slow
+async def test_a_live_session_adapting_its_operating_point_lowers_warp_s_depth_and_colour(tmp_path: Path) -> None:
+    """``serve --adapt full``: ``warp`` (lossless depth, about 3 Mbit/s at 320x180 here) into the 1 Mbit/s bottleneck
+    above.  The server's point controller lowers the depth's bits and samples and the colour's resolution in the
+    render worker (the knob values travel with each frame's call), the client's pipeline brings the smaller colour
+    pictures back to their declared size on its decoder thread, and no frame is refused for its size."""
+    dur = 4.0
+    result, _, sc = await _run_through_relay(tmp_path, CC_NETWORK, server_kw={
+        "transport_cc": True, "adapt": "full"}, duration_s=dur, methods=("warp",))
+    c = result.counters
+    rows = [r for r in sc["update_rows"] if "adapt_point" in r]
+    assert rows and max(r["adapt_point"] for r in rows) >= 2, [r.get("adapt_point") for r in rows]
+    low = [r for r in rows if r["adapt_knob_scale"] < 1.0]
+    assert low and min(r["adapt_knob_depth_bits"] for r in rows) < 16, rows[-1]
+    assert c.get("frames_wrong_size", 0) == 0 and c["frames_complete"] >= 20, c
+    assert sc.get("point_moves", 0) >= 1, sc
+
+
+@pytest.mark.slow
 async def test_a_paced_live_session_streams_and_is_reported(tmp_path: Path) -> None:
     """``serve --pacing`` (transport-wide feedback implied): the pacer task sends every frame's packets, the client
     shows the stream and reports it, and no packet is left unaccounted for."""

@@ -58,6 +58,23 @@ def quantize_depth(depth_m: np.ndarray, near_m: float) -> np.ndarray:
     return c.astype(np.uint16)
 
 
+def coarsen_depth(codes: np.ndarray, bits: int) -> np.ndarray:
+    """``codes`` (uint16, from :func:`quantize_depth`) keeping ``bits`` significant bits: each moved within its
+    bucket of ``2**(16 - bits)`` codes to the bucket's first (less than one bucket away), background (0) kept and no
+    surface moved into it.  Where the high byte
+    is odd the dropped bits are ones, not zeros: :func:`pack_depth_planes` folds those low bytes (255 - lo), so the
+    dropped bits are zero in the coded plane either way (a plane of zeros, not a pattern of the high byte's parity)."""
+    if not 1 <= bits <= 16:
+        raise CodecError(f"depth bits must be 1 to 16, got {bits}")
+    if bits == 16:
+        return codes
+    k = 16 - bits
+    step = 1 << k
+    c = np.maximum(codes.astype(np.int64) >> k << k, step)     # the code's bucket of 2**k (never the background's)
+    c = np.where((c >> 8) & 1, c | (step - 1) & 0xFF, c)
+    return np.where(codes == 0, 0, c).astype(np.uint16)
+
+
 def dequantize_depth(codes: np.ndarray, near_m: float) -> np.ndarray:
     """(H, W) uint16 codes -> (H, W) float32 depth in metres, ``inf`` on background (code 0)."""
     if not near_m > 0:

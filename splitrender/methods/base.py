@@ -62,6 +62,10 @@ class StreamSpec:
     width: int
     height: int
     kind: Literal["video"] = "video"
+    scalable: bool = False
+    """Colour whose resolution rate adaptation may lower (``--adapt full``'s ``scale`` knob): the server codes a
+    smaller picture and the client's pipeline brings it back to this size (:mod:`splitrender.codecs.resize`).  Not
+    for atlases (a patch's texels would bleed into the next) nor depth."""
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier() or self.name in RESERVED_STREAMS:
@@ -99,6 +103,49 @@ class DataStreamSpec:
 
 
 AnyStreamSpec = Union[StreamSpec, DataStreamSpec]
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One of a method's operating-point knobs, for rate adaptation (``--adapt full``, :mod:`splitrender.pipeline.adapt`).
+
+    ``name``: the :class:`MethodConfig` field it sets (``scale`` is the pipeline's own: the resolution of the
+    :attr:`StreamSpec.scalable` streams); ``levels``: its values, richest first (the method's configured value
+    first); ``cost``: the prior of the bits each level sends over those of the first (1 first, falling), measured
+    offline (``benchmarks/bench_knobs.py``) and learnt online where the controller can observe it; ``affects``:
+    ``video`` when the bits are the lossy video streams' (the encoders' rate controller sees them), ``data`` when
+    they are sent as made (reliable data, geometry, lossless video: what the controller pays first), ``both`` for
+    the server's frame rate; ``order``: knobs of a higher order are lowered only once those of lower orders are
+    at their last level.
+    """
+
+    name: str
+    levels: tuple[Any, ...]
+    cost: tuple[float, ...]
+    affects: Literal["video", "data", "both"] = "video"
+    what: str = ""
+    order: int = 0
+
+    def __post_init__(self) -> None:
+        if len(self.levels) < 2 or len(self.cost) != len(self.levels):
+            raise ConfigError(f"knob {self.name}: needs two or more levels and a cost for each, got {len(self.levels)} "
+                              f"levels and {len(self.cost)} costs")
+        if self.cost[0] != 1.0 or any(not 0 < b < a for a, b in zip(self.cost, self.cost[1:])):
+            raise ConfigError(f"knob {self.name}: costs must start at 1 and fall, got {self.cost}")
+        if self.affects not in ("video", "data", "both"):
+            raise ConfigError(f"knob {self.name}: affects {self.affects!r} is not one of ['video', 'data', 'both']")
+
+
+SCALE_KNOB = Knob("scale", (1.0, 0.75, 0.5), (1.0, 0.55, 0.28), "video",
+                  "resolution of the scalable colour streams (the client resamples to the declared size)")
+"""The pipeline's resolution-scale knob, offered for every session with a :attr:`StreamSpec.scalable` stream."""
+
+FRAME_DIV_KNOB = Knob("frame_div", (1, 2, 3, 5), (1.0, 0.5, 0.34, 0.21), "both",
+                      "server frames sent: one tick in n (the client draws the newest it has at every display tick)",
+                      order=1)
+"""The pipeline's server-rate knob, for methods whose client draws any pose from what it holds (a method offers it
+in its :meth:`MethodConfig.adapt_knobs`; lowered only after the method's own knobs).  Its prior is one n-th of the
+bits (a frame sent costs what it did); the data part is learnt at each point."""
 RESERVED_STREAMS = ("meta", "session", "pose", "control")
 """Names the pipeline uses for its own byte counts."""
 
@@ -270,6 +317,12 @@ class MethodConfig:
             raise ConfigError(f"{type(self).__name__}.chroma: {self.chroma!r} is not one of {list(CHROMA_PIX_FMT)}")
         object.__setattr__(self, "chroma", chroma)  # 444 from TOML or --param is kept as "444"
 
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The knobs this method offers rate adaptation beyond its encoders' rate (``--adapt full``), in the order
+        the controller lowers them; none by default.  Each names a field of this config that the server half
+        reads afresh every frame (:meth:`ServerHalf.set_knobs` sets it)."""
+        return ()
+
     def for_codecs(self, codecs: tuple[str, ...]) -> MethodConfig:
         """This config adapted to a client that decodes only ``codecs`` (its ``Hello.codecs``, in preference order):
         the colour codec becomes the client's first choice when it does not take this one.  Methods with other
@@ -337,6 +390,15 @@ class ServerHalf(ABC):
     def stats(self) -> dict[str, float]:
         """Per-frame numbers (e.g. PVS size, atlas use); the runner writes them to updates.csv as ``srv_<key>``."""
         return {}
+
+    def set_knobs(self, values: dict[str, Any]) -> None:
+        """Take the operating point rate adaptation chose (``--adapt full``): each key a field the config's
+        :meth:`MethodConfig.adapt_knobs` names; the next :meth:`produce` runs with them.  Halves that derive state
+        from such a field at set-up override this to rebuild it."""
+        fields = {f.name for f in dataclasses.fields(self.config)}
+        mine = {k: v for k, v in values.items() if k in fields and getattr(self.config, k) != v}
+        if mine:
+            self.config = dataclasses.replace(self.config, **mine)
 
 
 class ClientHalf(ABC):

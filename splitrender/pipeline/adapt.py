@@ -1,4 +1,4 @@
-"""Rate adaptation: each video stream's encoder rate from the path estimate (sans-IO; issue 35, step 3).
+"""Rate adaptation: encoder rates and the method's operating point from the path estimate (sans-IO; issue 35).
 
 With ``adapt = "rate"`` (``run --adapt rate``, ``serve --adapt rate``) the server core's
 :class:`RateController` turns the send-rate estimator's encoder rate
@@ -35,6 +35,11 @@ IDR when it rises or falls a little (that IDR was due anyway), at once with an I
 it falls below ``urgent_ratio`` of the rate the encoder runs at (a queue builds with every
 frame sent too fast, and an IDR at the new rate costs less than the queue).
 
+With ``adapt = "full"`` a :class:`PointController` chooses the method's operating point as well (its knobs: the
+resolution of its scalable colour, its atlas budget, depth bits and samples, layers, the server's frame rate; see
+:meth:`~splitrender.methods.base.MethodConfig.adapt_knobs`), and this controller's caps follow the point
+(:attr:`RateController.factor`).
+
 PyAV cannot change a libx264 encoder's rate in place (setting ``bit_rate`` after opening
 changes nothing: measured, 2 -> 0.2 Mbit/s left the output at 1.7), hence the restarts.
 """
@@ -43,12 +48,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterable, Literal
+from typing import Any, Iterable, Literal
 
 from ..errors import ConfigError
 
-AdaptMode = Literal["off", "rate"]
-ADAPT_MODES: tuple[str, ...] = ("off", "rate")
+AdaptMode = Literal["off", "rate", "full"]
+ADAPT_MODES: tuple[str, ...] = ("off", "rate", "full")
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,12 @@ class AdaptConfig:
     headroom: float = 0.9
     calibrate_frames: int = 30
     ceiling: float = 1.0
+    stretch: float = 1.5
+    up_margin: float = 0.85
+    up_hold_s: float = 1.0
+    down_hold_s: float = 0.5
+    mtp_budget_ms: float = 100.0
+    settle_frames: int = 10
 
     def __post_init__(self) -> None:
         if not 0 < self.min_kbps <= self.max_kbps:
@@ -90,6 +101,17 @@ class AdaptConfig:
             raise ConfigError(f"AdaptConfig.calibrate_frames: must be in [0, 10000], got {self.calibrate_frames}")
         if not 1 <= self.ceiling <= 100:
             raise ConfigError(f"AdaptConfig.ceiling: must be in [1, 100], got {self.ceiling}")
+        if not 1 <= self.stretch <= 10:
+            raise ConfigError(f"AdaptConfig.stretch: must be in [1, 10], got {self.stretch}")
+        if not 0 < self.up_margin <= 1:
+            raise ConfigError(f"AdaptConfig.up_margin: must be in (0, 1], got {self.up_margin}")
+        for k in ("up_hold_s", "down_hold_s"):
+            if not 0 <= getattr(self, k) <= 60:
+                raise ConfigError(f"AdaptConfig.{k}: must be in [0, 60] s, got {getattr(self, k)}")
+        if not 1 <= self.mtp_budget_ms <= 10_000:
+            raise ConfigError(f"AdaptConfig.mtp_budget_ms: must be in [1, 10000], got {self.mtp_budget_ms}")
+        if not 1 <= self.settle_frames <= 1000:
+            raise ConfigError(f"AdaptConfig.settle_frames: must be in [1, 1000], got {self.settle_frames}")
 
 
 def check_adapt_mode(mode: str, where: str) -> str:
@@ -133,6 +155,9 @@ class RateController:
         self._seen: dict[str, list[int]] = {n: [] for n in self.video}     # calibration: bytes per frame at the method's own
         self._cap: dict[str, float] = {}                                     # kbit/s, once calibrated
         self._controlled: set[str] = set()
+        self.factor = 1.0
+        """What the operating point (:class:`PointController`) lets the encoders take, as a fraction of what they
+        took at the method's own point: each calibrated cap is multiplied by it."""
         self.frames = 0
 
     def _avg(self, old: float | None, new: float) -> float:
@@ -184,9 +209,23 @@ class RateController:
                     #                the first is an IDR, and the estimate starts from a guess)
                 self._controlled.add(n)
             self._controlled.add(n)
-            out[n] = min(kbps, self._cap.get(n, self.cfg.max_kbps))
+            out[n] = max(self.cfg.min_kbps, min(kbps, self._cap.get(n, self.cfg.max_kbps) * self.factor))
         self._target = out
         return dict(out)
+
+    @property
+    def calibrated(self) -> bool:
+        """Every controlled stream has its cap (or there is none to calibrate)."""
+        return not self.cfg.calibrate_frames or all(n in self._cap for n in self.video)
+
+    def natural_video_bps(self) -> float:
+        """What the controlled streams take at the method's own operating point (their caps; 0 before calibrated)."""
+        return sum(self._cap.get(n, 0.0) for n in self.video) * 1000
+
+    @property
+    def overhead_bps(self) -> float:
+        """The average rate of what the encoders do not control (reliable data, geometry, lossless video)."""
+        return self._overhead_bps or 0.0
 
     def wanted_bps(self) -> float | None:
         """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
@@ -218,3 +257,141 @@ def stream_fps(specs: Iterable[object]) -> float:
 
     rates = [float(s.codec.fps) for s in specs if isinstance(s, StreamSpec)]
     return max(rates) if rates else 30.0
+
+
+def build_ladder(knobs: tuple[Any, ...]) -> list[tuple[int, ...]]:
+    """The operating points, richest first: from every knob at its first level, each step lowers the next knob (in
+    declaration order, round robin) that has a level left, so no knob is spent before the others are touched; knobs
+    of a higher ``order`` only once every knob of a lower one is at its last level."""
+    point = [0] * len(knobs)
+    out = [tuple(point)]
+    for order in sorted({getattr(k, "order", 0) for k in knobs}):
+        group = [i for i, k in enumerate(knobs) if getattr(k, "order", 0) == order]
+        moved = True
+        while moved:
+            moved = False
+            for k in group:
+                if point[k] + 1 < len(knobs[k].levels):
+                    point[k] += 1
+                    out.append(tuple(point))
+                    moved = True
+    return out
+
+
+class PointController:
+    """The method's operating point from the estimate (``adapt = "full"``; sans-IO).
+
+    The points form a ladder (:func:`build_ladder`) over the method's knobs (:meth:`MethodConfig.adapt_knobs`,
+    plus the pipeline's resolution ``scale`` where a stream is scalable).  The cost of a point is what it sends
+    per second:
+
+    - **video**: what the encoders took at the method's own point (the rate controller's calibrated caps) times
+      the product of the video knobs' cost priors;
+    - **data** (what is sent as made: reliable data, geometry, lossless video): the rate the rate controller paid
+      first, *learnt at every point the session has been at* (after ``settle_frames``), and for a point not yet
+      visited the nearest learnt one scaled by the data knobs' priors.
+
+    A point *fits* a budget (``headroom`` times the estimator's encoder rate) when its data plus its video over
+    ``stretch`` do (its encoders may run below what they would take, to 1/``stretch`` of it, before a coarser point
+    is worth more than the bits it loses).  The controller goes down at once to the richest point that fits (no
+    sooner than ``down_hold_s`` after its last move), and up, once a richer point has fitted within ``up_margin`` of
+    the budget for ``up_hold_s``, to the richest such point.  A queue longer than the motion-to-photon budget
+    (``mtp_budget_ms``) and still growing means the present point does not fit, whatever its costs say (a queue
+    that drains is the estimator's: its encoder rate already leaves room to drain it).  It waits for the rate
+    controller to calibrate before its first move.
+    """
+
+    def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None) -> None:
+        self.knobs = tuple(knobs)
+        self.rate = rate
+        self.cfg = cfg or rate.cfg
+        self.ladder = build_ladder(self.knobs)
+        self.index = 0
+        self.moves = 0
+        self._data_bps: dict[int, float] = {}
+        self._since_move = 0           # frames at this point
+        self._moved_s = -math.inf
+        self._fits_up_since: float | None = None
+        self._queue_ms = 0.0
+
+    def values(self, index: int | None = None) -> dict[str, Any]:
+        """Each knob's value at point ``index`` (the present one by default)."""
+        p = self.ladder[self.index if index is None else index]
+        return {k.name: k.levels[i] for k, i in zip(self.knobs, p)}
+
+    def _factor(self, index: int, affects: str) -> float:
+        f = 1.0
+        for k, i in zip(self.knobs, self.ladder[index]):
+            if k.affects in (affects, "both"):
+                f *= k.cost[i]
+        return f
+
+    @property
+    def frame_div(self) -> int:
+        """One server tick in this many is sent at the present point (the ``frame_div`` knob; 1 without it)."""
+        return int(self.values().get("frame_div", 1))
+
+    def video_bps(self, index: int) -> float:
+        return self.rate.natural_video_bps() * self._factor(index, "video")
+
+    def data_bps(self, index: int) -> float:
+        if index in self._data_bps:
+            return self._data_bps[index]
+        known = self._data_bps or {self.index: self.rate.overhead_bps}
+        near = min(known, key=lambda j: (abs(j - index), j))
+        return known[near] * self._factor(index, "data") / self._factor(near, "data")
+
+    def cost_bps(self, index: int) -> float:
+        """What point ``index`` is expected to send per second at the method's own rate control."""
+        return self.data_bps(index) + self.video_bps(index)
+
+    def fits(self, index: int, budget_bps: float, margin: float = 1.0) -> bool:
+        return self.data_bps(index) + self.video_bps(index) / self.cfg.stretch <= margin * budget_bps
+
+    def on_frame_sent(self) -> None:
+        """A frame went out at the present point (the rate controller has taken its bytes): learn its data rate."""
+        self._since_move += 1
+        if self._since_move >= self.cfg.settle_frames:
+            self._data_bps[self.index] = self.rate.overhead_bps
+
+    def update(self, now_s: float, encoder_bps: float, queue_ms: float = 0.0) -> bool:
+        """Choose the point for the next frame from the estimate; True when it moved."""
+        if not self.rate.calibrated or not math.isfinite(encoder_bps):
+            return False
+        if not self._data_bps:          # the data rate at the point the session started from
+            self._data_bps[self.index] = self.rate.overhead_bps
+        budget = self.cfg.headroom * encoder_bps
+        last = len(self.ladder) - 1
+        best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
+        if queue_ms > self.cfg.mtp_budget_ms and queue_ms > self._queue_ms and self.index < last:
+            best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit
+        self._queue_ms = queue_ms
+        up = next((i for i in range(self.index) if self.fits(i, budget, self.cfg.up_margin)), None)
+        target = self.index
+        if best > self.index:
+            self._fits_up_since = None
+            if now_s - self._moved_s >= self.cfg.down_hold_s:
+                target = best
+        elif up is not None:
+            if self._fits_up_since is None:
+                self._fits_up_since = now_s
+            elif now_s - self._fits_up_since >= self.cfg.up_hold_s:
+                target = up                        # the richest point that has fitted with room to spare
+        else:
+            self._fits_up_since = None
+        if target == self.index:
+            return False
+        self.index = target
+        self.moves += 1
+        self._since_move = 0
+        self._moved_s = now_s
+        self._fits_up_since = None
+        self.rate.factor = self._factor(target, "video")
+        return True
+
+    def state(self) -> dict[str, float]:
+        """For updates.csv: the point's index on the ladder and each numeric knob's value."""
+        out: dict[str, float] = {"adapt_point": float(self.index)}
+        for k, v in self.values().items():
+            out[f"adapt_knob_{k}"] = float(v)
+        return out

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..codecs.resize import is_scaled, resize
 from ..codecs.video import VideoDecoder
 from ..errors import CodecError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
@@ -422,7 +423,13 @@ class ClientPipeline:
         try:
             if rx.kind == "video":
                 assert rx.decoder is not None
-                return rx.decoder.decode(work.unit.data)
+                plane = rx.decoder.decode(work.unit.data)
+                if rx.size is not None and plane.ndim == 3 and plane.dtype == np.uint8 and plane.shape[:2] != rx.size:
+                    # a colour stream the server sent at a lower resolution (--adapt full): back to the declared size
+                    # (any other size is left as it is, for on_decoded to refuse by name)
+                    if is_scaled(plane.shape[1], plane.shape[0], rx.size[1], rx.size[0]):
+                        plane = resize(plane, rx.size[1], rx.size[0])
+                return plane
             assert rx.spec is not None
             return decompress_data(rx.spec, work.unit.data)
         except CodecError as exc:

@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from ..codecs.resize import resize, scaled_size
 from ..codecs.video import EncodedFrame, VideoEncoder
 from ..methods.base import AnyStreamSpec, DataStreamSpec, StreamSpec, Update
 from ..protocol.fec import fec_encode
@@ -210,12 +211,14 @@ class ServerPipeline:
     # ------------------------------------------------------------------ per frame
 
     def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
-               adapt: AdaptConfig | None = None) -> EncodedUpdate:
+               adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
         """Code every payload of ``update`` (live, in the render worker).
 
         ``rates_kbps``: bit rates for lossy video streams (rate adaptation, :mod:`.adapt`); a stream whose
         encoder runs at a rate that far from it (``adapt``'s ``change_ratio``) gets a new encoder at that rate,
-        at its next IDR or, for a steep fall, now with an IDR (:func:`~.adapt.retarget`)."""
+        at its next IDR or, for a steep fall, now with an IDR (:func:`~.adapt.retarget`).  ``scale``: the
+        resolution of the scalable streams (``--adapt full``): their planes are resampled to it
+        (:mod:`splitrender.codecs.resize`), and an encoder whose size changes restarts now with an IDR."""
         w0 = time.perf_counter()
         video: dict[str, EncodedFrame] = {}
         data: dict[str, bytes] = {}
@@ -226,6 +229,14 @@ class ServerPipeline:
             if st is None or not isinstance(st.spec, StreamSpec):
                 raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
             idr = force_idr
+            w, h = st.spec.width, st.spec.height
+            if st.spec.scalable and scale is not None and scale < 1.0:
+                w, h = scaled_size(w, h, scale)
+                plane = resize(plane, w, h)
+            if st.encoder is not None and (st.encoder.width, st.encoder.height) != (w, h):
+                st.encoder = VideoEncoder(st.encoder.cfg, w, h)   # a new size: a new encoder, its first frame an IDR
+                st.sets_checked = True
+                restarts += 1
             want = rates_kbps.get(name) if rates_kbps else None
             if want is not None and not st.spec.codec.lossless:
                 cur = st.encoder.cfg.bitrate_kbps if st.encoder is not None else None
@@ -235,12 +246,12 @@ class ServerPipeline:
                 if restart:
                     cfg = dataclasses.replace(st.encoder.cfg if st.encoder is not None else st.spec.codec,
                                               bitrate_kbps=float(want), crf=None)
-                    st.encoder = VideoEncoder(cfg, st.spec.width, st.spec.height)
+                    st.encoder = VideoEncoder(cfg, w, h)
                     st.sets_checked = True   # the described sets were the first encoder's; each IDR carries its own
                     restarts += not fresh
                     idr = idr or urgent
             if st.encoder is None:
-                st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
+                st.encoder = VideoEncoder(st.spec.codec, w, h)
             if st.encoder.cfg.bitrate_kbps is not None and want is not None:
                 given[name] = float(st.encoder.cfg.bitrate_kbps)
             video[name] = ef = st.encoder.encode(plane, force_idr=idr)

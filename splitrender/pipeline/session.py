@@ -47,7 +47,7 @@ from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_f
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
-from .adapt import AdaptConfig, RateController, check_adapt_mode, controlled_streams, stream_fps
+from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, stream_fps
 from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
@@ -817,7 +817,8 @@ class ServerOptions:
     (:class:`~.gcc.Pacer`) instead of in one burst per frame."""
     adapt: str = "off"
     """``"rate"``, with transport-wide feedback: every lossy video stream's encoder follows the estimate
-    (:class:`~.adapt.RateController`; :meth:`ServerSession.encoder_rates`)."""
+    (:class:`~.adapt.RateController`; :meth:`ServerSession.encoder_rates`); ``"full"``: that, and the method's
+    operating point too (:class:`~.adapt.PointController`; :meth:`ServerSession.operating_point`)."""
     adapt_cfg: AdaptConfig = field(default_factory=AdaptConfig)
 
     def __post_init__(self) -> None:
@@ -856,6 +857,9 @@ class ServerSession:
     clock_offset_us: int = 0
     rtp_origin_ms: float = 0.0
     rng: Any = None
+    knobs: tuple[Any, ...] = ()
+    """The method's operating-point knobs (its config's :meth:`~splitrender.methods.base.MethodConfig.adapt_knobs`),
+    for ``adapt = "full"``; the resolution scale is added where a stream is scalable."""
 
     def __post_init__(self) -> None:
         self._rand = _uniform(self.rng)
@@ -885,8 +889,18 @@ class ServerSession:
                               "feedback (transport_cc)")
         self.rate: RateController | None = \
             RateController(controlled_streams(self.tx.specs), stream_fps(self.tx.specs), self.options.adapt_cfg) \
-            if self.options.adapt == "rate" else None
-        """Each lossy video stream's encoder rate from the estimate (``adapt = "rate"``)."""
+            if self.options.adapt in ("rate", "full") else None
+        """Each lossy video stream's encoder rate from the estimate (``adapt = "rate"`` or ``"full"``)."""
+        self.point: PointController | None = None
+        """The method's operating point from the estimate (``adapt = "full"``, when the session has knobs)."""
+        if self.options.adapt == "full" and self.rate is not None:
+            from ..methods.base import SCALE_KNOB, StreamSpec
+
+            knobs = tuple(self.knobs) + ((SCALE_KNOB,) if any(isinstance(s, StreamSpec) and s.scalable
+                                                              for s in self.tx.specs) else ())
+            if knobs:
+                self.point = PointController(knobs, self.rate, self.options.adapt_cfg)
+        self._base_fps = self.rate.fps if self.rate is not None else 0.0
         self._probe_seq = 0
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
@@ -1005,6 +1019,9 @@ class ServerSession:
         if self.estimator is None or self.rate is None or self.tx.probe_ssrc is None or self.tx.transport_cc_id is None:
             return []
         wanted = self.rate.wanted_bps()
+        if wanted is not None and self.point is not None and self.point.index > 0:
+            # at a coarser point: what the richest point would send is what there is to find
+            wanted = max(wanted, self.point.cost_bps(0) / self.options.adapt_cfg.headroom)
         if wanted is not None and self.estimator.target_bps >= wanted:
             return []           # the estimate already carries all the session would send: nothing to find
         cl = self.estimator.probe(int(round(now_ms * 1000)))
@@ -1025,12 +1042,30 @@ class ServerSession:
         self.counters["probe_bytes"] = self.counters.get("probe_bytes", 0) + sum(len(d) for _, d, _ in out)
         return out
 
+    def operating_point(self, now_ms: float) -> dict[str, Any] | None:
+        """The knob values the next frame should be made with (``adapt = "full"``): the method's own for its server
+        half (:meth:`~splitrender.methods.base.ServerHalf.set_knobs`) and ``scale`` for
+        :meth:`~.sender.ServerPipeline.encode`; None without.  Call before :meth:`encoder_rates`."""
+        if self.point is None or self.estimator is None:
+            return None
+        if self.point.update(now_ms / 1000, self.estimator.encoder_bps(), self.estimator.queue_ms()):
+            self.counters["point_moves"] = self.point.moves
+            assert self.rate is not None        # its rates are per second of the frames sent
+            self.rate.fps = self._base_fps / self.point.frame_div
+        return self.point.values()
+
+    def skips(self, tick: int) -> bool:
+        """Whether the operating point leaves server tick ``tick`` out (``frame_div``; call after
+        :meth:`operating_point`)."""
+        return self.point is not None and tick % self.point.frame_div != 0
+
     def encoder_rates(self) -> dict[str, float] | None:
         """The bit rate (kbit/s) each lossy video stream should encode the next frame at (``adapt = "rate"``), for
         :meth:`~.sender.ServerPipeline.encode`; None without rate adaptation."""
         if self.rate is None or self.estimator is None:
             return None
-        return self.rate.targets_kbps(self.estimator.encoder_bps())
+        div = self.point.frame_div if self.point is not None else 1   # an encoder takes its rate per frame at its fps
+        return {n: v * div for n, v in self.rate.targets_kbps(self.estimator.encoder_bps()).items()}
 
     def congestion(self) -> dict[str, float]:
         """The estimator's view now (empty without transport-wide feedback): ``cc_target_kbps`` (delay and loss
@@ -1045,6 +1080,8 @@ class ServerSession:
             out["cc_pacer_packets"] = self.pacer.queued
         if self.rate is not None:
             out.update(self.rate.state())
+        if self.point is not None:
+            out.update(self.point.state())
         return out
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
@@ -1087,7 +1124,10 @@ class ServerSession:
             self.counters["fec_bytes"] += len(data)
         self.counters["frames_sent"] += 1
         if self.rate is not None:
-            self.rate.on_frame_sent(out.wire_bytes, rates_kbps)
+            div = self.point.frame_div if self.point is not None else 1
+            self.rate.on_frame_sent(out.wire_bytes, {n: v / div for n, v in rates_kbps.items()} if rates_kbps else None)
+            if self.point is not None:
+                self.point.on_frame_sent()
             self.counters["encoder_restarts"] = self.counters.get("encoder_restarts", 0) + restarts
 
     # ------------------------------------------------------------------ timers

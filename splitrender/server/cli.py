@@ -45,9 +45,10 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
                         "(updates.csv cc_* columns with --out)")
     p.add_argument("--pacing", action="store_true",
                    help="RTP leaves through a pacer at 2.5x each session's estimated rate (implies --transport-cc)")
-    p.add_argument("--adapt", choices=("off", "rate"), default="off",
+    p.add_argument("--adapt", choices=("off", "rate", "full"), default="off",
                    help="rate: each session's lossy video encoders follow its estimated rate, and the estimator probes "
-                        "for capacity (implies --transport-cc); off (default): fixed operating points")
+                        "for capacity (implies --transport-cc); full: that, and each method's own knobs choose its "
+                        "operating point; off (default): fixed operating points")
     p.add_argument("--isolation", choices=("session", "server"), default="session",
                    help="render workers: one process per session (a hung render ends that session only; default) "
                         "or one for the server (scene producers shared by every session)")

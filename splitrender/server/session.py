@@ -301,7 +301,7 @@ class ServerSession:
         self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
                                                                         cfg.sr_interval_s, pacing=cfg.pacing,
                                                                         adapt=cfg.adapt),
-                                0, rtp_origin_ms=server.epoch_wall_s * 1000)
+                                0, rtp_origin_ms=server.epoch_wall_s * 1000, knobs=mcfg.adapt_knobs())
         self.core.start(_now_ms())
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
@@ -433,6 +433,10 @@ class ServerSession:
         wall = time.time()
         tick = max(server.tick_of(wall), self._last_tick + 1)  # never two frames on one tick
         self._last_tick = tick
+        point = core.operating_point(_now_ms())
+        if core.skips(tick):          # the operating point sends one tick in frame_div
+            self._counters["frames_skipped_adapt"] = self._counters.get("frames_skipped_adapt", 0) + 1
+            return
         t_us = int(wall * 1e6)
         scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
         epoch = server.epoch_wall_s
@@ -450,7 +454,7 @@ class ServerSession:
             enc, stats, stages = await self.worker.call(
                 "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
                 self._predictor, epoch, expected, kf, fbs.snapshot(kf), core.encoder_rates(), core.options.adapt_cfg,
-                deadline_s=self.cfg.render_deadline_s)
+                point, deadline_s=self.cfg.render_deadline_s)
         except WorkerTimeout:
             self._counters["render_timeouts"] += 1
             raise

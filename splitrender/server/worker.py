@@ -282,7 +282,7 @@ class _Worker:
 
     def frame(self, sid: str, frame_id: int, tick: int, scene_t: float, poses: tuple[Any, ...], predictor: Any,
               epoch: float, expected_s: float, keyframe: bool, feedback: Any, rates_kbps: dict[str, float] | None = None,
-              adapt: Any = None) -> Any:
+              adapt: Any = None, point: dict[str, Any] | None = None) -> Any:
         """Render and encode one frame of session ``sid``; returns the coded update without its raw planes,
         the half's stats, and the frame's stages in milliseconds: the producers' shared work, the half's own
         (``produce_ms``), the probes' relighting within those two (``gi_ms``), the encoders' (``encode_ms``), and
@@ -302,9 +302,11 @@ class _Worker:
         w0 = time.perf_counter()
         ctx.shared = self.producers.prepare(h.method, tick, scene_t)
         w1 = time.perf_counter()
+        if point is not None:       # the operating point rate adaptation chose (--adapt full)
+            h.half.set_knobs(point)
         upd = h.half.produce(ctx)
         w2 = time.perf_counter()
-        enc = h.tx.encode(upd, bool(upd.force_idr or keyframe), rates_kbps, adapt)
+        enc = h.tx.encode(upd, bool(upd.force_idr or keyframe), rates_kbps, adapt, point.get("scale") if point else None)
         enc.update = dataclasses.replace(upd, planes={}, data={})     # the raw planes stay here
         w3 = time.perf_counter()
         stages = {"shared_ms": (w1 - w0) * 1e3, "produce_ms": (w2 - w1) * 1e3, "gi_ms": self.renderer.gi_ms - gi0,

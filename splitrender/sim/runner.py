@@ -278,7 +278,7 @@ class VirtualTimeRun:
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
         c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), SIM_EPOCH_US, 0.0,
-                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]))
+                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]), knobs=c.half.config.adapt_knobs())
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
         c.chalf = self.spec.client_class(hs.terms.config, self.intr, c.gl, hs.session_data, limits=opts.limits)
@@ -383,6 +383,9 @@ class VirtualTimeRun:
                 c.arrival_idx += 1
             assert c.fb is not None and c.tx is not None
             assert c.core_s is not None
+            point = c.core_s.operating_point(t_f * 1000)
+            if c.core_s.skips(f):      # the operating point sends one tick in frame_div
+                continue
             kf = c.core_s.keyframe_due(t_f * 1000)
             expected = c.fb.latency.value_s
             target_t = t_f + expected
@@ -395,10 +398,12 @@ class VirtualTimeRun:
                 client=c.index,
             )
             w0 = time.perf_counter()
+            if point is not None:
+                c.half.set_knobs(point)
             upd = c.half.produce(ctx)
             server_ms = (time.perf_counter() - w0) * 1000
             enc = c.tx.encode(upd, force_idr=upd.force_idr or kf, rates_kbps=c.core_s.encoder_rates(),
-                              adapt=c.core_s.options.adapt_cfg)
+                              adapt=c.core_s.options.adapt_cfg, scale=point.get("scale") if point else None)
             busy_ms += server_ms + enc.encode_ms
             cost_ms = busy_ms * cfg.cost_scale if measured else cfg.server_latency_ms
             send_t = t_f + cost_ms / 1000.0
@@ -731,6 +736,9 @@ class VirtualTimeRun:
                       "cc_overuses": c.core_s.estimator.overuses})
         if c.core_s.rate is not None:         # rate adaptation: encoder restarts and the estimator's probes
             s.update({k: c.core_s.counters.get(k, 0) for k in ("encoder_restarts", "probe_clusters", "probe_packets")})
+        if c.core_s.point is not None:        # the operating point: how often it moved, and the lowest it reached
+            pts = [u["adapt_point"] for u in ups if "adapt_point" in u]
+            s.update({"point_moves": c.core_s.point.moves, "lowest_point": int(max(pts)) if pts else 0})
         return s
 
 

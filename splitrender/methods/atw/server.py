@@ -15,7 +15,7 @@ class AtwServer(ServerHalf):
 
     def streams(self) -> list[StreamSpec]:
         r = self.ref_intr
-        return [StreamSpec("color", self.config.video(self.server_fps), r.width, r.height)]
+        return [StreamSpec("color", self.config.video(self.server_fps), r.width, r.height, scalable=True)]
 
     def produce(self, ctx: ServerContext) -> Update:
         out = ctx.renderer.render(ctx.scene, ctx.t_s, ctx.target_pose, self.ref_intr, ("color",))

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ...errors import ConfigError
-from ..base import MethodConfig
+from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
 
 Variant = Literal["quasar", "quadstream"]
 Atlas = Literal["slots", "packed"]
@@ -36,6 +36,11 @@ class QuadParams:
     def relaxed(self, factor: float, coarse_passes: int) -> "QuadParams":
         """The hidden layers' and wide view's thresholds: ``delta_sim`` and ``delta_flatten`` times ``factor``."""
         return QuadParams(self.delta_max, self.delta_sim * factor, self.delta_flatten * factor, coarse_passes)
+
+
+QUAD_LAYER_COST = (1.0, 0.65)
+"""Geometry and offsets at one layer over those at two (the knob's prior; ``benchmarks/bench_knobs.py``); each further
+hidden layer dropped is taken to save as much."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class QuadsConfig(MethodConfig):
       each quad's own texels packed square by square, its atlas position sent with it,
       :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
       ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0);
+    - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
+      this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
       frame +1.6 dB, median of 12 cells, ``benchmarks/bench_chroma.py``).
     """
@@ -87,6 +94,19 @@ class QuadsConfig(MethodConfig):
     reference_every: int = 5
     edp_tolerance: float = 0.01
     atlas: Atlas | None = None
+    merge_scale: float = 1.0
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """Layers (the hidden ones dropped one by one: their quads unsent, their atlas slots black), then the
+        server's frame rate.  (Wider merge thresholds, ``merge_scale``, and rarer reference frames saved 2-9 % and
+        nothing on the default walk, ``benchmarks/bench_knobs.py``: residual frames there carry as many quads as
+        reference ones; neither is a knob.)"""
+        out = []
+        if self.variant == "quasar" and self.layers > 1:
+            levels = tuple(range(self.layers, 0, -1))
+            out.append(Knob("layers", levels, tuple(QUAD_LAYER_COST[1] ** (i / (len(levels) - 1)) for i in range(len(levels))),
+                            "data", "G-buffer layers sent (the hidden ones dropped)"))
+        return (*out, FRAME_DIV_KNOB)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -111,6 +131,8 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.relax: must be in [1, 1000], got {self.relax}")
         if not 0 <= self.relaxed_coarse_passes <= 12:
             raise ConfigError(f"{n}.relaxed_coarse_passes: must be in [0, 12], got {self.relaxed_coarse_passes}")
+        if not 0.1 <= self.merge_scale <= 100:
+            raise ConfigError(f"{n}.merge_scale: must be in [0.1, 100], got {self.merge_scale}")
         if not 1 <= self.reference_every <= 1000:
             raise ConfigError(f"{n}.reference_every: must be in [1, 1000], got {self.reference_every}")
         if self.atlas not in (None, "slots", "packed"):
@@ -124,9 +146,10 @@ class QuadsConfig(MethodConfig):
     def params(self) -> QuadParams:
         """The visible layer's thresholds, the variant's defaults filled in."""
         d = QuadParams() if self.variant == "quasar" else QuadParams(1e-4, 0.1, 0.05, 1)
+        m = self.merge_scale
         return QuadParams(d.delta_max if self.delta_max is None else self.delta_max,
-                          d.delta_sim if self.delta_sim is None else self.delta_sim,
-                          d.delta_flatten if self.delta_flatten is None else self.delta_flatten,
+                          m * (d.delta_sim if self.delta_sim is None else self.delta_sim),
+                          m * (d.delta_flatten if self.delta_flatten is None else self.delta_flatten),
                           d.coarse_passes if self.coarse_passes is None else self.coarse_passes)
 
     @property

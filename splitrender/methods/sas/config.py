@@ -8,8 +8,14 @@ from typing import Literal
 
 from ...errors import ConfigError
 from ...scene.pose import CameraIntrinsics
-from ..base import MethodConfig
+from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
 from .allocator import STRATEGIES, AtlasLayout
+
+
+KNOB_STEPS = (1.0, 0.66, 0.44, 0.29)
+"""The atlas budget's levels, as fractions of the configured one."""
+SAS_BUDGET_COST = (1.0, 0.96, 0.81, 0.70)
+"""The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,17 @@ class SasConfig(MethodConfig):
     split_max_triangles: int = 200_000
     grow_block_sides: bool = False
     inset_min_texels: int = 8
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The atlas budget: the fraction of the atlas eq. 3 fills (``bias_fill``; with ``fill_atlas`` off, the
+        shading rate ``texels_per_px`` instead), lowered in steps of about 2/3; then the server's frame rate."""
+        if self.fill_atlas:
+            budget = Knob("bias_fill", tuple(round(self.bias_fill * f, 4) for f in KNOB_STEPS), SAS_BUDGET_COST, "video",
+                          "fraction of the atlas the shading fills")
+        else:
+            budget = Knob("texels_per_px", tuple(round(max(0.05, self.texels_per_px * f), 4) for f in KNOB_STEPS),
+                          SAS_BUDGET_COST, "video", "shading texels per pixel")
+        return (budget, FRAME_DIV_KNOB)
 
     def __post_init__(self) -> None:
         super().__post_init__()

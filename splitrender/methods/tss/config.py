@@ -8,7 +8,13 @@ from typing import Literal
 
 from ...errors import ConfigError
 from ...scene.pose import CameraIntrinsics
-from ..base import MethodConfig
+from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
+
+
+TSS_KNOB_STEPS = (1.0, 0.7, 0.5, 0.35)
+"""The atlas budget's levels, as fractions of the configured ``samples_per_px``."""
+TSS_BUDGET_COST = (1.0, 0.83, 0.69, 0.57)
+"""The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,12 @@ class TssConfig(MethodConfig):
     os_grid: Literal["centred", "paper"] = "paper"
     single_px: int = 2
     spatial_order: bool = False
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7;
+        then the server's frame rate."""
+        return (Knob("samples_per_px", tuple(round(max(0.05, self.samples_per_px * f), 4) for f in TSS_KNOB_STEPS),
+                     TSS_BUDGET_COST, "video", "shading samples per covered pixel"), FRAME_DIV_KNOB)
 
     def __post_init__(self) -> None:
         super().__post_init__()

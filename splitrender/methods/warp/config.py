@@ -14,13 +14,18 @@ import numpy as np
 
 from ...errors import ConfigError
 from ...scene.pose import CameraIntrinsics, Pose, quat_to_matrix3
-from ..base import MethodConfig
+from ..base import Knob, MethodConfig
 
 SHADERS = Path(__file__).parent.parent / "shaders"
 META_VERSION = 1
 MAX_OBJECT_ID = 65535
 MAX_COORD_M = 1e6  # largest pose coordinate, matrix entry, near distance or dt accepted from the server (float32 on the GPU)
 Reconstruction = Literal["points", "quads", "mesh"]
+
+DEPTH_BITS_COST = {16: 1.0, 12: 0.75, 10: 0.42, 8: 0.15}
+DEPTH_STEP2_COST = 0.41
+"""Lossless depth bits at ``depth_step`` 2 over those at 1 (the knob's prior; ``benchmarks/bench_knobs.py``)."""
+"""Lossless depth bits at ``depth_bits`` over those at 16 (the knob's prior; ``benchmarks/bench_knobs.py``)."""
 SecondView = Literal["stereo", "back", "motion"]
 ViewMerge = Literal["holes", "depth"]
 DepthCoding = Literal["lossless", "bc4"]
@@ -48,6 +53,11 @@ class WarpConfig(MethodConfig):
       resolution_scale`` times the display size);
     - ``reconstruction``: ``points``, ``quads`` or ``mesh``;
     - ``depth_coding``: ``lossless`` (HEVC, bit-exact 16-bit codes) or ``bc4``;
+    - ``depth_bits``: significant bits of each 16-bit depth code (the rest zero, which lossless HEVC codes
+      almost for free; rate adaptation lowers it under ``--adapt full``);
+    - ``depth_step``: lossless depth keeps one sample in ``depth_step`` along each axis, in the plane's top-left
+      corner (the rest zero, almost free to code); the client repeats each sample (rate adaptation's coarsest
+      depth);
     - ``depth_near_m``: the depth quantiser's near distance (metres);
     - ``depth_discontinuity``: relative depth step that cuts mesh triangles and
       one-sides the Jacobian;
@@ -73,6 +83,8 @@ class WarpConfig(MethodConfig):
     resolution_scale: float = 1.0
     reconstruction: Reconstruction = "points"
     depth_coding: DepthCoding = "lossless"
+    depth_bits: int = 16
+    depth_step: int = 1
     depth_near_m: float = 0.1
     depth_discontinuity: float = 0.15
     hole_fill: bool = True
@@ -90,6 +102,20 @@ class WarpConfig(MethodConfig):
         if codecs and "hevc" not in codecs and out.depth_coding == "lossless":
             out = dataclasses.replace(out, depth_coding="bc4")
         return out
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """Depth precision (lossless depth only: BC4 is a fixed rate); the pipeline adds its colour scale."""
+        b = self.depth_bits
+        levels = (b, *(x for x in (12, 10, 8) if x < b))
+        if self.depth_coding != "lossless" or len(levels) < 2:
+            return ()
+        bits, cost = zip(*sorted(DEPTH_BITS_COST.items()))
+        prior = [float(np.interp(x, bits, cost)) for x in levels]
+        out = [Knob("depth_bits", levels, tuple(c / prior[0] for c in prior), "data",
+                    "significant bits of the lossless depth codes")]
+        if self.depth_step == 1:
+            out.append(Knob("depth_step", (1, 2), (1.0, DEPTH_STEP2_COST), "data", "depth samples kept: one in n per axis"))
+        return tuple(out)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -110,6 +136,10 @@ class WarpConfig(MethodConfig):
             raise ConfigError(f"{n}.fov_scale: must be in [1, 6], got {self.fov_scale}")
         if not 0.1 <= self.resolution_scale <= 4.0:
             raise ConfigError(f"{n}.resolution_scale: must be in [0.1, 4], got {self.resolution_scale}")
+        if self.depth_step not in (1, 2, 3, 4):
+            raise ConfigError(f"{n}.depth_step: must be 1 to 4, got {self.depth_step}")
+        if not 8 <= self.depth_bits <= 16:
+            raise ConfigError(f"{n}.depth_bits: must be 8 to 16, got {self.depth_bits}")
         if not self.depth_near_m > 0:
             raise ConfigError(f"{n}.depth_near_m: must be > 0, got {self.depth_near_m}")
         if not self.depth_discontinuity > 0:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ...codecs.depth import bc4_encode, pack_depth_planes, quantize_depth
+from ...codecs.depth import bc4_encode, coarsen_depth, pack_depth_planes, quantize_depth
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
 from ..base import ServerContext, ServerHalf, StreamSpec, Update
@@ -36,7 +36,8 @@ class WarpServer(ServerHalf):
         share = 1.0 / self.config.views
         out = []
         for v in range(self.config.views):
-            out.append(StreamSpec(f"color{v}", self.config.video(self.server_fps, share), r.width, r.height))
+            out.append(StreamSpec(f"color{v}", self.config.video(self.server_fps, share), r.width, r.height,
+                                  scalable=True))
             if self.config.depth_coding == "lossless":
                 out.append(StreamSpec(f"depth{v}", self.depth_codec(), r.width, 2 * r.height))
         return out
@@ -52,7 +53,7 @@ class WarpServer(ServerHalf):
         bc4_bytes = 0
         for v, pose in enumerate(poses):
             out = ctx.renderer.render(ctx.scene, ctx.t_s, pose, self.ref_intr, ("color", "depth", "object_id"))
-            codes = quantize_depth(out.depth, cfg.depth_near_m)
+            codes = coarsen_depth(quantize_depth(out.depth, cfg.depth_near_m), cfg.depth_bits)
             ids = out.object_id
             if ids.max(initial=0) > MAX_OBJECT_ID:
                 raise ConfigError(f"warp: object id {int(ids.max())} exceeds {MAX_OBJECT_ID}")
@@ -61,6 +62,12 @@ class WarpServer(ServerHalf):
             planes[f"color{v}"] = out.color
             view: dict[str, Any] = {"pose": pose.to_list(), "ids": ids}
             if cfg.depth_coding == "lossless":
+                if cfg.depth_step > 1:       # one sample in depth_step per axis, top left; the rest zero
+                    s = cfg.depth_step
+                    small = codes[::s, ::s]
+                    codes = np.zeros_like(codes)
+                    codes[:small.shape[0], :small.shape[1]] = small
+                    view["depth_step"] = s
                 planes[f"depth{v}"] = pack_depth_planes(codes)
             else:
                 view["bc4"] = bc4_encode(codes)

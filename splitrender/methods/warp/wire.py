@@ -16,7 +16,7 @@ import numpy as np
 
 from ...codecs.depth import bc4_decode, dequantize_depth, unpack_depth_planes
 from ...errors import CodecError, RemoteProtocolError
-from ...protocol.schema import Array, Check, Float, Map, Schema, Seq, Str, Transforms, Version, show
+from ...protocol.schema import Array, Check, Float, Int, Map, Opt, Schema, Seq, Str, Transforms, Version, show
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DecodedUpdate
 from .config import MAX_COORD_M, MAX_OBJECT_ID, META_VERSION, WarpConfig
@@ -63,7 +63,8 @@ META = Schema("warp metadata", WarpMetaError, Map({
     "depth_coding": Str(("lossless", "bc4")),
     "depth_near_m": Float(0.0, MAX_COORD_M, lo_open=True),
     "ref": Seq(Float(), 3),
-    "views": Seq(Map({"pose": _POSE, "ids": Array(dtype=(np.uint8, np.uint16), shape=("H", "W"))}), min_len=1, max_len=2),
+    "views": Seq(Map({"pose": _POSE, "ids": Array(dtype=(np.uint8, np.uint16), shape=("H", "W")),
+                      "depth_step": Opt(Int(1, 4), 1)}), min_len=1, max_len=2),
     "obj_ids": Array("iu", ("n_obj",), lo=1, hi=MAX_OBJECT_ID),
     "dyn_ids": Array("iu", ("n_dyn",), lo=1, hi=MAX_OBJECT_ID),
     # model matrices: affine, entries within +-MAX_COORD_M, an invertible 3x3 part (warping inverts them)
@@ -96,6 +97,10 @@ def parse_update(update: DecodedUpdate, cfg: WarpConfig, ref: CameraIntrinsics) 
                 raise WarpMetaError(f"warp frame {update.frame_id}: plane depth{v} must be {(2 * shape[0], shape[1])} uint8, "
                                     f"got {show(plane)}")
             codes = unpack_depth_planes(plane)
+            s = vm["depth_step"]
+            if s > 1:     # one sample in s per axis in the top-left corner: repeat each
+                small = codes[:-(-shape[0] // s), :-(-shape[1] // s)]
+                codes = np.repeat(np.repeat(small, s, axis=0), s, axis=1)[:shape[0], :shape[1]]
         else:
             try:
                 codes = bc4_decode(update.meta["views"][v].get("bc4"), expect_shape=shape)
