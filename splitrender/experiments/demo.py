@@ -367,6 +367,8 @@ def main_demo(ns: argparse.Namespace) -> int:
     from ..sim.config import session_options
 
     session = session_options(ns)   # the client's loss recovery (--playout-delay, --nack-tries, ..., --fec)
+    if getattr(ns, "adapt", None) not in (None, "off"):     # --adapt rate|full: the estimator's feedback with it
+        session.update(adapt=ns.adapt, transport_cc=True)
     demo_configs(ns.quick, methods, networks, session=session)  # validate before the bar shows
     from .headline import headline_rows, headline_text
 

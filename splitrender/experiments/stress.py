@@ -222,6 +222,15 @@ def _bandwidth(d: Path, tm: Timing) -> dict[str, Any]:
     return {"trace": "walk", "network": f"up: delay 20ms; down: delay 20ms trace {tr}", "method_params": {"bitrate_kbps": 1500.0}}
 
 
+def _capacity_drop(d: Path, tm: Timing) -> dict[str, Any]:
+    # 20 Mbit/s (5 packets of 1500 B every 3 ms) falling to 2 Mbit/s (one every 6 ms) inside the window
+    fast, slow = (lambda k: 2 if k % 3 < 2 else 1), (lambda k: 1 if k % 6 == 0 else 0)
+    end = tm.duration_s + 5
+    tr = mahimahi_trace(d / "drop20to2.mahimahi", end, [(0.0, tm.t0_s, fast), (tm.t0_s, tm.t1_s, slow), (tm.t1_s, end, fast)])
+    return {"trace": "walk", "network": f"up: delay 20ms; down: delay 20ms trace {tr}", "transport_cc": True,
+            "adapt": "full"}
+
+
 CASES: tuple[StressCase, ...] = (
     StressCase("fast_turn", "fast head turns (320-420 deg/s) beyond the overscan, lan", lambda d, tm: {"trace": "turn", "network": "lan"},
                False, 70.0),
@@ -234,6 +243,10 @@ CASES: tuple[StressCase, ...] = (
         "trace": "walk", "network": "delay 20ms loss gemodel 3% 30%"}, False, 100.0),
     StressCase("bandwidth_drop", "1500 kbit/s stream; link drops to 500 kbit/s inside the window", _bandwidth, True, 100.0,
                "a time-windowed drop (mahimahi trace) rather than `rate 500kbit` for the whole run, so recovery can be measured"),
+    StressCase("capacity_drop", "the link falls from 20 to 2 Mbit/s inside the window, 20 ms each way; rate adaptation "
+               "full (the estimate sets each method's encoders and operating point)", _capacity_drop, True, 100.0,
+               "every method's own operating point with --adapt full: what the drop leaves queued and how soon the "
+               "update age comes back (a bound per method: tests/test_stress.py)"),
     StressCase("grazing", "eye 25 cm above the floor looking along it to the tilted ramp (slanted triangles), lan",
                lambda d, tm: {"trace": _save_trace(grazing_trace(tm.duration_s), d / "grazing.csv"), "network": "lan"},
                False, 100.0),

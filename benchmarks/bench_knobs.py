@@ -1,0 +1,124 @@
+"""What each operating-point knob saves: the cost priors of ``--adapt full`` (issue 35).
+
+Every method's knobs (:meth:`~splitrender.methods.base.MethodConfig.adapt_knobs`) declare a prior: the bits each
+level sends over those of its first level.  This benchmark measures them.
+
+* Method knobs: one virtual-time run per level (the other knobs at their first), the default scene without GI, the
+  ``walk`` trace, 320x180, 1.5 s, an ideal network, no adaptation.  Its figure is the bytes of the streams the knob
+  acts on: the lossy video streams for a ``video`` knob, everything else (reliable data, geometry, lossless video)
+  for a ``data`` knob.  The first 0.5 s (the first IDR and the caches filling) is left out.
+* The pipeline's resolution ``scale``: the ground truth of the same walk, coded by x264 at the method's defaults
+  (crf 23, 4:4:4, GOP 30) at each scale.
+
+Writes ``benchmarks/results/bench_knobs.json`` with each level's ratio beside the prior the code declares.
+
+    python benchmarks/bench_knobs.py [--methods warp,sas] [--duration 1.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
+
+OUT = Path(__file__).resolve().parent / "results"
+METHODS = ("warp", "sas", "tss", "quads")
+SKIP = {"frame_div"}     # the server rate: not a method parameter (its prior is 1/n)
+
+
+def stream_bytes(res: Any, streams: set[str] | None, exclude: set[str], after_s: float) -> float:
+    """Mean bytes per server frame of ``streams`` (None: every stream not in ``exclude``) after ``after_s``."""
+    ups = [u for u in res.updates if u["t_s"] >= after_s]
+    tot = 0
+    for u in ups:
+        for k, v in u.items():
+            if k.startswith("bytes_") and k != "bytes_probe":
+                name = k[6:]
+                if (streams is None and name not in exclude) or (streams is not None and name in streams):
+                    tot += v
+    return tot / max(1, len(ups))
+
+
+def method_knobs(method: str, duration_s: float, renderer: Any, tmp: Path) -> list[dict[str, Any]]:
+    from splitrender.methods import get_method, make_config
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import run
+
+    spec = get_method(method)
+    cfg = make_config(spec.config, {})
+    out = []
+    for knob in cfg.adapt_knobs():
+        if knob.name in SKIP:
+            continue
+        per_level = []
+        for level in knob.levels:
+            rc = RunConfig(method=method, scene="default+nogi", trace="walk", network="ideal", duration_s=duration_s,
+                           width=320, height=180, client_fps=30, flip_every=0, seed=0,
+                           method_params={knob.name: level}, truth_cache=str(tmp / "truth"))
+            res = run(rc, renderer=renderer)
+            lossy = {"color", "color0", "color1", "atlas"}      # the methods' lossy video streams
+            b = stream_bytes(res, lossy, set(), 0.5) if knob.affects == "video" else stream_bytes(res, None, lossy, 0.5)
+            per_level.append(b)
+            print(f"{method:6s} {knob.name}={level}: {b:9.0f} B/frame", flush=True)
+        ratios = [b / per_level[0] for b in per_level]
+        out.append({"knob": knob.name, "affects": knob.affects, "levels": list(knob.levels),
+                    "bytes_per_frame": per_level, "measured": ratios, "prior": list(knob.cost)})
+    return out
+
+
+def scale_knob(duration_s: float, renderer: Any) -> dict[str, Any]:
+    from splitrender.codecs.resize import resize, scaled_size
+    from splitrender.codecs.video import VideoCodecConfig, VideoEncoder
+    from splitrender.methods.base import SCALE_KNOB
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.pose import CameraIntrinsics
+    from splitrender.scene.trace import get_trace
+
+    scene = get_scene("default+nogi")
+    trace = get_trace("walk", scene=scene)
+    intr = CameraIntrinsics(320, 180, 60.0, 0.05, 200.0)
+    frames = [renderer.render(scene, t, trace.pose_at(t), intr, ("color",)).color
+              for t in np.arange(0.0, duration_s, 1 / 30)]
+    sizes = []
+    for s in SCALE_KNOB.levels:
+        w, h = scaled_size(320, 180, s)
+        enc = VideoEncoder(VideoCodecConfig(codec="h264", crf=23.0, gop=30, preset="ultrafast", pix_fmt="yuv444p", fps=30), w, h)
+        sizes.append(float(np.mean([len(enc.encode(resize(f, w, h)).data) for f in frames][15:])))
+        print(f"scale {s}: {sizes[-1]:9.0f} B/frame", flush=True)
+    return {"knob": "scale", "affects": "video", "levels": list(SCALE_KNOB.levels), "bytes_per_frame": sizes,
+            "measured": [b / sizes[0] for b in sizes], "prior": list(SCALE_KNOB.cost)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--duration", type=float, default=1.5)
+    args = ap.parse_args()
+    from splitrender.render.renderer import Renderer
+
+    renderer = Renderer()
+    tmp = Path(tempfile.mkdtemp(prefix="bench_knobs_"))
+    t0 = time.perf_counter()
+    res: dict[str, Any] = {"scale": scale_knob(args.duration, renderer)}
+    for m in args.methods.split(","):
+        res[m] = method_knobs(m, args.duration, renderer, tmp)
+    OUT.mkdir(parents=True, exist_ok=True)
+    out = {"benchmark": "bench_knobs", "scene": "default+nogi", "trace": "walk", "size": [320, 180],
+           "duration_s": args.duration, "knobs": res, "wall_s": time.perf_counter() - t0,
+           "machine": platform.machine(), "cpus": os.cpu_count(), "load_avg": os.getloadavg()}
+    (OUT / "bench_knobs.json").write_text(json.dumps(out, indent=1) + "\n")
+    print(f"-> {OUT / 'bench_knobs.json'}")
+
+
+if __name__ == "__main__":
+    main()
