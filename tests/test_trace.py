@@ -78,8 +78,40 @@ def test_quasar_path_round_trip(tmp_path: Path) -> None:
     assert worst <= 1e-9, f"orientation round trip error {worst:.3g}"
 
 
+def test_quasar_path_for_quasar_s_own_reader_has_no_header_and_round_trips(tmp_path: Path) -> None:
+    """What QUASAR's simulators read (issue 38): seven numbers a line, no comment line; our trace to that format and
+    back keeps every pose to 1e-6 (metres, and quaternion components)."""
+    tr = get_trace("walk", duration_s=2.0)
+    path = tmp_path / "walk_path.txt"
+    save_quasar_path(tr, path, header=False)
+    lines = path.read_text().splitlines()
+    assert len(lines) == len(tr) and all(len(ln.split()) == 7 and not ln.startswith("#") for ln in lines)
+    assert all(float(v) == float(v) for ln in lines for v in ln.split())     # every token a number
+    back = load_quasar_path(path)
+    assert np.max(np.abs(back.positions - tr.positions)) <= 1e-6 and np.max(np.abs(back.t_s - tr.t_s)) <= 1e-9
+    qa, qb = back.orientations, tr.orientations
+    assert float(np.max(np.minimum(np.abs(qa - qb).max(axis=1), np.abs(qa + qb).max(axis=1)))) <= 1e-6
+
+
+def test_quasar_path_angles_are_read_as_glm_makes_them() -> None:
+    """QUASAR's CameraAnimator: ``glm::quat(radians(vec3(rx, ry, rz)))``, R = Rz Ry Rx, as the camera-to-world
+    rotation; glm's own component formula written out here (not our axis-angle products) for a line with roll."""
+    from splitrender.scene.trace import glm_euler_deg, quat_from_glm_euler_deg
+
+    rx, ry, rz = 20.0, 30.0, 40.0
+    cx, cy, cz = (math.cos(math.radians(a) / 2) for a in (rx, ry, rz))
+    sx, sy, sz = (math.sin(math.radians(a) / 2) for a in (rx, ry, rz))
+    glm = np.array([sx * cy * cz - cx * sy * sz, cx * sy * cz + sx * cy * sz, cx * cy * sz - sx * sy * cz,
+                    cx * cy * cz + sx * sy * sz])                     # glm's (x, y, z, w)
+    tr = parse_quasar_path_text(f"1 2 3 {rx} {ry} {rz} 0\n1 2 3 0 90 5 10\n", source="p.txt")
+    assert np.allclose(tr.orientations[0], glm, atol=1e-12) or np.allclose(tr.orientations[0], -glm, atol=1e-12)
+    for q in tr.orientations:       # the writer's angles give the same rotation back, the gimbal lock at ry 90 too
+        back = quat_from_glm_euler_deg(*glm_euler_deg(q))
+        assert min(np.abs(back - q).max(), np.abs(back + q).max()) < 1e-9
+
+
 def test_quasar_path_parses_peer_format() -> None:
-    # The QUASAR repository's paths: "px py pz pitch yaw roll t_ms" per frame.
+    # The QUASAR repository's paths: "px py pz rx ry rz t_ms" per frame (rx pitch, ry yaw).
     text = "# a comment\n0.0 3.0 10.0 0.0 0.0 0.0 16.6667\n\n0.0 3.0 10.0 10.0 90.0 0.0 33.3333  # inline\n"
     tr = parse_quasar_path_text(text, source="p.txt")
     assert tr.t_s[0] == 0.0 and tr.t_s[1] == pytest.approx(0.0166666, abs=1e-9)
@@ -127,7 +159,7 @@ def test_malformed_csv_names_file_and_line(tmp_path: Path, case: str) -> None:
 QUASAR_MALFORMED = {
     "columns": ("0 1 2 0 0 0 0\n0 1 2 0 0 0\n", 2, "expected 7 columns"),
     "number": ("0 1 2 0 0 0 0\n0 1 x 0 0 0 10\n", 2, "column pz: not a number"),
-    "inf": ("0 1 2 0 0 0 0\n0 1 2 inf 0 0 10\n", 2, "column pitch: value must be finite"),
+    "inf": ("0 1 2 0 0 0 0\n0 1 2 inf 0 0 10\n", 2, "column rx: value must be finite"),
     "time": ("0 1 2 0 0 0 10\n0 1 2 0 0 0 10\n", 2, "is not after"),
     "one": ("# only\n0 1 2 0 0 0 10\n", 2, "at least 2 samples"),
 }

@@ -31,10 +31,12 @@ line (``path:line: what was wrong``).
 QUASAR camera paths (``.txt`` / ``.path``)
 ------------------------------------------
 The QUASAR project's path files have one frame per line,
-``px py pz pitch yaw roll t_ms``, whitespace separated, angles in degrees, time in
-milliseconds.  :func:`load_quasar_path` reads them (orientation via
-:func:`~splitrender.scene.pose.quat_from_euler_deg`, time rebased to 0);
-:func:`save_quasar_path` writes them.
+``px py pz rx ry rz t_ms``, whitespace separated, angles in degrees, time in
+milliseconds.  QUASAR's ``CameraAnimator`` makes the camera-to-world rotation
+``glm::quat(radians(vec3(rx, ry, rz)))``, R = Rz(rz) Ry(ry) Rx(rx) (:func:`quat_from_glm_euler_deg`):
+rx is the pitch and ry the yaw, as in :func:`~splitrender.scene.pose.quat_from_euler_deg`, but roll is about +Z
+and applied last (ours: about -Z and first); the two agree without roll.  :func:`load_quasar_path`
+reads them (time rebased to 0); :func:`save_quasar_path` writes them (:func:`glm_euler_deg`).
 """
 
 from __future__ import annotations
@@ -56,7 +58,10 @@ from splitrender.scene.pose import (
     Pose,
     look_at_quat,
     quat_angle_rad,
+    quat_from_axis_angle,
     quat_from_euler_deg,
+    quat_mul,
+    quat_normalize,
     quat_slerp,
     quat_to_matrix3,
 )
@@ -341,9 +346,31 @@ def quat_to_euler_deg(q: np.ndarray) -> tuple[float, float, float]:
     return math.degrees(pitch), math.degrees(yaw), math.degrees(roll)
 
 
+def quat_from_glm_euler_deg(rx: float, ry: float, rz: float) -> np.ndarray:
+    """The rotation glm makes of Euler angles (``glm::quat(vec3)``, degrees here): R = Rz(rz) Ry(ry) Rx(rx)."""
+    qx = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), math.radians(rx))
+    qy = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(ry))
+    qz = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), math.radians(rz))
+    return quat_normalize(quat_mul(qz, quat_mul(qy, qx)))
+
+
+def glm_euler_deg(q: np.ndarray) -> tuple[float, float, float]:
+    """Inverse of :func:`quat_from_glm_euler_deg`: ``(rx, ry, rz)`` in degrees, ry in [-90, 90]; where ry is +-90
+    (gimbal lock: a camera yawed a quarter turn) rz is 0 and rx carries the rest."""
+    m = quat_to_matrix3(q)
+    cy = math.hypot(float(m[0, 0]), float(m[1, 0]))
+    ry = math.atan2(-float(m[2, 0]), cy)            # stable at the poles, where asin loses half its digits
+    if cy > 1e-6:
+        rx = math.atan2(float(m[2, 1]), float(m[2, 2]))
+        rz = math.atan2(float(m[1, 0]), float(m[0, 0]))
+    else:
+        rx, rz = math.atan2(-float(m[1, 2]), float(m[1, 1])), 0.0
+    return math.degrees(rx), math.degrees(ry), math.degrees(rz)
+
+
 def parse_quasar_path_text(text: str, source: str = "<string>", name: str = "quasar_path") -> CameraTrace:
-    """Parse QUASAR path text ``px py pz pitch yaw roll t_ms`` per line (see module docstring)."""
-    cols = ("px", "py", "pz", "pitch", "yaw", "roll", "t_ms")
+    """Parse QUASAR path text ``px py pz rx ry rz t_ms`` per line (see module docstring)."""
+    cols = ("px", "py", "pz", "rx", "ry", "rz", "t_ms")
     rows: list[list[float]] = []
     linenos: list[int] = []
     for lineno, raw in enumerate(text.split("\n"), start=1):
@@ -352,11 +379,11 @@ def parse_quasar_path_text(text: str, source: str = "<string>", name: str = "qua
             continue
         toks = line.split()
         if len(toks) != QUASAR_COLUMNS:
-            raise TraceError(f"{source}:{lineno}: expected {QUASAR_COLUMNS} columns (px py pz pitch yaw roll t_ms), got {len(toks)}")
+            raise TraceError(f"{source}:{lineno}: expected {QUASAR_COLUMNS} columns (px py pz rx ry rz t_ms), got {len(toks)}")
         v = [_parse_number(tok, source, lineno, c) for tok, c in zip(toks, cols)]
         rows.append([v[6] / 1000.0, *v[:6]])
         linenos.append(lineno)
-    return _build(rows, linenos, source, name, lambda r: (r[1:4], quat_from_euler_deg(r[4], r[5], r[6])))
+    return _build(rows, linenos, source, name, lambda r: (r[1:4], quat_from_glm_euler_deg(r[4], r[5], r[6])))
 
 
 def load_quasar_path(path: "str | os.PathLike[str]") -> CameraTrace:
@@ -364,18 +391,21 @@ def load_quasar_path(path: "str | os.PathLike[str]") -> CameraTrace:
     return parse_quasar_path_text(_read_text(path), source=str(path), name=Path(path).stem)
 
 
-def quasar_path_text(trace: CameraTrace) -> str:
-    """The trace as QUASAR path text (``px py pz pitch yaw roll t_ms``, repr floats)."""
-    lines = [f"# {trace.name}: px py pz pitch_deg yaw_deg roll_deg t_ms (written by splitrender)"]
+def quasar_path_text(trace: CameraTrace, header: bool = True) -> str:
+    """The trace as QUASAR path text (``px py pz rx ry rz t_ms``, glm's Euler angles, repr floats).  ``header``: a first comment line
+    naming the columns; QUASAR's own reader (``CameraAnimator.cpp``: ``ss >> px >> ... >> timestampMillis``) takes
+    no comments, so write without it for QUASAR's simulators.  (That reader also truncates each time to a whole
+    millisecond: a 60 Hz path's 16.67 ms is read as 16.)"""
+    lines = [f"# {trace.name}: px py pz rx_deg ry_deg rz_deg t_ms (written by splitrender)"] if header else []
     for t, p, q in zip(trace.t_s, trace.positions, trace.orientations):
-        pitch, yaw, roll = quat_to_euler_deg(q)
-        lines.append(" ".join(repr(float(v)) for v in (*p, pitch, yaw, roll, t * 1000.0)))
+        rx, ry, rz = glm_euler_deg(q)
+        lines.append(" ".join(repr(float(v)) for v in (*p, rx, ry, rz, t * 1000.0)))
     return "\n".join(lines) + "\n"
 
 
-def save_quasar_path(trace: CameraTrace, path: "str | os.PathLike[str]") -> None:
-    """Write ``trace`` as a QUASAR camera path file."""
-    Path(path).write_text(quasar_path_text(trace), encoding="utf-8")
+def save_quasar_path(trace: CameraTrace, path: "str | os.PathLike[str]", header: bool = True) -> None:
+    """Write ``trace`` as a QUASAR camera path file (``header``: see :func:`quasar_path_text`)."""
+    Path(path).write_text(quasar_path_text(trace, header), encoding="utf-8")
     log.debug("saved QUASAR path %s (%d samples) to %s", trace.name, len(trace), path)
 
 
@@ -847,6 +877,8 @@ __all__ = [
     "parse_trace_text",
     "quasar_path_text",
     "quat_to_euler_deg",
+    "quat_from_glm_euler_deg",
+    "glm_euler_deg",
     "save_quasar_path",
     "static_trace",
     "strafe_trace",

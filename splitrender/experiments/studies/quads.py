@@ -43,7 +43,13 @@ def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network
     row = {"label": label, "method": method, "network": network, "psnr_db": float(s["mean_psnr_db"]),
            "ssim": float(s["mean_ssim"]), "flip": float(s.get("mean_flip", float("nan"))), "mbps": float(s["mean_kbps"]) / 1e3, "gt_ms": float(s["mean_gt_ms"]),
            "client_ms": float(s["mean_client_ms"]), "quads": _upd_mean(res.updates, "srv_quads"),
-           "server_ms": _upd_mean(res.updates, "server_ms"), "holes_pct": float(s.get("mean_hole_pct", float("nan")))}
+           "server_ms": _upd_mean(res.updates, "server_ms"), "holes_pct": float(s.get("mean_hole_pct", float("nan"))),
+           # bytes per server frame both ways: ours (every stream) and as QUASAR's simulators count them (geometry
+           # only, offsets / 8, residual frames without the hidden layers and wide view; quads.accounting)
+           "bytes_frame": _upd_mean(res.updates, "bytes"),
+           "geometry_bytes_frame": _upd_mean(res.updates, "bytes_quads") + _upd_mean(res.updates, "bytes_offsets"),
+           "quasar_bytes_frame": _upd_mean(res.updates, "srv_quasar_bytes"),
+           "quasar_proxies": _upd_mean(res.updates, "srv_quasar_proxies")}
     for k, v in s.items():
         if k.startswith("kbps_") and k not in ("kbps_session",):
             row["mbps_" + k[5:]] = float(v) / 1e3
@@ -214,6 +220,15 @@ def run(out_dir: Path, quick: bool) -> Section:
         "- **Thresholds** (one frame, one layer, 10 cm to the side): " + "; ".join(
             f"{name} " + ", ".join(f"{v['value']:g}: {v['quads'] / 1e3:.1f}k / {v['psnr_db']:.2f} dB" for v in sweep if v["parameter"] == name)
             for name in ("delta_sim", "delta_flatten", "coarse_passes")) + ".",
+        "- **Bytes both ways** (per server frame, cloud; ours: every stream on the wire; as QUASAR counts: its "
+        "simulators' `Frame Size`, geometry only, zstd, offsets / 8, a residual frame without its hidden layers and wide "
+        "view, QuadStream's 103/96 per view compounding; `splitrender/methods/quads/accounting.py`): " + "; ".join(
+            f"{lab} {get(lab, 'cloud', 'bytes_frame') / 1e3:.1f} KB ours (geometry {get(lab, 'cloud', 'geometry_bytes_frame') / 1e3:.1f}), "
+            f"{get(lab, 'cloud', 'quasar_bytes_frame') / 1e3:.2f} KB as QUASAR counts, {get(lab, 'cloud', 'quasar_proxies'):.0f} proxies"
+            for lab in (q50, s50)) +
+        f".  QuadStream over QUASAR: {get(s50, 'cloud', 'bytes_frame') / get(q50, 'cloud', 'bytes_frame'):.1f}x ours, "
+        f"{get(s50, 'cloud', 'quasar_bytes_frame') / get(q50, 'cloud', 'quasar_bytes_frame'):.1f}x as QUASAR counts "
+        "(QUASAR's own code on a held-out model, issue 38: 3228 and 40308 B, 12.5x).",
         f"- **Server stages** (QUASAR 50 cm, cloud), ms per frame over the ground-truth render's {qr['gt_ms']:.1f} ms: "
         f"{stage_txt} (paper table 2 on an RTX 4090: G-buffers and quad generation a few ms each).  Ours generates quads "
         "in numpy on the CPU.",

@@ -35,6 +35,7 @@ from scipy.ndimage import binary_dilation
 
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, ServerContext, ServerHalf, StreamSpec, Update
+from .accounting import quasar_frame_bytes
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
@@ -326,6 +327,8 @@ class QuadsServer(ServerHalf):
         self._stats["nonflat"] = float(sum(int((~s.quads.flat).sum()) for s in sets))
         self._stats["cached"] = float(len(self.cache))
         self._stats["reference"] = 1.0 if frame_kind == "reference" else 0.0
+        qb = quasar_frame_bytes(sets, frame_kind == "reference")      # the frame as QUASAR's simulators count it
+        self._stats["quasar_bytes"], self._stats["quasar_proxies"] = qb.bytes, float(qb.proxies)
         for s in sets:
             key = {KIND_REFERENCE: "ref", KIND_UPDATE: "update", KIND_REVEALED: "revealed", KIND_HIDDEN: "hidden",
                    KIND_WIDE: "wide", KIND_VIEW: "views"}[s.kind]
