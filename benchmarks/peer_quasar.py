@@ -4,7 +4,7 @@ Given a build of QUASAR (quasar-gfx/QUASAR, C++; ``docs/quasar.md`` has the reci
 and the same camera path (written once, read by both tools):
 
 * QUASAR: ``scene_viewer`` (its ground truth), ``atw_simulator``, ``qr_simulator`` (QUASAR) and ``qs_simulator``
-  (QuadStream), each with ``--save-images`` so every client frame is a PNG, and its log captured;
+  (QuadStream), each with ``-I`` (``--save-images``) so every client frame is a PNG, and its log captured;
 * ours, in virtual time: ``atw`` and ``quads`` with ``variant`` ``quasar`` and ``quadstream``, every displayed frame
   and its ground truth kept (``save_images_every=1``).
 
@@ -12,9 +12,11 @@ Both tools' frames are scored by the same code (:func:`splitrender.metrics.score
 :func:`~splitrender.metrics.quality_summary`), each against its own tool's ground truth, over the whole frame and
 over the model's pixels (the pixels where that ground truth differs from its background colour by more than
 :data:`~splitrender.metrics.BACKGROUND_TOLERANCE`; the background colour is the most common colour of the ground
-truth's frames).  Before scoring, our frames' background is moved to QUASAR's (``--no-repaint`` leaves it): QUASAR's
-scene has no skybox, so its empty background is whatever its lighting pass makes of the cleared G-buffer, and the
-error of a stale pixel over the background depends on that colour.  The first ``--skip`` seconds (start-up, before
+truth's frames).  Before scoring, our frames' background and that of QUASAR's
+``qr_simulator`` and ``qs_simulator`` (which draw their quad mesh on black) are moved to the colour of QUASAR's
+ground truth (``--no-repaint`` leaves them): QUASAR's scene has no skybox, so ``scene_viewer``'s empty background is
+whatever its lighting pass makes of the cleared G-buffer ((208, 208, 0) on llvmpipe), and the error of a stale
+pixel over the background depends on that colour.  The first ``--skip`` seconds (start-up, before
 our client has its first update) are not scored.
 
 Bytes per server frame are tabulated both ways: ours (every stream on the wire: ``bytes`` in ``updates.csv``) and as
@@ -550,12 +552,24 @@ def run_quasar(role: str, argv: list[str], cwd: Path, out_dir: Path, timeout_s: 
     return parse_quasar_log(text)
 
 
-def quasar_pairs(sim_dir: Path, truth_dir: Path, setup: Setup, skip: int) -> Iterable[tuple[np.ndarray, np.ndarray]]:
-    """(shown, truth) of every frame index both folders hold, from ``skip`` on."""
+def quasar_pairs(sim_dir: Path, truth_dir: Path, setup: Setup, skip: int,
+                 repaint: tuple[Sequence[int], Sequence[int]] | None = None) -> Iterable[tuple[np.ndarray, np.ndarray]]:
+    """(shown, truth) of every frame index both folders hold, from ``skip`` on; ``repaint`` = (src, dst): the shown
+    frames' background moved from ``src`` to ``dst`` (:func:`repaint_background`)."""
     sim, truth = frame_files(sim_dir), frame_files(truth_dir)
     for i in sorted(set(sim) & set(truth)):
         if i >= skip:
-            yield load_rgb(sim[i], setup), load_rgb(truth[i], setup)
+            shown = load_rgb(sim[i], setup)
+            yield (repaint_background(shown, *repaint) if repaint else shown), load_rgb(truth[i], setup)
+
+
+def simulator_background(sim_dir: Path, setup: Setup, skip: int) -> tuple[int, int, int]:
+    """The most common colour of a QUASAR program's own frames (every tenth from ``skip``).  ``scene_viewer`` and
+    ``atw_simulator`` show the deferred lighting of the cleared G-buffer where nothing is (on llvmpipe (208, 208, 0):
+    most likely a NaN from the lighting pass, tone-mapped), while ``qr_simulator`` and ``qs_simulator`` draw the
+    received quad mesh on a black clear; each is scored with its background moved to the ground truth's."""
+    frames = frame_files(sim_dir)
+    return background_colour(load_rgb(frames[i], setup) for i in sorted(frames)[skip::10])
 
 
 # ---------------------------------------------------------------------------------------------- needs a GL context
@@ -592,7 +606,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--view-cell", type=float, default=0.5, help="view cell size in metres (QUASAR -B; default 0.5)")
     ap.add_argument("--layers", type=int, default=4, help="QUASAR's layers, the visible one included (-n; default 4)")
     ap.add_argument("--skip", type=float, default=0.5, help="seconds at the start not scored (default 0.5)")
-    ap.add_argument("--no-repaint", action="store_true", help="score our frames on our own background colour")
+    ap.add_argument("--no-repaint", action="store_true", help="score every tool's frames on its own background colour "
+                    "(by default ours and QUASAR's simulators' are moved to QUASAR's ground truth's)")
+    ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
+                    "instead of running its programs again")
     ap.add_argument("--xvfb", choices=("auto", "always", "never"), default="auto",
                     help="run QUASAR under xvfb-run: auto = when there is no DISPLAY (default)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds each QUASAR program may run")
@@ -669,7 +686,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     for role in ("truth", *METHODS):
         out_dir = work / "quasar" / role
         commands[role] = with_display(quasar_command(role, programs[role], setup, scene_file, path_file, out_dir), args.xvfb)
-        log = run_quasar(role, commands[role], programs[role].parent, out_dir, args.timeout)
+        if args.reuse and frame_files(out_dir) and (out_dir / "log.txt").is_file():
+            print(f"[QUASAR {role}] reusing {len(frame_files(out_dir))} frames and the log in {out_dir}", flush=True)
+            log = parse_quasar_log((out_dir / "log.txt").read_text(encoding="utf-8", errors="replace"))
+        else:
+            log = run_quasar(role, commands[role], programs[role].parent, out_dir, args.timeout)
         if role != "truth":
             logs[role] = log
     truth_dir = work / "quasar" / "truth"
@@ -700,13 +721,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # QUASAR's scores, and the table
     rows = bytes_table(logs, updates)
+    sim_bg: dict[str, list[int]] = {}
     for row in rows:
         m = row["method"]
         if row["tool"] == "QUASAR":
             recorded = len(frame_files(work / "quasar" / m))
             if abs(recorded - len(written)) > 2:
                 print(f"warning: QUASAR {m} recorded {recorded} frames for a path of {len(written)} lines", flush=True)
-            row.update(score_pairs(quasar_pairs(work / "quasar" / m, truth_dir, setup, skip), q_bg),
+            bg = simulator_background(work / "quasar" / m, setup, skip)
+            sim_bg[m] = list(bg)
+            move = (bg, q_bg) if not args.no_repaint and bg != q_bg else None
+            row.update(score_pairs(quasar_pairs(work / "quasar" / m, truth_dir, setup, skip, move), q_bg),
                        frames_recorded=recorded, rtt_ms=logs[m].rtt_ms, pos_err_m=logs[m].pos_err_m,
                        rot_err_deg=logs[m].rot_err_deg)
         else:
@@ -717,7 +742,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "benchmark": "peer_quasar", "model": str(model), "trace": args.trace, "duration_s": args.duration,
         "path_samples": len(written), "path_rate_hz": PATH_RATE_HZ, "setup": asdict(setup), "skip_s": args.skip,
         "server_fps": QUASAR_SERVER_FPS, "network_ours": netem_string(setup.latency_ms, setup.jitter_ms),
-        "background": {"quasar": list(q_bg), "ours": list(o_bg or ()), "ours_repainted": repaint},
+        "background": {"quasar": list(q_bg), "ours": list(o_bg or ()), "ours_repainted": repaint,
+                       "quasar_simulators": sim_bg},
         "path_disagreement_deg": disagreement, "frame_size_step_bytes": LOG_STEP_BYTES,
         "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
         "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),

@@ -694,7 +694,7 @@ async def test_an_adapting_live_session_follows_a_narrow_link(tmp_path: Path) ->
     """``serve --adapt rate``: ``video`` asked for 3 Mbit/s into the 1 Mbit/s bottleneck above.  The server's
     estimator probes (the client reports the probe packets' arrivals and drops them), its encoder restarts at the
     estimated rate, and the standing queue of the test above does not form: over the last second the estimator sees
-    under 300 ms of queue (measured 0-26 ms in two runs; without adaptation 1.1-1.4 s) and the client shows updates
+    a median under 300 ms of queue (measured 0-26 ms in two runs; without adaptation 1.1-1.4 s) and the client shows updates
     under 400 ms old (p95; measured 75-104 ms), after 6-7 encoder restarts and 43 probe packets."""
     dur = 4.0
     result, _, sc = await _run_through_relay(tmp_path, CC_NETWORK, server_kw={
@@ -704,7 +704,10 @@ async def test_an_adapting_live_session_follows_a_narrow_link(tmp_path: Path) ->
     assert sc["encoder_restarts"] >= 1 and sc["twcc_unknown"] == 0, sc
     rows = [r for r in sc["update_rows"] if "cc_queue_ms" in r]
     late = [r for r in rows if r["t_s"] >= rows[-1]["t_s"] - 1.0]
-    assert max(r["cc_queue_ms"] for r in late) < 300, [round(r["cc_queue_ms"]) for r in late]
+    # the queue over the last second: median under 300 ms, no sample over 700 (without adaptation 1.1-1.4 s; idle
+    # 0-26 ms; with the machine loaded by a C++ build beside the suite a spike reached 321 and 387 ms)
+    queue = [r["cc_queue_ms"] for r in late]
+    assert float(np.median(queue)) < 300 and max(queue) < 700, [round(q) for q in queue]
     # the target follows the link: its median under the 1 Mbit/s (measured 540-620 kbit/s; a frame or two after a
     # probe's result may ask for more, 1.7 Mbit/s seen once with the suite running beside it)
     assert float(np.median([r["adapt_color_kbps"] for r in late])) < 1000, [round(r["adapt_color_kbps"]) for r in late]

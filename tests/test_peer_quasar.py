@@ -311,6 +311,28 @@ def test_background_mask_and_repaint() -> None:
     assert pq.model_mask(t2, black).sum() == 4
 
 
+def test_a_simulator_s_own_background_is_moved_to_the_truth_s(tmp_path: Path) -> None:
+    """QUASAR's scene_viewer shows (208, 208, 0) where nothing is (llvmpipe), its qr/qs simulators draw on black: each
+    simulator's frames are scored with their own background moved to the truth's, the model untouched."""
+    from PIL import Image
+
+    setup = pq.Setup(24, 16, 50, 20, False, 0.5, 4)
+    truth_bg, sim_bg = (208, 208, 0), (0, 0, 0)
+    for folder, bg in (("truth", truth_bg), ("qr", sim_bg)):
+        (tmp_path / folder).mkdir()
+        for i in range(3):
+            img = np.tile(np.array(bg, np.uint8), (16, 24, 1))
+            img[3:13, 4:20] = (90, 100, 110)
+            Image.fromarray(img).save(tmp_path / folder / f"frame_{i:06d}.png")
+    assert pq.simulator_background(tmp_path / "qr", setup, 0) == sim_bg
+    raw = list(pq.quasar_pairs(tmp_path / "qr", tmp_path / "truth", setup, 1))
+    moved = list(pq.quasar_pairs(tmp_path / "qr", tmp_path / "truth", setup, 1, (sim_bg, truth_bg)))
+    assert len(raw) == len(moved) == 2
+    assert pq.score_pairs(raw, truth_bg)["psnr_db"] < 10.0             # every background pixel 208 off
+    r = pq.score_pairs(moved, truth_bg)
+    assert r["psnr_db"] == 60.0 and r["model_psnr_db"] == 60.0
+
+
 def test_score_pairs_whole_frame_and_model() -> None:
     bg = (0, 0, 0)
     truth = np.zeros((20, 20, 3), np.uint8)
