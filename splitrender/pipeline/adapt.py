@@ -230,9 +230,9 @@ class RateController:
     def wanted_bps(self) -> float | None:
         """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
         once every stream is calibrated; None before.  The estimator need not probe past it."""
-        if not self.cfg.calibrate_frames or any(n not in self._cap for n in self.video):
+        if not self.cfg.calibrate_frames or not self.calibrated:
             return None
-        return (sum(self._cap.values()) * 1000 + (self._overhead_bps or 0.0)) / self.cfg.headroom
+        return (self.natural_video_bps() + self.overhead_bps) / self.cfg.headroom
 
     def state(self) -> dict[str, float]:
         """For updates.csv: the overhead the controller pays first and each stream's latest target and learnt miss."""

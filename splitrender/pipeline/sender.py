@@ -233,25 +233,25 @@ class ServerPipeline:
             if st.spec.scalable and scale is not None and scale < 1.0:
                 w, h = scaled_size(w, h, scale)
                 plane = resize(plane, w, h)
-            if st.encoder is not None and (st.encoder.width, st.encoder.height) != (w, h):
-                st.encoder = VideoEncoder(st.encoder.cfg, w, h)   # a new size: a new encoder, its first frame an IDR
-                st.sets_checked = True
-                restarts += 1
+            # at most one new encoder a frame: for a new size (its first frame an IDR) and/or a new rate
+            resized = st.encoder is not None and (st.encoder.width, st.encoder.height) != (w, h)
+            fresh = st.encoder is None or resized or st.encoder.frames_encoded == 0
+            cfg = st.encoder.cfg if st.encoder is not None else st.spec.codec
+            retargeted = False
             want = rates_kbps.get(name) if rates_kbps else None
             if want is not None and not st.spec.codec.lossless:
-                cur = st.encoder.cfg.bitrate_kbps if st.encoder is not None else None
-                fresh = st.encoder is None or st.encoder.frames_encoded == 0
+                cur = cfg.bitrate_kbps if st.encoder is not None else None
                 due = fresh or force_idr or st.encoder.idr_due  # type: ignore[union-attr]
-                restart, urgent = retarget(cur, want, due, adapt or AdaptConfig())
-                if restart:
-                    cfg = dataclasses.replace(st.encoder.cfg if st.encoder is not None else st.spec.codec,
-                                              bitrate_kbps=float(want), crf=None)
-                    st.encoder = VideoEncoder(cfg, w, h)
-                    st.sets_checked = True   # the described sets were the first encoder's; each IDR carries its own
+                retargeted, urgent = retarget(cur, want, due, adapt or AdaptConfig())
+                if retargeted:
+                    cfg = dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None)
                     restarts += not fresh
                     idr = idr or urgent
-            if st.encoder is None:
-                st.encoder = VideoEncoder(st.spec.codec, w, h)
+            if st.encoder is None or resized or retargeted:
+                st.encoder = VideoEncoder(cfg, w, h)
+            if resized or retargeted:
+                st.sets_checked = True   # the described sets were the first encoder's; each IDR carries its own
+                restarts += resized
             if st.encoder.cfg.bitrate_kbps is not None and want is not None:
                 given[name] = float(st.encoder.cfg.bitrate_kbps)
             video[name] = ef = st.encoder.encode(plane, force_idr=idr)
