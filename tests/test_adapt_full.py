@@ -234,3 +234,35 @@ def test_full_adaptation_saves_a_lossless_depth_stream(tmp_path) -> None:  # typ
     ages = [f["update_age_ms"] for f in res.frames if f["t_s"] >= 4.0 and np.isfinite(f["update_age_ms"])]
     assert float(np.percentile(ages, 95)) < 200, np.percentile(ages, 95)
     assert res.summary["point_moves"] >= 1 and res.summary["lowest_point"] == 6
+
+
+def test_the_knobs_settings_out_of_range_are_refused_by_name() -> None:
+    from splitrender.errors import ConfigError
+    from splitrender.methods import get_method, make_config
+
+    for method, params, field in (("warp", {"depth_bits": 7}, "depth_bits"), ("warp", {"depth_step": 5}, "depth_step"),
+                                  ("quads", {"merge_scale": 0.0}, "merge_scale")):
+        with pytest.raises(ConfigError, match=field):
+            make_config(get_method(method).config, params)
+    for kw in ({"stretch": 0.5}, {"up_margin": 0.0}, {"up_hold_s": -1.0}, {"mtp_budget_ms": 0.0}, {"settle_frames": 0}):
+        with pytest.raises(ConfigError, match=f"AdaptConfig.{next(iter(kw))}"):
+            AdaptConfig(**kw)
+
+
+def test_a_warp_view_with_a_depth_step_out_of_range_is_refused_by_name() -> None:
+    from splitrender.methods import get_method, make_config
+    from splitrender.methods.base import DecodedUpdate
+    from splitrender.methods.warp.config import reference_intrinsics
+    from splitrender.methods.warp.wire import WarpMetaError, parse_update
+    from splitrender.scene.pose import CameraIntrinsics, Pose
+
+    cfg = make_config(get_method("warp").config, {})
+    ref = reference_intrinsics(CameraIntrinsics(32, 18, 60.0, 0.05, 200.0), cfg.fov_scale, cfg.resolution_scale)
+    h, w = ref.height, ref.width
+    meta = {"v": 1, "depth_coding": "lossless", "depth_near_m": 0.1, "ref": [w, h, ref.fov_y_deg],
+            "views": [{"pose": Pose().to_list(), "ids": np.zeros((h, w), np.uint8), "depth_step": 9}],
+            "obj_ids": np.zeros(0, np.uint16), "dyn_ids": np.zeros(0, np.uint16), "obj_model": np.zeros((0, 4, 4)),
+            "dyn_prev": np.zeros((0, 4, 4)), "dt_s": 1 / 30}
+    planes = {"color0": np.zeros((h, w, 3), np.uint8), "depth0": np.zeros((2 * h, w), np.uint8)}
+    with pytest.raises(WarpMetaError, match="depth_step"):
+        parse_update(DecodedUpdate(3, 0.1, Pose(), planes, meta), cfg, ref)
