@@ -216,6 +216,7 @@ def main_methods(ns: argparse.Namespace) -> int:
     import dataclasses
 
     from .methods import available_methods, get_method
+    from .webrtc.messages import BROWSER_METHODS, HEADLESS_ONLY
 
     specs = {name: get_method(name) for name in available_methods()}
     for scene, title in ((False, "thin clients: the client draws only what the server sends"),
@@ -228,6 +229,8 @@ def main_methods(ns: argparse.Namespace) -> int:
         for name in names:
             fields = ", ".join(f"{f.name}={f.default!r}" for f in dataclasses.fields(specs[name].config))
             print(f"  {name:8s} {specs[name].description}\n           {fields}")
+            print("           browser page: " + (f"yes, {BROWSER_METHODS[name]}" if name in BROWSER_METHODS else
+                                                     f"no, {HEADLESS_ONLY.get(name, 'not written for the page')}"))
             knobs = specs[name].config().adapt_knobs()
             if knobs:   # what --adapt full may lower, beside the encoders' rate (and the scalable colour's resolution)
                 print("           --adapt full: " + ", ".join(f"{k.name} {'/'.join(f'{v:g}' for v in k.levels)}"

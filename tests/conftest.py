@@ -71,7 +71,7 @@ def shared_run(session_renderer, truth_cache):  # type: ignore[no-untyped-def]
 
 LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
                         "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",
-                        "test_sdp.py", "test_cli.py"})
+                        "test_sdp.py", "test_cli.py", "test_browser.py", "test_browser_front.py"})
 STRESS_FILE = "test_stress.py"
 _STRESS_SCRIPT = """
 import pickle, sys

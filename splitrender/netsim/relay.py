@@ -249,14 +249,36 @@ class Relay:
 
     async def start_udp(self, listen: Address, target: Address) -> Address:
         """Relay UDP from ``listen`` to ``target``; returns the bound listen address."""
-        self._check_address("listen", listen)
         self._check_address("target", target)
+        bound, _, _ = await self._start_udp(listen, target)
+        return bound
+
+    async def start_udp_unbound(self, listen: Address) -> tuple[Address, Address, Callable[[Address], None]]:
+        """Relay UDP from ``listen`` to a target named later (a WebRTC peer whose port is known only once its
+        answer is made).  Returns the bound listen address, the address of the socket the target will see the
+        client's datagrams come from, and ``set_target(address)``; until it is called, datagrams towards the
+        target are counted undeliverable."""
+        return await self._start_udp(listen, None)
+
+    async def _start_udp(self, listen: Address, target: Address | None) -> tuple[Address, Address, Callable[[Address], None]]:
+        self._check_address("listen", listen)
         self._start_clock()
         loop = asyncio.get_running_loop()
         client_addr: list[Address] = []
+        target_addr: list[Address] = [target] if target is not None else []
+
+        def set_target(addr: Address) -> None:
+            self._check_address("target", addr)
+            target_addr[:] = [addr]
+            logger.info("relay udp %s: target is %s", listen, addr)
 
         def to_server(data: bytes, _addr: Address | None) -> None:
-            server_t.sendto(data)
+            if not target_addr:
+                raise OSError("no target yet")      # counted undeliverable by the delay line
+            if target is not None:
+                server_t.sendto(data)
+            else:
+                server_t.sendto(data, target_addr[0])
 
         def to_client(data: bytes, addr: Address | None) -> None:
             listen_t.sendto(data, addr)
@@ -290,7 +312,10 @@ class Relay:
                 return
             shape(data, self._uplink, self._up, up_line, None)
 
-        def from_server(data: bytes, _addr: Address) -> None:
+        def from_server(data: bytes, addr: Address) -> None:
+            if target is None and (not target_addr or tuple(addr[:2]) != target_addr[0]):
+                self._udp_foreign += 1
+                return
             if client_addr:
                 shape(data, self._downlink, self._down, down_line, client_addr[0])
 
@@ -298,17 +323,23 @@ class Relay:
             lambda: _Protocol(from_client, f"udp {listen} client side"), local_addr=listen
         )
         try:
-            server_t, _ = await loop.create_datagram_endpoint(
-                lambda: _Protocol(from_server, f"udp {target} server side"), remote_addr=target
-            )
+            if target is not None:
+                server_t, _ = await loop.create_datagram_endpoint(
+                    lambda: _Protocol(from_server, f"udp {target} server side"), remote_addr=target
+                )
+            else:
+                server_t, _ = await loop.create_datagram_endpoint(
+                    lambda: _Protocol(from_server, f"udp {listen} server side"), local_addr=(listen[0], 0)
+                )
         except BaseException:
             listen_t.close()
             raise
         self._transports += [listen_t, server_t]
         self._delay_lines += [up_line, down_line]
         bound = listen_t.get_extra_info("sockname")
-        logger.info("relay udp %s -> %s started", bound[:2], target)
-        return (bound[0], bound[1])
+        inner = server_t.get_extra_info("sockname")
+        logger.info("relay udp %s -> %s started", bound[:2], target if target is not None else "(target to come)")
+        return (bound[0], bound[1]), (inner[0], inner[1]), set_target
 
     # -- TCP ----------------------------------------------------------------------
 

@@ -59,6 +59,13 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--render-deadline", type=float, default=10.0,
                    help="watchdog: seconds a frame's render and encode may take before its worker is killed and "
                         "its session ends with an error (default 10)")
+    p.add_argument("--webrtc", action="store_true",
+                   help="also serve browsers: the page and WebRTC sessions (video, atw) on --http")
+    p.add_argument("--http", default="127.0.0.1:8080", metavar="HOST:PORT",
+                   help="with --webrtc: the page's HTTP address (default 127.0.0.1:8080; port 0 = any)")
+    p.add_argument("--webrtc-network", default=None, metavar="PATH",
+                   help="with --webrtc: shape each browser session's media through an in-process relay (a profile "
+                        "name, a netem string such as 'delay 50ms', or a .toml file)")
     p.add_argument("--metrics-interval", type=float, default=5.0,
                    help="seconds between each session's `metrics` log line (counters; 0 = never; default 5)")
 
@@ -102,7 +109,21 @@ def config_from_args(ns: argparse.Namespace) -> Any:
         raise ConfigError(f"--gi-hz: must be 0 (every frame) or in [0.1, 240], got {gi_hz:g}")
     if not 0 <= ns.metrics_interval <= 3600:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
-    return ServerConfig(host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
+    webrtc_http = None
+    if ns.webrtc:
+        from splitrender.webrtc.app import check_http_address
+
+        webrtc_http = check_http_address(ns.http)
+        if ns.webrtc_network:
+            from splitrender.netsim.config import parse_path
+
+            try:
+                parse_path(ns.webrtc_network)
+            except Exception as exc:   # noqa: BLE001 - named below
+                raise ConfigError(f"--webrtc-network: {exc}") from None
+    elif ns.webrtc_network:
+        raise ConfigError("--webrtc-network: shapes browser sessions, so it needs --webrtc")
+    return ServerConfig(webrtc_http=webrtc_http, webrtc_network=ns.webrtc_network or None, host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
                         mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
@@ -126,6 +147,9 @@ async def _serve_until_signal(cfg: Any) -> None:
         host, port = server.tcp_address
         print(f"splitrender: serving on tcp {host}:{port}, udp {server.udp_address[0]}:{server.udp_address[1]}",
               file=sys.stderr, flush=True)
+        if server.front is not None:
+            print(f"splitrender: browsers: http://{server.front.address[0]}:{server.front.address[1]}/",
+                  file=sys.stderr, flush=True)
 
     serve_task = asyncio.create_task(serve(cfg, ready))
     stop_task = asyncio.create_task(stop.wait())

@@ -118,6 +118,12 @@ class ServerConfig:
     session(s) end with an error."""
     setup_deadline_s: float = 60.0
     """Watchdog for a worker's start and a session's set-up (scene loading, method half, encoders)."""
+    webrtc_http: tuple[str, int] | None = None
+    """``serve --webrtc``: the browser front door's HTTP address (the page, offer/answer, recordings); ``None``:
+    no browser sessions (:mod:`splitrender.webrtc`)."""
+    webrtc_network: str | None = None
+    """``serve --webrtc-network``: shape each browser session's media through an in-process relay with this path
+    (a profile name, a netem string or a .toml file); ``None``: direct."""
     test_hang: str = dataclasses.field(default_factory=lambda: os.environ.get("SPLITRENDER_TEST_HANG", ""))
     """Test hook, ``"SESSION:FRAME"``: the SESSION-th session (1-based) hangs rendering frame FRAME (taken
     from ``$SPLITRENDER_TEST_HANG``); ``""`` = never."""
@@ -210,6 +216,8 @@ class LiveServer:
         self.udp_dropped = 0
         self._mirror_next = 0
         self._closed = False
+        self.front: Any = None
+        """The browser front door (:class:`splitrender.webrtc.app.WebRtcFrontDoor`) with ``webrtc_http``."""
 
     # -- scene clock ---------------------------------------------------------------
 
@@ -312,6 +320,11 @@ class LiveServer:
         else:
             self._spare = asyncio.get_running_loop().create_future()
             self._spare.set_result(first)
+        if cfg.webrtc_http is not None:
+            from splitrender.webrtc.app import WebRtcFrontDoor
+
+            self.front = WebRtcFrontDoor(self, cfg.webrtc_http, cfg.webrtc_network)
+            await self.front.start()
         await self._tcp.start_serving()
         logger.info("serving %s on tcp %s:%d, udp %s:%d (methods %s)", cfg.scene, *self.tcp_address,
                     *self.udp_address, ",".join(self.methods))
@@ -331,6 +344,8 @@ class LiveServer:
         self._closed = True
         if self._tcp is not None:
             self._tcp.close()
+        if self.front is not None:
+            await self.front.close()
         tasks = list(self._tasks)
         for task in tasks:
             task.cancel()

@@ -1,0 +1,203 @@
+"""The page's messages and requests, parsed and checked (sans-IO).
+
+Everything a page sends arrives here first: the session request (JSON posted with the
+SDP offer), poses and feedback on the data channels (JSON text), the recording's rows
+and images.  Each parser returns plain values or raises :class:`PageMessageError`
+naming the field and what was wrong, so the front door can answer a bad request with
+400 and end a session whose page misbehaves without touching any other session.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import RemoteProtocolError
+
+__all__ = ["BROWSER_METHODS", "HEADLESS_ONLY", "browser_methods", "PageMessageError", "SessionRequest", "PoseSample", "PageFeedback",
+           "parse_session_request", "parse_channel_message", "parse_rows", "MAX_MESSAGE_BYTES", "ROW_COLUMNS",
+           "rgba_to_rgb"]
+
+BROWSER_METHODS = {
+    "video": "shows the newest frame",
+    "atw": "reprojects the newest frame to the current orientation (the pose it was rendered for comes by RTP timestamp)",
+}
+"""Methods the page draws, with what it does (the others: :data:`HEADLESS_ONLY`)."""
+
+HEADLESS_ONLY = {
+    "warp": "its depth is 16-bit and lossless, which no browser's WebRTC decoder takes",
+    "sas": "the page does not draw its PVS geometry yet",
+    "tss": "the page does not decode its per-triangle atlas layout",
+    "quads": "the page does not build its layered quad mesh",
+    "probes": "its probes are lossless HEVC, which browsers do not decode over WebRTC",
+}
+"""Methods that stay headless-only, and why."""
+
+MAX_MESSAGE_BYTES = 4096
+"""Largest pose or feedback message a page may send on a data channel."""
+MAX_ROWS = 100_000
+"""Most rows one recording may post."""
+
+ROW_COLUMNS = ("frame", "t_s", "tick", "scene_t_s", "displayed_us", "update_frame_id", "update_age_ms",
+               "motion_to_photon_ms", "client_ms", "rtp_timestamp", "px", "py", "pz", "qx", "qy", "qz", "qw")
+"""The columns a page's recording row carries (the headless client's, less those only it measures)."""
+
+
+def browser_methods(offered: tuple[str, ...] | list[str]) -> list[str]:
+    """The offered methods the page can draw, in the server's order."""
+    return [m for m in offered if m in BROWSER_METHODS]
+
+
+class PageMessageError(RemoteProtocolError):
+    """A request or message from a page that is malformed or out of range; the text names the field."""
+
+
+def _number(d: dict[str, Any], key: str, where: str, lo: float, hi: float, integer: bool = False) -> float:
+    if key not in d:
+        raise PageMessageError(f"{where}: missing {key!r}")
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise PageMessageError(f"{where}.{key}: expected a finite number, got {v!r}"[:200])
+    if integer and int(v) != v:
+        raise PageMessageError(f"{where}.{key}: expected an integer, got {v!r}")
+    if not lo <= v <= hi:
+        raise PageMessageError(f"{where}.{key}: {v!r} is out of range [{lo:g}, {hi:g}]")
+    return int(v) if integer else float(v)
+
+
+def _vector(d: dict[str, Any], key: str, where: str, n: int, bound: float) -> tuple[float, ...]:
+    v = d.get(key)
+    if not isinstance(v, list) or len(v) != n:
+        raise PageMessageError(f"{where}.{key}: expected a list of {n} numbers, got {v!r}"[:200])
+    out = []
+    for i, x in enumerate(v):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > bound:
+            raise PageMessageError(f"{where}.{key}[{i}]: expected a finite number within ±{bound:g}, got {x!r}"[:200])
+        out.append(float(x))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class SessionRequest:
+    """What a page asks for with its offer."""
+
+    sdp: str
+    method: str
+    width: int
+    height: int
+    display_hz: float
+
+
+def parse_session_request(body: Any, offered: list[str], max_pixels: int) -> SessionRequest:
+    """The ``POST /api/session`` body: ``{"sdp", "type": "offer", "method", "width", "height", "display_hz"}``."""
+    where = "session request"
+    if not isinstance(body, dict):
+        raise PageMessageError(f"{where}: expected a JSON object, got {type(body).__name__}")
+    if body.get("type") != "offer":
+        raise PageMessageError(f"{where}.type: expected 'offer', got {body.get('type')!r}"[:200])
+    sdp = body.get("sdp")
+    if not isinstance(sdp, str) or not sdp.startswith("v=0"):
+        raise PageMessageError(f"{where}.sdp: expected an SDP offer starting 'v=0'")
+    if len(sdp) > 64 * 1024:
+        raise PageMessageError(f"{where}.sdp: {len(sdp)} characters, more than the 65536 allowed")
+    method = body.get("method")
+    if method not in offered:
+        raise PageMessageError(f"{where}.method: {method!r} is not one this server offers the page "
+                               f"({', '.join(offered) or 'none'})"[:300])
+    w = int(_number(body, "width", where, 16, 7680, integer=True))
+    h = int(_number(body, "height", where, 16, 4320, integer=True))
+    if w % 2 or h % 2:
+        raise PageMessageError(f"{where}: width and height must be even (H.264 4:2:0), got {w}x{h}")
+    if w * h > max_pixels:
+        raise PageMessageError(f"{where}: {w}x{h} is more than this server's {max_pixels} pixels")
+    hz = _number(body, "display_hz", where, 1, 240)
+    return SessionRequest(sdp, method, w, h, hz)
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    """A pose from the page: its clock (the server's wall clock, µs, as the page estimates it), a sequence
+    number, position and orientation (x, y, z, w)."""
+
+    seq: int
+    client_time_us: int
+    position: tuple[float, ...]
+    orientation: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class PageFeedback:
+    """A shown frame: its id, when it was shown (µs, server clock) and the pose time it was rendered from."""
+
+    frame_id: int
+    displayed_us: int
+    received_us: int
+
+
+def parse_channel_message(text: Any) -> PoseSample | PageFeedback | str:
+    """One message from the page's ``pose`` channel: a pose, feedback, or ``"bye"``."""
+    where = "page message"
+    if isinstance(text, bytes):
+        raise PageMessageError(f"{where}: expected JSON text, got {len(text)} binary bytes")
+    if not isinstance(text, str):
+        raise PageMessageError(f"{where}: expected JSON text, got {type(text).__name__}")
+    if len(text) > MAX_MESSAGE_BYTES:
+        raise PageMessageError(f"{where}: {len(text)} characters, more than the {MAX_MESSAGE_BYTES} allowed")
+    try:
+        d = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise PageMessageError(f"{where}: not JSON ({exc})") from None
+    if not isinstance(d, dict):
+        raise PageMessageError(f"{where}: expected a JSON object, got {type(d).__name__}")
+    kind = d.get("type")
+    where = f"{kind} message" if isinstance(kind, str) else where
+    if kind == "pose":
+        q = _vector(d, "q", where, 4, 2.0)
+        if not 0.5 < math.sqrt(sum(x * x for x in q)) < 1.5:
+            raise PageMessageError(f"{where}.q: not a unit quaternion ({list(q)})")
+        return PoseSample(int(_number(d, "seq", where, 0, 2**53, integer=True)),
+                          int(_number(d, "t_us", where, 0, 2**62, integer=True)), _vector(d, "p", where, 3, 1e6), q)
+    if kind == "feedback":
+        return PageFeedback(int(_number(d, "frame_id", where, 0, 2**31, integer=True)),
+                            int(_number(d, "displayed_us", where, 0, 2**62, integer=True)),
+                            int(_number(d, "received_us", where, 0, 2**62, integer=True)))
+    if kind == "bye":
+        return "bye"
+    raise PageMessageError(f"page message.type: {kind!r} is not one of 'pose', 'feedback', 'bye'"[:200])
+
+
+def parse_rows(rows: Any) -> list[dict[str, float]]:
+    """A recording's rows: a list of objects with the :data:`ROW_COLUMNS` (numbers or null)."""
+    if not isinstance(rows, list):
+        raise PageMessageError(f"recording.rows: expected a list, got {type(rows).__name__}")
+    if len(rows) > MAX_ROWS:
+        raise PageMessageError(f"recording.rows: {len(rows)} rows, more than the {MAX_ROWS} allowed")
+    out = []
+    for i, r in enumerate(rows):
+        if not isinstance(r, dict):
+            raise PageMessageError(f"recording.rows[{i}]: expected an object, got {type(r).__name__}")
+        row: dict[str, float] = {}
+        for k in ROW_COLUMNS:
+            v = r.get(k)
+            if v is None:
+                row[k] = math.nan
+            elif isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise PageMessageError(f"recording.rows[{i}].{k}: expected a number or null, got {v!r}"[:200])
+            else:
+                row[k] = float(v)
+        for k in ("frame", "px", "py", "pz", "qx", "qy", "qz", "qw", "scene_t_s"):
+            if not math.isfinite(row[k]):
+                raise PageMessageError(f"recording.rows[{i}].{k}: missing or not finite")
+        out.append(row)
+    return out
+
+
+def rgba_to_rgb(data: bytes, width: int, height: int) -> Any:
+    """A WebGL ``readPixels`` read-back (RGBA, rows bottom up) as an (H, W, 3) uint8 image, rows top down."""
+    import numpy as np
+
+    if len(data) != width * height * 4:
+        raise PageMessageError(f"recording image: {len(data)} bytes, expected {width}x{height}x4 = {width * height * 4}")
+    return np.frombuffer(data, np.uint8).reshape(height, width, 4)[::-1, :, :3].copy()

@@ -1,0 +1,415 @@
+"""One browser session: an aiortc peer connection fed by a method server half in a render worker.
+
+Task layout: :meth:`BrowserSession.run` owns the frame clock (the server's shared frame
+grid, as :class:`splitrender.server.session.ServerSession` ticks) and ends the session
+when the page says ``bye``, the peer connection fails or closes, the page breaks the
+protocol, or the server closes.  Per frame the session's render worker renders and codes
+the update (the same call the RTP front door makes); the colour access unit goes to the
+video track (aiortc packetizes it, answers the browser's NACKs from its history and
+forwards its PLIs here, where they become IDR requests), the frame's metadata to the
+``frame`` data channel as JSON.
+
+Data channels (the page creates them with its offer):
+
+* ``meta``: reliable, ordered; server to page: ``origin`` (the sender's RTP timestamp
+  origin), ``error`` and ``bye``;
+* ``frame``: unordered, partially reliable (``maxPacketLifeTime``); server to page, one
+  ``frame`` message per frame: frame id, RTP timestamp, scene time, the pose it was
+  rendered for, and the page pose it was predicted from;
+* ``pose``: unordered, unreliable; page to server: ``pose``, ``feedback`` and ``bye``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import secrets
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import describe_error
+from ..methods.base import StreamSpec, get_method, make_config
+from ..pipeline.feedback import FeedbackState
+from ..pipeline.sender import rtp_timestamp
+from ..protocol import Feedback
+from ..protocol.rtcp import KeyframeRateLimiter
+from ..scene.pose import CameraIntrinsics
+from ..scene.pose import Pose as ScenePose
+from ..scene.predict import make_predictor
+from ..tabular import CsvAppender, write_csv
+from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, parse_channel_message
+from .sdp import replace_candidates, udp_candidate_ports
+from .track import EncodedVideoTrack
+
+__all__ = ["BrowserSession", "BROWSER_CODEC_PARAMS"]
+
+logger = logging.getLogger(__name__)
+
+BROWSER_CODEC_PARAMS = {"codec": "h264", "chroma": "420", "lossless": False}
+"""What a browser session's method config is given over the server's: H.264 4:2:0 at the ``ultrafast`` preset
+is Constrained Baseline, which every browser's WebRTC stack decodes (4:4:4 High and HEVC are not negotiated)."""
+FRAME_LIFETIME_MS = 250
+"""How long the ``frame`` channel retransmits a frame's metadata (the page asks for it; a later frame wins)."""
+
+
+class BrowserSession:
+    """One page: its peer connection, method half (in a render worker), predictor and counters."""
+
+    def __init__(self, front: Any, req: SessionRequest, ordinal: int) -> None:
+        self.front = front
+        self.server = front.server
+        self.cfg = self.server.config
+        self.req = req
+        self.ordinal = ordinal
+        self.id = secrets.token_hex(6)
+        self.method = req.method
+        self.intrinsics = CameraIntrinsics(req.width, req.height, self.cfg.fov_y_deg)
+        self.display_hz = req.display_hz
+        self._predictor = make_predictor(self.cfg.predictor)
+        self.fb = FeedbackState(req.display_hz, ["color"])
+        self._keyframes = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
+        self._kf_owed = True            # the first frame is an IDR anyway
+        self._latest_pose: tuple[float, ScenePose, int, int] | None = None
+        self.pc: Any = None
+        self.worker: Any = None
+        self.track: EncodedVideoTrack | None = None
+        self.sender: Any = None
+        self.relay: Any = None
+        self.channels: dict[str, Any] = {}
+        self.params: dict[str, Any] = {}
+        self.ended = asyncio.Event()
+        self.end_reason = ""
+        self.ended_at: float | None = None
+        self.started_at = time.time()
+        self.task: asyncio.Task[None] | None = None
+        self._frame_id = 0
+        self._last_tick = -1
+        self._origin_sent = False
+        self.update_rows: deque[dict[str, Any]] = deque(maxlen=1024)
+        self._log: CsvAppender | None = None
+        self.counters: dict[str, int] = {
+            "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
+            "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "feedback_received": 0,
+            "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0, "retransmit_requests": 0,
+        }
+
+    @property
+    def out_dir(self) -> Path | None:
+        return None if self.cfg.out_dir is None else Path(self.cfg.out_dir) / self.id
+
+    # ------------------------------------------------------------------ set-up
+
+    async def open(self) -> dict[str, Any]:
+        """Build the half, encoders and peer connection; returns the answer (SDP and the session's terms)."""
+        from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+
+        cfg = self.cfg
+        spec = get_method(self.method)
+        params = {**cfg.method_params.get(self.method, {}), **BROWSER_CODEC_PARAMS}
+        mcfg = make_config(spec.config, params)
+        self.worker = await self.server.acquire_worker()
+        specs, _session_blob, _sets = await self.worker.call("open", self.id, self.method, mcfg, self.intrinsics, -1,
+                                                             deadline_s=cfg.setup_deadline_s)
+        video = [s for s in specs if isinstance(s, StreamSpec)]
+        if [s.name for s in specs] != ["color"] or len(video) != 1:
+            raise PageMessageError(f"method {self.method}: streams {[s.name for s in specs]} cannot go to a page "
+                                   "(it takes one colour stream)")
+        ref = video[0]
+        self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
+                       "stream_height": ref.height}
+        offer_sdp = self.req.sdp
+        if self.front.network is not None:
+            from ..netsim.relay import Relay
+
+            host = self.front.ice_host
+            self.relay = Relay(self.front.network, seed=self.ordinal)
+            relay_listen, relay_inner, set_target = await self.relay.start_udp_unbound((host, 0))
+            offer_sdp = replace_candidates(offer_sdp, *relay_inner)
+        self.pc = pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+        pc.on("datachannel", self._on_datachannel)
+        pc.on("connectionstatechange", self._on_state)
+        await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
+        self.track = EncodedVideoTrack()
+        self.sender = pc.addTrack(self.track)
+        self.track.sender = self.sender
+        self._hook_sender(self.sender)
+        await pc.setLocalDescription(await pc.createAnswer())
+        answer = pc.localDescription.sdp
+        if self.relay is not None:
+            ports = udp_candidate_ports(answer, self.front.ice_host)
+            if not ports:
+                raise RuntimeError(f"the answer has no UDP candidate on {self.front.ice_host}")
+            set_target((self.front.ice_host, ports[0]))
+            answer = replace_candidates(answer, *relay_listen)
+        if "H264" not in answer:
+            raise PageMessageError("the offer has no H.264 video the server can send (the page asks for H.264 "
+                                   "Constrained Baseline, packetization-mode 1)")
+        meta = self._session_terms(ref)
+        logger.info("browser session %s: %s %dx%d @ %g Hz%s", self.id, self.method, self.req.width, self.req.height,
+                    self.display_hz, f" through a shaped path ({self.front.network_text})" if self.relay else "")
+        return {"type": "answer", "sdp": answer, **meta}
+
+    def _session_terms(self, ref: StreamSpec) -> dict[str, Any]:
+        from ..methods.atw.config import overscan_intrinsics
+
+        terms: dict[str, Any] = {"session_id": self.id, "method": self.method, "scene": self.cfg.scene,
+                                 "fov_y_deg": self.cfg.fov_y_deg, "server_fps": self.cfg.server_fps,
+                                 "epoch_ms": self.server.epoch_wall_s * 1000, "server_ms": time.time() * 1000,
+                                 "width": self.req.width, "height": self.req.height,
+                                 "stream_width": ref.width, "stream_height": ref.height,
+                                 "frame_lifetime_ms": FRAME_LIFETIME_MS, "recording": self.cfg.out_dir is not None}
+        if self.method == "atw":
+            overscan = float(self.params["config"].get("overscan", 1.3))
+            terms["ref_fov_y_deg"] = overscan_intrinsics(self.intrinsics, overscan).fov_y_deg
+            terms["fill"] = self.params["config"].get("fill", "edge")
+        return terms
+
+    def _hook_sender(self, sender: Any) -> None:
+        """Count the browser's RTCP feedback and turn its PLIs into IDR requests (aiortc answers NACKs itself,
+        from its own history; a PLI only sets a flag its encoder would read, and this track has none)."""
+        from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket
+
+        orig = sender._handle_rtcp_packet
+
+        async def handle(packet: Any) -> None:
+            if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == 1:      # generic NACK
+                self.counters["nacks_received"] += 1
+                self.counters["nacked_packets"] += len(packet.lost)
+            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4):   # PLI, FIR
+                self.counters["plis_received"] += 1
+                self.request_keyframe("PLI from the browser")
+            await orig(packet)
+
+        sender._handle_rtcp_packet = handle
+        orig_retransmit = sender._retransmit
+
+        async def retransmit(seq: int) -> None:
+            self.counters["retransmit_requests"] += 1
+            await orig_retransmit(seq)
+
+        sender._retransmit = retransmit
+
+    def request_keyframe(self, why: str) -> None:
+        if self._keyframes.request(time.time() * 1000):
+            self._kf_owed = True
+        logger.debug("browser session %s: keyframe for %s", self.id, why)
+
+    # ------------------------------------------------------------------ events
+
+    def _on_state(self) -> None:
+        state = self.pc.connectionState if self.pc is not None else "closed"
+        logger.debug("browser session %s: connection %s", self.id, state)
+        if state in ("failed", "closed"):
+            self.end(f"peer connection {state}")
+
+    def _on_datachannel(self, channel: Any) -> None:
+        label = channel.label
+        if label not in ("meta", "frame", "pose") or label in self.channels:
+            self._page_error(f"unexpected data channel {label!r} (the page opens meta, frame and pose once each)")
+            return
+        self.channels[label] = channel
+        if label == "pose":
+            channel.on("message", self._on_message)
+
+    def _on_message(self, text: Any) -> None:
+        try:
+            msg = parse_channel_message(text)
+        except PageMessageError as exc:
+            self._page_error(str(exc))
+            return
+        if isinstance(msg, PoseSample):
+            self._on_pose(msg)
+        elif isinstance(msg, PageFeedback):
+            self._on_feedback(msg)
+        else:
+            self.end("the page said bye")
+
+    def _on_pose(self, msg: PoseSample) -> None:
+        t_s = msg.client_time_us / 1e6
+        if self._latest_pose is not None and t_s <= self._latest_pose[0]:
+            return      # duplicate or reordered (the channel is unordered)
+        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
+        self._predictor.observe(t_s, pose)
+        self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
+        self.counters["poses_received"] += 1
+
+    def _on_feedback(self, msg: PageFeedback) -> None:
+        self.counters["feedback_received"] += 1
+        fb = Feedback(frame_id=msg.frame_id, received_us=msg.received_us, decoded_us=msg.received_us,
+                      displayed_us=msg.displayed_us, lost_packets=0, applied={"color": msg.frame_id})
+        self.fb.on_feedback(fb)
+
+    def _page_error(self, text: str) -> None:
+        self.counters["page_errors"] += 1
+        logger.warning("browser session %s: %s", self.id, text)
+        self._send("meta", {"type": "error", "text": text})
+        self.end(f"page error: {text}")
+
+    def _send(self, label: str, obj: dict[str, Any]) -> int:
+        ch = self.channels.get(label)
+        if ch is None or ch.readyState != "open":
+            return 0
+        text = json.dumps(obj, separators=(",", ":"))
+        ch.send(text)
+        return len(text)
+
+    def end(self, reason: str) -> None:
+        if not self.ended.is_set():
+            self.end_reason = reason
+            self.ended_at = time.time()
+            self.ended.set()
+
+    # ------------------------------------------------------------------ running
+
+    async def run(self) -> None:
+        """Stream until the session ends; then close the peer connection and hand the worker back."""
+        try:
+            frames = asyncio.create_task(self._frame_loop(), name=f"browser-{self.id}-frames")
+            ended = asyncio.create_task(self.ended.wait())
+            done, _ = await asyncio.wait({frames, ended}, return_when=asyncio.FIRST_COMPLETED)
+            if frames in done and frames.exception() is not None:
+                err = frames.exception()
+                logger.error("browser session %s: failed: %s", self.id, describe_error(err))
+                self._send("meta", {"type": "error", "text": f"server error: {describe_error(err)}"})
+                self.end(f"server error: {describe_error(err)}")
+            for t in (frames, ended):
+                t.cancel()
+            await asyncio.gather(frames, ended, return_exceptions=True)
+        except asyncio.CancelledError:
+            self.end("server shutting down")
+            self._send("meta", {"type": "bye", "reason": "server shutting down"})
+            raise
+        finally:
+            await self.close()
+
+    async def close(self) -> None:
+        self.end(self.end_reason or "closed")
+        if self.pc is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self.pc.close(), 5.0)
+        if self.relay is not None:
+            with contextlib.suppress(Exception):
+                await self.relay.close()
+        if self.worker is not None:
+            worker, self.worker = self.worker, None
+            await self.server.release_worker(worker, self.id)
+        if self._log is not None:
+            self._log.close()
+        d = self.out_dir
+        if d is not None and self.counters["frames_sent"]:
+            write_csv(d / "server_counters.csv", [self.server_counters()])
+        logger.info("browser session %s: closed (%s): %s", self.id, self.end_reason,
+                    ", ".join(f"{k}={v}" for k, v in self.server_counters().items() if v))
+
+    def server_counters(self) -> dict[str, Any]:
+        """The session's counters with the RTP sender's (packets and bytes sent, retransmissions)."""
+        out: dict[str, Any] = dict(self.counters, method=self.method)
+        if self.track is not None:
+            out["frames_dropped_sender"] = self.track.frames_dropped
+        s = self.sender
+        if s is not None:
+            out["rtp_packets"] = int(getattr(s, "_RTCRtpSender__packet_count", 0))
+            out["rtp_payload_bytes"] = int(getattr(s, "_RTCRtpSender__octet_count", 0))
+        if self.relay is not None:
+            st = self.relay.stats()
+            out.update({"relay_down_in": st.downlink.packets_in, "relay_down_dropped": st.downlink.packets_dropped,
+                        "relay_up_in": st.uplink.packets_in, "relay_up_dropped": st.uplink.packets_dropped})
+        return out
+
+    async def _frame_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        server, cfg = self.server, self.cfg
+        interval = 1.0 / cfg.server_fps
+        wall_now = time.time()
+        next_t = loop.time() + (server.tick_of(wall_now) + 1) / cfg.server_fps - (wall_now - server.epoch_wall_s)
+        while True:
+            delay = next_t - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            next_t += interval
+            behind = loop.time() - next_t
+            if behind > 0:
+                skipped = int(behind / interval) + 1
+                self.counters["frames_skipped_late"] += skipped
+                next_t += skipped * interval
+            if (self._latest_pose is None or self.pc.connectionState != "connected"
+                    or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
+                continue
+            assert self.track is not None
+            if self.track.queued >= 2:      # the sender has not taken the last frames yet: do not pile up
+                self.counters["frames_skipped_backlog"] += 1
+                continue
+            await self._send_frame()
+
+    async def _send_frame(self) -> None:
+        server, cfg = self.server, self.cfg
+        assert self._latest_pose is not None and self.track is not None
+        wall = time.time()
+        tick = max(server.tick_of(wall), self._last_tick + 1)
+        self._last_tick = tick
+        scene_t = tick / cfg.server_fps
+        epoch = server.epoch_wall_s
+        now_ms = wall * 1000
+        kf = self._kf_owed or self._keyframes.poll(now_ms)
+        expected = self.fb.latency.value_s
+        pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
+        target_wall = wall + expected
+        target_pose = self._predictor.predict(target_wall)
+        from ..server.worker import WorkerTimeout
+
+        c0 = time.perf_counter()
+        try:
+            enc, _stats, stages = await self.worker.call(
+                "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose,
+                                                                  target_wall - epoch),
+                self._predictor, epoch, expected, kf, self.fb.snapshot(kf), None, None, None,
+                deadline_s=cfg.render_deadline_s)
+        except WorkerTimeout:
+            self.counters["render_timeouts"] += 1
+            raise
+        if self.ended.is_set():
+            return
+        frame = enc.video["color"]
+        if frame.keyframe:
+            self._kf_owed = False
+            self._keyframes.keyframe_sent(now_ms)
+            self.counters["keyframes_sent"] += 1
+        rtp_ts = rtp_timestamp(scene_t)
+        t_us = int(wall * 1e6)
+        upd = enc.update
+        if not self._origin_sent and self.track.rtp_origin is not None:
+            self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
+        meta = {"type": "frame", "id": self._frame_id, "rtp": rtp_ts, "t": scene_t, "server_us": t_us,
+                "pose_us": pose_us, "seq": pose_seq, "kf": bool(frame.keyframe),
+                "p": [round(float(v), 6) for v in upd.pose.position],
+                "q": [round(float(v), 7) for v in upd.pose.orientation],
+                "origin": self.track.rtp_origin}
+        if "fov_y_deg" in upd.meta:
+            meta["fov"] = float(upd.meta["fov_y_deg"])
+        n_meta = self._send("frame", meta)
+        if not self.track.put(frame.data, rtp_ts):
+            self.request_keyframe("the sender fell behind")
+        self.fb.frame_sent(self._frame_id, t_us)
+        self.counters["frames_sent"] += 1
+        self.counters["video_bytes"] += len(frame.data)
+        self.counters["frame_meta_bytes"] += n_meta
+        c1 = time.perf_counter()
+        row = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes_color": len(frame.data),
+               "bytes_frame_meta": n_meta, "keyframe": int(frame.keyframe), "server_ms": stages["produce_ms"],
+               "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
+               "expected_latency_ms": expected * 1000}
+        self.update_rows.append(row)
+        d = self.out_dir
+        if d is not None:
+            if self._log is None:
+                d.mkdir(parents=True, exist_ok=True)
+                self._log = CsvAppender(d / "updates.csv", list(row))
+            self._log.append(row)
+        self._frame_id += 1
+

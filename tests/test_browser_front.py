@@ -1,0 +1,210 @@
+"""The browser front door without a browser: the page's messages, SDP edits, the relay's late target, and
+the HTTP endpoints refusing bad requests by name while the server keeps serving."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+
+import numpy as np
+import pytest
+
+from splitrender.errors import ConfigError
+from splitrender.webrtc.messages import (PageFeedback, PageMessageError, PoseSample, parse_channel_message, parse_rows,
+                                         parse_session_request, rgba_to_rgb)
+from splitrender.webrtc.sdp import replace_candidates, udp_candidate_ports
+
+OFFER = "\r\n".join([
+    "v=0", "o=- 1 2 IN IP4 127.0.0.1", "s=-", "t=0 0", "a=group:BUNDLE 0 1",
+    "m=video 9 UDP/TLS/RTP/SAVPF 102", "c=IN IP4 0.0.0.0", "a=mid:0",
+    "a=candidate:1 1 udp 2113937151 127.0.0.1 50000 typ host generation 0",
+    "a=candidate:2 1 tcp 1518280447 127.0.0.1 9 typ host tcptype active",
+    "a=candidate:3 1 udp 2113939711 ::1 50001 typ host", "a=end-of-candidates",
+    "m=application 9 UDP/DTLS/SCTP webrtc-datachannel", "c=IN IP4 0.0.0.0", "a=mid:1",
+    "a=candidate:1 1 udp 2113937151 127.0.0.1 50000 typ host", "",
+])
+
+
+def _request(**kw):
+    body = {"type": "offer", "sdp": OFFER, "method": "atw", "width": 320, "height": 180, "display_hz": 60}
+    body.update(kw)
+    return body
+
+
+def test_session_request_is_checked_by_name():
+    req = parse_session_request(_request(), ["video", "atw"], 1920 * 1080)
+    assert (req.method, req.width, req.height, req.display_hz) == ("atw", 320, 180, 60.0)
+    cases = [
+        ({"type": "answer"}, "type: expected 'offer'"),
+        ({"sdp": "hello"}, "sdp: expected an SDP offer"),
+        ({"sdp": "v=0" + "x" * 70000}, "more than the 65536 allowed"),
+        ({"method": "quads"}, "method: 'quads' is not one this server offers the page (video, atw)"),
+        ({"width": 321}, "must be even"),
+        ({"width": "320"}, "width: expected a finite number"),
+        ({"height": 10}, "height: 10 is out of range"),
+        ({"width": 4000, "height": 4000}, "more than this server's 2073600 pixels"),
+        ({"display_hz": 0}, "display_hz: 0 is out of range"),
+    ]
+    for kw, text in cases:
+        with pytest.raises(PageMessageError, match=text.replace("(", r"\(").replace(")", r"\)")):
+            parse_session_request(_request(**kw), ["video", "atw"], 1920 * 1080)
+    with pytest.raises(PageMessageError, match="expected a JSON object, got list"):
+        parse_session_request([1], ["video"], 100)
+
+
+def test_channel_messages_parse_and_refuse_by_name():
+    pose = parse_channel_message(json.dumps({"type": "pose", "seq": 3, "t_us": 1_700_000_000_000_000,
+                                             "p": [0, 1.6, 2], "q": [0, 0, 0, 1]}))
+    assert pose == PoseSample(3, 1_700_000_000_000_000, (0.0, 1.6, 2.0), (0.0, 0.0, 0.0, 1.0))
+    fb = parse_channel_message('{"type": "feedback", "frame_id": 7, "displayed_us": 5, "received_us": 4}')
+    assert fb == PageFeedback(7, 5, 4)
+    assert parse_channel_message('{"type": "bye"}') == "bye"
+    bad = [
+        ("{", "not JSON"),
+        ("[1, 2]", "expected a JSON object, got list"),
+        (b"\x00\x01", "expected JSON text, got 2 binary bytes"),
+        ('{"type": "pose", "seq": 1, "t_us": 5, "p": [0, 0, 0], "q": [0, 0, 0, 1.9]}', "q: not a unit quaternion"),
+        ('{"type": "pose", "seq": 1, "t_us": 5, "p": [0, NaN, 0], "q": [0, 0, 0, 1]}', r"p\[1\]: expected a finite"),
+        ('{"type": "pose", "seq": 1, "t_us": 5, "p": [0, 0], "q": [0, 0, 0, 1]}', "p: expected a list of 3 numbers"),
+        ('{"type": "pose", "seq": -1, "t_us": 5, "p": [0, 0, 0], "q": [0, 0, 0, 1]}', "seq: -1 is out of range"),
+        ('{"type": "feedback", "frame_id": 1.5, "displayed_us": 5, "received_us": 4}', "frame_id: expected an integer"),
+        ('{"type": "hello"}', "'hello' is not one of 'pose', 'feedback', 'bye'"),
+        ('{"type": "bye", "pad": "' + "x" * 5000 + '"}', "more than the 4096 allowed"),
+    ]
+    for text, match in bad:
+        with pytest.raises(PageMessageError, match=match):
+            parse_channel_message(text)
+
+
+def test_recording_rows_and_images():
+    row = {"frame": 0, "t_s": 0.0, "scene_t_s": 1.0, "px": 0, "py": 1, "pz": 2, "qx": 0, "qy": 0, "qz": 0, "qw": 1,
+           "update_frame_id": -1, "update_age_ms": None}
+    out = parse_rows([row])
+    assert out[0]["py"] == 1.0 and math.isnan(out[0]["update_age_ms"]) and math.isnan(out[0]["rtp_timestamp"])
+    with pytest.raises(PageMessageError, match=r"rows\[0\].px: expected a number or null"):
+        parse_rows([{**row, "px": "left"}])
+    with pytest.raises(PageMessageError, match=r"rows\[0\].qw: missing or not finite"):
+        parse_rows([{**row, "qw": None}])
+    with pytest.raises(PageMessageError, match="expected a list, got dict"):
+        parse_rows({"rows": 1})
+    # readPixels gives RGBA rows bottom up: the image comes back top down, alpha dropped
+    h, w = 3, 2
+    rgba = np.zeros((h, w, 4), np.uint8)
+    rgba[0, :, 0] = 255             # the bottom row as GL reads it
+    img = rgba_to_rgb(rgba.tobytes(), w, h)
+    assert img.shape == (3, 2, 3) and img[2, 0, 0] == 255 and img[0, 0, 0] == 0
+    with pytest.raises(PageMessageError, match="23 bytes, expected 2x3x4 = 24"):
+        rgba_to_rgb(b"x" * 23, w, h)
+
+
+def test_candidates_are_replaced_in_every_media_section():
+    assert udp_candidate_ports(OFFER) == [50000, 50001, 50000]
+    assert udp_candidate_ports(OFFER, "127.0.0.1") == [50000, 50000]
+    out = replace_candidates(OFFER, "127.0.0.1", 40000)
+    assert udp_candidate_ports(out) == [40000, 40000]
+    assert out.count("a=end-of-candidates") == 2 and "tcptype" not in out and "::1" not in out
+    lines = out.split("\r\n")
+    # each section's candidate follows its c= line, inside the section
+    for mid in ("a=mid:0", "a=mid:1"):
+        i = lines.index(mid)
+        assert lines[i - 2].startswith("a=candidate:1 1 udp 2130706431 127.0.0.1 40000 typ host")
+
+
+async def test_relay_with_a_target_named_later():
+    from splitrender.netsim.models import PathSpec
+    from splitrender.netsim.relay import Relay
+
+    loop = asyncio.get_running_loop()
+    got: list[tuple[bytes, tuple[str, int]]] = []
+
+    class Sink(asyncio.DatagramProtocol):
+        def __init__(self, box: list) -> None:
+            self.box = box
+
+        def datagram_received(self, data: bytes, addr) -> None:   # type: ignore[override]
+            self.box.append((data, addr[:2]))
+
+    server_t, _ = await loop.create_datagram_endpoint(lambda: Sink(got), local_addr=("127.0.0.1", 0))
+    client_got: list = []
+    client_t, _ = await loop.create_datagram_endpoint(lambda: Sink(client_got), local_addr=("127.0.0.1", 0))
+    relay = Relay(PathSpec())
+    try:
+        listen, inner, set_target = await relay.start_udp_unbound(("127.0.0.1", 0))
+        client_t.sendto(b"early", listen)
+        await asyncio.sleep(0.05)
+        assert got == [] and relay.stats().uplink.packets_undeliverable == 1
+        set_target(server_t.get_extra_info("sockname")[:2])
+        client_t.sendto(b"late", listen)
+        await asyncio.sleep(0.05)
+        assert got == [(b"late", inner)]        # the server sees the relay's inner socket
+        server_t.sendto(b"reply", inner)
+        stranger, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, local_addr=("127.0.0.1", 0))
+        stranger.sendto(b"spoof", inner)        # not the target: dropped
+        await asyncio.sleep(0.05)
+        stranger.close()
+        assert [d for d, _ in client_got] == [b"reply"]
+        assert relay.stats().udp_foreign_dropped == 1
+        with pytest.raises(Exception, match="not loopback"):
+            set_target(("8.8.8.8", 53))
+    finally:
+        await relay.close()
+        server_t.close()
+        client_t.close()
+
+
+def test_serve_options_are_checked():
+    from splitrender.cli import build_parser
+    from splitrender.server.cli import config_from_args
+
+    ap = build_parser()
+    cfg = config_from_args(ap.parse_args(["serve", "--webrtc", "--http", "127.0.0.1:0", "--webrtc-network", "delay 50ms"]))
+    assert cfg.webrtc_http == ("127.0.0.1", 0) and cfg.webrtc_network == "delay 50ms"
+    with pytest.raises(ConfigError, match="--http: '8080' is not HOST:PORT"):
+        config_from_args(ap.parse_args(["serve", "--webrtc", "--http", "8080"]))
+    with pytest.raises(ConfigError, match="--webrtc-network: shapes browser sessions, so it needs --webrtc"):
+        config_from_args(ap.parse_args(["serve", "--webrtc-network", "delay 5ms"]))
+    with pytest.raises(ConfigError, match="--webrtc-network"):
+        config_from_args(ap.parse_args(["serve", "--webrtc", "--webrtc-network", "delay fast"]))
+
+
+@pytest.mark.slow
+async def test_front_door_refuses_bad_requests_and_keeps_serving(tmp_path):
+    import aiohttp
+
+    from splitrender.server.server import LiveServer, ServerConfig
+
+    cfg = ServerConfig(port=0, udp_port=0, scene="minimal", webrtc_http=("127.0.0.1", 0), out_dir=tmp_path,
+                       methods=("video", "atw", "warp"))
+    async with LiveServer(cfg) as server:
+        base = "http://%s:%d" % server.front.address
+        async with aiohttp.ClientSession() as http:
+            async with http.get(base + "/api/info") as r:
+                info = await r.json()
+            assert info["methods"] == ["video", "atw"] and info["scene"] == "minimal" and info["recording"]
+            async with http.get(base + "/") as r:
+                assert r.status == 200 and "main.js" in await r.text()
+            async with http.get(base + "/static/main.js") as r:
+                assert r.status == 200 and r.headers["Content-Type"].startswith("text/javascript")
+            for path in ("/static/..%2Fapp.py", "/static/app.py", "/static/nothing.js"):
+                async with http.get(base + path) as r:
+                    assert r.status == 404, path
+            async with http.get(base + "/api/trace?name=turn&duration_s=2&width=320&height=180") as r:
+                tr = await r.json()
+            assert len(tr["t"]) == len(tr["p"]) == len(tr["q"]) == 241 and tr["duration_s"] == pytest.approx(2.0)
+            for query, text in (("name=/etc/passwd", "is not a built-in trace"), ("name=walk&duration_s=1e9", "duration_s must be"),
+                                ("name=walk&width=x", "invalid literal")):
+                async with http.get(base + "/api/trace?" + query) as r:
+                    assert r.status == 400 and text in (await r.json())["error"], query
+            for body, text in ((b"{", "session request: not JSON"),
+                               (json.dumps(_request(method="warp")).encode(), "'warp' is not one this server offers"),
+                               (json.dumps(_request(width=3)).encode(), "width: 3 is out of range")):
+                async with http.post(base + "/api/session", data=body) as r:
+                    assert r.status == 400 and text in (await r.json())["error"], body[:40]
+            async with http.post(base + "/api/session/nosuch/image/0", data=b"x") as r:
+                assert r.status == 404 and "no session 'nosuch'" in (await r.json())["error"]
+            async with http.post(base + "/api/session/nosuch/recording", json={"rows": []}) as r:
+                assert r.status == 404
+            async with http.get(base + "/api/clock") as r:
+                assert abs((await r.json())["server_ms"] - __import__("time").time() * 1000) < 5000
+        assert server.front.sessions_total == 0
