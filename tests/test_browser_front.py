@@ -208,3 +208,59 @@ async def test_front_door_refuses_bad_requests_and_keeps_serving(tmp_path):
             async with http.get(base + "/api/clock") as r:
                 assert abs((await r.json())["server_ms"] - __import__("time").time() * 1000) < 5000
         assert server.front.sessions_total == 0
+
+
+def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
+    """What the page keeps for ``sas`` (slot rows applied in order, transforms) equals the SAS client's own
+    vertex buffer after every frame, whatever the PVS did; parts stay under 64 KiB."""
+    from splitrender.codecs.meta import pack_meta, unpack_meta
+    from splitrender.methods.base import ServerContext
+    from splitrender.methods.sas import SasConfig, SasServer
+    from splitrender.methods.sas.client import PatchSlots
+    from splitrender.methods.sas.wire import parse_frame_meta, parse_session
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.pose import CameraIntrinsics
+    from splitrender.scene.trace import get_trace
+    from splitrender.webrtc.sas import MAX_SLOTS_PER_PART, SasBridge, parse_slot_message
+
+    r = Renderer()
+    scene = get_scene("minimal")
+    intr = CameraIntrinsics(320, 180, 60.0)
+    trace = get_trace("turn", 2.0)
+    srv = SasServer(SasConfig(chroma="420"), intr, scene, 30)
+    blob = pack_meta(srv.session_data())
+    bridge = SasBridge(blob)
+    info = parse_session(unpack_meta(blob))
+    reference = PatchSlots(info)
+    rows = np.zeros((0, 90), np.float32)
+    xf = np.tile(np.eye(4, dtype=np.float32), (info.n_objects, 1, 1))
+    high = 0
+    assert bridge.terms()["n_objects"] == info.n_objects == 2
+    sizes = []
+    for f in range(8):
+        t = f * 0.2
+        pose = trace.pose_at(t)
+        u = srv.produce(ServerContext(f, t, scene, r, intr, pose, t, pose, t, trace.pose_at, 0.0))
+        meta = unpack_meta(pack_meta(u.meta))
+        msgs = bridge.frame(f, meta)
+        for msg in msgs:                      # the page's reading
+            sizes.append(len(msg))
+            m = parse_slot_message(msg)
+            assert m["frame_id"] == f and len(m["slots"]) <= MAX_SLOTS_PER_PART
+            need = max([m["high"], *(int(s) + 1 for s in m["slots"])])
+            if need > rows.shape[0]:
+                rows = np.concatenate([rows, np.zeros((need - rows.shape[0], 90), np.float32)])
+            rows[m["slots"]] = m["rows"].reshape(-1, 90)
+            xf[m["objects"]] = m["transforms"]
+            if m["last"]:
+                high = m["high"]
+        assert [parse_slot_message(x)["last"] for x in msgs] == [False] * (len(msgs) - 1) + [True]
+        reference.apply(parse_frame_meta(meta, info))
+        reference.rebuild()
+        assert high == reference.high > 0
+        np.testing.assert_array_equal(rows[:high], reference.rows[:high].reshape(high, 90))
+        assert reference.n_tri > 0
+    assert max(sizes) < 65536 and bridge.slot_bytes == sum(sizes) and bridge.meta_bytes > 0
+    with pytest.raises(ValueError, match="magic"):
+        parse_slot_message(b"XXXX" + bytes(28))

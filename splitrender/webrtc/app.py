@@ -260,7 +260,7 @@ class WebRtcFrontDoor:
                                                  if isinstance(v, (int, float)) and not isinstance(v, bool)}}
         # the keys the scorer's summary reads, as the headless client names them
         counters["rtp_bytes"] = int(server.get("rtp_payload_bytes", 0)) + 12 * int(server.get("rtp_packets", 0))
-        counters["meta_bytes"] = int(server.get("frame_meta_bytes", 0))
+        counters["meta_bytes"] = int(server.get("frame_meta_bytes", 0)) + int(server.get("sas_slot_bytes", 0))
         counters["frames_partial"] = 0
         rec = {"session_id": s.id, "method": s.method, "params": s.params.get("config", {}), "scene": s.cfg.scene,
                "fov_y_deg": s.cfg.fov_y_deg, "server_fps": s.cfg.server_fps, "trace": trace, "width": s.req.width,

@@ -23,12 +23,12 @@ __all__ = ["BROWSER_METHODS", "HEADLESS_ONLY", "browser_methods", "PageMessageEr
 BROWSER_METHODS = {
     "video": "shows the newest frame",
     "atw": "reprojects the newest frame to the current orientation (the pose it was rendered for comes by RTP timestamp)",
+    "sas": "draws the PVS patches from the atlas (the video) at the current pose (patch slots come on a data channel)",
 }
 """Methods the page draws, with what it does (the others: :data:`HEADLESS_ONLY`)."""
 
 HEADLESS_ONLY = {
     "warp": "its depth is 16-bit and lossless, which no browser's WebRTC decoder takes",
-    "sas": "the page does not draw its PVS geometry yet",
     "tss": "the page does not decode its per-triangle atlas layout",
     "quads": "the page does not build its layered quad mesh",
     "probes": "its probes are lossless HEVC, which browsers do not decode over WebRTC",

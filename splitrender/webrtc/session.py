@@ -72,7 +72,7 @@ class BrowserSession:
         self.intrinsics = CameraIntrinsics(req.width, req.height, self.cfg.fov_y_deg)
         self.display_hz = req.display_hz
         self._predictor = make_predictor(self.cfg.predictor)
-        self.fb = FeedbackState(req.display_hz, ["color"])
+        self.fb = FeedbackState(req.display_hz, None)
         self._keyframes = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
         self._kf_owed = True            # the first frame is an IDR anyway
         self._latest_pose: tuple[float, ScenePose, int, int] | None = None
@@ -83,6 +83,10 @@ class BrowserSession:
         self.relay: Any = None
         self.channels: dict[str, Any] = {}
         self.params: dict[str, Any] = {}
+        self.stream = "color"
+        """The method's video stream (``color``; ``atlas`` for ``sas``)."""
+        self.sas: Any = None
+        """``sas``: the page's patch slots (:class:`~splitrender.webrtc.sas.SasBridge`)."""
         self.ended = asyncio.Event()
         self.end_reason = ""
         self.ended_at: float | None = None
@@ -114,13 +118,18 @@ class BrowserSession:
         params = {**cfg.method_params.get(self.method, {}), **BROWSER_CODEC_PARAMS}
         mcfg = make_config(spec.config, params)
         self.worker = await self.server.acquire_worker()
-        specs, _session_blob, _sets = await self.worker.call("open", self.id, self.method, mcfg, self.intrinsics, -1,
-                                                             deadline_s=cfg.setup_deadline_s)
+        specs, session_blob, _sets = await self.worker.call("open", self.id, self.method, mcfg, self.intrinsics, -1,
+                                                            deadline_s=cfg.setup_deadline_s)
         video = [s for s in specs if isinstance(s, StreamSpec)]
-        if [s.name for s in specs] != ["color"] or len(video) != 1:
+        if len(specs) != 1 or len(video) != 1:
             raise PageMessageError(f"method {self.method}: streams {[s.name for s in specs]} cannot go to a page "
-                                   "(it takes one colour stream)")
+                                   "(it takes one video stream)")
         ref = video[0]
+        self.stream = ref.name
+        if self.method == "sas":
+            from .sas import SasBridge
+
+            self.sas = SasBridge(session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
                        "stream_height": ref.height}
         offer_sdp = self.req.sdp
@@ -164,6 +173,8 @@ class BrowserSession:
                                  "width": self.req.width, "height": self.req.height,
                                  "stream_width": ref.width, "stream_height": ref.height,
                                  "frame_lifetime_ms": FRAME_LIFETIME_MS, "recording": self.cfg.out_dir is not None}
+        if self.sas is not None:
+            terms.update(self.sas.terms())
         if self.method == "atw":
             overscan = float(self.params["config"].get("overscan", 1.3))
             terms["ref_fov_y_deg"] = overscan_intrinsics(self.intrinsics, overscan).fov_y_deg
@@ -242,7 +253,7 @@ class BrowserSession:
     def _on_feedback(self, msg: PageFeedback) -> None:
         self.counters["feedback_received"] += 1
         fb = Feedback(frame_id=msg.frame_id, received_us=msg.received_us, decoded_us=msg.received_us,
-                      displayed_us=msg.displayed_us, lost_packets=0, applied={"color": msg.frame_id})
+                      displayed_us=msg.displayed_us, lost_packets=0, applied={self.stream: msg.frame_id})
         self.fb.on_feedback(fb)
 
     def _page_error(self, text: str) -> None:
@@ -312,6 +323,9 @@ class BrowserSession:
         out: dict[str, Any] = dict(self.counters, method=self.method)
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
+        if self.sas is not None:
+            out["sas_slot_bytes"] = self.sas.slot_bytes
+            out["sas_meta_bytes"] = self.sas.meta_bytes
         s = self.sender
         if s is not None:
             out["rtp_packets"] = int(getattr(s, "_RTCRtpSender__packet_count", 0))
@@ -375,7 +389,7 @@ class BrowserSession:
             raise
         if self.ended.is_set():
             return
-        frame = enc.video["color"]
+        frame = enc.video[self.stream]
         if frame.keyframe:
             self._kf_owed = False
             self._keyframes.keyframe_sent(now_ms)
@@ -392,6 +406,11 @@ class BrowserSession:
                 "origin": self.track.rtp_origin}
         if "fov_y_deg" in upd.meta:
             meta["fov"] = float(upd.meta["fov_y_deg"])
+        if self.sas is not None:     # the frame's patch slots first, on the reliable channel
+            ch = self.channels.get("meta")
+            for msg in self.sas.frame(self._frame_id, enc.update.meta):
+                if ch is not None and ch.readyState == "open":
+                    ch.send(msg)
         n_meta = self._send("frame", meta)
         if not self.track.put(frame.data, rtp_ts):
             self.request_keyframe("the sender fell behind")

@@ -27,7 +27,7 @@ from ...render.canvas import Canvas, upload_image
 from ...render.gl import grow_vertex_buffer, load_program
 from ...scene.pose import Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
-from .wire import (SLOT_LAYOUT, TRI_SLOTS, SasMetaError, block_clamp_rect, block_layout_xy, dequantize_slots,
+from .wire import (SLOT_LAYOUT, TRI_SLOTS, FrameMeta, SasMetaError, block_clamp_rect, block_layout_xy, dequantize_slots,
                    parse_frame_meta, parse_session)
 
 SHADERS = Path(__file__).parent / "shaders"
@@ -114,46 +114,35 @@ class ObjectTransforms:
         self.ssbo.bind_to_storage_buffer(binding)
 
 
-class SasClient(ClientHalf):
-    """Shading atlas streaming, client half."""
+class PatchSlots:
+    """The SAS client's state without GL: PVS patches (object slot, triangle count, object-space positions),
+    their atlas rectangles, and one vertex slot of three triangles per drawn patch.
 
-    def __init__(self, *a: Any, **kw: Any) -> None:
-        super().__init__(*a, **kw)
-        self.session = parse_session(self.session_data)
-        self.atlas_size = self.session.atlas_size
-        self.n_obj = self.session.n_objects
-        self.sky = self.session.sky
-        self.obj_box = self.session.obj_box
-        i = self.intrinsics
-        self.canvas = Canvas(self.gl, i.width, i.height)
-        self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
-        self.xf = ObjectTransforms(self.gl, self.n_obj)   # the two newest transforms per object, for extrapolation
-        # per-patch state, keyed by patch id
+    :meth:`apply` takes a frame's validated metadata; :meth:`rebuild` recomputes the slots of the patches that
+    changed (freed slots are zeroed and reused) and returns their indices.  :attr:`rows` ``[:high]`` is the
+    vertex data: per slot (3 triangles, 3 vertices, 10 floats) object-space position, normalised atlas uv,
+    object slot and the block's normalised texel-centre clamp rectangle; unused triangles are zero.  The
+    browser front door keeps one for a page (:mod:`splitrender.webrtc.sas`) and sends it the changed slots.
+    """
+
+    def __init__(self, session: Any) -> None:
+        self.session = session
+        self.atlas_size = session.atlas_size
         self.geo: dict[int, tuple[int, int, np.ndarray]] = {}      # id -> (object slot, triangles, (5, 3) positions)
         self.rect: dict[int, np.ndarray] = {}                      # id -> (x, y, lw, lh, transposed)
-        self._tex: Any = None
-        self._vao: Any = None
-        self._vbo: Any = None
-        self._dirty = True
-        self._n_tri = 0
-        # incremental vertex buffer: one slot of 3 triangles per drawn patch (zeros = nothing drawn)
         self._changed: set[int] = set()
         self._slot: dict[int, int] = {}
         self._free: list[int] = []
-        self._rows = np.zeros((0, 3, 3, 10), np.float32)
+        self.rows = np.zeros((0, 3, 3, 10), np.float32)
         self._slot_tris = np.zeros(0, np.int64)
-        self._high = 0
+        self.high = 0
+        self.n_tri = 0
 
-    # ------------------------------------------------------------------ updates
-    def apply(self, update: DecodedUpdate) -> None:
-        """Apply one frame; malformed metadata raises :class:`SasMetaError` and leaves the state as it was."""
-        m = parse_frame_meta(update.meta, self.session)
-        atlas = update.planes.get("atlas")
-        if atlas is not None:
-            w, h = self.atlas_size
-            if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (h, w, 3):
-                raise SasMetaError(f"sas atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({h}, {w}, 3) uint8")
-            self._tex = upload_image(self.gl, atlas, self._tex)
+    @property
+    def dirty(self) -> bool:
+        return bool(self._changed)
+
+    def apply(self, m: FrameMeta) -> None:
         if m.full:
             self._changed.update(self.geo)
             self._changed.update(self.rect)
@@ -165,7 +154,7 @@ class SasClient(ClientHalf):
         for pid in m.drop.tolist():
             self.geo.pop(pid, None)
             self.rect.pop(pid, None)
-        gpos = dequantize_slots(m.geo_pos, m.geo_size, self.obj_box[m.geo_obj])
+        gpos = dequantize_slots(m.geo_pos, m.geo_size, self.session.obj_box[m.geo_obj])
         for pid, o, s, p in zip(m.geo_id.tolist(), m.geo_obj.tolist(), m.geo_size.tolist(), gpos):
             self.geo[pid] = (o, s, p)
         for pid, r in zip(m.uv_id.tolist(), m.uv_rect):
@@ -176,9 +165,6 @@ class SasClient(ClientHalf):
                 for pid in [k for k in d if k not in keep]:
                     del d[pid]
                     self._changed.add(pid)
-        self.xf.update(m.xf_obj.astype(np.int64), m.xf, update.t_s)
-        self._dirty = True
-        self.has_content = True
 
     def _patch_rows(self, ids: list[int]) -> np.ndarray:
         """(N, 3, 3, 10) float32 vertex rows of patches ``ids`` (unused triangles zero): object-space
@@ -205,31 +191,84 @@ class SasClient(ClientHalf):
                 out[sel, t] = np.concatenate([pos[sel][:, tri], xy[:, tri], o, c4], axis=2)
         return out
 
-    def _rebuild(self) -> None:
-        """Update the slots of the patches that changed since the last draw, then upload once."""
+    def rebuild(self) -> np.ndarray:
+        """Recompute the slots of the patches that changed since the last call; returns the slot indices
+        written (patches drawn anew or moved, and slots freed), ascending."""
+        written: set[int] = set()
         drawn = [p for p in self._changed if p in self.geo and p in self.rect]
         for pid in self._changed:
             if pid in self._slot and not (pid in self.geo and pid in self.rect):
                 k = self._slot.pop(pid)
-                self._rows[k] = 0.0
+                self.rows[k] = 0.0
                 self._slot_tris[k] = 0
                 self._free.append(k)
+                written.add(k)
         for pid in drawn:
             if pid not in self._slot:
                 if not self._free:
-                    grow = max(64, self._rows.shape[0])
-                    self._free = list(range(self._rows.shape[0] + grow - 1, self._rows.shape[0] - 1, -1))
-                    self._rows = np.concatenate([self._rows, np.zeros((grow, 3, 3, 10), np.float32)])
+                    grow = max(64, self.rows.shape[0])
+                    self._free = list(range(self.rows.shape[0] + grow - 1, self.rows.shape[0] - 1, -1))
+                    self.rows = np.concatenate([self.rows, np.zeros((grow, 3, 3, 10), np.float32)])
                     self._slot_tris = np.concatenate([self._slot_tris, np.zeros(grow, np.int64)])
                 self._slot[pid] = self._free.pop()
         if drawn:
             slots = np.array([self._slot[p] for p in drawn], np.int64)
-            self._rows[slots] = self._patch_rows(drawn)
+            self.rows[slots] = self._patch_rows(drawn)
             self._slot_tris[slots] = [self.geo[p][1] for p in drawn]
+            written.update(slots.tolist())
         self._changed.clear()
-        self._high = max(self._slot.values()) + 1 if self._slot else 0
-        self._n_tri = int(self._slot_tris[:self._high].sum())
-        data = self._rows[:self._high].tobytes()
+        self.high = max(self._slot.values()) + 1 if self._slot else 0
+        self.n_tri = int(self._slot_tris[:self.high].sum())
+        return np.array(sorted(written), np.int64)
+
+
+class SasClient(ClientHalf):
+    """Shading atlas streaming, client half."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self.session = parse_session(self.session_data)
+        self.atlas_size = self.session.atlas_size
+        self.n_obj = self.session.n_objects
+        self.sky = self.session.sky
+        self.obj_box = self.session.obj_box
+        i = self.intrinsics
+        self.canvas = Canvas(self.gl, i.width, i.height)
+        self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")
+        self.xf = ObjectTransforms(self.gl, self.n_obj)   # the two newest transforms per object, for extrapolation
+        self.slots = PatchSlots(self.session)               # per-patch state and the vertex slots, keyed by patch id
+        self._tex: Any = None
+        self._vao: Any = None
+        self._vbo: Any = None
+        self._dirty = True
+
+    @property
+    def geo(self) -> dict[int, tuple[int, int, np.ndarray]]:
+        return self.slots.geo
+
+    @property
+    def rect(self) -> dict[int, np.ndarray]:
+        return self.slots.rect
+
+    # ------------------------------------------------------------------ updates
+    def apply(self, update: DecodedUpdate) -> None:
+        """Apply one frame; malformed metadata raises :class:`SasMetaError` and leaves the state as it was."""
+        m = parse_frame_meta(update.meta, self.session)
+        atlas = update.planes.get("atlas")
+        if atlas is not None:
+            w, h = self.atlas_size
+            if not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (h, w, 3):
+                raise SasMetaError(f"sas atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({h}, {w}, 3) uint8")
+            self._tex = upload_image(self.gl, atlas, self._tex)
+        self.slots.apply(m)
+        self.xf.update(m.xf_obj.astype(np.int64), m.xf, update.t_s)
+        self._dirty = True
+        self.has_content = True
+
+    def _rebuild(self) -> None:
+        """Update the slots of the patches that changed since the last draw, then upload once."""
+        self.slots.rebuild()
+        data = self.slots.rows[:self.slots.high].tobytes()
         self._vbo, self._vao = grow_vertex_buffer(self.gl, self.prog, self._vbo, self._vao, len(data), "3f 2f 1f 4f",
                                                   ("in_position", "in_atlas_uv", "in_object", "in_clamp"), 4096)
         if data:
@@ -254,7 +293,7 @@ class SasClient(ClientHalf):
             self.prog["u_atlas"].value = 0
             # SasConfig.atlas_filter (read by name: the client imports nothing but the wire format from its package)
             self.prog["u_bicubic"].value = int(getattr(self.config, "atlas_filter", "bicubic") == "bicubic")
-            if self._high:
-                self._vao.render(vertices=9 * self._high)
+            if self.slots.high:
+                self._vao.render(vertices=9 * self.slots.high)
         color, covered = self.canvas.read()
-        return ClientFrame(color, ~covered, {"cli_triangles": float(self._n_tri)})
+        return ClientFrame(color, ~covered, {"cli_triangles": float(self.slots.n_tri)})

@@ -4,7 +4,7 @@
 // "manual"), duration (s), width, height, record_every (read back every Nth displayed frame; 0 = none),
 // autostart=1.  window.splitrender.done resolves with the session's result.
 import { Trace, Controls } from './pose.js';
-import { Display } from './methods.js';
+import { makeDisplay, parseSlotMessage } from './methods.js';
 
 const $ = sel => document.querySelector(sel);
 const state = { phase: 'idle', error: null, result: null };
@@ -114,7 +114,7 @@ async function run(opts) {
 
   const canvas = $('#view');
   canvas.width = terms.width; canvas.height = terms.height;
-  const display = new Display(canvas, terms);
+  const display = makeDisplay(canvas, terms);
   const video = $('#video');
   video.srcObject = new MediaStream([tr.receiver.track]);
   video.play().catch(() => {});
@@ -122,7 +122,12 @@ async function run(opts) {
   let origin = null;
   const metas = new Map();       // RTP timestamp (less the origin) -> frame metadata
   let framesWithoutMeta = 0, presented = 0;
+  meta.binaryType = 'arraybuffer';
   meta.onmessage = e => {
+    if (typeof e.data !== 'string') {        // sas: a frame's patch slots
+      try { display.receive(parseSlotMessage(e.data)); } catch (err) { fail(err); }
+      return;
+    }
     const m = JSON.parse(e.data);
     if (m.type === 'origin') origin = m.rtp_origin;
     else if (m.type === 'error') fail(new Error(`server: ${m.text}`));
@@ -137,7 +142,7 @@ async function run(opts) {
     presented++;
     const rel = origin === null || md.rtpTimestamp === undefined ? null : ((md.rtpTimestamp - origin) >>> 0);
     const m = rel === null ? undefined : metas.get(rel);
-    if (m) {
+    if (m && (!display.ready || display.ready(m.id))) {
       m.received_ms = md.receiveTime !== undefined ? performance.timeOrigin + md.receiveTime + offset : serverNow();
       display.upload(video, m);
     } else {
