@@ -123,9 +123,20 @@ async function run(opts) {
   const metas = new Map();       // RTP timestamp (less the origin) -> frame metadata
   let framesWithoutMeta = 0, presented = 0;
   meta.binaryType = 'arraybuffer';
+  let held = null;             // sas: a decoded atlas frame waiting for its patch slots, and its metadata
+  let inflating = Promise.resolve();
+  const inflate = buf => new Response(new Blob([buf]).stream().pipeThrough(new DecompressionStream('deflate'))).arrayBuffer();
   meta.onmessage = e => {
-    if (typeof e.data !== 'string') {        // sas: a frame's patch slots
-      try { display.receive(parseSlotMessage(e.data)); } catch (err) { fail(err); }
+    if (typeof e.data !== 'string') {        // sas: a frame's patch slots, zlib-compressed, applied in order
+      const data = e.data;
+      inflating = inflating.then(() => inflate(data)).then(buf => {
+        display.receive(parseSlotMessage(buf));
+        if (held && display.ready(held.meta.id)) {
+          display.upload(held.frame, held.meta);
+          held.frame.close();
+          held = null;
+        }
+      }).catch(fail);
       return;
     }
     const m = JSON.parse(e.data);
@@ -142,8 +153,14 @@ async function run(opts) {
     presented++;
     const rel = origin === null || md.rtpTimestamp === undefined ? null : ((md.rtpTimestamp - origin) >>> 0);
     const m = rel === null ? undefined : metas.get(rel);
-    if (m && (!display.ready || display.ready(m.id))) {
+    if (m) {
       m.received_ms = md.receiveTime !== undefined ? performance.timeOrigin + md.receiveTime + offset : serverNow();
+    }
+    if (m && display.ready && !display.ready(m.id)) {
+      // sas: the atlas frame came before its patch slots: keep it (a VideoFrame) until they arrive
+      if (held) { held.frame.close(); framesWithoutMeta++; }
+      held = { frame: new VideoFrame(video), meta: m };
+    } else if (m) {
       display.upload(video, m);
     } else {
       framesWithoutMeta++;
