@@ -60,7 +60,7 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
                    help="watchdog: seconds a frame's render and encode may take before its worker is killed and "
                         "its session ends with an error (default 10)")
     p.add_argument("--webrtc", action="store_true",
-                   help="also serve browsers: the page and WebRTC sessions (video, atw) on --http")
+                   help="also serve browsers: the page and WebRTC sessions (video, atw, sas) on --http")
     p.add_argument("--http", default="127.0.0.1:8080", metavar="HOST:PORT",
                    help="with --webrtc: the page's HTTP address (default 127.0.0.1:8080; port 0 = any)")
     p.add_argument("--webrtc-network", default=None, metavar="PATH",
