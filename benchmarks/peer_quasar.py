@@ -118,6 +118,9 @@ class Setup:
     fov_deg: float = 60.0
     wide_fov_deg: float = 120.0
     seed: int = 0
+    unlit: bool = False
+    """Ours without the sun (``MODEL+nosun``): QUASAR's llvmpipe build shows the model unlit (see
+    :func:`truth_content`), so only then do both ground truths show the same image."""
 
     @property
     def size(self) -> str:
@@ -301,7 +304,8 @@ def our_config(method: str, setup: Setup, model: Path, path_file: Path) -> Any:
         params.update(view_cell_m=setup.view_cell_m, wide_fov_deg=setup.wide_fov_deg)
         if params["variant"] == "quasar":
             params["layers"] = setup.layers
-    return RunConfig(method=name, method_params=params, scene=str(model), trace=str(path_file),
+    return RunConfig(method=name, method_params=params, scene=str(model) + ("+nosun" if setup.unlit else ""),
+                     trace=str(path_file),
                      network=netem_string(setup.latency_ms, setup.jitter_ms), width=setup.width, height=setup.height,
                      fov_y_deg=setup.fov_deg, server_fps=QUASAR_SERVER_FPS, client_fps=PATH_RATE_HZ,
                      predictor="ca" if setup.prediction else "none", seed=setup.seed, flip_every=0,
@@ -389,7 +393,9 @@ def quasar_bytes(log: QuasarLog) -> dict[str, Any]:
     return {"server_frames": len(fr), "bytes_ours": None, "bytes_quasar": _mean(f["bytes"] for f in fr),
             "bytes_quasar_reference": _mean(f["bytes"] for f in fr if f["kind"] == "reference"),
             "bytes_quasar_residual": _mean(f["bytes"] for f in fr if f["kind"] == "residual"),
-            "proxies": _mean(f["proxies"] for f in fr)}
+            "proxies": _mean(f["proxies"] for f in fr),
+            "proxies_reference": _mean(f["proxies"] for f in fr if f["kind"] == "reference"),
+            "proxies_residual": _mean(f["proxies"] for f in fr if f["kind"] == "residual")}
 
 
 def our_bytes(updates: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -406,7 +412,11 @@ def our_bytes(updates: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                                        if variant_residual else None),
             "bytes_quasar_residual": (_mean(u["srv_quasar_bytes"] for u in split if float(u["srv_reference"]) == 0.0)
                                       if variant_residual else None),
-            "proxies": _mean(u.get("srv_quasar_proxies") for u in counted)}
+            "proxies": _mean(u.get("srv_quasar_proxies") for u in counted),
+            "proxies_reference": (_mean(u.get("srv_quasar_proxies") for u in split if float(u["srv_reference"]) == 1.0)
+                                  if variant_residual else None),
+            "proxies_residual": (_mean(u.get("srv_quasar_proxies") for u in split if float(u["srv_reference"]) == 0.0)
+                                 if variant_residual else None)}
 
 
 def bytes_table(quasar_logs: Mapping[str, QuasarLog], our_updates: Mapping[str, Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
@@ -451,6 +461,31 @@ def model_mask(truth: np.ndarray, background: Sequence[int], tol: int = metrics.
     return _off(truth, background) > tol
 
 
+def truth_content(images: Iterable[np.ndarray], background: Sequence[int]) -> dict[str, float]:
+    """What a ground truth shows of the model, per frame on average: its distinct colours and the mean absolute
+    difference between horizontal neighbours inside it (code values).  Two tools' truths of the same model and
+    path should agree; QUASAR's llvmpipe build drew 2CylinderEngine with 5 colours (ambient x albedo: its sun
+    added nothing) where ours, lit, drew about 1,100, with 17x the contrast inside the model."""
+    colours, contrast, n = [], [], 0
+    for t in images:
+        t = np.asarray(t, np.uint8)[..., :3]
+        m = model_mask(t, background)
+        if m.sum() < 16:
+            continue
+        n += 1
+        c = t[m].astype(np.uint32)
+        colours.append(len(np.unique(c[:, 0] << 16 | c[:, 1] << 8 | c[:, 2])))
+        both = m[:, 1:] & m[:, :-1]
+        d = np.abs(t[:, 1:].astype(np.int16) - t[:, :-1].astype(np.int16)).max(-1)
+        contrast.append(float(d[both].mean()) if both.any() else 0.0)
+    return {"frames": n, "model_colours": float(np.mean(colours)) if colours else math.nan,
+            "model_contrast": float(np.mean(contrast)) if contrast else math.nan}
+
+
+CONTENT_RATIO_WARN = 5.0
+"""Warn when the two ground truths' model colours or contrast differ by more than this factor."""
+
+
 def repaint_background(img: np.ndarray, src: Sequence[int], dst: Sequence[int], tol: int = metrics.BACKGROUND_TOLERANCE) -> np.ndarray:
     """``img`` with every pixel within ``tol`` of the background colour ``src`` moved by ``dst - src`` (clipped), so
     a background pixel's error against a repainted truth is what it was."""
@@ -493,9 +528,9 @@ def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """The results as a text table (``-``: not measured or not counted)."""
     cols = [("tool", "<11", "s"), ("method", "<10", "s"), ("frames", ">6", "d"), ("PSNR", ">6", ".2f"),
             ("model", ">6", ".2f"), ("gain", ">6", "+.2f"), ("m.gain", ">6", "+.2f"), ("B/frame ours", ">12", ".0f"),
-            ("B/frame QUASAR", ">14", ".0f"), ("proxies", ">8", ".0f")]
+            ("B/frame QUASAR", ">14", ".0f"), ("proxies", ">8", ".0f"), ("ref", ">6", ".0f"), ("res", ">6", ".0f")]
     keys = ["tool", "method", "frames", "psnr_db", "model_psnr_db", "gain_db", "model_gain_db", "bytes_ours",
-            "bytes_quasar", "proxies"]
+            "bytes_quasar", "proxies", "proxies_reference", "proxies_residual"]
     lines = ["  ".join(format(h, a) for h, a, _ in cols)]
     for r in rows:
         lines.append("  ".join(format(_cell(r.get(k), f), a) for k, (_, a, f) in zip(keys, cols)))
@@ -608,6 +643,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--skip", type=float, default=0.5, help="seconds at the start not scored (default 0.5)")
     ap.add_argument("--no-repaint", action="store_true", help="score every tool's frames on its own background colour "
                     "(by default ours and QUASAR's simulators' are moved to QUASAR's ground truth's)")
+    ap.add_argument("--unlit", action="store_true", help="ours without the sun (MODEL+nosun), as QUASAR's llvmpipe "
+                    "build draws the model (docs/quasar.md)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
                     "instead of running its programs again")
     ap.add_argument("--xvfb", choices=("auto", "always", "never"), default="auto",
@@ -631,7 +668,7 @@ def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup
         w, h = (int(v) for v in args.size.lower().split("x"))
     except ValueError:
         raise InputError(f"--size {args.size!r}: expected WxH, e.g. 320x180") from None
-    setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers)
+    setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers, unlit=args.unlit)
     if not 1 <= setup.layers <= 4:
         raise InputError(f"--layers {setup.layers}: ours takes 1 to 4")
     return programs, model, setup
@@ -696,6 +733,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     truth_dir = work / "quasar" / "truth"
     truth_frames = frame_files(truth_dir)
     q_bg = background_colour(load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10])
+    content = {"quasar": truth_content((load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10]), q_bg)}
 
     # ours, each run scored as soon as it ends (its frames are not kept)
     renderer = Renderer()
@@ -708,6 +746,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if o_bg is None:     # every run has the same ground truth
             o_bg = background_colour(t for di, _, t in images[skip::10])
             repaint = not args.no_repaint and o_bg != q_bg
+            content["ours"] = truth_content((t for di, _, t in images[skip::10]), o_bg)
         src, dst = o_bg, q_bg
         pairs = (((repaint_background(s, src, dst), repaint_background(t, src, dst)) if repaint else (s, t))
                  for di, s, t in images if di >= skip)
@@ -737,6 +776,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             row.update(scores[m])
     add_gains(rows)
+    ratios = {k: max(content["ours"][k], content["quasar"][k]) / max(1e-9, min(content["ours"][k], content["quasar"][k]))
+              for k in ("model_colours", "model_contrast")}
+    if any(r > CONTENT_RATIO_WARN for r in ratios.values()):
+        print(f"warning: the two ground truths differ: model colours per frame {content['quasar']['model_colours']:.0f} "
+              f"(QUASAR) against {content['ours']['model_colours']:.0f} (ours), contrast inside the model "
+              f"{content['quasar']['model_contrast']:.1f} against {content['ours']['model_contrast']:.1f}; the model "
+              "PSNRs and gains are not comparable (--unlit draws ours without the sun)", flush=True)
 
     out = {
         "benchmark": "peer_quasar", "model": str(model), "trace": args.trace, "duration_s": args.duration,
@@ -744,7 +790,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "server_fps": QUASAR_SERVER_FPS, "network_ours": netem_string(setup.latency_ms, setup.jitter_ms),
         "background": {"quasar": list(q_bg), "ours": list(o_bg or ()), "ours_repainted": repaint,
                        "quasar_simulators": sim_bg},
-        "path_disagreement_deg": disagreement, "frame_size_step_bytes": LOG_STEP_BYTES,
+        "truth_content": content, "path_disagreement_deg": disagreement, "frame_size_step_bytes": LOG_STEP_BYTES,
         "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
         "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),
         "quasar_commands": commands, "our_configs": {m: our_config(m, setup, model, path_file).to_dict() for m in METHODS},

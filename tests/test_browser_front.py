@@ -264,3 +264,38 @@ def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
     assert max(sizes) < 65536 and bridge.slot_bytes == sum(sizes) and bridge.meta_bytes > 0
     with pytest.raises(ValueError, match="magic"):
         parse_slot_message(__import__("zlib").compress(b"XXXX" + bytes(28)))
+
+
+@pytest.mark.slow
+async def test_a_page_that_never_connects_ends_its_session(tmp_path, monkeypatch):
+    """An offer whose page never completes ICE (here: it never takes the answer) holds a render worker only until
+    the connect timeout; the server stays up for the next one."""
+    import aiohttp
+    from aiortc import RTCConfiguration, RTCPeerConnection
+
+    import splitrender.webrtc.session as bs
+    from splitrender.server.server import LiveServer, ServerConfig
+
+    monkeypatch.setattr(bs, "CONNECT_TIMEOUT_S", 1.0)
+    cfg = ServerConfig(port=0, udp_port=0, scene="minimal", webrtc_http=("127.0.0.1", 0), methods=("video",))
+    async with LiveServer(cfg) as server:
+        base = "http://%s:%d" % server.front.address
+        pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+        pc.addTransceiver("video", direction="recvonly")
+        pc.createDataChannel("pose")
+        await pc.setLocalDescription(await pc.createOffer())
+        try:
+            async with aiohttp.ClientSession() as http:
+                async with http.post(base + "/api/session", json=_request(sdp=pc.localDescription.sdp, method="video")) as r:
+                    answer = await r.json()
+            assert r.status == 200 and answer["type"] == "answer" and "H264" in answer["sdp"], answer
+            session = server.front.sessions[answer["session_id"]]
+            await asyncio.wait_for(session.ended.wait(), 10.0)
+            assert "did not connect and send a pose within 1 s" in session.end_reason
+            for _ in range(100):
+                if session.worker is None:
+                    break
+                await asyncio.sleep(0.05)
+            assert session.worker is None and server.front.active == []
+        finally:
+            await pc.close()

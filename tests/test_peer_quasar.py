@@ -77,7 +77,8 @@ def test_parse_atw_log_counts_frames_but_no_bytes() -> None:
     log = pq.parse_quasar_log(text)
     assert len(log.frames) == 2 and log.client_frames == 2
     assert pq.quasar_bytes(log) == {"server_frames": 2, "bytes_ours": None, "bytes_quasar": None,
-                                    "bytes_quasar_reference": None, "bytes_quasar_residual": None, "proxies": None}
+                                    "bytes_quasar_reference": None, "bytes_quasar_residual": None, "proxies": None,
+                                    "proxies_reference": None, "proxies_residual": None}
 
 
 def test_quasar_bytes_mean_over_every_frame_and_by_kind() -> None:
@@ -87,6 +88,7 @@ def test_quasar_bytes_mean_over_every_frame_and_by_kind() -> None:
     assert b["bytes_quasar_reference"] == pytest.approx(0.012 * 2**20)
     assert b["bytes_quasar_residual"] == pytest.approx(0.0045 * 2**20)
     assert b["proxies"] == pytest.approx((1234 + 300 + 310) / 3)
+    assert b["proxies_reference"] == 1234 and b["proxies_residual"] == pytest.approx(305)
 
 
 # ------------------------------------------------------------------------------------------ bytes both ways
@@ -361,3 +363,19 @@ def test_gains_over_each_tools_own_atw_and_table() -> None:
     text = pq.format_table(rows).splitlines()
     assert len(text) == 4 and "PSNR" in text[0] and "+6.50" in text[2] and "1234" in text[3]
     assert text[3].split()[-2:] == ["-", "-"]                             # QUASAR-way bytes and proxies: not counted
+
+
+def test_truth_content_tells_an_unlit_model_from_a_lit_one() -> None:
+    """Five flat colours (QUASAR's llvmpipe truth) against a shaded gradient (ours, lit): the colour count and the
+    contrast inside the model tell them apart; the background is left out."""
+    bg = (208, 208, 0)
+    flat = np.zeros((40, 60, 3), np.uint8) + np.array(bg, np.uint8)
+    flat[10:30, 10:50] = (105, 110, 119)
+    flat[10:30, 30:50] = (0, 92, 119)
+    lit = flat.copy()
+    ramp = np.linspace(40, 200, 40).astype(np.uint8)
+    lit[10:30, 10:50] = np.stack([ramp, ramp, ramp], -1)[None, :, :]
+    f, l = pq.truth_content([flat, flat], bg), pq.truth_content([lit], bg)
+    assert f == {"frames": 2, "model_colours": 2.0, "model_contrast": pytest.approx(105 * 20 / (20 * 39))}
+    assert l["frames"] == 1 and l["model_colours"] == 40 and 3.5 < l["model_contrast"] < 4.5
+    assert pq.truth_content([flat * 0 + np.array(bg, np.uint8)], bg)["frames"] == 0

@@ -388,6 +388,9 @@ GI_OPTION = "+gi"
 """Suffix of any scene that turns on DDGI global illumination: ``minimal+gi``, ``model.glb+gi``."""
 NOGI_OPTION = "+nogi"
 """Suffix of any scene that turns global illumination off: ``default+nogi`` (the default scene has GI)."""
+NOSUN_OPTION = "+nosun"
+"""Suffix of any scene that turns its sun (the directional light and its shadows) off: ambient, point lights and
+GI stay (``model.glb+nosun``: lit as QUASAR's llvmpipe build lights it, see ``docs/quasar.md``)."""
 STILL_OPTION = "+still"
 """Suffix of any scene that stops its moving objects where they are at t = 0 (the lights keep their schedules)."""
 
@@ -400,13 +403,17 @@ def _without_gi(scene: Scene) -> None:
     scene.gi = "none"
 
 
+def _without_sun(scene: Scene) -> None:
+    scene.sun = None
+
+
 def _still(scene: Scene) -> None:
     for o in scene.objects:
         if o.animation is not None:
             o.transform, o.animation = np.asarray(o.model_matrix(0.0), np.float64).copy(), None
 
 
-SCENE_OPTIONS = ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTION, _still))
+SCENE_OPTIONS = ((GI_OPTION, _with_gi), (NOGI_OPTION, _without_gi), (STILL_OPTION, _still), (NOSUN_OPTION, _without_sun))
 """The trailing options of a scene name, each with what it does to the scene (:func:`get_scene`)."""
 
 
@@ -438,7 +445,7 @@ def get_scene(name_or_path: str) -> Scene:
     Trailing options, in any order: ``+gi`` (``minimal+gi``) turns on DDGI global
     illumination (``Scene.gi``), ``+nogi`` turns it off (``default+nogi``: the default
     scene has it); ``+still`` stops every moving object at its t = 0 place (the lights
-    still change: a light change with nothing else moving).
+    still change: a light change with nothing else moving); ``+nosun`` turns the sun off.
     """
     for opt, apply in SCENE_OPTIONS:
         if name_or_path.endswith(opt):

@@ -54,6 +54,8 @@ logger = logging.getLogger(__name__)
 BROWSER_CODEC_PARAMS = {"codec": "h264", "chroma": "420", "lossless": False}
 """What a browser session's method config is given over the server's: H.264 4:2:0 at the ``ultrafast`` preset
 is Constrained Baseline, which every browser's WebRTC stack decodes (4:4:4 High and HEVC are not negotiated)."""
+CONNECT_TIMEOUT_S = 30.0
+"""A session whose page has not connected (ICE, DTLS, its data channels) and sent a pose by then ends."""
 FRAME_LIFETIME_MS = 250
 """How long the ``frame`` channel retransmits a frame's metadata (the page asks for it; a later frame wins)."""
 
@@ -354,6 +356,9 @@ class BrowserSession:
                 next_t += skipped * interval
             if (self._latest_pose is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
+                if self._frame_id == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
+                    raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
+                                       f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
                 continue
             assert self.track is not None
             if self.track.queued >= 2:      # the sender has not taken the last frames yet: do not pile up

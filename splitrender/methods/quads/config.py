@@ -10,6 +10,7 @@ from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
 
 Variant = Literal["quasar", "quadstream"]
 Atlas = Literal["slots", "packed"]
+ResidualMask = Literal["coverage", "depth"]
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,14 @@ class QuadsConfig(MethodConfig):
       each quad's own texels packed square by square, its atlas position sent with it,
       :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
       ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0);
+    - ``residual_mask`` (QUASAR): which pixels of a residual frame get new quads.  ``coverage``
+      (QUASAR's ``FrameGenerator``): scene pixels the cached mesh, less its background quads,
+      does not cover from the current pose, grown by the 8 neighbours; background pixels get
+      none (the client fills them).  ``depth`` (before issue 38): pixels uncovered by the
+      whole mesh or whose surface lies more than 2 % in front of it, grown by 4 neighbours,
+      background included: flat merged quads may sit up to ``delta_flatten`` (0.2 m) off
+      the surface, more than 2 % of a few metres, so those pixels went again in every
+      residual frame (4x QUASAR's residual quads on ``benchmarks/peer_quasar.py``);
     - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
       this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
@@ -95,6 +104,7 @@ class QuadsConfig(MethodConfig):
     edp_tolerance: float = 0.01
     atlas: Atlas | None = None
     merge_scale: float = 1.0
+    residual_mask: ResidualMask = "coverage"
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """Layers (the hidden ones dropped one by one: their quads unsent, their atlas slots black), then the
@@ -133,6 +143,8 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.relaxed_coarse_passes: must be in [0, 12], got {self.relaxed_coarse_passes}")
         if not 0.1 <= self.merge_scale <= 100:
             raise ConfigError(f"{n}.merge_scale: must be in [0.1, 100], got {self.merge_scale}")
+        if self.residual_mask not in ("coverage", "depth"):
+            raise ConfigError(f"{n}.residual_mask: {self.residual_mask!r} is not one of ['coverage', 'depth']")
         if not 1 <= self.reference_every <= 1000:
             raise ConfigError(f"{n}.reference_every: must be in [1, 1000], got {self.reference_every}")
         if self.atlas not in (None, "slots", "packed"):

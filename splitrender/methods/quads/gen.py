@@ -86,6 +86,11 @@ class QuadSet:
         """Pixels covered (sum of S**2)."""
         return int((4 ** self.level.astype(np.int64)).sum())
 
+    def background(self, intr: CameraIntrinsics) -> np.ndarray:
+        """(N,) bool: the quads a visible layer made of its background (on the plane at :data:`BACKGROUND_FAR`
+        of the far distance; their merges keep that depth, and no geometry lies there)."""
+        return np.isclose(self.depth, np.float32(BACKGROUND_FAR * intr.far_m), rtol=1e-5, atol=0.0)
+
 
 # ----------------------------------------------------------------------------- geometry helpers
 def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:

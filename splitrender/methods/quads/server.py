@@ -9,8 +9,10 @@
    pixels whose depth or normal changed since what the client holds get quads
    (``update``, cached by the client; the render's colour refreshes slot 0 for all
    cached quads), then the G-buffer at the current pose is masked by the cached mesh
-   drawn from that pose, and the pixels it does not explain, grown by one pixel, get
-   quads (``revealed``, slot 1);
+   drawn from that pose, and the scene pixels it does not cover, grown by their 8
+   neighbours, get quads (``revealed``, slot 1; ``residual_mask = "coverage"``, QUASAR's
+   rule; ``"depth"`` also resends pixels more than 2 % in front of the mesh, and the
+   background);
 3. **hidden layers** by depth peeling from the visible layer, each kept where the
    parallax test (:mod:`.edp`) says an eye in the view sphere could see it, merged with
    relaxed thresholds;
@@ -242,10 +244,21 @@ class QuadsServer(ServerHalf):
             self._place(atlas, 0, gr.color)
             t1 = time.perf_counter()
             assert self.cache.quads is not None
-            mesh_z = self._mesh_depth(ctx, [build_mesh(self.cache.quads, ref_pose, intr, (0, 0))], pose, intr)
-            revealed = binary_dilation(self._unexplained(g0.depth, mesh_z), iterations=1)
+            if cfg.residual_mask == "coverage":
+                # QUASAR's FrameGenerator: what the cached mesh (its scene quads) does not cover from here, grown
+                # by the 8 neighbours; the background gets no quads (the client fills it)
+                cached = self.cache.quads
+                fg = select(cached, ~cached.background(intr))
+                mesh_z = self._mesh_depth(ctx, [build_mesh(fg, ref_pose, intr, (0, 0))], pose, intr)
+                scene_px = np.isfinite(g0.depth)
+                revealed = binary_dilation(scene_px & ~np.isfinite(mesh_z), structure=np.ones((3, 3), bool)) & scene_px
+                background = False
+            else:
+                mesh_z = self._mesh_depth(ctx, [build_mesh(self.cache.quads, ref_pose, intr, (0, 0))], pose, intr)
+                revealed = binary_dilation(self._unexplained(g0.depth, mesh_z), iterations=1)
+                background = True
             times["mask_ms"] += (time.perf_counter() - t1) * 1e3
-            qn = generate(g0.depth, g0.normal, rot, intr, p, emit=revealed, background=True)
+            qn = generate(g0.depth, g0.normal, rot, intr, p, emit=revealed, background=background)
             self._account(times, qn)
             sets.append(WireSet(KIND_REVEALED, 1, 0, qn))
             self._place(atlas, 1, np.where(revealed[..., None], g0.color, 0).astype(np.uint8))
