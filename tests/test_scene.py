@@ -242,3 +242,12 @@ def test_the_default_scene_has_global_illumination_unless_nogi_is_given() -> Non
     assert get_scene("default+nogi").name == "default+nogi"
     assert "probes" in methods_for_scene("default") and "probes" not in methods_for_scene("default+nogi")
     assert "probes" not in methods_for_scene("minimal") and "probes" in methods_for_scene("minimal+gi")
+
+
+def test_nosun_option_turns_the_sun_off_and_keeps_the_rest() -> None:
+    from splitrender.scene.loader import get_scene, scene_has_gi
+
+    lit, dark = get_scene("minimal"), get_scene("minimal+nosun")
+    assert lit.sun is not None and dark.sun is None and dark.name == "minimal+nosun"
+    assert dark.ambient == lit.ambient and len(dark.objects) == len(lit.objects)
+    assert get_scene("minimal+nosun+gi").gi == "ddgi" and scene_has_gi("minimal+gi+nosun")
