@@ -1,6 +1,6 @@
 """Motion-to-photon in the browser beside the headless client: the same server, scene, trace and path.
 
-For each path (loopback, and a relay adding ``--delay`` each way) and each method the page draws (video, atw),
+For each path (loopback, and a relay adding ``--delay`` each way) and each method the page draws (video, atw, sas),
 one 5 s session of the page in headless Chromium (:mod:`splitrender.webrtc.driver`) and one of the headless
 client (``splitrender client`` in its own process; through ``splitrender shape`` where the path is shaped), on
 the ``minimal`` scene at 320x180, the ``turn`` trace, both clients displaying at 60 Hz and both given H.264 4:2:0
@@ -31,7 +31,7 @@ from splitrender.client.score import read_frames
 from splitrender.webrtc.driver import PageDriver, ServerProcess, browser_missing
 
 RESULTS = Path(__file__).parent / "results" / "bench_browser_mtp.json"
-METHODS = ("video", "atw")
+METHODS = ("video", "atw", "sas")
 
 
 def _port() -> int:
