@@ -95,3 +95,22 @@ def test_dockerfile_installs_egl_and_tc() -> None:
         assert re.search(rf"(?<![\w-]){re.escape(pkg)}(?![\w-])", apt.group(0)), pkg
     assert re.search(r"^RUN pip install \.\s*$", text, re.M)
     assert "COPY splitrender" in text
+
+
+def test_browser_front_door_service(compose: dict[str, Any]) -> None:
+    """The ``browser`` profile serves the page on the host's port 8080 with host networking (WebRTC's ephemeral
+    media ports), its recordings into the mounted results folder; its command parses as ``splitrender serve``."""
+    from splitrender.cli import build_parser
+    from splitrender.server.cli import config_from_args
+
+    svc = compose["services"]["browser"]
+    assert svc["profiles"] == ["browser"] and svc["network_mode"] == "host"
+    argv = _argv(svc["command"])
+    assert argv[:2] == ["splitrender", "serve"]
+    cfg = config_from_args(build_parser().parse_args(argv[1:]))
+    assert cfg.webrtc_http == ("0.0.0.0", 8080) and cfg.host == "0.0.0.0"
+    mounts = {v.split(":")[1]: v.split(":")[0] for v in svc["volumes"]}
+    assert str(cfg.out_dir).startswith("/results") and mounts["/results"] == "./results"
+    # not the unshaped set-up's ports: both may run on one host
+    server = _argv(compose["services"]["server"]["command"])
+    assert cfg.port != int(server[server.index("--port") + 1])
