@@ -198,7 +198,9 @@ async def test_front_door_refuses_bad_requests_and_keeps_serving(tmp_path):
                     assert r.status == 400 and text in (await r.json())["error"], query
             for body, text in ((b"{", "session request: not JSON"),
                                (json.dumps(_request(method="warp")).encode(), "'warp' is not one this server offers"),
-                               (json.dumps(_request(width=3)).encode(), "width: 3 is out of range")):
+                               (json.dumps(_request(width=3)).encode(), "width: 3 is out of range"),
+                               (json.dumps(_request(sdp="v=0\r\nm=video 9 nonsense\r\n")).encode(),
+                                "session request.sdp: not an offer this server can take")):
                 async with http.post(base + "/api/session", data=body) as r:
                     assert r.status == 400 and text in (await r.json())["error"], body[:40]
             async with http.post(base + "/api/session/nosuch/image/0", data=b"x") as r:
@@ -207,7 +209,9 @@ async def test_front_door_refuses_bad_requests_and_keeps_serving(tmp_path):
                 assert r.status == 404
             async with http.get(base + "/api/clock") as r:
                 assert abs((await r.json())["server_ms"] - __import__("time").time() * 1000) < 5000
-        assert server.front.sessions_total == 0
+        # only the bad SDP got as far as a session (and its render worker): it ended and gave the worker back
+        assert server.front.sessions_total == 1 and server.front.active == []
+        assert all(s.worker is None for s in server.front.sessions.values())
 
 
 def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():

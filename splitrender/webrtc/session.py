@@ -145,7 +145,11 @@ class BrowserSession:
         self.pc = pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
         pc.on("datachannel", self._on_datachannel)
         pc.on("connectionstatechange", self._on_state)
-        await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
+        try:
+            await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
+        except (ValueError, KeyError, IndexError, TypeError, AttributeError, AssertionError) as exc:   # aiortc asserts
+            raise PageMessageError(f"session request.sdp: not an offer this server can take "
+                                   f"({type(exc).__name__}: {exc})"[:300]) from None
         self.track = EncodedVideoTrack()
         self.sender = pc.addTrack(self.track)
         self.track.sender = self.sender
