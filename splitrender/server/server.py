@@ -26,7 +26,7 @@ import contextlib
 import logging
 import os
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -224,6 +224,26 @@ class LiveServer:
     def tick_of(self, wall_s: float) -> int:
         """Index of the shared server frame clock at ``wall_s`` (every session ticks on this grid)."""
         return int(round((wall_s - self.epoch_wall_s) * self.config.server_fps))
+
+    async def frame_ticks(self) -> AsyncIterator[int]:
+        """The shared frame clock, for a session's frame loop: wakes at each tick of the grid (scene time
+        k / server_fps, so sessions share the producers' work) and yields how many ticks were missed before it
+        (rendering overran: they are skipped, not caught up in a burst)."""
+        loop = asyncio.get_running_loop()
+        interval = 1.0 / self.config.server_fps
+        wall_now = time.time()
+        next_t = loop.time() + (self.tick_of(wall_now) + 1) * interval - (wall_now - self.epoch_wall_s)
+        while True:
+            delay = next_t - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            next_t += interval
+            skipped = 0
+            behind = loop.time() - next_t
+            if behind > 0:
+                skipped = int(behind / interval) + 1
+                next_t += skipped * interval
+            yield skipped
 
     def scene_time_s(self, wall_s: float | None = None) -> float:
         """Scene time (s) at wall-clock ``wall_s`` (default now)."""

@@ -29,6 +29,7 @@ import math
 import secrets
 import time
 from collections import deque
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -88,6 +89,7 @@ class LiveServer(Protocol):
     def send_datagram(self, data: bytes, addr: Address) -> None: ...
     def ssrc_taken(self, ssrc: int) -> bool: ...
     def tick_of(self, wall_s: float) -> int: ...
+    def frame_ticks(self) -> AsyncIterator[int]: ...
 
 __all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
 
@@ -393,22 +395,9 @@ class ServerSession:
 
     async def _frame_loop(self) -> None:
         loop = asyncio.get_running_loop()
-        interval = 1.0 / self.cfg.server_fps
-        # tick on the server's shared frame grid (scene time k / server_fps) so sessions share producer work
-        wall_now = time.time()
-        next_t = loop.time() + (self.server.tick_of(wall_now) + 1) / self.cfg.server_fps \
-            - (wall_now - self.server.epoch_wall_s)
         next_metrics = loop.time() + self.cfg.metrics_interval_s
-        while True:
-            delay = next_t - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            next_t += interval
-            behind = loop.time() - next_t
-            if behind > 0:  # rendering overran: skip the missed ticks instead of bursting
-                skipped = int(behind / interval) + 1
-                self._counters["frames_skipped_late"] += skipped
-                next_t += skipped * interval
+        async for skipped in self.server.frame_ticks():
+            self._counters["frames_skipped_late"] += skipped
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
                 self.log_metrics()

@@ -281,9 +281,11 @@ def _bad(text: str) -> web.Response:
 
 
 def check_http_address(text: str) -> tuple[str, int]:
-    """``HOST:PORT`` for ``--http``; raises ConfigError naming the fault."""
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise ConfigError(f"--http: {text!r} is not HOST:PORT (e.g. 127.0.0.1:8080)")
-    return host.strip("[]"), int(port)
+    """``HOST:PORT`` for ``--http`` (as ``splitrender shape`` reads its addresses); raises ConfigError naming it."""
+    from ..errors import NetworkConfigError
+    from ..netsim.cli import parse_address
 
+    try:
+        return parse_address(text)
+    except NetworkConfigError as exc:
+        raise ConfigError(f"--http: {exc}") from None

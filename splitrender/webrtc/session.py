@@ -27,7 +27,6 @@ import json
 import logging
 import secrets
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -93,11 +92,9 @@ class BrowserSession:
         self.end_reason = ""
         self.ended_at: float | None = None
         self.started_at = time.time()
-        self.task: asyncio.Task[None] | None = None
         self._frame_id = 0
         self._last_tick = -1
         self._origin_sent = False
-        self.update_rows: deque[dict[str, Any]] = deque(maxlen=1024)
         self._log: CsvAppender | None = None
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
@@ -343,21 +340,8 @@ class BrowserSession:
         return out
 
     async def _frame_loop(self) -> None:
-        loop = asyncio.get_running_loop()
-        server, cfg = self.server, self.cfg
-        interval = 1.0 / cfg.server_fps
-        wall_now = time.time()
-        next_t = loop.time() + (server.tick_of(wall_now) + 1) / cfg.server_fps - (wall_now - server.epoch_wall_s)
-        while True:
-            delay = next_t - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            next_t += interval
-            behind = loop.time() - next_t
-            if behind > 0:
-                skipped = int(behind / interval) + 1
-                self.counters["frames_skipped_late"] += skipped
-                next_t += skipped * interval
+        async for skipped in self.server.frame_ticks():
+            self.counters["frames_skipped_late"] += skipped
             if (self._latest_pose is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
                 if self._frame_id == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
@@ -432,7 +416,6 @@ class BrowserSession:
                "bytes_frame_meta": n_meta, "keyframe": int(frame.keyframe), "server_ms": stages["produce_ms"],
                "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
                "expected_latency_ms": expected * 1000}
-        self.update_rows.append(row)
         d = self.out_dir
         if d is not None:
             if self._log is None:

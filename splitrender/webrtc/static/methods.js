@@ -46,6 +46,17 @@ function program(gl, vs, fs) {
   return p;
 }
 
+// a 2D texture clamped to its edges, with one filter for minification and magnification
+function texture(gl, filter) {
+  const tex = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, tex);
+  for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, filter], [gl.TEXTURE_MAG_FILTER, filter],
+                        [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) {
+    gl.texParameteri(gl.TEXTURE_2D, k, v);
+  }
+  return tex;
+}
+
 // 3x3 helpers, row-major arrays of rows
 const mul = (a, b) => a.map((r, i) => [0, 1, 2].map(j => r[0] * b[0][j] + r[1] * b[1][j] + r[2] * b[2][j]));
 const transpose = a => [0, 1, 2].map(i => [a[0][i], a[1][i], a[2][i]]);
@@ -79,12 +90,7 @@ export class Display {
     this.gl = gl;
     this.prog = program(gl, VERT, FRAG);
     this.vao = gl.createVertexArray();
-    this.tex = gl.createTexture();
-    gl.bindTexture(gl.TEXTURE_2D, this.tex);
-    for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
-                          [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) {
-      gl.texParameteri(gl.TEXTURE_2D, k, v);
-    }
+    this.tex = texture(gl, gl.LINEAR);
     this.frame = null;       // the metadata of the frame in the texture
   }
 
@@ -235,15 +241,8 @@ export class SasDisplay {
       gl.vertexAttribPointer(loc, n, gl.FLOAT, false, 40, off);
       off += 4 * n;
     }
-    this.atlas = gl.createTexture();
-    this.models = gl.createTexture();
-    for (const [tex, filter] of [[this.atlas, gl.NEAREST], [this.models, gl.NEAREST]]) {
-      gl.bindTexture(gl.TEXTURE_2D, tex);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
-    }
+    this.atlas = texture(gl, gl.NEAREST);      // read with texelFetch (the Catmull-Rom taps)
+    this.models = texture(gl, gl.NEAREST);     // RGBA32F: not filterable
     this.nObj = Math.max(1, terms.n_objects);
     this.xf = new Float32Array(this.nObj * 16);
     for (let i = 0; i < this.nObj; i++) for (let k = 0; k < 4; k++) this.xf[i * 16 + k * 5] = 1;
