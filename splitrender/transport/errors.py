@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import os
 import socket
+import ssl
 
 from splitrender.errors import SplitRenderError
 
-__all__ = ["BindError", "ConnectError", "describe_os_error"]
+__all__ = ["BindError", "ConnectError", "describe_os_error", "describe_tls_error"]
 
 
 class BindError(SplitRenderError, OSError):
@@ -25,6 +26,8 @@ class ConnectError(SplitRenderError, ConnectionError):
 
 def describe_os_error(exc: BaseException) -> str:
     """A one-line reason for a socket error, without the ``[Errno N]`` prefix."""
+    if isinstance(exc, ssl.SSLError):  # before OSError: its errno is OpenSSL's, not the system's
+        return describe_tls_error(exc)
     if isinstance(exc, TimeoutError):  # before OSError: it has no errno
         return "timed out"
     if isinstance(exc, socket.gaierror):
@@ -37,3 +40,15 @@ def describe_os_error(exc: BaseException) -> str:
     if isinstance(exc, OverflowError):  # socket's "bind(): port must be 0-65535."
         return "port must be in [0, 65535]"
     return str(exc) or type(exc).__name__
+
+
+def describe_tls_error(exc: ssl.SSLError) -> str:
+    """A one-line reason for a TLS failure: what certificate verification said, or OpenSSL's reason in words."""
+    if isinstance(exc, ssl.SSLCertVerificationError):
+        return f"TLS certificate verification failed: {exc.verify_message or exc.reason}"
+    reason = exc.reason or ""
+    if reason == "WRONG_VERSION_NUMBER":
+        return "TLS handshake failed: the peer does not speak TLS (wrong version number)"
+    if isinstance(exc, ssl.SSLEOFError) or reason == "UNEXPECTED_EOF_WHILE_READING":
+        return "TLS handshake failed: the peer closed the connection (does it speak TLS?)"
+    return f"TLS failed: {reason.lower().replace('_', ' ') if reason else exc}"
