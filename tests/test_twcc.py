@@ -19,7 +19,7 @@ def test_a_feedback_packet_byte_for_byte() -> None:
     """Statuses: received (+1 ms), lost, received (+0.25 ms), received 2 ms early (a negative delta): one 2-bit
     vector chunk; deltas 4, 1, -8 ticks from a reference of 1 x 64 ms."""
     ref_ticks = 256
-    fb = TransportFeedback(0x11111111, 0x22222222, 65534, 1, 7, (ref_ticks + 4, None, ref_ticks + 5, ref_ticks - 3))
+    fb = TransportFeedback.from_arrivals(0x11111111, 0x22222222, 65534, 1, 7, (ref_ticks + 4, None, ref_ticks + 5, ref_ticks - 3))
     data = bytes(fb)
     chunk = 0xC000 | 1 << 12 | 0 << 10 | 1 << 8 | 2 << 6     # seven 2-bit symbols: 1, 0, 1, 2, then padding
     body = (struct.pack("!IIHHI", 0x11111111, 0x22222222, 65534, 4, 1 << 8 | 7) + struct.pack("!H", chunk)
@@ -36,7 +36,7 @@ def test_chunk_kinds_round_trip() -> None:
     run = tuple(t + i for i in range(40))                          # 40 received, 0.25 ms apart
     pattern = tuple(None if i % 3 == 0 else t + 100 + i for i in range(30))
     large = tuple(t + 400 + 300 * i for i in range(9))             # 75 ms apart: 2-byte deltas
-    fb = TransportFeedback(1, 2, 100, 1000, 0, run + pattern + large)
+    fb = TransportFeedback.from_arrivals(1, 2, 100, 1000, 0, run + pattern + large)
     data = bytes(fb)
     chunks = struct.unpack_from(f"!{(len(data) - 20) // 2}H", data, 20)
     kinds = {c >> 14 for c in chunks[:6]}
@@ -58,7 +58,7 @@ def test_any_feedback_round_trips(steps: list[int | None], base: int, count: int
         else:
             t += s if s <= 0x7FFF else 0x7FFF
             arrivals.append(t)
-    fb = TransportFeedback(9, 10, base, ref, count, tuple(arrivals))
+    fb = TransportFeedback.from_arrivals(9, 10, base, ref, count, tuple(arrivals))
     data = bytes(fb)
     assert len(data) % 4 == 0 and parse_rtcp(data + bytes(GenericNack(1, 2, (5,)))) == [fb, GenericNack(1, 2, (5,))]
 
@@ -69,7 +69,9 @@ def test_any_feedback_round_trips(steps: list[int | None], base: int, count: int
     (struct.pack("!IIHHI", 1, 2, 0, 20, 0) + struct.pack("!H", 0xC000 | 1 << 12), "packet chunks end after 7 of 20"),
     (struct.pack("!IIHHI", 1, 2, 0, 2, 0) + struct.pack("!H", 0x2000 | 0) + b"\0\0", "has run length 0"),
     (struct.pack("!IIHHI", 1, 2, 0, 1, 0) + struct.pack("!H", 0x6001) + b"\0\0", "status 0 uses the reserved symbol 3"),
-    (struct.pack("!IIHHI", 1, 2, 0, 3, 0) + struct.pack("!H", 0x2003), "receive deltas end before status 0 of 3"),
+    (struct.pack("!IIHHI", 1, 2, 0, 3, 0) + struct.pack("!H", 0x2003), "declares 3 received statuses but only 0 bytes"),
+    (struct.pack("!IIHHI", 1, 2, 0, 2, 0) + struct.pack("!H", 0xC000 | 2 << 12 | 2 << 10) + b"\x00\x05",
+     "receive deltas end before status 1 of 2"),
     (struct.pack("!IIHHI", 1, 2, 0, 1, 0) + struct.pack("!H", 0x2001) + b"\x05\x07", "1 bytes after the receive deltas"),
 ])
 def test_malformed_feedback_is_named(body: bytes, message: str) -> None:
@@ -128,5 +130,5 @@ def test_recorder_is_bounded() -> None:
 
 
 def test_serialize_with_other_feedback() -> None:
-    fb = TransportFeedback(1, 2, 3, 4, 5, (4 * 256,))
+    fb = TransportFeedback.from_arrivals(1, 2, 3, 4, 5, (4 * 256,))
     assert parse_rtcp(serialize_rtcp([GenericNack(1, 2, (7, 9)), fb])) == [GenericNack(1, 2, (7, 9)), fb]

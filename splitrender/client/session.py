@@ -159,6 +159,7 @@ class LiveClient:
         self.io_executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="sr-client-io")
         self.channel: ControlChannel | None = None
         self.udp: asyncio.DatagramTransport | None = None
+        self._udp_protocol: Any = None
         self.rx: ClientPipeline | None = None
         self.core: ClientSession | None = None
         """The sans-IO session core: RTCP, NACK, PLI, playout delay, stalls, feedback."""
@@ -181,7 +182,8 @@ class LiveClient:
     def counters(self) -> dict[str, Any]:
         """The session core's counters and the driver's own (late display ticks, the timer task's lag)."""
         core = self.core.counters if self.core is not None else {}
-        return {**core, **self._counters}
+        foreign = {"udp_foreign": self._udp_protocol.foreign} if self._udp_protocol is not None else {}
+        return {**core, **self._counters, **foreign}
 
     @property
     def nack_rtt_ms(self) -> float | None:
@@ -370,8 +372,8 @@ class LiveClient:
         port = self.cfg.udp_port or (self._welcome.streams[0].port if self._welcome.streams else 0)
         loop = asyncio.get_running_loop()
         try:
-            self.udp, _ = await loop.create_datagram_endpoint(lambda: _ClientUdp(self._on_datagram),
-                                                              remote_addr=(self.cfg.server, port))
+            self.udp, self._udp_protocol = await loop.create_datagram_endpoint(
+                lambda: _ClientUdp(self._on_datagram), remote_addr=(self.cfg.server, port))
         except (OSError, OverflowError) as exc:
             raise ConnectError(f"cannot open udp to {self.cfg.server}:{port}: {describe_os_error(exc)}") from exc
 
@@ -680,10 +682,22 @@ class _RunDone(Exception):
 
 
 class _ClientUdp(asyncio.DatagramProtocol):
+    """The client's UDP socket, connected to the server's media address: a datagram from any other source (which a
+    connected socket's kernel filter should already drop) is counted in ``foreign`` and never parsed."""
+
     def __init__(self, on_datagram: Any) -> None:
         self._on_datagram = on_datagram
+        self.peer: tuple[str, int] | None = None
+        self.foreign = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = transport.get_extra_info("peername")
+        self.peer = (peer[0], peer[1]) if peer else None
 
     def datagram_received(self, data: bytes, addr: Any) -> None:
+        if self.peer is not None and (addr[0], addr[1]) != self.peer:
+            self.foreign += 1
+            return
         self._on_datagram(data)
 
     def error_received(self, exc: Exception) -> None:

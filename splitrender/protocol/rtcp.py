@@ -46,6 +46,7 @@ __all__ = [
     "RtcpUnknown",
     "RtcpPacket",
     "parse_rtcp",
+    "rtcp_route_ssrc",
     "serialize_rtcp",
     "compound_feedback",
     "ntp_from_seconds",
@@ -315,6 +316,40 @@ def _blocks(data: bytes, pos: int, end: int, count: int, name: str) -> tuple[Rep
     return tuple(ReportBlock.parse(data, pos + k * BLOCK_SIZE) for k in range(count))
 
 
+ROUTE_MAX_HEADERS: Final = 4
+"""Most RTCP packet headers :func:`rtcp_route_ssrc` reads in a compound datagram."""
+
+
+def rtcp_route_ssrc(data: bytes) -> int | None:
+    """The media SSRC a compound RTCP datagram is about, read from fixed offsets only, so that a server can find the
+    session it belongs to before parsing any of it (RFC 3550 6.1: a compound packet starts with SR or RR).
+
+    At most :data:`ROUTE_MAX_HEADERS` packet headers are read: the first report block's SSRC of an SR or RR, or the
+    media SSRC of an RTPFB/PSFB packet, whichever comes first.  ``None`` when none of those names one (an RR with no
+    report blocks and nothing else); :class:`RtcpError` when the datagram is not RTCP or its headers are broken.
+    Constant work whatever the datagram's size."""
+    n = len(data)
+    if n < 8 or not 192 <= data[1] <= 223:
+        raise RtcpError(f"datagram of {n} bytes is not RTCP")
+    pos = 0
+    for _ in range(ROUTE_MAX_HEADERS):
+        if pos + 4 > n:
+            return None
+        b0, pt, words = _HEADER.unpack_from(data, pos)
+        if b0 >> 6 != RTCP_VERSION:
+            raise RtcpError(f"RTCP version {b0 >> 6} at offset {pos} is not {RTCP_VERSION}")
+        end = pos + 4 + 4 * words
+        if end > n:
+            raise RtcpError(f"RTCP packet at offset {pos} of {4 + 4 * words} bytes runs past end of {n}-byte data")
+        at = {RTCP_RR: pos + 8, RTCP_SR: pos + 28}.get(pt) if b0 & 0x1F else None
+        if pt in (RTCP_RTPFB, RTCP_PSFB):
+            at = pos + 8
+        if at is not None and at + 4 <= end:
+            return int.from_bytes(data[at:at + 4], "big")
+        pos = end
+    return None
+
+
 def parse_rtcp(data: bytes) -> list[RtcpPacket]:
     """Parse a compound RTCP packet; raises :class:`RtcpError` with a precise reason."""
     packets: list[RtcpPacket] = []
@@ -456,13 +491,15 @@ class ReceiverStatistics:
 
 
 class RetransmissionHistory:
-    """The last ``capacity`` sent RTP packets by sequence number, to answer NACKs."""
+    """The last ``capacity`` sent RTP packets by sequence number, to answer NACKs, and when each was last resent
+    (ms), so that a sender can refuse a request repeated within a round trip (libwebrtc's ``RtpPacketHistory``)."""
 
     def __init__(self, capacity: int = 1024) -> None:
         if capacity <= 0:
             raise ValueError("capacity must be positive")
         self.capacity = capacity
         self._packets: OrderedDict[int, RtpPacket] = OrderedDict()
+        self._resent_ms: dict[int, float] = {}
 
     def __len__(self) -> int:
         return len(self._packets)
@@ -471,13 +508,24 @@ class RetransmissionHistory:
         """Remember a sent packet; evicts the oldest beyond ``capacity``."""
         seq = packet.sequence_number
         self._packets.pop(seq, None)
+        self._resent_ms.pop(seq, None)
         self._packets[seq] = packet
         while len(self._packets) > self.capacity:
-            self._packets.popitem(last=False)
+            old, _ = self._packets.popitem(last=False)
+            self._resent_ms.pop(old, None)
 
     def get(self, seq: int) -> RtpPacket | None:
         """The stored packet with sequence number ``seq``, if still kept."""
         return self._packets.get(seq)
+
+    def resent_ms(self, seq: int) -> float | None:
+        """When the kept packet ``seq`` was last resent (ms, as given to :meth:`mark_resent`); None if never."""
+        return self._resent_ms.get(seq)
+
+    def mark_resent(self, seq: int, now_ms: float) -> None:
+        """The kept packet ``seq`` was resent at ``now_ms`` (a packet no longer kept is ignored)."""
+        if seq in self._packets:
+            self._resent_ms[seq] = now_ms
 
     def answer(self, nack: GenericNack) -> list[RtpPacket]:
         """Packets to resend for a NACK (those still in the history)."""

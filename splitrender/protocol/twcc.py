@@ -29,6 +29,7 @@ times and sizes matched with the feedback's arrivals, as :class:`PacketResult`).
 from __future__ import annotations
 
 import struct
+from bisect import bisect_left
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Final, Iterable, Sequence
@@ -132,10 +133,13 @@ def write_transport_seq(data: bytes, ext_id: int, seq: int) -> bytes:
 
 @dataclass(frozen=True, slots=True)
 class TransportFeedback:
-    """One transport-cc feedback packet.
+    """One transport-cc feedback packet, held sparsely: its status count and the packets it reports received.
 
-    ``arrivals[i]`` is the arrival of sequence ``base_seq + i`` (mod 2**16) in 250 us ticks since the reference
-    time's zero (``reference_time * 256`` plus the deltas up to it), or ``None`` when it was not received.
+    ``received`` holds ``(i, ticks)`` for each status ``i`` (sequence ``base_seq + i`` mod 2**16) reported received,
+    ``i`` ascending, ``ticks`` its arrival in 250 us ticks since the reference time's zero (``reference_time * 256``
+    plus the deltas up to it); every other status up to ``status_count`` is 'not received'.  A packet may declare
+    65,535 statuses in a few bytes (run-length chunks of 'not received'), so nothing here costs more than the
+    received statuses, each of which its sender paid for with at least one byte of receive delta.
     """
 
     ssrc: int
@@ -144,106 +148,172 @@ class TransportFeedback:
     reference_time: int
     """24 bits, in 64 ms units."""
     fb_count: int
-    arrivals: tuple[int | None, ...]
+    status_count: int
+    received: tuple[tuple[int, int], ...]
 
     def __post_init__(self) -> None:
-        if not 1 <= len(self.arrivals) <= MAX_STATUS_COUNT:
-            raise ValueError(f"transport-cc feedback: {len(self.arrivals)} packet statuses, must be 1..{MAX_STATUS_COUNT}")
+        if not 1 <= self.status_count <= MAX_STATUS_COUNT:
+            raise ValueError(f"transport-cc feedback: {self.status_count} packet statuses, must be 1..{MAX_STATUS_COUNT}")
         if not 0 <= self.reference_time < _REF_MOD:
             raise ValueError(f"transport-cc feedback: reference time {self.reference_time} is not 24 bits")
+        last = -1
+        for i, _ in self.received:
+            if not last < i < self.status_count:
+                raise ValueError(f"transport-cc feedback: received status {i} out of order or past the status count "
+                                 f"{self.status_count}")
+            last = i
+
+    @classmethod
+    def from_arrivals(cls, ssrc: int, media_ssrc: int, base_seq: int, reference_time: int, fb_count: int,
+                      arrivals: Sequence[int | None]) -> TransportFeedback:
+        """From one arrival (ticks) or None per status, in sequence order."""
+        return cls(ssrc, media_ssrc, base_seq, reference_time, fb_count, len(arrivals),
+                   tuple((i, a) for i, a in enumerate(arrivals) if a is not None))
+
+    @property
+    def arrivals(self) -> tuple[int | None, ...]:
+        """One arrival (ticks) or None per status: ``status_count`` items (a convenience for small packets)."""
+        out: list[int | None] = [None] * self.status_count
+        for i, a in self.received:
+            out[i] = a
+        return tuple(out)
 
     def arrival_us(self, i: int) -> int | None:
         """Arrival of status ``i`` in microseconds on the feedback sender's clock, or None."""
-        a = self.arrivals[i]
-        return None if a is None else a * TICK_US
+        k = bisect_left(self.received, (i, -(1 << 62)))
+        if k < len(self.received) and self.received[k][0] == i:
+            return self.received[k][1] * TICK_US
+        return None
 
     def __bytes__(self) -> bytes:
-        symbols, deltas = [], bytearray()
-        last = self.reference_time * _TICKS_PER_REF
-        for a in self.arrivals:
-            if a is None:
-                symbols.append(0)
-                continue
+        runs: list[list[int]] = []          # [symbol, count], consecutive symbols alike merged
+        deltas = bytearray()
+        last, nxt = self.reference_time * _TICKS_PER_REF, 0
+
+        def add(s: int, n: int) -> None:
+            if runs and runs[-1][0] == s:
+                runs[-1][1] += n
+            else:
+                runs.append([s, n])
+
+        for i, a in self.received:
+            if i > nxt:
+                add(0, i - nxt)
             d = a - last
-            last = a
+            last, nxt = a, i + 1
             if 0 <= d <= 0xFF:
-                symbols.append(1)
+                add(1, 1)
                 deltas.append(d)
             elif -0x8000 <= d <= 0x7FFF:
-                symbols.append(2)
+                add(2, 1)
                 deltas += struct.pack("!h", d)
             else:
                 raise ValueError(f"transport-cc feedback: receive delta of {d * TICK_US} us does not fit 16 bits")
-        body = _FIXED.pack(self.ssrc, self.media_ssrc, self.base_seq & 0xFFFF, len(self.arrivals),
+        if self.status_count > nxt:
+            add(0, self.status_count - nxt)
+        body = _FIXED.pack(self.ssrc, self.media_ssrc, self.base_seq & 0xFFFF, self.status_count,
                            self.reference_time << 8 | (self.fb_count & 0xFF))
-        body += b"".join(struct.pack("!H", c) for c in _chunks(symbols)) + bytes(deltas)
+        body += b"".join(struct.pack("!H", c) for c in _chunks(runs)) + bytes(deltas)
         body += bytes(-len(body) % 4)
         return struct.pack("!BBH", 0x80 | RTPFB_TWCC, 205, len(body) // 4) + body
 
 
-def _chunks(symbols: Sequence[int]) -> list[int]:
-    """Greedy chunking: a run of 14 or more alike as one run-length chunk, else fourteen 1-bit symbols where they
-    are all 0/1, else seven 2-bit symbols (the last vector padded with 'not received', which the count cuts off)."""
-    out, i, n = [], 0, len(symbols)
-    while i < n:
-        s = symbols[i]
-        run = 1
-        while i + run < n and run < _RUN_MAX and symbols[i + run] == s:
-            run += 1
-        if run >= 14 or i + run == n and run >= 7:
+def _chunks(runs: list[list[int]]) -> list[int]:
+    """Greedy chunking of ``[symbol, count]`` runs: 14 or more alike as one run-length chunk (at most 8,191 a chunk),
+    else fourteen 1-bit symbols where they are all 0/1, else seven 2-bit symbols (the last vector padded with 'not
+    received', which the count cuts off).  Work is bounded by the chunks made, not the statuses they carry."""
+    out: list[int] = []
+    k, used = 0, 0                           # the current run, and how many of its symbols are chunked
+    total_left = sum(n for _, n in runs)
+
+    def peek(m: int) -> list[int]:
+        got: list[int] = []
+        j, u = k, used
+        while len(got) < m and j < len(runs):
+            take = min(m - len(got), runs[j][1] - u)
+            got += [runs[j][0]] * take
+            j, u = j + 1, 0
+        return got
+
+    def advance(m: int) -> None:
+        nonlocal k, used, total_left
+        total_left -= m
+        while m:
+            take = min(m, runs[k][1] - used)
+            used += take
+            m -= take
+            if used == runs[k][1]:
+                k, used = k + 1, 0
+
+    while total_left:
+        s = runs[k][0]
+        run = min(runs[k][1] - used, _RUN_MAX)
+        if run >= 14 or run == total_left and run >= 7:
             out.append(s << 13 | run)
-            i += run
-        elif all(x <= 1 for x in symbols[i:i + 14]):
-            part = symbols[i:i + 14]
-            out.append(0x8000 | sum(x << (13 - k) for k, x in enumerate(part)))
-            i += len(part)
+            advance(run)
+            continue
+        part = peek(14)
+        if all(x <= 1 for x in part):
+            out.append(0x8000 | sum(x << (13 - j) for j, x in enumerate(part)))
         else:
-            part = symbols[i:i + 7]
-            out.append(0xC000 | sum(x << (12 - 2 * k) for k, x in enumerate(part)))
-            i += len(part)
+            part = part[:7]
+            out.append(0xC000 | sum(x << (12 - 2 * j) for j, x in enumerate(part)))
+        advance(len(part))
     return out
 
 
 def parse_transport_feedback(body: bytes, where: str = "transport-cc feedback") -> TransportFeedback:
-    """The RTPFB FMT 15 body after the RTCP header (padding removed); :class:`RtcpError` names what is wrong."""
+    """The RTPFB FMT 15 body after the RTCP header (padding removed); :class:`RtcpError` names what is wrong.
+
+    Work and memory are bounded by ``len(body)``: 'not received' runs are skipped by count, and a run of received
+    statuses longer than the bytes left to carry their receive deltas is refused before it is expanded."""
     if len(body) < _FIXED.size:
         raise RtcpError(f"{where}: body of {len(body)} bytes is shorter than its {_FIXED.size}-byte fixed part")
     ssrc, media, base, count, ref_fb = _FIXED.unpack_from(body)
     if count == 0:
         raise RtcpError(f"{where}: packet status count is 0")
     pos = _FIXED.size
-    symbols: list[int] = []
-    while len(symbols) < count:
+    got: list[tuple[int, int]] = []          # (status index, symbol 1 or 2) of the received statuses
+    n = 0                                    # statuses read so far
+    while n < count:
         if pos + 2 > len(body):
-            raise RtcpError(f"{where}: packet chunks end after {len(symbols)} of {count} statuses")
+            raise RtcpError(f"{where}: packet chunks end after {n} of {count} statuses")
         (c,) = struct.unpack_from("!H", body, pos)
         pos += 2
         if not c & 0x8000:
             s, run = c >> 13 & 3, c & _RUN_MAX
             if run == 0:
                 raise RtcpError(f"{where}: run-length chunk at byte {pos - 2} has run length 0")
-            symbols += [s] * min(run, count - len(symbols))
-        elif not c & 0x4000:
-            symbols += [c >> (13 - k) & 1 for k in range(14)][:count - len(symbols)]
+            run = min(run, count - n)
+            if s == 3:
+                raise RtcpError(f"{where}: packet status {n} uses the reserved symbol 3")
+            if s:
+                if len(got) + run > len(body) - pos:     # each received status needs a delta byte at least
+                    raise RtcpError(f"{where}: run-length chunk at byte {pos - 2} declares {run} received statuses "
+                                    f"but only {len(body) - pos} bytes are left for their receive deltas")
+                got += [(n + j, s) for j in range(run)]
+            n += run
         else:
-            symbols += [c >> (12 - 2 * k) & 3 for k in range(7)][:count - len(symbols)]
-    if 3 in symbols:
-        raise RtcpError(f"{where}: packet status {symbols.index(3)} uses the reserved symbol 3")
-    arrivals: list[int | None] = []
+            syms = [c >> (13 - k) & 1 for k in range(14)] if not c & 0x4000 else \
+                [c >> (12 - 2 * k) & 3 for k in range(7)]
+            for j, s in enumerate(syms[:count - n]):
+                if s == 3:
+                    raise RtcpError(f"{where}: packet status {n + j} uses the reserved symbol 3")
+                if s:
+                    got.append((n + j, s))
+            n += min(len(syms), count - n)
+    received: list[tuple[int, int]] = []
     t = (ref_fb >> 8) * _TICKS_PER_REF
-    for s in symbols:
-        if s == 0:
-            arrivals.append(None)
-            continue
-        n = 1 if s == 1 else 2
-        if pos + n > len(body):
-            raise RtcpError(f"{where}: receive deltas end before status {len(arrivals)} of {count}")
-        t += body[pos] if n == 1 else struct.unpack_from("!h", body, pos)[0]
-        pos += n
-        arrivals.append(t)
+    for i, s in got:
+        w = 1 if s == 1 else 2
+        if pos + w > len(body):
+            raise RtcpError(f"{where}: receive deltas end before status {i} of {count}")
+        t += body[pos] if w == 1 else struct.unpack_from("!h", body, pos)[0]
+        pos += w
+        received.append((i, t))
     if any(body[pos:]):
         raise RtcpError(f"{where}: {len(body) - pos} bytes after the receive deltas are not zero padding")
-    return TransportFeedback(ssrc, media, base, ref_fb >> 8, ref_fb & 0xFF, tuple(arrivals))
+    return TransportFeedback(ssrc, media, base, ref_fb >> 8, ref_fb & 0xFF, count, tuple(received))
 
 
 class FeedbackRecorder:
@@ -284,32 +354,32 @@ class FeedbackRecorder:
         if not self._pending:
             return []
         seqs = sorted(self._pending)
-        start = seqs[0] if self._next is None or seqs[0] - self._next > MAX_STATUS_COUNT else self._next
         out: list[TransportFeedback] = []
-        arrivals: list[int | None] = []
-        base, ref, last, shift = start, None, 0, 0
-        for ext in range(start, seqs[-1] + 1):
-            a = self._pending.get(ext)
-            tick = None if a is None else a // TICK_US
-            if arrivals and (len(arrivals) == MAX_STATUS_COUNT or
-                             tick is not None and ref is not None and not -0x8000 <= tick - last <= 0x7FFF):
-                out.append(self._packet(base, ref or 0, arrivals))
-                arrivals, base, ref = [], ext, None
-            if tick is not None:
-                if ref is None:           # the packet's reference time: its first arrival's 64 ms period (24 bits)
-                    ref = (tick // _TICKS_PER_REF) % _REF_MOD
-                    shift = (tick // _TICKS_PER_REF - ref) * _TICKS_PER_REF   # whole wraps of the 24-bit reference
-                last = tick
-                tick -= shift
-            arrivals.append(tick)
-        if arrivals:
-            out.append(self._packet(base, ref or 0, arrivals))
+        received: list[tuple[int, int]] = []
+        base = seqs[0] if self._next is None or seqs[0] - self._next >= MAX_STATUS_COUNT else self._next
+        ref, last, shift, prev = 0, 0, 0, base - 1
+        for ext in seqs:             # work by arrivals, not by the sequence numbers between them
+            tick = self._pending[ext] // TICK_US
+            span = ext - base + 1
+            if received and (span > MAX_STATUS_COUNT or not -0x8000 <= tick - last <= 0x7FFF):
+                # close the packet: through ext - 1 ('not received' up to it) where that fits, else through the
+                # last arrival (a gap of more than 65,535 sequence numbers is not reported: the sender's history
+                # forgets those packets by age)
+                out.append(self._packet(base, ref, ext - base if span - 1 <= MAX_STATUS_COUNT else prev - base + 1,
+                                        received))
+                received, base = [], ext
+            if not received:          # the packet's reference time: its first arrival's 64 ms period (24 bits)
+                ref = (tick // _TICKS_PER_REF) % _REF_MOD
+                shift = (tick // _TICKS_PER_REF - ref) * _TICKS_PER_REF   # whole wraps of the 24-bit reference
+            last, prev = tick, ext
+            received.append((ext - base, tick - shift))
+        out.append(self._packet(base, ref, prev - base + 1, received))
         self._next = seqs[-1] + 1
         self._pending.clear()
         return out
 
-    def _packet(self, base: int, ref: int, arrivals: list[int | None]) -> TransportFeedback:
-        fb = TransportFeedback(self.ssrc, self.media_ssrc, base & 0xFFFF, ref, self._fb_count, tuple(arrivals))
+    def _packet(self, base: int, ref: int, count: int, received: list[tuple[int, int]]) -> TransportFeedback:
+        fb = TransportFeedback(self.ssrc, self.media_ssrc, base & 0xFFFF, ref, self._fb_count, count, tuple(received))
         self._fb_count = (self._fb_count + 1) & 0xFF
         return fb
 
@@ -353,20 +423,31 @@ class SendHistory:
         return seq & 0xFFFF
 
     def on_feedback(self, fb: TransportFeedback) -> list[PacketResult]:
-        out = []
+        """The sent packets ``fb`` reports on, in sequence order (arrival None: lost).  Work is bounded by the packets
+        this history holds, whatever status count the feedback declares."""
+        out: list[PacketResult] = []
         if not self._sent:
-            self.unknown += len(fb.arrivals)
+            self.unknown += fb.status_count
             return out
         newest = next(reversed(self._sent))
         base = newest + ((fb.base_seq - newest) & 0xFFFF)
         if base > newest:
             base -= 1 << 16
-        for i in range(len(fb.arrivals)):
-            sent = self._sent.pop(base + i, None)
+        end = base + fb.status_count                  # exclusive
+        arrived = {base + i: a * TICK_US for i, a in fb.received}
+        lo, hi = max(base, next(iter(self._sent))), min(end, newest + 1)
+        if hi - lo <= len(self._sent):
+            seqs: Iterable[int] = range(lo, hi)
+        else:
+            seqs = [s for s in self._sent if lo <= s < hi]
+        found = 0
+        for s in seqs:
+            sent = self._sent.pop(s, None)
             if sent is None:
-                self.unknown += 1
                 continue
-            out.append(PacketResult(base + i, sent[0], sent[1], fb.arrival_us(i), sent[2]))
+            found += 1
+            out.append(PacketResult(s, sent[0], sent[1], arrived.get(s), sent[2]))
+        self.unknown += fb.status_count - found
         return out
 
     @property

@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 from splitrender.errors import ConfigError
 from splitrender.pipeline.adapt import check_adapt_mode
-from splitrender.pipeline.session import rtcp_media_ssrcs
 from splitrender.protocol import RtcpError
+from splitrender.protocol.rtcp import rtcp_route_ssrc
 from splitrender.server.worker import RenderWorker, parse_test_hang
 from splitrender.transport.errors import BindError, describe_os_error
 
@@ -436,18 +436,19 @@ class LiveServer:
             self.udp.sendto(data, addr)
 
     def _on_datagram(self, data: bytes, addr: Address) -> None:
-        """RTCP from clients: find the session by the media SSRCs named, hand it over."""
+        """RTCP from clients: find the session by the media SSRC its headers name (fixed offsets, no parsing), and
+        hand the datagram over; the session checks the source address before it parses anything."""
         try:
-            packets, ssrcs = rtcp_media_ssrcs(data)
+            ssrc = rtcp_route_ssrc(data)
         except RtcpError as exc:
             self.udp_dropped += 1
             logger.debug("udp from %s: %s", addr, exc)
             return
-        session = next((s for s in (self._by_ssrc.get(x) for x in ssrcs) if s is not None), None)
+        session = self._by_ssrc.get(ssrc) if ssrc is not None else None
         if session is None:
             self.udp_dropped += 1
             return
-        session.on_rtcp(packets, addr)
+        session.on_datagram(data, addr)
 
 
 async def serve(config: ServerConfig, ready: Callable[[LiveServer], Awaitable[None] | None] | None = None) -> None:

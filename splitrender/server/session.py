@@ -15,7 +15,8 @@ Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`
   on average, randomised).
 
 RTCP from the client (receiver reports, generic NACKs, PLIs) arrives through the
-server's shared UDP socket and goes to the session core in :meth:`on_rtcp`; the
+server's shared UDP socket and goes to the session core in :meth:`on_datagram`,
+parsed only once its source is the session's client; the
 retransmissions it answers with are sent at once.  Everything the protocol decides
 (feedback, keyframe requests, NACK answers, sender reports) is the sans-IO core's
 (:class:`splitrender.pipeline.ServerSession`); this module only moves bytes and time.
@@ -51,13 +52,14 @@ from splitrender.protocol import (
     KeyframeRequest,
     MessageError,
     Pose,
-    RtcpPacket,
+    RtcpError,
     ServerConnection,
     State,
     Stats,
     Welcome,
     make_sdp,
     negotiate_method,
+    parse_rtcp,
 )
 from splitrender.tabular import CsvAppender, write_csv
 from splitrender.scene.pose import CameraIntrinsics
@@ -495,16 +497,24 @@ class ServerSession:
             for data in self.core.handle_timer(_now_ms()):
                 self.server.send_datagram(data, self.client_addr)
 
-    def on_rtcp(self, packets: list[RtcpPacket], addr: Address) -> None:
-        """Handle a compound RTCP packet from ``addr`` (bind the client address on first use)."""
-        if self.client_addr is None:
-            self.client_addr = addr
-            logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
-        elif addr != self.client_addr:
+    def on_datagram(self, data: bytes, addr: Address) -> None:
+        """A compound RTCP datagram from ``addr`` that names one of this session's streams.  Once the client's
+        address is known, a datagram from any other address is counted (``rtcp_foreign``) and dropped unparsed; the
+        address is bound by the first datagram that parses (malformed ones are counted in the core's ``rtcp_bad``)."""
+        if self.client_addr is not None and addr != self.client_addr:
             self._counters["rtcp_foreign"] += 1
             return
         if self.core is None:
             return
+        try:
+            packets = parse_rtcp(data)
+        except RtcpError as exc:
+            self.core.counters["rtcp_bad"] = self.core.counters.get("rtcp_bad", 0) + 1
+            logger.debug("session %s: RTCP from %s:%d: %s", self.id, *addr, exc)
+            return
+        if self.client_addr is None:
+            self.client_addr = addr
+            logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
         resend = self.core.receive_rtcp(packets, _now_ms())
         if resend:
             self._send_rtp(self.core.send([(None, d) for d in resend], _now_ms()))
