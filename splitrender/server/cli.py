@@ -68,6 +68,11 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
                         "name, a netem string such as 'delay 50ms', or a .toml file)")
     p.add_argument("--metrics-interval", type=float, default=5.0,
                    help="seconds between each session's `metrics` log line (counters; 0 = never; default 5)")
+    p.add_argument("--tls-cert", type=Path, default=None, metavar="PATH",
+                   help="serve the TCP control channel (and, with --webrtc, the page: https) under TLS with this PEM "
+                        "certificate (chain); needs --tls-key; clients connect with --tls")
+    p.add_argument("--tls-key", type=Path, default=None, metavar="PATH",
+                   help="the unencrypted PEM private key of --tls-cert")
 
 
 def _parse_value(text: str) -> Any:
@@ -123,7 +128,7 @@ def config_from_args(ns: argparse.Namespace) -> Any:
                 raise ConfigError(f"--webrtc-network: {exc}") from None
     elif ns.webrtc_network:
         raise ConfigError("--webrtc-network: shapes browser sessions, so it needs --webrtc")
-    return ServerConfig(webrtc_http=webrtc_http, webrtc_network=ns.webrtc_network or None, host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
+    return ServerConfig(tls_cert=ns.tls_cert, tls_key=ns.tls_key, webrtc_http=webrtc_http, webrtc_network=ns.webrtc_network or None, host=ns.host, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
                         mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
@@ -145,10 +150,12 @@ async def _serve_until_signal(cfg: Any) -> None:
 
     def ready(server: Any) -> None:
         host, port = server.tcp_address
-        print(f"splitrender: serving on tcp {host}:{port}, udp {server.udp_address[0]}:{server.udp_address[1]}",
+        tls = " (TLS)" if server.tls is not None else ""
+        print(f"splitrender: serving on tcp {host}:{port}{tls}, udp {server.udp_address[0]}:{server.udp_address[1]}",
               file=sys.stderr, flush=True)
         if server.front is not None:
-            print(f"splitrender: browsers: http://{server.front.address[0]}:{server.front.address[1]}/",
+            scheme = "https" if server.tls is not None else "http"
+            print(f"splitrender: browsers: {scheme}://{server.front.address[0]}:{server.front.address[1]}/",
                   file=sys.stderr, flush=True)
 
     serve_task = asyncio.create_task(serve(cfg, ready))

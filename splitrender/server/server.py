@@ -25,6 +25,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import ssl
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 import dataclasses
@@ -124,6 +125,11 @@ class ServerConfig:
     webrtc_network: str | None = None
     """``serve --webrtc-network``: shape each browser session's media through an in-process relay with this path
     (a profile name, a netem string or a .toml file); ``None``: direct."""
+    tls_cert: Path | None = None
+    """``serve --tls-cert``: a PEM certificate (chain); with ``tls_key`` the TCP control channel and the browser
+    page are served under TLS (:mod:`splitrender.transport.tls`).  ``None``: plaintext."""
+    tls_key: Path | None = None
+    """``serve --tls-key``: the PEM private key of ``tls_cert`` (unencrypted)."""
     test_hang: str = dataclasses.field(default_factory=lambda: os.environ.get("SPLITRENDER_TEST_HANG", ""))
     """Test hook, ``"SESSION:FRAME"``: the SESSION-th session (1-based) hangs rendering frame FRAME (taken
     from ``$SPLITRENDER_TEST_HANG``); ``""`` = never."""
@@ -145,6 +151,19 @@ class ServerConfig:
             parse_test_hang(self.test_hang)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
+        self.tls_context()   # a missing, unreadable or mismatched certificate or key fails here, by path
+
+    def tls_context(self) -> ssl.SSLContext | None:
+        """The server's TLS context from ``tls_cert`` and ``tls_key``, or ``None`` without them; raises
+        ``ConfigError`` naming the file and what was wrong."""
+        if (self.tls_cert is None) != (self.tls_key is None):
+            given, missing = ("--tls-cert", "--tls-key") if self.tls_key is None else ("--tls-key", "--tls-cert")
+            raise ConfigError(f"{given}: needs {missing} too (the certificate and its private key)")
+        if self.tls_cert is None or self.tls_key is None:
+            return None
+        from splitrender.transport.tls import server_context
+
+        return server_context(self.tls_cert, self.tls_key)
 
 
 def check_method_params(methods: Sequence[str], params: dict[str, dict[str, Any]]) -> None:
@@ -218,6 +237,8 @@ class LiveServer:
         self._closed = False
         self.front: Any = None
         """The browser front door (:class:`splitrender.webrtc.app.WebRtcFrontDoor`) with ``webrtc_http``."""
+        self.tls: ssl.SSLContext | None = config.tls_context()
+        """TLS for the control channel and the browser page (``tls_cert``/``tls_key``), or ``None``."""
 
     # -- scene clock ---------------------------------------------------------------
 
@@ -328,7 +349,9 @@ class LiveServer:
         sock = transport.get_extra_info("sockname")
         self.udp_address = (sock[0], sock[1])
         try:
-            self._tcp = await asyncio.start_server(self._on_connect, cfg.host, cfg.port, start_serving=False)
+            self._tcp = await asyncio.start_server(self._on_connect, cfg.host, cfg.port, start_serving=False,
+                                                   ssl=self.tls, ssl_handshake_timeout=cfg.hello_timeout_s
+                                                   if self.tls is not None else None)
         except (OSError, OverflowError) as exc:
             raise BindError(f"cannot listen on tcp {cfg.host}:{cfg.port}: {describe_os_error(exc)}") from exc
         sock = self._tcp.sockets[0].getsockname()

@@ -100,7 +100,8 @@ class WebRtcFrontDoor:
         ])
         self._runner = web.AppRunner(app, access_log=None)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.requested[0], self.requested[1])
+        site = web.TCPSite(self._runner, self.requested[0], self.requested[1],
+                           ssl_context=getattr(self.server, "tls", None))   # https with serve --tls-cert
         try:
             await site.start()
         except (OSError, OverflowError) as exc:
