@@ -19,6 +19,11 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--udp-port", type=int, default=None,
                    help="send RTCP to this UDP port instead of the one in Welcome (e.g. a relay's)")
     p.add_argument("--token", default="", help="shared secret for the server")
+    p.add_argument("--tls", action="store_true",
+                   help="connect over TLS (a server run with --tls-cert), verifying its certificate and that it "
+                        "names --server, against --tls-ca or the system's trusted CAs")
+    p.add_argument("--tls-ca", type=Path, default=None, metavar="PATH",
+                   help="PEM CA certificate(s) to verify the server by (e.g. a self-signed one's); implies --tls")
     p.add_argument("--method", default="video", help="method, or comma-separated methods in preference order")
     p.add_argument("--codec", default="h264,hevc", help="codecs accepted, comma-separated")
     p.add_argument("--trace", default="walk", help="camera trace: built-in name or file")
@@ -42,7 +47,8 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", action="append", default=[], metavar="KEY=N",
                    help="what this client accepts from a server (repeatable), e.g. --limit max_probes=65536; keys: "
                         "max_stream_bytes, max_session_bytes, max_pending_frames, max_pending_bytes, max_video_pixels, "
-                        "max_probes, max_scene_triangles, max_scene_objects (docs/protocol.md, Limits)")
+                        "max_probes, max_scene_triangles, max_scene_objects, max_reference_pixels, max_atlas_pixels, "
+                        "max_mesh_vertices (docs/protocol.md, Limits)")
     p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
                    help="show each update no earlier than its server time + MS: frames held behind a retransmission "
                         "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
@@ -89,6 +95,7 @@ def config_from_args(ns: argparse.Namespace) -> object:
     methods = tuple(m.strip() for m in ns.method.split(",") if m.strip())
     codecs = tuple(c.strip() for c in ns.codec.split(",") if c.strip())
     return ClientConfig(server=ns.server, port=ns.port, udp_port=ns.udp_port, token=ns.token, methods=methods,
+                        tls=ns.tls or ns.tls_ca is not None, tls_ca=ns.tls_ca,
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
                         save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,

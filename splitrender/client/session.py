@@ -25,6 +25,7 @@ import concurrent.futures
 import json
 import logging
 import math
+import ssl
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -112,11 +113,28 @@ class ClientConfig:
     held behind a lost packet until its retransmission lands are then shown one per tick, each at its turn,
     instead of together (where only the newest is seen).  0 = show every update as soon as it is ready (the
     lowest latency).  The delay adds to the motion-to-photon latency of every frame."""
+    tls: bool = False
+    """Connect to the control port over TLS (``client --tls``; the server runs ``serve --tls-cert``), verifying the
+    server's certificate and that it names ``server`` (host name or IP address), against ``tls_ca`` or the system's
+    trusted CAs."""
+    tls_ca: Path | None = None
+    """With ``tls``: the PEM CA certificate(s) to trust instead of the system's (``client --tls-ca``)."""
 
     def __post_init__(self) -> None:
         self.options()   # raises ConfigError naming a bad option
         if isinstance(self.rows_kept, bool) or not isinstance(self.rows_kept, int) or self.rows_kept < 1:
             raise ConfigError(f"client rows_kept: must be a positive integer, got {self.rows_kept!r}")
+        self.tls_context()   # an unreadable or non-PEM CA file fails here, by path
+
+    def tls_context(self) -> ssl.SSLContext | None:
+        """The TLS context the control connection uses (``tls``), or ``None``; raises ``ConfigError``."""
+        if self.tls_ca is not None and not self.tls:
+            raise ConfigError(f"client tls_ca {self.tls_ca}: a CA to verify the server by, so it needs tls")
+        if not self.tls:
+            return None
+        from splitrender.transport.tls import client_context
+
+        return client_context(self.tls_ca)
 
     def options(self) -> ClientOptions:
         """The session core's options (the same ones ``splitrender run`` takes)."""
@@ -196,8 +214,8 @@ class LiveClient:
         cfg = self.cfg
         try:
             try:
-                reader, writer = await asyncio.wait_for(asyncio.open_connection(cfg.server, cfg.port),
-                                                        cfg.connect_timeout_s)
+                reader, writer = await asyncio.wait_for(
+                    asyncio.open_connection(cfg.server, cfg.port, ssl=cfg.tls_context()), cfg.connect_timeout_s)
             except (OSError, OverflowError) as exc:  # refused, unreachable, unknown host, timed out
                 raise ConnectError(f"cannot connect to {cfg.server}:{cfg.port}: {describe_os_error(exc)}") from exc
             self.channel = ControlChannel(ClientConnection(), reader, writer, "client")
@@ -330,6 +348,9 @@ class LiveClient:
         msg = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
         if isinstance(msg, Error):
             raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
+        if msg is None and not cfg.tls and ch.bytes_received == 0:   # what a TLS server does to a plaintext Hello
+            raise ConnectError(f"{cfg.server}:{cfg.port} closed the connection without answering Hello: if it serves "
+                               "TLS (serve --tls-cert), connect with --tls")
         if not isinstance(msg, Welcome):
             raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
         hs = ClientHandshake(cfg.methods, cfg.limits)   # the sans-IO handshake both modes share
