@@ -66,8 +66,20 @@ BIND_INTERVAL_MS = 100.0
 """Until the first RTP packet the client repeats an empty receiver report this often (it opens the UDP path)."""
 NACK_RETRY_MIN_MS = 30.0
 NACK_RETRY_MAX_MS = 500.0
-MAX_NACKED_PER_REQUEST = 128
-"""Most packets resent for one generic NACK."""
+NACK_MIN_RESEND_MS = 20.0
+"""A packet resent at t is not resent again for a NACK arriving before t + max(RTT, this) (ms; the RTT is the
+sender's from receiver reports, so until the first one this floor alone).  libwebrtc's ``RtpPacketHistory`` holds
+a resent packet for one RTT (plus 5 ms) the same way.  Below the client's shortest retry (``NACK_RETRY_MIN_MS``, and
+its retries after that come 1.5 RTT + 10 ms apart), so a receiver's honest retry is never refused."""
+NACK_MAX_PER_DATAGRAM = 256
+"""Most packets resent for one RTCP datagram, all its NACKs together (the requests beyond are refused unread)."""
+NACK_RATE_WINDOW_MS = 1000.0
+"""The sliding window over which resent bytes are held to a share of the media bytes (ms)."""
+NACK_RATE_SHARE = 0.5
+"""Resent bytes of a stream in the window at most this share of its media bytes in the window, plus the floor."""
+NACK_RATE_FLOOR_BYTES = 16_000
+"""What a stream may resend in any window whatever its media rate (bytes: 13 full 1,200-byte packets), so a quiet
+stream can still repair a keyframe."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
 
@@ -820,6 +832,14 @@ class ServerOptions:
     (:class:`~.adapt.RateController`; :meth:`ServerSession.encoder_rates`); ``"full"``: that, and the method's
     operating point too (:class:`~.adapt.PointController`; :meth:`ServerSession.operating_point`)."""
     adapt_cfg: AdaptConfig = field(default_factory=AdaptConfig)
+    nack_min_resend_ms: float = NACK_MIN_RESEND_MS
+    """A packet resent at t is not resent for a NACK before t + max(RTT, this), ms (``NACK_MIN_RESEND_MS``)."""
+    nack_max_per_datagram: int = NACK_MAX_PER_DATAGRAM
+    """Most packets resent for one RTCP datagram (``NACK_MAX_PER_DATAGRAM``)."""
+    nack_rate_share: float = NACK_RATE_SHARE
+    """Resent bytes per stream in any ``NACK_RATE_WINDOW_MS`` at most this share of its media bytes then ..."""
+    nack_rate_floor_bytes: int = NACK_RATE_FLOOR_BYTES
+    """... plus this many bytes (``NACK_RATE_SHARE``, ``NACK_RATE_FLOOR_BYTES``)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.history_packets <= 1 << 20:
@@ -828,7 +848,35 @@ class ServerOptions:
             raise ConfigError(f"server keyframe_min_interval_ms: must be in [0, 60000], got {self.keyframe_min_interval_ms}")
         if not 0.01 <= self.sr_interval_s <= 60:
             raise ConfigError(f"server sr_interval_s: must be in [0.01, 60], got {self.sr_interval_s}")
+        if not 0 <= self.nack_min_resend_ms <= 10_000:
+            raise ConfigError(f"server nack_min_resend_ms: must be in [0, 10000], got {self.nack_min_resend_ms}")
+        if not 0 <= self.nack_max_per_datagram <= 1 << 16:
+            raise ConfigError(f"server nack_max_per_datagram: must be in [0, 65536], got {self.nack_max_per_datagram}")
+        if not 0 <= self.nack_rate_share <= 10:
+            raise ConfigError(f"server nack_rate_share: must be in [0, 10], got {self.nack_rate_share}")
+        if not 0 <= self.nack_rate_floor_bytes <= 1 << 30:
+            raise ConfigError(f"server nack_rate_floor_bytes: must be in [0, 1073741824], got {self.nack_rate_floor_bytes}")
         check_adapt_mode(self.adapt, "server")
+
+
+class _ByteWindow:
+    """Bytes counted over the last ``span_ms`` (a sliding window; times never go backwards)."""
+
+    def __init__(self, span_ms: float) -> None:
+        self.span_ms = span_ms
+        self._entries: deque[tuple[float, int]] = deque()
+        self._sum = 0
+
+    def add(self, now_ms: float, n: int) -> None:
+        self._entries.append((now_ms, n))
+        self._sum += n
+
+    def total(self, now_ms: float) -> int:
+        """Bytes added in (now_ms - span_ms, now_ms]."""
+        q = self._entries
+        while q and q[0][0] <= now_ms - self.span_ms:
+            self._sum -= q.popleft()[1]
+        return self._sum
 
 
 @dataclass
@@ -837,6 +885,10 @@ class _TxState:
     ssrc: int
     history: RetransmissionHistory
     packetizer: Any
+    media: _ByteWindow = field(default_factory=lambda: _ByteWindow(NACK_RATE_WINDOW_MS))
+    """Media bytes sent in the last second, for the resend rate cap."""
+    resent: _ByteWindow = field(default_factory=lambda: _ByteWindow(NACK_RATE_WINDOW_MS))
+    """Bytes resent in the last second."""
 
 
 @dataclass
@@ -906,7 +958,7 @@ class ServerSession:
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
             "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0, "twcc_feedback": 0,
-            "twcc_unknown": 0, "twcc_stamped": 0,
+            "twcc_unknown": 0, "twcc_stamped": 0, "nack_duplicates": 0, "nack_datagram_capped": 0, "nack_rate_limited": 0,
         }
 
     def owns_ssrc(self, ssrc: int) -> bool:
@@ -933,20 +985,25 @@ class ServerSession:
         return None
 
     def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> list[bytes]:
-        """A compound RTCP packet from the client; returns the RTP packets to resend (NACKs)."""
+        """A compound RTCP packet from the client; returns the RTP packets to resend (NACKs, within the bounds of
+        :meth:`_answer_nack`)."""
         self.counters["rtcp_received"] += 1
         resend: list[bytes] = []
+        refused: dict[int, str] = {}   # media SSRC: the counter of why its later requests here go unread
         for p in packets:
             if isinstance(p, GenericNack):
                 st = self._by_ssrc.get(p.media_ssrc)
                 if st is None:
                     continue
                 self.counters["nacks"] += 1
-                for pkt in st.history.answer(p)[:MAX_NACKED_PER_REQUEST]:
-                    data = bytes(pkt)
-                    resend.append(data)
-                    self.counters["retransmitted"] += 1
-                    self.counters["retransmitted_bytes"] += len(data)
+                why = refused.get(p.media_ssrc) or \
+                    ("nack_datagram_capped" if len(resend) >= self.options.nack_max_per_datagram else None)
+                if why is None:
+                    why = self._answer_nack(st, p, now_ms, resend)
+                    if why is not None:
+                        refused[p.media_ssrc] = why
+                else:
+                    self.counters[why] += len(p.lost)
             elif isinstance(p, PictureLossIndication):
                 if p.media_ssrc in self._by_ssrc:
                     self.counters["plis"] += 1
@@ -973,6 +1030,46 @@ class ServerSession:
                 self.counters["twcc_unknown"] += self.send_history.unknown - before
                 self.estimator.on_feedback(results, int(round(now_ms * 1000)))
         return resend
+
+    def _answer_nack(self, st: _TxState, nack: GenericNack, now_ms: float, resend: list[bytes]) -> str | None:
+        """Append to ``resend`` (this datagram's answers so far) the kept packets ``nack`` asks for, as libwebrtc
+        would: a packet resent less than max(RTT, ``nack_min_resend_ms``) ago is not resent again
+        (``nack_duplicates``); at ``nack_max_per_datagram`` answers in the datagram its remaining requests are
+        refused unread (``nack_datagram_capped``); and a stream resends in any second at most ``nack_rate_share`` of
+        the media bytes it sent in that second plus ``nack_rate_floor_bytes``: the first packet over that refuses the
+        stream's remaining requests in the datagram unread (``nack_rate_limited``).  Sequence numbers no longer kept
+        are passed over.  Returns the counter of the refusal that ends the datagram's answers (for the stream, or
+        for all with the cap), or None."""
+        o = self.options
+        lost = nack.lost
+        hold_ms = max(o.nack_min_resend_ms, self.rtt_ms or 0.0)
+        allowance = o.nack_rate_share * st.media.total(now_ms) + o.nack_rate_floor_bytes - st.resent.total(now_ms)
+        sent = 0
+        why: str | None = None
+        for i, seq in enumerate(lost):
+            pkt = st.history.get(seq)
+            if pkt is None:
+                continue
+            last = st.history.resent_ms(seq)
+            if last is not None and now_ms < last + hold_ms:
+                self.counters["nack_duplicates"] += 1
+                continue
+            if len(resend) >= o.nack_max_per_datagram:
+                why = "nack_datagram_capped"
+            elif len(data := bytes(pkt)) > allowance:
+                why = "nack_rate_limited"
+            if why is not None:
+                self.counters[why] += len(lost) - i
+                break
+            allowance -= len(data)
+            sent += len(data)
+            st.history.mark_resent(seq, now_ms)
+            resend.append(data)
+            self.counters["retransmitted"] += 1
+            self.counters["retransmitted_bytes"] += len(data)
+        if sent:
+            st.resent.add(now_ms, sent)
+        return why
 
     def stamp(self, data: bytes, now_ms: float, probe: int = -1) -> bytes:
         """An RTP datagram as it leaves now: with transport-wide feedback on, its next transport sequence number
@@ -1115,10 +1212,14 @@ class ServerSession:
         if out.keyframe:
             self.counters["keyframes"] += 1
             self._kf.keyframe_sent(now_ms)
+        media: dict[str, int] = {}
         for name, pkt, data in out.datagrams:
             self.streams[name].history.store(pkt)
+            media[name] = media.get(name, 0) + len(data)
             self.counters["rtp_packets"] += 1
             self.counters["rtp_bytes"] += len(data)
+        for name, n in media.items():
+            self.streams[name].media.add(now_ms, n)
         for _, data in out.fec:
             self.counters["fec_packets"] += 1
             self.counters["fec_bytes"] += len(data)
