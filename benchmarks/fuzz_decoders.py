@@ -35,7 +35,7 @@ Entry points (``--only`` takes name prefixes):
   ``Stats``, ``Bye``) into a ``ServerConnection`` and the server session core's
   ``receive_message`` (poses also into the live server's predictor); ``server.rtcp``:
   client RTCP into ``receive_datagram`` and, as the live server routes it
-  (``rtcp_media_ssrcs``), ``receive_rtcp``, with a retransmission history to answer NACKs;
+  (``rtcp_route_ssrc``, then ``parse_rtcp``), ``receive_rtcp``, with a retransmission history to answer NACKs;
 - ``fec.parse``, ``fec.recover`` (an FEC packet and its group but one), ``jitter.fec.*``
   (media and FEC packets through a jitter buffer); their mutations include FEC packets
   whose protection is shorter than a media payload;
@@ -1431,9 +1431,8 @@ def _server_control_entry(s: MethodSeeds) -> EntryPoint:
 
 
 def _server_rtcp_entry(s: MethodSeeds) -> EntryPoint:
-    from splitrender.pipeline import rtcp_media_ssrcs
     from splitrender.protocol.errors import RtcpError
-    from splitrender.protocol.rtcp import compound_feedback
+    from splitrender.protocol.rtcp import compound_feedback, rtcp_route_ssrc
 
     sc = ServerCore(s)
 
@@ -1442,11 +1441,13 @@ def _server_rtcp_entry(s: MethodSeeds) -> EntryPoint:
         sc.now += 10.0
         try:
             core.receive_datagram(data, sc.now)
-            try:   # the live server routes RTCP by the media SSRCs it names, then hands the session the packets
-                packets, _ = rtcp_media_ssrcs(data)
+            try:   # the live server routes RTCP by the media SSRC its headers name, then the session parses it
+                ssrc = rtcp_route_ssrc(data)
             except RtcpError:
                 return None
-            return core.receive_rtcp(packets, sc.now)
+            if ssrc is None or not core.owns_ssrc(ssrc):
+                return None
+            return core.receive_rtcp(parse_rtcp(data), sc.now)
         except BaseException:
             sc.core = None
             raise
@@ -1577,6 +1578,88 @@ def _feedback_flood_entry(s: MethodSeeds) -> EntryPoint:
 def _server_entry_points() -> list[EntryPoint]:
     s = method_seeds("tss")   # reliable data and video streams
     return [_server_control_entry(s), _server_rtcp_entry(s), _feedback_flood_entry(method_seeds("video"))]
+
+
+# ---------------------------------------------------------------------------- transport-cc (issue 46)
+class UnboundedWork(HarnessFinding):
+    """An input made the code under test hold or return more than its bytes can pay for."""
+
+
+class RoundTrip(HarnessFinding):
+    """A parsed packet did not come back unchanged from its own serialisation."""
+
+
+def twcc_seeds() -> list[bytes]:
+    """Transport-cc feedback as the recorder writes it at sizes from one status to past the MTU, and the issue's
+    hollow packets (65,535 declared statuses in 40 bytes), alone and as a 64 KB compound datagram."""
+    from splitrender.protocol.twcc import FeedbackRecorder
+
+    rng = random.Random(46)
+    out: list[bytes] = []
+    for n, loss, spread in ((1, 0.0, 1), (12, 0.1, 3), (90, 0.05, 40), (400, 0.02, 300), (1500, 0.01, 20), (60, 0.5, 1)):
+        rec, seq, t = FeedbackRecorder(ssrc=0x5EED), rng.randrange(1 << 16), 1_000_000
+        for _ in range(n):
+            seq += 1 if rng.random() > loss else rng.randint(2, 40)
+            t += rng.randint(0, spread) * 250
+            rec.on_packet(seq & 0xFFFF, t)
+        out.append(b"".join(bytes(f) for f in rec.feedback()))
+    hollow = struct.pack("!IIHHI", 1, 2, 0, 0xFFFF, 0) + struct.pack("!H", 0x1FFF) * 9
+    hollow = struct.pack("!BBH", 0x8F, 205, len(hollow) // 4) + hollow
+    return out + [hollow, hollow * (64_000 // len(hollow))]
+
+
+def _twcc_parse_run() -> Callable[[bytes], Any]:
+    """``parse_rtcp`` of a datagram, then every transport-cc packet into a sender's history of 2,000 packets:
+    what is held is bounded by the bytes (received statuses <= bytes), the history's work by what it holds, and a
+    parsed packet serialises back to itself."""
+    from splitrender.protocol.twcc import SendHistory, TransportFeedback
+
+    def run(data: bytes) -> Any:
+        packets = parse_rtcp(data)
+        fbs = [p for p in packets if isinstance(p, TransportFeedback)]
+        if sum(len(f.received) for f in fbs) > len(data):
+            raise UnboundedWork(f"{sum(len(f.received) for f in fbs)} received statuses from {len(data)} bytes")
+        hist = SendHistory()
+        for k in range(2000):
+            hist.on_sent(k * 500, 1200)
+        for f in fbs:
+            res = hist.on_feedback(f)
+            if len(res) > 2000:
+                raise UnboundedWork(f"{len(res)} results from a history of 2000")
+            if parse_rtcp(bytes(f)) != [f]:
+                raise RoundTrip(f"transport-cc feedback base {f.base_seq} count {f.status_count}")
+        return len(fbs)
+
+    return run
+
+
+def _twcc_recorder_run(data: bytes) -> Any:
+    """Arrivals read from the bytes (4 each: a 16-bit transport sequence number and a 16-bit arrival step in
+    250 us ticks) into a receiver's recorder, its feedback written and parsed back: the feedback is bounded by the
+    arrivals (at most one packet and 64 bytes each, plus one), whatever the sequence numbers skip."""
+    from splitrender.protocol.twcc import FeedbackRecorder, TransportFeedback
+
+    rec, t, n = FeedbackRecorder(ssrc=1), 0, len(data) // 4
+    for k in range(n):
+        seq, step = struct.unpack_from("!HH", data, 4 * k)
+        t += step * 250
+        rec.on_packet(seq, t)
+    fbs = rec.feedback()
+    wire = [bytes(f) for f in fbs]
+    if len(fbs) > n + 1 or sum(map(len, wire)) > 64 * n + 64:
+        raise UnboundedWork(f"{len(fbs)} feedback packets of {sum(map(len, wire))} bytes for {n} arrivals")
+    back = [p for w in wire for p in parse_rtcp(w)]
+    if back != fbs or not all(isinstance(p, TransportFeedback) for p in back):
+        raise RoundTrip("recorder feedback")
+    return len(fbs)
+
+
+def _twcc_entry_points() -> list[EntryPoint]:
+    rng = random.Random(4646)
+    arrivals = [b"".join(struct.pack("!HH", (k * step) & 0xFFFF, rng.randint(0, 300)) for k in range(n))
+                for n, step in ((8, 1), (200, 1), (64, 32_767), (300, 3), (30, 20_000))]
+    return [EntryPoint("twcc.parse", twcc_seeds(), _twcc_parse_run(), (RemoteProtocolError,)),
+            EntryPoint("twcc.recorder", arrivals, _twcc_recorder_run, ())]
 
 
 # ---------------------------------------------------------------------------- FEC
@@ -1725,6 +1808,7 @@ def entry_point_groups() -> list[tuple[tuple[str, ...], Callable[[], list[EntryP
         (("client.welcome",), _welcome_entry_points),
         (("server.control", "server.rtcp", "server.feedback_flood"), _server_entry_points),
         (("fec.parse", "fec.recover", "jitter.fec.h264", "jitter.fec.hevc"), _fec_entry_points),
+        (("twcc.parse", "twcc.recorder"), _twcc_entry_points),
     ]
 
 

@@ -226,13 +226,24 @@ def test_issue16_entry_points(entry_points: Any, name: str) -> None:
     fuzz(entry_points(name), ISSUE16_EXAMPLES.get(name, 30))
 
 
+ISSUE46 = {"twcc.parse": 400, "twcc.recorder": 200}
+"""Issue 46's entry points and their examples here (the campaign runs 100,000 each)."""
+
+
+@pytest.mark.parametrize("name", sorted(ISSUE46))
+def test_issue46_entry_points(entry_points: Any, name: str) -> None:
+    """Transport-cc parsing at every size to past the MTU, and the receiver's recorder at any sequence jumps: each
+    input parses or raises ``RemoteProtocolError``, holds no more than its bytes pay for, and round-trips."""
+    fuzz(entry_points(name), ISSUE46[name])
+
+
 def test_every_entry_point_is_fuzzed_here() -> None:
     """The harness's entry points are the ones this file tests (a new one needs a test here)."""
     names = {n for group, _ in fz.entry_point_groups() for n in group}
     tested = ({f"session.{m}" for m in METHODS} | {f"frame.{m}" for m in METHODS}
               | {f"client.control.{m}" for m in METHODS} | {f"client.datagrams.{m}" for m in METHODS}
               | {"client.welcome", "server.control", "server.rtcp", "server.feedback_flood", "fec.parse",
-                 "fec.recover", "jitter.fec.h264", "jitter.fec.hevc"} | set(fz.ISSUE16))
+                 "fec.recover", "jitter.fec.h264", "jitter.fec.hevc"} | set(fz.ISSUE16) | set(ISSUE46))
     assert names == tested
 
 
