@@ -52,14 +52,12 @@ from splitrender.protocol import (
     KeyframeRequest,
     MessageError,
     Pose,
-    RtcpError,
     ServerConnection,
     State,
     Stats,
     Welcome,
     make_sdp,
     negotiate_method,
-    parse_rtcp,
 )
 from splitrender.tabular import CsvAppender, write_csv
 from splitrender.scene.pose import CameraIntrinsics
@@ -506,16 +504,14 @@ class ServerSession:
             return
         if self.core is None:
             return
-        try:
-            packets = parse_rtcp(data)
-        except RtcpError as exc:
-            self.core.counters["rtcp_bad"] = self.core.counters.get("rtcp_bad", 0) + 1
-            logger.debug("session %s: RTCP from %s:%d: %s", self.id, *addr, exc)
+        bad = self.core.counters.get("rtcp_bad", 0)
+        resend = self.core.receive_datagram(data, _now_ms())
+        if self.core.counters.get("rtcp_bad", 0) != bad:
+            logger.debug("session %s: malformed RTCP from %s:%d", self.id, *addr)
             return
         if self.client_addr is None:
             self.client_addr = addr
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
-        resend = self.core.receive_rtcp(packets, _now_ms())
         if resend:
             self._send_rtp(self.core.send([(None, d) for d in resend], _now_ms()))
 
