@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import RemoteProtocolError
 
 __all__ = ["BROWSER_METHODS", "HEADLESS_ONLY", "browser_methods", "PageMessageError", "SessionRequest", "PoseSample", "PageFeedback",
-           "parse_session_request", "parse_channel_message", "parse_rows", "MAX_MESSAGE_BYTES", "ROW_COLUMNS",
-           "rgba_to_rgb"]
+           "parse_session_request", "parse_channel_message", "parse_rows", "parse_recording", "Recording", "decode_json",
+           "MAX_MESSAGE_BYTES", "MAX_JSON_DEPTH", "MAX_STATS", "ROW_COLUMNS", "rgba_to_rgb"]
 
 BROWSER_METHODS = {
     "video": "shows the newest frame",
@@ -37,8 +38,13 @@ HEADLESS_ONLY = {
 
 MAX_MESSAGE_BYTES = 4096
 """Largest pose or feedback message a page may send on a data channel."""
-MAX_ROWS = 100_000
-"""Most rows one recording may post."""
+MAX_ROWS = 18_000
+"""Most rows one recording may post (5 minutes at 60 Hz; the page's traces are at most 2 minutes)."""
+MAX_JSON_DEPTH = 8
+"""Deepest nesting of arrays and objects in anything a page sends (its deepest, a recording's rows, is 3)."""
+MAX_STATS = 64
+"""Most entries in a recording's ``stats`` (the browser's getStats figures: about 20), names at most 64 characters."""
+_JSON_STRING = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"', re.S)
 
 ROW_COLUMNS = ("frame", "t_s", "tick", "scene_t_s", "displayed_us", "update_frame_id", "update_age_ms",
                "motion_to_photon_ms", "client_ms", "rtp_timestamp", "px", "py", "pz", "qx", "qy", "qz", "qw")
@@ -54,17 +60,61 @@ class PageMessageError(RemoteProtocolError):
     """A request or message from a page that is malformed or out of range; the text names the field."""
 
 
+def decode_json(data: bytes | str, where: str, max_bytes: int, max_values: int,
+                max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """``data`` (UTF-8 JSON) decoded, with its work bounded before :func:`json.loads` builds anything: at most
+    ``max_bytes`` bytes, ``max_values`` values (counted as commas and opening brackets outside strings) and
+    ``max_depth`` levels of nesting.  Raises :class:`PageMessageError` naming ``where`` and the bound."""
+    import numpy as np
+
+    raw = data.encode("utf-8", "surrogatepass") if isinstance(data, str) else bytes(data)
+    if len(raw) > max_bytes:
+        raise PageMessageError(f"{where}: {len(raw)} bytes of JSON, more than the {max_bytes} allowed")
+    bare = np.frombuffer(_JSON_STRING.sub(b'""', raw), np.uint8)     # strings' brackets and commas do not count
+    opens = (bare == 0x5B) | (bare == 0x7B)
+    n_values = int(np.count_nonzero(opens)) + int(np.count_nonzero(bare == 0x2C))
+    if n_values > max_values:
+        raise PageMessageError(f"{where}: about {n_values} JSON values, more than the {max_values} allowed")
+    if n_values:
+        steps = opens.view(np.int8) - ((bare == 0x5D) | (bare == 0x7D)).view(np.int8)
+        deepest = int(np.cumsum(steps[steps != 0], dtype=np.int32).max(initial=0))   # over the brackets only
+        if deepest > max_depth:
+            raise PageMessageError(f"{where}: JSON nested {deepest} deep, more than the {max_depth} allowed")
+        del steps
+    del bare, opens             # the scan's copies go before json.loads builds the values
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise PageMessageError(f"{where}: not UTF-8 ({exc})") from None
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:   # JSONDecodeError, or an integer of more than 4300 digits
+        raise PageMessageError(f"{where}: not JSON ({exc})"[:300]) from None
+
+
+def _finite(v: Any) -> bool:
+    """A JSON number that is not NaN or infinite (an integer of any size is finite: it is range-checked, never
+    converted to a float, which would overflow)."""
+    return isinstance(v, int) or math.isfinite(v)
+
+
 def _number(d: dict[str, Any], key: str, where: str, lo: float, hi: float, integer: bool = False) -> float:
     if key not in d:
         raise PageMessageError(f"{where}: missing {key!r}")
     v = d[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise PageMessageError(f"{where}.{key}: expected a finite number, got {v!r}"[:200])
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+        raise PageMessageError(f"{where}.{key}: expected a finite number, got {_show(v)}")
+    if not lo <= v <= hi:                       # before int(): an integer past float range compares exactly
+        raise PageMessageError(f"{where}.{key}: {_show(v)} is out of range [{lo:g}, {hi:g}]")
     if integer and int(v) != v:
         raise PageMessageError(f"{where}.{key}: expected an integer, got {v!r}")
-    if not lo <= v <= hi:
-        raise PageMessageError(f"{where}.{key}: {v!r} is out of range [{lo:g}, {hi:g}]")
     return int(v) if integer else float(v)
+
+
+def _show(v: Any) -> str:
+    """``repr(v)`` cut to 60 characters (an integer of thousands of digits stays readable in an error)."""
+    text = repr(v) if not isinstance(v, int) or abs(v) < 10**40 else f"an integer of {len(str(abs(v)))} digits"
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _vector(d: dict[str, Any], key: str, where: str, n: int, bound: float) -> tuple[float, ...]:
@@ -73,8 +123,8 @@ def _vector(d: dict[str, Any], key: str, where: str, n: int, bound: float) -> tu
         raise PageMessageError(f"{where}.{key}: expected a list of {n} numbers, got {v!r}"[:200])
     out = []
     for i, x in enumerate(v):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > bound:
-            raise PageMessageError(f"{where}.{key}[{i}]: expected a finite number within ±{bound:g}, got {x!r}"[:200])
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not _finite(x) or abs(x) > bound:
+            raise PageMessageError(f"{where}.{key}[{i}]: expected a finite number within ±{bound:g}, got {_show(x)}")
         out.append(float(x))
     return tuple(out)
 
@@ -145,10 +195,7 @@ def parse_channel_message(text: Any) -> PoseSample | PageFeedback | str:
         raise PageMessageError(f"{where}: expected JSON text, got {type(text).__name__}")
     if len(text) > MAX_MESSAGE_BYTES:
         raise PageMessageError(f"{where}: {len(text)} characters, more than the {MAX_MESSAGE_BYTES} allowed")
-    try:
-        d = json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise PageMessageError(f"{where}: not JSON ({exc})") from None
+    d = decode_json(text, where, 4 * MAX_MESSAGE_BYTES, MAX_MESSAGE_BYTES)
     if not isinstance(d, dict):
         raise PageMessageError(f"{where}: expected a JSON object, got {type(d).__name__}")
     kind = d.get("type")
@@ -184,7 +231,9 @@ def parse_rows(rows: Any) -> list[dict[str, float]]:
             if v is None:
                 row[k] = math.nan
             elif isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise PageMessageError(f"recording.rows[{i}].{k}: expected a number or null, got {v!r}"[:200])
+                raise PageMessageError(f"recording.rows[{i}].{k}: expected a number or null, got {_show(v)}")
+            elif isinstance(v, int) and abs(v) > 2**63:
+                raise PageMessageError(f"recording.rows[{i}].{k}: {_show(v)} is out of range (beyond ±2^63)")
             else:
                 row[k] = float(v)
         for k in ("frame", "px", "py", "pz", "qx", "qy", "qz", "qw", "scene_t_s"):
@@ -201,3 +250,47 @@ def rgba_to_rgb(data: bytes, width: int, height: int) -> Any:
     if len(data) != width * height * 4:
         raise PageMessageError(f"recording image: {len(data)} bytes, expected {width}x{height}x4 = {width * height * 4}")
     return np.frombuffer(data, np.uint8).reshape(height, width, 4)[::-1, :, :3].copy()
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What a page posts back at its end: its rows (:func:`parse_rows`), the browser's own statistics (numbers
+    only), and notes on the run."""
+
+    rows: list[dict[str, float]]
+    stats: dict[str, float] = field(default_factory=dict)
+    trace: str = ""
+    duration_s: float = math.nan
+    complete: bool = True
+    user_agent: str = ""
+    record_every: int | None = None
+
+
+def parse_recording(body: Any) -> Recording:
+    """The ``POST /api/session/ID/recording`` body: ``{"rows", "stats", "trace", "duration_s", "complete",
+    "user_agent", "record_every"}``.  Statistics that are not finite numbers (the decoder's name) are left out."""
+    where = "recording"
+    if not isinstance(body, dict):
+        raise PageMessageError(f"{where}: expected a JSON object, got {type(body).__name__}")
+    rows = parse_rows(body.get("rows"))
+    raw_stats = body.get("stats", {})
+    if not isinstance(raw_stats, dict):
+        raise PageMessageError(f"{where}.stats: expected an object, got {type(raw_stats).__name__}")
+    if len(raw_stats) > MAX_STATS:
+        raise PageMessageError(f"{where}.stats: {len(raw_stats)} entries, more than the {MAX_STATS} allowed")
+    stats: dict[str, float] = {}
+    for k, v in raw_stats.items():
+        if len(k) > 64:
+            raise PageMessageError(f"{where}.stats: a name of {len(k)} characters, more than the 64 allowed")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or abs(v) > 2**63:
+            continue
+        stats[k] = v
+    duration = body.get("duration_s")
+    every = body.get("record_every")
+    trace, agent = body.get("trace", ""), body.get("user_agent", "")
+    return Recording(
+        rows, stats, trace[:100] if isinstance(trace, str) else "",
+        float(duration) if not isinstance(duration, bool) and isinstance(duration, (int, float)) and _finite(duration)
+        and abs(duration) < 1e9 else math.nan,
+        bool(body.get("complete", True)), agent[:300] if isinstance(agent, str) else "",
+        every if isinstance(every, int) and not isinstance(every, bool) and 0 <= every <= 1_000_000 else None)

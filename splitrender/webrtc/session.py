@@ -43,10 +43,10 @@ from ..scene.pose import Pose as ScenePose
 from ..scene.predict import make_predictor
 from ..tabular import CsvAppender, write_csv
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, parse_channel_message
-from .sdp import replace_candidates, udp_candidate_ports
+from .sdp import check_offer, replace_candidates, udp_candidate_ports
 from .track import EncodedVideoTrack
 
-__all__ = ["BrowserSession", "BROWSER_CODEC_PARAMS"]
+__all__ = ["BrowserSession", "BROWSER_CODEC_PARAMS", "answer_offer", "try_offer", "MAX_PAGE_ERRORS"]
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +57,43 @@ CONNECT_TIMEOUT_S = 30.0
 """A session whose page has not connected (ICE, DTLS, its data channels) and sent a pose by then ends."""
 FRAME_LIFETIME_MS = 250
 """How long the ``frame`` channel retransmits a frame's metadata (the page asks for it; a later frame wins)."""
+MAX_PAGE_ERRORS = 16
+"""A page whose data channels carried this many messages the session refused (each counted in ``page_errors`` and
+answered with an ``error`` naming what was wrong) has its session ended."""
+
+
+async def answer_offer(pc: Any, offer_sdp: str, track: Any) -> Any:
+    """Take the page's offer on ``pc`` (aiortc), add ``track`` and make the answer; returns the sender.  An offer
+    aiortc fails on (it raises ``RuntimeError``, ``ValueError``, ``AttributeError`` ... for what :func:`check_offer`
+    cannot foresee) is the page's error: :class:`PageMessageError` naming the SDP.  ``OSError`` (no socket for
+    ICE) stays the server's."""
+    from aiortc import RTCSessionDescription
+
+    try:
+        await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
+        sender = pc.addTrack(track)
+        await pc.setLocalDescription(await pc.createAnswer())
+    except (OSError, asyncio.CancelledError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever aiortc raises on a peer's SDP
+        raise PageMessageError(f"session request.sdp: not an offer this server can take "
+                               f"({type(exc).__name__}: {exc})"[:300]) from None
+    return sender
+
+
+async def try_offer(sdp: str) -> str:
+    """The answer the front door would give to an offer ``sdp`` (checked, then through aiortc), without a render
+    worker; raises :class:`PageMessageError` naming what was wrong.  For tests and fuzzing of the offer path."""
+    from aiortc import RTCConfiguration, RTCPeerConnection
+
+    check_offer(sdp)
+    pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+    try:
+        await answer_offer(pc, sdp, EncodedVideoTrack())
+        return str(pc.localDescription.sdp)
+    finally:
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(pc.close(), 5.0)
 
 
 class BrowserSession:
@@ -69,6 +106,8 @@ class BrowserSession:
         self.req = req
         self.ordinal = ordinal
         self.id = secrets.token_hex(6)
+        self.remote = ""
+        """The page's address, as the front door saw it (sessions per address are capped)."""
         self.method = req.method
         self.intrinsics = CameraIntrinsics(req.width, req.height, self.cfg.fov_y_deg)
         self.display_hz = req.display_hz
@@ -100,6 +139,7 @@ class BrowserSession:
             "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
             "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "feedback_received": 0,
             "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0, "retransmit_requests": 0,
+            "images_received": 0, "image_bytes_received": 0,
         }
 
     @property
@@ -110,8 +150,9 @@ class BrowserSession:
 
     async def open(self) -> dict[str, Any]:
         """Build the half, encoders and peer connection; returns the answer (SDP and the session's terms)."""
-        from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+        from aiortc import RTCConfiguration, RTCPeerConnection
 
+        check_offer(self.req.sdp)       # before a render worker is taken
         cfg = self.cfg
         spec = get_method(self.method)
         params = {**cfg.method_params.get(self.method, {}), **BROWSER_CODEC_PARAMS}
@@ -142,16 +183,10 @@ class BrowserSession:
         self.pc = pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
         pc.on("datachannel", self._on_datachannel)
         pc.on("connectionstatechange", self._on_state)
-        try:
-            await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
-        except (ValueError, KeyError, IndexError, TypeError, AttributeError, AssertionError) as exc:   # aiortc asserts
-            raise PageMessageError(f"session request.sdp: not an offer this server can take "
-                                   f"({type(exc).__name__}: {exc})"[:300]) from None
         self.track = EncodedVideoTrack()
-        self.sender = pc.addTrack(self.track)
+        self.sender = await answer_offer(pc, offer_sdp, self.track)
         self.track.sender = self.sender
         self._hook_sender(self.sender)
-        await pc.setLocalDescription(await pc.createAnswer())
         answer = pc.localDescription.sdp
         if self.relay is not None:
             ports = udp_candidate_ports(answer, self.front.ice_host)
@@ -232,17 +267,21 @@ class BrowserSession:
             channel.on("message", self._on_message)
 
     def _on_message(self, text: Any) -> None:
+        """A message on the ``pose`` channel.  Nothing raised here may reach aiortc: it would close the peer
+        connection with no error counted or sent.  A refused message is counted, answered and dropped."""
         try:
             msg = parse_channel_message(text)
+            if isinstance(msg, PoseSample):
+                self._on_pose(msg)
+            elif isinstance(msg, PageFeedback):
+                self._on_feedback(msg)
+            else:
+                self.end("the page said bye")
         except PageMessageError as exc:
             self._page_error(str(exc))
-            return
-        if isinstance(msg, PoseSample):
-            self._on_pose(msg)
-        elif isinstance(msg, PageFeedback):
-            self._on_feedback(msg)
-        else:
-            self.end("the page said bye")
+        except Exception as exc:  # noqa: BLE001 - our bug, but the page's session only
+            logger.exception("browser session %s: a page message could not be handled", self.id)
+            self._page_error(f"page message: could not be handled ({describe_error(exc)})"[:300])
 
     def _on_pose(self, msg: PoseSample) -> None:
         t_s = msg.client_time_us / 1e6
@@ -260,10 +299,15 @@ class BrowserSession:
         self.fb.on_feedback(fb)
 
     def _page_error(self, text: str) -> None:
+        """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
+        what was wrong, and dropped; the :data:`MAX_PAGE_ERRORS`-th ends the session."""
         self.counters["page_errors"] += 1
-        logger.warning("browser session %s: %s", self.id, text)
+        n = self.counters["page_errors"]
+        if n <= 3 or n == MAX_PAGE_ERRORS:
+            logger.warning("browser session %s: %s", self.id, text)
         self._send("meta", {"type": "error", "text": text})
-        self.end(f"page error: {text}")
+        if n >= MAX_PAGE_ERRORS:
+            self.end(f"page error: {n} messages refused, the last: {text}")
 
     def _send(self, label: str, obj: dict[str, Any]) -> int:
         ch = self.channels.get(label)
@@ -283,9 +327,9 @@ class BrowserSession:
 
     async def run(self) -> None:
         """Stream until the session ends; then close the peer connection and hand the worker back."""
+        frames = asyncio.create_task(self._frame_loop(), name=f"browser-{self.id}-frames")
+        ended = asyncio.create_task(self.ended.wait())
         try:
-            frames = asyncio.create_task(self._frame_loop(), name=f"browser-{self.id}-frames")
-            ended = asyncio.create_task(self.ended.wait())
             done, _ = await asyncio.wait({frames, ended}, return_when=asyncio.FIRST_COMPLETED)
             if frames in done and frames.exception() is not None:
                 err = frames.exception()
@@ -298,6 +342,8 @@ class BrowserSession:
         except asyncio.CancelledError:
             self.end("server shutting down")
             self._send("meta", {"type": "bye", "reason": "server shutting down"})
+            for t in (frames, ended):       # cancelled while waiting: the session's tasks go with it
+                t.cancel()
             raise
         finally:
             await self.close()
