@@ -14,28 +14,42 @@ Routes:
   the headless client's recording (``recording.json``, ``counters.json``, ``frames.csv``, ``images/``) under
   ``--out``/ID, which :func:`splitrender.client.score.score_recording` scores as it scores any other.
 
-Bad requests get 400 with a JSON ``error`` naming what was wrong; a busy server 503.
+With ``serve --token``, every ``/api/`` route needs the token, as ``Authorization: Bearer TOKEN`` or
+``X-Splitrender-Token: TOKEN`` (compared in constant time): without it 401, a wrong one 403.  The page and its
+modules are served without it; the page takes the token from its URL (``#token=...``) or asks for it.
+
+Every request is bounded before it costs anything (the numbers below, ``docs/protocol.md`` section 11): the
+body's bytes per route, JSON's values and depth (:func:`~.messages.decode_json`), the images a session may
+post, the sessions per client address and in all; a trace is made in a thread of its own, one at a time.
+Bad requests get a 4xx with a JSON ``error`` naming what was wrong (400 malformed, 401/403 token, 404 no such
+session, 409 no recordings, 413 too large, 429 too many sessions from one address); a busy server 503.
 """
 
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import logging
-import math
 import re
 import time
+from collections import OrderedDict
+from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from aiohttp import web
 
 from ..errors import ConfigError, describe_error
-from .messages import (BROWSER_METHODS, PageMessageError, browser_methods, parse_rows, parse_session_request,
-                       rgba_to_rgb)
+from .messages import (BROWSER_METHODS, MAX_ROWS, MAX_STATS, PageMessageError, Recording, browser_methods,
+                       decode_json, parse_recording, parse_session_request, rgba_to_rgb)
 from .session import BrowserSession
 
-__all__ = ["WebRtcFrontDoor", "STATIC", "TRACE_RATE_HZ", "restrict_ice_host"]
+__all__ = ["WebRtcFrontDoor", "STATIC", "TRACE_RATE_HZ", "restrict_ice_host", "TOKEN_HEADER", "MAX_TRACE_S",
+           "MAX_TRACE_JOBS", "MAX_TRACE_WAITING", "MAX_SESSION_BODY", "MAX_SESSION_VALUES", "MAX_RECORDING_BODY",
+           "MAX_RECORDING_VALUES", "MAX_IMAGES_PER_SESSION", "MAX_IMAGE_BYTES_PER_SESSION",
+           "MAX_SESSIONS_PER_ADDRESS"]
 
 logger = logging.getLogger(__name__)
 
@@ -44,7 +58,31 @@ TRACE_RATE_HZ = 120.0
 """Rate a trace is sampled at for the page (it interpolates between samples)."""
 RECORDING_GRACE_S = 300.0
 """How long after a session ends its recording may still be posted."""
-MAX_TRACE_S = 600.0
+MAX_TRACE_S = 120.0
+"""Longest trace the page may ask for (s).  A trace costs about 10 ms of CPU per second of it (600 s took 6 s)."""
+MAX_TRACE_JOBS = 1
+"""Traces made at once, each in the front door's own thread (never on the event loop, which ticks every session)."""
+MAX_TRACE_WAITING = 4
+"""Trace requests that may wait for :data:`MAX_TRACE_JOBS`; more are answered 503 (busy) at once."""
+TRACE_CACHE = 8
+"""Traces kept, encoded, after they are made (a page's reload, or the next session on the same trace, is free)."""
+MAX_SESSION_BODY = 128 * 1024
+"""Largest ``POST /api/session`` body (bytes): the SDP offer (at most 64 KiB) and the page's terms."""
+MAX_SESSION_VALUES = 256
+"""Most JSON values in a session request (it has 6)."""
+MAX_RECORDING_BODY = 8 * 1024 * 1024
+"""Largest ``POST .../recording`` body (bytes): about 18,000 rows as the page writes them (decoding one this
+large peaks at about 70 MB)."""
+MAX_RECORDING_VALUES = 20 * MAX_ROWS + 4 * MAX_STATS + 64
+"""Most JSON values in a recording: :data:`~.messages.MAX_ROWS` rows of 17 columns, the statistics, the notes."""
+MAX_IMAGES_PER_SESSION = 2000
+"""Most read-backs one session may post (a 10 s session reading back every 4th frame at 60 Hz posts 150)."""
+MAX_IMAGE_BYTES_PER_SESSION = 1 << 30
+"""Most read-back bytes (RGBA, as posted) one session may post: 1 GiB (128 frames at 1920x1080)."""
+MAX_SESSIONS_PER_ADDRESS = 4
+"""Most browser sessions running at once from one client address (all sessions are capped by --max-sessions)."""
+TOKEN_HEADER = "X-Splitrender-Token"
+"""The header the page sends ``serve --token``'s token in (``Authorization: Bearer TOKEN`` is taken too)."""
 _STATIC_NAME = re.compile(r"^[a-z][a-z0-9_]*\.(js|html|css)$")
 _CONTENT_TYPES = {"js": "text/javascript", "html": "text/html", "css": "text/css"}
 
@@ -79,7 +117,14 @@ class WebRtcFrontDoor:
         self._tasks: set[asyncio.Task[None]] = set()
         self.offered = browser_methods(list(server.methods))
         cfg = server.config
-        self.max_body = max(1 << 20, cfg.max_pixels * 4 + 4096)
+        self.token: str | None = cfg.token or None
+        self.max_body = max(MAX_RECORDING_BODY, cfg.max_pixels * 4)
+        """The app's own bound on a body (aiohttp's ``client_max_size``); each route reads less (:meth:`_body`)."""
+        self._trace_pool: ThreadPoolExecutor | None = None
+        self._trace_pending = 0
+        self._trace_cache: OrderedDict[tuple[str, float, int, int], bytes] = OrderedDict()
+        self.refused: dict[int, int] = {}
+        """Requests refused, by HTTP status (400, 401, 403, 413, 429, 503 ...)."""
 
     @property
     def active(self) -> list[BrowserSession]:
@@ -91,7 +136,8 @@ class WebRtcFrontDoor:
         from ..transport.errors import BindError, describe_os_error
 
         restrict_ice_host(self.server.config.host)
-        app = web.Application(client_max_size=self.max_body)
+        app = web.Application(client_max_size=self.max_body, middlewares=[self._guard])
+        self._trace_pool = ThreadPoolExecutor(MAX_TRACE_JOBS, thread_name_prefix="splitrender-trace")
         app.add_routes([
             web.get("/", self._index), web.get("/static/{name}", self._static), web.get("/api/info", self._info),
             web.get("/api/clock", self._clock), web.get("/api/trace", self._trace),
@@ -121,6 +167,51 @@ class WebRtcFrontDoor:
             await asyncio.gather(*tasks, return_exceptions=True)
         if self._runner is not None:
             await self._runner.cleanup()
+        if self._trace_pool is not None:
+            self._trace_pool.shutdown(wait=False, cancel_futures=True)
+
+    # ------------------------------------------------------------------ the token and the bounds
+
+    @web.middleware
+    async def _guard(self, request: web.Request,
+                     handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> web.StreamResponse:
+        """``--token`` on every ``/api/`` route (401 without it, 403 wrong); :class:`_Refused` as its answer; every
+        refusal counted by status."""
+        if self.token is not None and request.path.startswith("/api/"):
+            presented = _presented_token(request)
+            if presented is None:
+                return self._refuse(401, "this server needs its token (serve --token): send it as 'Authorization: "
+                                    f"Bearer TOKEN' or '{TOKEN_HEADER}: TOKEN' (the page takes it from its URL, "
+                                    "#token=TOKEN)", {"WWW-Authenticate": 'Bearer realm="splitrender"'})
+            if not hmac.compare_digest(presented.encode("utf-8", "surrogateescape"),
+                                       self.token.encode("utf-8", "surrogateescape")):
+                return self._refuse(403, "wrong token")
+        try:
+            response = await handler(request)
+        except _Refused as exc:
+            return self._refuse(exc.status, exc.text)
+        except web.HTTPException as exc:
+            self.refused[exc.status] = self.refused.get(exc.status, 0) + 1
+            raise
+        if response.status >= 400:
+            self.refused[response.status] = self.refused.get(response.status, 0) + 1
+        return response
+
+    def _refuse(self, status: int, text: str, headers: dict[str, str] | None = None) -> web.Response:
+        self.refused[status] = self.refused.get(status, 0) + 1
+        return web.json_response({"error": text}, status=status, headers=headers)
+
+    async def _body(self, request: web.Request, limit: int, where: str) -> bytes:
+        """The request's body, read no further than ``limit`` bytes (413 naming it past that)."""
+        n = request.content_length
+        if n is not None and n > limit:
+            raise _Refused(413, f"{where}: {n} bytes, more than the {limit} allowed")
+        data = bytearray()
+        async for chunk in request.content.iter_chunked(1 << 16):
+            data += chunk
+            if len(data) > limit:
+                raise _Refused(413, f"{where}: more than the {limit} bytes allowed")
+        return bytes(data)
 
     # ------------------------------------------------------------------ handlers
 
@@ -162,28 +253,54 @@ class WebRtcFrontDoor:
             return _bad(f"trace: {exc}")
         if not (0.5 <= duration <= MAX_TRACE_S) or not (16 <= width <= 7680 and 16 <= height <= 4320):
             return _bad(f"trace: duration_s must be in [0.5, {MAX_TRACE_S:g}] and the size within 16..7680 x 16..4320")
+        key = (name, round(duration, 3), width, height)
+        body = self._trace_cache.get(key)
+        if body is None:
+            if self._trace_pending >= MAX_TRACE_JOBS + MAX_TRACE_WAITING:
+                raise _Refused(503, f"trace: busy ({self._trace_pending} traces being made or waiting); try again")
+            assert self._trace_pool is not None
+            self._trace_pending += 1
+            job = asyncio.get_running_loop().run_in_executor(self._trace_pool, self._make_trace, *key)
+            job.add_done_callback(self._trace_done)      # when the thread is done, even if the page is gone
+            body = await asyncio.shield(job)
+            self._trace_cache[key] = body
+            while len(self._trace_cache) > TRACE_CACHE:
+                self._trace_cache.popitem(last=False)
+        return web.Response(body=body, content_type="application/json")
+
+    def _trace_done(self, _job: Any) -> None:
+        self._trace_pending -= 1
+
+    def _make_trace(self, name: str, duration: float, width: int, height: int) -> bytes:
+        """A built-in trace sampled at :data:`TRACE_RATE_HZ`, as the JSON the page reads (in the trace thread)."""
+        from ..scene.trace import get_trace
+
         trace = get_trace(name, duration, scene=self.server.scene, fov_y_deg=self.server.config.fov_y_deg,
                           aspect=width / height).sample(TRACE_RATE_HZ)
-        return web.json_response({"name": name, "duration_s": float(trace.duration_s),
-                                  "t": [round(float(t), 6) for t in trace.t_s],
-                                  "p": [[round(float(v), 6) for v in p] for p in trace.positions],
-                                  "q": [[round(float(v), 7) for v in o] for o in trace.orientations]})
+        return json.dumps({"name": name, "duration_s": float(trace.duration_s),
+                           "t": [round(float(t), 6) for t in trace.t_s],
+                           "p": [[round(float(v), 6) for v in p] for p in trace.positions],
+                           "q": [[round(float(v), 7) for v in o] for o in trace.orientations]}).encode()
 
     async def _offer(self, request: web.Request) -> web.Response:
+        raw = await self._body(request, MAX_SESSION_BODY, "session request")
         try:
-            body = await request.json()
-        except (json.JSONDecodeError, UnicodeDecodeError, ValueError) as exc:
-            return _bad(f"session request: not JSON ({exc})")
-        try:
+            body = decode_json(raw, "session request", MAX_SESSION_BODY, MAX_SESSION_VALUES)
             req = parse_session_request(body, self.offered, self.server.config.max_pixels)
         except PageMessageError as exc:
             return _bad(str(exc))
         busy = len(self.server.sessions) + len(self.active)
         if busy >= self.server.config.max_sessions:
             return web.json_response({"error": f"server busy: {busy} sessions already"}, status=503)
+        remote = request.remote or "?"
+        mine = sum(1 for s in self.active if s.remote == remote)
+        if mine >= MAX_SESSIONS_PER_ADDRESS:
+            raise _Refused(429, f"session request: {mine} sessions from {remote} already, the most one address may "
+                                "run at once")
         self._expire()
         self.sessions_total += 1
         session = BrowserSession(self, req, self.sessions_total)
+        session.remote = remote
         self.sessions[session.id] = session
         try:
             answer = await session.open()
@@ -226,55 +343,82 @@ class WebRtcFrontDoor:
             return _bad(f"recording image: frame {request.match_info['frame']!r} is not an integer")
         if not 0 <= frame < 10_000_000:
             return _bad(f"recording image: frame {frame} out of range")
-        data = await request.read()
+        size = s.req.width * s.req.height * 4
+        c = s.counters
+        if c["images_received"] >= MAX_IMAGES_PER_SESSION:
+            raise _Refused(413, f"recording image: this session has posted {c['images_received']} images, the most "
+                                "one session may")
+        if c["image_bytes_received"] + size > MAX_IMAGE_BYTES_PER_SESSION:
+            raise _Refused(413, f"recording image: this session has posted {c['image_bytes_received']} bytes of "
+                                f"images; {size} more is past the {MAX_IMAGE_BYTES_PER_SESSION} one session may")
+        data = await self._body(request, size, "recording image")
         try:
             rgb = rgba_to_rgb(data, s.req.width, s.req.height)
         except PageMessageError as exc:
             return _bad(str(exc))
         assert s.out_dir is not None
+        c["images_received"] += 1
+        c["image_bytes_received"] += size
         await asyncio.get_running_loop().run_in_executor(None, _save_image, s.out_dir, frame, rgb, None)
         return web.json_response({"ok": True})
 
     async def _recording(self, request: web.Request) -> web.Response:
-        from ..tabular import atomic_write_bytes, write_csv
-
         s = self._session_for_upload(request)
-        try:
-            body = await request.json()
-        except (json.JSONDecodeError, UnicodeDecodeError, ValueError) as exc:
-            return _bad(f"recording: not JSON ({exc})")
-        if not isinstance(body, dict):
-            return _bad("recording: expected a JSON object")
-        try:
-            rows = parse_rows(body.get("rows"))
+        raw = await self._body(request, MAX_RECORDING_BODY, "recording")
+        loop = asyncio.get_running_loop()
+        try:        # decoding 8 MiB of rows takes a quarter of a CPU second: not on the event loop
+            rec = await loop.run_in_executor(None, _decode_recording, raw)
         except PageMessageError as exc:
             return _bad(str(exc))
-        stats = body.get("stats") if isinstance(body.get("stats"), dict) else {}
+        d = await loop.run_in_executor(None, self._write_recording, s, rec)
+        logger.info("browser session %s: recording of %d rows written to %s", s.id, len(rec.rows), d)
+        return web.json_response({"ok": True, "dir": str(d), "rows": len(rec.rows)})
+
+    @staticmethod
+    def _write_recording(s: BrowserSession, body: Recording) -> Path:
+        """The headless client's recording files for ``s`` under its ``--out`` folder (in an executor thread)."""
+        from ..tabular import atomic_write_bytes, write_csv
+
         d = s.out_dir
         assert d is not None
         d.mkdir(parents=True, exist_ok=True)
-        trace = str(body.get("trace", ""))[:100]
-        duration = body.get("duration_s")
-        duration = float(duration) if isinstance(duration, (int, float)) and math.isfinite(duration) else math.nan
         server = s.server_counters()
-        counters: dict[str, Any] = {**server, **{f"browser_{k}": v for k, v in stats.items()
-                                                 if isinstance(v, (int, float)) and not isinstance(v, bool)}}
+        counters: dict[str, Any] = {**server, **{f"browser_{k}": v for k, v in body.stats.items()}}
         # the keys the scorer's summary reads, as the headless client names them
         counters["rtp_bytes"] = int(server.get("rtp_payload_bytes", 0)) + 12 * int(server.get("rtp_packets", 0))
         counters["meta_bytes"] = int(server.get("frame_meta_bytes", 0)) + int(server.get("sas_slot_bytes", 0))
         counters["frames_partial"] = 0
         rec = {"session_id": s.id, "method": s.method, "params": s.params.get("config", {}), "scene": s.cfg.scene,
-               "fov_y_deg": s.cfg.fov_y_deg, "server_fps": s.cfg.server_fps, "trace": trace, "width": s.req.width,
+               "fov_y_deg": s.cfg.fov_y_deg, "server_fps": s.cfg.server_fps, "trace": body.trace, "width": s.req.width,
                "height": s.req.height, "display_hz": s.display_hz, "tracker_hz": s.display_hz,
-               "duration_s": duration, "images": True, "complete": bool(body.get("complete", True)),
+               "duration_s": body.duration_s, "images": True, "complete": body.complete,
                "network": s.front.network_text or "live",
-               "client": {"kind": "browser", "user_agent": str(body.get("user_agent", ""))[:300],
-                          "record_every": body.get("record_every")}}
-        write_csv(d / "frames.csv", rows)
+               "client": {"kind": "browser", "user_agent": body.user_agent, "record_every": body.record_every}}
+        write_csv(d / "frames.csv", body.rows)
         atomic_write_bytes(d / "recording.json", json.dumps(rec, indent=2, default=str).encode())
         atomic_write_bytes(d / "counters.json", json.dumps(counters, indent=2, default=str).encode())
-        logger.info("browser session %s: recording of %d rows written to %s", s.id, len(rows), d)
-        return web.json_response({"ok": True, "dir": str(d), "rows": len(rows)})
+        return d
+
+
+class _Refused(Exception):
+    """A request refused with ``status`` (4xx, or 503 busy); ``text`` names what was wrong."""
+
+    def __init__(self, status: int, text: str) -> None:
+        super().__init__(text)
+        self.status = status
+        self.text = text
+
+
+def _decode_recording(raw: bytes) -> Recording:
+    return parse_recording(decode_json(raw, "recording", MAX_RECORDING_BODY, MAX_RECORDING_VALUES))
+
+
+def _presented_token(request: web.Request) -> str | None:
+    """The token a request carries (``Authorization: Bearer`` or :data:`TOKEN_HEADER`), or ``None``."""
+    auth = request.headers.get("Authorization", "")
+    if auth[:7].lower() == "bearer ":
+        return auth[7:].strip()
+    return request.headers.get(TOKEN_HEADER)
 
 
 def _bad(text: str) -> web.Response:

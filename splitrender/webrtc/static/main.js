@@ -3,6 +3,10 @@
 // URL parameters start a session without the form (what the tests do): method, trace (a built-in trace or
 // "manual"), duration (s), width, height, record_every (read back every Nth displayed frame; 0 = none),
 // autostart=1.  window.splitrender.done resolves with the session's result.
+//
+// A server started with --token wants it on every /api/ call: the page takes it from its URL (#token=... keeps it
+// out of the server's and proxies' logs; ?token=... works too) or, answered 401, asks for it, and sends it as
+// "Authorization: Bearer TOKEN".
 import { Trace, Controls } from './pose.js';
 import { makeDisplay, parseSlotMessage } from './methods.js';
 
@@ -18,15 +22,29 @@ function fail(err) {
   resolveDone({ ok: false, error: text });
 }
 
+// serve --token: from the URL's fragment or query, else asked for when the server answers 401
+let token = new URLSearchParams(location.hash.slice(1)).get('token') || new URLSearchParams(location.search).get('token');
+const authHeaders = () => (token ? { Authorization: `Bearer ${token}` } : {});
+
+async function api(url, init = {}) {
+  for (let asked = false; ; asked = true) {
+    const r = await fetch(url, { cache: 'no-store', ...init, headers: { ...(init.headers || {}), ...authHeaders() } });
+    if (r.status !== 401 || asked) return r;
+    const given = window.prompt('This server needs its token (serve --token):');
+    if (!given) return r;
+    token = given;
+  }
+}
+
 async function getJSON(url) {
-  const r = await fetch(url, { cache: 'no-store' });
+  const r = await api(url);
   const body = await r.json();
   if (!r.ok) throw new Error(`${url}: ${body.error || r.status}`);
   return body;
 }
 
 async function postJSON(url, obj) {
-  const r = await fetch(url, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(obj) });
+  const r = await api(url, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(obj) });
   const body = await r.json();
   if (!r.ok) throw new Error(`${url}: ${body.error || r.status}`);
   return body;
@@ -201,7 +219,7 @@ async function run(opts) {
       rows.push(row);
       if (opts.record_every > 0 && tick % opts.record_every === 0) {
         const px = display.readPixels();
-        uploads.push(fetch(`/api/session/${terms.session_id}/image/${row.frame}`, { method: 'POST', body: px }));
+        uploads.push(api(`/api/session/${terms.session_id}/image/${row.frame}`, { method: 'POST', body: px }));
       }
       if (f && f.id !== lastFeedback && poseCh.readyState === 'open') {
         lastFeedback = f.id;
