@@ -353,7 +353,8 @@ class LiveClient:
                                "TLS (serve --tls-cert), connect with --tls")
         if not isinstance(msg, Welcome):
             raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
-        hs = ClientHandshake(cfg.methods, cfg.limits)   # the sans-IO handshake both modes share
+        # the sans-IO handshake both modes share; it holds the config's sizes to cfg.limits before any allocation
+        hs = ClientHandshake(cfg.methods, cfg.limits, (cfg.width, cfg.height))
         hs.receive_message(msg)
         terms = hs.terms
         assert terms is not None

@@ -41,7 +41,7 @@ import numpy as np
 from ..codecs.video import VideoCodecConfig
 from ..coerce import coerce_value
 from ..errors import ConfigError
-from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, ClientSize, check_client_sizes
 from ..scene.pose import CameraIntrinsics, Pose
 
 if TYPE_CHECKING:
@@ -323,6 +323,14 @@ class MethodConfig:
         reads afresh every frame (:meth:`ServerHalf.set_knobs` sets it)."""
         return ()
 
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """What this config makes a client with display ``display`` hold beyond the display-sized buffers every
+        method has: reference images, atlases, meshes, each against a :class:`~splitrender.limits.ClientLimits`
+        field and naming the config field that sets it.  The client checks them
+        (:func:`~splitrender.limits.check_client_sizes`) when it takes the Welcome, before it allocates anything;
+        none by default.  Pure arithmetic: it must not allocate what it sizes."""
+        return ()
+
     def for_codecs(self, codecs: tuple[str, ...]) -> MethodConfig:
         """This config adapted to a client that decodes only ``codecs`` (its ``Hello.codecs``, in preference order):
         the colour codec becomes the client's first choice when it does not take this one.  Methods with other
@@ -417,6 +425,8 @@ class ClientHalf(ABC):
         self.limits = limits if limits is not None else DEFAULT_CLIENT_LIMITS
         """What this client accepts from the server (probe counts, scene size, ...): session data that declares
         more is refused with the method's error naming the field and the limit."""
+        if isinstance(config, MethodConfig):   # the handshake checked these already; again for a half built otherwise
+            check_client_sizes(config.client_sizes(intrinsics), self.limits, type(config).__name__)
 
     @abstractmethod
     def apply(self, update: DecodedUpdate) -> None:

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..codecs.meta import unpack_meta
 from ..errors import CodecError, ConfigError
-from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits
+from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
 from ..protocol import (Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
@@ -162,11 +162,17 @@ def parse_subject(v: Any) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def parse_welcome(welcome: Welcome, offered: Any = None) -> SessionTerms:
+def parse_welcome(welcome: Welcome, offered: Any = None, limits: ClientLimits = DEFAULT_CLIENT_LIMITS,
+                  display: tuple[int, int] | None = None) -> SessionTerms:
     """The terms of ``welcome``, every field a client builds on checked: the method is one the client offered
     (``offered``: its ``Hello.methods``; any registered one when None) and its config is valid for it, the field of
     view and server rate are finite and in range, the subject's bounds are finite.  :class:`EnvelopeError` (400)
-    naming the field otherwise; a server's word is never a ``ConfigError`` of the client's."""
+    naming the field otherwise; a server's word is never a ``ConfigError`` of the client's.
+
+    With ``display`` (the client's ``Hello.width``, ``Hello.height``) what the config makes the client hold
+    (:meth:`~splitrender.methods.base.MethodConfig.client_sizes`: reference images, atlases, meshes) is held to
+    ``limits`` too, before anything is allocated: :class:`~splitrender.limits.ClientLimitError` (413) naming the
+    config field."""
     from ..methods.base import get_method, make_config
 
     params = welcome.method_params
@@ -185,6 +191,14 @@ def parse_welcome(welcome: Welcome, offered: Any = None) -> SessionTerms:
         raise EnvelopeError(f"Welcome.method_params.config: {exc}") from None
     fov = _finite_param(params, "fov_y_deg", 60.0, 0.0, 179.0)
     fps = _finite_param(params, "server_fps", 30.0, 0.0, 1000.0)
+    if display is not None:
+        from ..scene.pose import CameraIntrinsics
+
+        try:
+            sizes = config.client_sizes(CameraIntrinsics(display[0], display[1], fov))
+        except (ConfigError, TypeError, ValueError, OverflowError) as exc:   # a plug-in's sizing of a config it took
+            raise EnvelopeError(f"Welcome.method_params.config: {exc}") from None
+        check_client_sizes(sizes, limits)
     subject = params.get("subject")
     return SessionTerms(welcome.session_id, welcome.method, spec, config, fov, fps,
                         parse_subject(subject) if subject is not None else None)
@@ -192,15 +206,18 @@ def parse_welcome(welcome: Welcome, offered: Any = None) -> SessionTerms:
 
 class ClientHandshake:
     """The client's side of the handshake, sans-IO, in both modes: a ``Welcome`` (its terms checked by
-    :func:`parse_welcome`), then the session data in ``DataChunk`` messages, bounded by ``limits``.
+    :func:`parse_welcome`, and with ``display``, the client's (width, height), what its config makes the client hold
+    against ``limits``), then the session data in ``DataChunk`` messages, bounded by ``limits``.
 
     Feed it every message after ``Hello`` with :meth:`receive_message` until it returns True; then
     :attr:`terms`, :attr:`session_data` and :meth:`session` give what the session is built from.  Raises
     ``RemoteProtocolError`` naming what was wrong; an ``Error`` or a closed connection is the driver's to report."""
 
-    def __init__(self, offered: Any = None, limits: ClientLimits = DEFAULT_CLIENT_LIMITS) -> None:
+    def __init__(self, offered: Any = None, limits: ClientLimits = DEFAULT_CLIENT_LIMITS,
+                 display: tuple[int, int] | None = None) -> None:
         self.offered = tuple(offered) if offered is not None else None
         self.limits = limits
+        self.display = display
         self.welcome: Welcome | None = None
         self.terms: SessionTerms | None = None
         self._asm: SessionAssembler | None = None
@@ -215,7 +232,7 @@ class ClientHandshake:
         if self.welcome is None:
             if not isinstance(msg, Welcome):
                 raise EnvelopeError(f"handshake: expected Welcome, got {type(msg).__name__}")
-            self.terms = parse_welcome(msg, self.offered)
+            self.terms = parse_welcome(msg, self.offered, self.limits, self.display)
             params = msg.method_params
             self._asm = SessionAssembler(params.get("session_data_bytes", 0), params.get("session_data_crc"),
                                          self.limits.max_session_bytes)

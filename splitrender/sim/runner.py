@@ -270,7 +270,8 @@ class VirtualTimeRun:
         c.bytes[SESSION_STREAM] += sum(control_wire_bytes(len(f)) for _, f in frames)
         # the client's side of the handshake: the same sans-IO core as the live client's
         opts = cfg.client_options()
-        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes))
+        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
+                             (hello.width, hello.height))
         for m in self._to_client_msgs(c, wire + b"".join(f for _, f in frames)):
             hs.receive_message(m)
         assert hs.done and hs.welcome is not None and hs.terms is not None

@@ -9,6 +9,7 @@ from typing import Literal
 import numpy as np
 
 from ...errors import ConfigError
+from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics, quat_to_matrix3
 from ..base import MethodConfig
 
@@ -31,6 +32,13 @@ class AtwConfig(MethodConfig):
             raise ConfigError(f"AtwConfig.overscan: must be in [1, 3], got {self.overscan}")
         if self.fill not in ("edge", "black"):
             raise ConfigError(f"AtwConfig.fill: {self.fill!r} is not one of ['edge', 'black']")
+
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """The overscanned frame the client warps from (against ``max_reference_pixels``)."""
+        ref = overscan_intrinsics(display, self.overscan)
+        return (ClientSize("overscan", "max_reference_pixels", ref.width * ref.height, "pixels",
+                           f"the atw frame {ref.width}x{ref.height} (overscan {self.overscan:g} at a "
+                           f"{display.width}x{display.height} display)"),)
 
 
 def overscan_intrinsics(intr: CameraIntrinsics, overscan: float) -> CameraIntrinsics:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 from ...errors import ConfigError
+from ...limits import ClientSize
+from ...scene.pose import CameraIntrinsics
 from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
+from .packing import packed_size
 
 Variant = Literal["quasar", "quadstream"]
 Atlas = Literal["slots", "packed"]
@@ -153,6 +157,40 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.atlas: 'packed' is QuadStream's atlas; QUASAR's cached quads need 'slots'")
         if not 0.0 <= self.edp_tolerance < 0.5:
             raise ConfigError(f"{n}.edp_tolerance: must be in [0, 0.5), got {self.edp_tolerance}")
+
+    @property
+    def atlas_slots(self) -> int:
+        """Display-sized slots of the atlas: QuadStream's 9 views, or QUASAR's visible layer, its revealed pixels
+        (with residual frames), its hidden layers; and the wide view."""
+        wide = 1 if self.wide_fov_deg else 0
+        if self.variant == "quadstream":
+            return 9 + wide
+        return 1 + (1 if self.reference_every > 1 else 0) + (self.layers - 1) + wide
+
+    def atlas_wh(self, display: CameraIntrinsics) -> tuple[int, int]:
+        """The atlas for a display of ``display``: its slots in two rows (one for a single slot), or QuadStream's
+        packed atlas (at most 4096 a side)."""
+        slots = self.atlas_slots
+        rows = 1 if slots == 1 else 2
+        cols = math.ceil(slots / rows)
+        w, h = display.width, display.height
+        if self.atlas_layout == "packed":
+            wide = max(2, int(w * self.wide_res / 2) * 2) * max(2, int(h * self.wide_res / 2) * 2) if self.wide_fov_deg else 0
+            try:
+                return packed_size(w, h, (slots - (1 if self.wide_fov_deg else 0)) * w * h + wide, w * cols)
+            except ConfigError:   # a view wider than the packed atlas can address: the server refuses it
+                pass
+        return w * cols, h * rows
+
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """The atlas (against ``max_atlas_pixels``), named by ``variant`` for QuadStream's ten views, else by
+        ``layers``."""
+        w, h = self.atlas_wh(display)
+        field = "variant" if self.variant == "quadstream" else "layers"
+        return (ClientSize(field, "max_atlas_pixels", w * h, "texels",
+                           f"the quads atlas {w}x{h} ({self.atlas_slots} views of a {display.width}x{display.height} "
+                           f"display: variant {self.variant}, layers {self.layers}, "
+                           f"{'a wide view' if self.wide_fov_deg else 'no wide view'}, atlas {self.atlas_layout})"),)
 
     @property
     def params(self) -> QuadParams:

@@ -63,10 +63,8 @@ def slot_grid(n_slots: int) -> tuple[int, int]:
 
 
 def n_slots(cfg: QuadsConfig) -> int:
-    wide = 1 if cfg.wide_fov_deg else 0
-    if cfg.variant == "quadstream":
-        return 9 + wide
-    return 1 + (1 if cfg.reference_every > 1 else 0) + (cfg.layers - 1) + wide
+    """The atlas's display-sized slots (:attr:`QuadsConfig.atlas_slots`, which the client's limits check too)."""
+    return cfg.atlas_slots
 
 
 def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float, scale: float = 0.5) -> CameraIntrinsics:

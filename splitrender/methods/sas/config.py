@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ...errors import ConfigError
+from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics
 from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
 from .allocator import STRATEGIES, AtlasLayout
@@ -114,8 +115,29 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.inset_min_texels: must be in [0, 4096], got {self.inset_min_texels}")
         if self.atlas_filter not in ("bicubic", "bilinear"):
             raise ConfigError(f"SasConfig.atlas_filter: {self.atlas_filter!r} is not one of ['bicubic', 'bilinear']")
-        if self.atlas_mpix_1080p <= 0:
+        if not self.atlas_mpix_1080p > 0:   # NaN too
             raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
+
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """The atlas (against ``max_atlas_pixels``, named by ``atlas_width`` when it is given, else by
+        ``atlas_mpix_1080p``) and the split scene whose patches the client may hold (``split_max_triangles``,
+        against ``max_scene_triangles``)."""
+        at = f"a {display.width}x{display.height} display"
+        if self.atlas_width > 0:
+            w, h = self.atlas_width, self.atlas_height
+            atlas = ClientSize("atlas_width", "max_atlas_pixels", w * h, "texels",
+                               f"the sas atlas {w}x{h} (atlas_width x atlas_height)")
+        else:
+            texels = self.atlas_mpix_1080p * 1e6 * display.width * display.height / (1920 * 1080)
+            if texels < 2.0 ** 60:          # inf from a huge atlas_mpix_1080p is over any limit
+                lay = self.atlas_layout(display)
+                n, size = lay.width * lay.height, f" {lay.width}x{lay.height}"
+            else:
+                n, size = 2 ** 60, ""
+            atlas = ClientSize("atlas_mpix_1080p", "max_atlas_pixels", n, "texels",
+                               f"the sas atlas{size} (atlas_mpix_1080p {self.atlas_mpix_1080p:g} at {at})")
+        return (atlas, ClientSize("split_max_triangles", "max_scene_triangles", self.split_max_triangles, "triangles",
+                                  "the split scene whose patches the sas client may hold"))
 
     def atlas_layout(self, intr: CameraIntrinsics) -> AtlasLayout:
         """The atlas for a display of ``intr``: 2:1, a multiple of the superblock size."""

@@ -40,6 +40,9 @@ class TssClient(ClientHalf):
         super().__init__(*a, **kw)
         self.session = parse_session(self.session_data)
         s = self.session
+        if s.n_triangles > self.limits.max_scene_triangles:   # before the per-triangle arrays below
+            raise TssWireError(f"tss session data: n_triangles: {s.n_triangles} triangles, over this client's limit "
+                               f"max_scene_triangles {self.limits.max_scene_triangles}")
         i = self.intrinsics
         self.canvas = Canvas(self.gl, i.width, i.height)
         self.prog = load_program(self.gl, SHADERS / "client.vert", SHADERS / "client.frag")

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ...errors import ConfigError
+from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics
 from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
 
@@ -123,6 +124,17 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.single_px: must be 1, 2 or 4, got {self.single_px}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
+
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """The atlas (``atlas_mpix_1080p``, against ``max_atlas_pixels``) and the tessellated scene the client keeps
+        geometry and a table row for (``split_max_triangles``, against ``max_scene_triangles``; the session data's
+        ``n_triangles`` is held to the same limit)."""
+        w, h = self.atlas_size(display)
+        return (ClientSize("atlas_mpix_1080p", "max_atlas_pixels", w * h, "texels",
+                           f"the tss atlas {w}x{h} (atlas_mpix_1080p {self.atlas_mpix_1080p:g} at a "
+                           f"{display.width}x{display.height} display)"),
+                ClientSize("split_max_triangles", "max_scene_triangles", self.split_max_triangles, "triangles",
+                           "the tessellated scene the tss client may hold"))
 
     def atlas_size(self, intr: CameraIntrinsics) -> tuple[int, int]:
         """The atlas for a display of ``intr``: 2:1, multiples of 16 texels."""

@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from ...errors import ConfigError
+from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics, Pose, quat_to_matrix3
 from ..base import Knob, MethodConfig
 
@@ -102,6 +103,24 @@ class WarpConfig(MethodConfig):
         if codecs and "hevc" not in codecs and out.depth_coding == "lossless":
             out = dataclasses.replace(out, depth_coding="bc4")
         return out
+
+    def client_sizes(self, display: CameraIntrinsics) -> tuple[ClientSize, ...]:
+        """The reference image (against ``max_reference_pixels``, named by ``resolution_scale`` when that is above 1,
+        else by ``fov_scale``), then all ``views`` of it (named by ``views``), and for ``reconstruction = "mesh"`` the
+        grid mesh (against ``max_mesh_vertices``)."""
+        ref = reference_intrinsics(display, self.fov_scale, self.resolution_scale)
+        px = ref.width * ref.height
+        image = (f"{ref.width}x{ref.height} (fov_scale {self.fov_scale:g} x resolution_scale "
+                 f"{self.resolution_scale:g} at a {display.width}x{display.height} display)")
+        scale = "resolution_scale" if self.resolution_scale > 1 else "fov_scale"
+        out = [ClientSize(scale, "max_reference_pixels", px, "pixels", f"the warp reference image {image}")]
+        if self.views > 1:
+            out.append(ClientSize("views", "max_reference_pixels", self.views * px, "pixels",
+                                  f"{self.views} warp reference views of {image}"))
+        if self.reconstruction == "mesh":
+            out.append(ClientSize("reconstruction", "max_mesh_vertices", (ref.width + 2) * (ref.height + 2), "vertices",
+                                  f"the warp mesh (reconstruction 'mesh') over the reference image {image}"))
+        return tuple(out)
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """Depth precision (lossless depth only: BC4 is a fixed rate); the pipeline adds its colour scale."""
