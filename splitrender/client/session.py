@@ -34,7 +34,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from splitrender.errors import CodecError, ConfigError, RemoteProtocolError, SplitRenderError, describe_error
+from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolError, SplitRenderError,
+                                describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
@@ -324,7 +325,7 @@ class LiveClient:
             return
         if isinstance(exc, RemoteProtocolError):
             code, text = exc.code, f"client: {exc}"
-        elif isinstance(exc, StreamStalledError):
+        elif isinstance(exc, (StreamStalledError, PeerTimeoutError)):
             code, text = ErrorCode.TIMEOUT, f"client: {exc}"
         else:
             code, text = ErrorCode.INTERNAL, f"client failed: {describe_error(exc)}"
@@ -345,7 +346,7 @@ class LiveClient:
         assert ch is not None
         await ch.send(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs), cfg.width,
                             cfg.height, float(cfg.display_hz)))
-        msg = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
+        msg = await self._next_message("Welcome")
         if isinstance(msg, Error):
             raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
         if msg is None and not cfg.tls and ch.bytes_received == 0:   # what a TLS server does to a plaintext Hello
@@ -369,7 +370,8 @@ class LiveClient:
                                    aspect=cfg.width / cfg.height)
         # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
         while not hs.done:
-            chunk = await asyncio.wait_for(ch.next_message(), cfg.connect_timeout_s)
+            got, total = hs.session_progress
+            chunk = await self._next_message(f"session data ({got} of {total} bytes received)")
             if isinstance(chunk, Error):
                 raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(chunk)}")
             if chunk is None:
@@ -388,6 +390,20 @@ class LiveClient:
         self.rx = self.core.rx
         logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
+
+    async def _next_message(self, what: str) -> Any:
+        """The server's next control message; :class:`PeerTimeoutError` naming ``what``, the server and the wait when
+        none comes within ``connect_timeout_s``."""
+        cfg, ch = self.cfg, self.channel
+        assert ch is not None
+        try:
+            async with asyncio.timeout(cfg.connect_timeout_s) as deadline:
+                return await ch.next_message()
+        except TimeoutError:
+            if not deadline.expired():   # the socket's own timeout, not our wait
+                raise
+            raise PeerTimeoutError(f"no {what} from {cfg.server}:{cfg.port} within connect_timeout_s "
+                                   f"{cfg.connect_timeout_s:g} s") from None
 
     async def _open_udp(self) -> None:
         assert self._welcome is not None

@@ -152,6 +152,11 @@ class SessionAssembler:
     def done(self) -> bool:
         return len(self._buf) == self.total
 
+    @property
+    def received(self) -> int:
+        """Bytes taken so far."""
+        return len(self._buf)
+
     def add(self, msg: DataChunk) -> bool:
         """Take one chunk; True when the session data is complete."""
         if msg.stream != SESSION_STREAM or msg.total != self.total or msg.offset != len(self._buf):

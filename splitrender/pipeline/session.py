@@ -225,6 +225,13 @@ class ClientHandshake:
         self.session_bytes = 0
         self.done = False
 
+    @property
+    def session_progress(self) -> tuple[int, int]:
+        """Session data bytes received so far and announced in the Welcome ((0, 0) before it)."""
+        if self._asm is None:
+            return 0, 0
+        return self._asm.received, self._asm.total
+
     def receive_message(self, msg: Message) -> bool:
         """One message from the server; True once the session data is complete."""
         if self.done:
