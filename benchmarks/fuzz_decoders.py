@@ -1466,6 +1466,50 @@ def _server_rtcp_entry(s: MethodSeeds) -> EntryPoint:
     return EntryPoint("server.rtcp", seeds, run, (RemoteProtocolError,))
 
 
+def _server_nack_entry(s: MethodSeeds) -> EntryPoint:
+    """Compound datagrams of generic NACKs (one, a thousand copies of one, every packet of the history, PIDs and
+    bitmasks mutated) into the server core as the live server routes them.  Besides the rule, the answer to one
+    datagram is at most ``NACK_MAX_PER_DATAGRAM`` packets, none of them twice, and its bytes within the stream's
+    rate cap (a share of the media bytes sent plus the floor)."""
+    from splitrender.pipeline.session import NACK_MAX_PER_DATAGRAM, NACK_RATE_FLOOR_BYTES, NACK_RATE_SHARE
+    from splitrender.protocol.errors import RtcpError
+    from splitrender.protocol.rtcp import rtcp_route_ssrc
+
+    sc = ServerCore(s)
+    media = sum(len(d) for pkts in s.rtp.values() for d in pkts)
+
+    def run(data: bytes) -> Any:
+        core = sc.get()
+        sc.now += 5.0
+        try:
+            try:
+                ssrc = rtcp_route_ssrc(data)
+            except RtcpError:
+                return None
+            if ssrc is None or not core.owns_ssrc(ssrc):
+                return None
+            resent = core.receive_datagram(data, sc.now)
+        except BaseException:
+            sc.core = None
+            raise
+        if len(resent) > NACK_MAX_PER_DATAGRAM or len(set(resent)) != len(resent):
+            raise UnboundedWork(f"{len(resent)} resends ({len(set(resent))} distinct) for one datagram")
+        if sum(map(len, resent)) > NACK_RATE_SHARE * media + NACK_RATE_FLOOR_BYTES * max(1, len(s.rtp)):
+            raise UnboundedWork(f"{sum(map(len, resent))} bytes resent against {media} media bytes")
+        return len(resent)
+
+    me = 0x5EED5EED
+    seeds = []
+    for d in s.welcome.streams:
+        q = [RtpPacket.parse(p).sequence_number for p in s.rtp.get(d.name, [])] or [0]
+        one = GenericNack(me, d.ssrc, tuple(q[:40]))
+        rr = ReceiverReport(me, (ReportBlock(d.ssrc, 5, 3, 2, 300, 0, 0),))
+        seeds += [serialize_rtcp([rr, one]), serialize_rtcp([rr] + [one] * 1000),
+                  serialize_rtcp([rr, GenericNack(me, d.ssrc, tuple(q))]),
+                  serialize_rtcp([rr] + [GenericNack(me, d.ssrc, (x,)) for x in q[::-1]])]
+    return EntryPoint("server.nack", seeds, run, (RemoteProtocolError,))
+
+
 def retained_bytes(root: Any, skip: tuple[type, ...] = ()) -> int:
     """Bytes of every object reachable from ``root`` (containers, instance attributes, numpy buffers), each
     counted once; classes, modules, functions and instances of ``skip`` are not followed."""
@@ -1577,7 +1621,7 @@ def _feedback_flood_entry(s: MethodSeeds) -> EntryPoint:
 
 def _server_entry_points() -> list[EntryPoint]:
     s = method_seeds("tss")   # reliable data and video streams
-    return [_server_control_entry(s), _server_rtcp_entry(s), _feedback_flood_entry(method_seeds("video"))]
+    return [_server_control_entry(s), _server_rtcp_entry(s), _server_nack_entry(s), _feedback_flood_entry(method_seeds("video"))]
 
 
 # ---------------------------------------------------------------------------- transport-cc (issue 46)
@@ -1806,7 +1850,7 @@ def entry_point_groups() -> list[tuple[tuple[str, ...], Callable[[], list[EntryP
         *[((f"session.{m}", f"frame.{m}"), lambda m=m: _client_half_entry_points(m)) for m in METHODS],
         *[((f"client.control.{m}", f"client.datagrams.{m}"), lambda m=m: _client_core_entry_points(m)) for m in METHODS],
         (("client.welcome",), _welcome_entry_points),
-        (("server.control", "server.rtcp", "server.feedback_flood"), _server_entry_points),
+        (("server.control", "server.rtcp", "server.nack", "server.feedback_flood"), _server_entry_points),
         (("fec.parse", "fec.recover", "jitter.fec.h264", "jitter.fec.hevc"), _fec_entry_points),
         (("twcc.parse", "twcc.recorder"), _twcc_entry_points),
     ]
