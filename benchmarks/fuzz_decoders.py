@@ -1706,6 +1706,81 @@ def _twcc_entry_points() -> list[EntryPoint]:
             EntryPoint("twcc.recorder", arrivals, _twcc_recorder_run, ())]
 
 
+# ---------------------------------------------------------------------------- the browser front door (issue 46)
+_OFFER_LOOP: list[Any] = []
+
+
+def _offer_loop() -> Any:
+    """One event loop for the offer entry point (aiortc is asyncio), made once."""
+    import asyncio
+
+    if not _OFFER_LOOP:
+        _OFFER_LOOP.append(asyncio.new_event_loop())
+    return _OFFER_LOOP[0]
+
+
+def page_offer() -> str:
+    """A real offer as the page makes it: recvonly video, and the meta, frame and pose data channels (aiortc
+    standing in for the browser)."""
+    from aiortc import RTCPeerConnection
+
+    async def make() -> str:
+        pc = RTCPeerConnection()
+        pc.addTransceiver("video", direction="recvonly")
+        pc.createDataChannel("meta")
+        pc.createDataChannel("frame", ordered=False, maxPacketLifeTime=250)
+        pc.createDataChannel("pose", ordered=False, maxRetransmits=0)
+        await pc.setLocalDescription(await pc.createOffer())
+        sdp = str(pc.localDescription.sdp)
+        await pc.close()
+        return sdp
+
+    return str(_offer_loop().run_until_complete(make()))
+
+
+def _webrtc_entry_points() -> list[EntryPoint]:
+    """The page's data-channel messages, its session request and recording bodies (as the HTTP handlers decode
+    them: bounded JSON, then the parser), and offers through the front door's check and aiortc.  Rule: a result
+    or ``PageMessageError`` (a ``RemoteProtocolError``); the HTTP handlers' own rule, every answer below 500, is
+    tested live in ``tests/test_webrtc_hostile.py``."""
+    from splitrender.webrtc.app import MAX_RECORDING_BODY, MAX_RECORDING_VALUES, MAX_SESSION_BODY, MAX_SESSION_VALUES
+    from splitrender.webrtc.messages import ROW_COLUMNS, decode_json, parse_channel_message, parse_recording, parse_session_request
+    from splitrender.webrtc.session import try_offer
+
+    offer = page_offer()
+    messages = [json.dumps(m).encode() for m in (
+        {"type": "pose", "seq": 12, "t_us": 1_733_000_000_000_000, "p": [0.1, 1.6, 2.5], "q": [0.0, 0.0087, 0.0, 0.99996]},
+        {"type": "feedback", "frame_id": 40, "displayed_us": 1_733_000_000_100_000, "received_us": 1_733_000_000_080_000},
+        {"type": "bye"})]
+    request = json.dumps({"type": "offer", "sdp": offer, "method": "atw", "width": 320, "height": 180,
+                          "display_hz": 60}).encode()
+    row = {k: 1.0 for k in ROW_COLUMNS}
+    recording = json.dumps({"rows": [dict(row, frame=float(i)) for i in range(40)], "stats": {"framesDecoded": 38,
+                            "decoder": "libvpx"}, "trace": "turn", "duration_s": 5.0, "complete": True,
+                            "user_agent": "HeadlessChrome", "record_every": 4}).encode()
+
+    def message(data: bytes) -> Any:
+        return parse_channel_message(data.decode("utf-8", "replace"))
+
+    def session_request(data: bytes) -> Any:
+        return parse_session_request(decode_json(data, "session request", MAX_SESSION_BODY, MAX_SESSION_VALUES),
+                                     ["video", "atw", "sas"], 1920 * 1080)
+
+    def recording_body(data: bytes) -> Any:
+        return parse_recording(decode_json(data, "recording", MAX_RECORDING_BODY, MAX_RECORDING_VALUES))
+
+    def offer_run(data: bytes) -> Any:
+        return _offer_loop().run_until_complete(try_offer(data.decode("utf-8", "replace")))
+
+    lines = offer.split("\r\n")
+    offers = [offer.encode()] + ["\r\n".join(line for line in lines if not line.startswith(drop)).encode()
+                                 for drop in ("a=rtpmap:", "a=recvonly", "a=mid:", "a=fingerprint", "m=application")]
+    return [EntryPoint("webrtc.message", messages, message, (RemoteProtocolError,)),
+            EntryPoint("webrtc.session_request", [request], session_request, (RemoteProtocolError,)),
+            EntryPoint("webrtc.recording", [recording], recording_body, (RemoteProtocolError,)),
+            EntryPoint("webrtc.offer", offers, offer_run, (RemoteProtocolError,))]
+
+
 # ---------------------------------------------------------------------------- FEC
 def _fec_entry_points() -> list[EntryPoint]:
     from splitrender.protocol.fec import fec_recover, parse_fec
@@ -1853,6 +1928,7 @@ def entry_point_groups() -> list[tuple[tuple[str, ...], Callable[[], list[EntryP
         (("server.control", "server.rtcp", "server.nack", "server.feedback_flood"), _server_entry_points),
         (("fec.parse", "fec.recover", "jitter.fec.h264", "jitter.fec.hevc"), _fec_entry_points),
         (("twcc.parse", "twcc.recorder"), _twcc_entry_points),
+        (("webrtc.message", "webrtc.session_request", "webrtc.recording", "webrtc.offer"), _webrtc_entry_points),
     ]
 
 

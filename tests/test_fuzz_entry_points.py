@@ -226,15 +226,17 @@ def test_issue16_entry_points(entry_points: Any, name: str) -> None:
     fuzz(entry_points(name), ISSUE16_EXAMPLES.get(name, 30))
 
 
-ISSUE46 = {"twcc.parse": 400, "twcc.recorder": 200, "server.nack": 150}
+ISSUE46 = {"twcc.parse": 400, "twcc.recorder": 200, "server.nack": 150, "webrtc.message": 300, "webrtc.session_request": 200,
+           "webrtc.recording": 150, "webrtc.offer": 150}
 """Issue 46's entry points and their examples here (the campaign runs 100,000 each)."""
 
 
 @pytest.mark.parametrize("name", sorted(ISSUE46))
 def test_issue46_entry_points(entry_points: Any, name: str) -> None:
     """Transport-cc parsing at every size to past the MTU, the receiver's recorder at any sequence jumps, and NACK
-    datagrams into the server core: each input parses or raises ``RemoteProtocolError``, holds no more than its
-    bytes pay for, round-trips, and is answered within the retransmission caps."""
+    datagrams into the server core, the page's messages, request and recording bodies and offers through aiortc:
+    each input parses or raises ``RemoteProtocolError``, holds no more than its bytes pay for, round-trips, and is
+    answered within the retransmission caps."""
     fuzz(entry_points(name), ISSUE46[name])
 
 
