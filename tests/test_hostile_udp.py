@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from splitrender.client.session import ClientConfig, LiveClient
 from splitrender.protocol.errors import RtcpError
-from splitrender.protocol.rtcp import GenericNack, ReceiverReport, ReportBlock, parse_rtcp, rtcp_route_ssrc, serialize_rtcp
+from splitrender.protocol.rtcp import FullIntraRequest, GenericNack, ReceiverReport, ReportBlock, parse_rtcp, rtcp_route_ssrc, serialize_rtcp
 from splitrender.protocol.twcc import MAX_STATUS_COUNT, FeedbackRecorder, SendHistory, TransportFeedback
 from splitrender.server.server import LiveServer, ServerConfig
 
@@ -124,6 +124,7 @@ def test_recorder_round_trips_any_gaps(steps: list[tuple[int, int]]) -> None:
     (serialize_rtcp([ReceiverReport(7, (ReportBlock(0xABCD, 0, 0, 0, 0, 0, 0),))]), 0xABCD),
     (serialize_rtcp([ReceiverReport(7, ()), GenericNack(7, 0x1234, (1,))]), 0x1234),
     (serialize_rtcp([ReceiverReport(7, ())]), None),
+    (serialize_rtcp([ReceiverReport(7, ()), FullIntraRequest(7, ((0x5678, 3),))]), 0x5678),
 ])
 def test_routing_reads_fixed_offsets(data: bytes, expect: int | None) -> None:
     assert rtcp_route_ssrc(data) == expect

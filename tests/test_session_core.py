@@ -423,15 +423,15 @@ def test_a_full_intra_request_is_answered_once_per_sequence_number() -> None:
     IDR; the same sequence number again is the same request resent (answered once), a new one a new request; FIRs
     for another SSRC are ignored.  The bytes round-trip through the project's parser."""
     from splitrender.protocol import FullIntraRequest
-    from splitrender.pipeline import rtcp_media_ssrcs
+    from splitrender.protocol.rtcp import parse_rtcp, rtcp_route_ssrc
 
     p = Pair()
     p.frame(0, 0.0)
     (ssrc,) = [s.ssrc for s in p.server.streams.values()]
     fir = FullIntraRequest(0x1234, ((ssrc, 7),))
     data = serialize_rtcp([ReceiverReport(0x1234), fir])
-    packets, ssrcs = rtcp_media_ssrcs(data)
-    assert packets[1] == fir and ssrcs == [ssrc]
+    packets = parse_rtcp(data)
+    assert packets[1] == fir and rtcp_route_ssrc(data) == ssrc
     p.server.receive_rtcp(packets, 1000.0)
     p.server.receive_rtcp(packets, 1010.0)                 # resent: the same request
     p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc + 1, 8),))], 1020.0)

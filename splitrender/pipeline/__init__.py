@@ -14,7 +14,7 @@ from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .session import (ClientHandshake, ClientOptions, ClientSession, Resumed, ServerOptions, ServerSession, SessionEvent,
-                      SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, rtcp_media_ssrcs, session_params,
+                      SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
@@ -22,7 +22,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
 
 __all__ = [
     "ClientHandshake", "ClientOptions", "ClientSession", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
-    "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "rtcp_media_ssrcs", "session_params",
+    "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",

@@ -57,7 +57,7 @@ from .wire import EnvelopeError, specs_from_table
 log = logging.getLogger(__name__)
 
 __all__ = ["ClientHandshake", "ClientOptions", "ClientSession", "ServerOptions", "ServerSession", "SessionEvent",
-           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome", "rtcp_media_ssrcs",
+           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -295,24 +295,6 @@ def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[d
         "rtcp_up_bytes": int(client.get("rtcp_bytes_sent", 0)), "rtcp_down_bytes": int(server.get("rtcp_bytes_sent", 0)),
         "retransmitted_bytes": int(server.get("retransmitted_bytes", 0)),
     }
-
-
-def rtcp_media_ssrcs(data: bytes) -> tuple[list[RtcpPacket], list[int]]:
-    """A client's RTCP datagram and the media SSRCs it names, in order (report blocks, NACK, PLI and
-    transport-wide feedback targets), so a server can route it to the session that owns them.  Raises ``RtcpError`` for a
-    datagram that is not valid RTCP."""
-    if not is_rtcp(data):
-        raise RtcpError(f"datagram of {len(data)} bytes is not RTCP")
-    packets = parse_rtcp(data)
-    ssrcs: list[int] = []
-    for p in packets:
-        if isinstance(p, (ReceiverReport, SenderReport)):
-            ssrcs += [b.ssrc for b in p.reports]
-        elif isinstance(p, (GenericNack, PictureLossIndication, TransportFeedback)):
-            ssrcs.append(p.media_ssrc)
-        elif isinstance(p, FullIntraRequest):
-            ssrcs += [m for m, _ in p.requests]
-    return packets, ssrcs
 
 
 # --------------------------------------------------------------------------- events

@@ -324,8 +324,8 @@ def rtcp_route_ssrc(data: bytes) -> int | None:
     """The media SSRC a compound RTCP datagram is about, read from fixed offsets only, so that a server can find the
     session it belongs to before parsing any of it (RFC 3550 6.1: a compound packet starts with SR or RR).
 
-    At most :data:`ROUTE_MAX_HEADERS` packet headers are read: the first report block's SSRC of an SR or RR, or the
-    media SSRC of an RTPFB/PSFB packet, whichever comes first.  ``None`` when none of those names one (an RR with no
+    At most :data:`ROUTE_MAX_HEADERS` packet headers are read: the first report block's SSRC of an SR or RR, the
+    media SSRC of an RTPFB/PSFB packet, or a FIR's first FCI SSRC, whichever comes first.  ``None`` when none of those names one (an RR with no
     report blocks and nothing else); :class:`RtcpError` when the datagram is not RTCP or its headers are broken.
     Constant work whatever the datagram's size."""
     n = len(data)
@@ -342,8 +342,8 @@ def rtcp_route_ssrc(data: bytes) -> int | None:
         if end > n:
             raise RtcpError(f"RTCP packet at offset {pos} of {4 + 4 * words} bytes runs past end of {n}-byte data")
         at = {RTCP_RR: pos + 8, RTCP_SR: pos + 28}.get(pt) if b0 & 0x1F else None
-        if pt in (RTCP_RTPFB, RTCP_PSFB):
-            at = pos + 8
+        if pt in (RTCP_RTPFB, RTCP_PSFB):   # a FIR's media SSRC is 0 (RFC 5104 4.3.1.2): its first FCI names it
+            at = pos + 12 if pt == RTCP_PSFB and b0 & 0x1F == PSFB_FIR else pos + 8
         if at is not None and at + 4 <= end:
             return int.from_bytes(data[at:at + 4], "big")
         pos = end
