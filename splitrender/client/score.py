@@ -136,7 +136,7 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
         "seed": 0, "params": ";".join(f"{k}={v}" for k, v in sorted(params.items())),
         "width": rec["width"], "height": rec["height"], "server_fps": rec.get("server_fps"),
         "client_fps": rec.get("display_hz"), "frames": len(rows),
-        **metrics.quality_summary(rows), "mean_kbps": kbps + meta_kbps + once_kb * 8 / dur, "kbps_video": kbps,
+        **metrics.quality_summary(rows), **metrics.content_quality_summary(rows), "mean_kbps": kbps + meta_kbps + once_kb * 8 / dur, "kbps_video": kbps,
         "kbps_meta": meta_kbps, "session_kb": once_kb, "steady_kbps": kbps + meta_kbps,
         "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
         "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),

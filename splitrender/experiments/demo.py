@@ -52,7 +52,10 @@ SUMMARY_COLUMNS = ("method", "network", "traces", "runs", "mean_psnr_db", "psnr_
                    "mean_flip", "flip_frames", "mean_model_psnr_db", "model_psnr_mse_db", "mean_model_ssim", "mean_model_flip",
                    "mean_model_pct", "mean_interior_psnr_db", "mean_edge_psnr_db", "mean_fg_psnr_db", "mean_fg_flip", "mean_fg_pct",
                    "mean_kbps", "steady_kbps", "session_kb", "mean_hole_pct", "mean_lab_err_pct", "mean_update_age_ms", "mean_server_ms", "mean_client_ms",
-                   "mean_gt_ms", "client_over_gt", "lost_frames", "net_delay_ms", "net_jitter_ms")
+                   "mean_gt_ms", "client_over_gt", "lost_frames", "net_delay_ms", "net_jitter_ms",
+                   # over the frames with content (the black start-up ticks left out): what the headline shows first
+                   "mean_psnr_db_content", "psnr_mse_db_content", "mean_flip_content", "mean_model_psnr_db_content",
+                   "model_psnr_mse_db_content", "mean_model_flip_content", "content_frames", "frames_before_content")
 
 
 @dataclass

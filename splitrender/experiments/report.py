@@ -32,7 +32,9 @@ RUN_COLUMNS = ("run", "method", "params", "network", "trace", "seed", "width", "
                "mean_psnr_db", "psnr_mse_db", "p5_psnr_db", "mean_ssim", "mean_flip", "flip_frames", "mean_model_psnr_db",
                "mean_interior_psnr_db", "mean_edge_psnr_db", "mean_model_flip", "mean_fg_psnr_db", "mean_fg_flip",
                "mean_hole_pct", "mean_lab_err_pct",
-               "mean_kbps", "steady_kbps", "session_kb", "mean_update_age_ms", "mean_server_ms", "mean_client_ms", "mean_gt_ms", "lost_frames", "keyframes")
+               "mean_kbps", "steady_kbps", "session_kb", "mean_update_age_ms", "mean_server_ms", "mean_client_ms", "mean_gt_ms", "lost_frames", "keyframes",
+               "mean_psnr_db_content", "mean_flip_content", "mean_model_psnr_db_content", "model_psnr_mse_db_content",
+               "frames_before_content")
 
 
 # ---------------------------------------------------------------------------------

@@ -201,8 +201,9 @@ def summarise(runs: Sequence[Row]) -> list[Row]:
     out = []
     for (m, net), rr in groups.items():
         row: Row = {"method": m, "network": net, "traces": "|".join(dict.fromkeys(str(r["trace"]) for r in rr)), "runs": len(rr)}
-        keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k.endswith("psnr_mse_db")
-                or k in ("flip_frames", "lost_frames", "net_delay_ms", "net_jitter_ms", "session_kb", "steady_kbps")]
+        keys = [k for k in rr[0] if k.startswith(("mean_", "p5_", "kbps_")) or k.endswith(("psnr_mse_db", "_content"))
+                or k in ("flip_frames", "lost_frames", "net_delay_ms", "net_jitter_ms", "session_kb", "steady_kbps",
+                         "content_frames", "frames_before_content")]
         for k in keys:
             vals = [fnum(r.get(k)) for r in rr if not math.isnan(fnum(r.get(k)))]
             row[k] = sum(vals) / len(vals) if vals else math.nan

@@ -704,7 +704,8 @@ class VirtualTimeRun:
             "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
             "client_trace": (cfg.client_traces or (cfg.trace,))[c.index % len(cfg.client_traces or (cfg.trace,))],
             "width": cfg.width, "height": cfg.height, "server_fps": cfg.server_fps, "client_fps": cfg.client_fps,
-            "frames": len(fr), **metrics.quality_summary(fr), "mean_kbps": total * 8 / dur / 1000.0,
+            "frames": len(fr), **metrics.quality_summary(fr), **metrics.content_quality_summary(fr),
+            "mean_kbps": total * 8 / dur / 1000.0,
         }
         for name, b in bytes_by_stream.items():
             s[f"kbps_{name}"] = b * 8 / dur / 1000.0
