@@ -5,9 +5,17 @@ For every method on a network (its runs averaged over traces, :func:`~.store.sum
 * quality where it matters: PSNR over the scene's model (``mean_model_psnr_db``: the
   pixels where the ground truth shows the model, a loaded file's or a built-in scene's
   objects less its floor; :func:`splitrender.metrics.region_masks`) and over the whole
-  frame, and FLIP (lower is better);
-* its bits (``mean_kbps``: every stream, metadata included), and the one-off session data
-  (``session_kb``, a scene upload) apart from it;
+  frame, and FLIP (lower is better).  Each is the mean over the **frames with content**
+  (``*_content``, :func:`splitrender.metrics.content_quality_summary`: every displayed frame
+  from the first that shows an update on, the black start-up ticks before it left out),
+  with the mean over all displayed frames beside it in brackets where the two differ
+  (``*_all``).  A few black start-up ticks can outweigh every other frame's error in a short
+  run (probes: FLIP 0.062 over all frames, 0.0002 over those with content), and how long
+  start-up lasts depends on the run's network and session data, not on the method's
+  picture; results from before the split have only the all-frames figure, shown alone;
+* its steady bits (``steady_kbps``: every stream, metadata included, the one-off session
+  data left out; ``mean_kbps`` for results from before it), and the one-off session data
+  (``session_kb``, a scene upload) apart from it, so an upload is counted once;
 * what it costs: server and client milliseconds per frame as a ratio of the ground-truth
   render of the same frame on the same machine (``server / GT``, ``client / GT``), so the
   figure travels between machines better than milliseconds do;
@@ -32,7 +40,13 @@ from .store import Row, fnum
 
 __all__ = ["HEADLINE_COLUMNS", "draws_scene", "front_ranks", "headline_html", "headline_rows", "headline_markdown", "headline_text"]
 
-HEADLINE_COLUMNS = ("rank", "method", "model_psnr_db", "psnr_db", "flip", "kbps", "session_kb", "server_over_gt", "client_over_gt")
+HEADLINE_COLUMNS = ("rank", "method", "model_psnr_db", "psnr_db", "flip", "kbps", "session_kb", "server_over_gt", "client_over_gt",
+                    "model_psnr_db_all", "psnr_db_all", "flip_all")
+"""A headline row's keys: quality over the frames with content (``model_psnr_db``, ``psnr_db``, ``flip``; NaN for
+results from before the split) and over all displayed frames (``*_all``); ``kbps`` is the steady rate."""
+
+_QUALITY_KEYS = {"model_psnr_db": "mean_model_psnr_db", "psnr_db": "mean_psnr_db", "flip": "mean_flip"}
+"""Headline key -> summary column (over all frames; the same with ``_content`` over the frames with content)."""
 
 
 def front_ranks(points: Sequence[tuple[float, float]]) -> list[int]:
@@ -73,9 +87,11 @@ def headline_rows(summary: Sequence[Row]) -> dict[str, list[Row]]:
         table: list[Row] = []
         for r in rows:
             gt = fnum(r.get("mean_gt_ms"))
+            steady = fnum(r.get("steady_kbps"))   # the upload is in session_kb: not in the rate as well
             table.append({"method": str(r["method"]), "draws_scene": draws_scene(str(r["method"])),
-                          "model_psnr_db": fnum(r.get("mean_model_psnr_db")), "psnr_db": fnum(r.get("mean_psnr_db")),
-                          "flip": fnum(r.get("mean_flip")), "kbps": fnum(r.get("mean_kbps")),
+                          **{k: fnum(r.get(f"{col}_content")) for k, col in _QUALITY_KEYS.items()},
+                          **{f"{k}_all": fnum(r.get(col)) for k, col in _QUALITY_KEYS.items()},
+                          "kbps": steady if not math.isnan(steady) else fnum(r.get("mean_kbps")),
                           "session_kb": fnum(r.get("session_kb")),
                           "server_over_gt": fnum(r.get("mean_server_ms")) / gt if gt > 0 else math.nan,
                           "client_over_gt": fnum(r.get("client_over_gt"))})
@@ -91,9 +107,17 @@ def headline_rows(summary: Sequence[Row]) -> dict[str, list[Row]]:
     return out
 
 
+def _score(t: Row, key: str) -> float:
+    """``key``'s headline figure: over the frames with content, over all frames for results from before the split."""
+    v = t.get(key, math.nan)
+    return v if not math.isnan(v) else t.get(f"{key}_all", math.nan)
+
+
 def _quality(t: Row) -> float:
-    """The score a method is ranked by: model PSNR where the run has it, whole-frame PSNR otherwise."""
-    return t["model_psnr_db"] if not math.isnan(t["model_psnr_db"]) else t["psnr_db"]
+    """The score a method is ranked by (frames with content): model PSNR where the run has it, whole-frame PSNR
+    otherwise."""
+    m = _score(t, "model_psnr_db")
+    return m if not math.isnan(m) else _score(t, "psnr_db")
 
 
 def _fmt(v: Any, spec: str) -> str:
@@ -104,19 +128,30 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
+def _both(t: Row, key: str, spec: str) -> str:
+    """The figure over the frames with content, then the one over all frames in brackets where it reads differently."""
+    content, every = _fmt(t.get(key, math.nan), spec), _fmt(t.get(f"{key}_all", math.nan), spec)
+    if content == "-":
+        return every
+    return content if every in (content, "-") else f"{content} ({every})"
+
+
 def _cells(t: Row) -> list[str]:
     name = t["method"] + (" *" if t["draws_scene"] else "")
     once = t.get("session_kb", math.nan)
-    return [str(t["rank"] or "-"), name, _fmt(t["model_psnr_db"], ".1f"), _fmt(t["psnr_db"], ".1f"), _fmt(t["flip"], ".3f"),
+    return [str(t["rank"] or "-"), name, _both(t, "model_psnr_db", ".1f"), _both(t, "psnr_db", ".1f"), _both(t, "flip", ".3f"),
             _fmt(t["kbps"], ".0f"), _fmt(once, ".0f") if once >= 0.5 else "-", _fmt(t["server_over_gt"], ".2f"),
             _fmt(t["client_over_gt"], ".2f")]
 
 
 _HEAD = ["front", "method", "model PSNR dB", "PSNR dB", "FLIP", "kbit/s", "upload kB", "server / GT", "client / GT"]
 _FOOT = ("model PSNR: over the pixels where the ground truth shows the scene's model (a loaded file's model, or a "
-         "built-in scene less its floor; the sky and the floor left out); PSNR: the whole frame; front: rank on the "
-         "speed-against-accuracy front (client cost against model PSNR; 1 = no method is both cheaper and better), "
-         "ranked within each class; kbit/s: every stream, the upload included; upload kB: one-off session data; "
+         "built-in scene less its floor; the sky and the floor left out); PSNR: the whole frame; PSNR and FLIP are means "
+         "over the frames with content (every displayed frame from the first that shows an update on: the black "
+         "start-up ticks before it are left out), and in brackets, where it differs, over all displayed frames; front: "
+         "rank on the speed-against-accuracy front (client cost against model PSNR over the frames with content; 1 = no "
+         "method is both cheaper and better), ranked within each class; kbit/s: the steady rate, every stream but the "
+         "one-off upload; upload kB: one-off session data; "
          "server / GT and client / GT: each side's milliseconds per frame divided by the ground-truth render's on this "
          "machine; * a different class of client, listed apart: it holds and renders the whole scene (uploaded once) "
          "and streams only lighting.")
@@ -147,7 +182,7 @@ def headline_markdown(tables: dict[str, list[Row]]) -> str:
 
 def headline_text(tables: dict[str, list[Row]]) -> str:
     """The headline tables for a terminal."""
-    widths = [5, 10, 13, 7, 6, 7, 9, 11, 11]
+    widths = [5, 10, 13, 11, 13, 7, 9, 11, 11]
     out = []
     for net, rows in tables.items():
         out.append(f"{net}:")
