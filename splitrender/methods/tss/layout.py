@@ -615,3 +615,43 @@ def layout_attributes(kind: np.ndarray, origin: np.ndarray, w: np.ndarray, w2: n
     o0 = np.where(os_, np.stack([o[:, 0, 0], o[:, 0, 1], o[:, 1, 0], a], 1), np.concatenate([o[:, 0], o[:, 1]], 1))
     o1 = np.where(os_, np.stack([w, w2, h, samples], 1).astype(np.float64), np.concatenate([o[:, 2], np.zeros((n, 2))], 1))
     return o0, o1
+
+
+def fill_gutters(rgba: np.ndarray, rows: int) -> np.ndarray:
+    """The atlas ``rgba`` (H, W, 4) uint8 as RGB with every texel no sample wrote (alpha 0) in its first ``rows``
+    rows filled by push-pull: the alpha-weighted mean of the written texels in the smallest enclosing 2^k block.
+
+    The gaps between cells (and the corners odd L-packing levels leave) were black: a lossy codec's transforms and
+    4:2:0 chroma blend that black into each cell's border samples, which the client reads along every triangle's
+    edges (dark seams).  Filled with their neighbours' colours, the borders code like the inside of the cells; the
+    texels a sample wrote are left exactly as they are.  Rows from ``rows`` on are returned unchanged."""
+    out = np.ascontiguousarray(rgba[..., :3])
+    rows = int(min(max(rows, 0), rgba.shape[0]))
+    if rows == 0:
+        return out
+    w = (rgba[:rows, :, 3] > 127).astype(np.float32)
+    if w.all() or not w.any():
+        return out
+    c = rgba[:rows, :, :3].astype(np.float32) * w[..., None]
+    pyramid = []
+    while c.shape[0] > 1 or c.shape[1] > 1:
+        ph, pw = c.shape[0] % 2, c.shape[1] % 2
+        if ph or pw:
+            c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
+            w = np.pad(w, ((0, ph), (0, pw)))
+        pyramid.append((c, w))
+        c = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
+        w = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        ok = w > 0
+        c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)   # each coarser level: means, weight 1
+        w = ok.astype(np.float32)
+    col = c
+    for c_k, w_k in reversed(pyramid):
+        up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
+        mine = w_k > 0
+        col = np.where(mine[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
+    col = col[:rows, : rgba.shape[1]]
+    hole = rgba[:rows, :, 3] <= 127
+    out = out.copy()
+    out[:rows][hole] = np.clip(np.rint(col[hole]), 0, 255).astype(np.uint8)
+    return out

@@ -47,7 +47,7 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, layout_attributes, level_for, morton_order,
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order,
                      plan_atlas, v_count)
 from .wire import WIRE_VERSION, descriptors, dequantize_positions, encode_geometry, encode_table, quantize_positions
 
@@ -474,7 +474,8 @@ class TssServer(ServerHalf):
         self.keep_unwritten = not iframe
         shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
         W, H = self.atlas
-        atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(H, W, 3).copy()
+        rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
+        atlas = fill_gutters(rgba, plan.height) if c.gutter_fill else rgba[..., :3].copy()
         t3 = time.perf_counter()
         new = pvs[~self.client_has[pvs]]
         self.client_has[new] = True
@@ -554,7 +555,7 @@ class TssServer(ServerHalf):
         gl = self._gl
         self._fbo.use()
         if not self.keep_unwritten:
-            self._fbo.clear(0.0, 0.0, 0.0, 1.0)
+            self._fbo.clear(0.0, 0.0, 0.0, 0.0)     # alpha 0: no sample written (fill_gutters)
         self._counter.clear()
         if ids.size == 0:
             return 0
