@@ -1724,6 +1724,10 @@ def page_offer() -> str:
     standing in for the browser)."""
     from aiortc import RTCPeerConnection
 
+    from splitrender.webrtc.app import restrict_ice_host
+
+    restrict_ice_host("127.0.0.1")   # gather on loopback only: network tests here use loopback addresses alone
+
     async def make() -> str:
         pc = RTCPeerConnection()
         pc.addTransceiver("video", direction="recvonly")

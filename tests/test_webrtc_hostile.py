@@ -32,6 +32,9 @@ async def _offer(video: bool = True) -> tuple[Any, dict[str, Any]]:
     """An aiortc peer connection set up as the page sets up its own, and its offer."""
     from aiortc import RTCConfiguration, RTCPeerConnection
 
+    from splitrender.webrtc.app import restrict_ice_host
+
+    restrict_ice_host("127.0.0.1")   # gather on loopback only, whether or not a front door started first
     pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
     if video:
         pc.addTransceiver("video", direction="recvonly")
