@@ -88,7 +88,10 @@ PAYS_DB = 0.25
 CRF_PER_HALVING = 6.0
 """x264/x265's rule of thumb: ``crf`` + 6 halves the bits (the first guess of the equal-bits search)."""
 SCORES = ("mean_edge_psnr_db", "mean_interior_psnr_db", "mean_model_psnr_db", "model_psnr_mse_db", "mean_model_ssim",
-          "mean_psnr_db", "mean_ssim", "mean_kbps", "edge_psnr_mse_db", "psnr_mse_db", "frames_before_content")
+          "mean_psnr_db", "mean_ssim", "mean_kbps", "edge_psnr_mse_db", "psnr_mse_db", "frames_before_content",
+          "mean_edge_psnr_db_content", "mean_model_psnr_db_content", "model_psnr_mse_db_content", "mean_psnr_db_content",
+          "psnr_mse_db_content", "steady_kbps")
+"""The scores kept per run; ``*_content`` over the frames with content only (after the black start-up ticks)."""
 SHORT = {"mean_edge_psnr_db": "edge", "mean_interior_psnr_db": "interior", "mean_model_psnr_db": "model",
          "mean_psnr_db": "whole"}
 
@@ -190,10 +193,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="video and warp on the duck, still and walking, ideal network")
     ap.add_argument("--hevc", action="store_true", help="also video with codec=hevc on the same grid")
     ap.add_argument("--methods", default=None, help="comma-separated subset of the methods")
+    ap.add_argument("--scenes", default=None, help=f"comma-separated subset of {','.join(SCENES)}")
+    ap.add_argument("--traces", default=None, help=f"comma-separated traces (default {','.join(TRACES)}; any built-in, e.g. orbit)")
+    ap.add_argument("--networks", default=None, help=f"comma-separated networks (default {','.join(NETWORKS)})")
     ap.add_argument("--store", type=Path, default=Path("out/bench_chroma"))
     ap.add_argument("--duration", type=float, default=1.0)
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--eq-steps", type=int, default=3, help="runs at most to find 4:4:4's equal-bits crf (1: the rule of thumb only)")
     ap.add_argument("--truth-cache", default="default", help="RunConfig.truth_cache (default: the user's cache)")
     ap.add_argument("--no-cost", action="store_true", help="skip the codec cost timings (encode and decode ms)")
     ap.add_argument("--out", type=Path, default=None,
@@ -205,6 +212,7 @@ def main() -> None:
     ns.width, ns.height = (int(v) for v in ns.size.split("x"))
     grid = QUICK if ns.quick else {"methods": METHODS, "scenes": tuple(SCENES), "traces": TRACES, "networks": NETWORKS}
     methods = tuple(ns.methods.split(",")) if ns.methods else grid["methods"]
+    grid = {**grid, **{k: tuple(str(getattr(ns, k)).split(",")) for k in ("scenes", "traces", "networks") if getattr(ns, k)}}
     arms = [(m, "h264") for m in methods] + ([("video", "hevc")] if ns.hevc else [])
     cells = [(m, codec, sc, tr, nw) for sc in grid["scenes"] for tr in grid["traces"] for nw in grid["networks"]
              for m, codec in arms]
@@ -226,7 +234,7 @@ def main() -> None:
                      "420": _scores(s420, CRF), "444": _scores(s444, CRF)})
         tried[cell] = [(CRF, colour_kbps(s444))]
     # 2. 4:4:4 at the 4:2:0 run's colour bits: the rule of thumb, then up to two secant steps
-    for _step in range(3):
+    for _step in range(ns.eq_steps):
         todo: dict[tuple[str, ...], float] = {}
         for r in rows:
             cell = (r["method"], r["codec"], r["scene"], r["trace"], r["network"])
@@ -259,7 +267,7 @@ def main() -> None:
 
     verdicts = summarise(rows, arms)
     cost = [] if ns.no_cost else codec_cost(((ns.width, ns.height),) if ns.quick else ((ns.width, ns.height), (1280, 720)))
-    doc = {"benchmark": "bench_chroma", "size": ns.size, "duration_s": ns.duration, "crf": CRF, "eq_tol": EQ_TOL,
+    doc = {"benchmark": "bench_chroma", "argv": sys.argv[1:], "commit": _commit(), "size": ns.size, "duration_s": ns.duration, "crf": CRF, "eq_tol": EQ_TOL,
            "quick": ns.quick, "scenes": {k: SCENES[k] for k in grid["scenes"]}, "rows": rows, "verdicts": verdicts,
            "codec_cost": cost,
            "machine": platform.machine(), "cpus": os.cpu_count(), "python": platform.python_version(),
@@ -272,6 +280,19 @@ def main() -> None:
     for c in cost:
         print(f"{c['size']:9s} {c['codec']:4s} {c['pix_fmt']}: encode {c['encode_ms']:6.2f} ms, decode {c['decode_ms']:6.2f} ms")
     print(f"-> {ns.out} ({doc['wall_s']:.0f} s)")
+
+
+def _commit() -> str:
+    """This checkout's commit (``+dirty`` with uncommitted changes), or '' outside git."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True).stdout
+        return head + ("+dirty" if dirty.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return ""
 
 
 def _delta(r: dict[str, Any], arm: str, key: str) -> float:
@@ -305,8 +326,25 @@ def summarise(rows: list[dict[str, Any]], arms: list[tuple[str, str]]) -> dict[s
         v["cells_444eq_model_better"] = sum(1 for r in rs if _delta(r, "444eq", "mean_model_psnr_db") > 0)
         v["cells_444eq_whole_better"] = sum(1 for r in rs if _delta(r, "444eq", "mean_psnr_db") > 0)
         v["pays_at_equal_bits"] = bool(v["444eq_median_d_model_db"] >= PAYS_DB and v["444eq_median_d_whole_db"] >= 0)
+        v["by_trace"] = {tr: _trace_verdict([r for r in rs if r["trace"] == tr]) for tr in dict.fromkeys(r["trace"] for r in rs)}
         out[f"{m}/{codec}"] = v
     return out
+
+
+def _trace_verdict(rs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One trace's cells (scenes x networks): median gains of 4:4:4 over 4:2:0 in model and whole-frame PSNR over all
+    frames and over the frames with content, at the same crf and at equal bits, and the bit ratio at the same crf."""
+    v: dict[str, Any] = {"cells": len(rs)}
+    for arm in ("444", "444eq"):
+        for key in ("mean_model_psnr_db", "mean_psnr_db", "mean_model_psnr_db_content", "mean_psnr_db_content"):
+            short = SHORT[key.removesuffix("_content")] + ("_content" if key.endswith("_content") else "")
+            v[f"{arm}_median_d_{short}_db"] = _median([_delta(r, arm, key) for r in rs])
+    v["444_median_total_kbps_ratio"] = _median([r["444"]["mean_kbps"] / r["420"]["mean_kbps"] for r in rs
+                                                if r["420"]["mean_kbps"] > 0])
+    v["444_median_colour_kbps_ratio"] = _median([r["444"]["colour_kbps"] / r["420"]["colour_kbps"] for r in rs
+                                                 if r["420"]["colour_kbps"] > 0])
+    v["pays_at_equal_bits"] = bool(v["444eq_median_d_model_db"] >= PAYS_DB and v["444eq_median_d_whole_db"] >= 0)
+    return v
 
 
 def print_table(rows: list[dict[str, Any]], verdicts: dict[str, Any]) -> None:
@@ -334,6 +372,12 @@ def print_table(rows: list[dict[str, Any]], verdicts: dict[str, Any]) -> None:
               f"bits x{v['444_median_colour_kbps_ratio']:.2f}   equal bits: model better in "
               f"{v['cells_444eq_model_better']}/{v['cells']}, whole in {v['cells_444eq_whole_better']}/{v['cells']} -> "
               f"{'4:4:4 pays' if v['pays_at_equal_bits'] else 'keep 4:2:0'}")
+        for tr, t in v.get("by_trace", {}).items():
+            print(f"  {tr:10s} model {f(t['444_median_d_model_db'], 5, 2)} | {f(t['444eq_median_d_model_db'], 5, 2)}   "
+                  f"(content {f(t['444_median_d_model_content_db'], 5, 2)} | {f(t['444eq_median_d_model_content_db'], 5, 2)})   "
+                  f"whole {f(t['444_median_d_whole_db'], 5, 2)} | {f(t['444eq_median_d_whole_db'], 5, 2)}   "
+                  f"bits x{t['444_median_total_kbps_ratio']:.3f} (colour x{t['444_median_colour_kbps_ratio']:.3f}) -> "
+                  f"{'4:4:4 pays' if t['pays_at_equal_bits'] else 'keep 4:2:0'}")
 
 
 if __name__ == "__main__":
