@@ -137,3 +137,21 @@ def background_stress(request):  # type: ignore[no-untyped-def]
     assert proc.returncode == 0, f"the background stress suite failed (exit {proc.returncode}):\n{text[-3000:]}"
     with open(os.path.join(out, "rows.pickle"), "rb") as f:
         return Path(out), pickle.load(f)
+
+
+def _rss_mb() -> float:
+    """This process's resident set size, MB (Linux /proc; NaN elsewhere)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
+@pytest.fixture
+def rss_mb():  # type: ignore[no-untyped-def]
+    """``rss_mb()``: this process's resident set size now, MB."""
+    return _rss_mb

@@ -10,6 +10,7 @@ import socket
 import struct
 import warnings
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -342,15 +343,7 @@ async def test_a_metadata_bomb_ends_only_that_session(monkeypatch: pytest.Monkey
     assert max(b - a for a, b in zip(times, times[1:])) < 1_000_000  # never stalled for a GOP
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
-
-
-async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carries_on(tmp_path: Path) -> None:
+async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carries_on(tmp_path: Path, rss_mb: Any) -> None:
     """Issue 32's first find, live: 3,000 valid Feedback messages (each listing 256 lost frames and the server
     timings) from one client grew the server by 514 MB.  Now the server process (this one) grows by less than
     16 MB over the flood, keeps at most ``ROWS_KEPT`` rows in memory (all 3,000 are in the session's
@@ -379,7 +372,7 @@ async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carri
                         welcome = ev
         (stream,) = [s.name for s in welcome.streams]
         flooder = next(s for s in server.sessions.values() if s.id == welcome.session_id)
-        rss0 = _rss_mb()
+        rss0 = rss_mb()
         for i in range(3000):
             writer.write(conn.send(Feedback(i, 1, 2, 3, 0, 0, {"render": 1, "encode": 2, "encoded_at": 3},
                                             {stream: i}, {stream: tuple(range(256 * i, 256 * i + 256))})))
@@ -390,7 +383,7 @@ async def test_a_feedback_flood_costs_the_server_little_and_a_good_session_carri
             if flooder.core is not None and flooder.core.counters["feedback"] >= 3000:
                 break
             await asyncio.sleep(0.02)
-        grown = _rss_mb() - rss0
+        grown = rss_mb() - rss0
         assert flooder.core is not None and flooder.core.counters["feedback"] == 3000
         assert len(flooder.feedback_rows) == ROWS_KEPT
         writer.write(conn.send(Feedback(3000, 1, 2, 3, 0, 0, {}, {}, {"made-up": (1,)})))
