@@ -9,13 +9,15 @@ from typing import Any
 import numpy as np
 
 from ...render.canvas import FullscreenPass, upload_image
-from ...scene.pose import Pose
+from ...scene.pose import CameraIntrinsics, Pose
 from ..base import ClientFrame, ClientHalf, DecodedUpdate
 from ..warp import SHADERS as WARP_SHADERS
 from ..warp.client import fill_holes
 from .config import QuadsConfig
-from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes
-from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
+from .gen import QuadSet
+from .mesh import ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, join_meshes
+from .server import outside_frustum
+from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,15 @@ class QuadsClient(ClientHalf):
         self._out_fbo = self.gl.framebuffer([self._out])
         self._pose0: Pose | None = None
         self._stats: dict[str, float] = {}
+        self._sky = QuadSet.empty()   # the background quads the client made for its reference set
+        self._wide_outs: dict[tuple[int, int, float], np.ndarray] = {}
+
+    def _wide_out(self, wide: CameraIntrinsics) -> np.ndarray:
+        """The wide view's pixels outside the main view (the only ones its set covers), kept per size."""
+        key = (wide.width, wide.height, wide.fov_y_deg)
+        if key not in self._wide_outs:
+            self._wide_outs[key] = outside_frustum(wide, self.intrinsics)
+        return self._wide_outs[key]
 
     def _origin(self, slot: int) -> tuple[int, int]:
         return (slot % self.cols) * self.slot_size[0], (slot // self.cols) * self.slot_size[1]
@@ -73,15 +84,28 @@ class QuadsClient(ClientHalf):
                 self.cache.set_reference(s.quads, pose, intr, ref_frame)
             elif s.kind == KIND_UPDATE and len(s.quads):
                 self.cache.apply_update(s.quads)
+        quasar_sky = self.config.variant == "quasar" and not self.config.background_quads
+        # QUASAR's slots hold each view's image whole: its lookups filter across quad borders as a mesh over the
+        # image would; QuadStream's clamp to each quad's own texels, so its packed and slot atlases look the same
+        clamp: ColourClamp = "view" if self.config.variant == "quasar" else "quad"
         parts = []
         if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
-            parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0)))
+            if quasar_sky and any(s.kind == KIND_REFERENCE for s in sets):   # the sky the reference set left out
+                self._sky = background_quads(self.cache.quads, self.cache.intr, self.config.params)
+            parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp))
+            if quasar_sky:
+                parts.append(build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"))
         for s in sets:
             if s.kind in CACHED_KINDS:
                 continue
             pose, intr = cams[s.camera]
-            org = self._origin(s.slot) if s.tex is None else s.tex - np.stack([s.quads.x, s.quads.y], axis=-1)
-            parts.append(build_mesh(s.quads, pose, intr, org))
+            if s.tex is None:
+                parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp))
+                if quasar_sky and s.kind == KIND_WIDE:   # the wide view's sky outside the main view
+                    sky = background_quads(s.quads, intr, self.config.hidden_params, self._wide_out(intr))
+                    parts.append(build_mesh(sky, pose, intr, self._origin(s.slot), "view"))
+            else:
+                parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad"))
         self._mesh.upload(*join_meshes(parts))
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
         self._pose0 = cams[0][0]

@@ -86,6 +86,11 @@ class QuadsConfig(MethodConfig):
       background included: flat merged quads may sit up to ``delta_flatten`` (0.2 m) off
       the surface, more than 2 % of a few metres, so those pixels went again in every
       residual frame (4x QUASAR's residual quads on ``benchmarks/peer_quasar.py``);
+    - ``background_quads`` (QUASAR): the visible layer's and the wide view's background (sky) pixels go on the
+      wire as quads on a far plane.  Off by default, as in QUASAR's code, where a background pixel has no valid
+      depth and makes no quad: the client makes those quads itself over the pixels its reference set (and each wide
+      set, outside the main view) leaves uncovered, so it draws the same sky for no bytes (on 2CylinderEngine at
+      320x180 they were 22-35 % of a reference frame's quads).  QuadStream's views keep theirs;
     - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
       this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
@@ -109,6 +114,7 @@ class QuadsConfig(MethodConfig):
     atlas: Atlas | None = None
     merge_scale: float = 1.0
     residual_mask: ResidualMask = "coverage"
+    background_quads: bool = False
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """Layers (the hidden ones dropped one by one: their quads unsent, their atlas slots black), then the

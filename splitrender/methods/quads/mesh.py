@@ -13,13 +13,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
-from .gen import QuadSet, corner_points
+from .config import QuadParams
+from .gen import QuadSet, corner_points, generate
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4
@@ -28,6 +29,7 @@ FAR_SCALE = 16.0
 distance along their source camera's axis, so seen from a camera turned towards its edge a wide view's (120
 degrees) background lies well beyond the far plane (1.6x it for a point 75 degrees off axis, seen 9 degrees
 closer) and would be clipped to a hole."""
+ColourClamp = Literal["quad", "view"]
 SUB_TRIANGLES = np.array([[s * 4 + a for a in tri] for s in range(4) for tri in ((0, 2, 1), (1, 2, 3))], np.uint32).ravel()
 """24 indices into a quad's 16 corners: two triangles per sub-quad (TL, BL, TR) and (TR, BL, BR)."""
 
@@ -58,6 +60,25 @@ def rasterize(index_map: np.ndarray, qs: QuadSet, first: int) -> None:
         ok = (ys < h) & (xs < w)
         idx = np.broadcast_to((first + sel)[:, None], ys.shape)
         index_map[ys[ok], xs[ok]] = idx[ok]
+
+
+def background_quads(qs: QuadSet, intr: CameraIntrinsics, params: QuadParams, region: np.ndarray | None = None
+                     ) -> QuadSet:
+    """The background quads a view's set would have carried (``generate(..., background=True)``): on the plane at
+    :data:`~.gen.BACKGROUND_FAR` of the far distance, over the pixels of ``region`` (all when ``None``) that no quad
+    of ``qs`` covers, merged with ``params``.  The client makes them itself when the server sends none
+    (``QuadsConfig.background_quads`` off, as QUASAR's code sends none), so its sky is drawn as before.  A merge never
+    joins background and geometry (their planes lie metres apart), so these are the quads the server would have
+    sent."""
+    index_map = np.full((intr.height, intr.width), -1, np.int64)
+    rasterize(index_map, qs, 0)
+    emit = index_map < 0
+    if region is not None:
+        emit &= region
+    if not emit.any():
+        return QuadSet.empty()
+    depth = np.full((intr.height, intr.width), np.inf)
+    return generate(depth, np.zeros((intr.height, intr.width, 3)), np.eye(3), intr, params, emit=emit, background=True)
 
 
 @dataclass
@@ -96,8 +117,8 @@ class ReferenceCache:
         return 0 if self.quads is None else len(self.quads)
 
 
-def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
+               clamp: ColourClamp = "quad") -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 10) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
     with ``z`` the corner's depth in the source camera, atlas pixel rect; indices (N*24,) uint32).
 
@@ -107,8 +128,14 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     The atlas position of a surface point is its projection in the source camera, a
     projective function of the point: ``(u z, v z, z)`` is affine in it, so interpolated
     perspective-correctly and divided per fragment it gives the exact atlas position from
-    any viewpoint (plain ``uv`` would bend across slanted quads).  The rect (the quad's pixels in the atlas) lets the fragment shader clamp its lookup, so
-    bilinear filtering never mixes in a neighbouring quad's colour."""
+    any viewpoint (plain ``uv`` would bend across slanted quads).
+
+    ``clamp``: the rect the fragment shader clamps its bilinear lookup to.  ``"view"`` (a slot: the quads' own
+    G-buffer lies whole in the atlas) is the source view's image, so the lookup filters across quad borders as a
+    mesh over the image would and never reads a neighbouring slot; ``"quad"`` (a packed atlas, whose neighbouring
+    texels belong to unrelated quads) is the quad's own pixels, which makes every one-pixel quad a flat
+    nearest-neighbour sample (on 2CylinderEngine+ground, orbit under cloud, 2 s, that cost QUASAR 1.1 dB on the
+    model, ``benchmarks/bench_quads_models.py``)."""
     if len(qs) == 0:
         return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
     pts, uv, ok = corner_points(qs, intr)
@@ -120,7 +147,10 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     org = np.broadcast_to(np.asarray(slot_origin, np.float64), (len(qs), 2))[ok]
     x0 = qs.x[ok].astype(np.float64) + org[:, 0]
     y0 = qs.y[ok].astype(np.float64) + org[:, 1]
-    rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
+    if clamp == "view":
+        rect = np.stack([org[:, 0], org[:, 1], org[:, 0] + intr.width, org[:, 1] + intr.height], axis=-1)
+    else:
+        rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
     v = np.empty((n, 16, VERTEX_FLOATS), np.float32)
     v[..., 0:3] = world
     zs = -pts[..., 2]

@@ -4,7 +4,8 @@
 
 1. the visible G-buffer at the predicted pose; on a **reference frame** (every
    ``reference_every`` frames, on a keyframe request, after a reported loss) its quads
-   (background included) are the client's new reference set, its colour atlas slot 0;
+   (its background too only with ``background_quads``: by default, as in QUASAR's code, the
+   client makes the sky's quads itself) are the client's new reference set, its colour atlas slot 0;
 2. on a **residual frame**: the G-buffer at the reference pose and the current time;
    pixels whose depth or normal changed since what the client holds get quads
    (``update``, cached by the client; the render's colour refreshes slot 0 for all
@@ -71,6 +72,13 @@ def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float, scale: float = 0.5
     """The wide G-buffer: ``fov_y_deg`` vertically at ``scale`` times the display's resolution (even sizes)."""
     return CameraIntrinsics(max(2, int(intr.width * scale / 2) * 2), max(2, int(intr.height * scale / 2) * 2), fov_y_deg,
                             intr.near_m, intr.far_m)
+
+
+def masked_colour(color: np.ndarray, emit: np.ndarray) -> np.ndarray:
+    """A masked slot's colour: ``color`` where ``emit`` and one pixel around it (the client's bilinear lookup
+    reaches half a texel past a quad's edge), black elsewhere."""
+    ring = binary_dilation(emit, structure=np.ones((3, 3), bool))
+    return np.where(ring[..., None], color, 0).astype(np.uint8)
 
 
 def outside_frustum(wide: CameraIntrinsics, main: CameraIntrinsics) -> np.ndarray:
@@ -187,13 +195,14 @@ class QuadsServer(ServerHalf):
             self._stats[f"hidden{k}_fragments"] = float(np.isfinite(g.depth).sum())
             self._stats[f"hidden{k}_kept"] = float(keep.sum())
             sets.append(WireSet(KIND_HIDDEN, first_slot + k - 1, cam, q))
-            self._place(atlas, first_slot + k - 1, np.where(keep[..., None], g.color, 0).astype(np.uint8))
+            self._place(atlas, first_slot + k - 1, masked_colour(g.color, keep))
             prev = g.depth
             if not np.isfinite(g.depth).any():
                 break
         if self.wide is not None:
             g = self._gbuffer(ctx, pose, self.wide, times)
-            q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], self.wide, hp, emit=self._wide_out, background=True)
+            q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], self.wide, hp, emit=self._wide_out,
+                         background=cfg.background_quads)
             self._account(times, q)
             sets.append(WireSet(KIND_WIDE, self.slots - 1, wide_cam, q))
             self._place(atlas, self.slots - 1, g.color)
@@ -213,7 +222,7 @@ class QuadsServer(ServerHalf):
         rot = pose.view_matrix()[:3, :3]
         p = cfg.params
         if reference:
-            q = generate(g0.depth, g0.normal, rot, intr, p, background=True)
+            q = generate(g0.depth, g0.normal, rot, intr, p, background=cfg.background_quads)
             self._account(times, q)
             self.cache.set_reference(q, pose, intr, ctx.frame_id)
             self._ref_depth, self._ref_normal = g0.depth.copy(), g0.normal.copy()
@@ -259,7 +268,7 @@ class QuadsServer(ServerHalf):
             qn = generate(g0.depth, g0.normal, rot, intr, p, emit=revealed, background=background)
             self._account(times, qn)
             sets.append(WireSet(KIND_REVEALED, 1, 0, qn))
-            self._place(atlas, 1, np.where(revealed[..., None], g0.color, 0).astype(np.uint8))
+            self._place(atlas, 1, masked_colour(g0.color, revealed))
             self._stats["changed_px"] = float(changed.sum())
             self._stats["revealed_px"] = float(revealed.sum())
             self._stats["freed"] = float(self.cache.freed)
@@ -301,7 +310,7 @@ class QuadsServer(ServerHalf):
             sets.append(WireSet(kind, v, v, q))
             cameras.append(encode_camera(vp, vi))
             if self.packed is None:
-                self._place(atlas, v, g.color if emit is None else np.where(emit[..., None], g.color, 0).astype(np.uint8))
+                self._place(atlas, v, g.color if emit is None else masked_colour(g.color, emit))
             colors.append(g.color)
             parts.append(build_mesh(q, vp, vi, (0, 0)))
         if self.packed is not None:
