@@ -1,0 +1,511 @@
+"""Study: the claims ledger (issue 50, part 3): the five papers' quantitative claims, each checked by runs.
+
+Each claim is data (:data:`CLAIMS`): the paper, where it says it, its words, its number and its setting, and the
+comparison rule: a measure built from named run configurations (:data:`RUNS`), a sign it should have and, where
+the paper gives a number, the range that number spans.  The study runs every configuration a claim needs in every
+cell (scene x camera) through the sweep executor (result store, truth cache, worker pool), computes the measure per
+cell and a verdict from them:
+
+- **holds**: the sign is right in every cell and our median lies within a factor of 2 of the paper's range;
+- **holds with another magnitude**: the sign is right in every cell, the median outside that band;
+- **does not hold**: the sign is wrong in at least one cell (the brief's rule: a claim that one method beats another
+  counts only where it holds on several real models and on a still camera as well as a moving one); the reason says
+  where it holds and where not.
+
+Scores are the model region's (``mean_model_*_content``: the loaded model, or the objects the default scene marks,
+over the frames with content), so a floor or the sky cannot stand in for the subject.  The cells: assimp's duck,
+TextureTransformTest and 2CylinderEngine (Debian's assimp-testmodels; absent ones are skipped) and the default scene
+without GI, each on the ``static`` trace (still) and the ``orbit`` trace (moving; fitted to a loaded model).  Claims
+about latency or motion look at the moving camera only (a still camera has nothing to predict or warp) and say so.
+
+``quick=True``: duck (or the default scene without it), the moving camera, 96x54, 0.3 s: a check of the machinery,
+not evidence.  Full: every cell at 320x180, 1 s.  The full run writes ``docs/claims.md`` (:data:`DOC`) in a source
+checkout; both write ``claims.md`` and ``claims.csv`` into the study's folder.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import statistics
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from ...tabular import write_csv
+from ..sections import Section
+from ._util import STUDY_SCENE, update_mean
+from .papers import MW60, MW120, QUASAR_T4, QUASAR_T1
+
+log = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[3]
+DOC: Path | None = ROOT / "docs" / "claims.md" if (ROOT / "docs").is_dir() else None
+"""Where the full run writes the ledger (a test may set it to None)."""
+
+ASSIMP = "/usr/share/assimp/models"
+MODELS = {"duck": f"{ASSIMP}/Collada/duck.dae",
+          "TextureTransformTest": f"{ASSIMP}/glTF2/textureTransform/TextureTransformTest.gltf",
+          "2CylinderEngine": f"{ASSIMP}/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"}
+CAMERAS = {"still": "static", "moving": "orbit"}
+
+#: the grid per mode (``GRID[quick]``); a test may replace entries
+GRID: dict[bool, dict[str, Any]] = {
+    True: {"size": (96, 54), "duration_s": 0.3, "scenes": ("duck",), "cameras": ("moving",), "workers": 2},
+    False: {"size": (320, 180), "duration_s": 1.0, "scenes": ("duck", "TextureTransformTest", "2CylinderEngine",
+                                                              "default"), "cameras": ("still", "moving"), "workers": 2},
+}
+
+# --- run configurations: name -> what differs from the base (server 30 Hz, client 60 Hz, ideal network) ---------
+QS = {"variant": "quadstream"}
+RUNS: dict[str, dict[str, Any]] = {
+    "video ideal": {"method": "video"},
+    "video cloud": {"method": "video", "network": "cloud"},
+    "video 100ms": {"method": "video", "network": "delay 100ms"},
+    "atw lan": {"method": "atw", "network": "lan"},
+    "atw cloud": {"method": "atw", "network": "cloud"},
+    "atw 100ms": {"method": "atw", "network": "delay 100ms"},
+    "atw 8Hz": {"method": "atw", "server_fps": 8},
+    "atw 500k": {"method": "atw", "params": {"bitrate_kbps": 500}},
+    "MW60 lan": {"method": "warp", "params": MW60, "network": "lan"},
+    "MW60 cloud": {"method": "warp", "params": MW60, "network": "cloud"},
+    "MW60 100ms": {"method": "warp", "params": MW60, "network": "delay 100ms"},
+    "MW60 8Hz": {"method": "warp", "params": MW60, "server_fps": 8},
+    "MW120 cloud": {"method": "warp", "params": MW120, "network": "cloud"},
+    "warp 30Hz": {"method": "warp"},
+    "warp 6Hz": {"method": "warp", "server_fps": 6},
+    "warp lan": {"method": "warp", "network": "lan"},
+    "warp cloud": {"method": "warp", "network": "cloud"},
+    "warp 2 views cloud": {"method": "warp", "params": {"views": 2}, "network": "cloud"},
+    "quasar lan": {"method": "quads", "network": "lan"},
+    "quasar cloud": {"method": "quads", "network": "cloud"},
+    "quadstream cloud": {"method": "quads", "params": QS, "network": "cloud"},
+    "sas ideal": {"method": "sas"},
+    "sas 100ms": {"method": "sas", "network": "delay 100ms"},
+    "sas 8Hz": {"method": "sas", "server_fps": 8},
+    "sas 500k": {"method": "sas", "params": {"bitrate_kbps": 500}},
+    "tss ideal": {"method": "tss"},
+    "pred none lan": {"method": "video", "network": "lan", "predictor": "none", "metrics": False},
+    "pred ca lan": {"method": "video", "network": "lan", "predictor": "ca", "metrics": False},
+    "pred none cloud": {"method": "video", "network": "cloud", "predictor": "none", "metrics": False},
+    "pred ca_savgol cloud": {"method": "video", "network": "cloud", "predictor": "ca_savgol", "metrics": False},
+}
+
+#: metric name -> (summary key, or ``updates:<column>`` for a mean over the updates; unit)
+METRICS: dict[str, tuple[str, str]] = {
+    "model PSNR": ("mean_model_psnr_db_content", "dB"),
+    "model DSSIM": ("mean_model_dssim_content", ""),
+    "kbit/s": ("steady_kbps", "kbit/s"),
+    "error pixels": ("mean_lab_err_pct_content", "%"),
+    "holes": ("mean_hole_pct_content", "%"),
+    "pose error": ("mean_pred_err_cm", "cm"),
+    "samples": ("updates:srv_samples", "samples"),
+}
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One quantitative claim of a paper and how it is checked.
+
+    The measure per cell is ``sum(coef * metric(run) for coef, run in terms)`` (``op="diff"``) or
+    ``metric(terms[0]) / metric(terms[1])`` (``op="ratio"``); it should lie ``above`` (or ``below``) ``threshold``.
+    ``paper_range`` is the paper's value of the same measure (lowest, highest over its scenes), None where it gives
+    a direction only."""
+
+    id: str
+    paper: str
+    where: str
+    text: str
+    paper_number: str
+    setting: str
+    metric: str
+    terms: tuple[tuple[float, str], ...]
+    op: str = "diff"
+    expect: str = "above"
+    threshold: float = 0.0
+    paper_range: tuple[float, float] | None = None
+    cameras: tuple[str, ...] = ("still", "moving")
+    why_cameras: str = ""
+
+    def runs(self) -> list[str]:
+        return [r for _, r in self.terms]
+
+
+def _t4(a: str, b: str, net: str) -> tuple[float, float]:
+    """The paper's table-4 PSNR difference ``a - b`` under ``net`` (lowest, highest over its four scenes)."""
+    d = [x[0] - y[0] for x, y in zip(_T4[(a, net)], _T4[(b, net)])]
+    return min(d), max(d)
+
+
+def _t4_drop(a: str, b: str) -> tuple[float, float]:
+    """How much more ``b`` loses than ``a`` from lan to cloud in table 4 (lowest, highest)."""
+    d = [(bl[0] - bc[0]) - (al[0] - ac[0]) for al, ac, bl, bc in
+         zip(_T4[(a, "lan")], _T4[(a, "cloud")], _T4[(b, "lan")], _T4[(b, "cloud")])]
+    return min(d), max(d)
+
+
+def _t4_loss(a: str) -> tuple[float, float]:
+    """How much ``a`` loses from lan to cloud in table 4 (lowest, highest over its four scenes)."""
+    d = [x[0] - y[0] for x, y in zip(_T4[(a, "lan")], _T4[(a, "cloud")])]
+    return min(d), max(d)
+
+
+def _num(r: tuple[float, float], unit: str, fmt: str = "+.2f") -> str:
+    """The paper's number, written from its range."""
+    return f"{r[0]:{fmt}} to {r[1]:{fmt}}{unit}"
+
+
+def _t1_ratio(net: str) -> tuple[float, float]:
+    """Table 1's position error without prediction over with it (lowest, highest over its scenes)."""
+    r = [float(wo.split()[0]) / float(w.split()[0]) for _, w, _, wo, _ in QUASAR_T1[net]]
+    return min(r), max(r)
+
+
+_T4: dict[tuple[str, str], list[tuple[float, float]]] = {
+    **QUASAR_T4,
+    # QUASAR table 4, the 50 cm view cell (our ``view_cell_m`` default): QuadStream and QUASAR ("Ours")
+    ("QS", "lan"): [(32.67, 0.925), (34.27, 0.948), (29.57, 0.922), (27.57, 0.871)],
+    ("QS", "cloud"): [(30.02, 0.906), (32.00, 0.937), (28.74, 0.908), (25.97, 0.846)],
+    ("QUASAR", "lan"): [(32.10, 0.919), (34.04, 0.947), (30.90, 0.931), (28.66, 0.882)],
+    ("QUASAR", "cloud"): [(29.94, 0.902), (30.94, 0.930), (29.65, 0.917), (27.38, 0.860)],
+}
+#: TSS table 4 per config (RL-p1..p3, VV-p1..p3): (LP, OS in, OS out samples in M, our DSSIM, SAS samples M, SAS DSSIM)
+TSS_T4: dict[str, tuple[float, float, float, float, float, float]] = {
+    "RL-p1": (8.2, 3.34, 1.70, 0.1208, 14.6, 0.1346), "RL-p2": (13.7, 5.44, 2.71, 0.1209, 13.6, 0.1478),
+    "RL-p3": (18.3, 7.31, 3.69, 0.1208, 18.6, 0.1813), "VV-p1": (5.2, 3.86, 1.30, 0.0711, 21.6, 0.0679),
+    "VV-p2": (8.4, 5.71, 1.87, 0.0712, 17.3, 0.0816), "VV-p3": (11.1, 7.20, 2.38, 0.0712, 20.2, 0.1526)}
+_TSS_DSSIM = (min(r[3] - r[5] for r in TSS_T4.values()), max(r[3] - r[5] for r in TSS_T4.values()))
+_TSS_SAMPLES = (min(sum(r[:3]) / r[4] for r in TSS_T4.values()), max(sum(r[:3]) / r[4] for r in TSS_T4.values()))
+#: image warping table 3, error pixels (%) at server:client 2:1 and 10:1 per application
+WARP_T3: dict[str, tuple[float, float]] = {"world-in-hand": (3.37, 3.54), "walk-through": (2.60, 2.73),
+                                            "particle": (0.81, 0.93)}
+_WARP_GROWTH = (min(b - a for a, b in WARP_T3.values()), max(b - a for a, b in WARP_T3.values()))
+_MOVING = ("moving",)
+_WHY_MOVING = "moving camera only: on a still one there is nothing to predict or to warp"
+_Q = "QUASAR (quasar-quad-geometry-streaming)"
+_S = "SAS (sas-shading-atlas-streaming)"
+_T = "TSS (tessellated-shading-streaming)"
+_W = "Image warping (image-warping-architecture)"
+_QT4 = "1920x1080, 1500-frame game traces, four scenes (Robot Lab, Sun Temple, Viking Village, San Miguel), server 30 Hz"
+
+CLAIMS: tuple[Claim, ...] = (
+    Claim("Q-T4-1", _Q, "table 4", "MeshWarp (60°) beats ATW at 20 ± 10 ms latency", _num(_t4("MW (60°)", "ATW", "lan"), " dB PSNR"),
+          f"{_QT4}, 20 ± 10 ms", "model PSNR", ((1, "MW60 lan"), (-1, "atw lan")), paper_range=_t4("MW (60°)", "ATW", "lan")),
+    Claim("Q-T4-2", _Q, "table 4", "MeshWarp (60°) beats ATW at 50 ± 20 ms latency", _num(_t4("MW (60°)", "ATW", "cloud"), " dB PSNR"),
+          f"{_QT4}, 50 ± 20 ms", "model PSNR", ((1, "MW60 cloud"), (-1, "atw cloud")),
+          paper_range=_t4("MW (60°)", "ATW", "cloud")),
+    Claim("Q-T4-3", _Q, "table 4 and section 4.3", "MeshWarp (120°) gives better quality than MeshWarp (60°) "
+          "(\"due to a higher shading rate in peripheral regions\")", _num(_t4("MW (120°)", "MW (60°)", "cloud"), " dB PSNR"),
+          f"{_QT4}, 50 ± 20 ms", "model PSNR", ((1, "MW120 cloud"), (-1, "MW60 cloud")),
+          paper_range=_t4("MW (120°)", "MW (60°)", "cloud")),
+    Claim("Q-T4-4", _Q, "table 4", "QUASAR beats MeshWarp (60°)", _num(_t4("QUASAR", "MW (60°)", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, "
+          "50 cm view cell", "model PSNR", ((1, "quasar cloud"), (-1, "MW60 cloud")),
+          paper_range=_t4("QUASAR", "MW (60°)", "cloud")),
+    Claim("Q-T4-5", _Q, "table 4", "QUASAR beats MeshWarp (120°)", _num(_t4("QUASAR", "MW (120°)", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, "
+          "50 cm view cell", "model PSNR", ((1, "quasar cloud"), (-1, "MW120 cloud")),
+          paper_range=_t4("QUASAR", "MW (120°)", "cloud")),
+    Claim("Q-T4-6", _Q, "table 4", "QuadStream beats MeshWarp (60°), \"particularly under higher latency\"",
+          _num(_t4("QS", "MW (60°)", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, 50 cm view cell", "model PSNR",
+          ((1, "quadstream cloud"), (-1, "MW60 cloud")), paper_range=_t4("QS", "MW (60°)", "cloud")),
+    Claim("Q-T4-7", _Q, "section 4.3", "QUASAR's quality is \"comparable to, and often exceeding, QuadStream\" "
+          "(here: no more than 1 dB below it)", _num(_t4("QUASAR", "QS", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, 50 cm view cell",
+          "model PSNR", ((1, "quasar cloud"), (-1, "quadstream cloud")), threshold=-1.0,
+          paper_range=_t4("QUASAR", "QS", "cloud")),
+    Claim("Q-T4-8", _Q, "section 4.3", "MeshWarp's quality \"significantly degrades with higher latency\" "
+          "(20 ± 10 -> 50 ± 20 ms)", _num(_t4_loss("MW (60°)"), " dB PSNR lost"), _QT4, "model PSNR",
+          ((1, "MW60 lan"), (-1, "MW60 cloud")), paper_range=_t4_loss("MW (60°)"), cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("Q-T4-9", _Q, "table 4", "ATW loses quality with latency (20 ± 10 -> 50 ± 20 ms)", _num(_t4_loss("ATW"), " dB PSNR lost"),
+          _QT4, "model PSNR", ((1, "atw lan"), (-1, "atw cloud")),
+          paper_range=_t4_loss("ATW"),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("Q-T4-10", _Q, "table 4 and section 4.3", "QUASAR loses less than MeshWarp (60°) from 20 ± 10 to 50 ± 20 ms "
+          "(measure: MeshWarp's loss minus QUASAR's)", _num(_t4_drop("QUASAR", "MW (60°)"), " dB"), f"{_QT4}, 50 cm view cell", "model PSNR",
+          ((1, "MW60 lan"), (-1, "MW60 cloud"), (-1, "quasar lan"), (1, "quasar cloud")),
+          paper_range=_t4_drop("QUASAR", "MW (60°)"), cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("Q-F12-1", _Q, "section 4.3 (fig. 12)", "\"doubling both FOV and resolution substantially increases data "
+          "rates by around 3-4x\" (MeshWarp 120° over 60°)", "3-4x", "fig. 12, averaged over both latencies",
+          "kbit/s", ((1, "MW120 cloud"), (1, "MW60 cloud")), op="ratio", threshold=1.0, paper_range=(3.0, 4.0)),
+    Claim("Q-F12-2", _Q, "section 4.3 (fig. 12)", "QuadStream's data rate is \"often an order of magnitude greater\" "
+          "than the other methods' (here: over QUASAR's)", "about 10x", "fig. 12, 50 cm view cell", "kbit/s",
+          ((1, "quadstream cloud"), (1, "quasar cloud")), op="ratio", threshold=1.0, paper_range=(10.0, 10.0)),
+    Claim("Q-F12-3", _Q, "section 4.3 (fig. 12)", "ATW \"achieves the smallest data rate\" (here: against MeshWarp 60°)",
+          "smallest of all", "fig. 12", "kbit/s", ((1, "atw cloud"), (1, "MW60 cloud")), op="ratio", expect="below",
+          threshold=1.0),
+    Claim("Q-F12-4", _Q, "section 4.3 (fig. 12)", "ATW \"achieves the smallest data rate\" (here: against QUASAR)",
+          "smallest of all", "fig. 12", "kbit/s", ((1, "atw cloud"), (1, "quasar cloud")), op="ratio", expect="below",
+          threshold=1.0),
+    Claim("Q-T1-1", _Q, "table 1", "pose prediction cuts the position error at 20 ± 10 ms (without over with)",
+          f"{_t1_ratio('lan')[0]:.2f}-{_t1_ratio('lan')[1]:.2f}x (e.g. 32 -> 9 cm)", "four game traces, kinematic prediction", "pose error",
+          ((1, "pred none lan"), (1, "pred ca lan")), op="ratio", threshold=1.0, paper_range=_t1_ratio("lan"),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("Q-T1-2", _Q, "table 1", "pose prediction with Savitzky-Golay smoothing cuts the position error at "
+          "50 ± 20 ms (without over with)", f"{_t1_ratio('cloud')[0]:.2f}-{_t1_ratio('cloud')[1]:.2f}x (e.g. 64 -> 53 cm)", "four game traces", "pose error",
+          ((1, "pred none cloud"), (1, "pred ca_savgol cloud")), op="ratio", threshold=1.0,
+          paper_range=_t1_ratio("cloud"), cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F13-1", _S, "fig. 13, section 5.6", "SAS keeps its quality under latency while image-based streaming "
+          "loses it (measure: video's loss from 0 to 100 ms minus SAS's)", "direction only (MSSIM curves)",
+          "server and client 120 Hz, 1920x1080, Robot Lab, Sponza, Viking Village", "model PSNR",
+          ((1, "video ideal"), (-1, "video 100ms"), (-1, "sas ideal"), (1, "sas 100ms")),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F13-2", _S, "fig. 13, section 5.6", "SAS beats MeshWarp under latency (\"the crossover point is already "
+          "at 20 ms\"; here at 100 ms)", "crossover at 20 ms", "server and client 120 Hz, 1920x1080", "model PSNR",
+          ((1, "sas 100ms"), (-1, "MW60 100ms")), cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F13-3", _S, "fig. 13, section 5.6", "SAS beats ATW under latency (here at 100 ms)", "crossover at 20 ms",
+          "server and client 120 Hz, 1920x1080", "model PSNR", ((1, "sas 100ms"), (-1, "atw 100ms")),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F14-1", _S, "fig. 14, section 5.7", "\"ATW cannot compete with the other methods quality-wise\" when the "
+          "server runs slower than the client (SAS against ATW, server 8 Hz)", "direction only (MSSIM curves)",
+          "server 7.5-60 Hz, client 120 Hz, zero latency", "model PSNR", ((1, "sas 8Hz"), (-1, "atw 8Hz")),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F14-2", _S, "fig. 14, section 5.7", "\"ATW cannot compete with the other methods quality-wise\" "
+          "(MeshWarp against ATW, server 8 Hz)", "direction only (MSSIM curves)",
+          "server 7.5-60 Hz, client 120 Hz, zero latency", "model PSNR", ((1, "MW60 8Hz"), (-1, "atw 8Hz")),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("S-F15-1", _S, "fig. 15, section 5.8", "\"Even at a bitrate of 10 Mbps, ATW is already beaten by the other "
+          "methods\" (SAS against ATW at a low bitrate: 500 kbit/s at our size)", "direction only (MSSIM curves)",
+          "5-80 Mbit/s at 1920x1080, zero latency", "model PSNR", ((1, "sas 500k"), (-1, "atw 500k"))),
+    Claim("T-T4-1", _T, "table 4, section 5.3", "TSS reaches better quality than SAS (lower DSSIM; measure: TSS's "
+          "DSSIM minus SAS's)", _num(_TSS_DSSIM, " DSSIM over its six configs", "+.4f"),
+          "1920x1080, Robot Lab and Viking Village, PVS configs p1-p3, 24 Mpix atlas", "model DSSIM",
+          ((1, "tss ideal"), (-1, "sas ideal")), expect="below", paper_range=_TSS_DSSIM),
+    Claim("T-T4-2", _T, "table 4, section 5.3", "\"SAS generates significantly more shading samples\" than TSS "
+          "(TSS's samples over SAS's)", f"{_TSS_SAMPLES[0]:.2f}-{_TSS_SAMPLES[1]:.2f}x over its six configs "
+          "(the table has TSS above SAS in three)", "1920x1080, Robot Lab and Viking Village, PVS configs p1-p3",
+          "samples", ((1, "tss ideal"), (1, "sas ideal")), op="ratio", expect="below", threshold=1.0,
+          paper_range=_TSS_SAMPLES),
+    Claim("W-T3-1", _W, "table 3", "error pixels (Lab dE > 20) grow as the server:client frame ratio grows "
+          "(measure: 10:1 minus 2:1, percentage points)", _num(_WARP_GROWTH, " pp over its three applications"),
+          "three applications, server:client 2:1 to 20:1", "error pixels", ((1, "warp 6Hz"), (-1, "warp 30Hz")),
+          paper_range=_WARP_GROWTH, cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("Q-43-1", _Q, "section 4.3", "MeshWarp's disocclusions \"become more frequent and pronounced\" with latency "
+          "(holes before filling, 50 ± 20 ms minus 20 ± 10 ms, percentage points)", "direction only",
+          _QT4, "holes", ((1, "warp cloud"), (-1, "warp lan")), cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("W-2V-1", _W, "section 3 (two reference views)", "a second reference view fills disocclusion holes "
+          "(holes with two views minus one, percentage points)", "direction only", "stereo pair of reference views",
+          "holes", ((1, "warp 2 views cloud"), (-1, "warp cloud")), expect="below", cameras=_MOVING,
+          why_cameras=_WHY_MOVING),
+    Claim("B-ATW-1", f"{_S}; {_Q}", "baselines", "ATW beats plain video under latency (rotational reprojection)",
+          "direction only", "50 ± 20 ms", "model PSNR", ((1, "atw cloud"), (-1, "video cloud")),
+          cameras=_MOVING, why_cameras=_WHY_MOVING),
+)
+
+
+# --- configurations ---------------------------------------------------------------------------------------------------
+def scene_path(name: str) -> str:
+    return STUDY_SCENE if name == "default" else MODELS[name]
+
+
+def available_scenes(names: Sequence[str]) -> list[str]:
+    return [n for n in names if n == "default" or os.path.isfile(MODELS[n])]
+
+
+def run_config(run: str, scene: str, camera: str, g: dict[str, Any], truth_cache: str = "") -> Any:
+    from ...sim.config import RunConfig
+
+    spec = RUNS[run]
+    w, h = g["size"]
+    return RunConfig(method=spec["method"], method_params=dict(spec.get("params", {})), scene=scene_path(scene),
+                     trace=CAMERAS[camera], network=spec.get("network", "ideal"), duration_s=g["duration_s"],
+                     width=w, height=h, server_fps=spec.get("server_fps", 30), client_fps=60,
+                     predictor=spec.get("predictor", "cv"), seed=0, flip_every=0,
+                     metrics=spec.get("metrics", True), truth_cache=truth_cache)
+
+
+def command(cfg: Any) -> str:
+    """The ``splitrender run`` line that reproduces ``cfg``."""
+    parts = ["splitrender run", f"--method {cfg.method}"]
+    for k, v in sorted(cfg.method_params.items()):
+        vs = f'"{v}"' if isinstance(v, str) else (str(v).lower() if isinstance(v, bool) else repr(v))
+        parts.append(f"--param {k}={vs}" if not isinstance(v, str) else f"--param '{k}={vs}'")
+    parts += [f"--scene {cfg.scene}", f"--trace {cfg.trace}", f"--network '{cfg.network}'",
+              f"--width {cfg.width}", f"--height {cfg.height}", f"--duration {cfg.duration_s:g}",
+              f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}"]
+    if cfg.predictor != "cv":
+        parts.append(f"--predictor {cfg.predictor}")
+    return " ".join(parts)
+
+
+# --- evaluation -------------------------------------------------------------------------------------------------------
+def measure(claim: Claim, values: dict[str, float]) -> float:
+    """The claim's measure from its runs' metric values (NaN when one is missing)."""
+    v = [values.get(r, math.nan) for _, r in claim.terms]
+    if claim.op == "ratio":
+        return v[0] / v[1] if v[1] not in (0.0,) and not math.isnan(v[1]) else math.nan
+    return float(sum(c * x for (c, _), x in zip(claim.terms, v)))
+
+
+def verdict(claim: Claim, cells: dict[str, float]) -> tuple[str, str, float]:
+    """(verdict, reason, median measure) from the measure per cell (``"scene / camera" -> value``)."""
+    ok = {k: (v > claim.threshold if claim.expect == "above" else v < claim.threshold)
+          for k, v in cells.items() if not math.isnan(v)}
+    missing = [k for k, v in cells.items() if math.isnan(v)]
+    if not ok:
+        return "not measured", "no cell gave a number" + (f" (missing: {', '.join(missing)})" if missing else ""), math.nan
+    med = statistics.median(cells[k] for k in ok)
+    rule = f"{'>' if claim.expect == 'above' else '<'} {claim.threshold:g}"
+    fails = [k for k, good in ok.items() if not good]
+    tail = f"; not measured in {', '.join(missing)}" if missing else ""
+    if fails:
+        holds = [k for k, good in ok.items() if good]
+        return ("does not hold", f"measure {rule} fails in {len(fails)} of {len(ok)} cells ({', '.join(fails)})"
+                + (f"; holds in {', '.join(holds)}" if holds else "") + tail, med)
+    if claim.paper_range is None:
+        return "holds", f"measure {rule} in all {len(ok)} cells; the paper gives no magnitude to compare" + tail, med
+    lo, hi = sorted(abs(x) for x in claim.paper_range)
+    if lo / 2 <= abs(med) <= 2 * max(hi, 1e-12):
+        return "holds", (f"measure {rule} in all {len(ok)} cells; median {med:.3g} within 2x of the paper's "
+                         f"{claim.paper_range[0]:.3g}..{claim.paper_range[1]:.3g}") + tail, med
+    return "holds with another magnitude", (f"measure {rule} in all {len(ok)} cells, but median {med:.3g} is more "
+                                            f"than 2x off the paper's {claim.paper_range[0]:.3g}.."
+                                            f"{claim.paper_range[1]:.3g}") + tail, med
+
+
+def _metric(store: Any, cfg: Any, metric: str) -> float:
+    key = METRICS[metric][0]
+    try:
+        if key.startswith("updates:"):
+            ups = store.load_updates(cfg.key())
+            return update_mean(ups, key.split(":", 1)[1])
+        v = store.load_summary(cfg).get(key)
+        return float(v) if v not in (None, "") else math.nan
+    except (OSError, IndexError, ValueError, TypeError):
+        return math.nan
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Run every configuration the claims need (cached in ``out_dir/store``) and evaluate the claims.
+
+    Returns (one row per claim and cell, one summary per claim keyed by id, under ``"claims"``) and the run info."""
+    from ...sim.truth import shared_cache_setting
+    from ..store import ResultStore
+    from ..sweep import run_configs
+
+    g = GRID[quick]
+    scenes = available_scenes(g["scenes"]) or ["default"]
+    cache = shared_cache_setting(out_dir)
+    need: dict[str, Any] = {}
+    for c in claims:
+        for sc in scenes:
+            for cam in (x for x in g["cameras"] if x in c.cameras):
+                for r in c.runs():
+                    cfg = run_config(r, sc, cam, g, cache)
+                    need.setdefault(cfg.key(), cfg)
+    store = ResultStore(out_dir / "store")
+    t0 = time.perf_counter()
+    res = run_configs(list(need.values()), store, workers=g["workers"])
+    elapsed = time.perf_counter() - t0
+    rows: list[dict[str, Any]] = []
+    for c in claims:
+        for sc in scenes:
+            for cam in (x for x in g["cameras"] if x in c.cameras):
+                cfgs = {r: run_config(r, sc, cam, g, cache) for r in c.runs()}
+                vals = {r: _metric(store, cfg, c.metric) for r, cfg in cfgs.items()}
+                rows.append({"claim": c.id, "scene": sc, "camera": cam, "metric": c.metric,
+                             "measure": measure(c, vals), **{f"value[{r}]": v for r, v in vals.items()},
+                             "commands": " ; ".join(f"{r}: {command(cfg)}" for r, cfg in cfgs.items()),
+                             "config_keys": " ".join(cfg.key() for cfg in cfgs.values())})
+    info = {"runs": len(need), "ran": len(res.ran), "cached": len(res.cached), "failures": len(res.failures),
+            "failed": [f.label for f in res.failures], "elapsed_s": elapsed, "scenes": scenes,
+            "cameras": list(g["cameras"]), "size": g["size"], "duration_s": g["duration_s"]}
+    return rows, info
+
+
+def ledger(claims: Sequence[Claim], rows: list[dict[str, Any]], info: dict[str, Any], quick: bool,
+           took_s: float) -> tuple[str, list[dict[str, Any]]]:
+    """The Markdown ledger and one summary row per claim (id, verdict, reason, median)."""
+    summary: list[dict[str, Any]] = []
+    w, h = info["size"]
+    when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    head = [
+        "# Claims ledger", "",
+        f"Generated by `splitrender study claims{' --quick' if quick else ''}` "
+        f"(`splitrender/experiments/studies/claims.py`) on {when} at commit {_git_commit()}, in {took_s:.0f} s: "
+        f"{info['runs']} runs ({info['ran']} run now, {info['cached']} from the study's result store, "
+        f"{info['failures']} failed) at {w}x{h}, {info['duration_s']:g} s each, server 30 Hz, client 60 Hz unless a "
+        f"run says otherwise, on {', '.join(info['scenes'])} x {', '.join(info['cameras'])} camera "
+        f"({', '.join(f'{k}: `{v}` trace' for k, v in CAMERAS.items() if k in info['cameras'])}). "
+        "Nothing below is typed by hand except each paper's claim (its words, number, setting and the comparison "
+        "rule, declared as data in the module); every number of ours and every verdict is computed from the runs.",
+        "",
+        "Verdicts: **holds** when the measure has the claimed sign in every cell (scene x camera) and its median is "
+        "within 2x of the paper's range; **holds with another magnitude** when the sign is right everywhere but the "
+        "median is outside that band; **does not hold** when the sign is wrong in any cell (a claim that one method "
+        "beats another counts only where it holds on several real models and on both camera kinds). Scores are the "
+        "model region's over the frames with content (`mean_model_*_content`). The paper's settings are large game "
+        "scenes at 1920x1080: compare directions and rough magnitudes, not absolute values.",
+        "",
+    ]
+    if quick:
+        head += ["**Quick run**: one scene, one camera, a tiny size and a fraction of a second; it checks the "
+                 "machinery and is not evidence.", ""]
+    if info["failed"]:
+        head += ["Failed runs: " + ", ".join(f"`{x}`" for x in info["failed"]), ""]
+    table = ["| claim | paper, where | claim | paper's number | verdict | our median |",
+             "|---|---|---|---|---|---|"]
+    detail: list[str] = []
+    counts: dict[str, int] = {}
+    for c in claims:
+        cells = {f"{r['scene']} / {r['camera']}": r["measure"] for r in rows if r["claim"] == c.id}
+        v, why, med = verdict(c, cells)
+        counts[v] = counts.get(v, 0) + 1
+        unit = METRICS[c.metric][1] if c.op == "diff" else "x"
+        summary.append({"claim": c.id, "paper": c.paper, "where": c.where, "verdict": v, "median": med,
+                        "reason": why, "metric": c.metric, "op": c.op, "cells": len(cells)})
+        table.append(f"| [{c.id}](#{c.id.lower()}) | {c.paper.split(' (')[0]}, {c.where} | {c.text} | "
+                     f"{c.paper_number} | **{v}** | {_fmt(med)} {unit} |")
+        measure_txt = (" + ".join(f"{'' if k == 0 else ''}{'-' if co < 0 else ''}{c.metric}[{r}]"
+                                  for k, (co, r) in enumerate(c.terms)).replace("+ -", "- ")
+                       if c.op == "diff" else f"{c.metric}[{c.terms[0][1]}] / {c.metric}[{c.terms[1][1]}]")
+        detail += [f"### {c.id}", "",
+                   f"- **Paper**: {c.paper}, {c.where}: {c.text}. Its number: {c.paper_number}. Its setting: {c.setting}.",
+                   f"- **Measure**: {measure_txt} ({unit}), expected {c.expect} {c.threshold:g}"
+                   + (f"; {c.why_cameras}" if c.why_cameras else "") + ".",
+                   f"- **Verdict**: **{v}**: {why}.", "",
+                   "| scene | camera | ours | " + " | ".join(f"{c.metric}[{r}]" for r in c.runs()) + " |",
+                   "|---|---|---|" + "---|" * len(c.runs())]
+        for r in (r for r in rows if r["claim"] == c.id):
+            detail.append(f"| {r['scene']} | {r['camera']} | {_fmt(r['measure'])} | "
+                          + " | ".join(_fmt(r[f'value[{x}]']) for x in c.runs()) + " |")
+        first = next((r for r in rows if r["claim"] == c.id), None)
+        if first:
+            detail += ["", "Reproduce (first cell; the other cells change `--scene` and `--trace`):", "", "```"]
+            detail += [x.split(": ", 1)[1] for x in first["commands"].split(" ; ")] + ["```"]
+        detail.append("")
+    tally = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+    text = "\n".join(head + [f"**{len(claims)} claims**: {tally}.", ""] + table + ["", "## Per claim", ""] + detail)
+    return text, summary
+
+
+def _fmt(v: Any) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "n/a"
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def run(out_dir: Path, quick: bool) -> Section:
+    """Run the claims' configurations, write ``claims.md`` and the CSVs into ``out_dir`` (and :data:`DOC` when full)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rows, info = evaluate(out_dir, quick)
+    text, summary = ledger(CLAIMS, rows, info, quick, time.perf_counter() - t0)
+    (out_dir / "claims.md").write_text(text + "\n")
+    cells_csv, claims_csv = out_dir / "claims_cells.csv", out_dir / "claims.csv"
+    write_csv(cells_csv, rows)
+    write_csv(claims_csv, summary)
+    if not quick and DOC is not None:
+        DOC.write_text(text + "\n")
+        log.info("claims study: wrote %s", DOC)
+    body = text.split("\n", 2)[2] if text.startswith("# ") else text
+    return Section("Claims ledger", body, [], [claims_csv, cells_csv])
