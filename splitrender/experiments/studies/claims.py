@@ -322,7 +322,7 @@ def command(cfg: Any) -> str:
         parts.append(f"--param {k}={vs}" if not isinstance(v, str) else f"--param '{k}={vs}'")
     parts += [f"--scene {cfg.scene}", f"--trace {cfg.trace}", f"--network '{cfg.network}'",
               f"--width {cfg.width}", f"--height {cfg.height}", f"--duration {cfg.duration_s:g}",
-              f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}"]
+              f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}", f"--flip-every {cfg.flip_every}"]
     if cfg.predictor != "cv":
         parts.append(f"--predictor {cfg.predictor}")
     return " ".join(parts)

@@ -1,0 +1,87 @@
+"""The claims ledger (issue 50, part 3): the verdict rule on numbers, and the quick study's ledger end to end."""
+
+from __future__ import annotations
+
+import math
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from splitrender.experiments.studies import claims
+from splitrender.experiments.store import read_csv
+
+VERDICTS = {"holds", "holds with another magnitude", "does not hold"}
+
+
+def _claim(**kw: object) -> claims.Claim:
+    base = dict(id="X-1", paper="P", where="table 1", text="a beats b", paper_number="+1 to +2 dB", setting="s",
+                metric="model PSNR", terms=((1, "a"), (-1, "b")), paper_range=(1.0, 2.0))
+    base.update(kw)
+    return claims.Claim(**base)  # type: ignore[arg-type]
+
+
+def test_measure_diff_and_ratio() -> None:
+    assert claims.measure(_claim(), {"a": 30.0, "b": 28.5}) == pytest.approx(1.5)
+    four = _claim(terms=((1, "a"), (-1, "b"), (-1, "c"), (1, "d")))
+    assert claims.measure(four, {"a": 30.0, "b": 25.0, "c": 31.0, "d": 29.0}) == pytest.approx(3.0)
+    ratio = _claim(op="ratio", threshold=1.0, terms=((1, "a"), (1, "b")))
+    assert claims.measure(ratio, {"a": 300.0, "b": 100.0}) == pytest.approx(3.0)
+    assert math.isnan(claims.measure(ratio, {"a": 300.0}))
+
+
+def test_verdict_rule() -> None:
+    c = _claim()
+    assert claims.verdict(c, {"duck / still": 1.2, "duck / moving": 1.8})[0] == "holds"
+    v, why, med = claims.verdict(c, {"duck / still": 5.0, "duck / moving": 6.0})
+    assert (v, med) == ("holds with another magnitude", 5.5) and "more than 2x off" in why
+    v, why, _ = claims.verdict(c, {"duck / still": 1.5, "engine / moving": -0.3})
+    assert v == "does not hold" and "fails in 1 of 2 cells (engine / moving)" in why and "holds in duck / still" in why
+    assert claims.verdict(_claim(paper_range=None), {"a / b": 0.01})[0] == "holds"
+    assert claims.verdict(_claim(expect="below"), {"a / b": -1.5})[0] == "holds"
+    assert claims.verdict(c, {"a / b": math.nan})[0] == "not measured"
+
+
+def test_claims_are_well_formed() -> None:
+    ids = [c.id for c in claims.CLAIMS]
+    assert len(ids) == len(set(ids)) >= 20
+    for c in claims.CLAIMS:
+        assert c.metric in claims.METRICS, c.id
+        assert all(r in claims.RUNS for r in c.runs()), c.id
+        assert c.op in ("diff", "ratio") and c.expect in ("above", "below"), c.id
+        assert c.op == "diff" or len(c.terms) == 2, c.id
+        assert set(c.cameras) <= set(claims.CAMERAS), c.id
+
+
+@pytest.mark.slow
+def test_quick_ledger(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(claims, "DOC", None)  # the quick run must not touch docs/claims.md
+    sec = claims.run(tmp_path, quick=True)
+    assert sec.title == "Claims ledger"
+    text = (tmp_path / "claims.md").read_text()
+    assert text.startswith("# Claims ledger\n") and "--quick" in text
+    summary = read_csv(tmp_path / "claims.csv")
+    assert [r["claim"] for r in summary] == [c.id for c in claims.CLAIMS]
+    for r in summary:  # every claim has a verdict computed from a number
+        assert r["verdict"] in VERDICTS, r
+        assert isinstance(r["median"], (int, float)) and math.isfinite(r["median"]), r
+        assert f"[{r['claim']}]" in text and f"**{r['verdict']}**" in text
+    cells = read_csv(tmp_path / "claims_cells.csv")
+    assert {r["claim"] for r in cells} == {c.id for c in claims.CLAIMS}
+    for r in cells:  # each row carries its runs' configs and commands
+        c = next(x for x in claims.CLAIMS if x.id == r["claim"])
+        keys = str(r["config_keys"]).split()
+        assert len(keys) == len(c.terms)
+        for k in keys:
+            assert (tmp_path / "store" / "runs" / k / "config.toml").is_file()
+        assert str(r["commands"]).count("splitrender run") == len(c.terms)
+    # the command reproduces the run: `splitrender run` with it gives the same config key
+    row = next(r for r in cells if r["claim"] == "B-ATW-1")
+    cmd = str(row["commands"]).split(" ; ")[1].split(": ", 1)[1]  # video cloud, the cheapest
+    out = tmp_path / "rerun"
+    argv = shlex.split(cmd)[2:]
+    subprocess.run([sys.executable, "-m", "splitrender.cli", "run", *argv, "--out", str(out)], check=True,
+                   capture_output=True, timeout=120)
+    assert str(read_csv(out / "summary.csv")[0]["config_key"]) == str(row["config_keys"]).split()[1]
