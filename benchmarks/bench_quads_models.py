@@ -1,0 +1,141 @@
+"""``quads`` against ``warp`` and ``atw`` on the model region of assimp models (issue 50, part 2).
+
+QUASAR's table 4 orders QUASAR > MeshWarp 120 > MeshWarp 60 > ATW.  This runs, per model (``+ground``, the fitted
+``orbit``, ``cloud``, 320x180, 2 s, the project's defaults otherwise), in virtual time:
+
+- ``atw``, ``warp`` (the baseline, measured in the same run), ``warp`` as the paper's MW 60
+  (``reconstruction=mesh fov_scale=1``) and MW 120 (``fov_scale=3 resolution_scale=2/3``: 120 degrees at twice the
+  display's resolution along each axis, as the paper's 3840x2160 for a 1080p client);
+- ``quads`` (``variant=quasar``) from this checkout and, with ``--before PATH`` (a ``git worktree`` of the commit
+  before the change), from that tree in the same run; ``--budget`` adds QUASAR with each stage of the error budget
+  turned off or to its ideal; ``--quadstream`` adds ``variant=quadstream`` (about 4 minutes a model here).
+
+Each configuration runs in its own process (``PYTHONPATH`` picks the tree).  Scores: the mean model-region PSNR over
+the displayed frames that show content (``model_psnr_content_db``; the runner's ``mean_model_psnr_db`` over all frames
+is kept too), bits, and for ``quads`` the quads per reference frame, how many of them are background quads and the
+reference frames' bytes as QUASAR counts them.
+
+Writes ``benchmarks/results/bench_quads_models.json``.
+Run: ``python benchmarks/bench_quads_models.py [--before /tmp/quads_before] [--budget] [--quadstream]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results" / "bench_quads_models.json"
+ASSIMP = Path("/usr/share/assimp/models")
+MODELS = {"2CylinderEngine": ASSIMP / "glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb",
+          "duck": ASSIMP / "Collada/duck.dae",
+          "Wuson": ASSIMP / "PLY/Wuson.ply"}
+SETTINGS = {"trace": "orbit", "network": "cloud", "duration_s": 2.0, "width": 320, "height": 180, "flip_every": 0}
+BASELINES = {"warp": ("warp", {}), "atw": ("atw", {}),
+             "MW60": ("warp", {"reconstruction": "mesh", "fov_scale": 1.0}),
+             "MW120": ("warp", {"reconstruction": "mesh", "fov_scale": 3.0, "resolution_scale": 2 / 3})}
+BUDGET = {   # QUASAR with one stage off or at its ideal
+    "flatten 0 (every quad keeps its offsets)": {"delta_flatten": 0.0, "relax": 1.0},
+    "no merging (one quad a pixel, offsets kept)": {"delta_sim": 0.0, "coarse_passes": 0, "relaxed_coarse_passes": 0,
+                                                    "delta_flatten": 0.0, "relax": 1.0},
+    "1 layer": {"layers": 1}, "4 layers": {"layers": 4},
+    "no wide view": {"wide_fov_deg": 0.0},
+    "lossless atlas": {"lossless": True},
+    "reference frames only": {"reference_every": 1},
+}
+
+CHILD = r"""
+import json, math, sys
+import numpy as np
+from splitrender.sim.config import RunConfig
+from splitrender.sim.runner import run
+a = json.loads(sys.argv[1])
+r = run(RunConfig(method=a["method"], method_params=a["params"], scene=a["scene"], truth_cache=a["truth_cache"], **a["settings"]))
+fr, s = r.frames, r.summary
+has = [f.get("update_frame_id", -1) != -1 for f in fr]
+mp = [f.get("model_psnr_db", math.nan) for f, h in zip(fr, has) if h]
+ups = r.updates
+ref = [u for u in ups if u.get("srv_reference") == 1.0]
+def mean(rows, k):
+    v = [u[k] for u in rows if k in u and u[k] == u[k]]
+    return float(np.mean(v)) if v else None
+print("RESULT " + json.dumps({
+    "model_psnr_content_db": float(np.nanmean(mp)) if mp else None, "mean_model_psnr_db": s.get("mean_model_psnr_db"),
+    "mean_psnr_db": s["mean_psnr_db"], "mean_kbps": s["mean_kbps"], "kbps_quads": s.get("kbps_quads"),
+    "content_frames": int(sum(has)), "frames": len(fr),
+    "quads_per_reference": mean(ref, "srv_quads_ref"), "quads_per_frame": mean(ups, "srv_quads"),
+    "quasar_bytes_reference": mean(ref, "srv_quasar_bytes"), "quasar_bytes": mean(ups, "srv_quasar_bytes"),
+    "reference_frames": len(ref)}))
+"""
+
+
+def one(tree: Path, scene: str, method: str, params: dict, truth_cache: str) -> dict:
+    """One run in its own process with ``tree`` on ``PYTHONPATH``; its numbers and wall seconds."""
+    arg = json.dumps({"method": method, "params": params, "scene": scene, "settings": SETTINGS, "truth_cache": truth_cache})
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-c", CHILD, arg], env=env, cwd=str(tree), capture_output=True, text=True)
+    line = [x for x in p.stdout.splitlines() if x.startswith("RESULT ")]
+    if p.returncode or not line:
+        raise RuntimeError(f"{method} {params} on {scene} failed:\n{p.stderr[-3000:]}")
+    out = json.loads(line[-1][7:])
+    out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+def commit_of(tree: Path) -> str:
+    r = subprocess.run(["git", "-C", str(tree), "rev-parse", "HEAD"], capture_output=True, text=True)
+    d = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--", "splitrender/methods/quads"],
+                       capture_output=True, text=True)
+    return r.stdout.strip() + (" + uncommitted quads changes" if d.stdout.strip() else "")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--models", default=",".join(MODELS), help=f"comma-separated, of {', '.join(MODELS)}")
+    ap.add_argument("--before", type=Path, help="a worktree of the commit before the change (QUASAR from it too)")
+    ap.add_argument("--budget", action="store_true", help="QUASAR with each stage of the error budget off or ideal")
+    ap.add_argument("--quadstream", action="store_true", help="QuadStream too (slow)")
+    ap.add_argument("--truth-cache", default="default")
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    ns = ap.parse_args()
+    missing = [m for m in ns.models.split(",") if not MODELS[m].exists()]
+    if missing:
+        sys.exit(f"bench_quads_models: assimp-testmodels is not installed ({', '.join(str(MODELS[m]) for m in missing)} missing)")
+    res: dict = {"machine": platform.platform(), "settings": SETTINGS, "scene_suffix": "+ground",
+                 "after": commit_of(ROOT), "before": commit_of(ns.before) if ns.before else None, "models": {}}
+    for name in ns.models.split(","):
+        scene = f"{MODELS[name]}+ground"
+        runs: dict = {}
+        todo = [(k, ROOT, m, p) for k, (m, p) in BASELINES.items()]
+        todo.append(("quasar", ROOT, "quads", {}))
+        if ns.before:
+            todo.append(("quasar before", ns.before, "quads", {}))
+        if ns.budget:
+            todo += [(f"quasar, {k}", ROOT, "quads", p) for k, p in BUDGET.items()]
+        if ns.quadstream:
+            todo.append(("quadstream", ROOT, "quads", {"variant": "quadstream"}))
+            if ns.before:
+                todo.append(("quadstream before", ns.before, "quads", {"variant": "quadstream"}))
+        for label, tree, method, params in todo:
+            r = one(tree, scene, method, params, ns.truth_cache)
+            r.update(method=method, params=params)
+            runs[label] = r
+            base = runs["warp"]["model_psnr_content_db"]
+            print(f"{name:16s} {label:48s} model {r['model_psnr_content_db']:6.2f} dB ({r['model_psnr_content_db'] - base:+.2f} "
+                  f"against warp)  frame {r['mean_psnr_db']:6.2f}  {r['mean_kbps']:8.0f} kbit/s  {r['wall_s']:5.0f} s",
+                  flush=True)
+            res["models"][name] = runs
+            ns.out.parent.mkdir(parents=True, exist_ok=True)
+            ns.out.write_text(json.dumps(res, indent=1))
+    print(f"wrote {ns.out}")
+
+
+if __name__ == "__main__":
+    main()
