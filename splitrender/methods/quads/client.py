@@ -91,7 +91,7 @@ class QuadsClient(ClientHalf):
         parts = []
         if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
             if quasar_sky and any(s.kind == KIND_REFERENCE for s in sets):   # the sky the reference set left out
-                self._sky = background_quads(self.cache.quads, self.cache.intr, self.config.params)
+                self._sky = background_quads(self.cache.quads, self.cache.intr)
             parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp))
             if quasar_sky:
                 parts.append(build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"))
@@ -102,7 +102,7 @@ class QuadsClient(ClientHalf):
             if s.tex is None:
                 parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp))
                 if quasar_sky and s.kind == KIND_WIDE:   # the wide view's sky outside the main view
-                    sky = background_quads(s.quads, intr, self.config.hidden_params, self._wide_out(intr))
+                    sky = background_quads(s.quads, intr, self._wide_out(intr))
                     parts.append(build_mesh(sky, pose, intr, self._origin(s.slot), "view"))
             else:
                 parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad"))

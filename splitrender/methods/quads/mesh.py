@@ -19,8 +19,7 @@ import numpy as np
 
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
-from .config import QuadParams
-from .gen import QuadSet, corner_points, generate
+from .gen import BACKGROUND_FAR, MAX_LEVEL, QuadSet, corner_points, encode_normals
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4
@@ -62,23 +61,43 @@ def rasterize(index_map: np.ndarray, qs: QuadSet, first: int) -> None:
         index_map[ys[ok], xs[ok]] = idx[ok]
 
 
-def background_quads(qs: QuadSet, intr: CameraIntrinsics, params: QuadParams, region: np.ndarray | None = None
-                     ) -> QuadSet:
-    """The background quads a view's set would have carried (``generate(..., background=True)``): on the plane at
-    :data:`~.gen.BACKGROUND_FAR` of the far distance, over the pixels of ``region`` (all when ``None``) that no quad
-    of ``qs`` covers, merged with ``params``.  The client makes them itself when the server sends none
-    (``QuadsConfig.background_quads`` off, as QUASAR's code sends none), so its sky is drawn as before.  A merge never
-    joins background and geometry (their planes lie metres apart), so these are the quads the server would have
-    sent."""
+def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | None = None) -> QuadSet:
+    """The background quads a view's set would have carried (``generate(..., background=True)``): over the pixels of
+    ``region`` (all when ``None``) that no quad of ``qs`` covers.  The client makes them itself when the server sends
+    none (``QuadsConfig.background_quads`` off, as QUASAR's code sends none), so its sky is drawn as before.
+
+    Every background pixel lies on the same plane (facing the eye at :data:`~.gen.BACKGROUND_FAR` of the far
+    distance, flat), so every merge of four present quads succeeds at any thresholds and the set is the quadtree of
+    the pixels: at each level the 2x2 blocks whose four children are present merge, the rest stay.  (``generate``
+    makes the same set, field for field, tested; this takes about 1 ms where it took 60-300 ms at 320x180.)"""
     index_map = np.full((intr.height, intr.width), -1, np.int64)
     rasterize(index_map, qs, 0)
-    emit = index_map < 0
+    present = index_map < 0
     if region is not None:
-        emit &= region
-    if not emit.any():
-        return QuadSet.empty()
-    depth = np.full((intr.height, intr.width), np.inf)
-    return generate(depth, np.zeros((intr.height, intr.width, 3)), np.eye(3), intr, params, emit=emit, background=True)
+        present &= region
+    theta, phi = encode_normals(np.array([0.0, 0.0, 1.0]))
+    levels, xs, ys = [], [], []
+    for level in range(MAX_LEVEL + 1):
+        h, w = present.shape[0] // 2, present.shape[1] // 2
+        if level < MAX_LEVEL and min(present.shape) >= 2 and present.any():
+            p = present[:2 * h, :2 * w]
+            merged = p[0::2, 0::2] & p[0::2, 1::2] & p[1::2, 0::2] & p[1::2, 1::2]
+            stay = present.copy()
+            stay[:2 * h, :2 * w] &= ~np.repeat(np.repeat(merged, 2, axis=0), 2, axis=1)
+        else:
+            merged, stay = np.zeros((h, w), bool), present
+        yy, xx = np.nonzero(stay)
+        levels.append(np.full(yy.size, level, np.uint8))
+        xs.append((xx << level).astype(np.uint16))
+        ys.append((yy << level).astype(np.uint16))
+        if not merged.any():
+            break
+        present = merged
+    lv = np.concatenate(levels)
+    n = lv.size
+    return QuadSet(lv, np.concatenate(xs), np.concatenate(ys), np.full(n, theta, np.uint8), np.full(n, phi, np.uint8),
+                   np.full(n, np.float32(BACKGROUND_FAR * intr.far_m), np.float32), np.ones(n, bool),
+                   np.zeros((0, 16), np.float16))
 
 
 @dataclass
