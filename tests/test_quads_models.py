@@ -79,8 +79,8 @@ def test_quasar_leads_warp_on_the_model_under_cloud(shared_run, model: Path, mar
     puts QUASAR ahead of MeshWarp.  Measured here: 2CylinderEngine 20.61 against 19.49 dB (+1.12), duck 28.84
     against 27.87 (+0.97); asserted: at least 0.6 dB ahead.  Before QUASAR's colour lookup filtered across quads
     (d2ead52^): -0.09 and +0.41, so both fail it.  Over the benchmark's 2 s at 60 Hz, and against MeshWarp 60/120:
-    ``benchmarks/results/bench_quads_models.json`` and docs/quasar.md.  24 s of CPU (89 s of wall time beside two
-    benchmarks on 2 cores)."""
+    ``benchmarks/results/bench_quads_models.json`` and docs/quasar.md.  The file takes about 20 s on 2 cores (89 s
+    beside two benchmarks)."""
     from splitrender.sim.runner import RunConfig
 
     def model_psnr(method: str) -> float:
