@@ -44,7 +44,8 @@ def test_hollow_feedback_parses_sparsely() -> None:
 
 
 def test_a_64_kb_flood_datagram_allocates_by_its_bytes() -> None:
-    """4.2 CPU s and +801 MB before; now the parse holds one small object per packet."""
+    """4.6 CPU s and +801 MB before (measured here; the issue measured 4.2 s); now the parse holds one small object
+    per packet and no per-status object."""
     data = _flood_datagram()
     tracemalloc.start()
     try:
@@ -53,7 +54,7 @@ def test_a_64_kb_flood_datagram_allocates_by_its_bytes() -> None:
     finally:
         tracemalloc.stop()
     assert len(packets) == 1600 and all(p.received == () for p in packets)  # type: ignore[union-attr]
-    assert peak < 2 * len(data) * 8, peak    # measured 0.5 MB: a few hundred bytes a packet, no per-status objects
+    assert peak < 400_000, peak    # measured 0.19 MB (tracemalloc is deterministic): ~125 bytes a packet
 
 
 def test_a_run_of_received_statuses_must_be_paid_for_in_bytes() -> None:
@@ -95,7 +96,7 @@ def test_recorder_works_by_arrivals_not_skipped_sequence_numbers() -> None:
     back = [p for w in wire for p in parse_rtcp(w)]
     assert back == fbs and sum(len(f.received) for f in fbs) == 4096
     assert len(fbs) == -(-4096 // 3)         # three arrivals 32,767 apart fill a packet (65,535 statuses)
-    assert peak < 4 * 1024 * 1024, peak      # measured ~1.3 MB: the packets themselves
+    assert peak < 1_600_000, peak            # measured 0.79 MB: the packets and their bytes
 
 
 @settings(max_examples=150, deadline=None)
@@ -180,8 +181,8 @@ async def test_five_flood_datagrams_cost_a_live_server_little_and_the_session_ru
         serve_task.cancel()
         await asyncio.gather(serve_task, return_exceptions=True)
     assert session.counters["rtcp_foreign"] == 5 and session.counters.get("rtcp_bad", 0) == 0
-    assert spent[0] < 0.05, spent    # the issue's bound is 1 CPU s; the handling is a few header reads
-    assert grown < 64, grown
+    assert spent[0] < 0.005, spent   # measured 0.06-0.07 ms (the issue's bound: 1 s); room for a GC pass
+    assert grown < 8, grown          # measured 0.1-0.3 MB (the issue's bound: 64 MB); the client decodes here too
     assert result.counters["frames_complete"] >= 30 * 4.0 / 3, result.counters
 
 
