@@ -527,15 +527,6 @@ class RetransmissionHistory:
         if seq in self._packets:
             self._resent_ms[seq] = now_ms
 
-    def answer(self, nack: GenericNack) -> list[RtpPacket]:
-        """Packets to resend for a NACK (those still in the history)."""
-        out = []
-        for seq in nack.lost:
-            p = self._packets.get(seq)
-            if p is not None:
-                out.append(p)
-        return out
-
 
 class KeyframeRateLimiter:
     """Answer PLIs / keyframe requests with an IDR at most once per ``min_interval_ms``.
