@@ -67,6 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "OUT/studies/NAME and the report is written again")
     p.add_argument("--quick", action="store_true", help="the studies' quick settings")
     p.add_argument("--timeout", type=float, default=3600.0, help="stop studies still running after this many seconds")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes for the studies that run a grid of runs (claims, papers; default 2)")
+    p.add_argument("--dask", default=None, metavar="ADDRESS",
+                   help="run those grids on a Dask cluster (tcp://host:8786) or 'local' for a LocalCluster, as sweeps do")
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_study"))
 
     p = sub.add_parser("run", help="one virtual-time run: writes frames.csv, updates.csv, summary.csv and config.toml")
@@ -79,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--client-fps", type=int, default=None)
     p.add_argument("--predictor", default=None, help="none, cv, ca, cv_savgol, ca_savgol, perfect")
     p.add_argument("--flip-every", type=int, default=None, help="score FLIP every n-th displayed frame (0 = never)")
+    p.add_argument("--ssim-sigma", type=float, default=None,
+                   help="SSIM's Gaussian window in pixels (default 1.5, Wang et al.; the SAS paper's figures use 2)")
+    p.add_argument("--no-metrics", dest="metrics", action="store_false", default=None,
+                   help="score nothing against the ground truth (pose errors, rates and timings only; much faster)")
     p.add_argument("--clients", type=int, default=None, help="sessions against one server (shared scene producer; default 1)")
     p.add_argument("--client-traces", default=None, help="comma-separated trace per client, cycled (default: --trace)")
     p.add_argument("--client-offset", type=float, default=None, help="client i starts i * this many seconds into its trace")
@@ -188,6 +196,7 @@ def main_run(ns: argparse.Namespace) -> int:
     for k, v in (("method", ns.method), ("network", ns.network), ("scene", ns.scene), ("trace", ns.trace), ("seed", ns.seed),
                  ("width", ns.width), ("height", ns.height), ("duration_s", ns.duration), ("server_fps", ns.server_fps),
                  ("client_fps", ns.client_fps), ("predictor", ns.predictor), ("flip_every", ns.flip_every),
+                 ("ssim_sigma", ns.ssim_sigma), ("metrics", ns.metrics),
                  ("clients", ns.clients), ("client_offset_s", ns.client_offset),
                  ("cost_model", ns.cost_model), ("cost_scale", ns.cost_scale), ("fec", ns.fec),
                  ("transport_cc", True if ns.adapt not in (None, "off") else ns.transport_cc), ("pacing", ns.pacing),

@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from splitrender.experiments.studies import papers
+from splitrender.experiments.studies._util import DASK_ENV, WORKERS_ENV
+from splitrender.sim.truth import ENV_VAR
 
 TINY = {
     "size": (160, 90), "duration_s": 0.3, "pred_duration_s": 0.4,
@@ -23,12 +25,13 @@ TINY = {
 def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, truth_cache: str) -> None:
     monkeypatch.setitem(papers.GRID, True, TINY)
     # the study's runs (all on the walk at 160x90, shown at 60 Hz) take their ground truth from the session's truth
-    # cache: rendered once for the seven scored runs here and shared with test_runner's (a hit is the same frame)
-    from splitrender.sim import runner
-
-    real_run = runner.run
-    monkeypatch.setattr(runner, "run", lambda cfg, *a, **kw: real_run(cfg.replace(truth_cache=truth_cache), *a, **kw))
+    # cache (the variable the demo and sweeps read): rendered once for the scored runs here and shared with
+    # test_runner's (a hit is the same frame); the grid runs on a Dask LocalCluster, as `study papers --dask local`
+    monkeypatch.setenv(ENV_VAR, truth_cache)
+    monkeypatch.setenv(DASK_ENV, "local")
     sec = papers.run(tmp_path, quick=True)
+    # 11 points, 9 runs: figure 14's 30 Hz points are figure 13's 0 ms runs (same config, one run)
+    assert "11 points from 9 distinct runs" in sec.text_md and "9 run now and 0 taken from" in sec.text_md, sec.text_md
     names = {p.name for p in sec.figures}
     assert names == {"papers_sas_fig13.png", "papers_sas_fig14.png", "papers_sas_fig15.png", "papers_quasar_t4.png",
                      "papers_quasar_t1.png"}
@@ -63,3 +66,16 @@ def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, trut
     for needle in ("SAS figure 13", "crossover point is already at 20 ms", "QUASAR table 4", "24.11 / 24.94 / 25.42 / 22.89",
                    "9 ± 6 / 46 cm", "runs as 8 Hz"):
         assert needle in sec.text_md, needle
+
+    # a second invocation (serial, no Dask) takes every run from the store and writes the same table
+    monkeypatch.delenv(DASK_ENV)
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    first = [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+    sec2 = papers.run(tmp_path, quick=True)
+    with open(sec2.tables[0]) as f:
+        again = [{k: v for k, v in r.items() if k != "wall_s"} for r in csv.DictReader(f)]
+    assert again == first
+    assert "0 run now and 9 taken from the study's result store" in sec2.text_md, sec2.text_md
+    # every row says how to reproduce it
+    assert all(r["command"].startswith("splitrender run --method ") and r["config_key"] for r in first)
+    assert any("--ssim-sigma 2" in r["command"] for r in first) and any("--no-metrics" in r["command"] for r in first)

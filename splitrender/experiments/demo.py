@@ -388,7 +388,8 @@ def main_demo(ns: argparse.Namespace) -> int:
 
 
 def main_study(ns: argparse.Namespace) -> int:
-    """``splitrender study NAME[,NAME]|all [--out DIR] [--quick] [--timeout S]``: the studies that set methods beside
+    """``splitrender study NAME[,NAME]|all [--out DIR] [--quick] [--timeout S] [--workers N] [--dask ADDRESS]``:
+    the studies that set methods beside
     their papers, each in its own process, into ``DIR/studies/<name>/``; the report of ``DIR`` (a demo's folder, or
     a folder of its own) is written again with them."""
     known = discover_studies()
@@ -398,6 +399,15 @@ def main_study(ns: argparse.Namespace) -> int:
         raise ConfigError(f"study: unknown study {', '.join(unknown) or '(none given)'}; available: all, {', '.join(known)}")
     if not ns.timeout > 0:
         raise ConfigError(f"study --timeout: must be > 0 s, got {ns.timeout}")
+    from .studies._util import DASK_ENV, WORKERS_ENV
+
+    workers, dask = getattr(ns, "workers", None), getattr(ns, "dask", None)
+    if workers is not None:
+        if workers < 1:
+            raise ConfigError(f"study --workers: must be at least 1, got {workers}")
+        os.environ[WORKERS_ENV] = str(workers)  # the study processes inherit it
+    if dask:
+        os.environ[DASK_ENV] = dask
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()

@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[3]
+"""The source checkout (where ``docs/`` and ``.git`` are, when the package runs from one)."""
+
+WORKERS_ENV = "SPLITRENDER_STUDY_WORKERS"
+DASK_ENV = "SPLITRENDER_STUDY_DASK"
+"""How the studies that run a grid through the sweep executor (claims, papers) run it: ``splitrender study
+--workers N --dask ADDRESS|local`` sets these for the study processes it starts."""
 
 STUDY_SCENE = "default+nogi"
 """The scene of the studies that set methods beside each other and beside their papers (sas, tss, warp, quads,
@@ -29,3 +40,59 @@ def save_figure(fig: Any, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def executor(default_workers: int = 2) -> dict[str, Any]:
+    """``run_configs`` keyword arguments for a study's grid: worker processes and a Dask address, from
+    :data:`WORKERS_ENV` and :data:`DASK_ENV` (``splitrender study --workers/--dask``), else ``default_workers``
+    local processes."""
+    from ...errors import ConfigError
+
+    w = os.environ.get(WORKERS_ENV, "").strip()
+    try:
+        workers = int(w) if w else default_workers
+    except ValueError:
+        raise ConfigError(f"{WORKERS_ENV}: expected a whole number of workers, got {w!r}") from None
+    if workers < 1:
+        raise ConfigError(f"{WORKERS_ENV}: expected at least 1 worker, got {workers}")
+    return {"workers": workers, "dask": os.environ.get(DASK_ENV, "").strip() or None}
+
+
+def run_command(cfg: Any) -> str:
+    """The ``splitrender run`` line that reproduces the virtual-time run ``cfg`` (a :class:`RunConfig`)."""
+    parts = ["splitrender run", f"--method {cfg.method}"]
+    for k, v in sorted(cfg.method_params.items()):
+        vs = f'"{v}"' if isinstance(v, str) else (str(v).lower() if isinstance(v, bool) else repr(v))
+        parts.append(f"--param {k}={vs}" if not isinstance(v, str) else f"--param '{k}={vs}'")
+    parts += [f"--scene {cfg.scene}", f"--trace {cfg.trace}", f"--network '{cfg.network}'",
+              f"--width {cfg.width}", f"--height {cfg.height}", f"--duration {cfg.duration_s:g}",
+              f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}", f"--flip-every {cfg.flip_every}"]
+    if cfg.predictor != "cv":
+        parts.append(f"--predictor {cfg.predictor}")
+    if cfg.ssim_sigma != 1.5:
+        parts.append(f"--ssim-sigma {cfg.ssim_sigma:g}")
+    if not cfg.metrics:
+        parts.append("--no-metrics")
+    return " ".join(parts)
+
+
+def git_commit() -> str:
+    """The checkout's short commit, or ``"unknown"``."""
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def append_history(path: Path, entry: dict[str, Any]) -> list[dict[str, Any]]:
+    """Append one invocation (what ran when, and how long the runs took) to the JSON list at ``path`` and return the
+    whole list, so a table rebuilt from stored runs still says what produced them."""
+    try:
+        hist = json.loads(path.read_text()) if path.is_file() else []
+    except ValueError:
+        hist = []
+    hist.append(entry)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(hist, indent=1))
+    return list(hist)

@@ -33,7 +33,6 @@ import logging
 import math
 import os
 import statistics
-import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,12 +40,11 @@ from typing import Any, Sequence
 
 from ...tabular import write_csv
 from ..sections import Section
-from ._util import STUDY_SCENE, update_mean
+from ._util import ROOT, STUDY_SCENE, append_history, executor, git_commit, run_command, update_mean
 from .papers import MW60, MW120, QUASAR_T4, QUASAR_T1
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[3]
 DOC: Path | None = ROOT / "docs" / "claims.md" if (ROOT / "docs").is_dir() else None
 """Where the full run writes the ledger (a test may set it to None)."""
 
@@ -323,18 +321,8 @@ def run_config(run: str, scene: str, camera: str, g: dict[str, Any], truth_cache
                      metrics=spec.get("metrics", True), truth_cache=truth_cache)
 
 
-def command(cfg: Any) -> str:
-    """The ``splitrender run`` line that reproduces ``cfg``."""
-    parts = ["splitrender run", f"--method {cfg.method}"]
-    for k, v in sorted(cfg.method_params.items()):
-        vs = f'"{v}"' if isinstance(v, str) else (str(v).lower() if isinstance(v, bool) else repr(v))
-        parts.append(f"--param {k}={vs}" if not isinstance(v, str) else f"--param '{k}={vs}'")
-    parts += [f"--scene {cfg.scene}", f"--trace {cfg.trace}", f"--network '{cfg.network}'",
-              f"--width {cfg.width}", f"--height {cfg.height}", f"--duration {cfg.duration_s:g}",
-              f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}", f"--flip-every {cfg.flip_every}"]
-    if cfg.predictor != "cv":
-        parts.append(f"--predictor {cfg.predictor}")
-    return " ".join(parts)
+command = run_command
+"""The ``splitrender run`` line that reproduces a run (kept under this name for the ledger's callers)."""
 
 
 # --- evaluation -------------------------------------------------------------------------------------------------------
@@ -384,30 +372,6 @@ def _metric(store: Any, cfg: Any, metric: str) -> float:
         return math.nan
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                              timeout=10).stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def _history(store_dir: Path, entry: dict[str, Any]) -> list[dict[str, Any]]:
-    """Append this invocation to ``store_dir/claims_history.json`` (what ran when, and how long the runs took) and
-    return the whole list, so a ledger rebuilt from stored runs still says what produced them."""
-    import json
-
-    p = store_dir / "claims_history.json"
-    try:
-        hist = json.loads(p.read_text()) if p.is_file() else []
-    except ValueError:
-        hist = []
-    hist.append(entry)
-    store_dir.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(hist, indent=1))
-    return list(hist)
-
-
 def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every configuration the claims need (cached in ``out_dir/store``) and evaluate the claims.
 
@@ -427,12 +391,12 @@ def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tu
                     cfg = run_config(r, sc, cam, g, cache)
                     need.setdefault(cfg.key(), cfg)
     store = ResultStore(out_dir / "store")
-    commit = _git_commit()  # the code that runs them (HEAD may move while they run)
+    commit = git_commit()  # the code that runs them (HEAD may move while they run)
     t0 = time.perf_counter()
     todo = [c for c in need.values() if RUN_MISSING or store.has(c)]
-    res = run_configs(todo, store, workers=g["workers"])
+    res = run_configs(todo, store, **executor(g["workers"]))
     elapsed = time.perf_counter() - t0
-    history = _history(out_dir / "store", {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    history = append_history(out_dir / "store" / "claims_history.json", {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                                            "commit": commit, "ran": len(res.ran), "cached": len(res.cached),
                                            "runs_s": round(elapsed, 1)})
     rows: list[dict[str, Any]] = []

@@ -40,7 +40,7 @@ from typing import Any, Callable
 
 from ...tabular import write_csv
 from ..sections import Section
-from ._util import STUDY_SCENE
+from ._util import STUDY_SCENE, append_history, executor, git_commit, run_command
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,7 @@ GRID: dict[bool, dict[str, Any]] = {
         "fig15_fps": (30, 60), "fig15_kbps": (500, 2000), "fig15_methods": ("sas", "atw", "video"),
         "t4_fps": (30, 60), "t4_networks": ("lan",), "t4_configs": tuple(T4_CONFIGS),
         "t1_networks": ("lan", "cloud"), "t1_predictors": ("none", "cv", "ca", "cv_savgol", "ca_savgol"),
+        "workers": 2,
     },
     False: {
         "size": (640, 360), "duration_s": 3.0, "pred_duration_s": None,
@@ -68,11 +69,12 @@ GRID: dict[bool, dict[str, Any]] = {
         "fig15_fps": (30, 120), "fig15_kbps": (500, 1000, 2000, 4000), "fig15_methods": ("sas", "warp", "atw", "video"),
         "t4_fps": (30, 60), "t4_networks": ("lan", "cloud"), "t4_configs": tuple(T4_CONFIGS),
         "t1_networks": ("lan", "cloud"), "t1_predictors": ("none", "cv", "ca", "cv_savgol", "ca_savgol"),
+        "workers": 2,
     },
 }
 
 COLUMNS = ("experiment", "label", "method", "network", "latency_ms", "server_fps", "client_fps", "bitrate_kbps",
-           "predictor", "psnr_db", "ssim", "kbps", "pred_err_cm", "pred_err_deg", "wall_s")
+           "predictor", "psnr_db", "ssim", "kbps", "pred_err_cm", "pred_err_deg", "wall_s", "config_key", "command")
 
 # --- the papers' numbers, quoted -------------------------------------------------------------------------------
 #: QUASAR table 4 (PSNR dB, SSIM) per scene: Robot Lab, Sun Temple, Viking Village, San Miguel
@@ -104,77 +106,30 @@ def _network(latency_ms: int) -> str:
     return "ideal" if latency_ms == 0 else f"delay {latency_ms}ms"
 
 
-class _Runner:
-    """Runs configs once each (identical configs across experiments are shared)."""
+def run_config(g: dict[str, Any], method: str, params: dict[str, Any], network: str, server_fps: int,
+               client_fps: int, ssim_sigma: float = 1.5, predictor: str = "cv", metrics: bool = True,
+               size: tuple[int, int] | None = None, duration_s: float | None | str = "grid", truth_cache: str = "") -> Any:
+    """One point's :class:`RunConfig` (``duration_s="grid"``: the grid's)."""
+    from ...sim.config import RunConfig
 
-    def __init__(self, g: dict[str, Any]) -> None:
-        from ...render.renderer import Renderer
-
-        self.g = g
-        self.renderer = Renderer()
-        self.cache: dict[str, dict[str, Any]] = {}
-        self.runs = 0
-
-    def __call__(self, method: str, params: dict[str, Any], network: str, server_fps: int, client_fps: int,
-                 ssim_sigma: float = 1.5, predictor: str = "cv", metrics: bool = True,
-                 size: tuple[int, int] | None = None, duration_s: float | None | str = "grid") -> dict[str, Any]:
-        from ...sim.config import RunConfig
-        from ...sim.runner import run
-
-        w, h = size or self.g["size"]
-        cfg = RunConfig(method=method, method_params=dict(params), scene=STUDY_SCENE, trace=TRACE, network=network,
-                        duration_s=self.g["duration_s"] if duration_s == "grid" else duration_s, width=w, height=h,
-                        server_fps=server_fps, client_fps=client_fps, predictor=predictor, seed=0, flip_every=0,
-                        metrics=metrics, ssim_sigma=ssim_sigma)
-        key = cfg.key()
-        if key not in self.cache:
-            t0 = time.perf_counter()
-            s = run(cfg, renderer=self.renderer).summary
-            self.runs += 1
-            self.cache[key] = {"psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"], "kbps": s["mean_kbps"],
-                               "pred_err_cm": s["mean_pred_err_cm"], "pred_err_deg": s["mean_pred_err_deg"],
-                               "wall_s": time.perf_counter() - t0}
-            log.info("papers study: %s %s %s %d/%d Hz -> %.2f dB, %.0f kbit/s", method, params, network, server_fps,
-                     client_fps, s["mean_psnr_db"], s["mean_kbps"])
-        return dict(self.cache[key])
+    w, h = size or g["size"]
+    return RunConfig(method=method, method_params=dict(params), scene=STUDY_SCENE, trace=TRACE, network=network,
+                     duration_s=g["duration_s"] if duration_s == "grid" else duration_s, width=w, height=h,
+                     server_fps=server_fps, client_fps=client_fps, predictor=predictor, seed=0, flip_every=0,
+                     metrics=metrics, ssim_sigma=ssim_sigma, truth_cache=truth_cache)
 
 
-def _save(fig: Any, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
-
-
-def _get(rows: list[dict[str, Any]], **kw: Any) -> dict[str, Any] | None:
-    return next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)
-
-
-def run(out_dir: Path, quick: bool) -> Section:
-    """Run the five experiments; write ``papers_results.csv`` and the charts into ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    g = GRID[quick]
-    go = _Runner(g)
-    rows: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
+def plan(g: dict[str, Any], truth_cache: str = "") -> list[dict[str, Any]]:
+    """Every point of the five experiments: its table columns and its run config under ``"cfg"``.  Points of
+    different experiments with the same config (same key) share one run."""
+    pts: list[dict[str, Any]] = []
 
     def add(exp: str, label: str, method: str, params: dict[str, Any], network: str, server_fps: int, client_fps: int,
-            **kw: Any) -> dict[str, Any]:
+            **kw: Any) -> None:
         extra = {k: kw.pop(k) for k in ("latency_ms", "bitrate_kbps") if k in kw}
-        r = {"experiment": exp, "label": label, "method": method, "network": network, "server_fps": server_fps,
-             "client_fps": client_fps, "predictor": kw.get("predictor", "cv"), **extra,
-             **go(method, params, network, server_fps, client_fps, **kw)}
-        rows.append(r)
-        return r
+        pts.append({"experiment": exp, "label": label, "method": method, "network": network, "server_fps": server_fps,
+                    "client_fps": client_fps, "predictor": kw.get("predictor", "cv"), **extra,
+                    "cfg": run_config(g, method, params, network, server_fps, client_fps, truth_cache=truth_cache, **kw)})
 
     # 1. SAS figure 13: quality against one-way latency
     s13, c13 = g["fig13_fps"]
@@ -203,10 +158,88 @@ def run(out_dir: Path, quick: bool) -> Section:
         for pr in g["t1_predictors"]:
             add("quasar_t1", pr, "video", {}, net, 30, 30, predictor=pr, metrics=False, size=(64, 36),
                 duration_s=g["pred_duration_s"])
+    return pts
+
+
+def _scores(store: Any, cfg: Any) -> dict[str, Any]:
+    """A stored run's figures for the table (NaN where the run failed or is missing)."""
+    try:
+        s = store.load_summary(cfg)
+    except (OSError, IndexError, ValueError):
+        s = {}
+
+    def num(k: str) -> float:
+        v = s.get(k)
+        try:
+            return float(v) if v not in (None, "") else math.nan
+        except (TypeError, ValueError):
+            return math.nan
+
+    return {"psnr_db": num("mean_psnr_db"), "ssim": num("mean_ssim"), "kbps": num("mean_kbps"),
+            "pred_err_cm": num("mean_pred_err_cm"), "pred_err_deg": num("mean_pred_err_deg")}
+
+
+def _save(fig: Any, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    fig.savefig(path.with_suffix(".svg"))
+    plt.close(fig)
+    return path
+
+
+def execute(out_dir: Path, g: dict[str, Any]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Run the grid's points that ``out_dir/store`` does not hold yet (one run per distinct config, through the sweep
+    executor: worker pool or Dask, the truth cache shared) and return a table row per point, with the run info."""
+    from ...sim.truth import shared_cache_setting
+    from ..store import ResultStore
+    from ..sweep import run_configs
+
+    pts = plan(g, shared_cache_setting(out_dir))
+    store = ResultStore(out_dir / "store")
+    ex = executor(g.get("workers", 2))
+    commit = git_commit()
+    t0 = time.perf_counter()
+    res = run_configs([p["cfg"] for p in pts], store, **ex)
+    runs_s = time.perf_counter() - t0
+    distinct = {p["cfg"].key() for p in pts}
+    history = append_history(out_dir / "store" / "papers_history.json", {
+        "utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit, "ran": len(res.ran),
+        "cached": len(res.cached), "failed": len(res.failures), "runs_s": round(runs_s, 1),
+        "workers": ex["workers"], "dask": ex["dask"] or ""})
+    rows = []
+    for p in pts:
+        cfg = p["cfg"]
+        wall = res.wall_s.get(cfg.key(), math.nan)
+        rows.append({**{k: v for k, v in p.items() if k != "cfg"}, **_scores(store, cfg), "wall_s": wall,
+                     "config_key": cfg.key(), "command": run_command(cfg)})
+    info = {"points": len(pts), "runs": len(distinct), "ran": len(res.ran), "cached": len(res.cached),
+            "failed": [f.label for f in res.failures], "runs_s": runs_s, "history": history, "commit": commit, **ex}
+    return rows, info
+
+
+def _get(rows: list[dict[str, Any]], **kw: Any) -> dict[str, Any] | None:
+    return next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)
+
+
+def run(out_dir: Path, quick: bool) -> Section:
+    """Run the five experiments; write ``papers_results.csv`` and the charts into ``out_dir``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    g = GRID[quick]
+    t0 = time.perf_counter()
+    rows, info = execute(out_dir, g)
     elapsed = time.perf_counter() - t0
+    (s13, c13), c14, (s15, c15) = g["fig13_fps"], g["fig14_client_fps"], g["fig15_fps"]
 
     table = out_dir / "papers_results.csv"
-    write_csv(table, ({k: r[k] for k in COLUMNS if k in r} for r in rows))
+    write_csv(table, ({k: r.get(k, "") for k in COLUMNS} for r in rows))
 
     figs: list[Path] = []
     markers = {"sas": "o", "warp": "s", "atw": "^", "video": "v"}
@@ -294,7 +327,7 @@ def run(out_dir: Path, quick: bool) -> Section:
         fig.suptitle(f"QUASAR table 1: pose prediction error on `{TRACE}` (ours)", fontsize=10)
         figs.append(_save(fig, out_dir / "papers_quasar_t1.png"))
 
-    text = _text(rows, g, quick, elapsed, go.runs)
+    text = _text(rows, g, quick, elapsed, info)
     return Section("The papers' figures (SAS figs. 13-15, QUASAR tables 1 and 4)", text, figs, [table])
 
 
@@ -321,15 +354,35 @@ def _method_table(rs: list[dict[str, Any]], key: str, values: list[Any], head: C
     return lines
 
 
-def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: float, nruns: int) -> str:
+def _history_text(hist: list[dict[str, Any]]) -> str:
+    parts = [f"{h.get('utc', '?')} at {h.get('commit', '?')}: {h.get('ran', 0)} run in {h.get('runs_s', 0):.0f} s"
+             f" ({h.get('cached', 0)} from the store{', on Dask ' + h['dask'] if h.get('dask') else ''}"
+             f"{', ' + str(h['workers']) + ' workers' if h.get('workers') and not h.get('dask') else ''})"
+             for h in hist[-4:]]
+    return "; ".join(parts)
+
+
+def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: float, info: dict[str, Any]) -> str:
     w, h = g["size"]
+    fails = info.get("failed", [])
     parts = [
         f"Our reproductions of figures and tables of the SAS (Mueller et al.) and QUASAR papers for the methods built "
         f"here, on the default scene's `{TRACE}` trace without GI (`{STUDY_SCENE}`) at {w}x{h}, {g['duration_s']:g} s per run"
-        f"{' (quick run: fewer points, client 60 Hz instead of 120 Hz, `warp` left out of figure 15)' if quick else ''}; {nruns} runs in "
-        f"{elapsed:.0f} s. The papers measure large game scenes at 1920x1080 for 1200-1500 frames; our scene is small "
-        "and procedural, so the shapes of the curves are what can be compared, not the absolute values. "
-        "SSIM in the SAS experiments uses the SAS paper's Gaussian window (sigma 2).",
+        f"{' (quick run: fewer points, client 60 Hz instead of 120 Hz, `warp` left out of figure 15)' if quick else ''}: "
+        f"{info['points']} points from {info['runs']} distinct runs (points of different figures with the same "
+        f"configuration share a run), {info['ran']} run now and {info['cached']} taken from the study's result store, "
+        f"in {elapsed:.0f} s" + (f"; **{len(fails)} failed**: {', '.join(fails)}" if fails else "") + ". "
+        "Runs go through the sweep executor (`splitrender study papers --workers N` or `--dask ADDRESS|local`), with "
+        "the ground truth of each client timeline rendered once into the truth cache. "
+        + (f"Invocations that filled the store: {_history_text(info['history'])}. " if info.get("history") else "")
+        + "The papers measure large game scenes at 1920x1080 for 1200-1500 frames; "
+        + ("" if quick else f"the full grid here keeps their rates, latencies, bitrate ladder shape and every method "
+           f"and configuration, and cuts the resolution ({w}x{h}: 1/9 of the pixels), the frames ({g['duration_s']:g} s, "
+           f"{int(round(g['duration_s'] * g['fig13_fps'][1]))} frames at {g['fig13_fps'][1]} Hz) and the scenes (one, "
+           "small and procedural, where the papers use three to four game scenes) to fit two hours on two cores. ")
+        + "the shapes of the curves are what can be compared, not the absolute values. SSIM in the SAS experiments "
+        "uses the SAS paper's Gaussian window (sigma 2). Each row of `papers_results.csv` carries its run's config key "
+        "and the `splitrender run` command that reproduces it.",
     ]
 
     def rows_of(exp: str) -> list[dict[str, Any]]:
