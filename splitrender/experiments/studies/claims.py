@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import shutil
 import statistics
 import time
 from dataclasses import dataclass
@@ -47,6 +48,8 @@ log = logging.getLogger(__name__)
 
 DOC: Path | None = ROOT / "docs" / "claims.md" if (ROOT / "docs").is_dir() else None
 """Where the full run writes the ledger (a test may set it to None)."""
+RESULTS_DIR: Path | None = ROOT / "docs" / "results" / "claims" if DOC is not None else None
+"""Where the full run copies the tables the ledger is built from (a row per claim, a row per claim and cell)."""
 
 ASSIMP = "/usr/share/assimp/models"
 MODELS = {"duck": f"{ASSIMP}/Collada/duck.dae",
@@ -515,7 +518,12 @@ def run(out_dir: Path, quick: bool) -> Section:
     write_csv(claims_csv, summary)
     if not quick and DOC is not None:
         DOC.write_text(text + "\n")
-        log.info("claims study: wrote %s", DOC)
+        hist = out_dir / "store" / "claims_history.json"
+        if RESULTS_DIR is not None:  # the tables the ledger is built from, beside it
+            RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+            for f in (claims_csv, cells_csv, *([hist] if hist.is_file() else [])):
+                shutil.copyfile(f, RESULTS_DIR / f.name)
+        log.info("claims study: wrote %s and %s", DOC, RESULTS_DIR)
     body = text.split("\n", 2)[2] if text.startswith("# ") else text
     body = body.replace("\n### ", "\n#### ").replace("\n## ", "\n### ")  # under the report's section heading
     return Section("Claims ledger", body, [], [claims_csv, cells_csv])
