@@ -66,7 +66,6 @@ COLOR_MATRIX_BT709 = 1
 COLOR_PRIMARIES_BT709 = 1
 COLOR_TRC_SRGB = 13        # IEC 61966-2-1
 COLOR_RANGE_FULL = 2       # AVCOL_RANGE_JPEG
-COLOR_RANGE_LIMITED = 1    # AVCOL_RANGE_MPEG
 # luma weights (Kr, Kb) per matrix code point; unspecified (2) decodes as BT.601, FFmpeg's default
 _KR_KB = {1: (0.2126, 0.0722), 5: (0.299, 0.114), 6: (0.299, 0.114), 2: (0.299, 0.114), 9: (0.2627, 0.0593), 10: (0.2627, 0.0593)}
 _YUV_FORMATS = {"yuv420p": 2, "yuvj420p": 2, "yuv444p": 1, "yuvj444p": 1}  # chroma subsampling factor

@@ -13,7 +13,7 @@ session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run.
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
-from .session import (ClientHandshake, ClientOptions, ClientSession, Resumed, ServerOptions, ServerSession, SessionEvent,
+from .session import (ClientHandshake, ClientOptions, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
                       SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
@@ -21,7 +21,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
 __all__ = [
-    "ClientHandshake", "ClientOptions", "ClientSession", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
+    "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",

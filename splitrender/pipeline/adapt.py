@@ -48,11 +48,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Literal
+from typing import Any, Iterable
 
 from ..errors import ConfigError
 
-AdaptMode = Literal["off", "rate", "full"]
 ADAPT_MODES: tuple[str, ...] = ("off", "rate", "full")
 
 

@@ -56,7 +56,7 @@ from .wire import EnvelopeError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClientHandshake", "ClientOptions", "ClientSession", "ServerOptions", "ServerSession", "SessionEvent",
+__all__ = ["ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
            "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -82,6 +82,38 @@ NACK_RATE_FLOOR_BYTES = 16_000
 stream can still repair a keyframe."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
+
+
+class PoseInbox:
+    """The server's one rule for the client's pose samples, in every front door (virtual time, live, browser).
+
+    A sample is taken when it is newer than the newest taken (the first always): the predictor observes it and it
+    becomes :attr:`latest` = (client seconds, pose, client µs, seq).  A duplicate or a reordered sample (the
+    browser's unordered channel, a resend) is dropped and counted in :attr:`stale`."""
+
+    def __init__(self, predictor: Any) -> None:
+        self.predictor = predictor
+        self.latest: tuple[float, Any, int, int] | None = None
+        self.received = 0
+        self.stale = 0
+
+    @property
+    def latest_t_s(self) -> float | None:
+        return None if self.latest is None else self.latest[0]
+
+    def newer(self, t_s: float) -> bool:
+        """Whether a sample measured at ``t_s`` would be taken."""
+        return self.latest is None or t_s > self.latest[0]
+
+    def offer(self, t_s: float, pose: Any, client_us: int = 0, seq: int = 0) -> bool:
+        """Take the sample if it is newer than the newest; returns whether it was taken."""
+        self.received += 1
+        if not self.newer(t_s):
+            self.stale += 1
+            return False
+        self.predictor.observe(t_s, pose)
+        self.latest = (t_s, pose, client_us, seq)
+        return True
 
 
 def shows_anything(rf: ReceivedFrame) -> bool:

@@ -126,13 +126,6 @@ def decompress_data(spec: DataStreamSpec, data: bytes) -> bytes:
     return bounded_zstd_decompress(data, spec.max_bytes, f"data stream {spec.name}")
 
 
-def stream_kind(spec: AnyStreamSpec) -> str:
-    """``video``, ``datagram`` or ``reliable``."""
-    if isinstance(spec, StreamSpec):
-        return "video"
-    return spec.delivery
-
-
 def rtp_format(spec: AnyStreamSpec) -> str:
     """The RTP payload format of a stream sent over RTP (``h264``, ``hevc`` or ``data``)."""
     return spec.codec.codec if isinstance(spec, StreamSpec) else "data"

@@ -119,11 +119,6 @@ class FrameDecoder:
         self.bytes_received = 0
         """Total bytes passed to :meth:`receive_data`."""
 
-    @property
-    def trailing_data(self) -> bytes:
-        """Buffered bytes not yet consumed."""
-        return bytes(self._buf)
-
     def receive_data(self, data: bytes) -> None:
         """Feed bytes from the transport; ``b""`` signals EOF."""
         if self._eof and data:

@@ -454,11 +454,3 @@ class SendHistory:
     def in_flight(self) -> int:
         """Packets sent and not yet reported."""
         return len(self._sent)
-
-
-def results_of(history: SendHistory, feedback: Iterable[TransportFeedback]) -> list[PacketResult]:
-    """Every :class:`PacketResult` of a batch of feedback, in order."""
-    out: list[PacketResult] = []
-    for fb in feedback:
-        out += history.on_feedback(fb)
-    return out

@@ -266,10 +266,6 @@ class LiveServer:
                 next_t += skipped * interval
             yield skipped
 
-    def scene_time_s(self, wall_s: float | None = None) -> float:
-        """Scene time (s) at wall-clock ``wall_s`` (default now)."""
-        return (time.time() if wall_s is None else wall_s) - self.epoch_wall_s
-
     # -- render workers ------------------------------------------------------------
 
     async def _new_worker(self) -> RenderWorker:

@@ -38,7 +38,7 @@ import numpy as np
 
 from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
+from splitrender.pipeline import (PoseInbox, ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
                                   rtp_timestamp, session_params)
 from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -137,7 +137,7 @@ class ServerSession:
         self.intrinsics: CameraIntrinsics | None = None
         self.display_hz = 60.0
         self._predictor: Any = None
-        self._latest_pose: tuple[float, ScenePose, int, int] | None = None  # wall s, pose, client µs, seq
+        self._poses: PoseInbox | None = None  # the client's pose samples (set up with the predictor)
         self._frame_id = 0
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
@@ -161,7 +161,8 @@ class ServerSession:
     def counters(self) -> dict[str, Any]:
         """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
         core = self.core.counters if self.core is not None else {}
-        return {**core, **self._counters}
+        poses = {} if self._poses is None else {"poses_received": self._poses.received, "poses_stale": self._poses.stale}
+        return {**core, **self._counters, **poses}
 
     @property
     def rtt_ms(self) -> float | None:
@@ -282,6 +283,7 @@ class ServerSession:
         self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
         self._predictor = make_predictor(cfg.predictor)
+        self._poses = PoseInbox(self._predictor)
         server = self.server
         hang = server.test_hang
         self.worker = await server.acquire_worker()
@@ -366,10 +368,8 @@ class ServerSession:
     def _on_pose(self, msg: Pose) -> None:
         t_s = msg.client_time_us / 1e6
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        if self._latest_pose is not None and t_s <= self._latest_pose[0]:
-            return  # duplicate or reordered sample
-        self._predictor.observe(t_s, pose)
-        self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
+        assert self._poses is not None
+        self._poses.offer(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered sample is dropped
 
     def _on_feedback(self, fb: Feedback) -> None:
         assert self.core is not None
@@ -401,7 +401,7 @@ class ServerSession:
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
                 self.log_metrics()
-            if self.client_addr is None or self._latest_pose is None:
+            if self.client_addr is None or self._poses is None or self._poses.latest is None:
                 continue  # no UDP path or no pose yet: nothing useful to send
             if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
                 self._counters["frames_skipped_backlog"] += 1
@@ -416,7 +416,7 @@ class ServerSession:
 
     async def _send_frame(self) -> None:
         server, intr, tx, core = self.server, self.intrinsics, self.tx, self.core
-        assert intr is not None and self._latest_pose is not None and self.client_addr is not None
+        assert intr is not None and self._poses is not None and self._poses.latest is not None and self.client_addr is not None
         assert tx is not None and core is not None
         fbs = core.fb
         wall = time.time()
@@ -431,7 +431,7 @@ class ServerSession:
         epoch = server.epoch_wall_s
         kf = core.keyframe_due(wall * 1000)
         expected = fbs.latency.value_s
-        pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
+        pose_wall, latest_pose, pose_us, pose_seq = self._poses.latest
         target_wall = wall + expected
         target_pose = self._predictor.predict(target_wall)
         target_t_s = target_wall - epoch

@@ -64,7 +64,7 @@ from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
+from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, PoseInbox, ProducerPool,
                         ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, SessionDataError, Stalled,
                         check_hello, rtp_timestamp, session_params, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
@@ -156,6 +156,7 @@ class _Client:
     arrivals: list[tuple[float, float]] = field(default_factory=list)
     arrival_idx: int = 0
     latest_pose_t: float = 0.0
+    poses: Any = None
     core_s: ServerSession | None = None
     """The server's session core (feedback, keyframes, NACK answers, sender reports)."""
     rtcp_up: Link | None = None
@@ -286,7 +287,8 @@ class VirtualTimeRun:
         make_current(self.renderer.ctx)
         c.fb = c.core_s.fb
         c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        c.predictor.observe(0.0, c.trace.pose_at(0.0))  # the Hello carries the first pose
+        c.poses = PoseInbox(c.predictor)
+        c.poses.offer(0.0, c.trace.pose_at(0.0))  # the Hello carries the first pose
         # upstream poses: precomputed deliveries (the uplink model is deterministic)
         for k in range(int(self.duration_s * cfg.tracker_hz) + 1):
             ts = k / cfg.tracker_hz
@@ -378,8 +380,7 @@ class VirtualTimeRun:
         for c in self.clients:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
                 ts = c.arrivals[c.arrival_idx][1]
-                if ts >= c.latest_pose_t:
-                    c.predictor.observe(ts, c.trace.pose_at(ts))
+                if c.poses.offer(ts, c.trace.pose_at(ts)):  # every front door's rule: newer than the newest taken
                     c.latest_pose_t = ts
                 c.arrival_idx += 1
             assert c.fb is not None and c.tx is not None

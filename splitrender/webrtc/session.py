@@ -35,6 +35,7 @@ import numpy as np
 from ..errors import describe_error
 from ..methods.base import StreamSpec, get_method, make_config
 from ..pipeline.feedback import FeedbackState
+from ..pipeline.session import PoseInbox
 from ..pipeline.sender import rtp_timestamp
 from ..protocol import Feedback
 from ..protocol.rtcp import KeyframeRateLimiter
@@ -117,7 +118,7 @@ class BrowserSession:
         self.fb = FeedbackState(req.display_hz, None)
         self._keyframes = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
         self._kf_owed = True            # the first frame is an IDR anyway
-        self._latest_pose: tuple[float, ScenePose, int, int] | None = None
+        self._poses = PoseInbox(self._predictor)  # the page's pose samples, by the rule every front door keeps
         self.pc: Any = None
         self.worker: Any = None
         self.track: EncodedVideoTrack | None = None
@@ -287,12 +288,9 @@ class BrowserSession:
 
     def _on_pose(self, msg: PoseSample) -> None:
         t_s = msg.client_time_us / 1e6
-        if self._latest_pose is not None and t_s <= self._latest_pose[0]:
-            return      # duplicate or reordered (the channel is unordered)
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        self._predictor.observe(t_s, pose)
-        self._latest_pose = (t_s, pose, msg.client_time_us, msg.seq)
-        self.counters["poses_received"] += 1
+        if self._poses.offer(t_s, pose, msg.client_time_us, msg.seq):  # a duplicate or reordered one counts as stale
+            self.counters["poses_received"] += 1
 
     def _on_feedback(self, msg: PageFeedback) -> None:
         self.counters["feedback_received"] += 1
@@ -371,7 +369,7 @@ class BrowserSession:
 
     def server_counters(self) -> dict[str, Any]:
         """The session's counters with the RTP sender's (packets and bytes sent, retransmissions)."""
-        out: dict[str, Any] = dict(self.counters, method=self.method)
+        out: dict[str, Any] = dict(self.counters, method=self.method, poses_stale=self._poses.stale)
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
         if self.sas is not None:
@@ -390,7 +388,7 @@ class BrowserSession:
     async def _frame_loop(self) -> None:
         async for skipped in self.server.frame_ticks():
             self.counters["frames_skipped_late"] += skipped
-            if (self._latest_pose is None or self.pc.connectionState != "connected"
+            if (self._poses.latest is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
                 if self._frame_id == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
                     raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
@@ -404,7 +402,7 @@ class BrowserSession:
 
     async def _send_frame(self) -> None:
         server, cfg = self.server, self.cfg
-        assert self._latest_pose is not None and self.track is not None
+        assert self._poses.latest is not None and self.track is not None
         wall = time.time()
         tick = max(server.tick_of(wall), self._last_tick + 1)
         self._last_tick = tick
@@ -413,7 +411,7 @@ class BrowserSession:
         now_ms = wall * 1000
         kf = self._kf_owed or self._keyframes.poll(now_ms)
         expected = self.fb.latency.value_s
-        pose_wall, latest_pose, pose_us, pose_seq = self._latest_pose
+        pose_wall, latest_pose, pose_us, pose_seq = self._poses.latest
         target_wall = wall + expected
         target_pose = self._predictor.predict(target_wall)
         from ..server.worker import WorkerTimeout

@@ -1,0 +1,40 @@
+"""The server's one pose rule (``PoseInbox``), which the runner, the live server and the browser session share."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+
+from splitrender.pipeline import PoseInbox
+from splitrender.scene.pose import Pose
+from splitrender.scene.predict import make_predictor
+
+
+def _pose(x: float) -> Pose:
+    return Pose(np.array([x, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def test_newer_samples_are_taken_duplicates_and_reordered_ones_counted() -> None:
+    inbox = PoseInbox(make_predictor("cv"))
+    assert inbox.latest is None and inbox.newer(0.0)
+    assert inbox.offer(0.0, _pose(0.0), 0, 1)
+    assert not inbox.offer(0.0, _pose(5.0), 0, 2)          # a duplicate time: dropped, even with another pose
+    assert inbox.offer(0.1, _pose(1.0), 100_000, 3)
+    assert not inbox.offer(0.05, _pose(9.0), 50_000, 4)    # reordered: older than the newest taken
+    assert inbox.latest is not None and inbox.latest[0] == 0.1 and inbox.latest[2:] == (100_000, 3)
+    assert (inbox.received, inbox.stale) == (4, 2)
+    # the predictor saw only the two taken samples: it extrapolates 10 m/s from them
+    assert np.allclose(inbox.predictor.predict(0.2).position, [2.0, 0.0, 0.0])
+
+
+def test_every_front_door_uses_it() -> None:
+    """The rule was written three times and the copies disagreed (issue 47): the runner took ``ts >= latest``."""
+    from splitrender.server import session as live
+    from splitrender.sim import runner
+    from splitrender.webrtc import session as browser
+
+    for mod in (runner, live, browser):
+        src = inspect.getsource(mod)
+        assert "PoseInbox(" in src and ".offer(" in src, mod.__name__
+        assert "<= self._latest_pose" not in src and ">= c.latest_pose_t" not in src, mod.__name__
