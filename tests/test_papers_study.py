@@ -79,3 +79,15 @@ def test_papers_study_tiny(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, trut
     # every row says how to reproduce it
     assert all(r["command"].startswith("splitrender run --method ") and r["config_key"] for r in first)
     assert any("--ssim-sigma 2" in r["command"] for r in first) and any("--no-metrics" in r["command"] for r in first)
+
+
+def test_run_command_reproduces_whole_trace_runs() -> None:
+    """A point with no duration (table 1's predictor runs: the whole trace) has a command without ``--duration``."""
+    from splitrender.experiments.studies._util import run_command
+
+    g = dict(papers.GRID[False])
+    pred = [p["cfg"] for p in papers.plan(g) if p["experiment"] == "quasar_t1"]
+    assert pred and all(c.duration_s is None for c in pred)
+    cmd = run_command(pred[0])
+    assert "--duration" not in cmd and "--no-metrics" in cmd and "--width 64 --height 36" in cmd, cmd
+    assert "--duration 3 " in run_command(papers.plan(g)[0]["cfg"])

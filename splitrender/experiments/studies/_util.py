@@ -65,7 +65,8 @@ def run_command(cfg: Any) -> str:
         vs = f'"{v}"' if isinstance(v, str) else (str(v).lower() if isinstance(v, bool) else repr(v))
         parts.append(f"--param {k}={vs}" if not isinstance(v, str) else f"--param '{k}={vs}'")
     parts += [f"--scene {cfg.scene}", f"--trace {cfg.trace}", f"--network '{cfg.network}'",
-              f"--width {cfg.width}", f"--height {cfg.height}", f"--duration {cfg.duration_s:g}",
+              f"--width {cfg.width}", f"--height {cfg.height}",
+              *([f"--duration {cfg.duration_s:g}"] if cfg.duration_s is not None else []),  # None: the whole trace
               f"--server-fps {cfg.server_fps}", f"--client-fps {cfg.client_fps}", f"--flip-every {cfg.flip_every}"]
     if cfg.predictor != "cv":
         parts.append(f"--predictor {cfg.predictor}")

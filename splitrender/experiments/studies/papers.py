@@ -26,8 +26,14 @@ SAS SSIM uses the paper's Gaussian window (sigma 2); QUASAR's rows use the defau
 ``quick=True``: 160x90, 0.4 s traces, client 60 Hz (server 30 Hz for figure 13),
 latency 0/50/100, server 8/30 Hz, two bitrates without ``warp``, ``lan`` only for
 table 4, 0.6 s predictor runs (about a minute on two cores).  Full: 640x360, 3 s traces, the paper's rates and the whole grid,
-the whole trace for the predictors.  The grid is module-level (``GRID``) so a test can
-shrink it.
+the whole trace for the predictors: 56 runs, 54 minutes on two cores with two workers.  The grid is module-level
+(``GRID``) so a test can shrink it.
+
+The points are planned up front (:func:`plan`) and run through the sweep executor (:func:`execute`): the study's result
+store under ``<out>/store`` (a second invocation runs only what changed; ``store/papers_history.json`` keeps what
+each invocation ran and how long), the truth cache, a pool of worker processes or a Dask cluster
+(``splitrender study papers --workers N --dask ADDRESS|local``).  The full run also publishes its section, charts
+and table in ``docs/results/papers/`` (:data:`DOC_DIR`) in a source checkout.
 """
 
 from __future__ import annotations
@@ -377,11 +383,13 @@ def _method_table(rs: list[dict[str, Any]], key: str, values: list[Any], head: C
 
 
 def _history_text(hist: list[dict[str, Any]]) -> str:
-    parts = [f"{h.get('utc', '?')} at {h.get('commit', '?')}: {h.get('ran', 0)} run in {h.get('runs_s', 0):.0f} s"
-             f" ({h.get('cached', 0)} from the store{', on Dask ' + h['dask'] if h.get('dask') else ''}"
-             f"{', ' + str(h['workers']) + ' workers' if h.get('workers') and not h.get('dask') else ''})"
-             for h in hist[-4:]]
-    return "; ".join(parts)
+    """The invocations that ran something (a rebuild from the store runs nothing and is left out)."""
+    parts = [f"{h.get('ran', 0)} runs in {h.get('runs_s', 0):.0f} s ({h.get('runs_s', 0) / 60:.1f} min) on "
+             + (f"Dask ({h['dask']})" if h.get("dask") else f"{h.get('workers', '?')} worker processes")
+             + f", {h.get('utc', '?')} at commit {h.get('commit', '?')}"
+             + (f", {h['cached']} already in the store" if h.get("cached") else "")
+             for h in hist if h.get("ran")]
+    return "; ".join(parts[-4:])
 
 
 def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: float, info: dict[str, Any]) -> str:
@@ -396,13 +404,14 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
         f"in {elapsed:.0f} s" + (f"; **{len(fails)} failed**: {', '.join(fails)}" if fails else "") + ". "
         "Runs go through the sweep executor (`splitrender study papers --workers N` or `--dask ADDRESS|local`), with "
         "the ground truth of each client timeline rendered once into the truth cache. "
-        + (f"Invocations that filled the store: {_history_text(info['history'])}. " if info.get("history") else "")
-        + "The papers measure large game scenes at 1920x1080 for 1200-1500 frames; "
-        + ("" if quick else f"the full grid here keeps their rates, latencies, bitrate ladder shape and every method "
+        + (f"**What the runs took**: {_history_text(info['history'])}. " if _history_text(info.get("history", []))
+           else "")
+        + "The papers measure large game scenes at 1920x1080 for 1200-1500 frames. "
+        + ("" if quick else f"The full grid here keeps their rates, latencies, bitrate ladder shape and every method "
            f"and configuration, and cuts the resolution ({w}x{h}: 1/9 of the pixels), the frames ({g['duration_s']:g} s, "
            f"{int(round(g['duration_s'] * g['fig13_fps'][1]))} frames at {g['fig13_fps'][1]} Hz) and the scenes (one, "
            "small and procedural, where the papers use three to four game scenes) to fit two hours on two cores. ")
-        + "the shapes of the curves are what can be compared, not the absolute values. SSIM in the SAS experiments "
+        + "The shapes of the curves are what can be compared, not the absolute values. SSIM in the SAS experiments "
         "uses the SAS paper's Gaussian window (sigma 2). Each row of `papers_results.csv` carries its run's config key "
         "and the `splitrender run` command that reproduces it.",
     ]
