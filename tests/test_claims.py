@@ -85,3 +85,25 @@ def test_quick_ledger(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     subprocess.run([sys.executable, "-m", "splitrender.cli", "run", *argv, "--out", str(out)], check=True,
                    capture_output=True, timeout=120)
     assert str(read_csv(out / "summary.csv")[0]["config_key"]) == str(row["config_keys"]).split()[1]
+
+
+def test_tss_claim_quotes_the_papers_protocol(tmp_path: Path) -> None:
+    """T-T4-1's evidence paragraph is built from the view-cell benchmark's JSON: the trend is named where ``sas``'s
+    DSSIM rises more than ``tss``'s from the first cell to the last."""
+    import json
+
+    def run(scene: str, cell: str, m: str, dssim: float, samples: float) -> dict[str, object]:
+        return {"scene": scene, "cell": cell, "run": m, "model_dssim": dssim, "samples": samples}
+
+    p = tmp_path / "cells.json"
+    p.write_text(json.dumps({"commit": "abc", "setting": "s", "cells": ["p0", "p3"], "runs": [
+        run("A", "p0", "sas", 0.01, 5e5), run("A", "p3", "sas", 0.06, 5e5), run("A", "p0", "tss", 0.05, 8e4),
+        run("A", "p3", "tss", 0.05, 3e5),
+        run("B", "p0", "sas", 0.002, 4e5), run("B", "p3", "sas", 0.003, 4e5), run("B", "p0", "tss", 0.009, 2e4),
+        run("B", "p3", "tss", 0.012, 2e4)]}))
+    text = claims.tss_viewcell_evidence(p)
+    assert "appears in A;" in text and "ahead of `sas` in A." in text, text
+    assert "| B | 0.0020 -> 0.0030 | 0.0090 -> 0.0120 | 400k -> 400k | 20k -> 20k | +0.0090 |" in text
+    assert claims.tss_viewcell_evidence(tmp_path / "absent.json") == ""
+    t41 = next(c for c in claims.CLAIMS if c.id == "T-T4-1")
+    assert t41.evidence is not None and "bench_tss_viewcells.py" in t41.evidence()
