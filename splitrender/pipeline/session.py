@@ -56,8 +56,8 @@ from .wire import EnvelopeError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
-           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
+__all__ = ["CLIENT_OPTION_RANGES", "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
+           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_client_option", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -82,6 +82,23 @@ NACK_RATE_FLOOR_BYTES = 16_000
 stream can still repair a keyframe."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
+
+
+CLIENT_OPTION_RANGES: dict[str, tuple[float, float]] = {
+    "nack_max_tries": (0, 20), "nack_delay_ms": (0.0, 2000.0), "nack_retry_ms": (1.0, 5000.0),
+    "pli_interval_ms": (1.0, 10_000.0), "rr_interval_s": (0.01, 60.0), "jitter_timeout_ms": (1.0, 10_000.0),
+    "playout_delay_ms": (0.0, 2000.0), "stall_frames": (1.0, 1000.0), "twcc_interval_ms": (10.0, 1000.0),
+}
+"""Each client session option's range, declared once: :class:`ClientOptions` checks it, and so do the command lines
+(``splitrender client``, ``run``) and ``RunConfig`` through :func:`check_client_option`."""
+
+
+def check_client_option(name: str, value: Any, label: str | None = None) -> None:
+    """Raise a :class:`ConfigError` naming ``label`` (default ``client <name>``) when ``value`` is outside the
+    option's range in :data:`CLIENT_OPTION_RANGES`."""
+    lo, hi = CLIENT_OPTION_RANGES[name]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+        raise ConfigError(f"{label or 'client ' + name}: must be in [{lo:g}, {hi:g}], got {value!r}")
 
 
 class PoseInbox:
@@ -403,22 +420,10 @@ class ClientOptions:
     """What the client accepts from the server (:mod:`splitrender.limits`)."""
 
     def __post_init__(self) -> None:
-        def check(name: str, lo: float, hi: float) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-                raise ConfigError(f"client {name}: must be in [{lo:g}, {hi:g}], got {v!r}")
-
         if not isinstance(self.nack_max_tries, int):
             raise ConfigError(f"client nack_max_tries: must be an integer, got {self.nack_max_tries!r}")
-        check("nack_max_tries", 0, 20)
-        check("nack_delay_ms", 0.0, 2000.0)
-        check("nack_retry_ms", 1.0, 5000.0)
-        check("pli_interval_ms", 1.0, 10_000.0)
-        check("rr_interval_s", 0.01, 60.0)
-        check("jitter_timeout_ms", 1.0, 10_000.0)
-        check("playout_delay_ms", 0.0, 2000.0)
-        check("stall_frames", 1.0, 1000.0)
-        check("twcc_interval_ms", 10.0, 1000.0)
+        for name in CLIENT_OPTION_RANGES:
+            check_client_option(name, getattr(self, name))
         if not (self.stall_timeout_s == math.inf or 0.1 <= self.stall_timeout_s <= 3600.0):
             raise ConfigError(f"client stall_timeout_s: must be in [0.1, 3600] or inf, got {self.stall_timeout_s!r}")
 
