@@ -23,8 +23,9 @@ not evidence.  Full: every cell at 320x180, 1 s.  The full run writes ``docs/cla
 checkout; both write ``claims.md``, ``claims.csv`` (a row per claim) and ``claims_cells.csv`` (a row per claim and
 cell: the measure, each run's value, its config key and its ``splitrender run`` command) into the study's folder.
 The runs stay in ``<out>/studies/claims/store``, so a second invocation only runs what changed; each invocation
-appends what it ran and how long to ``store/claims_history.json``, which the ledger's head quotes.  About 26 minutes
-of runs on two shared cores for the full grid (164 runs).
+appends what it ran and how long to ``store/claims_history.json``, which the ledger's head quotes.  About 28 minutes
+of runs on two shared cores for the full grid (188 runs).  ``probes`` runs (the DDGI claims) take the scene with its GI:
+a model with ``+gi``, the default scene as it is.
 """
 
 from __future__ import annotations
@@ -71,6 +72,9 @@ GRID: dict[bool, dict[str, Any]] = {
 # --- run configurations: name -> what differs from the base (server 30 Hz, client 60 Hz, ideal network) ---------
 QS = {"variant": "quadstream"}
 RUNS: dict[str, dict[str, Any]] = {
+    "probes": {"method": "probes", "gi": True},
+    "probes 30Hz": {"method": "probes", "gi": True, "params": {"gi_hz": 30.0}},
+    "probes all": {"method": "probes", "gi": True, "params": {"pvs": "all"}},
     "video ideal": {"method": "video"},
     "video cloud": {"method": "video", "network": "cloud"},
     "video 100ms": {"method": "video", "network": "delay 100ms"},
@@ -112,6 +116,7 @@ METRICS: dict[str, tuple[str, str]] = {
     "holes": ("mean_hole_geom_pct_content", "%"),  # holes where the truth shows geometry (not the frame's border)
     "pose error": ("mean_pred_err_cm", "cm"),
     "samples": ("updates:srv_samples", "samples"),
+    "visibility over colour": ("ratio:kbps_vis/kbps_color", "x"),  # probes: one run's two probe streams
 }
 
 
@@ -138,6 +143,9 @@ class Claim:
     paper_range: tuple[float, float] | None = None
     cameras: tuple[str, ...] = ("still", "moving")
     why_cameras: str = ""
+    scenes: tuple[str, ...] | None = None
+    """The cells' scenes this claim is checked on (None: every scene of the grid); ``why_scenes`` says why."""
+    why_scenes: str = ""
     evidence: Callable[[], str] | None = None
     """Builds a paragraph from a committed benchmark result that runs the paper's own protocol, where our verdict
     needs it (printed under the claim; empty when the result is absent)."""
@@ -201,6 +209,7 @@ _Q = "QUASAR (quasar-quad-geometry-streaming)"
 _S = "SAS (sas-shading-atlas-streaming)"
 _T = "TSS (tessellated-shading-streaming)"
 _W = "Image warping (image-warping-architecture)"
+_D = "DDGI light probe streaming (light-probe-streaming)"
 _QT4 = "1920x1080, 1500-frame game traces, four scenes (Robot Lab, Sun Temple, Viking Village, San Miguel), server 30 Hz"
 
 CLAIMS: tuple[Claim, ...] = (
@@ -304,6 +313,22 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("B-ATW-1", f"{_S}; {_Q}", "baselines", "ATW beats plain video under latency (rotational reprojection)",
           "direction only", "50 ± 20 ms", "model PSNR", ((1, "atw cloud"), (-1, "video cloud")),
           cameras=_MOVING, why_cameras=_WHY_MOVING),
+    Claim("D-F6-1", _D, "figure 6", "visibility data takes more of the bandwidth than colour (\"color textures ... "
+          "contribute less to the overall consumed bandwidth than visibility data\"; measure: the visibility "
+          "stream's kbit/s over the colour stream's, both lossless HEVC)", "more (the raw visibility texture is "
+          "3.24x the colour texture, section 3.2)", "2-8k probes at 10-30 Hz, three game scenes",
+          "visibility over colour", ((1, "probes"),), threshold=1.0),
+    Claim("D-F6-2", _D, "figure 6", "the consumed bandwidth grows with the GI update rate (measure: kbit/s at 30 Hz "
+          "over 10 Hz)", "grows over 10, 20 and 30 Hz in every scene", "full volume encoding, three game scenes",
+          "kbit/s", ((1, "probes 30Hz"), (1, "probes")), op="ratio", threshold=1.0, scenes=("default",),
+          why_scenes="the default scene only: its lights change, so its probes do; a loaded model with GI added "
+          "(`+gi`) has no moving light or object, so after the first update no probe changes, change thresholding "
+          "sends none at any rate, and the rate cannot show (the models' runs stay in the study's store)"),
+    Claim("D-34-1", _D, "section 3.4", "user-dependent probe selection lowers the bandwidth (measure: kbit/s sending "
+          "the probes that light what the client can see over sending every active probe)", "direction only "
+          "(the paper's selection strategies together with compression: 10-100x against uncompressed data)",
+          "per-client selection, three game scenes", "kbit/s", ((1, "probes"), (1, "probes all")), op="ratio",
+          expect="below", threshold=1.0),
 )
 
 
@@ -353,8 +378,12 @@ def tss_viewcell_evidence(path: Path = TSS_VIEWCELLS) -> str:
             "`docs/methods.md` (tss, \"The paper's protocol\") takes apart.\n\n" + "\n".join(lines))
 
 
-def scene_path(name: str) -> str:
-    return STUDY_SCENE if name == "default" else MODELS[name]
+def scene_path(name: str, gi: bool = False) -> str:
+    """The cell's scene: the default scene without GI (the studies' scene), or a model; with ``gi`` (``probes``,
+    whose subject is the GI) the default scene as it is, or the model with GI added (``+gi``)."""
+    if name == "default":
+        return "default" if gi else STUDY_SCENE
+    return MODELS[name] + ("+gi" if gi else "")
 
 
 def available_scenes(names: Sequence[str]) -> list[str]:
@@ -366,7 +395,7 @@ def run_config(run: str, scene: str, camera: str, g: dict[str, Any], truth_cache
 
     spec = RUNS[run]
     w, h = g["size"]
-    return RunConfig(method=spec["method"], method_params=dict(spec.get("params", {})), scene=scene_path(scene),
+    return RunConfig(method=spec["method"], method_params=dict(spec.get("params", {})), scene=scene_path(scene, spec.get("gi", False)),
                      trace=CAMERAS[camera], network=spec.get("network", "ideal"), duration_s=g["duration_s"],
                      width=w, height=h, server_fps=spec.get("server_fps", 30), client_fps=60,
                      predictor=spec.get("predictor", "cv"), seed=0, flip_every=0,
@@ -418,6 +447,11 @@ def _metric(store: Any, cfg: Any, metric: str) -> float:
         if key.startswith("updates:"):
             ups = store.load_updates(cfg.key())
             return update_mean(ups, key.split(":", 1)[1])
+        if key.startswith("ratio:"):
+            num, den = key.split(":", 1)[1].split("/")
+            sm = store.load_summary(cfg)
+            a, b = float(sm.get(num) or "nan"), float(sm.get(den) or "nan")
+            return a / b if b > 0 else math.nan
         v = store.load_summary(cfg).get(key)
         return float(v) if v not in (None, "") else math.nan
     except (OSError, IndexError, ValueError, TypeError):
@@ -437,7 +471,7 @@ def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tu
     cache = shared_cache_setting(out_dir)
     need: dict[str, Any] = {}
     for c in claims:
-        for sc in scenes:
+        for sc in (x for x in scenes if c.scenes is None or x in c.scenes):
             for cam in (x for x in g["cameras"] if x in c.cameras):
                 for r in c.runs():
                     cfg = run_config(r, sc, cam, g, cache)
@@ -453,7 +487,7 @@ def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tu
                                            "runs_s": round(elapsed, 1)})
     rows: list[dict[str, Any]] = []
     for c in claims:
-        for sc in scenes:
+        for sc in (x for x in scenes if c.scenes is None or x in c.scenes):
             for cam in (x for x in g["cameras"] if x in c.cameras):
                 cfgs = {r: run_config(r, sc, cam, g, cache) for r in c.runs()}
                 vals = {r: _metric(store, cfg, c.metric) for r, cfg in cfgs.items()}
@@ -520,7 +554,8 @@ def ledger(claims: Sequence[Claim], rows: list[dict[str, Any]], info: dict[str, 
         detail += [f"### {c.id}", "",
                    f"- **Paper**: {c.paper}, {c.where}: {c.text}. Its number: {c.paper_number}. Its setting: {c.setting}.",
                    f"- **Measure**: {measure_txt} ({unit}), expected {c.expect} {c.threshold:g}"
-                   + (f"; {c.why_cameras}" if c.why_cameras else "") + ".",
+                   + (f"; {c.why_cameras}" if c.why_cameras else "")
+                   + (f"; {c.why_scenes}" if c.why_scenes else "") + ".",
                    f"- **Verdict**: **{v}**: {why}.", "",
                    "| scene | camera | ours | " + " | ".join(f"{c.metric}[{r}]" for r in c.runs()) + " |",
                    "|---|---|---|" + "---|" * len(c.runs())]
