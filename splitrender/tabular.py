@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
@@ -26,8 +26,12 @@ def atomic_file(path: Path, mode: str = "w", newline: str | None = None) -> Iter
     """A file opened at a temporary name in ``path``'s folder and renamed to ``path`` once written: a reader (or
     a process killed meanwhile) sees the old file or the whole new one, never part of it."""
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, mode, newline=newline) as f:
-        yield f
+    try:
+        with open(tmp, mode, newline=newline) as f:
+            yield f
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # the old file stays as it was, and no half-written one is left beside it
+        raise
     os.replace(tmp, path)
 
 
@@ -66,23 +70,27 @@ class CsvAppender:
             self._f = None
 
 
-def write_csv(path: Path, rows: Iterable[dict[str, Any]]) -> None:
-    """``rows`` as a CSV table whose columns are every key in order of first appearance; written whole through
-    :func:`atomic_file`."""
+def write_csv(path: Path, rows: Iterable[dict[str, Any]], columns: Sequence[str] | None = None) -> None:
+    """``rows`` as a CSV table whose columns are ``columns`` (other keys left out) or else every key in order of
+    first appearance; NaN is an empty cell; written whole through :func:`atomic_file`.  The project's one CSV
+    writer (``experiments.store.write_csv`` is this with bools as 0/1)."""
     rows = list(rows)
-    write_csv_passes(path, lambda: rows)
+    write_csv_passes(path, lambda: rows, columns)
 
 
-def write_csv_passes(path: Path, rows: Callable[[], Iterable[dict[str, Any]]]) -> int:
+def write_csv_passes(path: Path, rows: Callable[[], Iterable[dict[str, Any]]],
+                     columns: Sequence[str] | None = None) -> int:
     """:func:`write_csv` for rows read twice from their source (``rows()`` gives a fresh iterable each call: once
     for the columns, once to write), so that memory stays flat however many there are.  Returns the rows
     written."""
-    keys: dict[str, None] = {}
-    for r in rows():
-        keys.update(dict.fromkeys(r))
+    keys: dict[str, None] = dict.fromkeys(columns) if columns is not None else {}
+    if columns is None:
+        for r in rows():
+            keys.update(dict.fromkeys(r))
     n = 0
-    with atomic_file(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(keys), restval="")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(Path(path), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(keys), restval="", extrasaction="ignore")
         w.writeheader()
         for r in rows():
             w.writerow({k: _fmt(v) for k, v in r.items()})

@@ -40,31 +40,13 @@ def is_timing_column(name: str) -> bool:
     return name in TIMING_COLUMNS or (name.startswith(("cli_", "srv_")) and name.endswith("_ms"))
 
 
-def _fmt(v: Any) -> Any:
-    if isinstance(v, bool):
-        return int(v)
-    if isinstance(v, float):
-        return "" if math.isnan(v) else f"{v:.6g}"
-    return v
-
-
 def write_csv(path: str | Path, rows: Sequence[Row], columns: Sequence[str] | None = None) -> Path:
-    """Write ``rows`` (union of keys, first-seen order unless ``columns`` given); NaN -> empty."""
+    """Write ``rows`` (union of keys, first-seen order unless ``columns`` given); NaN -> empty, bools -> 0/1, so
+    :func:`read_csv` gives numbers back.  Written whole and atomically by :func:`splitrender.tabular.write_csv`."""
+    from ..tabular import write_csv as write_table
+
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    keys: list[str] = list(columns or [])
-    if columns is None:
-        seen: set[str] = set()
-        for r in rows:
-            for k in r:
-                if k not in seen:
-                    seen.add(k)
-                    keys.append(k)
-    with open(p, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="", extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: _fmt(v) for k, v in r.items()})
+    write_table(p, ({k: int(v) if isinstance(v, bool) else v for k, v in r.items()} for r in rows), columns)
     return p
 
 
