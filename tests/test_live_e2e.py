@@ -744,5 +744,7 @@ async def test_a_paced_live_session_streams_and_is_reported(tmp_path: Path) -> N
                                              duration_s=2.0)
     c = result.counters
     assert c["frames_complete"] >= 40 and sc["twcc_feedback"] >= 10 and sc["twcc_unknown"] == 0, (c, sc)
-    assert sc["twcc_stamped"] >= sc["rtp_packets"]
+    # every media packet left stamped, or was still in the pacer's queue when the session ended (or dropped by a
+    # full queue): 424 stamped of 425 once in CI, one packet queued at the end
+    assert sc["twcc_stamped"] + sc["pacer_queued"] + sc["pacer_dropped"] >= sc["rtp_packets"], sc
     assert any("cc_pacer_packets" in r for r in sc["update_rows"])
