@@ -24,6 +24,7 @@ def test_newer_samples_are_taken_duplicates_and_reordered_ones_counted() -> None
     assert not inbox.offer(0.05, _pose(9.0), 50_000, 4)    # reordered: older than the newest taken
     assert inbox.latest is not None and inbox.latest[0] == 0.1 and inbox.latest[2:] == (100_000, 3)
     assert (inbox.received, inbox.stale) == (4, 2)
+    assert inbox.counters() == {"poses_received": 2, "poses_stale": 2}   # what the live and browser sessions report
     # the predictor saw only the two taken samples: it extrapolates 10 m/s from them
     assert np.allclose(inbox.predictor.predict(0.2).position, [2.0, 0.0, 0.0])
 

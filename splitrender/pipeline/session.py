@@ -122,6 +122,10 @@ class PoseInbox:
         """Whether a sample measured at ``t_s`` would be taken."""
         return self.latest is None or t_s > self.latest[0]
 
+    def counters(self) -> dict[str, int]:
+        """``poses_received`` (taken) and ``poses_stale`` (dropped), as the live and browser sessions report them."""
+        return {"poses_received": self.received - self.stale, "poses_stale": self.stale}
+
     def offer(self, t_s: float, pose: Any, client_us: int = 0, seq: int = 0) -> bool:
         """Take the sample if it is newer than the newest; returns whether it was taken."""
         self.received += 1

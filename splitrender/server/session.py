@@ -161,7 +161,7 @@ class ServerSession:
     def counters(self) -> dict[str, Any]:
         """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
         core = self.core.counters if self.core is not None else {}
-        poses = {} if self._poses is None else {"poses_received": self._poses.received, "poses_stale": self._poses.stale}
+        poses = {} if self._poses is None else self._poses.counters()
         pacer = self.core.pacer if self.core is not None else None
         # with a pacer, a frame's packets are counted when it is sent and stamped as they leave: the ones still
         # queued (or dropped by a full queue) when the session ends are the difference

@@ -155,8 +155,8 @@ class _Client:
     predictor: Any = None
     arrivals: list[tuple[float, float]] = field(default_factory=list)
     arrival_idx: int = 0
-    latest_pose_t: float = 0.0
     poses: Any = None
+    """The server's :class:`PoseInbox` for this client (the Hello's pose at t = 0 is its first)."""
     core_s: ServerSession | None = None
     """The server's session core (feedback, keyframes, NACK answers, sender reports)."""
     rtcp_up: Link | None = None
@@ -380,8 +380,7 @@ class VirtualTimeRun:
         for c in self.clients:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
                 ts = c.arrivals[c.arrival_idx][1]
-                if c.poses.offer(ts, c.trace.pose_at(ts)):  # every front door's rule: newer than the newest taken
-                    c.latest_pose_t = ts
+                c.poses.offer(ts, c.trace.pose_at(ts))  # every front door's rule: newer than the newest taken
                 c.arrival_idx += 1
             assert c.fb is not None and c.tx is not None
             assert c.core_s is not None
@@ -394,7 +393,7 @@ class VirtualTimeRun:
             target_pose = c.predictor.predict(target_t)
             ctx = ServerContext(
                 frame_id=f, t_s=t_f, scene=self.scene, renderer=self.renderer, intrinsics=self.intr,
-                latest_pose=c.trace.pose_at(c.latest_pose_t), latest_pose_t_s=c.latest_pose_t,
+                latest_pose=c.trace.pose_at(c.poses.latest_t_s), latest_pose_t_s=c.poses.latest_t_s,
                 target_pose=target_pose, target_t_s=target_t, predict=c.predictor.predict,
                 expected_latency_s=expected, keyframe_requested=kf, feedback=c.fb.snapshot(kf), shared=shared,
                 client=c.index,
@@ -411,8 +410,8 @@ class VirtualTimeRun:
             send_t = t_f + cost_ms / 1000.0
             self.server_free_s = max(self.server_free_s, send_t)
             timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
-            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.latest_pose_t),
-                                 int(round(c.latest_pose_t * cfg.tracker_hz)), target_t, timing, c.half.stats())
+            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.poses.latest_t_s),
+                                 int(round(c.poses.latest_t_s * cfg.tracker_hz)), target_t, timing, c.half.stats())
             c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts)
             # control frames: TCP segments over the downlink, in order, head-of-line blocked
             for stream, data in out.control:
@@ -429,7 +428,7 @@ class VirtualTimeRun:
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
             pred_cm, pred_deg = prediction_error(target_pose, c.trace.pose_at(target_t))
-            c.pose_t[f] = c.latest_pose_t
+            c.pose_t[f] = c.poses.latest_t_s
             c.pred[f] = (pred_cm, pred_deg)
             row: dict[str, Any] = {"client": c.index, "frame_id": f, "t_s": t_f, "bytes": out.total_wire_bytes,
                                    "keyframe": int(out.keyframe), "delivered": "", "missing": "",

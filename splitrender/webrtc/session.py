@@ -140,7 +140,7 @@ class BrowserSession:
         self._log: CsvAppender | None = None
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
-            "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "feedback_received": 0,
+            "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "poses_stale": 0, "feedback_received": 0,
             "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0, "retransmit_requests": 0,
             "images_received": 0, "image_bytes_received": 0,
         }
@@ -289,8 +289,8 @@ class BrowserSession:
     def _on_pose(self, msg: PoseSample) -> None:
         t_s = msg.client_time_us / 1e6
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        if self._poses.offer(t_s, pose, msg.client_time_us, msg.seq):  # a duplicate or reordered one counts as stale
-            self.counters["poses_received"] += 1
+        self._poses.offer(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered one counts as stale
+        self.counters.update(self._poses.counters())
 
     def _on_feedback(self, msg: PageFeedback) -> None:
         self.counters["feedback_received"] += 1
@@ -369,7 +369,7 @@ class BrowserSession:
 
     def server_counters(self) -> dict[str, Any]:
         """The session's counters with the RTP sender's (packets and bytes sent, retransmissions)."""
-        out: dict[str, Any] = dict(self.counters, method=self.method, poses_stale=self._poses.stale)
+        out: dict[str, Any] = dict(self.counters, method=self.method)
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
         if self.sas is not None:

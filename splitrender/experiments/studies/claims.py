@@ -402,10 +402,6 @@ def run_config(run: str, scene: str, camera: str, g: dict[str, Any], truth_cache
                      metrics=spec.get("metrics", True), truth_cache=truth_cache)
 
 
-command = run_command
-"""The ``splitrender run`` line that reproduces a run (kept under this name for the ledger's callers)."""
-
-
 # --- evaluation -------------------------------------------------------------------------------------------------------
 def measure(claim: Claim, values: dict[str, float]) -> float:
     """The claim's measure from its runs' metric values (NaN when one is missing)."""
@@ -493,7 +489,7 @@ def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tu
                 vals = {r: _metric(store, cfg, c.metric) for r, cfg in cfgs.items()}
                 rows.append({"claim": c.id, "scene": sc, "camera": cam, "metric": c.metric,
                              "measure": measure(c, vals), **{f"value[{r}]": v for r, v in vals.items()},
-                             "commands": " ; ".join(f"{r}: {command(cfg)}" for r, cfg in cfgs.items()),
+                             "commands": " ; ".join(f"{r}: {run_command(cfg)}" for r, cfg in cfgs.items()),
                              "config_keys": " ".join(cfg.key() for cfg in cfgs.values())})
     info = {"runs": len(todo), "not_run": len(need) - len(todo), "ran": len(res.ran), "cached": len(res.cached), "failures": len(res.failures),
             "failed": [f.label for f in res.failures], "elapsed_s": elapsed, "history": history, "scenes": scenes,
