@@ -91,3 +91,25 @@ def test_run_command_reproduces_whole_trace_runs() -> None:
     cmd = run_command(pred[0])
     assert "--duration" not in cmd and "--no-metrics" in cmd and "--width 64 --height 36" in cmd, cmd
     assert "--duration 3 " in run_command(papers.plan(g)[0]["cfg"])
+
+
+def test_study_grid_executor_refuses_nonsense(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """``study --workers/--dask`` reach the grids through the environment; a bad worker count is named, both on the
+    command line and in the variable a study process reads."""
+    from splitrender.cli import main
+    from splitrender.errors import ConfigError
+    from splitrender.experiments.studies._util import executor
+
+    monkeypatch.delenv(DASK_ENV, raising=False)
+    monkeypatch.setenv(WORKERS_ENV, "two")
+    with pytest.raises(ConfigError, match="SPLITRENDER_STUDY_WORKERS: expected a whole number of workers, got 'two'"):
+        executor()
+    monkeypatch.setenv(WORKERS_ENV, "0")
+    with pytest.raises(ConfigError, match="expected at least 1 worker, got 0"):
+        executor()
+    monkeypatch.setenv(WORKERS_ENV, "3")
+    monkeypatch.setenv(DASK_ENV, "local")
+    assert executor() == {"workers": 3, "dask": "local"}
+    assert main(["study", "papers", "--workers", "0", "--out", str(tmp_path)]) == 2
+    assert "study --workers: must be at least 1, got 0" in capsys.readouterr().err
