@@ -412,6 +412,34 @@ def test_nonsense_config_is_named(params: dict, msg: str) -> None:
         make_config(get_method("quads").config, params)
 
 
+def test_reference_frames_follow_the_distance_and_angle_thresholds(renderer) -> None:  # type: ignore[no-untyped-def]
+    """QUASAR section 3.5.1: a reference frame "every 5 frames or based on distance and angle thresholds".  At a
+    still pose neither threshold fires, so the residual frames run to ``reference_every``; 6 cm aside (past a 5 cm
+    threshold) or 3 degrees turned (past 2) the next frame is a reference frame, and the one after it, back at that
+    pose, is residual again.  Unset (0), the same moves give residual frames."""
+    from splitrender.scene.pose import quat_from_euler_deg, quat_mul
+
+    base = {"layers": 1, "wide_fov_deg": 0.0}
+    for params, moved, want in (
+            ({"reference_distance_m": 0.05}, "aside", ["reference", "residual", "residual", "reference", "residual"]),
+            ({"reference_angle_deg": 2.0}, "turned", ["reference", "residual", "residual", "reference", "residual"]),
+            ({}, "aside", ["reference", "residual", "residual", "residual", "residual"]),
+            ({}, "turned", ["reference", "residual", "residual", "residual", "residual"])):
+        srv = pose0 = None
+        kinds = []
+        for f in range(5):
+            if pose0 is not None and f >= 3:
+                pose = (Pose(pose0.position + np.array([0.06, 0.0, 0.0]), pose0.orientation) if moved == "aside" else
+                        Pose(pose0.position, quat_mul(pose0.orientation, quat_from_euler_deg(0.0, 3.0, 0.0))))
+                assert (5.9 < 100 * pose.distance_m(pose0) < 6.1) if moved == "aside" else (2.5 < pose.angle_deg(pose0) < 3.5)
+            else:
+                pose = pose0
+            srv, upd, *_, p = _frame(renderer, {**base, **params}, frame_id=f, srv=srv, pose=pose)
+            pose0 = pose0 or p
+            kinds.append(upd.meta["frame"])
+        assert kinds == want, (params, moved, kinds)
+
+
 def test_residual_frame_at_the_reference_pose_resends_nothing_under_quasars_mask(renderer) -> None:
     """QUASAR's residual mask (``coverage``: scene pixels the cached mesh does not cover) resends nothing when the
     camera has not moved; the old mask (``depth``: also pixels more than 2 % in front of the mesh) resent the

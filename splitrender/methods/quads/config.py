@@ -72,6 +72,10 @@ class QuadsConfig(MethodConfig):
       (QUASAR: 10x, 4);
     - ``reference_every``: a reference frame every n frames; the others are residual
       frames (QUASAR only; 1 streams reference frames only);
+    - ``reference_distance_m``, ``reference_angle_deg`` (QUASAR): a reference frame as soon as the
+      target pose lies more than this far from the reference pose, or its view direction has turned
+      more than this, whichever comes first with ``reference_every`` (section 3.5.1: "based on
+      distance and angle thresholds"); 0 turns a threshold off;
     - ``edp_tolerance``: relative depth slack of the parallax test;
     - ``atlas``: ``slots`` (QUASAR's linear packing: each G-buffer's colour whole, side by
       side; a quad's texels follow from its x and y) or ``packed`` (QuadStream's binning:
@@ -110,6 +114,8 @@ class QuadsConfig(MethodConfig):
     relax: float = 10.0
     relaxed_coarse_passes: int = 4
     reference_every: int = 5
+    reference_distance_m: float = 0.0
+    reference_angle_deg: float = 0.0
     edp_tolerance: float = 0.01
     atlas: Atlas | None = None
     merge_scale: float = 1.0
@@ -157,6 +163,10 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.residual_mask: {self.residual_mask!r} is not one of ['coverage', 'depth']")
         if not 1 <= self.reference_every <= 1000:
             raise ConfigError(f"{n}.reference_every: must be in [1, 1000], got {self.reference_every}")
+        if not 0.0 <= self.reference_distance_m <= 100.0:
+            raise ConfigError(f"{n}.reference_distance_m: must be in [0, 100] metres (0: off), got {self.reference_distance_m}")
+        if not 0.0 <= self.reference_angle_deg <= 180.0:
+            raise ConfigError(f"{n}.reference_angle_deg: must be in [0, 180] degrees (0: off), got {self.reference_angle_deg}")
         if self.atlas not in (None, "slots", "packed"):
             raise ConfigError(f"{n}.atlas: {self.atlas!r} is not one of ['slots', 'packed']")
         if self.variant == "quasar" and self.atlas == "packed":

@@ -3,7 +3,8 @@
 **QUASAR** per frame (paper sections 3.2-3.5):
 
 1. the visible G-buffer at the predicted pose; on a **reference frame** (every
-   ``reference_every`` frames, on a keyframe request, after a reported loss) its quads
+   ``reference_every`` frames, when the pose has moved or turned past ``reference_distance_m`` or
+   ``reference_angle_deg`` from the reference pose, on a keyframe request, after a reported loss) its quads
    (its background too only with ``background_quads``: by default, as in QUASAR's code, the
    client makes the sky's quads itself) are the client's new reference set, its colour atlas slot 0;
 2. on a **residual frame**: the G-buffer at the reference pose and the current time;
@@ -170,8 +171,16 @@ class QuadsServer(ServerHalf):
     def _reference_due(self, ctx: ServerContext) -> bool:
         fb = ctx.feedback
         lost = any(fb.newly_lost(s) for s in ("atlas", "quads", "offsets"))
-        return (self._ref_due or ctx.keyframe_requested or lost or self.config.reference_every == 1
-                or ctx.frame_id - self.cache.frame_id >= self.config.reference_every)
+        cfg = self.config
+        if (self._ref_due or ctx.keyframe_requested or lost or cfg.reference_every == 1
+                or ctx.frame_id - self.cache.frame_id >= cfg.reference_every):
+            return True
+        ref = self.cache.pose
+        if ref is None:
+            return True
+        pose = ctx.target_pose
+        return ((cfg.reference_distance_m > 0 and pose.distance_m(ref) > cfg.reference_distance_m)
+                or (cfg.reference_angle_deg > 0 and pose.angle_deg(ref) > cfg.reference_angle_deg))
 
     # ------------------------------------------------------------------ produce
     def produce(self, ctx: ServerContext) -> Update:
