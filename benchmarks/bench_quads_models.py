@@ -8,7 +8,8 @@ QUASAR's table 4 orders QUASAR > MeshWarp 120 > MeshWarp 60 > ATW.  This runs, p
   display's resolution along each axis, as the paper's 3840x2160 for a 1080p client);
 - ``quads`` (``variant=quasar``) from this checkout and, with ``--before PATH`` (a ``git worktree`` of the commit
   before the change), from that tree in the same run; ``--budget`` adds QUASAR with each stage of the error budget
-  turned off or to its ideal; ``--quadstream`` adds ``variant=quadstream`` (about 4 minutes a model here).
+  turned off or to its ideal; ``--thresholds`` adds QUASAR with reference frames also on distance and angle
+thresholds (its section 3.5.1); ``--baselines MW60,warp`` runs only those baselines; ``--quadstream`` adds ``variant=quadstream`` (about 4 minutes a model here).
 
 Each configuration runs in its own process (``PYTHONPATH`` picks the tree).  Scores: the mean model-region PSNR over
 the displayed frames that show content (``model_psnr_content_db``; the runner's ``mean_model_psnr_db`` over all frames
@@ -48,6 +49,11 @@ BUDGET = {   # QUASAR with one stage off or at its ideal
     "no wide view": {"wide_fov_deg": 0.0},
     "lossless atlas": {"lossless": True},
     "reference frames only": {"reference_every": 1},
+}
+THRESHOLDS = {   # QUASAR's reference frames also on its section 3.5.1 thresholds (turned, moved since the reference)
+    "reference past 2 degrees": {"reference_angle_deg": 2.0},
+    "reference past 1 degree": {"reference_angle_deg": 1.0},
+    "reference past 5 cm or 2 degrees": {"reference_distance_m": 0.05, "reference_angle_deg": 2.0},
 }
 
 CHILD = r"""
@@ -101,6 +107,8 @@ def main() -> None:
     ap.add_argument("--models", default=",".join(MODELS), help=f"comma-separated, of {', '.join(MODELS)}")
     ap.add_argument("--before", type=Path, help="a worktree of the commit before the change (QUASAR from it too)")
     ap.add_argument("--budget", action="store_true", help="QUASAR with each stage of the error budget off or ideal")
+    ap.add_argument("--thresholds", action="store_true", help="QUASAR with reference frames on distance/angle thresholds")
+    ap.add_argument("--baselines", default=",".join(BASELINES), help=f"comma-separated, of {', '.join(BASELINES)}")
     ap.add_argument("--quadstream", action="store_true", help="QuadStream too (slow)")
     ap.add_argument("--truth-cache", default="default")
     ap.add_argument("--out", type=Path, default=RESULTS)
@@ -113,12 +121,14 @@ def main() -> None:
     for name in ns.models.split(","):
         scene = f"{MODELS[name]}+ground"
         runs: dict = {}
-        todo = [(k, ROOT, m, p) for k, (m, p) in BASELINES.items()]
+        todo = [(k, ROOT, m, p) for k, (m, p) in BASELINES.items() if k in ns.baselines.split(",")]
         todo.append(("quasar", ROOT, "quads", {}))
         if ns.before:
             todo.append(("quasar before", ns.before, "quads", {}))
         if ns.budget:
             todo += [(f"quasar, {k}", ROOT, "quads", p) for k, p in BUDGET.items()]
+        if ns.thresholds:
+            todo += [(f"quasar, {k}", ROOT, "quads", p) for k, p in THRESHOLDS.items()]
         if ns.quadstream:
             todo.append(("quadstream", ROOT, "quads", {"variant": "quadstream"}))
             if ns.before:
@@ -127,9 +137,10 @@ def main() -> None:
             r = one(tree, scene, method, params, ns.truth_cache)
             r.update(method=method, params=params)
             runs[label] = r
-            base = runs["warp"]["model_psnr_content_db"]
+            bl = "warp" if "warp" in runs else next(iter(runs))
+            base = runs[bl]["model_psnr_content_db"]
             print(f"{name:16s} {label:48s} model {r['model_psnr_content_db']:6.2f} dB ({r['model_psnr_content_db'] - base:+.2f} "
-                  f"against warp)  frame {r['mean_psnr_db']:6.2f}  {r['mean_kbps']:8.0f} kbit/s  {r['wall_s']:5.0f} s",
+                  f"against {bl})  frame {r['mean_psnr_db']:6.2f}  {r['mean_kbps']:8.0f} kbit/s  {r['wall_s']:5.0f} s",
                   flush=True)
             res["models"][name] = runs
             ns.out.parent.mkdir(parents=True, exist_ok=True)
