@@ -133,18 +133,32 @@ def _decoded_md5s(codec: str, datagrams: list[bytes]) -> list[str]:
     return [hashlib.md5(f.to_ndarray().tobytes()).hexdigest() for f in frames]
 
 
-def _replay(datagrams: list[bytes], port: int) -> None:
+def udp_receive_drops() -> int:
+    """The kernel's count of UDP datagrams dropped for a full receive buffer (``RcvbufErrors`` in
+    ``/proc/net/snmp``; 0 where it cannot be read).  A receiver that reads slower than the replay sends,
+    as GStreamer does on a loaded machine, loses datagrams on loopback: this is how a test tells that loss
+    from a real difference between the streams."""
+    try:
+        lines = [ln.split() for ln in Path("/proc/net/snmp").read_text().splitlines() if ln.startswith("Udp:")]
+        return int(dict(zip(lines[0][1:], lines[1][1:]))["RcvbufErrors"])
+    except (OSError, IndexError, KeyError, ValueError):
+        return 0
+
+
+def _replay(datagrams: list[bytes], port: int, gap_s: float = 0.0005) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for d in datagrams:
             tx.sendto(d, ("127.0.0.1", port))
-            time.sleep(0.0005)
+            time.sleep(gap_s)
 
 
 def _decode(cmd: list[str], sdp: Path, datagrams: list[bytes], stop: signal.Signals | None,
-            progress: Callable[[], int] | None = None, want: int = 0) -> tuple[subprocess.CompletedProcess, str]:
-    """Run a receiver on ``sdp``'s port, replay ``datagrams`` to it once it listens and, with ``stop``, send it
-    that signal once ``progress()`` reaches ``want`` or stops growing for 5 s (waiting for what it has done, not
-    for a fixed time: a loaded machine once made GStreamer miss the end of a stream stopped 1 s after the replay)."""
+            progress: Callable[[], int] | None = None, want: int = 0,
+            gap_s: float = 0.0005) -> tuple[subprocess.CompletedProcess, str, int]:
+    """Run a receiver on ``sdp``'s port, replay ``datagrams`` to it once it listens (``gap_s`` apart) and, with
+    ``stop``, send it that signal once ``progress()`` reaches ``want`` or stops growing for 5 s (waiting for what
+    it has done, not for a fixed time: a loaded machine once made GStreamer miss the end of a stream stopped 1 s
+    after the replay).  Also returns how many UDP datagrams the kernel dropped meanwhile (:func:`udp_receive_drops`)."""
     port = parse_sdp_port(sdp.read_text())
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
@@ -153,7 +167,8 @@ def _decode(cmd: list[str], sdp: Path, datagrams: list[bytes], stop: signal.Sign
             time.sleep(0.02)
         assert proc.poll() is None and _bound(port), f"{cmd[0]} did not open port {port}: {proc.poll()}"
         time.sleep(0.3)    # a receiver bound but not yet reading loses the first copy: the tests send two
-        _replay(datagrams, port)
+        drops = udp_receive_drops()
+        _replay(datagrams, port, gap_s)
         if stop is not None:
             last, last_t, end = -1, time.monotonic(), time.monotonic() + 60.0
             while time.monotonic() < end and proc.poll() is None:
@@ -167,11 +182,12 @@ def _decode(cmd: list[str], sdp: Path, datagrams: list[bytes], stop: signal.Sign
                 time.sleep(0.05)
             os.killpg(proc.pid, stop)
         out, err = proc.communicate(timeout=60)
+        drops = udp_receive_drops() - drops
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate(timeout=5)
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err), err.decode(errors="replace")
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err), err.decode(errors="replace"), drops
 
 
 def _continued(datagrams: list[bytes]) -> list[bytes]:
@@ -186,28 +202,50 @@ def _continued(datagrams: list[bytes]) -> list[bytes]:
                                       timestamp=(p.timestamp + dts) % 2**32)) for p in rtp]
 
 
-def _ffmpeg_frames(sdp: Path, datagrams: list[bytes], n: int) -> tuple[list[str], str]:
+REPLAY_GAPS_S = (0.0005, 0.002, 0.005)
+"""Spacing of the replayed datagrams, one per try: a try is repeated, slower, only when the kernel dropped
+datagrams on the way to the receiver during it (:func:`udp_receive_drops`), never for a stream that differs."""
+
+
+def _ffmpeg_frames(sdp: Path, datagrams: list[bytes], n: int, gap_s: float) -> tuple[list[str], str, int]:
     """MD5s of the first ``n`` frames the ffmpeg CLI decodes (``framemd5``): its parser holds a frame until the next starts, and
     stopping it gracefully takes 10 s on this machine, so the stream is sent twice and ffmpeg stops after ``n``."""
     cmd = ["ffmpeg", "-hide_banner", "-loglevel", "error", "-threads", "1", "-protocol_whitelist", "file,udp,rtp",
            "-reorder_queue_size", "0", "-i", str(sdp), "-frames:v", str(n), "-f", "framemd5", "-"]
-    res, err = _decode(cmd, sdp, datagrams + _continued(datagrams), None)
-    return [ln.split(",")[-1].strip() for ln in res.stdout.decode().splitlines() if ln and not ln.startswith("#")], err
+    res, err, drops = _decode(cmd, sdp, datagrams + _continued(datagrams), None, gap_s=gap_s)
+    return [ln.split(",")[-1].strip() for ln in res.stdout.decode().splitlines() if ln and not ln.startswith("#")], err, drops
 
 
-def _gst_frames(sdp: Path, datagrams: list[bytes], codec: str, tmp: Path, n: int) -> tuple[list[str], str]:
+def _gst_frames(sdp: Path, datagrams: list[bytes], codec: str, tmp: Path, n: int, gap_s: float) -> tuple[list[str], str, int]:
     """MD5s of what GStreamer decodes of the stream sent twice (the second copy continuing the first, as for
     ffmpeg): a receiver that started reading late loses part of the first copy, never the second."""
-    frames = tmp / f"{sdp.stem}.frames"       # one file per decoded frame, whatever its size
+    k = 0
+    while (tmp / f"{sdp.stem}.frames{k}").exists():
+        k += 1
+    frames = tmp / f"{sdp.stem}.frames{k}"    # one file per decoded frame, whatever its size; a folder per try
     frames.mkdir()
     cmd = ["gst-launch-1.0", "-q", "-e", "filesrc", f"location={sdp}", "!", "sdpdemux", "latency=100", "!",
            *DEPAY[codec].split(), "!", "multifilesink", f"location={frames}/%05d.raw"]
     # the last frame is written at the end of stream (SIGINT with -e), the rest as they decode
-    _, err = _decode(cmd, sdp, datagrams + _continued(datagrams), signal.SIGINT,
-                     lambda: sum(1 for _ in frames.iterdir()), 2 * n - 1)
+    _, err, drops = _decode(cmd, sdp, datagrams + _continued(datagrams), signal.SIGINT,
+                            lambda: sum(1 for _ in frames.iterdir()), 2 * n - 1, gap_s=gap_s)
     import hashlib
 
-    return [hashlib.md5(f.read_bytes()).hexdigest() for f in sorted(frames.iterdir())], err
+    return [hashlib.md5(f.read_bytes()).hexdigest() for f in sorted(frames.iterdir())], err, drops
+
+
+def _until_no_drops(decode: Callable[[float], tuple[list[str], str, int]], ours: list[str],
+                    tail: bool) -> tuple[list[str], str, list[int]]:
+    """``decode(gap_s)`` with the gaps of :data:`REPLAY_GAPS_S` until its frames are ``ours`` (their last ``len(ours)``
+    with ``tail``) or a try lost no datagram in the kernel; the last try's frames and error text, and the drops of
+    every try."""
+    drops: list[int] = []
+    for gap in REPLAY_GAPS_S:
+        got, err, d = decode(gap)
+        drops.append(d)
+        if (got[-len(ours):] if tail else got) == ours or d == 0:
+            break
+    return got, err, drops
 
 
 @pytest.mark.parametrize("method,codecs", [("video", ("h264",)), ("video", ("hevc",)), ("warp", ("h264", "hevc")),
@@ -221,11 +259,13 @@ def test_ffmpeg_and_gstreamer_decode_every_frame_of_a_live_session(tmp_path: Pat
         ours = _decoded_md5s(codec, datagrams)
         n = len(ours)
         assert n >= 20, f"{name}: only {n} frames in 2 s"
-        ff, ff_err = _ffmpeg_frames(sdp, datagrams, n)
-        gst, gst_err = _gst_frames(sdp, datagrams, codec, tmp_path, n)
+        ff, ff_err, ff_drops = _until_no_drops(lambda gap: _ffmpeg_frames(sdp, datagrams, n, gap), ours, tail=False)
+        gst, gst_err, gst_drops = _until_no_drops(lambda gap: _gst_frames(sdp, datagrams, codec, tmp_path, n, gap), ours,
+                                                  tail=True)
         assert ff == ours, f"{method}/{name} ({codec}): ffmpeg decoded {len(ff)} frames, {sum(a == b for a, b in zip(ff, ours))} " \
-                           f"of {n} as ours: {ff_err[-400:]}"
+                           f"of {n} as ours (datagrams the kernel dropped, per try: {ff_drops}): {ff_err[-400:]}"
         # every frame of one copy, in order and bit for bit (the second copy's frames are the first's again)
         assert gst[-n:] == ours, \
             f"{method}/{name} ({codec}): GStreamer decoded {len(gst)} frames of 2 x {n}, the last {n} " \
-            f"{sum(a == b for a, b in zip(gst[-n:], ours))} of {n} as ours: {gst_err[-400:]}"
+            f"{sum(a == b for a, b in zip(gst[-n:], ours))} of {n} as ours (datagrams the kernel dropped, per try: " \
+            f"{gst_drops}): {gst_err[-400:]}"
