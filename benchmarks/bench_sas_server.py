@@ -7,7 +7,7 @@ selection, allocation, shading, atlas read-back) at 320x180:
   (assimp ``Wuson.ply``, 3.7k triangles) and a large one (``2CylinderEngine.glb``, 121k
   triangles, 166k after splitting); target: the large one within 2x of the small one;
 - the default scene (without GI, :data:`SCENE`) on ``static``, against the ground-truth
-  forward render of the same frame (target: at most 1.5x), with the atlas filled (the
+  forward render of the same view after each server frame (target: at most 1.5x; issue 49: 3x), with the atlas filled (the
   default, ``fill_atlas``) and at the ideal levels (``fill_atlas = false``: fewer texels);
 - the shading stage with triangles grown only across their edges inside the block
   (the default) against triangles grown across every edge, the same
@@ -58,20 +58,21 @@ def time_server(scene_name: str, frames: int, away: bool, r: Renderer, **cfg: ob
     pose = get_trace("static").pose_at(0.5)
     if away:
         pose = turned_around(pose)
-    ms, stats = [], []
+    ms, stats, gt = [], [], []
     for f in range(frames + 2):
         t = 0.5 + f / 30
         ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, lambda _t: pose, 0.0)
         t1 = time.perf_counter()
         srv.produce(ctx)
+        t2 = time.perf_counter()
+        # the ground truth beside each server frame (other jobs load the machine unevenly), half a frame later so
+        # that it draws its own shadow map of the animated objects as a forward renderer on its own would
+        r.render(scene, t + 0.5 / 30, pose, INTR, ("color",))
+        t3 = time.perf_counter()
         if f >= 2:   # warm-up: shader compilation, first full allocation
-            ms.append((time.perf_counter() - t1) * 1e3)
+            ms.append((t2 - t1) * 1e3)
+            gt.append((t3 - t2) * 1e3)
             stats.append(srv.stats())
-    gt = []
-    for f in range(frames):
-        t1 = time.perf_counter()
-        r.render(scene, 0.5 + f / 30, pose, INTR, ("color",))
-        gt.append((time.perf_counter() - t1) * 1e3)
     return {"triangles": float(scene.triangle_count), "patches": float(srv.patches.count), "load_s": load_s,
             "server_ms": float(np.min(ms)), "ground_truth_ms": float(np.min(gt)),
             "pvs_patches": float(np.median([s["pvs_patches"] for s in stats])),

@@ -411,20 +411,23 @@ def _still(shared_run, scene: str, method: str, params: dict, samples: bool = Fa
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene", ["default+nogi", "minimal"])
-def test_zero_latency_lossless_tss_beats_sas_with_fewer_samples(shared_run, scene: str) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("scene,holds", [("default+nogi", False), ("minimal", True)])
+def test_zero_latency_lossless_tss_beats_sas_with_fewer_samples(shared_run, scene: str, holds: bool) -> None:  # type: ignore[no-untyped-def]
     """The paper's claim, at defaults: still camera, zero latency, lossless atlases, 640x360, 0.1 s (the three
-    updates shown after the start-up tick; the still view's frames are near alike, and tss leads in each).
-    Measured (tss / sas): default scene 31.27 dB from 336.0k samples / 31.03 dB from 367.9k block texels, 0.237 dB
-    ahead (over 0.3 s 31.51 / 337.0k against 31.26 / 368.5k, 0.255 ahead); ``minimal`` 32.56 dB from 126.4k / 32.18
-    dB from 148.4k (the same over 0.3 s).  Over 0.3 s it holds from 480x270 up (31.51 / 188.6k against 31.09 / 201.8k; at
-    1280x720 32.56 dB / 1.23M against 32.33 / 1.55M), not at 320x180 (30.08 / 85.8k against 31.24 / 87.9k),
-    where most triangles are a few pixels across.  With the paper-like slantedness threshold of 4 it fails on
+    updates shown after the start-up tick; the still view's frames are near alike).  Measured (tss / sas):
+    ``minimal`` 32.56 dB from 126.4k samples / 32.25 dB from 148.4k block texels.  On the default scene it held
+    (31.27 dB from 336.0k / 31.03 dB from 367.9k) until sas stopped growing a triangle across the edge it shares
+    with the other triangles of its patch (issue 49): the later triangle's extrapolation overwrote the earlier
+    one's texels within 1.5 texels of their diagonal, most of a small block; sas now scores 32.22 dB from the same
+    367.9k texels, 0.95 dB ahead of tss, which still shades fewer samples.  Before that, over 0.3 s, it held on
+    the default scene from 480x270 up (31.51 / 188.6k against 31.09 / 201.8k; at 1280x720 32.56 dB / 1.23M against
+    32.33 / 1.55M), not at 320x180 (30.08 / 85.8k against 31.24 / 87.9k), where most triangles are a few pixels
+    across.  With the paper-like slantedness threshold of 4 it fails on
     samples (31.98 dB from 479.7k at 640x360): the oversampled staircases spend their samples worse than
     L-packing, hence the default of 16."""
     tss, n_tss = _still(shared_run, scene, "tss", {"lossless": True}, samples=True, size=(640, 360), duration_s=0.1)
     sas, n_sas = _still(shared_run, scene, "sas", SAS_IDEAL, samples=True, size=(640, 360), duration_s=0.1)
-    assert tss >= sas and n_tss <= n_sas, (tss, n_tss, sas, n_sas)
+    assert (tss >= sas) == holds and n_tss <= n_sas, (tss, n_tss, sas, n_sas)
 
 
 DUCK = "/usr/share/assimp/models/Collada/duck.dae"
@@ -467,22 +470,24 @@ def test_a_fine_mesh_survives_a_lossy_atlas(shared_run) -> None:  # type: ignore
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene,least", [("default+nogi", 30.8), ("minimal", 30.2)])
-def test_at_320x180_the_oversampling_mix_is_level_with_sas(shared_run, scene: str, least: float) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("scene,least,behind", [("default+nogi", 30.8, 1.1), ("minimal", 30.2, 0.3)])
+def test_at_320x180_the_oversampling_mix_is_level_with_sas(shared_run, scene: str, least: float, behind: float) -> None:  # type: ignore[no-untyped-def]
     """Still camera, zero latency, lossless atlases, 320x180, slantedness threshold 4 (the paper's mix of
-    L-packing and oversampling; tss / sas, dB): default 31.09 / 31.24, minimal 30.48 / 30.58.  Before sas took
+    L-packing and oversampling; tss / sas, dB): default 31.09 / 32.00, minimal 30.48 / 30.61.  Before sas took
     its texture gradients per atlas texel from the reference view (it used one level per patch, aliasing far
-    floor texels) tss led by 1.9 and 2.6 dB; now the two are level, and tss shades more samples here (138k
-    against 88k block texels on the default scene; its oversampled staircases are mostly conservative samples
-    at this size)."""
+    floor texels) tss led by 1.9 and 2.6 dB; then the two were level (default 31.09 / 31.24) until sas stopped
+    growing a triangle across the edge it shares with its patch's other triangles (issue 49: the later one's
+    extrapolation overwrote the earlier one's texels near their diagonal), which put sas 0.91 dB ahead on the
+    default scene (its curved objects; ``minimal`` is boxes); tss shades more samples here (138k against 88k
+    block texels on the default scene; its oversampled staircases are mostly conservative samples at this size)."""
     mix = {"lossless": True, "slant_threshold": 4.0}
     tss = _still(shared_run, scene, "tss", mix)
     sas = _still(shared_run, scene, "sas", SAS_IDEAL)
-    assert tss >= sas - 0.3 and tss >= least, (tss, sas)
+    assert tss >= sas - behind and tss >= least, (tss, sas)
     if scene == "default+nogi":
         # the centred grid shades fewer samples for a better image: the lattice at 1 sample per pixel 31.09 dB from
         # 137.9k samples, the centred grid at 1.35 samples per pixel 31.25 dB from 120.7k (at 1 per pixel 29.89 dB
-        # from 91.5k); sas 31.24 dB from 87.8k block texels
+        # from 91.5k); sas 32.00 dB from 87.9k block texels
         paper, n_paper = _still(shared_run, scene, "tss", mix, samples=True)
         centred, n_centred = _still(shared_run, scene, "tss", {**mix, "os_grid": "centred", "samples_per_px": 1.35},
                                     samples=True)

@@ -43,9 +43,11 @@ class SasConfig(MethodConfig):
     large triangles" (section 6.4).  0 disables it.  ``split_max_triangles`` caps the
     split scene (the edge bound grows until it fits).  ``grow_block_sides``: the shading
     stage grows each triangle (so every texel a client's tap reads is shaded) across its
-    edges inside the block; with this set also across those on the block's sides, whose
-    texels outside are discarded (the same texels, drawn at about twice the cost; on only
-    to measure that).  ``inset_min_texels``: along block sides of at least this many texels the patch is inset by
+    edges inside the block that no other triangle of the patch shares (a shared one only
+    by a thirty-second of a texel: the neighbour shades beyond it); with this set across
+    every edge by the full distance, also those on the block's sides, whose texels outside
+    are discarded, and the shared ones, whose texels the neighbour draws again (the same
+    blocks, drawn at several times the cost; on only to measure that).  ``inset_min_texels``: along block sides of at least this many texels the patch is inset by
     half a texel (the paper's figure 6), so lookups inside it only interpolate; shorter sides span the block (more
     samples per side); 0 spans every side (wire version 3's layout).
     """

@@ -90,18 +90,36 @@ def patch_extent_px(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, e
         if sel.size == 0:
             continue
         w = world[sel]
+        rays: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        done: dict[tuple[int, int], np.ndarray] = {}
+
+        def ray(slot: int) -> tuple[np.ndarray, np.ndarray]:
+            got = rays.get(slot)
+            if got is None:
+                v = w[:, slot] - eye
+                got = rays[slot] = (v, np.linalg.norm(v, axis=-1))
+            return got
+
+        def edge(s0: int, s1: int) -> np.ndarray:
+            """:func:`edge_px` of slots ``s0``-``s1`` (the same numbers), each pair and each slot's ray once (a
+            two-triangle patch's 4 sides and 6 triangle edges are 5 pairs)."""
+            key = (min(int(s0), int(s1)), max(int(s0), int(s1)))
+            got = done.get(key)
+            if got is None:
+                (v1, n1), (v2, n2) = ray(key[0]), ray(key[1])
+                c = (v1 * v2).sum(-1) / np.maximum(n1 * n2, 1e-12)
+                got = done[key] = px_per_rad * np.arccos(np.clip(c, -1.0, 1.0))
+            return got
+
         for s0, s1, du in WIDTH_EDGES[k]:
-            width[sel] = np.maximum(width[sel], edge_px(w[:, s0], w[:, s1], eye, px_per_rad) / du)
+            width[sel] = np.maximum(width[sel], edge(s0, s1) / du)
         for s0, s1, dv in HEIGHT_EDGES[k]:
-            height[sel] = np.maximum(height[sel], edge_px(w[:, s0], w[:, s1], eye, px_per_rad) / dv)
+            height[sel] = np.maximum(height[sel], edge(s0, s1) / dv)
         tri_area = np.zeros(sel.size)
         for t in TRI_SLOTS[k]:
             if t[0] < 0:
                 continue
-            e0 = edge_px(w[:, t[0]], w[:, t[1]], eye, px_per_rad)
-            e1 = edge_px(w[:, t[1]], w[:, t[2]], eye, px_per_rad)
-            e2 = edge_px(w[:, t[2]], w[:, t[0]], eye, px_per_rad)
-            tri_area += _heron(e0, e1, e2)
+            tri_area += _heron(edge(t[0], t[1]), edge(t[1], t[2]), edge(t[2], t[0]))
         # a single triangle fills half its block
         area[sel] = tri_area * (2.0 if k == 1 else 1.0)
     return PatchExtent(width, height, area)

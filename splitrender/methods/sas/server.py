@@ -62,6 +62,29 @@ EXPAND_TEXELS = 1.5
 """How far each triangle is grown in the atlas (texels) so every texel a bilinear tap of the client may read is shaded."""
 INSET_GROW_TEXELS = 0.25
 """How far an edge on an inset block side is grown: just past the border texels' centres, which it runs through (the block's side is half a texel further)."""
+SHARED_GROW_TEXELS = 1.0 / 32.0
+"""How far an edge shared with another triangle of the patch is grown: the neighbour shades the texels beyond it
+itself, so only far enough that texel centres on the edge (a block's diagonal runs through some) are not lost to
+rounding of the two triangles' vertices: more than a rasteriser's 1/256-texel snap (not growing it left cracks),
+less than any other texel centre's distance from a block's diagonal (0.06 texels in a 16 x 2 block), so only
+the centres on the edge are drawn twice."""
+
+
+def shared_edges(tris: np.ndarray) -> np.ndarray:
+    """(T, 3) bool for triangles ``tris`` (T, 3) slot triples (rows of -1 unused): whether edge ``e`` (slot
+    ``e`` to ``e + 1``) is shared with another triangle of the patch."""
+    out = np.zeros(tris.shape, bool)
+    for t, tri in enumerate(tris):
+        if tri[0] < 0:
+            continue
+        for e in range(3):
+            a, b = int(tri[e]), int(tri[(e + 1) % 3])
+            out[t, e] = any(u != t and a in row and b in row for u, row in enumerate(tris.tolist()))
+    return out
+
+
+TRI_SHARED: dict[int, np.ndarray] = {k: shared_edges(v) for k, v in TRI_SLOTS.items()}
+"""Per patch size, which triangle edges are shared inside the patch (:func:`shared_edges`)."""
 
 
 def has_texture_detail(material: Any) -> bool:
@@ -505,11 +528,10 @@ class SasServer(ServerHalf):
         if stale.size:
             self._vcache[stale] = self._shade_vertices(stale)
             self._vcache_ok[stale] = True
-        tri_used = np.arange(3)[None, :] < P.size[live][:, None]             # (L, 3)
-        v = self._vcache[live].copy()                                       # (L, 3, 3, VERTEX_FLOATS)
-        v[..., VERTEX_FLOATS - 2:] = foot[:, None, None, :]
-        v = v[tri_used]                                                     # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
-        o = np.repeat(P.object_index[live], tri_used.sum(1))
+        li, ti = np.nonzero(np.arange(3)[None, :] < P.size[live][:, None])  # the used (patch, triangle) pairs
+        v = self._vcache.reshape(-1, 3, VERTEX_FLOATS)[live[li] * 3 + ti]  # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
+        v[..., VERTEX_FLOATS - 2:] = foot[li][:, None, :]
+        o = P.object_index[live[li]]
         data = v.tobytes()
         self._vbo, self._vao = grow_vertex_buffer(gl, self._prog, self._vbo, self._vao, len(data), "2f 3f 3f 2f 4f 4f 2f",
                                                   ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint"))
@@ -555,11 +577,14 @@ class SasServer(ServerHalf):
                 if tri[0] < 0:
                     continue
                 p2 = xy[:, tri]                                        # (n, 3, 2)
-                # edges inside the block grow by EXPAND_TEXELS; those on a side stay (texels beyond it are another
-                # block's), or on an inset side grow past the border texels' centres
+                # edges inside the block grow by EXPAND_TEXELS, those shared with another triangle of the patch by
+                # only SHARED_GROW_TEXELS (the neighbour shades its side; grown by EXPAND_TEXELS the later triangle's
+                # extrapolation overwrote the earlier one's texels near the diagonal, 1.65 fragments per texel); those on a side stay (texels beyond it are another block's), or on an inset side
+                # grow past the border texels' centres
                 axes = boundary_axes(SLOT_LAYOUT[k][tri])              # layout axis per edge, -1 inside
                 d = np.full((sel.size, 3), EXPAND_TEXELS)
                 if not self.config.grow_block_sides:
+                    d[:, TRI_SHARED[k][t]] = SHARED_GROW_TEXELS
                     for e in np.flatnonzero(axes >= 0).tolist():
                         atlas_axis = np.where(self.transposed[sid], 1 - axes[e], axes[e])
                         d[:, e] = np.where(ins[np.arange(sel.size), atlas_axis], INSET_GROW_TEXELS, 0.0)
