@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from splitrender.errors import ConfigError
-from splitrender.pipeline.adapt import AdaptConfig, RateController, retarget
+from splitrender.pipeline.adapt import AdaptConfig, CappedCrf, RateController, retarget
 
 
 def test_targets_follow_the_estimate_after_paying_for_what_is_not_controlled() -> None:
@@ -32,26 +32,46 @@ def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> No
     assert t["color"] == pytest.approx(1500 / 1.5) and t["depth"] == pytest.approx(500)
 
 
-def test_a_stream_first_runs_at_the_method_s_own_rate_and_is_capped_by_it() -> None:
-    """Calibration: 3 frames of 4000 B at 30 frame/s (960 kbit/s at the method's crf) on a wide link leave the
-    stream alone; then its target is capped at 1.5x that (1440), however wide the link.  A narrow link takes control
-    before calibration ends, and the cap comes from what was seen until then (here at the default ceiling, 1)."""
+def test_a_stream_first_runs_at_the_method_s_own_rate_under_a_ceiling_and_is_capped_by_it() -> None:
+    """Calibration: a stream first keeps the method's crf under a ceiling at its share of the estimate (a
+    :class:`CappedCrf`, not a target).  3 frames of 4000 B at 30 frame/s (960 kbit/s) under a 20 Mbit/s ceiling were
+    the crf's own: its target is capped at 1.5x that (1440), however wide the link.  Under a 500 kbit/s ceiling the
+    P-frames took half of it or more: the ceiling shaped them, so the cap they give (480) is provisional: it caps
+    nothing, the estimator may probe past it, and once the stream's share is 1.5x it the stream calibrates again.
+    A window opens at an IDR (one per GOP, as the stream sends them), and an IDR, however large, never counts as
+    shaped."""
     cfg = AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3, ceiling=1.5)   # the default ceiling is 1
     rc = RateController(("color",), 30.0, cfg)
-    assert rc.targets_kbps(20e6) == {}                       # nothing seen yet: the method's own rate control
-    for _ in range(2):
-        rc.on_frame_sent({"color": 4000})
-        assert rc.targets_kbps(20e6) == {}
-    rc.on_frame_sent({"color": 4000})
-    assert rc.targets_kbps(20e6) == {"color": pytest.approx(1440)} and rc.state()["adapt_color_cap_kbps"] == 1440
+    got = rc.targets_kbps(20e6)
+    assert got == {"color": pytest.approx(20000)} and isinstance(got["color"], CappedCrf)
+    assert not rc.calibrated and rc.wanted_bps() is None
+    for k in range(3):
+        rc.on_frame_sent({"color": 4000}, {"color": CappedCrf(20000.0)}, idr_streams=("color",) if k == 0 else ())
+    got = rc.targets_kbps(20e6)
+    assert got == {"color": pytest.approx(1440)} and not isinstance(got["color"], CappedCrf)
+    assert rc.state()["adapt_color_cap_kbps"] == pytest.approx(1440) and rc.wanted_bps() == pytest.approx(1440e3)
     assert rc.targets_kbps(1e6) == {"color": pytest.approx(1000)}
-    narrow = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=30))
-    for k in range(10):    # ten frames before it judges: the first is an IDR, and the estimate starts from a guess
-        assert narrow.targets_kbps(0.5e6) == {}
-        narrow.on_frame_sent({"color": 4000})
-    assert narrow.targets_kbps(0.5e6) == {"color": pytest.approx(500)}   # under the 960 it sends: control now
-    narrow.on_frame_sent({"color": 2000}, {"color": 500.0})
-    assert narrow.targets_kbps(20e6)["color"] == pytest.approx(960)     # capped at what it sent uncontrolled
+
+    narrow = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3))
+    narrow.on_frame_sent({"color": 20000}, {"color": CappedCrf(500.0)}, idr_streams=("color",))      # the IDR: not shaped
+    for _ in range(2):
+        narrow.on_frame_sent({"color": 2000}, {"color": CappedCrf(500.0)})                  # 480 kbit/s under 500
+    assert narrow.calibrated and narrow.state()["adapt_color_cap_kbps"] == pytest.approx((20000 + 4000) / 3 * 0.24)
+    assert narrow.wanted_bps() is None                                       # provisional: the probes may go on
+    cap = narrow.state()["adapt_color_cap_kbps"]
+    got = narrow.targets_kbps(1.2 * cap * 1e3)
+    assert got == {"color": pytest.approx(1.2 * cap)} and not isinstance(got["color"], CappedCrf)   # no cap
+    got = narrow.targets_kbps(20e6)                                          # 1.5x the cap or more: calibrate again
+    assert isinstance(got["color"], CappedCrf) and narrow.calibrated         # the provisional cap stands meanwhile
+    narrow.on_frame_sent({"color": 9000}, {"color": CappedCrf(20000.0)}, idr_streams=())   # no IDR yet: not counted
+    for k in range(3):                                                      # a window opens at an IDR
+        narrow.on_frame_sent({"color": 3000}, {"color": CappedCrf(20000.0)}, idr_streams=("color",) if k == 0 else ())
+    assert narrow.targets_kbps(20e6) == {"color": pytest.approx(720)} and narrow.wanted_bps() == pytest.approx(720e3)
+
+    shaped = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3))
+    for k in range(3):   # 960 kbit/s P-frames under a 1000 kbit/s ceiling: shaped
+        shaped.on_frame_sent({"color": 4000}, {"color": CappedCrf(1000.0)}, idr_streams=("color",) if k == 0 else ())
+    assert shaped.wanted_bps() is None
 
 
 def test_when_an_encoder_restarts() -> None:
@@ -129,7 +149,8 @@ def test_adaptation_needs_the_feedback_and_probes_only_where_it_adapts() -> None
     assert len(probe) >= 12 and all(b[8:12] == adapting.tx.probe_ssrc.to_bytes(4, "big") for _, b, _ in probe)
     times = [t for t, _, _ in probe]
     assert times == sorted(times) and times[-1] > times[0]
-    assert adapting.encoder_rates() == {}        # calibrating: the method's own rate control for its first frames
+    rates = adapting.encoder_rates()             # calibrating: the method's crf under a ceiling at its share of the
+    assert rates == {"color": pytest.approx(270.0)} and isinstance(rates["color"], CappedCrf)   # start rate (0.9x)
 
 
 STEP = ((1.5, 3.0), (3.5, 0.6))
@@ -165,8 +186,11 @@ def test_a_step_down_is_followed_within_the_recovery_bound(step_trace_path) -> N
     assert rate < 150 and off > 1300, (off, rate)
     s = res["rate"].summary
     assert s["encoder_restarts"] >= 1 and s["probe_clusters"] >= 1, s
-    targets = [u["adapt_color_kbps"] for u in res["rate"].updates if u["t_s"] >= 2.5]
-    assert max(targets) < 400, max(targets)   # under the new capacity, room for metadata (316 kbit/s at most measured)
+    # what went out after the drop fits the new 600 kbit/s with room to drain (measured 323 kbit/s over 2.5-4 s; 377
+    # before the stream calibrated under a ceiling, when the encoder's learnt miss was older).  Its target is no
+    # measure of it: the learnt miss lifts the target over what the encoder then sends (up to 430 kbit/s measured)
+    sent = sum(u["bytes"] for u in res["rate"].updates if u["t_s"] >= 2.5) * 8 / 1.5 / 1000
+    assert sent < 450, sent
 
 
 def _adapt_run(path, method: str):  # type: ignore[no-untyped-def]

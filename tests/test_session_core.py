@@ -485,8 +485,10 @@ def test_without_transport_wide_feedback_packets_carry_no_extension() -> None:
 
 
 def test_a_paced_session_spreads_a_frame_at_the_pacing_rate() -> None:
-    """With pacing the core lets a frame's datagrams go at 2.5x the estimate (2 Mbit/s at start: 5 Mbit/s), stamped
-    in the order they leave, the first 5 ms worth at once; without it, all at once."""
+    """With pacing the core lets a frame's datagrams go at 2.5x the estimate (a session that does not adapt starts
+    it at 2 Mbit/s: 5 Mbit/s), stamped in the order they leave, the first 5 ms worth at once; without it, all at
+    once."""
+    from splitrender.pipeline.session import UNADAPTED_START_BPS
     from splitrender.protocol.twcc import read_transport_seq
 
     p = Pair(transport_cc=True, pacing=True)
@@ -504,7 +506,7 @@ def test_a_paced_session_spreads_a_frame_at_the_pacing_rate() -> None:
     assert [d[2:4] for _, d in sent] == [d[2:4] for d in dgrams]                  # in order, RTP sequence numbers kept
     assert [read_transport_seq(d, 5) for _, d in sent] == list(range(len(dgrams)))
     span_ms = times[-1] - times[0]
-    expect_ms = sum(len(d) for d in dgrams[len(first):]) * 8 / 5e6 * 1000
+    expect_ms = sum(len(d) for d in dgrams[len(first):]) * 8 / (2.5 * UNADAPTED_START_BPS) * 1000
     assert span_ms == pytest.approx(expect_ms, rel=0.35), (span_ms, expect_ms)
     assert p.server.next_send_ms(now) == float("inf")
     q = Pair(transport_cc=True)

@@ -69,8 +69,11 @@ def test_stress_case(suite: dict, case: str) -> None:
         assert rows[m]["below_floor_pct"] <= c.baseline_floor_pct, f"{case}/{m}: {rows[m]['below_floor_pct']:.1f}% below floor"
     if case == "fast_turn":
         assert rows["atw"]["below_floor_pct"] < rows["video"]["below_floor_pct"]
-    if c.windowed:
+    if c.windowed and case != "capacity_drop":
         assert rows["video"]["window_drop_db"] >= 1.0, rows["video"]
+    # capacity_drop adapts from the session's start, and adaptation starts low (300 kbit/s, issue 48): in the quick
+    # suite the pre-window baseline (0.2-0.5 s) is the ramp from that start, so the window's cost shows in the oldest
+    # update shown (the bounds below), not against that baseline (video measured 1.9 dB better in the window)
     if case == "capacity_drop":   # the oldest update shown: measured 300 (video), 333 (atw, sas, quads), 367 (tss), 400 ms
         bound = {"video": 375.0, "atw": 420.0, "sas": 420.0, "quads": 420.0, "tss": 460.0, "warp": 500.0}
         for m, r in rows.items():

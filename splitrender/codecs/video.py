@@ -134,13 +134,16 @@ def yuv_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, full_range: bool, 
 
 @dataclass(frozen=True)
 class VideoCodecConfig:
-    """How one video stream is coded.  ``bitrate_kbps`` wins over ``crf`` when both are set."""
+    """How one video stream is coded.  ``bitrate_kbps`` wins over ``crf`` when both are set; ``cap_kbps`` with
+    ``crf`` (and no ``bitrate_kbps``) is capped crf: the crf's quality, the rate held under ``cap_kbps`` by the
+    encoder's VBV (a two-frame buffer, as in bit-rate mode)."""
 
     codec: CodecName = "h264"
     pix_fmt: str = "yuv420p"
     input_format: str = "rgb24"
     bitrate_kbps: float | None = None
     crf: float | None = 23.0
+    cap_kbps: float | None = None
     gop: int = 30
     lossless: bool = False
     preset: str = "ultrafast"
@@ -156,6 +159,8 @@ class VideoCodecConfig:
             raise ConfigError(f"video bitrate_kbps: must be > 0, got {self.bitrate_kbps}")
         if self.crf is not None and not 0 <= self.crf <= 51:
             raise ConfigError(f"video crf: must be in [0, 51], got {self.crf}")
+        if self.cap_kbps is not None and not self.cap_kbps > 0:
+            raise ConfigError(f"video cap_kbps: must be > 0, got {self.cap_kbps}")
         if self.fps <= 0:
             raise ConfigError(f"video fps: must be > 0, got {self.fps}")
 
@@ -220,6 +225,9 @@ class VideoEncoder:
                 params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}", "nal-hrd=none"]
             elif cfg.crf is not None:
                 opts["crf"] = str(cfg.crf)
+                if cfg.cap_kbps is not None:
+                    kb = max(1, int(cfg.cap_kbps))
+                    params += [f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}", "nal-hrd=none"]
             opts["x264-params"] = ":".join(params)
         else:
             params = ["bframes=0", f"keyint={cfg.gop}", f"min-keyint={cfg.gop}", "scenecut=0", "repeat-headers=1", "log-level=error", "frame-threads=1"]
@@ -230,6 +238,9 @@ class VideoEncoder:
                 params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}"]
             elif cfg.crf is not None:
                 params.append(f"crf={cfg.crf}")
+                if cfg.cap_kbps is not None:
+                    kb = max(1, int(cfg.cap_kbps))
+                    params += [f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}"]
             opts["x265-params"] = ":".join(params)
             opts["forced-idr"] = "1"  # FFmpeg's libx265 wrapper: an I picture request becomes an IDR
         opts.update(cfg.extra)

@@ -17,10 +17,15 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    each stream's sent bits over its target and divides the next target by it (held in
    0.5-2), so the session's total follows the estimate rather than the encoders' habits.
 
-4. **No more than the method's own operating point needs.**  For its first
-   ``calibrate_frames`` a stream keeps the method's configured rate control (its crf)
-   unless the estimate is already below what it sends; what it took then, times
-   ``ceiling`` (1 by default), caps its target from then on: adaptation degrades a
+4. **No more than the method's own operating point needs.**  A stream first keeps the
+   method's configured rate control (its crf) under a ceiling at its share of the
+   estimate (:class:`CappedCrf`: x264/x265 in crf with a VBV cap), so a start below the
+   link's rate queues nothing (the estimator starts low, as WebRTC does); once it has
+   sent ``calibrate_frames`` frames, what those took, times ``ceiling`` (1 by default),
+   caps its target from then on.  Where their P-frames took ``BOUND`` of the ceiling or
+   more, the ceiling shaped them, not the crf: the link is narrower than the method's
+   rate, and the cap is provisional, dropped for a new calibration once the stream's
+   share is ``RECALIBRATE`` times it: adaptation degrades a
    method's operating point where the link cannot carry it, and gives it back when it
    can.  Beyond it, bits buy little (the quality of crf 23 or so) and cost the queue a
    sudden drop in capacity catches: uncapped, a session that probed its way to 15 Mbit/s
@@ -48,11 +53,41 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any, Collection, Iterable
 
 from ..errors import ConfigError
 
 ADAPT_MODES: tuple[str, ...] = ("off", "rate", "full")
+BOUND = 0.5
+"""Calibrating P-frames whose rate reached this fraction of their encoders' ceilings were shaped by the ceiling, not
+by the method's crf: the cap they give is provisional."""
+
+
+SHAPED_FRAMES = 10
+"""Frames after which a calibration whose ceiling has shaped the stream ends with a provisional cap (a whole one,
+``calibrate_frames``, for a cap of the method's own)."""
+CEILING_JUMP = 2.0
+"""A calibrating stream's encoder restarts at once, with an IDR, when its ceiling rises this many times over (a
+target's rise waits for the next IDR): at start the estimate climbs from 300 kbit/s by probing within a few round
+trips, and a stream held at the start's ceiling until its GOP ends would spend its first second below its own
+picture."""
+RECALIBRATE = 1.5
+"""A cap the link set (a stream whose ceiling kept binding through its calibration) is dropped, and the stream
+calibrated again, once its share of the estimate is this many times the cap."""
+
+
+class CappedCrf(float):
+    """A calibrating stream's rate (kbit/s) as a ceiling, not a target: its encoder keeps the method's crf under a
+    VBV cap at this rate (``VideoCodecConfig.cap_kbps``).  The other rates a :class:`RateController` gives are
+    targets (the encoder runs at that bit rate)."""
+
+    def scaled(self, k: float) -> "CappedCrf":
+        return CappedCrf(self * k)
+
+
+def scale_rate(v: float, k: float) -> float:
+    """``v * k``, a :class:`CappedCrf` staying one."""
+    return v.scaled(k) if isinstance(v, CappedCrf) else v * k
 
 
 @dataclass(frozen=True)
@@ -153,7 +188,10 @@ class RateController:
         self._target: dict[str, float] = {}
         self._seen: dict[str, list[int]] = {n: [] for n in self.video}     # calibration: bytes per frame at the method's own
         self._cap: dict[str, float] = {}                                     # kbit/s, once calibrated
-        self._controlled: set[str] = set()
+        self._ceilings: dict[str, list[float]] = {n: [] for n in self.video}  # calibration: the ceiling of each frame
+        self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
+        self._provisional: set[str] = set()                                  # caps the link set, not the method
+        self._calibrating: set[str] = set(self.video) if self.cfg.calibrate_frames else set()
         self.factor = 1.0
         """What the operating point (:class:`PointController`) lets the encoders take, as a fraction of what they
         took at the method's own point: each calibrated cap is multiplied by it."""
@@ -162,28 +200,45 @@ class RateController:
     def _avg(self, old: float | None, new: float) -> float:
         return new if old is None else old + self.cfg.smoothing * (new - old)
 
-    def on_frame_sent(self, wire_bytes: dict[str, int], given_kbps: dict[str, float] | None = None) -> None:
-        """One server frame's bytes on the wire per stream (headers included), and the targets its encoders ran at
-        (``given_kbps``, the streams under rate control; their misses are learnt from it)."""
+    def on_frame_sent(self, wire_bytes: dict[str, int], given_kbps: dict[str, float] | None = None,
+                      idr_streams: Collection[str] | None = None) -> None:
+        """One server frame's bytes on the wire per stream (headers included), the rates its encoders ran at
+        (``given_kbps``: targets, whose misses are learnt, and :class:`CappedCrf` ceilings) and the streams that
+        sent an IDR (large by nature: an IDR never counts as shaped by a ceiling, and a calibration window opens at
+        one; None where the caller does not know: a window opens at any frame)."""
         self.frames += 1
         other = sum(b for n, b in wire_bytes.items() if n not in self._share)
         self._overhead_bps = self._avg(self._overhead_bps, other * 8 * self.fps)
         ours = {n: wire_bytes.get(n, 0) for n in self.video}
         for n, b in ours.items():
             seen = self._seen[n]
-            if n not in self._cap and self.cfg.calibrate_frames:
-                if n in self._controlled:      # the link forced control before calibration ended: cap from what was seen
-                    self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen) if seen else self.cfg.max_kbps
-                else:
-                    seen.append(b)
-                    if len(seen) >= self.cfg.calibrate_frames:
-                        self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen)
+            keyframe = None if idr_streams is None else n in idr_streams
+            if n in self._calibrating and (seen or keyframe is not False):   # a window opens at an IDR: one a GOP
+                # at the method's own point: a frame sent at a coarser operating point (the point controller moves
+                # once a provisional cap is known) took that point's share of it
+                seen.append(b / max(self.factor, 1e-3))
+                ceiling = (given_kbps or {}).get(n)
+                if ceiling is not None:
+                    self._ceilings[n].append(float(ceiling))
+                if not keyframe:
+                    self._p_frames[n].append(b)
+                ceilings, p = self._ceilings[n], self._p_frames[n]
+                # the ceiling shaped the stream, not its crf: the link is narrower than the method's own rate, and
+                # what it carried is a provisional cap (calibrated again in targets_kbps once it widens), known as
+                # soon as SHAPED_FRAMES show it, so the operating point need not wait for a whole calibration
+                shaped = bool(ceilings and p and self._rate_kbps(p) >= BOUND * sum(ceilings) / len(ceilings))
+                if len(seen) >= self.cfg.calibrate_frames or (shaped and len(seen) >= SHAPED_FRAMES):
+                    self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen)
+                    (self._provisional.add if shaped else self._provisional.discard)(n)
+                    self._calibrating.discard(n)
+                    for buf in (seen, ceilings, p):
+                        buf.clear()
         total = sum(ours.values())
         if total > 0:
             for n, b in ours.items():
                 self._share[n] = self._avg(self._share[n], b / total)
         for n, kbps in (given_kbps or {}).items():
-            if n in self._miss and kbps > 0:
+            if n in self._miss and kbps > 0 and not isinstance(kbps, CappedCrf):   # a ceiling is no target to miss
                 sent_kbps = ours.get(n, 0) * 8 * self.fps / 1000
                 ratio = min(2.0, max(0.5, sent_kbps / kbps))
                 self._miss[n] = self._avg(self._miss[n], ratio)
@@ -192,23 +247,22 @@ class RateController:
         return float(sum(per_frame)) / len(per_frame) * 8 * self.fps / 1000
 
     def targets_kbps(self, encoder_bps: float) -> dict[str, float]:
-        """Each controlled stream's encoder target (kbit/s) for an estimated encoder rate of ``encoder_bps``; a stream
-        still calibrating is left out (it keeps the method's own rate control) unless the estimate is below what it
-        has been sending."""
+        """Each lossy video stream's encoder rate (kbit/s) for an estimated encoder rate of ``encoder_bps``: a target
+        for a calibrated stream, a :class:`CappedCrf` ceiling for one still calibrating (the method's crf under it)."""
         if not self.video or not math.isfinite(encoder_bps):
             return {}
         budget = self.cfg.headroom * encoder_bps - (self._overhead_bps or 0.0)
-        out = {}
+        out: dict[str, float] = {}
         for n in self.video:
             kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
-            if self.cfg.calibrate_frames and n not in self._cap and n not in self._controlled:
-                seen = self._seen[n]
-                if len(seen) < min(self.cfg.calibrate_frames, 10) or kbps >= self._rate_kbps(seen):
-                    continue       # calibrating, and the link carries what the method sends (or too few frames to tell:
-                    #                the first is an IDR, and the estimate starts from a guess)
-                self._controlled.add(n)
-            self._controlled.add(n)
-            out[n] = max(self.cfg.min_kbps, min(kbps, self._cap.get(n, self.cfg.max_kbps) * self.factor))
+            if n in self._provisional and n not in self._calibrating and kbps > RECALIBRATE * self._cap[n] * self.factor:
+                self._calibrating.add(n)   # the link now carries well more than it did: learn the method's own rate
+                #                            (the provisional cap stands for the operating point meanwhile)
+            if n in self._calibrating:
+                out[n] = CappedCrf(kbps)
+                continue
+            cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)  # the link's: no cap
+            out[n] = max(self.cfg.min_kbps, min(kbps, cap * self.factor))
         self._target = out
         return dict(out)
 
@@ -228,8 +282,8 @@ class RateController:
 
     def wanted_bps(self) -> float | None:
         """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
-        once every stream is calibrated; None before.  The estimator need not probe past it."""
-        if not self.cfg.calibrate_frames or not self.calibrated:
+        once every stream is calibrated by its own rate; None before (or while a cap is the link's, provisional).  The estimator need not probe past it."""
+        if not self.cfg.calibrate_frames or not self.calibrated or self._provisional:
             return None
         return (self.natural_video_bps() + self.overhead_bps) / self.cfg.headroom
 
@@ -293,7 +347,8 @@ class PointController:
     A point *fits* a budget (``headroom`` times the estimator's encoder rate) when its data plus its video over
     ``stretch`` do (its encoders may run below what they would take, to 1/``stretch`` of it, before a coarser point
     is worth more than the bits it loses).  The controller goes down at once to the richest point that fits (no
-    sooner than ``down_hold_s`` after its last move), and up, once a richer point has fitted within ``up_margin`` of
+    sooner than ``down_hold_s`` after its last move, unless a queue past the budget is growing: a move up just
+    before the link fell must not hold the session on a point the link no longer carries), and up, once a richer point has fitted within ``up_margin`` of
     the budget for ``up_hold_s``, to the richest such point.  A queue longer than the motion-to-photon budget
     (``mtp_budget_ms``) and still growing means the present point does not fit, whatever its costs say (a queue
     that drains is the estimator's: its encoder rate already leaves room to drain it).  It waits for the rate
@@ -362,14 +417,15 @@ class PointController:
         budget = self.cfg.headroom * encoder_bps
         last = len(self.ladder) - 1
         best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
-        if queue_ms > self.cfg.mtp_budget_ms and queue_ms > self._queue_ms and self.index < last:
+        growing = queue_ms > self.cfg.mtp_budget_ms and queue_ms > self._queue_ms
+        if growing and self.index < last:
             best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit
         self._queue_ms = queue_ms
         up = next((i for i in range(self.index) if self.fits(i, budget, self.cfg.up_margin)), None)
         target = self.index
         if best > self.index:
             self._fits_up_since = None
-            if now_s - self._moved_s >= self.cfg.down_hold_s:
+            if now_s - self._moved_s >= self.cfg.down_hold_s or growing:   # a growing queue does not wait
                 target = best
         elif up is not None:
             if self._fits_up_since is None:

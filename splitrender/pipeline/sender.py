@@ -32,7 +32,7 @@ from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import one_byte_extension
 from ..protocol import (DataChunk, FrameMeta, Message, Pose as PoseMsg, RtpPacket, RtpPacketizer, StreamDescription, make_sdp,
                         split_annexb)
-from .adapt import AdaptConfig, retarget
+from .adapt import CEILING_JUMP, AdaptConfig, CappedCrf, retarget
 from .wire import (DATA_CHUNK_BYTES, META_STREAM, SESSION_STREAM, Envelope, checksum, compress_data, control_wire_bytes,
                    datagram_wire_bytes, pack_envelope, rtp_format, stream_table)
 
@@ -83,6 +83,8 @@ class OutgoingFrame:
     payload_bytes: dict[str, int] = field(default_factory=dict)
     """Coded payload bytes per stream (no transport headers)."""
     keyframe: bool = False
+    idr_streams: tuple[str, ...] = ()
+    """The video streams that sent an IDR in this frame (``keyframe``: all of them did)."""
 
     @property
     def total_wire_bytes(self) -> int:
@@ -239,12 +241,16 @@ class ServerPipeline:
             cfg = st.encoder.cfg if st.encoder is not None else st.spec.codec
             retargeted = False
             want = rates_kbps.get(name) if rates_kbps else None
+            capped = isinstance(want, CappedCrf) and st.spec.codec.crf is not None   # a ceiling over the method's crf
             if want is not None and not st.spec.codec.lossless:
-                cur = cfg.bitrate_kbps if st.encoder is not None else None
+                cur = (cfg.cap_kbps if capped else cfg.bitrate_kbps) if st.encoder is not None else None
                 due = fresh or force_idr or st.encoder.idr_due  # type: ignore[union-attr]
                 retargeted, urgent = retarget(cur, want, due, adapt or AdaptConfig())
+                if capped and cur is not None and want >= CEILING_JUMP * cur:
+                    retargeted = urgent = True     # a ceiling far above: the crf's own picture now, not at the next IDR
                 if retargeted:
-                    cfg = dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None)
+                    cfg = (dataclasses.replace(cfg, cap_kbps=float(want), bitrate_kbps=None, crf=st.spec.codec.crf)
+                           if capped else dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None, cap_kbps=None))
                     restarts += not fresh
                     idr = idr or urgent
             if st.encoder is None or resized or retargeted:
@@ -254,6 +260,8 @@ class ServerPipeline:
                 restarts += resized
             if st.encoder.cfg.bitrate_kbps is not None and want is not None:
                 given[name] = float(st.encoder.cfg.bitrate_kbps)
+            elif st.encoder.cfg.cap_kbps is not None and want is not None:
+                given[name] = CappedCrf(st.encoder.cfg.cap_kbps)
             video[name] = ef = st.encoder.encode(plane, force_idr=idr)
             if ef.keyframe and not st.sets_checked and st.encoder.parameter_sets_known:
                 st.sets_checked = True
@@ -273,7 +281,8 @@ class ServerPipeline:
                   pose_seq: int, target_t_s: float, timing_us: dict[str, int], srv: dict[str, float]) -> OutgoingFrame:
         """Everything frame ``enc.update.frame_id`` sends, framed and counted."""
         upd = enc.update
-        out = OutgoingFrame(upd.frame_id, keyframe=enc.keyframe)
+        out = OutgoingFrame(upd.frame_id, keyframe=enc.keyframe,
+                            idr_streams=tuple(n for n, e in enc.video.items() if e.keyframe))
         rtp_ts &= 0xFFFFFFFF
         reliable = []
         for name, blob in enc.data.items():

@@ -47,7 +47,7 @@ from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_f
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
-from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, stream_fps
+from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
 from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
@@ -938,6 +938,13 @@ class _TxState:
     """Bytes resent in the last second."""
 
 
+UNADAPTED_START_BPS = 2_000_000.0
+"""The estimator's start in a session that measures the path but does not adapt (``transport_cc``, ``pacing``,
+``adapt = "off"``): its encoders send at the method's own rate from the first frame, so a start as low as an adapting
+session's (:attr:`~.gcc.GccConfig.start_bps`, 300 kbit/s) would only hold its pacer back (a 2 s paced session at
+320x180 completed 9 frames of 60); 2 Mbit/s, the estimator's start before issue 48."""
+
+
 @dataclass
 class ServerSession:
     """The server side of one session (see the module docstring).
@@ -979,7 +986,10 @@ class ServerSession:
         cc = self.tx.transport_cc_id is not None
         self.send_history = SendHistory(window_us=5_000_000) if cc else None
         """Transport sequence numbers sent, for the client's transport-wide feedback (sessions with it only)."""
-        self.estimator = BandwidthEstimator(self.options.gcc) if cc else None
+        gcc = self.options.gcc
+        if self.options.adapt == "off" and gcc.start_bps < UNADAPTED_START_BPS <= gcc.max_bps:
+            gcc = dataclasses.replace(gcc, start_bps=UNADAPTED_START_BPS)
+        self.estimator = BandwidthEstimator(gcc) if cc else None
         """The path's send-rate estimate from that feedback (:mod:`.gcc`)."""
         self.pacer: Pacer[tuple[Any, bytes]] | None = \
             Pacer(self.estimator.target_bps) if self.estimator is not None and self.options.pacing else None
@@ -1209,7 +1219,7 @@ class ServerSession:
         if self.rate is None or self.estimator is None:
             return None
         div = self.point.frame_div if self.point is not None else 1   # an encoder takes its rate per frame at its fps
-        return {n: v * div for n, v in self.rate.targets_kbps(self.estimator.encoder_bps()).items()}
+        return {n: scale_rate(v, div) for n, v in self.rate.targets_kbps(self.estimator.encoder_bps()).items()}
 
     def congestion(self) -> dict[str, float]:
         """The estimator's view now (empty without transport-wide feedback): ``cc_target_kbps`` (delay and loss
@@ -1273,7 +1283,8 @@ class ServerSession:
         self.counters["frames_sent"] += 1
         if self.rate is not None:
             div = self.point.frame_div if self.point is not None else 1
-            self.rate.on_frame_sent(out.wire_bytes, {n: v / div for n, v in rates_kbps.items()} if rates_kbps else None)
+            self.rate.on_frame_sent(out.wire_bytes, {n: scale_rate(v, 1 / div) for n, v in rates_kbps.items()} if rates_kbps else None,
+                                    idr_streams=out.idr_streams)
             if self.point is not None:
                 self.point.on_frame_sent()
             self.counters["encoder_restarts"] = self.counters.get("encoder_restarts", 0) + restarts
