@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
-import subprocess
 import sys
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _trees import commit_of, run_in_tree  # noqa: E402  (beside this script)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "bench_adapt_startup.json"
@@ -60,22 +60,8 @@ print("RESULT " + json.dumps({"p95_age_ms": p95([x for _, x in ages]), "p95_age_
 
 
 def one(tree: Path, method: str, network: str) -> dict:
-    arg = json.dumps({"method": method, "network": network, "duration_s": DURATION_S})
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", CHILD, arg], env=env, cwd=str(tree), capture_output=True, text=True)
-    line = [x for x in p.stdout.splitlines() if x.startswith("RESULT ")]
-    if p.returncode or not line:
-        raise RuntimeError(f"{method} over {network} from {tree} failed:\n{p.stderr[-3000:]}")
-    out = json.loads(line[-1][7:])
-    out["wall_s"] = time.perf_counter() - t0
-    return out
-
-
-def commit_of(tree: Path) -> str:
-    r = subprocess.run(["git", "-C", str(tree), "rev-parse", "HEAD"], capture_output=True, text=True)
-    d = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--", "splitrender"], capture_output=True, text=True)
-    return r.stdout.strip() + (" + uncommitted changes" if d.stdout.strip() else "")
+    return run_in_tree(tree, CHILD, {"method": method, "network": network, "duration_s": DURATION_S},
+                       f"{method} over {network}")
 
 
 def main() -> None:

@@ -9,7 +9,8 @@ QUASAR's table 4 orders QUASAR > MeshWarp 120 > MeshWarp 60 > ATW.  This runs, p
 - ``quads`` (``variant=quasar``) from this checkout and, with ``--before PATH`` (a ``git worktree`` of the commit
   before the change), from that tree in the same run; ``--budget`` adds QUASAR with each stage of the error budget
   turned off or to its ideal; ``--thresholds`` adds QUASAR with reference frames also on distance and angle
-thresholds (its section 3.5.1); ``--baselines MW60,warp`` runs only those baselines; ``--quadstream`` adds ``variant=quadstream`` (about 4 minutes a model here).
+  thresholds (its section 3.5.1); ``--baselines MW60,warp`` runs only those baselines; ``--quadstream`` adds
+  ``variant=quadstream`` (about 4 minutes a model here).
 
 Each configuration runs in its own process (``PYTHONPATH`` picks the tree).  Scores: the mean model-region PSNR over
 the displayed frames that show content (``model_psnr_content_db``; the runner's ``mean_model_psnr_db`` over all frames
@@ -24,12 +25,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
-import subprocess
 import sys
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _trees import commit_of, run_in_tree  # noqa: E402  (beside this script)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "bench_quads_models.json"
@@ -83,23 +84,8 @@ print("RESULT " + json.dumps({
 
 def one(tree: Path, scene: str, method: str, params: dict, truth_cache: str) -> dict:
     """One run in its own process with ``tree`` on ``PYTHONPATH``; its numbers and wall seconds."""
-    arg = json.dumps({"method": method, "params": params, "scene": scene, "settings": SETTINGS, "truth_cache": truth_cache})
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", CHILD, arg], env=env, cwd=str(tree), capture_output=True, text=True)
-    line = [x for x in p.stdout.splitlines() if x.startswith("RESULT ")]
-    if p.returncode or not line:
-        raise RuntimeError(f"{method} {params} on {scene} failed:\n{p.stderr[-3000:]}")
-    out = json.loads(line[-1][7:])
-    out["wall_s"] = time.perf_counter() - t0
-    return out
-
-
-def commit_of(tree: Path) -> str:
-    r = subprocess.run(["git", "-C", str(tree), "rev-parse", "HEAD"], capture_output=True, text=True)
-    d = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--", "splitrender/methods/quads"],
-                       capture_output=True, text=True)
-    return r.stdout.strip() + (" + uncommitted quads changes" if d.stdout.strip() else "")
+    return run_in_tree(tree, CHILD, {"method": method, "params": params, "scene": scene, "settings": SETTINGS,
+                                     "truth_cache": truth_cache}, f"{method} {params} on {scene}")
 
 
 def main() -> None:
@@ -117,7 +103,8 @@ def main() -> None:
     if missing:
         sys.exit(f"bench_quads_models: assimp-testmodels is not installed ({', '.join(str(MODELS[m]) for m in missing)} missing)")
     res: dict = {"machine": platform.platform(), "settings": SETTINGS, "scene_suffix": "+ground",
-                 "after": commit_of(ROOT), "before": commit_of(ns.before) if ns.before else None, "models": {}}
+                 "after": commit_of(ROOT, "splitrender/methods/quads"),
+                 "before": commit_of(ns.before, "splitrender/methods/quads") if ns.before else None, "models": {}}
     for name in ns.models.split(","):
         scene = f"{MODELS[name]}+ground"
         runs: dict = {}
