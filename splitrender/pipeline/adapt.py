@@ -61,8 +61,6 @@ ADAPT_MODES: tuple[str, ...] = ("off", "rate", "full")
 BOUND = 0.5
 """Calibrating P-frames whose rate reached this fraction of their encoders' ceilings were shaped by the ceiling, not
 by the method's crf: the cap they give is provisional."""
-
-
 SHAPED_FRAMES = 10
 """Frames after which a calibration whose ceiling has shaped the stream ends with a provisional cap (a whole one,
 ``calibrate_frames``, for a cap of the method's own)."""
@@ -186,7 +184,7 @@ class RateController:
         self._share: dict[str, float] = {n: 1.0 / len(self.video) for n in self.video} if self.video else {}
         self._miss: dict[str, float] = {n: 1.0 for n in self.video}
         self._target: dict[str, float] = {}
-        self._seen: dict[str, list[int]] = {n: [] for n in self.video}     # calibration: bytes per frame at the method's own
+        self._seen: dict[str, list[float]] = {n: [] for n in self.video}   # calibration: bytes per frame at the method's own
         self._cap: dict[str, float] = {}                                     # kbit/s, once calibrated
         self._ceilings: dict[str, list[float]] = {n: [] for n in self.video}  # calibration: the ceiling of each frame
         self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
@@ -243,7 +241,7 @@ class RateController:
                 ratio = min(2.0, max(0.5, sent_kbps / kbps))
                 self._miss[n] = self._avg(self._miss[n], ratio)
 
-    def _rate_kbps(self, per_frame: list[int]) -> float:
+    def _rate_kbps(self, per_frame: list[float] | list[int]) -> float:
         return float(sum(per_frame)) / len(per_frame) * 8 * self.fps / 1000
 
     def targets_kbps(self, encoder_bps: float) -> dict[str, float]:
@@ -255,13 +253,15 @@ class RateController:
         out: dict[str, float] = {}
         for n in self.video:
             kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
-            if n in self._provisional and n not in self._calibrating and kbps > RECALIBRATE * self._cap[n] * self.factor:
+            wider = kbps > RECALIBRATE * self._cap.get(n, math.inf) * self.factor
+            if n in self._provisional and n not in self._calibrating and wider:
                 self._calibrating.add(n)   # the link now carries well more than it did: learn the method's own rate
                 #                            (the provisional cap stands for the operating point meanwhile)
             if n in self._calibrating:
                 out[n] = CappedCrf(kbps)
                 continue
-            cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)  # the link's: no cap
+            # a provisional cap is the link's, not the method's: it caps nothing
+            cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)
             out[n] = max(self.cfg.min_kbps, min(kbps, cap * self.factor))
         self._target = out
         return dict(out)
@@ -282,7 +282,8 @@ class RateController:
 
     def wanted_bps(self) -> float | None:
         """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
-        once every stream is calibrated by its own rate; None before (or while a cap is the link's, provisional).  The estimator need not probe past it."""
+        once every stream is calibrated by its own rate; None before, or while a cap is the link's (provisional).  The
+        estimator need not probe past it."""
         if not self.cfg.calibrate_frames or not self.calibrated or self._provisional:
             return None
         return (self.natural_video_bps() + self.overhead_bps) / self.cfg.headroom
@@ -348,11 +349,11 @@ class PointController:
     ``stretch`` do (its encoders may run below what they would take, to 1/``stretch`` of it, before a coarser point
     is worth more than the bits it loses).  The controller goes down at once to the richest point that fits (no
     sooner than ``down_hold_s`` after its last move, unless a queue past the budget is growing: a move up just
-    before the link fell must not hold the session on a point the link no longer carries), and up, once a richer point has fitted within ``up_margin`` of
-    the budget for ``up_hold_s``, to the richest such point.  A queue longer than the motion-to-photon budget
-    (``mtp_budget_ms``) and still growing means the present point does not fit, whatever its costs say (a queue
-    that drains is the estimator's: its encoder rate already leaves room to drain it).  It waits for the rate
-    controller to calibrate before its first move.
+    before the link fell must not hold the session on a point the link no longer carries), and up, once a richer
+    point has fitted within ``up_margin`` of the budget for ``up_hold_s``, to the richest such point.  A queue
+    longer than the motion-to-photon budget (``mtp_budget_ms``) and still growing means the present point does not
+    fit, whatever its costs say (a queue that drains is the estimator's: its encoder rate already leaves room to
+    drain it).  It waits for the rate controller's first cap (a provisional one will do) before its first move.
     """
 
     def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None) -> None:
