@@ -68,6 +68,7 @@ class ServerProcess:
         self.url = ""
         self.proc: subprocess.Popen[str] | None = None
         self.log: deque[str] = deque(maxlen=400)
+        self._pump: threading.Thread | None = None
 
     def __enter__(self) -> ServerProcess:
         cmd = [sys.executable, "-m", "splitrender.cli", "serve", "--port", "0", "--udp-port", "0", "--webrtc",
@@ -78,15 +79,19 @@ class ServerProcess:
 
         def pump() -> None:
             assert self.proc is not None and self.proc.stderr is not None
-            for line in self.proc.stderr:
-                self.log.append(line.rstrip())
-                m = re.search(r"browsers: (http://\S+)", line)
-                if m and not found.is_set():
-                    self.url = m.group(1)
-                    found.set()
-            found.set()
+            try:
+                for line in self.proc.stderr:
+                    self.log.append(line.rstrip())
+                    m = re.search(r"browsers: (http://\S+)", line)
+                    if m and not found.is_set():
+                        self.url = m.group(1)
+                        found.set()
+            finally:
+                found.set()
+                self.proc.stderr.close()     # at the child's end (EOF): no pipe left for the garbage collector
 
-        threading.Thread(target=pump, daemon=True).start()
+        self._pump = threading.Thread(target=pump, daemon=True)
+        self._pump.start()
         if not found.wait(self.start_timeout_s) or not self.url:
             self.__exit__()
             raise RuntimeError("the server did not start:\n" + "\n".join(self.log))
@@ -100,6 +105,8 @@ class ServerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
+        if self._pump is not None:
+            self._pump.join(5)                # it reads the child's stderr to its end and closes it
 
 
 class PageDriver:
