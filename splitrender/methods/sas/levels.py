@@ -59,7 +59,12 @@ def patch_world_slots(patches: ScenePatches, ids: np.ndarray, model: np.ndarray)
 def edge_px(a: np.ndarray, b: np.ndarray, eye: np.ndarray, px_per_rad: float) -> np.ndarray:
     """Eq. 1: screen-space length in pixels of edges ``a``-``b`` (..., 3) seen from ``eye``."""
     v1, v2 = a - eye, b - eye
-    c = (v1 * v2).sum(-1) / np.maximum(np.linalg.norm(v1, axis=-1) * np.linalg.norm(v2, axis=-1), 1e-12)
+    return _rays_px(v1, np.linalg.norm(v1, axis=-1), v2, np.linalg.norm(v2, axis=-1), px_per_rad)
+
+
+def _rays_px(v1: np.ndarray, n1: np.ndarray, v2: np.ndarray, n2: np.ndarray, px_per_rad: float) -> np.ndarray:
+    """:func:`edge_px` from the eye's rays to the two ends and their lengths."""
+    c = (v1 * v2).sum(-1) / np.maximum(n1 * n2, 1e-12)
     return px_per_rad * np.arccos(np.clip(c, -1.0, 1.0))
 
 
@@ -106,9 +111,7 @@ def patch_extent_px(patches: ScenePatches, ids: np.ndarray, world: np.ndarray, e
             key = (min(int(s0), int(s1)), max(int(s0), int(s1)))
             got = done.get(key)
             if got is None:
-                (v1, n1), (v2, n2) = ray(key[0]), ray(key[1])
-                c = (v1 * v2).sum(-1) / np.maximum(n1 * n2, 1e-12)
-                got = done[key] = px_per_rad * np.arccos(np.clip(c, -1.0, 1.0))
+                got = done[key] = _rays_px(*ray(key[0]), *ray(key[1]), px_per_rad)
             return got
 
         for s0, s1, du in WIDTH_EDGES[k]:
