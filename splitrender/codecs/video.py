@@ -132,6 +132,12 @@ def yuv_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, full_range: bool, 
     return np.clip(out, 0, 255).astype(np.uint8).reshape(h, w, 3)
 
 
+def _vbv(kbps: int, fps: int) -> list[str]:
+    """x264/x265 parameters holding a stream under ``kbps`` with a two-frame VBV buffer (bit-rate mode and capped
+    crf alike)."""
+    return [f"vbv-maxrate={kbps}", f"vbv-bufsize={max(1, int(kbps / fps * 2))}"]
+
+
 @dataclass(frozen=True)
 class VideoCodecConfig:
     """How one video stream is coded.  ``bitrate_kbps`` wins over ``crf`` when both are set; ``cap_kbps`` with
@@ -222,12 +228,11 @@ class VideoEncoder:
                 opts["qp"] = "0"
             elif cfg.bitrate_kbps is not None:
                 kb = int(cfg.bitrate_kbps)
-                params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}", "nal-hrd=none"]
+                params += [f"bitrate={kb}", *_vbv(kb, cfg.fps), "nal-hrd=none"]
             elif cfg.crf is not None:
                 opts["crf"] = str(cfg.crf)
                 if cfg.cap_kbps is not None:
-                    kb = max(1, int(cfg.cap_kbps))
-                    params += [f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}", "nal-hrd=none"]
+                    params += [*_vbv(max(1, int(cfg.cap_kbps)), cfg.fps), "nal-hrd=none"]
             opts["x264-params"] = ":".join(params)
         else:
             params = ["bframes=0", f"keyint={cfg.gop}", f"min-keyint={cfg.gop}", "scenecut=0", "repeat-headers=1", "log-level=error", "frame-threads=1"]
@@ -235,12 +240,11 @@ class VideoEncoder:
                 params.append("lossless=1")
             elif cfg.bitrate_kbps is not None:
                 kb = int(cfg.bitrate_kbps)
-                params += [f"bitrate={kb}", f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}"]
+                params += [f"bitrate={kb}", *_vbv(kb, cfg.fps)]
             elif cfg.crf is not None:
                 params.append(f"crf={cfg.crf}")
                 if cfg.cap_kbps is not None:
-                    kb = max(1, int(cfg.cap_kbps))
-                    params += [f"vbv-maxrate={kb}", f"vbv-bufsize={max(1, int(kb / cfg.fps * 2))}"]
+                    params += _vbv(max(1, int(cfg.cap_kbps)), cfg.fps)
             opts["x265-params"] = ":".join(params)
             opts["forced-idr"] = "1"  # FFmpeg's libx265 wrapper: an I picture request becomes an IDR
         opts.update(cfg.extra)
