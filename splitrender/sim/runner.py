@@ -393,7 +393,7 @@ class VirtualTimeRun:
             target_pose = c.predictor.predict(target_t)
             ctx = ServerContext(
                 frame_id=f, t_s=t_f, scene=self.scene, renderer=self.renderer, intrinsics=self.intr,
-                latest_pose=c.trace.pose_at(c.poses.latest_t_s), latest_pose_t_s=c.poses.latest_t_s,
+                latest_pose=c.poses.latest[1], latest_pose_t_s=c.poses.latest_t_s,   # the sample it took
                 target_pose=target_pose, target_t_s=target_t, predict=c.predictor.predict,
                 expected_latency_s=expected, keyframe_requested=kf, feedback=c.fb.snapshot(kf), shared=shared,
                 client=c.index,
