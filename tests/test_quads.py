@@ -403,6 +403,8 @@ def test_quadstreams_packed_atlas_shows_what_the_slot_atlas_shows(renderer) -> N
                                         ({"wide_fov_deg": 30.0}, "wide_fov_deg"), ({"delta_sim": -1.0}, "delta_sim"),
                                         ({"atlas": "packed"}, "QuadStream's atlas"), ({"atlas": "bins"}, "atlas"),
                                         ({"wide_scale": 2.0}, "wide_scale"),
+                                        ({"reference_distance_m": -0.1}, r"reference_distance_m: must be in \[0, 100\]"),
+                                        ({"reference_angle_deg": 200.0}, r"reference_angle_deg: must be in \[0, 180\]"),
                                         ({"view_cell": 1.0}, "unknown parameter 'view_cell'")])
 def test_nonsense_config_is_named(params: dict, msg: str) -> None:
     from splitrender.errors import ConfigError
