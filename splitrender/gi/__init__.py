@@ -1,1 +1,5 @@
-"""Global illumination shared by every method's shading: DDGI light probes (:mod:`.ddgi`)."""
+"""Streaming global illumination to thin clients: the ``probes`` method's probe stream (:mod:`.stream`).
+
+The DDGI probes themselves are the renderer's (:mod:`splitrender.render.ddgi`): every method's shading and
+the ground truth share them.  :mod:`.ddgi` and :mod:`.octa` re-export their names from there.
+"""

@@ -1,11 +1,11 @@
 """Probe streaming formats (light probe streaming paper, sections 3.2-3.4): what a ``probes`` server sends.
 
 The wire layer of the ``probes`` method (:mod:`splitrender.methods.probes`), which
-streams :mod:`.ddgi` probes to thin clients.  Everything here is exact: a decoded update
+streams :mod:`~splitrender.render.ddgi` probes to thin clients.  Everything here is exact: a decoded update
 equals, bit for bit, what the server packed.
 
 **Update textures** hold the probes' core texels without guard bands (the client
-rebuilds them, :func:`~.octa.add_guard`): 8 x 8 colour texels and 16 x 16 visibility
+rebuilds them, :func:`~splitrender.render.octa.add_guard`): 8 x 8 colour texels and 16 x 16 visibility
 texels per probe, each probe a self-contained block in a stable slot (slot = probe
 index, blocks row-major, ``cols`` per row), so an unchanged probe leaves its block as it
 was and the codec's P-frames skip it.  Dropping the guard bands saves 36 % of the colour
@@ -36,7 +36,7 @@ import struct
 import numpy as np
 
 from ..errors import RemoteProtocolError
-from .ddgi import IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE, atlas_tiles, probe_atlas, slot_grid
+from ..render.ddgi import IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE, atlas_tiles, probe_atlas, slot_grid
 
 COLOR_BITS = 10
 COLOR_MAX_CODE = (1 << COLOR_BITS) - 1
@@ -71,7 +71,8 @@ def decode_irradiance(q: np.ndarray) -> np.ndarray:
 
 
 def grid_shape(count: int) -> tuple[int, int]:
-    """(cols, rows) of the slot grid for ``count`` probes (:func:`~.ddgi.slot_grid`; the index list's u16 bounds it)."""
+    """(cols, rows) of the slot grid for ``count`` probes (:func:`~splitrender.render.ddgi.slot_grid`;
+    the index list's u16 bounds it)."""
     if not 1 <= count <= MAX_PROBES:
         raise ValueError(f"probe count must be in [1, {MAX_PROBES}], got {count}")
     return slot_grid(count)

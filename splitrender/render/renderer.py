@@ -25,7 +25,9 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..scene.model import Scene, SceneObject
-from ..scene.pose import CameraIntrinsics, Pose
+from ..scene.pose import CameraIntrinsics, Pose, look_at_quat
+from .canvas import FullscreenPass
+from .ddgi import GI_UNITS, DdgiSettings, DdgiVolume, ProbeStates, gi_time
 from .gl import SHADER_DIR, get_context, load_program, set_uniform
 
 log = logging.getLogger(__name__)
@@ -136,15 +138,13 @@ class Renderer:
         self._shadow_size = 0
         self._shadow_static_key: int | None = None
         self._shadow_key: tuple[int, float] | None = None
-        from .canvas import FullscreenPass
-
         self._background = FullscreenPass(self.ctx, SHADER_DIR / "background.frag")
-        self._gi: dict[int, Any] = {}
+        self._gi: dict[int, DdgiVolume] = {}
         self.gi_sources: dict[int, Any] = {}
         """Probes to shade a scene with instead of computing its own (by ``id(scene)``; a client's received copy)."""
         self._gi_building: set[int] = set()
         self._gi_none: Any = None
-        self.gi_states: Any = None   # made by probe_states() on first use
+        self.gi_states: ProbeStates | None = None   # made by probe_states() on first use
         self.gi_hz = 0.0
         """The rate the scene's DDGI probes are relit at (0: for every time a render asks; see :func:`gi_time`): a live
         server relights them at its own rate, paid once per period whatever its frame rate, as DDGI engines do."""
@@ -300,18 +300,14 @@ class Renderer:
             if "u_point_color" in prog:
                 prog["u_point_color"].write(col.tobytes())
 
-    def probe_states(self) -> Any:
-        """The relit probe states this renderer's DDGI volumes share (:class:`~splitrender.gi.ddgi.ProbeStates`)."""
+    def probe_states(self) -> ProbeStates:
+        """The relit probe states this renderer's DDGI volumes share (:class:`~splitrender.render.ddgi.ProbeStates`)."""
         if self.gi_states is None:
-            from ..gi.ddgi import ProbeStates
-
             self.gi_states = ProbeStates()
         return self.gi_states
 
-    def gi_volume(self, scene: Scene) -> Any:
+    def gi_volume(self, scene: Scene) -> DdgiVolume | None:
         """The scene's DDGI probes on this renderer (captured on first use; None while being captured)."""
-        from ..gi.ddgi import DdgiSettings, DdgiVolume
-
         key = id(scene)
         vol = self._gi.get(key)
         if vol is None or vol.scene is not scene:
@@ -326,8 +322,6 @@ class Renderer:
         return vol
 
     def _bind_gi(self, prog: Any, scene: Scene, t_s: float, on: bool = True) -> None:
-        from ..gi.ddgi import GI_UNITS
-
         src = self.gi_sources.get(id(scene)) if on else None
         if src is not None:
             src.bind(prog)
@@ -336,8 +330,6 @@ class Renderer:
         vol = self.gi_volume(scene) if on and scene.gi == "ddgi" else None
         if vol is not None:
             if not vol.updating:
-                from ..gi.ddgi import gi_time
-
                 w0 = time.perf_counter()
                 vol.update(gi_time(t_s, self.gi_hz))
                 self.gi_ms += (time.perf_counter() - w0) * 1e3
@@ -496,7 +488,5 @@ class Renderer:
 
 
 def make_pose_looking(eye: tuple[float, float, float], target: tuple[float, float, float]) -> Pose:
-    from ..scene.pose import look_at_quat
-
     return Pose(np.array(eye, float), look_at_quat(np.array(eye, float), np.array(target, float)))
 

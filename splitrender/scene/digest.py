@@ -1,7 +1,7 @@
 """Content digests: SHA-256 of everything in a scene that can change a rendered pixel.
 
 The ground-truth cache (:mod:`splitrender.sim.truth`) keys frames on them, and the
-renderer's DDGI probes (:mod:`splitrender.gi.ddgi`) key relit probe states on them, so
+renderer's DDGI probes (:mod:`splitrender.render.ddgi`) key relit probe states on them, so
 two scene objects built alike (one per run) share what was computed for either.
 
 - every mesh array, material (texture pixels included), transform, animation

@@ -245,7 +245,7 @@ class Scene:
     ``gi``: ``none`` (the constant ``ambient`` on a hemisphere gradient) or ``ddgi``
     (light probes over the scene's bounds, ``gi_probes`` along x, y, z, whose
     irradiance replaces the ambient term in every method's shading; the sky's radiance
-    is ``ambient``; :mod:`splitrender.gi.ddgi`).
+    is ``ambient``; :mod:`splitrender.render.ddgi`).
     """
 
     name: str
