@@ -67,3 +67,15 @@ def describe_error(exc: BaseException) -> str:
     if isinstance(exc, SplitRenderError) and text:
         return text
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+class WorkerError(SplitRenderError):
+    """A request failed inside a render worker (the worker keeps running); the text names the cause."""
+
+
+class WorkerTimeout(SplitRenderError):
+    """A render worker's request missed its deadline; the worker was killed."""
+
+
+class WorkerDied(SplitRenderError):
+    """A render worker process ended (crashed, was killed, or was closed) while requests were pending."""

@@ -163,10 +163,10 @@ def test_feedback_reaches_the_server_and_aims_the_prediction(renderer) -> None: 
                     duration_s=1.5, client_fps=30, flip_every=0, seed=0, metrics=False, method_params={"atlas_mpix_1080p": 8.0})
     vt = VirtualTimeRun(cfg, renderer)
     res = vt.run()
-    c = vt.clients[0]
-    assert c.fb is not None and c.fb.reports > 10
-    assert c.fb._fb.lost_frames > 0 and "atlas" in c.fb._fb.lost, c.fb._fb
-    assert c.fb._fb.applied.get("atlas", -1) > 20
+    fb = vt.clients[0].core_s.fb
+    assert fb is not None and fb.reports > 10
+    assert fb._fb.lost_frames > 0 and "atlas" in fb._fb.lost, fb._fb
+    assert fb._fb.applied.get("atlas", -1) > 20
     lat = [u["expected_latency_ms"] for u in res.updates]
     assert lat[0] == pytest.approx(20 + 5 + 0.5 / 30 * 1000)  # the prior, before any feedback
     # measured: 10 ms server + 50 ms + 4 ms decode + up to one display tick

@@ -335,7 +335,7 @@ def test_the_simulators_welcome_sdp_names_the_parameter_sets_it_sends() -> None:
     sdp = c.welcome.streams[0].sdp
     sets = parameter_sets_from_sdp(sdp)
     assert [nal_type("h264", n) for n in sets] == [7, 8], sdp
-    enc = c.tx.streams["color"].encoder
+    enc = c.tx.encoder.encoders["color"]
     assert enc is not None and tuple(sets) == tuple(enc.parameter_sets())
     assert parse_fmtp(sdp)["profile-level-id"] == parse_h264_sps(sets[0]).profile_level_id
 
@@ -360,7 +360,7 @@ def test_a_444_run_describes_decodes_and_shows_full_chroma(codec: str) -> None:
         res = vt.run()
         (c,) = vt.clients
         assert c.welcome is not None and c.tx is not None
-        enc = c.tx.streams["color"].encoder
+        enc = c.tx.encoder.encoders["color"]
         assert enc is not None and enc.cfg.pix_fmt == f"yuv{chroma}p"
         sdp = c.welcome.streams[0].sdp
         fmtp = parse_fmtp(sdp)

@@ -1,22 +1,24 @@
 """One transmission path for both modes (DESIGN.md, "one pipeline").
 
-:class:`ServerPipeline` (encode, packetize, count) and :class:`ClientPipeline`
+:class:`StreamEncoder` and :class:`ServerPipeline` (encode; packetize and count) and :class:`ClientPipeline`
 (reassemble, jitter buffer, decode, release in order with partial delivery) are
 sans-IO: they take time and bytes in and give bytes and updates out.  The live server
 and client drive them with sockets and the wall clock; the virtual-time runner drives
 them with the network model on a simulated clock.  :mod:`.feedback` holds both ends
 of the feedback loop, :mod:`.producers` the scene producers shared by sessions, and
 :mod:`.wire` the byte-counting model and the update envelope; :mod:`.session` the sans-IO
-session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run.
+session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run, and :mod:`.frames` a server
+frame's order (the core's) and its making (:func:`make_frame`, wherever the GL context lives).
 """
 
+from .frames import FrameOrder, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .session import (ClientHandshake, ClientOptions, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
                       SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
-from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
+from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
@@ -24,6 +26,7 @@ __all__ = [
     "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
+    "FrameOrder", "make_frame", "StreamEncoder",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
     "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",

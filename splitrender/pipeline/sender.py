@@ -1,15 +1,14 @@
 """The server's transmission path for one session (sans-IO): encode, packetize, count.
 
-:class:`ServerPipeline` turns a method's :class:`~splitrender.methods.base.Update` into
-what crosses the wire, in both modes:
+Two halves, which the live server runs in two processes:
 
-1. :meth:`ServerPipeline.encode` (heavy; the live server runs it in the session's
-   render worker process): every video plane through the stream's real encoder, every data payload
-   through its compression;
-2. :meth:`ServerPipeline.packetize` (light): reliable data as ``DataChunk`` messages,
-   then the ``FrameMeta`` with the update envelope, framed by the session's control
-   :class:`~splitrender.protocol.Connection`; video and datagram data as RTP packets.
-   Every byte is counted per stream as it will cross the wire (:mod:`.wire`).
+1. :class:`StreamEncoder` (heavy; the live server runs it in the session's render worker, beside the method's
+   server half): every video plane through the stream's real encoder, every data payload through its compression;
+2. :class:`ServerPipeline` (light; the session's own): reliable data as ``DataChunk`` messages, then the
+   ``FrameMeta`` with the update envelope, framed by the session's control
+   :class:`~splitrender.protocol.Connection`; video and datagram data as RTP packets.  Every byte is counted per
+   stream as it will cross the wire (:mod:`.wire`).  Where the encoders run in the same process (the virtual-time
+   runner, tests) it holds them too (:meth:`ServerPipeline.open_encoders`).
 
 The drivers only move the bytes: the live session writes them to its sockets, the
 virtual-time runner delays them through the network model.
@@ -97,12 +96,99 @@ class TxStream:
     ssrc: int = 0
     payload_type: int = 0
     packetizer: RtpPacketizer | None = None
-    encoder: VideoEncoder | None = None
-    sets_checked: bool = False
-    """The first IDR's in-band parameter sets were compared with the described ones."""
     fec_ssrc: int = 0
     fec_payload_type: int = 0
     fec_seq: int = 0
+
+
+class StreamEncoder:
+    """The encoders of one session's streams (heavy: the live server runs them in its render worker): every video
+    plane through its stream's real encoder, every data payload through its compression."""
+
+    def __init__(self, specs: list[AnyStreamSpec]) -> None:
+        self.specs = {s.name: s for s in specs}
+        self.encoders: dict[str, VideoEncoder] = {}
+        self._sets_checked: set[str] = set()
+        """Streams whose first IDR's in-band parameter sets were compared with the described ones."""
+
+    def open(self) -> None:
+        """Open every video stream's encoder now and read the parameter sets it will send (for the SDP)."""
+        for name, spec in self.specs.items():
+            if isinstance(spec, StreamSpec) and name not in self.encoders:
+                self.encoders[name] = VideoEncoder(spec.codec, spec.width, spec.height)
+        for e in self.encoders.values():
+            e.parameter_sets()
+
+    def parameter_sets(self, name: str) -> tuple[bytes, ...]:
+        """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open`)."""
+        enc = self.encoders.get(name)
+        return enc.parameter_sets() if enc is not None else ()
+
+    def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
+               adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
+        """Code every payload of ``update``.
+
+        ``rates_kbps``: bit rates for lossy video streams (rate adaptation, :mod:`.adapt`); a stream whose
+        encoder runs at a rate that far from it (``adapt``'s ``change_ratio``) gets a new encoder at that rate,
+        at its next IDR or, for a steep fall, now with an IDR (:func:`~.adapt.retarget`).  ``scale``: the
+        resolution of the scalable streams (``--adapt full``): their planes are resampled to it
+        (:mod:`splitrender.codecs.resize`), and an encoder whose size changes restarts now with an IDR."""
+        w0 = time.perf_counter()
+        video: dict[str, EncodedFrame] = {}
+        data: dict[str, bytes] = {}
+        given: dict[str, float] = {}
+        restarts = 0
+        for name, plane in update.planes.items():
+            spec = self.specs.get(name)
+            if not isinstance(spec, StreamSpec):
+                raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
+            idr = force_idr
+            w, h = spec.width, spec.height
+            encoder = self.encoders.get(name)
+            if spec.scalable and scale is not None and scale < 1.0:
+                w, h = scaled_size(w, h, scale)
+                plane = resize(plane, w, h)
+            # at most one new encoder a frame: for a new size (its first frame an IDR) and/or a new rate
+            resized = encoder is not None and (encoder.width, encoder.height) != (w, h)
+            fresh = encoder is None or resized or encoder.frames_encoded == 0
+            cfg = encoder.cfg if encoder is not None else spec.codec
+            retargeted = False
+            want = rates_kbps.get(name) if rates_kbps else None
+            capped = isinstance(want, CappedCrf) and spec.codec.crf is not None   # a ceiling over the method's crf
+            if want is not None and not spec.codec.lossless:
+                cur = (cfg.cap_kbps if capped else cfg.bitrate_kbps) if encoder is not None else None
+                due = fresh or force_idr or encoder.idr_due  # type: ignore[union-attr]
+                retargeted, urgent = retarget(cur, want, due, adapt or AdaptConfig())
+                if capped and cur is not None and want >= CEILING_JUMP * cur:
+                    retargeted = urgent = True     # a ceiling far above: the crf's own picture now, not at the next IDR
+                if retargeted:
+                    cfg = (dataclasses.replace(cfg, cap_kbps=float(want), bitrate_kbps=None, crf=spec.codec.crf)
+                           if capped else dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None, cap_kbps=None))
+                    restarts += not fresh
+                    idr = idr or urgent
+            if encoder is None or resized or retargeted:
+                encoder = self.encoders[name] = VideoEncoder(cfg, w, h)
+            if resized or retargeted:
+                self._sets_checked.add(name)   # the described sets were the first encoder's; each IDR carries its own
+                restarts += resized
+            if encoder.cfg.bitrate_kbps is not None and want is not None:
+                given[name] = float(encoder.cfg.bitrate_kbps)
+            elif encoder.cfg.cap_kbps is not None and want is not None:
+                given[name] = CappedCrf(encoder.cfg.cap_kbps)
+            video[name] = ef = encoder.encode(plane, force_idr=idr)
+            if ef.keyframe and name not in self._sets_checked and encoder.parameter_sets_known:
+                self._sets_checked.add(name)
+                described = encoder.parameter_sets()
+                missing = [n for n in described if n not in split_annexb(ef.data)]
+                if missing:  # the SDP's sprop sets would disagree with the stream
+                    logger.warning("stream %s: %d of the parameter sets in the SDP are not in the first IDR",
+                                   name, len(missing))
+        for name, payload in update.data.items():
+            spec = self.specs.get(name)
+            if not isinstance(spec, DataStreamSpec):
+                raise ValueError(f"update {update.frame_id}: data {name!r} is not a declared data stream")
+            data[name] = compress_data(spec, payload)
+        return EncodedUpdate(update, video, data, (time.perf_counter() - w0) * 1000, given, restarts)
 
 
 class ServerPipeline:
@@ -154,6 +240,7 @@ class ServerPipeline:
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
         self.described_sets: dict[str, tuple[bytes, ...]] = {}
         """Parameter sets per stream of encoders that run elsewhere (the live server's render worker)."""
+        self._encoder: StreamEncoder | None = None
 
     # ------------------------------------------------------------------ set-up
 
@@ -161,20 +248,30 @@ class ServerPipeline:
     def rtp_streams(self) -> list[TxStream]:
         return [st for st in self.streams.values() if st.packetizer is not None]
 
-    def open_encoders(self) -> None:
-        """Open every video stream's encoder now (heavy: the live server runs it in the render
-        worker) and read the parameter sets it will send, for :meth:`describe`'s SDP."""
-        for st in self.streams.values():
-            if isinstance(st.spec, StreamSpec) and st.encoder is None:
-                st.encoder = VideoEncoder(st.spec.codec, st.spec.width, st.spec.height)
-            if st.encoder is not None:
-                st.encoder.parameter_sets()
+    @property
+    def encoder(self) -> StreamEncoder | None:
+        """This session's encoders where they run in this process (:meth:`open_encoders`), else None."""
+        return self._encoder
+
+    def open_encoders(self) -> StreamEncoder:
+        """Open the session's encoders here (the virtual-time runner, tests); the live session's run in its
+        render worker, and :attr:`described_sets` names their parameter sets instead."""
+        if self._encoder is None:
+            self._encoder = StreamEncoder(self.specs)
+        self._encoder.open()
+        return self._encoder
 
     def parameter_sets(self, name: str) -> tuple[bytes, ...]:
-        """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open_encoders`, unless
-        :attr:`described_sets` names them)."""
-        enc = self.streams[name].encoder
-        return enc.parameter_sets() if enc is not None else tuple(self.described_sets.get(name, ()))
+        """The parameter sets stream ``name``'s encoder sends (:attr:`encoder`'s, else :attr:`described_sets`)."""
+        if self._encoder is not None and name in self._encoder.encoders:
+            return self._encoder.parameter_sets(name)
+        return tuple(self.described_sets.get(name, ()))
+
+    def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
+               adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
+        """:meth:`StreamEncoder.encode` with this session's encoders (opened on first use)."""
+        enc = self._encoder if self._encoder is not None else self.open_encoders()
+        return enc.encode(update, force_idr, rates_kbps, adapt, scale)
 
     def describe(self, host: str, port: int, session_name: str) -> tuple[StreamDescription, ...]:
         """``Welcome.streams``: one description per RTP stream (SDP for video streams).
@@ -211,71 +308,6 @@ class ServerPipeline:
         return out
 
     # ------------------------------------------------------------------ per frame
-
-    def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
-               adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
-        """Code every payload of ``update`` (live, in the render worker).
-
-        ``rates_kbps``: bit rates for lossy video streams (rate adaptation, :mod:`.adapt`); a stream whose
-        encoder runs at a rate that far from it (``adapt``'s ``change_ratio``) gets a new encoder at that rate,
-        at its next IDR or, for a steep fall, now with an IDR (:func:`~.adapt.retarget`).  ``scale``: the
-        resolution of the scalable streams (``--adapt full``): their planes are resampled to it
-        (:mod:`splitrender.codecs.resize`), and an encoder whose size changes restarts now with an IDR."""
-        w0 = time.perf_counter()
-        video: dict[str, EncodedFrame] = {}
-        data: dict[str, bytes] = {}
-        given: dict[str, float] = {}
-        restarts = 0
-        for name, plane in update.planes.items():
-            st = self.streams.get(name)
-            if st is None or not isinstance(st.spec, StreamSpec):
-                raise ValueError(f"update {update.frame_id}: plane {name!r} is not a declared video stream")
-            idr = force_idr
-            w, h = st.spec.width, st.spec.height
-            if st.spec.scalable and scale is not None and scale < 1.0:
-                w, h = scaled_size(w, h, scale)
-                plane = resize(plane, w, h)
-            # at most one new encoder a frame: for a new size (its first frame an IDR) and/or a new rate
-            resized = st.encoder is not None and (st.encoder.width, st.encoder.height) != (w, h)
-            fresh = st.encoder is None or resized or st.encoder.frames_encoded == 0
-            cfg = st.encoder.cfg if st.encoder is not None else st.spec.codec
-            retargeted = False
-            want = rates_kbps.get(name) if rates_kbps else None
-            capped = isinstance(want, CappedCrf) and st.spec.codec.crf is not None   # a ceiling over the method's crf
-            if want is not None and not st.spec.codec.lossless:
-                cur = (cfg.cap_kbps if capped else cfg.bitrate_kbps) if st.encoder is not None else None
-                due = fresh or force_idr or st.encoder.idr_due  # type: ignore[union-attr]
-                retargeted, urgent = retarget(cur, want, due, adapt or AdaptConfig())
-                if capped and cur is not None and want >= CEILING_JUMP * cur:
-                    retargeted = urgent = True     # a ceiling far above: the crf's own picture now, not at the next IDR
-                if retargeted:
-                    cfg = (dataclasses.replace(cfg, cap_kbps=float(want), bitrate_kbps=None, crf=st.spec.codec.crf)
-                           if capped else dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None, cap_kbps=None))
-                    restarts += not fresh
-                    idr = idr or urgent
-            if st.encoder is None or resized or retargeted:
-                st.encoder = VideoEncoder(cfg, w, h)
-            if resized or retargeted:
-                st.sets_checked = True   # the described sets were the first encoder's; each IDR carries its own
-                restarts += resized
-            if st.encoder.cfg.bitrate_kbps is not None and want is not None:
-                given[name] = float(st.encoder.cfg.bitrate_kbps)
-            elif st.encoder.cfg.cap_kbps is not None and want is not None:
-                given[name] = CappedCrf(st.encoder.cfg.cap_kbps)
-            video[name] = ef = st.encoder.encode(plane, force_idr=idr)
-            if ef.keyframe and not st.sets_checked and st.encoder.parameter_sets_known:
-                st.sets_checked = True
-                described = st.encoder.parameter_sets()
-                missing = [n for n in described if n not in split_annexb(ef.data)]
-                if missing:  # the SDP's sprop sets would disagree with the stream
-                    logger.warning("stream %s: %d of the parameter sets in the SDP are not in the first IDR",
-                                   name, len(missing))
-        for name, payload in update.data.items():
-            st = self.streams.get(name)
-            if st is None or not isinstance(st.spec, DataStreamSpec):
-                raise ValueError(f"update {update.frame_id}: data {name!r} is not a declared data stream")
-            data[name] = compress_data(st.spec, payload)
-        return EncodedUpdate(update, video, data, (time.perf_counter() - w0) * 1000, given, restarts)
 
     def packetize(self, enc: EncodedUpdate, framer: Framer, server_time_us: int, rtp_ts: int, pose_sample_us: int,
                   pose_seq: int, target_t_s: float, timing_us: dict[str, int], srv: dict[str, float]) -> OutgoingFrame:

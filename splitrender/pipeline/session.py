@@ -51,6 +51,7 @@ from .adapt import AdaptConfig, PointController, RateController, check_adapt_mod
 from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
+from .frames import FrameOrder
 from .sender import OutgoingFrame, ServerPipeline
 from .wire import EnvelopeError, specs_from_table
 
@@ -132,7 +133,8 @@ class PoseInbox:
         if not self.newer(t_s):
             self.stale += 1
             return False
-        self.predictor.observe(t_s, pose)
+        if self.predictor is not None:
+            self.predictor.observe(t_s, pose)
         self.latest = (t_s, pose, client_us, seq)
         return True
 
@@ -966,14 +968,25 @@ class ServerSession:
     knobs: tuple[Any, ...] = ()
     """The method's operating-point knobs (its config's :meth:`~splitrender.methods.base.MethodConfig.adapt_knobs`),
     for ``adapt = "full"``; the resolution scale is added where a stream is scalable."""
+    predictor: Any = None
+    """The client's pose predictor (:mod:`splitrender.scene.predict`), on the driver's clock: the session's
+    :attr:`poses` feed it, and :meth:`order_frame` asks it for the pose to render."""
+    transport: str = "rtp"
+    """``"rtp"``: the core owns the RTP transport (history and NACK answers, RTCP reports, transport-wide feedback,
+    pacing); ``"webrtc"``: a WebRTC stack's does (the browser front door), and the core keeps the session's poses,
+    feedback, keyframes and frame orders only."""
 
     def __post_init__(self) -> None:
         self._rand = _uniform(self.rng)
+        self.poses = PoseInbox(self.predictor)
+        """The pose rule of every front door (:meth:`receive_pose`)."""
         self.fb = FeedbackState(self.display_hz, streams=self.tx.streams)
         self._kf = KeyframeRateLimiter(self.options.keyframe_min_interval_ms)
         self._kf_wanted = False
+        if self.transport not in ("rtp", "webrtc"):
+            raise ConfigError(f"server transport: must be rtp or webrtc, got {self.transport!r}")
         self.streams: dict[str, _TxState] = {}
-        for st in self.tx.rtp_streams:
+        for st in (self.tx.rtp_streams if self.transport == "rtp" else ()):
             self.streams[st.spec.name] = _TxState(st.spec.name, st.ssrc, RetransmissionHistory(self.options.history_packets),
                                                   st.packetizer)
         self._by_ssrc = {s.ssrc: s for s in self.streams.values()}
@@ -1040,6 +1053,11 @@ class ServerSession:
             self.counters["keyframe_requests"] += 1
             self.request_keyframe(now_ms)
         return None
+
+    def receive_pose(self, t_s: float, pose: Any, client_us: int = 0, seq: int = 0) -> bool:
+        """A pose sample measured at ``t_s`` (the driver's clock); taken when newer than the newest
+        (:class:`PoseInbox`).  Returns whether it was taken."""
+        return self.poses.offer(t_s, pose, client_us, seq)
 
     def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> list[bytes]:
         """A compound RTCP packet from the client; returns the RTP packets to resend (NACKs, within the bounds of
@@ -1259,6 +1277,27 @@ class ServerSession:
         kf = self._kf_wanted or self._kf.poll(now_ms)
         self._kf_wanted = False
         return kf
+
+    def order_frame(self, frame_id: int, tick: int, t_s: float, now_ms: float, epoch_s: float = 0.0,
+                    client: int = 0) -> FrameOrder | None:
+        """What server frame ``frame_id`` (tick ``tick`` of the shared grid, scene time ``t_s``) must be, decided at
+        driver time ``now_ms``: None where the operating point leaves the tick out (counted) or no pose has come yet;
+        else the order :func:`~.frames.make_frame` makes.  ``epoch_s``: the driver time of scene time 0 (the
+        predictor runs on the driver's clock, the order's times on the scene's).  Consumes a due keyframe."""
+        latest = self.poses.latest
+        if latest is None:
+            return None
+        point = self.operating_point(now_ms)
+        if self.skips(tick):
+            self.counters["frames_skipped_adapt"] = self.counters.get("frames_skipped_adapt", 0) + 1
+            return None
+        kf = self.keyframe_due(now_ms)
+        expected = self.fb.latency.value_s
+        pose_t, pose, pose_us, seq = latest
+        target_clock = now_ms / 1000 + expected
+        return FrameOrder(frame_id, tick, t_s, kf, expected, pose, pose_t - epoch_s, pose_us, seq,
+                          self.predictor.predict(target_clock), target_clock - epoch_s, self.predictor, epoch_s,
+                          self.fb.snapshot(kf), point, self.encoder_rates(), self.options.adapt_cfg, client)
 
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
                    rates_kbps: dict[str, float] | None = None, restarts: int = 0) -> None:

@@ -36,11 +36,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
+from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
+                                describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (PoseInbox, ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
+from splitrender.pipeline import (ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
                                   rtp_timestamp, session_params)
-from splitrender.server.worker import RenderWorker, WorkerDied, WorkerError, WorkerTimeout
+from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol.twcc import DEFAULT_EXTENSION_ID
 from splitrender.protocol import (
@@ -136,12 +137,10 @@ class ServerSession:
         self.method = ""
         self.intrinsics: CameraIntrinsics | None = None
         self.display_hz = 60.0
-        self._predictor: Any = None
-        self._poses: PoseInbox | None = None  # the client's pose samples (set up with the predictor)
         self._frame_id = 0
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
-        """The sans-IO session core (feedback, keyframes, NACK answers, sender reports)."""
+        """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
         self._last_tick = -1
         self.feedback_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
         """The newest Feedback rows (all of them go to ``feedback.csv`` as they come when ``out_dir`` is set)."""
@@ -161,7 +160,7 @@ class ServerSession:
     def counters(self) -> dict[str, Any]:
         """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
         core = self.core.counters if self.core is not None else {}
-        poses = {} if self._poses is None else self._poses.counters()
+        poses = self.core.poses.counters() if self.core is not None else {}
         pacer = self.core.pacer if self.core is not None else None
         # with a pacer, a frame's packets are counted when it is sent and stamped as they leave: the ones still
         # queued (or dropped by a full queue) when the session ends are the difference
@@ -286,8 +285,6 @@ class ServerSession:
         mcfg = make_config(spec.config, params).for_codecs(tuple(hello.codecs))
         self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
-        self._predictor = make_predictor(cfg.predictor)
-        self._poses = PoseInbox(self._predictor)
         server = self.server
         hang = server.test_hang
         self.worker = await server.acquire_worker()
@@ -309,7 +306,8 @@ class ServerSession:
         self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
                                                                         cfg.sr_interval_s, pacing=cfg.pacing,
                                                                         adapt=cfg.adapt),
-                                0, rtp_origin_ms=server.epoch_wall_s * 1000, knobs=mcfg.adapt_knobs())
+                                0, rtp_origin_ms=server.epoch_wall_s * 1000, knobs=mcfg.adapt_knobs(),
+                                predictor=make_predictor(cfg.predictor))
         self.core.start(_now_ms())
         host, port = server.udp_address
         descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
@@ -372,8 +370,8 @@ class ServerSession:
     def _on_pose(self, msg: Pose) -> None:
         t_s = msg.client_time_us / 1e6
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        assert self._poses is not None
-        self._poses.offer(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered sample is dropped
+        assert self.core is not None
+        self.core.receive_pose(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered sample is dropped
 
     def _on_feedback(self, fb: Feedback) -> None:
         assert self.core is not None
@@ -405,7 +403,7 @@ class ServerSession:
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
                 self.log_metrics()
-            if self.client_addr is None or self._poses is None or self._poses.latest is None:
+            if self.client_addr is None or self.core is None or self.core.poses.latest is None:
                 continue  # no UDP path or no pose yet: nothing useful to send
             if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
                 self._counters["frames_skipped_backlog"] += 1
@@ -419,35 +417,21 @@ class ServerSession:
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
     async def _send_frame(self) -> None:
-        server, intr, tx, core = self.server, self.intrinsics, self.tx, self.core
-        assert intr is not None and self._poses is not None and self._poses.latest is not None and self.client_addr is not None
-        assert tx is not None and core is not None
-        fbs = core.fb
+        server, tx, core = self.server, self.tx, self.core
+        assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
         wall = time.time()
         tick = max(server.tick_of(wall), self._last_tick + 1)  # never two frames on one tick
         self._last_tick = tick
-        point = core.operating_point(_now_ms())
-        if core.skips(tick):          # the operating point sends one tick in frame_div
-            self._counters["frames_skipped_adapt"] = self._counters.get("frames_skipped_adapt", 0) + 1
+        scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
+        order = core.order_frame(self._frame_id, tick, scene_t, wall * 1000, server.epoch_wall_s)
+        if order is None:          # the operating point sends one tick in frame_div
             return
         t_us = int(wall * 1e6)
-        scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
-        epoch = server.epoch_wall_s
-        kf = core.keyframe_due(wall * 1000)
-        expected = fbs.latency.value_s
-        pose_wall, latest_pose, pose_us, pose_seq = self._poses.latest
-        target_wall = wall + expected
-        target_pose = self._predictor.predict(target_wall)
-        target_t_s = target_wall - epoch
-        assert self.worker is not None
-        # the worker gets a copy of the predictor (pickled now, before any other pose arrives) for the
+        # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)
         c0 = time.perf_counter()
         try:
-            enc, stats, stages = await self.worker.call(
-                "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose, target_t_s),
-                self._predictor, epoch, expected, kf, fbs.snapshot(kf), core.encoder_rates(), core.options.adapt_cfg,
-                point, deadline_s=self.cfg.render_deadline_s)
+            enc, stats, stages = await self.worker.call("frame", self.id, order, deadline_s=self.cfg.render_deadline_s)
         except WorkerTimeout:
             self._counters["render_timeouts"] += 1
             raise
@@ -461,7 +445,8 @@ class ServerSession:
                   "shared": int(shared_ms * 1000)}
         rtp_ts = rtp_timestamp(scene_t)
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, pose_us, pose_seq, target_t_s, timing, stats)
+        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, order.pose_us, order.pose_seq, order.target_t_s,
+                           timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
         core.frame_sent(self._frame_id, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
@@ -480,7 +465,7 @@ class ServerSession:
                                "keyframe": int(out.keyframe), "shared_ms": shared_ms, "server_ms": render_ms,
                                "gi_ms": stages["gi_ms"], "encode_ms": enc.encode_ms,
                                "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
-                               "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": expected * 1000}
+                               "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": order.expected_latency_s * 1000}
         row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
         row.update(core.congestion())
         self.update_rows.append(row)

@@ -44,7 +44,7 @@ import time
 import traceback
 from typing import Any
 
-from splitrender.errors import SplitRenderError, describe_error
+from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
 
 __all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
 
@@ -68,18 +68,6 @@ def worker_context() -> Any:
         else:  # pragma: no cover - non-Unix
             _ctx = multiprocessing.get_context("spawn")
     return _ctx
-
-
-class WorkerError(SplitRenderError):
-    """A request failed inside the worker (the worker keeps running); the text names the cause."""
-
-
-class WorkerTimeout(SplitRenderError):
-    """A request missed its deadline; the worker was killed."""
-
-
-class WorkerDied(SplitRenderError):
-    """The worker process ended (crashed, was killed, or was closed) while requests were pending."""
 
 
 def parse_test_hang(text: str) -> tuple[int, int] | None:
@@ -240,7 +228,7 @@ class _Half:
 
     method: str
     half: Any
-    tx: Any
+    encoder: Any
     intrinsics: Any
     hang_frame: int
 
@@ -268,50 +256,31 @@ class _Worker:
         parameter sets each video encoder sends (for the SDP)."""
         from splitrender.codecs.meta import pack_meta
         from splitrender.methods.base import get_method
-        from splitrender.pipeline import ServerPipeline
+        from splitrender.pipeline import StreamEncoder
 
         spec = get_method(method)
         producer = self.producers.producer(spec, config)
         half = spec.server_class(config, intrinsics, self.scene, self.server_fps, producer=producer)
         specs = half.streams()
-        tx = ServerPipeline(specs)
-        tx.open_encoders()
-        self.halves[sid] = _Half(method, half, tx, intrinsics, hang_frame)
-        sets = {name: tx.parameter_sets(name) for name, st in tx.streams.items() if st.encoder is not None}
-        return specs, pack_meta(half.session_data()), sets
+        encoder = StreamEncoder(specs)
+        encoder.open()
+        self.halves[sid] = _Half(method, half, encoder, intrinsics, hang_frame)
+        return specs, pack_meta(half.session_data()), {name: encoder.parameter_sets(name) for name in encoder.encoders}
 
-    def frame(self, sid: str, frame_id: int, tick: int, scene_t: float, poses: tuple[Any, ...], predictor: Any,
-              epoch: float, expected_s: float, keyframe: bool, feedback: Any, rates_kbps: dict[str, float] | None = None,
-              adapt: Any = None, point: dict[str, Any] | None = None) -> Any:
-        """Render and encode one frame of session ``sid``; returns the coded update without its raw planes,
-        the half's stats, and the frame's stages in milliseconds: the producers' shared work, the half's own
-        (``produce_ms``), the probes' relighting within those two (``gi_ms``), the encoders' (``encode_ms``), and
-        the whole frame in this process (``worker_ms``)."""
-        from splitrender.methods.base import ServerContext
+    def frame(self, sid: str, order: Any) -> Any:
+        """Make session ``sid``'s frame ``order`` (:func:`~splitrender.pipeline.frames.make_frame`); returns the coded
+        update without its raw planes, the half's stats, and the frame's stages in milliseconds (``make_frame``'s;
+        ``worker_ms`` is the whole frame in this process)."""
+        from splitrender.pipeline import make_frame
 
         h = self.halves[sid]
-        if frame_id == h.hang_frame:
+        if order.frame_id == h.hang_frame:
             _hang()
-        latest_pose, latest_t, target_pose, target_t = poses
-        ctx = ServerContext(frame_id=frame_id, t_s=scene_t, scene=self.scene, renderer=self.renderer,
-                            intrinsics=h.intrinsics, latest_pose=latest_pose, latest_pose_t_s=latest_t,
-                            target_pose=target_pose, target_t_s=target_t,
-                            predict=lambda t: predictor.predict(t + epoch), expected_latency_s=expected_s,
-                            keyframe_requested=keyframe, feedback=feedback)
-        gi0 = self.renderer.gi_ms
-        w0 = time.perf_counter()
-        ctx.shared = self.producers.prepare(h.method, tick, scene_t)
-        w1 = time.perf_counter()
-        if point is not None:       # the operating point rate adaptation chose (--adapt full)
-            h.half.set_knobs(point)
-        upd = h.half.produce(ctx)
-        w2 = time.perf_counter()
-        enc = h.tx.encode(upd, bool(upd.force_idr or keyframe), rates_kbps, adapt, point.get("scale") if point else None)
-        enc.update = dataclasses.replace(upd, planes={}, data={})     # the raw planes stay here
-        w3 = time.perf_counter()
-        stages = {"shared_ms": (w1 - w0) * 1e3, "produce_ms": (w2 - w1) * 1e3, "gi_ms": self.renderer.gi_ms - gi0,
-                  "encode_ms": enc.encode_ms, "worker_ms": (w3 - w0) * 1e3}
-        return enc, h.half.stats(), stages
+        enc, stats, stages = make_frame(order, h.half, h.encoder, self.scene, self.renderer, h.intrinsics,
+                                        self.producers, h.method)
+        enc.update = dataclasses.replace(enc.update, planes={}, data={})     # the raw planes stay here
+        stages["worker_ms"] = stages["frame_ms"]
+        return enc, stats, stages
 
     def close(self, sid: str) -> None:
         self.halves.pop(sid, None)

@@ -64,9 +64,9 @@ from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, PoseInbox, ProducerPool,
+from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, SessionDataError, Stalled,
-                        check_hello, rtp_timestamp, session_params, session_summary, tcp_segments)
+                        check_hello, make_frame, rtp_timestamp, session_params, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
@@ -151,14 +151,10 @@ class _Client:
     sconn: ServerConnection = field(default_factory=ServerConnection)
     half: Any = None
     tx: ServerPipeline | None = None
-    fb: Any = None
-    predictor: Any = None
     arrivals: list[tuple[float, float]] = field(default_factory=list)
     arrival_idx: int = 0
-    poses: Any = None
-    """The server's :class:`PoseInbox` for this client (the Hello's pose at t = 0 is its first)."""
     core_s: ServerSession | None = None
-    """The server's session core (feedback, keyframes, NACK answers, sender reports)."""
+    """The server's session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
     rtcp_up: Link | None = None
     rtcp_down: Link | None = None
     """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
@@ -279,16 +275,15 @@ class VirtualTimeRun:
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
+        predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
         c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), SIM_EPOCH_US, 0.0,
-                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]), knobs=c.half.config.adapt_knobs())
+                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]), knobs=c.half.config.adapt_knobs(),
+                                 predictor=predictor)
+        self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
         c.chalf = self.spec.client_class(hs.terms.config, self.intr, c.gl, hs.session_data, limits=opts.limits)
         make_current(self.renderer.ctx)
-        c.fb = c.core_s.fb
-        c.predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        c.poses = PoseInbox(c.predictor)
-        c.poses.offer(0.0, c.trace.pose_at(0.0))  # the Hello carries the first pose
         # upstream poses: precomputed deliveries (the uplink model is deterministic)
         for k in range(int(self.duration_s * cfg.tracker_hz) + 1):
             ts = k / cfg.tracker_hz
@@ -364,54 +359,35 @@ class VirtualTimeRun:
 
     # ------------------------------------------------------------------ server
 
+    def _pose_up(self, c: _Client, ts: float) -> None:
+        """The tracker's sample measured at ``ts`` reaches the server (stamped as the live client stamps it)."""
+        c.core_s.receive_pose(ts, c.trace.pose_at(ts), sim_us(ts), int(round(ts * self.cfg.tracker_hz)))
+
     def _server_tick(self, f: int, pool: ProducerPool, result: RunResult) -> None:
         cfg, t_f = self.cfg, f / self.cfg.server_fps
-        from ..methods.base import ServerContext
-
         measured = cfg.cost_model == "measured"
         if measured and self.server_free_s > t_f + 1e-9:  # still busy with the last frame: this tick is skipped
             self.server_skipped += 1
             return
         make_current(self.renderer.ctx)
-        shared = pool.prepare(self.spec.name, f, t_f)
-        shared_ms = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
-        shared_stats = pool.stats(self.spec.name)
-        busy_ms = shared_ms  # measured server time so far this tick (sessions are served one after another)
+        busy_ms = 0.0  # measured server time so far this tick (sessions are served one after another)
         for c in self.clients:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
-                ts = c.arrivals[c.arrival_idx][1]
-                c.poses.offer(ts, c.trace.pose_at(ts))  # every front door's rule: newer than the newest taken
+                self._pose_up(c, c.arrivals[c.arrival_idx][1])   # every front door's rule: newer than the newest taken
                 c.arrival_idx += 1
-            assert c.fb is not None and c.tx is not None
-            assert c.core_s is not None
-            point = c.core_s.operating_point(t_f * 1000)
-            if c.core_s.skips(f):      # the operating point sends one tick in frame_div
+            assert c.tx is not None and c.tx.encoder is not None and c.core_s is not None
+            order = c.core_s.order_frame(f, f, t_f, t_f * 1000, client=c.index)
+            if order is None:      # the operating point sends one tick in frame_div
                 continue
-            kf = c.core_s.keyframe_due(t_f * 1000)
-            expected = c.fb.latency.value_s
-            target_t = t_f + expected
-            target_pose = c.predictor.predict(target_t)
-            ctx = ServerContext(
-                frame_id=f, t_s=t_f, scene=self.scene, renderer=self.renderer, intrinsics=self.intr,
-                latest_pose=c.poses.latest[1], latest_pose_t_s=c.poses.latest_t_s,   # the sample it took
-                target_pose=target_pose, target_t_s=target_t, predict=c.predictor.predict,
-                expected_latency_s=expected, keyframe_requested=kf, feedback=c.fb.snapshot(kf), shared=shared,
-                client=c.index,
-            )
-            w0 = time.perf_counter()
-            if point is not None:
-                c.half.set_knobs(point)
-            upd = c.half.produce(ctx)
-            server_ms = (time.perf_counter() - w0) * 1000
-            enc = c.tx.encode(upd, force_idr=upd.force_idr or kf, rates_kbps=c.core_s.encoder_rates(),
-                              adapt=c.core_s.options.adapt_cfg, scale=point.get("scale") if point else None)
-            busy_ms += server_ms + enc.encode_ms
+            enc, stats, stages = make_frame(order, c.half, c.tx.encoder, self.scene, self.renderer, self.intr, pool,
+                                            self.spec.name)
+            busy_ms += stages["frame_ms"]
             cost_ms = busy_ms * cfg.cost_scale if measured else cfg.server_latency_ms
             send_t = t_f + cost_ms / 1000.0
             self.server_free_s = max(self.server_free_s, send_t)
             timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
-            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), sim_us(c.poses.latest_t_s),
-                                 int(round(c.poses.latest_t_s * cfg.tracker_hz)), target_t, timing, c.half.stats())
+            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), order.pose_us, order.pose_seq,
+                                 order.target_t_s, timing, stats)
             c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts)
             # control frames: TCP segments over the downlink, in order, head-of-line blocked
             for stream, data in out.control:
@@ -427,20 +403,20 @@ class VirtualTimeRun:
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
-            pred_cm, pred_deg = prediction_error(target_pose, c.trace.pose_at(target_t))
-            c.pose_t[f] = c.poses.latest_t_s
+            pred_cm, pred_deg = prediction_error(order.target_pose, c.trace.pose_at(order.target_t_s))
+            c.pose_t[f] = order.latest_pose_t_s
             c.pred[f] = (pred_cm, pred_deg)
             row: dict[str, Any] = {"client": c.index, "frame_id": f, "t_s": t_f, "bytes": out.total_wire_bytes,
                                    "keyframe": int(out.keyframe), "delivered": "", "missing": "",
-                                   "shared_ms": shared_ms, "server_ms": server_ms, "encode_ms": enc.encode_ms,
-                                   "cost_ms": cost_ms,
-                                   "expected_latency_ms": expected * 1000, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
-                                   "arrival_s": math.nan}
+                                   "shared_ms": pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0,
+                                   "server_ms": stages["produce_ms"], "encode_ms": enc.encode_ms, "cost_ms": cost_ms,
+                                   "expected_latency_ms": order.expected_latency_s * 1000, "pred_err_cm": pred_cm,
+                                   "pred_err_deg": pred_deg, "arrival_s": math.nan}
             for name in c.bytes:
                 if name != SESSION_STREAM:
                     row[f"bytes_{name}"] = out.wire_bytes.get(name, 0)
-            row.update({f"srv_{k}": v for k, v in c.half.stats().items()})
-            row.update({f"shared_{k}": v for k, v in shared_stats.items()})
+            row.update({f"srv_{k}": v for k, v in stats.items()})
+            row.update({f"shared_{k}": v for k, v in pool.stats(self.spec.name).items()})
             row.update(c.core_s.congestion())
             c.update_rows[f] = row
             c.updates.append(row)

@@ -32,13 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import describe_error
+from ..errors import WorkerTimeout, describe_error
 from ..methods.base import StreamSpec, get_method, make_config
-from ..pipeline.feedback import FeedbackState
-from ..pipeline.session import PoseInbox
-from ..pipeline.sender import rtp_timestamp
+from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
+from ..pipeline.session import ServerOptions, ServerSession
 from ..protocol import Feedback
-from ..protocol.rtcp import KeyframeRateLimiter
 from ..scene.pose import CameraIntrinsics
 from ..scene.pose import Pose as ScenePose
 from ..scene.predict import make_predictor
@@ -114,11 +112,9 @@ class BrowserSession:
         self.method = req.method
         self.intrinsics = CameraIntrinsics(req.width, req.height, self.cfg.fov_y_deg)
         self.display_hz = req.display_hz
-        self._predictor = make_predictor(self.cfg.predictor)
-        self.fb = FeedbackState(req.display_hz, None)
-        self._keyframes = KeyframeRateLimiter(self.cfg.keyframe_min_interval_ms)
-        self._kf_owed = True            # the first frame is an IDR anyway
-        self._poses = PoseInbox(self._predictor)  # the page's pose samples, by the rule every front door keeps
+        self.core: ServerSession | None = None
+        """The session core in its WebRTC profile (aiortc owns the transport): the page's poses, by the rule every
+        front door keeps, its feedback, keyframes and frame orders."""
         self.pc: Any = None
         self.worker: Any = None
         self.track: EncodedVideoTrack | None = None
@@ -169,6 +165,9 @@ class BrowserSession:
                                    "(it takes one video stream)")
         ref = video[0]
         self.stream = ref.name
+        self.core = ServerSession(ServerPipeline(specs), self.display_hz,
+                                  ServerOptions(keyframe_min_interval_ms=cfg.keyframe_min_interval_ms),
+                                  predictor=make_predictor(cfg.predictor), transport="webrtc")
         if self.method == "sas":
             from .sas import SasBridge
 
@@ -247,9 +246,13 @@ class BrowserSession:
 
         sender._retransmit = retransmit
 
+    @property
+    def fb(self) -> Any:
+        return self.core.fb if self.core is not None else None
+
     def request_keyframe(self, why: str) -> None:
-        if self._keyframes.request(time.time() * 1000):
-            self._kf_owed = True
+        if self.core is not None:
+            self.core.request_keyframe(time.time() * 1000)
         logger.debug("browser session %s: keyframe for %s", self.id, why)
 
     # ------------------------------------------------------------------ events
@@ -289,14 +292,16 @@ class BrowserSession:
     def _on_pose(self, msg: PoseSample) -> None:
         t_s = msg.client_time_us / 1e6
         pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        self._poses.offer(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered one counts as stale
-        self.counters.update(self._poses.counters())
+        assert self.core is not None
+        self.core.receive_pose(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered one counts as stale
+        self.counters.update(self.core.poses.counters())
 
     def _on_feedback(self, msg: PageFeedback) -> None:
         self.counters["feedback_received"] += 1
         fb = Feedback(frame_id=msg.frame_id, received_us=msg.received_us, decoded_us=msg.received_us,
                       displayed_us=msg.displayed_us, lost_packets=0, applied={self.stream: msg.frame_id})
-        self.fb.on_feedback(fb)
+        assert self.core is not None
+        self.core.receive_message(fb, time.time() * 1000)
 
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
@@ -388,7 +393,7 @@ class BrowserSession:
     async def _frame_loop(self) -> None:
         async for skipped in self.server.frame_ticks():
             self.counters["frames_skipped_late"] += skipped
-            if (self._poses.latest is None or self.pc.connectionState != "connected"
+            if (self.core is None or self.core.poses.latest is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
                 if self._frame_id == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
                     raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
@@ -401,28 +406,19 @@ class BrowserSession:
             await self._send_frame()
 
     async def _send_frame(self) -> None:
-        server, cfg = self.server, self.cfg
-        assert self._poses.latest is not None and self.track is not None
+        server, cfg, core = self.server, self.cfg, self.core
+        assert core is not None and self.track is not None
         wall = time.time()
         tick = max(server.tick_of(wall), self._last_tick + 1)
         self._last_tick = tick
         scene_t = tick / cfg.server_fps
-        epoch = server.epoch_wall_s
         now_ms = wall * 1000
-        kf = self._kf_owed or self._keyframes.poll(now_ms)
-        expected = self.fb.latency.value_s
-        pose_wall, latest_pose, pose_us, pose_seq = self._poses.latest
-        target_wall = wall + expected
-        target_pose = self._predictor.predict(target_wall)
-        from ..server.worker import WorkerTimeout
-
+        order = core.order_frame(self._frame_id, tick, scene_t, now_ms, server.epoch_wall_s)
+        if order is None:
+            return
         c0 = time.perf_counter()
         try:
-            enc, _stats, stages = await self.worker.call(
-                "frame", self.id, self._frame_id, tick, scene_t, (latest_pose, pose_wall - epoch, target_pose,
-                                                                  target_wall - epoch),
-                self._predictor, epoch, expected, kf, self.fb.snapshot(kf), None, None, None,
-                deadline_s=cfg.render_deadline_s)
+            enc, _stats, stages = await self.worker.call("frame", self.id, order, deadline_s=cfg.render_deadline_s)
         except WorkerTimeout:
             self.counters["render_timeouts"] += 1
             raise
@@ -430,8 +426,6 @@ class BrowserSession:
             return
         frame = enc.video[self.stream]
         if frame.keyframe:
-            self._kf_owed = False
-            self._keyframes.keyframe_sent(now_ms)
             self.counters["keyframes_sent"] += 1
         rtp_ts = rtp_timestamp(scene_t)
         t_us = int(wall * 1e6)
@@ -439,7 +433,7 @@ class BrowserSession:
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
         meta = {"type": "frame", "id": self._frame_id, "rtp": rtp_ts, "t": scene_t, "server_us": t_us,
-                "pose_us": pose_us, "seq": pose_seq, "kf": bool(frame.keyframe),
+                "pose_us": order.pose_us, "seq": order.pose_seq, "kf": bool(frame.keyframe),
                 "p": [round(float(v), 6) for v in upd.pose.position],
                 "q": [round(float(v), 7) for v in upd.pose.orientation],
                 "origin": self.track.rtp_origin}
@@ -453,7 +447,9 @@ class BrowserSession:
         n_meta = self._send("frame", meta)
         if not self.track.put(frame.data, rtp_ts):
             self.request_keyframe("the sender fell behind")
-        self.fb.frame_sent(self._frame_id, t_us)
+        # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
+        core.frame_sent(self._frame_id, OutgoingFrame(self._frame_id, keyframe=frame.keyframe,
+                                                      wire_bytes={self.stream: len(frame.data)}), now_ms, t_us)
         self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
@@ -461,7 +457,7 @@ class BrowserSession:
         row = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes_color": len(frame.data),
                "bytes_frame_meta": n_meta, "keyframe": int(frame.keyframe), "server_ms": stages["produce_ms"],
                "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
-               "expected_latency_ms": expected * 1000}
+               "expected_latency_ms": order.expected_latency_s * 1000}
         d = self.out_dir
         if d is not None:
             if self._log is None:
