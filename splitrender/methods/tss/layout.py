@@ -162,6 +162,45 @@ def lp_lookup(bary: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray, np.
     return t, x, y
 
 
+def lp_reconstruct(blocks: np.ndarray, bary: np.ndarray, level: int) -> np.ndarray:
+    """The client's L-packing reconstruction (``shaders/client.frag``) at points ``bary`` (N, 3) from the three tip
+    blocks ``blocks`` (3, D, D, ...) of one triangle at ``level``: (N, ...) values.
+
+    Each side of a tip block's diagonal is an affine lattice of its own (its rows are ring edges), so a bilinear tap
+    is exact for linear shading except on a diagonal cell, whose fourth texel holds the mirrored side's sample, a
+    third of a sample step from where the tap takes it to be, and in the innermost ring of an odd level, which has no
+    row of its own.  There the point is interpolated linearly on the three samples around it: on a diagonal cell the
+    two diagonal texels and the one on the point's side, in the innermost ring its three corners (texels ``(k, k)``,
+    ``(k + 1, k)`` and ``(k, k + 1)`` of the block, ``k = level // 2``).  Exact for linear shading at every level."""
+    b = np.asarray(bary, np.float64)
+    n = np.arange(len(b))
+    D = int(tip_dim(level))
+    k = int(max_ring(level))
+    t, x, y = lp_lookup(b, level)
+    a, q = (t + 1) % 3, (t + 2) % 3
+    m_val = np.minimum(b[n, a], b[n, q])
+    x0 = np.minimum(np.floor(x).astype(np.int64), D - 1)
+    y0 = np.minimum(np.floor(y).astype(np.int64), D - 1)
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, D - 1), np.minimum(y0 + 1, D - 1)
+    ex = (slice(None),) + (None,) * (blocks.ndim - 3)
+    T = (lambda xx, yy: blocks[t, yy, xx])
+    fx_, fy_ = fx[ex], fy[ex]
+    out = (T(x0, y0) * (1 - fx_) * (1 - fy_) + T(x1, y0) * fx_ * (1 - fy_) + T(x0, y1) * (1 - fx_) * fy_
+           + T(x1, y1) * fx_ * fy_)
+    lower = (fx >= fy)[ex]
+    tri = np.where(lower, (1 - fx_) * T(x0, y0) + (fx_ - fy_) * T(x1, y0) + fy_ * T(x1, y1),
+                   (1 - fy_) * T(x0, y0) + (fy_ - fx_) * T(x0, y1) + fx_ * T(x1, y1))
+    out = np.where((x0 == y0)[ex], tri, out)
+    if level % 2:
+        d = 2.0 * k / (3.0 * level)
+        w = [((b[n, j] - d) / (1.0 - 3.0 * d))[ex] for j in (t, a, q)]
+        kk = np.full(len(b), k)
+        centre = w[0] * T(kk, kk) + w[1] * T(kk + 1, kk) + w[2] * T(kk, kk + 1)
+        out = np.where((m_val * 1.5 * level > k)[ex], centre, out)
+    return out
+
+
 def os_linear_id(bary: np.ndarray, level: int) -> np.ndarray:
     """(N,) consecutive thread ids ``0 .. v(l) - 1`` of tessellator vertices ``bary`` (N, 3) at ``level``.
 

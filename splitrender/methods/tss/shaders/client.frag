@@ -27,15 +27,41 @@ void main() {
     if (kind == 0) {                 // the cell's centre: a u_single_px square cell is averaged
         p = v_o0.xy + 0.5 * float(u_single_px);
     } else if (kind == 1) {
+        // each side of a tip block's diagonal is an affine lattice of its own (rows are rings); a bilinear tap on
+        // a diagonal cell would read one sample of the mirrored side, a third of a sample step off: there, and in
+        // the innermost ring of odd levels, which holds no row, interpolate linearly on the three samples around
+        // the point instead (layout.lp_reconstruct; exact for linear shading)
         float l = v_info.y;
+        int li = int(l + 0.5), k = li / 2;
         int t = B.x >= B.y && B.x >= B.z ? 0 : (B.y >= B.z ? 1 : 2);
         int a = (t + 1) % 3, q = (t + 2) % 3;
         bool side_a = B[a] >= B[q];
         float s = side_a ? B[a] : B[q];
         float m = side_a ? B[q] : B[a];
-        float r = min(m * 1.5 * l, floor(l * 0.5));
+        ivec2 o = ivec2(tip_origin(t));
+        int Dm = (li + 2) / 2 + (li & 1) - 1;
+        if ((li & 1) == 1 && m * 1.5 * l > float(k)) {
+            float d = 2.0 * float(k) / (3.0 * l);
+            vec3 w = (vec3(B[t], B[a], B[q]) - d) / (1.0 - 3.0 * d);
+            f_color = vec4(w.x * texelFetch(u_atlas, o + ivec2(k, k), 0).rgb + w.y * texelFetch(u_atlas, o + ivec2(k + 1, k), 0).rgb
+                           + w.z * texelFetch(u_atlas, o + ivec2(k, k + 1), 0).rgb, 1.0);
+            return;
+        }
+        float r = m * 1.5 * l;
         float c = (s + 0.5 * m) * l;
-        p = tip_origin(t) + 0.5 + (side_a ? vec2(c, r) : vec2(r, c));
+        vec2 xy = side_a ? vec2(c, r) : vec2(r, c);
+        ivec2 i0 = ivec2(floor(xy));
+        if (i0.x != i0.y) {
+            p = vec2(o) + 0.5 + xy;
+        } else {
+            vec2 f = xy - vec2(i0);
+            ivec2 i1 = min(i0 + 1, ivec2(Dm));
+            vec3 c00 = texelFetch(u_atlas, o + i0, 0).rgb, c11 = texelFetch(u_atlas, o + i1, 0).rgb;
+            vec3 v = f.x >= f.y ? (1.0 - f.x) * c00 + (f.x - f.y) * texelFetch(u_atlas, o + ivec2(i1.x, i0.y), 0).rgb + f.y * c11
+                                : (1.0 - f.y) * c00 + (f.y - f.x) * texelFetch(u_atlas, o + ivec2(i0.x, i1.y), 0).rgb + f.x * c11;
+            f_color = vec4(v, 1.0);
+            return;
+        }
     } else if (u_os_centred != 0) {
         // centred grid: two rows around the point, in each the two samples around its column,
         // clamped to the samples that row holds (its length as the server's os_row_lengths)
