@@ -29,13 +29,21 @@ def test_newer_samples_are_taken_duplicates_and_reordered_ones_counted() -> None
     assert np.allclose(inbox.predictor.predict(0.2).position, [2.0, 0.0, 0.0])
 
 
-def test_every_front_door_uses_it() -> None:
-    """The rule was written three times and the copies disagreed (issue 47): the runner took ``ts >= latest``."""
+def test_every_front_door_uses_it_through_the_core() -> None:
+    """The rule was written three times and the copies disagreed (issue 47): the runner took ``ts >= latest``.  Now
+    each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
+    rule) and keeps no inbox or predictor of its own; the client drivers ask the client core for the blank-frame
+    and keyframe-skip rules instead of writing them."""
+    from splitrender.client import session as client
     from splitrender.server import session as live
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
     for mod in (runner, live, browser):
         src = inspect.getsource(mod)
-        assert "PoseInbox(" in src and ".offer(" in src, mod.__name__
-        assert "<= self._latest_pose" not in src and ">= c.latest_pose_t" not in src, mod.__name__
+        assert ".receive_pose(" in src and ".order_frame(" in src, mod.__name__
+        assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__
+        assert "ServerContext(" not in src and "KeyframeRateLimiter" not in src, mod.__name__
+    for mod in (runner, client):
+        src = inspect.getsource(mod)
+        assert ".blank(" in src and ".skips_decode(" in src and ".broken" not in src, mod.__name__

@@ -555,3 +555,88 @@ def test_frames_given_up_for_the_frame_bound_still_hand_over_their_reliable_data
     assert rx.counters["frames_given_up"] == 6 and rx.pending_frames == 4
     assert [(f, d) for f, d, _ in got] == [(f, f"delta {f}".encode()) for f in range(6)], got
     assert all("color" in m for _, _, m in got)                # given up without their pictures
+
+
+# --------------------------------------------------------------------------- frame orders and the client's rules
+
+
+def test_the_server_core_orders_each_frame_from_the_poses_it_took() -> None:
+    """``order_frame`` is the one frame tick of every front door: no order before a pose, the newest pose taken
+    (a stale one dropped), the target pose predicted ``expected latency`` after now on the driver's clock and
+    reported on the scene's (``epoch_s`` apart), a granted keyframe request consumed by exactly one order."""
+    from splitrender.scene.predict import make_predictor
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
+    core = ServerSession(tx, 60.0, ServerOptions(keyframe_min_interval_ms=100.0), predictor=make_predictor("cv"))
+    epoch = 1000.0                                   # driver time of scene time 0 (a wall clock)
+    assert core.order_frame(0, 0, 0.0, epoch * 1000, epoch) is None       # no pose yet
+    at = lambda x: Pose(np.array([x, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))  # noqa: E731
+    assert core.receive_pose(epoch + 0.0, at(0.0), 1, 1) and core.receive_pose(epoch + 0.1, at(1.0), 2, 2)
+    assert not core.receive_pose(epoch + 0.05, at(9.0), 3, 3)              # reordered: dropped
+    core.request_keyframe(epoch * 1000 + 200)
+    order = core.order_frame(7, 3, 0.1, epoch * 1000 + 200, epoch, client=2)
+    assert order is not None and (order.frame_id, order.tick, order.t_s, order.client) == (7, 3, 0.1, 2)
+    assert order.keyframe and (order.pose_us, order.pose_seq) == (2, 2)
+    assert order.latest_pose_t_s == pytest.approx(0.1) and order.latest_pose.position[0] == 1.0
+    lat = core.fb.latency.value_s
+    assert order.expected_latency_s == lat and order.target_t_s == pytest.approx(0.2 + lat)
+    # 10 m/s from the two samples taken, extrapolated to the display time, through the order's scene-clock predict
+    assert order.target_pose.position[0] == pytest.approx(1.0 + 10 * (0.1 + lat))
+    assert order.predict(0.3).position[0] == pytest.approx(3.0)
+    ctx = order.context(None, None, None, shared="s")
+    assert (ctx.frame_id, ctx.keyframe_requested, ctx.shared, ctx.client, ctx.target_t_s) == (7, True, "s", 2, order.target_t_s)
+    again = core.order_frame(8, 4, 0.13, epoch * 1000 + 233, epoch)
+    assert again is not None and not again.keyframe                        # the request was consumed once
+    assert order.rates_kbps is None and order.point is None                # no adaptation in this session
+
+
+def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
+    """The browser front door's core: aiortc owns RTP and RTCP, so the core holds no retransmission history and
+    sends no sender reports, while it still counts frames and keyframes and orders frames."""
+    from splitrender.pipeline import OutgoingFrame
+    from splitrender.scene.predict import make_predictor
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
+    core = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
+    core.start(0.0)
+    assert core.streams == {} and core.handle_timer(1e9) == []
+    core.receive_pose(0.0, Pose())
+    assert core.order_frame(0, 0, 0.0, 0.0) is not None
+    core.frame_sent(0, OutgoingFrame(0, keyframe=True, wire_bytes={"color": 100}), 0.0, 1)
+    assert core.counters["frames_sent"] == 1 and core.counters["keyframes"] == 1
+    with pytest.raises(ConfigError, match="server transport: must be rtp or webrtc, got 'quic'"):
+        ServerSession(tx, 60.0, transport="quic")
+
+
+def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
+    """Both client drivers (virtual time, live) ask the core: a tick is blank before any update shows or while the
+    half has no content; a broken video stream's non-keyframe is skipped and counted lost, a keyframe decoded."""
+    p = Pair()
+    assert p.client.blank(True)                                   # nothing shown yet
+    control, datagrams = p.frame(0, 0.0)
+    works = []
+    for data in control:
+        p.cconn.receive_data(data)
+        while (ev := p.cconn.next_event()) is not NEED_DATA:
+            p.client.receive_message(ev, 0.0)  # type: ignore[arg-type]
+    for d in datagrams:
+        works += p.client.receive_datagram(d, 0.0)
+    assert len(works) == 1 and works[0].unit.keyframe
+    works[0].stream.broken = True                                 # as a decode error of an earlier frame leaves it
+    assert not p.client.skips_decode(works[0], 0.0)               # a keyframe is decoded
+    works[0].stream.broken = False                                # (its release mends the stream)
+    p.client.on_decoded(works[0], ClientPipeline.decode(works[0]), 0.0)
+    (rf,) = p.client.collect(0.0)
+    p.client.applied(rf)
+    assert p.client.shown is rf and not p.client.blank(True) and p.client.blank(False)
+    control, datagrams = p.frame(1, 33.0)
+    for data in control:
+        p.cconn.receive_data(data)
+        while (ev := p.cconn.next_event()) is not NEED_DATA:
+            p.client.receive_message(ev, 33.0)  # type: ignore[arg-type]
+    works = [w for d in datagrams for w in p.client.receive_datagram(d, 33.0)]
+    assert len(works) == 1 and not works[0].unit.keyframe
+    errors = p.client.all_counters()["decode_errors"]
+    works[0].stream.broken = True                                 # a decode error after this frame's release
+    assert p.client.skips_decode(works[0], 33.0)                  # skipped, reported as a decode error
+    assert p.client.all_counters()["decode_errors"] == errors + 1

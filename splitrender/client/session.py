@@ -490,8 +490,7 @@ class LiveClient:
         assert self.rx is not None and self.core is not None
         while True:
             w = await self._decode_q.get()
-            if w.stream.kind == "video" and w.stream.broken and not w.unit.keyframe:
-                self.core.on_decoded(w, CodecError("skipped: waiting for a keyframe"), _now_ms())
+            if self.core.skips_decode(w, _now_ms()):
                 continue
             res = await loop.run_in_executor(self.decode_executor, self.rx.decode, w)
             if isinstance(res, CodecError):
@@ -613,23 +612,22 @@ class LiveClient:
             for f, good in zip(new, ok):
                 core.applied(f) if good else core.apply_failed(f)
             displayed_us = wall_us()
-            shown = core.shown
-            if shown is None:   # every update so far was rejected: still the black background
+            if core.blank(half.has_content):   # every update so far rejected or without content: still black
                 self._record(self._empty_row(self._rows_recorded, tick, trace_t, scene_t, pose, displayed_us))
-                continue
-            row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, shown, displayed_us,
-                            apply_ms + render_ms)
-            row.update({f"cli_{k}": v for k, v in cf.stats.items()})
-            row.update(self._kbps(displayed_us / 1e6))
-            self._record(row)
-            if cfg.save_images and cfg.out_dir is not None:
-                idx = row["frame"]
-                color, holes = cf.color, cf.holes
-                saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, idx, color, holes))
-                if len(saves) > 64:
-                    await asyncio.gather(*saves[:32])
-                    del saves[:32]
-            fb = core.feedback(displayed_us / 1000)
+            else:
+                assert core.shown is not None
+                row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
+                                apply_ms + render_ms)
+                row.update({f"cli_{k}": v for k, v in cf.stats.items()})
+                row.update(self._kbps(displayed_us / 1e6))
+                self._record(row)
+                if cfg.save_images and cfg.out_dir is not None:
+                    saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], cf.color,
+                                                      cf.holes))
+                    if len(saves) > 64:
+                        await asyncio.gather(*saves[:32])
+                        del saves[:32]
+            fb = core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
             if fb is not None:   # the first display of this update
                 assert self.channel is not None
                 await self.channel.send(fb)

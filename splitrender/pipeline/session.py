@@ -614,6 +614,15 @@ class ClientSession:
         """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``)."""
         self.rx.on_decoded(work, result, now_ms)
 
+    def skips_decode(self, work: Work, now_ms: float) -> bool:
+        """The keyframe-skip rule of every driver, asked before decoding ``work``: a frame of a video stream that
+        broke (a decode error) after ``work`` was released is not decoded but counted lost, until the stream's
+        next keyframe.  Returns whether ``work`` was skipped (and reported as such)."""
+        if work.stream.kind == "video" and work.stream.broken and not work.unit.keyframe:
+            self.on_decoded(work, CodecError("skipped: waiting for a keyframe"), now_ms)
+            return True
+        return False
+
     def decoder_overflow(self) -> None:
         """The driver's decode queue overflowed and was flushed: every video stream waits for a keyframe."""
         self.counters["decode_overflows"] += 1
@@ -826,6 +835,12 @@ class ClientSession:
 
     def apply_failed(self, rf: ReceivedFrame) -> None:
         self.counters["apply_errors"] += 1
+
+    def blank(self, has_content: bool) -> bool:
+        """The blank-frame rule of every driver: a display tick shows the black background (and its row names no
+        update) while no update has been shown, or while the client half has nothing to draw (``has_content``
+        false: every update so far lost its content)."""
+        return self.shown is None or not has_content
 
     def feedback(self, displayed_ms: float) -> Feedback | None:
         """The ``Feedback`` for the shown update the first time it is displayed (at ``displayed_ms``), else None."""

@@ -515,6 +515,8 @@ class VirtualTimeRun:
     def _decode(self, c: _Client, works: list[Any]) -> None:
         assert c.core is not None
         for w in works:
+            if c.core.skips_decode(w, self.now * 1000):
+                continue
             w0 = time.perf_counter()
             res = ClientPipeline.decode(w)
             c.decode_ms += (time.perf_counter() - w0) * 1000
@@ -633,7 +635,7 @@ class VirtualTimeRun:
             fb = c.core.feedback(now_ms)
             if fb is not None:
                 self._send_up(c, fb)
-        if shown is None or not c.chalf.has_content:
+        if c.core.blank(c.chalf.has_content):
             # a start-up tick: nothing shown yet, or only updates whose content was lost (black)
             row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
                         "client_ms": client_ms, "decode_ms": math.nan, "pred_err_cm": math.nan, "pred_err_deg": math.nan})
