@@ -31,6 +31,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..client.score import score_recording
+from ..client.session import ClientConfig, LiveClient
+from ..netsim import Relay, parse_path
+from ..pipeline import session_summary
+from ..server.server import LiveServer, ServerConfig
+from ..sim.config import RunConfig
+from ..sim.runner import VirtualTimeRun
+
 log = logging.getLogger(__name__)
 
 SETUP: dict[str, Any] = {"method": "video", "scene": "minimal", "trace": "walk", "width": 160, "height": 90,
@@ -59,8 +67,6 @@ COMPARED = ("rtp_packets", "shown_pct", "longest_freeze_ms", "nacks", "keyframe_
 
 
 def _run_config(network: str, recovery: dict[str, Any], duration_s: float, seed: int) -> Any:
-    from ..sim.config import RunConfig
-
     kw = {k: v for k, v in recovery.items() if k != "fec"}
     return RunConfig.from_dict({**SETUP, "network": network, "duration_s": duration_s, "seed": seed, "flip_every": 0,
                                 "jitter_timeout_ms": kw.pop("jitter_timeout_ms", 300.0), "fec": bool(recovery.get("fec")),
@@ -69,19 +75,12 @@ def _run_config(network: str, recovery: dict[str, Any], duration_s: float, seed:
 
 def run_virtual(network: str, recovery: dict[str, Any], duration_s: float, seed: int, renderer: Any = None) -> dict[str, Any]:
     """One virtual-time run of the cell; its summary."""
-    from ..sim.runner import VirtualTimeRun
-
     cfg = _run_config(network, recovery, duration_s, seed)
     res = VirtualTimeRun(cfg, renderer=renderer).run()
     return dict(res.summary)
 
 
 async def _live(network: str, recovery: dict[str, Any], duration_s: float, seed: int, out: Path) -> dict[str, Any]:
-    from ..client.session import ClientConfig, LiveClient
-    from ..netsim import Relay, parse_path
-    from ..pipeline import session_summary
-    from ..server.server import LiveServer, ServerConfig
-
     host = "127.0.0.1"
     scfg = ServerConfig(host=host, port=0, udp_port=0, scene=SETUP["scene"], server_fps=SETUP["server_fps"],
                         methods=(SETUP["method"],), mtu_bytes=SETUP["mtu_bytes"], fec=bool(recovery.get("fec")),
@@ -124,8 +123,6 @@ async def _live(network: str, recovery: dict[str, Any], duration_s: float, seed:
 
 def run_live(network: str, recovery: dict[str, Any], duration_s: float, seed: int, renderer: Any = None) -> dict[str, Any]:
     """One live session of the cell on loopback through the relay; its summary (the recording scored)."""
-    from ..client.score import score_recording
-
     with tempfile.TemporaryDirectory(prefix="sr-agree-") as tmp:
         out = Path(tmp)
         s = asyncio.run(_live(network, recovery, duration_s, seed, out))

@@ -29,12 +29,15 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ..errors import ConfigError
-from ..sim.config import RunConfig
+from ..methods import available_methods, methods_for_scene
+from ..sim.config import RunConfig, session_options
 from ..sim.truth import shared_cache_setting
-from .report import build_report, save_meta
+from .headline import headline_rows, headline_text
+from .report import META_FILE, build_report, save_meta
 from .sections import Section, discover_studies, load_study_sections, save_study_section
 from .store import ResultStore, Row, fnum, network_columns, read_csv, summarise, write_csv
-from .sweep import RunProgress, run_configs
+from .studies._util import DASK_ENV, WORKERS_ENV
+from .sweep import RichRunProgress, RunProgress, run_configs
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +76,6 @@ def demo_configs(quick: bool, methods: Sequence[str] | None = None, networks: Se
                  duration_s: float | None = None, size: tuple[int, int] | None = None,
                  traces: Sequence[str] | None = None, session: dict[str, Any] | None = None) -> list[RunConfig]:
     """The demo's runs: method x network x trace on the default scene."""
-    from ..methods import available_methods, methods_for_scene
-
     p = dict(QUICK if quick else FULL)
     all_methods = available_methods()
     methods = list(methods) if methods else methods_for_scene("default")
@@ -363,18 +364,12 @@ def run_demo(out: str | Path, quick: bool = True, methods: Sequence[str] | None 
 
 def main_demo(ns: argparse.Namespace) -> int:
     """``splitrender demo [--out DIR] [--quick] [--methods a,b] [--networks ...] [--workers N] [--no-studies]``."""
-    from .sweep import RichRunProgress
-
     methods = [m.strip() for m in ns.methods.split(",") if m.strip()] if ns.methods else None
     networks = [n.strip() for n in ns.networks.split(",") if n.strip()]
-    from ..sim.config import session_options
-
     session = session_options(ns)   # the client's loss recovery (--playout-delay, --nack-tries, ..., --fec)
     if getattr(ns, "adapt", None) not in (None, "off"):     # --adapt rate|full: the estimator's feedback with it
         session.update(adapt=ns.adapt, transport_cc=True)
     demo_configs(ns.quick, methods, networks, session=session)  # validate before the bar shows
-    from .headline import headline_rows, headline_text
-
     studies = True if ns.studies else (False if ns.no_studies else None)
     with RichRunProgress("demo" + (" --quick" if ns.quick else "")) as bar:
         res = run_demo(ns.out, quick=ns.quick, methods=methods, networks=networks, workers=ns.workers,
@@ -399,8 +394,6 @@ def main_study(ns: argparse.Namespace) -> int:
         raise ConfigError(f"study: unknown study {', '.join(unknown) or '(none given)'}; available: all, {', '.join(known)}")
     if not ns.timeout > 0:
         raise ConfigError(f"study --timeout: must be > 0 s, got {ns.timeout}")
-    from .studies._util import DASK_ENV, WORKERS_ENV
-
     workers, dask = getattr(ns, "workers", None), getattr(ns, "dask", None)
     if workers is not None:
         if workers < 1:
@@ -414,8 +407,6 @@ def main_study(ns: argparse.Namespace) -> int:
     secs, notes = StudyRunner(out, ns.quick, names=names).start().collect(t0 + ns.timeout)
     for n in notes:
         print(n)
-    from .report import META_FILE
-
     if not (out / META_FILE).exists() and not (out / "runs.csv").exists():
         save_meta(out, "splitrender studies", "", [])
     report = build_report(out)

@@ -36,6 +36,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from ..methods import get_method
 from .store import Row, fnum
 
 __all__ = ["HEADLINE_COLUMNS", "draws_scene", "front_ranks", "headline_html", "headline_rows", "headline_markdown", "headline_text"]
@@ -69,8 +70,6 @@ def front_ranks(points: Sequence[tuple[float, float]]) -> list[int]:
 def draws_scene(method: str) -> bool:
     """Whether ``method``'s client holds and renders the whole scene (a different class of client: probes)."""
     try:
-        from ..methods import get_method
-
         return bool(get_method(method).client_draws_scene)
     except Exception:  # noqa: BLE001 - a method from results no longer installed
         return False

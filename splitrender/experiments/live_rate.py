@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from splitrender.server.server import LiveServer, ServerConfig
+
 LOOPBACK = "127.0.0.1"
 STAGES = ("gi", "method", "encode", "worker_rtt", "send")
 WARMUP_S = 1.0
@@ -110,8 +112,6 @@ def summarise_client(out: Path, display_hz: float, duration_s: float) -> dict[st
 
 async def _session(method: str, seconds: float, scene: str, width: int, height: int, display_hz: float,
                    server_fps: int, gi_hz: float, out: Path, params: dict[str, Any] | None) -> tuple[int, str]:
-    from splitrender.server.server import LiveServer, ServerConfig
-
     cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene=scene, server_fps=server_fps, methods=(method,),
                        method_params={method: dict(params)} if params else {}, out_dir=out / "server", gi_hz=gi_hz,
                        metrics_interval_s=0)

@@ -20,10 +20,12 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
+from ..errors import ConfigError
 from .charts import (FAIL_HOLE_PCT, FAIL_PSNR_DB, Chart, bitrate_stacked, client_cost, failure_mask, method_order, quality_timeline,
                      quality_vs_frame_ratio, quality_vs_latency, rate_distortion, run_timeline, speed_accuracy)
-from .sections import Section
-from .store import ResultStore, Row, fnum, load_results, read_csv
+from .headline import headline_html, headline_rows
+from .sections import Section, load_study_sections
+from .store import ResultStore, Row, fnum, load_results, read_csv, summarise
 
 log = logging.getLogger(__name__)
 
@@ -216,8 +218,6 @@ def build_charts(root: Path, runs: Sequence[Row], frames: Sequence[Row], run_key
     if key:
         sel = [r for r in runs if r.get("run") == key]
         if not sel:
-            from ..errors import ConfigError
-
             raise ConfigError(f"report --run {key}: no such run in {root} (keys are in runs.csv)")
         r = sel[0]
         fr = [f for f in frames if f.get("run") == key]
@@ -243,8 +243,6 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
     title = title or mtitle or f"splitrender results: {root.name}"
     intro_md = intro_md if intro_md is not None else mintro
     if sections is None:   # the demo's own (older folders kept them in the meta file) and every study run into root
-        from .sections import load_study_sections
-
         studies = load_study_sections(root)
         titles = {s.title for s in studies}
         sections = [s for s in msections if s.title not in titles] + studies
@@ -262,9 +260,6 @@ def build_report(root: str | Path, run_key: str | None = None, title: str | None
         parts.append(f'<p class="err">These results lack the baseline(s) {", ".join(missing)}: the charts cannot show them.</p>')
     # the answer first: what each method buys and costs per network, then speed against accuracy
     if runs:
-        from .headline import headline_html, headline_rows
-        from .store import summarise
-
         parts.append(headline_html(headline_rows(summarise(runs))))
         for heading, ch in [(h, c) for h, c in charts if c.name == "speed_vs_accuracy"]:
             parts.append(f"<h2>{html.escape(heading)}</h2>")

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from . import studies
+
 log = logging.getLogger(__name__)
 
 
@@ -40,8 +42,6 @@ class Section:
 
 def discover_studies() -> list[str]:
     """Names of the modules in :mod:`splitrender.experiments.studies` (sorted)."""
-    from . import studies
-
     return sorted(m.name for m in pkgutil.iter_modules(studies.__path__) if not m.name.startswith("_"))
 
 

@@ -21,7 +21,10 @@ import math
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from ..errors import ConfigError
+from ..netsim import parse_path
 from ..sim.config import RunConfig, to_toml
+from ..tabular import write_csv as write_table
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +46,6 @@ def is_timing_column(name: str) -> bool:
 def write_csv(path: str | Path, rows: Sequence[Row], columns: Sequence[str] | None = None) -> Path:
     """Write ``rows`` (union of keys, first-seen order unless ``columns`` given); NaN -> empty, bools -> 0/1, so
     :func:`read_csv` gives numbers back.  Written whole and atomically by :func:`splitrender.tabular.write_csv`."""
-    from ..tabular import write_csv as write_table
-
     p = Path(path)
     write_table(p, ({k: int(v) if isinstance(v, bool) else v for k, v in r.items()} for r in rows), columns)
     return p
@@ -84,8 +85,6 @@ def fnum(v: Any) -> float:
 
 def network_columns(network: str) -> Row:
     """Modelled latency of a network string: one-way downlink delay/jitter and RTT (ms)."""
-    from ..netsim import parse_path
-
     p = parse_path(network)
     return {
         "net_delay_ms": float(p.downlink.delay_ms),
@@ -164,8 +163,6 @@ def load_results(root: str | Path) -> tuple[list[Row], list[Row]]:
     if not runs_p.is_file():
         runs_p = r / "summary.csv"
     if not runs_p.is_file():
-        from ..errors import ConfigError
-
         raise ConfigError(f"report: {r} has neither runs.csv nor summary.csv")
     frames_p = r / "frames.csv"
     return read_csv(runs_p), (read_csv(frames_p) if frames_p.is_file() else [])

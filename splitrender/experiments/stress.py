@@ -67,7 +67,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..sim.config import RunConfig
+from ..errors import ConfigError
+from ..methods import methods_for_scene
+from ..render.renderer import Renderer
+from ..scene.pose import look_at_quat
+from ..scene.trace import CameraTrace, static_trace
+from ..sim.config import RunConfig, to_toml
+from ..sim.runner import VirtualTimeRun
+from ..sim.truth import shared_cache_setting
 from .store import Row, fnum, write_csv
 
 log = logging.getLogger(__name__)
@@ -123,8 +130,6 @@ class StressCase:
     """Only these methods run the case (empty: every method that runs on ``scene``)."""
 
     def runs(self, method: str) -> bool:
-        from ..methods import methods_for_scene
-
         return method in methods_for_scene(self.scene) and (not self.methods or method in self.methods)
 
 
@@ -136,9 +141,6 @@ def _save_trace(trace: Any, path: Path) -> str:
 
 def railing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     """Looking along +X at eye height 1.0 m near the railing (seen edge-on), walking 0.3 m/s."""
-    from ..scene.pose import look_at_quat
-    from ..scene.trace import CameraTrace
-
     t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
     x = np.minimum(-3.5 + 0.3 * t, 3.0)
     y = 1.0 + 0.02 * np.sin(2 * math.pi * 0.7 * t)
@@ -152,9 +154,6 @@ def railing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
 def grazing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     """Eye 0.25 m above the floor looking along it towards the tilted ramp, creeping forward 0.4 m/s with a slow
     sway: surfaces nearly parallel to the view (slanted triangles, anisotropic texture footprints)."""
-    from ..scene.pose import look_at_quat
-    from ..scene.trace import CameraTrace
-
     t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
     pos = np.stack([5.6 + 0.1 * np.sin(2 * math.pi * 0.4 * t), 0.25 + 0.03 * np.sin(2 * math.pi * 0.9 * t),
                     -0.2 - 0.4 * t], axis=1)
@@ -166,9 +165,6 @@ def grazing_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
 def fine_texture_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
     """Backing away from the glyph sign along its normal (1.5 m to 7 m over the run) with the brick wall beside it,
     swaying +-8 degrees: text and bricks shrink through every mip level (the shaders' level-of-detail choice)."""
-    from ..scene.pose import look_at_quat
-    from ..scene.trace import CameraTrace
-
     t = np.arange(int(duration_s * rate_hz) + 1) / rate_hz
     sign = np.array([-4.2, 2.2, -4.5])
     normal = np.array([math.sin(math.radians(55.0)), 0.0, math.cos(math.radians(55.0))])
@@ -185,14 +181,10 @@ def fine_texture_trace(duration_s: float, rate_hz: float = 120.0) -> Any:
 
 def shed_trace(duration_s: float) -> Any:
     """Inside the closed ``shed`` scene, at (0, 1.5, 1.5), looking at its far corner (towards (1.5, 0.5, -1.5))."""
-    from ..scene.trace import static_trace
-
     return static_trace(duration_s, position=(0.0, 1.5, 1.5), yaw_deg=-26.6, pitch_deg=-16.6, name="inside_shed")
 
 
 def ball_trace(duration_s: float) -> Any:
-    from ..scene.trace import static_trace
-
     return static_trace(duration_s, position=(0.0, 1.6, 2.5), yaw_deg=0.0, pitch_deg=-3.0, name="ball_crossing")
 
 
@@ -288,15 +280,11 @@ def get_case(name: str) -> StressCase:
     for c in CASES:
         if c.name == name:
             return c
-    from ..errors import ConfigError
-
     raise ConfigError(f"unknown stress case {name!r}; cases: {', '.join(c.name for c in CASES)}")
 
 
 def case_config(case: StressCase, method: str, tm: Timing, work_dir: Path) -> RunConfig:
     """The RunConfig of ``case`` for ``method`` (trace/network files written under ``work_dir``)."""
-    from ..sim.truth import shared_cache_setting
-
     d = {"scene": case.scene, **case.build(work_dir, tm)}
     params = dict(d.pop("method_params", {}))
     # every method of a case sees the same ground truth: rendered once, by whichever run comes first
@@ -387,9 +375,6 @@ def _rss_kb() -> float:
 
 def _child(conn: Any) -> None:
     """A method worker: runs the configs it is sent, one at a time, on one Renderer."""
-    from ..render.renderer import Renderer
-    from ..sim.runner import VirtualTimeRun
-
     r = None
     while True:
         cfg = conn.recv()
@@ -444,8 +429,6 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
     compiles are paid once); a case that raises is recorded, a case that crashes the
     worker or runs past ``timeout_s`` is recorded and the worker is replaced.
     """
-    from ..methods import methods_for_scene
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tm = timing or (QUICK if quick else FULL)
@@ -540,8 +523,6 @@ def _row(j: _Job, out: Path, tm: Timing, timed_out: bool, limit: float, exitcode
     write_csv(d / "frames.csv", r["frames"])
     write_csv(d / "updates.csv", r["updates"])
     write_csv(d / "summary.csv", [r["summary"]])
-    from ..sim.config import to_toml
-
     (d / "config.toml").write_text("[run]\n" + to_toml(j.cfg.to_dict()))
     base.update({"status": "ok", "error": ""})
     base.update(case_metrics(r["frames"], r["n_display"], j.case, tm))

@@ -59,7 +59,11 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Protocol, Sequence
 
 from ..errors import ConfigError
+from ..methods import available_methods, get_method, make_config, methods_for_scene
+from ..netsim import parse_path
+from ..render.renderer import Renderer
 from ..sim.config import RunConfig, load_toml
+from ..sim.runner import VirtualTimeRun
 from ..sim.truth import shared_cache_setting
 from .store import ResultStore, Row
 
@@ -110,9 +114,6 @@ def _product(axes: dict[str, list[Any]]) -> Iterator[dict[str, Any]]:
 
 def parse_sweep(data: dict[str, Any], source: str = "<sweep>") -> Sweep:
     """Expand a parsed sweep file into RunConfigs; :class:`ConfigError` names the bad key."""
-    from ..methods import available_methods, get_method, make_config, methods_for_scene
-    from ..netsim import parse_path
-
     def err(key: str, msg: str) -> ConfigError:
         return ConfigError(f"sweep {source}: {key}: {msg}")
 
@@ -216,8 +217,6 @@ _PROGRESS_Q: Any = None
 
 def worker_renderer() -> Any:
     """This thread's Renderer, created on first use (one GL context per owning thread)."""
-    from ..render.renderer import Renderer
-
     tid = threading.get_ident()
     r = _RENDERERS.get(tid)
     if r is None:
@@ -245,8 +244,6 @@ def execute_config(cfg: RunConfig, report: Callable[[str, int, int], None] | Non
     ``report(key, done, total)`` gets per-frame progress; in a pool worker progress goes
     to the queue set by the pool initializer instead.
     """
-    from ..sim.runner import VirtualTimeRun
-
     key = cfg.key()
     q = _PROGRESS_Q
     last = [0.0]

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SceneError
+from . import primitives, textures
 from .model import MAX_POINT_LIGHTS, DirectionalLight, Material, Mesh, PointLight, Scene, SceneObject, Schedule
 from .procedural import BUILTIN_GI, BUILTIN_SCENES
 
@@ -371,8 +372,6 @@ def load_scene_file(path: str | os.PathLike, target_size_m: float | None = None,
     lo, hi = scene.bounds()
     scene.subject = (lo, hi)
     if ground:
-        from . import primitives, textures
-
         size = max(GROUND_SIZE_MIN_M, 5.0 * float(max(hi[0] - lo[0], hi[2] - lo[2])))
         t = np.eye(4)
         t[:3, 3] = [(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2]

@@ -18,7 +18,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ...methods import methods_for_scene
+from ...render.renderer import Renderer
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
 from ...tabular import write_csv
+from ..charts import method_order
 from ..sections import Section
 from ._util import STUDY_SCENE
 
@@ -29,13 +34,10 @@ COLUMNS = ("method", "model", "cost_scale", "psnr_db", "ssim", "update_age_ms", 
 
 
 def _run(method: str, model: str, scale: float, quick: bool, renderer: Any) -> dict[str, Any]:
-    from ...sim.config import RunConfig
-    from ...sim.runner import run
-
     w, h = (320, 180) if quick else (640, 360)
     cfg = RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network="lan", duration_s=0.6 if quick else 3.0, width=w, height=h,
                     client_fps=30 if quick else 60, seed=0, flip_every=0, cost_model=model, cost_scale=scale)
-    s = run(cfg, renderer=renderer).summary
+    s = run_one(cfg, renderer=renderer).summary
     return {"method": method, "model": model, "cost_scale": scale, "psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"],
             "update_age_ms": s["mean_update_age_ms"], "cost_ms": s["mean_cost_ms"], "server_skipped": s["server_skipped"],
             "kbps": s["mean_kbps"], "server_ms": s["mean_server_ms"], "shared_ms": s["mean_shared_server_ms"],
@@ -48,10 +50,6 @@ def run(out_dir: Path, quick: bool) -> Section:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ...methods import methods_for_scene
-    from ...render.renderer import Renderer
-    from ..charts import method_order
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ...methods import get_method, methods_for_scene
+from ...netsim.traces import cellular_trace, step_trace, write_mahimahi
+from ...render.renderer import Renderer
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
 from ...tabular import write_csv
+from ..charts import method_order
 from ..sections import Section
 from ._util import STUDY_SCENE, save_figure
 
@@ -171,13 +177,6 @@ def step_spans(steps: Sequence[tuple[float, float]]) -> tuple[list[tuple[float, 
 
 def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes: Sequence[str] = MODES) -> Section:
     """Run the study into ``out_dir``: ``link_results.csv``, one chart per trace, and the section."""
-    from ...methods import get_method, methods_for_scene
-    from ...netsim.traces import cellular_trace, step_trace, write_mahimahi
-    from ...render.renderer import Renderer
-    from ...sim.config import RunConfig
-    from ...sim.runner import run as run_one
-    from ..charts import method_order
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if methods is None:

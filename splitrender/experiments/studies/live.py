@@ -18,7 +18,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ...methods import methods_for_scene
+from ...server.server import DEFAULT_GI_HZ
 from ...tabular import write_csv
+from ..charts import method_order
+from ..live_rate import STAGES, measure
 from ..sections import Section
 from ._util import save_figure
 
@@ -46,8 +50,6 @@ def chart(rows: list[dict[str, Any]], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..live_rate import STAGES
-
     methods = [r["method"] for r in rows]
     xs = range(len(methods))
     fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
@@ -74,11 +76,6 @@ def chart(rows: list[dict[str, Any]], path: Path) -> Path:
 
 def run(out_dir: Path, quick: bool) -> Section:
     """Every available method live for a few seconds; ``live_rates.csv`` and ``live_rates.png`` in ``out_dir``."""
-    from ...methods import methods_for_scene
-    from ...server.server import DEFAULT_GI_HZ
-    from ..charts import method_order
-    from ..live_rate import measure
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seconds = 4.0 if quick else 10.0

@@ -33,6 +33,16 @@ from typing import Any
 
 import numpy as np
 
+from ...codecs.video import VideoDecoder, VideoEncoder
+from ...gi.stream import decode_index_list, guard_band_savings
+from ...methods import DecodedUpdate, ServerContext, get_method, make_config
+from ...metrics.image import psnr
+from ...render.renderer import Renderer, make_pose_looking
+from ...scene.loader import get_scene
+from ...scene.pose import CameraIntrinsics
+from ...scene.trace import get_trace
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
 from ...tabular import write_csv
 from ..sections import Section
 from ._util import save_figure
@@ -57,13 +67,6 @@ def _rate_run(renderer: Any, scene_name: str, times: np.ndarray, keyframe_at_end
     """One client's probe updates at ``times`` (one per GI tick, a still camera), each coded by the method's own
     lossless streams and, for comparison, by zstd."""
     import zstandard
-
-    from ...codecs.video import VideoEncoder
-    from ...gi.stream import decode_index_list
-    from ...methods import ServerContext, get_method, make_config
-    from ...scene.loader import get_scene
-    from ...scene.pose import CameraIntrinsics
-    from ...scene.trace import get_trace
 
     scene = get_scene(scene_name)
     spec = get_method("probes")
@@ -120,13 +123,6 @@ SHED_POSE = ((0.0, 1.5, 1.5), (1.5, 0.5, -1.5))
 def leak_ablation(renderer: Any, size: tuple[int, int] = (160, 90)) -> list[dict[str, Any]]:
     """The lossy-visibility ablation on ``shed+gi``: one probe update through the method's streams with the
     visibility lossless (the method) and lossy (``vis_lossy``), the client's view inside the shed against the truth."""
-    from ...codecs.video import VideoDecoder, VideoEncoder
-    from ...methods import DecodedUpdate, ServerContext, get_method, make_config
-    from ...metrics.image import psnr
-    from ...render.renderer import make_pose_looking
-    from ...scene.loader import get_scene
-    from ...scene.pose import CameraIntrinsics
-
     scene = get_scene("shed+gi")
     intr = CameraIntrinsics(*size)
     pose = make_pose_looking(*SHED_POSE)
@@ -178,10 +174,7 @@ def _segment_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def _run(renderer: Any, scene: str, trace: str, network: str, dur: float, size: tuple[int, int], offset: float,
          params: dict[str, Any], **kw: Any) -> Any:
-    from ...sim.config import RunConfig
-    from ...sim.runner import run
-
-    return run(RunConfig(method="probes", scene=scene, trace=trace, network=network, duration_s=dur, width=size[0],
+    return run_one(RunConfig(method="probes", scene=scene, trace=trace, network=network, duration_s=dur, width=size[0],
                          height=size[1], client_fps=30, flip_every=0, seed=0, scene_time_offset_s=offset,
                          method_params=params, **kw), renderer=renderer)
 
@@ -192,10 +185,6 @@ def run(out_dir: Path, quick: bool) -> Section:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ...gi.stream import guard_band_savings
-    from ...render.renderer import Renderer
-    from ...scene.loader import get_scene
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

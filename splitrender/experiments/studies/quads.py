@@ -23,7 +23,16 @@ from typing import Any
 
 import numpy as np
 
+from ...methods import DecodedUpdate, ServerContext, get_method, make_config
 from ...methods.quads.server import STAGES as SERVER_STAGES
+from ...methods.warp import fov_scale_for
+from ...metrics.image import psnr
+from ...render.renderer import Renderer
+from ...scene.loader import get_scene
+from ...scene.pose import CameraIntrinsics, Pose
+from ...scene.trace import get_trace
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
 from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE, update_mean as _upd_mean
@@ -34,10 +43,7 @@ STAGES = (*SERVER_STAGES, "pack_ms")
 
 def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network: str, dur: float,
          size: tuple[int, int], flip_every: int = 0) -> dict[str, Any]:
-    from ...sim.config import RunConfig
-    from ...sim.runner import run
-
-    res = run(RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network=network, duration_s=dur, width=size[0],
+    res = run_one(RunConfig(method=method, scene=STUDY_SCENE, trace="walk", network=network, duration_s=dur, width=size[0],
                         height=size[1], client_fps=30, flip_every=flip_every, seed=0, method_params=params), renderer=renderer)
     s = res.summary
     row = {"label": label, "method": method, "network": network, "psnr_db": float(s["mean_psnr_db"]),
@@ -61,12 +67,6 @@ def _run(renderer: Any, label: str, method: str, params: dict[str, Any], network
 def _threshold_sweep(renderer: Any, size: tuple[int, int], quick: bool = False) -> list[dict[str, Any]]:
     """One frame of the walk, lossless atlas, one layer, seen 10 cm to the right of the server's pose (inside
     the view: a turn would add the frustum's edge to every row)."""
-    from ...methods import DecodedUpdate, ServerContext, get_method, make_config
-    from ...metrics.image import psnr
-    from ...scene.loader import get_scene
-    from ...scene.pose import CameraIntrinsics, Pose
-    from ...scene.trace import get_trace
-
     intr = CameraIntrinsics(*size)
     scene = get_scene(STUDY_SCENE)
     spec = get_method("quads")
@@ -103,10 +103,6 @@ def run(out_dir: Path, quick: bool) -> Section:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.ticker
-
-    from ...methods.warp import fov_scale_for
-    from ...render.renderer import Renderer
-    from ...scene.pose import CameraIntrinsics
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,18 @@ from typing import Any
 
 import numpy as np
 
+from ...methods.sas.allocator import STRATEGIES, AtlasLayout
+from ...methods.sas.patches import build_scene_patches
+from ...methods.sas.pvs import PatchIdPass, pvs_rates, sample_times
+from ...methods.sas.replay import record_visibility, replay_allocation, replay_baseline
+from ...methods.sas.server import SasConfig
+from ...render.renderer import Renderer
+from ...scene.loader import get_scene
+from ...scene.pose import CameraIntrinsics
+from ...scene.predict import make_predictor
+from ...scene.trace import get_trace
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
 from ...tabular import write_csv
 from ..sections import Section
 from ._util import STUDY_SCENE
@@ -45,9 +57,6 @@ def _mean(frames: list[dict[str, Any]], key: str) -> float:
 
 
 def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    from ...sim.config import RunConfig
-    from ...sim.runner import run
-
     dur = 0.5 if quick else 4.0
     common = dict(scene=STUDY_SCENE, trace="strafe", width=320, height=180, client_fps=30, duration_s=dur,
                   flip_every=3 if quick else 4, seed=0)
@@ -61,7 +70,7 @@ def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], lis
         net = "ideal" if d == 0 else f"delay {d}ms"
         for label, m, params in methods if not quick or d else methods[:1] + [x for x in methods if x[0] == "atw"]:
             t0 = time.perf_counter()
-            res = run(RunConfig(method=m, network=net, method_params=params, **common), renderer=renderer)  # type: ignore[arg-type]
+            res = run_one(RunConfig(method=m, network=net, method_params=params, **common), renderer=renderer)  # type: ignore[arg-type]
             s = res.summary
             row = {"method": label, "delay_ms": d, "psnr_db": s["mean_psnr_db"], "ssim": s["mean_ssim"], "flip": s.get("mean_flip"),
                    "hole_pct": s["mean_hole_pct"], "kbps": s["mean_kbps"], "server_ms": s["mean_server_ms"],
@@ -74,7 +83,7 @@ def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], lis
     rates = [300, 1200] if quick else [250, 500, 1000, 2000, 4000]
     for kb in rates:
         for m in ("sas", "atw") if quick else ("sas",) + BASELINES:
-            res = run(RunConfig(method=m, network="delay 50ms", method_params={"bitrate_kbps": float(kb), "crf": None},
+            res = run_one(RunConfig(method=m, network="delay 50ms", method_params={"bitrate_kbps": float(kb), "crf": None},
                                 **common), renderer=renderer)  # type: ignore[arg-type]
             s = res.summary
             rate_rows.append({"method": m, "budget_kbps": kb, "kbps": s["mean_kbps"], "psnr_db": s["mean_psnr_db"],
@@ -83,13 +92,6 @@ def _quality_runs(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], lis
 
 
 def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
-    from ...methods.sas.patches import build_scene_patches
-    from ...methods.sas.pvs import PatchIdPass, pvs_rates, sample_times
-    from ...scene.loader import get_scene
-    from ...scene.pose import CameraIntrinsics
-    from ...scene.predict import make_predictor
-    from ...scene.trace import get_trace
-
     scene = get_scene(STUDY_SCENE)
     intr = CameraIntrinsics(320, 180)
     ids = PatchIdPass(renderer, scene, build_scene_patches(scene))
@@ -123,19 +125,11 @@ def _pvs_rates(renderer: Any, quick: bool) -> list[dict[str, Any]]:
 
 
 def _allocator(renderer: Any, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    from ...methods.sas.allocator import STRATEGIES, AtlasLayout
-    from ...methods.sas.replay import record_visibility, replay_allocation, replay_baseline
-    from ...scene.loader import get_scene
-    from ...scene.pose import CameraIntrinsics
-    from ...scene.trace import get_trace
-
     intr = CameraIntrinsics(320, 180)
     frames = 30 if quick else 300
     patches, seq = record_visibility(renderer, get_scene(STUDY_SCENE), get_trace("walk_fast"), intr, 0.5, frames)
     mem_rows, ms_rows = [], []
     for mpix in (4.0, 2.0):
-        from ...methods.sas.server import SasConfig
-
         layout: AtlasLayout = SasConfig(atlas_mpix_1080p=mpix).atlas_layout(intr)
         for s in STRATEGIES:
             r = replay_allocation(patches, seq, layout, s, high_water=0.85)
@@ -245,8 +239,6 @@ def _charts(out: Path, lat: list[dict[str, Any]], rate: list[dict[str, Any]], pv
 
 def run(out_dir: Path, quick: bool) -> Section:
     """Run the SAS study into ``out_dir`` and return its report section."""
-    from ...render.renderer import Renderer
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

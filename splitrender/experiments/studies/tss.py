@@ -40,9 +40,15 @@ from typing import Any
 
 import numpy as np
 
+from ...methods.tss.config import TssConfig
+from ...render.renderer import Renderer
+from ...sim.config import RunConfig
+from ...sim.runner import run as run_one
+from ...sim.truth import shared_cache_setting
 from ...tabular import write_csv
+from ..charts import style
 from ..sections import Section
-from ._util import STUDY_SCENE, update_mean as _upd_mean
+from ._util import STUDY_SCENE, save_figure, update_mean as _upd_mean
 
 log = logging.getLogger(__name__)
 
@@ -54,10 +60,7 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
 
 def _run(renderer: Any, method: str, params: dict[str, Any], trace: str, network: str, dur: float,
          size: tuple[int, int], truth_cache: str = "") -> dict[str, Any]:
-    from ...sim.config import RunConfig
-    from ...sim.runner import run
-
-    res = run(RunConfig(method=method, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
+    res = run_one(RunConfig(method=method, scene=STUDY_SCENE, trace=trace, network=network, duration_s=dur, width=size[0], height=size[1],
                         client_fps=30, flip_every=0, seed=0, method_params=params, truth_cache=truth_cache), renderer=renderer)
     s = res.summary
     ssim = float(s["mean_ssim"])
@@ -171,9 +174,6 @@ def rd_chart(rows: list[dict[str, Any]], path: Path) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FormatStrFormatter
 
-    from ..charts import style
-    from ._util import save_figure
-
     sizes = sorted({(r["width"], r["height"]) for r in rows})
     cols = sorted({(r["trace"], r["network"]) for r in rows})
     curves = [c for c, *_ in RD_CURVES if any(r["curve"] == c for r in rows)]
@@ -209,8 +209,6 @@ def run(out_dir: Path, quick: bool) -> Section:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ...render.renderer import Renderer
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -221,8 +219,6 @@ def run(out_dir: Path, quick: bool) -> Section:
     methods = ("tss", "sas") if quick else ("tss", "sas", "atw")
     lat = [_run(renderer, m, {}, "walk", n, dur, size) for n in nets for m in methods]
     # still camera, lossless atlases: sampling alone
-    from ...methods.tss.config import TssConfig
-
     default_th = TssConfig.slant_threshold
     dflt = f"slant {default_th:g}"
     thresholds = tuple(sorted({2.0, 4.0, 8.0, default_th} if quick else {2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0, default_th}))
@@ -261,8 +257,6 @@ def run(out_dir: Path, quick: bool) -> Section:
             by_size.append({k: r[k] for k in ("method", "psnr_db", "ssim", "samples", "server_ms")} |
                            {"variant": label, "width": sz[0], "height": sz[1]})
     # rate-distortion at equal bits: each method's atlas budget swept, lossy atlases, every stream's bits
-    from ...sim.truth import shared_cache_setting
-
     rd_dur = 0.5 if quick else 1.0
     rd = rd_runs(renderer, ((320, 180),) if quick else ((320, 180), (640, 360)), ("static", "walk"), ("ideal", "cloud"),
                  rd_dur, 3 if quick else 4, shared_cache_setting(out))
