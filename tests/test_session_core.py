@@ -3,6 +3,8 @@ retransmission, PLI after a lost keyframe, stall detection, randomised RTCP inte
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -640,3 +642,45 @@ def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     works[0].stream.broken = True                                 # a decode error after this frame's release
     assert p.client.skips_decode(works[0], 33.0)                  # skipped, reported as a decode error
     assert p.client.all_counters()["decode_errors"] == errors + 1
+
+
+def test_accept_hello_is_the_one_server_handshake() -> None:
+    """Every protocol front door (the runner, the live server) accepts a Hello the same way: the session data and
+    the streams' codecs are checked against the server's limit and the client's codecs, by name, and the Welcome
+    and session data leave framed in order for the client's handshake core."""
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.methods.base import get_method, make_config
+    from splitrender.pipeline import ClientHandshake, SessionDataError, accept_hello
+    from splitrender.protocol import ErrorCode
+
+    mcfg = make_config(get_method("video").config, {})
+    spec = StreamSpec("color", VideoCodecConfig("hevc", gop=300), W, H)
+    hello = Hello(PROTOCOL_VERSION, "", ("video",), ("h264", "hevc"), W, H, FPS)
+    blob = pack_meta({"pad": np.random.default_rng(0).bytes(5000)})
+    n = len(blob)
+
+    def accept(h: Hello, limit: int = 1 << 20):  # type: ignore[no-untyped-def]
+        sconn = ServerConnection()
+        sconn.receive_data(ClientConnection().send(h))
+        sconn.next_event()
+        return accept_hello(h, "sid", "video", mcfg, [spec], blob, sconn.send, scene="minimal", fov_y_deg=60.0,
+                            server_fps=30, max_session_bytes=limit, rng=np.random.default_rng(1))
+
+    with pytest.raises(SessionDataError, match=rf"^method video: session data of {n} bytes exceeds this server's limit "
+                                               rf"of {n - 1} bytes \(max_session_bytes\)$"):
+        accept(hello, n - 1)
+    with pytest.raises(RemoteProtocolError, match=r"stream color is hevc, which the client does not accept") as info:
+        accept(dataclasses.replace(hello, codecs=("h264",)))
+    assert info.value.code == ErrorCode.UNSUPPORTED_METHOD
+    acc = accept(hello)
+    assert acc.core.display_hz == FPS and acc.core.tx.encoder is not None         # encoders opened here, for the SDP
+    assert "sprop-vps=" in acc.welcome.streams[0].sdp
+    cconn = ClientConnection()
+    cconn.send(hello)
+    hs = ClientHandshake(hello.methods, display=(W, H))
+    cconn.receive_data(b"".join(acc.frames))
+    while (ev := cconn.next_event()) is not NEED_DATA:
+        hs.receive_message(ev)  # type: ignore[arg-type]
+    assert hs.done and hs.welcome == acc.welcome and len(acc.session_data_frames) >= 1
+    assert hs.session_data is not None and hs.session_data["pad"] == np.random.default_rng(0).bytes(5000)

@@ -37,7 +37,7 @@ import numpy as np
 from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolError, SplitRenderError,
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from splitrender.pipeline import (ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
+from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
@@ -79,7 +79,7 @@ class ClientConfig:
     udp_port: int | None = None
     token: str = ""
     methods: tuple[str, ...] = ("video",)
-    codecs: tuple[str, ...] = ("h264", "hevc")
+    codecs: tuple[str, ...] = CLIENT_CODECS
     width: int = 640
     height: int = 360
     display_hz: float = 60.0

@@ -15,8 +15,8 @@ from .frames import FrameOrder, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
-from .session import (ClientHandshake, ClientOptions, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
-                      SessionTerms, Stalled, StallTimeout, check_hello, parse_welcome, session_params,
+from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientOptions, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
+                      SessionTerms, Stalled, StallTimeout, accept_hello, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
@@ -24,6 +24,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
 
 __all__ = [
     "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
+    "Accepted", "accept_hello", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "FrameOrder", "make_frame", "StreamEncoder",

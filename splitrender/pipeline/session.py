@@ -31,14 +31,14 @@ import secrets
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ..codecs.meta import unpack_meta
-from ..errors import CodecError, ConfigError
+from ..errors import CodecError, ConfigError, RemoteProtocolError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
-from ..protocol import (Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
+from ..protocol import (ErrorCode, Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
                         MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -53,7 +53,7 @@ from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
 from .sender import OutgoingFrame, ServerPipeline
-from .wire import EnvelopeError, specs_from_table
+from .wire import EnvelopeError, SessionDataError, specs_from_table
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +169,10 @@ def session_params(method: str, config: Any, fov_y_deg: float, server_fps: int, 
     if subject is not None:
         out["subject"] = [[float(v) for v in subject[0]], [float(v) for v in subject[1]]]
     return out
+
+
+CLIENT_CODECS: tuple[str, ...] = ("h264", "hevc")
+"""The video codecs a splitrender client decodes, in its default order of preference (``Hello.codecs``)."""
 
 
 def check_hello(hello: Hello, max_pixels: int) -> None:
@@ -875,6 +879,59 @@ class ClientSession:
 
 
 # --------------------------------------------------------------------------- server
+
+
+@dataclass
+class Accepted:
+    """A session the server accepted (:func:`accept_hello`): its core, the ``Welcome`` and what goes on the control
+    connection first, framed in order (the Welcome, then the session data's ``DataChunk`` messages)."""
+
+    core: ServerSession
+    welcome: Welcome
+    frames: list[bytes]
+
+    @property
+    def session_data_frames(self) -> list[bytes]:
+        return self.frames[1:]
+
+
+def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs: list[Any], session_blob: bytes,
+                 framer: Callable[[Message], bytes], *, scene: str, fov_y_deg: float, server_fps: int,
+                 options: ServerOptions | None = None, max_session_bytes: int, mtu_bytes: int = 1200, fec: bool = False,
+                 transport_cc_id: int | None = None, address: tuple[str, int] = ("127.0.0.1", 6004),
+                 subject: Any = None, parameter_sets: Mapping[str, tuple[bytes, ...]] | None = None,
+                 ssrc_taken: Callable[[int], bool] | None = None, rng: Any = None, core_rng: Any = None,
+                 clock_offset_us: int = 0, rtp_origin_ms: float = 0.0, predictor: Any = None) -> Accepted:
+    """The server's side of the handshake after :func:`check_hello`, in every front door that speaks the protocol.
+
+    ``method``'s server half (built by the caller: here, or in a render worker) declared ``specs`` and
+    ``session_blob``; this checks them against the server's limit and the client's codecs (a
+    :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming what is wrong), builds the session's
+    :class:`~.sender.ServerPipeline` (opening its encoders here unless ``parameter_sets`` names those of encoders
+    running elsewhere, for the SDP) and its core, and frames the ``Welcome`` and the session data with ``framer``.
+    ``rng`` draws the SSRCs and sequence origins, ``core_rng`` the core's RTCP intervals (seeded runs; the system's
+    randomness where None)."""
+    if len(session_blob) > max_session_bytes:
+        raise SessionDataError(f"method {method}: session data of {len(session_blob)} bytes exceeds this server's "
+                               f"limit of {max_session_bytes} bytes (max_session_bytes)")
+    for spec in specs:
+        codec = getattr(getattr(spec, "codec", None), "codec", None)
+        if codec is not None and codec not in hello.codecs:
+            raise RemoteProtocolError(f"method {method}: stream {spec.name} is {codec}, which the client does not "
+                                      f"accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
+    tx = ServerPipeline(specs, mtu_bytes, ssrc_taken=ssrc_taken, rng=rng, fec=fec, transport_cc_id=transport_cc_id)
+    if parameter_sets is None:
+        tx.open_encoders()              # the SDP names the parameter sets the encoders will send
+    else:
+        tx.described_sets.update(parameter_sets)
+    core = ServerSession(tx, hello.display_hz, options or ServerOptions(), clock_offset_us, rtp_origin_ms, core_rng,
+                         knobs=config.adapt_knobs(), predictor=predictor)
+    host, port = address
+    welcome = Welcome(session_id, method,
+                      session_params(method, config, fov_y_deg, server_fps, scene, tx, session_blob, subject),
+                      tx.describe(host, port, f"splitrender {session_id}"))
+    frames = [framer(welcome), *(f for _, f in tx.session_frames(session_blob, framer))]
+    return Accepted(core, welcome, frames)
 
 
 @dataclass(frozen=True)

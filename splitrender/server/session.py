@@ -39,8 +39,8 @@ import numpy as np
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (ServerOptions, check_hello, ServerPipeline, ServerSession as SessionCore, SessionDataError,
-                                  rtp_timestamp, session_params)
+from splitrender.pipeline import (ServerOptions, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
+                                  rtp_timestamp)
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol.twcc import DEFAULT_EXTENSION_ID
@@ -92,7 +92,7 @@ class LiveServer(Protocol):
     def tick_of(self, wall_s: float) -> int: ...
     def frame_ticks(self) -> AsyncIterator[int]: ...
 
-__all__ = ["ServerSession", "session_params", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
+__all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
 
 ROWS_KEPT = 1024
 """Feedback and update rows a session keeps in memory (the newest; the row logs on disk have them all)."""
@@ -252,7 +252,7 @@ class ServerSession:
             return False
         assert isinstance(msg, Hello)  # the state machine allows nothing else here
         try:
-            welcome = await self._setup(msg)
+            welcome, frames = await self._setup(msg)
         except RemoteProtocolError as exc:
             logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
             await self.channel.send_error(exc)
@@ -263,11 +263,8 @@ class ServerSession:
             await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
         try:
-            await self.channel.send(welcome)
-            assert self.tx is not None
-            frames = self.tx.session_frames(self._session_blob, self.channel.conn.send)
-            await self.channel.write_frames([f for _, f in frames])
-            self._counters["session_bytes"] = sum(len(f) for _, f in frames)
+            await self.channel.write_frames(frames)     # the Welcome, then the session data
+            self._counters["session_bytes"] = sum(len(f) for f in frames[1:])
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
             return False
@@ -275,8 +272,9 @@ class ServerSession:
                     msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in welcome.streams))
         return True
 
-    async def _setup(self, hello: Hello) -> Welcome:
-        """Choose method and codec, build the halves and encoders; raises RemoteProtocolError."""
+    async def _setup(self, hello: Hello) -> tuple[Welcome, list[bytes]]:
+        """Choose method and codec, build the halves and encoders (in the render worker) and the session's core;
+        returns the Welcome and the control frames to send first.  Raises RemoteProtocolError."""
         cfg = self.cfg
         check_hello(hello, cfg.max_pixels)
         self.method = negotiate_method(hello.methods, self.server.methods)
@@ -293,35 +291,26 @@ class ServerSession:
         specs, session_blob, sets = await self.worker.call(
             "open", self.id, self.method, mcfg, self.intrinsics, hang[1] if hang and hang[0] == self.ordinal else -1,
             deadline_s=cfg.setup_deadline_s)
-        if len(session_blob) > cfg.max_session_bytes:
-            raise SessionDataError(f"method {self.method}: session data of {len(session_blob)} bytes exceeds this "
-                                   f"server's limit of {cfg.max_session_bytes} bytes (max_session_bytes)")
-        for s in specs:
-            if isinstance(s, StreamSpec) and s.codec.codec not in hello.codecs:
-                raise RemoteProtocolError(f"method {self.method}: stream {s.name} is {s.codec.codec}, which the client "
-                                          f"does not accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
-        self.tx = ServerPipeline(specs, cfg.mtu_bytes, ssrc_taken=server.ssrc_taken, fec=cfg.fec,
-                                 transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
-        self.tx.described_sets.update(sets)   # the SDP names the parameter sets the worker's encoders send
-        self.core = SessionCore(self.tx, self.display_hz, ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms,
-                                                                        cfg.sr_interval_s, pacing=cfg.pacing,
-                                                                        adapt=cfg.adapt),
-                                0, rtp_origin_ms=server.epoch_wall_s * 1000, knobs=mcfg.adapt_knobs(),
-                                predictor=make_predictor(cfg.predictor))
-        self.core.start(_now_ms())
         host, port = server.udp_address
-        descs = self.tx.describe(host if host != "0.0.0.0" else "127.0.0.1", port, f"splitrender {self.id}")
+        acc = accept_hello(hello, self.id, self.method, mcfg, specs, session_blob, self.channel.conn.send,
+                           scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
+                           options=ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms, cfg.sr_interval_s,
+                                                 pacing=cfg.pacing, adapt=cfg.adapt),
+                           max_session_bytes=cfg.max_session_bytes, mtu_bytes=cfg.mtu_bytes, fec=cfg.fec,
+                           transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
+                           address=(host if host != "0.0.0.0" else "127.0.0.1", port),
+                           subject=getattr(server.scene, "subject", None), parameter_sets=sets,
+                           ssrc_taken=server.ssrc_taken, rtp_origin_ms=server.epoch_wall_s * 1000,
+                           predictor=make_predictor(cfg.predictor))
+        self.core, self.tx = acc.core, acc.core.tx
+        self.core.start(_now_ms())
         for st in self.tx.rtp_streams:
             stream = _Stream(st.spec, st.ssrc, st.payload_type)
             self.streams[st.spec.name] = stream
             if isinstance(st.spec, StreamSpec):
                 self._write_sdp(stream)
-        params_out = session_params(self.method, mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, self.tx, session_blob,
-                                    getattr(server.scene, "subject", None))
-        welcome = Welcome(self.id, self.method, params_out, descs)
-        self._session_blob = session_blob
         server.register(self, [s.ssrc for s in self.streams.values()])
-        return welcome
+        return acc.welcome, acc.frames
 
     def _write_sdp(self, stream: _Stream) -> None:
         if self.cfg.sdp_dir is None:

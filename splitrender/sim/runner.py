@@ -64,9 +64,9 @@ from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline import (META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
-                        ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, SessionDataError, Stalled,
-                        check_hello, make_frame, rtp_timestamp, session_params, session_summary, tcp_segments)
+from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
+                        ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, Stalled, accept_hello,
+                        check_hello, make_frame, rtp_timestamp, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
@@ -244,41 +244,36 @@ class VirtualTimeRun:
                     rtcp_up=Link(self.path.uplink, np.random.default_rng(seeds[4 * n + 2 * i])),
                     rtcp_down=Link(self.path.downlink, np.random.default_rng(seeds[4 * n + 2 * i + 1])))
         # handshake through a real Connection pair (set-up time is not simulated)
-        hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), (self.mcfg.codec,), cfg.width, cfg.height, float(cfg.client_fps))
+        # the client decodes what the live client does (its method's codec first)
+        codecs = tuple(dict.fromkeys((self.mcfg.codec, *CLIENT_CODECS)))
+        hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), codecs, cfg.width, cfg.height, float(cfg.client_fps))
         check_hello(hello, cfg.width * cfg.height)
+        # the server's side: the half here, then the one handshake every front door runs
         self._to_server(c, c.cconn.send(hello))
         make_current(self.renderer.ctx)
         producer = pool.producer(self.spec, self.mcfg)
         c.half = self.spec.server_class(self.mcfg, self.intr, self.scene, cfg.server_fps, producer=producer)
         specs = c.half.streams()
-        session_blob = pack_meta(c.half.session_data())
-        if len(session_blob) > cfg.max_session_bytes:
-            raise SessionDataError(f"method {cfg.method}: session data of {len(session_blob)} bytes exceeds the limit of "
-                                   f"{cfg.max_session_bytes} bytes (max_session_bytes)")
-        c.tx = ServerPipeline(specs, cfg.mtu_bytes, rng=np.random.default_rng(seeds[3 * cfg.clients + i]), fec=cfg.fec,
-                              transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None)
-        params = session_params(cfg.method, self.mcfg, cfg.fov_y_deg, cfg.server_fps, cfg.scene, c.tx, session_blob,
-                                getattr(self.scene, "subject", None))
-        c.tx.open_encoders()   # as the live session does: the SDP names the parameter sets the encoders send
-        welcome = Welcome(f"sim{i}", cfg.method, params, c.tx.describe("127.0.0.1", 6004, f"splitrender sim{i}"))
-        wire = c.sconn.send(welcome)
-        c.bytes[SESSION_STREAM] = control_wire_bytes(len(wire))
-        frames = c.tx.session_frames(session_blob, c.sconn.send)
-        c.bytes[SESSION_STREAM] += sum(control_wire_bytes(len(f)) for _, f in frames)
+        predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
+        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, pack_meta(c.half.session_data()), c.sconn.send,
+                           scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
+                           options=ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), max_session_bytes=cfg.max_session_bytes,
+                           mtu_bytes=cfg.mtu_bytes, fec=cfg.fec, transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
+                           subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
+                           core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
+                           predictor=predictor)
+        c.core_s, c.tx = acc.core, acc.core.tx
+        c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in acc.frames)
         # the client's side of the handshake: the same sans-IO core as the live client's
         opts = cfg.client_options()
         hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
                              (hello.width, hello.height))
-        for m in self._to_client_msgs(c, wire + b"".join(f for _, f in frames)):
+        for m in self._to_client_msgs(c, b"".join(acc.frames)):
             hs.receive_message(m)
         assert hs.done and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.rx = c.core.rx
-        predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        c.core_s = ServerSession(c.tx, float(cfg.client_fps), ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), SIM_EPOCH_US, 0.0,
-                                 np.random.default_rng(seeds[6 * n + 2 * i + 1]), knobs=c.half.config.adapt_knobs(),
-                                 predictor=predictor)
         self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
