@@ -113,3 +113,72 @@ def test_study_grid_executor_refuses_nonsense(monkeypatch: pytest.MonkeyPatch, t
     assert executor() == {"workers": 3, "dask": "local"}
     assert main(["study", "papers", "--workers", "0", "--out", str(tmp_path)]) == 2
     assert "study --workers: must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_store_history_text_and_summary_floats(tmp_path: Path) -> None:
+    """The helpers papers and claims share: the sentence on what filled a study's store (invocations that ran
+    nothing left out; where they ran when the entry says), and a stored run's summary fields as floats, NaN for a
+    missing, empty or unreadable field and for a run the store lacks."""
+    from splitrender.experiments.store import ResultStore
+    from splitrender.experiments.studies._util import store_history_text, summary_floats
+    from splitrender.sim.config import RunConfig
+
+    assert store_history_text([]) == "" and store_history_text([{"ran": 0, "runs_s": 3.0}]) == ""
+    hist = [{"utc": "U1", "commit": "c1", "ran": 8, "cached": 0, "runs_s": 65.2, "note": "stopped"},
+            {"utc": "U2", "commit": "c2", "ran": 0, "cached": 8, "runs_s": 0.1},
+            {"utc": "U3", "commit": "c3", "ran": 4, "cached": 8, "runs_s": 20.0, "workers": 2, "dask": ""},
+            {"utc": "U4", "commit": "c4", "ran": 1, "cached": 11, "runs_s": 4.6, "workers": 1, "dask": "local"}]
+    assert store_history_text(hist) == (
+        "The stored runs were made by 3 invocation(s), 90 s of runs in all (U1 at c1: 8 runs in 65 s (stopped); "
+        "U3 at c3: 4 runs in 20 s on 2 worker processes; U4 at c4: 1 runs in 5 s on Dask (local)).")
+
+    cfg = RunConfig(method="video", scene="minimal", duration_s=0.1)
+    store = ResultStore(tmp_path / "store")
+    nan = summary_floats(store, cfg, ("mean_psnr_db", "mean_kbps"))
+    assert list(nan) == ["mean_psnr_db", "mean_kbps"] and all(math.isnan(v) for v in nan.values())
+
+    class Stored:
+        def load_summary(self, c: object) -> dict[str, object]:
+            assert c is cfg
+            return {"mean_psnr_db": 31.5, "mean_kbps": "", "mean_ssim": "n/a", "frames": 0}
+
+    got = summary_floats(Stored(), cfg, ("mean_psnr_db", "mean_kbps", "mean_ssim", "frames", "absent"))
+    assert got["mean_psnr_db"] == 31.5 and got["frames"] == 0.0
+    assert all(math.isnan(got[k]) for k in ("mean_kbps", "mean_ssim", "absent"))
+
+
+def test_study_base_runs_cells_charts_text_and_section(tmp_path: Path) -> None:
+    """:class:`Study`'s frame: cells, then charts, then the text; the full run (not quick) publishes; the section
+    holds the tables and figures written, in order."""
+    from splitrender.experiments.studies._study import Study
+
+    calls: list[str] = []
+
+    class Tiny(Study):
+        name, title = "tiny", "A tiny study"
+
+        def cells(self) -> None:
+            calls.append("cells")
+            self.table("tiny.csv", [{"a": 1, "b": math.nan}, {"a": 2, "b": 0.5}])
+
+        def charts(self) -> None:
+            calls.append("charts")
+            fig, ax = self.pyplot().subplots()
+            ax.plot([0, 1], [1, 0])
+            self.figure(fig, "tiny.png", svg=True)
+
+        def text(self) -> str:
+            calls.append("text")
+            return f"cells took {self.cells_s:.1f} s"
+
+        def publish(self, text: str) -> None:
+            calls.append("publish")
+
+    sec = Tiny(tmp_path / "q", quick=True).run()
+    assert calls == ["cells", "charts", "text"] and sec.title == "A tiny study" and sec.text_md.startswith("cells took")
+    assert sec.tables == [tmp_path / "q" / "tiny.csv"] and sec.figures == [tmp_path / "q" / "tiny.png"]
+    assert (tmp_path / "q" / "tiny.csv").read_text().splitlines() == ["a,b", "1,", "2,0.5"]
+    assert (tmp_path / "q" / "tiny.svg").is_file()
+    calls.clear()
+    Tiny(tmp_path / "full", quick=False).run()
+    assert calls == ["cells", "charts", "text", "publish"]

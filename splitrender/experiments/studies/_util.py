@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
+
+from ...errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[3]
 """The source checkout (where ``docs/`` and ``.git`` are, when the package runs from one)."""
@@ -32,12 +35,14 @@ def update_mean(ups: list[dict[str, Any]], key: str) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def save_figure(fig: Any, path: Path) -> Path:
-    """Lay out ``fig``, write it to ``path`` as PNG at 110 dpi and close it."""
+def save_figure(fig: Any, path: Path, svg: bool = False) -> Path:
+    """Lay out ``fig``, write it to ``path`` as PNG at 110 dpi (``svg``: and as SVG beside it) and close it."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    if svg:
+        fig.savefig(path.with_suffix(".svg"))
     plt.close(fig)
     return path
 
@@ -46,8 +51,6 @@ def executor(default_workers: int = 2) -> dict[str, Any]:
     """``run_configs`` keyword arguments for a study's grid: worker processes and a Dask address, from
     :data:`WORKERS_ENV` and :data:`DASK_ENV` (``splitrender study --workers/--dask``), else ``default_workers``
     local processes."""
-    from ...errors import ConfigError
-
     w = os.environ.get(WORKERS_ENV, "").strip()
     try:
         workers = int(w) if w else default_workers
@@ -97,3 +100,41 @@ def append_history(path: Path, entry: dict[str, Any]) -> list[dict[str, Any]]:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(hist, indent=1))
     return list(hist)
+
+
+def store_history_text(hist: list[dict[str, Any]]) -> str:
+    """One sentence on what filled a study's result store (the list :func:`append_history` keeps): every invocation
+    that ran something (a rebuild from the store runs nothing and is left out), when, at which commit, how many runs
+    in how long, and where when it says; ``""`` when none ran."""
+    ran = [h for h in hist if h.get("ran")]
+    if not ran:
+        return ""
+    total = sum(float(h.get("runs_s", 0.0)) for h in ran)
+
+    def where(h: dict[str, Any]) -> str:
+        if h.get("dask"):
+            return f" on Dask ({h['dask']})"
+        return f" on {h['workers']} worker processes" if h.get("workers") else ""
+
+    each = "; ".join(f"{h.get('utc', '?')} at {h.get('commit', '?')}: {h['ran']} runs in "
+                     f"{float(h.get('runs_s', 0.0)):.0f} s" + where(h) + (f" ({h['note']})" if h.get("note") else "")
+                     for h in ran)
+    return f"The stored runs were made by {len(ran)} invocation(s), {total:.0f} s of runs in all ({each})."
+
+
+def summary_floats(store: Any, cfg: Any, keys: Iterable[str]) -> dict[str, float]:
+    """Fields ``keys`` of a stored run's summary (``store`` a :class:`~splitrender.experiments.store.ResultStore`,
+    ``cfg`` the run's config) as floats: NaN for a field that is missing or empty, and for every field when the run
+    failed or is not in the store."""
+    try:
+        s = store.load_summary(cfg)
+    except (OSError, IndexError, ValueError):
+        s = {}
+    out: dict[str, float] = {}
+    for k in keys:
+        v = s.get(k)
+        try:
+            out[k] = float(v) if v not in (None, "") else math.nan
+        except (TypeError, ValueError):
+            out[k] = math.nan
+    return out

@@ -40,9 +40,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from ...tabular import write_csv
+from ...sim.config import RunConfig
+from ...sim.truth import shared_cache_setting
 from ..sections import Section
-from ._util import ROOT, STUDY_SCENE, append_history, executor, git_commit, run_command, update_mean
+from ._study import Study
+from ._util import ROOT, STUDY_SCENE, run_command, store_history_text, summary_floats, update_mean
 from .papers import MW60, MW120, QUASAR_T4, QUASAR_T1
 
 log = logging.getLogger(__name__)
@@ -391,8 +393,6 @@ def available_scenes(names: Sequence[str]) -> list[str]:
 
 
 def run_config(run: str, scene: str, camera: str, g: dict[str, Any], truth_cache: str = "") -> Any:
-    from ...sim.config import RunConfig
-
     spec = RUNS[run]
     w, h = g["size"]
     return RunConfig(method=spec["method"], method_params=dict(spec.get("params", {})), scene=scene_path(scene, spec.get("gi", False)),
@@ -438,63 +438,84 @@ def verdict(claim: Claim, cells: dict[str, float]) -> tuple[str, str, float]:
 
 
 def _metric(store: Any, cfg: Any, metric: str) -> float:
+    """The stored run's value of ``metric`` (NaN when the run failed or is missing)."""
     key = METRICS[metric][0]
-    try:
-        if key.startswith("updates:"):
-            ups = store.load_updates(cfg.key())
-            return update_mean(ups, key.split(":", 1)[1])
-        if key.startswith("ratio:"):
-            num, den = key.split(":", 1)[1].split("/")
-            sm = store.load_summary(cfg)
-            a, b = float(sm.get(num) or "nan"), float(sm.get(den) or "nan")
-            return a / b if b > 0 else math.nan
-        v = store.load_summary(cfg).get(key)
-        return float(v) if v not in (None, "") else math.nan
-    except (OSError, IndexError, ValueError, TypeError):
-        return math.nan
+    if key.startswith("updates:"):
+        try:
+            return update_mean(store.load_updates(cfg.key()), key.split(":", 1)[1])
+        except (OSError, IndexError, ValueError, TypeError):
+            return math.nan
+    if key.startswith("ratio:"):
+        num, den = key.split(":", 1)[1].split("/")
+        v = summary_floats(store, cfg, (num, den))
+        return v[num] / v[den] if v[den] > 0 else math.nan
+    return summary_floats(store, cfg, (key,))[key]
 
 
-def evaluate(out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Run every configuration the claims need (cached in ``out_dir/store``) and evaluate the claims.
+class ClaimsStudy(Study):
+    """Every configuration the claims need, run into the study's store, the claims evaluated per cell, and the
+    ledger (``claims.md``, ``claims.csv``, ``claims_cells.csv``; :data:`DOC` and :data:`RESULTS_DIR` by the full
+    run)."""
 
-    Returns (one row per claim and cell, one summary per claim keyed by id, under ``"claims"``) and the run info."""
-    from ...sim.truth import shared_cache_setting
-    from ..store import ResultStore
-    from ..sweep import run_configs
+    name = "claims"
+    title = "Claims ledger"
 
-    g = GRID[quick]
-    scenes = available_scenes(g["scenes"]) or ["default"]
-    cache = shared_cache_setting(out_dir)
-    need: dict[str, Any] = {}
-    for c in claims:
-        for sc in (x for x in scenes if c.scenes is None or x in c.scenes):
-            for cam in (x for x in g["cameras"] if x in c.cameras):
-                for r in c.runs():
-                    cfg = run_config(r, sc, cam, g, cache)
-                    need.setdefault(cfg.key(), cfg)
-    store = ResultStore(out_dir / "store")
-    commit = git_commit()  # the code that runs them (HEAD may move while they run)
-    t0 = time.perf_counter()
-    todo = [c for c in need.values() if RUN_MISSING or store.has(c)]
-    res = run_configs(todo, store, **executor(g["workers"]))
-    elapsed = time.perf_counter() - t0
-    history = append_history(out_dir / "store" / "claims_history.json", {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                                           "commit": commit, "ran": len(res.ran), "cached": len(res.cached),
-                                           "runs_s": round(elapsed, 1)})
-    rows: list[dict[str, Any]] = []
-    for c in claims:
-        for sc in (x for x in scenes if c.scenes is None or x in c.scenes):
-            for cam in (x for x in g["cameras"] if x in c.cameras):
-                cfgs = {r: run_config(r, sc, cam, g, cache) for r in c.runs()}
-                vals = {r: _metric(store, cfg, c.metric) for r, cfg in cfgs.items()}
-                rows.append({"claim": c.id, "scene": sc, "camera": cam, "metric": c.metric,
-                             "measure": measure(c, vals), **{f"value[{r}]": v for r, v in vals.items()},
-                             "commands": " ; ".join(f"{r}: {run_command(cfg)}" for r, cfg in cfgs.items()),
-                             "config_keys": " ".join(cfg.key() for cfg in cfgs.values())})
-    info = {"runs": len(todo), "not_run": len(need) - len(todo), "ran": len(res.ran), "cached": len(res.cached), "failures": len(res.failures),
-            "failed": [f.label for f in res.failures], "elapsed_s": elapsed, "history": history, "scenes": scenes,
-            "cameras": list(g["cameras"]), "size": g["size"], "duration_s": g["duration_s"], "commit": commit}
-    return rows, info
+    def __init__(self, out_dir: Path, quick: bool, claims: Sequence[Claim] = CLAIMS) -> None:
+        super().__init__(out_dir, quick)
+        self.claims = claims
+        self.rows: list[dict[str, Any]] = []
+        self.info: dict[str, Any] = {}
+
+    def cells(self) -> None:
+        """Run every configuration the claims need (cached in the store) and evaluate the claims: a row per claim
+        and cell (:attr:`rows`), and the run info."""
+        g = GRID[self.quick]
+        scenes = available_scenes(g["scenes"]) or ["default"]
+        cache = shared_cache_setting(self.out)
+        cells = [(c, sc, cam) for c in self.claims for sc in scenes if c.scenes is None or sc in c.scenes
+                 for cam in g["cameras"] if cam in c.cameras]
+        need: dict[str, Any] = {}
+        for c, sc, cam in cells:
+            for r in c.runs():
+                cfg = run_config(r, sc, cam, g, cache)
+                need.setdefault(cfg.key(), cfg)
+        todo = [c for c in need.values() if RUN_MISSING or self.store.has(c)]
+        grid = self.run_grid(todo, g["workers"])
+        for c, sc, cam in cells:
+            cfgs = {r: run_config(r, sc, cam, g, cache) for r in c.runs()}
+            vals = {r: _metric(self.store, cfg, c.metric) for r, cfg in cfgs.items()}
+            self.rows.append({"claim": c.id, "scene": sc, "camera": cam, "metric": c.metric,
+                              "measure": measure(c, vals), **{f"value[{r}]": v for r, v in vals.items()},
+                              "commands": " ; ".join(f"{r}: {run_command(cfg)}" for r, cfg in cfgs.items()),
+                              "config_keys": " ".join(cfg.key() for cfg in cfgs.values())})
+        res = grid.result
+        self.info = {"runs": len(todo), "not_run": len(need) - len(todo), "ran": len(res.ran), "cached": len(res.cached),
+                     "failures": len(res.failures), "failed": [f.label for f in res.failures],
+                     "elapsed_s": grid.runs_s, "history": grid.history, "scenes": scenes, "cameras": list(g["cameras"]),
+                     "size": g["size"], "duration_s": g["duration_s"], "commit": grid.commit}
+
+    def text(self) -> str:
+        """The ledger, written to ``claims.md`` with its two tables."""
+        text, summary = ledger(self.claims, self.rows, self.info, self.quick, self.cells_s)
+        (self.out / "claims.md").write_text(text + "\n")
+        self.table("claims.csv", summary)
+        self.table("claims_cells.csv", self.rows)
+        return text
+
+    def publish(self, text: str) -> None:
+        if DOC is None:
+            return
+        DOC.write_text(text + "\n")
+        if RESULTS_DIR is not None:  # the tables the ledger is built from, beside it
+            RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+            for f in (*self.tables, *([self.history_path] if self.history_path.is_file() else [])):
+                shutil.copyfile(f, RESULTS_DIR / f.name)
+        log.info("claims study: wrote %s and %s", DOC, RESULTS_DIR)
+
+    def section(self, text: str) -> Section:
+        body = text.split("\n", 2)[2] if text.startswith("# ") else text
+        body = body.replace("\n### ", "\n#### ").replace("\n## ", "\n### ")  # under the report's section heading
+        return super().section(body)
 
 
 def ledger(claims: Sequence[Claim], rows: list[dict[str, Any]], info: dict[str, Any], quick: bool,
@@ -511,7 +532,7 @@ def ledger(claims: Sequence[Claim], rows: list[dict[str, Any]], info: dict[str, 
         f"{info['failures']} failed) at {w}x{h}, {info['duration_s']:g} s each, server 30 Hz, client 60 Hz unless a "
         f"run says otherwise, on {', '.join(info['scenes'])} x {', '.join(info['cameras'])} camera "
         f"({', '.join(f'{k}: `{v}` trace' for k, v in CAMERAS.items() if k in info['cameras'])}). "
-        + _history_text(info.get("history", [])) +
+        + store_history_text(info.get("history", [])) +
         " Nothing below is typed by hand except each paper's claim (its words, number, setting and the comparison "
         "rule, declared as data in the module); every number of ours and every verdict is computed from the runs.",
         "",
@@ -574,17 +595,6 @@ def ledger(claims: Sequence[Claim], rows: list[dict[str, Any]], info: dict[str, 
     return text, summary
 
 
-def _history_text(hist: list[dict[str, Any]]) -> str:
-    """What produced the stored runs: each invocation that ran some, its commit, count and time."""
-    ran = [h for h in hist if h.get("ran")]
-    if not ran:
-        return ""
-    total = sum(float(h.get("runs_s", 0.0)) for h in ran)
-    each = "; ".join(f"{h['utc']} at {h['commit']}: {h['ran']} runs in {float(h['runs_s']):.0f} s"
-                     + (f" ({h['note']})" if h.get("note") else "") for h in ran)
-    return f"The stored runs were made by {len(ran)} invocation(s), {total:.0f} s of runs in all ({each})."
-
-
 def _fmt(v: Any) -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "n/a"
@@ -593,23 +603,4 @@ def _fmt(v: Any) -> str:
 
 def run(out_dir: Path, quick: bool) -> Section:
     """Run the claims' configurations, write ``claims.md`` and the CSVs into ``out_dir`` (and :data:`DOC` when full)."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    rows, info = evaluate(out_dir, quick)
-    text, summary = ledger(CLAIMS, rows, info, quick, time.perf_counter() - t0)
-    (out_dir / "claims.md").write_text(text + "\n")
-    cells_csv, claims_csv = out_dir / "claims_cells.csv", out_dir / "claims.csv"
-    write_csv(cells_csv, rows)
-    write_csv(claims_csv, summary)
-    if not quick and DOC is not None:
-        DOC.write_text(text + "\n")
-        hist = out_dir / "store" / "claims_history.json"
-        if RESULTS_DIR is not None:  # the tables the ledger is built from, beside it
-            RESULTS_DIR.mkdir(parents=True, exist_ok=True)
-            for f in (claims_csv, cells_csv, *([hist] if hist.is_file() else [])):
-                shutil.copyfile(f, RESULTS_DIR / f.name)
-        log.info("claims study: wrote %s and %s", DOC, RESULTS_DIR)
-    body = text.split("\n", 2)[2] if text.startswith("# ") else text
-    body = body.replace("\n### ", "\n#### ").replace("\n## ", "\n### ")  # under the report's section heading
-    return Section("Claims ledger", body, [], [claims_csv, cells_csv])
+    return ClaimsStudy(out_dir, quick).run()

@@ -29,7 +29,7 @@ table 4, 0.6 s predictor runs (about a minute on two cores).  Full: 640x360, 3 s
 the whole trace for the predictors: 56 runs, 54 minutes on two cores with two workers.  The grid is module-level
 (``GRID``) so a test can shrink it.
 
-The points are planned up front (:func:`plan`) and run through the sweep executor (:func:`execute`): the study's result
+The points are planned up front (:func:`plan`) and run through the sweep executor (:meth:`PapersStudy.cells`): the study's result
 store under ``<out>/store`` (a second invocation runs only what changed; ``store/papers_history.json`` keeps what
 each invocation ran and how long), the truth cache, a pool of worker processes or a Dask cluster
 (``splitrender study papers --workers N --dask ADDRESS|local``).  The full run also publishes its section, charts
@@ -40,13 +40,14 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ...tabular import write_csv
+from ...sim.config import RunConfig
+from ...sim.truth import shared_cache_setting
 from ..sections import Section
-from ._util import ROOT, STUDY_SCENE, append_history, executor, git_commit, run_command
+from ._study import Study
+from ._util import ROOT, STUDY_SCENE, run_command, store_history_text, summary_floats
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +116,7 @@ QUASAR_T1: dict[str, list[tuple[str, str, str, str, str]]] = {
 #: the QUASAR table-1 "w/ Pred" column per network: kinematic (velocity + acceleration), Savitzky-Golay at 50 ms
 PAPER_PREDICTOR = {"lan": "ca", "cloud": "ca_savgol"}
 NET_LABEL = {"lan": "20 ± 10 ms", "cloud": "50 ± 20 ms", "ideal": "0 ms"}
+MARKERS = {"sas": "o", "warp": "s", "atw": "^", "video": "v"}
 
 
 def _network(latency_ms: int) -> str:
@@ -125,8 +127,6 @@ def run_config(g: dict[str, Any], method: str, params: dict[str, Any], network: 
                client_fps: int, ssim_sigma: float = 1.5, predictor: str = "cv", metrics: bool = True,
                size: tuple[int, int] | None = None, duration_s: float | None | str = "grid", truth_cache: str = "") -> Any:
     """One point's :class:`RunConfig` (``duration_s="grid"``: the grid's)."""
-    from ...sim.config import RunConfig
-
     w, h = size or g["size"]
     return RunConfig(method=method, method_params=dict(params), scene=STUDY_SCENE, trace=TRACE, network=network,
                      duration_s=g["duration_s"] if duration_s == "grid" else duration_s, width=w, height=h,
@@ -176,102 +176,71 @@ def plan(g: dict[str, Any], truth_cache: str = "") -> list[dict[str, Any]]:
     return pts
 
 
-def _scores(store: Any, cfg: Any) -> dict[str, Any]:
-    """A stored run's figures for the table (NaN where the run failed or is missing)."""
-    try:
-        s = store.load_summary(cfg)
-    except (OSError, IndexError, ValueError):
-        s = {}
-
-    def num(k: str) -> float:
-        v = s.get(k)
-        try:
-            return float(v) if v not in (None, "") else math.nan
-        except (TypeError, ValueError):
-            return math.nan
-
-    return {"psnr_db": num("mean_psnr_db"), "ssim": num("mean_ssim"), "kbps": num("mean_kbps"),
-            "pred_err_cm": num("mean_pred_err_cm"), "pred_err_deg": num("mean_pred_err_deg")}
-
-
-def _save(fig: Any, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
-
-
-def execute(out_dir: Path, g: dict[str, Any]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Run the grid's points that ``out_dir/store`` does not hold yet (one run per distinct config, through the sweep
-    executor: worker pool or Dask, the truth cache shared) and return a table row per point, with the run info."""
-    from ...sim.truth import shared_cache_setting
-    from ..store import ResultStore
-    from ..sweep import run_configs
-
-    pts = plan(g, shared_cache_setting(out_dir))
-    store = ResultStore(out_dir / "store")
-    ex = executor(g.get("workers", 2))
-    commit = git_commit()
-    t0 = time.perf_counter()
-    res = run_configs([p["cfg"] for p in pts], store, **ex)
-    runs_s = time.perf_counter() - t0
-    distinct = {p["cfg"].key() for p in pts}
-    history = append_history(out_dir / "store" / "papers_history.json", {
-        "utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit, "ran": len(res.ran),
-        "cached": len(res.cached), "failed": len(res.failures), "runs_s": round(runs_s, 1),
-        "workers": ex["workers"], "dask": ex["dask"] or ""})
-    rows = []
-    for p in pts:
-        cfg = p["cfg"]
-        wall = res.wall_s.get(cfg.key(), math.nan)
-        rows.append({**{k: v for k, v in p.items() if k != "cfg"}, **_scores(store, cfg), "wall_s": wall,
-                     "config_key": cfg.key(), "command": run_command(cfg)})
-    info = {"points": len(pts), "runs": len(distinct), "ran": len(res.ran), "cached": len(res.cached),
-            "failed": [f.label for f in res.failures], "runs_s": runs_s, "history": history, "commit": commit, **ex}
-    return rows, info
+#: the table's score columns and the run summary's fields they come from
+SCORES = {"psnr_db": "mean_psnr_db", "ssim": "mean_ssim", "kbps": "mean_kbps", "pred_err_cm": "mean_pred_err_cm",
+          "pred_err_deg": "mean_pred_err_deg"}
 
 
 def _get(rows: list[dict[str, Any]], **kw: Any) -> dict[str, Any] | None:
     return next((r for r in rows if all(r.get(k) == v for k, v in kw.items())), None)
 
 
-def run(out_dir: Path, quick: bool) -> Section:
-    """Run the five experiments; write ``papers_results.csv`` and the charts into ``out_dir``."""
-    import matplotlib
+class PapersStudy(Study):
+    """The five experiments: their grid run into the study's store, ``papers_results.csv``, a chart each and the
+    section (published in :data:`DOC_DIR` by the full run)."""
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    name = "papers"
+    title = "The papers' figures (SAS figs. 13-15, QUASAR tables 1 and 4)"
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    g = GRID[quick]
-    t0 = time.perf_counter()
-    rows, info = execute(out_dir, g)
-    elapsed = time.perf_counter() - t0
-    (s13, c13), c14, (s15, c15) = g["fig13_fps"], g["fig14_client_fps"], g["fig15_fps"]
+    def __init__(self, out_dir: Path, quick: bool) -> None:
+        super().__init__(out_dir, quick)
+        self.g = GRID[quick]
+        self.rows: list[dict[str, Any]] = []
+        self.info: dict[str, Any] = {}
 
-    table = out_dir / "papers_results.csv"
-    write_csv(table, ({k: r.get(k, "") for k in COLUMNS} for r in rows))
+    def cells(self) -> None:
+        """Run the grid's points that the store does not hold yet (one run per distinct config, the truth cache
+        shared) and keep a table row per point, with the run info."""
+        pts = plan(self.g, shared_cache_setting(self.out))
+        grid = self.run_grid([p["cfg"] for p in pts], self.g.get("workers", 2))
+        res = grid.result
+        for p in pts:
+            cfg = p["cfg"]
+            scores = summary_floats(self.store, cfg, SCORES.values())
+            self.rows.append({**{k: v for k, v in p.items() if k != "cfg"}, **{k: scores[f] for k, f in SCORES.items()},
+                              "wall_s": res.wall_s.get(cfg.key(), math.nan), "config_key": cfg.key(),
+                              "command": run_command(cfg)})
+        self.info = {"points": len(pts), "runs": len({p["cfg"].key() for p in pts}), "ran": len(res.ran),
+                     "cached": len(res.cached), "failed": [f.label for f in res.failures], "runs_s": grid.runs_s,
+                     "history": grid.history, "commit": grid.commit, "workers": grid.workers, "dask": grid.dask}
+        self.table("papers_results.csv", ({k: r.get(k, "") for k in COLUMNS} for r in self.rows))
 
-    figs: list[Path] = []
-    markers = {"sas": "o", "warp": "s", "atw": "^", "video": "v"}
+    def charts(self) -> None:
+        plt = self.pyplot()
+        self._sas_figures(plt)
+        self._quasar_t4(plt)
+        self._quasar_t1(plt)
 
-    def by(exp: str) -> list[dict[str, Any]]:
-        return [r for r in rows if r["experiment"] == exp]
+    def text(self) -> str:
+        return _text(self.rows, self.g, self.quick, self.cells_s, self.info)
 
-    def psnr_ssim(rs: list[dict[str, Any]], methods: Any, xkey: str, xlabel: str, title: str, name: str,
-                  style_x: Any = None) -> None:
+    def publish(self, text: str) -> None:
+        if DOC_DIR is not None:
+            _publish(DOC_DIR, text, self.figures, self.tables[0], self.history_path)
+
+    def _by(self, exp: str) -> list[dict[str, Any]]:
+        return [r for r in self.rows if r["experiment"] == exp]
+
+    def _sas_figure(self, plt: Any, rs: list[dict[str, Any]], methods: Any, xkey: str, xlabel: str, title: str,
+                   name: str, style_x: Any = None) -> None:
         """One SAS figure: PSNR and SSIM against ``xkey``, a line per method."""
         if not rs:
             return
         fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
         for m in methods:
             pts = sorted((r[xkey], r["psnr_db"], r["ssim"]) for r in rs if r["method"] == m)
-            ax[0].plot([p[0] for p in pts], [p[1] for p in pts], marker=markers.get(m, "o"), label=m)
-            ax[1].plot([p[0] for p in pts], [p[2] for p in pts], marker=markers.get(m, "o"), label=m)
+            ax[0].plot([p[0] for p in pts], [p[1] for p in pts], marker=MARKERS.get(m, "o"), label=m)
+            ax[1].plot([p[0] for p in pts], [p[2] for p in pts], marker=MARKERS.get(m, "o"), label=m)
         for a, yl in ((ax[0], "PSNR, dB"), (ax[1], "SSIM (sigma 2)")):
             if style_x is not None:
                 style_x(a)
@@ -279,24 +248,31 @@ def run(out_dir: Path, quick: bool) -> Section:
             a.set_ylabel(yl)
         ax[0].legend(fontsize=8)
         fig.suptitle(title, fontsize=10)
-        figs.append(_save(fig, out_dir / name))
+        self.figure(fig, name, svg=True)
 
-    def fig14_axis(a: Any) -> None:
-        a.set_xscale("log", base=2)
-        a.set_xticks(list(g["fig14_server_fps"]), [("7.5 (8)" if s == 8 else str(s)) for s in g["fig14_server_fps"]])
+    def _sas_figures(self, plt: Any) -> None:
+        g = self.g
+        (s13, c13), c14, (s15, c15) = g["fig13_fps"], g["fig14_client_fps"], g["fig15_fps"]
 
-    psnr_ssim(by("sas_fig13"), g["fig13_methods"], "latency_ms", "one-way latency, ms",
-              f"SAS fig. 13: quality vs latency (server {s13} Hz, client {c13} Hz)", "papers_sas_fig13.png")
-    psnr_ssim(by("sas_fig14"), g["fig14_methods"], "server_fps", f"server Hz (client {c14} Hz)",
-              "SAS fig. 14: quality vs server rate, zero latency", "papers_sas_fig14.png", fig14_axis)
-    psnr_ssim(by("sas_fig15"), g["fig15_methods"], "kbps", "measured bitrate, kbit/s",
-              f"SAS fig. 15: rate-distortion (server {s15} Hz, client {c15} Hz, zero latency)", "papers_sas_fig15.png",
-              lambda a: a.set_xscale("log"))
-    # table 4: ours and the paper's (mean of its four scenes)
-    r4 = by("quasar_t4")
-    if r4:
-        nets = [n for n in g["t4_networks"]]
-        labels = list(g["t4_configs"])
+        def fig14_axis(a: Any) -> None:
+            a.set_xscale("log", base=2)
+            a.set_xticks(list(g["fig14_server_fps"]), [("7.5 (8)" if s == 8 else str(s)) for s in g["fig14_server_fps"]])
+
+        self._sas_figure(plt, self._by("sas_fig13"), g["fig13_methods"], "latency_ms", "one-way latency, ms",
+                        f"SAS fig. 13: quality vs latency (server {s13} Hz, client {c13} Hz)", "papers_sas_fig13.png")
+        self._sas_figure(plt, self._by("sas_fig14"), g["fig14_methods"], "server_fps", f"server Hz (client {c14} Hz)",
+                        "SAS fig. 14: quality vs server rate, zero latency", "papers_sas_fig14.png", fig14_axis)
+        self._sas_figure(plt, self._by("sas_fig15"), g["fig15_methods"], "kbps", "measured bitrate, kbit/s",
+                        f"SAS fig. 15: rate-distortion (server {s15} Hz, client {c15} Hz, zero latency)",
+                        "papers_sas_fig15.png", lambda a: a.set_xscale("log"))
+
+    def _quasar_t4(self, plt: Any) -> None:
+        """Table 4: ours and the paper's (mean of its four scenes)."""
+        r4 = self._by("quasar_t4")
+        if not r4:
+            return
+        nets = [n for n in self.g["t4_networks"]]
+        labels = list(self.g["t4_configs"])
         fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
         width = 0.8 / max(1, 2 * len(nets))
         k = 0
@@ -321,12 +297,14 @@ def run(out_dir: Path, quick: bool) -> Section:
         ax[1].set_ylabel("PSNR, dB (ours)")
         ax[1].legend(fontsize=7)
         fig.suptitle("QUASAR table 4: ATW and MeshWarp at 60° / 120°", fontsize=10)
-        figs.append(_save(fig, out_dir / "papers_quasar_t4.png"))
-    # table 1
-    r1 = by("quasar_t1")
-    if r1:
-        preds = list(g["t1_predictors"])
-        nets = list(g["t1_networks"])
+        self.figure(fig, "papers_quasar_t4.png", svg=True)
+
+    def _quasar_t1(self, plt: Any) -> None:
+        r1 = self._by("quasar_t1")
+        if not r1:
+            return
+        preds = list(self.g["t1_predictors"])
+        nets = list(self.g["t1_networks"])
         fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
         width = 0.8 / max(1, len(nets))
         for k, net in enumerate(nets):
@@ -340,12 +318,12 @@ def run(out_dir: Path, quick: bool) -> Section:
             a.set_ylabel(yl)
         ax[0].legend(fontsize=8)
         fig.suptitle(f"QUASAR table 1: pose prediction error on `{TRACE}` (ours)", fontsize=10)
-        figs.append(_save(fig, out_dir / "papers_quasar_t1.png"))
+        self.figure(fig, "papers_quasar_t1.png", svg=True)
 
-    text = _text(rows, g, quick, elapsed, info)
-    if not quick and DOC_DIR is not None:
-        _publish(DOC_DIR, text, figs, table, out_dir / "store" / "papers_history.json")
-    return Section("The papers' figures (SAS figs. 13-15, QUASAR tables 1 and 4)", text, figs, [table])
+
+def run(out_dir: Path, quick: bool) -> Section:
+    """Run the five experiments; write ``papers_results.csv`` and the charts into ``out_dir``."""
+    return PapersStudy(out_dir, quick).run()
 
 
 def _publish(dest: Path, text: str, figs: list[Path], table: Path, history: Path) -> None:
@@ -388,16 +366,6 @@ def _method_table(rs: list[dict[str, Any]], key: str, values: list[Any], head: C
     return lines
 
 
-def _history_text(hist: list[dict[str, Any]]) -> str:
-    """The invocations that ran something (a rebuild from the store runs nothing and is left out)."""
-    parts = [f"{h.get('ran', 0)} runs in {h.get('runs_s', 0):.0f} s ({h.get('runs_s', 0) / 60:.1f} min) on "
-             + (f"Dask ({h['dask']})" if h.get("dask") else f"{h.get('workers', '?')} worker processes")
-             + f", {h.get('utc', '?')} at commit {h.get('commit', '?')}"
-             + (f", {h['cached']} already in the store" if h.get("cached") else "")
-             for h in hist if h.get("ran")]
-    return "; ".join(parts[-4:])
-
-
 def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: float, info: dict[str, Any]) -> str:
     w, h = g["size"]
     fails = info.get("failed", [])
@@ -410,8 +378,7 @@ def _text(rows: list[dict[str, Any]], g: dict[str, Any], quick: bool, elapsed: f
         f"in {elapsed:.0f} s" + (f"; **{len(fails)} failed**: {', '.join(fails)}" if fails else "") + ". "
         "Runs go through the sweep executor (`splitrender study papers --workers N` or `--dask ADDRESS|local`), with "
         "the ground truth of each client timeline rendered once into the truth cache. "
-        + (f"**What the runs took**: {_history_text(info['history'])}. " if _history_text(info.get("history", []))
-           else "")
+        + (store_history_text(info.get("history", [])) + " " if store_history_text(info.get("history", [])) else "")
         + "The papers measure large game scenes at 1920x1080 for 1200-1500 frames. "
         + ("" if quick else f"The full grid here keeps their rates, latencies, bitrate ladder shape and every method "
            f"and configuration, and cuts the resolution ({w}x{h}: 1/9 of the pixels), the frames ({g['duration_s']:g} s, "
