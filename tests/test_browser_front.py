@@ -220,13 +220,13 @@ def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
     from splitrender.codecs.meta import pack_meta, unpack_meta
     from splitrender.methods.base import ServerContext
     from splitrender.methods.sas import SasConfig, SasServer
-    from splitrender.methods.sas.client import PatchSlots
+    from splitrender.methods.sas.slots import PatchSlots
     from splitrender.methods.sas.wire import parse_frame_meta, parse_session
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
     from splitrender.scene.trace import get_trace
-    from splitrender.webrtc.sas import MAX_SLOTS_PER_PART, SasBridge, parse_slot_message
+    from splitrender.methods.sas.page import MAX_SLOTS_PER_PART, SasPage, parse_slot_message
 
     r = Renderer()
     scene = get_scene("minimal")
@@ -234,7 +234,7 @@ def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
     trace = get_trace("turn", 2.0)
     srv = SasServer(SasConfig(chroma="420"), intr, scene, 30)
     blob = pack_meta(srv.session_data())
-    bridge = SasBridge(blob)
+    bridge = SasPage(SasConfig(chroma="420"), intr, blob)
     info = parse_session(unpack_meta(blob))
     reference = PatchSlots(info)
     rows = np.zeros((0, 90), np.float32)
@@ -303,3 +303,31 @@ async def test_a_page_that_never_connects_ends_its_session(tmp_path, monkeypatch
             assert session.worker is None and server.front.active == []
         finally:
             await pc.close()
+
+
+def test_page_glue_is_the_methods_and_the_server_process_imports_no_client_half() -> None:
+    """Method-specific page glue sits behind ``MethodSpec.page`` (issue 47): the browser session has no
+    ``if method == ...`` of its own, and building every method's glue in a fresh interpreter, as the server process
+    does, imports no client half."""
+    import inspect
+    import subprocess
+    import sys
+
+    from splitrender.methods.atw import AtwConfig
+    from splitrender.methods.base import PageGlue, get_method
+    from splitrender.scene.pose import CameraIntrinsics
+    from splitrender.webrtc import session
+
+    src = inspect.getsource(session)
+    assert 'method == "' not in src and "methods.sas" not in src and "methods.atw" not in src
+    intr = CameraIntrinsics(320, 180, 60.0)
+    terms = get_method("atw").page_class(AtwConfig(overscan=1.3, fill="black"), intr, b"").terms()
+    assert terms["fill"] == "black" and terms["ref_fov_y_deg"] == pytest.approx(intr.enlarged(1.3, True).fov_y_deg)
+    assert terms["ref_fov_y_deg"] > 60.0
+    assert get_method("video").page_class is PageGlue
+    code = ("import sys, splitrender.webrtc.session, splitrender.server.session\n"
+            "from splitrender.methods.base import available_methods, get_method\n"
+            "for m in available_methods(): get_method(m).page_class\n"
+            "print(sorted(k for k in sys.modules if k.startswith('splitrender.methods.') and k.endswith('.client')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr + out.stdout

@@ -18,6 +18,7 @@ from splitrender.methods.sas.patches import build_mesh_patches, build_scene_patc
 from splitrender.methods.sas.wire import TRI_SLOTS, SasMetaError
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.procedural import default_scene
+from splitrender.sim.runner import RunConfig
 
 INTR = CameraIntrinsics(320, 180)
 
@@ -357,15 +358,19 @@ def test_client_rejects_malformed_metadata() -> None:
 
 
 def test_client_imports_only_the_wire_format_from_the_server_side() -> None:
-    """DESIGN: the halves share nothing but the wire format (``sas/wire.py``)."""
+    """DESIGN: the halves share nothing but the wire format (``sas/wire.py``); the client's GL-free state
+    (``sas/slots.py``, which the browser's page glue shares in the server process) imports only the wire format too."""
     import ast
     import inspect
 
-    from splitrender.methods.sas import client
+    from splitrender.methods.sas import client, slots
 
-    tree = ast.parse(inspect.getsource(client))
-    local = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 1}
-    assert local == {"wire"}, f"sas.client imports {sorted(local)} from its package"
+    def local(mod: object) -> set[str]:
+        tree = ast.parse(inspect.getsource(mod))  # type: ignore[arg-type]
+        return {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 1}  # type: ignore[misc]
+
+    assert local(client) == {"wire", "slots"}, f"sas.client imports {sorted(local(client))} from its package"
+    assert local(slots) == {"wire"}, f"sas.slots imports {sorted(local(slots))} from its package"
 
 
 @functools.lru_cache(maxsize=1)
@@ -507,24 +512,29 @@ def test_pvs_holds_a_moving_object_that_enters_the_view_within_the_window() -> N
 
 
 # ---------------------------------------------------------------- end to end
-@pytest.mark.parametrize("trace", ["strafe", "walk"])
-def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud(shared_run, trace: str) -> None:  # type: ignore[no-untyped-def]
-    """Under ``cloud`` (320x180, ``default+nogi``) sas beats atw on the sideways strafe (1 s) and on the default walk
-    (0.6 s); on the strafe, PVS prediction and the FOV margin matter (without them objects entering from the side are
-    holes).  The runs of a trace share one ground truth, and the atw run on the walk is ``test_tss``'s
-    (``shared_run``)."""
-    from splitrender.sim.runner import RunConfig
-
-    psnr, holes = {}, {}
+def _cloud_runs(trace: str) -> dict[str, RunConfig]:
+    """The runs of :func:`test_sas_beats_atw_and_needs_pvs_prediction_under_cloud` on ``trace``, by name."""
     runs = {"sas": ("sas", {}), "atw": ("atw", {})}
     if trace == "strafe":
         runs["sas_no_pvs_prediction"] = ("sas", {"pvs_prediction": "none", "fov_margin": 0.0})
     # the strafe needs its second: the holes without prediction reach 5x sas's only from 0.8 s on (measured ratio
     # 2.5 / 3.1 / 4.0 / 4.9 / 5.8 / 6.9 over 0.4 / 0.5 / 0.6 / 0.7 / 0.8 / 1 s); the walk's lead is as wide at 0.6 s
     duration_s = 1.0 if trace == "strafe" else 0.6
-    for name, (m, params) in runs.items():
-        res = shared_run(RunConfig(method=m, scene="default+nogi", trace=trace, network="cloud", duration_s=duration_s, width=320,
-                                   height=180, client_fps=30, flip_every=0, seed=0, method_params=params))
+    return {name: RunConfig(method=m, scene="default+nogi", trace=trace, network="cloud", duration_s=duration_s, width=320,
+                            height=180, client_fps=30, flip_every=0, seed=0, method_params=params)
+            for name, (m, params) in runs.items()}
+
+
+@pytest.mark.parametrize("trace", [pytest.param(t, marks=pytest.mark.shared_runs(*_cloud_runs(t).values()))
+                                   for t in ("strafe", "walk")])
+def test_sas_beats_atw_and_needs_pvs_prediction_under_cloud(shared_run, trace: str) -> None:  # type: ignore[no-untyped-def]
+    """Under ``cloud`` (320x180, ``default+nogi``) sas beats atw on the sideways strafe (1 s) and on the default walk
+    (0.6 s); on the strafe, PVS prediction and the FOV margin matter (without them objects entering from the side are
+    holes).  The runs of a trace share one ground truth, and the atw run on the walk is ``test_tss``'s
+    (``shared_run``)."""
+    psnr, holes = {}, {}
+    for name, cfg in _cloud_runs(trace).items():
+        res = shared_run(cfg)
         shown = [f for f in res.frames if f["update_frame_id"] >= 0]  # the start-up ticks (black) are no PVS miss
         psnr[name] = float(np.mean([f["psnr_db"] for f in shown]))
         holes[name] = float(np.mean([f["hole_geom_pct"] for f in shown]))  # the sky counts in hole_pct

@@ -460,6 +460,29 @@ def _resolve(ref: Any, what: str) -> Any:
         raise ConfigError(f"{what}: cannot load {ref!r}: {exc}") from exc
 
 
+class PageGlue:
+    """What a method needs beyond its video track to run in the browser page (:mod:`splitrender.webrtc`), in the
+    server process: extra session terms for the page, and per frame messages for its reliable ``meta`` channel.
+    A method names its glue in :attr:`MethodSpec.page`; the page's own drawing code is in ``webrtc/page/``.  Built
+    from the session's config, the display's intrinsics and the session data the server half made."""
+
+    def __init__(self, config: Any, intrinsics: Any, session_blob: bytes) -> None:
+        self.config = config
+        self.intrinsics = intrinsics
+
+    def terms(self) -> dict[str, Any]:
+        """Entries added to the answer's session terms."""
+        return {}
+
+    def frame(self, frame_id: int, meta: dict[str, Any]) -> list[bytes]:
+        """Messages for the ``meta`` channel before frame ``frame_id``'s video (its update's ``meta``)."""
+        return []
+
+    def counters(self) -> dict[str, int]:
+        """Counters added to the session's ``server_counters.csv``."""
+        return {}
+
+
 @dataclass(frozen=True)
 class MethodSpec:
     """A method: its name, its halves (classes or ``"module:Class"`` strings, loaded on
@@ -478,6 +501,9 @@ class MethodSpec:
     client_draws_scene: bool = False
     """The client half holds the whole scene and renders it (what it streams is lighting): a different kind of thin
     client, marked as such where methods are compared."""
+    page: Any = None
+    """Its :class:`PageGlue` (a class or ``"module:Class"``) where the browser page needs more than the video track
+    and the frame's pose; None: nothing more."""
 
     @property
     def server_class(self) -> type[ServerHalf]:
@@ -486,6 +512,13 @@ class MethodSpec:
     @property
     def client_class(self) -> type[ClientHalf]:
         return typing.cast(type[ClientHalf], _resolve(self.client, f"method {self.name} client half"))
+
+    @property
+    def page_class(self) -> type[PageGlue]:
+        """The method's page glue (the base class, which adds nothing, where it names none)."""
+        if self.page is None:
+            return PageGlue
+        return typing.cast(type[PageGlue], _resolve(self.page, f"method {self.name} page glue"))
 
     @property
     def producer_class(self) -> type[SceneProducer] | None:

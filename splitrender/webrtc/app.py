@@ -370,6 +370,7 @@ class WebRtcFrontDoor:
             rec = await loop.run_in_executor(None, _decode_recording, raw)
         except PageMessageError as exc:
             return _bad(str(exc))
+        await s.read_sender_stats()
         d = await loop.run_in_executor(None, self._write_recording, s, rec)
         logger.info("browser session %s: recording of %d rows written to %s", s.id, len(rec.rows), d)
         return web.json_response({"ok": True, "dir": str(d), "rows": len(rec.rows)})

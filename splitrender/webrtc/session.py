@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import WorkerTimeout, describe_error
-from ..methods.base import StreamSpec, get_method, make_config
+from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
 from ..pipeline.session import ServerOptions, ServerSession
 from ..protocol import Feedback
@@ -124,8 +124,8 @@ class BrowserSession:
         self.params: dict[str, Any] = {}
         self.stream = "color"
         """The method's video stream (``color``; ``atlas`` for ``sas``)."""
-        self.sas: Any = None
-        """``sas``: the page's patch slots (:class:`~splitrender.webrtc.sas.SasBridge`)."""
+        self.page: PageGlue | None = None
+        """The method's page glue (:attr:`~splitrender.methods.base.MethodSpec.page`: atw's overscan, sas's slots)."""
         self.ended = asyncio.Event()
         self.end_reason = ""
         self.ended_at: float | None = None
@@ -134,6 +134,8 @@ class BrowserSession:
         self._last_tick = -1
         self._origin_sent = False
         self._log: CsvAppender | None = None
+        self._sender_sent: tuple[int, int] | None = None
+        """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
             "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "poses_stale": 0, "feedback_received": 0,
@@ -168,10 +170,7 @@ class BrowserSession:
         self.core = ServerSession(ServerPipeline(specs), self.display_hz,
                                   ServerOptions(keyframe_min_interval_ms=cfg.keyframe_min_interval_ms),
                                   predictor=make_predictor(cfg.predictor), transport="webrtc")
-        if self.method == "sas":
-            from .sas import SasBridge
-
-            self.sas = SasBridge(session_blob)
+        self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
                        "stream_height": ref.height}
         offer_sdp = self.req.sdp
@@ -205,27 +204,30 @@ class BrowserSession:
         return {"type": "answer", "sdp": answer, **meta}
 
     def _session_terms(self, ref: StreamSpec) -> dict[str, Any]:
-        from ..methods.atw.config import overscan_intrinsics
-
         terms: dict[str, Any] = {"session_id": self.id, "method": self.method, "scene": self.cfg.scene,
                                  "fov_y_deg": self.cfg.fov_y_deg, "server_fps": self.cfg.server_fps,
                                  "epoch_ms": self.server.epoch_wall_s * 1000, "server_ms": time.time() * 1000,
                                  "width": self.req.width, "height": self.req.height,
                                  "stream_width": ref.width, "stream_height": ref.height,
                                  "frame_lifetime_ms": FRAME_LIFETIME_MS, "recording": self.cfg.out_dir is not None}
-        if self.sas is not None:
-            terms.update(self.sas.terms())
-        if self.method == "atw":
-            overscan = float(self.params["config"].get("overscan", 1.3))
-            terms["ref_fov_y_deg"] = overscan_intrinsics(self.intrinsics, overscan).fov_y_deg
-            terms["fill"] = self.params["config"].get("fill", "edge")
+        if self.page is not None:
+            terms.update(self.page.terms())
         return terms
 
     def _hook_sender(self, sender: Any) -> None:
         """Count the browser's RTCP feedback and turn its PLIs into IDR requests (aiortc answers NACKs itself,
-        from its own history; a PLI only sets a flag its encoder would read, and this track has none)."""
+        from its own history; a PLI only sets a flag its encoder would read, and this track has none).
+
+        The one place that uses aiortc's private names: aiortc (1.x) offers no public event for the RTCP feedback a
+        sender receives, so this wraps its ``_handle_rtcp_packet`` and ``_retransmit``, and refuses to run, naming
+        them, on an aiortc that has neither.  What it sent is read through the public ``getStats``
+        (:meth:`read_sender_stats`)."""
         from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket
 
+        missing = [n for n in ("_handle_rtcp_packet", "_retransmit") if not callable(getattr(sender, n, None))]
+        if missing:
+            raise RuntimeError(f"this aiortc's RTCRtpSender has no {', '.join(missing)}: the browser session cannot "
+                               "see the page's PLIs (splitrender was written against aiortc 1.x)")
         orig = sender._handle_rtcp_packet
 
         async def handle(packet: Any) -> None:
@@ -353,8 +355,20 @@ class BrowserSession:
         finally:
             await self.close()
 
+    async def read_sender_stats(self) -> None:
+        """Take the RTP sender's packets and payload bytes sent so far (aiortc's public ``getStats``) into
+        :meth:`server_counters` (``rtp_packets``, ``rtp_payload_bytes``)."""
+        if self.sender is None:
+            return
+        with contextlib.suppress(Exception):     # a transport already torn down: the last reading stands
+            report = await self.sender.getStats()
+            for st in report.values():
+                if getattr(st, "type", "") == "outbound-rtp":
+                    self._sender_sent = (int(st.packetsSent), int(st.bytesSent))
+
     async def close(self) -> None:
         self.end(self.end_reason or "closed")
+        await self.read_sender_stats()
         if self.pc is not None:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self.pc.close(), 5.0)
@@ -377,13 +391,10 @@ class BrowserSession:
         out: dict[str, Any] = dict(self.counters, method=self.method)
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
-        if self.sas is not None:
-            out["sas_slot_bytes"] = self.sas.slot_bytes
-            out["sas_meta_bytes"] = self.sas.meta_bytes
-        s = self.sender
-        if s is not None:
-            out["rtp_packets"] = int(getattr(s, "_RTCRtpSender__packet_count", 0))
-            out["rtp_payload_bytes"] = int(getattr(s, "_RTCRtpSender__octet_count", 0))
+        if self.page is not None:
+            out.update(self.page.counters())
+        if self._sender_sent is not None:
+            out["rtp_packets"], out["rtp_payload_bytes"] = self._sender_sent
         if self.relay is not None:
             st = self.relay.stats()
             out.update({"relay_down_in": st.downlink.packets_in, "relay_down_dropped": st.downlink.packets_dropped,
@@ -439,9 +450,9 @@ class BrowserSession:
                 "origin": self.track.rtp_origin}
         if "fov_y_deg" in upd.meta:
             meta["fov"] = float(upd.meta["fov_y_deg"])
-        if self.sas is not None:     # the frame's patch slots first, on the reliable channel
+        if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
             ch = self.channels.get("meta")
-            for msg in self.sas.frame(self._frame_id, enc.update.meta):
+            for msg in self.page.frame(self._frame_id, enc.update.meta):
                 if ch is not None and ch.readyState == "open":
                     ch.send(msg)
         n_meta = self._send("frame", meta)

@@ -10,7 +10,8 @@ from ..base import MethodSpec, register_method
 from .config import SHADERS, AtwConfig, overscan_intrinsics, pixel_projection, rotation_homography
 
 SPEC = register_method(MethodSpec("atw", "splitrender.methods.atw.server:AtwServer",
-                                  "splitrender.methods.atw.client:AtwClient", AtwConfig, "rotational time warp of an overscanned frame"))
+                                  "splitrender.methods.atw.client:AtwClient", AtwConfig, "rotational time warp of an overscanned frame",
+                                  page="splitrender.methods.atw.page:AtwPage"))
 
 
 def __getattr__(attr: str) -> object:

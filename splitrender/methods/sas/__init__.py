@@ -18,7 +18,7 @@ from .config import SasConfig
 
 SPEC = register_method(MethodSpec("sas", "splitrender.methods.sas.server:SasServer", "splitrender.methods.sas.client:SasClient",
                                   SasConfig, "shading atlas streaming: shaded PVS patches in a video atlas",
-                                  producer="splitrender.methods.sas.server:SasProducer"))
+                                  producer="splitrender.methods.sas.server:SasProducer", page="splitrender.methods.sas.page:SasPage"))
 
 
 def __getattr__(attr: str) -> object:

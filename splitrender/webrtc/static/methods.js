@@ -190,7 +190,7 @@ void main() {
 
 const FLOATS_PER_SLOT = 90;
 
-// one slot message (see splitrender/webrtc/sas.py)
+// one slot message (see splitrender/methods/sas/page.py)
 export function parseSlotMessage(buf) {
   const u = new Uint32Array(buf, 0, 8);
   const magic = String.fromCharCode(...new Uint8Array(buf, 0, 4));

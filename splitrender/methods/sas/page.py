@@ -1,8 +1,9 @@
-"""``sas`` for the page: the shading atlas as the video track, PVS geometry as vertex slots on a data channel.
+"""``sas``'s page glue (its :attr:`~splitrender.methods.base.MethodSpec.page`): the shading atlas as the browser's
+video track, PVS geometry as vertex slots on a data channel.
 
 The page does not parse SAS's own metadata (msgpack + zstd, quantised slot positions, block
 rectangles): a browser has neither codec to hand.  Instead the session keeps, for its page, the
-SAS client's GL-free state (:class:`~splitrender.methods.sas.client.PatchSlots`: the PVS patches,
+SAS client's GL-free state (:class:`~.slots.PatchSlots`: the PVS patches,
 their atlas rectangles, one vertex slot of three triangles per patch) and sends, per frame, the
 slots that changed and the object transforms.  Slots whose rows did not change are not sent again (an I-frame of SAS's
 restates every patch).  The page keeps the same vertex buffer, applies a
@@ -29,11 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from ..codecs.meta import pack_meta, unpack_meta
-from ..methods.sas.client import PatchSlots
-from ..methods.sas.wire import parse_frame_meta, parse_session
+from ...codecs.meta import pack_meta, unpack_meta
+from ..base import PageGlue
+from .slots import PatchSlots
+from .wire import parse_frame_meta, parse_session
 
-__all__ = ["SasBridge", "MAGIC", "MAX_SLOTS_PER_PART", "parse_slot_message"]
+__all__ = ["SasPage", "MAGIC", "MAX_SLOTS_PER_PART", "parse_slot_message"]
 
 MAGIC = b"SRSA"
 MAX_SLOTS_PER_PART = 160
@@ -45,10 +47,10 @@ own 0.9-2.2 KB of metadata)."""
 _HEAD = struct.Struct("<4s7I")
 
 
-class SasBridge:
+class SasPage(PageGlue):
     """A page's SAS state in the session: the session data's terms, and per frame the slot messages."""
 
-    def __init__(self, session_blob: bytes) -> None:
+    def __init__(self, config: Any, intrinsics: Any, session_blob: bytes) -> None:
         self.info = parse_session(unpack_meta(session_blob))
         self.slots = PatchSlots(self.info)
         self._sent = np.zeros((0, 3, 3, 10), np.float32)
@@ -61,6 +63,10 @@ class SasBridge:
         """What the page needs at the start: atlas size, object count, the sky (clear) colour."""
         return {"atlas_width": self.info.atlas_size[0], "atlas_height": self.info.atlas_size[1],
                 "n_objects": self.n_objects, "sky": list(map(float, self.info.sky))}
+
+    def counters(self) -> dict[str, int]:
+        """``sas_slot_bytes`` sent to the page, and ``sas_meta_bytes``: SAS's own metadata for the same frames."""
+        return {"sas_slot_bytes": self.slot_bytes, "sas_meta_bytes": self.meta_bytes}
 
     def frame(self, frame_id: int, meta: Any) -> list[bytes]:
         """The messages of one frame (its metadata validated as the SAS client validates it)."""
