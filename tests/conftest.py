@@ -39,15 +39,17 @@ def truth_cache(tmp_path_factory) -> str:  # type: ignore[no-untyped-def]
     virtual-time runs.  A truth frame depends only on the scene, the trace, the image size, the field of view and
     the display rate, not on the method or the network, so the runs of every test on the same trace render each
     frame once; a hit is the rendered frame bit for bit, so no score changes."""
-    return str(tmp_path_factory.mktemp("truth_cache"))
+    return getattr(tmp_path_factory, "_sr_truth", None) or str(tmp_path_factory.mktemp("truth_cache"))
 
 
 @pytest.fixture(scope="session")
-def shared_run(session_renderer, truth_cache):  # type: ignore[no-untyped-def]
+def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyped-def]
     """``shared_run(cfg)``: the virtual-time run of ``cfg`` (with the session's renderer and truth cache), made once
     per session.  Runs with the fixed cost model are deterministic, and several tests assert on the same run (e.g.
     ``atw`` on the default walk under ``cloud`` beside ``sas`` and beside ``tss``).  The result is shared: read it,
-    never change it.  Not for runs that measure wall-clock costs or that a test has monkeypatched."""
+    never change it.  Not for runs that measure wall-clock costs or that a test has monkeypatched.  A run that a
+    selected test names in ``@pytest.mark.shared_runs(cfg, ...)`` may have been made ahead in the background
+    (:func:`_start_ahead`)."""
     from splitrender.sim.runner import run
 
     memo: dict = {}
@@ -56,7 +58,8 @@ def shared_run(session_renderer, truth_cache):  # type: ignore[no-untyped-def]
         assert cfg.cost_model == "fixed", "a measured-cost run is not repeatable: run it, do not share it"
         key = cfg.key()
         if key not in memo:
-            memo[key] = run(cfg.replace(truth_cache=truth_cache), renderer=session_renderer)
+            made = _made_ahead(request.config, key)
+            memo[key] = made if made is not None else run(cfg.replace(truth_cache=truth_cache), renderer=session_renderer)
         return memo[key]
 
     return get
@@ -104,7 +107,17 @@ def pytest_collection_modifyitems(session, config, items) -> None:  # type: igno
         _start_stress(config)
 
 
+def pytest_collection_finish(session) -> None:  # type: ignore[no-untyped-def]
+    _start_ahead(session.config, session.items)   # the items left after -k/-m deselection, in their order
+
+
 def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
+    _stop_ahead(session.config)
+    ahead = getattr(session.config, "_sr_ahead", None)
+    if ahead is not None:
+        import shutil
+
+        shutil.rmtree(ahead["folder"], ignore_errors=True)
     bg = getattr(session.config, "_sr_stress", None)
     if bg is not None:
         import shutil
@@ -115,6 +128,119 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
             proc.wait()
         log.close()
         shutil.rmtree(out, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------- shared runs made ahead
+#
+# The deterministic tests run one after another in this process, so once the background stress suite is done one of
+# the two cores idles until the live tests.  The virtual-time runs that tests read through ``shared_run`` and name in
+# ``@pytest.mark.shared_runs(cfg, ...)`` are made ahead in a second process, started when the stress suite ends (at
+# once without it), in the reverse of the order the tests need them.  Whichever side starts a run first makes it
+# (an exclusive claim file); the other side waits for its pickle, or makes the run itself if the background failed or
+# is gone.  Fixed-cost runs are deterministic, so a run made there is the run made here.  The background process is
+# stopped before the first live test: those want the machine to themselves.
+
+_AHEAD_SCRIPT = """
+import os, pickle, sys
+from splitrender.render import Renderer
+from splitrender.sim.runner import run
+folder, truth = sys.argv[1], sys.argv[2]
+with open(os.path.join(folder, "configs.pickle"), "rb") as f:
+    cfgs = pickle.load(f)
+renderer = None
+for cfg in cfgs:
+    key = cfg.key()
+    try:
+        os.close(os.open(os.path.join(folder, key + ".claim"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        continue
+    try:
+        renderer = renderer or Renderer()
+        res = run(cfg.replace(truth_cache=truth), renderer=renderer)
+        with open(os.path.join(folder, key + ".tmp"), "wb") as f:
+            pickle.dump(res, f)
+        os.replace(os.path.join(folder, key + ".tmp"), os.path.join(folder, key + ".pickle"))
+    except Exception as e:
+        open(os.path.join(folder, key + ".failed"), "w").write(repr(e))
+"""
+
+
+def _start_ahead(config, items) -> None:  # type: ignore[no-untyped-def]
+    """Start making the selected tests' ``shared_runs`` in a background process (after the stress suite, if any)."""
+    import pickle
+    import subprocess
+    import sys
+    import tempfile
+    import threading
+
+    cfgs: dict = {}
+    for item in items:
+        for mark in item.iter_markers("shared_runs"):
+            for cfg in mark.args:
+                if cfg.cost_model == "fixed":     # shared_run refuses the others
+                    cfgs.setdefault(cfg.key(), cfg)
+    if not cfgs:
+        return
+    folder = tempfile.mkdtemp(prefix="sr-ahead-")
+    truth = os.path.join(folder, "truth_cache")
+    os.mkdir(truth)
+    config._tmp_path_factory._sr_truth = truth   # the session's truth cache (``truth_cache``), shared with the runs
+    with open(os.path.join(folder, "configs.pickle"), "wb") as f:
+        pickle.dump(list(cfgs.values())[::-1], f)
+    ahead: dict = {"folder": folder, "proc": None, "stopped": False, "lock": threading.Lock()}
+    config._sr_ahead = ahead
+    stress = getattr(config, "_sr_stress", None)
+
+    def start() -> None:
+        if stress is not None:
+            stress[2].wait()
+        with ahead["lock"]:
+            if not ahead["stopped"]:
+                ahead["proc"] = subprocess.Popen([sys.executable, "-c", _AHEAD_SCRIPT, folder, truth],
+                                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    threading.Thread(target=start, name="shared-runs-ahead", daemon=True).start()
+
+
+def _stop_ahead(config) -> None:  # type: ignore[no-untyped-def]
+    ahead = getattr(config, "_sr_ahead", None)
+    if ahead is None:
+        return
+    with ahead["lock"]:
+        ahead["stopped"] = True
+        proc = ahead["proc"]
+    if proc is not None and proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def _made_ahead(config, key: str):  # type: ignore[no-untyped-def]
+    """The run ``key`` as the background made it, or None where this process is to make it (it claims it then)."""
+    import pickle
+    import time
+
+    ahead = getattr(config, "_sr_ahead", None)
+    if ahead is None or ahead["stopped"]:
+        return None
+    path = os.path.join(ahead["folder"], key)
+    try:
+        os.close(os.open(path + ".claim", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return None                                   # not started there: made here
+    except FileExistsError:
+        pass
+    while not os.path.exists(path + ".pickle"):
+        proc = ahead["proc"]
+        if os.path.exists(path + ".failed") or (proc is not None and proc.poll() is not None
+                                                and not os.path.exists(path + ".pickle")):
+            return None                               # made here, where a failure shows as the test's own
+        time.sleep(0.02)
+    with open(path + ".pickle", "rb") as f:
+        return pickle.load(f)
+
+
+def pytest_runtest_setup(item) -> None:  # type: ignore[no-untyped-def]
+    if item.path.name in LIVE_FILES:
+        _stop_ahead(item.config)
 
 
 @pytest.fixture(scope="session")
