@@ -16,6 +16,7 @@ from splitrender.methods.quads.gen import QuadSet, decode_normals, encode_normal
 from splitrender.methods.quads.wire import (KIND_HIDDEN, KIND_REFERENCE, QuadsWireError, WireSet, byte_planes, decode_sets,
                                             encode_sets, from_byte_planes, pack, unpack)
 from splitrender.scene.pose import CameraIntrinsics, Pose
+from splitrender.sim.runner import RunConfig
 
 INTR = CameraIntrinsics(320, 180)
 
@@ -224,7 +225,17 @@ def test_effective_depth_peeling_against_brute_force(renderer) -> None:  # type:
     assert hit / kept > 0.7, "most of what layer 1 keeps is seen from somewhere in the sphere"
 
 
+def _cloud_walk(method: str, params: dict) -> RunConfig:
+    """0.3 s of the default walk (no GI) under ``cloud`` at 320x180, the client at 30 Hz."""
+    return RunConfig(method=method, scene="default+nogi", trace="walk", network="cloud", duration_s=0.3, width=320,
+                     height=180, client_fps=30, flip_every=0, seed=0, method_params=params)
+
+
+CLOUD_RUNS = {"quasar": ("quads", {}), "quadstream": ("quads", {"variant": "quadstream"}), "warp": ("warp", {})}
+
+
 @pytest.mark.slow
+@pytest.mark.shared_runs(*(_cloud_walk(m, p) for m, p in CLOUD_RUNS.values()))
 def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(shared_run) -> None:  # type: ignore[no-untyped-def]
     """``cloud`` (50 +- 20 ms each way), 0.3 s of the default walk at 320x180.  Measured: QUASAR 17.25 dB at
     10.8 Mbit/s, QuadStream 17.18 dB at 34.8 Mbit/s (3.24x QUASAR; the paper reports up to 15x at larger view
@@ -235,13 +246,8 @@ def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(shared_run) -> 
     24-bit positions, the wide view at 2/3 resolution) took it from 33.3 Mbit/s (2.64x) with the slot atlas.  Over 0.6 s: 19.83 dB at 13.2 Mbit/s, 19.71 dB at 34.7, warp
     19.13.  Wire 1 (interleaved arrays) sent 18.9 and 49.8 Mbit/s over 0.6 s: the byte planes took 1.43x off
     both, so the ratio stayed."""
-    from splitrender.sim.runner import RunConfig
-
-    def go(method: str, params: dict) -> dict:   # one ground truth for the three runs (the session's truth cache)
-        return shared_run(RunConfig(method=method, scene="default+nogi", trace="walk", network="cloud", duration_s=0.3, width=320,
-                                    height=180, client_fps=30, flip_every=0, seed=0, method_params=params)).summary
-
-    quasar, qs, warp = go("quads", {}), go("quads", {"variant": "quadstream"}), go("warp", {})
+    # one ground truth for the three runs (the session's truth cache)
+    quasar, qs, warp = (shared_run(_cloud_walk(*CLOUD_RUNS[k])).summary for k in ("quasar", "quadstream", "warp"))
     assert quasar["mean_psnr_db"] >= warp["mean_psnr_db"] + 0.5, (quasar["mean_psnr_db"], warp["mean_psnr_db"])
     assert qs["mean_kbps"] >= 3.0 * quasar["mean_kbps"], (qs["mean_kbps"], quasar["mean_kbps"])
 

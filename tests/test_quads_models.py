@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from splitrender.scene.pose import CameraIntrinsics
+from splitrender.sim.runner import RunConfig
 
 ASSIMP = Path("/usr/share/assimp/models")
 ENGINE = ASSIMP / "glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
@@ -70,9 +71,16 @@ def test_reference_frames_carry_no_background_quads_unless_asked_and_the_client_
     assert (shown[0] == shown[1]).all(-1).mean() > 0.999
 
 
+def _orbit_cloud(model: Path, method: str) -> RunConfig:
+    """0.6 s of the fitted orbit around ``model`` on a ground, under ``cloud``, at 320x180, the client at 30 Hz."""
+    return RunConfig(method=method, scene=f"{model}+ground", trace="orbit", network="cloud", duration_s=0.6, width=320,
+                     height=180, client_fps=30, flip_every=0, seed=0)
+
+
 @pytest.mark.slow
 @needs_models
-@pytest.mark.parametrize("model, margin_db", [(ENGINE, 0.6), (DUCK, 0.6)])
+@pytest.mark.parametrize("model, margin_db", [pytest.param(m, 0.6, marks=pytest.mark.shared_runs(
+    _orbit_cloud(m, "quads"), _orbit_cloud(m, "warp"))) for m in (ENGINE, DUCK)])
 def test_quasar_leads_warp_on_the_model_under_cloud(shared_run, model: Path, margin_db: float) -> None:  # type: ignore[no-untyped-def]
     """``+ground``, the fitted orbit, ``cloud`` (50 +- 20 ms each way), 0.6 s, 320x180, the client at 30 Hz: the
     mean model-region PSNR over the frames with content, QUASAR (defaults) minus warp (defaults).  QUASAR's table 4
@@ -81,11 +89,8 @@ def test_quasar_leads_warp_on_the_model_under_cloud(shared_run, model: Path, mar
     (d2ead52^): -0.09 and +0.41, so both fail it.  Over the benchmark's 2 s at 60 Hz, and against MeshWarp 60/120:
     ``benchmarks/results/bench_quads_models.json`` and docs/quasar.md.  The file takes about 20 s on 2 cores (89 s
     beside two benchmarks)."""
-    from splitrender.sim.runner import RunConfig
-
     def model_psnr(method: str) -> float:
-        r = shared_run(RunConfig(method=method, scene=f"{model}+ground", trace="orbit", network="cloud", duration_s=0.6,
-                                 width=320, height=180, client_fps=30, flip_every=0, seed=0))
+        r = shared_run(_orbit_cloud(model, method))
         v = [f["model_psnr_db"] for f in r.frames if f.get("update_frame_id", -1) != -1 and not math.isnan(f["model_psnr_db"])]
         assert len(v) >= 10
         return float(np.mean(v))

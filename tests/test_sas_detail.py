@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from splitrender.scene.pose import CameraIntrinsics
+from splitrender.sim.runner import RunConfig
 
 INTR = CameraIntrinsics(320, 180)
 BOX_TEXTURED = "/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb"
@@ -71,11 +72,16 @@ def renderer():  # type: ignore[no-untyped-def]
     return Renderer()
 
 
-def _still(renderer, scene: str, method: str, params: dict | None = None) -> float:  # type: ignore[no-untyped-def]
-    from splitrender.sim.runner import RunConfig, run
+def _still_cfg(scene: str, method: str, params: dict | None = None) -> RunConfig:
+    """0.3 s of a still camera at zero latency (``static``, ``ideal``), 320x180."""
+    return RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=320, height=180,
+                     client_fps=30, flip_every=0, seed=0, method_params=params or {})
 
-    res = run(RunConfig(method=method, scene=scene, trace="static", network="ideal", duration_s=0.3, width=320, height=180,
-                        client_fps=30, flip_every=0, seed=0, method_params=params or {}), renderer=renderer)
+
+def _still(shared_run, scene: str, method: str, params: dict | None = None) -> float:  # type: ignore[no-untyped-def]
+    """Mean PSNR of :func:`_still_cfg`'s run (the session's ``shared_run``: the minimal scene's sas run serves two
+    tests)."""
+    res = shared_run(_still_cfg(scene, method, params))
     return float(np.mean([f["psnr_db"] for f in res.frames if f["update_frame_id"] >= 0]))  # the start-up tick is black
 
 
@@ -99,27 +105,34 @@ def _still(renderer, scene: str, method: str, params: dict | None = None) -> flo
 STILL = [(BOX_TEXTURED, 47.0), ("minimal", 42.8), ("default+nogi", 34.3)]
 
 
-@pytest.mark.parametrize("scene,least_db", STILL, ids=["BoxTextured", "minimal", "default"])
-def test_still_camera_zero_latency_detail_against_video(renderer, scene: str, least_db: float) -> None:  # type: ignore[no-untyped-def]
+def _still_runs(scene: str) -> list[RunConfig]:
+    return [_still_cfg(scene, "sas"), _still_cfg(scene, "video")] + ([] if scene == BOX_TEXTURED else
+                                                                      [_still_cfg(scene, "sas", {"fill_atlas": False})])
+
+
+@pytest.mark.parametrize("scene,least_db", [pytest.param(sc, db, marks=pytest.mark.shared_runs(*_still_runs(sc)))
+                                            for sc, db in STILL], ids=["BoxTextured", "minimal", "default"])
+def test_still_camera_zero_latency_detail_against_video(shared_run, scene: str, least_db: float) -> None:  # type: ignore[no-untyped-def]
     """The issue's bar: with a still camera at zero latency, sas within 1 dB of video."""
-    sas = _still(renderer, scene, "sas")
-    video = _still(renderer, scene, "video")
+    sas = _still(shared_run, scene, "sas")
+    video = _still(shared_run, scene, "video")
     assert sas >= least_db and video - sas <= 1.0, f"{scene}: sas {sas:.2f} dB, video {video:.2f} dB (gap {video - sas:.2f} dB)"
     if scene != BOX_TEXTURED:    # without the fill, the ideal levels leave the atlas mostly empty and the detail with it
-        ideal = _still(renderer, scene, "sas", {"fill_atlas": False})
+        ideal = _still(shared_run, scene, "sas", {"fill_atlas": False})
         # measured: minimal 31.20 (+11.95 dB), default 30.87 (+3.68)
         assert sas >= ideal + (11.5 if scene == "minimal" else 3.3), (sas, ideal)
 
 
-def test_bicubic_lookup_atlas_size_and_inset_on_the_minimal_scene(renderer) -> None:  # type: ignore[no-untyped-def]
+BICUBIC_PARAMS = [None, {"atlas_filter": "bilinear"}, {"atlas_mpix_1080p": 8.0}, {"inset_min_texels": 0}]
+
+
+@pytest.mark.shared_runs(*(_still_cfg("minimal", "sas", p) for p in BICUBIC_PARAMS))
+def test_bicubic_lookup_atlas_size_and_inset_on_the_minimal_scene(shared_run) -> None:  # type: ignore[no-untyped-def]
     """What each part of the detail step gives on ``minimal`` (still camera, zero latency), measured at 43.15 dB with
     all three: the Catmull-Rom lookup against one bilinear tap (41.61 dB), the default 12 Mpix atlas against the
     paper's 8 (40.04 dB: the budget is full and detail follows the texels), and long block sides inset by half a
     texel against every side spanned (41.85 dB: lookups by a patch's border repeated its border texels)."""
-    sas = _still(renderer, "minimal", "sas")
-    bilinear = _still(renderer, "minimal", "sas", {"atlas_filter": "bilinear"})
-    paper = _still(renderer, "minimal", "sas", {"atlas_mpix_1080p": 8.0})
-    spanned = _still(renderer, "minimal", "sas", {"inset_min_texels": 0})
+    sas, bilinear, paper, spanned = (_still(shared_run, "minimal", "sas", p) for p in BICUBIC_PARAMS)
     assert sas >= bilinear + 1.2, (sas, bilinear)
     assert sas >= paper + 2.7 and paper >= 39.7, (sas, paper)
     assert sas >= spanned + 1.0, (sas, spanned)
@@ -320,17 +333,19 @@ def test_objects_culled_all_at_once_draw_what_a_test_per_object_draws() -> None:
 WUSON = "/usr/share/assimp/models/PLY/Wuson.ply"
 
 
+WUSON_2S = RunConfig(method="sas", scene=WUSON, trace="walk", network="ideal", duration_s=2.0, width=320, height=180,
+                     client_fps=30, flip_every=0, seed=0)
+
+
 @pytest.mark.skipif(not __import__("os").path.exists(WUSON), reason="assimp-testmodels not installed")
-def test_metadata_is_at_most_a_third_of_the_bits_on_a_real_model(renderer) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.shared_runs(WUSON_2S)
+def test_metadata_is_at_most_a_third_of_the_bits_on_a_real_model(shared_run) -> None:  # type: ignore[no-untyped-def]
     """Issue 15's target on an untextured real model (assimp ``Wuson.ply``, 3.7k triangles), ``walk``, ``ideal``.
 
     After the first second: measured 32.8 % of ``sas``'s bytes are metadata (wire v3,
     8-frame PVS linger; about 66 % before issue 15, 36 % with v3 and a 4-frame linger).
     """
-    from splitrender.sim.runner import RunConfig, run
-
-    res = run(RunConfig(method="sas", scene=WUSON, trace="walk", network="ideal", duration_s=2.0, width=320, height=180,
-                        client_fps=30, flip_every=0, seed=0), renderer=renderer)
+    res = shared_run(WUSON_2S)
     late = [u for u in res.updates if u["t_s"] >= 1.0]
     share = sum(u["bytes_meta"] for u in late) / sum(u["bytes"] for u in late)
     assert share <= 1 / 3, f"metadata is {share:.1%} of sas's bytes after the first second"
@@ -347,18 +362,24 @@ def test_only_maps_that_vary_are_texture_detail() -> None:
     assert not has_texture_detail(Material("plain", (0.8, 0.2, 0.2)))
 
 
+def _wuson_1s(params: dict) -> RunConfig:
+    return RunConfig(method="sas", scene=WUSON, trace="walk", network="ideal", duration_s=1.0, width=320, height=180,
+                     client_fps=30, flip_every=0, seed=0, metrics=True, method_params=params)
+
+
+SMOOTH = {"capped": {}, "filled": {"fill_max_density_plain": 64.0}}
+
+
 @pytest.mark.skipif(not __import__("os").path.exists(WUSON), reason="assimp-testmodels not installed")
-def test_a_smooth_model_does_not_fill_the_atlas(renderer) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.shared_runs(*(_wuson_1s(p) for p in SMOOTH.values()))
+def test_a_smooth_model_does_not_fill_the_atlas(shared_run) -> None:  # type: ignore[no-untyped-def]
     """``Wuson.ply`` has no texture detail: its patches rise at most 2x their ideal texels per pixel per side
     (``fill_max_density_plain``), for about half the bits of filling the atlas and no less quality.  Measured
     (``walk``, ``ideal``, 1 s, 320x180): 52.13 dB at 2.01 Mbit/s against 51.09 dB at 3.83 Mbit/s uncapped (52.50 dB at
     1.12 Mbit/s at the ideal levels)."""
-    from splitrender.sim.runner import RunConfig, run
-
     out = {}
-    for name, params in (("capped", {}), ("filled", {"fill_max_density_plain": 64.0})):
-        res = run(RunConfig(method="sas", scene=WUSON, trace="walk", network="ideal", duration_s=1.0, width=320, height=180,
-                            client_fps=30, flip_every=0, seed=0, metrics=True, method_params=params), renderer=renderer)
+    for name, params in SMOOTH.items():
+        res = shared_run(_wuson_1s(params))
         out[name] = (res.summary["mean_psnr_db"], res.summary["mean_kbps"])
     (q_cap, kb_cap), (q_fill, kb_fill) = out["capped"], out["filled"]
     assert kb_cap <= 0.6 * kb_fill and q_cap >= q_fill + 0.7, out       # measured 0.52x the bits, +1.04 dB
