@@ -381,8 +381,11 @@ class VirtualTimeRun:
             send_t = t_f + cost_ms / 1000.0
             self.server_free_s = max(self.server_free_s, send_t)
             timing = {"render": int(round(cost_ms * 1000)), "encode": 0, "encoded_at": sim_us(send_t)}
+            # the half's wall-clock stage times ride in the envelope only where they are on the clock too: their
+            # bytes would otherwise make two runs of one seed differ (and, adapting, decide differently)
+            wire_stats = stats if measured else {k: v for k, v in stats.items() if not k.endswith("_ms")}
             out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), order.pose_us, order.pose_seq,
-                                 order.target_t_s, timing, stats)
+                                 order.target_t_s, timing, wire_stats)
             c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts)
             # control frames: TCP segments over the downlink, in order, head-of-line blocked
             for stream, data in out.control:
