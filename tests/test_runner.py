@@ -208,3 +208,24 @@ def test_an_adapting_sas_run_repeats_bit_for_bit(renderer):
     ages = [(f["update_frame_id"], f.get("kbps_meta")) for f in a.frames]
     assert ages == [(f["update_frame_id"], f.get("kbps_meta")) for f in b.frames]
     assert all("srv_shade_ms" in u for u in a.updates)        # the stage times are still recorded
+
+
+def test_the_live_servers_session_options_are_a_runs_too(renderer):
+    """Issue 47: ``history_packets``, ``keyframe_min_interval_ms`` and ``sr_interval_s`` could only be set live.  A run
+    takes them (TOML keys, the live server's names and ranges) into its server core, and leaves older configs' keys
+    as they were."""
+    from splitrender.errors import ConfigError
+    from splitrender.sim.runner import VirtualTimeRun
+
+    assert RunConfig().key() == RunConfig(history_packets=2048, sr_interval_s=1.0).key()
+    assert RunConfig(sr_interval_s=0.5).key() != RunConfig().key()
+    with pytest.raises(ConfigError, match=r"^run config server options: server history_packets: must be in "
+                                          r"\[1, 1048576\], got 0$"):
+        RunConfig(history_packets=0)
+    cfg = RunConfig(method="video", scene="minimal", trace="static", width=64, height=36, duration_s=0.2, metrics=False,
+                    history_packets=64, keyframe_min_interval_ms=900.0, sr_interval_s=0.05)
+    vt = VirtualTimeRun(cfg, renderer)
+    vt.run()
+    core = vt.clients[0].core_s
+    assert (core.options.history_packets, core.options.keyframe_min_interval_ms, core.options.sr_interval_s) == (64, 900.0, 0.05)
+    assert core.counters["rtcp_sent"] >= 2          # sender reports every 25-75 ms over 0.2 s (1 s would send none)

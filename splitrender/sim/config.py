@@ -114,6 +114,12 @@ class RunConfig:
     nack_tries: int = 3
     playout_delay_ms: float = 0.0
     stall_frames: float = 6.0
+    history_packets: int = 2048
+    """The server's RTP packets kept per stream to answer NACKs (the live server's ``history_packets``)."""
+    keyframe_min_interval_ms: float = 200.0
+    """The least time between two IDRs the server grants a client's requests (the live server's)."""
+    sr_interval_s: float = 1.0
+    """The server's mean interval between RTCP sender reports (the live server's)."""
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -163,6 +169,10 @@ class RunConfig:
             self.client_options()
         except ConfigError as exc:
             raise bad("client options", str(exc)) from None
+        try:
+            self.server_options()
+        except ConfigError as exc:
+            raise bad("server options", str(exc)) from None
         if not 1024 <= self.max_session_bytes <= 1 << 34:
             raise bad("max_session_bytes", f"must be in [1024, 2**34], got {self.max_session_bytes}")
         if not 0 <= self.scene_time_offset_s <= 3600:
@@ -199,7 +209,8 @@ class RunConfig:
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
         for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
-                           ("fec", False), ("transport_cc", False), ("pacing", False), ("adapt", "off")):
+                           ("fec", False), ("transport_cc", False), ("pacing", False), ("adapt", "off"),
+                           ("history_packets", 2048), ("keyframe_min_interval_ms", 200.0), ("sr_interval_s", 1.0)):
             if d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)
@@ -212,6 +223,14 @@ class RunConfig:
         return ClientOptions(nack_max_tries=self.nack_tries, pli_interval_ms=self.keyframe_request_interval_ms,
                              jitter_timeout_ms=self.jitter_timeout_ms, playout_delay_ms=self.playout_delay_ms,
                              stall_frames=self.stall_frames, stall_timeout_s=math.inf)
+
+    def server_options(self) -> Any:
+        """The session core's server options (:class:`splitrender.pipeline.ServerOptions`) of this run: the same
+        keys and ranges as the live server's."""
+        from ..pipeline.session import ServerOptions
+
+        return ServerOptions(self.history_packets, self.keyframe_min_interval_ms, self.sr_interval_s,
+                             pacing=self.pacing, adapt=self.adapt)
 
     def replace(self, **kw: Any) -> "RunConfig":
         return dataclasses.replace(self, **kw)

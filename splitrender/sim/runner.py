@@ -65,7 +65,7 @@ from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
-                        ReceivedFrame, Resumed, ServerOptions, ServerPipeline, ServerSession, Stalled, accept_hello,
+                        ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello,
                         check_hello, make_frame, rtp_timestamp, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
@@ -257,7 +257,7 @@ class VirtualTimeRun:
         predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
         acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, pack_meta(c.half.session_data()), c.sconn.send,
                            scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
-                           options=ServerOptions(pacing=cfg.pacing, adapt=cfg.adapt), max_session_bytes=cfg.max_session_bytes,
+                           options=cfg.server_options(), max_session_bytes=cfg.max_session_bytes,
                            mtu_bytes=cfg.mtu_bytes, fec=cfg.fec, transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
                            subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
