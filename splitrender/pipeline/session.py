@@ -5,7 +5,13 @@
 protocol around it: feedback, keyframe requests, RTCP sender and receiver reports at
 randomised intervals (RFC 3550 6.2), generic NACKs and their retransmission from a
 bounded history (RFC 4585), picture loss indications, the playout delay, stall
-detection, and the "does this update show anything" rule.  They never read a clock
+detection, and the "does this update show anything" rule.  The server core also owns the
+session around its transport: the handshake (:func:`accept_hello`), the pose rule
+(:meth:`ServerSession.receive_pose`) and each frame's order (:meth:`ServerSession.order_frame`,
+made by :func:`~.frames.make_frame`); the client core the blank-frame and keyframe-skip rules
+(:meth:`ClientSession.blank`, :meth:`ClientSession.skips_decode`).  Three front doors drive
+them: virtual time, the live server and client, and the browser session (the server core in
+its ``webrtc`` transport profile).  They never read a clock
 and never touch a socket: time comes in as ``now_ms`` on the driver's clock, bytes come
 in as arguments, and what to send comes out of :meth:`ClientSession.datagrams_to_send`
 and the return values; :meth:`ClientSession.next_timer` / :meth:`ServerSession.next_timer`
@@ -57,7 +63,7 @@ from .wire import EnvelopeError, SessionDataError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CLIENT_OPTION_RANGES", "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
+__all__ = ["Accepted", "CLIENT_CODECS", "CLIENT_OPTION_RANGES", "accept_hello", "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
            "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_client_option", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
