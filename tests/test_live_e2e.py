@@ -313,11 +313,12 @@ def test_a_hung_render_ends_its_session_only_and_sigterm_still_stops_the_server(
 
 @pytest.mark.slow
 def test_one_shared_worker_serves_every_session_and_is_replaced_after_a_hang(tmp_path: Path) -> None:
-    """``--isolation server``: both sessions run in one render worker; when the first one's render hangs
-    (frame 12) the watchdog kills it, both sessions end with the deadline named, and the next client
-    streams from a fresh worker."""
+    """``--isolation server``: both sessions run in one render worker; when the second one's render hangs
+    (its frame 3) the watchdog kills it, both sessions end with the deadline named, and the next client
+    streams from a fresh worker.  (The hang was the first session's frame 12, which a loaded machine could reach
+    before the second client had started, which then streamed from a fresh worker and ended well.)"""
     port = _free_port()
-    srv = _serve(port, "video", "--isolation", "server", "--render-deadline", "1.5", hang="1:12")
+    srv = _serve(port, "video", "--isolation", "server", "--render-deadline", "1.5", hang="2:3")
     outs = [tmp_path / f"c{k}" for k in range(3)]
     clients = [_client(port, outs[0])]
     try:
@@ -743,7 +744,9 @@ async def test_a_paced_live_session_streams_and_is_reported(tmp_path: Path) -> N
     result, _, sc = await _run_through_relay(tmp_path, "delay 10ms rate 4mbit", server_kw={"transport_cc": True, "pacing": True},
                                              duration_s=2.0)
     c = result.counters
-    assert c["frames_complete"] >= 40 and sc["twcc_feedback"] >= 10 and sc["twcc_unknown"] == 0, (c, sc)
+    # what was shown against what was sent, not a rate: a loaded machine sends fewer frames in 2 s
+    assert sc["frames_sent"] >= 8 and c["frames_complete"] >= sc["frames_sent"] - 3, (c["frames_complete"], sc["frames_sent"])
+    assert sc["twcc_feedback"] >= 10 and sc["twcc_unknown"] == 0, (c, sc)
     # every media packet left stamped, or was still in the pacer's queue when the session ended (or dropped by a
     # full queue): 424 stamped of 425 once in CI, one packet queued at the end
     assert sc["twcc_stamped"] + sc["pacer_queued"] + sc["pacer_dropped"] >= sc["rtp_packets"], sc
