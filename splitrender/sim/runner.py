@@ -160,7 +160,6 @@ class _Client:
     """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # client side
     cconn: ClientConnection = field(default_factory=ClientConnection)
-    rx: ClientPipeline | None = None
     welcome: Welcome | None = None
     """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
     chalf: Any = None
@@ -189,7 +188,6 @@ class _Client:
     frames: list[dict[str, Any]] = field(default_factory=list)
     updates: list[dict[str, Any]] = field(default_factory=list)
     decode_ms: float = 0.0
-    uplink_bytes: int = 0
 
 
 class VirtualTimeRun:
@@ -273,7 +271,6 @@ class VirtualTimeRun:
         assert hs.done and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
-        c.rx = c.core.rx
         self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
@@ -575,7 +572,6 @@ class VirtualTimeRun:
 
     def _send_up(self, c: _Client, msg: Message) -> None:
         data = c.cconn.send(msg)
-        c.uplink_bytes += control_wire_bytes(len(data))
         arrive = self.now
         t = max(self.now, c.sent_s.get("ctrl", -math.inf))
         c.sent_s["ctrl"] = t
