@@ -3,7 +3,7 @@
 The default scene's probe volume (8 x 4 x 8 probes, 6 x 8^2 = 384 rays each): the one-time capture
 of every probe's cube faces, one update (relighting with two bounces, the irradiance
 and distance reductions, the texture uploads), an update a volume built alike relit before (a
-shared state, :class:`~splitrender.gi.ddgi.ProbeStates`: what every run after the first
+shared state, :class:`~splitrender.render.ddgi.ProbeStates`: what every run after the first
 in a demo worker meets), and a 320x180 render of a walk frame
 with GI on, each as a ratio to the median 320x180 render of the same frame without GI,
 measured in the same process.  An update happens whenever the lights or (with animated

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from splitrender.gi.ddgi import BITS_PER_TEXEL, IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE, DdgiSettings
-from splitrender.gi.octa import add_guard, cube_directions, irradiance_weights, oct_decode, oct_encode, texel_directions
+from splitrender.render.ddgi import BITS_PER_TEXEL, IRR_CORE, IRR_TILE, VIS_CORE, VIS_TILE, DdgiSettings
+from splitrender.render.octa import add_guard, cube_directions, irradiance_weights, oct_decode, oct_encode, texel_directions
 
 SKY = 0.5
 ALBEDO = 0.6
@@ -123,7 +123,7 @@ def test_probes_are_deterministic(renderer) -> None:  # type: ignore[no-untyped-
 
 def test_volumes_built_alike_share_relit_states_bit_for_bit() -> None:
     """Two scene objects built alike (as every run builds its own) share what either relit
-    (:class:`~splitrender.gi.ddgi.ProbeStates`, keyed by the scene's content and the state): the second volume relights
+    (:class:`~splitrender.render.ddgi.ProbeStates`, keyed by the scene's content and the state): the second volume relights
     nothing at times the first has relit, and its probes and textures equal those relit anew bit for bit; another
     time, a changed light or another scene is a new state; at most ``capacity`` states stay, and ``enabled = False``
     (what the runner sets under ``cost_model = "measured"``) relights everything."""
@@ -280,7 +280,7 @@ def test_the_visibility_test_keeps_the_sunlit_outside_out_of_a_closed_shed(rende
     sunlit outside: measured 40 % brighter than with the probes' own moments, 17.6 dB against them (45 % and
     17.2 dB with 6 x 16^2 rays per probe)."""
     from splitrender.experiments.studies.probes import SHED_POSE
-    from splitrender.gi.ddgi import ProbeCopy
+    from splitrender.render.ddgi import ProbeCopy
     from splitrender.metrics.image import psnr
     from splitrender.render.renderer import make_pose_looking
     from splitrender.scene.loader import get_scene

@@ -10,7 +10,7 @@ import pytest
 
 from splitrender.errors import ConfigError
 from splitrender.experiments.live_rate import STAGES, measure, summarise_server
-from splitrender.gi.ddgi import gi_time
+from splitrender.render.ddgi import gi_time
 from splitrender.metrics.image import psnr
 from splitrender.render.renderer import Renderer, make_pose_looking
 from splitrender.scene.loader import get_scene

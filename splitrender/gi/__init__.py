@@ -1,5 +1,5 @@
 """Streaming global illumination to thin clients: the ``probes`` method's probe stream (:mod:`.stream`).
 
 The DDGI probes themselves are the renderer's (:mod:`splitrender.render.ddgi`): every method's shading and
-the ground truth share them.  :mod:`.ddgi` and :mod:`.octa` re-export their names from there.
+the ground truth share them.
 """

@@ -5,7 +5,7 @@ method's scene producer); each client gets only the probes that changed since wh
 last received and that can light what it may see, losslessly coded as HEVC, and renders
 the scene itself (received once in the session data) with local direct light and the
 indirect light of its probe copy.  Modules: :mod:`.server`, :mod:`.client`,
-:mod:`.config`; the probes are :mod:`splitrender.gi.ddgi`'s, their wire
+:mod:`.config`; the probes are :mod:`splitrender.render.ddgi`'s, their wire
 :mod:`splitrender.gi.stream`.  The scene must have ``gi = "ddgi"`` (``default+gi``).
 """
 

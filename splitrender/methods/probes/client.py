@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ...gi.ddgi import ProbeCopy
+from ...render.ddgi import ProbeCopy
 from ...gi.stream import ProbeStreamError, color_from_frame, decode_index_list, decode_irradiance, visibility_from_frame
 from ...scene.model import Schedule
 from ...scene.pose import Pose

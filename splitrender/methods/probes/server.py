@@ -1,7 +1,7 @@
 """``probes`` server half and the shared GI server (paper sections 3.1-3.4).
 
 **GI server** (:class:`ProbesProducer`, once per server frame for every session): the
-scene's DDGI volume (:mod:`splitrender.gi.ddgi`, on the server's renderer, so the ground
+scene's DDGI volume (:mod:`splitrender.render.ddgi`, on the server's renderer, so the ground
 truth and the server share the capture) relit at the newest time on the ``gi_hz`` grid,
 then coded: 10-bit colour codes and float16 distance moments per probe.  A still scene
 gives the same codes at every update.
@@ -42,9 +42,9 @@ import numpy as np
 
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
-from ...gi.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, gi_time, probe_grid
+from ...render.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, gi_time, probe_grid
 from ...gi.stream import color_frame, encode_index_list, encode_irradiance, grid_shape, visibility_frame, visibility_width
-from ...gi.octa import CUBE_FACES
+from ...render.octa import CUBE_FACES
 from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3
 from ...scene.wire import scene_to_data
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
