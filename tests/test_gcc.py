@@ -154,6 +154,15 @@ def test_step_trace_rates_and_round_trip(tmp_path) -> None:  # type: ignore[no-u
             step_trace(bad)
 
 
+def test_trace_statistics_take_a_trace_that_starts_at_zero() -> None:
+    """mahimahi's public traces begin with opportunities at 0 ms (several on one millisecond); the statistics
+    crashed on them (a slot index of -1) and now count them in the first slot."""
+    st = np.array([0, 0, 0, 40, 60, 100], np.int64)
+    r = rate_series(st, 50)
+    assert r.tolist() == pytest.approx([4 * 1500 * 8 / 0.05 / 1e6, 2 * 1500 * 8 / 0.05 / 1e6])
+    assert trace_stats(st, 50)["mean_mbps"] == pytest.approx(6 * 1500 * 8 / 0.1 / 1e6)
+
+
 def test_cellular_trace_has_its_stated_statistics() -> None:
     """Over 10 minutes the generator's mean (outages included), variation, outage share and correlation are what
     was asked, within sampling error; the same seed gives the same trace."""
@@ -195,3 +204,24 @@ def test_the_loop_follows_a_step_down_and_up(step_loop) -> None:  # type: ignore
     assert np.nanpercentile(d[steady], 95) < 60                         # 52 ms: 20 ms path, frame bursts queue
     assert step_loop.probe_bytes < 0.05 * step_loop.media_bytes          # probing costs 3.4 %
     assert math.isfinite(float(np.nanmax(d)))
+
+
+def test_capacity_trace_stats_reads_any_trace_and_the_link_study_takes_a_users(tmp_path, capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``capacity-trace stats FILE...`` prints each trace's statistics (a public trace as it is downloaded: starting
+    at 0 ms, several opportunities a millisecond); ``SPLITRENDER_LINK_TRACES`` adds a user's traces to the link
+    study, each checked first and named when it cannot be read."""
+    from splitrender.cli import main
+    from splitrender.experiments.studies import link
+
+    pub = tmp_path / "public.down"
+    pub.write_text("0\n0\n0\n" + "".join(f"{t}\n" for t in range(1, 1001)))
+    gen = write_mahimahi(step_trace([(1.0, 12.0)]), tmp_path / "gen.trace")
+    assert main(["capacity-trace", "stats", str(pub), str(gen)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "trace,mean_mbps,cv,outage_pct,lag1_corr,period_s"
+    assert lines[1].startswith(f"{pub},12.04,") and lines[2].startswith(f"{gen},12.00,0.00,0.0,")
+    monkeypatch.setenv(link.TRACES_ENV, f"{pub}, {gen}")
+    assert link.extra_traces() == [str(pub), str(gen)]
+    monkeypatch.setenv(link.TRACES_ENV, str(tmp_path / "missing.down"))
+    with pytest.raises(NetworkConfigError, match=r"mahimahi trace '.*missing.down': cannot read"):
+        link.extra_traces()

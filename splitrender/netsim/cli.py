@@ -149,11 +149,25 @@ def add_trace_arguments(p: argparse.ArgumentParser) -> None:
     c.add_argument("--outage-share", type=float, default=0.02, help="share of time in outages (default 0.02)")
     c.add_argument("--outage-mean", type=float, default=0.3, help="mean outage length, seconds (default 0.3)")
     c.add_argument("--seed", type=int, default=0)
+    t = kind.add_parser("stats", help="the statistics of mahimahi trace files (generated or public), one line each")
+    t.add_argument("traces", nargs="+", help="trace files (e.g. mahimahi's traces/*.down)")
+    t.add_argument("--slot", type=int, default=50, help="slot length in ms (default 50)")
 
 
 def main_trace(ns: argparse.Namespace) -> int:
     from splitrender.netsim.traces import cellular_trace, step_trace, trace_stats, write_mahimahi
 
+    if ns.kind == "stats":
+        from splitrender.netsim.models import load_mahimahi_trace
+
+        if not 1 <= ns.slot <= 10_000:
+            raise NetworkConfigError(f"capacity-trace stats --slot: must be in [1, 10000] ms, got {ns.slot}")
+        print("trace,mean_mbps,cv,outage_pct,lag1_corr,period_s")
+        for name in ns.traces:
+            st = trace_stats(load_mahimahi_trace(name), ns.slot)
+            print(f"{name},{st['mean_mbps']:.2f},{st['cv']:.2f},{100 * st['outage_share']:.1f},{st['lag1_corr']:.2f},"
+                  f"{st['period_s']:.0f}")
+        return 0
     if ns.kind == "step":
         steps = []
         for item in ns.steps.split(","):

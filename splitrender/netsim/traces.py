@@ -106,7 +106,8 @@ def rate_series(stamps_ms: np.ndarray, slot_ms: int = 100) -> np.ndarray:
     stamps = np.asarray(stamps_ms, np.int64)
     period = int(stamps[-1])
     n = max(1, math.ceil(period / slot_ms))
-    counts = np.bincount(np.minimum((stamps - 1) // slot_ms, n - 1), minlength=n)
+    # a stamp t serves slot (t - 1) // slot_ms, and t = 0 (public traces start with it) the first
+    counts = np.bincount(np.clip((stamps - 1) // slot_ms, 0, n - 1), minlength=n)
     return counts * _BITS_PER_OPP / (slot_ms / 1000.0) / 1e6
 
 
@@ -115,7 +116,7 @@ def trace_stats(stamps_ms: np.ndarray, slot_ms: int = 50) -> dict[str, float]:
     the lag-1 autocorrelation of the rate outside outages, over ``slot_ms`` slots."""
     r = rate_series(stamps_ms, slot_ms)
     up = r[r > 0]
-    ac = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 2 and r.std() > 0 else math.nan
+    ac = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 2 and r[:-1].std() > 0 and r[1:].std() > 0 else math.nan
     return {"mean_mbps": float(r.mean()), "cv": float(up.std() / up.mean()) if up.size else math.nan,
             "outage_share": float((r == 0).mean()), "lag1_corr": ac, "period_s": float(stamps_ms[-1]) / 1000.0}
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -28,7 +29,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...methods import get_method, methods_for_scene
-from ...netsim.traces import cellular_trace, step_trace, write_mahimahi
+from ...netsim.models import load_mahimahi_trace
+from ...netsim.traces import cellular_trace, step_trace, trace_stats, write_mahimahi
 from ...render.renderer import Renderer
 from ...sim.config import RunConfig
 from ...sim.runner import run as run_one
@@ -175,6 +177,18 @@ def step_spans(steps: Sequence[tuple[float, float]]) -> tuple[list[tuple[float, 
     return spans, low
 
 
+TRACES_ENV = "SPLITRENDER_LINK_TRACES"
+"""Extra capacity traces for the study: mahimahi files (e.g. its public LTE traces), comma-separated."""
+
+
+def extra_traces() -> list[str]:
+    """The trace files named in :data:`TRACES_ENV`, each checked (a :class:`NetworkConfigError` names a bad one)."""
+    paths = [p.strip() for p in os.environ.get(TRACES_ENV, "").split(",") if p.strip()]
+    for p in paths:
+        load_mahimahi_trace(p)
+    return paths
+
+
 def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes: Sequence[str] = MODES) -> Section:
     """Run the study into ``out_dir``: ``link_results.csv``, one chart per trace, and the section."""
     out_dir = Path(out_dir)
@@ -189,13 +203,15 @@ def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes:
     traces.append(("step", step_trace(list(steps)), spans, low))
     if not quick:
         traces.append(("cellular", cellular_trace(20.0, 8.0, 0.5, seed=0), [(1.0, 20.0)], None))
+    for path in extra_traces():   # public traces a user brings (never committed): their first 20 s, as the cellular
+        traces.append((Path(path).stem, load_mahimahi_trace(path), [(1.0, 20.0)], None))
     renderer = Renderer()
     rows: list[dict[str, Any]] = []
     runs: dict[str, list[dict[str, Any]]] = {}
     t0 = time.perf_counter()
     for name, stamps, steady, lowspan in traces:
         path = write_mahimahi(stamps, out_dir / f"{name}.trace")
-        dur = sum(d for d, _ in steps) if name == "step" else 20.0
+        dur = sum(d for d, _ in steps) if name == "step" else min(20.0, stamps[-1] / 1000)
         for m in methods:
             for adapt in modes:
                 cfg = RunConfig(method=m, scene=STUDY_SCENE, trace="walk", network=f"delay 20ms trace {path}",
@@ -212,8 +228,14 @@ def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes:
     write_csv(table, ({k: r[k] for k in COLUMNS} for r in rows))
     figs = []
     for name, stamps, _, lowspan in traces:
-        title = ("Step: " + " -> ".join(f"{mbps:g}" for _, mbps in steps) + " Mbit/s (shaded: the low step)"
-                 if name == "step" else "Cellular-like: mean 8 Mbit/s, cv 0.5, 2 % outages")
+        if name == "step":
+            title = "Step: " + " -> ".join(f"{mbps:g}" for _, mbps in steps) + " Mbit/s (shaded: the low step)"
+        elif name == "cellular":
+            title = "Cellular-like: mean 8 Mbit/s, cv 0.5, 2 % outages"
+        else:
+            st = trace_stats(stamps)
+            title = (f"{name} (its first 20 s; whole trace: mean {st['mean_mbps']:.1f} Mbit/s, cv {st['cv']:.2f}, "
+                     f"{100 * st['outage_share']:.0f} % outages)")
         figs.append(chart(runs[name], stamps, title, out_dir / f"link_{name}.png", lowspan))
 
     def cell(v: float, fmt: str) -> str:
