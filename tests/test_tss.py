@@ -7,6 +7,7 @@ ground truth beside ``sas`` and ``atw``, and malformed wire data."""
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 
@@ -740,3 +741,22 @@ def test_a_visible_set_past_one_texel_each_leaves_the_smallest_triangles_out(ren
     assert 4000 < st["tris_left_out"] < 4600 and st["shaded"] == st["samples"] == st["pvs_triangles"], st
     assert (srv.last_plan.kind == KIND_SINGLE).all() and not srv.last_plan.overflow and srv.last_plan.single_px == 1
     assert shown > 14.5
+
+
+def test_moving_budget_raises_the_rate_within_the_frames_samples(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``budget_px``: the frame's rate rises from ``samples_per_px`` while the plan's samples stay within
+    ``budget_px`` per display pixel, and never falls below ``samples_per_px``; ``plan_samples`` (the bisection's
+    count) is what the plan places.  Default scene, walk frame, 320x180 (measured: budget 3 -> rate 2^(7/8) = 1.83,
+    165.2k of 172.8k samples; budget 2 -> 1.19, 107.0k; budget 1 -> 1.0, whose 85.9k samples already pass it)."""
+    from splitrender.methods.tss.server import classify, plan_samples
+
+    srv, ctx, *_ = _server_frame(renderer, params={"budget_px": 3.0})
+    pvs, _, px, _, plan, _, _, rate, _ = srv.plan_view(ctx, True)
+    assert 1.0 < rate <= 8.0 and float(plan.samples.sum()) <= 3.0 * 320 * 180, (rate, plan.samples.sum())
+    c = srv.config
+    k = classify(px, rate, c.slant_threshold, c.tiny_samples, None, c.os_grid, c.sliver_px)
+    assert abs(plan_samples(*k[:5], grid=c.os_grid) / float(plan.samples.sum()) - 1.0) < 0.1, "the count the bisection uses"
+    srv, ctx, *_ = _server_frame(renderer, params={"budget_px": 1.0})   # the budget never lowers the rate
+    assert srv.plan_view(ctx, True)[7] == 1.0
+    knob = srv.config.adapt_knobs()[0]                                   # rate adaptation lowers the budget itself
+    assert knob.name == "budget_px" and knob.levels == (1.0, 0.7, 0.5, 0.35), knob

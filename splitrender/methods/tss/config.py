@@ -29,8 +29,14 @@ class TssConfig(MethodConfig):
     spending its samples better than the oversampled staircases at our sizes, and
     the most slanted slivers still oversampled).  ``tiny_samples``: triangles needing fewer samples than this get one
     texel, unless ``sliver_px`` is set (>= 1) and their longest edge spans that many
-    pixels or more: those slivers are sampled along their length as any other triangle
-    (the default 0: one texel whatever the length, as the paper).  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
+    sample steps or more (pixels at one sample per pixel): such a sliver is L-packed at its level (its corners and,
+    from level 2, its centre: a few samples along its length) instead of one texel at its centroid (0, the default:
+    one texel whatever the length, as the paper).  Issue 50: a model's outline is lined with triangles seen edge-on,
+    a fraction of a pixel in area and pixels long, and one texel each gave them one colour along the silhouette;
+    ``sliver_px = 1`` lifts that floor on real models (lossless, still, 320x180: assimp's duck +1.1 dB at one
+    sample per pixel for 3 % more samples, 2CylinderEngine +1.2 dB for 20 % more, +2.2 dB at 4) but costs the
+    default scene 22 % more bits for nothing (its far floor's slivers), so it is not the default; any rate above
+    one should set it (``benchmarks/bench_tss_models.py``).  ``atlas_mpix_1080p``: atlas megapixels for a 1920x1080 display, scaled by
     the display's pixel count (the paper's 24 Mpix for its walkthroughs); when
     the visible set does not fit, the sampling rate of the frame is lowered until it
     does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
@@ -65,7 +71,13 @@ class TssConfig(MethodConfig):
     L-packing levels leave) are filled with their neighbours' colours before coding (:func:`~.layout.fill_gutters`)
     instead of staying black, which the codec blended into every cell's border samples, the seams along each
     triangle's edges (issue 50: TextureTransformTest still, 320x180, 0.3 s: +1.3 dB on the model at 17 % fewer bits;
-    at 4 samples per pixel +3.4 dB at 28 % fewer bits)
+    at 4 samples per pixel +3.4 dB at 28 % fewer bits).
+
+    ``budget_px`` (0: off, the paper's fixed rate): a sample budget that moves with the scene.  The frame's sampling
+    rate rises from ``samples_per_px`` up to ``budget_max_spp`` while the frame's samples stay within ``budget_px``
+    per display pixel (``budget_px * width * height``): a model that covers a fifth of the view gets about five times
+    the rate of a view it fills.  The rate is found by bisection on the plan's sample count and rounded down to steps
+    of 2^(1/8), so a still view keeps its levels; the load-time split is made for ``budget_max_spp``.
     """
 
     gop: int = 30
@@ -88,10 +100,15 @@ class TssConfig(MethodConfig):
     single_px: int = 2
     spatial_order: bool = False
     gutter_fill: bool = True
+    budget_px: float = 0.0
+    budget_max_spp: float = 8.0
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
-        """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7;
-        then the server's frame rate."""
+        """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
+        with a moving budget the frame's samples per display pixel (``budget_px``); then the server's frame rate."""
+        if self.budget_px > 0:
+            return (Knob("budget_px", tuple(round(self.budget_px * f, 4) for f in TSS_KNOB_STEPS), TSS_BUDGET_COST, "video",
+                         "shading samples per display pixel"), FRAME_DIV_KNOB)
         return (Knob("samples_per_px", tuple(round(max(0.05, self.samples_per_px * f), 4) for f in TSS_KNOB_STEPS),
                      TSS_BUDGET_COST, "video", "shading samples per covered pixel"), FRAME_DIV_KNOB)
 
@@ -127,6 +144,10 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.os_grid: {self.os_grid!r} is not one of ['centred', 'paper']")
         if self.single_px not in (1, 2, 4):
             raise ConfigError(f"TssConfig.single_px: must be 1, 2 or 4, got {self.single_px}")
+        if not 0.0 <= self.budget_px <= 64:
+            raise ConfigError(f"TssConfig.budget_px: must be in [0, 64] samples per display pixel, got {self.budget_px}")
+        if not 0.05 <= self.budget_max_spp <= 8:
+            raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 8], got {self.budget_max_spp}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 
@@ -147,12 +168,17 @@ class TssConfig(MethodConfig):
         h = max(1, round(math.sqrt(texels / 2) / 16)) * 16
         return 2 * h, h
 
+    @property
+    def top_rate(self) -> float:
+        """The highest sampling rate a frame may use: ``samples_per_px``, or with a budget ``budget_max_spp``."""
+        return max(self.samples_per_px, self.budget_max_spp) if self.budget_px > 0 else self.samples_per_px
+
     def split_edge_m(self, intr: CameraIntrinsics) -> float:
         """Longest edge (metres) kept at load time: an equilateral triangle with this edge,
         seen face-on from ``split_near_m``, needs at most ``v(64)`` samples."""
         if self.split_near_m <= 0:
             return math.inf
         px_per_rad = intr.width / math.radians(intr.fov_x_deg)
-        max_area_px = 3169.0 / self.samples_per_px
+        max_area_px = 3169.0 / self.top_rate
         edge_px = math.sqrt(4.0 * max_area_px / math.sqrt(3.0))
         return edge_px / px_per_rad * self.split_near_m

@@ -9,7 +9,9 @@ Per server frame (paper figure 10):
    slantedness (longest edge over height, pixels) sends it to oversampling above
    ``slant_threshold``, else to L-packing at the smallest level whose ``v(l)`` covers
    its area times ``samples_per_px``; triangles needing fewer than ``tiny_samples``
-   get one texel (a cell of ``single_px`` texels square).  Load-time midpoint splits keep
+   get one texel (a cell of ``single_px`` texels square), or with ``sliver_px`` a few samples along their length
+   when they are long; with ``budget_px`` the frame's rate rises while its samples fit the budget
+   (:meth:`TssServer.budget_rate`).  Load-time midpoint splits keep
    levels at or below 64 (:meth:`TssConfig.split_edge_m`); the split meshes are snapped to
    the wire's 16-bit position grid and, with ``spatial_order``, their triangles sorted
    along a Z-order curve (:func:`build_scene_triangles`);
@@ -47,7 +49,7 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order,
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order, os_sizes,
                      plan_atlas, v_count)
 from .wire import WIRE_VERSION, descriptors, dequantize_positions, encode_geometry, encode_table, quantize_positions
 
@@ -208,6 +210,16 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
     return 0.5 * np.abs((cross * (k + 1 < cnt[:, None])).sum(axis=1))
 
 
+def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray, grid: str = "paper") -> int:
+    """Samples a classification (:func:`classify`'s first five arrays) shades: ``v(l)`` per L-packed triangle, both
+    staircases per oversampled one, one per single texel (the plan's ``samples`` without placing anything)."""
+    n = np.where(kind == KIND_LP, v_count(np.maximum(level, 1)), 1).astype(np.int64)
+    os_ = np.flatnonzero(kind == KIND_OS)
+    if os_.size:
+        n[os_] = os_sizes(w1[os_], w2[os_], h[os_], grid)[1]
+    return int(n.sum())
+
+
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
@@ -234,7 +246,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     # one texel only for a triangle that is small in both directions: a sliver (a far floor tile's triangle,
     # 8 px long and a quarter pixel high) would show one colour along its whole length
     single = (need < tiny) & (longest * np.sqrt(rate * shown / np.maximum(area, 1e-12)) < sliver_px)
-    kind = np.where(single, KIND_SINGLE, np.where(slant > slant_threshold, KIND_OS, KIND_LP)).astype(np.int64)
+    # a sliver (under ``tiny`` but long) is L-packed at its low level: its corners and centre along its length cost a
+    # few samples, where the oversampling staircases its slant would call for take two rows of its length and more
+    sliver = need < tiny
+    kind = np.where(single, KIND_SINGLE, np.where((slant > slant_threshold) & ~sliver, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
     # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
     b0 = px[r, base]
@@ -360,6 +375,29 @@ class TssServer(ServerHalf):
         # the height's foot moves as the view does; keep the sample grid while it moves less than a tenth of hy
         a[:] = np.where(keep_o & (np.abs(a - self._prev_a[ids]) < 0.1 * hy), self._prev_a[ids], a)
 
+    def budget_rate(self, px: np.ndarray, visible: np.ndarray | None) -> float:
+        """The frame's sampling rate under ``budget_px``: the highest in [``samples_per_px``, ``budget_max_spp``], on
+        steps of 2^(1/8), whose samples (:func:`plan_samples`) stay within ``budget_px`` per display pixel."""
+        c = self.config
+        target = c.budget_px * self.intrinsics.width * self.intrinsics.height
+
+        def fits(r: float) -> bool:
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
+            return plan_samples(*k[:5], grid=c.os_grid) <= target
+
+        lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
+        if hi <= lo or not fits(2.0 ** (lo / 8)):
+            return c.samples_per_px
+        if fits(2.0 ** (hi / 8)):
+            return 2.0 ** (hi / 8)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if fits(2.0 ** (mid / 8)):
+                lo = mid
+            else:
+                hi = mid
+        return 2.0 ** (lo / 8)
+
     def plan(self, ids: np.ndarray, px: np.ndarray, iframe: bool, visible: np.ndarray | None = None
              ) -> tuple[AtlasPlan, np.ndarray, np.ndarray, float, np.ndarray | None]:
         """Classify triangles ``ids`` with pixel corners ``px`` and place them in the atlas; lowers the frame's
@@ -369,7 +407,7 @@ class TssServer(ServerHalf):
         triangles needing the most samples first."""
         c = self.config
         W, H = self.atlas
-        rate = c.samples_per_px
+        rate = self.budget_rate(px, visible) if c.budget_px > 0 else c.samples_per_px
         reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
         if self.store.single_px != c.single_px:      # back from the last resort's one-texel cells: a repack
             self.store.single_px, reset = c.single_px, True
