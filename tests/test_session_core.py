@@ -55,6 +55,15 @@ class Pair:
         self.server.frame_sent(fid, out, now_ms, 1_000_000 + fid)
         return [d for _, d in out.control], [d for _, _, d in out.datagrams]
 
+    def released(self, fid: int, now_ms: float) -> list:  # type: ignore[type-arg]
+        """Server frame ``fid`` delivered whole at ``now_ms``: the decode work the client core releases (undecoded)."""
+        control, datagrams = self.frame(fid, now_ms)
+        for data in control:
+            self.cconn.receive_data(data)
+            while (ev := self.cconn.next_event()) is not NEED_DATA:
+                self.client.receive_message(ev, now_ms)  # type: ignore[arg-type]
+        return [w for d in datagrams for w in self.client.receive_datagram(d, now_ms)]
+
     def to_client(self, control: list[bytes], datagrams: list[bytes], now_ms: float) -> None:
         for data in control:
             self.cconn.receive_data(data)
@@ -615,14 +624,7 @@ def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     half has no content; a broken video stream's non-keyframe is skipped and counted lost, a keyframe decoded."""
     p = Pair()
     assert p.client.blank(True)                                   # nothing shown yet
-    control, datagrams = p.frame(0, 0.0)
-    works = []
-    for data in control:
-        p.cconn.receive_data(data)
-        while (ev := p.cconn.next_event()) is not NEED_DATA:
-            p.client.receive_message(ev, 0.0)  # type: ignore[arg-type]
-    for d in datagrams:
-        works += p.client.receive_datagram(d, 0.0)
+    works = p.released(0, 0.0)
     assert len(works) == 1 and works[0].unit.keyframe
     works[0].stream.broken = True                                 # as a decode error of an earlier frame leaves it
     assert not p.client.skips_decode(works[0], 0.0)               # a keyframe is decoded
@@ -631,12 +633,7 @@ def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     (rf,) = p.client.collect(0.0)
     p.client.applied(rf)
     assert p.client.shown is rf and not p.client.blank(True) and p.client.blank(False)
-    control, datagrams = p.frame(1, 33.0)
-    for data in control:
-        p.cconn.receive_data(data)
-        while (ev := p.cconn.next_event()) is not NEED_DATA:
-            p.client.receive_message(ev, 33.0)  # type: ignore[arg-type]
-    works = [w for d in datagrams for w in p.client.receive_datagram(d, 33.0)]
+    works = p.released(1, 33.0)
     assert len(works) == 1 and not works[0].unit.keyframe
     errors = p.client.all_counters()["decode_errors"]
     works[0].stream.broken = True                                 # a decode error after this frame's release
