@@ -140,8 +140,9 @@ async def test_traces_are_bounded_and_made_off_the_event_loop(tmp_path):
         cpu = time.process_time() - t0
         tick.cancel()
         assert status == 200 and len(tr["t"]) == 60 * 120 + 1
-        # measured: 0.5-0.7 CPU s for the 60 s trace, the loop's longest gap 10-30 ms (on the loop: 600 ms)
-        assert cpu > 0.2 and max(gaps) < 0.25, (cpu, max(gaps))
+        # measured: 0.5-1.1 CPU s for the 60 s trace, the loop's longest gap 10-30 ms idle and 280 ms in CI beside the
+        # background runs (made on the loop, the gap was the whole trace, 600 ms): the loop never waits for most of it
+        assert cpu > 0.2 and max(gaps) < 0.5 * cpu, (cpu, max(gaps))
         made: list[tuple[Any, ...]] = []
         make = server.front._make_trace
         server.front._make_trace = lambda *key: made.append(key) or make(*key)
