@@ -221,7 +221,7 @@ def test_capacity_trace_stats_reads_any_trace_and_the_link_study_takes_a_users(t
     assert lines[0] == "trace,mean_mbps,cv,outage_pct,lag1_corr,period_s"
     assert lines[1].startswith(f"{pub},12.04,") and lines[2].startswith(f"{gen},12.00,0.00,0.0,")
     monkeypatch.setenv(link.TRACES_ENV, f"{pub}, {gen}")
-    assert link.extra_traces() == [str(pub), str(gen)]
+    assert [(p, len(st)) for p, st in link.extra_traces()] == [(str(pub), 1003), (str(gen), len(load_mahimahi_trace(gen)))]
     monkeypatch.setenv(link.TRACES_ENV, str(tmp_path / "missing.down"))
     with pytest.raises(NetworkConfigError, match=r"mahimahi trace '.*missing.down': cannot read"):
         link.extra_traces()

@@ -453,7 +453,7 @@ class ServerSession:
         row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
                                "keyframe": int(out.keyframe), "shared_ms": shared_ms, "server_ms": render_ms,
                                "gi_ms": stages["gi_ms"], "encode_ms": enc.encode_ms,
-                               "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
+                               "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
                                "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": order.expected_latency_s * 1000}
         row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
         row.update(core.congestion())

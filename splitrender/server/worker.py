@@ -270,7 +270,7 @@ class _Worker:
     def frame(self, sid: str, order: Any) -> Any:
         """Make session ``sid``'s frame ``order`` (:func:`~splitrender.pipeline.frames.make_frame`); returns the coded
         update without its raw planes, the half's stats, and the frame's stages in milliseconds (``make_frame``'s;
-        ``worker_ms`` is the whole frame in this process)."""
+        ``frame_ms`` is the whole frame in this process)."""
         from splitrender.pipeline import make_frame
 
         h = self.halves[sid]
@@ -279,7 +279,6 @@ class _Worker:
         enc, stats, stages = make_frame(order, h.half, h.encoder, self.scene, self.renderer, h.intrinsics,
                                         self.producers, h.method)
         enc.update = dataclasses.replace(enc.update, planes={}, data={})     # the raw planes stay here
-        stages["worker_ms"] = stages["frame_ms"]
         return enc, stats, stages
 
     def close(self, sid: str) -> None:

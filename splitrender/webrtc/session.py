@@ -467,7 +467,7 @@ class BrowserSession:
         c1 = time.perf_counter()
         row = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes_color": len(frame.data),
                "bytes_frame_meta": n_meta, "keyframe": int(frame.keyframe), "server_ms": stages["produce_ms"],
-               "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["worker_ms"]),
+               "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
                "expected_latency_ms": order.expected_latency_s * 1000}
         d = self.out_dir
         if d is not None:

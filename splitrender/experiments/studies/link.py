@@ -181,12 +181,11 @@ TRACES_ENV = "SPLITRENDER_LINK_TRACES"
 """Extra capacity traces for the study: mahimahi files (e.g. its public LTE traces), comma-separated."""
 
 
-def extra_traces() -> list[str]:
-    """The trace files named in :data:`TRACES_ENV`, each checked (a :class:`NetworkConfigError` names a bad one)."""
+def extra_traces() -> list[tuple[str, np.ndarray]]:
+    """The trace files named in :data:`TRACES_ENV` with their timestamps, each read once (a
+    :class:`NetworkConfigError` names a bad one before anything runs)."""
     paths = [p.strip() for p in os.environ.get(TRACES_ENV, "").split(",") if p.strip()]
-    for p in paths:
-        load_mahimahi_trace(p)
-    return paths
+    return [(p, load_mahimahi_trace(p)) for p in paths]
 
 
 def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes: Sequence[str] = MODES) -> Section:
@@ -203,8 +202,8 @@ def run(out_dir: Path, quick: bool, methods: Sequence[str] | None = None, modes:
     traces.append(("step", step_trace(list(steps)), spans, low))
     if not quick:
         traces.append(("cellular", cellular_trace(20.0, 8.0, 0.5, seed=0), [(1.0, 20.0)], None))
-    for path in extra_traces():   # public traces a user brings (never committed): their first 20 s, as the cellular
-        traces.append((Path(path).stem, load_mahimahi_trace(path), [(1.0, 20.0)], None))
+    for path, stamps in extra_traces():   # public traces a user brings (never committed): their first 20 s
+        traces.append((Path(path).stem, stamps, [(1.0, 20.0)], None))
     renderer = Renderer()
     rows: list[dict[str, Any]] = []
     runs: dict[str, list[dict[str, Any]]] = {}
