@@ -463,7 +463,7 @@ def _resolve(ref: Any, what: str) -> Any:
 class PageGlue:
     """What a method needs beyond its video track to run in the browser page (:mod:`splitrender.webrtc`), in the
     server process: extra session terms for the page, and per frame messages for its reliable ``meta`` channel.
-    A method names its glue in :attr:`MethodSpec.page`; the page's own drawing code is in ``webrtc/page/``.  Built
+    A method names its glue in :attr:`MethodSpec.page`; the page's own drawing code is in ``webrtc/static/``.  Built
     from the session's config, the display's intrinsics and the session data the server half made."""
 
     def __init__(self, config: Any, intrinsics: Any, session_blob: bytes) -> None:

@@ -39,7 +39,7 @@ import numpy as np
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (ServerOptions, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
+from splitrender.pipeline import (Accepted, ServerOptions, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
                                   rtp_timestamp)
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -56,7 +56,6 @@ from splitrender.protocol import (
     ServerConnection,
     State,
     Stats,
-    Welcome,
     make_sdp,
     negotiate_method,
 )
@@ -252,7 +251,7 @@ class ServerSession:
             return False
         assert isinstance(msg, Hello)  # the state machine allows nothing else here
         try:
-            welcome, frames = await self._setup(msg)
+            acc = await self._setup(msg)
         except RemoteProtocolError as exc:
             logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
             await self.channel.send_error(exc)
@@ -263,18 +262,18 @@ class ServerSession:
             await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
         try:
-            await self.channel.write_frames(frames)     # the Welcome, then the session data
-            self._counters["session_bytes"] = sum(len(f) for f in frames[1:])
+            await self.channel.write_frames(acc.frames)     # the Welcome, then the session data
+            self._counters["session_bytes"] = sum(len(f) for f in acc.session_data_frames)
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
             return False
         logger.info("session %s: %s streaming %s %dx%d @ %g Hz to %s", self.id, self.peer, self.method,
-                    msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in welcome.streams))
+                    msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in acc.welcome.streams))
         return True
 
-    async def _setup(self, hello: Hello) -> tuple[Welcome, list[bytes]]:
+    async def _setup(self, hello: Hello) -> Accepted:
         """Choose method and codec, build the halves and encoders (in the render worker) and the session's core;
-        returns the Welcome and the control frames to send first.  Raises RemoteProtocolError."""
+        returns the accepted session (its Welcome and the control frames to send first).  Raises RemoteProtocolError."""
         cfg = self.cfg
         check_hello(hello, cfg.max_pixels)
         self.method = negotiate_method(hello.methods, self.server.methods)
@@ -310,7 +309,7 @@ class ServerSession:
             if isinstance(st.spec, StreamSpec):
                 self._write_sdp(stream)
         server.register(self, [s.ssrc for s in self.streams.values()])
-        return acc.welcome, acc.frames
+        return acc
 
     def _write_sdp(self, stream: _Stream) -> None:
         if self.cfg.sdp_dir is None:
