@@ -1471,7 +1471,7 @@ def _server_nack_entry(s: MethodSeeds) -> EntryPoint:
     bitmasks mutated) into the server core as the live server routes them.  Besides the rule, the answer to one
     datagram is at most ``NACK_MAX_PER_DATAGRAM`` packets, none of them twice, and its bytes within the stream's
     rate cap (a share of the media bytes sent plus the floor)."""
-    from splitrender.pipeline.session import NACK_MAX_PER_DATAGRAM, NACK_RATE_FLOOR_BYTES, NACK_RATE_SHARE
+    from splitrender.options import NACK_MAX_PER_DATAGRAM, NACK_RATE_FLOOR_BYTES, NACK_RATE_SHARE
     from splitrender.protocol.errors import RtcpError
     from splitrender.protocol.rtcp import rtcp_route_ssrc
 

@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 
 from . import __version__
 from .errors import SplitRenderError
+from .options import ClientOptions, ServerProtocolOptions, add_option_arguments
 
 log = logging.getLogger("splitrender")
 
@@ -169,14 +170,9 @@ def _parse_value(text: str) -> Any:
 
 
 def _session_args(p: argparse.ArgumentParser) -> None:
-    """The client's loss-recovery options, the same as ``splitrender client`` takes (RunConfig keys)."""
-    p.add_argument("--playout-delay", type=float, default=None, metavar="MS",
-                   help="show each update no earlier than its server time + MS (default 0: as soon as it is ready)")
-    p.add_argument("--nack-tries", type=int, default=None, help="NACKs per lost RTP packet (0 = NACK off; default 3)")
-    p.add_argument("--jitter-timeout", type=float, default=None, metavar="MS",
-                   help="how long a jitter buffer waits for a frame's missing packets (default 100 in virtual time)")
-    p.add_argument("--stall-frames", type=float, default=None,
-                   help="no new frame for this many server intervals is a stall: PLIs on every video stream (default 6)")
+    """The session cores' options, both sides, with virtual time's defaults (RunConfig keys; the live ``serve`` and
+    ``client`` take their side's under the same flags)."""
+    add_option_arguments(p, ClientOptions, ServerProtocolOptions, virtual=True)
 
 
 def main_run(ns: argparse.Namespace) -> int:

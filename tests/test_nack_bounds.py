@@ -16,7 +16,7 @@ from splitrender.errors import ConfigError
 from splitrender.methods import StreamSpec
 from splitrender.pipeline import ServerOptions, ServerPipeline, ServerSession
 from splitrender.pipeline.sender import OutgoingFrame
-from splitrender.pipeline.session import (NACK_MAX_PER_DATAGRAM, NACK_MIN_RESEND_MS, NACK_RATE_FLOOR_BYTES,
+from splitrender.options import (NACK_MAX_PER_DATAGRAM, NACK_MIN_RESEND_MS, NACK_RATE_FLOOR_BYTES,
                                           NACK_RATE_SHARE, NACK_RATE_WINDOW_MS)
 from splitrender.protocol import GenericNack, RtpPacket, parse_rtcp, serialize_rtcp
 from splitrender.protocol.errors import RtcpError

@@ -7,6 +7,7 @@ import asyncio
 from pathlib import Path
 
 from splitrender.errors import ConfigError, SplitRenderError
+from splitrender.options import ClientOptions, add_option_arguments, options_from_args
 from splitrender.transport.errors import ConnectError, describe_os_error
 
 __all__ = ["add_client_arguments", "main_client", "config_from_args"]
@@ -35,26 +36,17 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/live"), help="recording folder (default out/live)")
     p.add_argument("--save-images", action="store_true", help="keep every displayed image (needed to score)")
     p.add_argument("--score", action="store_true", help="score the recording afterwards (implies --save-images)")
-    p.add_argument("--stall-frames", type=float, default=6.0,
-                   help="no new frame for this many server frame intervals: log, count and ask for a keyframe (default 6)")
     p.add_argument("--metrics-interval", type=float, default=5.0,
                    help="seconds between `metrics` log lines (counters, drops included; 0 = never; default 5)")
-    p.add_argument("--stall-timeout", type=float, default=5.0,
-                   help="seconds without a frame after which the session ends with an error (default 5)")
-    p.add_argument("--jitter-timeout", type=float, default=300.0, metavar="MS",
-                   help="give up a frame whose packets are still missing after MS (then wait for a keyframe; default 300)")
-    p.add_argument("--nack-tries", type=int, default=3, help="NACKs sent for one missing packet (default 3)")
     p.add_argument("--limit", action="append", default=[], metavar="KEY=N",
                    help="what this client accepts from a server (repeatable), e.g. --limit max_probes=65536; keys: "
                         "max_stream_bytes, max_session_bytes, max_pending_frames, max_pending_bytes, max_video_pixels, "
                         "max_probes, max_scene_triangles, max_scene_objects, max_reference_pixels, max_atlas_pixels, "
                         "max_mesh_vertices (docs/protocol.md, Limits)")
-    p.add_argument("--playout-delay", type=float, default=0.0, metavar="MS",
-                   help="show each update no earlier than its server time + MS: frames held behind a retransmission "
-                        "are then shown in turn instead of skipped, for MS more latency (default 0: as soon as ready)")
     p.add_argument("--rows-kept", type=int, default=4096, metavar="N",
                    help="displayed-frame rows kept in memory (every row goes to the recording as it is shown; "
                         "default 4096)")
+    add_option_arguments(p, ClientOptions)
 
 
 def config_from_args(ns: argparse.Namespace) -> object:
@@ -70,18 +62,9 @@ def config_from_args(ns: argparse.Namespace) -> object:
             raise ConfigError(f"{opt}: must be in [1, 65535], got {port}")
     if not 0 <= ns.metrics_interval <= 3600:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
-    if not 0.1 <= ns.stall_timeout <= 3600:
-        raise ConfigError(f"--stall-timeout: must be in [0.1, 3600] s, got {ns.stall_timeout}")
-    from splitrender.pipeline.session import check_client_option
-
-    # the session options' ranges are the core's (ClientOptions), declared once
-    for name, value, flag in (("stall_frames", ns.stall_frames, "--stall-frames"),
-                              ("jitter_timeout_ms", ns.jitter_timeout, "--jitter-timeout"),
-                              ("nack_max_tries", ns.nack_tries, "--nack-tries"),
-                              ("playout_delay_ms", ns.playout_delay, "--playout-delay")):
-        check_client_option(name, value, flag)
     if not 1 <= ns.rows_kept <= 10_000_000:
         raise ConfigError(f"--rows-kept: must be in [1, 10000000], got {ns.rows_kept}")
+    given = options_from_args(ns, ClientOptions)   # a session option out of range fails here, by its flag
     limits: dict[str, int] = {}
     for item in getattr(ns, "limit", []) or []:
         key, sep, value = item.partition("=")
@@ -98,10 +81,9 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         tls=ns.tls or ns.tls_ca is not None, tls_ca=ns.tls_ca,
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
-                        save_images=ns.save_images or ns.score, stall_frames=ns.stall_frames,
-                        stall_timeout_s=ns.stall_timeout, metrics_interval_s=ns.metrics_interval,
-                        playout_delay_ms=ns.playout_delay, jitter_timeout_ms=ns.jitter_timeout,
-                        nack_max_tries=ns.nack_tries, limits=client_limits, rows_kept=ns.rows_kept)
+                        save_images=ns.save_images or ns.score, metrics_interval_s=ns.metrics_interval,
+                        limits=client_limits, rows_kept=ns.rows_kept,
+                        **given)
 
 
 def main_client(ns: argparse.Namespace) -> int:

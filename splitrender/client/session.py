@@ -39,6 +39,7 @@ from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, Remot
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
+from splitrender.options import option_fields, options_of
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
 from splitrender.tabular import atomic_file, atomic_write_bytes, write_csv, write_csv_passes
@@ -67,8 +68,12 @@ class ServerRefusedError(SplitRenderError):
 
 
 @dataclass(frozen=True)
+@option_fields(ClientOptions)
 class ClientConfig:
     """Settings of a live client.  Times in seconds unless the name says ms.
+
+    The session options (:class:`~splitrender.pipeline.ClientOptions`: loss recovery, reports, playout delay,
+    stalls) are fields too, from their one declaration (:mod:`splitrender.options`).
 
     ``udp_port`` overrides the server UDP port from Welcome (to go through a relay).
     ``methods`` are offered in preference order.
@@ -88,32 +93,15 @@ class ClientConfig:
     duration_s: float = 10.0
     out_dir: Path | None = None
     save_images: bool = False
-    jitter_timeout_ms: float = 300.0
-    nack_delay_ms: float = 20.0
-    nack_retry_ms: float = 120.0
-    """Wait between two NACKs of a hole until a retransmission's round trip has been measured; then
-    1.5x the smoothed round trip + 10 ms, within [:data:`NACK_RETRY_MIN_MS`, :data:`NACK_RETRY_MAX_MS`]."""
-    nack_max_tries: int = 3
-    pli_interval_ms: float = 250.0
-    rr_interval_s: float = 0.5
     connect_timeout_s: float = 5.0
     limits: ClientLimits = DEFAULT_CLIENT_LIMITS
     """What this client accepts from a server: stream and session-data sizes, pending frames, probes, scene size
     (:class:`~splitrender.limits.ClientLimits`); a server declaring more is refused with an error naming it."""
-    stall_frames: float = 6.0
-    """No new frame for this many server frame intervals is a stall: logged, counted, a keyframe requested."""
-    stall_timeout_s: float = 5.0
-    """A stall this long ends the session with :class:`StreamStalledError` (a non-zero exit)."""
     rows_kept: int = 4096
     """Displayed rows kept in memory (``ClientResult.rows``: the newest); the recording has every row, appended to
     ``frames.jsonl`` as it is shown, so memory stays flat however long the session."""
     metrics_interval_s: float = 5.0
     """Log a ``metrics`` line (the counters, the jitter buffers' drops included) this often; 0 = never."""
-    playout_delay_ms: float = 0.0
-    """Show an update no earlier than its server frame time (``FrameMeta.server_time_us``) plus this: frames
-    held behind a lost packet until its retransmission lands are then shown one per tick, each at its turn,
-    instead of together (where only the newest is seen).  0 = show every update as soon as it is ready (the
-    lowest latency).  The delay adds to the motion-to-photon latency of every frame."""
     tls: bool = False
     """Connect to the control port over TLS (``client --tls``; the server runs ``serve --tls-cert``), verifying the
     server's certificate and that it names ``server`` (host name or IP address), against ``tls_ca`` or the system's
@@ -139,11 +127,7 @@ class ClientConfig:
 
     def options(self) -> ClientOptions:
         """The session core's options (the same ones ``splitrender run`` takes)."""
-        return ClientOptions(nack_max_tries=self.nack_max_tries, nack_delay_ms=self.nack_delay_ms,
-                             nack_retry_ms=self.nack_retry_ms, pli_interval_ms=self.pli_interval_ms,
-                             rr_interval_s=self.rr_interval_s, jitter_timeout_ms=self.jitter_timeout_ms,
-                             playout_delay_ms=self.playout_delay_ms, stall_frames=self.stall_frames,
-                             stall_timeout_s=self.stall_timeout_s, limits=self.limits)
+        return options_of(self, ClientOptions, limits=self.limits)
 
 
 @dataclass

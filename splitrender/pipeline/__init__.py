@@ -15,7 +15,8 @@ from .frames import FrameOrder, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
-from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientOptions, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
+from ..options import ClientOptions
+from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
                       SessionTerms, Stalled, StallTimeout, accept_hello, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp

@@ -58,13 +58,14 @@ from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
+from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import OutgoingFrame, ServerPipeline
 from .wire import EnvelopeError, SessionDataError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "CLIENT_OPTION_RANGES", "accept_hello", "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
-           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_client_option", "check_hello", "parse_welcome",
+__all__ = ["Accepted", "CLIENT_CODECS", "accept_hello", "ClientHandshake", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
+           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -73,39 +74,8 @@ BIND_INTERVAL_MS = 100.0
 """Until the first RTP packet the client repeats an empty receiver report this often (it opens the UDP path)."""
 NACK_RETRY_MIN_MS = 30.0
 NACK_RETRY_MAX_MS = 500.0
-NACK_MIN_RESEND_MS = 20.0
-"""A packet resent at t is not resent again for a NACK arriving before t + max(RTT, this) (ms; the RTT is the
-sender's from receiver reports, so until the first one this floor alone).  libwebrtc's ``RtpPacketHistory`` holds
-a resent packet for one RTT (plus 5 ms) the same way.  Below the client's shortest retry (``NACK_RETRY_MIN_MS``, and
-its retries after that come 1.5 RTT + 10 ms apart), so a receiver's honest retry is never refused."""
-NACK_MAX_PER_DATAGRAM = 256
-"""Most packets resent for one RTCP datagram, all its NACKs together (the requests beyond are refused unread)."""
-NACK_RATE_WINDOW_MS = 1000.0
-"""The sliding window over which resent bytes are held to a share of the media bytes (ms)."""
-NACK_RATE_SHARE = 0.5
-"""Resent bytes of a stream in the window at most this share of its media bytes in the window, plus the floor."""
-NACK_RATE_FLOOR_BYTES = 16_000
-"""What a stream may resend in any window whatever its media rate (bytes: 13 full 1,200-byte packets), so a quiet
-stream can still repair a keyframe."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
-
-
-CLIENT_OPTION_RANGES: dict[str, tuple[float, float]] = {
-    "nack_max_tries": (0, 20), "nack_delay_ms": (0.0, 2000.0), "nack_retry_ms": (1.0, 5000.0),
-    "pli_interval_ms": (1.0, 10_000.0), "rr_interval_s": (0.01, 60.0), "jitter_timeout_ms": (1.0, 10_000.0),
-    "playout_delay_ms": (0.0, 2000.0), "stall_frames": (1.0, 1000.0), "twcc_interval_ms": (10.0, 1000.0),
-}
-"""Each client session option's range, declared once: :class:`ClientOptions` checks it, and so do the command lines
-(``splitrender client``, ``run``) and ``RunConfig`` through :func:`check_client_option`."""
-
-
-def check_client_option(name: str, value: Any, label: str | None = None) -> None:
-    """Raise a :class:`ConfigError` naming ``label`` (default ``client <name>``) when ``value`` is outside the
-    option's range in :data:`CLIENT_OPTION_RANGES`."""
-    lo, hi = CLIENT_OPTION_RANGES[name]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
-        raise ConfigError(f"{label or 'client ' + name}: must be in [{lo:g}, {hi:g}], got {value!r}")
 
 
 class PoseInbox:
@@ -403,50 +373,6 @@ def _losses(rx: Any) -> int:
     """What a video stream has lost so far: packets, frames given up or corrupt (its jitter buffer's counts)."""
     j = rx.jitter
     return int(j.packets_lost + j.frames_lost + j.frames_corrupt) if j is not None else 0
-
-
-@dataclass(frozen=True)
-class ClientOptions:
-    """A client's loss-recovery and display options, the same for ``run``, sweeps, the demo and ``client``.
-
-    ``nack_max_tries``: NACKs per lost packet (0 = NACK off); ``nack_delay_ms``: how long a hole
-    waits before its first NACK (reordering); ``nack_retry_ms``: the wait between NACKs until a
-    retransmission's round trip is measured (then 1.5x the smoothed round trip + 10 ms within
-    [30, 500] ms); ``pli_interval_ms``: the least time between two PLIs of a stream;
-    ``rr_interval_s``: the mean receiver-report interval (randomised by 0.5-1.5x);
-    ``jitter_timeout_ms``: how long a jitter buffer waits for a frame's missing packets;
-    ``playout_delay_ms``: show an update no earlier than its server time plus this (0 = as soon
-    as it is ready); ``stall_frames``: no new frame for this many server intervals is a stall
-    (counted; PLIs for every video stream); ``stall_timeout_s``: a stall this long is
-    :class:`StallTimeout` (the live client exits; ``inf`` never).
-    """
-
-    nack_max_tries: int = 3
-    nack_delay_ms: float = 20.0
-    nack_retry_ms: float = 120.0
-    pli_interval_ms: float = 250.0
-    rr_interval_s: float = 0.5
-    jitter_timeout_ms: float = 300.0
-    playout_delay_ms: float = 0.0
-    stall_frames: float = 6.0
-    stall_timeout_s: float = 5.0
-    twcc_interval_ms: float = 100.0
-    """How often transport-wide feedback goes out while arrivals wait to be reported (sessions that ask for it)."""
-    limits: ClientLimits = DEFAULT_CLIENT_LIMITS
-    """What the client accepts from the server (:mod:`splitrender.limits`)."""
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.nack_max_tries, int):
-            raise ConfigError(f"client nack_max_tries: must be an integer, got {self.nack_max_tries!r}")
-        for name in CLIENT_OPTION_RANGES:
-            check_client_option(name, getattr(self, name))
-        if not (self.stall_timeout_s == math.inf or 0.1 <= self.stall_timeout_s <= 3600.0):
-            raise ConfigError(f"client stall_timeout_s: must be in [0.1, 3600] or inf, got {self.stall_timeout_s!r}")
-
-    @property
-    def resolve_timeout_ms(self) -> float:
-        """How long a frame whose FrameMeta arrived may wait for its other streams."""
-        return max(500.0, 2 * self.jitter_timeout_ms)
 
 
 @dataclass
@@ -941,14 +867,10 @@ def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs:
 
 
 @dataclass(frozen=True)
-class ServerOptions:
-    """A server session's protocol options: ``history_packets`` kept per RTP stream to answer NACKs,
-    ``keyframe_min_interval_ms`` between two requested IDRs, the mean ``sr_interval_s`` of sender
-    reports (randomised by 0.5-1.5x)."""
+class ServerOptions(ServerProtocolOptions):
+    """A server session's options: the protocol's (:class:`~splitrender.options.ServerProtocolOptions`, declared
+    once with the client's), its estimator's settings, pacing and the adaptation mode."""
 
-    history_packets: int = 2048
-    keyframe_min_interval_ms: float = 200.0
-    sr_interval_s: float = 1.0
     gcc: GccConfig = field(default_factory=GccConfig)
     """The send-rate estimator's settings (sessions with transport-wide feedback)."""
     pacing: bool = False
@@ -959,30 +881,9 @@ class ServerOptions:
     (:class:`~.adapt.RateController`; :meth:`ServerSession.encoder_rates`); ``"full"``: that, and the method's
     operating point too (:class:`~.adapt.PointController`; :meth:`ServerSession.operating_point`)."""
     adapt_cfg: AdaptConfig = field(default_factory=AdaptConfig)
-    nack_min_resend_ms: float = NACK_MIN_RESEND_MS
-    """A packet resent at t is not resent for a NACK before t + max(RTT, this), ms (``NACK_MIN_RESEND_MS``)."""
-    nack_max_per_datagram: int = NACK_MAX_PER_DATAGRAM
-    """Most packets resent for one RTCP datagram (``NACK_MAX_PER_DATAGRAM``)."""
-    nack_rate_share: float = NACK_RATE_SHARE
-    """Resent bytes per stream in any ``NACK_RATE_WINDOW_MS`` at most this share of its media bytes then ..."""
-    nack_rate_floor_bytes: int = NACK_RATE_FLOOR_BYTES
-    """... plus this many bytes (``NACK_RATE_SHARE``, ``NACK_RATE_FLOOR_BYTES``)."""
 
     def __post_init__(self) -> None:
-        if not 1 <= self.history_packets <= 1 << 20:
-            raise ConfigError(f"server history_packets: must be in [1, 1048576], got {self.history_packets}")
-        if not 0 <= self.keyframe_min_interval_ms <= 60_000:
-            raise ConfigError(f"server keyframe_min_interval_ms: must be in [0, 60000], got {self.keyframe_min_interval_ms}")
-        if not 0.01 <= self.sr_interval_s <= 60:
-            raise ConfigError(f"server sr_interval_s: must be in [0.01, 60], got {self.sr_interval_s}")
-        if not 0 <= self.nack_min_resend_ms <= 10_000:
-            raise ConfigError(f"server nack_min_resend_ms: must be in [0, 10000], got {self.nack_min_resend_ms}")
-        if not 0 <= self.nack_max_per_datagram <= 1 << 16:
-            raise ConfigError(f"server nack_max_per_datagram: must be in [0, 65536], got {self.nack_max_per_datagram}")
-        if not 0 <= self.nack_rate_share <= 10:
-            raise ConfigError(f"server nack_rate_share: must be in [0, 10], got {self.nack_rate_share}")
-        if not 0 <= self.nack_rate_floor_bytes <= 1 << 30:
-            raise ConfigError(f"server nack_rate_floor_bytes: must be in [0, 1073741824], got {self.nack_rate_floor_bytes}")
+        super().__post_init__()
         check_adapt_mode(self.adapt, "server")
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.errors import ConfigError
+from splitrender.options import ServerProtocolOptions, add_option_arguments, options_from_args
 
 __all__ = ["add_serve_arguments", "main_serve", "config_from_args"]
 
@@ -73,6 +74,7 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
                         "certificate (chain); needs --tls-key; clients connect with --tls")
     p.add_argument("--tls-key", type=Path, default=None, metavar="PATH",
                    help="the unencrypted PEM private key of --tls-cert")
+    add_option_arguments(p, ServerProtocolOptions)
 
 
 def _parse_value(text: str) -> Any:
@@ -132,7 +134,8 @@ def config_from_args(ns: argparse.Namespace) -> Any:
                         method_params=params, scene=ns.scene, server_fps=ns.server_fps, fov_y_deg=ns.fov,
                         predictor=ns.predictor, max_sessions=ns.max_sessions, sdp_dir=ns.sdp_dir,
                         mirror_port=ns.mirror_port, out_dir=ns.out, metrics_interval_s=ns.metrics_interval,
-                        fec=ns.fec, transport_cc=ns.transport_cc or ns.pacing or ns.adapt != "off", pacing=ns.pacing, adapt=ns.adapt, isolation=ns.isolation, render_deadline_s=ns.render_deadline, gi_hz=gi_hz)
+                        fec=ns.fec, transport_cc=ns.transport_cc or ns.pacing or ns.adapt != "off", pacing=ns.pacing, adapt=ns.adapt, isolation=ns.isolation, render_deadline_s=ns.render_deadline, gi_hz=gi_hz,
+                        **options_from_args(ns, ServerProtocolOptions))
 
 
 async def _serve_until_signal(cfg: Any) -> None:

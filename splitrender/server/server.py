@@ -34,7 +34,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from splitrender.errors import ConfigError
-from splitrender.pipeline.adapt import check_adapt_mode
+from splitrender.options import ServerProtocolOptions, option_fields, options_of
+from splitrender.pipeline import ServerOptions
 from splitrender.protocol import RtcpError
 from splitrender.protocol.rtcp import rtcp_route_ssrc
 from splitrender.server.worker import RenderWorker, parse_test_hang
@@ -59,8 +60,12 @@ Address = tuple[str, int]
 
 
 @dataclass(frozen=True)
+@option_fields(ServerProtocolOptions)
 class ServerConfig:
     """Settings of a live server.
+
+    The session options (:class:`~splitrender.options.ServerProtocolOptions`: NACK history and bounds, keyframe and
+    sender-report intervals) are fields too, from their one declaration (:mod:`splitrender.options`).
 
     ``methods``: method ids offered, in the server's order (``None`` = all registered).
     ``method_params``: per method id, parameters for its config dataclass.
@@ -87,11 +92,8 @@ class ServerConfig:
     max_sessions: int = 8
     max_pixels: int = 1920 * 1080
     hello_timeout_s: float = 5.0
-    keyframe_min_interval_ms: float = 200.0
-    history_packets: int = 2048
     mtu_bytes: int = 1200
     max_meta_backlog_bytes: int = 512 * 1024
-    sr_interval_s: float = 1.0
     sdp_dir: Path | None = None
     mirror_port: int | None = None
     out_dir: Path | None = None
@@ -143,7 +145,7 @@ class ServerConfig:
             v = getattr(self, k)
             if not 0.05 <= v <= 3600:
                 raise ConfigError(f"server {k}: must be in [0.05, 3600] s, got {v}")
-        check_adapt_mode(self.adapt, "server")
+        self.session_options()   # a bad option or adaptation mode fails here, by name
         if self.adapt != "off" and not self.transport_cc:
             raise ConfigError(f"server adapt {self.adapt}: follows the estimated rate, so it needs transport_cc "
                               "(--transport-cc)")
@@ -152,6 +154,10 @@ class ServerConfig:
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         self.tls_context()   # a missing, unreadable or mismatched certificate or key fails here, by path
+
+    def session_options(self) -> ServerOptions:
+        """Each session core's options (:mod:`splitrender.options`)."""
+        return options_of(self, ServerOptions, pacing=self.pacing, adapt=self.adapt)
 
     def tls_context(self) -> ssl.SSLContext | None:
         """The server's TLS context from ``tls_cert`` and ``tls_key``, or ``None`` without them; raises

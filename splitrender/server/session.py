@@ -39,7 +39,7 @@ import numpy as np
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
-from splitrender.pipeline import (Accepted, ServerOptions, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
+from splitrender.pipeline import (Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
                                   rtp_timestamp)
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -293,8 +293,7 @@ class ServerSession:
         host, port = server.udp_address
         acc = accept_hello(hello, self.id, self.method, mcfg, specs, session_blob, self.channel.conn.send,
                            scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
-                           options=ServerOptions(cfg.history_packets, cfg.keyframe_min_interval_ms, cfg.sr_interval_s,
-                                                 pacing=cfg.pacing, adapt=cfg.adapt),
+                           options=cfg.session_options(),
                            max_session_bytes=cfg.max_session_bytes, mtu_bytes=cfg.mtu_bytes, fec=cfg.fec,
                            transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
                            address=(host if host != "0.0.0.0" else "127.0.0.1", port),

@@ -5,22 +5,29 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..coerce import coerce_value
-from ..pipeline.adapt import check_adapt_mode
 from ..errors import ConfigError
+from ..options import ClientOptions, ServerProtocolOptions, option_defaults, option_fields, options_from_args, options_of
+from ..pipeline.adapt import check_adapt_mode
+from ..pipeline.session import ServerOptions
 
+
+_KEYED_ALWAYS = frozenset({"nack_tries", "keyframe_request_interval_ms", "jitter_timeout_ms", "playout_delay_ms",
+                           "stall_frames"})
+"""Session options that were RunConfig fields before the options were declared once: :meth:`RunConfig.key` hashes
+them always (as it did), the others only where they differ from their default."""
 
 COST_MODELS = ("fixed", "measured")
 """Where processing time on the simulated clock comes from (see :class:`RunConfig`)."""
 
 
 @dataclass(frozen=True)
+@option_fields(ClientOptions, ServerProtocolOptions, virtual=True, run=True)
 class RunConfig:
     """One virtual-time run: a method on a scene, a trace and a network.
 
@@ -62,11 +69,10 @@ class RunConfig:
     short run can start just before an event such as the default scene's sun dimming at 4 s.
     ``fec``: protect every RTP stream with RFC 5109 parity packets (:mod:`splitrender.protocol.fec`).
 
-    The client's loss recovery is the live client's (:class:`splitrender.pipeline.ClientOptions`):
-    ``nack_tries`` NACKs per lost packet (0 = off), a PLI at most every
-    ``keyframe_request_interval_ms`` per stream, ``playout_delay_ms`` (show each update no earlier
-    than its server time plus this), ``stall_frames`` (no new frame for this many server intervals
-    is a stall), ``jitter_timeout_ms``.
+    The session options (the cores' loss recovery, reports and NACK bounds) are fields too, added from their one
+    declaration (:mod:`splitrender.options`) under the same names as live, except ``nack_tries`` and
+    ``keyframe_request_interval_ms`` (the client's ``nack_max_tries`` and ``pli_interval_ms``), with virtual time's
+    defaults (``jitter_timeout_ms`` 100, ``stall_timeout_s`` inf).
     """
 
     method: str = "video"
@@ -95,8 +101,6 @@ class RunConfig:
     clients: int = 1
     client_traces: tuple[str, ...] = ()
     client_offset_s: float = 0.0
-    jitter_timeout_ms: float = 100.0
-    keyframe_request_interval_ms: float = 250.0
     max_session_bytes: int = 256 * 1024 * 1024
     ssim_sigma: float = 1.5
     truth_cache: str = ""
@@ -111,15 +115,6 @@ class RunConfig:
     adapt: str = "off"
     """``rate``, with ``transport_cc``: every lossy video stream's encoder rate follows the estimate
     (:mod:`splitrender.pipeline.adapt`)."""
-    nack_tries: int = 3
-    playout_delay_ms: float = 0.0
-    stall_frames: float = 6.0
-    history_packets: int = 2048
-    """The server's RTP packets kept per stream to answer NACKs (the live server's ``history_packets``)."""
-    keyframe_min_interval_ms: float = 200.0
-    """The least time between two IDRs the server grants a client's requests (the live server's)."""
-    sr_interval_s: float = 1.0
-    """The server's mean interval between RTCP sender reports (the live server's)."""
 
     def __post_init__(self) -> None:
         def bad(key: str, msg: str) -> ConfigError:
@@ -163,8 +158,6 @@ class RunConfig:
             raise bad("clients", f"must be in [1, 64], got {self.clients}")
         if not 0 <= self.client_offset_s <= 3600:
             raise bad("client_offset_s", f"must be in [0, 3600], got {self.client_offset_s}")
-        if not 1 <= self.keyframe_request_interval_ms <= 10_000:  # jitter_timeout_ms: client_options() checks it
-            raise bad("keyframe_request_interval_ms", "must be in [1, 10000]")
         try:
             self.client_options()
         except ConfigError as exc:
@@ -208,40 +201,34 @@ class RunConfig:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
-        for k, default in (("cost_model", "fixed"), ("cost_scale", 1.0), ("supersample", 1), ("scene_time_offset_s", 0.0),
-                           ("fec", False), ("transport_cc", False), ("pacing", False), ("adapt", "off"),
-                           ("history_packets", 2048), ("keyframe_min_interval_ms", 200.0), ("sr_interval_s", 1.0)):
-            if d[k] == default:  # keys of configs from before these options stay valid
+        added = {**option_defaults(ClientOptions, ServerProtocolOptions, virtual=True, run=True),
+                 "cost_model": "fixed", "cost_scale": 1.0, "supersample": 1, "scene_time_offset_s": 0.0,
+                 "fec": False, "transport_cc": False, "pacing": False, "adapt": "off"}
+        for k, default in added.items():
+            if k not in _KEYED_ALWAYS and d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
         blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
-    def client_options(self) -> Any:
-        """The session core's client options (:class:`splitrender.pipeline.ClientOptions`) of this run."""
-        from ..pipeline.session import ClientOptions
+    def client_options(self) -> ClientOptions:
+        """The session core's client options of this run (:mod:`splitrender.options`)."""
+        return options_of(self, ClientOptions, run=True)
 
-        return ClientOptions(nack_max_tries=self.nack_tries, pli_interval_ms=self.keyframe_request_interval_ms,
-                             jitter_timeout_ms=self.jitter_timeout_ms, playout_delay_ms=self.playout_delay_ms,
-                             stall_frames=self.stall_frames, stall_timeout_s=math.inf)
-
-    def server_options(self) -> Any:
-        """The session core's server options (:class:`splitrender.pipeline.ServerOptions`) of this run: the same
-        keys and ranges as the live server's."""
-        from ..pipeline.session import ServerOptions
-
-        return ServerOptions(self.history_packets, self.keyframe_min_interval_ms, self.sr_interval_s,
-                             pacing=self.pacing, adapt=self.adapt)
+    def server_options(self) -> ServerOptions:
+        """The session core's server options of this run: the same keys and ranges as the live server's."""
+        return options_of(self, ServerOptions, run=True, pacing=self.pacing, adapt=self.adapt)
 
     def replace(self, **kw: Any) -> "RunConfig":
         return dataclasses.replace(self, **kw)
 
 
 def session_options(ns: Any) -> dict[str, Any]:
-    """The RunConfig keys of the command line's session options (``--playout-delay``, ``--nack-tries``,
-    ``--jitter-timeout``, ``--stall-frames``, ``--fec``) that were given, from an argparse namespace."""
-    out = {"playout_delay_ms": ns.playout_delay, "nack_tries": ns.nack_tries, "jitter_timeout_ms": ns.jitter_timeout,
-           "stall_frames": ns.stall_frames, "fec": getattr(ns, "fec", None)}
-    return {k: v for k, v in out.items() if v is not None}
+    """The RunConfig keys of the session options given on the command line (``add_option_arguments``'s group,
+    and ``--fec``), from an argparse namespace."""
+    out = options_from_args(ns, ClientOptions, ServerProtocolOptions, run=True)
+    if getattr(ns, "fec", None) is not None:
+        out["fec"] = ns.fec
+    return out
 
 
 def load_toml(path: str | Path, kind: str) -> dict[str, Any]:

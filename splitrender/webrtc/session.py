@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import logging
 import secrets
@@ -35,7 +36,7 @@ import numpy as np
 from ..errors import WorkerTimeout, describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
-from ..pipeline.session import ServerOptions, ServerSession
+from ..pipeline.session import ServerSession
 from ..protocol import Feedback
 from ..scene.pose import CameraIntrinsics
 from ..scene.pose import Pose as ScenePose
@@ -168,7 +169,8 @@ class BrowserSession:
         ref = video[0]
         self.stream = ref.name
         self.core = ServerSession(ServerPipeline(specs), self.display_hz,
-                                  ServerOptions(keyframe_min_interval_ms=cfg.keyframe_min_interval_ms),
+                                  # aiortc owns pacing; adaptation needs its transport-wide feedback (not yet)
+                                  dataclasses.replace(cfg.session_options(), pacing=False, adapt="off"),
                                   predictor=make_predictor(cfg.predictor), transport="webrtc")
         self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
