@@ -277,6 +277,69 @@ def scene_json_for(scene: Any, model: Path, fov_deg: float = 60.0) -> dict[str, 
     return scene_json(model, transforms[0], sun, scene.ambient, fov_deg, points)
 
 
+MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".dae", ".stl", ".off")
+"""What ``--model`` takes: glTF as it is; the other formats our loader reads are converted (:func:`prepare_model`)."""
+PLAIN_BASE_COLOUR = (204, 204, 204, 255)
+"""The base colour of a converted model's materials where the file gives none (QUASAR's and our default differ)."""
+
+
+def missing_references(model: Path) -> list[str]:
+    """The external files a glTF file names (images, and a ``.gltf``'s buffers) that are not there.  QUASAR aborts
+    on such a file ("Failed to load image"), where our loader falls back to the base colour."""
+    from urllib.parse import unquote
+
+    from splitrender.scene.loader import _texture_refs
+
+    refs = list(_texture_refs(model))
+    if model.suffix.lower() == ".gltf":
+        try:
+            doc = json.loads(model.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            doc = {}
+        for b in doc.get("buffers", []) or []:
+            uri = b.get("uri") if isinstance(b, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                refs.append(uri)
+    return [r for r in refs if not (model.parent / unquote(r)).exists()]
+
+
+def prepare_model(model: Path, work: Path) -> tuple[Path, str | None]:
+    """The glTF file both tools load, and why it was converted (None: ``model`` itself).  A glTF file whose
+    references are all there is used as it is.  Any other model (another format our loader reads, or a glTF file
+    naming a missing texture or buffer) is converted with trimesh to ``work/model.glb``: the same meshes and node
+    transforms, vertex normals, and each material reduced to its base colour (textures dropped), so that QUASAR can
+    load it."""
+    import trimesh
+
+    suffix = model.suffix.lower()
+    if suffix in (".glb", ".gltf"):
+        missing = missing_references(model)
+        if not missing:
+            return model, None
+        why = "missing " + ", ".join(missing) + ": textures stripped"
+    else:
+        why = f"{suffix} converted to glTF"
+    loaded = trimesh.load(str(model), force="scene")
+    for name, g in list(loaded.geometry.items()):
+        colour = PLAIN_BASE_COLOUR
+        mat = getattr(getattr(g, "visual", None), "material", None)
+        if mat is not None:
+            base = getattr(mat, "baseColorFactor", None)
+            if base is None and hasattr(mat, "main_color"):
+                base = mat.main_color
+            if base is not None and len(base) >= 3:
+                b = np.asarray(base, dtype=np.float64)
+                b = b * 255.0 if b.max() <= 1.0 else b
+                colour = tuple(int(round(v)) for v in (*b[:3], 255))
+        g.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
+            baseColorFactor=colour, metallicFactor=0.0, roughnessFactor=1.0))
+    out = work / "model.glb"
+    out.write_bytes(trimesh.exchange.gltf.export_glb(loaded, include_normals=True))
+    if missing_references(out):
+        raise InputError(f"{out}: the converted model still names missing files")
+    return out, why
+
+
 def quasar_command(role: str, program: Path, setup: Setup, scene_file: Path, path_file: Path, out_dir: Path) -> list[str]:
     """The command line of QUASAR's program for ``role`` (``truth``, ``atw``, ``quasar``, ``quadstream``)."""
     if role not in QUASAR_PROGRAMS:
@@ -496,17 +559,57 @@ def repaint_background(img: np.ndarray, src: Sequence[int], dst: Sequence[int], 
     return np.clip(out, 0, 255).astype(np.uint8)
 
 
+@dataclass
+class Coverage:
+    """Coverage and bleed of shown frames against their truths, pooled over the frames added (issue 50, part 2).
+
+    * **missed**: the truth's model pixels (:func:`model_mask`) that the shown frame draws as background (within
+      ``tol`` of the background colour in every channel): the model the method failed to cover;
+    * **bleed**: the truth's background pixels that the shown frame covers (more than ``tol`` off the background):
+      stale or stretched geometry drawn over empty space.  The model PSNR never sees it (not a model pixel).
+
+    Both are given as counts per frame and as a share of the truth's model pixels (``missed_pct``, ``bleed_pct``:
+    pooled, so a frame with more model counts more).  The shown frame must already be on the truth's background
+    colour (:func:`repaint_background`)."""
+
+    frames: int = 0
+    model_px: int = 0
+    missed_px: int = 0
+    bleed_px: int = 0
+
+    def add(self, shown: np.ndarray, truth_model: np.ndarray, background: Sequence[int],
+            tol: int = metrics.BACKGROUND_TOLERANCE) -> None:
+        drawn = _off(np.asarray(shown), background) > tol
+        self.frames += 1
+        self.model_px += int(truth_model.sum())
+        self.missed_px += int((truth_model & ~drawn).sum())
+        self.bleed_px += int((~truth_model & drawn).sum())
+
+    def summary(self) -> dict[str, Any]:
+        n, m = max(self.frames, 1), self.model_px
+        return {"model_px_per_frame": self.model_px / n, "missed_px_per_frame": self.missed_px / n,
+                "bleed_px_per_frame": self.bleed_px / n,
+                "missed_pct": 100.0 * self.missed_px / m if m else math.nan,
+                "bleed_pct": 100.0 * self.bleed_px / m if m else math.nan}
+
+
 def score_pairs(pairs: Iterable[tuple[np.ndarray, np.ndarray]], background: Sequence[int],
                 tol: int = metrics.BACKGROUND_TOLERANCE) -> dict[str, Any]:
     """Score (shown, truth) pairs with the project's :func:`~splitrender.metrics.score_frame` (the model region
     from :func:`model_mask`) and aggregate them with :func:`~splitrender.metrics.quality_summary`: the mean of the
     per-frame PSNRs (capped at 60 dB) over the whole frame and over the model's pixels, and each PSNR of the mean
-    MSE, SSIM, the model's share of the frame and the frames scored."""
-    rows = [metrics.score_frame(s, None, t, None, False, truth_model=model_mask(t, background, tol)) for s, t in pairs]
+    MSE, SSIM, the model's share of the frame and the frames scored; and the model pixels missed and the background
+    pixels bled over (:class:`Coverage`)."""
+    rows, cov = [], Coverage()
+    for s, t in pairs:
+        truth_model = model_mask(t, background, tol)
+        rows.append(metrics.score_frame(s, None, t, None, False, truth_model=truth_model))
+        cov.add(s, truth_model, background, tol)
     q = metrics.quality_summary(rows)
     return {"frames": len(rows), "psnr_db": q["mean_psnr_db"], "model_psnr_db": q["mean_model_psnr_db"],
             "psnr_mse_db": q["psnr_mse_db"], "model_psnr_mse_db": q["model_psnr_mse_db"], "ssim": q["mean_ssim"],
-            "model_ssim": q["mean_model_ssim"], "model_pct": q["mean_model_pct"], "model_frames": q["model_frames"]}
+            "model_ssim": q["mean_model_ssim"], "model_pct": q["mean_model_pct"], "model_frames": q["model_frames"],
+            **cov.summary()}
 
 
 def add_gains(rows: list[dict[str, Any]]) -> None:
@@ -529,9 +632,10 @@ def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """The results as a text table (``-``: not measured or not counted)."""
     cols = [("tool", "<11", "s"), ("method", "<10", "s"), ("frames", ">6", "d"), ("PSNR", ">6", ".2f"),
             ("model", ">6", ".2f"), ("gain", ">6", "+.2f"), ("m.gain", ">6", "+.2f"), ("B/frame ours", ">12", ".0f"),
-            ("B/frame QUASAR", ">14", ".0f"), ("proxies", ">8", ".0f"), ("ref", ">6", ".0f"), ("res", ">6", ".0f")]
+            ("B/frame QUASAR", ">14", ".0f"), ("proxies", ">8", ".0f"), ("ref", ">6", ".0f"), ("res", ">6", ".0f"),
+            ("missed%", ">7", ".2f"), ("bleed%", ">7", ".2f")]
     keys = ["tool", "method", "frames", "psnr_db", "model_psnr_db", "gain_db", "model_gain_db", "bytes_ours",
-            "bytes_quasar", "proxies", "proxies_reference", "proxies_residual"]
+            "bytes_quasar", "proxies", "proxies_reference", "proxies_residual", "missed_pct", "bleed_pct"]
     lines = ["  ".join(format(h, a) for h, a, _ in cols)]
     for r in rows:
         lines.append("  ".join(format(_cell(r.get(k), f), a) for k, (_, a, f) in zip(keys, cols)))
@@ -631,7 +735,8 @@ def run_ours(method: str, setup: Setup, model: Path, path_file: Path, renderer: 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     ap.add_argument("--quasar-build", help="QUASAR's CMake build folder (required; docs/quasar.md)")
-    ap.add_argument("--model", help="the glTF model (.glb/.gltf) both tools load (required)")
+    ap.add_argument("--model", help="the model both tools load (required): glTF as it is, other formats our loader "
+                    "reads (and glTF naming missing textures) converted to work/model.glb")
     ap.add_argument("--trace", default="strafe", help="a built-in trace, fitted around the model (default: strafe, a "
                     "lateral walk), or a trace file")
     ap.add_argument("--duration", type=float, default=5.0, help="seconds of the trace (default 5)")
@@ -661,10 +766,11 @@ def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup
     programs = find_quasar_programs(args.quasar_build)
     with_display([], args.xvfb)   # raises now, not after our runs, when there is no display
     if not args.model:
-        raise InputError("--model PATH is required: the glTF model (.glb/.gltf) both tools load")
+        raise InputError("--model PATH is required: the model (.glb/.gltf, or a format converted to it) both tools load")
     model = Path(args.model).expanduser().resolve()
-    if not model.is_file() or model.suffix.lower() not in (".glb", ".gltf"):
-        raise InputError(f"--model {model}: not a .glb/.gltf file (QUASAR and we must load the same file)")
+    if not model.is_file() or model.suffix.lower() not in MODEL_SUFFIXES:
+        raise InputError(f"--model {model}: not a model file ({', '.join(MODEL_SUFFIXES)}; glTF is used as it is, the "
+                         "others are converted to glTF so that both tools load the same file)")
     try:
         w, h = (int(v) for v in args.size.lower().split("x"))
     except ValueError:
@@ -706,6 +812,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     t_start = time.perf_counter()
     work = Path(args.work).resolve()
     work.mkdir(parents=True, exist_ok=True)
+    source_model = model
+    model, converted = prepare_model(model, work)
+    if converted:
+        print(f"[model] {source_model}: {converted} -> {model}", flush=True)
     scene = get_scene(str(model))
     scene_file = work / "scene.json"
     scene_file.write_text(json.dumps(scene_json_for(scene, model, setup.fov_deg), indent=1) + "\n")
@@ -785,7 +895,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               "PSNRs and gains are not comparable (--unlit draws ours without the sun)", flush=True)
 
     out = {
-        "benchmark": "peer_quasar", "model": str(model), "trace": args.trace, "duration_s": args.duration,
+        "benchmark": "peer_quasar", "model": str(model), "model_source": str(source_model), "model_converted": converted,
+        "trace": args.trace, "duration_s": args.duration,
         "path_samples": len(written), "path_rate_hz": PATH_RATE_HZ, "setup": asdict(setup), "skip_s": args.skip,
         "server_fps": QUASAR_SERVER_FPS, "network_ours": netem_string(setup.latency_ms, setup.jitter_ms),
         "background": {"quasar": list(q_bg), "ours": list(o_bg or ()), "ours_repainted": repaint,

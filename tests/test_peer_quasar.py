@@ -5,6 +5,7 @@ QUASAR is never built here; the runs themselves need its build and are the bench
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -288,10 +289,49 @@ def test_main_stops_before_any_work_without_quasar(tmp_path: Path, capsys: pytes
     build = str(fake_build(tmp_path / "c"))
     assert pq.main(["--quasar-build", build, *common]) == 2
     assert "--model PATH is required" in capsys.readouterr().err
-    (tmp_path / "m.obj").write_text("v 0 0 0\n")
-    assert pq.main(["--quasar-build", build, "--model", str(tmp_path / "m.obj"), *common]) == 2
-    assert "not a .glb/.gltf file" in capsys.readouterr().err
+    (tmp_path / "m.fbx").write_text("v 0 0 0\n")
+    assert pq.main(["--quasar-build", build, "--model", str(tmp_path / "m.fbx"), *common]) == 2
+    assert "not a model file" in capsys.readouterr().err
     assert not out.exists() and not work.exists()
+
+
+def _tetra_obj(path: Path) -> Path:
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    return path
+
+
+def test_models_quasar_cannot_load_are_converted_to_plain_gltf(tmp_path: Path) -> None:
+    """A glTF naming a missing texture (QUASAR aborts on it) or another format is converted to work/model.glb with
+    the same geometry and no texture; a complete glTF file is used as it is."""
+    import trimesh
+
+    work = tmp_path / "work"
+    work.mkdir()
+    obj = _tetra_obj(tmp_path / "t.obj")
+    out, why = pq.prepare_model(obj, work)
+    assert out == work / "model.glb" and why == ".obj converted to glTF"
+    back = trimesh.load(str(out), force="scene")
+    assert len(back.triangles) == 4 and np.allclose(back.bounds, [[0, 0, 0], [1, 1, 1]])
+    assert pq.missing_references(out) == []
+    same, why = pq.prepare_model(out, work)                    # complete glTF: itself
+    assert same == out and why is None
+    doc = {"asset": {"version": "2.0"}, "images": [{"uri": "gone.png"}], "buffers": [{"uri": "gone.bin"}]}
+    (tmp_path / "m.gltf").write_text(json.dumps(doc))
+    assert pq.missing_references(tmp_path / "m.gltf") == ["gone.png", "gone.bin"]
+    # a real glTF whose texture is missing: assimp's BoxTextured with its .bin but not its .png
+    src = Path("/usr/share/assimp/models/glTF2/BoxTextured-glTF")
+    if src.is_dir():
+        box = tmp_path / "box"
+        box.mkdir()
+        for f in src.glob("*.gltf"):
+            (box / f.name).write_text(f.read_text())
+        for f in src.glob("*.bin"):
+            (box / f.name).write_bytes(f.read_bytes())
+        gltf = next(box.glob("*.gltf"))
+        assert pq.missing_references(gltf) and all(r.endswith(".png") for r in pq.missing_references(gltf))
+        out, why = pq.prepare_model(gltf, work)
+        assert why is not None and "textures stripped" in why and pq.missing_references(out) == []
+        assert len(trimesh.load(str(out), force="scene").triangles) == 12
 
 
 # ------------------------------------------------------------------------------------------ scoring
@@ -351,6 +391,37 @@ def test_score_pairs_whole_frame_and_model() -> None:
     assert r["psnr_mse_db"] == pytest.approx(10 * math.log10(255**2 / 2.5))
 
 
+def test_coverage_counts_missed_model_pixels_and_bleed_exactly() -> None:
+    """Missed: the truth's model pixels drawn as background; bleed: the truth's background pixels drawn over.  Both
+    pooled over frames, as counts per frame and as a share of the truth's model pixels; a colour error inside the
+    model is neither, and a pixel within the tolerance of the background counts as background."""
+    bg = (208, 208, 0)
+    truth = np.zeros((20, 20, 3), np.uint8)
+    truth[:] = bg
+    truth[5:15, 5:15] = (90, 90, 90)                  # the model: 100 pixels
+    shown = truth.copy()
+    shown[5, 5:15] = bg                               # 10 model pixels missed
+    shown[6, 5:15] = (bg[0] - 6, bg[1] + 6, 6)        # 10 more, within the tolerance (6) of the background
+    shown[7, 5:15] = (120, 60, 90)                    # 10 model pixels in the wrong colour: neither
+    shown[15:17, 5:15] = (90, 90, 90)                 # 20 background pixels bled over
+    shown[0, 0] = (bg[0] - 7, bg[1], bg[2])           # 1 more, just past the tolerance
+    r = pq.score_pairs([(shown, truth), (truth, truth)], bg)
+    assert r["model_px_per_frame"] == 100.0
+    assert r["missed_px_per_frame"] == 10.0 and r["missed_pct"] == 10.0           # 20 of 200 model pixels
+    assert r["bleed_px_per_frame"] == 10.5 and r["bleed_pct"] == 10.5             # 21 over 200 model pixels
+    exact = pq.score_pairs([(truth, truth)], bg)
+    assert exact["missed_pct"] == 0.0 and exact["bleed_pct"] == 0.0
+    empty = np.zeros_like(truth)
+    empty[:] = bg
+    none = pq.score_pairs([(truth, empty)], bg)                                   # no model in the truth
+    assert math.isnan(none["missed_pct"]) and math.isnan(none["bleed_pct"]) and none["bleed_px_per_frame"] == 100.0
+    cov = pq.Coverage()
+    cov.add(shown, pq.model_mask(truth, bg), bg)
+    assert (cov.frames, cov.model_px, cov.missed_px, cov.bleed_px) == (1, 100, 20, 21)
+    line = pq.format_table([{"tool": "QUASAR", "method": "quadstream", **r}]).splitlines()[1].split()
+    assert line[-2:] == ["10.00", "10.50"]
+
+
 def test_gains_over_each_tools_own_atw_and_table() -> None:
     rows = [{"tool": "QUASAR", "method": "atw", "psnr_db": 25.0, "model_psnr_db": 20.0, "frames": 3},
             {"tool": "QUASAR", "method": "quasar", "psnr_db": 31.5, "model_psnr_db": float("nan"), "frames": 3},
@@ -362,7 +433,7 @@ def test_gains_over_each_tools_own_atw_and_table() -> None:
     assert rows[2]["gain_db"] is None                                     # no splitrender atw row
     text = pq.format_table(rows).splitlines()
     assert len(text) == 4 and "PSNR" in text[0] and "+6.50" in text[2] and "1234" in text[3]
-    assert text[3].split()[-2:] == ["-", "-"]                             # QUASAR-way bytes and proxies: not counted
+    assert text[3].split()[-6:] == ["-"] * 6        # QUASAR-way bytes, proxies, missed and bleed: not counted
 
 
 def test_truth_content_tells_an_unlit_model_from_a_lit_one() -> None:
