@@ -12,7 +12,15 @@ level sends over those of its first level.  This benchmark measures them.
 
 Writes ``benchmarks/results/bench_knobs.json`` with each level's ratio beside the prior the code declares.
 
+With ``--quality`` it measures each method's quality model instead (issue 48, part 2;
+:mod:`splitrender.experiments.quality_model`): model PSNR at every level of every knob the controller may move (the
+method's own, ``frame_div`` where it offers it, ``scale`` where a stream is scalable), the others at their first, the
+point pinned for a 2 s run; dB per 100 ms of motion-to-photon (20 -> 120 ms each way); dB per halving of the lossy
+video's bytes (crf + 6).  Writes ``benchmarks/results/bench_knobs_quality.json``: what the methods' tables
+(``QUALITY`` in each method's config module) store.
+
     python benchmarks/bench_knobs.py [--methods warp,sas] [--duration 1.5]
+    python benchmarks/bench_knobs.py --quality [--methods video,atw,warp,sas,tss,quads] [--duration 2]
 """
 
 from __future__ import annotations
@@ -99,12 +107,66 @@ def scale_knob(duration_s: float, renderer: Any) -> dict[str, Any]:
             "measured": [b / sizes[0] for b in sizes], "prior": list(SCALE_KNOB.cost)}
 
 
+def quality(method: str, duration_s: float, renderer: Any, tmp: Path) -> dict[str, Any]:
+    """One method's quality model (module docstring)."""
+    from dataclasses import asdict
+
+    from splitrender.experiments.quality_model import latency_db_per_100ms, measure, rate_db_per_halving
+    from splitrender.methods import get_method, make_config
+    from splitrender.methods.base import SCALE_KNOB
+
+    cfg = make_config(get_method(method).config, {})
+    knobs = list(cfg.adapt_knobs())
+    if method in ("video", "atw", "warp"):            # their scalable colour: the pipeline adds the scale knob
+        knobs.append(SCALE_KNOB)
+    kw = dict(duration_s=duration_s, renderer=renderer, truth_cache=str(tmp / "truth"))
+    ref = measure(method, **kw)
+    print(f"{method:6s} ref: {ref}", flush=True)
+    out: dict[str, Any] = {"ref": asdict(ref), "knobs": {}}
+    for k in knobs:
+        runs = [ref]
+        for level in k.levels[1:]:
+            runs.append(measure(method, {k.name: level}, **kw))
+            print(f"{method:6s} {k.name}={level}: {runs[-1]}", flush=True)
+        out["knobs"][k.name] = {"levels": list(k.levels), "model_psnr_db": [r.model_psnr_db for r in runs],
+                                "db_lost": [ref.model_psnr_db - r.model_psnr_db for r in runs],
+                                "bytes": [r.all_bytes for r in runs], "video_bytes": [r.video_bytes for r in runs]}
+    late = measure(method, delay_ms=120.0, **kw)
+    print(f"{method:6s} late: {late}", flush=True)
+    out["late"] = asdict(late)
+    out["latency_db_per_100ms"] = latency_db_per_100ms(ref, late)
+    if ref.video_bytes > 0:
+        coarse = measure(method, crf_step=6.0, **kw)
+        print(f"{method:6s} crf+6: {coarse}", flush=True)
+        out["crf_plus_6"] = asdict(coarse)
+        out["rate_db_per_halving"] = rate_db_per_halving(ref, coarse)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--methods", default=",".join(METHODS))
-    ap.add_argument("--duration", type=float, default=1.5)
+    ap.add_argument("--methods", default=None)
+    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--quality", action="store_true", help="measure the quality models instead of the cost priors")
     args = ap.parse_args()
     from splitrender.render.renderer import Renderer
+
+    if args.quality:
+        renderer = Renderer()
+        tmp = Path(tempfile.mkdtemp(prefix="bench_knobs_q_"))
+        t0 = time.perf_counter()
+        dur = args.duration or 2.0
+        models = {m: quality(m, dur, renderer, tmp) for m in (args.methods or "video,atw,warp,sas,tss,quads").split(",")}
+        OUT.mkdir(parents=True, exist_ok=True)
+        path = OUT / ("bench_knobs_quality.json" if args.methods is None else f"bench_knobs_quality_{args.methods.replace(',', '_')}.json")
+        path.write_text(json.dumps({"benchmark": "bench_knobs --quality", "scene": "default+nogi", "trace": "walk",
+                                    "size": [320, 180], "duration_s": dur, "models": models,
+                                    "wall_s": time.perf_counter() - t0, "machine": platform.machine(),
+                                    "cpus": os.cpu_count(), "load_avg": os.getloadavg()}, indent=1) + "\n")
+        print(f"-> {path}")
+        return
+    args.methods = args.methods or ",".join(METHODS)
+    args.duration = args.duration or 1.5
 
     renderer = Renderer()
     tmp = Path(tempfile.mkdtemp(prefix="bench_knobs_"))

@@ -105,6 +105,59 @@ class DataStreamSpec:
 AnyStreamSpec = Union[StreamSpec, DataStreamSpec]
 
 
+REFERENCE_MTP_MS = 100.0
+"""The motion-to-photon budget video keeps (``AdaptConfig.mtp_budget_ms``): what its queueing may cost it."""
+REFERENCE_LATENCY_DB_PER_100MS = 2.57
+"""video's measured model PSNR lost per 100 ms of motion-to-photon (its :class:`QualityModel`): a method's latency
+tolerance is the queueing that costs it what ``REFERENCE_MTP_MS`` costs video."""
+TOLERANCE_MS = (100.0, 300.0)
+"""Bounds of a method's latency tolerance (ms): at least video's budget; at most 300, where the stress suite's
+capacity drop keeps every method's oldest update shown under its bound (420 ms for sas and quads, 460 for tss,
+``tests/test_stress.py``) and a queue is far from a 500 ms freeze."""
+
+
+@dataclass(frozen=True)
+class QualityModel:
+    """What a method's operating points and latency cost in model PSNR, for rate adaptation (``--adapt full``,
+    :class:`~splitrender.pipeline.adapt.PointController`; issue 48).
+
+    ``knob_db``: per knob name, the model PSNR (dB) lost at each of its levels against its first (0 first), the other
+    knobs at their first; ``latency_db_per_100ms``: model PSNR lost per 100 ms of motion-to-photon added;
+    ``rate_db_per_halving``: lost per halving of the lossy video streams' bits (their encoders squeezed below the
+    method's own crf); ``measured``: where the figures come from (:mod:`splitrender.experiments.quality_model`,
+    ``benchmarks/bench_knobs.py --quality``).  The losses of two knobs add (each was measured alone)."""
+
+    knob_db: tuple[tuple[str, tuple[float, ...]], ...]
+    latency_db_per_100ms: float
+    rate_db_per_halving: float
+    measured: str = ""
+
+    def __post_init__(self) -> None:
+        for name, db in self.knob_db:
+            if not db or db[0] != 0.0 or any(not (x == x) for x in db):
+                raise ConfigError(f"quality model: knob {name}'s losses must start at 0 dB, got {db}")
+        if not (self.latency_db_per_100ms >= 0 and self.rate_db_per_halving >= 0):
+            raise ConfigError(f"quality model: slopes must be >= 0, got {self.latency_db_per_100ms}, "
+                              f"{self.rate_db_per_halving}")
+
+    @property
+    def tolerance_ms(self) -> float:
+        """The queueing (ms) the method takes before it drops detail: what costs it as much as ``REFERENCE_MTP_MS``
+        costs video, within ``TOLERANCE_MS``.  Methods that redraw geometry at the display pose lose less to latency
+        and take more."""
+        lo, hi = TOLERANCE_MS
+        if self.latency_db_per_100ms <= 0:
+            return hi
+        return min(hi, max(lo, REFERENCE_MTP_MS * REFERENCE_LATENCY_DB_PER_100MS / self.latency_db_per_100ms))
+
+    def db_lost(self, knob: str, level: int) -> float | None:
+        """Model PSNR lost (dB) at level index ``level`` of ``knob``; None where the model does not know the knob."""
+        for name, db in self.knob_db:
+            if name == knob:
+                return db[level] if level < len(db) else None
+        return None
+
+
 @dataclass(frozen=True)
 class Knob:
     """One of a method's operating-point knobs, for rate adaptation (``--adapt full``, :mod:`splitrender.pipeline.adapt`).
@@ -116,7 +169,7 @@ class Knob:
     ``video`` when the bits are the lossy video streams' (the encoders' rate controller sees them), ``data`` when
     they are sent as made (reliable data, geometry, lossless video: what the controller pays first), ``both`` for
     the server's frame rate; ``order``: knobs of a higher order are lowered only once those of lower orders are
-    at their last level.
+    at their last level (without a quality model: with one, the controller's ladder follows the model's dB per bit).
     """
 
     name: str
@@ -125,6 +178,9 @@ class Knob:
     affects: Literal["video", "data", "both"] = "video"
     what: str = ""
     order: int = 0
+    model: QualityModel | None = field(default=None, compare=False, repr=False)
+    """The method's quality model (every knob of a method carries the same one; the pipeline's own knobs carry
+    none until a method offers them with its model): the point controller maximises it where it is given."""
 
     def __post_init__(self) -> None:
         if len(self.levels) < 2 or len(self.cost) != len(self.levels):
@@ -146,6 +202,14 @@ FRAME_DIV_KNOB = Knob("frame_div", (1, 2, 3, 5), (1.0, 0.5, 0.34, 0.21), "both",
 """The pipeline's server-rate knob, for methods whose client draws any pose from what it holds (a method offers it
 in its :meth:`MethodConfig.adapt_knobs`; lowered only after the method's own knobs).  Its prior is one n-th of the
 bits (a frame sent costs what it did); the data part is learnt at each point."""
+
+
+def with_model(knobs: tuple[Knob, ...], model: QualityModel) -> tuple[Knob, ...]:
+    """``knobs`` each carrying ``model`` (a method's quality model goes with every knob it offers, the pipeline's
+    ``scale`` and ``frame_div`` included)."""
+    return tuple(dataclasses.replace(k, model=model) for k in knobs)
+
+
 RESERVED_STREAMS = ("meta", "session", "pose", "control")
 """Names the pipeline uses for its own byte counts."""
 

@@ -332,6 +332,48 @@ def build_ladder(knobs: tuple[Any, ...]) -> list[tuple[int, ...]]:
     return out
 
 
+def quality_ladder(knobs: tuple[Any, ...], model: Any) -> list[tuple[int, ...]]:
+    """The operating points, richest first, by what a quality model says each step costs: from every knob at its
+    first level, each step lowers the knob whose next level loses the fewest dB per bit saved (the model's dB over
+    the log of the knob's cost ratio; a level that measured better than the one before it, or than the first, loses 0;
+    a knob the model
+    does not know only once the known ones are spent, ties in declaration order).  Every knob only ever falls along
+    the ladder, as in :func:`build_ladder`."""
+    point = [0] * len(knobs)
+    out = [tuple(point)]
+    while True:
+        best: tuple[float, int] | None = None
+        for k, knob in enumerate(knobs):
+            i = point[k]
+            if i + 1 >= len(knob.levels):
+                continue
+            a, b = model.db_lost(knob.name, i), model.db_lost(knob.name, i + 1)
+            saving = math.log(knob.cost[i] / knob.cost[i + 1])
+            per_bit = math.inf if a is None or b is None else max(0.0, max(0.0, b) - max(0.0, a)) / saving
+            if best is None or per_bit < best[0]:
+                best = (per_bit, k)
+        if best is None:
+            return out
+        point[best[1]] += 1
+        out.append(tuple(point))
+
+
+HORIZON_S = 1.0
+"""How far ahead the quality-aware controller looks at a queue a point would build (about the estimator's reaction
+time: a point that does not fit is left within it)."""
+MAX_SQUEEZE = 8.0
+"""The deepest the encoders are expected to go below a point's own rate before the point's data and video no longer
+fit and a queue builds instead (three halvings; the rate controller's floor is ``min_kbps`` a stream)."""
+
+
+RISING = 1.25
+"""With a quality model, an estimate over this many times its lowest of the last ``RISING_WINDOW_S`` is still rising
+(the start's probing, or a link that widened): it asks for no coarser point unless a queue past the method's tolerance
+grows.  At start the estimate climbs from 300 kbit/s by probing (0.3, 0.6, 1.2, 2.2 Mbit/s at 0, 0.27, 0.5 and
+1 s for sas on the cellular-like trace); a point chosen for it dropped sas to its coarsest for its first 2 s."""
+RISING_WINDOW_S = 0.5
+
+
 class PointController:
     """The method's operating point from the estimate (``adapt = "full"``; sans-IO).
 
@@ -354,13 +396,28 @@ class PointController:
     longer than the motion-to-photon budget (``mtp_budget_ms``) and still growing means the present point does not
     fit, whatever its costs say (a queue that drains is the estimator's: its encoder rate already leaves room to
     drain it).  It waits for the rate controller's first cap (a provisional one will do) before its first move.
+
+    **With a quality model** (the method's :class:`~splitrender.methods.base.QualityModel`, carried by its knobs, or
+    ``model``) the ladder follows the model's dB per bit (:func:`quality_ladder`) and the controller picks the point
+    of the highest *expected model quality* (:meth:`expected_db`) under the budget instead of the richest that fits:
+    a point loses its knobs' dB, the encoders' squeeze below its own rate (the model's dB per halving), and where its
+    data and its squeezed video still exceed the budget, the queue it would build within ``HORIZON_S`` at the model's
+    dB per 100 ms; a point whose queue would pass the method's latency tolerance (:attr:`tolerance_ms`, from the
+    model's latency slope: methods that redraw geometry at the display pose take more queueing than video) is out.
+    The growing-queue rule takes that tolerance in place of ``mtp_budget_ms``; the holds and the up margin stay; an
+    estimate still rising (``RISING``: the start's probing) moves the point no lower.
     """
 
-    def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None) -> None:
-        self.knobs = tuple(knobs)
+    def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None,
+                 model: Any = None) -> None:
+        seen: set[str] = set()      # a method may offer the pipeline's own knob (scale) with its model: the first
+        self.knobs = tuple(k for k in knobs if not (k.name in seen or seen.add(k.name)))   # of a name is kept
         self.rate = rate
         self.cfg = cfg or rate.cfg
-        self.ladder = build_ladder(self.knobs)
+        self.model = model if model is not None else next(
+            (k.model for k in self.knobs if getattr(k, "model", None) is not None), None)
+        """The method's quality model (None: the richest point that fits, as without one)."""
+        self.ladder = quality_ladder(self.knobs, self.model) if self.model is not None else build_ladder(self.knobs)
         self.index = 0
         self.moves = 0
         self._data_bps: dict[int, float] = {}
@@ -368,6 +425,7 @@ class PointController:
         self._moved_s = -math.inf
         self._fits_up_since: float | None = None
         self._queue_ms = 0.0
+        self._recent: list[tuple[float, float]] = []   # (time, encoder rate) over the last RISING_WINDOW_S
 
     def values(self, index: int | None = None) -> dict[str, Any]:
         """Each knob's value at point ``index`` (the present one by default)."""
@@ -403,6 +461,52 @@ class PointController:
     def fits(self, index: int, budget_bps: float, margin: float = 1.0) -> bool:
         return self.data_bps(index) + self.video_bps(index) / self.cfg.stretch <= margin * budget_bps
 
+    @property
+    def tolerance_ms(self) -> float:
+        """The queueing (ms) the method takes before it drops detail: its model's, else ``mtp_budget_ms``."""
+        return float(self.model.tolerance_ms) if self.model is not None else self.cfg.mtp_budget_ms
+
+    def knob_db(self, index: int) -> float:
+        """Model PSNR (dB) point ``index``'s knobs lose against the richest point (0 without a model)."""
+        if self.model is None:
+            return 0.0
+        # a coarser level never counts as a gain (video's smaller pictures measure better: a blur scores better than
+        # a sharp picture under the misalignment latency leaves, which is no richer picture)
+        return sum(max(0.0, self.model.db_lost(k.name, i) or 0.0) for k, i in zip(self.knobs, self.ladder[index]))
+
+    def expected_db(self, index: int, budget_bps: float, queue_ms: float = 0.0) -> float:
+        """Expected model PSNR of point ``index`` under ``budget_bps`` against the richest point at its own rate (dB,
+        <= 0; needs a model): its knobs' loss, the encoders' squeeze to what the budget leaves its video, and the
+        queue it would add within ``HORIZON_S`` where even squeezed ``MAX_SQUEEZE`` times it does not fit; ``-inf``
+        where that queue, on top of ``queue_ms``, passes the method's tolerance."""
+        m = self.model
+        data, video = self.data_bps(index), self.video_bps(index)
+        loss = self.knob_db(index)
+        left = budget_bps - data
+        if video <= 0:
+            over = data / max(budget_bps, 1.0) - 1.0
+        elif left >= video:
+            return -loss
+        elif left >= video / MAX_SQUEEZE:
+            return -loss - m.rate_db_per_halving * math.log2(video / left)
+        else:
+            over = (data + video / MAX_SQUEEZE) / max(budget_bps, 1.0) - 1.0
+            loss += m.rate_db_per_halving * math.log2(MAX_SQUEEZE)
+        if over <= 0:
+            return -loss
+        grow_ms = over * HORIZON_S * 1000.0
+        if queue_ms + grow_ms > self.tolerance_ms:
+            return -math.inf
+        return -loss - m.latency_db_per_100ms * grow_ms / 100.0
+
+    def _best(self, budget_bps: float, queue_ms: float) -> int:
+        """The point of the highest expected quality (the richest of equals; the cheapest where none is in)."""
+        scores = [self.expected_db(i, budget_bps, queue_ms) for i in range(len(self.ladder))]
+        top = max(scores)
+        if top == -math.inf:
+            return len(self.ladder) - 1
+        return next(i for i, v in enumerate(scores) if v >= top - 1e-9)
+
     def on_frame_sent(self) -> None:
         """A frame went out at the present point (the rate controller has taken its bytes): learn its data rate."""
         self._since_move += 1
@@ -411,18 +515,30 @@ class PointController:
 
     def update(self, now_s: float, encoder_bps: float, queue_ms: float = 0.0) -> bool:
         """Choose the point for the next frame from the estimate; True when it moved."""
-        if not self.rate.calibrated or not math.isfinite(encoder_bps):
+        if not math.isfinite(encoder_bps):
+            return False
+        self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, encoder_bps)]
+        if not self.rate.calibrated:
             return False
         if not self._data_bps:          # the data rate at the point the session started from
             self._data_bps[self.index] = self.rate.overhead_bps
         budget = self.cfg.headroom * encoder_bps
         last = len(self.ladder) - 1
-        best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
-        growing = queue_ms > self.cfg.mtp_budget_ms and queue_ms > self._queue_ms
+        growing = queue_ms > self.tolerance_ms and queue_ms > self._queue_ms
+        if self.model is None:
+            best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
+        else:
+            best = self._best(budget, queue_ms)
+            if encoder_bps > RISING * min(r for _, r in self._recent) and not growing:
+                best = min(best, self.index)       # a rising estimate is no reason to go down
         if growing and self.index < last:
             best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit
         self._queue_ms = queue_ms
-        up = next((i for i in range(self.index) if self.fits(i, budget, self.cfg.up_margin)), None)
+        if self.model is None:
+            up = next((i for i in range(self.index) if self.fits(i, budget, self.cfg.up_margin)), None)
+        else:      # richer and better than here, with room to spare
+            rich = self._best(self.cfg.up_margin * budget, queue_ms)
+            up = rich if rich < self.index else None
         target = self.index
         if best > self.index:
             self._fits_up_since = None
@@ -448,6 +564,8 @@ class PointController:
     def state(self) -> dict[str, float]:
         """For updates.csv: the point's index on the ladder and each numeric knob's value."""
         out: dict[str, float] = {"adapt_point": float(self.index)}
+        if self.model is not None:
+            out["adapt_knob_db"] = -self.knob_db(self.index)
         for k, v in self.values().items():
             out[f"adapt_knob_{k}"] = float(v)
         return out

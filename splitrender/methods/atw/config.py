@@ -11,9 +11,16 @@ import numpy as np
 from ...errors import ConfigError
 from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics, quat_to_matrix3
-from ..base import MethodConfig
+from ..base import SCALE_KNOB, Knob, MethodConfig, QualityModel, with_model
 
 SHADERS = Path(__file__).parent.parent / "shaders"
+QUALITY = QualityModel(
+    (("scale", (0.0, 0.70, 1.64)),),
+    latency_db_per_100ms=2.27, rate_db_per_halving=0.62,
+    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+"""atw's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 23.18 dB at its own point,
+22.48 and 21.54 at scale 0.75 and 0.5; +200 ms of motion-to-photon loses 4.55 dB (it corrects rotation only, and
+the walk translates); crf 29 (0.57x the bits) 0.51 dB."""
 
 
 @dataclass(frozen=True)
@@ -25,6 +32,10 @@ class AtwConfig(MethodConfig):
     chroma: str | int = "444"
     overscan: float = 1.3
     fill: Literal["edge", "black"] = "edge"
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The pipeline's resolution scale, with atw's quality model."""
+        return with_model((SCALE_KNOB,), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()

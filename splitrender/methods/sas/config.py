@@ -9,7 +9,7 @@ from typing import Literal
 from ...errors import ConfigError
 from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics
-from ..base import FRAME_DIV_KNOB, Knob, MethodConfig
+from ..base import FRAME_DIV_KNOB, Knob, MethodConfig, QualityModel, with_model
 from .allocator import STRATEGIES, AtlasLayout
 
 
@@ -17,6 +17,17 @@ KNOB_STEPS = (1.0, 0.66, 0.44, 0.29)
 """The atlas budget's levels, as fractions of the configured one."""
 SAS_BUDGET_COST = (1.0, 0.96, 0.81, 0.70)
 """The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
+QUALITY = QualityModel(
+    (("bias_fill", (0.0, 0.68, 1.20, 2.38)), ("texels_per_px", (0.0, 0.68, 1.20, 2.38)),
+     ("frame_div", (0.0, 0.64, 1.12, 2.17))),
+    latency_db_per_100ms=0.60, rate_db_per_halving=2.23,
+    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+"""sas's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 30.72 dB at its own point;
+the atlas budget's levels lose 0.68, 1.20 and 2.38 dB for 5, 16 and 26 % of the bytes (``texels_per_px``, the
+budget without ``fill_atlas``, is taken to lose what ``bias_fill`` does); one server frame in 2, 3, 5: 0.64, 1.12,
+2.17 dB; +200 ms of motion-to-photon 1.20 dB (the geometry is redrawn at the display pose: a quarter of video's
+loss); crf 29 (0.63x the atlas's bits) 1.50 dB.  Measured at the default config: another's levels are the same
+fractions of its own budget."""
 
 
 @dataclass(frozen=True)
@@ -85,7 +96,7 @@ class SasConfig(MethodConfig):
         else:
             budget = Knob("texels_per_px", tuple(round(max(0.05, self.texels_per_px * f), 4) for f in KNOB_STEPS),
                           SAS_BUDGET_COST, "video", "shading texels per pixel")
-        return (budget, FRAME_DIV_KNOB)
+        return with_model((budget, FRAME_DIV_KNOB), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()

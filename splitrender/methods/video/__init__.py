@@ -6,7 +6,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..base import MethodConfig, MethodSpec, register_method
+from ..base import SCALE_KNOB, Knob, MethodConfig, MethodSpec, QualityModel, register_method, with_model
+
+QUALITY = QualityModel(
+    (("scale", (0.0, -1.49, -1.33)),),
+    latency_db_per_100ms=2.57, rate_db_per_halving=0.20,
+    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+"""video's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 19.62 dB at its own point;
+a smaller picture measures *better* (21.11 and 20.96 dB: under the misalignment 92 ms of motion-to-photon leaves, a
+blur scores better; the controller counts no level as a gain); 120 ms each way instead of 20 (+200 ms
+motion-to-photon) loses 5.14 dB; crf 29 (0.56x the bits) 0.16 dB."""
 
 
 @dataclass(frozen=True)
@@ -15,6 +24,10 @@ class VideoConfig(MethodConfig):
     4:2:0 it gives the model +1.8 dB, the whole frame +1.6 dB, median of 12 cells, ``benchmarks/bench_chroma.py``)."""
 
     chroma: str | int = "444"
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The pipeline's resolution scale, with video's quality model."""
+        return with_model((SCALE_KNOB,), QUALITY)
 
 
 SPEC = register_method(MethodSpec("video", "splitrender.methods.video.server:VideoServer",
