@@ -751,6 +751,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     "(by default ours and QUASAR's simulators' are moved to QUASAR's ground truth's)")
     ap.add_argument("--unlit", action="store_true", help="ours without the sun (MODEL+nosun), as QUASAR's llvmpipe "
                     "build draws the model (docs/quasar.md)")
+    ap.add_argument("--hidden-sky", type=int, default=None, help="our QUASAR client's sky quads behind the model's "
+                    "silhouette, in pixels (splitrender.methods.quads.mesh.HIDDEN_SKY_PX; 0: none, as before issue 50)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
                     "instead of running its programs again")
     ap.add_argument("--xvfb", choices=("auto", "always", "never"), default="auto",
@@ -847,6 +849,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     content = {"quasar": truth_content((load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10]), q_bg)}
 
     # ours, each run scored as soon as it ends (its frames are not kept)
+    from splitrender.methods.quads import mesh as quads_mesh
+
+    if args.hidden_sky is not None:
+        quads_mesh.HIDDEN_SKY_PX = args.hidden_sky
     renderer = Renderer()
     updates: dict[str, list[dict[str, Any]]] = {}
     scores: dict[str, dict[str, Any]] = {}
@@ -905,6 +911,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
         "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),
         "quasar_commands": commands, "our_configs": {m: our_config(m, setup, model, path_file).to_dict() for m in METHODS},
+        "hidden_sky_px": quads_mesh.HIDDEN_SKY_PX, "splitrender_commit": quasar_commit(ROOT),
         "rows": rows, "wall_s": time.perf_counter() - t_start, "gl": renderer.ctx.info.get("GL_RENDERER"),
         "machine": machine(),
     }

@@ -73,14 +73,16 @@ def test_quadstream_shows_a_thin_railing_better_than_quasar_from_inside_the_view
     * PSNR over the railing: QUASAR 21.16 / 16.58 / 18.02 / 16.85 dB, QuadStream 27.75 / 21.20 / 20.55 / 22.91:
       a margin of +4.95 dB on average, +2.5 at least;
     * railing pixels wrong: QUASAR 15.5 / 41.9 / 27.8 / 28.5 %, QuadStream 3.1 / 12.1 / 11.2 / 8.0 % (0.30x);
-    * holes: QUASAR 1.45 / 2.86 / 8.43 / 8.95 % of the frame, QuadStream 0.12 % at most.
+    * holes: QUASAR 0 / 0.63 / 0.42 / 2.61 % of the frame (1.45 / 2.86 / 8.43 / 8.95 % before its client laid sky
+      behind the model, ``tests/test_quads_sky.py``; the railing's numbers did not change), QuadStream 0.12 % at
+      most.
 
     Bounds: the mean margin at least 3.5 dB and at every offset at least 1.5 dB; QuadStream's wrong railing
-    pixels at most 0.45x QUASAR's; its holes under 0.5 % where QUASAR's average over 1 %."""
+    pixels at most 0.45x QUASAR's; its holes under 0.5 % where QUASAR's average over 0.6 % (measured 0.91 %)."""
     scene = railing_scene()
     qr = _moved_client(renderer, scene, "quasar")
     qs = _moved_client(renderer, scene, "quadstream")
     margin = qs[:, 0] - qr[:, 0]
     assert margin.mean() > 3.5 and margin.min() > 1.5, (qr, qs)
     assert qs[:, 1].mean() < 0.45 * qr[:, 1].mean(), (qr, qs)
-    assert qs[:, 2].max() < 0.005 and qr[:, 2].mean() > 0.01, (qr, qs)
+    assert qs[:, 2].max() < 0.005 and qr[:, 2].mean() > 0.006, (qr, qs)

@@ -15,7 +15,7 @@ from ..warp import SHADERS as WARP_SHADERS
 from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
-from .mesh import ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, join_meshes
+from .mesh import ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, hidden_sky, join_meshes
 from .server import outside_frustum
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
@@ -45,6 +45,7 @@ class QuadsClient(ClientHalf):
         self._pose0: Pose | None = None
         self._stats: dict[str, float] = {}
         self._sky = QuadSet.empty()   # the background quads the client made for its reference set
+        self._hidden_sky: tuple[QuadSet, np.ndarray] = (QuadSet.empty(), np.zeros((0, 2)))   # and behind its model
         self._wide_outs: dict[tuple[int, int, float], np.ndarray] = {}
 
     def _wide_out(self, wide: CameraIntrinsics) -> np.ndarray:
@@ -92,9 +93,13 @@ class QuadsClient(ClientHalf):
         if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
             if quasar_sky and any(s.kind == KIND_REFERENCE for s in sets):   # the sky the reference set left out
                 self._sky = background_quads(self.cache.quads, self.cache.intr)
+                self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0))
             parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp))
             if quasar_sky:
                 parts.append(build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"))
+                # and behind the model's silhouette against it, shown where motion reveals it
+                parts.append(build_mesh(self._hidden_sky[0], self.cache.pose, self.cache.intr, self._origin(0), "quad",
+                                        self._hidden_sky[1]))
         for s in sets:
             if s.kind in CACHED_KINDS:
                 continue

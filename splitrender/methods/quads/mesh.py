@@ -75,6 +75,11 @@ def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | N
     present = index_map < 0
     if region is not None:
         present &= region
+    return _far_quadtree(present, intr)
+
+
+def _far_quadtree(present: np.ndarray, intr: CameraIntrinsics) -> QuadSet:
+    """The quadtree of the ``present`` pixels as flat quads facing the eye at the background's far plane."""
     theta, phi = encode_normals(np.array([0.0, 0.0, 1.0]))
     levels, xs, ys = [], [], []
     for level in range(MAX_LEVEL + 1):
@@ -98,6 +103,42 @@ def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | N
     return QuadSet(lv, np.concatenate(xs), np.concatenate(ys), np.full(n, theta, np.uint8), np.full(n, phi, np.uint8),
                    np.full(n, np.float32(BACKGROUND_FAR * intr.far_m), np.float32), np.ones(n, bool),
                    np.zeros((0, 16), np.float16))
+
+
+HIDDEN_SKY_PX = 8
+"""How far (pixels, in the reference view) behind the model's silhouette against the sky the client lays sky quads
+(:func:`hidden_sky`); 0 lays none."""
+
+
+def hidden_sky(qs: QuadSet, intr: CameraIntrinsics, slot_origin: tuple[int, int],
+               reach: int | None = None) -> tuple[QuadSet, np.ndarray]:
+    """Sky quads behind the model: the pixels that ``qs`` covers within ``reach`` pixels of one it leaves
+    uncovered (the background), as flat quads on the background's far plane, each coloured by the background texel
+    nearest its centre.  Returns the quads and that texel's atlas position per quad ((N, 2), for :func:`build_mesh`'s
+    ``texel``).  ``reach`` defaults to :data:`HIDDEN_SKY_PX`.
+
+    Invisible from the reference pose (the model lies in front), they show where the client's motion reveals the
+    background next to a silhouette.  Without them those pixels are holes, and the hole fill (the farther of the
+    first covered samples along the epipolar line) takes the model's colour wherever a sliver of it lies on the way:
+    the model bled over the background (Wuson, the peer benchmark's strafe: 2/3 of our QUASAR's wrongly covered
+    background pixels lay in filled holes, issue 50).  QUASAR's code draws its clear colour there, the background.
+    Only near the sky: a pixel further from it (a model standing on a ground) may reveal the ground, which the hole
+    fill finds."""
+    from scipy.ndimage import distance_transform_edt
+
+    reach = HIDDEN_SKY_PX if reach is None else reach
+    index_map = np.full((intr.height, intr.width), -1, np.int64)
+    rasterize(index_map, qs, 0)
+    covered = index_map >= 0
+    if reach <= 0 or covered.all() or not covered.any():
+        return QuadSet.empty(), np.zeros((0, 2), np.float64)
+    dist, (iy, ix) = distance_transform_edt(covered, return_indices=True)
+    sky = _far_quadtree(covered & (dist <= reach), intr)
+    half = (1 << sky.level.astype(np.int64)) // 2
+    cy = np.minimum(sky.y.astype(np.int64) + half, intr.height - 1)
+    cx = np.minimum(sky.x.astype(np.int64) + half, intr.width - 1)
+    texel = np.stack([ix[cy, cx] + slot_origin[0], iy[cy, cx] + slot_origin[1]], axis=-1).astype(np.float64)
+    return sky, texel
 
 
 @dataclass
@@ -137,7 +178,7 @@ class ReferenceCache:
 
 
 def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
-               clamp: ColourClamp = "quad") -> tuple[np.ndarray, np.ndarray]:
+               clamp: ColourClamp = "quad", texel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 10) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
     with ``z`` the corner's depth in the source camera, atlas pixel rect; indices (N*24,) uint32).
 
@@ -154,7 +195,8 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     mesh over the image would and never reads a neighbouring slot; ``"quad"`` (a packed atlas, whose neighbouring
     texels belong to unrelated quads) is the quad's own pixels, which makes every one-pixel quad a flat
     nearest-neighbour sample (on 2CylinderEngine+ground, orbit under cloud, 2 s, that cost QUASAR 1.1 dB on the
-    model, ``benchmarks/bench_quads_models.py``)."""
+    model, ``benchmarks/bench_quads_models.py``).  ``texel`` ((N, 2) atlas pixels, optional): every fragment of quad
+    i takes the colour of that one texel instead (:func:`hidden_sky`)."""
     if len(qs) == 0:
         return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
     pts, uv, ok = corner_points(qs, intr)
@@ -166,7 +208,10 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     org = np.broadcast_to(np.asarray(slot_origin, np.float64), (len(qs), 2))[ok]
     x0 = qs.x[ok].astype(np.float64) + org[:, 0]
     y0 = qs.y[ok].astype(np.float64) + org[:, 1]
-    if clamp == "view":
+    if texel is not None:
+        t = np.asarray(texel, np.float64)[ok]
+        rect = np.concatenate([t, t + 1.0], axis=-1)
+    elif clamp == "view":
         rect = np.stack([org[:, 0], org[:, 1], org[:, 0] + intr.width, org[:, 1] + intr.height], axis=-1)
     else:
         rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
