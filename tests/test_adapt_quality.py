@@ -81,9 +81,9 @@ def test_a_method_that_redraws_geometry_queues_longer_before_it_drops_detail() -
 
 
 def test_a_rising_estimate_moves_the_point_no_lower() -> None:
-    """The start's probing: 0.3 -> 0.6 -> 1.2 Mbit/s within half a second is no reason to drop detail (the queue is
-    empty); once the estimate stops rising the model's choice stands, and a growing queue past the tolerance does not
-    wait for it."""
+    """The start's probing: 0.3 -> 0.6 -> 1.2 Mbit/s within half a second over an empty queue is no reason to drop
+    detail; once the estimate stops rising the model's choice stands, and a queue of 50 ms or more does not wait for
+    it."""
     cfg = AdaptConfig(down_hold_s=0.0)
     knobs = (dataclasses.replace(BUDGET, model=MODEL), FRAME_DIV_KNOB)
     pc = PointController(knobs, RateController(("color",), 30.0, cfg), cfg)
@@ -92,9 +92,10 @@ def test_a_rising_estimate_moves_the_point_no_lower() -> None:
     pc.rate = rate
     assert pc.update(0.25, 0.6e6) is False and pc.update(0.5, 1.2e6) is False and pc.index == 0
     assert pc.update(1.2, 1.2e6) and pc.index > 0                  # no longer rising
-    pc = PointController(knobs, rate, cfg)
-    pc.update(0.0, 0.3e6, queue_ms=300.0)
-    assert pc.update(0.1, 1.2e6, queue_ms=310.0) and pc.index > 0  # rising, but a queue past 300 ms grows
+    pc = PointController(knobs, RateController(("color",), 30.0, cfg), cfg)
+    pc.update(0.0, 0.3e6)
+    pc.rate = rate
+    assert pc.update(0.1, 1.2e6, queue_ms=60.0) and pc.index > 0   # rising, but over a queue: the link binds
 
 
 def test_a_method_may_offer_the_pipeline_s_scale_with_its_model() -> None:
@@ -125,11 +126,11 @@ def test_every_method_has_a_model_for_every_knob_it_offers(method: str) -> None:
 
 
 # The stored models re-measured: the same runs as benchmarks/bench_knobs.py --quality (2 s, 320x180, default+nogi,
-# walk, delay 20ms), a few points.  Virtual time repeats a run bit for bit but for sas's atlas bytes now and then
-# (docs/experiments.md); the tolerance is what the loss of one level may move between two measurements: a stored value
-# is the difference of two runs' means over 45 frames, measured twice for these points (the second in this test's
-# first run, on a different commit's pipeline) within 0.05 dB; 0.25 dB leaves room for the pipeline's small changes
-# (a coded frame's bytes) without letting a knob's loss change sign or double.
+# walk, delay 20ms), a few points.  Virtual time repeats these runs bit for bit (sas's atlas bytes differ now and then
+# in adapting runs only, docs/experiments.md): measured again at 668532e under another load, sas 30.7245 and 29.6038
+# dB at frame_div 1 and 3, as stored to the last digit (spread 0.000 dB).  The tolerance is for the pipeline's small
+# changes (a coded frame's bytes), not for noise: 0.25 dB, under a quarter of the sas loss it checks, so a loss cannot
+# move by a quarter or change sign unnoticed; the table is measured again when it moves past that.
 TOLERANCE_DB = 0.25
 
 

@@ -372,6 +372,10 @@ RISING = 1.25
 grows.  At start the estimate climbs from 300 kbit/s by probing (0.3, 0.6, 1.2, 2.2 Mbit/s at 0, 0.27, 0.5 and
 1 s for sas on the cellular-like trace); a point chosen for it dropped sas to its coarsest for its first 2 s."""
 RISING_WINDOW_S = 0.5
+RISING_QUEUE_MS = 50.0
+"""... and only while the queue is under this (ms): a queue building as the estimate rises is the link binding, not
+the probing (warp's lossless depth at start, held at its own point while its queue reached 325 ms, kept a 1.3 s queue
+for 2 s on the cellular-like trace)."""
 
 
 class PointController:
@@ -405,7 +409,7 @@ class PointController:
     dB per 100 ms; a point whose queue would pass the method's latency tolerance (:attr:`tolerance_ms`, from the
     model's latency slope: methods that redraw geometry at the display pose take more queueing than video) is out.
     The growing-queue rule takes that tolerance in place of ``mtp_budget_ms``; the holds and the up margin stay; an
-    estimate still rising (``RISING``: the start's probing) moves the point no lower.
+    estimate still rising over an empty queue (``RISING``: the start's probing) moves the point no lower.
     """
 
     def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None,
@@ -529,7 +533,7 @@ class PointController:
             best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
         else:
             best = self._best(budget, queue_ms)
-            if encoder_bps > RISING * min(r for _, r in self._recent) and not growing:
+            if encoder_bps > RISING * min(r for _, r in self._recent) and queue_ms < RISING_QUEUE_MS:
                 best = min(best, self.index)       # a rising estimate is no reason to go down
         if growing and self.index < last:
             best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit
