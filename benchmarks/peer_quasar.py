@@ -121,6 +121,11 @@ class Setup:
     unlit: bool = False
     """Ours without the sun (``MODEL+nosun``): QUASAR's llvmpipe build shows the model unlit (see
     :func:`truth_content`), so only then do both ground truths show the same image."""
+    lossless: bool = False
+    """Our colour streams lossless (``lossless=true``): QUASAR's simulators never encode colour, so only then do
+    both tools' frames carry no codec error.  With our lossy default, codec noise around the silhouette counts as
+    bleed (background pixels more than the tolerance off it): on Wuson, 78 % of our QUASAR's bleed lay within 40
+    code values of the sky."""
 
     @property
     def size(self) -> str:
@@ -363,6 +368,8 @@ def our_config(method: str, setup: Setup, model: Path, path_file: Path) -> Any:
 
     name, params = OURS[method]
     params = dict(params)
+    if setup.lossless:
+        params["lossless"] = True
     if name == "quads":
         params.update(view_cell_m=setup.view_cell_m, wide_fov_deg=setup.wide_fov_deg)
         if params["variant"] == "quasar":
@@ -751,6 +758,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     "(by default ours and QUASAR's simulators' are moved to QUASAR's ground truth's)")
     ap.add_argument("--unlit", action="store_true", help="ours without the sun (MODEL+nosun), as QUASAR's llvmpipe "
                     "build draws the model (docs/quasar.md)")
+    ap.add_argument("--lossless", action="store_true", help="our colour streams lossless, as QUASAR's simulators "
+                    "never encode colour (codec noise around a silhouette otherwise counts as bleed)")
     ap.add_argument("--hidden-sky", type=int, default=None, help="our QUASAR client's sky quads behind the model's "
                     "silhouette, in pixels (splitrender.methods.quads.mesh.HIDDEN_SKY_PX; 0: none, as before issue 50)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
@@ -777,7 +786,8 @@ def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup
         w, h = (int(v) for v in args.size.lower().split("x"))
     except ValueError:
         raise InputError(f"--size {args.size!r}: expected WxH, e.g. 320x180") from None
-    setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers, unlit=args.unlit)
+    setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers, unlit=args.unlit,
+                  lossless=args.lossless)
     if not 1 <= setup.layers <= 4:
         raise InputError(f"--layers {setup.layers}: ours takes 1 to 4")
     return programs, model, setup

@@ -239,6 +239,11 @@ def test_our_runs_match_quasars_flags(tmp_path: Path) -> None:
     assert cfgs["quasar"].method_params == {"variant": "quasar", "view_cell_m": 0.5, "wide_fov_deg": 120.0, "layers": 4}
     assert cfgs["quadstream"].method_params == {"variant": "quadstream", "view_cell_m": 0.5, "wide_fov_deg": 120.0}
     assert pq.our_config("atw", pq.Setup(prediction=True), tmp_path / "m.glb", tmp_path / "p.txt").predictor == "ca"
+    lossless = {m: pq.our_config(m, pq.Setup(lossless=True, unlit=True), tmp_path / "m.glb", tmp_path / "p.txt")
+                for m in pq.METHODS}
+    for m, c in lossless.items():                     # QUASAR never encodes colour: --lossless, every method of ours
+        assert c.method_params == {**cfgs[m].method_params, "lossless": True} and c.scene.endswith("m.glb+nosun")
+        assert make_config(get_method(c.method).config, c.method_params).lossless
 
 
 # ------------------------------------------------------------------------------------------ the build folder
