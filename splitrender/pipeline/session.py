@@ -17,8 +17,9 @@ in as arguments.  Everything the server core sends leaves one way,
 :meth:`ServerSession.datagrams_to_send`, called after each input and when its one timer
 (:meth:`ServerSession.get_timer`) comes: media, FEC, retransmissions, probes and sender reports,
 each tagged with its kind (the pacer and the probe clusters sit behind that timer).  The client
-core's RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its other outputs from the
-return values, and :meth:`ClientSession.next_timer` says when to call its ``handle_timer``.
+core's RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events out of
+:meth:`ClientSession.next_event`, the decode work, the updates to show and their feedback from
+the return values, and :meth:`ClientSession.get_timer` says when to call its ``handle_timer``.
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -624,7 +625,7 @@ class ClientSession:
             self._queue_rtcp(out)
         return works
 
-    def next_timer(self) -> float:
+    def get_timer(self) -> float:
         """When :meth:`handle_timer` wants to run next (driver ms; ``inf`` before :meth:`start`)."""
         if not self._started:
             return math.inf
@@ -717,9 +718,9 @@ class ClientSession:
         out, self._out = self._out, []
         return out
 
-    def take_events(self) -> list[SessionEvent]:
-        out, self.events = self.events, []
-        return out
+    def next_event(self) -> SessionEvent | None:
+        """The oldest event not yet taken (a stall, its end, a stall timeout), or None."""
+        return self.events.pop(0) if self.events else None
 
     # ------------------------------------------------------------------ display
 

@@ -528,13 +528,13 @@ class VirtualTimeRun:
             for d in c.rtcp_up.send(t, len(data) + 28):
                 if not d.corrupted:
                     self._at(d.time_s, _DELIVER, self._server_rtcp, c, data)
-        for ev in c.core.take_events():
+        while (ev := c.core.next_event()) is not None:
             if isinstance(ev, Stalled):
                 log.debug("run %s client %d: stalled at %.3f s (%.0f ms without a frame)", self.cfg.method, c.index,
                           ev.now_ms / 1000, ev.idle_ms)
             elif isinstance(ev, Resumed):
                 log.debug("run %s client %d: frames resumed after %.0f ms", self.cfg.method, c.index, ev.stall_ms)
-        t = c.core.next_timer() / 1000
+        t = c.core.get_timer() / 1000
         if t < c.timer_s and t <= self.duration_s + 1.0 / self.cfg.client_fps:
             c.timer_s = max(t, self.now)
             c.timer_token += 1
@@ -563,20 +563,8 @@ class VirtualTimeRun:
         assert c.core is not None
         self._client_timer_now(c)   # timeouts due at this tick first, as the live client's timer task would
         now_ms = t_d * 1000
-        applied_ms, decode_ms = 0.0, math.nan
         make_current(c.gl)
-        for rf in c.core.display(now_ms):
-            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
-            w0 = time.perf_counter()
-            try:
-                c.chalf.apply(rf.update)
-            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                c.core.apply_failed(rf)
-                log.warning("run %s: update %d rejected by the client half: %s", cfg.method, rf.update.frame_id, exc)
-                continue
-            finally:
-                applied_ms += (time.perf_counter() - w0) * 1000
-            c.core.applied(rf)
+        applied_ms, decode_ms = self._apply(c, now_ms)
         true_pose = c.trace.pose_at(t_d)
         w0 = time.perf_counter()
         if c.chalf.has_content:
@@ -619,6 +607,26 @@ class VirtualTimeRun:
         row.update({f"cli_{k}": v for k, v in cf.stats.items()})
         c.frames.append(row)
         self._client_out(c)
+
+    def _apply(self, c: _Client, now_ms: float) -> tuple[float, float]:
+        """The updates whose turn has come, applied to the client half in order and reported to the core; returns
+        the milliseconds applying took and the last one's measured decode time."""
+        assert c.core is not None
+        applied_ms, decode_ms = 0.0, math.nan
+        for rf in c.core.display(now_ms):
+            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
+            w0 = time.perf_counter()
+            try:
+                c.chalf.apply(rf.update)
+            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                c.core.apply_failed(rf)
+                log.warning("run %s: update %d rejected by the client half: %s", self.cfg.method, rf.update.frame_id,
+                            exc)
+                continue
+            finally:
+                applied_ms += (time.perf_counter() - w0) * 1000
+            c.core.applied(rf)
+        return applied_ms, decode_ms
 
     def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg
