@@ -701,13 +701,16 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
     plane = (p.rng.random((H, W, 3)) * 255).astype(np.uint8)
     enc = p.tx.encode(Update(0, 0.0, Pose(), {"color": plane}, {}), force_idr=True)
     out = p.tx.packetize(enc, p.sconn.send, 1_000_000, 0, 0, 0, 0.0, {}, {})
-    p.server.frame_sent(0, out, 0.0, 1_000_000, send_ms=10.0)
-    assert p.server.datagrams_to_send(5.0) == [] and p.server.get_timer() == 10.0
-    sent = p.server.datagrams_to_send(10.0)
+    leave_ms = 29 * 0.137                             # 3.973 ms: its trip through seconds comes back a hair early
+    assert leave_ms / 1000 * 1000 < leave_ms
+    p.server.frame_sent(0, out, 0.0, 1_000_000, send_ms=leave_ms)
+    assert p.server.datagrams_to_send(2.0) == [] and p.server.get_timer() == leave_ms
+    sent = p.server.datagrams_to_send(p.server.get_timer() / 1000 * 1000)   # the runner's clock counts in seconds
     assert [d.data for d in sent] == [d for _, _, d in out.datagrams]
     assert {(d.kind, d.stream) for d in sent} == {("rtp", "color")}
     sr_at = p.server.get_timer()
     assert 500.0 <= sr_at <= 1500.0                      # nothing else due: the first sender report (1 s +- 50 %)
+    assert p.server.datagrams_to_send(leave_ms) == []    # and what was due has left: the deadline moved on
     seq = int.from_bytes(sent[1].data[2:4], "big")
     resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))], 20.0)
     assert [(d.kind, d.data) for d in p.server.datagrams_to_send(20.0)] == [("resend", resend[0])] == \

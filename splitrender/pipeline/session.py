@@ -80,6 +80,9 @@ BIND_INTERVAL_MS = 100.0
 """Until the first RTP packet the client repeats an empty receiver report this often (it opens the UDP path)."""
 NACK_RETRY_MIN_MS = 30.0
 NACK_RETRY_MAX_MS = 500.0
+TIME_EPS_MS = 1e-6
+"""A deadline this close is due: a driver whose clock counts in other units (the runner's seconds) hands back a
+deadline it was given with rounding (``t / 1000 * 1000 != t``), and must not wait for it again forever."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
 
@@ -1152,7 +1155,7 @@ class ServerSession:
         """Every datagram due to leave at ``now_ms``, stamped as it leaves, in sending order: what the pacer lets go
         (media, FEC, retransmissions), a frame's datagrams without a pacer, probe packets whose time has come, and
         the sender reports when due.  Call after every input and when :meth:`get_timer` comes."""
-        while self._later and self._later[0][0] <= now_ms:
+        while self._later and self._later[0][0] <= now_ms + TIME_EPS_MS:
             at_ms, _, kind, stream, data, cluster = heapq.heappop(self._later)
             if kind == "probe":       # a probe sets its own pace, beside the pacer
                 self._ready.append((kind, stream, data, cluster))
@@ -1341,7 +1344,7 @@ class ServerSession:
 
     def _sender_reports(self, now_ms: float) -> list[bytes]:
         """Sender reports, one compound packet for every RTP stream, when due."""
-        if now_ms < self._next_sr_ms or not self.streams:
+        if now_ms + TIME_EPS_MS < self._next_sr_ms or not self.streams:
             return []
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
         ntp = ntp_from_seconds(self._protocol_s(now_ms))
