@@ -14,7 +14,7 @@ runner calls (the package is not changed):
 - ``ClientSession.display``: every update the client half was handed, as the pipeline
   released it (the ``FrameMeta`` with its envelope blob, the decoded planes, the
   decompressed data payloads, the streams missing);
-- ``ClientSession.datagrams_to_send`` / ``ServerSession.handle_timer``: RTCP up and down;
+- ``ClientSession.datagrams_to_send`` / ``ServerSession.datagrams_to_send`` (its ``rtcp``): RTCP up and down;
 - ``ServerSession.frame_sent``: every RTP datagram (media and FEC) per stream, in send order.
 
 Used by ``benchmarks/fuzz_decoders.py`` and ``tests/test_fuzz_entry_points.py``.
@@ -167,11 +167,11 @@ def capture(method: str, duration_s: float = 0.6, width: int = WIDTH, height: in
             return out
         return wrap
 
-    def handle_timer(real: Any) -> Any:
+    def server_out(real: Any) -> Any:
         @functools.wraps(real)
         def wrap(self: Any, now_ms: float) -> Any:
             out = real(self, now_ms)
-            seeds.rtcp_down.extend(bytes(d) for d in out)
+            seeds.rtcp_down.extend(bytes(d.data) for d in out if d.kind == "rtcp")
             return out
         return wrap
 
@@ -190,7 +190,7 @@ def capture(method: str, duration_s: float = 0.6, width: int = WIDTH, height: in
         _patched(Connection, "send", send, undo)
         _patched(ClientSession, "display", display, undo)
         _patched(ClientSession, "datagrams_to_send", to_send, undo)
-        _patched(ServerSession, "handle_timer", handle_timer, undo)
+        _patched(ServerSession, "datagrams_to_send", server_out, undo)
         _patched(ServerSession, "frame_sent", frame_sent, undo)
         vt = VirtualTimeRun(cfg, renderer=renderer)
         vt.run()

@@ -142,12 +142,23 @@ def test_adaptation_needs_the_feedback_and_probes_only_where_it_adapts() -> None
     specs = [StreamSpec("color", VideoCodecConfig(), 160, 90)]
     with pytest.raises(ConfigError, match="server adapt rate: .* needs transport-wide feedback"):
         ServerSession(ServerPipeline(specs), 30.0, ServerOptions(adapt="rate"))
+    from splitrender.pipeline import OutgoingFrame
+
+    def probes(core: ServerSession) -> list[tuple[float, bytes]]:
+        """A first frame's worth of sending, followed through the core's timer: the probe packets and their times."""
+        core.frame_sent(0, OutgoingFrame(0, keyframe=True, wire_bytes={"color": 1000}), 0.0, 0)
+        out, now = [], 0.0
+        while now < 1000.0:
+            out += [(now, d.data) for d in core.datagrams_to_send(now) if d.kind == "probe"]
+            now = core.get_timer()
+        return out
+
     measured = ServerSession(ServerPipeline(specs, transport_cc_id=5), 30.0, ServerOptions())
-    assert measured.probe(0.0) == [] and measured.encoder_rates() is None
+    assert probes(measured) == [] and measured.encoder_rates() is None
     adapting = ServerSession(ServerPipeline(specs, transport_cc_id=5), 30.0, ServerOptions(adapt="rate"))
-    probe = adapting.probe(0.0)     # the start-up probe: 3x the start rate
-    assert len(probe) >= 12 and all(b[8:12] == adapting.tx.probe_ssrc.to_bytes(4, "big") for _, b, _ in probe)
-    times = [t for t, _, _ in probe]
+    probe = probes(adapting)     # the start-up probe: 3x the start rate
+    assert len(probe) >= 12 and all(b[8:12] == adapting.tx.probe_ssrc.to_bytes(4, "big") for _, b in probe)
+    times = [t for t, _ in probe]
     assert times == sorted(times) and times[-1] > times[0]
     rates = adapting.encoder_rates()             # calibrating: the method's crf under a ceiling at its share of the
     assert rates == {"color": pytest.approx(270.0)} and isinstance(rates["color"], CappedCrf)   # start rate (0.9x)

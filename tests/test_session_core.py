@@ -53,7 +53,13 @@ class Pair:
         enc = self.tx.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=kf or fid == 0)
         out = self.tx.packetize(enc, self.sconn.send, 1_000_000 + fid, fid * 3000, 0, fid, fid / FPS, {}, {})
         self.server.frame_sent(fid, out, now_ms, 1_000_000 + fid)
-        return [d for _, d in out.control], [d for _, _, d in out.datagrams]
+        self.out = out
+        # the RTP datagrams the core lets go now (its one way out; all of them without a pacer), stamped
+        return [d for _, d in out.control], [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtp"]
+
+    def reports(self, now_ms: float) -> list[bytes]:
+        """The server's sender reports due at ``now_ms`` (what its way out gives of kind ``rtcp``)."""
+        return [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtcp"]
 
     def released(self, fid: int, now_ms: float) -> list:  # type: ignore[type-arg]
         """Server frame ``fid`` delivered whole at ``now_ms``: the decode work the client core releases (undecoded)."""
@@ -145,19 +151,20 @@ def test_a_stall_is_reported_after_stall_frames_intervals_and_asks_for_keyframes
     ctrl, dgrams = p.frame(0, 0.0)
     p.to_client(ctrl, dgrams, 5.0)                   # the last frame arrives at 5 ms
     p.timer(100.0)
-    assert p.client.take_events() == []
+    assert p.client.next_event() is None
     stall_ms = 6.0 / FPS * 1000                      # 200 ms: nothing measured yet, the nominal rate
-    assert p.client.next_timer() == pytest.approx(5.0 + stall_ms)
+    assert p.client.get_timer() == pytest.approx(5.0 + stall_ms)
     rtcp = p.timer(5.0 + stall_ms)
-    (ev,) = p.client.take_events()
+    ev = p.client.next_event()
+    assert p.client.next_event() is None
     assert isinstance(ev, Stalled) and ev.idle_ms == pytest.approx(stall_ms)
     # nothing was lost: a slow server, not a broken stream, so no keyframe is asked for
     assert not any(isinstance(x, PictureLossIndication) for c in rtcp for x in c)
     assert p.client.counters["stalls"] == 1 and p.client.counters["stall_plis"] == 0
     p.timer(1004.0)
-    assert p.client.take_events() == []
+    assert p.client.next_event() is None
     p.timer(1006.0)
-    assert any(isinstance(e, StallTimeout) for e in p.client.take_events())
+    assert any(isinstance(e, StallTimeout) for e in iter(p.client.next_event, None))
     # a frame loses a packet and is given up (jitter timeout): the next stall asks for a keyframe
     ctrl, dgrams = p.frame(1, 1010.0)
     p.to_client(ctrl, dgrams[:1] + dgrams[2:], 1015.0)
@@ -192,14 +199,14 @@ def test_rtcp_report_intervals_are_randomised_around_their_mean() -> None:
     for t in np.arange(10.0, 60_000.0, 10.0):
         if any(isinstance(x, ReceiverReport) and x.reports for c in p.timer(float(t)) for x in c):
             rr_times.append(float(t))
-        if p.server.handle_timer(float(t)):
+        if p.reports(float(t)):
             sr_times.append(float(t))
     for times, mean in ((rr_times, 500.0), (sr_times, 1000.0)):
         gaps = np.diff(times)
         assert len(set(gaps.round())) > 10, gaps[:20]                       # the interval varies
         assert gaps.min() >= 0.5 * mean - 10 and gaps.max() <= 1.5 * mean + 10, (gaps.min(), gaps.max())
         assert abs(gaps.mean() - mean) < 0.1 * mean, gaps.mean()
-    sr = parse_rtcp(p.server.handle_timer(120_000.0)[0])
+    sr = parse_rtcp(p.reports(120_000.0)[0])
     assert isinstance(sr[0], SenderReport) and sr[0].packet_count == p.tx.streams["color"].packetizer.packets_sent  # type: ignore[union-attr]
 
 
@@ -381,7 +388,7 @@ def test_every_sender_report_compound_carries_the_sessions_cname() -> None:
 
     p = Pair()
     p.frame(0, 0.0)
-    sent = [d for t in np.arange(10.0, 3000.0, 10.0) for d in p.server.handle_timer(float(t))]
+    sent = [d for t in np.arange(10.0, 3000.0, 10.0) for d in p.reports(float(t))]
     assert len(sent) >= 2
     for data in sent:
         packets = parse_rtcp(data)
@@ -459,11 +466,11 @@ def test_transport_wide_feedback_reports_every_stamped_packet_and_a_loss() -> No
     from splitrender.protocol.twcc import TransportFeedback, read_transport_seq
 
     p = Pair(transport_cc=True)
-    ctrl, dgrams = p.frame(0, 0.0)
-    assert len(dgrams) >= 4 and all(read_transport_seq(d, 5) == 0 for d in dgrams)    # reserved, written at send
-    sent = [p.server.stamp(d, 1.0 + 0.5 * k) for k, d in enumerate(dgrams)]
+    ctrl, sent = p.frame(0, 0.0)
+    made = [d for _, _, d in p.out.datagrams]
+    assert len(made) >= 4 and all(read_transport_seq(d, 5) == 0 for d in made)        # reserved, written at send
     assert [read_transport_seq(d, 5) for d in sent] == list(range(len(sent)))
-    assert [RtpPacket.parse(a).payload for a in sent] == [RtpPacket.parse(b).payload for b in dgrams]
+    assert [RtpPacket.parse(a).payload for a in sent] == [RtpPacket.parse(b).payload for b in made]
     p.to_client(ctrl, sent[:2] + sent[3:], 20.0)                                      # packet 2 lost
     assert not any(isinstance(x, TransportFeedback) for c in p.timer(60.0) for x in c)
     fbs = [x for c in p.timer(120.0) for x in c if isinstance(x, TransportFeedback)]
@@ -476,7 +483,8 @@ def test_transport_wide_feedback_reports_every_stamped_packet_and_a_loss() -> No
     assert set(p.server.congestion()) == {"cc_target_kbps", "cc_encoder_kbps", "cc_acked_kbps", "cc_queue_ms"}
     resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
                                                 (int.from_bytes(sent[2][2:4], "big"),))], 150.0)
-    assert len(resend) == 1 and read_transport_seq(p.server.stamp(resend[0], 150.0), 5) == len(sent)
+    (out,) = p.server.datagrams_to_send(150.0)             # the resend leaves the one way too, stamped as it leaves
+    assert len(resend) == 1 and out.kind == "resend" and read_transport_seq(out.data, 5) == len(sent)
     assert p.client.counters["twcc_feedback_sent"] == 1
 
 
@@ -486,7 +494,8 @@ def test_without_transport_wide_feedback_packets_carry_no_extension() -> None:
 
     p = Pair()
     _, dgrams = p.frame(0, 0.0)
-    assert all(RtpPacket.parse(d).extension_profile is None and p.server.stamp(d, 1.0) == d for d in dgrams)
+    assert dgrams == [d for _, _, d in p.out.datagrams]                              # left as they were made
+    assert all(RtpPacket.parse(d).extension_profile is None for d in dgrams)
     assert p.server.congestion() == {} and "transport_cc" not in p.tx.welcome_params(b"")
     q = Pair(transport_cc=True)
     w = Welcome("s", "x", {**q.tx.welcome_params(b""), "transport_cc": 15}, q.tx.describe("127.0.0.1", 5000, "t"))
@@ -503,26 +512,27 @@ def test_a_paced_session_spreads_a_frame_at_the_pacing_rate() -> None:
     from splitrender.protocol.twcc import read_transport_seq
 
     p = Pair(transport_cc=True, pacing=True)
-    _, dgrams = p.frame(0, 0.0)
+    _, first = p.frame(0, 0.0)
+    dgrams = [d for _, _, d in p.out.datagrams]
     assert len(dgrams) >= 8
-    first = p.server.send([("color", d) for d in dgrams], 0.0)
     assert 1 <= len(first) < len(dgrams)
     times, sent, now = [0.0] * len(first), list(first), 0.0
     while len(sent) < len(dgrams):
-        now = p.server.next_send_ms(now)
-        got = p.server.paced(now)
+        now = p.server.get_timer()                       # the pacer's next send, behind the core's one timer
+        assert now < 1000.0
+        got = [d.data for d in p.server.datagrams_to_send(now) if d.kind == "rtp"]
         times += [now] * len(got)
         sent += got
-        assert now < 1000.0
-    assert [d[2:4] for _, d in sent] == [d[2:4] for d in dgrams]                  # in order, RTP sequence numbers kept
-    assert [read_transport_seq(d, 5) for _, d in sent] == list(range(len(dgrams)))
+    assert [d[2:4] for d in sent] == [d[2:4] for d in dgrams]                    # in order, RTP sequence numbers kept
+    assert [read_transport_seq(d, 5) for d in sent] == list(range(len(dgrams)))
     span_ms = times[-1] - times[0]
     expect_ms = sum(len(d) for d in dgrams[len(first):]) * 8 / (2.5 * UNADAPTED_START_BPS) * 1000
     assert span_ms == pytest.approx(expect_ms, rel=0.35), (span_ms, expect_ms)
-    assert p.server.next_send_ms(now) == float("inf")
+    assert p.server.pacer is not None and p.server.pacer.queued == 0
+    assert p.server.get_timer() >= 500.0                                            # only the first sender report left
     q = Pair(transport_cc=True)
     _, dgrams = q.frame(0, 0.0)
-    assert len(q.server.send([("color", d) for d in dgrams], 0.0)) == len(dgrams) and q.server.next_send_ms(0.0) == float("inf")
+    assert len(dgrams) == len(q.out.datagrams) and q.server.get_timer() >= 500.0
 
 
 def test_pacing_needs_transport_wide_feedback() -> None:
@@ -610,7 +620,7 @@ def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
     tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
     core = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
     core.start(0.0)
-    assert core.streams == {} and core.handle_timer(1e9) == []
+    assert core.streams == {} and core.datagrams_to_send(1e9) == [] and core.get_timer() == float("inf")
     core.receive_pose(0.0, Pose())
     assert core.order_frame(0, 0, 0.0, 0.0) is not None
     core.frame_sent(0, OutgoingFrame(0, keyframe=True, wire_bytes={"color": 100}), 0.0, 1)
@@ -681,3 +691,29 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
         hs.receive_message(ev)  # type: ignore[arg-type]
     assert hs.done and hs.welcome == acc.welcome and len(acc.session_data_frames) >= 1
     assert hs.session_data is not None and hs.session_data["pad"] == np.random.default_rng(0).bytes(5000)
+
+
+def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> None:
+    """Issue 47: a frame whose encoding ends later (virtual time's ``send_ms``) waits behind the core's timer,
+    a NACK's answer and the sender reports leave by the same ``datagrams_to_send``, each tagged with its kind, and
+    ``get_timer`` names the next of them."""
+    p = Pair()
+    plane = (p.rng.random((H, W, 3)) * 255).astype(np.uint8)
+    enc = p.tx.encode(Update(0, 0.0, Pose(), {"color": plane}, {}), force_idr=True)
+    out = p.tx.packetize(enc, p.sconn.send, 1_000_000, 0, 0, 0, 0.0, {}, {})
+    leave_ms = 29 * 0.137                             # 3.973 ms: its trip through seconds comes back a hair early
+    assert leave_ms / 1000 * 1000 < leave_ms
+    p.server.frame_sent(0, out, 0.0, 1_000_000, send_ms=leave_ms)
+    assert p.server.datagrams_to_send(2.0) == [] and p.server.get_timer() == leave_ms
+    sent = p.server.datagrams_to_send(p.server.get_timer() / 1000 * 1000)   # the runner's clock counts in seconds
+    assert [d.data for d in sent] == [d for _, _, d in out.datagrams]
+    assert {(d.kind, d.stream) for d in sent} == {("rtp", "color")}
+    sr_at = p.server.get_timer()
+    assert 500.0 <= sr_at <= 1500.0                      # nothing else due: the first sender report (1 s +- 50 %)
+    assert p.server.datagrams_to_send(leave_ms) == []    # and what was due has left: the deadline moved on
+    seq = int.from_bytes(sent[1].data[2:4], "big")
+    resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))], 20.0)
+    assert [(d.kind, d.data) for d in p.server.datagrams_to_send(20.0)] == [("resend", resend[0])] == \
+        [("resend", sent[1].data)]
+    assert [d.kind for d in p.server.datagrams_to_send(sr_at)] == ["rtcp"]
+    assert isinstance(parse_rtcp(p.reports(1e9)[0])[0], SenderReport)

@@ -23,7 +23,7 @@ import numpy as np
 
 from splitrender import metrics
 from splitrender.errors import ConfigError
-from splitrender.pipeline import session_summary
+from splitrender.pipeline.rows import frames_summary, mean_of, session_summary
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
 from splitrender.client.session import JOURNAL, iter_journal
@@ -114,18 +114,6 @@ def score_recording(out_dir: str | Path, renderer: Any | None = None, flip_every
 
 
 def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str, Any], flip_every: int) -> dict[str, Any]:
-    def col(k: str) -> np.ndarray:
-        a = np.array([r.get(k, math.nan) for r in rows], dtype=np.float64)
-        return a[~np.isnan(a)]
-
-    def mean(k: str) -> float:
-        a = col(k)
-        return float(a.mean()) if a.size else math.nan
-
-    def pct(k: str, q: float) -> float:
-        a = col(k)
-        return float(np.percentile(a, q)) if a.size else math.nan
-
     dur = float(rec.get("duration_s", 0.0)) or math.nan
     kbps = counters.get("rtp_bytes", 0) * 8 / dur / 1000.0
     meta_kbps = counters.get("meta_bytes", 0) * 8 / dur / 1000.0
@@ -135,14 +123,11 @@ def _summary(rec: dict[str, Any], rows: list[dict[str, Any]], counters: dict[str
         "method": rec["method"], "network": rec.get("network", "live"), "scene": rec["scene"], "trace": rec["trace"],
         "seed": 0, "params": ";".join(f"{k}={v}" for k, v in sorted(params.items())),
         "width": rec["width"], "height": rec["height"], "server_fps": rec.get("server_fps"),
-        "client_fps": rec.get("display_hz"), "frames": len(rows),
-        **metrics.quality_summary(rows), **metrics.content_quality_summary(rows), "mean_kbps": kbps + meta_kbps + once_kb * 8 / dur, "kbps_video": kbps,
+        "client_fps": rec.get("display_hz"), **frames_summary(rows),    # the same display-side columns as virtual time's
+        "mean_kbps": kbps + meta_kbps + once_kb * 8 / dur, "kbps_video": kbps,
         "kbps_meta": meta_kbps, "session_kb": once_kb, "steady_kbps": kbps + meta_kbps,
-        "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
-        "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
-        "mean_server_ms": mean("server_render_ms"), "mean_encode_ms": mean("server_encode_ms"),
-        "mean_decode_ms": mean("decode_ms"), "mean_client_ms": mean("client_ms"), "mean_gt_ms": mean("gt_ms"),
-        "mean_network_ms": mean("network_ms"),
+        "mean_server_ms": mean_of(rows, "server_render_ms"), "mean_encode_ms": mean_of(rows, "server_encode_ms"),
+        "mean_network_ms": mean_of(rows, "network_ms"),
         **session_summary(counters, {}, rows),
         "lost_frames": counters.get("frames_partial", 0), "keyframes": counters.get("keyframes_received", 0),
         "mean_pred_err_cm": math.nan, "mean_pred_err_deg": math.nan,

@@ -509,7 +509,7 @@ class LiveClient:
         last_metrics = time.monotonic()
         lag_sum, lag_n = 0.0, 0
         while True:
-            pause = min(RTCP_TICK_S, max(0.0, (core.next_timer() - _now_ms()) / 1000))
+            pause = min(RTCP_TICK_S, max(0.0, (core.get_timer() - _now_ms()) / 1000))
             w0 = time.monotonic()
             await asyncio.sleep(pause)
             lag = (time.monotonic() - w0 - pause) * 1000   # how late the event loop woke us (GIL held by GL or decode)
@@ -517,11 +517,11 @@ class LiveClient:
             self._counters["timer_lag_ms_mean"] = round(lag_sum / lag_n, 2)
             self._counters["timer_lag_ms_max"] = round(max(self._counters.get("timer_lag_ms_max", 0.0), lag), 1)
             now_ms = _now_ms()
-            if now_ms >= core.next_timer():
+            if now_ms >= core.get_timer():
                 self._queue_work(core.handle_timer(now_ms))
                 self._collect()
                 self._flush_rtcp()
-            for ev in core.take_events():
+            while (ev := core.next_event()) is not None:
                 if isinstance(ev, StallTimeout):
                     raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
                                              f"(stall_timeout_s {cfg.stall_timeout_s:g} s): the server stopped streaming")
@@ -544,7 +544,6 @@ class LiveClient:
         interval = 1.0 / cfg.display_hz
         start = loop.time()
         n = int(cfg.duration_s * cfg.display_hz)
-        half = self._half
         core = self.core
         assert core is not None
         carry: list[ReceivedFrame] = []
@@ -572,53 +571,64 @@ class LiveClient:
                 carry = new                                    # nothing to show yet: the black background
                 self._record_blank(tick, w, self._trace_pose(w), saves)
                 continue
-            tick_wall = time.time()
-            pose = self._trace_pose(tick_wall)
-            trace_t = tick_wall - self._t0_wall
-            scene_t = tick_wall - self._server_epoch_s
-
-            def show() -> tuple[Any, list[bool], float, float]:
-                w0 = time.perf_counter()
-                ok = []
-                for f in new:
-                    try:
-                        half.apply(f.update)
-                        ok.append(True)
-                    except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                        ok.append(False)
-                        logger.warning("session %s: update %d rejected by the client half: %s", self.session_id,
-                                       f.update.frame_id, exc)
-                w1 = time.perf_counter()
-                frame = half.render(pose, scene_t)
-                return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
-
-            cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
-            for f, good in zip(new, ok):
-                core.applied(f) if good else core.apply_failed(f)
-            displayed_us = wall_us()
-            if core.blank(half.has_content):   # every update so far rejected or without content: still black
-                self._record(self._empty_row(self._rows_recorded, tick, trace_t, scene_t, pose, displayed_us))
-            else:
-                assert core.shown is not None
-                row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
-                                apply_ms + render_ms)
-                row.update({f"cli_{k}": v for k, v in cf.stats.items()})
-                row.update(self._kbps(displayed_us / 1e6))
-                self._record(row)
-                if cfg.save_images and cfg.out_dir is not None:
-                    saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], cf.color,
-                                                      cf.holes))
-                    if len(saves) > 64:
-                        await asyncio.gather(*saves[:32])
-                        del saves[:32]
-            fb = core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
-            if fb is not None:   # the first display of this update
-                assert self.channel is not None
-                await self.channel.send(fb)
+            await self._show(new, tick, saves)
         for b_tick, b_wall, b_pose in before_content:   # the server never sent a frame: the ticks, without a scene time
             self._record_blank(b_tick, b_wall, b_pose, None)
         await asyncio.gather(*saves)
         raise _RunDone()
+
+    async def _show(self, new: list[ReceivedFrame], tick: int, saves: list[Any]) -> None:
+        """Display tick ``tick``: apply the ``new`` updates and render the trace's pose (on the GL thread), report them
+        to the core, record the row (and the image), and send the feedback of a newly shown update."""
+        cfg = self.cfg
+        half = self._half
+        core = self.core
+        assert core is not None
+        loop = asyncio.get_running_loop()
+        assert self._server_epoch_s is not None
+        tick_wall = time.time()
+        pose = self._trace_pose(tick_wall)
+        trace_t = tick_wall - self._t0_wall
+        scene_t = tick_wall - self._server_epoch_s
+
+        def show() -> tuple[Any, list[bool], float, float]:
+            w0 = time.perf_counter()
+            ok = []
+            for f in new:
+                try:
+                    half.apply(f.update)
+                    ok.append(True)
+                except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                    ok.append(False)
+                    logger.warning("session %s: update %d rejected by the client half: %s", self.session_id,
+                                   f.update.frame_id, exc)
+            w1 = time.perf_counter()
+            frame = half.render(pose, scene_t)
+            return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
+
+        cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
+        for f, good in zip(new, ok):
+            core.applied(f) if good else core.apply_failed(f)
+        displayed_us = wall_us()
+        if core.blank(half.has_content):   # every update so far rejected or without content: still black
+            self._record(self._empty_row(self._rows_recorded, tick, trace_t, scene_t, pose, displayed_us))
+        else:
+            assert core.shown is not None
+            row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
+                            apply_ms + render_ms)
+            row.update({f"cli_{k}": v for k, v in cf.stats.items()})
+            row.update(self._kbps(displayed_us / 1e6))
+            self._record(row)
+            if cfg.save_images and cfg.out_dir is not None:
+                saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], cf.color,
+                                                  cf.holes))
+                if len(saves) > 64:
+                    await asyncio.gather(*saves[:32])
+                    del saves[:32]
+        fb = core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
+        if fb is not None:   # the first display of this update
+            assert self.channel is not None
+            await self.channel.send(fb)
 
     def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are

@@ -13,9 +13,13 @@ made by :func:`~.frames.make_frame`); the client core the blank-frame and keyfra
 them: virtual time, the live server and client, and the browser session (the server core in
 its ``webrtc`` transport profile).  They never read a clock
 and never touch a socket: time comes in as ``now_ms`` on the driver's clock, bytes come
-in as arguments, and what to send comes out of :meth:`ClientSession.datagrams_to_send`
-and the return values; :meth:`ClientSession.next_timer` / :meth:`ServerSession.next_timer`
-say when to call ``handle_timer`` next.
+in as arguments.  Everything the server core sends leaves one way,
+:meth:`ServerSession.datagrams_to_send`, called after each input and when its one timer
+(:meth:`ServerSession.get_timer`) comes: media, FEC, retransmissions, probes and sender reports,
+each tagged with its kind (the pacer and the probe clusters sit behind that timer).  The client
+core's RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events out of
+:meth:`ClientSession.next_event`, the decode work, the updates to show and their feedback from
+the return values, and :meth:`ClientSession.get_timer` says when to call its ``handle_timer``.
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -31,13 +35,14 @@ well): the cores take the messages it parses.
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import logging
 import math
 import secrets
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -58,6 +63,7 @@ from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
+from .rows import session_summary
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import OutgoingFrame, ServerPipeline
 from .wire import EnvelopeError, SessionDataError, specs_from_table
@@ -74,6 +80,9 @@ BIND_INTERVAL_MS = 100.0
 """Until the first RTP packet the client repeats an empty receiver report this often (it opens the UDP path)."""
 NACK_RETRY_MIN_MS = 30.0
 NACK_RETRY_MAX_MS = 500.0
+TIME_EPS_MS = 1e-6
+"""A deadline this close is due: a driver whose clock counts in other units (the runner's seconds) hands back a
+deadline it was given with rounding (``t / 1000 * 1000 != t``), and must not wait for it again forever."""
 MAX_READY_UPDATES = 16
 """Released updates waiting for their display turn before the oldest is applied unseen."""
 
@@ -300,36 +309,6 @@ class ClientHandshake:
         """The client session core the Welcome describes (:meth:`ClientSession.from_welcome`)."""
         assert self.welcome is not None and self.done
         return ClientSession.from_welcome(self.welcome, options, clock_offset_us, rng)
-
-
-def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The loss-recovery columns of a session's summary, the same for a virtual-time run and a live recording.
-
-    ``client``: :meth:`ClientSession.all_counters`; ``server``: :attr:`ServerSession.counters`; ``rows``:
-    one per display tick with ``t_s`` (s) and ``update_frame_id`` (-1 before the first update).
-    ``shown_pct``: distinct updates shown over the server frames from the first shown to the last;
-    ``longest_freeze_ms``: the longest time between two new updates reaching the screen."""
-    firsts: dict[int, float] = {}
-    for r in rows:
-        fid = int(r.get("update_frame_id", -1))
-        if fid >= 0 and fid not in firsts:
-            firsts[fid] = float(r["t_s"])
-    ids = sorted(firsts)
-    span = ids[-1] - ids[0] + 1 if ids else 0
-    times = sorted(firsts.values())
-    gaps = [b - a for a, b in zip(times, times[1:])]
-    return {
-        "updates_shown": len(ids), "shown_pct": 100.0 * len(ids) / span if span else math.nan,
-        "longest_freeze_ms": 1000.0 * max(gaps) if gaps else math.nan,
-        "keyframes": int(server.get("keyframes", 0)), "keyframe_requests": int(client.get("plis_sent", 0)),
-        "plis_received": int(server.get("plis", 0)), "nacks": int(client.get("nacks_sent", 0)),
-        "nacked_packets": int(client.get("nacked_packets", 0)), "retransmitted": int(server.get("retransmitted", 0)),
-        "fec_recovered": int(sum(v for k, v in client.items() if k.endswith("_fec_recovered"))),
-        "stalls": int(client.get("stalls", 0)), "longest_stall_ms": float(client.get("longest_stall_ms", 0.0)),
-        "apply_errors": int(client.get("apply_errors", 0)), "decode_errors": int(client.get("decode_errors", 0)),
-        "rtcp_up_bytes": int(client.get("rtcp_bytes_sent", 0)), "rtcp_down_bytes": int(server.get("rtcp_bytes_sent", 0)),
-        "retransmitted_bytes": int(server.get("retransmitted_bytes", 0)),
-    }
 
 
 # --------------------------------------------------------------------------- events
@@ -649,7 +628,7 @@ class ClientSession:
             self._queue_rtcp(out)
         return works
 
-    def next_timer(self) -> float:
+    def get_timer(self) -> float:
         """When :meth:`handle_timer` wants to run next (driver ms; ``inf`` before :meth:`start`)."""
         if not self._started:
             return math.inf
@@ -742,9 +721,9 @@ class ClientSession:
         out, self._out = self._out, []
         return out
 
-    def take_events(self) -> list[SessionEvent]:
-        out, self.events = self.events, []
-        return out
+    def next_event(self) -> SessionEvent | None:
+        """The oldest event not yet taken (a stall, its end, a stall timeout), or None."""
+        return self.events.pop(0) if self.events else None
 
     # ------------------------------------------------------------------ display
 
@@ -866,6 +845,16 @@ def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs:
     return Accepted(core, welcome, frames)
 
 
+class Datagram(NamedTuple):
+    """A datagram the server core lets go (:meth:`ServerSession.datagrams_to_send`): its bytes, its ``kind``
+    (``"rtp"`` media of ``stream``, ``"fec"``, ``"resend"``, ``"probe"``: the media path; ``"rtcp"``: a sender
+    report) and the stream it belongs to (media only)."""
+
+    data: bytes
+    kind: str
+    stream: str | None = None
+
+
 @dataclass(frozen=True)
 class ServerOptions(ServerProtocolOptions):
     """A server session's options: the protocol's (:class:`~splitrender.options.ServerProtocolOptions`, declared
@@ -931,11 +920,13 @@ class ServerSession:
     """The server side of one session (see the module docstring).
 
     ``tx`` is the session's transmission path; ``rtp_origin_ms`` is the driver time of
-    scene time 0 (the RTP clock's origin, for sender reports).  Per frame the driver asks
-    :meth:`keyframe_due`, produces and packetizes the update, and reports it with
-    :meth:`frame_sent`; control messages go to :meth:`receive_message`, RTCP datagrams to
-    :meth:`receive_rtcp` (which returns the retransmissions to send), and
-    :meth:`handle_timer` gives the sender reports when :meth:`next_timer` comes.
+    scene time 0 (the RTP clock's origin, for sender reports).  Per frame the driver takes
+    :meth:`order_frame`, makes and packetizes the update, and reports it with :meth:`frame_sent`;
+    control messages go to :meth:`receive_message`, RTCP datagrams to :meth:`receive_datagram`.
+    Everything the core sends leaves one way: after each of those calls, and when :meth:`get_timer`
+    comes, the driver calls :meth:`datagrams_to_send` and sends what it gives (media, FEC,
+    retransmissions, probes and sender reports, each tagged with its kind), in order.  The pacer,
+    the probe clusters and the report schedule sit behind that one timer.
     """
 
     tx: ServerPipeline
@@ -1003,6 +994,14 @@ class ServerSession:
                 self.point = PointController(knobs, self.rate, self.options.adapt_cfg)
         self._base_fps = self.rate.fps if self.rate is not None else 0.0
         self._probe_seq = 0
+        self._ready: deque[tuple[str, str | None, bytes, int]] = deque()
+        """(kind, stream, datagram, probe cluster) to leave at the next :meth:`datagrams_to_send`, in order."""
+        self._later: list[tuple[float, int, str, str | None, bytes, int]] = []
+        """A heap of (time, order, kind, stream, datagram, probe cluster) that leave at their time: a frame's
+        datagrams sent after its encoding (``frame_sent``'s ``send_ms``), a probe cluster's packets at its pace."""
+        self._later_seq = 0
+        self._pace_ms = math.inf
+        """When the pacer lets its next datagram go (as of the last :meth:`datagrams_to_send`)."""
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes": 0, "keyframe_requests": 0, "plis": 0, "firs": 0, "nacks": 0, "retransmitted": 0,
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
@@ -1039,8 +1038,8 @@ class ServerSession:
         return self.poses.offer(t_s, pose, client_us, seq)
 
     def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> list[bytes]:
-        """A compound RTCP packet from the client; returns the RTP packets to resend (NACKs, within the bounds of
-        :meth:`_answer_nack`)."""
+        """A compound RTCP packet from the client.  The RTP packets it resends (NACKs, within the bounds of
+        :meth:`_answer_nack`) leave by :meth:`datagrams_to_send`; they are returned too, to look at."""
         self.counters["rtcp_received"] += 1
         resend: list[bytes] = []
         refused: dict[int, str] = {}   # media SSRC: the counter of why its later requests here go unread
@@ -1083,6 +1082,7 @@ class ServerSession:
                 results = self.send_history.on_feedback(p)
                 self.counters["twcc_unknown"] += self.send_history.unknown - before
                 self.estimator.on_feedback(results, int(round(now_ms * 1000)))
+        self._queue([("resend", None, d) for d in resend], now_ms)
         return resend
 
     def _answer_nack(self, st: _TxState, nack: GenericNack, now_ms: float, resend: list[bytes]) -> str | None:
@@ -1125,7 +1125,7 @@ class ServerSession:
             st.resent.add(now_ms, sent)
         return why
 
-    def stamp(self, data: bytes, now_ms: float, probe: int = -1) -> bytes:
+    def _stamp(self, data: bytes, now_ms: float, probe: int = -1) -> bytes:
         """An RTP datagram as it leaves now: with transport-wide feedback on, its next transport sequence number
         written in and its send time and size remembered (media, retransmissions and probes, ``probe`` naming a
         probe's cluster; FEC carries none)."""
@@ -1137,47 +1137,64 @@ class ServerSession:
         self.counters["twcc_stamped"] += 1
         return write_transport_seq(data, self.tx.transport_cc_id, seq)
 
-    def send(self, items: list[tuple[Any, bytes]], now_ms: float) -> list[tuple[Any, bytes]]:
-        """RTP datagrams ``(tag, bytes)`` the driver wants to send at ``now_ms`` (the tag is the driver's, e.g. the
-        stream name): those to send now, stamped.  Without a pacer that is all of them; with one, what its budget
-        lets go now, the rest from :meth:`paced` at :meth:`next_send_ms`."""
+    def _queue(self, items: list[tuple[str, str | None, bytes]], now_ms: float) -> None:
+        """RTP datagrams ``(kind, stream, bytes)`` to send from ``now_ms``: through the pacer where there is one, else
+        at the next :meth:`datagrams_to_send`."""
         if self.pacer is None:
-            return [(tag, self.stamp(d, now_ms)) for tag, d in items]
+            self._ready.extend((kind, stream, d, -1) for kind, stream, d in items)
+            return
         us = int(round(now_ms * 1000))
-        for tag, d in items:
-            self.pacer.enqueue((tag, d), len(d), us)
-        return self.paced(now_ms)
+        for item in items:
+            self.pacer.enqueue(item, len(item[2]), us)
 
-    def paced(self, now_ms: float) -> list[tuple[Any, bytes]]:
-        """The queued datagrams the pacer lets go at ``now_ms``, stamped (none without a pacer)."""
-        if self.pacer is None or self.estimator is None:
-            return []
-        self.pacer.rate_bps = self.estimator.target_bps
-        return [(tag, self.stamp(d, now_ms)) for tag, d in self.pacer.poll(int(round(now_ms * 1000)))]
+    def _later_push(self, at_ms: float, kind: str, stream: str | None, data: bytes, cluster: int = -1) -> None:
+        heapq.heappush(self._later, (at_ms, self._later_seq, kind, stream, data, cluster))
+        self._later_seq += 1
 
-    def next_send_ms(self, now_ms: float) -> float:
-        """When :meth:`paced` has the next datagram (``inf`` when nothing waits)."""
-        if self.pacer is None:
-            return math.inf
-        t = self.pacer.next_send_us(int(round(now_ms * 1000)))
-        return math.inf if t is None else t / 1000.0
+    def datagrams_to_send(self, now_ms: float) -> list[Datagram]:
+        """Every datagram due to leave at ``now_ms``, stamped as it leaves, in sending order: what the pacer lets go
+        (media, FEC, retransmissions), a frame's datagrams without a pacer, probe packets whose time has come, and
+        the sender reports when due.  Call after every input and when :meth:`get_timer` comes."""
+        while self._later and self._later[0][0] <= now_ms + TIME_EPS_MS:
+            at_ms, _, kind, stream, data, cluster = heapq.heappop(self._later)
+            if kind == "probe":       # a probe sets its own pace, beside the pacer
+                self._ready.append((kind, stream, data, cluster))
+            else:
+                self._queue([(kind, stream, data)], at_ms)
+        out: list[Datagram] = []
+        if self.pacer is not None and self.estimator is not None:
+            self.pacer.rate_bps = self.estimator.target_bps
+            out += [Datagram(self._stamp(d, now_ms), kind, stream) for kind, stream, d in self.pacer.poll(int(round(now_ms * 1000)))]
+            t = self.pacer.next_send_us(int(round(now_ms * 1000)))
+            self._pace_ms = math.inf if t is None else t / 1000.0
+        while self._ready:
+            kind, stream, d, cluster = self._ready.popleft()
+            out.append(Datagram(self._stamp(d, now_ms, cluster), kind, stream))
+        out += [Datagram(d, "rtcp", None) for d in self._sender_reports(now_ms)]
+        return out
 
-    def probe(self, now_ms: float) -> list[tuple[float, bytes, int]]:
-        """The probe cluster the estimator wants sent now (sessions that adapt; nothing otherwise): ``(send time in
-        ms, datagram, cluster)`` per padding packet, spaced at the probe's rate.  The driver sends each at its time
-        through :meth:`stamp` with its cluster, bypassing the pacer (the probe sets its own pace).  A probe packet is
-        an RTP packet of the session's probe SSRC (``Welcome.method_params.probe_ssrc``) whose payload is zeros."""
+    def get_timer(self) -> float:
+        """When :meth:`datagrams_to_send` has something next (driver ms; ``inf``: nothing until an input): the next
+        sender report, paced datagram, probe packet or frame sent after its encoding."""
+        t = min(self._next_sr_ms if self.streams else math.inf, self._pace_ms)
+        return min(t, self._later[0][0]) if self._later else t
+
+    def _plan_probe(self, now_ms: float) -> None:
+        """The probe cluster the estimator wants sent from ``now_ms`` (sessions that adapt; nothing otherwise): its
+        padding packets join the datagrams to send, each at its time, spaced at the probe's rate, bypassing the
+        pacer (the probe sets its own pace).  A probe packet is an RTP packet of the session's probe SSRC
+        (``Welcome.method_params.probe_ssrc``) whose payload is zeros."""
         if self.estimator is None or self.rate is None or self.tx.probe_ssrc is None or self.tx.transport_cc_id is None:
-            return []
+            return
         wanted = self.rate.wanted_bps()
         if wanted is not None and self.point is not None and self.point.index > 0:
             # at a coarser point: what the richest point would send is what there is to find
             wanted = max(wanted, self.point.cost_bps(0) / self.options.adapt_cfg.headroom)
         if wanted is not None and self.estimator.target_bps >= wanted:
-            return []           # the estimate already carries all the session would send: nothing to find
+            return           # the estimate already carries all the session would send: nothing to find
         cl = self.estimator.probe(int(round(now_ms * 1000)))
         if cl is None:
-            return []
+            return
         if wanted is not None and cl.rate_bps > 1.5 * wanted:   # no faster than 1.5x what the session could use
             cl = dataclasses.replace(cl, rate_bps=1.5 * wanted)
         profile, body = one_byte_extension({self.tx.transport_cc_id: b"\0\0"})
@@ -1187,11 +1204,12 @@ class ServerSession:
             pkt = RtpPacket(self.tx.probe_payload_type, self._probe_seq & 0xFFFF, 0, self.tx.probe_ssrc,
                             bytes(max(0, cl.packet_bytes - header)), extension_profile=profile, extension_data=body)
             self._probe_seq += 1
-            out.append((now_ms + k * cl.spacing_us() / 1000, bytes(pkt), cl.cluster))
+            out.append((now_ms + k * cl.spacing_us() / 1000, bytes(pkt)))
         self.counters["probe_clusters"] = self.counters.get("probe_clusters", 0) + 1
         self.counters["probe_packets"] = self.counters.get("probe_packets", 0) + len(out)
-        self.counters["probe_bytes"] = self.counters.get("probe_bytes", 0) + sum(len(d) for _, d, _ in out)
-        return out
+        self.counters["probe_bytes"] = self.counters.get("probe_bytes", 0) + sum(len(d) for _, d in out)
+        for at_ms, data in out:
+            self._later_push(at_ms, "probe", None, data, cl.cluster)
 
     def operating_point(self, now_ms: float) -> dict[str, Any] | None:
         """The knob values the next frame should be made with (``adapt = "full"``): the method's own for its server
@@ -1236,7 +1254,8 @@ class ServerSession:
         return out
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
-        """:meth:`receive_rtcp` from bytes; malformed RTCP is counted and ignored."""
+        """:meth:`receive_rtcp` from bytes (the one RTCP entry); malformed RTCP is counted (``rtcp_bad``) and
+        ignored."""
         try:
             packets = parse_rtcp(data)
         except RtcpError:
@@ -1279,10 +1298,12 @@ class ServerSession:
                           self.fb.snapshot(kf), point, self.encoder_rates(), self.options.adapt_cfg, client)
 
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
-                   rates_kbps: dict[str, float] | None = None, restarts: int = 0) -> None:
-        """Frame ``frame_id`` went out: its RTP packets join the retransmission history.  ``rates_kbps`` and
-        ``restarts``: the encoder rates it was coded at and the encoders restarted for it (its
-        :class:`~.sender.EncodedUpdate`'s), for the rate controller."""
+                   rates_kbps: dict[str, float] | None = None, restarts: int = 0, send_ms: float | None = None) -> None:
+        """Frame ``frame_id`` was made at ``now_ms``: its RTP packets join the retransmission history, and they
+        and its FEC leave by :meth:`datagrams_to_send` from ``send_ms`` (default ``now_ms``; virtual time's
+        modelled encoding ends later), when the estimator also probes.  ``rates_kbps`` and ``restarts``: the
+        encoder rates it was coded at and the encoders restarted for it (its :class:`~.sender.EncodedUpdate`'s),
+        for the rate controller."""
         self.fb.frame_sent(frame_id, server_time_us)
         if out.keyframe:
             self.counters["keyframes"] += 1
@@ -1306,15 +1327,24 @@ class ServerSession:
             if self.point is not None:
                 self.point.on_frame_sent()
             self.counters["encoder_restarts"] = self.counters.get("encoder_restarts", 0) + restarts
+        if self.transport == "rtp":
+            at = now_ms if send_ms is None else send_ms
+            items = [("rtp", name, data) for name, _, data in out.datagrams] + [("fec", None, d) for _, d in out.fec]
+            if at <= now_ms:
+                self._queue(items, at)
+            else:
+                for kind, stream, data in items:
+                    self._later_push(at, kind, stream, data)
+            self._plan_probe(at)
 
     # ------------------------------------------------------------------ timers
 
     def _protocol_s(self, now_ms: float) -> float:
         return (self.clock_offset_us + now_ms * 1000) / 1e6
 
-    def handle_timer(self, now_ms: float) -> list[bytes]:
+    def _sender_reports(self, now_ms: float) -> list[bytes]:
         """Sender reports, one compound packet for every RTP stream, when due."""
-        if now_ms < self._next_sr_ms or not self.streams:
+        if now_ms + TIME_EPS_MS < self._next_sr_ms or not self.streams:
             return []
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
         ntp = ntp_from_seconds(self._protocol_s(now_ms))
@@ -1329,6 +1359,3 @@ class ServerSession:
         self.counters["rtcp_sent"] += 1
         self.counters["rtcp_bytes_sent"] += len(data)
         return [data]
-
-    def next_timer(self) -> float:
-        return self._next_sr_ms

@@ -11,13 +11,15 @@ Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`
   A tick that comes while the previous frame's metadata is still queued in the TCP
   send buffer, or that was missed because rendering overran, is skipped: stale frames
   are dropped, never queued;
-* ``rtcp``: the session core's sender reports when its timer says (every ``sr_interval_s``
-  on average, randomised).
+* ``timer``: the session core's one timer (:meth:`~splitrender.pipeline.ServerSession.get_timer`):
+  sender reports (every ``sr_interval_s`` on average, randomised), the pacer's sends and the
+  estimator's probe packets, each when the core says.  Everything the core sends leaves through
+  :meth:`ServerSession._flush` (its ``datagrams_to_send``), after each input and at that timer.
 
 RTCP from the client (receiver reports, generic NACKs, PLIs) arrives through the
 server's shared UDP socket and goes to the session core in :meth:`on_datagram`,
 parsed only once its source is the session's client; the
-retransmissions it answers with are sent at once.  Everything the protocol decides
+retransmissions it answers with leave through the same flush.  Everything the protocol decides
 (feedback, keyframe requests, NACK answers, sender reports) is the sans-IO core's
 (:class:`splitrender.pipeline.ServerSession`); this module only moves bytes and time.
 """
@@ -25,6 +27,7 @@ retransmissions it answers with are sent at once.  Everything the protocol decid
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import secrets
@@ -39,6 +42,7 @@ import numpy as np
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
+from splitrender.pipeline.rows import update_row
 from splitrender.pipeline import (Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
                                   rtp_timestamp)
 from splitrender.server.worker import RenderWorker
@@ -147,7 +151,7 @@ class ServerSession:
         """The newest rows of frames sent: wire bytes per stream (as the virtual-time runner's updates.csv; all of
         them go to ``updates.csv`` as they are sent when ``out_dir`` is set)."""
         self._logs: dict[str, CsvAppender] = {}
-        self._pace_wake = asyncio.Event()
+        self._timer_wake = asyncio.Event()
         self._counters: dict[str, int] = {
             "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
             "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
@@ -189,9 +193,7 @@ class ServerSession:
                 async with asyncio.TaskGroup() as tg:
                     tg.create_task(self._control_loop(), name=f"session-{self.id}-control")
                     tg.create_task(self._frame_loop(), name=f"session-{self.id}-frames")
-                    tg.create_task(self._rtcp_loop(), name=f"session-{self.id}-rtcp")
-                    if self.core is not None and self.core.pacer is not None:
-                        tg.create_task(self._pace_loop(), name=f"session-{self.id}-pacer")
+                    tg.create_task(self._timer_loop(), name=f"session-{self.id}-timer")
             except* _SessionEnded:
                 pass
             except* RemoteProtocolError as eg:
@@ -436,40 +438,31 @@ class ServerSession:
                            timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
         core.frame_sent(self._frame_id, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
+        self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
-        # media, then parity packets (neither mirrored nor kept for retransmission: tagged None), as the core lets them go
-        self._send_rtp(core.send([(name, data) for name, _, data in out.datagrams] + [(None, data) for _, data in out.fec],
-                                 _now_ms()))
-        loop = asyncio.get_running_loop()
-        for at_ms, data, cluster in core.probe(_now_ms()):   # the estimator's probe cluster, at its own pace
-            loop.call_later(max(0.0, (at_ms - _now_ms()) / 1000), self._send_probe, data, cluster)
         c2 = time.perf_counter()
         # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
         # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
         # latency), and packetizing and sending here
-        row: dict[str, Any] = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes": out.total_wire_bytes,
-                               "keyframe": int(out.keyframe), "shared_ms": shared_ms, "server_ms": render_ms,
-                               "gi_ms": stages["gi_ms"], "encode_ms": enc.encode_ms,
-                               "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
-                               "send_ms": (c2 - c1) * 1e3, "expected_latency_ms": order.expected_latency_s * 1000}
-        row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in tx.bytes_sent if k != "session"})
-        row.update(core.congestion())
+        row = {**update_row(self._frame_id, scene_t, out, enc, order, stages, tx.bytes_sent, core.congestion()),
+               "server_us": t_us, "gi_ms": stages["gi_ms"], "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
+               "send_ms": (c2 - c1) * 1e3}
         self.update_rows.append(row)
         self._log("updates", row)
         self._frame_id += 1
 
     # ------------------------------------------------------------------ RTCP
 
-    async def _rtcp_loop(self) -> None:
-        """Sender reports when the core's timer comes (once the client's address is known)."""
+    async def _timer_loop(self) -> None:
+        """Flushes the core when its one timer comes (woken early when an input may have moved it)."""
         assert self.core is not None
         while True:
-            await asyncio.sleep(max(0.001, min(1.0, (self.core.next_timer() - _now_ms()) / 1000)))
-            if self.client_addr is None:
-                continue
-            for data in self.core.handle_timer(_now_ms()):
-                self.server.send_datagram(data, self.client_addr)
+            wait = max(0.0, min(1.0, (self.core.get_timer() - _now_ms()) / 1000))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._timer_wake.wait(), wait)
+            self._timer_wake.clear()
+            self._flush(wake=False)
 
     def on_datagram(self, data: bytes, addr: Address) -> None:
         """A compound RTCP datagram from ``addr`` that names one of this session's streams.  Once the client's
@@ -481,49 +474,30 @@ class ServerSession:
         if self.core is None:
             return
         bad = self.core.counters.get("rtcp_bad", 0)
-        resend = self.core.receive_datagram(data, _now_ms())
+        self.core.receive_datagram(data, _now_ms())
         if self.core.counters.get("rtcp_bad", 0) != bad:
             logger.debug("session %s: malformed RTCP from %s:%d", self.id, *addr)
             return
         if self.client_addr is None:
             self.client_addr = addr
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
-        if resend:
-            self._send_rtp(self.core.send([(None, d) for d in resend], _now_ms()))
+        self._flush()
 
-    def _send_rtp(self, items: list[tuple[str | None, bytes]]) -> None:
-        """RTP datagrams to the client as the core lets them go; with a pacer the rest follow from
-        :meth:`_pace_loop`, woken here."""
-        self._send_rtp_now(items)
-        if self.core is not None and self.core.pacer is not None:
-            self._pace_wake.set()
-
-    async def _pace_loop(self) -> None:
-        """Sends what the core's pacer lets go, when it lets it go (sessions with pacing)."""
-        assert self.core is not None
-        while True:
-            nxt = self.core.next_send_ms(_now_ms())
-            if not math.isfinite(nxt):
-                self._pace_wake.clear()
-                await self._pace_wake.wait()
-                continue
-            await asyncio.sleep(max(0.0, (nxt - _now_ms()) / 1000))
-            self._send_rtp_now(self.core.paced(_now_ms()))
-
-    def _send_probe(self, data: bytes, cluster: int) -> None:
-        """One packet of a probe cluster, stamped as it leaves."""
-        if self.core is not None:
-            self._send_rtp_now([(None, self.core.stamp(data, _now_ms(), cluster))])
-
-    def _send_rtp_now(self, items: list[tuple[str | None, bytes]]) -> None:
-        """Send RTP datagrams ``(stream or None, bytes)`` to the client, a stream's to its mirror as well."""
-        if self.client_addr is None:
+    def _flush(self, wake: bool = True) -> None:
+        """Send what the core lets go now (its one way out): RTP and sender reports to the client, each stream's RTP to
+        its mirror as well; before the client's address is known they are dropped.  After an input (``wake``) the
+        timer task is woken, since the core's next deadline may have moved."""
+        if self.core is None:
             return
-        for name, data in items:
-            self.server.send_datagram(data, self.client_addr)
-            mirror = self.streams[name].mirror if name is not None else None
+        for d in self.core.datagrams_to_send(_now_ms()):
+            if self.client_addr is None:
+                continue
+            self.server.send_datagram(d.data, self.client_addr)
+            mirror = self.streams[d.stream].mirror if d.kind == "rtp" and d.stream is not None else None
             if mirror is not None:
-                self.server.send_datagram(data, mirror)
+                self.server.send_datagram(d.data, mirror)
+        if wake:
+            self._timer_wake.set()
 
     # ------------------------------------------------------------------ records
 

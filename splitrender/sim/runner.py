@@ -64,6 +64,7 @@ from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
+from ..pipeline.rows import frames_summary, mean_of, update_row, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello,
                         check_hello, make_frame, rtp_timestamp, session_summary, tcp_segments)
@@ -181,8 +182,8 @@ class _Client:
     lost_frames: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
-    pace_at_s: float = math.inf
-    """When the server core's pacer next sends (armed once)."""
+    server_timer_s: float = math.inf
+    """When the server core's timer event is scheduled (s; ``inf``: none)."""
     bytes: dict[str, int] = field(default_factory=dict)
     window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
     frames: list[dict[str, Any]] = field(default_factory=list)
@@ -332,7 +333,7 @@ class VirtualTimeRun:
             c.core_s.start(0.0)
             self.now = 0.0
             self._client_out(c)
-            self._arm_server_timer(c)
+            self._server_out(c, 0.0)
         while self._events:
             t, _, _, fn, args = heapq.heappop(self._events)
             self.now = t
@@ -383,80 +384,67 @@ class VirtualTimeRun:
             wire_stats = stats if measured else {k: v for k, v in stats.items() if not k.endswith("_ms")}
             out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), order.pose_us, order.pose_seq,
                                  order.target_t_s, timing, wire_stats)
-            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts)
-            # control frames: TCP segments over the downlink, in order, head-of-line blocked
-            for stream, data in out.control:
-                arrive = send_t
-                for seg in tcp_segments(len(data)):
-                    arrive = max(arrive, c.down.send(send_t, seg, reliable=True)[0].time_s)
-                arrive = max(arrive, c.down_ctrl_free_s)
-                c.down_ctrl_free_s = arrive
-                self._at(arrive, _DELIVER, self._deliver_control, c, data)
-            self._send_down(c, [d for _, _, d in out.datagrams] + [d for _, d in out.fec], send_t)
-            for at_ms, data, cluster in c.core_s.probe(send_t * 1000):
-                self._at(at_ms / 1000, _TIMER, self._send_probe, c, data, cluster)
+            # its datagrams leave when its modelled encoding ends, through the core's one way out
+            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts, send_ms=send_t * 1000)
+            # the frame leaves when its encoding ends: its control frames first, then its datagrams (the core's)
+            self._at(send_t, _TIMER, self._control_down, c, [data for _, data in out.control])
+            self._server_out(c, t_f)
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
             pred_cm, pred_deg = prediction_error(order.target_pose, c.trace.pose_at(order.target_t_s))
             c.pose_t[f] = order.latest_pose_t_s
             c.pred[f] = (pred_cm, pred_deg)
-            row: dict[str, Any] = {"client": c.index, "frame_id": f, "t_s": t_f, "bytes": out.total_wire_bytes,
-                                   "keyframe": int(out.keyframe), "delivered": "", "missing": "",
-                                   "shared_ms": pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0,
-                                   "server_ms": stages["produce_ms"], "encode_ms": enc.encode_ms, "cost_ms": cost_ms,
-                                   "expected_latency_ms": order.expected_latency_s * 1000, "pred_err_cm": pred_cm,
-                                   "pred_err_deg": pred_deg, "arrival_s": math.nan}
-            for name in c.bytes:
-                if name != SESSION_STREAM:
-                    row[f"bytes_{name}"] = out.wire_bytes.get(name, 0)
+            # the tick's shared work is the pool's (a run's sessions share one producer), not this session's share
+            shared = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
+            row = {"client": c.index, **update_row(f, t_f, out, enc, order, {**stages, "shared_ms": shared}, c.bytes,
+                                                   c.core_s.congestion()),
+                   "delivered": "", "missing": "", "cost_ms": cost_ms, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
+                   "arrival_s": math.nan}
             row.update({f"srv_{k}": v for k, v in stats.items()})
             row.update({f"shared_{k}": v for k, v in pool.stats(self.spec.name).items()})
-            row.update(c.core_s.congestion())
             c.update_rows[f] = row
             c.updates.append(row)
 
-    def _send_down(self, c: _Client, datagrams: list[bytes], t_s: float) -> None:
-        """RTP datagrams (media, FEC, retransmissions) onto the downlink at ``t_s`` (or its last send)."""
-        t_s = max(t_s, c.sent_s.get("down", -math.inf))
-        c.sent_s["down"] = t_s
-        assert c.core_s is not None
-        self._onto_link(c, c.core_s.send([(None, d) for d in datagrams], t_s * 1000), t_s)
-        self._arm_pacer(c, t_s)
-
-    def _send_probe(self, c: _Client, data: bytes, cluster: int) -> None:
-        """One packet of a probe cluster leaves now (its own pace, beside the pacer's)."""
-        assert c.core_s is not None
+    def _control_down(self, c: _Client, frames: list[bytes]) -> None:
+        """Control frames leave now as TCP segments over the downlink, in order, head-of-line blocked."""
         t_s = max(self.now, c.sent_s.get("down", -math.inf))
         c.sent_s["down"] = t_s
-        self._onto_link(c, [(None, c.core_s.stamp(data, t_s * 1000, cluster))], t_s)
-        c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(data))
+        for data in frames:
+            arrive = t_s
+            for seg in tcp_segments(len(data)):
+                arrive = max(arrive, c.down.send(t_s, seg, reliable=True)[0].time_s)
+            arrive = max(arrive, c.down_ctrl_free_s)
+            c.down_ctrl_free_s = arrive
+            self._at(arrive, _DELIVER, self._deliver_control, c, data)
 
-    def _onto_link(self, c: _Client, items: list[tuple[Any, bytes]], t_s: float) -> None:
-        for _, data in items:
-            deliveries = c.down.send(t_s, len(data) + 28)
-            c.packets_lost += not deliveries
-            for d in deliveries:
-                if not d.corrupted:
-                    self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
+    def _server_out(self, c: _Client, t_s: float) -> None:
+        """What the server core sends at ``t_s`` (its one way out): media, FEC, retransmissions and probes down the
+        media path, sender reports over RTCP's copy of the downlink, each link taking sends in time order; then its
+        one timer is armed."""
+        assert c.core_s is not None and c.rtcp_down is not None
+        for d in c.core_s.datagrams_to_send(t_s * 1000):
+            link, key = (c.rtcp_down, "rtcp_down") if d.kind == "rtcp" else (c.down, "down")
+            t = max(t_s, c.sent_s.get(key, -math.inf))
+            c.sent_s[key] = t
+            deliveries = link.send(t, len(d.data) + 28)
+            if key == "down":
+                c.packets_lost += not deliveries
+            if d.kind == "probe":
+                c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(d.data))
+            for dl in deliveries:
+                if not dl.corrupted:
+                    self._at(dl.time_s, _DELIVER, self._deliver_datagram, c, d.data)
+        t = max(c.core_s.get_timer() / 1000, self.now)
+        if t < c.server_timer_s and t <= self.duration_s + 1.0:   # armed once: an earlier arming stays
+            c.server_timer_s = t
+            self._at(t, _TIMER, self._server_timer, c, t)
 
-    def _arm_pacer(self, c: _Client, now_s: float) -> None:
-        """The next paced send of ``c``'s server core, once (an earlier one already armed stays)."""
-        assert c.core_s is not None
-        t = c.core_s.next_send_ms(now_s * 1000) / 1000
-        if math.isfinite(t) and t < c.pace_at_s:
-            c.pace_at_s = t
-            self._at(t, _TIMER, self._pace, c, t)
-
-    def _pace(self, c: _Client, armed_s: float) -> None:
-        assert c.core_s is not None
-        if armed_s != c.pace_at_s:           # a later arming replaced this one
+    def _server_timer(self, c: _Client, armed_s: float) -> None:
+        if armed_s != c.server_timer_s:      # a later arming replaced this one
             return
-        c.pace_at_s = math.inf
-        t_s = max(self.now, c.sent_s.get("down", -math.inf))
-        c.sent_s["down"] = t_s
-        self._onto_link(c, c.core_s.paced(t_s * 1000), t_s)
-        self._arm_pacer(c, t_s)
+        c.server_timer_s = math.inf
+        self._server_out(c, self.now)
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
@@ -466,26 +454,8 @@ class VirtualTimeRun:
     def _server_rtcp(self, c: _Client, data: bytes) -> None:
         """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
         assert c.core_s is not None
-        resend = c.core_s.receive_datagram(data, self.now * 1000)
-        if resend:
-            self._send_down(c, resend, self.now)
-
-    def _arm_server_timer(self, c: _Client) -> None:
-        assert c.core_s is not None
-        t = c.core_s.next_timer() / 1000
-        if math.isfinite(t) and t <= self.duration_s + 1.0:
-            self._at(max(t, self.now), _TIMER, self._server_timer, c)
-
-    def _server_timer(self, c: _Client) -> None:
-        """Sender reports, over RTCP's copy of the downlink."""
-        assert c.core_s is not None and c.rtcp_down is not None
-        for data in c.core_s.handle_timer(self.now * 1000):
-            t = max(self.now, c.sent_s.get("rtcp_down", -math.inf))
-            c.sent_s["rtcp_down"] = t
-            for d in c.rtcp_down.send(t, len(data) + 28):
-                if not d.corrupted:
-                    self._at(d.time_s, _DELIVER, self._deliver_datagram, c, data)
-        self._arm_server_timer(c)
+        c.core_s.receive_datagram(data, self.now * 1000)
+        self._server_out(c, self.now)
 
     # ------------------------------------------------------------------ client
 
@@ -558,13 +528,13 @@ class VirtualTimeRun:
             for d in c.rtcp_up.send(t, len(data) + 28):
                 if not d.corrupted:
                     self._at(d.time_s, _DELIVER, self._server_rtcp, c, data)
-        for ev in c.core.take_events():
+        while (ev := c.core.next_event()) is not None:
             if isinstance(ev, Stalled):
                 log.debug("run %s client %d: stalled at %.3f s (%.0f ms without a frame)", self.cfg.method, c.index,
                           ev.now_ms / 1000, ev.idle_ms)
             elif isinstance(ev, Resumed):
                 log.debug("run %s client %d: frames resumed after %.0f ms", self.cfg.method, c.index, ev.stall_ms)
-        t = c.core.next_timer() / 1000
+        t = c.core.get_timer() / 1000
         if t < c.timer_s and t <= self.duration_s + 1.0 / self.cfg.client_fps:
             c.timer_s = max(t, self.now)
             c.timer_token += 1
@@ -593,20 +563,8 @@ class VirtualTimeRun:
         assert c.core is not None
         self._client_timer_now(c)   # timeouts due at this tick first, as the live client's timer task would
         now_ms = t_d * 1000
-        applied_ms, decode_ms = 0.0, math.nan
         make_current(c.gl)
-        for rf in c.core.display(now_ms):
-            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
-            w0 = time.perf_counter()
-            try:
-                c.chalf.apply(rf.update)
-            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                c.core.apply_failed(rf)
-                log.warning("run %s: update %d rejected by the client half: %s", cfg.method, rf.update.frame_id, exc)
-                continue
-            finally:
-                applied_ms += (time.perf_counter() - w0) * 1000
-            c.core.applied(rf)
+        applied_ms, decode_ms = self._apply(c, now_ms)
         true_pose = c.trace.pose_at(t_d)
         w0 = time.perf_counter()
         if c.chalf.has_content:
@@ -650,62 +608,50 @@ class VirtualTimeRun:
         c.frames.append(row)
         self._client_out(c)
 
+    def _apply(self, c: _Client, now_ms: float) -> tuple[float, float]:
+        """The updates whose turn has come, applied to the client half in order and reported to the core; returns
+        the milliseconds applying took and the last one's measured decode time."""
+        assert c.core is not None
+        applied_ms, decode_ms = 0.0, math.nan
+        for rf in c.core.display(now_ms):
+            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
+            w0 = time.perf_counter()
+            try:
+                c.chalf.apply(rf.update)
+            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
+                c.core.apply_failed(rf)
+                log.warning("run %s: update %d rejected by the client half: %s", self.cfg.method, rf.update.frame_id,
+                            exc)
+                continue
+            finally:
+                applied_ms += (time.perf_counter() - w0) * 1000
+            c.core.applied(rf)
+        return applied_ms, decode_ms
+
     def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg
-        fr = c.frames
-        bytes_by_stream = c.bytes
         assert c.core is not None and c.core_s is not None
-
-        def col(k: str) -> np.ndarray:
-            return np.array([f.get(k, math.nan) for f in fr], dtype=np.float64)
-
-        def mean(k: str) -> float:
-            a = col(k)
-            a = a[~np.isnan(a)]
-            return float(a.mean()) if a.size else math.nan
-
-        def pct(k: str, q: float) -> float:
-            a = col(k)
-            a = a[~np.isnan(a)]
-            return float(np.percentile(a, q)) if a.size else math.nan
-
         dur = self.duration_s + 1.0 / cfg.server_fps
-        total = sum(bytes_by_stream.values())
-        s: dict[str, Any] = {
-            "client": c.index, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace, "seed": cfg.seed,
-            "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
-            "client_trace": (cfg.client_traces or (cfg.trace,))[c.index % len(cfg.client_traces or (cfg.trace,))],
-            "width": cfg.width, "height": cfg.height, "server_fps": cfg.server_fps, "client_fps": cfg.client_fps,
-            "frames": len(fr), **metrics.quality_summary(fr), **metrics.content_quality_summary(fr),
-            "mean_kbps": total * 8 / dur / 1000.0,
-        }
-        for name, b in bytes_by_stream.items():
-            s[f"kbps_{name}"] = b * 8 / dur / 1000.0
-        once = bytes_by_stream.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
-        s["session_kb"] = once / 1000.0
-        s["steady_kbps"] = (total - once) * 8 / dur / 1000.0
+        total = sum(c.bytes.values())
+        once = c.bytes.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
         ups = c.updates
-        s.update({
-            "mean_update_age_ms": mean("update_age_ms"), "p95_update_age_ms": pct("update_age_ms", 95),
-            "mean_motion_to_photon_ms": mean("motion_to_photon_ms"),
-            "mean_server_ms": float(np.mean([u["server_ms"] for u in ups])) if ups else math.nan,
-            "cost_model": cfg.cost_model, "mean_cost_ms": float(np.mean([u["cost_ms"] for u in ups])) if ups else math.nan,
-            "server_skipped": self.server_skipped,
-            "mean_shared_server_ms": float(np.mean([u["shared_ms"] for u in ups])) if ups else math.nan,
-            "clients": cfg.clients,
-            "mean_encode_ms": float(np.mean([u["encode_ms"] for u in ups])) if ups else math.nan,
-            "mean_decode_ms": mean("decode_ms"), "mean_client_ms": mean("client_ms"), "mean_gt_ms": mean("gt_ms"),
-            "lost_frames": c.lost_frames, "protocol_errors": c.protocol_errors, "packets_lost": c.packets_lost, "rtp_packets": c.core_s.counters["rtp_packets"],
+        traces = cfg.client_traces or (cfg.trace,)
+        s: dict[str, Any] = {
+            "client": c.index, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace,
+            "seed": cfg.seed, "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
+            "client_trace": traces[c.index % len(traces)], "width": cfg.width, "height": cfg.height,
+            "server_fps": cfg.server_fps, "client_fps": cfg.client_fps, **frames_summary(c.frames),
+            "mean_kbps": total * 8 / dur / 1000.0, **{f"kbps_{k}": b * 8 / dur / 1000.0 for k, b in c.bytes.items()},
+            "session_kb": once / 1000.0, "steady_kbps": (total - once) * 8 / dur / 1000.0, **updates_summary(ups),
+            "cost_model": cfg.cost_model, "mean_cost_ms": mean_of(ups, "cost_ms"), "server_skipped": self.server_skipped,
+            "clients": cfg.clients, "lost_frames": c.lost_frames, "protocol_errors": c.protocol_errors,
+            "packets_lost": c.packets_lost, "rtp_packets": c.core_s.counters["rtp_packets"],
             **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
-            "mean_expected_latency_ms": float(np.mean([u["expected_latency_ms"] for u in ups])) if ups else math.nan,
-            "mean_pred_err_cm": float(np.mean([u["pred_err_cm"] for u in ups])) if ups else math.nan,
-            "mean_pred_err_deg": float(np.mean([u["pred_err_deg"] for u in ups])) if ups else math.nan,
+            "mean_pred_err_cm": mean_of(ups, "pred_err_cm"), "mean_pred_err_deg": mean_of(ups, "pred_err_deg"),
             "flip_every": cfg.flip_every, "config_key": cfg.key(),
-            "frames_before_content": int(sum(1 for f in fr if f.get("update_frame_id", -1) == -1)),
-        })
+        }
         if c.core_s.estimator is not None:    # transport-wide feedback: what the estimator made of the path
-            cc = [u["cc_target_kbps"] for u in ups if "cc_target_kbps" in u]
-            s.update({"mean_cc_target_kbps": float(np.mean(cc)) if cc else math.nan,
+            s.update({"mean_cc_target_kbps": mean_of(ups, "cc_target_kbps"),
                       "twcc_feedback": c.core_s.counters["twcc_feedback"], "twcc_unknown": c.core_s.counters["twcc_unknown"],
                       "cc_overuses": c.core_s.estimator.overuses})
         if c.core_s.rate is not None:         # rate adaptation: encoder restarts and the estimator's probes

@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import WorkerTimeout, describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
+from ..pipeline.rows import update_row
 from ..pipeline.session import ServerSession
 from ..protocol import Feedback
 from ..scene.pose import CameraIntrinsics
@@ -461,16 +462,14 @@ class BrowserSession:
         if not self.track.put(frame.data, rtp_ts):
             self.request_keyframe("the sender fell behind")
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
-        core.frame_sent(self._frame_id, OutgoingFrame(self._frame_id, keyframe=frame.keyframe,
-                                                      wire_bytes={self.stream: len(frame.data)}), now_ms, t_us)
+        sent = OutgoingFrame(self._frame_id, keyframe=frame.keyframe, wire_bytes={self.stream: len(frame.data)})
+        core.frame_sent(self._frame_id, sent, now_ms, t_us)
         self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
         c1 = time.perf_counter()
-        row = {"frame_id": self._frame_id, "t_s": scene_t, "server_us": t_us, "bytes_color": len(frame.data),
-               "bytes_frame_meta": n_meta, "keyframe": int(frame.keyframe), "server_ms": stages["produce_ms"],
-               "encode_ms": enc.encode_ms, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
-               "expected_latency_ms": order.expected_latency_s * 1000}
+        row = {**update_row(self._frame_id, scene_t, sent, enc, order, stages, (self.stream,), {}), "server_us": t_us,
+               "bytes_frame_meta": n_meta, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"])}
         d = self.out_dir
         if d is not None:
             if self._log is None:

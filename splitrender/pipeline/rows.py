@@ -1,0 +1,102 @@
+"""The rows a session records and their summaries, written once for every front door.
+
+An *update row* is one per server frame (``updates.csv``: virtual time's, the live server's), a *frame row* one per
+display tick (``frames.csv``: virtual time's, and a live client's recording once scored).  :func:`update_row` makes
+the columns every server front door shares; :func:`frames_summary`, :func:`updates_summary` and
+:func:`session_summary` make a run's summary columns from the rows and the cores' counters, the same for a
+virtual-time run and a scored live recording.  Each front door adds only what it alone measures (virtual time: the
+modelled cost, delivery and prediction error; live: the wall-clock stages of the worker round trip and the send).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable
+
+import numpy as np
+
+from .. import metrics
+
+__all__ = ["frames_summary", "session_summary", "update_row", "updates_summary"]
+
+
+def _values(rows: Iterable[dict[str, Any]], key: str) -> np.ndarray:
+    a = np.array([r.get(key, math.nan) for r in rows], dtype=np.float64)
+    return a[~np.isnan(a)]
+
+
+def mean_of(rows: Iterable[dict[str, Any]], key: str) -> float:
+    """The mean of ``key`` over the rows that have a number there (NaN if none)."""
+    a = _values(rows, key)
+    return float(a.mean()) if a.size else math.nan
+
+
+def pct_of(rows: Iterable[dict[str, Any]], key: str, q: float) -> float:
+    """The ``q``-th percentile of ``key`` over the rows that have a number there (NaN if none)."""
+    a = _values(rows, key)
+    return float(np.percentile(a, q)) if a.size else math.nan
+
+
+def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages: dict[str, float],
+               streams: Iterable[str], congestion: dict[str, float]) -> dict[str, Any]:
+    """The columns of one server frame's row that every front door writes: its id and scene time, wire bytes in all
+    and per stream (``streams``: the session's, the one-off session data left out), keyframe, the stages of
+    :func:`~.frames.make_frame` (``shared_ms``, ``server_ms``: the method's own), ``encode_ms``, the latency the
+    order expected, and the estimator's state (:meth:`~.session.ServerSession.congestion`)."""
+    row: dict[str, Any] = {"frame_id": frame_id, "t_s": t_s, "bytes": out.total_wire_bytes,
+                           "keyframe": int(out.keyframe), "shared_ms": stages.get("shared_ms", 0.0),
+                           "server_ms": stages["produce_ms"], "encode_ms": enc.encode_ms,
+                           "expected_latency_ms": order.expected_latency_s * 1000}
+    row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in streams if k != "session"})
+    row.update(congestion)
+    return row
+
+
+def updates_summary(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """A session's server-side means from its update rows."""
+    return {"mean_server_ms": mean_of(rows, "server_ms"), "mean_shared_server_ms": mean_of(rows, "shared_ms"),
+            "mean_encode_ms": mean_of(rows, "encode_ms"), "mean_expected_latency_ms": mean_of(rows, "expected_latency_ms")}
+
+
+def frames_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """A session's display-side summary from its frame rows: the quality aggregates over every tick and over the
+    ticks with content (:func:`~splitrender.metrics.quality_summary`, :func:`~splitrender.metrics.content_quality_summary`),
+    update age (mean and p95), motion-to-photon, the client's decode, apply-and-render and ground-truth milliseconds,
+    and the start-up ticks before any content."""
+    return {
+        "frames": len(rows), **metrics.quality_summary(rows), **metrics.content_quality_summary(rows),
+        "mean_update_age_ms": mean_of(rows, "update_age_ms"), "p95_update_age_ms": pct_of(rows, "update_age_ms", 95),
+        "mean_motion_to_photon_ms": mean_of(rows, "motion_to_photon_ms"), "mean_decode_ms": mean_of(rows, "decode_ms"),
+        "mean_client_ms": mean_of(rows, "client_ms"), "mean_gt_ms": mean_of(rows, "gt_ms"),
+        "frames_before_content": int(sum(1 for r in rows if r.get("update_frame_id", -1) == -1)),
+    }
+
+
+def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The loss-recovery columns of a session's summary, the same for a virtual-time run and a live recording.
+
+    ``client``: :meth:`ClientSession.all_counters`; ``server``: :attr:`ServerSession.counters`; ``rows``:
+    one per display tick with ``t_s`` (s) and ``update_frame_id`` (-1 before the first update).
+    ``shown_pct``: distinct updates shown over the server frames from the first shown to the last;
+    ``longest_freeze_ms``: the longest time between two new updates reaching the screen."""
+    firsts: dict[int, float] = {}
+    for r in rows:
+        fid = int(r.get("update_frame_id", -1))
+        if fid >= 0 and fid not in firsts:
+            firsts[fid] = float(r["t_s"])
+    ids = sorted(firsts)
+    span = ids[-1] - ids[0] + 1 if ids else 0
+    times = sorted(firsts.values())
+    gaps = [b - a for a, b in zip(times, times[1:])]
+    return {
+        "updates_shown": len(ids), "shown_pct": 100.0 * len(ids) / span if span else math.nan,
+        "longest_freeze_ms": 1000.0 * max(gaps) if gaps else math.nan,
+        "keyframes": int(server.get("keyframes", 0)), "keyframe_requests": int(client.get("plis_sent", 0)),
+        "plis_received": int(server.get("plis", 0)), "nacks": int(client.get("nacks_sent", 0)),
+        "nacked_packets": int(client.get("nacked_packets", 0)), "retransmitted": int(server.get("retransmitted", 0)),
+        "fec_recovered": int(sum(v for k, v in client.items() if k.endswith("_fec_recovered"))),
+        "stalls": int(client.get("stalls", 0)), "longest_stall_ms": float(client.get("longest_stall_ms", 0.0)),
+        "apply_errors": int(client.get("apply_errors", 0)), "decode_errors": int(client.get("decode_errors", 0)),
+        "rtcp_up_bytes": int(client.get("rtcp_bytes_sent", 0)), "rtcp_down_bytes": int(server.get("rtcp_bytes_sent", 0)),
+        "retransmitted_bytes": int(server.get("retransmitted_bytes", 0)),
+    }
