@@ -762,6 +762,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     "never encode colour (codec noise around a silhouette otherwise counts as bleed)")
     ap.add_argument("--hidden-sky", type=int, default=None, help="our QUASAR client's sky quads behind the model's "
                     "silhouette, in pixels (splitrender.methods.quads.mesh.HIDDEN_SKY_PX; 0: none, as before issue 50)")
+    ap.add_argument("--ours", default=",".join(METHODS), help="which of our methods to run, comma-separated (default: "
+                    "all; the others' rows are left out)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
                     "instead of running its programs again")
     ap.add_argument("--xvfb", choices=("auto", "always", "never"), default="auto",
@@ -868,7 +870,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     scores: dict[str, dict[str, Any]] = {}
     o_bg: tuple[int, int, int] | None = None
     repaint = False
-    for m in METHODS:
+    ours = [m for m in METHODS if m in args.ours.split(",")]
+    for m in ours:
         res, images = run_ours(m, setup, model, path_file, renderer, work / "ours" / m)
         if o_bg is None:     # every run has the same ground truth
             o_bg = background_colour(t for di, _, t in images[skip::10])
