@@ -762,6 +762,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     "never encode colour (codec noise around a silhouette otherwise counts as bleed)")
     ap.add_argument("--hidden-sky", type=int, default=None, help="our QUASAR client's sky quads behind the model's "
                     "silhouette, in pixels (splitrender.methods.quads.mesh.HIDDEN_SKY_PX; 0: none, as before issue 50)")
+    ap.add_argument("--qs-expand-edges", action="store_true", help="our QuadStream grows every silhouette by a pixel "
+                    "as qs_simulator does (splitrender.methods.quads.server.QS_EXPAND_EDGES)")
     ap.add_argument("--ours", default=",".join(METHODS), help="which of our methods to run, comma-separated (default: "
                     "all; the others' rows are left out)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
@@ -863,8 +865,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     # ours, each run scored as soon as it ends (its frames are not kept)
     from splitrender.methods.quads import mesh as quads_mesh
 
+    from splitrender.methods.quads import server as quads_server
+
     if args.hidden_sky is not None:
         quads_mesh.HIDDEN_SKY_PX = args.hidden_sky
+    if args.qs_expand_edges:
+        quads_server.QS_EXPAND_EDGES = True
     renderer = Renderer()
     updates: dict[str, list[dict[str, Any]]] = {}
     scores: dict[str, dict[str, Any]] = {}
@@ -924,7 +930,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
         "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),
         "quasar_commands": commands, "our_configs": {m: our_config(m, setup, model, path_file).to_dict() for m in METHODS},
-        "hidden_sky_px": quads_mesh.HIDDEN_SKY_PX, "splitrender_commit": quasar_commit(ROOT),
+        "hidden_sky_px": quads_mesh.HIDDEN_SKY_PX, "qs_expand_edges": quads_server.QS_EXPAND_EDGES, "splitrender_commit": quasar_commit(ROOT),
         "rows": rows, "wall_s": time.perf_counter() - t_start, "gl": renderer.ctx.info.get("GL_RENDERER"),
         "machine": machine(),
     }

@@ -86,3 +86,28 @@ def test_quadstream_shows_a_thin_railing_better_than_quasar_from_inside_the_view
     assert margin.mean() > 3.5 and margin.min() > 1.5, (qr, qs)
     assert qs[:, 1].mean() < 0.45 * qr[:, 1].mean(), (qr, qs)
     assert qs[:, 2].max() < 0.005 and qr[:, 2].mean() > 0.006, (qr, qs)
+
+
+def test_expand_edges_grows_every_silhouette_by_a_pixel_as_qs_simulator_does() -> None:
+    """``expand_edges`` (QUASAR's ``expandEdges``, which its QuadStream uses for every view): each background pixel
+    with a valid 8-neighbour takes the farthest such neighbour's depth, normal and colour; the rest stays."""
+    from splitrender.methods.quads.server import QS_EXPAND_EDGES, expand_edges
+
+    assert QS_EXPAND_EDGES is False                   # opt-in: measured on the peer benchmark only
+    depth = np.full((7, 7), np.inf)
+    depth[2:5, 2:5] = 2.0
+    depth[2, 2] = 3.0                                 # the block's farthest pixel, top left
+    color = np.zeros((7, 7, 3), np.uint8)
+    color[2:5, 2:5] = 100
+    color[2, 2] = 200
+    normal = np.zeros((7, 7, 3))
+    normal[2:5, 2:5] = (0.0, 0.0, 1.0)
+    normal[2, 2] = (0.0, 1.0, 0.0)
+    c, d, n = expand_edges(color, depth, normal)
+    grown = np.isfinite(d)
+    assert grown[1:6, 1:6].all() and grown.sum() == 25 and (d[2:5, 2:5] == depth[2:5, 2:5]).all()
+    assert d[1, 1] == 3.0 and (c[1, 1] == 200).all() and (n[1, 1] == (0, 1, 0)).all()       # beside the far pixel
+    assert d[5, 5] == 2.0 and (c[5, 5] == 100).all() and (n[5, 5] == (0, 0, 1)).all()
+    assert (c[0] == 0).all() and np.isinf(d[0]).all()                                         # two away: background
+    full = np.full((4, 4), 1.0)
+    assert expand_edges(color[:4, :4], full, normal[:4, :4])[1] is full

@@ -57,6 +57,39 @@ STAGES = ("gbuffer_ms", "quadgen_ms", "merge_ms", "edp_ms", "mask_ms")
 MASK_REL = 0.02
 """A pixel of a new view is explained by the cached mesh when their depths agree within this fraction."""
 
+QS_EXPAND_EDGES = False
+"""QuadStream's views grow every silhouette by a pixel, as ``qs_simulator`` does (``expandEdges``, QUASAR's
+``gen_quadmap.comp``): a background pixel with a valid 8-neighbour becomes a quad at the farthest such neighbour's
+depth and normal, with its colour (:func:`expand_edges`).  Off by default (issue 50: measured on the peer benchmark
+only, ``docs/quasar.md``)."""
+
+
+def expand_edges(color: np.ndarray, depth: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``color``, ``depth`` and ``normal`` with every background pixel (non-finite depth) that has a valid
+    8-neighbour given the farthest such neighbour's depth, normal and colour (QUASAR's ``expandEdges``)."""
+    valid = np.isfinite(depth) & (depth > 0)
+    if valid.all() or not valid.any():
+        return color, depth, normal
+    h, w = depth.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    best = np.full((h, w), -np.inf)
+    by, bx = ys.copy(), xs.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == 0 and dx == 0:
+                continue
+            sy, sx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            d = np.where(valid[sy, sx], depth[sy, sx], -np.inf)
+            better = d > best
+            best = np.where(better, d, best)
+            by, bx = np.where(better, sy, by), np.where(better, sx, bx)
+    grow = ~valid & np.isfinite(best)
+    color, depth, normal = color.copy(), depth.copy(), normal.copy()
+    color[grow] = color[by[grow], bx[grow]]
+    depth[grow] = best[grow]
+    normal[grow] = normal[by[grow], bx[grow]]
+    return color, depth, normal
+
 
 def slot_grid(n_slots: int) -> tuple[int, int]:
     """(columns, rows) of the atlas: two rows (one for a single slot)."""
@@ -304,23 +337,26 @@ class QuadsServer(ServerHalf):
         p = cfg.params
         for v, (vp, vi) in enumerate(views):
             g = self._gbuffer(ctx, vp, vi, times)
+            g_color, g_depth, g_normal = g.color, g.depth, g.normal
+            if QS_EXPAND_EDGES:
+                g_color, g_depth, g_normal = expand_edges(g_color, g_depth, g_normal)
             if parts:
                 t1 = time.perf_counter()
-                new = self._unexplained(g.depth, self._mesh_depth(ctx, parts, vp, vi))
+                new = self._unexplained(g_depth, self._mesh_depth(ctx, parts, vp, vi))
                 emit = binary_dilation(new, iterations=1)   # one-pixel boundary quads
                 if vi is self.wide:
                     emit &= self._wide_out
                 times["mask_ms"] += (time.perf_counter() - t1) * 1e3
             else:
                 emit = None
-            q = generate(g.depth, g.normal, vp.view_matrix()[:3, :3], vi, p, emit=emit, background=True)
+            q = generate(g_depth, g_normal, vp.view_matrix()[:3, :3], vi, p, emit=emit, background=True)
             self._account(times, q)
             kind = KIND_WIDE if vi is self.wide else KIND_VIEW
             sets.append(WireSet(kind, v, v, q))
             cameras.append(encode_camera(vp, vi))
             if self.packed is None:
-                self._place(atlas, v, g.color if emit is None else masked_colour(g.color, emit))
-            colors.append(g.color)
+                self._place(atlas, v, g_color if emit is None else masked_colour(g_color, emit))
+            colors.append(g_color)
             parts.append(build_mesh(q, vp, vi, (0, 0)))
         if self.packed is not None:
             self._pack(sets, colors, atlas, times)
