@@ -12,15 +12,9 @@ import pytest
 from splitrender.methods.base import FRAME_DIV_KNOB, SCALE_KNOB, TOLERANCE_MS, Knob, QualityModel
 from splitrender.pipeline.adapt import AdaptConfig, PointController, RateController, build_ladder, quality_ladder
 
+from test_adapt_full import _calibrated  # noqa: E402  (tests/ is on the path: the same calibrated controller)
+
 METHODS = ("video", "atw", "warp", "sas", "tss", "quads")
-
-
-def _calibrated(video_kbps: float, overhead_kbps: float, cfg: AdaptConfig) -> RateController:
-    rate = RateController(("color",), 30.0, cfg)
-    for _ in range(cfg.calibrate_frames):
-        rate.on_frame_sent({"color": int(video_kbps * 1000 / 8 / 30), "meta": int(overhead_kbps * 1000 / 8 / 30)})
-    assert rate.calibrated
-    return rate
 
 
 BUDGET = Knob("budget", (1.0, 0.66, 0.44), (1.0, 0.96, 0.81), "video")
