@@ -459,8 +459,11 @@ class ServerSession:
         assert self.core is not None
         while True:
             wait = max(0.0, min(1.0, (self.core.get_timer() - _now_ms()) / 1000))
+            # asyncio.timeout, not wait_for: 3.11's wait_for can swallow the task's cancellation when the wake-up
+            # comes at the same moment, and the session's task group then never ends
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._timer_wake.wait(), wait)
+                async with asyncio.timeout(wait):
+                    await self._timer_wake.wait()
             self._timer_wake.clear()
             self._flush(wake=False)
 
