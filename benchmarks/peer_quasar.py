@@ -126,6 +126,9 @@ class Setup:
     both tools' frames carry no codec error.  With our lossy default, codec noise around the silhouette counts as
     bleed (background pixels more than the tolerance off it): on Wuson, 78 % of our QUASAR's bleed lay within 40
     code values of the sky."""
+    hidden_sky_px: int = 0
+    """Our QUASAR client's sky quads behind the model's silhouette (``quads`` ``hidden_sky_px``; 0: none, the
+    default)."""
 
     @property
     def size(self) -> str:
@@ -374,6 +377,8 @@ def our_config(method: str, setup: Setup, model: Path, path_file: Path) -> Any:
         params.update(view_cell_m=setup.view_cell_m, wide_fov_deg=setup.wide_fov_deg)
         if params["variant"] == "quasar":
             params["layers"] = setup.layers
+            if setup.hidden_sky_px:
+                params["hidden_sky_px"] = setup.hidden_sky_px
     return RunConfig(method=name, method_params=params, scene=str(model) + ("+nosun" if setup.unlit else ""),
                      trace=str(path_file),
                      network=netem_string(setup.latency_ms, setup.jitter_ms), width=setup.width, height=setup.height,
@@ -761,7 +766,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--lossless", action="store_true", help="our colour streams lossless, as QUASAR's simulators "
                     "never encode colour (codec noise around a silhouette otherwise counts as bleed)")
     ap.add_argument("--hidden-sky", type=int, default=None, help="our QUASAR client's sky quads behind the model's "
-                    "silhouette, in pixels (splitrender.methods.quads.mesh.HIDDEN_SKY_PX; 0: none, as before issue 50)")
+                    "silhouette, in pixels (quads hidden_sky_px; default 0: none; 8 was measured)")
     ap.add_argument("--qs-expand-edges", action="store_true", help="our QuadStream grows every silhouette by a pixel "
                     "as qs_simulator does (splitrender.methods.quads.server.QS_EXPAND_EDGES)")
     ap.add_argument("--ours", default=",".join(METHODS), help="which of our methods to run, comma-separated (default: "
@@ -791,7 +796,7 @@ def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup
     except ValueError:
         raise InputError(f"--size {args.size!r}: expected WxH, e.g. 320x180") from None
     setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers, unlit=args.unlit,
-                  lossless=args.lossless)
+                  lossless=args.lossless, hidden_sky_px=args.hidden_sky or 0)
     if not 1 <= setup.layers <= 4:
         raise InputError(f"--layers {setup.layers}: ours takes 1 to 4")
     return programs, model, setup
@@ -863,12 +868,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     content = {"quasar": truth_content((load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10]), q_bg)}
 
     # ours, each run scored as soon as it ends (its frames are not kept)
-    from splitrender.methods.quads import mesh as quads_mesh
-
     from splitrender.methods.quads import server as quads_server
 
-    if args.hidden_sky is not None:
-        quads_mesh.HIDDEN_SKY_PX = args.hidden_sky
     if args.qs_expand_edges:
         quads_server.QS_EXPAND_EDGES = True
     renderer = Renderer()
@@ -930,7 +931,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
         "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),
         "quasar_commands": commands, "our_configs": {m: our_config(m, setup, model, path_file).to_dict() for m in METHODS},
-        "hidden_sky_px": quads_mesh.HIDDEN_SKY_PX, "qs_expand_edges": quads_server.QS_EXPAND_EDGES, "splitrender_commit": quasar_commit(ROOT),
+        "hidden_sky_px": setup.hidden_sky_px, "qs_expand_edges": quads_server.QS_EXPAND_EDGES, "splitrender_commit": quasar_commit(ROOT),
         "rows": rows, "wall_s": time.perf_counter() - t_start, "gl": renderer.ctx.info.get("GL_RENDERER"),
         "machine": machine(),
     }

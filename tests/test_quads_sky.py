@@ -67,26 +67,22 @@ def test_a_strafing_client_shows_the_sky_it_reveals_beside_a_silhouette(renderer
     pose = Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
     side = Pose(np.array([0.15, 0.0, 0.0]), pose.orientation)
     spec = get_method("quads")
-    cfg = make_config(spec.config, {"lossless": True})
     truth = renderer.render(scene, 0.0, side, INTR, ("color", "object_id"))
     sky = truth.object_id == 0
     sky_colour = np.median(truth.color[sky], axis=0)
     got = {}
     keep = quads_mesh.HIDDEN_SKY_PX
-    try:
-        for reach in (keep, 0):
-            quads_mesh.HIDDEN_SKY_PX = reach
-            srv = spec.server_class(cfg, INTR, scene, 30, None)
-            upd = srv.produce(ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=INTR,
-                                            latest_pose=pose, latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0,
-                                            predict=lambda _t: pose, expected_latency_s=0.0))
-            cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
-            cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
-            moved = cli.render(side, 0.0)
-            bleed = sky & (np.abs(moved.color.astype(np.int16) - sky_colour).max(-1) > 6)
-            got[reach] = (int(bleed.sum()), int(moved.holes.sum()), cli.render(pose, 0.0).color)
-    finally:
-        quads_mesh.HIDDEN_SKY_PX = keep
+    for reach in (keep, 0):
+        cfg = make_config(spec.config, {"lossless": True, "hidden_sky_px": reach})
+        srv = spec.server_class(cfg, INTR, scene, 30, None)
+        upd = srv.produce(ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=INTR,
+                                        latest_pose=pose, latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0,
+                                        predict=lambda _t: pose, expected_latency_s=0.0))
+        cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
+        moved = cli.render(side, 0.0)
+        bleed = sky & (np.abs(moved.color.astype(np.int16) - sky_colour).max(-1) > 6)
+        got[reach] = (int(bleed.sum()), int(moved.holes.sum()), cli.render(pose, 0.0).color)
     (b1, h1, at1), (b0, h0, at0) = got[keep], got[0]
     assert b1 == 0 and b0 == 0 and h1 <= 40 and h0 >= 400, (b1, h1, b0, h0)
     assert (at1 == at0).all()
@@ -111,30 +107,26 @@ def test_the_model_bleeds_less_over_the_sky_it_reveals(renderer) -> None:  # typ
     scene = get_scene(f"{WUSON}+nosun")
     trace = get_trace("strafe", duration_s=5.0, scene=scene, fov_y_deg=60, aspect=320 / 180)
     spec = get_method("quads")
-    cfg = make_config(spec.config, {"lossless": True})
     keep = quads_mesh.HIDDEN_SKY_PX
     got = {}
-    try:
-        for reach in (keep, 0):
-            quads_mesh.HIDDEN_SKY_PX = reach
-            tot = np.zeros(3)
-            for t0 in (1.0, 2.0, 3.0, 4.0):
-                pose = trace.pose_at(t0)
-                srv = spec.server_class(cfg, INTR, scene, 30, None)
-                upd = srv.produce(ServerContext(frame_id=0, t_s=t0, scene=scene, renderer=renderer, intrinsics=INTR,
-                                                latest_pose=pose, latest_pose_t_s=t0, target_pose=pose, target_t_s=t0,
-                                                predict=lambda _t: pose, expected_latency_s=0.0))
-                cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
-                cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
-                for dt in (0.1, 0.15):
-                    p = trace.pose_at(t0 + dt)
-                    shown = cli.render(p, t0 + dt).color
-                    truth = renderer.render(scene, t0 + dt, p, INTR, ("color", "object_id"))
-                    model = truth.object_id > 0
-                    drawn = np.abs(shown.astype(np.int16) - np.median(truth.color[~model], axis=0)).max(-1) > 6
-                    tot += (model.sum(), (model & ~drawn).sum(), (~model & drawn).sum())
-            got[reach] = (100 * tot[1] / tot[0], 100 * tot[2] / tot[0])
-    finally:
-        quads_mesh.HIDDEN_SKY_PX = keep
+    for reach in (keep, 0):
+        cfg = make_config(spec.config, {"lossless": True, "hidden_sky_px": reach})
+        tot = np.zeros(3)
+        for t0 in (1.0, 2.0, 3.0, 4.0):
+            pose = trace.pose_at(t0)
+            srv = spec.server_class(cfg, INTR, scene, 30, None)
+            upd = srv.produce(ServerContext(frame_id=0, t_s=t0, scene=scene, renderer=renderer, intrinsics=INTR,
+                                            latest_pose=pose, latest_pose_t_s=t0, target_pose=pose, target_t_s=t0,
+                                            predict=lambda _t: pose, expected_latency_s=0.0))
+            cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+            cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
+            for dt in (0.1, 0.15):
+                p = trace.pose_at(t0 + dt)
+                shown = cli.render(p, t0 + dt).color
+                truth = renderer.render(scene, t0 + dt, p, INTR, ("color", "object_id"))
+                model = truth.object_id > 0
+                drawn = np.abs(shown.astype(np.int16) - np.median(truth.color[~model], axis=0)).max(-1) > 6
+                tot += (model.sum(), (model & ~drawn).sum(), (~model & drawn).sum())
+        got[reach] = (100 * tot[1] / tot[0], 100 * tot[2] / tot[0])
     (m1, b1), (m0, b0) = got[keep], got[0]
     assert b1 < 0.5 * b0 and m1 < 1.5, got

@@ -93,7 +93,8 @@ class QuadsClient(ClientHalf):
         if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
             if quasar_sky and any(s.kind == KIND_REFERENCE for s in sets):   # the sky the reference set left out
                 self._sky = background_quads(self.cache.quads, self.cache.intr)
-                self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0))
+                self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0),
+                                              reach=self.config.hidden_sky_px)
             parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp))
             if quasar_sky:
                 parts.append(build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"))

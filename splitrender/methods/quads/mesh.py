@@ -106,8 +106,8 @@ def _far_quadtree(present: np.ndarray, intr: CameraIntrinsics) -> QuadSet:
 
 
 HIDDEN_SKY_PX = 8
-"""How far (pixels, in the reference view) behind the model's silhouette against the sky the client lays sky quads
-(:func:`hidden_sky`); 0 lays none."""
+"""The reach measured for :func:`hidden_sky` (pixels, in the reference view, behind the model's silhouette against the
+sky), its default; the client lays them at its config's ``hidden_sky_px`` (0, none, by default)."""
 
 
 def hidden_sky(qs: QuadSet, intr: CameraIntrinsics, slot_origin: tuple[int, int],
