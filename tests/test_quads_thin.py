@@ -40,20 +40,15 @@ def railing_scene():  # type: ignore[no-untyped-def]
     ], DirectionalLight(direction=(-0.3, -1.0, -0.5)), [])
 
 
-def _moved_client(renderer, scene, variant: str):  # type: ignore[no-untyped-def]
+def _moved_client(renderer, one_frame, scene, variant: str):  # type: ignore[no-untyped-def]
     """One lossless reference frame of ``variant`` made at the server's pose (0, 0.8, 0), looking down -z; per client
     offset: (PSNR over the railing's pixels, share of them wrong, share of the frame the client leaves as holes)."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
 
     pose = Pose(np.array([0.0, 0.8, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
     spec = get_method("quads")
     cfg = make_config(spec.config, {"lossless": True, "variant": variant})
-    srv = spec.server_class(cfg, INTR, scene, 30, None)
-    upd = srv.produce(ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=INTR,
-                                    latest_pose=pose, latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0,
-                                    predict=lambda _t: pose, expected_latency_s=0.0))
-    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
-    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
+    cli = one_frame("quads", cfg, INTR, scene, pose)
     out = []
     for off in CLIENT_OFFSETS:
         moved = Pose(pose.position + np.asarray(off), pose.orientation)
@@ -67,7 +62,7 @@ def _moved_client(renderer, scene, variant: str):  # type: ignore[no-untyped-def
     return np.array(out)
 
 
-def test_quadstream_shows_a_thin_railing_better_than_quasar_from_inside_the_view_cell(renderer) -> None:  # type: ignore[no-untyped-def]
+def test_quadstream_shows_a_thin_railing_better_than_quasar_from_inside_the_view_cell(renderer, one_frame) -> None:  # type: ignore[no-untyped-def]
     """Per client offset (0.1 m right, 0.25 right, 0.25 back, 0.25 right and back), lossless atlas, measured:
 
     * PSNR over the railing: QUASAR 21.16 / 16.58 / 18.02 / 16.85 dB, QuadStream 27.75 / 21.20 / 20.55 / 22.91:
@@ -80,8 +75,8 @@ def test_quadstream_shows_a_thin_railing_better_than_quasar_from_inside_the_view
     Bounds: the mean margin at least 3.5 dB and at every offset at least 1.5 dB; QuadStream's wrong railing
     pixels at most 0.45x QUASAR's; its holes under 0.5 % where QUASAR's average over 0.6 % (measured 0.91 %)."""
     scene = railing_scene()
-    qr = _moved_client(renderer, scene, "quasar")
-    qs = _moved_client(renderer, scene, "quadstream")
+    qr = _moved_client(renderer, one_frame, scene, "quasar")
+    qs = _moved_client(renderer, one_frame, scene, "quadstream")
     margin = qs[:, 0] - qr[:, 0]
     assert margin.mean() > 3.5 and margin.min() > 1.5, (qr, qs)
     assert qs[:, 1].mean() < 0.45 * qr[:, 1].mean(), (qr, qs)
