@@ -151,6 +151,7 @@ class ServerProtocolOptions:
                                     "any second at most this share of its media bytes, plus --nack-rate-floor")
     nack_rate_floor_bytes: int = option(NACK_RATE_FLOOR_BYTES, 0, 1 << 30, "--nack-rate-floor", "resent bytes per "
                                         "stream allowed in any second whatever its media rate", metavar="BYTES")
+
     def __post_init__(self) -> None:
         for name in ("history_packets", "nack_max_per_datagram", "nack_rate_floor_bytes"):
             v = getattr(self, name)
