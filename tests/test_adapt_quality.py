@@ -129,18 +129,17 @@ TOLERANCE_DB = 0.25
 
 
 @pytest.mark.slow
-def test_the_stored_models_hold_where_re_measured() -> None:
+def test_the_stored_models_hold_where_re_measured(renderer, truth_cache) -> None:  # type: ignore[no-untyped-def]
     from splitrender.experiments.quality_model import latency_db_per_100ms, measure
     from splitrender.methods.sas.config import QUALITY as SAS
     from splitrender.methods.video import QUALITY as VIDEO
-    from splitrender.render.renderer import Renderer
 
-    r = Renderer()
-    sas = measure("sas", renderer=r)
-    fd3 = measure("sas", {"frame_div": 3}, renderer=r)
+    # the four runs share one ground truth (scene, walk, size and display rate): rendered once, through the cache
+    sas = measure("sas", renderer=renderer, truth_cache=truth_cache)
+    fd3 = measure("sas", {"frame_div": 3}, renderer=renderer, truth_cache=truth_cache)
     assert sas.model_psnr_db - fd3.model_psnr_db == pytest.approx(SAS.db_lost("frame_div", 2), abs=TOLERANCE_DB)
-    video = measure("video", renderer=r)
-    late = measure("video", delay_ms=120.0, renderer=r)
+    video = measure("video", renderer=renderer, truth_cache=truth_cache)
+    late = measure("video", delay_ms=120.0, renderer=renderer, truth_cache=truth_cache)
     assert latency_db_per_100ms(video, late) == pytest.approx(VIDEO.latency_db_per_100ms, abs=TOLERANCE_DB)
     # the ordering the controller leans on: sas loses far less to latency than video
     assert SAS.latency_db_per_100ms < 0.5 * latency_db_per_100ms(video, late)
