@@ -120,8 +120,6 @@ class ClientOptions:
     """What the client accepts from the server (:mod:`splitrender.limits`)."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.nack_max_tries, int) or isinstance(self.nack_max_tries, bool):
-            raise ConfigError(f"client nack_max_tries: must be an integer, got {self.nack_max_tries!r:.40}")
         check_options(self, "client")
 
     @property
@@ -153,10 +151,6 @@ class ServerProtocolOptions:
                                         "stream allowed in any second whatever its media rate", metavar="BYTES")
 
     def __post_init__(self) -> None:
-        for name in ("history_packets", "nack_max_per_datagram", "nack_rate_floor_bytes"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool):
-                raise ConfigError(f"server {name}: must be an integer, got {v!r:.40}")
         check_options(self, "server")
 
 
@@ -172,9 +166,17 @@ def declared(cls: type) -> Iterator[tuple[dataclasses.Field, Option]]:
 
 
 def check_options(obj: Any, side: str) -> None:
-    """Check every option of ``obj`` (a :class:`ClientOptions` or :class:`ServerProtocolOptions`) against its range."""
+    """Check every option of ``obj`` (a :class:`ClientOptions` or :class:`ServerProtocolOptions`) against its range, and
+    an option declared ``int`` for being an integer."""
     for f, o in declared(type(obj)):
-        o.check(getattr(obj, f.name), f"{side} {f.name}")
+        v = getattr(obj, f.name)
+        if _is_int(f) and (not isinstance(v, int) or isinstance(v, bool)):
+            raise ConfigError(f"{side} {f.name}: must be an integer, got {v!r:.40}")
+        o.check(v, f"{side} {f.name}")
+
+
+def _is_int(f: dataclasses.Field) -> bool:
+    return f.type in ("int", int)
 
 
 def _key(f: dataclasses.Field, o: Option, run: bool) -> str:
@@ -225,7 +227,7 @@ def add_option_arguments(parser: argparse.ArgumentParser, *classes: type, virtua
     for cls in classes:
         for f, o in declared(cls):
             d = _default(f, o, virtual)
-            kind = int if f.type in ("int", int) else float
+            kind = int if _is_int(f) else float
             g.add_argument(o.flag, type=kind, default=None, metavar=o.metavar, dest=_dest(o),
                            help=f"{o.help} (default {d:g}; range {_num(o.lo)}-{_num(o.hi)}{' or inf' if o.inf_ok else ''})")
 

@@ -98,3 +98,12 @@ def test_stored_run_keys_are_unchanged_by_the_declaration():
 def test_the_protocol_docs_table_is_the_declaration():
     doc = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text()
     assert options_table() in doc
+
+
+@pytest.mark.parametrize("f,o", [(f, o) for f, o in CLIENT + SERVER if f.type in ("int", int)],
+                         ids=[f.name for f, _ in CLIENT + SERVER if f.type in ("int", int)])
+def test_an_integer_option_refuses_a_fraction_or_a_bool(f, o):
+    side, cls = ("client", ClientOptions) if (f, o) in CLIENT else ("server", ServerOptions)
+    for bad in (2.5, True):
+        with pytest.raises(ConfigError, match=rf"^{side} {f.name}: must be an integer, got {bad!r}$"):
+            cls(**{f.name: bad})

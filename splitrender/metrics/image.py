@@ -25,7 +25,7 @@ This module imports nothing else from splitrender.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -243,6 +243,24 @@ def _region_scores(shown: np.ndarray, truth: np.ndarray, truth_model: np.ndarray
     return out
 
 
+def finite_column(rows: Iterable[dict[str, Any]], key: str) -> np.ndarray:
+    """``key`` over the rows that have a number there (NaN and absent cells left out)."""
+    a = np.array([float(r.get(key, math.nan)) for r in rows], dtype=np.float64)
+    return a[~np.isnan(a)]
+
+
+def mean_of(rows: Iterable[dict[str, Any]], key: str) -> float:
+    """The mean of ``key`` over the rows that have a number there (NaN if none)."""
+    a = finite_column(rows, key)
+    return float(a.mean()) if a.size else math.nan
+
+
+def pct_of(rows: Iterable[dict[str, Any]], key: str, q: float) -> float:
+    """The ``q``-th percentile of ``key`` over the rows that have a number there (NaN if none)."""
+    a = finite_column(rows, key)
+    return float(np.percentile(a, q)) if a.size else math.nan
+
+
 def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     """The run's quality aggregates from per-frame rows of :func:`score_frame` (NaN cells skipped).
 
@@ -256,12 +274,10 @@ def quality_summary(rows: list[dict[str, Any]]) -> dict[str, float | int]:
     ``mean_model_dssim``, ``mean_model_flip``, ``mean_model_pct`` and ``model_frames`` (frames showing it).
     """
     def col(k: str) -> np.ndarray:
-        a = np.array([float(r.get(k, math.nan)) for r in rows], dtype=np.float64)
-        return a[~np.isnan(a)]
+        return finite_column(rows, k)
 
     def mean(k: str) -> float:
-        a = col(k)
-        return float(a.mean()) if a.size else math.nan
+        return mean_of(rows, k)
 
     p = col("psnr_db")
     return {

@@ -13,28 +13,10 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable
 
-import numpy as np
-
 from .. import metrics
+from ..metrics.image import mean_of, pct_of
 
-__all__ = ["frames_summary", "session_summary", "update_row", "updates_summary"]
-
-
-def _values(rows: Iterable[dict[str, Any]], key: str) -> np.ndarray:
-    a = np.array([r.get(key, math.nan) for r in rows], dtype=np.float64)
-    return a[~np.isnan(a)]
-
-
-def mean_of(rows: Iterable[dict[str, Any]], key: str) -> float:
-    """The mean of ``key`` over the rows that have a number there (NaN if none)."""
-    a = _values(rows, key)
-    return float(a.mean()) if a.size else math.nan
-
-
-def pct_of(rows: Iterable[dict[str, Any]], key: str, q: float) -> float:
-    """The ``q``-th percentile of ``key`` over the rows that have a number there (NaN if none)."""
-    a = _values(rows, key)
-    return float(np.percentile(a, q)) if a.size else math.nan
+__all__ = ["frames_summary", "mean_of", "pct_of", "session_summary", "update_row", "updates_summary"]
 
 
 def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages: dict[str, float],
