@@ -26,7 +26,7 @@ from splitrender.errors import ConfigError
 from splitrender.pipeline.rows import frames_summary, mean_of, session_summary
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose
-from splitrender.client.session import JOURNAL, iter_journal
+from splitrender.pipeline.recording import JOURNAL, iter_journal
 from splitrender.tabular import write_csv
 
 __all__ = ["score_recording", "read_frames", "read_journal"]

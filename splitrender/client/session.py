@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import json
 import logging
 import math
 import ssl
@@ -30,7 +29,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -40,9 +39,9 @@ from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
                                   Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
 from splitrender.options import option_fields, options_of
+from splitrender.pipeline.recording import ClientRecording, save_image
 from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
                                   Stats, Welcome)
-from splitrender.tabular import atomic_file, atomic_write_bytes, write_csv, write_csv_passes
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -166,8 +165,8 @@ class LiveClient:
         self.rx: ClientPipeline | None = None
         self.core: ClientSession | None = None
         """The sans-IO session core: RTCP, NACK, PLI, playout delay, stalls, feedback."""
-        self._journal: Any = None
-        """frames.jsonl, appended as the session goes (see :meth:`_record`)."""
+        self._recording_out = None if config.out_dir is None else ClientRecording(config.out_dir)
+        """The recording folder, written as the session goes (see :meth:`_record`)."""
         self._rate_window: deque[tuple[float, dict[str, int]]] = deque()
         self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
@@ -236,7 +235,8 @@ class LiveClient:
                 await self.channel.close()
         except BaseException as exc:
             await self._release()
-            if self._journal is not None:  # a broken session: keep what was recorded, marked incomplete
+            if self._recording_out is not None and self._recording_out.started:   # a broken session: keep what was
+                # recorded, marked incomplete
                 result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": False,
                                       "error": f"{type(exc).__name__}: {exc}"}, list(self.meta_ids), cfg.out_dir)
                 self._finish_recording(result)
@@ -255,40 +255,20 @@ class LiveClient:
     # ------------------------------------------------------------------ recording as it goes
 
     def _start_recording(self) -> None:
-        """Write the manifest (``complete: false``) and open ``frames.jsonl`` for the rows to come."""
-        d = self.cfg.out_dir
-        if d is None:
-            return
-        d.mkdir(parents=True, exist_ok=True)
-        for stale in ("frames.csv", "summary.csv", "counters.json"):
-            (d / stale).unlink(missing_ok=True)
-        atomic_write_bytes(d / "recording.json", json.dumps({**self._recording(), "complete": False}, indent=2,
-                                                            default=str).encode())
-        self._journal = open(d / JOURNAL, "w", buffering=1 << 16)
-        self._journal_flushed = time.monotonic()
+        """Write the manifest (``complete: false``) and open the journal for the rows to come."""
+        if self._recording_out is not None:
+            self._recording_out.start(self._recording())
 
     def _record(self, row: dict[str, Any]) -> None:
         self.rows.append(row)
         self._rows_recorded += 1
-        if self._journal is not None:
-            self._journal.write(json.dumps(row, default=float) + "\n")
-            now = time.monotonic()
-            if now - self._journal_flushed >= JOURNAL_FLUSH_S:
-                self._journal.flush()
-                self._journal_flushed = now
+        if self._recording_out is not None:
+            self._recording_out.append(row)
 
     def _finish_recording(self, result: ClientResult) -> None:
         """frames.csv, counters.json and the completed manifest; the journal goes once they are written."""
-        d = self.cfg.out_dir
-        if d is None:
-            return
-        if self._journal is not None:
-            self._journal.close()
-            journal_to_csv(d / JOURNAL, d / "frames.csv")     # every row, not only those kept in memory
-            write_recording(result, d, frames=False)
-        else:
-            write_recording(result, d)
-        (d / JOURNAL).unlink(missing_ok=True)
+        if self._recording_out is not None:
+            self._recording_out.finish(result.recording, result.counters, result.rows)
 
     async def _release(self) -> None:
         loop = asyncio.get_running_loop()
@@ -620,7 +600,7 @@ class LiveClient:
             row.update(self._kbps(displayed_us / 1e6))
             self._record(row)
             if cfg.save_images and cfg.out_dir is not None:
-                saves.append(loop.run_in_executor(self.io_executor, _save_image, cfg.out_dir, row["frame"], cf.color,
+                saves.append(loop.run_in_executor(self.io_executor, save_image, cfg.out_dir, row["frame"], cf.color,
                                                   cf.holes))
                 if len(saves) > 64:
                     await asyncio.gather(*saves[:32])
@@ -640,7 +620,7 @@ class LiveClient:
         if saves is not None and cfg.save_images and cfg.out_dir is not None:
             black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
             saves.append(asyncio.get_running_loop().run_in_executor(
-                self.io_executor, _save_image, cfg.out_dir, row["frame"], black, np.ones((cfg.height, cfg.width), bool)))
+                self.io_executor, save_image, cfg.out_dir, row["frame"], black, np.ones((cfg.height, cfg.width), bool)))
 
     def _kbps(self, now_s: float) -> dict[str, float]:
         """``kbps_<stream>`` over the last second for each RTP stream (wire bytes received) and
@@ -702,11 +682,6 @@ class LiveClient:
         }
 
 
-JOURNAL = "frames.jsonl"
-"""Rows appended while the session runs; replaced by frames.csv at the end, left behind by a killed client."""
-JOURNAL_FLUSH_S = 0.5
-
-
 class _RunDone(Exception):
     """The display clock reached ``duration_s``."""
 
@@ -732,44 +707,6 @@ class _ClientUdp(asyncio.DatagramProtocol):
 
     def error_received(self, exc: Exception) -> None:
         logger.debug("client udp error: %s", exc)
-
-
-def _save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray | None) -> None:
-    d = out_dir / "images"
-    d.mkdir(parents=True, exist_ok=True)
-    arrays: dict[str, np.ndarray] = {"color": color}
-    if holes is not None:
-        arrays["holes"] = holes
-    with atomic_file(d / f"{index:06d}.npz", "wb") as f:   # a client killed mid-write leaves no truncated image
-        np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
-
-
-def iter_journal(path: Path) -> Iterator[dict[str, Any]]:
-    """The rows of a ``frames.jsonl`` (one JSON object per line, ``null`` read as NaN), one at a time; a torn last
-    line (a client killed mid-write) ends them."""
-    with open(path) as f:
-        for line in f:
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                return
-            if isinstance(row, dict):
-                yield {k: (math.nan if v is None else v) for k, v in row.items()}
-
-
-def journal_to_csv(journal: Path, out: Path) -> int:
-    """``frames.jsonl`` as ``frames.csv`` (every key a column, in order of first appearance), in two passes over
-    the file so that memory stays flat whatever its length.  Returns the rows written."""
-    return write_csv_passes(out, lambda: iter_journal(journal))
-
-
-def write_recording(result: ClientResult, out_dir: Path, frames: bool = True) -> None:
-    """frames.csv (per displayed frame, unscored; unless ``frames`` is False), recording.json and counters.json."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if frames:
-        write_csv(out_dir / "frames.csv", result.rows)
-    atomic_write_bytes(out_dir / "recording.json", json.dumps(result.recording, indent=2, default=str).encode())
-    atomic_write_bytes(out_dir / "counters.json", json.dumps(result.counters, indent=2).encode())
 
 
 async def run_client(config: ClientConfig) -> ClientResult:

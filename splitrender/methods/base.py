@@ -543,7 +543,7 @@ class PageGlue:
         return []
 
     def counters(self) -> dict[str, int]:
-        """Counters added to the session's ``server_counters.csv``."""
+        """Counters added to the session's ``counters.csv``."""
         return {}
 
 

@@ -42,6 +42,7 @@ import numpy as np
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
+from splitrender.pipeline.recording import SessionLogs
 from splitrender.pipeline.rows import update_row
 from splitrender.pipeline import (Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
                                   rtp_timestamp)
@@ -63,7 +64,6 @@ from splitrender.protocol import (
     make_sdp,
     negotiate_method,
 )
-from splitrender.tabular import CsvAppender, write_csv
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.predict import make_predictor
@@ -150,7 +150,7 @@ class ServerSession:
         self.update_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
         """The newest rows of frames sent: wire bytes per stream (as the virtual-time runner's updates.csv; all of
         them go to ``updates.csv`` as they are sent when ``out_dir`` is set)."""
-        self._logs: dict[str, CsvAppender] = {}
+        self._logs = SessionLogs(None if self.cfg.out_dir is None else self.cfg.out_dir / self.id)
         self._timer_wake = asyncio.Event()
         self._counters: dict[str, int] = {
             "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
@@ -506,25 +506,12 @@ class ServerSession:
 
     def _log(self, name: str, row: dict[str, Any]) -> None:
         """Append ``row`` to ``<out_dir>/<session>/<name>.csv`` (opened with the first row; columns fixed then)."""
-        if self.cfg.out_dir is None:
-            return
-        log = self._logs.get(name)
-        if log is None:
-            d = self.cfg.out_dir / self.id
-            d.mkdir(parents=True, exist_ok=True)
-            cols = list(row) if name == "updates" else FEEDBACK_COLUMNS
-            log = self._logs[name] = CsvAppender(d / f"{name}.csv", cols)
-        log.append(row)
+        self._logs.append(name, row, None if name == "updates" else FEEDBACK_COLUMNS)
 
     def _write_feedback(self) -> None:
         """Close the row logs and write the session's counters (nothing without ``out_dir`` or frames)."""
-        for log in self._logs.values():
-            log.close()
-        if self.cfg.out_dir is None or not self._logs:
-            return
-        write_csv(self.cfg.out_dir / self.id / "counters.csv",
-                  [dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
-                        server_udp_dropped=self.server.udp_dropped)])
+        self._logs.close(dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
+                              server_udp_dropped=self.server.udp_dropped))
 
 
 def _now_ms() -> float:

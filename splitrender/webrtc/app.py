@@ -42,6 +42,7 @@ from typing import Any
 from aiohttp import web
 
 from ..errors import ConfigError, describe_error
+from ..pipeline.recording import ClientRecording, save_image
 from .messages import (BROWSER_METHODS, MAX_ROWS, MAX_STATS, PageMessageError, Recording, browser_methods,
                        decode_json, parse_recording, parse_session_request, rgba_to_rgb)
 from .session import BrowserSession
@@ -240,7 +241,7 @@ class WebRtcFrontDoor:
         return web.json_response({"server_ms": time.time() * 1000})
 
     async def _trace(self, request: web.Request) -> web.Response:
-        from ..scene.trace import BUILTIN_TRACES, get_trace
+        from ..scene.trace import BUILTIN_TRACES
 
         q = request.query
         name = q.get("name", "walk")
@@ -334,8 +335,6 @@ class WebRtcFrontDoor:
         return s
 
     async def _image(self, request: web.Request) -> web.Response:
-        from ..client.session import _save_image
-
         s = self._session_for_upload(request)
         try:
             frame = int(request.match_info["frame"])
@@ -359,7 +358,7 @@ class WebRtcFrontDoor:
         assert s.out_dir is not None
         c["images_received"] += 1
         c["image_bytes_received"] += size
-        await asyncio.get_running_loop().run_in_executor(None, _save_image, s.out_dir, frame, rgb, None)
+        await asyncio.get_running_loop().run_in_executor(None, save_image, s.out_dir, frame, rgb, None)
         return web.json_response({"ok": True})
 
     async def _recording(self, request: web.Request) -> web.Response:
@@ -378,11 +377,8 @@ class WebRtcFrontDoor:
     @staticmethod
     def _write_recording(s: BrowserSession, body: Recording) -> Path:
         """The headless client's recording files for ``s`` under its ``--out`` folder (in an executor thread)."""
-        from ..tabular import atomic_write_bytes, write_csv
-
         d = s.out_dir
         assert d is not None
-        d.mkdir(parents=True, exist_ok=True)
         server = s.server_counters()
         counters: dict[str, Any] = {**server, **{f"browser_{k}": v for k, v in body.stats.items()}}
         # the keys the scorer's summary reads, as the headless client names them
@@ -395,9 +391,7 @@ class WebRtcFrontDoor:
                "duration_s": body.duration_s, "images": True, "complete": body.complete,
                "network": s.front.network_text or "live",
                "client": {"kind": "browser", "user_agent": body.user_agent, "record_every": body.record_every}}
-        write_csv(d / "frames.csv", body.rows)
-        atomic_write_bytes(d / "recording.json", json.dumps(rec, indent=2, default=str).encode())
-        atomic_write_bytes(d / "counters.json", json.dumps(counters, indent=2, default=str).encode())
+        ClientRecording(d).finish(rec, counters, body.rows)
         return d
 
 

@@ -36,13 +36,13 @@ import numpy as np
 from ..errors import WorkerTimeout, describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
+from ..pipeline.recording import SessionLogs
 from ..pipeline.rows import update_row
 from ..pipeline.session import ServerSession
 from ..protocol import Feedback
 from ..scene.pose import CameraIntrinsics
 from ..scene.pose import Pose as ScenePose
 from ..scene.predict import make_predictor
-from ..tabular import CsvAppender, write_csv
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, parse_channel_message
 from .sdp import check_offer, replace_candidates, strip_candidates, udp_candidate_ports
 from .track import EncodedVideoTrack
@@ -135,7 +135,7 @@ class BrowserSession:
         self._frame_id = 0
         self._last_tick = -1
         self._origin_sent = False
-        self._log: CsvAppender | None = None
+        self._logs = SessionLogs(self.out_dir)
         self._sender_sent: tuple[int, int] | None = None
         """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
@@ -381,11 +381,7 @@ class BrowserSession:
         if self.worker is not None:
             worker, self.worker = self.worker, None
             await self.server.release_worker(worker, self.id)
-        if self._log is not None:
-            self._log.close()
-        d = self.out_dir
-        if d is not None and self.counters["frames_sent"]:
-            write_csv(d / "server_counters.csv", [self.server_counters()])
+        self._logs.close(self.server_counters())
         logger.info("browser session %s: closed (%s): %s", self.id, self.end_reason,
                     ", ".join(f"{k}={v}" for k, v in self.server_counters().items() if v))
 
@@ -470,11 +466,6 @@ class BrowserSession:
         c1 = time.perf_counter()
         row = {**update_row(self._frame_id, scene_t, sent, enc, order, stages, (self.stream,), {}), "server_us": t_us,
                "bytes_frame_meta": n_meta, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"])}
-        d = self.out_dir
-        if d is not None:
-            if self._log is None:
-                d.mkdir(parents=True, exist_ok=True)
-                self._log = CsvAppender(d / "updates.csv", list(row))
-            self._log.append(row)
+        self._logs.append("updates", row)
         self._frame_id += 1
 

@@ -1,0 +1,149 @@
+"""The one recording writer every front door uses (issue 47: "rows and recordings written once").
+
+A client's recording is a folder:
+
+- ``recording.json``: the manifest (method, scene, trace, display, the client's settings), ``complete: false`` while
+  the session runs and once more, with the error, if it ends early;
+- ``frames.jsonl``: the displayed rows appended as they come (:data:`JOURNAL`), flushed every
+  :data:`JOURNAL_FLUSH_S`, so that a killed client leaves what it showed; replaced by ``frames.csv`` at the end;
+- ``counters.json``: the session's counters;
+- ``images/``: displayed images where asked for (:func:`save_image`).
+
+:class:`ClientRecording` writes it for the headless client (as the session goes) and the browser front door (whole,
+from the page's upload); the virtual-time runner writes the same ``frames.csv`` beside its scored tables.  A server
+keeps per session the rows it sends (``updates.csv``, ``feedback.csv``) and its counters (``counters.csv``) with
+:class:`SessionLogs`, in the TCP server and the browser front door alike."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import IO, Any, Iterator, Sequence
+
+import numpy as np
+
+from ..tabular import CsvAppender, atomic_file, atomic_write_bytes, write_csv, write_csv_passes
+
+JOURNAL = "frames.jsonl"
+"""Rows appended while the session runs; replaced by frames.csv at the end, left behind by a killed client."""
+JOURNAL_FLUSH_S = 0.5
+"""How often the journal is flushed to the operating system (s)."""
+
+
+def _json(obj: Any) -> bytes:
+    return json.dumps(obj, indent=2, default=str).encode()
+
+
+class ClientRecording:
+    """A client's recording folder ``out_dir`` (module docstring).  :meth:`start`, then :meth:`append` per displayed
+    row, then :meth:`finish`; or :meth:`finish` alone with every row (a recording uploaded whole)."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self.dir = Path(out_dir)
+        self._journal: IO[str] | None = None
+        self._flushed = 0.0
+        self.rows = 0
+
+    @property
+    def started(self) -> bool:
+        return self._journal is not None
+
+    def start(self, manifest: dict[str, Any]) -> None:
+        """Write the manifest (``complete: false``), drop what an earlier session left, open the journal."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        for stale in ("frames.csv", "summary.csv", "counters.json"):
+            (self.dir / stale).unlink(missing_ok=True)
+        atomic_write_bytes(self.dir / "recording.json", _json({**manifest, "complete": False}))
+        self._journal = open(self.dir / JOURNAL, "w", buffering=1 << 16)
+        self._flushed = time.monotonic()
+
+    def append(self, row: dict[str, Any]) -> None:
+        """One displayed row into the journal (nothing before :meth:`start`)."""
+        if self._journal is None:
+            return
+        self._journal.write(json.dumps(row, default=float) + "\n")
+        self.rows += 1
+        now = time.monotonic()
+        if now - self._flushed >= JOURNAL_FLUSH_S:
+            self._journal.flush()
+            self._flushed = now
+
+    def finish(self, manifest: dict[str, Any], counters: dict[str, Any],
+               rows: Sequence[dict[str, Any]] | None = None) -> None:
+        """``frames.csv`` (from the journal, every row, or from ``rows`` when there is none), ``counters.json`` and the
+        final manifest; the journal goes once they are written."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+            journal_to_csv(self.dir / JOURNAL, self.dir / "frames.csv")
+        else:
+            write_csv(self.dir / "frames.csv", list(rows or []))
+        atomic_write_bytes(self.dir / "recording.json", _json(manifest))
+        atomic_write_bytes(self.dir / "counters.json", _json(counters))
+        (self.dir / JOURNAL).unlink(missing_ok=True)
+
+
+def save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray | None) -> None:
+    """A displayed image (and its holes) as ``images/<index>.npz``; a client killed mid-write leaves no truncated
+    file."""
+    d = Path(out_dir) / "images"
+    d.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {"color": color}
+    if holes is not None:
+        arrays["holes"] = holes
+    with atomic_file(d / f"{index:06d}.npz", "wb") as f:
+        np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
+
+
+def iter_journal(path: Path) -> Iterator[dict[str, Any]]:
+    """The rows of a ``frames.jsonl`` (one JSON object per line, ``null`` read as NaN), one at a time; a torn last
+    line (a client killed mid-write) ends them."""
+    with open(path) as f:
+        for line in f:
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                return
+            if isinstance(row, dict):
+                yield {k: (math.nan if v is None else v) for k, v in row.items()}
+
+
+def journal_to_csv(journal: Path, out: Path) -> int:
+    """``frames.jsonl`` as ``frames.csv`` (every key a column, in order of first appearance), in two passes over
+    the file so that memory stays flat whatever its length.  Returns the rows written."""
+    return write_csv_passes(out, lambda: iter_journal(journal))
+
+
+class SessionLogs:
+    """A server's records of one session under ``out_dir`` (None: none kept): row logs appended as they come,
+    ``<name>.csv`` each (opened with its first row; columns fixed then, from ``columns`` or that row's keys), and
+    ``counters.csv`` written once at :meth:`close`."""
+
+    def __init__(self, out_dir: Path | None) -> None:
+        self.dir = None if out_dir is None else Path(out_dir)
+        self._logs: dict[str, CsvAppender] = {}
+
+    def append(self, name: str, row: dict[str, Any], columns: Sequence[str] | None = None) -> None:
+        if self.dir is None:
+            return
+        log = self._logs.get(name)
+        if log is None:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            log = self._logs[name] = CsvAppender(self.dir / f"{name}.csv", list(columns or row))
+        log.append(row)
+
+    def rows(self, name: str) -> int:
+        """How many rows ``<name>.csv`` has taken."""
+        log = self._logs.get(name)
+        return 0 if log is None else log.rows
+
+    def close(self, counters: dict[str, Any] | None = None) -> None:
+        """Close the row logs and write ``counters.csv`` (only where a row was logged: a session that sent
+        nothing leaves no folder)."""
+        for log in self._logs.values():
+            log.close()
+        if self.dir is not None and self._logs and counters is not None:
+            write_csv(self.dir / "counters.csv", [counters])
