@@ -12,13 +12,17 @@ QUASAR's table 4 orders QUASAR > MeshWarp 120 > MeshWarp 60 > ATW.  This runs, p
   thresholds (its section 3.5.1); ``--baselines MW60,warp`` runs only those baselines; ``--quadstream`` adds
   ``variant=quadstream`` (about 4 minutes a model here).
 
+``--trace static --duration 1 --no-ground --baselines ''`` is the claims ledger's still camera (its ``Q-T4-7`` cells:
+the models alone, 1 s); ``--before-variants quadstream`` takes only QuadStream from the ``--before`` tree.
+
 Each configuration runs in its own process (``PYTHONPATH`` picks the tree).  Scores: the mean model-region PSNR over
 the displayed frames that show content (``model_psnr_content_db``; the runner's ``mean_model_psnr_db`` over all frames
 is kept too), bits, and for ``quads`` the quads per reference frame, how many of them are background quads and the
 reference frames' bytes as QUASAR counts them.
 
 Writes ``benchmarks/results/bench_quads_models.json``.
-Run: ``python benchmarks/bench_quads_models.py [--before /tmp/quads_before] [--budget] [--quadstream]``.
+Run: ``python benchmarks/bench_quads_models.py [--before /tmp/quads_before] [--budget] [--quadstream]``;
+``--models`` also takes ``TextureTransformTest`` and ``default`` (the project's scene, which has its own ground).
 """
 
 from __future__ import annotations
@@ -37,7 +41,10 @@ RESULTS = ROOT / "benchmarks" / "results" / "bench_quads_models.json"
 ASSIMP = Path("/usr/share/assimp/models")
 MODELS = {"2CylinderEngine": ASSIMP / "glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb",
           "duck": ASSIMP / "Collada/duck.dae",
-          "Wuson": ASSIMP / "PLY/Wuson.ply"}
+          "Wuson": ASSIMP / "PLY/Wuson.ply",
+          "TextureTransformTest": ASSIMP / "glTF2/textureTransform/TextureTransformTest.gltf"}
+BUILTIN = {"default"}
+"""Scenes of the project's own, run as they are (no ``+ground``)."""
 SETTINGS = {"trace": "orbit", "network": "cloud", "duration_s": 2.0, "width": 320, "height": 180, "flip_every": 0}
 BASELINES = {"warp": ("warp", {}), "atw": ("atw", {}),
              "MW60": ("warp", {"reconstruction": "mesh", "fov_scale": 1.0}),
@@ -74,6 +81,7 @@ def mean(rows, k):
     return float(np.mean(v)) if v else None
 print("RESULT " + json.dumps({
     "model_psnr_content_db": float(np.nanmean(mp)) if mp else None, "mean_model_psnr_db": s.get("mean_model_psnr_db"),
+    "mean_model_psnr_db_content": s.get("mean_model_psnr_db_content"),
     "mean_psnr_db": s["mean_psnr_db"], "mean_kbps": s["mean_kbps"], "kbps_quads": s.get("kbps_quads"),
     "content_frames": int(sum(has)), "frames": len(fr),
     "quads_per_reference": mean(ref, "srv_quads_ref"), "quads_per_frame": mean(ups, "srv_quads"),
@@ -82,9 +90,9 @@ print("RESULT " + json.dumps({
 """
 
 
-def one(tree: Path, scene: str, method: str, params: dict, truth_cache: str) -> dict:
+def one(tree: Path, scene: str, method: str, params: dict, truth_cache: str, settings: dict) -> dict:
     """One run in its own process with ``tree`` on ``PYTHONPATH``; its numbers and wall seconds."""
-    return run_in_tree(tree, CHILD, {"method": method, "params": params, "scene": scene, "settings": SETTINGS,
+    return run_in_tree(tree, CHILD, {"method": method, "params": params, "scene": scene, "settings": settings,
                                      "truth_cache": truth_cache}, f"{method} {params} on {scene}")
 
 
@@ -96,21 +104,28 @@ def main() -> None:
     ap.add_argument("--thresholds", action="store_true", help="QUASAR with reference frames on distance/angle thresholds")
     ap.add_argument("--baselines", default=",".join(BASELINES), help=f"comma-separated, of {', '.join(BASELINES)}")
     ap.add_argument("--quadstream", action="store_true", help="QuadStream too (slow)")
+    ap.add_argument("--before-variants", default="quasar,quadstream", help="which variants to run from --before too")
+    ap.add_argument("--trace", default=SETTINGS["trace"], help="the camera (static: the still camera)")
+    ap.add_argument("--duration", type=float, default=SETTINGS["duration_s"], help="seconds")
+    ap.add_argument("--no-ground", action="store_true", help="the models alone, as the claims ledger runs them")
     ap.add_argument("--truth-cache", default="default")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ns = ap.parse_args()
-    missing = [m for m in ns.models.split(",") if not MODELS[m].exists()]
+    missing = [m for m in ns.models.split(",") if m not in BUILTIN and not MODELS[m].exists()]
     if missing:
         sys.exit(f"bench_quads_models: assimp-testmodels is not installed ({', '.join(str(MODELS[m]) for m in missing)} missing)")
-    res: dict = {"machine": platform.platform(), "settings": SETTINGS, "scene_suffix": "+ground",
+    settings = dict(SETTINGS, trace=ns.trace, duration_s=ns.duration)
+    suffix = "" if ns.no_ground else "+ground"
+    res: dict = {"machine": platform.platform(), "settings": settings, "scene_suffix": suffix,
                  "after": commit_of(ROOT, "splitrender/methods/quads"),
                  "before": commit_of(ns.before, "splitrender/methods/quads") if ns.before else None, "models": {}}
     for name in ns.models.split(","):
-        scene = f"{MODELS[name]}+ground"
+        scene = name if name in BUILTIN else f"{MODELS[name]}{suffix}"
         runs: dict = {}
         todo = [(k, ROOT, m, p) for k, (m, p) in BASELINES.items() if k in ns.baselines.split(",")]
         todo.append(("quasar", ROOT, "quads", {}))
-        if ns.before:
+        before = ns.before_variants.split(",") if ns.before else []
+        if "quasar" in before:
             todo.append(("quasar before", ns.before, "quads", {}))
         if ns.budget:
             todo += [(f"quasar, {k}", ROOT, "quads", p) for k, p in BUDGET.items()]
@@ -118,10 +133,10 @@ def main() -> None:
             todo += [(f"quasar, {k}", ROOT, "quads", p) for k, p in THRESHOLDS.items()]
         if ns.quadstream:
             todo.append(("quadstream", ROOT, "quads", {"variant": "quadstream"}))
-            if ns.before:
+            if "quadstream" in before:
                 todo.append(("quadstream before", ns.before, "quads", {"variant": "quadstream"}))
         for label, tree, method, params in todo:
-            r = one(tree, scene, method, params, ns.truth_cache)
+            r = one(tree, scene, method, params, ns.truth_cache, settings)
             r.update(method=method, params=params)
             runs[label] = r
             bl = "warp" if "warp" in runs else next(iter(runs))

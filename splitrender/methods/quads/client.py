@@ -101,17 +101,28 @@ class QuadsClient(ClientHalf):
                 # and behind the model's silhouette against it, shown where motion reveals it
                 parts.append(build_mesh(self._hidden_sky[0], self.cache.pose, self.cache.intr, self._origin(0), "quad",
                                         self._hidden_sky[1]))
+        # QuadStream: the views after the centre view are drawn behind what the centre view shows (its guard)
+        guard = self.config.variant == "quadstream" and self.config.centre_guard
+        centre: tuple[np.ndarray, np.ndarray] | None = None
         for s in sets:
             if s.kind in CACHED_KINDS:
                 continue
             pose, intr = cams[s.camera]
+            view = s.camera if guard else 0
             if s.tex is None:
-                parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp))
+                parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp, view=view))
                 if quasar_sky and s.kind == KIND_WIDE:   # the wide view's sky outside the main view
                     sky = background_quads(s.quads, intr, self._wide_out(intr))
                     parts.append(build_mesh(sky, pose, intr, self._origin(s.slot), "view"))
             else:
-                parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad"))
+                parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad",
+                                        view=view))
+            if guard and s.camera == 0 and centre is None:
+                centre = parts[-1]
+        if centre is not None:
+            self._mesh.set_guard(*centre, *cams[0])
+        else:
+            self._mesh.clear_guard()
         self._mesh.upload(*join_meshes(parts))
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
         self._pose0 = cams[0][0]
