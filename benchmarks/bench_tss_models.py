@@ -52,6 +52,9 @@ MOVING = {"budget_px": 2.0, "chroma": "444", "sliver_px": 1.0}
 """``tss`` with a budget that moves with the scene (issue 50): up to 8 samples per covered pixel while the frame's
 samples stay within 2 per display pixel (115k at 320x180, below ``sas``'s 144-261k on every scene here), slivers
 sampled along their length (``sliver_px = 1``)."""
+FLIPS = {**MOVING, "flip_level": 8, "hysteresis": 0.75}
+""":data:`MOVING` with the triangles that the two-sided flip crosses L-packed at level 8 or more (``flip_level``) and
+the layout's hysteresis at 0.75 (issue 50 part 1: the orbit's gap)."""
 BUDGET_SLIVERS = {**BUDGET, "sliver_px": 1.0}
 """``tss`` at ``sas``'s budget with slivers sampled along their length (issue 50's per-sample floor)."""
 RUNS: list[tuple[str, str, str, str, dict[str, Any]]] = [
@@ -70,11 +73,22 @@ RUNS: list[tuple[str, str, str, str, dict[str, Any]]] = [
     ("tss budget", "orbit", "cloud", "tss", BUDGET),
     ("tss budget slivers", "orbit", "cloud", "tss", BUDGET_SLIVERS),
     ("tss moving", "orbit", "cloud", "tss", MOVING),
+    # issue 50 part 1: the orbit without latency (``ideal``), and the flip-lifted moving budget (FLIPS)
+    ("sas", "orbit", "ideal", "sas", {}),
+    ("tss moving", "orbit", "ideal", "tss", MOVING),
+    ("tss flips", "static", "ideal", "tss", FLIPS),
+    ("tss flips lossless", "static", "ideal", "tss", {**FLIPS, "lossless": True}),
+    ("tss flips", "orbit", "cloud", "tss", FLIPS),
+    ("tss flips", "orbit", "ideal", "tss", FLIPS),
+    ("tss flip4", "static", "ideal", "tss", {"flip_level": 4}),
+    ("tss flip4 lossless", "static", "ideal", "tss", {"flip_level": 4, "lossless": True}),
+    ("tss flip4", "orbit", "cloud", "tss", {"flip_level": 4}),
 ]
 
 
-def measure(quick: bool = False) -> list[dict[str, Any]]:
-    """Every run of :data:`RUNS` on every model present, in this process (this checkout, or ``PYTHONPATH``'s)."""
+def measure(quick: bool = False, models: list[str] | None = None, runs: list[str] | None = None) -> list[dict[str, Any]]:
+    """Every run of :data:`RUNS` on every model present, in this process (this checkout, or ``PYTHONPATH``'s);
+    ``models`` (names of :data:`MODELS`) and ``runs`` (run names, as in :data:`RUNS`) keep only those."""
     import numpy as np
 
     from splitrender.render.renderer import Renderer
@@ -88,11 +102,13 @@ def measure(quick: bool = False) -> list[dict[str, Any]]:
     renderer = Renderer()
     out = []
     for model, path in MODELS.items():
+        if models and model not in models:
+            continue
         if path != "default" and not os.path.exists(path):
             print(f"skip {model}: {path} absent", file=sys.stderr)
             continue
         for name, trace, network, method, params in RUNS:
-            if quick and trace != "static":
+            if (quick and trace != "static") or (runs and name not in runs):
                 continue
             t0 = time.perf_counter()
             try:
@@ -124,10 +140,12 @@ def compare(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     for r in rows:
         if r["method"] != "tss":
             continue
-        base = next((b for b in rows if b["method"] == "sas" and b["model"] == r["model"] and b["trace"] == r["trace"]), None)
+        base = next((b for b in rows if b["method"] == "sas" and b["model"] == r["model"] and b["trace"] == r["trace"]
+                     and b["network"] == r["network"]), None)
         if base is None:
             continue
-        out[f"{r['model']} {r['trace']} {r['run']}"] = {
+        key = f"{r['model']} {r['trace']} {r['run']}" + (f" {r['network']}" if r["trace"] != "static" and r["network"] != "cloud" else "")
+        out[key] = {
             "model_db_minus_sas": round(r["model_db"] - base["model_db"], 2),
             "bits_over_sas": round(r["steady_kbps"] / base["steady_kbps"], 3),
             "samples_over_sas": round(r["samples"] / base["samples"], 3)}
@@ -139,21 +157,26 @@ def main() -> None:
     ap.add_argument("--label", default="after")
     ap.add_argument("--tree", help="another checkout to measure (run in a child process with PYTHONPATH)")
     ap.add_argument("--quick", action="store_true", help="still runs only")
+    ap.add_argument("--models", help="comma-separated model names (default: all of MODELS)")
+    ap.add_argument("--runs", help="comma-separated run names, e.g. 'sas,tss flips' (default: all of RUNS)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    models = a.models.split(",") if a.models else None
+    runs = a.runs.split(",") if a.runs else None
     if a.child:
-        print("ROWS " + json.dumps(measure(a.quick)))
+        print("ROWS " + json.dumps(measure(a.quick, models, runs)))
         return
     t0 = time.perf_counter()
     if a.tree:
         env = {**os.environ, "PYTHONPATH": str(Path(a.tree).resolve())}
-        cmd = [sys.executable, __file__, "--child"] + (["--quick"] if a.quick else [])
+        cmd = ([sys.executable, __file__, "--child"] + (["--quick"] if a.quick else []) + (["--models", a.models] if a.models else [])
+               + (["--runs", a.runs] if a.runs else []))
         done = subprocess.run(cmd, env=env, cwd=a.tree, capture_output=True, text=True, check=True)
         rows = json.loads(next(line[5:] for line in done.stdout.splitlines() if line.startswith("ROWS ")))
         commit = subprocess.run(["git", "-C", a.tree, "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     else:
         sys.path.insert(0, str(ROOT))
-        rows = measure(a.quick)
+        rows = measure(a.quick, models, runs)
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     data.setdefault("setting", "320x180, 1 s, still = static/ideal, moving = orbit/cloud; model-region PSNR over the frames "

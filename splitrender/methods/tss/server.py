@@ -221,7 +221,8 @@ def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.nda
 
 
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
-             visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf) -> tuple[np.ndarray, ...]:
+             visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf,
+             min_level: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
@@ -251,6 +252,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     sliver = need < tiny
     kind = np.where(single, KIND_SINGLE, np.where((slant > slant_threshold) & ~sliver, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
+    if min_level is not None:
+        lift = min_level > 0
+        kind[lift] = KIND_LP
+        level[lift] = np.maximum(level[lift], min_level[lift])
     # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
     b0 = px[r, base]
     apex = px[r, (base + 2) % 3]
@@ -300,6 +305,8 @@ class TssServer(ServerHalf):
         self.left_out = 0
         """Triangles of the last frame's PVS left out because not even one texel each fitted the atlas."""
         self.last_ids = np.zeros(0, np.int64)
+        self._min_level: np.ndarray | None = None
+        """Per PVS triangle of the frame being planned, the least L-packing level (``flip_level``; None: off)."""
         self.keep_unwritten = False
         """Whether the next gathering leaves the texels it does not write as they were (set per frame: P-frames)."""
 
@@ -382,7 +389,7 @@ class TssServer(ServerHalf):
         target = c.budget_px * self.intrinsics.width * self.intrinsics.height
 
         def fits(r: float) -> bool:
-            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
             return plan_samples(*k[:5], grid=c.os_grid) <= target
 
         lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
@@ -413,9 +420,13 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
+                if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
+                    lift = self._min_level > 0
+                    kind[lift] = KIND_LP
+                    level[lift] = np.maximum(level[lift], self._min_level[lift])
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0, grid=c.os_grid)
             if not plan.overflow:
                 break
@@ -428,7 +439,7 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
                 p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid
@@ -492,6 +503,14 @@ class TssServer(ServerHalf):
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
         px, depth = project(world, ctx.target_pose, self.intrinsics)
         visible = visible_area(world, ctx.target_pose, self.intrinsics, c.fov_margin)
+        self._min_level = None
+        if c.flip_level > 0:
+            nrm = np.einsum("nij,nkj->nki", np.linalg.inv(m[:, :3, :3]).transpose(0, 2, 1), T.nrm[pvs].astype(np.float64))
+            eye = np.asarray(ctx.target_pose.position, np.float64)
+            v = eye - world
+            ndv = (nrm * v).sum(axis=2) / np.maximum(np.linalg.norm(nrm, axis=2) * np.linalg.norm(v, axis=2), 1e-12)
+            flips = (ndv.min(axis=1) < 0.0) & (ndv.max(axis=1) > 0.0)
+            self._min_level = np.where(flips, c.flip_level, 0).astype(np.int64)
         plan, base, slant, rate, kept = self.plan(pvs, px, iframe, visible)
         self.left_out = 0 if kept is None else pvs.size - kept.size
         if kept is not None:
