@@ -164,6 +164,44 @@ def test_adaptation_needs_the_feedback_and_probes_only_where_it_adapts() -> None
     assert rates == {"color": pytest.approx(270.0)} and isinstance(rates["color"], CappedCrf)   # start rate (0.9x)
 
 
+
+def test_the_webrtc_profile_follows_the_receivers_estimate() -> None:
+    """The browser front door's core (aiortc owns RTP: no transport-wide feedback) adapts to the estimate the page's
+    browser reports (RTCP REMB, :meth:`ServerSession.receive_estimate`): the encoder's rate follows it down and up,
+    clamped to the estimator's bounds, and a session that does not adapt, or one on RTP, only counts it."""
+    from splitrender.codecs.video import VideoCodecConfig
+    from splitrender.methods.base import StreamSpec
+    from splitrender.pipeline import OutgoingFrame
+    from splitrender.pipeline.sender import ServerPipeline
+    from splitrender.pipeline.session import ServerOptions, ServerSession
+
+    specs = [StreamSpec("color", VideoCodecConfig(), 160, 90)]
+    core = ServerSession(ServerPipeline(specs), 30.0, ServerOptions(adapt="rate", pacing=False), transport="webrtc")
+    assert core.encoder_rates() == {"color": pytest.approx(270.0)}     # GCC's start, 300 kbit/s, at its 0.9 share
+    assert core.congestion()["cc_target_kbps"] == pytest.approx(300.0)
+
+    def follow(bps: float, t_ms: float) -> float:
+        core.receive_estimate(bps, t_ms)
+        for k in range(30):     # a second of frames at what the encoder was told (the controller learns its cost)
+            rates = core.encoder_rates()
+            assert rates is not None
+            size = int(rates["color"] * 1000 / 8 / 30)
+            core.frame_sent(k, OutgoingFrame(k, keyframe=k == 0, wire_bytes={"color": size}), t_ms + k * 33.3, 0, rates)
+        return core.encoder_rates()["color"]  # type: ignore[index]
+
+    low = follow(150_000.0, 1000.0)
+    assert core.congestion()["cc_target_kbps"] == pytest.approx(150.0) and low <= 150.0, low
+    high = follow(2_000_000.0, 3000.0)
+    assert core.congestion()["cc_target_kbps"] == pytest.approx(2000.0) and high > 5 * low, (low, high)
+    follow(1.0, 5000.0)                                                  # below the floor: clamped to min_bps
+    assert core.congestion()["cc_target_kbps"] == pytest.approx(100.0)
+    follow(float("nan"), 6000.0)                                         # nonsense: ignored
+    assert core.congestion()["cc_target_kbps"] == pytest.approx(100.0) and core.counters["estimates_received"] == 4
+    plain = ServerSession(ServerPipeline(specs), 30.0, ServerOptions(), transport="webrtc")
+    plain.receive_estimate(150_000.0, 0.0)
+    assert plain.encoder_rates() is None and plain.congestion() == {} and plain.counters["estimates_received"] == 1
+
+
 STEP = ((1.5, 3.0), (3.5, 0.6))
 
 

@@ -100,6 +100,44 @@ class GccConfig:
             raise ConfigError(f"GccConfig.window: must be >= 2, got {self.window}")
 
 
+class ReceiverEstimate:
+    """The path's rate as the receiver estimates it (RTCP REMB, RFC draft-alvestrand-rmcat-remb), for a session whose
+    transport is a WebRTC stack's: the browser front door, where aiortc owns RTP and the page's browser reports what
+    it measures.  The same face as :class:`BandwidthEstimator` to the rate and operating-point controllers, with
+    nothing of its own to measure: no queue, no acknowledged rate, no probes (the receiver's estimate rises as its
+    arrivals do).  Before the first report the target is ``start_bps``, as GCC's."""
+
+    def __init__(self, cfg: GccConfig | None = None) -> None:
+        self.cfg = cfg or GccConfig()
+        self.target_bps = self.cfg.start_bps
+        self.reports = 0
+        self.last_us: int | None = None
+
+    def on_report(self, bps: float, now_us: int) -> float:
+        """A receiver's estimate (bit/s) came at ``now_us``: the target, clamped to the configured bounds."""
+        if not math.isfinite(bps) or bps < 0:
+            return self.target_bps
+        self.target_bps = min(max(float(bps), self.cfg.min_bps), self.cfg.max_bps)
+        self.reports += 1
+        self.last_us = now_us
+        return self.target_bps
+
+    def encoder_bps(self) -> float:
+        return self.target_bps
+
+    def queue_ms(self) -> float:
+        return 0.0
+
+    def acked_bps(self) -> float | None:
+        return None
+
+    def probe(self, now_us: int) -> ProbeCluster | None:
+        return None
+
+    def set_rtt(self, rtt_us: int) -> None:
+        pass
+
+
 @dataclass
 class _Group:
     first_send: int

@@ -60,7 +60,7 @@ from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, o
                              write_transport_seq)
 from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
 from .feedback import FeedbackState
-from .gcc import BandwidthEstimator, GccConfig, Pacer
+from .gcc import BandwidthEstimator, GccConfig, Pacer, ReceiverEstimate
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
 from .rows import session_summary
@@ -972,13 +972,16 @@ class ServerSession:
         gcc = self.options.gcc
         if self.options.adapt == "off" and gcc.start_bps < UNADAPTED_START_BPS <= gcc.max_bps:
             gcc = dataclasses.replace(gcc, start_bps=UNADAPTED_START_BPS)
-        self.estimator = BandwidthEstimator(gcc) if cc else None
-        """The path's send-rate estimate from that feedback (:mod:`.gcc`)."""
+        self.estimator: BandwidthEstimator | ReceiverEstimate | None = BandwidthEstimator(gcc) if cc else None
+        """The path's send-rate estimate from that feedback (:mod:`.gcc`); on the WebRTC transport with adaptation,
+        the receiver's own estimate (REMB, :meth:`receive_estimate`)."""
+        if self.transport == "webrtc" and self.options.adapt != "off":
+            self.estimator = ReceiverEstimate(gcc)
         self.pacer: Pacer[tuple[Any, bytes]] | None = \
             Pacer(self.estimator.target_bps) if self.estimator is not None and self.options.pacing else None
         if self.options.adapt != "off" and self.estimator is None:
             raise ConfigError(f"server adapt {self.options.adapt}: follows the estimated rate, so it needs transport-wide "
-                              "feedback (transport_cc)")
+                              "feedback (transport_cc) or, on the WebRTC transport, the receiver's estimate")
         self.rate: RateController | None = \
             RateController(controlled_streams(self.tx.specs), stream_fps(self.tx.specs), self.options.adapt_cfg) \
             if self.options.adapt in ("rate", "full") else None
@@ -1076,7 +1079,7 @@ class ServerSession:
                             self.rtt_ms = rtt
                             if self.estimator is not None:
                                 self.estimator.set_rtt(int(rtt * 1000))
-            elif isinstance(p, TransportFeedback) and self.estimator is not None and self.send_history is not None:
+            elif isinstance(p, TransportFeedback) and isinstance(self.estimator, BandwidthEstimator) and self.send_history is not None:
                 self.counters["twcc_feedback"] += 1
                 before = self.send_history.unknown
                 results = self.send_history.on_feedback(p)
@@ -1210,6 +1213,14 @@ class ServerSession:
         self.counters["probe_bytes"] = self.counters.get("probe_bytes", 0) + sum(len(d) for _, d in out)
         for at_ms, data in out:
             self._later_push(at_ms, "probe", None, data, cl.cluster)
+
+    def receive_estimate(self, bps: float, now_ms: float) -> None:
+        """The receiver's estimate of the path's rate (bit/s; RTCP REMB, which a WebRTC stack passes on): the
+        rate and operating-point controllers follow it.  Only the WebRTC transport takes it (with RTP the core
+        estimates from transport-wide feedback itself); elsewhere it is counted and ignored."""
+        self.counters["estimates_received"] = self.counters.get("estimates_received", 0) + 1
+        if isinstance(self.estimator, ReceiverEstimate):
+            self.estimator.on_report(bps, int(round(now_ms * 1000)))
 
     def operating_point(self, now_ms: float) -> dict[str, Any] | None:
         """The knob values the next frame should be made with (``adapt = "full"``): the method's own for its server

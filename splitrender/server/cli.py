@@ -49,7 +49,8 @@ def add_serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--adapt", choices=("off", "rate", "full"), default="off",
                    help="rate: each session's lossy video encoders follow its estimated rate, and the estimator probes "
                         "for capacity (implies --transport-cc); full: that, and each method's own knobs choose its "
-                        "operating point; off (default): fixed operating points")
+                        "operating point; off (default): fixed operating points.  Browser sessions (--webrtc) follow the "
+                        "page's REMB estimate instead")
     p.add_argument("--isolation", choices=("session", "server"), default="session",
                    help="render workers: one process per session (a hung render ends that session only; default) "
                         "or one for the server (scene producers shared by every session)")

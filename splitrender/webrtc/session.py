@@ -140,7 +140,7 @@ class BrowserSession:
         """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
             "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
-            "plis_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "poses_stale": 0, "feedback_received": 0,
+            "plis_received": 0, "remb_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "poses_stale": 0, "feedback_received": 0,
             "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0, "retransmit_requests": 0,
             "images_received": 0, "image_bytes_received": 0,
         }
@@ -170,8 +170,8 @@ class BrowserSession:
         ref = video[0]
         self.stream = ref.name
         self.core = ServerSession(ServerPipeline(specs), self.display_hz,
-                                  # aiortc owns pacing; adaptation needs its transport-wide feedback (not yet)
-                                  dataclasses.replace(cfg.session_options(), pacing=False, adapt="off"),
+                                  # aiortc owns pacing; adaptation follows the page's REMB (:meth:`_hook_sender`)
+                                  dataclasses.replace(cfg.session_options(), pacing=False),
                                   predictor=make_predictor(cfg.predictor), transport="webrtc")
         self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
@@ -218,14 +218,16 @@ class BrowserSession:
         return terms
 
     def _hook_sender(self, sender: Any) -> None:
-        """Count the browser's RTCP feedback and turn its PLIs into IDR requests (aiortc answers NACKs itself,
-        from its own history; a PLI only sets a flag its encoder would read, and this track has none).
+        """Count the browser's RTCP feedback, turn its PLIs into IDR requests (aiortc answers NACKs itself, from its
+        own history; a PLI only sets a flag its encoder would read, and this track has none) and pass its REMB
+        estimates to the session core, whose rate and operating-point controllers follow them (``--adapt``; aiortc
+        negotiates ``goog-remb`` and ``abs-send-time``, so the browser estimates the path from arrivals and reports).
 
         The one place that uses aiortc's private names: aiortc (1.x) offers no public event for the RTCP feedback a
         sender receives, so this wraps its ``_handle_rtcp_packet`` and ``_retransmit``, and refuses to run, naming
         them, on an aiortc that has neither.  What it sent is read through the public ``getStats``
         (:meth:`read_sender_stats`)."""
-        from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket
+        from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket, unpack_remb_fci
 
         missing = [n for n in ("_handle_rtcp_packet", "_retransmit") if not callable(getattr(sender, n, None))]
         if missing:
@@ -240,6 +242,14 @@ class BrowserSession:
             elif isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4):   # PLI, FIR
                 self.counters["plis_received"] += 1
                 self.request_keyframe("PLI from the browser")
+            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == 15:       # application layer: REMB
+                try:
+                    bps, _ = unpack_remb_fci(packet.fci)
+                except ValueError:                                               # not a REMB: aiortc ignores it too
+                    bps = None
+                if bps is not None and self.core is not None:
+                    self.counters["remb_received"] += 1
+                    self.core.receive_estimate(float(bps), time.time() * 1000)
             await orig(packet)
 
         sender._handle_rtcp_packet = handle
@@ -459,12 +469,12 @@ class BrowserSession:
             self.request_keyframe("the sender fell behind")
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         sent = OutgoingFrame(self._frame_id, keyframe=frame.keyframe, wire_bytes={self.stream: len(frame.data)})
-        core.frame_sent(self._frame_id, sent, now_ms, t_us)
+        core.frame_sent(self._frame_id, sent, now_ms, t_us, enc.rates_kbps, enc.restarts)
         self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
         c1 = time.perf_counter()
-        row = {**update_row(self._frame_id, scene_t, sent, enc, order, stages, (self.stream,), {}), "server_us": t_us,
+        row = {**update_row(self._frame_id, scene_t, sent, enc, order, stages, (self.stream,), core.congestion()), "server_us": t_us,
                "bytes_frame_meta": n_meta, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"])}
         self._logs.append("updates", row)
         self._frame_id += 1
