@@ -15,7 +15,8 @@ from ..warp import SHADERS as WARP_SHADERS
 from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
-from .mesh import ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, hidden_sky, join_meshes
+from .mesh import (ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, continuous_sides, hidden_sky,
+                   join_meshes)
 from .server import outside_frustum
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
@@ -103,7 +104,7 @@ class QuadsClient(ClientHalf):
                                         self._hidden_sky[1]))
         # QuadStream: the views after the centre view are drawn behind what the centre view shows (its guard)
         guard = self.config.variant == "quadstream" and self.config.centre_guard
-        centre: tuple[np.ndarray, np.ndarray] | None = None
+        centre: int | None = None
         for s in sets:
             if s.kind in CACHED_KINDS:
                 continue
@@ -118,10 +119,14 @@ class QuadsClient(ClientHalf):
                 parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad",
                                         view=view))
             if guard and s.camera == 0 and centre is None:
-                centre = parts[-1]
-        if centre is not None:
-            self._mesh.set_guard(*centre, *cams[0])
-        else:
+                centre = len(parts) - 1
+                self._mesh.set_guard(*parts[centre], *cams[0])
+                origin = self._whole(s, intr)
+                if origin is not None and self._mesh.guard_depth is not None:
+                    # the atlas holds the centre view's image: filter across quad borders along a surface
+                    grow = continuous_sides(s.quads, self._mesh.guard_depth)
+                    parts[centre] = build_mesh(s.quads, pose, intr, origin, "quad", view=view, grow=grow)
+        if centre is None:
             self._mesh.clear_guard()
         self._mesh.upload(*join_meshes(parts))
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
@@ -130,6 +135,16 @@ class QuadsClient(ClientHalf):
         self.has_content = True
         self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.count // 24),
                        "quads_cached": float(len(self.cache))}
+
+    def _whole(self, s: Any, intr: CameraIntrinsics) -> tuple[int, int] | None:
+        """Where the atlas holds set ``s``'s view whole (its quads cover every pixel at one offset: a slot, or
+        QuadStream's centre view in its packed atlas): that offset, else ``None``."""
+        if len(s.quads) == 0 or s.quads.pixels() != intr.width * intr.height:
+            return None
+        if s.tex is None:
+            return self._origin(s.slot)
+        off = s.tex.astype(np.int64) - np.stack([s.quads.x, s.quads.y], axis=-1).astype(np.int64)
+        return (int(off[0, 0]), int(off[0, 1])) if (off == off[0]).all() else None
 
     def _check(self, update: DecodedUpdate, where: str) -> tuple[Any, Any, str, int, np.ndarray]:
         """Everything of an update checked, nothing changed yet: (cameras, sets, frame kind, reference id, atlas)."""

@@ -192,8 +192,46 @@ class ReferenceCache:
         return 0 if self.quads is None else len(self.quads)
 
 
+SURFACE_REL = 0.05
+"""Two neighbouring pixels of a view lie on one surface when their depths differ by at most this fraction
+(:func:`continuous_sides`)."""
+
+
+def continuous_sides(qs: QuadSet, depth: np.ndarray, rel: float | None = None) -> np.ndarray:
+    """(N, 4) float: half a texel on each side (left, top, right, bottom) of each quad of ``qs`` where every pixel
+    along that side and its neighbour across it lie on one surface (``depth``: the view's (H, W) depth, top row
+    first; within ``rel`` of each other), else 0: :func:`build_mesh`'s ``grow``, so a quad's bilinear lookup
+    filters across its border where the atlas holds the view's own image beyond it (QuadStream's centre view,
+    whole in its atlas) and the surface goes on, and stops at depth edges (a post before a wall stays crisp).
+    ``rel`` defaults to :data:`SURFACE_REL`."""
+    rel = SURFACE_REL if rel is None else rel
+    h, w = depth.shape
+    out = np.zeros((len(qs), 4))
+    z = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
+    for lv in np.unique(qs.level):
+        sel = np.flatnonzero(qs.level == lv)
+        size = 1 << int(lv)
+        x0, y0 = qs.x[sel].astype(np.int64), qs.y[sel].astype(np.int64)
+        k = np.arange(size)
+        for side, (dx, dy) in enumerate(((-1, 0), (0, -1), (1, 0), (0, 1))):
+            if dx:   # a column of pixels along the side
+                xa = np.broadcast_to((x0 if dx < 0 else x0 + size - 1)[:, None], (sel.size, size))
+                ya = y0[:, None] + k
+            else:
+                ya = np.broadcast_to((y0 if dy < 0 else y0 + size - 1)[:, None], (sel.size, size))
+                xa = x0[:, None] + k
+            xb, yb = xa + dx, ya + dy
+            inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h) & (xa < w) & (ya < h)
+            za = z[np.clip(ya, 0, h - 1), np.clip(xa, 0, w - 1)]
+            zb = z[np.clip(yb, 0, h - 1), np.clip(xb, 0, w - 1)]
+            same = (za == zb) | (np.abs(za - zb) <= rel * np.minimum(za, zb))
+            out[sel, side] = np.where((inside & same).all(axis=1), 0.5, 0.0)
+    return out
+
+
 def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
-               clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0) -> tuple[np.ndarray, np.ndarray]:
+               clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0,
+               grow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 11) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
     with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; indices (N*24,) uint32).
 
@@ -214,7 +252,8 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     texels belong to unrelated quads) is the quad's own pixels, which makes every one-pixel quad a flat
     nearest-neighbour sample (on 2CylinderEngine+ground, orbit under cloud, 2 s, that cost QUASAR 1.1 dB on the
     model, ``benchmarks/bench_quads_models.py``).  ``texel`` ((N, 2) atlas pixels, optional): every fragment of quad
-    i takes the colour of that one texel instead (:func:`hidden_sky`)."""
+    i takes the colour of that one texel instead (:func:`hidden_sky`).  ``grow`` ((N, 4) texels, optional, with
+    ``"quad"``): each quad's rect widened on its left, top, right and bottom (:func:`continuous_sides`)."""
     if len(qs) == 0:
         return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
     pts, uv, ok = corner_points(qs, intr)
@@ -233,6 +272,8 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
         rect = np.stack([org[:, 0], org[:, 1], org[:, 0] + intr.width, org[:, 1] + intr.height], axis=-1)
     else:
         rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
+        if grow is not None:
+            rect += np.asarray(grow, np.float64)[ok] * np.array([-1.0, -1.0, 1.0, 1.0])
     v = np.empty((n, 16, VERTEX_FLOATS), np.float32)
     v[..., 0:3] = world
     zs = -pts[..., 2]
@@ -273,6 +314,8 @@ class QuadMeshGL:
         self.count = 0
         self._targets: dict[tuple[int, int], tuple[Any, Any, Any]] = {}
         self._guard: tuple[Any, Pose, CameraIntrinsics] | None = None
+        self.guard_depth: np.ndarray | None = None
+        """The centre view's depth from its camera (H, W), top row first, 0 where none (:meth:`set_guard`)."""
 
     def upload(self, vertices: np.ndarray, indices: np.ndarray) -> None:
         for b in (self.vao, self.vbo, self.ibo):
@@ -304,7 +347,9 @@ class QuadMeshGL:
         _, _, depth = self.draw(pose, intr, None, (1, 1))
         guard = self.ctx.texture((intr.width, intr.height), 1, dtype="f4")
         guard.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        guard.write(depth.read())
+        raw = depth.read()
+        guard.write(raw)
+        self.guard_depth = np.frombuffer(raw, np.float32).reshape(intr.height, intr.width)[::-1].copy()
         for b in (self.vao, self.vbo, self.ibo):
             if b is not None:
                 b.release()

@@ -24,7 +24,9 @@
 **QuadStream**: views at the centre and the eight corners of a cube of side
 ``view_cell_m`` plus the wide view, each masked by the mesh of the views before it (with
 one-pixel boundary expansion), the full set every frame; by default its atlas is packed
-quad by quad (:mod:`.packing`), each quad's atlas position on the wire.
+quad by quad (:mod:`.packing`), each quad's atlas position on the wire.  With ``centre_guard`` (the default) the
+mesh that masks a view is drawn as the client draws it: the later views behind the centre view
+(:meth:`.mesh.QuadMeshGL.set_guard`).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
 from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes, select
-from .packing import copy_texels, fitting, pack_squares, packed_size, tile_side
+from .packing import copy_texels, fitting, pack_squares, packed_size, source_order, tile_side, whole_tiles
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
 
@@ -187,12 +189,16 @@ class QuadsServer(ServerHalf):
         self._stats = {}
         return dict.fromkeys(STAGES, 0.0), np.zeros((self.atlas_wh[1], self.atlas_wh[0], 3), np.uint8)
 
-    def _mesh_depth(self, ctx: ServerContext, parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
-                    intr: CameraIntrinsics) -> np.ndarray:
+    def _gl_mesh(self, ctx: ServerContext) -> QuadMeshGL:
         if self._mesh is None:
             self._mesh = QuadMeshGL(ctx.renderer.ctx)
-        self._mesh.upload(*join_meshes(parts))
-        return self._mesh.depth_at(pose, intr)
+        return self._mesh
+
+    def _mesh_depth(self, ctx: ServerContext, parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
+                    intr: CameraIntrinsics) -> np.ndarray:
+        mesh = self._gl_mesh(ctx)
+        mesh.upload(*join_meshes(parts))
+        return mesh.depth_at(pose, intr)
 
     def _unexplained(self, depth: np.ndarray, mesh_z: np.ndarray) -> np.ndarray:
         """Pixels the mesh does not explain: uncovered, or whose surface lies more than :data:`MASK_REL`
@@ -324,6 +330,8 @@ class QuadsServer(ServerHalf):
         cfg, intr = self.config, self.intrinsics
         pose = ctx.target_pose
         times, atlas = self._start()
+        if self._mesh is not None:
+            self._mesh.clear_guard()
         rot = pose.matrix()[:3, :3]
         h = cfg.view_cell_m / 2
         offsets = [np.zeros(3)] + [np.array([sx, sy, sz]) * h for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
@@ -357,22 +365,38 @@ class QuadsServer(ServerHalf):
             if self.packed is None:
                 self._place(atlas, v, g_color if emit is None else masked_colour(g_color, emit))
             colors.append(g_color)
-            parts.append(build_mesh(q, vp, vi, (0, 0)))
+            parts.append(build_mesh(q, vp, vi, (0, 0), view=v if cfg.centre_guard else 0))
+            if v == 0 and cfg.centre_guard:   # the later views are masked by the mesh as the client draws it
+                self._gl_mesh(ctx).set_guard(*parts[0], vp, vi)
         if self.packed is not None:
             self._pack(sets, colors, atlas, times)
         return self._finish(ctx, pose, sets, atlas, cameras, times, "reference")
 
     def _pack(self, sets: list[WireSet], colors: list[np.ndarray], atlas: np.ndarray, times: dict[str, float]) -> None:
-        """QuadStream's packed atlas: every quad's texels at a position of its own, set on its set's ``tex``.
-        Quads beyond the atlas's capacity (views in order, the centre first) are left out and counted."""
+        """QuadStream's packed atlas: the centre view whole at the top left (where the atlas can hold it), every
+        later quad's texels at a position of its own, set on its set's ``tex``.  Quads beyond the atlas's capacity
+        (views in order, the centre first) are left out and counted."""
         assert self.packed is not None
         t0 = time.perf_counter()
-        sizes = 1 << np.concatenate([s.quads.level for s in sets]).astype(np.int64)
-        keep = fitting(sizes, self.packed[0] * self.packed[1])
+        i = self.intrinsics
+        tile = tile_side(i.width, i.height)
+        rx, ry = whole_tiles(i.width, i.height)
+        whole = bool(sets) and rx * tile <= self.packed[0] and ry * tile <= self.packed[1]
+        reserved = (rx, ry) if whole else (0, 0)
+        if whole:
+            c = sets[0]
+            c.tex = np.stack([c.quads.x, c.quads.y], axis=-1).astype(np.int64)
+            copy_texels(atlas, colors[0], c.quads.level, c.quads.x, c.quads.y, c.tex[:, 0], c.tex[:, 1])
+        binned = list(zip(sets, colors, range(len(sets))))[1 if whole else 0:]
+        sizes = 1 << np.concatenate([s.quads.level for s, _, _ in binned] or [np.zeros(0, np.uint8)]).astype(np.int64)
+        keep = fitting(sizes, self.packed[0] * self.packed[1] - rx * ry * tile * tile * whole)
         self._stats["atlas_dropped"] = float(sizes.size - keep)
-        ax, ay = pack_squares(sizes[:keep], tile_side(self.intrinsics.width, self.intrinsics.height), *self.packed)
+        key = source_order(np.concatenate([np.full(len(s.quads), v) for s, _, v in binned] or [np.zeros(0)]),
+                           *(np.concatenate([getattr(s.quads, k) for s, _, _ in binned] or [np.zeros(0)])
+                             for k in ("level", "x", "y")))
+        ax, ay = pack_squares(sizes[:keep], tile, *self.packed, key=key[:keep], reserved=reserved)
         a = 0
-        for s, img in zip(sets, colors):
+        for s, img, _ in binned:
             if a + len(s.quads) > keep:    # the kept quads are a prefix in view order
                 s.quads = select(s.quads, np.arange(len(s.quads)) < keep - a)
             n = len(s.quads)
