@@ -10,6 +10,9 @@ comparison, measured in the same process as the ``tss`` runs:
 - moving: the fitted ``orbit`` under ``cloud``; ``sas``, ``tss`` at its defaults and at ``sas``'s budget;
 - both: ``tss`` at ``sas``'s budget with slivers sampled (:data:`BUDGET_SLIVERS`) and with a budget that moves with
   the scene (:data:`MOVING`, ``budget_px``), lossy and lossless still.
+- issue 50 part 1: ``sas`` and the moving budget on the orbit under ``ideal`` too (latency apart), and the moving
+  budget with the flip's triangles lifted (:data:`FLIPS`), and ``flip_level = 4`` at the defaults (``tss flip4``).
+  ``--models`` and ``--runs`` (comma-separated names) measure a subset.
 
 The default scene (``default``) is measured beside the three models.
 
