@@ -87,8 +87,8 @@ class QuadsConfig(MethodConfig):
     - ``edp_tolerance``: relative depth slack of the parallax test;
     - ``atlas``: ``slots`` (QUASAR's linear packing: each G-buffer's colour whole, side by
       side; a quad's texels follow from its x and y) or ``packed`` (QuadStream's binning:
-      each quad's own texels packed square by square, its atlas position sent with it,
-      :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
+      the centre view whole at the top left, every later quad's own texels packed square by square around it,
+      its atlas position sent with it, :mod:`.packing`); ``None`` takes the variant's own (QUASAR ``slots``, QuadStream
       ``packed``).  QUASAR needs ``slots`` (its cached quads keep slot 0);
     - ``residual_mask`` (QUASAR): which pixels of a residual frame get new quads.  ``coverage``
       (QUASAR's ``FrameGenerator``): scene pixels the cached mesh, less its background quads,
@@ -114,7 +114,8 @@ class QuadsConfig(MethodConfig):
       view's camera, it lies behind the centre view's own surface (:meth:`.mesh.QuadMeshGL.set_guard`), and the
       server masks each view with the earlier views' mesh drawn so.  On by default (issue 50: without it the later
       views' duplicates and silhouette overhang won the depth test over the centre view, 20.2 dB on 2CylinderEngine's
-      model at the server's own pose, lossless, where the centre view alone is exact);
+      model at the server's own pose, lossless, where the centre view alone is exact).  With it the centre view's
+      quads also filter across their borders along a surface (:func:`.mesh.continuous_sides`);
     - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
       this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
