@@ -58,6 +58,10 @@ def truth_cache(tmp_path_factory) -> str:  # type: ignore[no-untyped-def]
     virtual-time runs.  A truth frame depends only on the scene, the trace, the image size, the field of view and
     the display rate, not on the method or the network, so the runs of every test on the same trace render each
     frame once; a hit is the rendered frame bit for bit, so no score changes."""
+    shared = _xdist_folder()
+    if shared is not None:              # one cache for every worker (its writes are atomic renames)
+        os.makedirs(os.path.join(shared, "truth_cache"), exist_ok=True)
+        return os.path.join(shared, "truth_cache")
     return getattr(tmp_path_factory, "_sr_truth", None) or str(tmp_path_factory.mktemp("truth_cache"))
 
 
@@ -78,11 +82,27 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
         key = cfg.key()
         if key not in memo:
             made = _made_ahead(request.config, key)
-            memo[key] = made if made is not None else run(cfg.replace(truth_cache=truth_cache), renderer=session_renderer)
+            if made is None:
+                try:
+                    made = run(cfg.replace(truth_cache=truth_cache), renderer=session_renderer)
+                except BaseException:
+                    _publish(key, None)           # the others make it themselves, and fail as their own
+                    raise
+                _publish(key, made)
+            memo[key] = made
         return memo[key]
 
     return get
 
+
+# ----------------------------------------------------------------------------- pytest-xdist
+#
+# Under ``pytest -n 2 --dist loadfile`` (pytest-xdist) each worker is a test session of its own, and what one session
+# shares between its tests is shared between the workers through one folder (:func:`_xdist_folder`): the stress
+# suite runs once, started by the first worker to claim it, and the others read its result; a shared run is made by
+# the first worker that needs it and read by the others; the ground-truth cache is one.  The process that made
+# shared runs ahead is not started there (the second worker is that parallelism).  ``loadfile`` keeps each file's
+# tests in one worker, so module fixtures are made once.
 
 # ----------------------------------------------------------------------------- ordering and the stress suite
 #
@@ -96,21 +116,41 @@ LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_in
                         "test_sdp.py", "test_cli.py", "test_browser.py", "test_browser_front.py"})
 STRESS_FILE = "test_stress.py"
 _STRESS_SCRIPT = """
-import pickle, sys
-from splitrender.experiments.stress import run_stress
-res = run_stress(sys.argv[1], quick=True, workers=2, timeout_s=120)
-with open(sys.argv[1] + "/rows.pickle", "wb") as f:
-    pickle.dump(res.rows, f)
+import os, pickle, sys, traceback
+out = sys.argv[1]
+rc = 1
+try:
+    from splitrender.experiments.stress import run_stress
+    res = run_stress(out, quick=True, workers=2, timeout_s=120)
+    with open(out + "/rows.tmp", "wb") as f:
+        pickle.dump(res.rows, f)
+    os.replace(out + "/rows.tmp", out + "/rows.pickle")
+    rc = 0
+except BaseException:
+    traceback.print_exc()
+with open(out + "/rc.tmp", "w") as f:
+    f.write(str(rc))
+os.replace(out + "/rc.tmp", out + "/rc")
+sys.exit(rc)
 """
 
 
 def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
-    """Start the quick stress suite in a child process (its result: ``background_stress``)."""
+    """Start the quick stress suite in a child process (its result: ``background_stress``); under xdist, only in
+    the first worker to claim it (the others read its folder)."""
     import subprocess
     import sys
     import tempfile
 
-    out = tempfile.mkdtemp(prefix="sr-stress-")
+    shared = _xdist_folder()
+    if shared is not None:
+        out = os.path.join(shared, "stress")
+        config._sr_stress_folder = out
+        if not _claim(os.path.join(shared, "stress.claim")):
+            return
+        os.makedirs(out, exist_ok=True)
+    else:
+        out = tempfile.mkdtemp(prefix="sr-stress-")
     log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
     config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
                                                     stderr=subprocess.STDOUT))
@@ -130,7 +170,33 @@ def pytest_collection_finish(session) -> None:  # type: ignore[no-untyped-def]
     _start_ahead(session.config, session.items)   # the items left after -k/-m deselection, in their order
 
 
+def pytest_configure(config) -> None:  # type: ignore[no-untyped-def]
+    """Under ``-n N`` the controller names the run, so that it can remove the workers' shared folder at the end."""
+    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        import uuid
+
+        if getattr(config.option, "testrunuid", None) is None:
+            config.option.testrunuid = uuid.uuid4().hex
+        config._sr_xdist_uid = config.option.testrunuid
+
+
 def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
+    uid = getattr(session.config, "_sr_xdist_uid", None)
+    if uid is not None:                     # the controller, once every worker is done
+        import shutil
+        import tempfile
+
+        shutil.rmtree(os.path.join(tempfile.gettempdir(), f"sr-xdist-{uid}"), ignore_errors=True)
+        return
+    if _xdist_folder() is not None:         # a worker: the stress suite another worker may still read goes on
+        bg = getattr(session.config, "_sr_stress", None)
+        if bg is not None:
+            try:
+                bg[2].wait(timeout=1800)
+            except Exception:
+                bg[2].kill()
+            bg[1].close()
+        return
     _stop_ahead(session.config)
     ahead = getattr(session.config, "_sr_ahead", None)
     if ahead is not None:
@@ -185,13 +251,16 @@ for cfg in cfgs:
 
 
 def _start_ahead(config, items) -> None:  # type: ignore[no-untyped-def]
-    """Start making the selected tests' ``shared_runs`` in a background process (after the stress suite, if any)."""
+    """Start making the selected tests' ``shared_runs`` in a background process (after the stress suite, if any);
+    not under xdist, whose second worker is that parallelism."""
     import pickle
     import subprocess
     import sys
     import tempfile
     import threading
 
+    if _xdist_folder() is not None:
+        return
     cfgs: dict = {}
     for item in items:
         for mark in item.iter_markers("shared_runs"):
@@ -234,10 +303,24 @@ def _stop_ahead(config) -> None:  # type: ignore[no-untyped-def]
 
 
 def _made_ahead(config, key: str):  # type: ignore[no-untyped-def]
-    """The run ``key`` as the background made it, or None where this process is to make it (it claims it then)."""
+    """The run ``key`` as the background (or under xdist another worker) made it, or None where this process is to
+    make it (it claims it then)."""
     import pickle
     import time
 
+    shared = _xdist_folder()
+    if shared is not None:
+        path = os.path.join(shared, "runs", key)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        if _claim(path + ".claim"):
+            return None
+        deadline = time.monotonic() + 1200
+        while not os.path.exists(path + ".pickle"):
+            if os.path.exists(path + ".failed") or time.monotonic() > deadline:
+                return None                           # made here, where a failure shows as the test's own
+            time.sleep(0.05)
+        with open(path + ".pickle", "rb") as f:
+            return pickle.load(f)
     ahead = getattr(config, "_sr_ahead", None)
     if ahead is None or ahead["stopped"]:
         return None
@@ -262,6 +345,60 @@ def pytest_runtest_setup(item) -> None:  # type: ignore[no-untyped-def]
         _stop_ahead(item.config)
 
 
+def _xdist_folder() -> str | None:
+    """Under pytest-xdist (``-n N``), in a worker: the folder the run's workers share (the stress suite, the shared
+    runs, the truth cache); None otherwise."""
+    uid = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if not uid or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return None
+    import tempfile
+
+    d = os.path.join(tempfile.gettempdir(), f"sr-xdist-{uid}")
+    os.makedirs(d, exist_ok=True)
+    return d
+
+
+def _claim(path: str) -> bool:
+    """Create ``path`` exclusively: True for the one process that did."""
+    try:
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return True
+    except FileExistsError:
+        return False
+
+
+def _publish(key: str, res) -> None:  # type: ignore[no-untyped-def]
+    """Under xdist, the shared run ``key`` this worker made, for the others (:func:`_made_ahead`; None: it failed)."""
+    import pickle
+
+    shared = _xdist_folder()
+    if shared is None:
+        return
+    path = os.path.join(shared, "runs", key)
+    if res is None:
+        open(path + ".failed", "w").close()
+        return
+    with open(path + ".tmp", "wb") as f:
+        pickle.dump(res, f)
+    os.replace(path + ".tmp", path + ".pickle")
+
+
+def _remote_stress(out: str):  # type: ignore[no-untyped-def]
+    """Under xdist, the stress suite another worker runs: wait for its exit status, then its rows."""
+    import pickle
+    import time
+    from pathlib import Path
+
+    deadline = time.monotonic() + 1800
+    while not os.path.exists(os.path.join(out, "rc")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    rc = Path(out, "rc").read_text() if os.path.exists(os.path.join(out, "rc")) else "(none: still running after 30 min)"
+    text = Path(out, "log.txt").read_text(errors="replace") if os.path.exists(os.path.join(out, "log.txt")) else ""
+    assert rc == "0", f"the background stress suite failed (exit {rc}):\n{text[-3000:]}"
+    with open(os.path.join(out, "rows.pickle"), "rb") as f:
+        return Path(out), pickle.load(f)
+
+
 @pytest.fixture(scope="session")
 def background_stress(request):  # type: ignore[no-untyped-def]
     """``(out folder, rows)`` of the quick stress suite: the run started as the session began (or now)."""
@@ -271,6 +408,8 @@ def background_stress(request):  # type: ignore[no-untyped-def]
 
     if getattr(request.config, "_sr_stress", None) is None:
         _start_stress(request.config)
+    if getattr(request.config, "_sr_stress", None) is None:      # under xdist, another worker's
+        return _remote_stress(request.config._sr_stress_folder)
     out, log, proc = request.config._sr_stress
     try:
         proc.wait(timeout=1800)
