@@ -258,7 +258,9 @@ def test_ffmpeg_and_gstreamer_decode_every_frame_of_a_live_session(tmp_path: Pat
             assert codec == codecs[0], f"{name}: the client accepts only {codecs[0]}, the SDP says {codec}"
         ours = _decoded_md5s(codec, datagrams)
         n = len(ours)
-        assert n >= 20, f"{name}: only {n} frames in 2 s"
+        # enough frames to compare (an IDR and P-frames after it): how many a 2 s session makes is the machine's rate
+        # (measured 19-60, by load), and what counts is that every one of them decodes the same (issue 49)
+        assert n >= 10, f"{name}: only {n} frames in 2 s"
         ff, ff_err, ff_drops = _until_no_drops(lambda gap: _ffmpeg_frames(sdp, datagrams, n, gap), ours, tail=False)
         gst, gst_err, gst_drops = _until_no_drops(lambda gap: _gst_frames(sdp, datagrams, codec, tmp_path, n, gap), ours,
                                                   tail=True)
