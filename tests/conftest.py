@@ -312,28 +312,18 @@ def _made_ahead(config, key: str):  # type: ignore[no-untyped-def]
     if shared is not None:
         path = os.path.join(shared, "runs", key)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        if _claim(path + ".claim"):
-            return None
         deadline = time.monotonic() + 1200
-        while not os.path.exists(path + ".pickle"):
-            if os.path.exists(path + ".failed") or time.monotonic() > deadline:
-                return None                           # made here, where a failure shows as the test's own
-            time.sleep(0.05)
-        with open(path + ".pickle", "rb") as f:
-            return pickle.load(f)
-    ahead = getattr(config, "_sr_ahead", None)
-    if ahead is None or ahead["stopped"]:
-        return None
-    path = os.path.join(ahead["folder"], key)
-    try:
-        os.close(os.open(path + ".claim", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-        return None                                   # not started there: made here
-    except FileExistsError:
-        pass
+        gone = lambda: time.monotonic() > deadline  # noqa: E731  (the other worker is taken to be stuck)
+    else:
+        ahead = getattr(config, "_sr_ahead", None)
+        if ahead is None or ahead["stopped"]:
+            return None
+        path = os.path.join(ahead["folder"], key)
+        gone = lambda: ahead["proc"] is not None and ahead["proc"].poll() is not None  # noqa: E731
+    if _claim(path + ".claim"):
+        return None                                   # not started elsewhere: made here
     while not os.path.exists(path + ".pickle"):
-        proc = ahead["proc"]
-        if os.path.exists(path + ".failed") or (proc is not None and proc.poll() is not None
-                                                and not os.path.exists(path + ".pickle")):
+        if os.path.exists(path + ".failed") or (gone() and not os.path.exists(path + ".pickle")):
             return None                               # made here, where a failure shows as the test's own
         time.sleep(0.02)
     with open(path + ".pickle", "rb") as f:

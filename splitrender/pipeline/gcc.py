@@ -110,16 +110,12 @@ class ReceiverEstimate:
     def __init__(self, cfg: GccConfig | None = None) -> None:
         self.cfg = cfg or GccConfig()
         self.target_bps = self.cfg.start_bps
-        self.reports = 0
-        self.last_us: int | None = None
 
     def on_report(self, bps: float, now_us: int) -> float:
         """A receiver's estimate (bit/s) came at ``now_us``: the target, clamped to the configured bounds."""
         if not math.isfinite(bps) or bps < 0:
             return self.target_bps
         self.target_bps = min(max(float(bps), self.cfg.min_bps), self.cfg.max_bps)
-        self.reports += 1
-        self.last_us = now_us
         return self.target_bps
 
     def encoder_bps(self) -> float:
