@@ -49,7 +49,7 @@ def test_claims_are_well_formed() -> None:
     assert len(ids) == len(set(ids)) >= 20
     for c in claims.CLAIMS:
         assert c.metric in claims.METRICS, c.id
-        assert all(r in claims.RUNS for r in c.runs()), c.id
+        assert all(r in claims.RUNS for r in c.all_runs()), c.id
         assert c.op in ("diff", "ratio") and c.expect in ("above", "below"), c.id
         assert c.op == "diff" or len(c.terms) == 2, c.id
         assert set(c.cameras) <= set(claims.CAMERAS), c.id
@@ -113,3 +113,35 @@ def test_tss_claim_quotes_the_papers_protocol(tmp_path: Path) -> None:
     assert claims.tss_viewcell_evidence(tmp_path / "absent.json") == ""
     t41 = next(c for c in claims.CLAIMS if c.id == "T-T4-1")
     assert t41.evidence is not None and "bench_tss_viewcells.py" in t41.evidence()
+
+
+def test_a_failing_cell_near_the_threshold_is_called_a_tie_but_still_fails() -> None:
+    c = _claim()
+    v, why, _ = claims.verdict(c, {"duck / still": -0.1, "engine / still": -0.6, "duck / moving": 2.0})
+    assert v == "does not hold"
+    assert "fails in 2 of 3 cells (duck / still, engine / still)" in why
+    assert "1 of the failing cells within 0.25 dB of it (a tie there, not a win: duck / still)" in why
+    ratio = _claim(op="ratio", threshold=1.0, terms=((1, "a"), (1, "b")), metric="kbit/s", paper_range=None)
+    v, why, _ = claims.verdict(ratio, {"a / b": 0.97, "c / d": 0.5})
+    assert v == "does not hold" and "within 5% of 1" in why and "c / d" not in why.split("a tie there")[1]
+    assert "tie" not in claims.verdict(c, {"duck / still": -0.3})[1]
+
+
+def test_a_claim_shows_its_diagnostic_runs_and_why_it_fails() -> None:
+    c = _claim(terms=((1, "atw cloud"), (-1, "video cloud")), diagnostics=("atw cloud turn",), cause="it orbits")
+    rows = [{"claim": "X-1", "scene": "duck", "camera": "moving", "measure": -3.0, "value[atw cloud]": 22.0,
+             "value[video cloud]": 25.0, "value[atw cloud turn]": 27.5,
+             "commands": "atw cloud: splitrender run a ; video cloud: splitrender run b ; atw cloud turn: splitrender run c"}]
+    info = {"size": (320, 180), "runs": 3, "ran": 3, "cached": 0, "failures": 0, "failed": [], "duration_s": 1.0,
+            "scenes": ["duck"], "cameras": ["moving"]}
+    text, summary = claims.ledger([c], rows, info, quick=False, took_s=1.0)
+    assert summary[0]["verdict"] == "does not hold"
+    assert "| duck | moving | -3 | 22 | 25 | 27.5 |" in text
+    assert "**Why** (diagnostic runs, outside the measure: `atw cloud turn`): it orbits" in text
+    # a claim that holds prints no cause; a row without the diagnostic (a quick run) leaves its column out
+    rows[0].update(measure=1.0, **{"value[atw cloud]": 26.0})
+    del rows[0]["value[atw cloud turn]"]
+    text, _ = claims.ledger([c], rows, info, quick=False, took_s=1.0)
+    assert "**Why**" not in text and "| duck | moving | 1 | 26 | 25 |" in text
+    for k in c.all_runs():
+        assert k in claims.RUNS
