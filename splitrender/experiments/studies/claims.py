@@ -115,6 +115,7 @@ RUNS: dict[str, dict[str, Any]] = {
     # diagnostics: runs a claim shows beside its measure to say why it fails (not part of any measure)
     "MW60 lan exact depth": {"method": "warp", "params": {**MW60, "depth_coding": "lossless"}, "network": "lan"},
     "MW60 cloud exact depth": {"method": "warp", "params": {**MW60, "depth_coding": "lossless"}, "network": "cloud"},
+    "quasar cloud, reference every frame": {"method": "quads", "params": {"reference_every": 1}, "network": "cloud"},
     "MW120 cloud 1:1": {"method": "warp", "params": {**MW120, "resolution_scale": 1.0}, "network": "cloud"},
     "atw cloud turn": {"method": "atw", "network": "cloud", "trace": "turn"},
     "video cloud turn": {"method": "video", "network": "cloud", "trace": "turn"},
@@ -264,7 +265,12 @@ CLAIMS: tuple[Claim, ...] = (
           "(`resolution_scale = 1`: 2.25x the paper's reference pixels): it separates the sampling from the wider view"),
     Claim("Q-T4-4", _Q, "table 4", "QUASAR beats MeshWarp (60°)", _num(_t4("QUASAR", "MW (60°)", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, "
           "50 cm view cell", "model PSNR", ((1, "quasar cloud"), (-1, "MW60 cloud")),
-          paper_range=_t4("QUASAR", "MW (60°)", "cloud")),
+          paper_range=_t4("QUASAR", "MW (60°)", "cloud"), diagnostics=("quasar cloud, reference every frame",),
+          cause="the still cells are ties at the server's own pose, where both redraw the server's frame. Under "
+          "motion QUASAR leads except on 2CylinderEngine. A reference frame every frame (the diagnostic column: the "
+          "paper sends one every fifth) closes most of that gap but not all, and costs the duck and "
+          "TextureTransformTest: on the engine the residual frames are most of the difference; the rest is not "
+          "explained yet"),
     Claim("Q-T4-5", _Q, "table 4", "QUASAR beats MeshWarp (120°)", _num(_t4("QUASAR", "MW (120°)", "cloud"), " dB PSNR"), f"{_QT4}, 50 ± 20 ms, "
           "50 cm view cell", "model PSNR", ((1, "quasar cloud"), (-1, "MW120 cloud")),
           paper_range=_t4("QUASAR", "MW (120°)", "cloud")),
@@ -376,7 +382,11 @@ CLAIMS: tuple[Claim, ...] = (
           "the probes that light what the client can see over sending every active probe)", "direction only "
           "(the paper's selection strategies together with compression: 10-100x against uncompressed data)",
           "per-client selection, three game scenes", "kbit/s", ((1, "probes"), (1, "probes all")), op="ratio",
-          expect="below", threshold=1.0),
+          expect="below", threshold=1.0,
+          cause="the default scene is a room seen from inside: most of its active probes light something the client "
+          "sees (`srv_probes_visible` against `srv_probes_active` in each run's `updates.csv`), so selection has "
+          "little to leave out, and the two rates differ by a few per cent either way; around a loaded model, most of "
+          "whose probes light nothing in view, selection cuts the rate, as the paper says"),
 )
 
 
