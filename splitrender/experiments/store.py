@@ -6,6 +6,7 @@ Layout of a results folder (sweep or demo)::
     DIR/runs/<key>/summary.csv     one row (RunResult.summary)
     DIR/runs/<key>/frames.csv      one row per displayed frame
     DIR/runs/<key>/updates.csv     one row per server frame
+    DIR/runs/<key>/code.json       the digest of the method's code that made it, and the commit
     DIR/runs.csv                   one row per run: summary + ``param_*`` + network columns
     DIR/frames.csv                 one row per displayed frame of every run, with ``run`` (the key)
 
@@ -16,8 +17,14 @@ text back into floats/ints so charts and tests can use the values directly.
 from __future__ import annotations
 
 import csv
+import functools
+import hashlib
+import json
 import logging
 import math
+import re
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -109,8 +116,70 @@ def run_row(summary: Row, cfg: RunConfig, extra: Row | None = None) -> Row:
     return row
 
 
+_METHODS_DIR = Path(__file__).resolve().parents[1] / "methods"
+_SIBLING = re.compile(r"^\s*from \.\.(\w+)", re.M)
+
+
+@functools.lru_cache(maxsize=None)
+def method_digest(method: str) -> str:
+    """A digest (16 hex digits) of the source that makes ``method``'s halves (:func:`source_digest` of the package
+    its config comes from; for a method registered from outside ``splitrender/methods``, its module's file).  A
+    stored run made by other code of its method is stale (:meth:`ResultStore.has`).  Code outside the methods (the
+    pipeline, codecs, renderer) is not in it: a change there leaves stored runs standing."""
+    from ..methods import get_method
+
+    src = Path(str(sys.modules[get_method(method).config.__module__].__file__)).resolve()
+    return source_digest(src, _METHODS_DIR)
+
+
+def source_digest(src: Path, methods_dir: Path) -> str:
+    """The digest of a method whose config is defined in ``src``: where ``src`` lies in a package directly under
+    ``methods_dir``, every file of that package (shaders included) and of the method packages its modules import from
+    (``from ..sas import``: tss's geometry coding is sas's), else ``src`` alone; and the methods' shared ``base.py``
+    and ``shaders/``.  Paths enter relative to ``methods_dir``'s parent, so two checkouts of one commit agree."""
+    pkg = src.parent if src.parent != methods_dir and src.parent.parent == methods_dir else None
+    files: set[Path] = set() if pkg is not None else {src}
+    todo, seen = [pkg] if pkg is not None else [], set()
+    while todo:
+        d = todo.pop()
+        if d in seen or not d.is_dir():
+            continue
+        seen.add(d)
+        for f in d.rglob("*"):
+            if f.is_file() and "__pycache__" not in f.parts:
+                files.add(f)
+                if f.suffix == ".py":
+                    todo += [methods_dir / m for m in _SIBLING.findall(f.read_text(errors="replace"))]
+    files |= {f for f in (methods_dir / "base.py", *(methods_dir / "shaders").rglob("*")) if f.is_file()}
+    h = hashlib.sha256()
+    for f in sorted(files):
+        name = f.relative_to(methods_dir.parent) if f.is_relative_to(methods_dir.parent) else f
+        h.update(str(name).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+CODE_FILE = "code.json"
+"""Beside a stored run: the digest of its method's code (:func:`method_digest`) and the commit, where known."""
+
+
+@functools.lru_cache(maxsize=1)
+def _commit() -> str:
+    """The source checkout's commit (with ``+`` when its tracked files differ from it), or "" outside one."""
+    root = _METHODS_DIR.parents[1]
+    try:
+        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                             timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return sha + ("+" if sha and dirty else "")
+
+
 class ResultStore:
-    """Per-run result folders under ``root/runs/<key>``; existing results are reused."""
+    """Per-run result folders under ``root/runs/<key>``; existing results are reused while their method's code is the
+    code that made them (:func:`method_digest`, kept in :data:`CODE_FILE`): a run made by other code of its method,
+    or by a version of this store that kept no digest, runs again."""
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
@@ -120,8 +189,19 @@ class ResultStore:
         return self.runs_dir / key
 
     def has(self, cfg: RunConfig) -> bool:
+        """The run's tables are here, made by its method's present code."""
         d = self.run_dir(cfg.key())
-        return all((d / n).is_file() for n in ("summary.csv", "frames.csv", "config.toml"))
+        if not all((d / n).is_file() for n in ("summary.csv", "frames.csv", "config.toml")):
+            return False
+        try:
+            made = json.loads((d / CODE_FILE).read_text()).get("method_digest")
+        except (OSError, ValueError, AttributeError):
+            made = None
+        if made != method_digest(cfg.method):
+            log.info("run %s (%s): stored by %s of its method's code, now %s: it runs again", cfg.key(), cfg.method,
+                     "another version" if made else "a store that kept no digest", method_digest(cfg.method))
+            return False
+        return True
 
     def save(self, cfg: RunConfig, summary: Row, frames: Sequence[Row], updates: Sequence[Row]) -> Path:
         """Write one run's tables and its resolved config; the summary is written last (commit marker)."""
@@ -130,6 +210,8 @@ class ResultStore:
         (d / "config.toml").write_text("[run]\n" + to_toml(cfg.to_dict()))
         write_csv(d / "frames.csv", frames)
         write_csv(d / "updates.csv", updates)
+        (d / CODE_FILE).write_text(json.dumps({"method": cfg.method, "method_digest": method_digest(cfg.method),
+                                               "commit": _commit()}) + "\n")
         write_csv(d / "summary.csv", [summary])
         return d
 
