@@ -37,7 +37,7 @@ from .report import META_FILE, build_report, save_meta
 from .sections import Section, discover_studies, load_study_sections, save_study_section
 from .store import ResultStore, Row, fnum, network_columns, read_csv, summarise, write_csv
 from .studies._util import DASK_ENV, WORKERS_ENV
-from .sweep import RichRunProgress, RunProgress, run_configs
+from .sweep import RichRunProgress, RunProgress, end_process, run_configs
 
 log = logging.getLogger(__name__)
 
@@ -190,13 +190,7 @@ def _start_study(name: str, out_dir: Path, quick: bool, nice: int = 0) -> _Study
 
 
 def _stop(sp: _StudyProc) -> None:
-    sp.proc.join(timeout=5 if sp.msg is not None else 0.5)
-    if sp.proc.is_alive():
-        sp.proc.terminate()
-        sp.proc.join(timeout=5)
-        if sp.proc.is_alive():
-            sp.proc.kill()
-            sp.proc.join()
+    end_process(sp.proc, 5 if sp.msg is not None else 0.5)
     sp.done = True
 
 

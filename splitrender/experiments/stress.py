@@ -76,6 +76,7 @@ from ..sim.config import RunConfig, to_toml
 from ..sim.runner import VirtualTimeRun
 from ..sim.truth import shared_cache_setting
 from .store import Row, fnum, write_csv
+from .sweep import end_process
 
 log = logging.getLogger(__name__)
 
@@ -457,13 +458,7 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
                 w.conn.send(None)
             except OSError:
                 pass
-        w.proc.join(timeout=0.1 if kill else 10)
-        if w.proc.is_alive():
-            w.proc.terminate()
-            w.proc.join(timeout=5)
-            if w.proc.is_alive():
-                w.proc.kill()
-                w.proc.join()
+        end_process(w.proc, 0.1 if kill else 10)
         w.conn.close()
 
     while pending or running:
@@ -511,7 +506,7 @@ def _row(j: _Job, out: Path, tm: Timing, timed_out: bool, limit: float, exitcode
                  "wall_s": time.monotonic() - j.t0}
     if j.msg is None:
         base.update({"status": "timeout" if timed_out else "crashed",
-                     "error": f"no result after {limit:.0f} s" if timed_out else f"worker died (exit code {exitcode})"})
+                     "error": f"no result after {limit:g} s" if timed_out else f"worker died (exit code {exitcode})"})
         log.error("stress %s/%s: %s", j.case.name, j.method, base["error"])
         return base
     if j.msg[0] == "error":

@@ -296,6 +296,17 @@ class ExecResult:
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
+def end_process(proc: Any, wait_s: float) -> None:
+    """Join ``proc`` (a multiprocessing process) within ``wait_s``, then terminate it, then kill it."""
+    proc.join(timeout=wait_s)
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(timeout=5)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+
+
 def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
