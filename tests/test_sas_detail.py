@@ -376,13 +376,15 @@ def test_a_smooth_model_does_not_fill_the_atlas(shared_run) -> None:  # type: ig
     """``Wuson.ply`` has no texture detail: its patches rise at most 2x their ideal texels per pixel per side
     (``fill_max_density_plain``), for about half the bits of filling the atlas and no less quality.  Measured
     (``walk``, ``ideal``, 1 s, 320x180): 52.13 dB at 2.01 Mbit/s against 51.09 dB at 3.83 Mbit/s uncapped (52.50 dB at
-    1.12 Mbit/s at the ideal levels)."""
+    1.12 Mbit/s at the ideal levels), with an I-frame every 5 frames; with one every 30 (issue 50), 52.19 dB at
+    1.25 Mbit/s against 51.99 dB at 2.19 Mbit/s: the P-frames keep more of the uncapped atlas's detail, and the cap
+    saves as many bits for a smaller gain."""
     out = {}
     for name, params in SMOOTH.items():
         res = shared_run(_wuson_1s(params))
         out[name] = (res.summary["mean_psnr_db"], res.summary["mean_kbps"])
     (q_cap, kb_cap), (q_fill, kb_fill) = out["capped"], out["filled"]
-    assert kb_cap <= 0.6 * kb_fill and q_cap >= q_fill + 0.7, out       # measured 0.52x the bits, +1.04 dB
+    assert kb_cap <= 0.6 * kb_fill and q_cap >= q_fill + 0.1, out       # measured 0.57x the bits, +0.20 dB
 
 
 def test_long_block_sides_inset_the_patch_by_half_a_texel() -> None:

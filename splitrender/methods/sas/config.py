@@ -18,21 +18,28 @@ KNOB_STEPS = (1.0, 0.66, 0.44, 0.29)
 SAS_BUDGET_COST = (1.0, 0.96, 0.81, 0.70)
 """The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
 QUALITY = QualityModel(
-    (("bias_fill", (0.0, 0.68, 1.20, 2.38)), ("texels_per_px", (0.0, 0.68, 1.20, 2.38)),
-     ("frame_div", (0.0, 0.64, 1.12, 2.17))),
-    latency_db_per_100ms=0.60, rate_db_per_halving=2.23,
-    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
-"""sas's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 30.72 dB at its own point;
-the atlas budget's levels lose 0.68, 1.20 and 2.38 dB for 5, 16 and 26 % of the bytes (``texels_per_px``, the
-budget without ``fill_atlas``, is taken to lose what ``bias_fill`` does); one server frame in 2, 3, 5: 0.64, 1.12,
-2.17 dB; +200 ms of motion-to-photon 1.20 dB (the geometry is redrawn at the display pose: a quarter of video's
-loss); crf 29 (0.63x the atlas's bits) 1.50 dB.  Measured at the default config: another's levels are the same
-fractions of its own budget."""
+    (("bias_fill", (0.0, 0.55, 1.27, 2.57)), ("texels_per_px", (0.0, 0.55, 1.27, 2.57)),
+     ("frame_div", (0.0, 0.81, 1.45, 2.61))),
+    latency_db_per_100ms=0.66, rate_db_per_halving=1.40,
+    measured="benchmarks/bench_knobs.py --quality --methods sas, 2026-12-06, c06f4f3 with issue 50's I-frames: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+"""sas's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 31.13 dB at its own point;
+the atlas budget's levels lose 0.55, 1.27 and 2.57 dB (``texels_per_px``, the budget without ``fill_atlas``, is
+taken to lose what ``bias_fill`` does); one server frame in 2, 3, 5: 0.81, 1.45, 2.61 dB; +200 ms of
+motion-to-photon 1.31 dB (the geometry is redrawn at the display pose: a quarter of video's loss); crf 29 (0.56x
+the atlas's bits) 1.15 dB.  Measured at the default config: another's levels are the same fractions of its own
+budget.  With an I-frame every 5 frames (before issue 50): 30.72 dB; 0.68, 1.20, 2.38; 0.64, 1.12, 2.17; 0.60 dB
+per 100 ms; 2.23 dB per halving."""
 
 
 @dataclass(frozen=True)
 class SasConfig(MethodConfig):
-    """SAS settings.  ``gop`` is the I-frame (and atlas reset) period in frames (paper: 5).
+    """SAS settings.  ``gop``: the longest run of frames between I-frames (30, as for the other methods);
+    ``reset_period``: how often (frames) the atlas's memory load is checked against ``high_water`` for an atlas
+    reset, which is an I-frame (paper: resets and I-frames both every 5 frames).  An I-frame every 5 frames kept
+    a still view from converging at a low rate (issue 50: the duck at 500 kbit/s, 320x180, rose from about 29.5
+    to 34 dB in each GOP and fell back; with I-frames only at the GOP's end or a reset, 39 dB within 1 s, the
+    lossless atlas's 40.7); the paper's period is for a lossy channel without feedback, where this pipeline's
+    client reports losses and the next frame resends the whole PVS.
 
     ``atlas_mpix_1080p``: atlas size in megapixels for a 1920x1080 display, scaled by
     the display's pixel count (paper: 4 or 8; default 12, where a still camera at zero
@@ -63,7 +70,8 @@ class SasConfig(MethodConfig):
     samples per side); 0 spans every side (wire version 3's layout).
     """
 
-    gop: int = 5
+    gop: int = 30
+    reset_period: int = 5
     atlas_mpix_1080p: float = 12.0
     atlas_filter: Literal["bicubic", "bilinear"] = "bicubic"
     atlas_width: int = 0
@@ -104,6 +112,8 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.strategy: {self.strategy!r} is not one of {list(STRATEGIES)}")
         if not 0.0 <= self.fov_margin <= 2.0:
             raise ConfigError(f"SasConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
+        if not 1 <= self.reset_period <= 100_000:
+            raise ConfigError(f"SasConfig.reset_period: must be in [1, 100000], got {self.reset_period}")
         if not 0.1 <= self.high_water <= 1.0:
             raise ConfigError(f"SasConfig.high_water: must be in [0.1, 1], got {self.high_water}")
         if not self.pvs_step_ms > 0:

@@ -8,9 +8,10 @@ Per server frame (paper figure 2):
    the frame's time), each with the field of view enlarged by ``fov_margin``; the
    PVS is their union;
 2. level selection (eq. 1-3) at the predicted pose, with hysteresis;
-3. atlas memory management (:class:`~.allocator.PatchAllocator`); an atlas reset
-   (global repack) happens on an I-frame when the memory load passes
-   ``high_water``, or at once (forcing an I-frame) when an allocation fails;
+3. atlas memory management (:class:`~.allocator.PatchAllocator`); the memory load is
+   checked every ``reset_period`` frames, and an atlas reset (global repack, always an
+   I-frame) happens when it passes ``high_water``, or at once when an allocation fails;
+   other I-frames come every ``gop`` frames and on a full resend;
 4. shading of every PVS patch into its block with ``shading.glsl`` (the ground
    truth's shader); on I-frames the atlas is cleared first so unused blocks are black;
 5. metadata: geometry of patches entering the PVS, block rectangles of patches
@@ -382,6 +383,7 @@ class SasServer(ServerHalf):
         self._gl: Any = None
         self._frames = 0
         self._since_i = 0
+        self._since_check = 0
         self._lost_seen = 0
         self._stats: dict[str, float] = {}
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
@@ -471,8 +473,11 @@ class SasServer(ServerHalf):
         lost = ctx.feedback.newly_lost("atlas")
         full = ctx.keyframe_requested or bool(lost) or self._frames == 0
         self._lost_seen += len(lost)
-        iframe = full or self._since_i >= c.gop
-        reset = iframe and al.can_reset and (al.memory_load() > c.high_water or self._frames == 0)
+        # the memory load is checked every reset_period frames (and on a full resend); a reset is an I-frame, so
+        # is the GOP's end; else P-frames keep refining an atlas that did not change (a still camera converges)
+        check = full or self._since_check >= c.reset_period
+        reset = al.can_reset and (self._frames == 0 or (check and al.memory_load() > c.high_water))
+        iframe = full or reset or self._since_i >= c.gop
         if reset:
             choice = levels()
         res = al.update(pvs, choice.lw, choice.lh, reset=reset)
@@ -494,6 +499,7 @@ class SasServer(ServerHalf):
         t3, u3 = time.perf_counter(), time.process_time()
         meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
         self._since_i = 1 if iframe else self._since_i + 1
+        self._since_check = 1 if (check or reset) else self._since_check + 1
         self._frames += 1
         mem = al.memory()
         t4, u4 = time.perf_counter(), time.process_time()
