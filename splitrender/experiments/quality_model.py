@@ -66,8 +66,9 @@ def pinned_point(point: dict[str, Any]) -> Iterator[None]:
 
 def measure(method: str, point: dict[str, Any] | None = None, delay_ms: float = 20.0, crf_step: float = 0.0,
             duration_s: float = 2.0, size: tuple[int, int] = (320, 180), renderer: Any = None,
-            truth_cache: str = "") -> PointRun:
-    """One run of ``method`` at ``point`` (None: its own), ``delay_ms`` each way, its crf raised by ``crf_step``."""
+            truth_cache: str = "", scene: str = "default+nogi") -> PointRun:
+    """One run of ``method`` at ``point`` (None: its own), ``delay_ms`` each way, its crf raised by ``crf_step``, on
+    ``scene`` (``probes`` needs one with GI: ``default``)."""
     from ..methods import get_method, make_config
     from ..sim.config import RunConfig
     from ..sim.runner import run
@@ -76,7 +77,7 @@ def measure(method: str, point: dict[str, Any] | None = None, delay_ms: float = 
     if crf_step:
         crf = make_config(get_method(method).config, {}).crf
         params["crf"] = float(crf) + crf_step
-    cfg = RunConfig(method=method, scene="default+nogi", trace="walk", network=f"delay {delay_ms:g}ms",
+    cfg = RunConfig(method=method, scene=scene, trace="walk", network=f"delay {delay_ms:g}ms",
                     duration_s=duration_s, width=size[0], height=size[1], client_fps=30, flip_every=0, seed=0,
                     method_params=params, truth_cache=truth_cache)
     with pinned_point(point) if point else contextlib.nullcontext():

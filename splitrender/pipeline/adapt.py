@@ -190,6 +190,8 @@ class RateController:
         self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
         self._provisional: set[str] = set()                                  # caps the link set, not the method
         self._calibrating: set[str] = set(self.video) if self.cfg.calibrate_frames else set()
+        self.last_overhead_bps = 0.0
+        """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
         self.factor = 1.0
         """What the operating point (:class:`PointController`) lets the encoders take, as a fraction of what they
         took at the method's own point: each calibrated cap is multiplied by it."""
@@ -206,6 +208,7 @@ class RateController:
         one; None where the caller does not know: a window opens at any frame)."""
         self.frames += 1
         other = sum(b for n, b in wire_bytes.items() if n not in self._share)
+        self.last_overhead_bps = other * 8 * self.fps
         self._overhead_bps = self._avg(self._overhead_bps, other * 8 * self.fps)
         ours = {n: wire_bytes.get(n, 0) for n in self.video}
         for n, b in ours.items():
@@ -399,7 +402,10 @@ class PointController:
     point has fitted within ``up_margin`` of the budget for ``up_hold_s``, to the richest such point.  A queue
     longer than the motion-to-photon budget (``mtp_budget_ms``) and still growing means the present point does not
     fit, whatever its costs say (a queue that drains is the estimator's: its encoder rate already leaves room to
-    drain it).  It waits for the rate controller's first cap (a provisional one will do) before its first move.
+    drain it).  It waits for the rate controller's first cap (a provisional one will do) before its first move.  A
+    session without lossy video (``probes``: nothing to calibrate, everything data) learns a point's data rate as the
+    mean of its settled frames there (not the rate controller's running average, which its first fill and its
+    lossless I-frames would set), and waits for ``settle_frames`` of them at the point it starts at.
 
     **With a quality model** (the method's :class:`~splitrender.methods.base.QualityModel`, carried by its knobs, or
     ``model``) the ladder follows the model's dB per bit (:func:`quality_ladder`) and the controller picks the point
@@ -430,6 +436,7 @@ class PointController:
         self._fits_up_since: float | None = None
         self._queue_ms = 0.0
         self._recent: list[tuple[float, float]] = []   # (time, encoder rate) over the last RISING_WINDOW_S
+        self._data_sum: dict[int, list[float]] = {}    # sessions without lossy video: bits/s summed, frames, per point
 
     def values(self, index: int | None = None) -> dict[str, Any]:
         """Each knob's value at point ``index`` (the present one by default)."""
@@ -515,7 +522,14 @@ class PointController:
         """A frame went out at the present point (the rate controller has taken its bytes): learn its data rate."""
         self._since_move += 1
         if self._since_move >= self.cfg.settle_frames:
-            self._data_bps[self.index] = self.rate.overhead_bps
+            if self.rate.video:
+                self._data_bps[self.index] = self.rate.overhead_bps
+            else:       # all data (probes): the mean of every settled frame at the point, so that neither the
+                #         session's first fill nor an I-frame's decay sets a point's rate
+                s = self._data_sum.setdefault(self.index, [0.0, 0.0])
+                s[0] += self.rate.last_overhead_bps
+                s[1] += 1
+                self._data_bps[self.index] = s[0] / s[1]
 
     def update(self, now_s: float, encoder_bps: float, queue_ms: float = 0.0) -> bool:
         """Choose the point for the next frame from the estimate; True when it moved."""
@@ -524,6 +538,8 @@ class PointController:
         self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, encoder_bps)]
         if not self.rate.calibrated:
             return False
+        if not self.rate.video and self._data_sum.get(self.index, [0.0, 0.0])[1] < self.cfg.settle_frames:
+            return False     # no encoder to calibrate (probes: lossless pictures and data): what it sends, learnt first
         if not self._data_bps:          # the data rate at the point the session started from
             self._data_bps[self.index] = self.rate.overhead_bps
         budget = self.cfg.headroom * encoder_bps

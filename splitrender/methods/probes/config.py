@@ -6,7 +6,40 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ...errors import ConfigError
-from ..base import MethodConfig
+from ..base import FRAME_DIV_KNOB, Knob, MethodConfig, QualityModel, with_model
+
+PROBE_BITS_LEVELS = (10, 6, 4)
+"""``probe_bits`` levels the adaptation steps through (the configured value first, the finer ones left out)."""
+PROBE_BITS_COST = (1.0, 0.91, 0.85)
+"""Everything a client is sent at each ``probe_bits`` level over what it is sent at the first (the knob's prior), from
+the lossless colour pictures of the default scene's 256 probes at 10, 6 and 4 bits: I-frame 48.1, 44.2 and 29.7 kB,
+P-frame (an update on the walk) 2.4, 0.9 and 0.3 kB, beside the visibility (I 251 kB, P 3.8 kB), the index and the
+30 fps metadata (0.63 kB a frame), an I-frame every 30 probe updates."""
+VIS_BITS_LEVELS = (10, 2, 1)
+"""``vis_bits`` levels (the configured value first, the finer ones left out)."""
+VIS_BITS_COST = (1.0, 0.56, 0.53)
+"""Everything a client is sent at each ``vis_bits`` level over the first (the knob's prior), measured: bytes a server
+frame 9,546, 5,304 and 5,095 (``quality_model.measure``, 0.5-2 s, one I-frame in it).  The float16 moments' bytes
+go over three byte planes, so HEVC lossless finds little to take until the low byte is nearly empty: the visibility
+I-frame is 251, 243, 217, 93 and 83 kB at 10, 4, 3, 2 and 1 mantissa bits."""
+PROBE_DIV_STEPS = (1, 2, 4)
+"""``probe_div`` levels as multiples of the configured one."""
+PROBE_DIV_COST = (1.0, 0.6, 0.38)
+"""Everything a client is sent at each ``probe_div`` level over the first (the knob's prior): the P-frames of the
+walk without their I-frames 0.74 and 0.56 of it (a probe that changed over two or four updates costs more than over
+one), the I-frames (one in 30 probe updates) a half and a quarter as often."""
+QUALITY = QualityModel(
+    (("probe_bits", (0.0, 0.04, 0.56)), ("vis_bits", (0.0, 0.0, 0.0)), ("probe_div", (0.0, 0.0, 0.0)),
+     ("frame_div", (0.0, 0.91, 1.66, 2.68))),
+    latency_db_per_100ms=1.96, rate_db_per_halving=0.0,
+    measured="splitrender.experiments.quality_model.measure(scene='default'), 2026-12-06: default, walk, 320x180, 2 s, "
+             "delay 20ms, model PSNR after 0.5 s")
+"""probes' quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 31.950 dB at its own point;
+31.91 and 31.39 at ``probe_bits`` 6 and 4 (both pictures at that precision: the visibility's part is nil); 31.9496
+and 31.9495 at ``vis_bits`` 2 and 1; 31.948 and 31.947 at ``probe_div`` 2 and 4 (the walk's indirect light changes
+slowly); 31.04, 30.29 and 29.27 at ``frame_div`` 2, 3 and 5 (the moving objects' transforms go with each frame);
++200 ms of motion-to-photon loses 3.92 dB (the objects and the indirect light lag; the client draws the scene itself
+at the display pose); no lossy video (rate 0)."""
 
 
 @dataclass(frozen=True)
@@ -25,6 +58,14 @@ class ProbesConfig(MethodConfig):
     ``refresh_probes``: probes the client does not have yet (the first update, after a
     keyframe request or a reported loss) go at most this many a frame, the nearest
     first (0: all at once, as the paper).
+
+    Per client (rate adaptation's knobs, :meth:`adapt_knobs`; the GI server still traces and codes each update once
+    for every session): ``probe_div`` sends this client the probes of one GI update in ``probe_div`` (1: every one;
+    the probes changed in between go with the next one sent), ``probe_bits`` and ``vis_bits`` the precision it gets
+    them at: each 10-bit irradiance code rounded to ``probe_bits`` bits, each float16 distance moment's 10-bit
+    mantissa to ``vis_bits`` (10 and 10: lossless, as the paper).  A probe counts as changed for this client only where
+    it differs at the precision it was last sent at (or the present one, where coarser): a finer precision refines
+    each probe when it next changes, not all at once.
     """
 
     gi_hz: float = 10.0
@@ -32,6 +73,29 @@ class ProbesConfig(MethodConfig):
     pvs_res: int = 32
     vis_lossy: bool = False
     refresh_probes: int = 0
+    probe_div: int = 1
+    probe_bits: int = 10
+    vis_bits: int = 10
+
+    def adapt_knobs(self) -> tuple[Knob, ...]:
+        """The probes' precision (``probe_bits``, ``vis_bits``), their update rate for this client (``probe_div``), then the
+        server's frame rate (the metadata of the moving objects and lights), with probes' quality model."""
+        knobs: list[Knob] = []
+        bits = tuple(b for b in PROBE_BITS_LEVELS if b < self.probe_bits)
+        if bits:
+            levels = (self.probe_bits, *bits)
+            knobs.append(Knob("probe_bits", levels, PROBE_BITS_COST[:len(levels)], "data",
+                              "bits of each irradiance code a client gets"))
+        vis = tuple(b for b in VIS_BITS_LEVELS if b < self.vis_bits)
+        if vis:
+            levels = (self.vis_bits, *vis)
+            knobs.append(Knob("vis_bits", levels, VIS_BITS_COST[:len(levels)], "data",
+                              "mantissa bits of each float16 distance moment a client gets"))
+        divs = tuple(self.probe_div * f for f in PROBE_DIV_STEPS if self.probe_div * f <= 30)
+        if len(divs) > 1:
+            knobs.append(Knob("probe_div", divs, PROBE_DIV_COST[:len(divs)], "data",
+                              "GI updates per probe update sent to this client"))
+        return with_model((*knobs, FRAME_DIV_KNOB), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -43,3 +107,9 @@ class ProbesConfig(MethodConfig):
             raise ConfigError(f"ProbesConfig.refresh_probes: must be in [0, 65535], got {self.refresh_probes}")
         if not 8 <= self.pvs_res <= 256:
             raise ConfigError(f"ProbesConfig.pvs_res: must be in [8, 256], got {self.pvs_res}")
+        if not 1 <= self.probe_div <= 30:
+            raise ConfigError(f"ProbesConfig.probe_div: must be in [1, 30], got {self.probe_div}")
+        if not 4 <= self.probe_bits <= 10:
+            raise ConfigError(f"ProbesConfig.probe_bits: must be in [4, 10], got {self.probe_bits}")
+        if not 1 <= self.vis_bits <= 10:
+            raise ConfigError(f"ProbesConfig.vis_bits: must be in [1, 10], got {self.vis_bits}")

@@ -30,7 +30,13 @@ gives the same codes at every update.
    likely to arrive whole under bursty loss;
 4. send each frame's transforms of the moving objects (in scene order) and light
    intensities in the metadata; the scene itself goes once, in the session data
-   (:mod:`splitrender.scene.wire`).
+   (:mod:`splitrender.scene.wire`);
+5. **the client's operating point** (rate adaptation, ``--adapt full``: :meth:`ServerHalf.set_knobs` sets it; the GI
+   server is untouched): ``probe_div`` > 1 holds the probes of the GI updates this client skips (the frames carry
+   the metadata alone), ``probe_bits`` and ``vis_bits`` round what is selected and sent (:func:`round_codes`,
+   :func:`round_moments`), and a probe is new to the client where it differs at the precision it was last sent at
+   (or the present one, where coarser), so a coarser point sends less at once and a finer one refines each probe
+   as it next changes.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ import numpy as np
 from ...codecs.video import VideoCodecConfig
 from ...errors import ConfigError
 from ...render.ddgi import IRR_CORE, VIS_CORE, DdgiSettings, gi_time, probe_grid
-from ...gi.stream import color_frame, encode_index_list, encode_irradiance, grid_shape, visibility_frame, visibility_width
+from ...gi.stream import COLOR_MAX_CODE, color_frame, encode_index_list, encode_irradiance, grid_shape, visibility_frame, visibility_width
 from ...render.octa import CUBE_FACES
 from ...scene.pose import CameraIntrinsics, Pose, quat_from_matrix3
 from ...scene.wire import scene_to_data
@@ -53,6 +59,30 @@ from .config import ProbesConfig
 META_VERSION = 2
 SENT_HISTORY = 512
 """Frames whose probe ids a session remembers, to resend them when the client reports the frame lost."""
+
+
+def round_codes(codes: np.ndarray, bits: int) -> np.ndarray:
+    """10-bit irradiance codes rounded to ``bits`` bits (a code stays 10 bits wide, its low ``10 - bits`` bits those of
+    the nearest step; 0, no light, stays 0 and a lit code stays lit)."""
+    s = 10 - bits
+    if s <= 0:
+        return codes
+    c = codes.astype(np.int32)
+    q = (((c - 1 + (1 << (s - 1))) >> s) << s) + 1
+    return np.where(c > 0, np.minimum(q, COLOR_MAX_CODE), 0).astype(np.uint16)
+
+
+def round_moments(moments: np.ndarray, bits: int) -> np.ndarray:
+    """float16 distance moments with their 10-bit mantissas rounded to ``bits`` bits (to the nearest; a value the
+    rounding would carry past the largest finite float16 is cut instead)."""
+    s = 10 - bits
+    if s <= 0:
+        return moments
+    u = moments.view(np.uint16).astype(np.int32)
+    mask = 0xFFFF & ~((1 << s) - 1)
+    r = (u + (1 << (s - 1))) & mask
+    r = np.where((r & 0x7C00) == 0x7C00, u & mask, r)      # carried into inf: cut instead
+    return r.astype(np.uint16).view(np.float16)
 
 
 def _require_gi(scene: Any) -> None:
@@ -125,6 +155,8 @@ class ProbesServer(ServerHalf):
         self.sent_codes = np.zeros((self.count, IRR_CORE, IRR_CORE, 3), np.uint16)
         self.sent_moments = np.zeros((self.count, VIS_CORE, VIS_CORE, 2), np.float16)
         self.sent = np.zeros(self.count, bool)
+        self.sent_bits = np.full(self.count, 10, np.int8)            # the precision each probe was last sent at
+        self.sent_vbits = np.full(self.count, 10, np.int8)
         self.canvas_codes = np.zeros_like(self.sent_codes)       # what the pictures hold (emptied at each I-frame)
         self.canvas_moments = np.zeros_like(self.sent_moments)
         self._sent_in: dict[int, np.ndarray] = {}                 # frame id -> the probes it carried
@@ -133,6 +165,7 @@ class ProbesServer(ServerHalf):
         self.positions = self.origin + np.stack([i, j, k], -1).reshape(-1, 3) * self.spacing
         self._stats: dict[str, float] = {}
         self._frames = 0
+        self._gi_sent: int | None = None                           # the GI update this client last got probes of
 
     def streams(self) -> list[Any]:
         fps, gop = self.server_fps, self.config.gop
@@ -185,7 +218,13 @@ class ProbesServer(ServerHalf):
         prod = self.producer
         assert isinstance(prod, ProbesProducer)
         shared = ctx.shared if isinstance(ctx.shared, dict) and "codes" in ctx.shared else prod.state(ctx.renderer, ctx.t_s)
-        codes, moments, active = shared["codes"], shared["moments"], shared["active"]
+        cfg = self.config
+        # this client's precision: a probe is new to it where it differs at that precision
+        bits, vbits = cfg.probe_bits, cfg.vis_bits
+        codes, moments, active = round_codes(shared["codes"], bits), round_moments(shared["moments"], vbits), shared["active"]
+        gi_update = int(round(float(shared["t_gi"]) * cfg.gi_hz))
+        # not this client's update: one GI update in probe_div is (more of the one it last got may still go)
+        held = self._gi_sent is not None and 0 < gi_update - self._gi_sent < cfg.probe_div
         fb = ctx.feedback
         lost = sorted({f for s in ("color", "vis", "index") for f in fb.newly_lost(s)})
         for f in lost:                      # the probes of a lost update: the client never took them
@@ -201,10 +240,21 @@ class ProbesServer(ServerHalf):
             self.canvas_moments[:] = 0
             self._idr_frame = ctx.frame_id
         visible = self.visible_probes(ctx) if self.config.pvs == "view" else np.ones(self.count, bool)
-        changed_c = ~self.sent | (codes != self.sent_codes).any(axis=(1, 2, 3))
-        changed_v = ~self.sent | (moments.view(np.uint16) != self.sent_moments.view(np.uint16)).any(axis=(1, 2, 3))
+        # a probe is new to this client where it differs at the precision it was sent at, or at this client's
+        # present one where that is coarser: a finer precision refines each probe when it next changes, not all at once
+        changed_c, changed_v = ~self.sent, ~self.sent
+        at = np.minimum(self.sent_bits, bits)
+        for b in np.unique(at):
+            m = at == b
+            changed_c[m] |= (round_codes(shared["codes"][m], int(b))
+                             != round_codes(self.sent_codes[m], int(b))).any(axis=(1, 2, 3))
+        at = np.minimum(self.sent_vbits, vbits)
+        for b in np.unique(at):
+            m = at == b
+            changed_v[m] |= (round_moments(shared["moments"][m], int(b)).view(np.uint16)
+                             != round_moments(self.sent_moments[m], int(b)).view(np.uint16)).any(axis=(1, 2, 3))
         changed = changed_c | changed_v
-        want = active & visible & changed
+        want = active & visible & changed & (not held)
         cap = self.config.refresh_probes
         backlog = 0
         if cap > 0:                         # probes the client lacks go at most `cap` a frame, the nearest first
@@ -220,6 +270,10 @@ class ProbesServer(ServerHalf):
         self.canvas_codes[sel] = codes[sel]
         self.canvas_moments[sel] = moments[sel]
         self.sent[sel] = True
+        self.sent_bits[sel] = bits
+        self.sent_vbits[sel] = vbits
+        if sel.size:
+            self._gi_sent = gi_update
         sc = self.scene
         models = np.array([o.model_matrix(ctx.t_s) for o in sc.objects if o.dynamic], np.float32).reshape(-1, 4, 4)
         meta = {"v": META_VERSION, "t_gi": float(shared["t_gi"]), "xf": models,
@@ -228,7 +282,8 @@ class ProbesServer(ServerHalf):
         self._frames += 1
         self._stats = {"probes_sent": float(sel.size), "probes_active": float(active.sum()),
                        "probes_visible": float((active & visible).sum()), "probes_changed": float((active & changed).sum()),
-                       "probes_backlog": float(backlog), "full": float(restart), "lost_updates": float(len(lost)),
+                       "probes_backlog": float(backlog), "probes_held": float(held), "full": float(restart),
+                       "lost_updates": float(len(lost)),
                        "probe_ms": (time.perf_counter() - t0) * 1e3}
         if not sel.size and not restart:   # nothing new for this client: the probe streams skip the frame
             return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {}, meta)

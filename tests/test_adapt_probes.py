@@ -1,0 +1,184 @@
+"""``probes`` adapts (issue 48, part 3): per-client precision and probe update rate over the shared GI server.
+
+Sans-IO: the knobs and their ladder, the precision's rounding.  With the method's halves: two clients of one GI
+server at different operating points are sent different probes at different rates while the GI server traces each
+update once.  In virtual time: over a link that falls to 400 kbit/s, ``--adapt full`` sends less and keeps updates
+younger than ``off``, at a model quality close to the measured one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from splitrender.scene.pose import CameraIntrinsics
+
+INTR = CameraIntrinsics(320, 180, 60.0)
+
+
+def test_probes_offers_its_precision_update_rate_and_frame_rate_with_its_quality_model() -> None:
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.adapt import quality_ladder
+
+    knobs = make_config(get_method("probes").config, {}).adapt_knobs()
+    assert [(k.name, k.levels, k.affects) for k in knobs] == [
+        ("probe_bits", (10, 6, 4), "data"), ("vis_bits", (10, 2, 1), "data"), ("probe_div", (1, 2, 4), "data"),
+        ("frame_div", (1, 2, 3, 5), "both")]
+    model = knobs[0].model
+    assert model is not None and all(k.model is model for k in knobs)
+    # the visibility's precision and the update rate cost nothing measurable on the walk: they go first; the
+    # irradiance's last level (0.56 dB) only once the server's frame rate is spent
+    assert quality_ladder(knobs, model) == [(0, 0, 0, 0), (0, 1, 0, 0), (0, 2, 0, 0), (0, 2, 1, 0), (0, 2, 2, 0),
+                                            (1, 2, 2, 0), (1, 2, 2, 1), (1, 2, 2, 2), (1, 2, 2, 3), (2, 2, 2, 3)]
+    assert model.tolerance_ms == pytest.approx(131.1, abs=0.1)
+    # a configured coarser point starts the ladder there
+    coarse = make_config(get_method("probes").config, {"probe_bits": 6, "vis_bits": 2, "probe_div": 2}).adapt_knobs()
+    assert [(k.name, k.levels) for k in coarse] == [("probe_bits", (6, 4)), ("vis_bits", (2, 1)),
+                                                    ("probe_div", (2, 4, 8)), ("frame_div", (1, 2, 3, 5))]
+
+
+def test_a_data_only_session_learns_its_point_s_rate_as_a_mean_not_from_its_first_fill() -> None:
+    """No lossy video: nothing to calibrate.  A first frame of 300 kB, then 1 kB frames at 30 fps (240 kbit/s): the
+    rate controller's running average still reads 9.9 Mbit/s after 20 frames, enough to drop the point at once;
+    the point controller waits for ``settle_frames`` settled frames and learns their mean, 240 kbit/s, and under a
+    budget that carries it stays where it is."""
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.adapt import AdaptConfig, PointController, RateController
+
+    cfg = AdaptConfig()
+    rate = RateController((), 30.0, cfg)
+    pc = PointController(make_config(get_method("probes").config, {}).adapt_knobs(), rate, cfg)
+    assert rate.calibrated and rate.wanted_bps() == 0.0
+    for k in range(2 * cfg.settle_frames):
+        rate.on_frame_sent({"color": 300_000 if k == 0 else 600, "meta": 0 if k == 0 else 400})
+        pc.on_frame_sent()
+        moved = pc.update(k / 30, 1e6)
+        assert not moved and pc.index == 0
+    assert rate.overhead_bps == pytest.approx(9.93e6, rel=0.01)
+    assert pc.data_bps(0) == pytest.approx(240e3)
+
+
+def test_the_knobs_out_of_range_are_refused_by_name() -> None:
+    from splitrender.errors import ConfigError
+    from splitrender.methods import get_method, make_config
+
+    for params, field in (({"probe_bits": 3}, "probe_bits"), ({"vis_bits": 11}, "vis_bits"),
+                          ({"probe_div": 0}, "probe_div"), ({"probe_div": 31}, "probe_div")):
+        with pytest.raises(ConfigError, match=f"ProbesConfig.{field}: must be in"):
+            make_config(get_method("probes").config, params)
+
+
+def test_precision_rounds_codes_and_moments_and_keeps_what_is_dark_dark() -> None:
+    from splitrender.methods.probes.server import round_codes, round_moments
+
+    codes = np.arange(1024, dtype=np.uint16)
+    assert np.array_equal(round_codes(codes, 10), codes)
+    six = round_codes(codes, 6)
+    assert six[0] == 0 and (six[1:] >= 1).all() and len(np.unique(six)) == 66
+    assert int(np.abs(six.astype(int) - codes).max()) == 8          # half a step of 16
+    m = np.array([0.0, 1e-3, 0.5, 3.3, 1234.5, 65504.0], np.float16)
+    assert np.array_equal(round_moments(m, 10).view(np.uint16), m.view(np.uint16))
+    two = round_moments(m, 2)
+    assert (two.view(np.uint16) & 0xFF == 0).all()                   # the low byte empty: what the codec takes
+    assert np.isfinite(two).all() and two[0] == 0
+    assert np.allclose(two.astype(float), m.astype(float), rtol=0.125)
+
+
+@pytest.fixture(scope="module")
+def renderer():  # type: ignore[no-untyped-def]
+    from splitrender.render.renderer import Renderer
+
+    return Renderer()
+
+
+def test_two_clients_of_one_gi_server_get_their_own_rates_while_it_traces_once(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``default``, 1 s at 30 fps, two sessions on one producer pool: one at the method's own point, one at
+    ``probe_bits`` 6, ``vis_bits`` 2 and ``probe_div`` 4 (set as the point controller sets them).  The GI server
+    relights 10 times (its 10 Hz) for both, as for one; the coarse client gets probes at 3 of the 10 updates (0, 0.4,
+    0.8 s) and its lossless pictures take 0.47 of the rich one's bytes (measured 166,257 against 355,786: the first
+    fill's I-frame, whose visibility HEVC lossless barely shrinks, is most of both), 0.16 after the first frame
+    (10,012 against 62,167); its probes are the rounded ones."""
+    from splitrender.codecs.video import VideoEncoder
+    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods.probes.server import round_codes, round_moments
+    from splitrender.pipeline.producers import ProducerPool
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.trace import get_trace
+
+    scene = get_scene("default")
+    spec = get_method("probes")
+    cfg = make_config(spec.config, {})
+    pool = ProducerPool(scene, 30, renderer)
+    prod = pool.producer(spec, cfg)
+    halves = [spec.server_class(cfg, INTR, scene, 30, prod) for _ in range(2)]
+    coarse = {"probe_bits": 6, "vis_bits": 2, "probe_div": 4}
+    halves[1].set_knobs(coarse)
+    assert halves[1].config.probe_div == 4 and prod.config.probe_div == 1 and halves[0].config.probe_bits == 10
+    trace = get_trace("walk", scene=scene)
+    encoders = [{s.name: VideoEncoder(s.codec, s.width, s.height) for s in h.streams() if getattr(s, "kind", "") == "video"}
+                for h in halves]
+    sent_bytes, later_bytes, probe_frames = [0, 0], [0, 0], [[], []]
+    for frame in range(30):
+        t = frame / 30
+        pose = trace.pose_at(t)
+        shared = pool.prepare("probes", frame, t)
+        for i, h in enumerate(halves):
+            ctx = ServerContext(frame_id=frame, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
+                                latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
+                                expected_latency_s=0.0, shared=shared)
+            upd = h.produce(ctx)
+            for name, plane in upd.planes.items():
+                n = len(encoders[i][name].encode(plane, force_idr=upd.force_idr).data)
+                sent_bytes[i] += n
+                later_bytes[i] += n if frame else 0
+            if h.stats()["probes_sent"]:
+                probe_frames[i].append(frame)
+    assert prod.traces == 10 and pool.frames_prepared["probes"] == 30       # once per update, once per frame
+    gi = [sorted({f // 3 for f in fr}) for fr in probe_frames]
+    assert gi[0] == list(range(10)) and gi[1] == [0, 4, 8], gi
+    ratio, later = sent_bytes[1] / sent_bytes[0], later_bytes[1] / later_bytes[0]
+    assert 0.40 < ratio < 0.55 and 0.10 < later < 0.25, (sent_bytes, later_bytes)
+    sent = halves[1].sent
+    assert np.array_equal(halves[1].sent_codes[sent], round_codes(halves[1].sent_codes[sent], 6))
+    assert np.array_equal(halves[1].sent_moments[sent].view(np.uint16),
+                          round_moments(halves[1].sent_moments[sent], 2).view(np.uint16))
+    assert not np.array_equal(halves[0].sent_codes[sent], round_codes(halves[0].sent_codes[sent], 6))
+
+
+def _step_runs(tmp_path):  # type: ignore[no-untyped-def]
+    from splitrender.netsim.traces import step_trace, write_mahimahi
+    from splitrender.sim.config import RunConfig
+    from splitrender.sim.runner import VirtualTimeRun
+
+    path = write_mahimahi(step_trace([(1.5, 5.0), (4.5, 0.4)]), tmp_path / "step.trace")
+    return {adapt: VirtualTimeRun(RunConfig(method="probes", scene="default", trace="walk", duration_s=6.0, width=320,
+                                            height=180, client_fps=30, flip_every=0, network=f"delay 20ms trace {path}",
+                                            transport_cc=True, adapt=adapt, seed=0)).run()
+            for adapt in ("off", "full")}
+
+
+@pytest.mark.slow
+def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``default`` (GI), the walk, 320x180, 20 ms each way over a capacity of 5 Mbit/s falling to 0.4 at 1.5 s (6 s).
+    ``off`` sends every probe update at full precision with its 30 fps metadata and a lossless I-frame of the whole
+    probe canvas every 30 probe updates: measured 2,906 kbit/s over 2.5-6 s, p95 update age 4,127 ms there.  ``full``
+    learns its own point's rate (0.67 s), moves to the visibility's 1-bit mantissa, one probe update in four and one
+    server frame in three (point 8), then the coarsest (3.8 s): 957 kbit/s, p95 age 3,293 ms.  Both stay far over
+    the link: each loss on it brings a keyframe request, and the I-frame on an empty canvas makes the next updates
+    refill every changed probe.  Model PSNR over the run: ``off`` 19.95 dB, ``full`` 19.72 (both lag by seconds)."""
+    res = _step_runs(tmp_path)
+
+    def sent_kbps(r, a: float, b: float) -> float:  # type: ignore[no-untyped-def]
+        return sum(u["bytes"] for u in r.updates if a <= u["t_s"] < b) * 8 / (b - a) / 1000
+
+    def ages(r, a: float, b: float) -> np.ndarray:  # type: ignore[no-untyped-def]
+        return np.array([f["update_age_ms"] for f in r.frames if a <= f["t_s"] < b and np.isfinite(f["update_age_ms"])])
+
+    off, full = res["off"], res["full"]
+    assert full.summary["point_moves"] >= 1 and full.summary["lowest_point"] >= 8, full.summary
+    low = {a: sent_kbps(r, 2.5, 6.0) for a, r in res.items()}
+    assert 2500 < low["off"] < 3300 and low["full"] < 1200 and low["full"] < 0.45 * low["off"], low
+    p95 = {a: float(np.percentile(ages(r, 2.5, 6.0), 95)) for a, r in res.items()}
+    assert p95["off"] > 3500 and p95["full"] < 0.9 * p95["off"], p95
+    q = {a: r.summary["mean_model_psnr_db"] for a, r in res.items()}
+    assert abs(q["off"] - 19.95) < 0.4 and abs(q["full"] - 19.72) < 0.4, q
