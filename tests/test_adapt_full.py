@@ -99,7 +99,7 @@ def _knobs(method: str) -> tuple[Knob, ...]:
 
 
 @pytest.mark.parametrize("model", [False, True])
-@pytest.mark.parametrize("method", ["video", "atw", "warp", "sas", "tss", "quads"])
+@pytest.mark.parametrize("method", ["video", "atw", "warp", "sas", "tss", "quads", "probes"])
 def test_each_method_s_knobs_move_the_right_way_under_a_falling_target(method: str, model: bool) -> None:
     """Under a budget falling from 20 to 0.2 Mbit/s every knob only ever moves to a cheaper level, the expected cost
     falls with it, and the coarsest point is reached; each method has at least one knob.  With the method's quality
@@ -130,7 +130,7 @@ def test_each_method_s_knobs_move_the_right_way_under_a_falling_target(method: s
     assert all(b < a for a, b in zip(costs, costs[1:])), (method, costs)
     cheaper = {k.name: (k.levels[0], k.levels[-1]) for k in knobs}
     for name, (first, last) in cheaper.items():   # the direction of each knob: what it sends falls
-        if name in ("depth_step", "frame_div"):
+        if name in ("depth_step", "frame_div", "probe_div"):
             assert last > first
         else:
             assert last < first, name
