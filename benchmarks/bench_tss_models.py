@@ -11,7 +11,10 @@ comparison, measured in the same process as the ``tss`` runs:
 - both: ``tss`` at ``sas``'s budget with slivers sampled (:data:`BUDGET_SLIVERS`) and with a budget that moves with
   the scene (:data:`MOVING`, ``budget_px``), lossy and lossless still.
 - issue 50 part 1: ``sas`` and the moving budget on the orbit under ``ideal`` too (latency apart), and the moving
-  budget with the flip's triangles lifted (:data:`FLIPS`), and ``flip_level = 4`` at the defaults (``tss flip4``).
+  budget with the flip's triangles lifted (:data:`FLIPS`), and ``flip_level = 4`` at the defaults (``tss flip4``);
+  the orbit lossless for both methods (``sas lossless``, ``tss flips lossless``: the gap without the codec, against
+  ``sas lossless`` in ``model_db_minus_sas_lossless``) and ``tss flips`` at crf 18 (``tss flips crf18``); and
+  :data:`RINGS` (``tss rings``: ``FLIPS`` with ``pvs_ring = 1``), still and on the orbit, lossy and lossless.
   ``--models`` and ``--runs`` (comma-separated names) measure a subset.
 
 The default scene (``default``) is measured beside the three models.
@@ -58,6 +61,9 @@ sampled along their length (``sliver_px = 1``)."""
 FLIPS = {**MOVING, "flip_level": 8, "hysteresis": 0.75}
 """:data:`MOVING` with the triangles that the two-sided flip crosses L-packed at level 8 or more (``flip_level``) and
 the layout's hysteresis at 0.75 (issue 50 part 1: the orbit's gap)."""
+RINGS = {**FLIPS, "pvs_ring": 1}
+""":data:`FLIPS` with the PVS's neighbours at one texel each while the view moves (``pvs_ring = 1``; issue 50 part 1:
+the engine's orbit gap was holes, triangles the EVS samples missed)."""
 BUDGET_SLIVERS = {**BUDGET, "sliver_px": 1.0}
 """``tss`` at ``sas``'s budget with slivers sampled along their length (issue 50's per-sample floor)."""
 RUNS: list[tuple[str, str, str, str, dict[str, Any]]] = [
@@ -86,6 +92,16 @@ RUNS: list[tuple[str, str, str, str, dict[str, Any]]] = [
     ("tss flip4", "static", "ideal", "tss", {"flip_level": 4}),
     ("tss flip4 lossless", "static", "ideal", "tss", {"flip_level": 4, "lossless": True}),
     ("tss flip4", "orbit", "cloud", "tss", {"flip_level": 4}),
+    # issue 50 part 1, the codec's share of the orbit's gap: both lossless on the orbit, and tss at a lower crf
+    ("sas lossless", "orbit", "cloud", "sas", {"lossless": True}),
+    ("tss flips lossless", "orbit", "cloud", "tss", {**FLIPS, "lossless": True}),
+    ("tss flips crf18", "orbit", "cloud", "tss", {**FLIPS, "crf": 18}),
+    # issue 50 part 1: the PVS's ring (RINGS)
+    ("tss rings", "static", "ideal", "tss", RINGS),
+    ("tss rings lossless", "static", "ideal", "tss", {**RINGS, "lossless": True}),
+    ("tss rings", "orbit", "cloud", "tss", RINGS),
+    ("tss rings", "orbit", "ideal", "tss", RINGS),
+    ("tss rings lossless", "orbit", "cloud", "tss", {**RINGS, "lossless": True}),
 ]
 
 
@@ -143,8 +159,10 @@ def compare(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     for r in rows:
         if r["method"] != "tss":
             continue
-        base = next((b for b in rows if b["method"] == "sas" and b["model"] == r["model"] and b["trace"] == r["trace"]
-                     and b["network"] == r["network"]), None)
+        same = [b for b in rows if b["method"] == "sas" and b["model"] == r["model"] and b["trace"] == r["trace"]
+                and b["network"] == r["network"]]
+        base = next((b for b in same if not b["params"].get("lossless")), None)
+        lossless = next((b for b in same if b["params"].get("lossless")), None)
         if base is None:
             continue
         key = f"{r['model']} {r['trace']} {r['run']}" + (f" {r['network']}" if r["trace"] != "static" and r["network"] != "cloud" else "")
@@ -152,6 +170,8 @@ def compare(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             "model_db_minus_sas": round(r["model_db"] - base["model_db"], 2),
             "bits_over_sas": round(r["steady_kbps"] / base["steady_kbps"], 3),
             "samples_over_sas": round(r["samples"] / base["samples"], 3)}
+        if r["params"].get("lossless") and lossless is not None:    # lossless against lossless: the sampling alone
+            out[key]["model_db_minus_sas_lossless"] = round(r["model_db"] - lossless["model_db"], 2)
     return out
 
 

@@ -40,8 +40,8 @@ def test_fill_gutters_keeps_written_texels_and_fills_the_rest_from_neighbours() 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("model,lossless_lead,lossy_lead,bits", [
-    ("duck", 0.2, -1.2, 1.15),
-    ("TextureTransformTest", 2.7, 0.2, 0.95),
+    ("duck", 0.2, -1.2, 1.8),
+    ("TextureTransformTest", 2.7, 0.2, 1.85),
 ])
 def test_tss_at_sas_budget_matches_sas_on_real_models(shared_run, model: str, lossless_lead: float, lossy_lead: float,
                                                        bits: float) -> None:  # type: ignore[no-untyped-def]
@@ -56,7 +56,9 @@ def test_tss_at_sas_budget_matches_sas_on_real_models(shared_run, model: str, lo
     ``sas`` gained 1.03 and 1.14 dB (from 38.07 at 1301 kbit/s and 40.47 at 1370) when its shading stopped growing
     a triangle across the edge it shares with its patch's other triangles (issue 49: the later triangle's
     extrapolation overwrote the earlier one's texels near their diagonal); before that ``tss`` at its defaults (one
-    sample per pixel) trailed by 5.3 and 5.1 dB (lossless by 3.3 and 2.8).  Asserted: the lossless lead, the lossy lead and the bit ratio each within about 0.4 dB or 0.1x of what was measured, and
+    sample per pixel) trailed by 5.3 and 5.1 dB (lossless by 3.3 and 2.8).  ``sas``'s I-frames every 30 frames, not
+    5 (bf66471), cut its still bits: at b78990c the duck's ``sas`` takes 774 kbit/s (39.35 dB) and ``tss`` 1327
+    (38.22 dB, 1.72x), TextureTransformTest's 617 (41.78) and 1082 (42.20, 1.75x); lossless ``tss`` 39.64 and 44.69.  Asserted: the lossless lead, the lossy lead and the bit ratio each within about 0.4 dB or 0.1x of what was measured, and
     fewer samples than ``sas``."""
     from splitrender.sim.runner import RunConfig
 
@@ -233,3 +235,43 @@ def test_flip_level_closes_the_orbit_gap_without_latency(shared_run) -> None:  #
     new, n = orbit("tss", {**moving, "flip_level": 8, "hysteresis": 0.75})
     got = (sas, n_sas, old, new, n)
     assert new >= old + 1.9 and new >= sas + 0.3 and n <= 0.6 * n_sas, got
+
+
+def test_moving_tells_a_still_view_from_a_moving_one() -> None:
+    """``pvs_ring`` grows the PVS only while the EVS samples' views differ (:func:`~splitrender.methods.tss.server.moving`):
+    a still view keeps its exact PVS and so its samples."""
+    from splitrender.methods.tss.server import moving
+    from splitrender.scene.pose import Pose
+
+    a = Pose(np.array([0.0, 1.0, 3.0]))
+    b = Pose(np.array([0.1, 1.0, 3.0]))
+    assert not moving([(0.0, a)]) and not moving([(0.0, a), (0.03, a)])
+    assert moving([(0.0, a), (0.03, b)])
+
+
+@pytest.mark.slow
+def test_pvs_ring_fills_the_engines_orbit_holes(shared_run) -> None:  # type: ignore[no-untyped-def]
+    """Issue 50 part 1: on 2CylinderEngine's fitted ``orbit`` under ``cloud`` lossless ``tss`` (``FLIPS``) trailed
+    lossless ``sas`` by 5.4 dB, not the codec: its per-triangle PVS missed the small triangles between the fins that
+    the client's view turns to between the EVS samples, and the client showed the sky there (3x ``sas``'s geometric
+    holes, 0.33 % of the view against 0.12 %).  ``pvs_ring = 1`` adds the PVS's neighbours (sharing a vertex) while
+    the view moves, at one texel each.  320x180, 0.5 s, ``orbit``, ``cloud``, lossless, model PSNR over the frames
+    that show an update (measured: 26.03 dB with 0.58 % of the view in geometric holes; with the ring 31.56 dB,
+    0.46 %).  Asserted: the ring's gain, within 1 dB of the 5.53 dB measured, and fewer holes."""
+    from splitrender.sim.runner import RunConfig
+
+    path = "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
+    if not os.path.exists(path):
+        pytest.skip(f"{path} absent (Debian's assimp-testmodels)")
+
+    def orbit(params: dict) -> tuple[float, float]:
+        res = shared_run(RunConfig(method="tss", scene=path, trace="orbit", network="cloud", duration_s=0.5, width=320,
+                                   height=180, client_fps=30, flip_every=0, seed=0, method_params={**params, "lossless": True}))
+        shown = [f for f in res.frames if f["update_frame_id"] >= 0]
+        return (float(np.mean([f["model_psnr_db"] for f in shown])), float(np.mean([f["hole_geom_pct"] for f in shown])))
+
+    flips = {"budget_px": 2.0, "chroma": "444", "sliver_px": 1.0, "flip_level": 8, "hysteresis": 0.75}
+    old, old_holes = orbit(flips)
+    new, new_holes = orbit({**flips, "pvs_ring": 1})
+    got = (old, old_holes, new, new_holes)
+    assert new >= old + 4.5 and new_holes < 0.9 * old_holes, got

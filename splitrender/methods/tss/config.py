@@ -96,6 +96,14 @@ class TssConfig(MethodConfig):
     Issue 50 part 1: this, not the motion, was ``tss``'s gap to ``sas`` on the duck's orbit (zero latency, lossless,
     one fresh frame per pose, 30 poses: 40.39 dB against 43.84; with ``flip_level = 8`` 45.23, the same samples).
     Off by default: on the default scene it buys nothing for 5-16 % more bits (``docs/methods.md``).
+
+    ``pvs_ring`` (0: off, the paper's PVS): while the view moves (the EVS samples' views differ), the triangles sharing
+    a vertex with the PVS, this many rings out, join it at one texel each (no samples asked for: the single kind).  The
+    PVS is per triangle, and a small triangle the EVS samples did not see (between an engine's fins) was a hole where
+    the client's view turned to it; with one texel it shows a coarse colour.  A still view keeps its exact PVS.
+    Issue 50 part 1: 2CylinderEngine's ``cloud`` orbit, ``FLIPS`` (``benchmarks/bench_tss_models.py``), lossless:
+    model PSNR 27.50 -> 31.91 dB, lossy 27.35 -> 31.15 (``sas`` 31.95), the still views unchanged
+    (``docs/methods.md``).  Off by default, as the moving budget it goes with.
     """
 
     gop: int = 30
@@ -121,6 +129,7 @@ class TssConfig(MethodConfig):
     budget_px: float = 0.0
     budget_max_spp: float = 8.0
     flip_level: int = 0
+    pvs_ring: int = 0
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
@@ -169,6 +178,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 8], got {self.budget_max_spp}")
         if not 0 <= self.flip_level <= 64:
             raise ConfigError(f"TssConfig.flip_level: must be in [0, 64] (0: off), got {self.flip_level}")
+        if not 0 <= self.pvs_ring <= 8:
+            raise ConfigError(f"TssConfig.pvs_ring: must be in [0, 8] rings of neighbours (0: off), got {self.pvs_ring}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

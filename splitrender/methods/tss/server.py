@@ -4,7 +4,8 @@ Per server frame (paper figure 10):
 
 1. **PVS** at triangle granularity: the ``sas`` ID pass with one patch per triangle,
    EVS samples from the newest pose to one frame past the predicted one, the field
-   of view enlarged by ``fov_margin`` (:mod:`splitrender.methods.sas.pvs`);
+   of view enlarged by ``fov_margin`` (:mod:`splitrender.methods.sas.pvs`); with ``pvs_ring``, while the view
+   moves, the triangles beside it (sharing a vertex) at one texel each;
 2. **mesh split**: every PVS triangle is projected at the predicted pose; its
    slantedness (longest edge over height, pixels) sends it to oversampling above
    ``slant_threshold``, else to L-packing at the smallest level whose ``v(l)`` covers
@@ -210,6 +211,14 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
     return 0.5 * np.abs((cross * (k + 1 < cnt[:, None])).sum(axis=1))
 
 
+def moving(samples: list[PoseSample], tol: float = 1e-6) -> bool:
+    """Whether the EVS samples' views differ (the camera moves, or is predicted to)."""
+    if len(samples) < 2:
+        return False
+    v0 = np.asarray(samples[0][1].view_matrix(), np.float64)
+    return any(float(np.abs(np.asarray(p.view_matrix(), np.float64) - v0).max()) > tol for _, p in samples[1:])
+
+
 def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray, grid: str = "paper") -> int:
     """Samples a classification (:func:`classify`'s first five arrays) shades: ``v(l)`` per L-packed triangle, both
     staircases per oversampled one, one per single texel (the plan's ``samples`` without placing anything)."""
@@ -292,6 +301,7 @@ class TssServer(ServerHalf):
         self._gl: Any = None
         self._stats: dict[str, float] = {}
         self.store = StableAtlas(n, *self.atlas, single_px=self.config.single_px)
+        self._n_vertices = int(self.tris.vid.max()) + 1 if self.tris.vid.size else 0
         self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
         self._sent_desc = np.zeros((n, 17), np.uint8)
         self._sent_origin = np.zeros((n, 3, 2), np.int64)   # where the client finds each triangle's samples
@@ -492,9 +502,23 @@ class TssServer(ServerHalf):
         if self._gl is None:
             self._setup_gl(ctx.renderer)
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
-        area = self._ids.pvs_area(self.pvs_samples(ctx), big)
+        samples = self.pvs_samples(ctx)
+        area = self._ids.pvs_area(samples, big)
         self._last_seen[area > 0] = self._frames
         pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
+        ring = None
+        if c.pvs_ring > 0 and pvs.size and moving(samples):
+            # the triangles beside the PVS (sharing a vertex, pvs_ring rings out) join it at one texel each: where the
+            # client's view turns past the EVS samples, a triangle they did not see shows a coarse colour, not a hole
+            grown = np.zeros(self.tris.count, bool)
+            grown[pvs] = True
+            core = grown.copy()
+            for _ in range(c.pvs_ring):
+                at = np.zeros(self._n_vertices, bool)
+                at[self.tris.vid[grown]] = True
+                grown = at[self.tris.vid].any(axis=1)
+            pvs = np.flatnonzero(grown)
+            ring = ~core[pvs]
         t1 = time.perf_counter()
         shared = ctx.shared if isinstance(ctx.shared, dict) and ctx.shared.get("t_s") == ctx.t_s else None
         models = shared["models"] if shared is not None else np.stack([o.model_matrix(ctx.t_s) for o in self.scene.objects])
@@ -503,6 +527,8 @@ class TssServer(ServerHalf):
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], T.pos[pvs].astype(np.float64)) + m[:, None, :3, 3]
         px, depth = project(world, ctx.target_pose, self.intrinsics)
         visible = visible_area(world, ctx.target_pose, self.intrinsics, c.fov_margin)
+        if ring is not None:
+            visible[ring] = 0.0          # no samples asked for: one texel (classify's single kind)
         self._min_level = None
         if c.flip_level > 0:
             nrm = np.einsum("nij,nkj->nki", np.linalg.inv(m[:, :3, :3]).transpose(0, 2, 1), T.nrm[pvs].astype(np.float64))
@@ -510,7 +536,7 @@ class TssServer(ServerHalf):
             v = eye - world
             ndv = (nrm * v).sum(axis=2) / np.maximum(np.linalg.norm(nrm, axis=2) * np.linalg.norm(v, axis=2), 1e-12)
             flips = (ndv.min(axis=1) < 0.0) & (ndv.max(axis=1) > 0.0)
-            self._min_level = np.where(flips, c.flip_level, 0).astype(np.int64)
+            self._min_level = np.where(flips if ring is None else flips & ~ring, c.flip_level, 0).astype(np.int64)
         plan, base, slant, rate, kept = self.plan(pvs, px, iframe, visible)
         self.left_out = 0 if kept is None else pvs.size - kept.size
         if kept is not None:
