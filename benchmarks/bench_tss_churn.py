@@ -51,7 +51,7 @@ CAUSES = ("gutter", "stale", "unwritten", "new", "relevel", "moved", "shift", "s
 
 def owners(plan: Any, ids: np.ndarray, W: int, H: int) -> np.ndarray:
     """(H, W) index into ``ids`` of the triangle whose cell covers each texel (-1: none)."""
-    from splitrender.methods.tss.layout import KIND_LP, KIND_OS, KIND_SINGLE, os_rows, tip_dim
+    from splitrender.methods.tss.layout import KIND_LP, KIND_SINGLE, os_rows, tip_dim
 
     own = np.full((H, W), -1, np.int64)
     o = plan.origin
@@ -230,7 +230,6 @@ def measure(model: str, params: dict[str, Any], thr: int, duration: float) -> di
         rows_used = max(cur["plan"].height, prev["plan"].height)
         d = np.abs(cur["sent"][:rows_used].astype(np.int16) - prev["sent"][:rows_used].astype(np.int16)).max(axis=2) > thr
         own = owners(cur["plan"], cur["ids"], W, H)[:rows_used]
-        own_prev = owners(prev["plan"], prev["ids"], W, H)[:rows_used]
         cause = np.full(d.shape, -1, np.int64)
         # per triangle of the new plan: new, relevelled, moved
         pos_prev = {int(t): i for i, t in enumerate(prev["ids"].tolist())}
@@ -255,7 +254,6 @@ def measure(model: str, params: dict[str, Any], thr: int, duration: float) -> di
         same = cause == 6
         xo, xv = cur["x"]["old"][:rows_used, :, :3].astype(np.int16), cur["x"]["view"][:rows_used, :, :3].astype(np.int16)
         pr = prev["raw"][:rows_used, :, :3].astype(np.int16)
-        cr = cur["raw"][:rows_used, :, :3].astype(np.int16)
         other = np.abs(xo - pr).max(axis=2) > thr
         shift = np.abs(xv - xo).max(axis=2) > thr
         cause[same & other] = 8
