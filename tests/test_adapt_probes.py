@@ -151,21 +151,22 @@ def _step_runs(tmp_path):  # type: ignore[no-untyped-def]
     from splitrender.sim.runner import VirtualTimeRun
 
     path = write_mahimahi(step_trace([(1.5, 5.0), (4.5, 0.4)]), tmp_path / "step.trace")
-    return {adapt: VirtualTimeRun(RunConfig(method="probes", scene="default", trace="walk", duration_s=6.0, width=320,
-                                            height=180, client_fps=30, flip_every=0, network=f"delay 20ms trace {path}",
+    return {adapt: VirtualTimeRun(RunConfig(method="probes", scene="default", trace="walk", duration_s=6.0, width=160,
+                                            height=90, client_fps=30, flip_every=0, network=f"delay 20ms trace {path}",
                                             transport_cc=True, adapt=adapt, seed=0)).run()
             for adapt in ("off", "full")}
 
 
 @pytest.mark.slow
 def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """``default`` (GI), the walk, 320x180, 20 ms each way over a capacity of 5 Mbit/s falling to 0.4 at 1.5 s (6 s).
+    """``default`` (GI), the walk, 160x90 (what is sent does not depend on the display's size: at 320x180 the same
+    rates and ages, model PSNR 19.95 and 19.72 dB, in twice the time), 20 ms each way over a capacity of 5 Mbit/s falling to 0.4 at 1.5 s (6 s).
     ``off`` sends every probe update at full precision with its 30 fps metadata and a lossless I-frame of the whole
     probe canvas every 30 probe updates: measured 2,906 kbit/s over 2.5-6 s, p95 update age 4,127 ms there.  ``full``
     learns its own point's rate (0.67 s), moves to the visibility's 1-bit mantissa, one probe update in four and one
     server frame in three (point 8), then the coarsest (3.8 s): 957 kbit/s, p95 age 3,293 ms.  Both stay far over
     the link: each loss on it brings a keyframe request, and the I-frame on an empty canvas makes the next updates
-    refill every changed probe.  Model PSNR over the run: ``off`` 19.95 dB, ``full`` 19.72 (both lag by seconds)."""
+    refill every changed probe.  Model PSNR over the run: ``off`` 20.16 dB, ``full`` 19.94 (both lag by seconds)."""
     res = _step_runs(tmp_path)
 
     def sent_kbps(r, a: float, b: float) -> float:  # type: ignore[no-untyped-def]
@@ -181,4 +182,4 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
     p95 = {a: float(np.percentile(ages(r, 2.5, 6.0), 95)) for a, r in res.items()}
     assert p95["off"] > 3500 and p95["full"] < 0.9 * p95["off"], p95
     q = {a: r.summary["mean_model_psnr_db"] for a, r in res.items()}
-    assert abs(q["off"] - 19.95) < 0.4 and abs(q["full"] - 19.72) < 0.4, q
+    assert abs(q["off"] - 20.16) < 0.4 and abs(q["full"] - 19.94) < 0.4, q
