@@ -253,7 +253,11 @@ def test_the_knobs_settings_out_of_range_are_refused_by_name() -> None:
     from splitrender.methods import get_method, make_config
 
     for method, params, field in (("warp", {"depth_bits": 7}, "depth_bits"), ("warp", {"depth_step": 5}, "depth_step"),
-                                  ("quads", {"merge_scale": 0.0}, "merge_scale")):
+                                  ("quads", {"merge_scale": 0.0}, "merge_scale"),
+                                  ("probes", {"probe_div": 0}, "probe_div"), ("probes", {"probe_div": 31}, "probe_div"),
+                                  ("probes", {"probe_bits": 3}, "probe_bits"), ("probes", {"vis_bits": 11}, "vis_bits"),
+                                  ("sas", {"reset_period": 0}, "reset_period"), ("tss", {"pvs_ring": 9}, "pvs_ring"),
+                                  ("tss", {"pvs_ring": -1}, "pvs_ring")):
         with pytest.raises(ConfigError, match=field):
             make_config(get_method(method).config, params)
     for kw in ({"stretch": 0.5}, {"up_margin": 0.0}, {"up_hold_s": -1.0}, {"mtp_budget_ms": 0.0}, {"settle_frames": 0}):
