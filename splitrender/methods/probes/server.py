@@ -85,6 +85,17 @@ def round_moments(moments: np.ndarray, bits: int) -> np.ndarray:
     return r.astype(np.uint16).view(np.float16)
 
 
+def _differs(new: np.ndarray, old: np.ndarray, at: np.ndarray, rnd: Any) -> np.ndarray:
+    """Per probe, whether ``new`` and ``old`` (one picture's values, a probe per row) differ when both are rounded by
+    ``rnd`` (:func:`round_codes`, :func:`round_moments`) to that probe's precision ``at`` (bits); compared bit for bit."""
+    out = np.zeros(len(at), bool)
+    for b in np.unique(at):
+        m = at == b
+        a, c = rnd(new[m], int(b)), rnd(old[m], int(b))
+        out[m] = (a.view(np.uint16) != c.view(np.uint16)).any(axis=tuple(range(1, a.ndim)))
+    return out
+
+
 def _require_gi(scene: Any) -> None:
     if getattr(scene, "gi", "none") != "ddgi":
         import shlex
@@ -242,17 +253,9 @@ class ProbesServer(ServerHalf):
         visible = self.visible_probes(ctx) if self.config.pvs == "view" else np.ones(self.count, bool)
         # a probe is new to this client where it differs at the precision it was sent at, or at this client's
         # present one where that is coarser: a finer precision refines each probe when it next changes, not all at once
-        changed_c, changed_v = ~self.sent, ~self.sent
-        at = np.minimum(self.sent_bits, bits)
-        for b in np.unique(at):
-            m = at == b
-            changed_c[m] |= (round_codes(shared["codes"][m], int(b))
-                             != round_codes(self.sent_codes[m], int(b))).any(axis=(1, 2, 3))
-        at = np.minimum(self.sent_vbits, vbits)
-        for b in np.unique(at):
-            m = at == b
-            changed_v[m] |= (round_moments(shared["moments"][m], int(b)).view(np.uint16)
-                             != round_moments(self.sent_moments[m], int(b)).view(np.uint16)).any(axis=(1, 2, 3))
+        changed_c = ~self.sent | _differs(shared["codes"], self.sent_codes, np.minimum(self.sent_bits, bits), round_codes)
+        changed_v = ~self.sent | _differs(shared["moments"], self.sent_moments, np.minimum(self.sent_vbits, vbits),
+                                          round_moments)
         changed = changed_c | changed_v
         want = active & visible & changed & (not held)
         cap = self.config.refresh_probes
