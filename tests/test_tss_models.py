@@ -183,6 +183,37 @@ def test_moving_budget_lossless_beats_sas_with_fewer_samples(shared_run, model: 
     assert tss >= sas + lead and n <= 0.7 * n_sas and n <= 2.0 * 320 * 180, (tss, n, sas, n_sas)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("model,ratio", [("duck", 0.75), ("TextureTransformTest", 0.97)])
+def test_the_papers_claim_in_its_measure_dssim_from_fewer_samples(shared_run, model: str, ratio: float) -> None:  # type: ignore[no-untyped-def]
+    """The TSS paper's table 4 in its own measure (model-region DSSIM, ``(1 - SSIM) / 2``, lower is better; the claims
+    ledger's T-T4-1) at comparable samples: ``tss`` with the moving budget (``budget_px = 2``), slivers sampled and
+    the flip's triangles lifted (``flip_level = 8``), still, zero latency, lossless atlases, 320x180, 0.3 s, against
+    lossless ``sas`` at its defaults.  Measured: duck DSSIM 0.00090 (44.84 dB) from 114.3k samples against 0.00136
+    (40.74 dB) from 259.2k; TextureTransformTest 0.00102 (44.72 dB) from 110.5k against 0.00111 (44.59 dB) from
+    178.2k.  Without ``flip_level`` the duck's DSSIM is 0.00191, behind ``sas`` at a level PSNR (40.77 dB): the flipped
+    outline pixels are what SSIM sees.  At the old defaults (one sample per pixel) ``tss`` scored 0.0065 and 0.0038.
+    Lossy at crf 23 the claim does not hold (``benchmarks/bench_tss_matched.py``: the duck 0.00267 against 0.00222,
+    TextureTransformTest 0.00205 against 0.00161, at 2.3x and 1.8x ``sas``'s bits): the codec, ``docs/methods.md``.
+    Asserted: ``tss``'s DSSIM at most ``ratio`` times ``sas``'s (measured 0.66x and 0.92x), from at most 0.7x its
+    samples."""
+    from splitrender.sim.runner import RunConfig
+
+    path = MODELS[model]
+    if not os.path.exists(path):
+        pytest.skip(f"{path} absent (Debian's assimp-testmodels)")
+
+    def still(method: str, params: dict) -> tuple[float, float]:
+        res = shared_run(RunConfig(method=method, scene=path, trace="static", network="ideal", duration_s=0.3, width=320,
+                                   height=180, client_fps=30, flip_every=0, seed=0, method_params={**params, "lossless": True}))
+        shown = [f for f in res.frames if f["update_frame_id"] >= 0]
+        return float(np.mean([f["model_dssim"] for f in shown])), float(np.mean([u["srv_samples"] for u in res.updates]))
+
+    sas, n_sas = still("sas", {})
+    tss, n = still("tss", {"budget_px": 2.0, "sliver_px": 1.0, "flip_level": 8})
+    assert tss <= ratio * sas and n <= 0.7 * n_sas, (tss, n, sas, n_sas)
+
+
 def test_classify_lifts_the_triangles_given_a_least_level() -> None:
     """``flip_level``'s mechanism (:func:`~splitrender.methods.tss.server.classify`'s ``min_level``): a triangle given a
     least level is L-packed at that level or its own, whichever is higher, whatever kind it would have been (one
