@@ -120,8 +120,8 @@ def test_every_method_has_a_model_for_every_knob_it_offers(method: str) -> None:
 
 
 # The stored models re-measured: the same runs as benchmarks/bench_knobs.py --quality (2 s, 320x180, default+nogi,
-# walk, delay 20ms), a few points.  Virtual time repeats these runs bit for bit (sas's atlas bytes differ now and then
-# in adapting runs only, docs/experiments.md): measured again at 668532e under another load, sas 30.7245 and 29.6038
+# walk, delay 20ms), a few points.  Virtual time repeats these runs bit for bit (adapting runs too, since encoders
+# under a VBV run one thread: tests/test_adapt_repeat.py): measured again at 668532e under another load, sas 30.7245 and 29.6038
 # dB at frame_div 1 and 3, as stored to the last digit (spread 0.000 dB).  The tolerance is for the pipeline's small
 # changes (a coded frame's bytes), not for noise: 0.25 dB, under a quarter of the sas loss it checks, so a loss cannot
 # move by a quarter or change sign unnoticed; the table is measured again when it moves past that.

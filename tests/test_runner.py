@@ -199,8 +199,8 @@ def test_a_sas_runs_metadata_repeats_bit_for_bit(renderer):
     """Issue 48: two virtual-time runs of one configuration differed in their metadata bytes, because the frame
     envelope carried the server half's wall-clock stage times (sas's pvs_ms, shade_ms, ...), whose compressed size
     varies; an adapting run's controllers then learned from those bytes.  In the fixed cost model the times stay
-    out of the envelope (they are still in updates.csv as ``srv_*``), so every byte count repeats.  (An adapting sas
-    run still varies now and then in an atlas frame's size, from a cause not found yet: see docs/experiments.md.)"""
+    out of the envelope (they are still in updates.csv as ``srv_*``), so every byte count repeats.  (An adapting run
+    repeats too since its encoders under a VBV run one thread: tests/test_adapt_repeat.py.)"""
     cfg = RunConfig(method="sas", scene="minimal", trace="walk", network="delay 20ms loss 2%", width=160, height=90,
                     duration_s=0.6, client_fps=30, flip_every=0, metrics=False, seed=5)
     a, b = run(cfg, renderer=renderer), run(cfg, renderer=renderer)

@@ -27,12 +27,14 @@ DEFAULT, PAPER_GOP = _duck({}), _duck({"gop": 5})
 def test_a_still_view_converges_at_500_kbit_s(shared_run) -> None:  # type: ignore[no-untyped-def]
     """Measured (``benchmarks/bench_sas_lowrate.py``): model PSNR 35.02 dB over the frames with content, 39.13 dB on
     the last frame (a lossless atlas: 40.74), one I-frame in the second; with the paper's I-frame every 5 frames
-    (the default before), 30.59 dB, each GOP climbing from about 29.5 to 34 dB and falling back."""
+    (the default before), 30.59 dB, each GOP climbing from about 29.5 to 34 dB and falling back.  Since an encoder
+    under a VBV runs one thread (its sliced threads overshot the VBV, differently each run: docs/experiments.md)
+    32.59 dB, 38.61 on the last frame, 28.75 with the paper's I-frames."""
     res = shared_run(DEFAULT)
     paper = shared_run(PAPER_GOP)
     psnr = [f["model_psnr_db"] for f in res.frames if f["update_frame_id"] >= 0]
     mean = res.summary["mean_model_psnr_db_content"]
-    assert mean >= 34.3, f"sas at 500 kbit/s, still duck: model PSNR {mean:.2f} dB"
+    assert mean >= 31.9, f"sas at 500 kbit/s, still duck: model PSNR {mean:.2f} dB"
     assert psnr[-1] >= 38.0, f"the last frame reached {psnr[-1]:.2f} dB"
     # converging: the second half never falls back (an I-frame at this rate loses 3-4 dB)
     late = np.array(psnr[len(psnr) // 2:])
