@@ -89,6 +89,17 @@ class GccConfig:
     probe_interval_s: float = 2.0
     probe_packets: int = 12
     probe_min_bytes: int = 6000
+    stale_overuse_ms: float = 5.0
+    drained_ms: float = 100.0
+    stale_window_ms: float = 1000.0
+    """An over-use while the measured queue (:meth:`BandwidthEstimator.queue_ms`) is under ``stale_overuse_ms``, where
+    it was ``drained_ms`` or more within the trendline's window and that window spans over ``stale_window_ms``, is
+    acted on as normal: the window remembers a queue that has drained.  With few arrival groups a second (probes at
+    its coarsest point: 6 frames a second) the 20 points span 3 s, and after a 2 s queue drained it read over-use for
+    2.5 s more, cutting the estimate at each feedback to 0.85 of an application-limited acknowledged rate (1.6 Mbit/s
+    to 230 kbit/s on a 20 Mbit/s link).  A small queue alone is not enough (near capacity the over-use comes while
+    the queue is still a few ms: the step loop's p95 delay rose from 52 to 82 ms), nor a drained one where the window
+    is short (30 groups a second: it soon forgets; sas on a 0.6 Mbit/s step took 271 kbit/s of atlas, not 186)."""
 
     def __post_init__(self) -> None:
         if not 0 < self.min_bps <= self.start_bps <= self.max_bps:
@@ -210,6 +221,12 @@ class Trendline:
         self._detect(slope, send_delta_us / 1000.0, ms)
         self._prev_trend = slope
         return self.usage
+
+    def window_start_us(self) -> float:
+        """The arrival time (us) of the window's oldest point (``inf`` before the first)."""
+        if self._first_arrival_ms is None or not self._points:
+            return math.inf
+        return (self._first_arrival_ms + self._points[0][0]) * 1000.0
 
     def _detect(self, slope: float, send_delta_ms: float, now_ms: float) -> None:
         cfg = self.cfg
@@ -445,6 +462,18 @@ class BandwidthEstimator:
         """A probe cluster to send now, if one is due (mark its packets with its ``cluster`` in the send history)."""
         return self.probes.next_cluster(self.target_bps, now_us)
 
+    def _drained(self) -> bool:
+        """The measured queue is under ``stale_overuse_ms``, was ``drained_ms`` or more within the trendline's window,
+        and that window spans over ``stale_window_ms`` (see :class:`GccConfig`)."""
+        if not self._owd or self.queue_ms() >= self.cfg.stale_overuse_ms:
+            return False
+        start_us = self.trendline.window_start_us()
+        if self._owd[-1][0] - start_us <= self.cfg.stale_window_ms * 1000:
+            return False
+        base = min(d for _, d in self._owd)
+        peak = max((d for a, d in self._owd if a >= start_us), default=base)
+        return (peak - base) / 1000.0 >= self.cfg.drained_ms
+
     def queue_ms(self) -> float:
         """The media's queueing delay now: the newest one-way delays over the lowest of the last
         ``base_delay_window_us`` (the clocks' offset cancels)."""
@@ -512,6 +541,8 @@ class BandwidthEstimator:
             self._owd.popleft()
         probe_bps = self.probes.evaluate(max(r.send_us for r in results))
         usage = self.trendline.usage
+        if usage == Usage.OVERUSE and self._drained():
+            usage = Usage.NORMAL                # the over-use is the window's memory of a queue that has drained
         if usage == Usage.OVERUSE and prev_usage != Usage.OVERUSE:
             self.overuses += 1
             self.probes.on_decrease(now_us)

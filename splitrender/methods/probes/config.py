@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -28,6 +29,13 @@ PROBE_DIV_COST = (1.0, 0.6, 0.38)
 """Everything a client is sent at each ``probe_div`` level over the first (the knob's prior): the P-frames of the
 walk without their I-frames 0.74 and 0.56 of it (a probe that changed over two or four updates costs more than over
 one), the I-frames (one in 30 probe updates) a half and a quarter as often."""
+FRAME_DIV_COST = (1.0, 0.95, 0.93, 0.8)
+"""Everything a client is sent at each ``frame_div`` level (1, 2, 3, 5) over the first (the knob's prior; the
+pipeline's :data:`~splitrender.methods.base.FRAME_DIV_KNOB` assumes one n-th, as for a method whose every frame carries
+its picture): probes' frames carry the metadata (159 kbit/s at 30 fps on the walk), its probes go with each GI update
+(10 Hz) whatever the frame rate down to 10 fps (572 kbit/s of P-updates, with an I-frame of 300 kB every 3 s: 1.5
+Mbit/s in all), and at 6 fps the updates of two GI steps merge.  With one n-th the controller took frame_div 5 (2.68
+dB) for a fifth of the bits and went there first when a queue grew."""
 QUALITY = QualityModel(
     (("probe_bits", (0.0, 0.04, 0.56)), ("vis_bits", (0.0, 0.0, 0.0)), ("probe_div", (0.0, 0.0, 0.0)),
      ("frame_div", (0.0, 0.91, 1.66, 2.68))),
@@ -95,7 +103,8 @@ class ProbesConfig(MethodConfig):
         if len(divs) > 1:
             knobs.append(Knob("probe_div", divs, PROBE_DIV_COST[:len(divs)], "data",
                               "GI updates per probe update sent to this client"))
-        return with_model((*knobs, FRAME_DIV_KNOB), QUALITY)
+        frame_div = dataclasses.replace(FRAME_DIV_KNOB, cost=FRAME_DIV_COST)
+        return with_model((*knobs, frame_div), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()
