@@ -183,9 +183,16 @@ def test_moving_budget_lossless_beats_sas_with_fewer_samples(shared_run, model: 
     assert tss >= sas + lead and n <= 0.7 * n_sas and n <= 2.0 * 320 * 180, (tss, n, sas, n_sas)
 
 
+MOVING_FLIPS = {"budget_px": 2.0, "sliver_px": 1.0, "flip_level": 8}
+MATCHED = {"budget_px": 3.0, "budget_max_spp": 16.0, "sliver_px": 1.0, "flip_level": 16}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("model,ratio", [("duck", 0.75), ("TextureTransformTest", 0.97)])
-def test_the_papers_claim_in_its_measure_dssim_from_fewer_samples(shared_run, model: str, ratio: float) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("model,params,ratio,samples", [("duck", MOVING_FLIPS, 0.75, 0.7),
+                                                        ("TextureTransformTest", MOVING_FLIPS, 0.97, 0.7),
+                                                        ("2CylinderEngine", MATCHED, 0.93, 1.2)])
+def test_the_papers_claim_in_its_measure_dssim_from_comparable_samples(shared_run, model: str, params: dict, ratio: float,  # type: ignore[no-untyped-def]
+                                                                   samples: float) -> None:
     """The TSS paper's table 4 in its own measure (model-region DSSIM, ``(1 - SSIM) / 2``, lower is better; the claims
     ledger's T-T4-1) at comparable samples: ``tss`` with the moving budget (``budget_px = 2``), slivers sampled and
     the flip's triangles lifted (``flip_level = 8``), still, zero latency, lossless atlases, 320x180, 0.3 s, against
@@ -193,25 +200,30 @@ def test_the_papers_claim_in_its_measure_dssim_from_fewer_samples(shared_run, mo
     (40.74 dB) from 259.2k; TextureTransformTest 0.00102 (44.72 dB) from 110.5k against 0.00111 (44.59 dB) from
     178.2k.  Without ``flip_level`` the duck's DSSIM is 0.00191, behind ``sas`` at a level PSNR (40.77 dB): the flipped
     outline pixels are what SSIM sees.  At the old defaults (one sample per pixel) ``tss`` scored 0.0065 and 0.0038.
-    Lossy at crf 23 the claim does not hold (``benchmarks/bench_tss_matched.py``: the duck 0.00267 against 0.00222,
-    TextureTransformTest 0.00205 against 0.00161, at 2.3x and 1.8x ``sas``'s bits): the codec, ``docs/methods.md``.
-    Asserted: ``tss``'s DSSIM at most ``ratio`` times ``sas``'s (measured 0.66x and 0.92x), from at most 0.7x its
-    samples."""
+    Lossy at crf 23 the claim holds in no model cell (``benchmarks/bench_tss_matched.py``, 1 s: at ``budget_px = 2``
+    the duck 0.00267 against 0.00222, TextureTransformTest 0.00205 against 0.00161, at 2.3x and 1.8x ``sas``'s bits;
+    below, the duck and the engine come within 0.00006 and 0.00002 at 3.1x and 2.8x): the codec costs ``tss``'s atlas
+    about twice the DSSIM it costs ``sas``'s (``docs/methods.md``, tss, "The paper's claim at matched samples").
+    2CylinderEngine needs more: at ``budget_px = 2`` its lossless DSSIM is 0.00142 against 0.00088 (the silhouettes:
+    edge DSSIM 0.00167 against 0.00013); with ``budget_px = 3``, up to 16 samples per covered pixel
+    (``budget_max_spp``) and the flip's triangles at level 16 it is 0.00077 (42.82 dB) from 166.5k samples against
+    0.00088 (42.37 dB) from 144.4k, 1.15x (the paper's table 4: 0.48-1.61x).  Asserted: ``tss``'s DSSIM at most
+    ``ratio`` times ``sas``'s (measured 0.66x, 0.92x and 0.88x), from at most ``samples`` times its samples."""
     from splitrender.sim.runner import RunConfig
 
-    path = MODELS[model]
+    path = ENGINE if model == "2CylinderEngine" else MODELS[model]
     if not os.path.exists(path):
         pytest.skip(f"{path} absent (Debian's assimp-testmodels)")
 
-    def still(method: str, params: dict) -> tuple[float, float]:
+    def still(method: str, p: dict) -> tuple[float, float]:
         res = shared_run(RunConfig(method=method, scene=path, trace="static", network="ideal", duration_s=0.3, width=320,
-                                   height=180, client_fps=30, flip_every=0, seed=0, method_params={**params, "lossless": True}))
+                                   height=180, client_fps=30, flip_every=0, seed=0, method_params={**p, "lossless": True}))
         shown = [f for f in res.frames if f["update_frame_id"] >= 0]
         return float(np.mean([f["model_dssim"] for f in shown])), float(np.mean([u["srv_samples"] for u in res.updates]))
 
     sas, n_sas = still("sas", {})
-    tss, n = still("tss", {"budget_px": 2.0, "sliver_px": 1.0, "flip_level": 8})
-    assert tss <= ratio * sas and n <= 0.7 * n_sas, (tss, n, sas, n_sas)
+    tss, n = still("tss", params)
+    assert tss <= ratio * sas and n <= samples * n_sas, (tss, n, sas, n_sas)
 
 
 def test_classify_lifts_the_triangles_given_a_least_level() -> None:

@@ -86,7 +86,11 @@ class TssConfig(MethodConfig):
     rate rises from ``samples_per_px`` up to ``budget_max_spp`` while the frame's samples stay within ``budget_px``
     per display pixel (``budget_px * width * height``): a model that covers a fifth of the view gets about five times
     the rate of a view it fills.  The rate is found by bisection on the plan's sample count and rounded down to steps
-    of 2^(1/8), so a still view keeps its levels; the load-time split is made for ``budget_max_spp``.
+    of 2^(1/8), so a still view keeps its levels; the load-time split is made for ``budget_max_spp`` (up to 16, ``sas``'s
+    own density cap on textured patches; a higher cap splits the meshes finer: issue 50 part 1 measured
+    ``budget_px = 3`` with ``budget_max_spp = 16`` and ``flip_level = 16``, ``benchmarks/bench_tss_matched.py``: lossless
+    it leads ``sas`` in DSSIM on assimp's three models, still, from 0.63-1.15x its samples, at 2.6-3.1x its bits lossy,
+    where it does not lead).
 
     ``flip_level`` (0: off, the paper's sampling): a triangle whose corners' normals face the eye on one side and away
     on the other (``n . v`` changes sign across it, at the predicted pose) is L-packed at this level or its own,
@@ -174,8 +178,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.single_px: must be 1, 2 or 4, got {self.single_px}")
         if not 0.0 <= self.budget_px <= 64:
             raise ConfigError(f"TssConfig.budget_px: must be in [0, 64] samples per display pixel, got {self.budget_px}")
-        if not 0.05 <= self.budget_max_spp <= 8:
-            raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 8], got {self.budget_max_spp}")
+        if not 0.05 <= self.budget_max_spp <= 16:
+            raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 16], got {self.budget_max_spp}")
         if not 0 <= self.flip_level <= 64:
             raise ConfigError(f"TssConfig.flip_level: must be in [0, 64] (0: off), got {self.flip_level}")
         if not 0 <= self.pvs_ring <= 8:
