@@ -81,6 +81,10 @@ QS = {"variant": "quadstream"}
 EXACT_QUADS = {"lossless": True, "delta_sim": 0.0, "coarse_passes": 0, "relaxed_coarse_passes": 0, "delta_flatten": 0.0,
                "relax": 1.0}
 """QUASAR with none of its simplifications: a quad per pixel keeping its depth offsets, a lossless atlas."""
+TSS_MATCHED = {"budget_px": 3.0, "budget_max_spp": 16.0, "chroma": "444", "sliver_px": 1.0, "flip_level": 16,
+               "hysteresis": 0.75, "pvs_ring": 1}
+"""tss at a sample budget comparable to sas's (``benchmarks/bench_tss_matched.py``'s ``MATCHED``: 0.63-1.15x sas's
+samples on the three assimp models), as the paper's table 4 compares them."""
 RUNS: dict[str, dict[str, Any]] = {
     "probes": {"method": "probes", "gi": True},
     "probes 30Hz": {"method": "probes", "gi": True, "params": {"gi_hz": 30.0}},
@@ -124,6 +128,8 @@ RUNS: dict[str, dict[str, Any]] = {
                                               "network": "cloud"},
     "MW120 cloud 1:1": {"method": "warp", "params": {**MW120, "resolution_scale": 1.0}, "network": "cloud"},
     "sas lossless": {"method": "sas", "params": {"lossless": True}},
+    "tss matched": {"method": "tss", "params": TSS_MATCHED},
+    "tss matched lossless": {"method": "tss", "params": {**TSS_MATCHED, "lossless": True}},
     "atw cloud turn": {"method": "atw", "network": "cloud", "trace": "turn"},
     "video cloud turn": {"method": "video", "network": "cloud", "trace": "turn"},
 }
@@ -362,7 +368,17 @@ CLAIMS: tuple[Claim, ...] = (
           "DSSIM minus SAS's)", _num(_TSS_DSSIM, " DSSIM over its six configs", "+.4f"),
           "1920x1080, Robot Lab and Viking Village, PVS configs p1-p3, 24 Mpix atlas", "model DSSIM",
           ((1, "tss ideal"), (-1, "sas ideal")), expect="below", paper_range=_TSS_DSSIM,
-          evidence=lambda: tss_viewcell_evidence()),
+          evidence=lambda: tss_viewcell_evidence(),
+          diagnostics=("tss matched", "tss matched lossless", "sas lossless"),
+          cause="at its defaults tss shades one sample per covered pixel, a small fraction of sas's samples and "
+          "below the paper's range (claim T-T4-2), so the measure compares unequal budgets. The diagnostic columns "
+          "give tss a budget comparable to sas's (a moving budget of three samples per display pixel, with its "
+          "slivers, flips and ring): lossless, against sas lossless, it is below sas's DSSIM on every still model "
+          "and on the duck's and TextureTransformTest's orbits, the paper's claim, but not on the engine's orbit; "
+          "lossy at the same crf the codec adds more error to tss's atlas of small triangles than to sas's blocks, "
+          "so it comes level with sas on the still duck and engine at best, at several times sas's bits. The "
+          "default scene, whose textures tss's triangle lattice samples worse than sas's blocks, trails in every "
+          "column"),
     Claim("T-T4-2", _T, "table 4, section 5.3", "\"SAS generates significantly more shading samples\" than TSS "
           "(TSS's samples over SAS's)", f"{_TSS_SAMPLES[0]:.2f}-{_TSS_SAMPLES[1]:.2f}x over its six configs "
           "(the table has TSS above SAS in three)", "1920x1080, Robot Lab and Viking Village, PVS configs p1-p3",
