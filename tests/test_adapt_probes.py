@@ -204,12 +204,14 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
     """``default`` (GI), the walk, 160x90 (what is sent does not depend on the display's size: at 320x180 the same
     rates and ages, model PSNR 19.95 and 19.72 dB, in twice the time), 20 ms each way over a capacity of 5 Mbit/s falling to 0.4 at 1.5 s (6 s).
     ``off`` sends every probe update at full precision with its 30 fps metadata and a lossless I-frame of the whole
-    probe canvas every 30 probe updates: measured 2,906 kbit/s over 2.5-6 s, p95 update age 4,127 ms there.  ``full``
+    probe canvas every 30 probe updates: measured 2,900 kbit/s over 2.5-6 s (2,906 before each picture's slots were
+    rewritten apart), p95 update age 4,127 ms there.  ``full``
     learns its own point's rate (0.67 s) and, its queue growing past what any point would carry, moves to the
-    coarsest: 985 kbit/s, p95 age 3,293 ms (before probes' own frame_div prior and the estimator's drained over-use
-    rule: point 8, then the coarsest at 3.8 s, 957 kbit/s).  Both stay far over the link: each loss on it brings a
+    coarsest: 733 kbit/s, p95 age 3,067 ms (985 and 3,293 before its precision drops stopped rewriting the unchanged
+    moments; before probes' own frame_div prior and the estimator's drained over-use rule: point 8, then the
+    coarsest at 3.8 s, 957 kbit/s).  Both stay far over the link: each loss on it brings a
     keyframe request, and the I-frame on an empty canvas makes the next updates refill every changed probe.  Model
-    PSNR over the run: ``off`` 20.16 dB, ``full`` 19.98 (19.94 before; both lag by seconds)."""
+    PSNR over the run: ``off`` 20.16 dB, ``full`` 20.06 (19.98 and 19.94 before; both lag by seconds)."""
     res = _step_runs(tmp_path)
 
     def sent_kbps(r, a: float, b: float) -> float:  # type: ignore[no-untyped-def]
@@ -225,4 +227,50 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
     p95 = {a: float(np.percentile(ages(r, 2.5, 6.0), 95)) for a, r in res.items()}
     assert p95["off"] > 3500 and p95["full"] < 0.9 * p95["off"], p95
     q = {a: r.summary["mean_model_psnr_db"] for a, r in res.items()}
-    assert abs(q["off"] - 20.16) < 0.4 and abs(q["full"] - 19.98) < 0.4, q
+    assert abs(q["off"] - 20.16) < 0.4 and abs(q["full"] - 20.06) < 0.4, q
+
+
+def _vis_bytes_around_a_precision_drop(renderer, module=None):  # type: ignore[no-untyped-def]
+    """One probes session on ``default`` (320x180, 30 fps, the walk), ``vis_bits`` 10 -> 2 before frame 10 as the point
+    controller sets it: the bytes of the visibility picture at each GI update (frames 0, 3, ... 15), and the half."""
+    from splitrender.codecs.video import VideoEncoder
+    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.pipeline.producers import ProducerPool
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.trace import get_trace
+
+    scene = get_scene("default")
+    spec = get_method("probes")
+    cfg = make_config(spec.config, {})
+    pool = ProducerPool(scene, 30, renderer)
+    half = spec.server_class(cfg, INTR, scene, 30, pool.producer(spec, cfg))
+    enc = {s.name: VideoEncoder(s.codec, s.width, s.height) for s in half.streams() if getattr(s, "kind", "") == "video"}
+    trace = get_trace("walk", scene=scene)
+    vis: dict[int, int] = {}
+    for frame in range(18):
+        if frame == 10:
+            half.set_knobs({"vis_bits": 2})
+        t = frame / 30
+        pose = trace.pose_at(t)
+        ctx = ServerContext(frame_id=frame, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
+                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
+                            expected_latency_s=0.0, shared=pool.prepare("probes", frame, t))
+        upd = half.produce(ctx)
+        for name, plane in upd.planes.items():
+            n = len(enc[name].encode(plane, force_idr=upd.force_idr).data)
+            if name == "vis" and frame % 3 == 0:
+                vis[frame] = n
+    return vis, half
+
+
+def test_a_coarser_visibility_precision_rewrites_only_the_moments_that_changed_at_it(renderer) -> None:  # type: ignore[no-untyped-def]
+    """The first GI update after ``vis_bits`` 10 -> 2 sent every selected probe's moments again at 2 bits, as each
+    relit probe went for its irradiance: a lossless picture whose every slot changed, 157 kB against 4 kB on the step
+    trace (160x90; the controller's first step down added bits at the moment the link was full).  Now a slot is
+    rewritten only where its own part changed at the precision it goes at.  Measured here: the visibility picture at
+    frame 12 (the first update at 2 bits) 37,713 bytes (47 probes' moments differ at 2 bits), with the code before
+    128,229; the I-frame at frame 0 243,927, the update before the drop 4,323.  On the step trace (20/2/20 Mbit/s,
+    160x90) ``full`` went 28.06 -> 28.83 dB against ``off``'s 30.61 (unchanged, bit for bit)."""
+    vis, half = _vis_bytes_around_a_precision_drop(renderer)
+    assert vis[12] < 0.2 * vis[0], vis                      # measured 0.155 of the I-frame; the code before 0.526
+    assert {2, 10} <= set(np.unique(half.sent_vbits[half.sent]).tolist())   # moments that did not change keep 10 bits
