@@ -281,8 +281,8 @@ CLAIMS: tuple[Claim, ...] = (
           paper_range=_t4("QUASAR", "MW (60°)", "cloud"),
           diagnostics=("quasar cloud, reference every frame", "quasar cloud, exact quads",
                        "quasar cloud, exact quads every frame"),
-          cause="the still cells are ties at the server's own pose, where both redraw the server's frame and only "
-          "the colour coding differs (the exact quads, with a lossless atlas, match the truth there). Under "
+          cause="the still cells are ties at the server's own pose, where both redraw the server's frame; on the three "
+          "models only the colour coding differs there (the exact quads, with a lossless atlas, match the truth). Under "
           "motion QUASAR leads except on 2CylinderEngine, whose thin parts put nearly every model pixel beside an "
           "edge. There each of QUASAR's savings costs a little on the model's interior, and its extra layers gain "
           "only along the silhouettes, a small share of the model. The diagnostic columns take the savings away "
