@@ -107,41 +107,14 @@ def measure(model: str, params: dict[str, Any], thr: int, duration: float) -> di
     frames: list[dict[str, Any]] = []
     orig_produce = TssServer.produce
     def gather_eye(self: Any, ctx: Any, eye: tuple[float, float, float], ids: np.ndarray, plan: Any, base: np.ndarray,
-                   persp: np.ndarray, models: np.ndarray, px: np.ndarray) -> int:
-        """:meth:`TssServer._gather` with ``u_eye`` at ``eye`` (a copy of its body's GL calls)."""
-        from splitrender.render.gl import grow_vertex_buffer, runs, set_reference_view, set_uniform
-
-        gl = self._gl
-        self._fbo.use()
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
-        self._counter.clear()
-        data = self._vertices(ids, plan, base, persp, px).tobytes()
-        self._vbo, self._vao = grow_vertex_buffer(gl, self._prog, self._vbo, self._vao, len(data), "3f 3f 2f 4f 4f 4f 4f",
-                                                  ("in_position", "in_normal", "in_uv", "in_tangent", "in_info", "in_o0", "in_o1"))
-        self._vbo.write(data)
-        prog = self._prog
-        ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
-        prog["u_eye"].value = eye
-        prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
-        set_reference_view(prog, self.intrinsics, ctx.target_pose)
-        set_uniform(prog, "u_os_centred", int(self.config.os_grid == "centred"))
-        set_uniform(prog, "u_single_px", plan.single_px)
-        self._tex.bind_to_image(0, read=False, write=True)
-        self._counter.bind_to_storage_buffer(1)
-        o = self.tris.obj[ids]
-        gl.enable_direct(tss_server.RASTERIZER_DISCARD)
+                   persp: np.ndarray, models: np.ndarray, px: np.ndarray) -> None:
+        """:meth:`TssServer._gather` with ``u_eye`` at ``eye``, on a cleared atlas (every texel no triangle writes
+        black, as in an I-frame)."""
+        keep, self.keep_unwritten = self.keep_unwritten, False
         try:
-            for s, e in runs(o):
-                og = self._sg.objects[int(o[s])]
-                mm = models[int(o[s])]
-                prog["u_model"].write(np.asarray(mm, "f4").T.tobytes())
-                prog["u_normal_matrix"].write(np.asarray(np.linalg.inv(mm[:3, :3]).T, "f4").T.tobytes())
-                ctx.renderer.bind_material(prog, og)
-                self._vao.render(mode=gl.PATCHES, first=3 * s, vertices=3 * (e - s))
+            self._gather(ctx, ids, plan, base, persp, models, px, eye=eye)
         finally:
-            gl.disable_direct(tss_server.RASTERIZER_DISCARD)
-        gl.memory_barrier()
-        return 0
+            self.keep_unwritten = keep
 
     def produce(self: Any, ctx: Any) -> Any:
         import dataclasses

@@ -631,10 +631,11 @@ class TssServer(ServerHalf):
         return np.where(ok, np.maximum(0.0, np.log2(np.maximum(rho, 1e-12))), 0.0)
 
     def _gather(self, ctx: ServerContext, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray,
-                models: np.ndarray, px: np.ndarray) -> int:
+                models: np.ndarray, px: np.ndarray, eye: tuple[float, float, float] | None = None) -> int:
         """Shade every live triangle's samples into the atlas; returns the samples the GPU shaded.  With
         ``keep_unwritten`` (P-frames) the texels no live triangle writes keep the previous frame's colours: no client
-        reads them, and a P-frame then spends no bits on the cells that triangles left."""
+        reads them, and a P-frame then spends no bits on the cells that triangles left.  ``eye``: where the shading's
+        view-dependent terms look from (None: the target pose; ``benchmarks/bench_tss_churn.py`` separates the two)."""
         gl = self._gl
         self._fbo.use()
         if not self.keep_unwritten:
@@ -648,7 +649,7 @@ class TssServer(ServerHalf):
         self._vbo.write(data)
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
-        prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
+        prog["u_eye"].value = eye if eye is not None else tuple(float(x) for x in ctx.target_pose.position)
         prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # per-sample texture gradients
         set_uniform(prog, "u_os_centred", int(self.config.os_grid == "centred"))
