@@ -42,6 +42,8 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a checkout
+from splitrender.experiments.studies.claims import TSS_MATCHED  # noqa: E402  (the ledger's diagnostic, one source)
 RESULTS = Path(__file__).parent / "results" / "bench_tss_matched.json"
 SCENES = {"duck": "/usr/share/assimp/models/Collada/duck.dae",
           "TextureTransformTest": "/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf",
@@ -56,8 +58,9 @@ HALF = {"budget_px": 2.0, "chroma": "444", "sliver_px": 1.0, "flip_level": 8, "h
 ``RINGS``)."""
 EQUAL = {**HALF, "budget_px": 4.5}
 """:data:`HALF` at 4.5 samples per display pixel (``sas`` shades 2.5-4.5 texels per display pixel here)."""
-MATCHED = {**HALF, "budget_px": 3.0, "budget_max_spp": 16.0, "flip_level": 16}
-""":data:`HALF` at 3 samples per display pixel, up to 16 per covered pixel (``sas``'s own cap on textured patches), the
+MATCHED = TSS_MATCHED
+assert MATCHED == {**HALF, "budget_px": 3.0, "budget_max_spp": 16.0, "flip_level": 16}
+""":data:`HALF` at 3 samples per display pixel (the claims ledger's ``tss matched``), up to 16 per covered pixel (``sas``'s own cap on textured patches), the
 flip's triangles at level 16: 0.66-1.15x ``sas``'s samples on the four scenes."""
 CONFIGS = {"tss old": OLD_DEFAULTS, "tss half": HALF, "tss equal": EQUAL, "tss matched": MATCHED, "tss now": {}}
 
@@ -147,7 +150,6 @@ def main() -> None:
     ap.add_argument("--no-lossless", action="store_true")
     ap.add_argument("--size", default="320x180", help="display WxH (320x180: the claims ledger's)")
     a = ap.parse_args()
-    sys.path.insert(0, str(ROOT))
     t0 = time.perf_counter()
     rows = measure(a.scenes.split(","), a.cameras.split(","), a.configs.split(","),
                    [float(c) for c in a.crf.split(",") if c], not a.no_lossless,
