@@ -8,6 +8,8 @@ rate adaptation alone cannot save recovers over a step trace.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -257,12 +259,18 @@ def test_the_knobs_settings_out_of_range_are_refused_by_name() -> None:
                                   ("probes", {"probe_div": 0}, "probe_div"), ("probes", {"probe_div": 31}, "probe_div"),
                                   ("probes", {"probe_bits": 3}, "probe_bits"), ("probes", {"vis_bits": 11}, "vis_bits"),
                                   ("sas", {"reset_period": 0}, "reset_period"), ("tss", {"pvs_ring": 9}, "pvs_ring"),
-                                  ("tss", {"pvs_ring": -1}, "pvs_ring")):
+                                  ("tss", {"pvs_ring": -1}, "pvs_ring"),
+                                  ("tss", {"budget_max_spp": 16.5}, "budget_max_spp")):
         with pytest.raises(ConfigError, match=field):
             make_config(get_method(method).config, params)
     for kw in ({"stretch": 0.5}, {"up_margin": 0.0}, {"up_hold_s": -1.0}, {"mtp_budget_ms": 0.0}, {"settle_frames": 0}):
         with pytest.raises(ConfigError, match=f"AdaptConfig.{next(iter(kw))}"):
             AdaptConfig(**kw)
+    from splitrender.pipeline.gcc import GccConfig
+
+    for kw in ({"stale_overuse_ms": -1.0}, {"drained_ms": math.nan}, {"stale_window_ms": math.inf}):
+        with pytest.raises(ConfigError, match=f"GccConfig.{next(iter(kw))}"):
+            GccConfig(**kw)
 
 
 def test_a_warp_view_with_a_depth_step_out_of_range_is_refused_by_name() -> None:

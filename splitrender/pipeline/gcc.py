@@ -109,6 +109,9 @@ class GccConfig:
             raise ConfigError(f"GccConfig.beta: must be in (0, 1), got {self.beta}")
         if self.window < 2:
             raise ConfigError(f"GccConfig.window: must be >= 2, got {self.window}")
+        for name in ("stale_overuse_ms", "drained_ms", "stale_window_ms"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ConfigError(f"GccConfig.{name}: must be a finite number of ms >= 0, got {getattr(self, name)}")
 
 
 class ReceiverEstimate:
