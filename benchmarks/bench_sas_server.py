@@ -11,17 +11,30 @@ selection, allocation, shading, atlas read-back) at 320x180:
   default, ``fill_atlas``) and at the ideal levels (``fill_atlas = false``: fewer texels);
 - the shading stage with triangles grown only across their edges inside the block
   (the default) against triangles grown across every edge, the same
-  frames (the texels drawn outside the blocks were most of the stage's time).
+  frames (the texels drawn outside the blocks were most of the stage's time);
+- ``before_after`` (issue 49): server over ground truth (each fastest of its frames, the
+  ground truth rendered beside each server frame) of the tree before a change and this
+  one, alternately, each cell in its own process (``--before-tree DIR``, a copy of the
+  package before: ``git archive REV splitrender | tar -x -C DIR``; without it, this tree
+  with ``shade_changed_only`` off stands in), on the default scene (no GI) and the duck
+  (``duck.dae``, skipped when absent), still (``static``) at 320x180 and 640x360 and
+  moving (``walk``; the duck ``orbit``) at 320x180; each cell's atlases are hashed frame by frame, and
+  ``identical`` says whether the two trees' atlases are the same bytes (then so is
+  every decoded frame and its quality).
 
 Writes ``benchmarks/results/bench_sas_server.json``.  Run:
-``python benchmarks/bench_sas_server.py [--frames N]``.
+``python benchmarks/bench_sas_server.py [--frames N] [--before-tree DIR] [--rounds R]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -38,9 +51,14 @@ OUT = Path(__file__).parent / "results" / "bench_sas_server.json"
 SMALL = "/usr/share/assimp/models/PLY/Wuson.ply"
 LARGE = "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
 INTR = CameraIntrinsics(320, 180)
+DUCK = "/usr/share/assimp/models/Collada/duck.dae"
 SCENE = "default+nogi"
 """The default scene without its GI: the issue's target compares the server with a forward render of the same
 shading, and GI's probe lookup per texel or pixel would weigh on both (``bench_gi`` measures GI)."""
+CELLS = [("default", SCENE, "static", 320, 180), ("default", SCENE, "static", 640, 360),
+         ("default", SCENE, "walk", 320, 180), ("duck", DUCK, "static", 320, 180), ("duck", DUCK, "static", 640, 360),
+         ("duck", DUCK, "orbit", 320, 180)]
+"""``before_after``'s cells: (label, scene, trace, width, height)."""
 
 
 def turned_around(pose: Pose) -> Pose:
@@ -81,10 +99,84 @@ def time_server(scene_name: str, frames: int, away: bool, r: Renderer, **cfg: ob
             "drawn_id_triangles": float(srv._ids.drawn_triangles if srv._ids is not None else 0)}
 
 
+def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dict[str, object]) -> dict[str, object]:
+    """Server and ground-truth times of ``frames`` server frames on ``trace`` (after two warm-up frames), the
+    stage times and a digest of every atlas (warm-up frames included)."""
+    intr = CameraIntrinsics(w, h)
+    r = Renderer()
+    scene = get_scene(scene_name)
+    tr = get_trace(trace, scene=scene, aspect=w / h)   # placed around a model
+    srv = SasServer(SasConfig(**cfg), intr, scene, 30)  # type: ignore[arg-type]
+    ms, gt, stats = [], [], []
+    dig = hashlib.sha256()
+    for f in range(frames + 2):
+        t = 0.5 + f / 30
+        pose = tr.pose_at(t)
+        ctx = ServerContext(f, t, scene, r, intr, pose, t, pose, t, tr.pose_at, 0.0)
+        t1 = time.perf_counter()
+        u = srv.produce(ctx)
+        t2 = time.perf_counter()
+        r.render(scene, t + 0.5 / 30, pose, intr, ("color",))
+        t3 = time.perf_counter()
+        dig.update(np.ascontiguousarray(u.planes["atlas"]).tobytes())
+        if f >= 2:
+            ms.append((t2 - t1) * 1e3)
+            gt.append((t3 - t2) * 1e3)
+            stats.append(srv.stats())
+    out: dict[str, object] = {"server_ms": float(np.min(ms)), "ground_truth_ms": float(np.min(gt)),
+                              "server_over_ground_truth": float(np.min(ms) / np.min(gt)), "digest": dig.hexdigest(),
+                              "samples": float(np.median([s["samples"] for s in stats]))}
+    for k in ("pvs_ms", "alloc_ms", "shade_ms", "meta_ms", "shaded_patches", "pvs_patches"):
+        if k in stats[0]:
+            out[k] = float(np.median([s[k] for s in stats]))
+    return out
+
+
+def before_after(frames: int, rounds: int, before_tree: str | None) -> dict[str, object]:
+    """``before_after`` (module docstring): each cell alternately in the tree before and this one."""
+    here = str(Path(__file__).resolve().parents[1])
+    sides = {"before": (before_tree or here, {} if before_tree else {"shade_changed_only": False}), "after": (here, {})}
+    out: dict[str, object] = {"before": before_tree or "this tree, shade_changed_only off"}
+    for label, scene, trace, w, h in CELLS:
+        if scene == DUCK and not os.path.exists(DUCK):
+            continue
+        runs: dict[str, list[dict[str, object]]] = {"before": [], "after": []}
+        for _ in range(rounds):
+            for side, (tree, cfg) in sides.items():
+                arg = json.dumps({"scene": scene, "trace": trace, "w": w, "h": h, "frames": frames, "cfg": cfg})
+                env = dict(os.environ, PYTHONPATH=tree)
+                p = subprocess.run([sys.executable, __file__, "--cell", arg], env=env, cwd=tree, capture_output=True,
+                                   text=True, check=True)
+                runs[side].append(json.loads(p.stdout.strip().splitlines()[-1]))
+        cell: dict[str, object] = {}
+        for side, rs in runs.items():
+            best = min(rs, key=lambda x: float(x["server_over_ground_truth"]))  # type: ignore[arg-type]
+            cell[side] = {**best, "server_over_ground_truth_runs": [x["server_over_ground_truth"] for x in rs]}
+        cell["identical"] = len({x["digest"] for rs in runs.values() for x in rs}) == 1
+        out[f"{label}_{trace}_{w}x{h}"] = cell
+        b, a = cell["before"], cell["after"]
+        print(f"{label} {trace} {w}x{h}: server/GT {b['server_over_ground_truth']:.2f} -> {a['server_over_ground_truth']:.2f}"  # type: ignore[index]
+              f" identical {cell['identical']}", flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--rounds", type=int, default=2, help="before/after alternations per before_after cell")
+    ap.add_argument("--before-tree", default=None)
+    ap.add_argument("--cell", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--only-before-after", action="store_true")
     args = ap.parse_args()
+    if args.cell:
+        c = json.loads(args.cell)
+        print(json.dumps(time_cell(c["scene"], c["trace"], c["w"], c["h"], c["frames"], c["cfg"])))
+        return
+    if args.only_before_after:
+        prev = json.loads(OUT.read_text()) if OUT.exists() else {}
+        prev["before_after"] = before_after(args.frames, args.rounds, args.before_tree)
+        OUT.write_text(json.dumps(prev, indent=2) + "\n")
+        return
     r = Renderer()
     res = {"small_away": time_server(SMALL, args.frames, True, r), "large_away": time_server(LARGE, args.frames, True, r),
            "default_static": time_server(SCENE, args.frames, False, r),
@@ -96,8 +188,9 @@ def main() -> None:
               "filled_over_ideal_levels": res["default_static"]["server_ms"] / res["default_static_ideal_levels"]["server_ms"],
               "filled_over_ideal_samples": res["default_static"]["samples"] / res["default_static_ideal_levels"]["samples"]}
     out = {"machine": platform.platform(), "resolution": [INTR.width, INTR.height], "frames": args.frames,
-           "targets": {"large_over_small_nothing_visible": 2.0, "default_server_over_ground_truth": 1.5},
-           "ratios": ratios, "runs": res}
+           "targets": {"large_over_small_nothing_visible": 2.0, "default_server_over_ground_truth": 1.5,
+                       "before_after_server_over_ground_truth": 3.0},
+           "ratios": ratios, "runs": res, "before_after": before_after(args.frames, args.rounds, args.before_tree)}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2) + "\n")
     print(json.dumps({"ratios": ratios, **{k: {kk: round(vv, 2) for kk, vv in v.items()} for k, v in res.items()}}, indent=1))

@@ -67,7 +67,11 @@ class SasConfig(MethodConfig):
     are discarded, and the shared ones, whose texels the neighbour draws again (the same
     blocks, drawn at several times the cost; on only to measure that).  ``inset_min_texels``: along block sides of at least this many texels the patch is inset by
     half a texel (the paper's figure 6), so lookups inside it only interpolate; shorter sides span the block (more
-    samples per side); 0 spans every side (wire version 3's layout).
+    samples per side); 0 spans every side (wire version 3's layout).  ``shade_changed_only``: a P-frame shades
+    only the blocks whose texels would change: a block keeps last frame's texels while its patch, block, footprint,
+    object transform, the frame's lighting and view uniforms, the GI probes' state and the moving shadow casters
+    over it are all as they were (the atlas is bit for bit the one shading every block gives); off shades every
+    block every frame.
     """
 
     gop: int = 30
@@ -94,6 +98,7 @@ class SasConfig(MethodConfig):
     split_max_triangles: int = 200_000
     grow_block_sides: bool = False
     inset_min_texels: int = 8
+    shade_changed_only: bool = True
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: the fraction of the atlas eq. 3 fills (``bias_fill``; with ``fill_atlas`` off, the

@@ -44,6 +44,7 @@ import numpy as np
 
 from ...codecs.video import VideoCodecConfig
 from ...render.gl import grow_vertex_buffer, load_program, runs, set_reference_view
+from ...render.renderer import MAP_UNITS, light_view_projection
 from ...scene.pose import CameraIntrinsics
 from ..base import AnyStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from .config import SasConfig
@@ -86,6 +87,47 @@ def shared_edges(tris: np.ndarray) -> np.ndarray:
 
 TRI_SHARED: dict[int, np.ndarray] = {k: shared_edges(v) for k, v in TRI_SLOTS.items()}
 """Per patch size, which triangle edges are shared inside the patch (:func:`shared_edges`)."""
+PER_OBJECT_UNIFORMS = frozenset({"u_model", "u_normal_matrix", "u_base_color", "u_specular", "u_shininess",
+                                 "u_metallic", "u_roughness", "u_normal_scale", "u_occlusion_strength", "u_emissive",
+                                 "u_uv_transform", "u_albedo", "u_has_texture", "u_footprint"}
+                                | set(MAP_UNITS) | {"u_has_" + k[2:] for k in MAP_UNITS})
+"""The shading program's uniforms set per object draw (its matrices, ``Renderer.bind_material``'s material); every
+other uniform is the frame's (lighting, view, atlas size) and goes into :func:`frame_uniform_key`."""
+SHADOW_NORMAL_OFFSET_M = 0.03
+"""``shadow_factor`` looks the shadow up this far along the (view-flipped) normal (``shading.glsl``)."""
+SHADOW_REACH_TEXELS = 3.0
+"""How many shadow-map texels around its lookup a texel's shadow reads or a caster's box may touch: the 3 x 3
+PCF taps (one texel), the comparison sampler's bilinear footprint (one more) and rasterisation past the box's
+projection (one more)."""
+
+
+def frame_uniform_key(prog: Any) -> bytes:
+    """The bytes of every uniform of ``prog`` that is not set per object (:data:`PER_OBJECT_UNIFORMS`): what a
+    texel's shading reads besides its vertex attributes, its object's matrices and material, and the textures."""
+    parts = []
+    for name in sorted(prog):
+        if name in PER_OBJECT_UNIFORMS:
+            continue
+        m = prog[name]
+        if hasattr(m, "array_length") and hasattr(m, "read") and not hasattr(m, "binding"):
+            parts += [name.encode(), m.read()]
+    return b"".join(parts)
+
+
+def light_rects(light_vp: np.ndarray, pts: np.ndarray, grow: np.ndarray | float = 0.0) -> np.ndarray:
+    """(N, 4) light-clip rectangles (x0, y0, x1, y1) of point sets ``pts`` (N, K, 3) world metres under the sun's
+    orthographic ``light_vp``, each grown by ``grow`` clip units."""
+    xy = pts @ light_vp[:2, :3].T + light_vp[:2, 3]
+    g = np.asarray(grow, np.float64).reshape(-1, 1)
+    return np.concatenate([xy.min(axis=1) - g, xy.max(axis=1) + g], axis=1)
+
+
+def rects_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a),) whether each rectangle of ``a`` (N, 4) overlaps any of ``b`` (M, 4)."""
+    if a.shape[0] == 0 or b.shape[0] == 0:
+        return np.zeros(a.shape[0], bool)
+    return ((a[:, None, 0] <= b[None, :, 2]) & (b[None, :, 0] <= a[:, None, 2])
+            & (a[:, None, 1] <= b[None, :, 3]) & (b[None, :, 1] <= a[:, None, 3])).any(axis=1)
 
 
 def has_texture_detail(material: Any) -> bool:
@@ -377,6 +419,12 @@ class SasServer(ServerHalf):
         self.client_has = np.zeros(self.patches.count, bool)    # geometry the client holds (no loss assumed)
         self._vcache = np.zeros((self.patches.count, 3, 3, VERTEX_FLOATS), np.float32)   # atlas-shading vertices per patch
         self._vcache_ok = np.zeros(self.patches.count, bool)
+        # what the atlas's texels were shaded with (shade_changed_only): per patch whether its block holds last
+        # frame's shading and the footprint it took; the frame's uniforms, the probes' state and the object matrices
+        self._texels_ok = np.zeros(self.patches.count, bool)
+        self._shaded_foot = np.zeros((self.patches.count, 2), np.float32)
+        self._shaded_key: tuple[Any, ...] | None = None
+        self._shaded_models: np.ndarray | None = None
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
@@ -386,6 +434,7 @@ class SasServer(ServerHalf):
         self._since_check = 0
         self._lost_seen = 0
         self._stats: dict[str, float] = {}
+        self._shaded_count = 0
         self.dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
         self.sent_static = np.zeros(self.n_obj, bool)
         self.obj_box = self.patch_set.obj_box                          # (n_obj, 2, 3) metres, object space
@@ -489,6 +538,7 @@ class SasServer(ServerHalf):
         # a block's layout orientation only changes when the patch is (re)placed
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
         self._vcache_ok[res.placed] = False
+        self._texels_ok[res.placed] = False
         t2, u2 = time.perf_counter(), time.process_time()
         live = pvs[al.level_w[pvs] >= 0]
         in_live = np.searchsorted(pvs, live)
@@ -514,44 +564,63 @@ class SasServer(ServerHalf):
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
             "samples": float(((1 << al.level_w[live].astype(np.int64)) * (1 << al.level_h[live].astype(np.int64))).sum()),
+            "shaded_patches": float(self._shaded_count),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
     def _shade(self, ctx: ServerContext, live: np.ndarray, frame: SasFrame, foot: np.ndarray, clear: bool) -> None:
-        """Shading stage: every live PVS patch into its block (one draw per object; the objects' matrices from the
-        shared ``frame``)."""
+        """Shading stage: the live PVS patches into their blocks (one draw per object; the objects' matrices from the
+        shared ``frame``); with :attr:`SasConfig.shade_changed_only` on a P-frame only those :meth:`_changed` says
+        would come out differently, the others keep last frame's texels."""
         gl = self._gl
         self._fbo.use()
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         if clear:
             self._fbo.clear(0.0, 0.0, 0.0, 1.0)
+        self._shaded_count = 0
         if live.size == 0:
+            self._texels_ok[:] = False
+            self._shaded_key = None
             return
-        gl.disable(gl.DEPTH_TEST)
-        gl.disable(gl.CULL_FACE)
         P = self.patches
         stale = live[~self._vcache_ok[live]]
         if stale.size:
             self._vcache[stale] = self._shade_vertices(stale)
             self._vcache_ok[stale] = True
-        li, ti = np.nonzero(np.arange(3)[None, :] < P.size[live][:, None])  # the used (patch, triangle) pairs
-        v = self._vcache.reshape(-1, 3, VERTEX_FLOATS)[live[li] * 3 + ti]  # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
-        v[..., VERTEX_FLOATS - 2:] = foot[li][:, None, :]
-        o = P.object_index[live[li]]
-        data = v.tobytes()
-        self._vbo, self._vao = grow_vertex_buffer(gl, self._prog, self._vbo, self._vao, len(data), "2f 3f 3f 2f 4f 4f 2f",
-                                                  ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint"))
-        self._vbo.write(data)
-        vao = self._vao
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
         if "u_eye" in prog:
             prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # textures filtered for its pixel footprint
+        foot32 = np.asarray(foot, np.float32)
+        key = self._frame_key(ctx, prog)
+        if clear or not self.config.shade_changed_only or key is None or key != self._shaded_key:
+            draw = live
+        else:
+            draw = live[self._changed(live, frame, foot32)]
+        self._texels_ok[:] = False
+        self._texels_ok[live] = True
+        self._shaded_foot[live] = foot32
+        self._shaded_key = key
+        self._shaded_models = frame.models.copy()
+        self._shaded_count = int(draw.size)
         self._fbo.use()   # bind_shading may have rendered the shadow map
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         gl.disable(gl.DEPTH_TEST)
+        gl.disable(gl.CULL_FACE)
+        if draw.size == 0:
+            return
+        di = np.searchsorted(live, draw)
+        li, ti = np.nonzero(np.arange(3)[None, :] < P.size[draw][:, None])  # the used (patch, triangle) pairs
+        v = self._vcache.reshape(-1, 3, VERTEX_FLOATS)[draw[li] * 3 + ti]  # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
+        v[..., VERTEX_FLOATS - 2:] = foot32[di[li]][:, None, :]
+        o = P.object_index[draw[li]]
+        data = v.tobytes()
+        self._vbo, self._vao = grow_vertex_buffer(gl, prog, self._vbo, self._vao, len(data), "2f 3f 3f 2f 4f 4f 2f",
+                                                  ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint"))
+        self._vbo.write(data)
+        vao = self._vao
         for s, e in runs(o):
             k = int(o[s])
             og = self._sg.objects[k]
@@ -559,6 +628,58 @@ class SasServer(ServerHalf):
             prog["u_normal_matrix"].write(frame.normal_uniform(k))
             ctx.renderer.bind_material(prog, og)
             vao.render(first=3 * s, vertices=3 * (e - s))
+
+    def _frame_key(self, ctx: ServerContext, prog: Any) -> tuple[Any, ...] | None:
+        """What every texel's shading reads this frame besides its patch, block, footprint, object and the shadow
+        maps: the frame's uniforms (:func:`frame_uniform_key`: lights, eye, reference view, atlas size) and the GI
+        probes' state; None when the probes' state cannot be told (a source outside this renderer's volume)."""
+        gi: Any = None
+        if "u_gi" in prog and prog["u_gi"].value:
+            r = ctx.renderer
+            if r.gi_sources.get(id(self.scene)) is not None:
+                return None
+            vol = r.gi_volume(self.scene)
+            gi = getattr(vol, "_key", None) if vol is not None else None
+            if gi is None:
+                return None
+            gi = (id(vol), gi)
+        return frame_uniform_key(prog), gi
+
+    def _changed(self, live: np.ndarray, frame: SasFrame, foot: np.ndarray) -> np.ndarray:
+        """(len(live),) bool: which live patches' texels differ from last frame's, the frame's uniforms and probes
+        being the same: those not shaded into their block last frame, with another footprint, of an object whose
+        matrix changed, or whose shadow lookups (texel positions moved along the normal, the PCF taps) reach the
+        light-space box of a shadow caster that moved (where it was or is)."""
+        P = self.patches
+        prev = self._shaded_models
+        assert prev is not None
+        moved = (frame.models != prev).any(axis=(1, 2)) if prev.shape == frame.models.shape \
+            else np.ones(self.n_obj, bool)
+        out = ~self._texels_ok[live] | moved[P.object_index[live]] | (foot != self._shaded_foot[live]).any(axis=1)
+        casters = np.flatnonzero(moved & self.dynamic)
+        sun = self.scene.sun
+        if casters.size == 0 or sun is None or out.all():
+            return out
+        vp = light_view_projection(self.scene)
+        scale = float(np.linalg.norm(vp[:2, :3], axis=1).max())        # clip units per metre (orthographic)
+        reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
+        lo, hi = self.obj_box[casters, 0], self.obj_box[casters, 1]
+        corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), hi, lo) for i in range(8)], axis=1)
+        boxes = []
+        for m in (prev, frame.models):
+            mk = m[casters]
+            boxes.append(light_rects(vp, np.einsum("nij,nkj->nki", mk[:, :3, :3], corners) + mk[:, None, :3, 3], reach))
+        cand = np.flatnonzero(~out)
+        ids = live[cand]
+        # every texel lies in its grown triangles (the shading vertices); unused triangles repeat the first vertex
+        pos = self._vcache[ids][..., 2:5].astype(np.float64)              # (n, 3 tris, 3 verts, 3)
+        unused = np.arange(3)[None, :] >= P.size[ids][:, None]
+        pos = np.where(unused[:, :, None, None], pos[:, :1, :1], pos).reshape(ids.size, 9, 3)
+        m = frame.models[P.object_index[ids]]
+        world = np.einsum("nij,nkj->nki", m[:, :3, :3], pos) + m[:, None, :3, 3]
+        rects = light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale)
+        out[cand] = rects_overlap(rects, np.concatenate(boxes))
+        return out
 
     def _shade_vertices(self, ids: np.ndarray) -> np.ndarray:
         """(N, 3, 3, VERTEX_FLOATS) float32 atlas-shading vertices of patches ``ids`` at their blocks (unused triangles zero).
