@@ -349,13 +349,14 @@ def test_envelope_round_trip() -> None:
 
 
 def test_live_client_rejects_a_bad_frame_meta_as_a_protocol_error() -> None:
-    """``LiveClient._on_control`` (run for every FrameMeta, through the client's
-    pipeline) raises a RemoteProtocolError for each reproducer that reaches the client:
-    bomb, amplification, bad envelope."""
+    """The live client's control path (its session core's ``receive_data``, which owns the control connection, run
+    for every FrameMeta's bytes, through the client's pipeline) raises a RemoteProtocolError for each reproducer
+    that reaches the client: bomb, amplification, bad envelope."""
     from splitrender.client.session import ClientConfig, LiveClient
     from splitrender.pipeline import ClientPipeline
 
     from splitrender.pipeline import ClientOptions, ClientSession
+    from splitrender.protocol.framing import encode_frame
 
     client = LiveClient(ClientConfig())
     client.rx = ClientPipeline((), [])
@@ -365,11 +366,13 @@ def test_live_client_rejects_a_bad_frame_meta_as_a_protocol_error() -> None:
                  pack_meta({"t_s": 0.0, "m": {}}), pack_meta({**GOOD_ENV, "timing_us": [1]})]
         for i, blob in enumerate(blobs):
             msg = FrameMeta(i, 0, {}, Pose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), blob, False)
-            err, peak, _ = _peak(lambda: client._on_control(msg))  # noqa: B023
+            err, peak, _ = _peak(lambda: client.core.receive_data(encode_frame(msg), 0.0))  # noqa: B023
             assert isinstance(err, RemoteProtocolError), (i, repr(err))
             assert str(err).startswith(f"FrameMeta {i}: metadata"), err
             assert peak < 2 * MB, (i, peak)  # measured at most 1.05 MB (the 1 MiB amplification blob)
-        client._on_control(FrameMeta(9, 0, {}, Pose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), pack_meta(GOOD_ENV), False))
+        good = FrameMeta(9, 0, {}, Pose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), pack_meta(GOOD_ENV), False)
+        client.core.receive_data(encode_frame(good), 0.0)
+        client._collect()
         assert client.counters["frames_complete"] == 1  # no streams: complete at once
     finally:
         for ex in (client.gl_executor, client.decode_executor, client.io_executor):

@@ -157,15 +157,17 @@ async def _our_setup_failures(server: LiveServer, monkeypatch: pytest.MonkeyPatc
 
 async def _streaming_failure(server: LiveServer, good: ServerSession, monkeypatch: pytest.MonkeyPatch) -> list[object]:
     """A session whose handling crashes after Welcome (every session's but ``good``)."""
-    on_pose = ServerSession._on_pose
+    from splitrender.pipeline import ServerSession as SessionCore
 
-    def crash(self: ServerSession, msg: Pose) -> None:
-        if self is not good:
+    on_pose = SessionCore.receive_pose_sample
+
+    def crash(self: SessionCore, msg: Pose) -> bool:
+        if self is not good.core:
             raise RuntimeError("pose handler crashed")
-        on_pose(self, msg)
+        return on_pose(self, msg)
 
     with monkeypatch.context() as m:
-        m.setattr(ServerSession, "_on_pose", crash)
+        m.setattr(SessionCore, "receive_pose_sample", crash)
         return await _exchange(server.tcp_address, ClientConnection().send(_hello()) + encode_frame(_pose()))
 
 

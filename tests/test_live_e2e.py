@@ -85,10 +85,8 @@ async def test_video_through_lossy_cloud_relay_matches_virtual_time(tmp_path: Pa
     assert max(gaps) < GOP_S, (max(gaps), c)
     # no metadata lost: FrameMeta ids arrive contiguous over TCP, and every displayed
     # update's FrameMeta arrived
-    ids = result.meta_frame_ids
-    assert ids == list(range(ids[0], ids[0] + len(ids)))
-    first, n = result.counters["meta_first_id"], result.counters["meta_frames"]
-    assert result.counters.get("meta_gaps", 0) == 0 and ids[-1] == first + n - 1
+    first, n = result.counters["meta_first_id"], result.counters["frames_meta"]
+    assert result.counters["meta_gaps"] == 0 and result.counters["meta_last_id"] == first + n - 1
     assert {int(r["update_frame_id"]) for r in rows} - {-1} <= set(range(first, first + n))  # -1: ticks before the first
     # quality close to the virtual-time run of the same trace and network
     live = await asyncio.get_running_loop().run_in_executor(None, _score_and_reference, tmp_path, duration)

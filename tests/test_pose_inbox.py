@@ -32,16 +32,18 @@ def test_newer_samples_are_taken_duplicates_and_reordered_ones_counted() -> None
 def test_every_front_door_uses_it_through_the_core() -> None:
     """The rule was written three times and the copies disagreed (issue 47): the runner took ``ts >= latest``.  Now
     each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
-    rule) and keeps no inbox or predictor of its own; the client drivers ask the client core for the blank-frame
-    and keyframe-skip rules instead of writing them."""
+    rule; the live ones the samples as they come, ``receive_pose_sample``) and keeps no inbox or predictor of its own,
+    nor a frame clock (the live ones take ``order_tick``); the client drivers ask the client core for the
+    blank-frame and keyframe-skip rules instead of writing them."""
     from splitrender.client import session as client
     from splitrender.server import session as live
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
-    for mod in (runner, live, browser):
+    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".receive_pose_sample(", ".order_tick("),
+                             (browser, ".receive_pose_sample(", ".order_tick(")):
         src = inspect.getsource(mod)
-        assert ".receive_pose(" in src and ".order_frame(" in src, mod.__name__
+        assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
         assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__
         assert "ServerContext(" not in src and "KeyframeRateLimiter" not in src, mod.__name__
     for mod in (runner, client):

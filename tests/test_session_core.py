@@ -629,6 +629,34 @@ def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
         ServerSession(tx, 60.0, transport="quic")
 
 
+def test_the_live_frame_clock_is_the_core_s() -> None:
+    """``order_tick``, the two live front doors' frame clock (issue 47; each kept a frame id and a last tick): a frame
+    is numbered by the frames sent before it, lands on the wall clock's tick of the shared grid, or on the next one
+    when that tick already had a frame (a late or skipped frame never shares a tick), at scene time tick / fps.
+    Poses come as the client sends them (``receive_pose_sample``: µs on the protocol's clock), by the one rule."""
+    from types import SimpleNamespace
+
+    from splitrender.pipeline import OutgoingFrame
+    from splitrender.scene.predict import make_predictor
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
+    core = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
+    sample = lambda us, seq: SimpleNamespace(client_time_us=us, seq=seq, position=(1.0, 2.0, 3.0),  # noqa: E731
+                                             orientation=(1.0, 0.0, 0.0, 0.0))
+    assert core.order_tick(3, 30.0, 0.0) is None                      # no pose yet
+    assert core.receive_pose_sample(sample(2_000_000, 4)) and not core.receive_pose_sample(sample(1_999_999, 5))
+    assert core.poses.latest_t_s == 2.0 and core.poses.counters() == {"poses_received": 1, "poses_stale": 1}
+    ticks = []
+    for wall_tick in (5, 5, 4, 9):
+        order = core.order_tick(wall_tick, 30.0, 0.0)
+        assert order is not None and order.t_s == order.tick / 30.0 and order.pose_seq == 4
+        ticks.append((order.frame_id, order.tick))
+        core.frame_sent(order.frame_id, OutgoingFrame(order.frame_id, wire_bytes={"color": 1}), 0.0, 1)
+    assert ticks == [(0, 5), (1, 6), (2, 7), (3, 9)]
+    assert core.order_tick(9, 30.0, 0.0).frame_id == 4                # ordered, never sent: the next takes its id
+    assert core.order_tick(9, 30.0, 0.0).frame_id == 4
+
+
 def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     """Both client drivers (virtual time, live) ask the core: a tick is blank before any update shows or while the
     half has no content; a broken video stream's non-keyframe is skipped and counted lost, a keyframe decoded."""
@@ -717,3 +745,57 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
         [("resend", sent[1].data)]
     assert [d.kind for d in p.server.datagrams_to_send(sr_at)] == ["rtcp"]
     assert isinstance(parse_rtcp(p.reports(1e9)[0])[0], SenderReport)
+
+
+def test_the_client_core_owns_its_control_connection() -> None:
+    """Issue 47: the client's one control Connection goes from its handshake to its session core.  Bytes in: a
+    FrameMeta that came with the session data's last bytes is taken at ``start``, later ones as their bytes come
+    (counted, a gap named, the scene epoch from the newest); Stats and Bye leave as events, the end of the stream as
+    ``ControlClosed``.  Bytes out: what the driver sends, by ``data_to_send``, framed for the server's end."""
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.methods.base import get_method, make_config
+    from splitrender.pipeline import ClientHandshake, ControlClosed, ServerMessage, accept_hello
+    from splitrender.protocol import Bye, Pose as PoseMessage, Stats
+    from splitrender.protocol.framing import encode_frame
+
+    hello = Hello(PROTOCOL_VERSION, "", ("video",), ("h264",), W, H, FPS)
+    hs = ClientHandshake(hello.methods, display=(W, H))
+    sconn = ServerConnection()
+    sconn.receive_data(hs.hello(hello))
+    assert sconn.next_event() == hello
+    acc = accept_hello(hello, "sid", "video", make_config(get_method("video").config, {}),
+                       [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn.send,
+                       scene="minimal", fov_y_deg=60.0, server_fps=30, max_session_bytes=1 << 20,
+                       rng=np.random.default_rng(1))
+    tx = acc.core.tx
+    rng = np.random.default_rng(0)
+
+    def frame(fid: int) -> bytes:
+        plane = (rng.random((H, W, 3)) * 255).astype(np.uint8)
+        enc = tx.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=fid == 0)
+        out = tx.packetize(enc, sconn.send, 5_000_000 + fid * 33_333, fid * 3000, 0, fid, fid / FPS, {}, {})
+        return b"".join(d for _, d in out.control)
+
+    assert hs.receive_data(b"".join(acc.frames) + frame(0))
+    core = hs.session(ClientOptions())
+    assert core.conn is hs.conn and core.counters["frames_meta"] == 0 and core.scene_epoch_ms is None
+    core.start(0.0)
+    assert core.counters["frames_meta"] == 1 and core.counters["meta_first_id"] == 0
+    assert core.scene_epoch_ms == pytest.approx(5000.0)
+    frame(1)                                                        # never arrives
+    two = frame(2)
+    core.receive_data(two[:9], 60.0)                                # a partial frame waits for its bytes
+    assert core.counters["frames_meta"] == 1
+    core.receive_data(two[9:], 70.0)
+    c = core.counters
+    assert (c["frames_meta"], c["meta_gaps"], c["meta_first_id"], c["meta_last_id"]) == (2, 1, 0, 2)
+    assert core.scene_epoch_ms == pytest.approx(5000.0 + 2 * 33.333 - 2000 / FPS)
+    assert c["control_bytes_received"] == len(two)
+    pose = PoseMessage(1, 7, (0.0, 1.0, 2.0), (0.0, 0.0, 0.0, 1.0))
+    core.send(pose)
+    assert core.data_to_send() == encode_frame(pose) and core.data_to_send() == b""
+    core.receive_data(sconn.send(Stats({"x": 1})) + sconn.send(Bye("done")), 80.0)
+    core.receive_data(b"", 90.0)
+    events = list(iter(core.next_event, None))
+    assert [type(e.message) for e in events if isinstance(e, ServerMessage)] == [Stats, Bye]
+    assert isinstance(events[-1], ControlClosed) and events[-1].now_ms == 90.0

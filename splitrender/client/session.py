@@ -3,7 +3,8 @@
 Task layout (one ``asyncio.TaskGroup`` owned by :meth:`LiveClient.run`):
 
 * ``poses``: samples the camera trace at ``tracker_hz`` and sends ``Pose`` messages;
-* ``control``: reads FrameMeta (kept until its planes are decoded), Stats, Bye, Error;
+* ``control``: hands the control connection's bytes to the session core, which owns the connection (FrameMeta,
+  kept until its planes are decoded; Stats, Bye, Error come back as its events);
 * ``rtcp``: runs the session core's timer (:class:`splitrender.pipeline.ClientSession`:
   receiver reports, which bind the UDP path until the first RTP packet, generic NACKs,
   PLIs, jitter-buffer timeouts and stall detection) and sends the RTCP it queues;
@@ -36,16 +37,16 @@ import numpy as np
 from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolError, SplitRenderError,
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
-from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ReceivedFrame, Resumed,
-                                  Stalled, StallTimeout, Work, control_wire_bytes, shows_anything)
+from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
+                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes,
+                                  shows_anything)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, save_image
-from splitrender.protocol import (PROTOCOL_VERSION, Bye, ClientConnection, DataChunk, Error, ErrorCode, FrameMeta, Hello, Pose,
-                                  Stats, Welcome)
+from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
-from splitrender.transport.control import ControlChannel, wall_us
+from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
 from splitrender.transport.errors import ConnectError, describe_os_error
 
 __all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "run_client"]
@@ -136,9 +137,8 @@ class ClientResult:
     rows: list[dict[str, Any]]
     counters: dict[str, Any]
     recording: dict[str, Any]
-    meta_frame_ids: list[int]
-    """The newest ``rows_kept`` FrameMeta frame ids, in arrival order (the counters have ``meta_frames``, the first
-    id ``meta_first_id`` and ``meta_gaps``, FrameMetas that did not follow the previous one)."""
+    """(The counters have the core's FrameMeta count ``frames_meta``, the first and last ids ``meta_first_id`` and
+    ``meta_last_id``, and ``meta_gaps``, FrameMetas that did not follow the previous one.)"""
     out_dir: Path | None = None
 
 
@@ -172,12 +172,10 @@ class LiveClient:
         self._half: Any = None
         self._welcome: Welcome | None = None
         self._params: dict[str, Any] = {}
-        self._server_epoch_s: float | None = None
         self._t0_wall = 0.0
         self.rows: deque[dict[str, Any]] = deque(maxlen=config.rows_kept)
         """The newest ``rows_kept`` displayed rows (the recording's ``frames.jsonl``/``frames.csv`` has them all)."""
         self._rows_recorded = 0
-        self.meta_ids: deque[int] = deque(maxlen=config.rows_kept)
         self._counters: dict[str, Any] = {"late_ticks": 0}
 
     @property
@@ -202,9 +200,10 @@ class LiveClient:
                     asyncio.open_connection(cfg.server, cfg.port, ssl=cfg.tls_context()), cfg.connect_timeout_s)
             except (OSError, OverflowError) as exc:  # refused, unreachable, unknown host, timed out
                 raise ConnectError(f"cannot connect to {cfg.server}:{cfg.port}: {describe_os_error(exc)}") from exc
-            self.channel = ControlChannel(ClientConnection(), reader, writer, "client")
+            hs = ClientHandshake(cfg.methods, cfg.limits, (cfg.width, cfg.height))   # it owns the connection
+            self.channel = ControlChannel(hs.conn, reader, writer, "client")
             try:
-                await self._handshake()
+                await self._handshake(hs)
                 await self._open_udp()
                 self._t0_wall = time.time()
                 assert self.core is not None
@@ -238,7 +237,7 @@ class LiveClient:
             if self._recording_out is not None and self._recording_out.started:   # a broken session: keep what was
                 # recorded, marked incomplete
                 result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": False,
-                                      "error": f"{type(exc).__name__}: {exc}"}, list(self.meta_ids), cfg.out_dir)
+                                      "error": f"{type(exc).__name__}: {exc}"}, cfg.out_dir)
                 self._finish_recording(result)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
                              exc, self._rows_recorded, cfg.out_dir)
@@ -246,8 +245,7 @@ class LiveClient:
         await self._release()
         logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self._rows_recorded,
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": True}, list(self.meta_ids),
-                              cfg.out_dir)
+        result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": True}, cfg.out_dir)
         if cfg.out_dir is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._finish_recording, result)
         return result
@@ -297,19 +295,22 @@ class LiveClient:
         await self.channel.send_error(int(code), text)
 
     async def _say_bye(self, reason: str) -> None:
-        assert self.channel is not None
+        assert self.core is not None
         try:
-            await asyncio.wait_for(self.channel.send(Bye(reason)), 1.0)
+            self.core.send(Bye(reason))
+            await asyncio.wait_for(self._flush_control(), 1.0)
         except (ConnectionError, asyncio.TimeoutError, SplitRenderError) as exc:
             logger.debug("session %s: Bye not sent: %s", self.session_id, exc)
 
     # ------------------------------------------------------------------ handshake
 
-    async def _handshake(self) -> None:
+    async def _handshake(self, hs: ClientHandshake) -> None:
+        """The sans-IO handshake both modes share (it holds the config's sizes to ``cfg.limits`` before any
+        allocation), driven over the control connection; then the client half and the session core."""
         cfg, ch = self.cfg, self.channel
         assert ch is not None
-        await ch.send(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs), cfg.width,
-                            cfg.height, float(cfg.display_hz)))
+        await ch.write_frames([hs.hello(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs),
+                                              cfg.width, cfg.height, float(cfg.display_hz)))])
         msg = await self._next_message("Welcome")
         if isinstance(msg, Error):
             raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
@@ -318,8 +319,6 @@ class LiveClient:
                                "TLS (serve --tls-cert), connect with --tls")
         if not isinstance(msg, Welcome):
             raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
-        # the sans-IO handshake both modes share; it holds the config's sizes to cfg.limits before any allocation
-        hs = ClientHandshake(cfg.methods, cfg.limits, (cfg.width, cfg.height))
         hs.receive_message(msg)
         terms = hs.terms
         assert terms is not None
@@ -382,7 +381,7 @@ class LiveClient:
     # ------------------------------------------------------------------ poses
 
     async def _pose_loop(self) -> None:
-        assert self.channel is not None
+        assert self.core is not None
         interval = 1.0 / self.cfg.tracker_hz
         loop = asyncio.get_running_loop()
         start = loop.time()
@@ -393,8 +392,9 @@ class LiveClient:
                 await asyncio.sleep(delay)
             now_us = wall_us()
             pose = self._trace_pose(now_us / 1e6)
-            await self.channel.send(Pose(now_us, seq & 0xFFFFFFFF, tuple(float(v) for v in pose.position),  # type: ignore[arg-type]
-                                         tuple(float(v) for v in pose.orientation)))  # type: ignore[arg-type]
+            self.core.send(Pose(now_us, seq & 0xFFFFFFFF, tuple(float(v) for v in pose.position),  # type: ignore[arg-type]
+                                tuple(float(v) for v in pose.orientation)))  # type: ignore[arg-type]
+            await self._flush_control()
         await asyncio.Event().wait()  # the display task ends the run
 
     def _trace_pose(self, wall_s: float) -> ScenePose:
@@ -403,33 +403,42 @@ class LiveClient:
     # ------------------------------------------------------------------ control
 
     async def _control_loop(self) -> None:
-        assert self.channel is not None
-        async for msg in self.channel.messages():
-            if isinstance(msg, (FrameMeta, DataChunk)):
-                self._on_control(msg)
-            elif isinstance(msg, Stats):
-                logger.debug("session %s: server stats %s", self.session_id, dict(msg.counters))
-            elif isinstance(msg, Bye):
-                raise ServerRefusedError(f"server ended the session: {msg.reason}")
-            elif isinstance(msg, Error):
-                raise ServerRefusedError(f"server error {ControlChannel.error_message(msg)}")
-        raise ConnectionResetError("server closed the control connection")
+        """The control connection's bytes to the core, which owns it; its events end the run where they say so."""
+        assert self.channel is not None and self.core is not None
+        while True:
+            data = await self.channel.reader.read(READ_CHUNK_BYTES)
+            self.core.receive_data(data, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
+            self._collect()
+            self._take_events()
 
-    def _on_control(self, msg: FrameMeta | DataChunk) -> None:
-        assert self.rx is not None and self.core is not None
-        if isinstance(msg, FrameMeta):
-            c = self._counters
-            if self.meta_ids and msg.frame_id != self.meta_ids[-1] + 1:
-                c["meta_gaps"] = c.get("meta_gaps", 0) + 1
-            c.setdefault("meta_first_id", msg.frame_id)
-            c["meta_frames"] = c.get("meta_frames", 0) + 1
-            self.meta_ids.append(msg.frame_id)
-        self.core.receive_message(msg, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
-        if isinstance(msg, FrameMeta):
-            env = self.rx.last_envelope
-            if env is not None:  # both stamps were taken at the same instant on the server's wall clock
-                self._server_epoch_s = msg.server_time_us / 1e6 - env.t_s
-        self._collect()
+    async def _flush_control(self) -> None:
+        """Write what the core queued on the control connection (feedback, poses, Bye)."""
+        assert self.core is not None and self.channel is not None
+        if data := self.core.data_to_send():
+            await self.channel.write_frames([data])
+
+    def _take_events(self) -> None:
+        """The core's events: a stall is logged, a stall timeout, the server's Bye or Error or a closed connection
+        end the run (raised)."""
+        assert self.core is not None
+        while (ev := self.core.next_event()) is not None:
+            if isinstance(ev, StallTimeout):
+                raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
+                                         f"(stall_timeout_s {self.cfg.stall_timeout_s:g} s): the server stopped streaming")
+            if isinstance(ev, Stalled):
+                logger.warning("session %s: no new frame for %.0f ms (%g of the server's frame intervals); a "
+                               "keyframe is asked for where packets were lost", self.session_id, ev.idle_ms,
+                               self.cfg.stall_frames)
+            elif isinstance(ev, Resumed):
+                logger.info("session %s: frames resumed after %.0f ms", self.session_id, ev.stall_ms)
+            elif isinstance(ev, ControlClosed):
+                raise ConnectionResetError("server closed the control connection")
+            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Bye):
+                raise ServerRefusedError(f"server ended the session: {ev.message.reason}")
+            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Error):
+                raise ServerRefusedError(f"server error {ControlChannel.error_message(ev.message)}")
+            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Stats):
+                logger.debug("session %s: server stats %s", self.session_id, dict(ev.message.counters))
 
     # ------------------------------------------------------------------ UDP in
 
@@ -501,16 +510,7 @@ class LiveClient:
                 self._queue_work(core.handle_timer(now_ms))
                 self._collect()
                 self._flush_rtcp()
-            while (ev := core.next_event()) is not None:
-                if isinstance(ev, StallTimeout):
-                    raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
-                                             f"(stall_timeout_s {cfg.stall_timeout_s:g} s): the server stopped streaming")
-                if isinstance(ev, Stalled):
-                    logger.warning("session %s: no new frame for %.0f ms (%g of the server's frame intervals); a "
-                                   "keyframe is asked for where packets were lost", self.session_id, ev.idle_ms,
-                                   cfg.stall_frames)
-                elif isinstance(ev, Resumed):
-                    logger.info("session %s: frames resumed after %.0f ms", self.session_id, ev.stall_ms)
+            self._take_events()
             if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:
                 last_metrics = time.monotonic()
                 logger.info("metrics session=%s %s", self.session_id,
@@ -539,7 +539,7 @@ class LiveClient:
             new = [*carry, *core.display(_now_ms())]   # with a playout delay, only the updates whose turn has come
             carry = []
             w = time.time()
-            if self._server_epoch_s is None:
+            if core.scene_epoch_ms is None:
                 # nothing from the server yet: the ticks wait for its clock (the first FrameMeta) to be recorded
                 carry = new
                 before_content.append((tick, w, self._trace_pose(w)))
@@ -565,30 +565,20 @@ class LiveClient:
         core = self.core
         assert core is not None
         loop = asyncio.get_running_loop()
-        assert self._server_epoch_s is not None
         tick_wall = time.time()
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
-        scene_t = tick_wall - self._server_epoch_s
+        scene_t = self._scene_t(tick_wall)
 
         def show() -> tuple[Any, list[bool], float, float]:
             w0 = time.perf_counter()
-            ok = []
-            for f in new:
-                try:
-                    half.apply(f.update)
-                    ok.append(True)
-                except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                    ok.append(False)
-                    logger.warning("session %s: update %d rejected by the client half: %s", self.session_id,
-                                   f.update.frame_id, exc)
+            ok = apply_updates(half, new, f"session {self.session_id}")
             w1 = time.perf_counter()
             frame = half.render(pose, scene_t)
             return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
 
         cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
-        for f, good in zip(new, ok):
-            core.applied(f) if good else core.apply_failed(f)
+        core.report_applied(new, ok)
         displayed_us = wall_us()
         if core.blank(half.has_content):   # every update so far rejected or without content: still black
             self._record(self._empty_row(self._rows_recorded, tick, trace_t, scene_t, pose, displayed_us))
@@ -605,17 +595,20 @@ class LiveClient:
                 if len(saves) > 64:
                     await asyncio.gather(*saves[:32])
                     del saves[:32]
-        fb = core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
-        if fb is not None:   # the first display of this update
-            assert self.channel is not None
-            await self.channel.send(fb)
+        core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
+        await self._flush_control()
+
+    def _scene_t(self, wall_s: float) -> float:
+        """The server's scene time at wall-clock ``wall_s`` (NaN before the first FrameMeta)."""
+        epoch = self.core.scene_epoch_ms if self.core is not None else None
+        return math.nan if epoch is None else wall_s - epoch / 1000
 
     def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
         kept; without the server clock, ``saves`` is None and the row has no scene time)."""
         cfg = self.cfg
-        scene_t = wall_s - self._server_epoch_s if self._server_epoch_s is not None else math.nan
-        row = self._empty_row(self._rows_recorded, tick, wall_s - self._t0_wall, scene_t, pose, int(wall_s * 1e6))
+        row = self._empty_row(self._rows_recorded, tick, wall_s - self._t0_wall, self._scene_t(wall_s), pose,
+                              int(wall_s * 1e6))
         self._record(row)
         if saves is not None and cfg.save_images and cfg.out_dir is not None:
             black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
@@ -625,9 +618,9 @@ class LiveClient:
     def _kbps(self, now_s: float) -> dict[str, float]:
         """``kbps_<stream>`` over the last second for each RTP stream (wire bytes received) and
         ``kbps_control`` for the control channel (bytes read, with the TCP/IP header model)."""
-        assert self.rx is not None and self.channel is not None
+        assert self.rx is not None and self.core is not None
         snap = dict(self.rx.wire_bytes)
-        snap["control"] = control_wire_bytes(self.channel.bytes_received)
+        snap["control"] = control_wire_bytes(self.core.counters["control_bytes_received"])
         self._rate_window.append((now_s, snap))
         while len(self._rate_window) > 1 and self._rate_window[0][0] < now_s - 1.0:
             self._rate_window.popleft()

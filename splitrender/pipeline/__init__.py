@@ -16,16 +16,17 @@ from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from ..options import ClientOptions
-from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientSession, PoseInbox, Resumed, ServerOptions, ServerSession, SessionEvent,
-                      SessionTerms, Stalled, StallTimeout, accept_hello, check_hello, parse_welcome, session_params,
+from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientSession, ControlClosed, PoseInbox, Resumed, ServerMessage,
+                      ServerOptions, ServerSession, SessionEvent,
+                      SessionTerms, Stalled, StallTimeout, accept_hello, apply_updates, check_hello, parse_welcome, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
 __all__ = [
-    "ClientHandshake", "ClientOptions", "ClientSession", "PoseInbox", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
-    "Accepted", "accept_hello", "CLIENT_CODECS",
+    "ClientHandshake", "ClientOptions", "ClientSession", "ControlClosed", "PoseInbox", "ServerMessage", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
+    "Accepted", "accept_hello", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "FrameOrder", "make_frame", "StreamEncoder",

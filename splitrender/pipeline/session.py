@@ -49,13 +49,15 @@ import numpy as np
 from ..codecs.meta import unpack_meta
 from ..errors import CodecError, ConfigError, RemoteProtocolError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
-from ..protocol import (ErrorCode, Feedback, FrameMeta, DataChunk, FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message,
-                        MessageError, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
+from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, ErrorCode, Feedback, FrameMeta, DataChunk,
+                        FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError,
+                        State, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
 from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
+from ..scene.pose import Pose as ScenePose
 from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
 from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
@@ -70,8 +72,8 @@ from .wire import EnvelopeError, SessionDataError, specs_from_table
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "accept_hello", "ClientHandshake", "ClientSession", "PoseInbox", "ServerOptions", "ServerSession", "SessionEvent",
-           "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
+__all__ = ["Accepted", "CLIENT_CODECS", "accept_hello", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "PoseInbox",
+           "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -128,6 +130,21 @@ def shows_anything(rf: ReceivedFrame) -> bool:
     """Whether an update can change the picture: complete, or at least one stream of it arrived."""
     u = rf.update
     return bool(u.complete or u.planes or u.data)
+
+
+def apply_updates(half: Any, frames: list[ReceivedFrame], log_id: str = "") -> list[bool]:
+    """Apply ``frames`` to the client half ``half`` in order, in every client front door (on the thread that owns
+    its GL context): a malformed update is rejected (logged, prefixed ``log_id``) and the half keeps its last good
+    state.  Returns which were applied, for :meth:`ClientSession.report_applied`."""
+    ok = []
+    for rf in frames:
+        try:
+            half.apply(rf.update)
+            ok.append(True)
+        except RemoteProtocolError as exc:
+            ok.append(False)
+            log.warning("%s: update %d rejected by the client half: %s", log_id, rf.update.frame_id, exc)
+    return ok
 
 
 def _rtcp_interval_ms(mean_s: float, rand: Any) -> float:
@@ -253,12 +270,17 @@ class ClientHandshake:
     :func:`parse_welcome`, and with ``display``, the client's (width, height), what its config makes the client hold
     against ``limits``), then the session data in ``DataChunk`` messages, bounded by ``limits``.
 
-    Feed it every message after ``Hello`` with :meth:`receive_message` until it returns True; then
-    :attr:`terms`, :attr:`session_data` and :meth:`session` give what the session is built from.  Raises
-    ``RemoteProtocolError`` naming what was wrong; an ``Error`` or a closed connection is the driver's to report."""
+    It owns the client's control :class:`~splitrender.protocol.Connection` (:attr:`conn`), which the session it
+    makes (:meth:`session`) takes over.  :meth:`hello` gives the ``Hello``'s bytes; feed the server's bytes to
+    :meth:`receive_data` (or, where the driver parses them, every message after ``Hello`` to
+    :meth:`receive_message`) until it returns True; then :attr:`terms`, :attr:`session_data` and :meth:`session`
+    give what the session is built from.  Raises ``RemoteProtocolError`` naming what was wrong; an ``Error`` or a
+    closed connection is the driver's to report."""
 
     def __init__(self, offered: Any = None, limits: ClientLimits = DEFAULT_CLIENT_LIMITS,
                  display: tuple[int, int] | None = None) -> None:
+        self.conn = ClientConnection()
+        """The control connection (sans-IO framing and state), the session's once the handshake is done."""
         self.offered = tuple(offered) if offered is not None else None
         self.limits = limits
         self.display = display
@@ -275,6 +297,18 @@ class ClientHandshake:
         if self._asm is None:
             return 0, 0
         return self._asm.received, self._asm.total
+
+    def hello(self, hello: Hello) -> bytes:
+        """The ``Hello``'s bytes, the first the client sends."""
+        return self.conn.send(hello)
+
+    def receive_data(self, data: bytes) -> bool:
+        """Bytes from the server; True once the session data is complete (bytes after it stay in :attr:`conn`, for
+        the session)."""
+        self.conn.receive_data(data)
+        while not self.done and isinstance(msg := self.conn.next_event(), Message):
+            self.receive_message(msg)
+        return self.done
 
     def receive_message(self, msg: Message) -> bool:
         """One message from the server; True once the session data is complete."""
@@ -306,9 +340,10 @@ class ClientHandshake:
         return self.done
 
     def session(self, options: ClientOptions, clock_offset_us: int = 0, rng: Any = None) -> ClientSession:
-        """The client session core the Welcome describes (:meth:`ClientSession.from_welcome`)."""
+        """The client session core the Welcome describes (:meth:`ClientSession.from_welcome`); it takes over the
+        control connection."""
         assert self.welcome is not None and self.done
-        return ClientSession.from_welcome(self.welcome, options, clock_offset_us, rng)
+        return ClientSession.from_welcome(self.welcome, options, clock_offset_us, rng, conn=self.conn)
 
 
 # --------------------------------------------------------------------------- events
@@ -340,6 +375,18 @@ class StallTimeout(SessionEvent):
     idle_ms: float
 
 
+@dataclass(frozen=True)
+class ServerMessage(SessionEvent):
+    """A control message the core leaves to the driver: ``Stats``, ``Bye`` or ``Error``."""
+
+    message: Message
+
+
+@dataclass(frozen=True)
+class ControlClosed(SessionEvent):
+    """The server closed the control connection."""
+
+
 # --------------------------------------------------------------------------- client
 
 
@@ -363,18 +410,29 @@ class _Ready:
 class ClientSession:
     """The client side of one session (see the module docstring).
 
-    Call :meth:`start` once the streams are known, then feed control messages
-    (:meth:`receive_message`), datagrams (:meth:`receive_datagram`) and timer expiries
-    (:meth:`handle_timer`).  Decoding is the driver's (it may run on another thread):
-    the ``Work`` items returned go to :meth:`ClientPipeline.decode`, their results to
-    :meth:`on_decoded`; :meth:`collect` then moves released frames to the display queue.
-    At each display tick :meth:`display` gives the updates to apply in order; the
-    driver applies them, reports each with :meth:`applied`, renders, and sends
-    :meth:`feedback` when a new update reached the screen.
+    It owns the control connection (``conn``: the handshake's; a fresh one past the handshake where None).  Call
+    :meth:`start` once the streams are known, then feed the control connection's bytes (:meth:`receive_data`),
+    datagrams (:meth:`receive_datagram`) and timer expiries (:meth:`handle_timer`).  Decoding is the driver's (it
+    may run on another thread): the ``Work`` items returned go to :meth:`ClientPipeline.decode`, their results to
+    :meth:`on_decoded`; :meth:`collect` then moves released frames to the display queue.  At each display tick
+    :meth:`display` gives the updates to apply in order; the driver applies them, reports each with :meth:`applied`,
+    renders, and calls :meth:`feedback` when a new update reached the screen.  What the core sends leaves by
+    :meth:`datagrams_to_send` (RTCP) and :meth:`data_to_send` (the control connection: feedback, and what the driver
+    :meth:`send`), its events by :meth:`next_event`, and :meth:`get_timer` says when to call :meth:`handle_timer`.
     """
 
     def __init__(self, rx: ClientPipeline, options: ClientOptions, server_fps: float, clock_offset_us: int = 0,
-                 rng: Any = None, transport_cc_id: int | None = None, probe_ssrc: int | None = None) -> None:
+                 rng: Any = None, transport_cc_id: int | None = None, probe_ssrc: int | None = None,
+                 conn: ClientConnection | None = None) -> None:
+        if conn is None:   # a session made without a handshake (tests, tools): its connection starts past it
+            conn = ClientConnection()
+            conn.state = State.STREAMING
+        self.conn = conn
+        """The control connection (sans-IO): :meth:`receive_data` in, :meth:`data_to_send` out."""
+        self._control_out: list[bytes] = []
+        self.scene_epoch_ms: float | None = None
+        """Driver time of the server's scene time 0 (ms), from the newest ``FrameMeta``: its server time and its
+        envelope's scene time were stamped at one instant; None before the first."""
         self.rx = rx
         self.opts = options
         self.server_fps = max(1.0, float(server_fps))
@@ -425,11 +483,12 @@ class ClientSession:
             "frames_meta": 0, "frames_complete": 0, "frames_partial": 0, "frames_displayed_updates": 0,
             "updates_dropped_ready": 0, "keyframes_after_pli": 0, "udp_bad": 0, "decode_overflows": 0,
             "meta_bytes": 0, "apply_errors": 0, "twcc_feedback_sent": 0, "probe_packets": 0, "probe_bytes": 0,
+            "meta_gaps": 0, "control_bytes_received": 0,
         }
 
     @classmethod
     def from_welcome(cls, welcome: Welcome, options: ClientOptions, clock_offset_us: int = 0,
-                     rng: Any = None) -> ClientSession:
+                     rng: Any = None, conn: ClientConnection | None = None) -> ClientSession:
         """The client session a ``Welcome`` describes: its streams' receive path (jitter buffers, decoders) with
         ``options``' timeouts.  Raises ``RemoteProtocolError`` for a malformed stream table."""
         params = welcome.method_params
@@ -443,7 +502,7 @@ class ClientSession:
                                   or probe in rx.by_ssrc):
             raise EnvelopeError(f"Welcome.method_params.probe_ssrc: expected an SSRC no stream uses, got {probe!r:.80}")
         return cls(rx, options, _finite_param(params, "server_fps", 30.0, 0.0, 1000.0), clock_offset_us, rng, cc,
-                   probe if cc is not None else None)
+                   probe if cc is not None else None, conn)
 
     # ------------------------------------------------------------------ clock
 
@@ -454,21 +513,58 @@ class ClientSession:
     # ------------------------------------------------------------------ input
 
     def start(self, now_ms: float) -> None:
-        """The session streams from ``now_ms``: the stall clock starts; an empty RR opens the UDP path."""
+        """The session streams from ``now_ms``: the stall clock starts; an empty RR opens the UDP path; control
+        messages that came with the handshake's last bytes are taken."""
         self._started = True
         self._last_frame_ms = now_ms
         self._next_bind_ms = now_ms + BIND_INTERVAL_MS
         self._next_rr_ms = now_ms + _rtcp_interval_ms(self.opts.rr_interval_s, self._rand)
         self._queue_rtcp([self._empty_rr()])
+        self._take_control(now_ms)
+
+    def receive_data(self, data: bytes, now_ms: float) -> None:
+        """Bytes from the control connection (``b""``: it closed).  ``FrameMeta`` and ``DataChunk`` go to the
+        pipeline; ``Stats``, ``Bye`` and ``Error`` leave as :class:`ServerMessage` events, the end of the connection
+        as :class:`ControlClosed`.  Raises ``RemoteProtocolError`` on bad input (the driver answers with ``Error``)."""
+        self.counters["control_bytes_received"] += len(data)
+        self.conn.receive_data(data)
+        self._take_control(now_ms)
+
+    def _take_control(self, now_ms: float) -> None:
+        while (ev := self.conn.next_event()) is not NEED_DATA:
+            if ev is CONNECTION_CLOSED:
+                self.events.append(ControlClosed(now_ms))
+                return
+            if isinstance(ev, (FrameMeta, DataChunk)):
+                self.receive_message(ev, now_ms)
+            else:
+                self.events.append(ServerMessage(now_ms, ev))   # type: ignore[arg-type]
 
     def receive_message(self, msg: Message, now_ms: float) -> None:
         """A ``FrameMeta`` or ``DataChunk`` from the control channel; raises ``RemoteProtocolError`` on bad input."""
         if isinstance(msg, FrameMeta):
-            self.counters["frames_meta"] += 1
+            c = self.counters
+            c["frames_meta"] += 1
             if isinstance(msg.method_meta, bytes):
-                self.counters["meta_bytes"] += len(msg.method_meta)
+                c["meta_bytes"] += len(msg.method_meta)
+            c["meta_gaps"] += "meta_last_id" in c and msg.frame_id != c["meta_last_id"] + 1
+            c.setdefault("meta_first_id", msg.frame_id)
+            c["meta_last_id"] = msg.frame_id
         if isinstance(msg, (FrameMeta, DataChunk)):
             self.rx.on_message(msg, now_ms)
+        env = self.rx.last_envelope
+        if isinstance(msg, FrameMeta) and env is not None:
+            self.scene_epoch_ms = (msg.server_time_us - self.clock_offset_us) / 1000 - env.t_s * 1000
+
+    def send(self, msg: Message) -> None:
+        """Send ``msg`` on the control connection (a ``Pose``, ``Stats``, ``Bye``): its bytes join
+        :meth:`data_to_send`.  Raises ``LocalProtocolError`` where the connection's state forbids it."""
+        self._control_out.append(self.conn.send(msg))
+
+    def data_to_send(self) -> bytes:
+        """The control connection's bytes queued since the last call (feedback, what was :meth:`send`), in order."""
+        out, self._control_out = b"".join(self._control_out), []
+        return out
 
     def receive_datagram(self, data: bytes, now_ms: float) -> list[Work]:
         """An RTP or RTCP datagram; returns the frames now ready to decode."""
@@ -751,6 +847,11 @@ class ClientSession:
     def apply_failed(self, rf: ReceivedFrame) -> None:
         self.counters["apply_errors"] += 1
 
+    def report_applied(self, frames: list[ReceivedFrame], ok: list[bool]) -> None:
+        """What :func:`apply_updates` made of ``frames`` (:meth:`applied` or :meth:`apply_failed` each)."""
+        for rf, good in zip(frames, ok):
+            self.applied(rf) if good else self.apply_failed(rf)
+
     def blank(self, has_content: bool) -> bool:
         """The blank-frame rule of every driver: a display tick shows the black background (and its row names no
         update) while no update has been shown, or while the client half has nothing to draw (``has_content``
@@ -758,7 +859,8 @@ class ClientSession:
         return self.shown is None or not has_content
 
     def feedback(self, displayed_ms: float) -> Feedback | None:
-        """The ``Feedback`` for the shown update the first time it is displayed (at ``displayed_ms``), else None."""
+        """The ``Feedback`` for the shown update the first time it is displayed (at ``displayed_ms``), sent (its bytes
+        join :meth:`data_to_send`) and returned to look at; else None."""
         rf = self.shown
         if rf is None or rf.update.frame_id == self._fed_back:
             return None
@@ -766,8 +868,10 @@ class ClientSession:
         self.counters["frames_displayed_updates"] += 1
         applied, lost = self.rx.tracker.take()
         timing = {k: int(v) for k, v in rf.env.timing_us.items() if k in ("render", "encode", "encoded_at")}
-        return Feedback(rf.update.frame_id, self.protocol_us(rf.received_ms), self.protocol_us(rf.decoded_ms),
-                        self.protocol_us(displayed_ms), 0, rf.meta.pose.client_time_us, timing, applied, lost)
+        fb = Feedback(rf.update.frame_id, self.protocol_us(rf.received_ms), self.protocol_us(rf.decoded_ms),
+                      self.protocol_us(displayed_ms), 0, rf.meta.pose.client_time_us, timing, applied, lost)
+        self.send(fb)
+        return fb
 
     # ------------------------------------------------------------------ counters
 
@@ -953,6 +1057,7 @@ class ServerSession:
         self.fb = FeedbackState(self.display_hz, streams=self.tx.streams)
         self._kf = KeyframeRateLimiter(self.options.keyframe_min_interval_ms)
         self._kf_wanted = False
+        self._last_tick = -1
         if self.transport not in ("rtp", "webrtc"):
             raise ConfigError(f"server transport: must be rtp or webrtc, got {self.transport!r}")
         self.streams: dict[str, _TxState] = {}
@@ -1034,6 +1139,13 @@ class ServerSession:
             self.counters["keyframe_requests"] += 1
             self.request_keyframe(now_ms)
         return None
+
+    def receive_pose_sample(self, msg: Any) -> bool:
+        """A pose sample as the client sends it (a ``Pose`` message, or the page's sample: ``client_time_us``,
+        ``seq``, ``position``, ``orientation``; measured on the protocol's clock), by the one rule of
+        :meth:`receive_pose`.  Returns whether it was taken."""
+        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
+        return self.receive_pose(msg.client_time_us / 1e6, pose, msg.client_time_us, msg.seq)
 
     def receive_pose(self, t_s: float, pose: Any, client_us: int = 0, seq: int = 0) -> bool:
         """A pose sample measured at ``t_s`` (the driver's clock); taken when newer than the newest
@@ -1286,6 +1398,14 @@ class ServerSession:
         kf = self._kf_wanted or self._kf.poll(now_ms)
         self._kf_wanted = False
         return kf
+
+    def order_tick(self, tick: int, fps: float, now_ms: float, epoch_s: float = 0.0) -> FrameOrder | None:
+        """The live front doors' frame clock: :meth:`order_frame` for the next frame (numbered by the frames sent so
+        far) on tick ``tick`` of the shared grid at ``fps`` (scene time ``tick / fps``), or on the tick after the last
+        one ordered, so that no two frames share a tick."""
+        tick = max(tick, self._last_tick + 1)
+        self._last_tick = tick
+        return self.order_frame(self.counters["frames_sent"], tick, tick / fps, now_ms, epoch_s)
 
     def order_frame(self, frame_id: int, tick: int, t_s: float, now_ms: float, epoch_s: float = 0.0,
                     client: int = 0) -> FrameOrder | None:

@@ -37,8 +37,6 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-import numpy as np
-
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
@@ -65,7 +63,6 @@ from splitrender.protocol import (
     negotiate_method,
 )
 from splitrender.scene.pose import CameraIntrinsics
-from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.predict import make_predictor
 from splitrender.transport.control import ControlChannel, wall_us
 
@@ -140,11 +137,9 @@ class ServerSession:
         self.method = ""
         self.intrinsics: CameraIntrinsics | None = None
         self.display_hz = 60.0
-        self._frame_id = 0
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
         """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
-        self._last_tick = -1
         self.feedback_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
         """The newest Feedback rows (all of them go to ``feedback.csv`` as they come when ``out_dir`` is set)."""
         self.update_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
@@ -333,7 +328,8 @@ class ServerSession:
     async def _control_loop(self) -> None:
         async for msg in self.channel.messages():
             if isinstance(msg, Pose):
-                self._on_pose(msg)
+                assert self.core is not None
+                self.core.receive_pose_sample(msg)   # a duplicate or reordered sample is dropped
             elif isinstance(msg, Feedback):
                 self._on_feedback(msg)
             elif isinstance(msg, KeyframeRequest):
@@ -355,12 +351,6 @@ class ServerSession:
                 raise _SessionEnded()
         logger.info("session %s: client closed the connection", self.id)
         raise _SessionEnded()
-
-    def _on_pose(self, msg: Pose) -> None:
-        t_s = msg.client_time_us / 1e6
-        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        assert self.core is not None
-        self.core.receive_pose(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered sample is dropped
 
     def _on_feedback(self, fb: Feedback) -> None:
         assert self.core is not None
@@ -409,12 +399,10 @@ class ServerSession:
         server, tx, core = self.server, self.tx, self.core
         assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
         wall = time.time()
-        tick = max(server.tick_of(wall), self._last_tick + 1)  # never two frames on one tick
-        self._last_tick = tick
-        scene_t = tick / self.cfg.server_fps  # the shared grid's scene time
-        order = core.order_frame(self._frame_id, tick, scene_t, wall * 1000, server.epoch_wall_s)
+        order = core.order_tick(server.tick_of(wall), self.cfg.server_fps, wall * 1000, server.epoch_wall_s)
         if order is None:          # the operating point sends one tick in frame_div
             return
+        fid, scene_t = order.frame_id, order.t_s   # the shared grid's scene time
         t_us = int(wall * 1e6)
         # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)
@@ -437,7 +425,7 @@ class ServerSession:
         out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, order.pose_us, order.pose_seq, order.target_t_s,
                            timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
-        core.frame_sent(self._frame_id, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
+        core.frame_sent(fid, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
@@ -445,12 +433,11 @@ class ServerSession:
         # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
         # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
         # latency), and packetizing and sending here
-        row = {**update_row(self._frame_id, scene_t, out, enc, order, stages, tx.bytes_sent, core.congestion()),
+        row = {**update_row(fid, scene_t, out, enc, order, stages, tx.bytes_sent, core.congestion()),
                "server_us": t_us, "gi_ms": stages["gi_ms"], "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"]),
                "send_ms": (c2 - c1) * 1e3}
         self.update_rows.append(row)
         self._log("updates", row)
-        self._frame_id += 1
 
     # ------------------------------------------------------------------ RTCP
 

@@ -66,10 +66,10 @@ from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frames_summary, mean_of, update_row, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
-                        ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello,
+                        ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
                         check_hello, make_frame, rtp_timestamp, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import PROTOCOL_VERSION, ClientConnection, Hello, Message, ServerConnection, Welcome
+from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..protocol.twcc import DEFAULT_EXTENSION_ID
 from ..render.gl import create_context, make_current
@@ -160,7 +160,6 @@ class _Client:
     rtcp_down: Link | None = None
     """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # client side
-    cconn: ClientConnection = field(default_factory=ClientConnection)
     welcome: Welcome | None = None
     """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
     chalf: Any = None
@@ -242,13 +241,16 @@ class VirtualTimeRun:
                     Link(self.path.downlink, np.random.default_rng(seeds[3 * i + 2])),
                     rtcp_up=Link(self.path.uplink, np.random.default_rng(seeds[4 * n + 2 * i])),
                     rtcp_down=Link(self.path.downlink, np.random.default_rng(seeds[4 * n + 2 * i + 1])))
-        # handshake through a real Connection pair (set-up time is not simulated)
-        # the client decodes what the live client does (its method's codec first)
+        # handshake through a real Connection pair (set-up time is not simulated), the client's the same sans-IO
+        # core as the live client's; it decodes what the live client does (its method's codec first)
         codecs = tuple(dict.fromkeys((self.mcfg.codec, *CLIENT_CODECS)))
         hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), codecs, cfg.width, cfg.height, float(cfg.client_fps))
         check_hello(hello, cfg.width * cfg.height)
+        opts = cfg.client_options()
+        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
+                             (hello.width, hello.height))
         # the server's side: the half here, then the one handshake every front door runs
-        self._to_server(c, c.cconn.send(hello))
+        self._to_server(c, hs.hello(hello))
         make_current(self.renderer.ctx)
         producer = pool.producer(self.spec, self.mcfg)
         c.half = self.spec.server_class(self.mcfg, self.intr, self.scene, cfg.server_fps, producer=producer)
@@ -263,13 +265,7 @@ class VirtualTimeRun:
                            predictor=predictor)
         c.core_s, c.tx = acc.core, acc.core.tx
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in acc.frames)
-        # the client's side of the handshake: the same sans-IO core as the live client's
-        opts = cfg.client_options()
-        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
-                             (hello.width, hello.height))
-        for m in self._to_client_msgs(c, b"".join(acc.frames)):
-            hs.receive_message(m)
-        assert hs.done and hs.welcome is not None and hs.terms is not None
+        assert hs.receive_data(b"".join(acc.frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         self._pose_up(c, 0.0)   # the Hello carries the first pose
@@ -289,20 +285,14 @@ class VirtualTimeRun:
         return c
 
     @staticmethod
-    def _feed(conn: Any, data: bytes) -> list[Message]:
-        """The messages ``data`` completes on one end of the in-memory control connection."""
-        conn.receive_data(data)
+    def _to_server(c: _Client, data: bytes) -> list[Message]:
+        """The messages ``data`` completes on the server's end of the in-memory control connection."""
+        c.sconn.receive_data(data)
         out = []
-        while (ev := conn.next_event()) is not NEED_DATA:
+        while (ev := c.sconn.next_event()) is not NEED_DATA:
             if isinstance(ev, Message):
                 out.append(ev)
         return out
-
-    def _to_server(self, c: _Client, data: bytes) -> list[Message]:
-        return self._feed(c.sconn, data)
-
-    def _to_client_msgs(self, c: _Client, data: bytes) -> list[Message]:
-        return self._feed(c.cconn, data)
 
     # ------------------------------------------------------------------ run
 
@@ -463,8 +453,7 @@ class VirtualTimeRun:
         assert c.core is not None
         now_ms = self.now * 1000
         try:
-            for msg in self._to_client_msgs(c, data):
-                c.core.receive_message(msg, now_ms)
+            c.core.receive_data(data, now_ms)
         except RemoteProtocolError as exc:  # a malformed update: counted, the run goes on
             c.protocol_errors += 1
             log.warning("run %s client %d: %s", self.cfg.method, c.index, exc)
@@ -520,8 +509,11 @@ class VirtualTimeRun:
         self._client_out(c)
 
     def _client_out(self, c: _Client) -> None:
-        """What the client core wants sent (RTCP over its copy of the uplink), its events, its next timer."""
+        """What the client core wants sent (control bytes over the uplink as TCP segments, RTCP over its copy of
+        the uplink), its events, its next timer."""
         assert c.core is not None and c.rtcp_up is not None
+        if control := c.core.data_to_send():
+            self._control_up(c, control)
         for data in c.core.datagrams_to_send():
             t = max(self.now, c.sent_s.get("rtcp_up", -math.inf))
             c.sent_s["rtcp_up"] = t
@@ -540,8 +532,7 @@ class VirtualTimeRun:
             c.timer_token += 1
             self._at(c.timer_s, _TIMER, self._client_timer, c, c.timer_token)
 
-    def _send_up(self, c: _Client, msg: Message) -> None:
-        data = c.cconn.send(msg)
+    def _control_up(self, c: _Client, data: bytes) -> None:
         arrive = self.now
         t = max(self.now, c.sent_s.get("ctrl", -math.inf))
         c.sent_s["ctrl"] = t
@@ -584,9 +575,7 @@ class VirtualTimeRun:
             row.update({"update_frame_id": fid, "update_age_ms": (t_d - shown.update.t_s) * 1000,
                         "motion_to_photon_ms": (t_d - pose_t) * 1000, "client_ms": client_ms, "decode_ms": decode_ms,
                         "pred_err_cm": pcm, "pred_err_deg": pdeg})
-            fb = c.core.feedback(now_ms)
-            if fb is not None:
-                self._send_up(c, fb)
+            c.core.feedback(now_ms)   # sent with the tick's other output (_client_out)
         if c.core.blank(c.chalf.has_content):
             # a start-up tick: nothing shown yet, or only updates whose content was lost (black)
             row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
@@ -612,21 +601,13 @@ class VirtualTimeRun:
         """The updates whose turn has come, applied to the client half in order and reported to the core; returns
         the milliseconds applying took and the last one's measured decode time."""
         assert c.core is not None
-        applied_ms, decode_ms = 0.0, math.nan
-        for rf in c.core.display(now_ms):
+        new = c.core.display(now_ms)
+        decode_ms = math.nan
+        for rf in new:
             decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
-            w0 = time.perf_counter()
-            try:
-                c.chalf.apply(rf.update)
-            except RemoteProtocolError as exc:  # a malformed update: keep the last good state
-                c.core.apply_failed(rf)
-                log.warning("run %s: update %d rejected by the client half: %s", self.cfg.method, rf.update.frame_id,
-                            exc)
-                continue
-            finally:
-                applied_ms += (time.perf_counter() - w0) * 1000
-            c.core.applied(rf)
-        return applied_ms, decode_ms
+        w0 = time.perf_counter()
+        c.core.report_applied(new, apply_updates(c.chalf, new, f"run {self.cfg.method}"))
+        return (time.perf_counter() - w0) * 1000, decode_ms
 
     def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg

@@ -31,8 +31,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..errors import WorkerTimeout, describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
@@ -41,7 +39,6 @@ from ..pipeline.rows import update_row
 from ..pipeline.session import ServerSession
 from ..protocol import Feedback
 from ..scene.pose import CameraIntrinsics
-from ..scene.pose import Pose as ScenePose
 from ..scene.predict import make_predictor
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, parse_channel_message
 from .sdp import check_offer, replace_candidates, strip_candidates, udp_candidate_ports
@@ -132,8 +129,6 @@ class BrowserSession:
         self.end_reason = ""
         self.ended_at: float | None = None
         self.started_at = time.time()
-        self._frame_id = 0
-        self._last_tick = -1
         self._origin_sent = False
         self._logs = SessionLogs(self.out_dir)
         self._sender_sent: tuple[int, int] | None = None
@@ -305,10 +300,8 @@ class BrowserSession:
             self._page_error(f"page message: could not be handled ({describe_error(exc)})"[:300])
 
     def _on_pose(self, msg: PoseSample) -> None:
-        t_s = msg.client_time_us / 1e6
-        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
         assert self.core is not None
-        self.core.receive_pose(t_s, pose, msg.client_time_us, msg.seq)  # a duplicate or reordered one counts as stale
+        self.core.receive_pose_sample(msg)  # a duplicate or reordered one counts as stale
         self.counters.update(self.core.poses.counters())
 
     def _on_feedback(self, msg: PageFeedback) -> None:
@@ -415,7 +408,7 @@ class BrowserSession:
             self.counters["frames_skipped_late"] += skipped
             if (self.core is None or self.core.poses.latest is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
-                if self._frame_id == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
+                if self.counters["frames_sent"] == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
                     raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
                                        f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
                 continue
@@ -429,13 +422,11 @@ class BrowserSession:
         server, cfg, core = self.server, self.cfg, self.core
         assert core is not None and self.track is not None
         wall = time.time()
-        tick = max(server.tick_of(wall), self._last_tick + 1)
-        self._last_tick = tick
-        scene_t = tick / cfg.server_fps
         now_ms = wall * 1000
-        order = core.order_frame(self._frame_id, tick, scene_t, now_ms, server.epoch_wall_s)
+        order = core.order_tick(server.tick_of(wall), cfg.server_fps, now_ms, server.epoch_wall_s)
         if order is None:
             return
+        fid, scene_t = order.frame_id, order.t_s
         c0 = time.perf_counter()
         try:
             enc, _stats, stages = await self.worker.call("frame", self.id, order, deadline_s=cfg.render_deadline_s)
@@ -452,7 +443,7 @@ class BrowserSession:
         upd = enc.update
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
-        meta = {"type": "frame", "id": self._frame_id, "rtp": rtp_ts, "t": scene_t, "server_us": t_us,
+        meta = {"type": "frame", "id": fid, "rtp": rtp_ts, "t": scene_t, "server_us": t_us,
                 "pose_us": order.pose_us, "seq": order.pose_seq, "kf": bool(frame.keyframe),
                 "p": [round(float(v), 6) for v in upd.pose.position],
                 "q": [round(float(v), 7) for v in upd.pose.orientation],
@@ -461,21 +452,20 @@ class BrowserSession:
             meta["fov"] = float(upd.meta["fov_y_deg"])
         if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
             ch = self.channels.get("meta")
-            for msg in self.page.frame(self._frame_id, enc.update.meta):
+            for msg in self.page.frame(fid, enc.update.meta):
                 if ch is not None and ch.readyState == "open":
                     ch.send(msg)
         n_meta = self._send("frame", meta)
         if not self.track.put(frame.data, rtp_ts):
             self.request_keyframe("the sender fell behind")
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
-        sent = OutgoingFrame(self._frame_id, keyframe=frame.keyframe, wire_bytes={self.stream: len(frame.data)})
-        core.frame_sent(self._frame_id, sent, now_ms, t_us, enc.rates_kbps, enc.restarts)
+        sent = OutgoingFrame(fid, keyframe=frame.keyframe, wire_bytes={self.stream: len(frame.data)})
+        core.frame_sent(fid, sent, now_ms, t_us, enc.rates_kbps, enc.restarts)
         self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
         c1 = time.perf_counter()
-        row = {**update_row(self._frame_id, scene_t, sent, enc, order, stages, (self.stream,), core.congestion()), "server_us": t_us,
+        row = {**update_row(fid, scene_t, sent, enc, order, stages, (self.stream,), core.congestion()), "server_us": t_us,
                "bytes_frame_meta": n_meta, "worker_rtt_ms": max(0.0, (c1 - c0) * 1e3 - stages["frame_ms"])}
         self._logs.append("updates", row)
-        self._frame_id += 1
 
