@@ -126,7 +126,7 @@ def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dic
     out: dict[str, object] = {"server_ms": float(np.min(ms)), "ground_truth_ms": float(np.min(gt)),
                               "server_over_ground_truth": float(np.min(ms) / np.min(gt)), "digest": dig.hexdigest(),
                               "samples": float(np.median([s["samples"] for s in stats]))}
-    for k in ("pvs_ms", "alloc_ms", "shade_ms", "meta_ms", "shaded_patches", "pvs_patches"):
+    for k in ("pvs_ms", "alloc_ms", "shade_ms", "meta_ms", "shaded_patches", "shadow_reused_patches", "pvs_patches"):
         if k in stats[0]:
             out[k] = float(np.median([s[k] for s in stats]))
     return out

@@ -423,7 +423,7 @@ def test_shading_draws_each_block_texel_once_and_misses_none(renderer) -> None: 
     from splitrender.scene.trace import get_trace
 
     scene = default_scene(gi=False)
-    srv = SasServer(SasConfig(), INTR, scene, 30)
+    srv = SasServer(SasConfig(shade_changed_only=False), INTR, scene, 30)   # the pass again draws every block
     got: dict[str, object] = {}
     shade = srv._shade
 

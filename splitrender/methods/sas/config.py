@@ -71,7 +71,10 @@ class SasConfig(MethodConfig):
     only the blocks whose texels would change: a block keeps last frame's texels while its patch, block, footprint,
     object transform, the frame's lighting and view uniforms, the GI probes' state and the moving shadow casters
     over it are all as they were (the atlas is bit for bit the one shading every block gives); off shades every
-    block every frame.
+    block every frame.  ``reuse_shadow``: each texel's sun-shadow factor (the shadow maps' 2 x 9 taps) is kept in
+    a float texture beside the atlas, and a block drawn again reads it back while its patch, block, object and
+    the sun are unchanged, no moving caster is near, and every texel's normal stays on the same side of the eye
+    (the lookup moves along it); the atlas is bit for bit the same.
     """
 
     gop: int = 30
@@ -99,6 +102,7 @@ class SasConfig(MethodConfig):
     grow_block_sides: bool = False
     inset_min_texels: int = 8
     shade_changed_only: bool = True
+    reuse_shadow: bool = True
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: the fraction of the atlas eq. 3 fills (``bias_fill``; with ``fill_atlas`` off, the

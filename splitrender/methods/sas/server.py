@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import grow_vertex_buffer, load_program, runs, set_reference_view
+from ...render.gl import grow_vertex_buffer, load_program, read_shader, runs, set_reference_view
 from ...render.renderer import MAP_UNITS, light_view_projection
 from ...scene.pose import CameraIntrinsics
 from ..base import AnyStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
@@ -99,6 +99,17 @@ SHADOW_REACH_TEXELS = 3.0
 """How many shadow-map texels around its lookup a texel's shadow reads or a caster's box may touch: the 3 x 3
 PCF taps (one texel), the comparison sampler's bilinear footprint (one more) and rasterisation past the box's
 projection (one more)."""
+
+
+SHADOW_FACTOR_SIGNATURE = "float shadow_factor(vec3 world_pos, vec3 n) {"
+"""``shading.glsl``'s shadow lookup, renamed ``shadow_factor_lookup`` for the shadow cache (``atlas_shade.frag``)."""
+SHADOW_UNIFORMS = ("u_has_shadow", "u_light_vp", "u_sun_dir")
+"""The frame uniforms a texel's shadow factor reads (the maps aside)."""
+FLIP_MARGIN = 1e-3
+"""A triangle's side towards the eye is known when every n_i . (eye - x_j) of its (grown) vertices is this far
+(relative to |n_i| |eye - x_j|) from 0 on the same side: float rounding in the shader cannot flip it."""
+SHADOW_CACHE_UNIT = 9
+"""Texture unit of the shadow cache (the shading program uses 0-8)."""
 
 
 def frame_uniform_key(prog: Any) -> bytes:
@@ -335,7 +346,7 @@ class SasProducer(SceneProducer):
         self._patches: dict[tuple[int, int, float], ScenePatches] = {}
         self._sets: dict[tuple[int, int, float], PatchSet] = {}
         self._ids: dict[tuple[int, int, float], PatchIdPass] = {}
-        self._programs: dict[int, tuple[Any, Any]] = {}
+        self._programs: dict[Any, tuple[Any, Any]] = {}
         self._textured: np.ndarray | None = None
         self._frame: SasFrame | None = None
         self.patch_build_ms = 0.0
@@ -376,6 +387,28 @@ class SasProducer(SceneProducer):
         got = self._programs.get(id(ctx))
         if got is None or got[0] is not ctx:
             got = self._programs[id(ctx)] = (ctx, load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag"))
+        return got[1]
+
+    def shade_programs(self, ctx: Any) -> dict[str, Any] | None:
+        """The atlas-shading program's two shadow-cache variants on GL context ``ctx`` (``store``: takes the shadow
+        maps' taps and writes each texel's factor to attachment 1; ``reuse``: reads it from ``u_shadow_cache``),
+        compiled once; None where ``shading.glsl`` has no :data:`SHADOW_FACTOR_SIGNATURE` to rename."""
+        key = ("cache", id(ctx))
+        got = self._programs.get(key)
+        if got is None or got[0] is not ctx:
+            vs = read_shader(SHADERS / "atlas_shade.vert")
+            fs = read_shader(SHADERS / "atlas_shade.frag")
+            progs: dict[str, Any] | None = None
+            # shading.glsl's (included before the cache's own, which atlas_shade.frag defines under SHADOW_CACHE)
+            if fs.count(SHADOW_FACTOR_SIGNATURE) == 2 and fs.index(SHADOW_FACTOR_SIGNATURE) < fs.index("#ifdef SHADOW_CACHE"):
+                fs = fs.replace(SHADOW_FACTOR_SIGNATURE, "float shadow_factor(vec3 world_pos, vec3 n);\n"
+                                + SHADOW_FACTOR_SIGNATURE.replace("shadow_factor", "shadow_factor_lookup"), 1)
+                head, rest = fs.split("\n", 1)
+                progs = {name: ctx.program(vertex_shader=vs, fragment_shader=f"{head}\n#define SHADOW_CACHE {v}\n{rest}")
+                         for name, v in (("store", 1), ("reuse", 2))}
+            else:
+                log.warning("sas: shading.glsl's shadow_factor not found, the shadow cache is off")
+            got = self._programs[key] = (ctx, progs)
         return got[1]
 
     def prepare(self, frame_id: int, t_s: float) -> SasFrame:
@@ -425,6 +458,14 @@ class SasServer(ServerHalf):
         self._shaded_foot = np.zeros((self.patches.count, 2), np.float32)
         self._shaded_key: tuple[Any, ...] | None = None
         self._shaded_models: np.ndarray | None = None
+        # the shadow cache (reuse_shadow): whether a patch's texels' factors are in it, at which side (_flip_code)
+        self._shadow_ok = np.zeros(self.patches.count, bool)
+        self._shadow_code = np.zeros(self.patches.count, np.int8)
+        self._shadow_key = b""
+        self._lrect = np.zeros((self.patches.count, 4))       # _light_rects of still patches at their blocks
+        self._lrect_ok = np.zeros(self.patches.count, bool)
+        self._lrect_vp: np.ndarray | None = None
+        self._reused_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
@@ -476,6 +517,17 @@ class SasServer(ServerHalf):
         self._sg = renderer.upload(self.scene)
         self._vbo: Any = None
         self._vao: Any = None
+        self._vao_reuse: Any = None
+        # the shadow cache: a float factor per texel in two textures, read from one and written to the other
+        self._sc = self.producer.shade_programs(ctx) if self.config.reuse_shadow else None
+        if self._sc is not None:
+            size = (self.layout.width, self.layout.height)
+            self._sc_tex = [ctx.texture(size, 1, dtype="f4") for _ in range(2)]
+            for t in self._sc_tex:
+                t.filter = (ctx.NEAREST, ctx.NEAREST)
+            self._sc_fbo = [ctx.framebuffer([self._tex, t]) for t in self._sc_tex]   # atlas + the cache written
+            self._sc_copy = [ctx.framebuffer([t]) for t in self._sc_tex]
+            self._sc_write = 0
 
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
@@ -539,6 +591,8 @@ class SasServer(ServerHalf):
         self.transposed[res.placed] = choice.transposed[np.searchsorted(pvs, res.placed)]
         self._vcache_ok[res.placed] = False
         self._texels_ok[res.placed] = False
+        self._shadow_ok[res.placed] = False
+        self._lrect_ok[res.placed] = False
         t2, u2 = time.perf_counter(), time.process_time()
         live = pvs[al.level_w[pvs] >= 0]
         in_live = np.searchsorted(pvs, live)
@@ -564,22 +618,24 @@ class SasServer(ServerHalf):
             "failed": float(res.failed.size), "bias": choice.bias, "placed": float(res.placed.size),
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
             "samples": float(((1 << al.level_w[live].astype(np.int64)) * (1 << al.level_h[live].astype(np.int64))).sum()),
-            "shaded_patches": float(self._shaded_count),
+            "shaded_patches": float(self._shaded_count), "shadow_reused_patches": float(self._reused_count),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
     def _shade(self, ctx: ServerContext, live: np.ndarray, frame: SasFrame, foot: np.ndarray, clear: bool) -> None:
         """Shading stage: the live PVS patches into their blocks (one draw per object; the objects' matrices from the
         shared ``frame``); with :attr:`SasConfig.shade_changed_only` on a P-frame only those :meth:`_changed` says
-        would come out differently, the others keep last frame's texels."""
+        would come out differently, the others keep last frame's texels; with :attr:`SasConfig.reuse_shadow` the
+        drawn patches whose shadow factors cannot have changed (:meth:`_shadow_reusable`) read them from the cache."""
         gl = self._gl
         self._fbo.use()
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         if clear:
             self._fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._shaded_count = 0
+        self._shaded_count = self._reused_count = 0
         if live.size == 0:
             self._texels_ok[:] = False
+            self._shadow_ok[:] = False
             self._shaded_key = None
             return
         P = self.patches
@@ -595,39 +651,101 @@ class SasServer(ServerHalf):
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # textures filtered for its pixel footprint
         foot32 = np.asarray(foot, np.float32)
         key = self._frame_key(ctx, prog)
+        prev = self._shaded_models
+        moved = np.ones(self.n_obj, bool) if prev is None or prev.shape != frame.models.shape \
+            else (frame.models != prev).any(axis=(1, 2))
         if clear or not self.config.shade_changed_only or key is None or key != self._shaded_key:
             draw = live
         else:
-            draw = live[self._changed(live, frame, foot32)]
+            draw = live[self._changed(live, frame, foot32, moved)]
+        reuse = np.zeros(draw.size, bool)
+        code = np.zeros(draw.size, np.int8)
+        if self._sc is not None and draw.size:
+            skey = b"".join(prog[k].read() for k in SHADOW_UNIFORMS if k in prog)
+            if clear or skey != self._shadow_key:
+                self._shadow_ok[:] = False
+            self._shadow_key = skey
+            code = self._flip_code(draw, frame, ctx.target_pose.position)
+            reuse = self._shadow_ok[draw] & (code != 0) & (code == self._shadow_code[draw]) \
+                & ~moved[P.object_index[draw]]
+            if reuse.any():
+                cand = np.flatnonzero(reuse)
+                reuse[cand] = ~self._near_moved_casters(draw[cand], frame, moved)
+        # what the atlas and the cache hold after this frame
         self._texels_ok[:] = False
         self._texels_ok[live] = True
         self._shaded_foot[live] = foot32
         self._shaded_key = key
         self._shaded_models = frame.models.copy()
         self._shaded_count = int(draw.size)
-        self._fbo.use()   # bind_shading may have rendered the shadow map
+        self._reused_count = int(reuse.sum())
+        kept = self._shadow_ok[live].copy()
+        self._shadow_ok[:] = False
+        self._shadow_ok[live] = kept
+        self._shadow_ok[draw] = reuse | (code != 0)
+        self._shadow_code[draw] = code
+        if self._sc is not None:
+            # the cache written this frame starts as last frame's (blocks not drawn keep their factors)
+            w = self._sc_write
+            gl.copy_framebuffer(self._sc_copy[w], self._sc_copy[1 - w])
+            self._sc_write = 1 - w
+            fbo = self._sc_fbo[w]
+        else:
+            fbo = self._fbo
+        fbo.use()   # bind_shading may have rendered the shadow map
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         gl.disable(gl.DEPTH_TEST)
         gl.disable(gl.CULL_FACE)
         if draw.size == 0:
             return
-        di = np.searchsorted(live, draw)
-        li, ti = np.nonzero(np.arange(3)[None, :] < P.size[draw][:, None])  # the used (patch, triangle) pairs
-        v = self._vcache.reshape(-1, 3, VERTEX_FLOATS)[draw[li] * 3 + ti]  # (n_tri, 3, VERTEX_FLOATS), object order (ids are)
-        v[..., VERTEX_FLOATS - 2:] = foot32[di[li]][:, None, :]
-        o = P.object_index[draw[li]]
+        order = np.concatenate([np.flatnonzero(~reuse), np.flatnonzero(reuse)])   # each part in object order
+        ids = draw[order]
+        li, ti = np.nonzero(np.arange(3)[None, :] < P.size[ids][:, None])  # the used (patch, triangle) pairs
+        v = self._vcache.reshape(-1, 3, VERTEX_FLOATS)[ids[li] * 3 + ti]  # (n_tri, 3, VERTEX_FLOATS)
+        v[..., VERTEX_FLOATS - 2:] = foot32[np.searchsorted(live, ids)[li]][:, None, :]
+        o = P.object_index[ids[li]]
+        part = reuse[order][li]                                           # (n_tri,) drawn by the reuse program
         data = v.tobytes()
-        self._vbo, self._vao = grow_vertex_buffer(gl, prog, self._vbo, self._vao, len(data), "2f 3f 3f 2f 4f 4f 2f",
-                                                  ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint"))
+        layout, names = "2f 3f 3f 2f 4f 4f 2f", ("in_atlas", "in_position", "in_normal", "in_uv", "in_tangent", "in_rect", "in_footprint")
+        main = prog if self._sc is None else self._sc["store"]
+        vbo0 = self._vbo
+        self._vbo, self._vao = grow_vertex_buffer(gl, main, self._vbo, self._vao, len(data), layout, names)
         self._vbo.write(data)
-        vao = self._vao
-        for s, e in runs(o):
-            k = int(o[s])
-            og = self._sg.objects[k]
-            prog["u_model"].write(frame.model_uniform(k))
-            prog["u_normal_matrix"].write(frame.normal_uniform(k))
-            ctx.renderer.bind_material(prog, og)
-            vao.render(first=3 * s, vertices=3 * (e - s))
+        passes = [(main, self._vao, ~part)]
+        if self._sc is not None:
+            if self._vao_reuse is None or self._vbo is not vbo0:
+                if self._vao_reuse is not None:
+                    self._vao_reuse.release()
+                self._vao_reuse = gl.vertex_array(self._sc["reuse"], [(self._vbo, layout, *names)])
+            passes.append((self._sc["reuse"], self._vao_reuse, part))
+        for pr, vao, sel in passes:
+            idx = np.flatnonzero(sel)
+            if idx.size == 0:
+                continue
+            if pr is not prog:
+                self._copy_frame_uniforms(prog, pr)
+                if pr is self._sc["reuse"]:   # type: ignore[index]
+                    self._sc_tex[1 - self._sc_write].use(location=SHADOW_CACHE_UNIT)
+                    pr["u_shadow_cache"].value = SHADOW_CACHE_UNIT
+            for s, e in runs(o[idx[0]:idx[-1] + 1]):
+                s, e = s + int(idx[0]), e + int(idx[0])
+                k = int(o[s])
+                og = self._sg.objects[k]
+                pr["u_model"].write(frame.model_uniform(k))
+                pr["u_normal_matrix"].write(frame.normal_uniform(k))
+                ctx.renderer.bind_material(pr, og)
+                vao.render(first=3 * s, vertices=3 * (e - s))
+
+    @staticmethod
+    def _copy_frame_uniforms(src: Any, dst: Any) -> None:
+        """The frame's uniforms (lighting, view, GI, atlas size; not the per-object ones) of ``src`` onto ``dst``,
+        a variant of the same shader: ``bind_shading`` set them on ``src`` (and bound the textures they name)."""
+        for name in src:
+            if name in PER_OBJECT_UNIFORMS or name not in dst:
+                continue
+            m = src[name]
+            if hasattr(m, "array_length") and hasattr(m, "read") and not hasattr(m, "binding"):
+                dst[name].write(m.read())
 
     def _frame_key(self, ctx: ServerContext, prog: Any) -> tuple[Any, ...] | None:
         """What every texel's shading reads this frame besides its patch, block, footprint, object and the shadow
@@ -645,41 +763,87 @@ class SasServer(ServerHalf):
             gi = (id(vol), gi)
         return frame_uniform_key(prog), gi
 
-    def _changed(self, live: np.ndarray, frame: SasFrame, foot: np.ndarray) -> np.ndarray:
+    def _changed(self, live: np.ndarray, frame: SasFrame, foot: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """(len(live),) bool: which live patches' texels differ from last frame's, the frame's uniforms and probes
         being the same: those not shaded into their block last frame, with another footprint, of an object whose
-        matrix changed, or whose shadow lookups (texel positions moved along the normal, the PCF taps) reach the
-        light-space box of a shadow caster that moved (where it was or is)."""
+        matrix changed (``moved``, per object), or near a shadow caster that moved (:meth:`_near_moved_casters`)."""
         P = self.patches
-        prev = self._shaded_models
-        assert prev is not None
-        moved = (frame.models != prev).any(axis=(1, 2)) if prev.shape == frame.models.shape \
-            else np.ones(self.n_obj, bool)
         out = ~self._texels_ok[live] | moved[P.object_index[live]] | (foot != self._shaded_foot[live]).any(axis=1)
+        cand = np.flatnonzero(~out)
+        if cand.size:
+            out[cand] = self._near_moved_casters(live[cand], frame, moved)
+        return out
+
+    def _near_moved_casters(self, ids: np.ndarray, frame: SasFrame, moved: np.ndarray) -> np.ndarray:
+        """(len(ids),) bool: whether patches ``ids``' shadow lookups (their texels, which lie in the grown shading
+        triangles, moved along the normal; the PCF taps) reach the sun's shadow map where a dynamic caster that
+        moved since last frame (``moved``, per object) was or is (its box, grown by :data:`SHADOW_REACH_TEXELS`)."""
         casters = np.flatnonzero(moved & self.dynamic)
         sun = self.scene.sun
-        if casters.size == 0 or sun is None or out.all():
-            return out
+        prev = self._shaded_models
+        if casters.size == 0 or sun is None or ids.size == 0:
+            return np.zeros(ids.size, bool)
+        if prev is None or prev.shape != frame.models.shape:
+            return np.ones(ids.size, bool)
         vp = light_view_projection(self.scene)
-        scale = float(np.linalg.norm(vp[:2, :3], axis=1).max())        # clip units per metre (orthographic)
         reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
         lo, hi = self.obj_box[casters, 0], self.obj_box[casters, 1]
         corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), hi, lo) for i in range(8)], axis=1)
         boxes = []
         for m in (prev, frame.models):
             mk = m[casters]
-            boxes.append(light_rects(vp, np.einsum("nij,nkj->nki", mk[:, :3, :3], corners) + mk[:, None, :3, 3], reach))
-        cand = np.flatnonzero(~out)
-        ids = live[cand]
-        # every texel lies in its grown triangles (the shading vertices); unused triangles repeat the first vertex
-        pos = self._vcache[ids][..., 2:5].astype(np.float64)              # (n, 3 tris, 3 verts, 3)
-        unused = np.arange(3)[None, :] >= P.size[ids][:, None]
-        pos = np.where(unused[:, :, None, None], pos[:, :1, :1], pos).reshape(ids.size, 9, 3)
-        m = frame.models[P.object_index[ids]]
-        world = np.einsum("nij,nkj->nki", m[:, :3, :3], pos) + m[:, None, :3, 3]
-        rects = light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale)
-        out[cand] = rects_overlap(rects, np.concatenate(boxes))
+            boxes.append(light_rects(vp, corners @ mk[:, :3, :3].transpose(0, 2, 1) + mk[:, None, :3, 3], reach))
+        return rects_overlap(self._light_rects(ids, frame, vp), np.concatenate(boxes))
+
+    def _light_rects(self, ids: np.ndarray, frame: SasFrame, vp: np.ndarray) -> np.ndarray:
+        """(len(ids), 4) the sun-map rectangles patches ``ids``' shadow lookups fall in: their grown shading
+        triangles placed at ``frame``, grown by the lookup's normal offset.  A still object's are kept while the
+        patch's block (its shading vertices) stays put and the sun's projection ``vp`` is the same."""
+        P = self.patches
+        if self._lrect_vp is None or not np.array_equal(self._lrect_vp, vp):
+            self._lrect_ok[:] = False
+            self._lrect_vp = vp.copy()
+        out = np.empty((ids.size, 4))
+        ok = self._lrect_ok[ids]
+        out[ok] = self._lrect[ids[ok]]
+        todo = ids[~ok]
+        if todo.size:
+            pos = self._vcache[:, :, :, 2:5][todo].astype(np.float64)      # (n, 3 tris, 3 verts, 3)
+            unused = np.arange(3)[None, :] >= P.size[todo][:, None]
+            pos = np.where(unused[:, :, None, None], pos[:, :1, :1], pos).reshape(todo.size, 9, 3)
+            m = frame.models[P.object_index[todo]]
+            world = pos @ m[:, :3, :3].transpose(0, 2, 1) + m[:, None, :3, 3]
+            scale = float(np.linalg.norm(vp[:2, :3], axis=1).max())        # clip units per metre (orthographic)
+            r = light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale)
+            out[~ok] = r
+            still = ~self.dynamic[P.object_index[todo]] & (self.patch_set.animated_row[todo] < 0)
+            self._lrect[todo[still]] = r[still]
+            self._lrect_ok[todo[still]] = True
         return out
+
+    def _flip_code(self, ids: np.ndarray, frame: SasFrame, eye: Any) -> np.ndarray:
+        """(len(ids),) int8 per patch: 1 when every texel's normal faces the eye (the shader keeps it), -1 when every
+        one faces away (the shader flips it), 0 when that cannot be told.  A texel's n . (eye - x) with n and x
+        interpolated with weights b >= 0 in a grown triangle is sum_ij b_i b_j n_i . (eye - x_j): of one sign where
+        every term is (by :data:`FLIP_MARGIN`).  The terms are the same in object space (the normal matrix is the
+        model's inverse transpose), where the eye is placed per object.  The shadow lookup moves along that
+        normal, so a cached factor holds only while the side is the same."""
+        P = self.patches
+        if ids.size == 0:
+            return np.zeros(0, np.int8)
+        v = self._vcache[:, :, :, 2:8][ids]                              # (n, 3 tris, 3 verts, position + normal)
+        obj = P.object_index[ids]
+        models = frame.models
+        eye_obj = np.einsum("kij,kj->ki", np.linalg.inv(models[:, :3, :3]), np.asarray(eye, np.float64) - models[:, :3, 3])
+        d = eye_obj.astype(np.float32)[obj][:, None, None, :] - v[..., :3]   # (n, t, j, 3) eye - x_j (float32: the
+        # shader's rounding is some 1e-7 of each term, far inside FLIP_MARGIN, and so is this)
+        nrm = v[..., 3:]
+        dots = nrm @ d.transpose(0, 1, 3, 2)                              # (n, t, i, j) n_i . (eye - x_j)
+        bound = FLIP_MARGIN * np.sqrt((nrm * nrm).sum(-1))[..., :, None] * np.sqrt((d * d).sum(-1))[..., None, :]
+        unused = np.arange(3)[None, :] >= P.size[ids][:, None]
+        front = ((dots > bound).all(axis=(2, 3)) | unused).all(axis=1)
+        back = ((dots < -bound).all(axis=(2, 3)) | unused).all(axis=1)
+        return np.where(front, 1, np.where(back, -1, 0)).astype(np.int8)
 
     def _shade_vertices(self, ids: np.ndarray) -> np.ndarray:
         """(N, 3, 3, VERTEX_FLOATS) float32 atlas-shading vertices of patches ``ids`` at their blocks (unused triangles zero).

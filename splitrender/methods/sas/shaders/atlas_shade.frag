@@ -22,6 +22,23 @@ vec2 g_duv_dx, g_duv_dy;   // texture-coordinate gradients per display pixel, ta
 #include "shading.glsl"
 uniform vec3 u_eye;
 layout(location = 0) out vec4 f_color;
+#ifdef SHADOW_CACHE
+// The shadow factor cache (SasConfig.reuse_shadow): the loader renames shading.glsl's shadow_factor to
+// shadow_factor_lookup (SasProducer.shade_programs); each texel's factor goes to attachment 1, and a block
+// whose factor cannot have changed reads it back from last frame's cache (SHADOW_CACHE 2) instead of taking
+// the 2 x 9 shadow-map taps (SHADOW_CACHE 1).
+layout(location = 1) out float f_shadow;
+uniform sampler2D u_shadow_cache;
+float g_shadow = 1.0;
+float shadow_factor(vec3 world_pos, vec3 n) {
+#if SHADOW_CACHE == 2
+    g_shadow = texelFetch(u_shadow_cache, ivec2(gl_FragCoord.xy), 0).r;
+#else
+    g_shadow = shadow_factor_lookup(world_pos, n);
+#endif
+    return g_shadow;
+}
+#endif
 void main() {
     vec2 ux = dFdx(v_uv), uy = dFdy(v_uv);                       // per atlas texel
     vec4 c = u_view_proj * vec4(v_world, 1.0);
@@ -41,4 +58,7 @@ void main() {
     vec3 n = normalize(v_normal);
     if (dot(n, u_eye - v_world) < 0.0) n = -n;
     f_color = vec4(shade(v_world, n, v_tangent, v_uv, u_eye), 1.0);
+#ifdef SHADOW_CACHE
+    f_shadow = g_shadow;
+#endif
 }
