@@ -625,6 +625,14 @@ def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
     assert core.order_frame(0, 0, 0.0, 0.0) is not None
     core.frame_sent(0, OutgoingFrame(0, keyframe=True, wire_bytes={"color": 100}), 0.0, 1)
     assert core.counters["frames_sent"] == 1 and core.counters["keyframes"] == 1
+    # frame_encoded, every front door's report of a made frame: here the stack packetizes, so the coded streams count
+    order = core.order_frame(1, 1, 1 / FPS, 33.0)
+    plane = (np.random.default_rng(0).random((H, W, 3)) * 255).astype(np.uint8)
+    enc = tx.encode(Update(1, 1 / FPS, Pose(), {"color": plane}, {}), force_idr=True)
+    sent = core.frame_encoded(order, enc, 33.0, 2)
+    assert (sent.frame_id, sent.keyframe, sent.idr_streams, sent.datagrams) == (1, True, ("color",), [])
+    assert sent.wire_bytes == {"color": len(enc.video["color"].data)} and sent.control == []
+    assert core.counters["frames_sent"] == 2 and core.counters["keyframes"] == 2 and core.datagrams_to_send(1e9) == []
     with pytest.raises(ConfigError, match="server transport: must be rtp or webrtc, got 'quic'"):
         ServerSession(tx, 60.0, transport="quic")
 
@@ -799,3 +807,24 @@ def test_the_client_core_owns_its_control_connection() -> None:
     events = list(iter(core.next_event, None))
     assert [type(e.message) for e in events if isinstance(e, ServerMessage)] == [Stats, Bye]
     assert isinstance(events[-1], ControlClosed) and events[-1].now_ms == 90.0
+
+
+def test_the_server_core_binds_its_client_s_rtcp_address() -> None:
+    """The live server's address rule, in the core (issue 47): a malformed datagram binds nothing (``rtcp_bad``), the
+    first that parses binds its source, and later ones from any other source are counted (``rtcp_foreign``) and
+    dropped unparsed.  Virtual time passes no address and binds none."""
+    p = Pair()
+    rr = serialize_rtcp([ReceiverReport(p.client.ssrc, ())])
+    a, b = ("10.0.0.1", 5000), ("10.0.0.2", 5000)
+    p.server.receive_datagram(b"\x80\xc9\x00\x07junk", 1.0, a)
+    assert p.server.peer is None and p.server.counters["rtcp_bad"] == 1
+    p.server.receive_datagram(rr, 2.0, a)
+    assert p.server.peer == a and p.server.counters["rtcp_received"] == 1
+    p.server.receive_datagram(rr, 3.0, b)
+    assert p.server.peer == a and p.server.counters["rtcp_received"] == 1 and p.server.counters["rtcp_foreign"] == 1
+    p.server.receive_datagram(rr, 4.0, a)
+    assert p.server.counters["rtcp_received"] == 2
+    q = Pair()
+    q.server.receive_datagram(rr, 1.0)
+    q.server.receive_datagram(rr, 2.0)
+    assert q.server.peer is None and q.server.counters["rtcp_received"] == 2 and q.server.counters["rtcp_foreign"] == 0

@@ -43,7 +43,6 @@ from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions,
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, save_image
 from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
-from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
@@ -311,48 +310,39 @@ class LiveClient:
         assert ch is not None
         await ch.write_frames([hs.hello(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs),
                                               cfg.width, cfg.height, float(cfg.display_hz)))])
-        msg = await self._next_message("Welcome")
-        if isinstance(msg, Error):
-            raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
-        if msg is None and not cfg.tls and ch.bytes_received == 0:   # what a TLS server does to a plaintext Hello
-            raise ConnectError(f"{cfg.server}:{cfg.port} closed the connection without answering Hello: if it serves "
-                               "TLS (serve --tls-cert), connect with --tls")
-        if not isinstance(msg, Welcome):
-            raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
-        hs.receive_message(msg)
-        terms = hs.terms
-        assert terms is not None
-        self._welcome = msg
-        self.session_id = msg.session_id
-        self._params = dict(msg.method_params)
-        spec = terms.spec
-        mcfg = terms.config
-        intr = CameraIntrinsics(cfg.width, cfg.height, terms.fov_y_deg)
-        if terms.subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
-            self.trace = get_trace(cfg.trace, scene=_Subject(terms.subject), fov_y_deg=intr.fov_y_deg,  # type: ignore[arg-type]
-                                   aspect=cfg.width / cfg.height)
-        # the session data follows Welcome in DataChunk messages (chunked, counted, bounded)
-        while not hs.done:
+        while not hs.done:   # the Welcome, then the session data in DataChunk messages (chunked, counted, bounded)
             got, total = hs.session_progress
-            chunk = await self._next_message(f"session data ({got} of {total} bytes received)")
-            if isinstance(chunk, Error):
-                raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(chunk)}")
-            if chunk is None:
+            first = hs.welcome is None
+            msg = await self._next_message("Welcome" if first else f"session data ({got} of {total} bytes received)")
+            if isinstance(msg, Error):
+                raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
+            if first and msg is None and not cfg.tls and ch.bytes_received == 0:   # a TLS server's answer to plaintext
+                raise ConnectError(f"{cfg.server}:{cfg.port} closed the connection without answering Hello: if it "
+                                   "serves TLS (serve --tls-cert), connect with --tls")
+            if first and not isinstance(msg, Welcome):
+                raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
+            if msg is None:
                 raise ServerRefusedError("server closed the connection during the session data")
-            hs.receive_message(chunk)
+            hs.receive_message(msg)
+            if first:
+                self._welcome, self.session_id, self._params = msg, msg.session_id, dict(msg.method_params)
+        terms = hs.terms
+        assert terms is not None and self._welcome is not None
+        if terms.subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
+            self.trace = get_trace(cfg.trace, scene=_Subject(terms.subject), fov_y_deg=terms.fov_y_deg,  # type: ignore[arg-type]
+                                   aspect=cfg.width / cfg.height)
         self._counters["session_bytes"] = hs.session_bytes
-        session_data = hs.session_data
 
         def make_half() -> Any:
             from splitrender.render.gl import get_context
 
-            return spec.client_class(mcfg, intr, get_context(), session_data, limits=cfg.limits)
+            return hs.client_half(get_context())
 
         self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
         self.core = hs.session(cfg.options())
         self.rx = self.core.rx
-        logger.info("session %s: method %s, streams %s", self.session_id, msg.method,
-                    ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in msg.streams))
+        logger.info("session %s: method %s, streams %s", self.session_id, terms.method,
+                    ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in self._welcome.streams))
 
     async def _next_message(self, what: str) -> Any:
         """The server's next control message; :class:`PeerTimeoutError` naming ``what``, the server and the wait when

@@ -67,7 +67,7 @@ from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
 from .rows import session_summary
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
-from .sender import OutgoingFrame, ServerPipeline
+from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import EnvelopeError, SessionDataError, specs_from_table
 
 log = logging.getLogger(__name__)
@@ -338,6 +338,16 @@ class ClientHandshake:
                 raise EnvelopeError(f"session data: expected a map, got {type(self.session_data).__name__}")
             self.done = True
         return self.done
+
+    def client_half(self, gl: Any) -> Any:
+        """The method's client half the terms name, in GL context ``gl`` (call on the thread that owns it): at the
+        display's size and the Welcome's field of view, built from the session data, held to ``limits``."""
+        from ..scene.pose import CameraIntrinsics
+
+        t = self.terms
+        assert t is not None and self.done and self.display is not None
+        intr = CameraIntrinsics(self.display[0], self.display[1], t.fov_y_deg)
+        return t.spec.client_class(t.config, intr, gl, self.session_data, limits=self.limits)
 
     def session(self, options: ClientOptions, clock_offset_us: int = 0, rng: Any = None) -> ClientSession:
         """The client session core the Welcome describes (:meth:`ClientSession.from_welcome`); it takes over the
@@ -1066,6 +1076,9 @@ class ServerSession:
                                                   st.packetizer)
         self._by_ssrc = {s.ssrc: s for s in self.streams.values()}
         self._fir_seq: dict[int, int] = {}
+        self.peer: Any = None
+        """The client's RTCP source address (:meth:`receive_datagram`'s ``addr``): None until the first datagram
+        that parses, and in virtual time."""
         first = min(self._by_ssrc) if self._by_ssrc else 0
         self.cname = f"splitrender-server-{first:08x}".encode("ascii")
         """The session's RTCP CNAME (from its SSRCs, which are random: no draw of its own, so seeded runs keep theirs)."""
@@ -1115,6 +1128,7 @@ class ServerSession:
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
             "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0, "twcc_feedback": 0,
             "twcc_unknown": 0, "twcc_stamped": 0, "nack_duplicates": 0, "nack_datagram_capped": 0, "nack_rate_limited": 0,
+            "rtcp_foreign": 0,
         }
 
     def owns_ssrc(self, ssrc: int) -> bool:
@@ -1376,14 +1390,20 @@ class ServerSession:
             out.update(self.point.state())
         return out
 
-    def receive_datagram(self, data: bytes, now_ms: float) -> list[bytes]:
+    def receive_datagram(self, data: bytes, now_ms: float, addr: Any = None) -> list[bytes]:
         """:meth:`receive_rtcp` from bytes (the one RTCP entry); malformed RTCP is counted (``rtcp_bad``) and
-        ignored."""
+        ignored.  ``addr``, where the driver has one (a live socket): the datagram's source.  The first datagram that
+        parses binds :attr:`peer`; one from any other source is then counted (``rtcp_foreign``) and dropped
+        unparsed."""
+        if self.peer is not None and addr != self.peer:
+            self.counters["rtcp_foreign"] += 1
+            return []
         try:
             packets = parse_rtcp(data)
         except RtcpError:
             self.counters["rtcp_bad"] = self.counters.get("rtcp_bad", 0) + 1
             return []
+        self.peer = addr
         return self.receive_rtcp(packets, now_ms)
 
     def request_keyframe(self, now_ms: float) -> None:
@@ -1427,6 +1447,25 @@ class ServerSession:
         return FrameOrder(frame_id, tick, t_s, kf, expected, pose, pose_t - epoch_s, pose_us, seq,
                           self.predictor.predict(target_clock), target_clock - epoch_s, self.predictor, epoch_s,
                           self.fb.snapshot(kf), point, self.encoder_rates(), self.options.adapt_cfg, client)
+
+    def frame_encoded(self, order: FrameOrder, enc: EncodedUpdate, now_ms: float, server_time_us: int,
+                      framer: Callable[[Message], bytes] | None = None, timing: dict[str, int] | None = None,
+                      stats: dict[str, Any] | None = None, send_ms: float | None = None) -> OutgoingFrame:
+        """``order``'s frame came back made (``enc``: :func:`~.frames.make_frame`'s coded update) at ``now_ms``, at
+        ``server_time_us`` on the protocol's clock, in every front door.  On the RTP transport it is packetized (its
+        FrameMeta and reliable data framed with ``framer``, stamped with ``timing`` and ``stats``) and reported
+        (:meth:`frame_sent`, ``send_ms`` as there): its control frames are the driver's to send, its datagrams leave
+        by :meth:`datagrams_to_send`.  On the WebRTC transport the stack packetizes: the frame is counted from its
+        coded streams.  Returns what the frame puts on the wire."""
+        if self.transport == "rtp":
+            assert framer is not None
+            out = self.tx.packetize(enc, framer, server_time_us, rtp_timestamp(order.t_s), order.pose_us,
+                                    order.pose_seq, order.target_t_s, timing or {}, stats or {})
+        else:
+            out = OutgoingFrame(order.frame_id, keyframe=enc.keyframe, wire_bytes={n: len(f.data) for n, f in enc.video.items()},
+                                idr_streams=tuple(n for n, f in enc.video.items() if f.keyframe))
+        self.frame_sent(order.frame_id, out, now_ms, server_time_us, enc.rates_kbps, enc.restarts, send_ms)
+        return out
 
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
                    rates_kbps: dict[str, float] | None = None, restarts: int = 0, send_ms: float | None = None) -> None:

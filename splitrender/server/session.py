@@ -42,8 +42,7 @@ from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerD
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
 from splitrender.pipeline.recording import SessionLogs
 from splitrender.pipeline.rows import update_row
-from splitrender.pipeline import (Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello,
-                                  rtp_timestamp)
+from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol.twcc import DEFAULT_EXTENSION_ID
@@ -133,7 +132,6 @@ class ServerSession:
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
         self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
         self.streams: dict[str, _Stream] = {}
-        self.client_addr: Address | None = None
         self.method = ""
         self.intrinsics: CameraIntrinsics | None = None
         self.display_hz = 60.0
@@ -148,7 +146,7 @@ class ServerSession:
         self._logs = SessionLogs(None if self.cfg.out_dir is None else self.cfg.out_dir / self.id)
         self._timer_wake = asyncio.Event()
         self._counters: dict[str, int] = {
-            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "rtcp_foreign": 0, "meta_bytes": 0, "data_bytes": 0,
+            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "meta_bytes": 0, "data_bytes": 0,
             "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
         }
         self.client_error: tuple[int, str] | None = None
@@ -420,12 +418,9 @@ class ServerSession:
         render_ms, shared_ms = stages["produce_ms"], stages["shared_ms"]
         timing = {"render": int(render_ms * 1000), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
                   "shared": int(shared_ms * 1000)}
-        rtp_ts = rtp_timestamp(scene_t)
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        out = tx.packetize(enc, self.channel.conn.send, t_us, rtp_ts, order.pose_us, order.pose_seq, order.target_t_s,
-                           timing, stats)
+        out = core.frame_encoded(order, enc, _now_ms(), t_us, self.channel.conn.send, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
-        core.frame_sent(fid, out, _now_ms(), t_us, enc.rates_kbps, enc.restarts)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
@@ -455,23 +450,21 @@ class ServerSession:
             self._flush(wake=False)
 
     def on_datagram(self, data: bytes, addr: Address) -> None:
-        """A compound RTCP datagram from ``addr`` that names one of this session's streams.  Once the client's
-        address is known, a datagram from any other address is counted (``rtcp_foreign``) and dropped unparsed; the
-        address is bound by the first datagram that parses (malformed ones are counted in the core's ``rtcp_bad``)."""
-        if self.client_addr is not None and addr != self.client_addr:
-            self._counters["rtcp_foreign"] += 1
-            return
+        """A compound RTCP datagram from ``addr`` that names one of this session's streams, for the core: the first
+        that parses binds the client's address, and a datagram from any other is then counted (``rtcp_foreign``) and
+        dropped unparsed (malformed ones are counted in ``rtcp_bad``)."""
         if self.core is None:
             return
-        bad = self.core.counters.get("rtcp_bad", 0)
-        self.core.receive_datagram(data, _now_ms())
-        if self.core.counters.get("rtcp_bad", 0) != bad:
-            logger.debug("session %s: malformed RTCP from %s:%d", self.id, *addr)
-            return
-        if self.client_addr is None:
-            self.client_addr = addr
+        bound = self.core.peer
+        self.core.receive_datagram(data, _now_ms(), addr)
+        if bound is None and self.core.peer is not None:
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
         self._flush()
+
+    @property
+    def client_addr(self) -> Address | None:
+        """The client's RTP address, learned from its RTCP (the core's :attr:`~.ServerSession.peer`)."""
+        return self.core.peer if self.core is not None else None
 
     def _flush(self, wake: bool = True) -> None:
         """Send what the core lets go now (its one way out): RTP and sender reports to the client, each stream's RTP to

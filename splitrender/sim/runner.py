@@ -67,7 +67,7 @@ from ..netsim import Link, parse_path
 from ..pipeline.rows import frames_summary, mean_of, update_row, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
-                        check_hello, make_frame, rtp_timestamp, session_summary, tcp_segments)
+                        check_hello, make_frame, session_summary, tcp_segments)
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
@@ -271,7 +271,7 @@ class VirtualTimeRun:
         self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
-        c.chalf = self.spec.client_class(hs.terms.config, self.intr, c.gl, hs.session_data, limits=opts.limits)
+        c.chalf = hs.client_half(c.gl)
         make_current(self.renderer.ctx)
         # upstream poses: precomputed deliveries (the uplink model is deterministic)
         for k in range(int(self.duration_s * cfg.tracker_hz) + 1):
@@ -372,10 +372,9 @@ class VirtualTimeRun:
             # the half's wall-clock stage times ride in the envelope only where they are on the clock too: their
             # bytes would otherwise make two runs of one seed differ (and, adapting, decide differently)
             wire_stats = stats if measured else {k: v for k, v in stats.items() if not k.endswith("_ms")}
-            out = c.tx.packetize(enc, c.sconn.send, sim_us(t_f), rtp_timestamp(t_f), order.pose_us, order.pose_seq,
-                                 order.target_t_s, timing, wire_stats)
             # its datagrams leave when its modelled encoding ends, through the core's one way out
-            c.core_s.frame_sent(f, out, t_f * 1000, sim_us(t_f), enc.rates_kbps, enc.restarts, send_ms=send_t * 1000)
+            out = c.core_s.frame_encoded(order, enc, t_f * 1000, sim_us(t_f), c.sconn.send, timing, wire_stats,
+                                         send_ms=send_t * 1000)
             # the frame leaves when its encoding ends: its control frames first, then its datagrams (the core's)
             self._at(send_t, _TIMER, self._control_down, c, [data for _, data in out.control])
             self._server_out(c, t_f)

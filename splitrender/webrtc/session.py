@@ -33,7 +33,7 @@ from typing import Any
 
 from ..errors import WorkerTimeout, describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
-from ..pipeline.sender import OutgoingFrame, ServerPipeline, rtp_timestamp
+from ..pipeline.sender import ServerPipeline, rtp_timestamp
 from ..pipeline.recording import SessionLogs
 from ..pipeline.rows import update_row
 from ..pipeline.session import ServerSession
@@ -459,8 +459,7 @@ class BrowserSession:
         if not self.track.put(frame.data, rtp_ts):
             self.request_keyframe("the sender fell behind")
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
-        sent = OutgoingFrame(fid, keyframe=frame.keyframe, wire_bytes={self.stream: len(frame.data)})
-        core.frame_sent(fid, sent, now_ms, t_us, enc.rates_kbps, enc.restarts)
+        sent = core.frame_encoded(order, enc, now_ms, t_us)
         self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
