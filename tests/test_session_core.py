@@ -828,3 +828,42 @@ def test_the_server_core_binds_its_client_s_rtcp_address() -> None:
     q.server.receive_datagram(rr, 1.0)
     q.server.receive_datagram(rr, 2.0)
     assert q.server.peer is None and q.server.counters["rtcp_received"] == 2 and q.server.counters["rtcp_foreign"] == 0
+
+
+def test_until_an_update_shows_the_updates_that_show_nothing_wait_for_one_that_does() -> None:
+    """The display rule of every client front door (issue 47: the live client held such updates back itself, the
+    runner applied them at once): a frame released with nothing of it arrived is not handed to the driver while no
+    update has been shown (the tick stays black, nothing to apply or render); it comes first, in frame order, with
+    the first update that shows something.  Once one has been shown, every update comes at its turn."""
+    p = Pair(jitter_timeout_ms=50.0, nack_max_tries=0)
+    ctrl, _ = p.frame(0, 0.0)
+    p.to_client(ctrl, [], 5.0)                       # frame 0's FrameMeta, none of its packets
+    p.timer(510.0)                                   # given up (resolve_timeout_ms): released, everything missing
+    assert p.client.counters["frames_partial"] == 1
+    assert p.client.display(511.0) == [] and p.client.display(512.0) == [] and p.client.blank(False)
+    p.server.request_keyframe(515.0)                 # (the lost frame was the IDR)
+    ctrl, dgrams = p.frame(1, 520.0)
+    p.to_client(ctrl, dgrams, 525.0)
+    new = p.client.display(530.0)
+    assert [(f.update.frame_id, bool(f.update.planes)) for f in new] == [(0, False), (1, True)]
+    p.client.report_applied(new, [True, True])
+    assert p.client.shown is new[1] and not p.client.blank(True)
+    ctrl, _ = p.frame(2, 550.0)
+    p.to_client(ctrl, [], 555.0)
+    p.timer(1060.0)
+    assert [f.update.frame_id for f in p.client.display(1061.0)] == [2]   # shown before: it comes at its turn
+
+
+def test_a_feedback_row_has_the_fixed_columns() -> None:
+    """``feedback.csv``'s row, made once in ``pipeline.rows``: every column of FEEDBACK_COLUMNS but the timings the
+    Feedback did not echo, an unknown timing left out, the lost frames per stream, "" for a frame no longer
+    remembered."""
+    from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
+    from splitrender.protocol import Feedback
+
+    fb = Feedback(7, 1_000, 2_000, 34_500, 3, 500, {"render": 9, "made_up": 1}, {"color": 7}, {"color": (5, 6)})
+    row = feedback_row(fb, 100)
+    assert row == {"frame_id": 7, "server_us": 100, "received_us": 1_000, "decoded_us": 2_000, "displayed_us": 34_500,
+                   "pose_time_us": 500, "lost_packets": 3, "motion_to_photon_ms": 34.0, "lost_frames": "color:5,6",
+                   "server_render_us": 9}
+    assert set(row) <= set(FEEDBACK_COLUMNS) and feedback_row(fb, None)["server_us"] == ""

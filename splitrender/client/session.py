@@ -38,8 +38,7 @@ from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, Remot
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
-                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes,
-                                  shows_anything)
+                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, save_image
 from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
@@ -516,7 +515,6 @@ class LiveClient:
         n = int(cfg.duration_s * cfg.display_hz)
         core = self.core
         assert core is not None
-        carry: list[ReceivedFrame] = []
         before_content: list[tuple[int, float, ScenePose]] = []
         saves: list[asyncio.Future[None]] = []
         for tick in range(n):
@@ -526,19 +524,16 @@ class LiveClient:
             elif delay < -interval:
                 self._counters["late_ticks"] += 1
                 continue  # more than a tick late: skip it rather than bunch renders up
-            new = [*carry, *core.display(_now_ms())]   # with a playout delay, only the updates whose turn has come
-            carry = []
             w = time.time()
             if core.scene_epoch_ms is None:
-                # nothing from the server yet: the ticks wait for its clock (the first FrameMeta) to be recorded
-                carry = new
+                # nothing from the server yet (no update either): the ticks wait for its clock (the first FrameMeta)
                 before_content.append((tick, w, self._trace_pose(w)))
                 continue
             for b_tick, b_wall, b_pose in before_content:      # recorded now that the server clock is known
                 self._record_blank(b_tick, b_wall, b_pose, saves)
             before_content.clear()
-            if core.shown is None and not any(shows_anything(f) for f in new):
-                carry = new                                    # nothing to show yet: the black background
+            new = core.display(_now_ms())   # with a playout delay, only the updates whose turn has come
+            if core.shown is None and not new:   # nothing to show yet (the core holds back what shows nothing): black
                 self._record_blank(tick, w, self._trace_pose(w), saves)
                 continue
             await self._show(new, tick, saves)

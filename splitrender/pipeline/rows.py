@@ -2,7 +2,8 @@
 
 An *update row* is one per server frame (``updates.csv``: virtual time's, the live server's), a *frame row* one per
 display tick (``frames.csv``: virtual time's, and a live client's recording once scored).  :func:`update_row` makes
-the columns every server front door shares; :func:`frames_summary`, :func:`updates_summary` and
+the columns every server front door shares, :func:`feedback_row` a live server's ``feedback.csv`` row (one per
+``Feedback``); :func:`frames_summary`, :func:`updates_summary` and
 :func:`session_summary` make a run's summary columns from the rows and the cores' counters, the same for a
 virtual-time run and a scored live recording.  Each front door adds only what it alone measures (virtual time: the
 modelled cost, delivery and prediction error; live: the wall-clock stages of the worker round trip and the send).
@@ -16,7 +17,14 @@ from typing import Any, Iterable
 from .. import metrics
 from ..metrics.image import mean_of, pct_of
 
-__all__ = ["frames_summary", "mean_of", "pct_of", "session_summary", "update_row", "updates_summary"]
+__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frames_summary", "mean_of", "pct_of", "session_summary", "update_row",
+           "updates_summary"]
+
+FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
+"""The server timings a client echoes in Feedback (those the server put in FrameMeta); others are ignored."""
+FEEDBACK_COLUMNS = ("frame_id", "server_us", "received_us", "decoded_us", "displayed_us", "pose_time_us", "lost_packets",
+                    "motion_to_photon_ms", "lost_frames", *(f"server_{k}_us" for k in FEEDBACK_TIMINGS))
+"""The columns of a live server's ``feedback.csv``, fixed (a Feedback may echo fewer timings)."""
 
 
 def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages: dict[str, float],
@@ -31,6 +39,19 @@ def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages
                            "expected_latency_ms": order.expected_latency_s * 1000}
     row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in streams if k != "session"})
     row.update(congestion)
+    return row
+
+
+def feedback_row(fb: Any, server_us: int | None) -> dict[str, Any]:
+    """One ``Feedback``'s row (:data:`FEEDBACK_COLUMNS`): its times (µs on the protocol's clock), the frame's server
+    time ``server_us`` as the server remembers it ("" where it no longer does), motion-to-photon, and the lost frames
+    per stream as ``stream:id,id;...``."""
+    row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": server_us if server_us is not None else "",
+                           "received_us": fb.received_us, "decoded_us": fb.decoded_us, "displayed_us": fb.displayed_us,
+                           "pose_time_us": fb.pose_time_us, "lost_packets": fb.lost_packets,
+                           "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0,
+                           "lost_frames": ";".join(f"{k}:{','.join(map(str, v))}" for k, v in fb.lost.items())}
+    row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items() if k in FEEDBACK_TIMINGS})
     return row
 
 

@@ -17,9 +17,12 @@ in as arguments.  Everything the server core sends leaves one way,
 :meth:`ServerSession.datagrams_to_send`, called after each input and when its one timer
 (:meth:`ServerSession.get_timer`) comes: media, FEC, retransmissions, probes and sender reports,
 each tagged with its kind (the pacer and the probe clusters sit behind that timer).  The client
-core's RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events out of
-:meth:`ClientSession.next_event`, the decode work, the updates to show and their feedback from
-the return values, and :meth:`ClientSession.get_timer` says when to call its ``handle_timer``.
+core owns its control connection (the :class:`ClientHandshake`'s): the control bytes go in by
+:meth:`ClientSession.receive_data` and out by :meth:`ClientSession.data_to_send` (feedback, poses,
+Bye); its RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events (stalls, the
+server's Stats, Bye and Error, the connection's end) out of :meth:`ClientSession.next_event`, the
+decode work and the updates to show from the return values, and :meth:`ClientSession.get_timer`
+says when to call its ``handle_timer``.
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -29,7 +32,7 @@ wall-clock µs (the live drivers run on the wall clock and pass 0; virtual time 
 its simulated epoch), so the same session sends the same timestamps either way.
 
 Control-channel framing stays in :class:`~splitrender.protocol.Connection` (sans-IO as
-well): the cores take the messages it parses.
+well): the client core drives its own; the server core takes the messages the server's parses.
 """
 
 from __future__ import annotations
@@ -835,7 +838,9 @@ class ClientSession:
 
     def display(self, now_ms: float) -> list[ReceivedFrame]:
         """The updates to apply at display time ``now_ms``, in frame order: every released one whose
-        decode is done and, with a playout delay, whose server time + the delay has come."""
+        decode is done and, with a playout delay, whose server time + the delay has come.  Until an update has
+        been shown, updates that show nothing (:func:`shows_anything`) wait for the first that does: the tick shows
+        the black background (:meth:`blank`) with nothing to apply or render."""
         new = list(self._pending_apply)
         self._pending_apply.clear()
         playout_us = self.opts.playout_delay_ms * 1000
@@ -844,6 +849,9 @@ class ClientSession:
             if playout_us > 0 and meta.server_time_us - self.clock_offset_us + playout_us > now_ms * 1000:
                 break
             new.append(self._ready.popleft().frame)
+        if self.shown is None and not any(shows_anything(f) for f in new):
+            self._pending_apply = new
+            return []
         return new
 
     def applied(self, rf: ReceivedFrame) -> None:

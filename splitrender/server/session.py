@@ -41,7 +41,7 @@ from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerD
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
 from splitrender.pipeline.recording import SessionLogs
-from splitrender.pipeline.rows import update_row
+from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row, update_row
 from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -95,10 +95,6 @@ __all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
 
 ROWS_KEPT = 1024
 """Feedback and update rows a session keeps in memory (the newest; the row logs on disk have them all)."""
-FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
-"""The server timings a client echoes in Feedback (those the server put in FrameMeta); others are ignored."""
-FEEDBACK_COLUMNS = ("frame_id", "server_us", "received_us", "decoded_us", "displayed_us", "pose_time_us", "lost_packets",
-                    "motion_to_photon_ms", "lost_frames", *(f"server_{k}_us" for k in FEEDBACK_TIMINGS))
 
 logger = logging.getLogger(__name__)
 
@@ -352,15 +348,8 @@ class ServerSession:
 
     def _on_feedback(self, fb: Feedback) -> None:
         assert self.core is not None
-        t_us = self.core.fb.server_time_us(fb.frame_id)
+        row = feedback_row(fb, self.core.fb.server_time_us(fb.frame_id))
         self.core.receive_message(fb, _now_ms())
-        row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": t_us if t_us is not None else "",
-                               "received_us": fb.received_us, "decoded_us": fb.decoded_us,
-                               "displayed_us": fb.displayed_us, "pose_time_us": fb.pose_time_us,
-                               "lost_packets": fb.lost_packets,
-                               "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0,
-                               "lost_frames": ";".join(f"{k}:{','.join(map(str, v))}" for k, v in fb.lost.items())}
-        row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items() if k in FEEDBACK_TIMINGS})
         self.feedback_rows.append(row)
         self._log("feedback", row)
 
