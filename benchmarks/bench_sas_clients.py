@@ -52,7 +52,7 @@ import numpy as np
 import splitrender.methods.sas.server as sas_server
 from splitrender.codecs.meta import pack_meta
 from splitrender.methods.sas.server import SasProducer, SasServer
-from splitrender.pipeline import ServerPipeline
+from splitrender.pipeline.sender import StreamEncoder
 from splitrender.render.renderer import Renderer
 from splitrender.sim.config import RunConfig
 from splitrender.sim.runner import VirtualTimeRun
@@ -98,7 +98,7 @@ class Recorder:
     def install(self) -> None:
         rec = self
         sas_server.time = rec.clock  # type: ignore[assignment]
-        tick0, produce0, encode0 = VirtualTimeRun._server_tick, SasServer.produce, ServerPipeline.encode
+        tick0, produce0, encode0 = VirtualTimeRun._server_tick, SasServer.produce, StreamEncoder.encode
         prepare0, setup0 = SasProducer.prepare, VirtualTimeRun._setup
 
         def _server_tick(self: VirtualTimeRun, f: int, *a: Any) -> None:
@@ -135,7 +135,8 @@ class Recorder:
             rec.hash_s = (rec.hash_s[0] + time.perf_counter() - hw, rec.hash_s[1] + time.process_time() - hc)
             return upd
 
-        def encode(self: ServerPipeline, upd: Any, *a: Any, **kw: Any) -> Any:
+        def encode(self: StreamEncoder, upd: Any, *a: Any, **kw: Any) -> Any:   # each session's encoders (the runner
+            # calls them directly since the session core's frame step; ServerPipeline.encode calls them too)
             w, c = time.perf_counter(), time.process_time()
             out = encode0(self, upd, *a, **kw)
             rec.encode[(len([k for k in rec.encode if k[1] == upd.frame_id]), upd.frame_id)] = (
@@ -156,7 +157,7 @@ class Recorder:
 
         VirtualTimeRun._server_tick = _server_tick  # type: ignore[method-assign,assignment]
         SasServer.produce = produce  # type: ignore[method-assign,assignment]
-        ServerPipeline.encode = encode  # type: ignore[method-assign,assignment]
+        StreamEncoder.encode = encode  # type: ignore[method-assign,assignment]
         SasProducer.prepare = prepare  # type: ignore[method-assign,assignment]
         VirtualTimeRun._setup = _setup  # type: ignore[method-assign,assignment]
 
