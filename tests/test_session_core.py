@@ -4,6 +4,7 @@ retransmission, PLI after a lost keyframe, stall detection, randomised RTCP inte
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -867,3 +868,18 @@ def test_a_feedback_row_has_the_fixed_columns() -> None:
                    "pose_time_us": 500, "lost_packets": 3, "motion_to_photon_ms": 34.0, "lost_frames": "color:5,6",
                    "server_render_us": 9}
     assert set(row) <= set(FEEDBACK_COLUMNS) and feedback_row(fb, None)["server_us"] == ""
+
+
+def test_every_client_front_door_writes_a_frame_row_s_shared_columns_one_way() -> None:
+    """``frame_row``: the runner (scene seconds) and the live client (seconds from the display instant) give it
+    times on their own clocks and get the same columns; a blank tick names update -1 with NaN ages and decode time
+    but keeps the client's milliseconds."""
+    from splitrender.pipeline.rows import frame_row
+
+    row = frame_row(3, 0.1, 7, 2.0, 1.9, 1.85, 4.0, 2.5)
+    assert row == {"frame": 3, "t_s": 0.1, "update_frame_id": 7, "update_age_ms": pytest.approx(100.0),
+                   "motion_to_photon_ms": pytest.approx(150.0), "client_ms": 4.0, "decode_ms": 2.5}
+    assert frame_row(3, 0.1, 7, 0.0, -0.1, -0.15, 4.0, 2.5) == pytest.approx(row)
+    blank = frame_row(3, 0.1, None, 2.0, 1.9, 1.85, 4.0, 2.5)
+    assert list(blank) == list(row) and blank["update_frame_id"] == -1 and blank["client_ms"] == 4.0
+    assert all(math.isnan(blank[k]) for k in ("update_age_ms", "motion_to_photon_ms", "decode_ms"))

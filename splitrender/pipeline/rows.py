@@ -2,7 +2,7 @@
 
 An *update row* is one per server frame (``updates.csv``: virtual time's, the live server's), a *frame row* one per
 display tick (``frames.csv``: virtual time's, and a live client's recording once scored).  :func:`update_row` makes
-the columns every server front door shares, :func:`feedback_row` a live server's ``feedback.csv`` row (one per
+the columns every server front door shares, :func:`frame_row` those every client front door shares, :func:`feedback_row` a live server's ``feedback.csv`` row (one per
 ``Feedback``); :func:`frames_summary`, :func:`updates_summary` and
 :func:`session_summary` make a run's summary columns from the rows and the cores' counters, the same for a
 virtual-time run and a scored live recording.  Each front door adds only what it alone measures (virtual time: the
@@ -17,7 +17,7 @@ from typing import Any, Iterable
 from .. import metrics
 from ..metrics.image import mean_of, pct_of
 
-__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frames_summary", "mean_of", "pct_of", "session_summary", "update_row",
+__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "mean_of", "pct_of", "session_summary", "update_row",
            "updates_summary"]
 
 FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
@@ -40,6 +40,20 @@ def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages
     row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in streams if k != "session"})
     row.update(congestion)
     return row
+
+
+def frame_row(index: int, t_s: float, shown: int | None, display_s: float, update_s: float, pose_s: float,
+              client_ms: float, decode_ms: float) -> dict[str, Any]:
+    """The columns of one display tick's row (``frames.csv``) that every client front door writes: its index and
+    time, the update shown (``shown``: its frame id; None for a blank tick, the black background, whose row names
+    update -1 with no ages and no decode time), its age and motion-to-photon (the tick's display time ``display_s``
+    less the update's server time ``update_s``, and less the time its pose was sampled ``pose_s``: seconds on one
+    clock), and the client's apply-and-render and decode milliseconds."""
+    if shown is None:
+        return {"frame": index, "t_s": t_s, "update_frame_id": -1, "update_age_ms": math.nan,
+                "motion_to_photon_ms": math.nan, "client_ms": client_ms, "decode_ms": math.nan}
+    return {"frame": index, "t_s": t_s, "update_frame_id": shown, "update_age_ms": (display_s - update_s) * 1000,
+            "motion_to_photon_ms": (display_s - pose_s) * 1000, "client_ms": client_ms, "decode_ms": decode_ms}
 
 
 def feedback_row(fb: Any, server_us: int | None) -> dict[str, Any]:

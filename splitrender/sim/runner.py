@@ -64,7 +64,7 @@ from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline.rows import frames_summary, mean_of, update_row, updates_summary
+from ..pipeline.rows import frame_row, frames_summary, mean_of, update_row, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
                         check_hello, make_frame, session_summary, tcp_segments)
@@ -563,22 +563,16 @@ class VirtualTimeRun:
             cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
         client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
         make_current(self.renderer.ctx)
-        shown = c.core.shown
         while c.window and c.window[0][0] <= t_d - 1.0:
             c.window.popleft()
-        row: dict[str, Any] = {"client": c.index, "frame": di, "t_s": t_d}
-        if shown is not None:
-            fid = shown.update.frame_id
-            pose_t = c.pose_t.get(fid, math.nan)
-            pcm, pdeg = c.pred.get(fid, (math.nan, math.nan))
-            row.update({"update_frame_id": fid, "update_age_ms": (t_d - shown.update.t_s) * 1000,
-                        "motion_to_photon_ms": (t_d - pose_t) * 1000, "client_ms": client_ms, "decode_ms": decode_ms,
-                        "pred_err_cm": pcm, "pred_err_deg": pdeg})
-            c.core.feedback(now_ms)   # sent with the tick's other output (_client_out)
-        if c.core.blank(c.chalf.has_content):
-            # a start-up tick: nothing shown yet, or only updates whose content was lost (black)
-            row.update({"update_frame_id": -1, "update_age_ms": math.nan, "motion_to_photon_ms": math.nan,
-                        "client_ms": client_ms, "decode_ms": math.nan, "pred_err_cm": math.nan, "pred_err_deg": math.nan})
+        # a blank tick (nothing shown yet, or only updates whose content was lost) names no update
+        shown = None if c.core.blank(c.chalf.has_content) else c.core.shown
+        fid = shown.update.frame_id if shown is not None else None
+        row: dict[str, Any] = {"client": c.index, **frame_row(
+            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, c.pose_t.get(fid, math.nan),
+            client_ms, decode_ms)}
+        row["pred_err_cm"], row["pred_err_deg"] = c.pred.get(fid, (math.nan, math.nan))
+        c.core.feedback(now_ms)   # the first display of a shown update, sent with the tick's other output
         for name in c.bytes:
             if name != SESSION_STREAM:
                 row[f"kbps_{name}"] = sum(w.get(name, 0) for _, w in c.window) * 8 / 1000.0
