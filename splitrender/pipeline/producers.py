@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from ..codecs.meta import pack_meta
 from ..methods.base import MethodConfig, MethodSpec, SceneProducer
 
 
@@ -39,6 +40,13 @@ class ProducerPool:
             p = self._producers[spec.name] = cls(config, self.scene, self.server_fps, self.renderer)
             self.build_ms[spec.name] = (time.perf_counter() - w0) * 1000
         return p
+
+    def server_half(self, spec: MethodSpec, config: MethodConfig, intrinsics: Any) -> tuple[Any, list[Any], bytes]:
+        """A session's server half of ``spec`` (built on the caller's GL thread) with the method's shared producer,
+        for every front door's handshake (:func:`~.session.accept_hello`): the half, the streams it declares and its
+        packed session data."""
+        half = spec.server_class(config, intrinsics, self.scene, self.server_fps, producer=self.producer(spec, config))
+        return half, half.streams(), pack_meta(half.session_data())
 
     def stats(self, name: str) -> dict[str, Any]:
         """Method ``name``'s producer's statistics for its newest frame (empty without a producer)."""

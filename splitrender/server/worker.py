@@ -254,18 +254,14 @@ class _Worker:
     def open(self, sid: str, method: str, config: Any, intrinsics: Any, hang_frame: int = -1) -> Any:
         """Build session ``sid``'s server half and encoders; returns its stream specs, session data and the
         parameter sets each video encoder sends (for the SDP)."""
-        from splitrender.codecs.meta import pack_meta
         from splitrender.methods.base import get_method
         from splitrender.pipeline import StreamEncoder
 
-        spec = get_method(method)
-        producer = self.producers.producer(spec, config)
-        half = spec.server_class(config, intrinsics, self.scene, self.server_fps, producer=producer)
-        specs = half.streams()
+        half, specs, session_blob = self.producers.server_half(get_method(method), config, intrinsics)
         encoder = StreamEncoder(specs)
         encoder.open()
         self.halves[sid] = _Half(method, half, encoder, intrinsics, hang_frame)
-        return specs, pack_meta(half.session_data()), {name: encoder.parameter_sets(name) for name in encoder.encoders}
+        return specs, session_blob, {name: encoder.parameter_sets(name) for name in encoder.encoders}
 
     def frame(self, sid: str, order: Any) -> Any:
         """Make session ``sid``'s frame ``order`` (:func:`~splitrender.pipeline.frames.make_frame`); returns the coded

@@ -60,7 +60,6 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import metrics
-from ..codecs.meta import pack_meta
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
@@ -252,11 +251,9 @@ class VirtualTimeRun:
         # the server's side: the half here, then the one handshake every front door runs
         self._to_server(c, hs.hello(hello))
         make_current(self.renderer.ctx)
-        producer = pool.producer(self.spec, self.mcfg)
-        c.half = self.spec.server_class(self.mcfg, self.intr, self.scene, cfg.server_fps, producer=producer)
-        specs = c.half.streams()
+        c.half, specs, session_blob = pool.server_half(self.spec, self.mcfg, self.intr)
         predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, pack_meta(c.half.session_data()), c.sconn.send,
+        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, session_blob, c.sconn.send,
                            scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
                            options=cfg.server_options(), max_session_bytes=cfg.max_session_bytes,
                            mtu_bytes=cfg.mtu_bytes, fec=cfg.fec, transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
