@@ -184,10 +184,6 @@ class LiveClient:
         foreign = {"udp_foreign": self._udp_protocol.foreign} if self._udp_protocol is not None else {}
         return {**core, **self._counters, **foreign}
 
-    @property
-    def nack_rtt_ms(self) -> float | None:
-        return self.core.nack_rtt_ms if self.core is not None else None
-
     # ------------------------------------------------------------------ run
 
     async def run(self) -> ClientResult:

@@ -130,7 +130,6 @@ class ServerSession:
         self.streams: dict[str, _Stream] = {}
         self.method = ""
         self.intrinsics: CameraIntrinsics | None = None
-        self.display_hz = 60.0
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
         """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
@@ -162,10 +161,6 @@ class ServerSession:
     @property
     def rtt_ms(self) -> float | None:
         return self.core.rtt_ms if self.core is not None else None
-
-    @property
-    def fb(self) -> Any:
-        return self.core.fb if self.core is not None else None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -271,7 +266,6 @@ class ServerSession:
         spec = get_method(self.method)
         params = dict(cfg.method_params.get(self.method, {}))
         mcfg = make_config(spec.config, params).for_codecs(tuple(hello.codecs))
-        self.display_hz = hello.display_hz
         self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
         server = self.server
         hang = server.test_hang
@@ -352,12 +346,6 @@ class ServerSession:
         self.core.receive_message(fb, _now_ms())
         self.feedback_rows.append(row)
         self._log("feedback", row)
-
-    def request_keyframe(self, why: str) -> None:
-        """Ask for an IDR on every stream (rate-limited by the core; a suppressed request is kept)."""
-        assert self.core is not None
-        self.core.request_keyframe(_now_ms())
-        logger.debug("session %s: keyframe for %s", self.id, why)
 
     # ------------------------------------------------------------------ frames
 

@@ -256,10 +256,6 @@ class BrowserSession:
 
         sender._retransmit = retransmit
 
-    @property
-    def fb(self) -> Any:
-        return self.core.fb if self.core is not None else None
-
     def request_keyframe(self, why: str) -> None:
         if self.core is not None:
             self.core.request_keyframe(time.time() * 1000)
