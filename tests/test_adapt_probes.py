@@ -203,13 +203,14 @@ def _step_runs(tmp_path):  # type: ignore[no-untyped-def]
 def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """``default`` (GI), the walk, 160x90 (what is sent does not depend on the display's size: at 320x180 the same
     rates and ages, model PSNR 19.95 and 19.72 dB, in twice the time), 20 ms each way over a capacity of 5 Mbit/s falling to 0.4 at 1.5 s (6 s).
-    ``off`` sends every probe update at full precision with its 30 fps metadata and a lossless I-frame of the whole
-    probe canvas every 30 probe updates: measured 2,900 kbit/s over 2.5-6 s (2,906 before each picture's slots were
-    rewritten apart), p95 update age 4,127 ms there.  ``full``
+    ``off`` sends every probe update at full precision with its 30 fps metadata: measured 2,083 kbit/s over 2.5-6 s
+    (2,900 with a lossless I-frame of the whole probe canvas every 30 probe updates, the gop before; 2,906 before each
+    picture's slots were rewritten apart), p95 update age 4,127 ms there (the same at either gop: the losses' keyframe
+    requests restart the streams).  ``full``
     learns its own point's rate (0.67 s) and, its queue growing past what any point would carry, moves to the
     coarsest: 733 kbit/s, p95 age 3,067 ms (985 and 3,293 before its precision drops stopped rewriting the unchanged
     moments; before probes' own frame_div prior and the estimator's drained over-use rule: point 8, then the
-    coarsest at 3.8 s, 957 kbit/s).  Both stay far over the link: each loss on it brings a
+    coarsest at 3.8 s, 957 kbit/s; the same at gop 300 and 30).  Both stay far over the link: each loss on it brings a
     keyframe request, and the I-frame on an empty canvas makes the next updates refill every changed probe.  Model
     PSNR over the run: ``off`` 20.16 dB, ``full`` 20.06 (19.98 and 19.94 before; both lag by seconds)."""
     res = _step_runs(tmp_path)
@@ -223,7 +224,7 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
     off, full = res["off"], res["full"]
     assert full.summary["point_moves"] >= 1 and full.summary["lowest_point"] >= 8, full.summary
     low = {a: sent_kbps(r, 2.5, 6.0) for a, r in res.items()}
-    assert 2500 < low["off"] < 3300 and low["full"] < 1200 and low["full"] < 0.45 * low["off"], low
+    assert 1800 < low["off"] < 2400 and low["full"] < 1000 and low["full"] < 0.45 * low["off"], low
     p95 = {a: float(np.percentile(ages(r, 2.5, 6.0), 95)) for a, r in res.items()}
     assert p95["off"] > 3500 and p95["full"] < 0.9 * p95["off"], p95
     q = {a: r.summary["mean_model_psnr_db"] for a, r in res.items()}

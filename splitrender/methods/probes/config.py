@@ -15,7 +15,14 @@ PROBE_BITS_COST = (1.0, 0.91, 0.85)
 """Everything a client is sent at each ``probe_bits`` level over what it is sent at the first (the knob's prior), from
 the lossless colour pictures of the default scene's 256 probes at 10, 6 and 4 bits: I-frame 48.1, 44.2 and 29.7 kB,
 P-frame (an update on the walk) 2.4, 0.9 and 0.3 kB, beside the visibility (I 251 kB, P 3.8 kB), the index and the
-30 fps metadata (0.63 kB a frame), an I-frame every 30 probe updates."""
+30 fps metadata (0.63 kB a frame), an I-frame every 30 probe updates.
+
+The four knobs' priors are from an I-frame every 30 probe updates (the ``gop`` before 300) and are kept: measured at
+300 (``benchmarks/bench_adapt_probes.py --costs``: one client's server half, the walk, 3 s; first I-frame 294 kB,
+P-updates 64 kB/s at the own point) they are ``probe_bits`` 0.83 and 0.77, ``vis_bits`` 0.62 and 0.60, ``probe_div``
+0.74 and 0.56, ``frame_div`` 0.89, 0.85 and 0.62 (the same measurement at 30 gives these within 0.03, but 0.61 for
+``frame_div`` 5), and with them ``--adapt full`` on the step trace (20/2/20 Mbit/s, 160x90) went to point 6 at 5.6 s
+and scored 31.67 dB against ``off``'s 35.90 (35.44 with these: ``benchmarks/results/bench_adapt_probes.json``)."""
 VIS_BITS_LEVELS = (10, 2, 1)
 """``vis_bits`` levels (the configured value first, the finer ones left out)."""
 VIS_BITS_COST = (1.0, 0.56, 0.53)
@@ -47,7 +54,8 @@ QUALITY = QualityModel(
 and 31.9495 at ``vis_bits`` 2 and 1; 31.948 and 31.947 at ``probe_div`` 2 and 4 (the walk's indirect light changes
 slowly); 31.04, 30.29 and 29.27 at ``frame_div`` 2, 3 and 5 (the moving objects' transforms go with each frame);
 +200 ms of motion-to-photon loses 3.92 dB (the objects and the indirect light lag; the client draws the scene itself
-at the display pose); no lossy video (rate 0)."""
+at the display pose); no lossy video (rate 0).  Re-measured with ``gop`` 300 (2026-12-06): 31.9497 dB at its own point,
+31.393 at ``probe_bits`` 4, as at 30: a 2 s run holds 20 probe updates, so no periodic I-frame at either."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +68,14 @@ class ProbesConfig(MethodConfig):
     predicted position (``pvs_res`` pixels a cube face), ``all`` every active probe.
     The probe streams are always lossless HEVC (colour 10-bit 4:4:4 RGB, visibility
     float16 bytes over 8-bit 4:4:4) whatever ``codec``, ``crf`` and ``lossless`` say;
-    ``gop`` (30) sets their I-frame distance.  ``vis_lossy`` is an ablation: the
+    ``gop`` sets their I-frame distance in probe updates sent (300: one every 30 s at
+    10 Hz, not the paper's 30, "a high GOP length" for "a reliable communication protocol"; a
+    loss that breaks the chain or a keyframe request still restarts both pictures at
+    once).  A periodic I-frame is the whole probe canvas, lossless (294 kB on the default
+    walk), and at 30 it queued on a narrow link: 20/2/20 Mbit/s for 3/4/3 s (160x90,
+    ``benchmarks/bench_adapt_probes.py``), ``off`` 30.61 dB model PSNR, p95
+    motion-to-photon 2,100 ms, 3,114 kbit/s; at 300 35.90 dB, 306 ms, 1,646 kbit/s (and
+    ``--adapt full`` 28.83 -> 35.44 dB).  ``vis_lossy`` is an ablation: the
     visibility picture goes through lossy HEVC 4:4:4 at ``crf`` (23 unless set), which
     damages the float16 bytes (light leaks: the paper's reason to keep it lossless).
     ``refresh_probes``: probes the client does not have yet (the first update, after a
@@ -76,6 +91,7 @@ class ProbesConfig(MethodConfig):
     each probe when it next changes, not all at once.
     """
 
+    gop: int = 300
     gi_hz: float = 10.0
     pvs: Literal["view", "all"] = "view"
     pvs_res: int = 32
