@@ -18,7 +18,7 @@ selection, allocation, shading, atlas read-back) at 320x180:
   package before: ``git archive REV splitrender | tar -x -C DIR``; without it, this tree
   with ``shade_changed_only`` off stands in), on the default scene (no GI) and the duck
   (``duck.dae``, skipped when absent), still (``static``) at 320x180 and 640x360 and
-  moving (``walk``; the duck ``orbit``) at 320x180; each cell's atlases are hashed frame by frame, and
+  moving (``walk`` at 320x180 and 640x360; the duck ``orbit`` at 320x180); each cell's atlases are hashed frame by frame, and
   ``identical`` says whether the two trees' atlases are the same bytes (then so is
   every decoded frame and its quality).
 
@@ -57,7 +57,7 @@ SCENE = "default+nogi"
 shading, and GI's probe lookup per texel or pixel would weigh on both (``bench_gi`` measures GI)."""
 CELLS = [("default", SCENE, "static", 320, 180), ("default", SCENE, "static", 640, 360),
          ("default", SCENE, "walk", 320, 180), ("duck", DUCK, "static", 320, 180), ("duck", DUCK, "static", 640, 360),
-         ("duck", DUCK, "orbit", 320, 180)]
+         ("duck", DUCK, "orbit", 320, 180), ("default", SCENE, "walk", 640, 360)]
 """``before_after``'s cells: (label, scene, trace, width, height)."""
 
 
@@ -132,13 +132,14 @@ def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dic
     return out
 
 
-def before_after(frames: int, rounds: int, before_tree: str | None) -> dict[str, object]:
-    """``before_after`` (module docstring): each cell alternately in the tree before and this one."""
+def before_after(frames: int, rounds: int, before_tree: str | None, only: set[str] | None = None) -> dict[str, object]:
+    """``before_after`` (module docstring): each cell alternately in the tree before and this one (``only``: the
+    cells of these names)."""
     here = str(Path(__file__).resolve().parents[1])
     sides = {"before": (before_tree or here, {} if before_tree else {"shade_changed_only": False}), "after": (here, {})}
     out: dict[str, object] = {"before": before_tree or "this tree, shade_changed_only off"}
     for label, scene, trace, w, h in CELLS:
-        if scene == DUCK and not os.path.exists(DUCK):
+        if (scene == DUCK and not os.path.exists(DUCK)) or (only and f"{label}_{trace}_{w}x{h}" not in only):
             continue
         runs: dict[str, list[dict[str, object]]] = {"before": [], "after": []}
         for _ in range(rounds):
@@ -166,7 +167,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2, help="before/after alternations per before_after cell")
     ap.add_argument("--before-tree", default=None)
     ap.add_argument("--cell", default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--only-before-after", action="store_true")
+    ap.add_argument("--only-before-after", action="store_true", help="run before_after alone, into the JSON there")
+    ap.add_argument("--cells", default="", help="with --only-before-after: these cells (e.g. default_walk_640x360)")
     args = ap.parse_args()
     if args.cell:
         c = json.loads(args.cell)
@@ -174,7 +176,8 @@ def main() -> None:
         return
     if args.only_before_after:
         prev = json.loads(OUT.read_text()) if OUT.exists() else {}
-        prev["before_after"] = before_after(args.frames, args.rounds, args.before_tree)
+        got = before_after(args.frames, args.rounds, args.before_tree, set(filter(None, args.cells.split(","))))
+        prev["before_after"] = {**prev.get("before_after", {}), **got}
         OUT.write_text(json.dumps(prev, indent=2) + "\n")
         return
     r = Renderer()

@@ -107,7 +107,10 @@ SHADOW_UNIFORMS = ("u_has_shadow", "u_light_vp", "u_sun_dir")
 """The frame uniforms a texel's shadow factor reads (the maps aside)."""
 FLIP_MARGIN = 1e-3
 """A triangle's side towards the eye is known when every n_i . (eye - x_j) of its (grown) vertices is this far
-(relative to |n_i| |eye - x_j|) from 0 on the same side: float rounding in the shader cannot flip it."""
+(relative to |n_i| |eye - x_j|) from 0 on the same side: float rounding in the shader cannot flip it ..."""
+FLIP_SPREAD = 0.05
+"""... and this far relative to the largest of them: a fragment at a triangle's edge may carry weights a little
+below 0 (its centre against the rasteriser's snapped vertices), which cannot then outweigh the smallest term."""
 SHADOW_CACHE_UNIT = 9
 """Texture unit of the shadow cache (the shading program uses 0-8)."""
 
@@ -483,9 +486,17 @@ class SasServer(ServerHalf):
         self._shadow_ok = np.zeros(self.patches.count, bool)
         self._shadow_code = np.zeros(self.patches.count, np.int8)
         self._shadow_key = b""
+        n = self.patches.count
+        self._flip_nx = np.zeros((n, 3, 3, 3))                 # _flip_terms, per patch at its block
+        self._flip_n = np.zeros((n, 3, 3, 3))
+        self._flip_len = np.zeros((n, 3, 3))
+        self._flip_c = np.zeros((n, 3))
+        self._flip_r = np.zeros(n)
         self._lrect = np.zeros((self.patches.count, 4))       # _light_rects of still patches at their blocks
         self._lrect_ok = np.zeros(self.patches.count, bool)
         self._lrect_vp: np.ndarray | None = None
+        self._vp = np.eye(4)
+        self._vp_frame: SasFrame | None = None
         self._reused_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
@@ -664,6 +675,8 @@ class SasServer(ServerHalf):
         if stale.size:
             self._vcache[stale] = self._shade_vertices(stale)
             self._vcache_ok[stale] = True
+            if self._sc is not None:
+                self._flip_terms(stale)
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
@@ -806,7 +819,7 @@ class SasServer(ServerHalf):
             return np.zeros(ids.size, bool)
         if prev is None or prev.shape != frame.models.shape:
             return np.ones(ids.size, bool)
-        vp = light_view_projection(self.scene)
+        vp = self._sun_vp(frame)
         reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
         lo, hi = self.obj_box[casters, 0], self.obj_box[casters, 1]
         corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), hi, lo) for i in range(8)], axis=1)
@@ -815,6 +828,13 @@ class SasServer(ServerHalf):
             mk = m[casters]
             boxes.append(light_rects(vp, corners @ mk[:, :3, :3].transpose(0, 2, 1) + mk[:, None, :3, 3], reach))
         return rects_overlap(self._light_rects(ids, frame, vp), np.concatenate(boxes))
+
+    def _sun_vp(self, frame: SasFrame) -> np.ndarray:
+        """The sun's world -> light-clip matrix (``light_view_projection``, which walks the scene's bounds), once a
+        frame."""
+        if self._vp_frame is not frame:
+            self._vp, self._vp_frame = light_view_projection(self.scene), frame
+        return self._vp
 
     def _light_rects(self, ids: np.ndarray, frame: SasFrame, vp: np.ndarray) -> np.ndarray:
         """(len(ids), 4) the sun-map rectangles patches ``ids``' shadow lookups fall in: their grown shading
@@ -842,25 +862,40 @@ class SasServer(ServerHalf):
             self._lrect_ok[todo[still]] = True
         return out
 
+    def _flip_terms(self, ids: np.ndarray) -> None:
+        """Keep what :meth:`_flip_code` needs of patches ``ids``' shading vertices (object space, fixed while the
+        block stays put): n_i . x_j per grown triangle, the normals, their lengths, a centre and radius."""
+        v = self._vcache[ids][..., 2:8].astype(np.float64)                # (n, 3 tris, 3 verts, position + normal)
+        x, n = v[..., :3], v[..., 3:]
+        self._flip_nx[ids] = n @ x.transpose(0, 1, 3, 2)                  # (n, t, i, j) n_i . x_j
+        self._flip_n[ids] = n
+        self._flip_len[ids] = np.sqrt((n * n).sum(-1))
+        used = (np.arange(3)[None, :] < self.patches.size[ids][:, None])[:, :, None]
+        pts = np.where(used[..., None], x, x[:, :1, :1])                   # unused triangles: the first vertex
+        c = pts.reshape(ids.size, 9, 3).mean(axis=1)
+        self._flip_c[ids] = c
+        self._flip_r[ids] = np.sqrt(((pts.reshape(ids.size, 9, 3) - c[:, None]) ** 2).sum(-1)).max(axis=1)
+
     def _flip_code(self, ids: np.ndarray, frame: SasFrame, eye: Any) -> np.ndarray:
         """(len(ids),) int8 per patch: 1 when every texel's normal faces the eye (the shader keeps it), -1 when every
-        one faces away (the shader flips it), 0 when that cannot be told.  A texel's n . (eye - x) with n and x
-        interpolated with weights b >= 0 in a grown triangle is sum_ij b_i b_j n_i . (eye - x_j): of one sign where
-        every term is (by :data:`FLIP_MARGIN`).  The terms are the same in object space (the normal matrix is the
-        model's inverse transpose), where the eye is placed per object.  The shadow lookup moves along that
-        normal, so a cached factor holds only while the side is the same."""
+        one faces away (the shader flips it), 0 when that cannot be told.  A texel's n . (eye - x), n and x
+        interpolated with weights b in a grown triangle, is sum_ij b_i b_j n_i . (eye - x_j): of one sign where
+        every term is, each by :data:`FLIP_MARGIN` of |n_i| |eye - x_j| (the shader's float rounding) and by
+        :data:`FLIP_SPREAD` of the largest (a fragment's weights may dip a little below 0 at the triangle's edge).
+        The terms are the same in object space (the normal matrix is the model's inverse transpose), where the eye
+        is placed per object.  The shadow lookup moves along that normal, so a cached factor holds only while the
+        side is the same."""
         P = self.patches
         if ids.size == 0:
             return np.zeros(0, np.int8)
-        v = self._vcache[:, :, :, 2:8][ids]                              # (n, 3 tris, 3 verts, position + normal)
-        obj = P.object_index[ids]
         models = frame.models
         eye_obj = np.einsum("kij,kj->ki", np.linalg.inv(models[:, :3, :3]), np.asarray(eye, np.float64) - models[:, :3, 3])
-        d = eye_obj.astype(np.float32)[obj][:, None, None, :] - v[..., :3]   # (n, t, j, 3) eye - x_j (float32: the
-        # shader's rounding is some 1e-7 of each term, far inside FLIP_MARGIN, and so is this)
-        nrm = v[..., 3:]
-        dots = nrm @ d.transpose(0, 1, 3, 2)                              # (n, t, i, j) n_i . (eye - x_j)
-        bound = FLIP_MARGIN * np.sqrt((nrm * nrm).sum(-1))[..., :, None] * np.sqrt((d * d).sum(-1))[..., None, :]
+        e = eye_obj[P.object_index[ids]]                                  # (n, 3)
+        ne = (self._flip_n[ids] @ e[:, None, :, None])[..., 0]            # (n, t, i) n_i . eye
+        dots = ne[..., :, None] - self._flip_nx[ids]                      # (n, t, i, j) n_i . (eye - x_j)
+        reach = np.sqrt(((e - self._flip_c[ids]) ** 2).sum(-1)) + self._flip_r[ids]    # >= |eye - x_j|
+        bound = np.maximum(FLIP_MARGIN * self._flip_len[ids][..., None] * reach[:, None, None, None],
+                           FLIP_SPREAD * np.abs(dots).max(axis=(2, 3), keepdims=True))
         unused = np.arange(3)[None, :] >= P.size[ids][:, None]
         front = ((dots > bound).all(axis=(2, 3)) | unused).all(axis=1)
         back = ((dots < -bound).all(axis=(2, 3)) | unused).all(axis=1)
