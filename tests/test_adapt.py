@@ -35,7 +35,8 @@ def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> No
 def test_a_stream_first_runs_at_the_method_s_own_rate_under_a_ceiling_and_is_capped_by_it() -> None:
     """Calibration: a stream first keeps the method's crf under a ceiling at its share of the estimate (a
     :class:`CappedCrf`, not a target).  3 frames of 4000 B at 30 frame/s (960 kbit/s) under a 20 Mbit/s ceiling were
-    the crf's own: its target is capped at 1.5x that (1440), however wide the link.  Under a 500 kbit/s ceiling the
+    the crf's own: its target is capped at 1.5x that (1440); a link whose share is 1.5x the cap or more gives the
+    method its crf back (under a ceiling at the share, :data:`WIDE`).  Under a 500 kbit/s ceiling the
     P-frames took half of it or more: the ceiling shaped them, so the cap they give (480) is provisional: it caps
     nothing, the estimator may probe past it, and once the stream's share is 1.5x it the stream calibrates again.
     A window opens at an IDR (one per GOP, as the stream sends them), and an IDR, however large, never counts as
@@ -47,9 +48,9 @@ def test_a_stream_first_runs_at_the_method_s_own_rate_under_a_ceiling_and_is_cap
     assert not rc.calibrated and rc.wanted_bps() is None
     for k in range(3):
         rc.on_frame_sent({"color": 4000}, {"color": CappedCrf(20000.0)}, idr_streams=("color",) if k == 0 else ())
-    got = rc.targets_kbps(20e6)
+    got = rc.targets_kbps(2e6)                       # a share under 1.5x the cap: a target, at the cap
     assert got == {"color": pytest.approx(1440)} and not isinstance(got["color"], CappedCrf)
-    assert rc.state()["adapt_color_cap_kbps"] == pytest.approx(1440) and rc.wanted_bps() == pytest.approx(1440e3)
+    assert rc.state()["adapt_color_cap_kbps"] == pytest.approx(1440) and rc.wanted_bps() == pytest.approx(1.5 * 1440e3)
     assert rc.targets_kbps(1e6) == {"color": pytest.approx(1000)}
 
     narrow = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3))
@@ -66,12 +67,34 @@ def test_a_stream_first_runs_at_the_method_s_own_rate_under_a_ceiling_and_is_cap
     narrow.on_frame_sent({"color": 9000}, {"color": CappedCrf(20000.0)}, idr_streams=())   # no IDR yet: not counted
     for k in range(3):                                                      # a window opens at an IDR
         narrow.on_frame_sent({"color": 3000}, {"color": CappedCrf(20000.0)}, idr_streams=("color",) if k == 0 else ())
-    assert narrow.targets_kbps(20e6) == {"color": pytest.approx(720)} and narrow.wanted_bps() == pytest.approx(720e3)
+    assert narrow.wanted_bps() == pytest.approx(1.5 * 720e3)                 # its own cap now: 720 kbit/s
+    assert narrow.targets_kbps(1e6) == {"color": pytest.approx(720)}           # a target at it, under 1.5x of it
 
     shaped = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3))
     for k in range(3):   # 960 kbit/s P-frames under a 1000 kbit/s ceiling: shaped
         shaped.on_frame_sent({"color": 4000}, {"color": CappedCrf(1000.0)}, idr_streams=("color",) if k == 0 else ())
     assert shaped.wanted_bps() is None
+
+
+def test_a_link_well_wider_than_the_cap_gives_the_stream_its_crf_back() -> None:
+    """Once calibrated (960 kbit/s at its crf), a stream whose share of the estimate reaches ``WIDE`` (1.5) times its
+    cap runs at its crf under a ceiling at that share, not at a target at the cap (a target spends the cap evenly:
+    it squeezes each I-frame into two mean frames, measured on sas over the 8 Mbit/s cellular-like trace: I-frames of
+    14-16 kB against the crf's 42-106 kB).  It stays there while the share covers the cap, and takes a target again
+    below it.  At a coarser operating point the cap is the point's (``factor``)."""
+    rc = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=3))
+    for k in range(3):
+        rc.on_frame_sent({"color": 4000}, {"color": CappedCrf(20000.0)}, idr_streams=("color",) if k == 0 else ())
+    assert rc.calibrated and rc.state()["adapt_color_cap_kbps"] == pytest.approx(960)
+    seq = [(1.3e6, 960.0, False), (1.5e6, 1500.0, True), (1.1e6, 1100.0, True), (0.9e6, 900.0, False),
+           (1.4e6, 960.0, False), (20e6, 20000.0, True)]
+    for bps, want, crf in seq:
+        got = rc.targets_kbps(bps)["color"]
+        assert (got, isinstance(got, CappedCrf)) == (pytest.approx(want), crf), (bps, got)
+    rc.factor = 0.5                                  # a coarser point: its cap is half, wide from 1.5x that
+    assert rc.targets_kbps(0.4e6)["color"] == pytest.approx(400) and rc.targets_kbps(0.6e6)["color"] == pytest.approx(480)
+    got = rc.targets_kbps(0.75e6)["color"]
+    assert isinstance(got, CappedCrf) and got == pytest.approx(750)
 
 
 def test_when_an_encoder_restarts() -> None:

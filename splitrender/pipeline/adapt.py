@@ -31,7 +31,10 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    sudden drop in capacity catches: uncapped, a session that probed its way to 15 Mbit/s
    on a 20 Mbit/s link at 320x180 and met a drop to 2 held a 2 s queue (1.5x its own
    rate: 0.9 s; ``benchmarks/bench_adapt.py``).  (libwebrtc caps by resolution, 600 kbit/s up to 320x240; a per-stream
-   measure suits atlases, whose size is no measure of their content.)
+   measure suits atlases, whose size is no measure of their content.)  The cap is a mean, though, and a target at it
+   spends it evenly: where the stream's share is ``WIDE`` times the cap or more, the stream runs at the method's crf
+   again under a ceiling at its share (until the share falls under the cap), so its I-frames and a scene that grows
+   past what its calibration saw get their bits, as with ``adapt = "off"``, and the link bounds only the bursts.
 
 Targets are per second of the streams' own frame rate.  The encoder side
 (:meth:`~.sender.ServerPipeline.encode` with ``rates_kbps``) restarts a stream's encoder
@@ -69,6 +72,13 @@ CEILING_JUMP = 2.0
 target's rise waits for the next IDR): at start the estimate climbs from 300 kbit/s by probing within a few round
 trips, and a stream held at the start's ceiling until its GOP ends would spend its first second below its own
 picture."""
+WIDE = 1.5
+"""A calibrated stream whose share of the estimate is this many times its cap (at the operating point) runs at the
+method's own crf under a ceiling at that share (:class:`CappedCrf`) instead of a target at its cap, until the share
+falls back under the cap: where the link carries well more than the method's mean rate, the content decides each
+picture's bits (its I-frames several times a P-frame's), as with ``adapt = "off"``, and the link only bounds the
+bursts.  A target at the calibrated mean spends the same bits evenly: it squeezes each I-frame into a VBV buffer of
+two mean frames, and a scene that grows past what its calibration saw stays at the old mean."""
 RECALIBRATE = 1.5
 """A cap the link set (a stream whose ceiling kept binding through its calibration) is dropped, and the stream
 calibrated again, once its share of the estimate is this many times the cap."""
@@ -190,6 +200,7 @@ class RateController:
         self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
         self._provisional: set[str] = set()                                  # caps the link set, not the method
         self._calibrating: set[str] = set(self.video) if self.cfg.calibrate_frames else set()
+        self._wide: set[str] = set()                                         # at the crf under a ceiling (WIDE)
         self.last_overhead_bps = 0.0
         """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
         self.factor = 1.0
@@ -265,6 +276,11 @@ class RateController:
                 continue
             # a provisional cap is the link's, not the method's: it caps nothing
             cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)
+            if n not in self._provisional and kbps >= (1.0 if n in self._wide else WIDE) * cap * self.factor:
+                self._wide.add(n)              # room to spare: the method's own crf, the link bounding its bursts
+                out[n] = CappedCrf(kbps)
+                continue
+            self._wide.discard(n)
             out[n] = max(self.cfg.min_kbps, min(kbps, cap * self.factor))
         self._target = out
         return dict(out)
@@ -284,12 +300,12 @@ class RateController:
         return self._overhead_bps or 0.0
 
     def wanted_bps(self) -> float | None:
-        """The most this session would send (every stream at its cap, the overhead beside them, over ``headroom``),
-        once every stream is calibrated by its own rate; None before, or while a cap is the link's (provisional).  The
-        estimator need not probe past it."""
+        """The most this session would use (every stream at ``WIDE`` times its cap, where it takes its crf again, the
+        overhead beside them, over ``headroom``), once every stream is calibrated by its own rate; None before, or
+        while a cap is the link's (provisional).  The estimator need not probe past it."""
         if not self.cfg.calibrate_frames or not self.calibrated or self._provisional:
             return None
-        return (self.natural_video_bps() + self.overhead_bps) / self.cfg.headroom
+        return (WIDE * self.natural_video_bps() + self.overhead_bps) / self.cfg.headroom
 
     def state(self) -> dict[str, float]:
         """For updates.csv: the overhead the controller pays first and each stream's latest target and learnt miss."""
