@@ -1346,8 +1346,6 @@ class ServerCore:
         self.s = s
         self.core: Any = None
         self.now = 0.0
-        self.predictor: Any = None
-        self.latest_t: float | None = None
 
     def get(self) -> Any:
         if self.core is None:
@@ -1365,7 +1363,8 @@ class ServerCore:
             d = by_name.get(st.spec.name)
             if d is not None:
                 st.ssrc, st.fec_ssrc = d.ssrc, d.fec_ssrc
-        core = ServerSession(tx, 30.0, ServerOptions(), 0, 0.0, np.random.default_rng(0))
+        # the live server's default predictor (ServerConfig.predictor)
+        core = ServerSession(tx, 30.0, ServerOptions(), 0, 0.0, np.random.default_rng(0), predictor=make_predictor("cv"))
         for name, pkts in s.rtp.items():
             if name in core.streams:
                 for d in pkts:
@@ -1374,21 +1373,16 @@ class ServerCore:
             core.fb.frame_sent(u.frame_id, u.frame_meta.server_time_us)
         core.start(0.0)
         self.now = 0.0
-        self.predictor = make_predictor("cv")   # the live server's default (ServerConfig.predictor)
-        self.latest_t = None
         return core
 
     def on_pose(self, msg: Pose) -> None:
-        """A ``Pose`` as the live server takes it (``ServerSession._on_pose``), then one prediction 50 ms ahead."""
-        from splitrender.scene.pose import Pose as ScenePose
-
-        t_s = msg.client_time_us / 1e6
-        pose = ScenePose(np.array(msg.position), np.array(msg.orientation))
-        if self.latest_t is not None and t_s <= self.latest_t:
+        """A ``Pose`` as every front door gives it to the core (``ServerSession.receive_pose_sample``), then, when
+        taken, one prediction 50 ms ahead."""
+        core = self.get()
+        if not core.receive_pose_sample(msg):
             return
-        self.predictor.observe(t_s, pose)
-        self.latest_t = t_s
-        p = self.predictor.predict(t_s + 0.05)
+        t_s = msg.client_time_us / 1e6
+        p = core.predictor.predict(t_s + 0.05)
         if not (np.isfinite(p.position).all() and np.isfinite(p.orientation).all()):
             raise BadPrediction(f"server predictor: {p} from the pose {msg}")
 
