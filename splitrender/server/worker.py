@@ -91,7 +91,7 @@ class RenderWorker:
     """One worker process and the asyncio end of its socket.
 
     ``await call(op, *args, deadline_s=...)`` sends one request and waits for its answer;
-    requests are answered in order.  Raises :class:`WorkerError` (the worker reported an
+    requests are answered in order (:meth:`frame`: a frame order's).  Raises :class:`WorkerError` (the worker reported an
     exception; it keeps running), :class:`WorkerTimeout` (deadline missed; the worker is
     killed) or :class:`WorkerDied`.
     """
@@ -148,6 +148,20 @@ class RenderWorker:
         if status == "ok":
             return value
         raise WorkerError(value)
+
+    async def frame(self, sid: str, order: Any, deadline_s: float, counters: dict[str, Any]) -> Any:
+        """Session ``sid``'s frame ``order`` made and encoded here (the process's ``frame``), for both live front
+        doors: its update, the half's stats, and the stages with ``worker_rtt_ms`` (the round trip beyond the
+        worker's own time: pickling, the pipe, this loop's latency).  A missed deadline is counted in
+        ``counters["render_timeouts"]`` before :class:`WorkerTimeout` leaves."""
+        c0 = time.perf_counter()
+        try:
+            enc, stats, stages = await self.call("frame", sid, order, deadline_s=deadline_s)
+        except WorkerTimeout:
+            counters["render_timeouts"] += 1
+            raise
+        stages["worker_rtt_ms"] = max(0.0, (time.perf_counter() - c0) * 1e3 - stages["frame_ms"])
+        return enc, stats, stages
 
     async def _exchange(self, op: str, blob: bytes, deadline_s: float) -> Any:
         assert self._writer is not None
