@@ -15,7 +15,10 @@ assimp-testmodels; absent ones skipped) and ``default+nogi`` (the ledger's defau
 - ``tss equal``: the same at ``budget_px = 4.5`` (:data:`EQUAL`: about ``sas``'s samples where the model's coverage
   lets the rate reach ``budget_max_spp``);
 - ``tss matched``: :data:`MATCHED`, 0.63-1.15x ``sas``'s samples on the three models;
-- ``tss now``: ``tss`` at the current defaults;
+- ``tss matched block4``: :data:`MATCHED` with ``codec_block = 4`` (the atlas aligned to the codec's 4 x 4 transform
+  blocks, ``bench_tss_codec.py``);
+- ``tss now``: ``tss`` at the current defaults; ``tss now block1`` / ``tss now block4`` the same with ``codec_block``
+  1 and 4;
 - each ``tss`` run lossy and lossless, and ``--crf`` adds lossy runs at other crfs (bits against quality).
 
 Per run: model DSSIM and PSNR over the frames that show an update (``_shown``: the claims ledger's numbers; the
@@ -62,7 +65,11 @@ MATCHED = TSS_MATCHED
 assert MATCHED == {**HALF, "budget_px": 3.0, "budget_max_spp": 16.0, "flip_level": 16}
 """:data:`HALF` at 3 samples per display pixel (the claims ledger's ``tss matched``), up to 16 per covered pixel (``sas``'s own cap on textured patches), the
 flip's triangles at level 16: 0.66-1.15x ``sas``'s samples on the four scenes."""
-CONFIGS = {"tss old": OLD_DEFAULTS, "tss half": HALF, "tss equal": EQUAL, "tss matched": MATCHED, "tss now": {}}
+BLOCK4 = {**MATCHED, "codec_block": 4}
+""":data:`MATCHED` with its L-packing tip blocks and oversampling shelves aligned to the codec's 4 x 4 transform blocks
+(``codec_block = 4``; the padding filled from each block's own texels): ``bench_tss_codec.py``."""
+CONFIGS = {"tss old": OLD_DEFAULTS, "tss half": HALF, "tss equal": EQUAL, "tss matched": MATCHED, "tss matched block4": BLOCK4,
+           "tss now": {}, "tss now block1": {"codec_block": 1}, "tss now block4": {"codec_block": 4}}
 
 
 def one(renderer: Any, scene: str, camera: str, method: str, params: dict[str, Any],

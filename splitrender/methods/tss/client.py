@@ -81,7 +81,7 @@ class TssClient(ClientHalf):
         if atlas is not None and (not isinstance(atlas, np.ndarray) or atlas.dtype != np.uint8 or atlas.shape != (H, W, 3)):
             raise TssWireError(f"tss atlas plane: shape {getattr(atlas, 'shape', None)}, expected ({H}, {W}, 3) uint8")
         if tris is not None:
-            rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip, s.os_grid)
+            rows, gone = decode_table(tris, s.n_triangles, s.atlas, s.strip, s.os_grid, s.block)
             if gone is not None and rows.single_px != self.st.single_px:
                 raise TssWireError(f"tss tris: a delta table changes the single-texel cell side from {self.st.single_px} "
                                    f"to {rows.single_px}")

@@ -108,6 +108,20 @@ class TssConfig(MethodConfig):
     Issue 50 part 1: 2CylinderEngine's ``cloud`` orbit, ``FLIPS`` (``benchmarks/bench_tss_models.py``), lossless:
     model PSNR 27.50 -> 31.91 dB, lossy 27.35 -> 31.15 (``sas`` 31.95), the still views unchanged
     (``docs/methods.md``).  Off by default, as the moving budget it goes with.
+
+    ``codec_block`` (1: off): the lossy atlas aligned to the video codec's transform blocks (issue 50 part 1, the lossy
+    half of T-T4-1).  L-packing tip blocks take :func:`~.layout.tip_pitch` texels, ``D(l)`` rounded up to a multiple of
+    it (below it to a power of two), and start on multiples of it; L-packing and oversampling shelves start on rows in
+    multiples of it, levels of the same pitch share cells (a level that moves within its pitch keeps its cell); the
+    padding is filled from each block's own texels (:func:`~.layout.dilate_in_blocks`), and a block no sample wrote
+    keeps its colours through a GOP.  Packed edge to edge, tip blocks of 3-8 texels put two to four triangles into most
+    of H.264's 4 x 4 transforms, and their border texels took 59 % of the codec's error on the duck
+    (``benchmarks/bench_tss_codec.py``); aligned, the same atlas codes in 25-30 % fewer bytes at 3 dB less error.
+    A lossless atlas keeps 1 (its codec keeps every texel; the padding would only cost bits).  ``fill_pitch``: with
+    ``codec_block``, L-packing levels rise to the highest level of their pitch (:func:`~.layout.pitch_level`), samples
+    in the padding's place; off: on the duck at ``TSS_MATCHED`` it wins still (-20 % bits, +0.5 dB) and loses the
+    ``cloud`` orbit (-1.3 dB at level bits; ``flip_level`` 14, which it does not lift past, -0.6 dB at 0.79x the bits
+    there and -1.7 dB still: the flips' level 16 lifted to 22 is what the still edges gain from), ``docs/methods.md``.
     """
 
     gop: int = 30
@@ -134,6 +148,8 @@ class TssConfig(MethodConfig):
     budget_max_spp: float = 8.0
     flip_level: int = 0
     pvs_ring: int = 0
+    codec_block: int = 1
+    fill_pitch: bool = False
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
@@ -182,6 +198,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 16], got {self.budget_max_spp}")
         if not 0 <= self.flip_level <= 64:
             raise ConfigError(f"TssConfig.flip_level: must be in [0, 64] (0: off), got {self.flip_level}")
+        if self.codec_block not in (1, 2, 4, 8, 16):
+            raise ConfigError(f"TssConfig.codec_block: must be 1 (off), 2, 4, 8 or 16 texels, got {self.codec_block}")
         if not 0 <= self.pvs_ring <= 8:
             raise ConfigError(f"TssConfig.pvs_ring: must be in [0, 8] rings of neighbours (0: off), got {self.pvs_ring}")
         if not 1 <= self.split_max_triangles <= 50_000_000:

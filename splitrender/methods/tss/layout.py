@@ -80,6 +80,8 @@ def v_count(level: np.ndarray | int) -> np.ndarray:
 
 
 V_TABLE = v_count(np.arange(MAX_LEVEL + 1))
+PITCH_LEVEL: dict[int, np.ndarray] = {}
+"""Per block (2, 4, 8, 16), :func:`pitch_level` of levels 0..64 (filled after :func:`tip_pitch`)."""
 """``v(l)`` for ``l = 0..64`` (``v(0)`` unused)."""
 
 
@@ -94,6 +96,31 @@ def tip_dim(level: np.ndarray | int) -> np.ndarray:
     """Side ``D(l)`` of one tip block in texels: ``ceil((l + 1) / 2)``, plus one for odd ``l``."""
     lv = np.asarray(level, np.int64)
     return (lv + 2) // 2 + lv % 2
+
+
+def tip_pitch(level: np.ndarray | int, block: int = 1) -> np.ndarray:
+    """Side of the square a tip block takes in the atlas: :func:`tip_dim` rounded up to a multiple of ``block`` texels
+    (the codec's transform blocks, ``TssConfig.codec_block``; 1: ``D(l)`` itself), a tip smaller than ``block`` to a
+    power of two (1, 2: four of them share a transform block).  The texels past ``D(l)`` hold no sample (the
+    gutter fill extends the block's own colours into them, :func:`fill_gutters`)."""
+    return _pitch(tip_dim(level), block)
+
+
+def _pitch(d: np.ndarray, block: int) -> np.ndarray:
+    """Tip side ``d`` rounded up to a multiple of ``block``, or below ``block`` to a power of two (a level-2 tip of
+    2 x 2 texels padded to 4 x 4 would take four times its texels: the default scene's slivers overflowed the atlas)."""
+    d = np.asarray(d, np.int64)
+    pow2 = np.left_shift(1, np.ceil(np.log2(np.maximum(d, 1))).astype(np.int64))
+    return np.where(d < block, np.minimum(pow2, block), -(-d // block) * block)
+
+
+def pitch_level(level: np.ndarray | int, block: int) -> np.ndarray:
+    """The highest level (up to :data:`MAX_LEVEL`) whose tip block takes the same :func:`tip_pitch` as ``level``'s:
+    its samples fill the texels the padding to ``block`` would leave empty (``TssConfig.fill_pitch``)."""
+    lv = np.asarray(level, np.int64)
+    if block <= 1:
+        return lv
+    return PITCH_LEVEL[block][np.clip(lv, 0, MAX_LEVEL)]
 
 
 def max_ring(level: np.ndarray | int) -> np.ndarray:
@@ -299,18 +326,25 @@ class AtlasPlan:
     overflow: bool
     repacked: bool = True
     single_px: int = 1
+    block: int = 1
 
 
-def lp_per_shelf(level: int, strip: int) -> int:
-    """L-packing slots (half pair cells) on one shelf of ``2 D(l)`` rows and ``strip`` texels."""
-    return 2 * max(1, strip // (3 * int(tip_dim(level))))
+for _b in (2, 4, 8, 16):
+    _p = _pitch((np.arange(MAX_LEVEL + 1) + 2) // 2 + np.arange(MAX_LEVEL + 1) % 2, _b)
+    PITCH_LEVEL[_b] = np.array([max(m for m in range(1, MAX_LEVEL + 1) if _p[m] == _p[max(lv, 1)]) for lv in range(MAX_LEVEL + 1)],
+                               np.int64)
 
 
-def lp_tip_origins(level: int, slot: np.ndarray, shelves: np.ndarray, strip: int) -> np.ndarray:
+def lp_per_shelf(level: int, strip: int, block: int = 1) -> int:
+    """L-packing slots (half pair cells) on one shelf of ``2 P`` rows and ``strip`` texels (``P``: :func:`tip_pitch`)."""
+    return 2 * max(1, strip // (3 * int(tip_pitch(level, block))))
+
+
+def lp_tip_origins(level: int, slot: np.ndarray, shelves: np.ndarray, strip: int, block: int = 1) -> np.ndarray:
     """(N, 3, 2) tip-block origins of L-packing slots ``slot`` of ``level``, whose bin's shelves start at texels
-    ``shelves`` (S, 2) (x, y), each ``strip`` texels wide."""
-    D = int(tip_dim(level))
-    per = lp_per_shelf(level, strip) // 2
+    ``shelves`` (S, 2) (x, y), each ``strip`` texels wide; tip blocks ``block``-aligned (:func:`tip_pitch`)."""
+    D = int(tip_pitch(level, block))
+    per = lp_per_shelf(level, strip, block) // 2
     pair, half = slot // 2, slot % 2
     sh = np.asarray(shelves, np.int64).reshape(-1, 2)[pair // per]
     X = sh[:, 0] + (pair % per) * 3 * D
@@ -334,9 +368,11 @@ def ladder(v: np.ndarray | int) -> np.ndarray:
     return LADDER[np.minimum(np.searchsorted(LADDER, np.asarray(v, np.int64), side="left"), LADDER.size - 1)]
 
 
-def lp_cell_level(level: np.ndarray | int) -> np.ndarray:
-    """The level whose pair cells hold L-packed triangles of ``level`` (the ladder's next step)."""
-    return ladder(level)
+def lp_cell_level(level: np.ndarray | int, block: int = 1) -> np.ndarray:
+    """The level whose pair cells hold L-packed triangles of ``level``: the ladder's next step, or with ``block`` > 1
+    (``codec_block``) the highest level of the same :func:`tip_pitch` (every level whose tip blocks take the same
+    texels shares the cells, so a triangle whose level moves within its pitch keeps its cell)."""
+    return ladder(level) if block <= 1 else pitch_level(level, block)
 
 
 def strip_width(width: int) -> int:
@@ -418,10 +454,13 @@ class StableAtlas:
     prefix-sum layout, which is deterministic; the server then sends an I-frame.
     """
 
-    def __init__(self, n_triangles: int, width: int, height: int, single_px: int = 1) -> None:
+    def __init__(self, n_triangles: int, width: int, height: int, single_px: int = 1, block: int = 1) -> None:
         self.width, self.height = width, height
         self.strip = strip_width(width)
         self.single_px = single_px
+        self.block = block
+        """Codec block alignment (``TssConfig.codec_block``): L-packing tip blocks take :func:`tip_pitch` texels, and
+        L-packing and oversampling shelves start on rows (and oversampling cells span rows) in multiples of it."""
         self.cls = np.full(n_triangles, -1, np.int64)      # class index per triangle (-1: none)
         self.cell = np.full(n_triangles, -1, np.int64)
         self._reset_state()
@@ -446,8 +485,8 @@ class StableAtlas:
         if key[0] == KIND_SINGLE:
             return self.single_px, SINGLE_TILE, single_per_shelf(self.strip, self.single_px)
         if key[0] == KIND_LP:
-            D = int(tip_dim(key[1]))
-            return 3 * D, 2 * D, lp_per_shelf(key[1], self.strip)
+            D = int(tip_pitch(key[1], self.block))
+            return 3 * D, 2 * D, lp_per_shelf(key[1], self.strip, self.block)
         cw = min(key[2], self.width)
         return cw, key[1], max(1, (self.strip if cw <= self.strip else self.width) // cw)   # key: (OS, rows, width)
 
@@ -463,7 +502,7 @@ class StableAtlas:
 
     def _shelf(self, cw: int, sh: int, align: int = 1) -> tuple[int, int] | None:
         if cw > self.strip:                                # a full-width shelf below every strip
-            y = int(self.cursor.max())
+            y = -(-int(self.cursor.max()) // align) * align
             if y + sh > self.height:
                 return None
             self.cursor[:] = y + sh
@@ -482,7 +521,7 @@ class StableAtlas:
         texels: a P-frame codes a few compact regions, not scattered cells."""
         if not self.fresh[c] and (not self.free[c] or self.load() < APPEND_BELOW):
             cw, sh, per = self.cell_size(self.keys[c])
-            at = self._shelf(cw, sh, SINGLE_TILE if self.keys[c][0] == KIND_SINGLE else 1)
+            at = self._shelf(cw, sh, SINGLE_TILE if self.keys[c][0] == KIND_SINGLE else self.block)
             if at is not None:
                 base = len(self.shelves[c]) * per
                 self.shelves[c].append(at)
@@ -569,7 +608,8 @@ def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.
     lvl = np.where(kind == KIND_OS, level_for(samples), level).astype(np.int64)
     cw = 8 * ladder(-(-pw // 8))
     ch = ladder(os_rows(h, grid))
-    cl = lp_cell_level(np.maximum(level, 1))
+    ch = -(-ch // atlas.block) * atlas.block
+    cl = lp_cell_level(np.maximum(level, 1), atlas.block)
     keys = [(KIND_SINGLE,) if k == KIND_SINGLE else (KIND_LP, int(lv)) if k == KIND_LP else (KIND_OS, int(hh), int(c))
             for k, lv, hh, c in zip(kind.tolist(), cl.tolist(), ch.tolist(), cw.tolist())]
     fits, repacked = atlas.place(ids, keys, reset)
@@ -582,9 +622,10 @@ def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.
         lp = kind == KIND_LP
         for lv in np.unique(cl[lp]).tolist():
             sel = np.flatnonzero(lp & (cl == lv))
-            origin[sel] = lp_tip_origins(lv, slot[sel], np.asarray(bins[lv]), atlas.strip)
+            origin[sel] = lp_tip_origins(lv, slot[sel], np.asarray(bins[lv]), atlas.strip, atlas.block)
         origin[kind == KIND_OS, 1, 0] = pw[kind == KIND_OS]
-    return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, atlas.rows, not fits, repacked, atlas.single_px)
+    return AtlasPlan(kind, lvl, slot, origin, w, w2, h, a, samples, bins, atlas.rows, not fits, repacked, atlas.single_px,
+                     atlas.block)
 
 
 def os_sample_bary(x: np.ndarray, y: np.ndarray, half: np.ndarray, w: np.ndarray, w2: np.ndarray, h: np.ndarray,
@@ -656,14 +697,45 @@ def layout_attributes(kind: np.ndarray, origin: np.ndarray, w: np.ndarray, w2: n
     return o0, o1
 
 
-def fill_gutters(rgba: np.ndarray, rows: int) -> np.ndarray:
+def dilate_in_blocks(col: np.ndarray, w: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Texels of ``col`` (H, W, 3) float with ``w`` (H, W) False take the mean of their written 4-neighbours in the
+    same ``block``-aligned square, step after step (``2 (block - 1)`` steps: a block with any written texel ends up
+    full).  A tip block padded to the codec's transform block (:func:`tip_pitch`) is then extended by its own edge
+    colours, not by a fill across the transform's border.  Returns the new colours and the new written mask."""
+    col, w = col.copy(), w.copy()
+    H, W = w.shape
+    for _ in range(2 * (block - 1)):
+        acc = np.zeros_like(col)
+        cnt = np.zeros((H, W), np.float32)
+        for axis in (0, 1):
+            n = (H, W)[axis]
+            same = (np.arange(n - 1) + 1) % block != 0          # i and i + 1 in the same block
+            sl_lo = (slice(0, n - 1), slice(None)) if axis == 0 else (slice(None), slice(0, n - 1))
+            sl_hi = (slice(1, n), slice(None)) if axis == 0 else (slice(None), slice(1, n))
+            m = same[:, None] if axis == 0 else same[None, :]
+            # from i + 1 into i, and from i into i + 1
+            for dst, src in ((sl_lo, sl_hi), (sl_hi, sl_lo)):
+                take = w[src] & m
+                acc[dst] += np.where(take[..., None], col[src], 0.0)
+                cnt[dst] += take
+        new = ~w & (cnt > 0)
+        if not new.any():
+            break
+        col[new] = acc[new] / cnt[new][:, None]
+        w = w | new
+    return col, w
+
+
+def fill_gutters(rgba: np.ndarray, rows: int, block: int = 1) -> np.ndarray:
     """The atlas ``rgba`` (H, W, 4) uint8 as RGB with every texel no sample wrote (alpha 0) in its first ``rows``
     rows filled by push-pull: the alpha-weighted mean of the written texels in the smallest enclosing 2^k block.
 
     The gaps between cells (and the corners odd L-packing levels leave) were black: a lossy codec's transforms and
     4:2:0 chroma blend that black into each cell's border samples, which the client reads along every triangle's
     edges (dark seams).  Filled with their neighbours' colours, the borders code like the inside of the cells; the
-    texels a sample wrote are left exactly as they are.  Rows from ``rows`` on are returned unchanged."""
+    texels a sample wrote are left exactly as they are.  Rows from ``rows`` on are returned unchanged.  With ``block``
+    > 1 (``TssConfig.codec_block``) the texels of a ``block``-aligned square with any written texel are first filled
+    from that square's own texels (:func:`dilate_in_blocks`), the push-pull fills the empty squares."""
     out = np.ascontiguousarray(rgba[..., :3])
     rows = int(min(max(rows, 0), rgba.shape[0]))
     if rows == 0:
@@ -672,6 +744,14 @@ def fill_gutters(rgba: np.ndarray, rows: int) -> np.ndarray:
     if w.all() or not w.any():
         return out
     c = rgba[:rows, :, :3].astype(np.float32) * w[..., None]
+    if block > 1:
+        c, wb = dilate_in_blocks(c, w > 0, block)
+        w = wb.astype(np.float32)
+        if w.all():
+            hole = rgba[:rows, :, 3] <= 127
+            out = out.copy()
+            out[:rows][hole] = np.clip(np.rint(c[hole]), 0, 255).astype(np.uint8)
+            return out
     pyramid = []
     while c.shape[0] > 1 or c.shape[1] > 1:
         ph, pw = c.shape[0] % 2, c.shape[1] % 2

@@ -50,7 +50,7 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order, os_sizes,
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order, os_sizes, pitch_level,
                      plan_atlas, v_count)
 from .wire import WIRE_VERSION, descriptors, dequantize_positions, encode_geometry, encode_table, quantize_positions
 
@@ -231,13 +231,14 @@ def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.nda
 
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf,
-             min_level: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+             min_level: np.ndarray | None = None, pitch_block: int = 1) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
     the oversampling staircases (bases and height in samples, the split fraction ``a``
     quantised to 16 bits as on the wire), the base's start vertex, slantedness and
-    samples needed (area times rate).  With ``visible`` (pixels of each triangle
+    samples needed (area times rate).  ``pitch_block`` > 1 (``fill_pitch``): L-packing levels rise to the highest of
+    the same tip pitch (:func:`~.layout.pitch_level`).  With ``visible`` (pixels of each triangle
     inside the widened view, :func:`visible_area`) a triangle reaching out of the view
     gets samples for that part only, spread over the whole triangle (the paper
     samples whole triangles; the part outside the view would need samples only if
@@ -265,6 +266,9 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
         lift = min_level > 0
         kind[lift] = KIND_LP
         level[lift] = np.maximum(level[lift], min_level[lift])
+    if pitch_block > 1:
+        lp = kind == KIND_LP
+        level[lp] = pitch_level(level[lp], pitch_block)
     # eq. 12: where the height meets the base, as a fraction of the base from its start vertex
     b0 = px[r, base]
     apex = px[r, (base + 2) % 3]
@@ -300,11 +304,16 @@ class TssServer(ServerHalf):
         self._since_i = 0
         self._gl: Any = None
         self._stats: dict[str, float] = {}
-        self.store = StableAtlas(n, *self.atlas, single_px=self.config.single_px)
+        self.block = 1 if self.config.lossless else self.config.codec_block
+        """The tip blocks' alignment (``codec_block``; 1 for a lossless atlas, whose codec keeps every texel as it is)."""
+        self.store = StableAtlas(n, *self.atlas, single_px=self.config.single_px, block=self.block)
+        self.pitch_block = self.block if self.config.fill_pitch else 1
+        """L-packing levels rise to fill their tip pitch (``fill_pitch``): the block, or 1 (off)."""
         self._n_vertices = int(self.tris.vid.max()) + 1 if self.tris.vid.size else 0
         self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
         self._sent_desc = np.zeros((n, 17), np.uint8)
         self._sent_origin = np.zeros((n, 3, 2), np.int64)   # where the client finds each triangle's samples
+        self._sent_atlas: np.ndarray | None = None          # the last atlas sent (codec_block: empty blocks keep it)
         self._prev_a = np.zeros(n)
         self._prev_kind = np.full(n, -1, np.int64)
         self._prev_level = np.zeros(n, np.int64)
@@ -331,6 +340,7 @@ class TssServer(ServerHalf):
 
     def session_data(self) -> dict[str, Any]:
         return {"v": WIRE_VERSION, "atlas": list(self.atlas), "strip": self.store.strip, "os_grid": self.config.os_grid,
+                "block": self.block,
                 "n_objects": len(self.scene.objects),
                 "n_triangles": self.tris.count, "sky": list(map(float, self.scene.sky_color)),
                 "tri_base": self.tris.tri_base, "obj_box": self.tris.box}
@@ -399,7 +409,7 @@ class TssServer(ServerHalf):
         target = c.budget_px * self.intrinsics.width * self.intrinsics.height
 
         def fits(r: float) -> bool:
-            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
             return plan_samples(*k[:5], grid=c.os_grid) <= target
 
         lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
@@ -430,13 +440,16 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
                 if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
                     lift = self._min_level > 0
                     kind[lift] = KIND_LP
                     level[lift] = np.maximum(level[lift], self._min_level[lift])
+                if self.pitch_block > 1:
+                    lp = kind == KIND_LP
+                    level[lp] = pitch_level(level[lp], self.pitch_block)
             plan = plan_atlas(self.store, ids, kind, level, w1, w2, h, a, reset=reset or attempt > 0, grid=c.os_grid)
             if not plan.overflow:
                 break
@@ -449,7 +462,7 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
                 p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid
@@ -558,7 +571,16 @@ class TssServer(ServerHalf):
         shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
         W, H = self.atlas
         rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
-        atlas = fill_gutters(rgba, plan.height) if c.gutter_fill else rgba[..., :3].copy()
+        atlas = fill_gutters(rgba, plan.height, self.block) if c.gutter_fill else rgba[..., :3].copy()
+        if self.block > 1 and c.gutter_fill:
+            if not iframe and self._sent_atlas is not None:
+                # a block no sample has written keeps last frame's colours: the push-pull fill follows every change
+                # around it, which a P-frame would code for texels no client reads
+                B = self.block
+                empty = ~(rgba[..., 3] > 127).reshape(H // B, B, W // B, B).any(axis=(1, 3))
+                keep = np.repeat(np.repeat(empty, B, axis=0), B, axis=1)
+                atlas[keep] = self._sent_atlas[keep]
+            self._sent_atlas = atlas
         t3 = time.perf_counter()
         new = pvs[~self.client_has[pvs]]
         self.client_has[new] = True
@@ -597,8 +619,9 @@ class TssServer(ServerHalf):
             "tris_left_out": float(self.left_out),
         }
         meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}
-        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe,
-                      data={"tris": table, "geo": geo})
+        # no geo message when no triangle is new (a still view's P-frames): the client takes geometry when it comes
+        data = {"tris": table, "geo": geo} if new.size else {"tris": table}
+        return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe, data=data)
 
     def _vertices(self, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray, px: np.ndarray) -> np.ndarray:
         """(N, 3, VERTEX_FLOATS) gathering-stage vertices (OS triangles rotated so the base starts at vertex 0)."""

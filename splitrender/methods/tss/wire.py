@@ -3,7 +3,8 @@
 Session data (msgpack): ``v`` (:data:`WIRE_VERSION`), ``atlas`` [W, H] texels, ``strip``
 (width of the atlas's shelf strips, texels, :func:`~.layout.strip_width`),
 ``os_grid`` (``centred`` or ``paper``: where oversampled triangles' samples sit,
-:func:`~.layout.os_row_lengths`), ``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
+:func:`~.layout.os_row_lengths`), ``block`` (optional, 1 when absent: L-packing tip blocks take
+:func:`~.layout.tip_pitch` texels, ``D(L)`` rounded up to it), ``n_objects``, ``n_triangles`` (triangle ids are ``0 .. n_triangles - 1``, the split
 scene's triangles in object order), ``sky`` RGB, ``tri_base`` int (n_objects,): each
 object's first triangle id (non-decreasing from 0; triangle ``t`` belongs to the last
 object whose base is <= ``t``), ``obj_box`` float32 (n_objects, 2, 3): per object the
@@ -28,13 +29,14 @@ keeps the state's); a delta (``full = 0``, between I-frames) then lists the tria
 and ``n`` delta-coded ``u32`` ids, and carries only the triangles that are new or whose
 descriptor changed (the layout is stable, so most do not); a full table (I-frames,
 keyframe requests) carries every live triangle.  Then ``u32 n_single, u32 n_lp, u32
-n_os, u16 n_bins``; ``n_bins`` bins (every bin, in both kinds) ``u8 level, u16 n`` and
+n_os, u16 n_bins``; ``n_bins`` bins (those the rows use, in both kinds) ``u8 level, u16 n`` and
 ``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
 session's ``strip``; level 0 = the single-texel shelves, 16 rows each, tiles of 16 x 16
 texels whose ``single_px``-square cells follow a Z-order curve, :func:`~.layout.single_origins`; cell level
-``L``: shelves of ``2 D(L)`` rows, each ``S // (3 D(L))`` pair cells of two slots,
+``L``: shelves of ``2 P(L)`` rows, each ``S // (3 P(L))`` pair cells of two slots (``P``: ``D`` rounded up to the
+session's ``block``),
 holding the L-packed triangles whose level rounds up to ``L``,
-:func:`~.layout.lp_cell_level`); then the
+:func:`~.layout.lp_cell_level`: with ``block`` > 1 every level of the same pitch); then the
 delta-coded ``u32`` ids of each kind (single, L-packing, oversampling; each sorted),
 then
 
@@ -77,10 +79,10 @@ from typing import Any
 import numpy as np
 
 from ...errors import RemoteProtocolError
-from ...protocol.schema import Array, Float, Int, Map, Schema, Seq, Str, Transforms, Version
+from ...protocol.schema import Array, Float, Int, Map, Opt, Schema, Seq, Str, Transforms, Version
 from ..sas.wire import decode_geometry_slots, encode_vertex_codes
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, SINGLE_PX, SINGLE_TILE, AtlasPlan, lp_cell_level, lp_per_shelf,
-                     lp_tip_origins, os_rows, os_sizes, single_origins, single_per_shelf, tip_dim)
+                     lp_tip_origins, os_rows, os_sizes, single_origins, single_per_shelf, tip_pitch)
 
 WIRE_VERSION = 4
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
@@ -247,8 +249,11 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.nd
         rows = np.flatnonzero(changed) if changed is not None else np.arange(ids.size)   # no mask: every row
     kind = plan.kind[rows]
     sel = [rows[kind == k] for k in (KIND_SINGLE, KIND_LP, KIND_OS)]
-    out = [head, struct.pack("<IIIH", *(s.size for s in sel), len(plan.bins))]
-    for lv, shelves in sorted(plan.bins.items()):
+    # only the bins the rows sent use (a still view's delta sends none: the client keeps the origins it decoded)
+    used = set(lp_cell_level(plan.level[sel[1]], plan.block).tolist()) | ({0} if sel[0].size else set())
+    bins = {lv: sh for lv, sh in plan.bins.items() if lv in used}
+    out = [head, struct.pack("<IIIH", *(s.size for s in sel), len(bins))]
+    for lv, shelves in sorted(bins.items()):
         out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
     for s in sel:
         out.append(encode_ids(ids[s]))
@@ -279,9 +284,9 @@ class Table:
 
 
 def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: int,
-                 grid: str = "centred") -> tuple[Table, np.ndarray | None]:
+                 grid: str = "centred", block: int = 1) -> tuple[Table, np.ndarray | None]:
     """Validate and decode a ``tris`` payload against the session (``atlas`` = (W, H), shelf ``strip`` width, the
-    oversampling ``grid``).
+    oversampling ``grid``, the tip blocks' alignment ``block``, :func:`~.layout.tip_pitch`).
 
     Returns the table's rows (all live triangles for a full table, the changed ones for a delta) and, for a
     delta, the ids that left (``None`` for a full table).
@@ -300,10 +305,11 @@ def decode_table(buf: bytes, n_triangles: int, atlas: tuple[int, int], strip: in
         if ng > n_triangles:
             raise TssWireError(f"tss tris: {ng} triangles gone, the scene has {n_triangles}")
         gone = decode_ids(r.array("<u4", ng, "gone ids"), "tris gone ids", n_triangles)
-    return _decode_body(r, n_triangles, atlas, strip, grid, single_px), gone
+    return _decode_body(r, n_triangles, atlas, strip, grid, single_px, block), gone
 
 
-def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int, grid: str, single_px: int) -> Table:
+def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: int, grid: str, single_px: int,
+                 block: int = 1) -> Table:
     W, H = atlas
     S = strip
     n0, n1, n2, nb = struct.unpack("<IIIH", r.take(14, "counts"))
@@ -315,7 +321,7 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         if lv > MAX_LEVEL or lv in bins:
             raise TssWireError(f"tss tris: bin level {lv} repeated or above {MAX_LEVEL}")
         shelves = r.array("<u2", 2 * ns, "bin shelves").astype(np.int64).reshape(-1, 2)
-        tall = SINGLE_TILE if lv == 0 else 2 * int(tip_dim(lv))
+        tall = SINGLE_TILE if lv == 0 else 2 * int(tip_pitch(lv, block))
         if shelves.size and ((shelves[:, 1] + tall > H).any() or (shelves[:, 0] + S > W).any()):
             raise TssWireError(f"tss tris: a level-{lv} shelf reaches outside the {W}x{H} atlas")
         bins[lv] = shelves
@@ -355,17 +361,17 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         lv = (b1 & 63) + 1
         persp[n0:n0 + n1] = (b1 & LP_PERSP_OFF) == 0
         level[n0:n0 + n1] = lv
-        cell = lp_cell_level(lv)
+        cell = lp_cell_level(lv, block)
         for L in np.unique(cell).tolist():
             if L not in bins:
                 raise TssWireError(f"tss tris: L-packed triangles of cell level {L} without a level-{L} bin")
             sh = bins[L]
             k = np.flatnonzero(cell == L)
-            cap = lp_per_shelf(L, S) * len(sh)
+            cap = lp_per_shelf(L, S, block) * len(sh)
             if slot[k].min() < 0 or slot[k].max() >= cap:
                 v = int(slot[k][(slot[k] < 0) | (slot[k] >= cap)][0])
                 raise TssWireError(f"tss tris: level-{L} slot {v} outside its bin of {len(sh)} shelves ({cap} slots)")
-            origin[n0 + k] = lp_tip_origins(L, slot[k], sh, S)
+            origin[n0 + k] = lp_tip_origins(L, slot[k], sh, S, block)
     if n2:
         sl = slice(n0 + n1, n)
         if (rec["flags"] & ~np.uint8(OS_PERSP_OFF)).any() or (rec["base"] > 2).any():
@@ -397,6 +403,7 @@ class Session:
     sky: tuple[float, float, float]
     tri_base: np.ndarray
     box: np.ndarray
+    block: int = 1
 
 
 SESSION = Schema("tss session data", TssWireError, Map({
@@ -404,6 +411,7 @@ SESSION = Schema("tss session data", TssWireError, Map({
     "atlas": Seq(Int(2, 16384), 2),
     "strip": Int(1, 16384),
     "os_grid": Str(tuple(OS_GRIDS)),
+    "block": Opt(Int(1, 16), 1),
     "n_objects": Int(0, 65535, bind="n_objects"),
     "n_triangles": Int(0, (1 << 25) - 1, bind="n_triangles"),
     "sky": Seq(Float(-1e6, 1e6), 3),
@@ -436,7 +444,7 @@ def parse_session(data: Any) -> Session:
         raise SESSION.error_at("n_triangles", f"{d['n_triangles']} triangles without objects")
     sky = d["sky"]
     return Session((W, H), strip, d["os_grid"], d["n_objects"], d["n_triangles"], (sky[0], sky[1], sky[2]),
-                   base, d["obj_box"])
+                   base, d["obj_box"], d["block"])
 
 
 def parse_transforms(meta: Any, n_objects: int) -> np.ndarray:
