@@ -46,12 +46,14 @@ def frame_row(index: int, t_s: float, shown: int | None, display_s: float, updat
               client_ms: float, decode_ms: float) -> dict[str, Any]:
     """The columns of one display tick's row (``frames.csv``) that every client front door writes: its index and
     time, the update shown (``shown``: its frame id; None for a blank tick, the black background, whose row names
-    update -1 with no ages and no decode time), its age and motion-to-photon (the tick's display time ``display_s``
+    update -1), its age and motion-to-photon (the tick's display time ``display_s``
     less the update's server time ``update_s``, and less the time its pose was sampled ``pose_s``: seconds on one
-    clock), and the client's apply-and-render and decode milliseconds."""
+    clock), and the client's apply-and-render and decode milliseconds.  A blank tick has no ages, client or decode
+    milliseconds (NaN, whatever the front door measured: it shows no update), so ``mean_client_ms`` is the cost of a
+    tick that shows one in every front door."""
     if shown is None:
         return {"frame": index, "t_s": t_s, "update_frame_id": -1, "update_age_ms": math.nan,
-                "motion_to_photon_ms": math.nan, "client_ms": client_ms, "decode_ms": math.nan}
+                "motion_to_photon_ms": math.nan, "client_ms": math.nan, "decode_ms": math.nan}
     return {"frame": index, "t_s": t_s, "update_frame_id": shown, "update_age_ms": (display_s - update_s) * 1000,
             "motion_to_photon_ms": (display_s - pose_s) * 1000, "client_ms": client_ms, "decode_ms": decode_ms}
 
