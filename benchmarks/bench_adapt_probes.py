@@ -137,7 +137,7 @@ def networks(folder: Path, duration_s: float) -> dict[str, tuple[str, Any, list[
     return out
 
 
-def one(trace: str, adapt: str, gop: str, size: str, duration_s: float, folder: str) -> dict[str, Any]:
+def one(trace: str, adapt: str, gop: str, size: str, duration_s: float, folder: str, seed: int = 0) -> dict[str, Any]:
     """One run (a worker process)."""
     os.nice(10)
     from splitrender.experiments.studies.link import figures
@@ -148,7 +148,7 @@ def one(trace: str, adapt: str, gop: str, size: str, duration_s: float, folder: 
     w, h = (int(x) for x in size.split("x"))
     params = {} if gop == "default" else {"gop": int(gop)}
     cfg = RunConfig(method="probes", method_params=params, scene="default", trace="walk", network=network,
-                    duration_s=duration_s, width=w, height=h, client_fps=30, flip_every=0, seed=0,
+                    duration_s=duration_s, width=w, height=h, client_fps=30, flip_every=0, seed=seed,
                     transport_cc=True, adapt=adapt, truth_cache=str(Path(folder) / "truth"))
     t0 = time.perf_counter()
     res = run(cfg)
@@ -164,7 +164,7 @@ def one(trace: str, adapt: str, gop: str, size: str, duration_s: float, folder: 
     f["points"] = [p for i, p in enumerate(points) if i == 0 or p[1] != points[i - 1][1]]
     from splitrender.methods import get_method, make_config
     g = make_config(get_method("probes").config, params).gop
-    return {"trace": trace, "adapt": adapt, "gop": g, "gop_arg": gop, **f, "wall_s": time.perf_counter() - t0}
+    return {"trace": trace, "adapt": adapt, "gop": g, "gop_arg": gop, "seed": seed, **f, "wall_s": time.perf_counter() - t0}
 
 
 def main() -> None:
@@ -175,6 +175,7 @@ def main() -> None:
     ap.add_argument("--size", default="160x90")
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0, help="the runs' seed (the loss draws)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--costs", action="store_true", help="measure the knobs' cost priors instead")
     args = ap.parse_args()
@@ -200,7 +201,7 @@ def main() -> None:
     t0 = time.perf_counter()
     runs = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        futs = [pool.submit(one, tr, ad, g, args.size, args.duration, folder) for tr, ad, g in grid]
+        futs = [pool.submit(one, tr, ad, g, args.size, args.duration, folder, args.seed) for tr, ad, g in grid]
         for fut in futs:
             f = fut.result()
             runs.append(f)
@@ -210,7 +211,7 @@ def main() -> None:
                   f"low/steady span {f['low_kbps']:5.0f} kbit/s, age p95 {f['low_age_p95_ms']:5.0f} ms, "
                   f"points {f['points'][:6]} ({f['wall_s']:.0f} s)", flush=True)
     out = {"benchmark": "bench_adapt_probes", "duration_s": args.duration, "size": args.size, "scene": "default",
-           "trace": "walk", "default_gop": default_gop, "step_plan": step_plan(args.duration), "runs": runs,
+           "trace": "walk", "seed": args.seed, "default_gop": default_gop, "step_plan": step_plan(args.duration), "runs": runs,
            "wall_s": time.perf_counter() - t0, "machine": platform.machine(), "cpus": os.cpu_count(),
            "load_avg": os.getloadavg()}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
