@@ -98,7 +98,7 @@ def test_browser_statistics_agree_with_the_server(driver, tmp_path):
                         "--webrtc-network", "up: delay 10ms; down: delay 10ms loss 3%"]) as server:
         res, summary, c = _session(driver, server, out, "video", duration_s=8.0)
     # Chromium's first REMB comes after about 5 s (none in 5 s sessions, 7-11 in 8 s, measured)
-    assert c["remb_received"] > 0, c
+    assert c["estimates_received"] > 0, c
     rows = read_csv(out / res["session_id"] / "updates.csv")
     targets = [r["cc_target_kbps"] for r in rows]
     # the estimate left GCC's start for the page's (measured: 100-190 kbit/s on this link) and stayed in bounds
@@ -110,8 +110,8 @@ def test_browser_statistics_agree_with_the_server(driver, tmp_path):
     # every NACK counted (measured: equal in 4 runs of 5; in the fifth, read after bye, one short)
     assert st["nackCount"] > 0 and c["nacks_received"] >= st["nackCount"], (st, c)
     assert c["nacks_received"] - st["nackCount"] <= 2, (st, c)
-    assert 0 <= c["plis_received"] - st["pliCount"] <= 1, (st, c)
-    assert c["retransmit_requests"] >= c["nacked_packets"] > 0
+    assert 0 <= c["plis"] - st["pliCount"] <= 1, (st, c)
+    assert c["nacked_packets"] > 0
     # packets: libwebrtc counts a packet recovered by retransmission as received, so it counts every packet sent
     # but those still in flight when it read its statistics (measured: 1-6 of 787-813 short) and, as lost, the
     # ones that were missing at first (measured: equal to the packets NACKed, 23-28, or one fewer)
@@ -119,7 +119,7 @@ def test_browser_statistics_agree_with_the_server(driver, tmp_path):
     assert 0 < st["packetsLost"] <= c["relay_down_dropped"], (st, c)
     assert abs(st["packetsLost"] - c["nacked_packets"]) <= 5, (st, c)
     # frames: none decoded that the server did not send, none of the IDRs missed
-    assert st["framesDecoded"] <= c["frames_sent"] and st["keyFramesDecoded"] <= c["keyframes_sent"]
+    assert st["framesDecoded"] <= c["frames_sent"] and st["keyFramesDecoded"] <= c["keyframes"]
     assert st["framesDecoded"] >= 0.9 * c["frames_sent"], (st, c)
     assert summary["nacks"] == 0           # the headless client's columns stay theirs: the page's are browser_*
     assert c["browser_nackCount"] == st["nackCount"]

@@ -331,3 +331,43 @@ def test_page_glue_is_the_methods_and_the_server_process_imports_no_client_half(
             "print(sorted(k for k in sys.modules if k.startswith('splitrender.methods.') and k.endswith('.client')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stderr + out.stdout
+
+
+async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
+    """``BrowserSession._hook_sender`` (issue 47): the page's PLI and FIR become the core's ``receive_picture_loss``
+    (counted ``plis``, an IDR ordered), its REMB the core's ``receive_estimate``, a NACK is counted here and left to
+    aiortc; every packet still reaches aiortc's own handler.  The core's counters are the session's: it keeps no
+    copy of frames, keyframes, poses or PLIs."""
+    from types import SimpleNamespace
+
+    from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket, pack_remb_fci
+
+    from splitrender.codecs.video import VideoCodecConfig
+    from splitrender.methods.base import StreamSpec
+    from splitrender.pipeline import ServerPipeline, ServerSession
+    from splitrender.scene.predict import make_predictor
+    from splitrender.webrtc.session import BrowserSession
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), 64, 36)], rng=np.random.default_rng(1))
+    core = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
+    seen: list[object] = []
+
+    async def aiortc_handler(packet):
+        seen.append(packet)
+
+    sender = SimpleNamespace(_handle_rtcp_packet=aiortc_handler)
+    session = BrowserSession.__new__(BrowserSession)
+    session.core, session.counters = core, {"nacks_received": 0, "nacked_packets": 0}
+    session.track = session.page = session.relay = None
+    session._sender_sent, session.method = None, "video"
+    session._hook_sender(sender)
+    packets = [RtcpPsfbPacket(1, 1, 2), RtcpPsfbPacket(4, 1, 2), RtcpRtpfbPacket(1, 1, 2, [5, 6, 7]),
+               RtcpPsfbPacket(15, 1, 0, pack_remb_fci(400_000, [2])), RtcpPsfbPacket(15, 1, 0, b"not a remb")]
+    for p in packets:
+        await sender._handle_rtcp_packet(p)
+    assert seen == packets
+    c = session.server_counters()
+    assert (c["plis"], c["estimates_received"], c["nacks_received"], c["nacked_packets"]) == (2, 1, 1, 3), c
+    assert core.keyframe_due(1e12) and c["frames_sent"] == 0 and c["poses_received"] == 0
+    with pytest.raises(RuntimeError, match="_handle_rtcp_packet"):
+        session._hook_sender(SimpleNamespace())

@@ -297,10 +297,10 @@ async def test_garbage_on_the_pose_channel_is_counted_and_answered_and_the_conne
             chans["pose"].send(json.dumps({"type": "pose", "seq": 2, "t_us": int(time.time() * 1e6),
                                            "p": [0, 1.6, 0], "q": [0, 0, 0, 1]}))
             for _ in range(100):
-                if session.counters["poses_received"]:
+                if session.server_counters()["poses_received"]:
                     break
                 await asyncio.sleep(0.05)
-            assert session.counters["poses_received"] == 1 and pc.connectionState == "connected"
+            assert session.server_counters()["poses_received"] == 1 and pc.connectionState == "connected"
             for i in range(MAX_PAGE_ERRORS - 1):
                 chans["pose"].send("[" * 20 + "]" * 20)
             await asyncio.wait_for(session.ended.wait(), 10)

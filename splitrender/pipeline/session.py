@@ -1196,8 +1196,7 @@ class ServerSession:
                     self.counters[why] += len(p.lost)
             elif isinstance(p, PictureLossIndication):
                 if p.media_ssrc in self._by_ssrc:
-                    self.counters["plis"] += 1
-                    self.request_keyframe(now_ms)
+                    self.receive_picture_loss(now_ms)
             elif isinstance(p, FullIntraRequest):   # RFC 5104 4.3.1.2: a repeated sequence number is the same request
                 for media, seq in p.requests:
                     if media in self._by_ssrc and self._fir_seq.get(media) != seq:
@@ -1413,6 +1412,19 @@ class ServerSession:
             return []
         self.peer = addr
         return self.receive_rtcp(packets, now_ms)
+
+    def receive_picture_loss(self, now_ms: float) -> None:
+        """A PLI naming one of our streams (from :meth:`receive_rtcp`, or passed on by a WebRTC stack): counted
+        (``plis``), and an IDR requested."""
+        self.counters["plis"] += 1
+        self.request_keyframe(now_ms)
+
+    def all_counters(self) -> dict[str, Any]:
+        """The core's counters, with its pose rule's (``poses_received``, ``poses_stale``) and, with a pacer, the
+        packets still queued or dropped by a full queue (a frame's packets are counted when it is sent): what every
+        server front door reports, beside its own."""
+        pacer = {} if self.pacer is None else {"pacer_queued": self.pacer.queued, "pacer_dropped": self.pacer.dropped}
+        return {**self.counters, **self.poses.counters(), **pacer}
 
     def request_keyframe(self, now_ms: float) -> None:
         """Ask for an IDR on every stream (rate-limited; a suppressed request is kept)."""

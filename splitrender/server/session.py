@@ -150,13 +150,7 @@ class ServerSession:
     @property
     def counters(self) -> dict[str, Any]:
         """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
-        core = self.core.counters if self.core is not None else {}
-        poses = self.core.poses.counters() if self.core is not None else {}
-        pacer = self.core.pacer if self.core is not None else None
-        # with a pacer, a frame's packets are counted when it is sent and stamped as they leave: the ones still
-        # queued (or dropped by a full queue) when the session ends are the difference
-        paced = {} if pacer is None else {"pacer_queued": pacer.queued, "pacer_dropped": pacer.dropped}
-        return {**core, **self._counters, **poses, **paced}
+        return {**(self.core.all_counters() if self.core is not None else {}), **self._counters}
 
     @property
     def rtt_ms(self) -> float | None:

@@ -134,11 +134,12 @@ class BrowserSession:
         self._sender_sent: tuple[int, int] | None = None
         """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
-            "frames_sent": 0, "keyframes_sent": 0, "frames_skipped_backlog": 0, "frames_skipped_late": 0,
-            "plis_received": 0, "remb_received": 0, "nacks_received": 0, "nacked_packets": 0, "poses_received": 0, "poses_stale": 0, "feedback_received": 0,
-            "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0, "retransmit_requests": 0,
+            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "nacks_received": 0, "nacked_packets": 0,
+            "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0,
             "images_received": 0, "image_bytes_received": 0,
         }
+        """What this front door alone counts; the core counts frames, keyframes, poses, feedback, PLIs and REMB
+        estimates (:meth:`server_counters` has both)."""
 
     @property
     def out_dir(self) -> Path | None:
@@ -213,53 +214,36 @@ class BrowserSession:
         return terms
 
     def _hook_sender(self, sender: Any) -> None:
-        """Count the browser's RTCP feedback, turn its PLIs into IDR requests (aiortc answers NACKs itself, from its
-        own history; a PLI only sets a flag its encoder would read, and this track has none) and pass its REMB
-        estimates to the session core, whose rate and operating-point controllers follow them (``--adapt``; aiortc
-        negotiates ``goog-remb`` and ``abs-send-time``, so the browser estimates the path from arrivals and reports).
+        """The adapter from aiortc's sender to the session core: the page's PLIs and FIRs go to
+        :meth:`~.ServerSession.receive_picture_loss` (aiortc answers NACKs itself, from its own history, and only
+        counted here; a PLI only sets a flag its encoder would read, and this track has none), its REMB estimates
+        to :meth:`~.ServerSession.receive_estimate`, whose rate and operating-point controllers follow them
+        (``--adapt``; aiortc negotiates ``goog-remb`` and ``abs-send-time``, so the browser estimates the path from
+        arrivals and reports).
 
-        The one place that uses aiortc's private names: aiortc (1.x) offers no public event for the RTCP feedback a
-        sender receives, so this wraps its ``_handle_rtcp_packet`` and ``_retransmit``, and refuses to run, naming
-        them, on an aiortc that has neither.  What it sent is read through the public ``getStats``
-        (:meth:`read_sender_stats`)."""
+        The one private name it uses: aiortc (1.x) offers no public event for the RTCP feedback a sender receives,
+        so this wraps its ``_handle_rtcp_packet``, and refuses to run, naming it, on an aiortc without one.  What it
+        sent is read through the public ``getStats`` (:meth:`read_sender_stats`)."""
         from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket, unpack_remb_fci
 
-        missing = [n for n in ("_handle_rtcp_packet", "_retransmit") if not callable(getattr(sender, n, None))]
-        if missing:
-            raise RuntimeError(f"this aiortc's RTCRtpSender has no {', '.join(missing)}: the browser session cannot "
+        orig = getattr(sender, "_handle_rtcp_packet", None)
+        if not callable(orig):
+            raise RuntimeError("this aiortc's RTCRtpSender has no _handle_rtcp_packet: the browser session cannot "
                                "see the page's PLIs (splitrender was written against aiortc 1.x)")
-        orig = sender._handle_rtcp_packet
 
         async def handle(packet: Any) -> None:
+            now_ms = time.time() * 1000
             if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == 1:      # generic NACK
                 self.counters["nacks_received"] += 1
                 self.counters["nacked_packets"] += len(packet.lost)
-            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4):   # PLI, FIR
-                self.counters["plis_received"] += 1
-                self.request_keyframe("PLI from the browser")
-            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == 15:       # application layer: REMB
-                try:
-                    bps, _ = unpack_remb_fci(packet.fci)
-                except ValueError:                                               # not a REMB: aiortc ignores it too
-                    bps = None
-                if bps is not None and self.core is not None:
-                    self.counters["remb_received"] += 1
-                    self.core.receive_estimate(float(bps), time.time() * 1000)
+            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4) and self.core is not None:   # PLI, FIR
+                self.core.receive_picture_loss(now_ms)
+            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == 15 and self.core is not None:   # REMB
+                with contextlib.suppress(ValueError):                             # not a REMB: aiortc ignores it too
+                    self.core.receive_estimate(float(unpack_remb_fci(packet.fci)[0]), now_ms)
             await orig(packet)
 
         sender._handle_rtcp_packet = handle
-        orig_retransmit = sender._retransmit
-
-        async def retransmit(seq: int) -> None:
-            self.counters["retransmit_requests"] += 1
-            await orig_retransmit(seq)
-
-        sender._retransmit = retransmit
-
-    def request_keyframe(self, why: str) -> None:
-        if self.core is not None:
-            self.core.request_keyframe(time.time() * 1000)
-        logger.debug("browser session %s: keyframe for %s", self.id, why)
 
     # ------------------------------------------------------------------ events
 
@@ -298,10 +282,8 @@ class BrowserSession:
     def _on_pose(self, msg: PoseSample) -> None:
         assert self.core is not None
         self.core.receive_pose_sample(msg)  # a duplicate or reordered one counts as stale
-        self.counters.update(self.core.poses.counters())
 
     def _on_feedback(self, msg: PageFeedback) -> None:
-        self.counters["feedback_received"] += 1
         fb = Feedback(frame_id=msg.frame_id, received_us=msg.received_us, decoded_us=msg.received_us,
                       displayed_us=msg.displayed_us, lost_packets=0, applied={self.stream: msg.frame_id})
         assert self.core is not None
@@ -384,9 +366,15 @@ class BrowserSession:
         logger.info("browser session %s: closed (%s): %s", self.id, self.end_reason,
                     ", ".join(f"{k}={v}" for k, v in self.server_counters().items() if v))
 
+    @property
+    def frames_sent(self) -> int:
+        return self.core.counters["frames_sent"] if self.core is not None else 0
+
     def server_counters(self) -> dict[str, Any]:
-        """The session's counters with the RTP sender's (packets and bytes sent, retransmissions)."""
-        out: dict[str, Any] = dict(self.counters, method=self.method)
+        """The session's counters: its core's (frames, keyframes, poses, feedback, PLIs, REMB estimates), its own,
+        and the RTP sender's (packets and payload bytes sent)."""
+        core = self.core.all_counters() if self.core is not None else {}
+        out: dict[str, Any] = dict(core, **self.counters, method=self.method)
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
         if self.page is not None:
@@ -404,7 +392,7 @@ class BrowserSession:
             self.counters["frames_skipped_late"] += skipped
             if (self.core is None or self.core.poses.latest is None or self.pc.connectionState != "connected"
                     or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
-                if self.counters["frames_sent"] == 0 and time.time() - self.started_at > CONNECT_TIMEOUT_S:
+                if not self.frames_sent and time.time() - self.started_at > CONNECT_TIMEOUT_S:
                     raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
                                        f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
                 continue
@@ -427,8 +415,6 @@ class BrowserSession:
         if self.ended.is_set():
             return
         frame = enc.video[self.stream]
-        if frame.keyframe:
-            self.counters["keyframes_sent"] += 1
         rtp_ts = rtp_timestamp(scene_t)
         t_us = int(wall * 1e6)
         upd = enc.update
@@ -448,10 +434,9 @@ class BrowserSession:
                     ch.send(msg)
         n_meta = self._send("frame", meta)
         if not self.track.put(frame.data, rtp_ts):
-            self.request_keyframe("the sender fell behind")
+            core.request_keyframe(now_ms)     # the sender fell behind
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         sent = core.frame_encoded(order, enc, now_ms, t_us)
-        self.counters["frames_sent"] += 1
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
         row = {**update_row(fid, scene_t, sent, enc, order, stages, (self.stream,), core.congestion()), "server_us": t_us,
