@@ -48,6 +48,8 @@ class QuadsClient(ClientHalf):
         self._sky = QuadSet.empty()   # the background quads the client made for its reference set
         self._hidden_sky: tuple[QuadSet, np.ndarray] = (QuadSet.empty(), np.zeros((0, 2)))   # and behind its model
         self._wide_outs: dict[tuple[int, int, float], np.ndarray] = {}
+        self._cached_parts: list[tuple[np.ndarray, np.ndarray]] | None = None   # the reference set's mesh parts
+        self._sky_parts: list[tuple[np.ndarray, np.ndarray]] = []
 
     def _wide_out(self, wide: CameraIntrinsics) -> np.ndarray:
         """The wide view's pixels outside the main view (the only ones its set covers), kept per size."""
@@ -92,16 +94,20 @@ class QuadsClient(ClientHalf):
         clamp: ColourClamp = "view" if self.config.variant == "quasar" else "quad"
         parts = []
         if self.cache.quads is not None and self.cache.pose is not None and self.cache.intr is not None:
-            if quasar_sky and any(s.kind == KIND_REFERENCE for s in sets):   # the sky the reference set left out
-                self._sky = background_quads(self.cache.quads, self.cache.intr)
-                self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0),
-                                              reach=self.config.hidden_sky_px)
-            parts.append(build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp))
-            if quasar_sky:
-                parts.append(build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"))
-                # and behind the model's silhouette against it, shown where motion reveals it
-                parts.append(build_mesh(self._hidden_sky[0], self.cache.pose, self.cache.intr, self._origin(0), "quad",
-                                        self._hidden_sky[1]))
+            new_ref = any(s.kind == KIND_REFERENCE for s in sets)
+            if new_ref or any(s.kind == KIND_UPDATE and len(s.quads) for s in sets) or self._cached_parts is None:
+                # the cached quads' mesh changes only with them (a residual frame without update quads keeps it)
+                cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
+                if quasar_sky and (new_ref or self._cached_parts is None):   # the sky the reference set left out
+                    self._sky = background_quads(self.cache.quads, self.cache.intr)
+                    self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0),
+                                                  reach=self.config.hidden_sky_px)
+                    self._sky_parts = [build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"),
+                                       # and behind the model's silhouette against it, shown where motion reveals it
+                                       build_mesh(self._hidden_sky[0], self.cache.pose, self.cache.intr, self._origin(0),
+                                                  "quad", self._hidden_sky[1])]
+                self._cached_parts = cached + (self._sky_parts if quasar_sky else [])
+            parts.extend(self._cached_parts)
         # QuadStream: the views after the centre view are drawn behind what the centre view shows (its guard)
         guard = self.config.variant == "quadstream" and self.config.centre_guard
         centre: int | None = None

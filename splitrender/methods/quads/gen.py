@@ -166,13 +166,28 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     Planes are built for every valid pixel (neighbours need them); the corner lattice only
     for the pixels that ``emit`` quads."""
     h, w = depth.shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    dc = rays(intr, xs + 0.5, ys + 0.5)
-    n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
-    th, ph, n = quantize(n)
     z = np.where(valid, depth, 1.0)
-    wq = -dot3(n, dc) * z
     need = valid if emit is None else valid & emit
+    if emit is None:
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+        dc = rays(intr, xs + 0.5, ys + 0.5)
+        n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
+        th, ph, n = quantize(n)
+        wq = -dot3(n, dc) * z
+    else:
+        # planes only where an emitting pixel or one of its 8 neighbours reads them (the same per-pixel arithmetic,
+        # so the same bits there; a residual frame's sets emit from a few per cent of the pixels)
+        near = need.copy()
+        near[1:] |= need[:-1]
+        near[:-1] |= need[1:]
+        near[:, 1:] |= near[:, :-1].copy()
+        near[:, :-1] |= near[:, 1:].copy()
+        sy, sx = np.nonzero(near & valid)
+        dcs = rays(intr, sx + 0.5, sy + 0.5)
+        ths, phs, ns = quantize(orient(normal_view[sy, sx], dcs))
+        n, th, ph, wq = np.zeros((h, w, 3)), np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8), np.zeros((h, w))
+        n[sy, sx], th[sy, sx], ph[sy, sx] = ns, ths, phs
+        wq[sy, sx] = -dot3(ns, dcs) * z[sy, sx]
     py, px = np.nonzero(need)
     k = py.size
     # the 3x3 lattice of each emitting pixel: (j, i) half-steps from its top-left corner
@@ -225,7 +240,8 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     full_o = np.zeros((h, w, 16))
     full_c[py[ok], px[ok]] = corners[ok]
     full_o[py[ok], px[ok]] = offs[ok]
-    flat = (np.abs(full_o) < params.delta_flatten).all(-1)
+    flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
+    flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
     return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "corners": full_c, "offs": full_o, "flat": flat}
 
 

@@ -127,6 +127,11 @@ def outside_frustum(wide: CameraIntrinsics, main: CameraIntrinsics) -> np.ndarra
     return ~((u >= 0) & (u < main.width) & (v >= 0) & (v < main.height))
 
 
+def same_pose(a: Pose, b: Pose) -> bool:
+    """Whether ``a`` and ``b`` are the same pose to the bit (a render from either is the same)."""
+    return bool(np.array_equal(a.position, b.position) and np.array_equal(a.orientation, b.orientation))
+
+
 class QuadsServer(ServerHalf):
     """QUASAR or QuadStream, one session."""
 
@@ -281,7 +286,9 @@ class QuadsServer(ServerHalf):
         else:
             ref_pose = self.cache.pose
             assert ref_pose is not None and self._ref_depth is not None and self._ref_normal is not None
-            gr = self._gbuffer(ctx, ref_pose, intr, times)
+            # the G-buffer at the reference pose and this time: the one just drawn when the eye has not moved since
+            # the reference frame (the same render, so the same bytes; a still camera draws one view fewer)
+            gr = g0 if same_pose(ref_pose, pose) else self._gbuffer(ctx, ref_pose, intr, times)
             t1 = time.perf_counter()
             a, b = self._ref_depth, gr.depth
             fin_a, fin_b = np.isfinite(a), np.isfinite(b)

@@ -1,0 +1,124 @@
+"""``quads``: the work saved on its server and client (issue 49, item 3) changes no byte.
+
+- a set that emits quads from few pixels builds its planes only around them, and gets the planes, corners,
+  offsets and flatness the whole image's planes give;
+- a residual frame at the reference pose takes the reference view's G-buffer from the frame's own (one render
+  fewer), and sends the same update;
+- the client keeps the reference set's mesh (and its sky's) while neither changes, and draws the same.
+
+``benchmarks/bench_quads_server.py`` measures what this saves against the ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from splitrender.scene.pose import CameraIntrinsics
+
+INTR = CameraIntrinsics(320, 180)
+
+
+def _setup(trace: str = "walk"):  # type: ignore[no-untyped-def]
+    from splitrender.methods import get_method, make_config
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.trace import get_trace
+
+    scene = get_scene("default+nogi")
+    spec = get_method("quads")
+    cfg = make_config(spec.config, {"lossless": True})
+    return scene, get_trace(trace, scene=scene), spec, cfg
+
+
+def _ctx(renderer, scene, tr, f: int):  # type: ignore[no-untyped-def]
+    from splitrender.methods import ServerContext
+
+    t = 0.5 + f / 30
+    pose = tr.pose_at(t)
+    return ServerContext(frame_id=f, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
+                         latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose,
+                         expected_latency_s=0.0)
+
+
+def test_sparse_planes_are_the_whole_images(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``initial_quads`` with an ``emit`` mask (planes only at the emitting pixels and their 8 neighbours) against
+    the same G-buffer with planes everywhere: at every emitting pixel the same quad, bit for bit (present, normal,
+    its 8-bit angles, 16 corner depths, offsets, flatness).  The mask is scattered pixels, a block and the image's
+    border, so the neighbours a pixel reads cross every edge."""
+    from splitrender.methods.quads.gen import initial_quads
+
+    scene, tr, _, cfg = _setup()
+    pose = tr.pose_at(0.5)
+    g = renderer.render(scene, 0.5, pose, INTR, ("color", "depth", "normal"))
+    valid = np.isfinite(g.depth) & (g.depth > 0)
+    nview = g.normal.astype(np.float64) @ pose.view_matrix()[:3, :3].T
+    depth = np.where(valid, g.depth.astype(np.float64), 1.0)
+    rng = np.random.default_rng(3)
+    emit = rng.random(valid.shape) < 0.03
+    emit[60:90, 100:160] = True
+    emit[0, :] = emit[:, -1] = True
+    dense = initial_quads(depth, nview, valid, INTR, cfg.params)
+    sparse = initial_quads(depth, nview, valid, INTR, cfg.params, emit)
+    at = valid & emit
+    assert at.sum() > 3000 and (dense["present"] & at).sum() > 0.9 * at.sum()
+    assert np.array_equal(sparse["present"], dense["present"] & at)
+    for k in ("n", "theta", "phi", "zc", "corners", "offs", "flat"):
+        assert np.array_equal(sparse[k][at], dense[k][at]), k
+
+
+def test_a_still_camera_draws_the_reference_view_once(renderer, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """On the still camera a residual frame is at the reference pose: the G-buffer there at this time is the frame's
+    own, so it renders three G-buffers (visible, hidden layer, wide view), not four, and sends the same bytes as
+    rendering the reference view again (the scene's objects move, so the update has quads)."""
+    import splitrender.methods.quads.server as srv_mod
+
+    scene, tr, spec, cfg = _setup("static")
+    sent = {}
+    for reuse in (True, False):
+        if not reuse:
+            monkeypatch.setattr(srv_mod, "same_pose", lambda a, b: False)
+        srv = spec.server_class(cfg, INTR, scene, 30, None)
+        renders = []
+        orig = renderer.render
+        monkeypatch.setattr(renderer, "render", lambda *a, **k: renders.append(1) or orig(*a, **k))
+        ups = [srv.produce(_ctx(renderer, scene, tr, f)) for f in range(3)]
+        monkeypatch.setattr(renderer, "render", orig)
+        assert [u.meta["frame"] for u in ups] == ["reference", "residual", "residual"]
+        assert srv.stats()["quads_update"] > 0
+        sent[reuse] = ([(u.planes["atlas"].tobytes(), u.data["quads"], u.data["offsets"]) for u in ups], len(renders))
+    assert sent[True][0] == sent[False][0]
+    assert (sent[True][1], sent[False][1]) == (3 + 3 + 3, 3 + 4 + 4)
+
+
+@pytest.mark.parametrize("trace", ["walk", "static"])
+def test_the_client_keeps_the_reference_mesh(renderer, trace: str) -> None:  # type: ignore[no-untyped-def]
+    """Two clients take the same updates (a reference frame, then residual frames; one update with its update
+    quads removed, so the cached quads stay as they are); one rebuilds every mesh part each time (as before): the
+    same vertices and indices, the same frames.  The other kept its reference set's parts through the frame
+    without update quads."""
+    from splitrender.methods import DecodedUpdate
+    from splitrender.methods.quads.wire import KIND_UPDATE, decode_sets, encode_sets
+
+    scene, tr, spec, cfg = _setup(trace)
+    srv = spec.server_class(cfg, INTR, scene, 30, None)
+    a = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    b = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    kept = []
+    for f in range(4):
+        u = srv.produce(_ctx(renderer, scene, tr, f))
+        data = dict(u.data)
+        if f == 3:   # the update set emptied: the cache does not change
+            sets = decode_sets(data["quads"], data["offsets"], "t", (INTR.width, INTR.height), srv.slots,
+                               len(u.meta["cameras"]), INTR.far_m, None)
+            upd = next(s for s in sets if s.kind == KIND_UPDATE)
+            upd.quads = upd.quads.__class__.empty()
+            data["quads"], data["offsets"] = encode_sets(sets)
+        parts = a._cached_parts
+        d = DecodedUpdate(u.frame_id, u.t_s, u.pose, u.planes, u.meta, data)
+        a.apply(d)
+        kept.append(parts is not None and a._cached_parts is parts)
+        b._cached_parts = None
+        b.apply(d)
+        assert a._mesh.vbo.read() == b._mesh.vbo.read() and a._mesh.ibo.read() == b._mesh.ibo.read(), f
+        p = tr.pose_at(0.52 + f / 30)
+        assert np.array_equal(a.render(p, 0.5).color, b.render(p, 0.5).color), f
+    assert kept == [False, False, False, True]
