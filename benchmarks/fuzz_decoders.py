@@ -1375,13 +1375,13 @@ class ServerCore:
         self.now = 0.0
         return core
 
-    def on_pose(self, msg: Pose) -> None:
-        """A ``Pose`` as every front door gives it to the core (``ServerSession.receive_pose_sample``), then, when
-        taken, one prediction 50 ms ahead."""
+    def predict(self, msg: Pose) -> None:
+        """After a ``Pose`` reached the core (``ServerSession.receive_message``, by the one pose rule of every front
+        door), one prediction 50 ms past it, when it was taken."""
         core = self.get()
-        if not core.receive_pose_sample(msg):
-            return
         t_s = msg.client_time_us / 1e6
+        if core.poses.latest_t_s != t_s:
+            return
         p = core.predictor.predict(t_s + 0.05)
         if not (np.isfinite(p.position).all() and np.isfinite(p.orientation).all()):
             raise BadPrediction(f"server predictor: {p} from the pose {msg}")
@@ -1406,9 +1406,9 @@ def _server_control_entry(s: MethodSeeds) -> EntryPoint:
         try:
             for msg in _drain(conn, data, 1 + len(data) % 97):
                 sc.now += 5.0
-                if isinstance(msg, Pose):
-                    sc.on_pose(msg)
                 core.receive_message(msg, sc.now)
+                if isinstance(msg, Pose):
+                    sc.predict(msg)
                 if int(sc.now) % 10 == 0:   # the server's frame loop between messages
                     core.fb.snapshot(core.keyframe_due(sc.now))
         except BaseException:

@@ -32,7 +32,8 @@ def test_newer_samples_are_taken_duplicates_and_reordered_ones_counted() -> None
 def test_every_front_door_uses_it_through_the_core() -> None:
     """The rule was written three times and the copies disagreed (issue 47): the runner took ``ts >= latest``.  Now
     each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
-    rule; the live ones the samples as they come, ``receive_pose_sample``) and keeps no inbox or predictor of its own,
+    rule; the live ones the samples as they come: the live server's ``Pose`` through ``receive_message`` with its
+    other control messages, the page's through ``receive_pose_sample``) and keeps no inbox or predictor of its own,
     nor a frame clock (the live ones take ``order_tick``); the client drivers ask the client core for the
     blank-frame and keyframe-skip rules instead of writing them."""
     from splitrender.client import session as client
@@ -40,7 +41,7 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
-    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".receive_pose_sample(", ".order_tick("),
+    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, "(Pose, KeyframeRequest)", ".order_tick("),
                              (browser, ".receive_pose_sample(", ".order_tick(")):
         src = inspect.getsource(mod)
         assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
@@ -49,3 +50,19 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     for mod in (runner, client):
         src = inspect.getsource(mod)
         assert ".blank(" in src and ".skips_decode(" in src and ".broken" not in src, mod.__name__
+
+
+def test_the_server_core_takes_a_pose_message_by_the_rule() -> None:
+    """``ServerSession.receive_message`` takes a ``Pose`` as ``receive_pose_sample`` does (the live server hands it
+    every control message the core keeps): a reordered or repeated one is counted stale and not observed."""
+    from splitrender.codecs.video import VideoCodecConfig
+    from splitrender.methods.base import StreamSpec
+    from splitrender.pipeline import ServerPipeline, ServerSession
+    from splitrender.protocol import Pose as PoseMessage
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), 64, 36)], rng=np.random.default_rng(1))
+    core = ServerSession(tx, 60.0, predictor=make_predictor("cv"))
+    for us, seq in ((100_000, 1), (50_000, 2), (100_000, 3), (200_000, 4)):
+        assert core.receive_message(PoseMessage(us, seq, (us / 1e5, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), 0.0) is None
+    assert core.poses.counters() == {"poses_received": 2, "poses_stale": 2}
+    assert core.poses.latest is not None and core.poses.latest[2:] == (200_000, 4)

@@ -53,7 +53,7 @@ from ..codecs.meta import unpack_meta
 from ..errors import CodecError, ConfigError, RemoteProtocolError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
 from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, ErrorCode, Feedback, FrameMeta, DataChunk,
-                        FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError,
+                        FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
                         State, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -1149,8 +1149,12 @@ class ServerSession:
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
 
     def receive_message(self, msg: Message, now_ms: float) -> float | None:
-        """A ``Feedback`` or ``KeyframeRequest`` from the control channel.  Returns the latency a
+        """A ``Pose`` (:meth:`receive_pose_sample`), ``Feedback`` or ``KeyframeRequest`` from the control channel,
+        in every front door that has one; the others (Stats, Bye, Error) are the driver's.  Returns the latency a
         Feedback measured (s), if any; raises ``MessageError`` for a request naming no stream of ours."""
+        if isinstance(msg, Pose):
+            self.receive_pose_sample(msg)
+            return None
         if isinstance(msg, Feedback):
             self.counters["feedback"] += 1
             self.counters["lost_reported"] += sum(len(v) for v in msg.lost.values())

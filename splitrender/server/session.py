@@ -53,7 +53,6 @@ from splitrender.protocol import (
     Feedback,
     Hello,
     KeyframeRequest,
-    MessageError,
     Pose,
     ServerConnection,
     State,
@@ -308,18 +307,12 @@ class ServerSession:
     # ------------------------------------------------------------------ control
 
     async def _control_loop(self) -> None:
+        assert self.core is not None
         async for msg in self.channel.messages():
-            if isinstance(msg, Pose):
-                assert self.core is not None
-                self.core.receive_pose_sample(msg)   # a duplicate or reordered sample is dropped
-            elif isinstance(msg, Feedback):
+            if isinstance(msg, Feedback):
                 self._on_feedback(msg)
-            elif isinstance(msg, KeyframeRequest):
-                if msg.stream not in self.streams:
-                    raise MessageError(f"KeyframeRequest.stream: unknown stream {msg.stream!r}")
-                assert self.core is not None
+            elif isinstance(msg, (Pose, KeyframeRequest)):   # the core's (a stale pose is dropped there)
                 self.core.receive_message(msg, _now_ms())
-                logger.debug("session %s: KeyframeRequest %s: %s", self.id, msg.stream, msg.reason)
             elif isinstance(msg, Stats):
                 logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
             elif isinstance(msg, Bye):
@@ -335,6 +328,7 @@ class ServerSession:
         raise _SessionEnded()
 
     def _on_feedback(self, fb: Feedback) -> None:
+        """A Feedback for the core, and its row once the core took it (a malformed one is refused there)."""
         assert self.core is not None
         row = feedback_row(fb, self.core.fb.server_time_us(fb.frame_id))
         self.core.receive_message(fb, _now_ms())
