@@ -9,7 +9,8 @@ each followed in the same process by
   map the server's first G-buffer drew for this time are reused, so this is the render alone; ``bench_quads``
   measures this way);
 - the client taking the update (``apply``: cache, mesh, atlas upload) and drawing one display frame half a
-  server frame later (``draw``: the layered mesh and hole filling).
+  server frame later (``draw``: the layered mesh and hole filling), whose PSNR against the ground truth at that
+  pose and time (rendered outside the timings) is kept (``client_psnr_db``, the mean over the frames).
 
 Times are CPU seconds of the process (``time.process_time``: llvmpipe's threads included; the machine is shared,
 so wall time mostly measures the other jobs), the median over the frames.  Ratios: server/GT and client/GT,
@@ -51,6 +52,7 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
 
     import splitrender
     from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.metrics.image import psnr
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
@@ -87,6 +89,7 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
         c5 = cpu()
         shown = cli.render(tr.pose_at(t + 0.5 / 30), t + 0.5 / 30)
         c6 = cpu()
+        truth = r_gt.render(scene, t + 0.5 / 30, tr.pose_at(t + 0.5 / 30), intr).color
         dig_u.update(np.ascontiguousarray(u.planes["atlas"]).tobytes())
         dig_u.update(u.data["quads"])
         dig_u.update(u.data["offsets"])
@@ -95,15 +98,15 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
             st = srv.stats()
             rows.append({"server_ms": (c1 - c0) * 1e3, "gt_shared_ms": (c2 - c1) * 1e3, "gt_own_ms": (c3 - c2) * 1e3,
                          "apply_ms": (c5 - c4) * 1e3, "draw_ms": (c6 - c5) * 1e3, "reference": st["reference"],
-                         "quads": st["quads"]})
-    med = {k: statistics.median(x[k] for x in rows) for k in rows[0]}
+                         "quads": st["quads"], "client_psnr_db": psnr(shown.color, truth)})
+    med = {k: statistics.median(x[k] for x in rows) for k in rows[0] if k != "client_psnr_db"}
     gt = med["gt_own_ms"]
     return {"tree": str(Path(splitrender.__file__).resolve().parents[1]), "median": med,
             "server_over_gt": med["server_ms"] / gt, "server_over_gt_shared": med["server_ms"] / med["gt_shared_ms"],
             "draw_over_gt": med["draw_ms"] / gt, "client_over_gt": (med["draw_ms"] + med["apply_ms"]) / gt,
             "draw_over_gt_shared": med["draw_ms"] / med["gt_shared_ms"],
             "client_over_gt_shared": (med["draw_ms"] + med["apply_ms"]) / med["gt_shared_ms"],
-            "update_digest": dig_u.hexdigest(), "client_digest": dig_c.hexdigest(), "frames": rows}
+            "client_psnr_db": statistics.fmean(x["client_psnr_db"] for x in rows), "update_digest": dig_u.hexdigest(), "client_digest": dig_c.hexdigest(), "frames": rows}
 
 
 def main() -> None:
@@ -152,7 +155,8 @@ def main() -> None:
                         f"draw/GT {c['draw_over_gt']:.2f}, draw+apply/GT {c['client_over_gt']:.2f}"  # type: ignore[index]
                         for s, c in cell.items() if isinstance(c, dict))
         print(f"{name}: {msg}; identical updates {cell['identical_updates']}, client frames "
-              f"{cell['identical_client_frames']}", flush=True)
+              f"{cell['identical_client_frames']}; client PSNR "
+              + " -> ".join(f"{c['client_psnr_db']:.3f}" for c in cell.values() if isinstance(c, dict)), flush=True)
         out["load_after"] = os.getloadavg()[0]
         OUT.parent.mkdir(parents=True, exist_ok=True)
         OUT.write_text(json.dumps(out, indent=1) + "\n")

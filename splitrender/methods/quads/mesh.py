@@ -46,6 +46,10 @@ closer) and would be clipped to a hole."""
 ColourClamp = Literal["quad", "view"]
 SUB_TRIANGLES = np.array([[s * 4 + a for a in tri] for s in range(4) for tri in ((0, 2, 1), (1, 2, 3))], np.uint32).ravel()
 """24 indices into a quad's 16 corners: two triangles per sub-quad (TL, BL, TR) and (TR, BL, BR)."""
+FLAT_TRIANGLES = np.array([0, 10, 5, 5, 10, 15], np.uint32)
+"""6 indices into a flat quad's 16 corners: its outer corners' (TL, BL, TR) and (TR, BL, BR).  Its 16 corners lie on
+one plane, so two triangles draw the surface eight do; llvmpipe's cost per display frame follows the triangles
+(issue 49: the default walk's mesh draw 24 -> 9 ms of CPU with flat quads as two triangles)."""
 
 
 def concat(sets: list[QuadSet]) -> QuadSet:
@@ -233,7 +237,8 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
                clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0,
                grow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 11) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
-    with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; indices (N*24,) uint32).
+    with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; indices uint32, quad by quad:
+    24 (:data:`SUB_TRIANGLES`) for a quad with offsets, 6 for a flat one (:data:`FLAT_TRIANGLES`)).
 
     ``view``: the set's view, 0 for the centre view (and all of QUASAR's sets); a later view's fragments are subject
     to the centre view's guard (:meth:`QuadMeshGL.set_guard`).
@@ -282,7 +287,16 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     v[..., 5] = zs
     v[..., 6:10] = rect[:, None, :]
     v[..., 10] = view
-    idx = (np.arange(n, dtype=np.uint32)[:, None] * 16 + SUB_TRIANGLES[None, :]).ravel()
+    flat = qs.flat[ok]
+    base = np.arange(n, dtype=np.uint32) * 16
+    if not flat.any():
+        return v.reshape(-1, VERTEX_FLOATS), (base[:, None] + SUB_TRIANGLES[None, :]).ravel()
+    # in quad order (the depth test keeps the first of equal depths): 6 indices for a flat quad, 24 for another
+    counts = np.where(flat, FLAT_TRIANGLES.size, SUB_TRIANGLES.size)
+    start = np.cumsum(counts) - counts
+    idx = np.empty(int(counts.sum()), np.uint32)
+    for sel, tri in ((flat, FLAT_TRIANGLES), (~flat, SUB_TRIANGLES)):
+        idx[(start[sel][:, None] + np.arange(tri.size)).ravel()] = (base[sel][:, None] + tri[None, :]).ravel()
     return v.reshape(-1, VERTEX_FLOATS), idx
 
 
@@ -312,6 +326,8 @@ class QuadMeshGL:
         self.ibo: Any = None
         self.vao: Any = None
         self.count = 0
+        self.vertices = 0
+        """Vertices uploaded (16 a quad)."""
         self._targets: dict[tuple[int, int], tuple[Any, Any, Any]] = {}
         self._guard: tuple[Any, Pose, CameraIntrinsics] | None = None
         self.guard_depth: np.ndarray | None = None
@@ -323,6 +339,7 @@ class QuadMeshGL:
                 b.release()
         self.vao = self.vbo = self.ibo = None
         self.count = int(indices.size)
+        self.vertices = int(vertices.shape[0])
         if self.count == 0:
             return
         self.vbo = self.ctx.buffer(np.ascontiguousarray(vertices, np.float32).tobytes())
@@ -341,7 +358,7 @@ class QuadMeshGL:
         footprint), which otherwise won the depth test over the centre view at the centre pose (issue 50: 2CylinderEngine
         20.2 dB at the server's pose with a lossless atlas, the centre view alone exact)."""
         self.clear_guard()
-        keep = (self.vao, self.vbo, self.ibo, self.count)
+        keep = (self.vao, self.vbo, self.ibo, self.count, self.vertices)
         self.vao = self.vbo = self.ibo = None
         self.upload(vertices, indices)
         _, _, depth = self.draw(pose, intr, None, (1, 1))
@@ -353,7 +370,7 @@ class QuadMeshGL:
         for b in (self.vao, self.vbo, self.ibo):
             if b is not None:
                 b.release()
-        self.vao, self.vbo, self.ibo, self.count = keep
+        self.vao, self.vbo, self.ibo, self.count, self.vertices = keep
         self._guard = (guard, pose, intr)
 
     def clear_guard(self) -> None:
