@@ -142,17 +142,25 @@ def runs(values: Any) -> list[tuple[int, int]]:
     return list(zip([0] + b, b + [int(v.size)]))
 
 
+def has_uniform(prog: Any, name: str) -> bool:
+    """Whether the program uses uniform ``name`` (the GLSL compiler drops unused ones).  A lookup: moderngl's Program
+    has no ``__contains__``, so ``name in prog`` walks every member (20-40 ms of CPU a frame on sas's default walk,
+    where ``Renderer.bind_material`` sets about 25 uniforms per object)."""
+    return prog.get(name, None) is not None
+
+
 def set_uniform(prog: Any, name: str, value: Any) -> None:
     """Set a uniform if the program uses it (the GLSL compiler drops unused ones)."""
-    if name in prog:
-        prog[name].value = value
+    member = prog.get(name, None)
+    if member is not None:
+        member.value = value
 
 
 def set_reference_view(prog: Any, intrinsics: Any, pose: Any) -> None:
     """``u_view_proj`` (projection times view) and ``u_viewport`` (display pixels) of the view ``pose`` seen through
     ``intrinsics``, where the program uses them: the object-space shading stages take their texture gradients
     from it."""
-    if "u_view_proj" in prog:
+    if has_uniform(prog, "u_view_proj"):
         import numpy as np
 
         vp = intrinsics.projection() @ pose.view_matrix()

@@ -28,7 +28,7 @@ from ..scene.model import Scene, SceneObject
 from ..scene.pose import CameraIntrinsics, Pose, look_at_quat
 from .canvas import FullscreenPass
 from .ddgi import GI_UNITS, DdgiSettings, DdgiVolume, ProbeStates, gi_time
-from .gl import SHADER_DIR, get_context, load_program, set_uniform
+from .gl import SHADER_DIR, get_context, has_uniform, load_program, set_uniform
 
 log = logging.getLogger(__name__)
 
@@ -274,7 +274,7 @@ class Renderer:
             set_uniform(prog, "u_sun_dir", tuple(d))
             set_uniform(prog, "u_sun_color", tuple(np.asarray(sun.color) * sun.intensity.value(t_s)))
             set_uniform(prog, "u_has_shadow", 1)
-            if "u_light_vp" in prog:
+            if has_uniform(prog, "u_light_vp"):
                 prog["u_light_vp"].write(np.asarray(light_view_projection(scene), "f4").T.tobytes())
             self._shadow["static"][1].use(location=shadow_unit)
             self._shadow["dynamic"][1].use(location=shadow_unit + 1)
@@ -295,9 +295,9 @@ class Renderer:
             for i, pl in enumerate(scene.point_lights):
                 pos[i] = (*pl.position, pl.range_m)
                 col[i] = np.asarray(pl.color) * pl.intensity.value(t_s)
-            if "u_point_pos" in prog:
+            if has_uniform(prog, "u_point_pos"):
                 prog["u_point_pos"].write(pos.tobytes())
-            if "u_point_color" in prog:
+            if has_uniform(prog, "u_point_color"):
                 prog["u_point_color"].write(col.tobytes())
 
     def probe_states(self) -> ProbeStates:
@@ -337,7 +337,7 @@ class Renderer:
             set_uniform(prog, "u_gi", 1)
             return
         set_uniform(prog, "u_gi", 0)
-        if "u_gi_irr" in prog or "u_gi_vis" in prog:   # every sampler gets a texture of its own
+        if has_uniform(prog, "u_gi_irr") or has_uniform(prog, "u_gi_vis"):   # every sampler gets a texture of its own
             if self._gi_none is None:
                 self._gi_none = self.ctx.texture((1, 1), 4, np.zeros(4, "f4").tobytes(), dtype="f4")
             for unit, name in zip(GI_UNITS, ("u_gi_irr", "u_gi_vis")):
@@ -357,7 +357,7 @@ class Renderer:
         set_uniform(prog, "u_occlusion_strength", float(mat.occlusion_strength))
         set_uniform(prog, "u_emissive", tuple(float(c) for c in mat.emissive))
         uvt = np.eye(3) if mat.uv_transform is None else np.asarray(mat.uv_transform, np.float64)
-        if "u_uv_transform" in prog:
+        if has_uniform(prog, "u_uv_transform"):
             prog["u_uv_transform"].write(np.asarray(uvt, "f4").T.tobytes())
         # Every sampler gets a texture of its own, a 1x1 placeholder where the material has
         # none: an unused sampler left on another object's mipmapped, anisotropic texture
@@ -368,10 +368,10 @@ class Renderer:
         set_uniform(prog, "u_has_texture", int(og.texture is not None))
         for name, unit in MAP_UNITS.items():
             tex = og.maps.get(name)
-            if name in prog:
+            if has_uniform(prog, name):
                 (tex or self._placeholder()).use(location=unit)
                 set_uniform(prog, name, unit)
-            set_uniform(prog, "u_has_" + name[2:], int(tex is not None and name in prog))
+            set_uniform(prog, "u_has_" + name[2:], int(tex is not None and has_uniform(prog, name)))
 
     def _bind_peel(self, peel: np.ndarray | None, intr: CameraIntrinsics) -> None:
         """Bind the depth-peeling texture (a 1x1 placeholder when not peeling: every sampler gets a texture)."""

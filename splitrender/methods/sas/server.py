@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
-from ...render.gl import grow_vertex_buffer, load_program, read_shader, runs, set_reference_view
+from ...render.gl import grow_vertex_buffer, has_uniform, load_program, read_shader, runs, set_reference_view
 from ...render.renderer import MAP_UNITS, light_view_projection
 from ...scene.pose import CameraIntrinsics
 from ..base import AnyStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
@@ -113,27 +113,6 @@ FLIP_SPREAD = 0.05
 below 0 (its centre against the rasteriser's snapped vertices), which cannot then outweigh the smallest term."""
 SHADOW_CACHE_UNIT = 9
 """Texture unit of the shadow cache (the shading program uses 0-8)."""
-
-
-def fast_members(prog: Any) -> Any:
-    """``prog`` with a ``name in prog`` that looks the name up instead of walking every member: ``set_uniform``
-    asks it for each uniform it sets (``Renderer.bind_material`` about 25 per object), and moderngl's Program has
-    no ``__contains__``, so Python iterated its members (20-40 ms of CPU a frame on the default walk)."""
-    import moderngl
-
-    if isinstance(prog, moderngl.Program) and type(prog) is moderngl.Program and hasattr(prog, "_members"):
-        prog.__class__ = _FastProgram
-    return prog
-
-
-try:
-    import moderngl as _mgl
-
-    class _FastProgram(_mgl.Program):
-        def __contains__(self, name: object) -> bool:
-            return name in self._members
-except ImportError:   # pragma: no cover - moderngl is a dependency
-    pass
 
 
 def frame_uniform_key(prog: Any) -> bytes:
@@ -410,7 +389,7 @@ class SasProducer(SceneProducer):
         the sessions share it."""
         got = self._programs.get(id(ctx))
         if got is None or got[0] is not ctx:
-            got = self._programs[id(ctx)] = (ctx, fast_members(load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag")))
+            got = self._programs[id(ctx)] = (ctx, load_program(ctx, SHADERS / "atlas_shade.vert", SHADERS / "atlas_shade.frag"))
         return got[1]
 
     def shade_programs(self, ctx: Any) -> dict[str, Any] | None:
@@ -428,7 +407,7 @@ class SasProducer(SceneProducer):
                 fs = fs.replace(SHADOW_FACTOR_SIGNATURE, "float shadow_factor(vec3 world_pos, vec3 n);\n"
                                 + SHADOW_FACTOR_SIGNATURE.replace("shadow_factor", "shadow_factor_lookup"), 1)
                 head, rest = fs.split("\n", 1)
-                progs = {name: fast_members(ctx.program(vertex_shader=vs, fragment_shader=f"{head}\n#define SHADOW_CACHE {v}\n{rest}"))
+                progs = {name: ctx.program(vertex_shader=vs, fragment_shader=f"{head}\n#define SHADOW_CACHE {v}\n{rest}")
                          for name, v in (("store", 1), ("reuse", 2))}
             else:
                 log.warning("sas: shading.glsl's shadow_factor not found, the shadow cache is off")
@@ -680,7 +659,7 @@ class SasServer(ServerHalf):
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
         prog["u_atlas_size"].value = (float(self.layout.width), float(self.layout.height))
-        if "u_eye" in prog:
+        if has_uniform(prog, "u_eye"):
             prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # textures filtered for its pixel footprint
         foot32 = np.asarray(foot, np.float32)
@@ -695,7 +674,7 @@ class SasServer(ServerHalf):
         reuse = np.zeros(draw.size, bool)
         code = np.zeros(draw.size, np.int8)
         if self._sc is not None and draw.size:
-            skey = b"".join(prog[k].read() for k in SHADOW_UNIFORMS if k in prog)
+            skey = b"".join(prog[k].read() for k in SHADOW_UNIFORMS if has_uniform(prog, k))
             if clear or skey != self._shadow_key:
                 self._shadow_ok[:] = False
             self._shadow_key = skey
@@ -786,7 +765,7 @@ class SasServer(ServerHalf):
         maps: the frame's uniforms (:func:`frame_uniform_key`: lights, eye, reference view, atlas size) and the GI
         probes' state; None when the probes' state cannot be told (a source outside this renderer's volume)."""
         gi: Any = None
-        if "u_gi" in prog and prog["u_gi"].value:
+        if has_uniform(prog, "u_gi") and prog["u_gi"].value:
             r = ctx.renderer
             if r.gi_sources.get(id(self.scene)) is not None:
                 return None

@@ -250,5 +250,4 @@ class WarpClient(ClientHalf):
 
     @staticmethod
     def _set(prog: Any, name: str, value: Any) -> None:
-        if name in prog:
-            prog[name].value = value
+        set_uniform(prog, name, value)
