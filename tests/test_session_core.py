@@ -708,7 +708,7 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
         sconn = ServerConnection()
         sconn.receive_data(ClientConnection().send(h))
         sconn.next_event()
-        return accept_hello(h, "sid", "video", mcfg, [spec], blob, sconn.send, scene="minimal", fov_y_deg=60.0,
+        return accept_hello(h, "sid", "video", mcfg, [spec], blob, sconn, scene="minimal", fov_y_deg=60.0,
                             server_fps=30, max_session_bytes=limit, rng=np.random.default_rng(1))
 
     with pytest.raises(SessionDataError, match=rf"^method video: session data of {n} bytes exceeds this server's limit "
@@ -773,7 +773,7 @@ def test_the_client_core_owns_its_control_connection() -> None:
     sconn.receive_data(hs.hello(hello))
     assert sconn.next_event() == hello
     acc = accept_hello(hello, "sid", "video", make_config(get_method("video").config, {}),
-                       [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn.send,
+                       [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn,
                        scene="minimal", fov_y_deg=60.0, server_fps=30, max_session_bytes=1 << 20,
                        rng=np.random.default_rng(1))
     tx = acc.core.tx
@@ -883,3 +883,40 @@ def test_every_client_front_door_writes_a_frame_row_s_shared_columns_one_way() -
     blank = frame_row(3, 0.1, None, 2.0, 1.9, 1.85, 4.0, 2.5)
     assert list(blank) == list(row) and blank["update_frame_id"] == -1
     assert all(math.isnan(blank[k]) for k in ("update_age_ms", "motion_to_photon_ms", "client_ms", "decode_ms"))
+
+
+def test_the_server_core_owns_its_control_connection() -> None:
+    """``accept_hello`` gives the core the handshake's ``ServerConnection`` (issue 47): the core frames its Welcome
+    and its frames' FrameMeta on it, and ``receive_data`` reads the client's bytes with it, taking Pose, Feedback
+    and KeyframeRequest (by the core's rules) and handing Stats and Bye back; a partial message waits for its rest
+    and a request naming no stream is refused as before."""
+    from splitrender.methods.base import get_method, make_config
+    from splitrender.pipeline import accept_hello
+    from splitrender.pipeline.wire import pack_meta
+    from splitrender.protocol import Bye, Feedback, KeyframeRequest, MessageError, ServerConnection, Stats
+    from splitrender.protocol import Pose as PoseMessage
+
+    hello = Hello(PROTOCOL_VERSION, "", ("video",), ("h264",), W, H, FPS)
+    cconn, sconn = ClientConnection(), ServerConnection()
+    sconn.receive_data(cconn.send(hello))
+    assert sconn.next_event() == hello
+    acc = accept_hello(hello, "sid", "video", make_config(get_method("video").config, {}),
+                       [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn,
+                       scene="minimal", fov_y_deg=60.0, server_fps=30, max_session_bytes=1 << 20,
+                       rng=np.random.default_rng(1))
+    core = acc.core
+    assert core.conn is sconn
+    cconn.receive_data(b"".join(acc.frames))
+    while cconn.next_event() is not NEED_DATA:
+        pass
+    data = b"".join([cconn.send(PoseMessage(100_000, 1, (0.0, 1.6, 2.0), (0.0, 0.0, 0.0, 1.0))),
+                     cconn.send(PoseMessage(50_000, 2, (0.0, 1.6, 2.0), (0.0, 0.0, 0.0, 1.0))),
+                     cconn.send(Feedback(0, 1, 2, 3, 0)), cconn.send(KeyframeRequest("color", "loss")),
+                     cconn.send(Stats({"fps": 30.0}))])
+    assert core.receive_data(data[:7], 0.0) == []
+    assert [type(m) for m in core.receive_data(data[7:], 10.0)] == [Stats]
+    assert core.poses.counters() == {"poses_received": 1, "poses_stale": 1}
+    assert (core.counters["feedback"], core.counters["keyframe_requests"]) == (1, 1)
+    with pytest.raises(MessageError, match="KeyframeRequest.stream: unknown stream 'nope'"):
+        core.receive_data(cconn.send(KeyframeRequest("nope", "x")), 20.0)
+    assert [type(m) for m in core.receive_data(cconn.send(Bye("done")), 30.0)] == [Bye]

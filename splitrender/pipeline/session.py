@@ -22,7 +22,12 @@ core owns its control connection (the :class:`ClientHandshake`'s): the control b
 Bye); its RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events (stalls, the
 server's Stats, Bye and Error, the connection's end) out of :meth:`ClientSession.next_event`, the
 decode work and the updates to show from the return values, and :meth:`ClientSession.get_timer`
-says when to call its ``handle_timer``.
+says when to call its ``handle_timer``.  The server core keeps the handshake's ``ServerConnection``
+(:func:`accept_hello`): it frames the Welcome and each frame's FrameMeta and reliable data on it, and
+:meth:`ServerSession.receive_data` reads the client's control bytes with it (Pose, Feedback and KeyframeRequest
+taken; Stats, Bye and Error handed back).  The runner hands it the bytes; the live server still reads the same
+connection through its socket's :class:`~splitrender.transport.control.ControlChannel` and hands the core the
+messages (:meth:`ServerSession.receive_message`).
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -32,7 +37,7 @@ wall-clock µs (the live drivers run on the wall clock and pass 0; virtual time 
 its simulated epoch), so the same session sends the same timestamps either way.
 
 Control-channel framing stays in :class:`~splitrender.protocol.Connection` (sans-IO as
-well): the client core drives its own; the server core takes the messages the server's parses.
+well), which each core holds.
 """
 
 from __future__ import annotations
@@ -929,7 +934,7 @@ class Accepted:
 
 
 def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs: list[Any], session_blob: bytes,
-                 framer: Callable[[Message], bytes], *, scene: str, fov_y_deg: float, server_fps: int,
+                 conn: Any, *, scene: str, fov_y_deg: float, server_fps: int,
                  options: ServerOptions | None = None, max_session_bytes: int, mtu_bytes: int = 1200, fec: bool = False,
                  transport_cc_id: int | None = None, address: tuple[str, int] = ("127.0.0.1", 6004),
                  subject: Any = None, parameter_sets: Mapping[str, tuple[bytes, ...]] | None = None,
@@ -941,7 +946,8 @@ def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs:
     ``session_blob``; this checks them against the server's limit and the client's codecs (a
     :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming what is wrong), builds the session's
     :class:`~.sender.ServerPipeline` (opening its encoders here unless ``parameter_sets`` names those of encoders
-    running elsewhere, for the SDP) and its core, and frames the ``Welcome`` and the session data with ``framer``.
+    running elsewhere, for the SDP) and its core, which keeps ``conn`` (the handshake's ``ServerConnection``: its
+    :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it.
     ``rng`` draws the SSRCs and sequence origins, ``core_rng`` the core's RTCP intervals (seeded runs; the system's
     randomness where None)."""
     if len(session_blob) > max_session_bytes:
@@ -958,12 +964,12 @@ def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs:
     else:
         tx.described_sets.update(parameter_sets)
     core = ServerSession(tx, hello.display_hz, options or ServerOptions(), clock_offset_us, rtp_origin_ms, core_rng,
-                         knobs=config.adapt_knobs(), predictor=predictor)
+                         knobs=config.adapt_knobs(), predictor=predictor, conn=conn)
     host, port = address
     welcome = Welcome(session_id, method,
                       session_params(method, config, fov_y_deg, server_fps, scene, tx, session_blob, subject),
                       tx.describe(host, port, f"splitrender {session_id}"))
-    frames = [framer(welcome), *(f for _, f in tx.session_frames(session_blob, framer))]
+    frames = [conn.send(welcome), *(f for _, f in tx.session_frames(session_blob, conn.send))]
     return Accepted(core, welcome, frames)
 
 
@@ -1067,6 +1073,9 @@ class ServerSession:
     """``"rtp"``: the core owns the RTP transport (history and NACK answers, RTCP reports, transport-wide feedback,
     pacing); ``"webrtc"``: a WebRTC stack's does (the browser front door), and the core keeps the session's poses,
     feedback, keyframes and frame orders only."""
+    conn: Any = None
+    """The session's control ``ServerConnection`` (the handshake's, from :func:`accept_hello`): :meth:`frame_encoded`
+    frames a frame's FrameMeta and reliable data on it, :meth:`receive_data` reads the client's bytes with it."""
 
     def __post_init__(self) -> None:
         self._rand = _uniform(self.rng)
@@ -1147,6 +1156,19 @@ class ServerSession:
     def start(self, now_ms: float) -> None:
         """Streaming starts at ``now_ms``: sender reports are due from then on."""
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
+
+    def receive_data(self, data: bytes, now_ms: float) -> list[Message]:
+        """Control bytes from the client, read on :attr:`conn`: the messages the core keeps go to
+        :meth:`receive_message`; the others (Stats, Bye, Error) are returned for the driver.  Raises
+        ``RemoteProtocolError`` on malformed or illegal input."""
+        self.conn.receive_data(data)
+        rest: list[Message] = []
+        while isinstance(ev := self.conn.next_event(), Message):
+            if isinstance(ev, (Pose, Feedback, KeyframeRequest)):
+                self.receive_message(ev, now_ms)
+            else:
+                rest.append(ev)
+        return rest
 
     def receive_message(self, msg: Message, now_ms: float) -> float | None:
         """A ``Pose`` (:meth:`receive_pose_sample`), ``Feedback`` or ``KeyframeRequest`` from the control channel,
@@ -1473,17 +1495,16 @@ class ServerSession:
                           self.fb.snapshot(kf), point, self.encoder_rates(), self.options.adapt_cfg, client)
 
     def frame_encoded(self, order: FrameOrder, enc: EncodedUpdate, now_ms: float, server_time_us: int,
-                      framer: Callable[[Message], bytes] | None = None, timing: dict[str, int] | None = None,
-                      stats: dict[str, Any] | None = None, send_ms: float | None = None) -> OutgoingFrame:
+                      timing: dict[str, int] | None = None, stats: dict[str, Any] | None = None,
+                      send_ms: float | None = None) -> OutgoingFrame:
         """``order``'s frame came back made (``enc``: :func:`~.frames.make_frame`'s coded update) at ``now_ms``, at
         ``server_time_us`` on the protocol's clock, in every front door.  On the RTP transport it is packetized (its
-        FrameMeta and reliable data framed with ``framer``, stamped with ``timing`` and ``stats``) and reported
+        FrameMeta and reliable data framed on :attr:`conn`, stamped with ``timing`` and ``stats``) and reported
         (:meth:`frame_sent`, ``send_ms`` as there): its control frames are the driver's to send, its datagrams leave
         by :meth:`datagrams_to_send`.  On the WebRTC transport the stack packetizes: the frame is counted from its
         coded streams.  Returns what the frame puts on the wire."""
         if self.transport == "rtp":
-            assert framer is not None
-            out = self.tx.packetize(enc, framer, server_time_us, rtp_timestamp(order.t_s), order.pose_us,
+            out = self.tx.packetize(enc, self.conn.send, server_time_us, rtp_timestamp(order.t_s), order.pose_us,
                                     order.pose_seq, order.target_t_s, timing or {}, stats or {})
         else:
             out = OutgoingFrame(order.frame_id, keyframe=enc.keyframe, wire_bytes={n: len(f.data) for n, f in enc.video.items()},

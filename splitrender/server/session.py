@@ -269,7 +269,7 @@ class ServerSession:
             "open", self.id, self.method, mcfg, self.intrinsics, hang[1] if hang and hang[0] == self.ordinal else -1,
             deadline_s=cfg.setup_deadline_s)
         host, port = server.udp_address
-        acc = accept_hello(hello, self.id, self.method, mcfg, specs, session_blob, self.channel.conn.send,
+        acc = accept_hello(hello, self.id, self.method, mcfg, specs, session_blob, self.channel.conn,
                            scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
                            options=cfg.session_options(),
                            max_session_bytes=cfg.max_session_bytes, mtu_bytes=cfg.mtu_bytes, fec=cfg.fec,
@@ -379,7 +379,7 @@ class ServerSession:
         timing = {"render": int(render_ms * 1000), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
                   "shared": int(shared_ms * 1000)}
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        out = core.frame_encoded(order, enc, _now_ms(), t_us, self.channel.conn.send, timing, stats)
+        out = core.frame_encoded(order, enc, _now_ms(), t_us, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)

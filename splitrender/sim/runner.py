@@ -253,7 +253,7 @@ class VirtualTimeRun:
         make_current(self.renderer.ctx)
         c.half, specs, session_blob = pool.server_half(self.spec, self.mcfg, self.intr)
         predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, session_blob, c.sconn.send,
+        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, session_blob, c.sconn,
                            scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
                            options=cfg.server_options(), max_session_bytes=cfg.max_session_bytes,
                            mtu_bytes=cfg.mtu_bytes, fec=cfg.fec, transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
@@ -370,7 +370,7 @@ class VirtualTimeRun:
             # bytes would otherwise make two runs of one seed differ (and, adapting, decide differently)
             wire_stats = stats if measured else {k: v for k, v in stats.items() if not k.endswith("_ms")}
             # its datagrams leave when its modelled encoding ends, through the core's one way out
-            out = c.core_s.frame_encoded(order, enc, t_f * 1000, sim_us(t_f), c.sconn.send, timing, wire_stats,
+            out = c.core_s.frame_encoded(order, enc, t_f * 1000, sim_us(t_f), timing, wire_stats,
                                          send_ms=send_t * 1000)
             # the frame leaves when its encoding ends: its control frames first, then its datagrams (the core's)
             self._at(send_t, _TIMER, self._control_down, c, [data for _, data in out.control])
@@ -434,8 +434,7 @@ class VirtualTimeRun:
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
-        for msg in self._to_server(c, data):
-            c.core_s.receive_message(msg, self.now * 1000)
+        c.core_s.receive_data(data, self.now * 1000)   # the client sends nothing else the server reads
 
     def _server_rtcp(self, c: _Client, data: bytes) -> None:
         """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
