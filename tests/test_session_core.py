@@ -887,9 +887,9 @@ def test_every_client_front_door_writes_a_frame_row_s_shared_columns_one_way() -
 
 def test_the_server_core_owns_its_control_connection() -> None:
     """``accept_hello`` gives the core the handshake's ``ServerConnection`` (issue 47): the core frames its Welcome
-    and its frames' FrameMeta on it, and ``receive_data`` reads the client's bytes with it, taking Pose, Feedback
-    and KeyframeRequest (by the core's rules) and handing Stats and Bye back; a partial message waits for its rest
-    and a request naming no stream is refused as before."""
+    and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_message``),
+    taking Pose, Feedback and KeyframeRequest by the core's rules and giving every message back in order; a partial
+    message waits for its rest and a request naming no stream is refused as before."""
     from splitrender.methods.base import get_method, make_config
     from splitrender.pipeline import accept_hello
     from splitrender.pipeline.wire import pack_meta
@@ -913,10 +913,19 @@ def test_the_server_core_owns_its_control_connection() -> None:
                      cconn.send(PoseMessage(50_000, 2, (0.0, 1.6, 2.0), (0.0, 0.0, 0.0, 1.0))),
                      cconn.send(Feedback(0, 1, 2, 3, 0)), cconn.send(KeyframeRequest("color", "loss")),
                      cconn.send(Stats({"fps": 30.0}))])
-    assert core.receive_data(data[:7], 0.0) == []
-    assert [type(m) for m in core.receive_data(data[7:], 10.0)] == [Stats]
+
+    def read(chunk: bytes, now: float) -> list[type]:
+        core.receive_data(chunk)
+        out = []
+        while (m := core.next_message(now)) is not None:
+            out.append(type(m))
+        return out
+
+    assert read(data[:7], 0.0) == []
+    assert read(data[7:], 10.0) == [PoseMessage, PoseMessage, Feedback, KeyframeRequest, Stats]
     assert core.poses.counters() == {"poses_received": 1, "poses_stale": 1}
     assert (core.counters["feedback"], core.counters["keyframe_requests"]) == (1, 1)
     with pytest.raises(MessageError, match="KeyframeRequest.stream: unknown stream 'nope'"):
-        core.receive_data(cconn.send(KeyframeRequest("nope", "x")), 20.0)
-    assert [type(m) for m in core.receive_data(cconn.send(Bye("done")), 30.0)] == [Bye]
+        read(cconn.send(KeyframeRequest("nope", "x")), 20.0)
+    assert read(cconn.send(Bye("done")), 30.0) == [Bye]
+    assert read(b"", 40.0) == [] and core.conn.state.name == "CLOSED"

@@ -23,11 +23,10 @@ Bye); its RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events 
 server's Stats, Bye and Error, the connection's end) out of :meth:`ClientSession.next_event`, the
 decode work and the updates to show from the return values, and :meth:`ClientSession.get_timer`
 says when to call its ``handle_timer``.  The server core keeps the handshake's ``ServerConnection``
-(:func:`accept_hello`): it frames the Welcome and each frame's FrameMeta and reliable data on it, and
-:meth:`ServerSession.receive_data` reads the client's control bytes with it (Pose, Feedback and KeyframeRequest
-taken; Stats, Bye and Error handed back).  The runner hands it the bytes; the live server still reads the same
-connection through its socket's :class:`~splitrender.transport.control.ControlChannel` and hands the core the
-messages (:meth:`ServerSession.receive_message`).
+(:func:`accept_hello`): it frames the Welcome and each frame's FrameMeta and reliable data on it, the
+drivers hand it the client's control bytes (:meth:`ServerSession.receive_data`) and take the messages from
+:meth:`ServerSession.next_message`, the core having taken Pose, Feedback and KeyframeRequest (Stats, Bye and Error
+are the driver's).
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -1157,18 +1156,22 @@ class ServerSession:
         """Streaming starts at ``now_ms``: sender reports are due from then on."""
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
 
-    def receive_data(self, data: bytes, now_ms: float) -> list[Message]:
-        """Control bytes from the client, read on :attr:`conn`: the messages the core keeps go to
-        :meth:`receive_message`; the others (Stats, Bye, Error) are returned for the driver.  Raises
-        ``RemoteProtocolError`` on malformed or illegal input."""
+    def receive_data(self, data: bytes) -> None:
+        """Control bytes from the client (``b""``: the connection closed), for :attr:`conn`; read them with
+        :meth:`next_message`."""
         self.conn.receive_data(data)
-        rest: list[Message] = []
-        while isinstance(ev := self.conn.next_event(), Message):
-            if isinstance(ev, (Pose, Feedback, KeyframeRequest)):
-                self.receive_message(ev, now_ms)
-            else:
-                rest.append(ev)
-        return rest
+
+    def next_message(self, now_ms: float) -> Message | None:
+        """The next control message read on :attr:`conn` (what came with the Hello first), once the core took it if
+        it is one the core keeps (Pose, Feedback, KeyframeRequest: :meth:`receive_message`); Stats, Bye and Error
+        are the driver's.  None when the connection needs more bytes or has closed.  Raises
+        ``RemoteProtocolError`` on malformed or illegal input."""
+        msg = self.conn.next_event()
+        if not isinstance(msg, Message):
+            return None
+        if isinstance(msg, (Pose, Feedback, KeyframeRequest)):
+            self.receive_message(msg, now_ms)
+        return msg
 
     def receive_message(self, msg: Message, now_ms: float) -> float | None:
         """A ``Pose`` (:meth:`receive_pose_sample`), ``Feedback`` or ``KeyframeRequest`` from the control channel,

@@ -52,8 +52,7 @@ from splitrender.protocol import (
     ErrorCode,
     Feedback,
     Hello,
-    KeyframeRequest,
-    Pose,
+    Message,
     ServerConnection,
     State,
     Stats,
@@ -62,7 +61,7 @@ from splitrender.protocol import (
 )
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.predict import make_predictor
-from splitrender.transport.control import ControlChannel, wall_us
+from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
 
 Address = tuple[str, int]
 
@@ -307,31 +306,41 @@ class ServerSession:
     # ------------------------------------------------------------------ control
 
     async def _control_loop(self) -> None:
-        assert self.core is not None
-        async for msg in self.channel.messages():
-            if isinstance(msg, Feedback):
-                self._on_feedback(msg)
-            elif isinstance(msg, (Pose, KeyframeRequest)):   # the core's (a stale pose is dropped there)
-                self.core.receive_message(msg, _now_ms())
-            elif isinstance(msg, Stats):
-                logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
-            elif isinstance(msg, Bye):
-                logger.info("session %s: client says bye: %s", self.id, msg.reason)
+        """The control connection's bytes to the core, which reads them on the handshake's connection (what came with
+        the Hello first); the messages it gives back are recorded (Feedback), logged (Stats) or end the session (Bye,
+        Error, the end of the stream)."""
+        core, closed = self.core, False
+        assert core is not None
+        while True:
+            while (msg := core.next_message(_now_ms())) is not None:   # after the end, a cut message raises here
+                self._on_message(msg)
+            if closed:
+                logger.info("session %s: client closed the connection", self.id)
                 raise _SessionEnded()
-            else:  # Error: the state machine allows nothing else
-                assert isinstance(msg, Error)
-                self._counters["client_errors"] += 1
-                self.client_error = (msg.code, msg.text)
-                logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
-                raise _SessionEnded()
-        logger.info("session %s: client closed the connection", self.id)
-        raise _SessionEnded()
+            data = await self.channel.reader.read(READ_CHUNK_BYTES)
+            self.channel.bytes_received += len(data)
+            core.receive_data(data)
+            closed = not data
 
-    def _on_feedback(self, fb: Feedback) -> None:
-        """A Feedback for the core, and its row once the core took it (a malformed one is refused there)."""
+    def _on_message(self, msg: Message) -> None:
+        """A control message the core gave back (having taken Pose, Feedback and KeyframeRequest)."""
+        if isinstance(msg, Feedback):
+            self._record_feedback(msg)
+        elif isinstance(msg, Stats):
+            logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
+        elif isinstance(msg, Bye):
+            logger.info("session %s: client says bye: %s", self.id, msg.reason)
+            raise _SessionEnded()
+        elif isinstance(msg, Error):
+            self._counters["client_errors"] += 1
+            self.client_error = (msg.code, msg.text)
+            logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
+            raise _SessionEnded()
+
+    def _record_feedback(self, fb: Feedback) -> None:
+        """The row of a Feedback the core took (a malformed one it refused has none)."""
         assert self.core is not None
         row = feedback_row(fb, self.core.fb.server_time_us(fb.frame_id))
-        self.core.receive_message(fb, _now_ms())
         self.feedback_rows.append(row)
         self._log("feedback", row)
 

@@ -434,7 +434,9 @@ class VirtualTimeRun:
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
-        c.core_s.receive_data(data, self.now * 1000)   # the client sends nothing else the server reads
+        c.core_s.receive_data(data)
+        while c.core_s.next_message(self.now * 1000) is not None:   # the core takes what the server reads
+            pass
 
     def _server_rtcp(self, c: _Client, data: bytes) -> None:
         """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
