@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from splitrender.pipeline.recording import JOURNAL, ClientRecording, SessionLogs, iter_journal, save_image
+from splitrender.pipeline.recording import JOURNAL, ClientRecording, SessionLogs, iter_journal, manifest, save_image, write_run
 
 
 def _csv(path):  # type: ignore[no-untyped-def]
@@ -87,3 +87,28 @@ def test_session_logs_fix_their_columns_and_write_counters_only_for_a_session_th
     none.append("updates", {"frame_id": 0})
     none.close({"frames_sent": 1})
     assert none.rows("updates") == 0
+
+
+def test_a_runs_frames_table_is_a_recordings_and_its_folder_is_written_in_one_place(tmp_path):
+    """Issue 47: a virtual-time run's folder is written by the recording module too, its frames.csv the same bytes a
+    client recording uploaded whole gets from the same rows."""
+    rows = [{"frame": 0, "update_frame_id": -1, "psnr": math.nan}, {"frame": 1, "update_frame_id": 3, "psnr": 31.5}]
+    shown, truth = np.zeros((2, 3, 3), np.uint8), np.full((2, 3, 3), 255, np.uint8)
+    d = write_run(tmp_path / "run", rows, [{"frame_id": 3, "bytes": 900}], [{"client": 0, "frames": 2}],
+                  "[run]\nmethod = \"video\"\n", [(1, shown, truth)])
+    ClientRecording(tmp_path / "rec").finish({"complete": True}, {}, rows)
+    assert (d / "frames.csv").read_bytes() == (tmp_path / "rec" / "frames.csv").read_bytes()
+    assert _csv(d / "updates.csv") == [{"frame_id": "3", "bytes": "900"}]
+    assert _csv(d / "summary.csv") == [{"client": "0", "frames": "2"}]
+    assert (d / "config.toml").read_text().startswith("[run]")
+    assert [p.name for p in (d / "images").iterdir()] == ["frame00001_client_vs_truth.png"]
+
+
+def test_every_client_front_door_writes_the_manifest_the_scorer_reads():
+    """The keys :func:`splitrender.client.score.score_recording` reads are the manifest's, whoever wrote it."""
+    m = manifest("s1", "atw", {"overscan": 1.2}, "default", 60.0, 30, "walk", 320, 180, 60.0, 120.0, 2.0, True,
+                 {"kind": "browser"}, complete=True, network="live")
+    for key in ("method", "scene", "trace", "width", "height", "fov_y_deg", "server_fps", "display_hz", "duration_s",
+                "images", "params", "session_id", "complete", "network"):
+        assert key in m, key
+    assert m["client"] == {"kind": "browser"} and m["params"] == {"overscan": 1.2}

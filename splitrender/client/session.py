@@ -40,7 +40,7 @@ from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
                                   ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes)
 from splitrender.options import option_fields, options_of
-from splitrender.pipeline.recording import ClientRecording, save_image
+from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import frame_row
 from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
 from splitrender.scene.pose import Pose as ScenePose
@@ -637,16 +637,11 @@ class LiveClient:
     # ------------------------------------------------------------------ recording
 
     def _recording(self) -> dict[str, Any]:
-        cfg = self.cfg
-        w = self._welcome
-        return {
-            "session_id": self.session_id, "method": w.method if w else "", "params": self._params.get("config", {}),
-            "scene": self._params.get("scene", "default"), "fov_y_deg": self._params.get("fov_y_deg", 60.0),
-            "server_fps": self._params.get("server_fps", 30), "trace": cfg.trace, "width": cfg.width,
-            "height": cfg.height, "display_hz": cfg.display_hz, "tracker_hz": cfg.tracker_hz,
-            "duration_s": cfg.duration_s, "images": bool(cfg.save_images and cfg.out_dir is not None),
-            "client": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
-        }
+        cfg, w, params = self.cfg, self._welcome, self._params
+        return manifest(self.session_id, w.method if w else "", params.get("config", {}), params.get("scene", "default"),
+                        params.get("fov_y_deg", 60.0), params.get("server_fps", 30), cfg.trace, cfg.width, cfg.height,
+                        cfg.display_hz, cfg.tracker_hz, cfg.duration_s, bool(cfg.save_images and cfg.out_dir is not None),
+                        {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()})
 
 
 class _RunDone(Exception):

@@ -10,9 +10,10 @@ A client's recording is a folder:
 - ``images/``: displayed images where asked for (:func:`save_image`).
 
 :class:`ClientRecording` writes it for the headless client (as the session goes) and the browser front door (whole,
-from the page's upload); the virtual-time runner writes the same ``frames.csv`` beside its scored tables.  A server
-keeps per session the rows it sends (``updates.csv``, ``feedback.csv``) and its counters (``counters.csv``) with
-:class:`SessionLogs`, in the TCP server and the browser front door alike."""
+from the page's upload), both with the one manifest of :func:`manifest`; the virtual-time runner writes the same
+``frames.csv`` beside its scored tables (:func:`write_run`).  A server keeps per session the rows it sends
+(``updates.csv``, ``feedback.csv``) and its counters (``counters.csv``) with :class:`SessionLogs`, in the TCP server and
+the browser front door alike."""
 
 from __future__ import annotations
 
@@ -34,6 +35,18 @@ JOURNAL_FLUSH_S = 0.5
 
 def _json(obj: Any) -> bytes:
     return json.dumps(obj, indent=2, default=str).encode()
+
+
+def manifest(session_id: str, method: str, params: dict[str, Any], scene: str, fov_y_deg: float, server_fps: float,
+             trace: str, width: int, height: int, display_hz: float, tracker_hz: float, duration_s: float,
+             images: bool, client: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    """A client recording's ``recording.json``, the same keys from every client front door: the session, its method
+    and method parameters, what :func:`splitrender.client.score.score_recording` needs to render the ground truth
+    (scene, field of view, display size) and to summarise (trace, rates, duration; ``images``: whether displayed
+    images were kept), the client's own settings (``client``), and ``extra`` (``complete``, ``network``, ``error``)."""
+    return {"session_id": session_id, "method": method, "params": params, "scene": scene, "fov_y_deg": fov_y_deg,
+            "server_fps": server_fps, "trace": trace, "width": width, "height": height, "display_hz": display_hz,
+            "tracker_hz": tracker_hz, "duration_s": duration_s, "images": images, "client": client, **extra}
 
 
 class ClientRecording:
@@ -84,6 +97,27 @@ class ClientRecording:
         atomic_write_bytes(self.dir / "recording.json", _json(manifest))
         atomic_write_bytes(self.dir / "counters.json", _json(counters))
         (self.dir / JOURNAL).unlink(missing_ok=True)
+
+
+def write_run(out_dir: Path, frames: list[dict[str, Any]], updates: list[dict[str, Any]],
+              summaries: list[dict[str, Any]], config_toml: str,
+              images: Sequence[tuple[int, np.ndarray, np.ndarray]] = ()) -> Path:
+    """A virtual-time run's folder: ``frames.csv`` (the display rows, the columns a client recording's has, scored),
+    ``updates.csv`` (the server's rows), ``summary.csv`` (a row per client), ``config.toml`` and, where kept, each
+    ``images/frameNNNNN_client_vs_truth.png`` (the client's frame beside the ground truth)."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    write_csv(d / "frames.csv", frames)
+    write_csv(d / "updates.csv", updates)
+    write_csv(d / "summary.csv", summaries)
+    (d / "config.toml").write_text(config_toml)
+    if images:
+        from PIL import Image   # only runs that keep images need it
+
+        (d / "images").mkdir(exist_ok=True)
+        for frame, shown, truth in images:
+            Image.fromarray(np.concatenate([shown, truth], axis=1)).save(d / "images" / f"frame{frame:05d}_client_vs_truth.png")
+    return d
 
 
 def save_image(out_dir: Path, index: int, color: np.ndarray, holes: np.ndarray | None) -> None:

@@ -60,13 +60,14 @@ from typing import Any, Callable
 import numpy as np
 
 from .. import metrics
-from ..errors import RemoteProtocolError
+from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frame_row, frames_summary, mean_of, update_row, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
                         check_hello, make_frame, session_summary, tcp_segments)
+from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
@@ -78,7 +79,6 @@ from ..scene.model import shift_time
 from ..scene.pose import CameraIntrinsics, Pose
 from ..scene.predict import PerfectPredictor, make_predictor, prediction_error
 from ..scene.trace import get_trace
-from ..tabular import write_csv
 from .config import RunConfig, to_toml
 from .truth import truth_source
 
@@ -108,23 +108,13 @@ class RunResult:
     """One summary per client (``summary`` is client 0's, with the run-wide columns)."""
 
     def write(self, out_dir: str | Path) -> Path:
-        """Write frames.csv, updates.csv, summary.csv (a row per client) and config.toml into ``out_dir``."""
-        d = Path(out_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        write_csv(d / "frames.csv", self.frames)
-        write_csv(d / "updates.csv", self.updates)
-        write_csv(d / "summary.csv", self.client_summaries or [self.summary])
+        """Write frames.csv, updates.csv, summary.csv (a row per client), config.toml and kept images into ``out_dir``
+        (:func:`~splitrender.pipeline.recording.write_run`)."""
         text = "[run]\n" + to_toml(self.config.to_dict(), "run.")
         if self.resolved:  # every method parameter (defaults included) and both network directions
             text += "\n[resolved]\n" + to_toml(self.resolved, "resolved.")
-        (d / "config.toml").write_text(text)
-        if self.images:
-            from PIL import Image
-
-            (d / "images").mkdir(exist_ok=True)
-            for frame, shown, truth in self.images:
-                Image.fromarray(np.concatenate([shown, truth], axis=1)).save(d / "images" / f"frame{frame:05d}_client_vs_truth.png")
-        return d
+        return write_run(Path(out_dir), self.frames, self.updates, self.client_summaries or [self.summary], text,
+                         self.images)
 
 
 class _ShiftedTrace:
@@ -214,8 +204,6 @@ class VirtualTimeRun:
                                   cfg.supersample)
         full = min(t.duration_s for t in self.traces)
         if full <= 0:
-            from ..errors import ConfigError
-
             raise ConfigError(f"run config client_offset_s: {cfg.client_offset_s} s leaves no trace for client {cfg.clients - 1}")
         self.duration_s = min(cfg.duration_s or full, full)
         self._events: list[tuple[float, int, int, Callable[..., None], tuple[Any, ...]]] = []

@@ -42,7 +42,7 @@ from typing import Any
 from aiohttp import web
 
 from ..errors import ConfigError, describe_error
-from ..pipeline.recording import ClientRecording, save_image
+from ..pipeline.recording import ClientRecording, manifest, save_image
 from .messages import (BROWSER_METHODS, MAX_ROWS, MAX_STATS, PageMessageError, Recording, browser_methods,
                        decode_json, parse_recording, parse_session_request, rgba_to_rgb)
 from .session import BrowserSession
@@ -385,12 +385,10 @@ class WebRtcFrontDoor:
         counters["rtp_bytes"] = int(server.get("rtp_payload_bytes", 0)) + 12 * int(server.get("rtp_packets", 0))
         counters["meta_bytes"] = int(server.get("frame_meta_bytes", 0)) + int(server.get("sas_slot_bytes", 0))
         counters["frames_partial"] = 0
-        rec = {"session_id": s.id, "method": s.method, "params": s.params.get("config", {}), "scene": s.cfg.scene,
-               "fov_y_deg": s.cfg.fov_y_deg, "server_fps": s.cfg.server_fps, "trace": body.trace, "width": s.req.width,
-               "height": s.req.height, "display_hz": s.display_hz, "tracker_hz": s.display_hz,
-               "duration_s": body.duration_s, "images": True, "complete": body.complete,
-               "network": s.front.network_text or "live",
-               "client": {"kind": "browser", "user_agent": body.user_agent, "record_every": body.record_every}}
+        rec = manifest(s.id, s.method, s.params.get("config", {}), s.cfg.scene, s.cfg.fov_y_deg, s.cfg.server_fps,
+                       body.trace, s.req.width, s.req.height, s.display_hz, s.display_hz, body.duration_s, True,
+                       {"kind": "browser", "user_agent": body.user_agent, "record_every": body.record_every},
+                       complete=body.complete, network=s.front.network_text or "live")
         ClientRecording(d).finish(rec, counters, body.rows)
         return d
 
