@@ -885,6 +885,32 @@ def test_every_client_front_door_writes_a_frame_row_s_shared_columns_one_way() -
     assert all(math.isnan(blank[k]) for k in ("update_age_ms", "motion_to_photon_ms", "client_ms", "decode_ms"))
 
 
+def test_a_live_clients_row_tells_each_stage_from_the_updates_timestamps() -> None:
+    """``live_frame_row`` (issue 47: the live client's row with the shared ones in ``pipeline.rows``): the shared
+    columns from the timestamps on the wall clock, and each stage: the update encoded at 1.010 s (server time 1.000,
+    pose sampled 0.950), its metadata at 1.030, its planes at 1.040, decoded at 1.046, shown at 1.100 after 4 ms of
+    apply and render."""
+    from types import SimpleNamespace
+
+    from splitrender.pipeline.rows import live_frame_row
+    from splitrender.scene.pose import Pose as ScenePose
+
+    fr = SimpleNamespace(env=SimpleNamespace(timing_us={"render": 6000, "encode": 3000, "encoded_at": 1_010_000}),
+                         meta=SimpleNamespace(server_time_us=1_000_000, pose=SimpleNamespace(client_time_us=950_000),
+                                              keyframe=True),
+                         received_ms=1040.0, decoded_ms=1046.0, meta_ms=1030.0,
+                         update=SimpleNamespace(frame_id=12, missing={"depth"}))
+    row = live_frame_row(5, 7, 0.5, 3.25, ScenePose(), fr, 1_100_000, 4.0)
+    assert row["update_frame_id"] == 12 and row["tick"] == 7 and row["scene_t_s"] == 3.25
+    assert row["update_age_ms"] == pytest.approx(100.0) and row["motion_to_photon_ms"] == pytest.approx(150.0)
+    assert (row["decode_ms"], row["client_ms"], row["server_render_ms"], row["server_encode_ms"]) == (6.0, 4.0, 6.0, 3.0)
+    assert row["network_ms"] == pytest.approx(30.0) and row["meta_network_ms"] == pytest.approx(20.0)
+    assert row["wait_display_ms"] == pytest.approx(50.0) and row["pose_uplink_age_ms"] == pytest.approx(50.0)
+    assert (row["keyframe"], row["missing"], row["qw"]) == (1, "depth", 1.0)
+    blank = live_frame_row(6, 8, 0.52, math.nan, ScenePose(), None, 1_120_000)
+    assert blank["update_frame_id"] == -1 and math.isnan(blank["update_age_ms"]) and "network_ms" not in blank
+
+
 def test_the_server_core_owns_its_control_connection() -> None:
     """``accept_hello`` gives the core the handshake's ``ServerConnection`` (issue 47): the core frames its Welcome
     and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_message``),

@@ -41,7 +41,7 @@ from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions,
                                   ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
-from splitrender.pipeline.rows import frame_row
+from splitrender.pipeline.rows import live_frame_row
 from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -563,10 +563,10 @@ class LiveClient:
         core.report_applied(new, ok)
         displayed_us = wall_us()
         if core.blank(half.has_content):   # every update so far rejected or without content: still black
-            self._record(self._row(self._rows_recorded, tick, trace_t, scene_t, pose, None, displayed_us))
+            self._record(live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, None, displayed_us))
         else:
             assert core.shown is not None
-            row = self._row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
+            row = live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
             row.update(self._kbps(displayed_us / 1e6))
@@ -589,7 +589,7 @@ class LiveClient:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
         kept; without the server clock, ``saves`` is None and the row has no scene time)."""
         cfg = self.cfg
-        row = self._row(self._rows_recorded, tick, wall_s - self._t0_wall, self._scene_t(wall_s), pose, None,
+        row = live_frame_row(self._rows_recorded, tick, wall_s - self._t0_wall, self._scene_t(wall_s), pose, None,
                         int(wall_s * 1e6))
         self._record(row)
         if saves is not None and cfg.save_images and cfg.out_dir is not None:
@@ -609,30 +609,6 @@ class LiveClient:
         t0, old = self._rate_window[0]
         span = max(now_s - t0, 1e-3) if len(self._rate_window) > 1 else 1.0
         return {f"kbps_{k}": (v - old.get(k, 0)) * 8 / span / 1000.0 for k, v in snap.items()}
-
-    @staticmethod
-    def _row(index: int, tick: int, trace_t: float, scene_t: float, pose: ScenePose, fr: ReceivedFrame | None,
-             displayed_us: int, client_ms: float = math.nan) -> dict[str, Any]:
-        """A display tick's row: the columns every client front door writes (:func:`~splitrender.pipeline.rows.frame_row`,
-        from the update's timestamps; ``fr`` None: the black background), the tick, its scene time and wall-clock µs,
-        the pose shown, and the stages of the update shown as its timestamps tell them."""
-        p = pose.to_list()
-        place = {"tick": tick, "scene_t_s": scene_t, "displayed_us": displayed_us,
-                 "px": p[0], "py": p[1], "pz": p[2], "qx": p[3], "qy": p[4], "qz": p[5], "qw": p[6]}
-        if fr is None:
-            return {**frame_row(index, trace_t, None, 0.0, math.nan, math.nan, client_ms, math.nan), **place}
-        timing, server_us, pose_us = fr.env.timing_us, fr.meta.server_time_us, fr.meta.pose.client_time_us
-        received_us, decoded_us = int(fr.received_ms * 1000), int(fr.decoded_ms * 1000)
-        encoded_at = int(timing.get("encoded_at", server_us))
-        # times in seconds from the display instant (the wall clock's µs are too many for a float's seconds)
-        return {**frame_row(index, trace_t, fr.update.frame_id, 0.0, (server_us - displayed_us) / 1e6,
-                            (pose_us - displayed_us) / 1e6, client_ms, (decoded_us - received_us) / 1000.0), **place,
-                "server_render_ms": timing.get("render", 0) / 1000.0, "server_encode_ms": timing.get("encode", 0) / 1000.0,
-                "network_ms": (received_us - encoded_at) / 1000.0,
-                "meta_network_ms": (int(fr.meta_ms * 1000) - encoded_at) / 1000.0,
-                "wait_display_ms": (displayed_us - decoded_us) / 1000.0 - client_ms,
-                "pose_uplink_age_ms": (server_us - pose_us) / 1000.0,
-                "keyframe": int(fr.meta.keyframe), "missing": ";".join(sorted(fr.update.missing))}
 
     # ------------------------------------------------------------------ recording
 

@@ -2,7 +2,8 @@
 
 An *update row* is one per server frame (``updates.csv``: virtual time's, the live server's), a *frame row* one per
 display tick (``frames.csv``: virtual time's, and a live client's recording once scored).  :func:`update_row` makes
-the columns every server front door shares, :func:`frame_row` those every client front door shares, :func:`feedback_row` a live server's ``feedback.csv`` row (one per
+the columns every server front door shares, :func:`frame_row` those every client front door shares (and
+:func:`live_frame_row` the live client's whole row), :func:`feedback_row` a live server's ``feedback.csv`` row (one per
 ``Feedback``); :func:`frames_summary`, :func:`updates_summary` and
 :func:`session_summary` make a run's summary columns from the rows and the cores' counters, the same for a
 virtual-time run and a scored live recording.  Each front door adds only what it alone measures (virtual time: the
@@ -17,7 +18,7 @@ from typing import Any, Iterable
 from .. import metrics
 from ..metrics.image import mean_of, pct_of
 
-__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "mean_of", "pct_of", "session_summary", "update_row",
+__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "live_frame_row", "mean_of", "pct_of", "session_summary", "update_row",
            "updates_summary"]
 
 FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
@@ -56,6 +57,32 @@ def frame_row(index: int, t_s: float, shown: int | None, display_s: float, updat
                 "motion_to_photon_ms": math.nan, "client_ms": math.nan, "decode_ms": math.nan}
     return {"frame": index, "t_s": t_s, "update_frame_id": shown, "update_age_ms": (display_s - update_s) * 1000,
             "motion_to_photon_ms": (display_s - pose_s) * 1000, "client_ms": client_ms, "decode_ms": decode_ms}
+
+
+def live_frame_row(index: int, tick: int, trace_t: float, scene_t: float, pose: Any, fr: Any, displayed_us: int,
+                   client_ms: float = math.nan) -> dict[str, Any]:
+    """A live client's display tick row (its recording's ``frames.csv``, which :mod:`splitrender.client.score` reads):
+    :func:`frame_row`'s columns from the shown update's timestamps (``fr``: a
+    :class:`~splitrender.pipeline.receiver.ReceivedFrame`; None: the black background), the tick, its scene time and
+    wall-clock µs, the pose shown (``pose.to_list()``: position, then the quaternion x, y, z, w), and the stages of the
+    update shown as its timestamps tell them (ms)."""
+    p = pose.to_list()
+    place = {"tick": tick, "scene_t_s": scene_t, "displayed_us": displayed_us,
+             "px": p[0], "py": p[1], "pz": p[2], "qx": p[3], "qy": p[4], "qz": p[5], "qw": p[6]}
+    if fr is None:
+        return {**frame_row(index, trace_t, None, 0.0, math.nan, math.nan, client_ms, math.nan), **place}
+    timing, server_us, pose_us = fr.env.timing_us, fr.meta.server_time_us, fr.meta.pose.client_time_us
+    received_us, decoded_us = int(fr.received_ms * 1000), int(fr.decoded_ms * 1000)
+    encoded_at = int(timing.get("encoded_at", server_us))
+    # times in seconds from the display instant (the wall clock's µs are too many for a float's seconds)
+    return {**frame_row(index, trace_t, fr.update.frame_id, 0.0, (server_us - displayed_us) / 1e6,
+                        (pose_us - displayed_us) / 1e6, client_ms, (decoded_us - received_us) / 1000.0), **place,
+            "server_render_ms": timing.get("render", 0) / 1000.0, "server_encode_ms": timing.get("encode", 0) / 1000.0,
+            "network_ms": (received_us - encoded_at) / 1000.0,
+            "meta_network_ms": (int(fr.meta_ms * 1000) - encoded_at) / 1000.0,
+            "wait_display_ms": (displayed_us - decoded_us) / 1000.0 - client_ms,
+            "pose_uplink_age_ms": (server_us - pose_us) / 1000.0,
+            "keyframe": int(fr.meta.keyframe), "missing": ";".join(sorted(fr.update.missing))}
 
 
 def feedback_row(fb: Any, server_us: int | None) -> dict[str, Any]:

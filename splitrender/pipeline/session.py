@@ -72,7 +72,7 @@ from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer, ReceiverEstimate
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
-from .rows import session_summary
+from .rows import mean_of, session_summary
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import EnvelopeError, SessionDataError, specs_from_table
@@ -1425,6 +1425,23 @@ class ServerSession:
         if self.point is not None:
             out.update(self.point.state())
         return out
+
+    def summary(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        """A session's summary columns of what this core's controllers did, as the session had them: the estimator
+        (the mean ``cc_target_kbps`` of its update rows ``rows``, transport-wide feedback taken and packets it could not
+        match, overuses), rate adaptation (encoder restarts, probe clusters and packets) and the operating point (its
+        moves, and the lowest point: the largest index the rows name)."""
+        s: dict[str, Any] = {}
+        if self.estimator is not None:
+            s.update({"mean_cc_target_kbps": mean_of(rows, "cc_target_kbps"), "twcc_feedback": self.counters["twcc_feedback"],
+                      "twcc_unknown": self.counters["twcc_unknown"],
+                      "cc_overuses": getattr(self.estimator, "overuses", 0)})   # a receiver's estimate has none
+        if self.rate is not None:
+            s.update({k: self.counters.get(k, 0) for k in ("encoder_restarts", "probe_clusters", "probe_packets")})
+        if self.point is not None:
+            pts = [u["adapt_point"] for u in rows if "adapt_point" in u]
+            s.update({"point_moves": self.point.moves, "lowest_point": int(max(pts)) if pts else 0})
+        return s
 
     def receive_datagram(self, data: bytes, now_ms: float, addr: Any = None) -> list[bytes]:
         """:meth:`receive_rtcp` from bytes (the one RTCP entry); malformed RTCP is counted (``rtcp_bad``) and

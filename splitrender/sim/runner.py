@@ -596,7 +596,7 @@ class VirtualTimeRun:
         once = c.bytes.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
         ups = c.updates
         traces = cfg.client_traces or (cfg.trace,)
-        s: dict[str, Any] = {
+        return {
             "client": c.index, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace,
             "seed": cfg.seed, "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
             "client_trace": traces[c.index % len(traces)], "width": cfg.width, "height": cfg.height,
@@ -609,17 +609,8 @@ class VirtualTimeRun:
             **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
             "mean_pred_err_cm": mean_of(ups, "pred_err_cm"), "mean_pred_err_deg": mean_of(ups, "pred_err_deg"),
             "flip_every": cfg.flip_every, "config_key": cfg.key(),
+            **c.core_s.summary(ups),   # what its estimator, rate adaptation and operating point did
         }
-        if c.core_s.estimator is not None:    # transport-wide feedback: what the estimator made of the path
-            s.update({"mean_cc_target_kbps": mean_of(ups, "cc_target_kbps"),
-                      "twcc_feedback": c.core_s.counters["twcc_feedback"], "twcc_unknown": c.core_s.counters["twcc_unknown"],
-                      "cc_overuses": c.core_s.estimator.overuses})
-        if c.core_s.rate is not None:         # rate adaptation: encoder restarts and the estimator's probes
-            s.update({k: c.core_s.counters.get(k, 0) for k in ("encoder_restarts", "probe_clusters", "probe_packets")})
-        if c.core_s.point is not None:        # the operating point: how often it moved, and the lowest it reached
-            pts = [u["adapt_point"] for u in ups if "adapt_point" in u]
-            s.update({"point_moves": c.core_s.point.moves, "lowest_point": int(max(pts)) if pts else 0})
-        return s
 
 
 def run(cfg: RunConfig, out_dir: str | Path | None = None, renderer: Renderer | None = None, progress: ProgressFn | None = None) -> RunResult:
