@@ -334,7 +334,7 @@ def test_page_glue_is_the_methods_and_the_server_process_imports_no_client_half(
 
 
 async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
-    """``BrowserSession._hook_sender`` (issue 47): the page's PLI and FIR become the core's ``receive_picture_loss``
+    """``webrtc.track.hook_sender_rtcp`` (issue 47): the page's PLI and FIR become the core's ``receive_picture_loss``
     (counted ``plis``, an IDR ordered), its REMB the core's ``receive_estimate``, a NACK is counted here and left to
     aiortc; every packet still reaches aiortc's own handler.  The core's counters are the session's: it keeps no
     copy of frames, keyframes, poses or PLIs."""
@@ -347,6 +347,7 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
     from splitrender.pipeline import ServerPipeline, ServerSession
     from splitrender.scene.predict import make_predictor
     from splitrender.webrtc.session import BrowserSession
+    from splitrender.webrtc.track import hook_sender_rtcp
 
     tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), 64, 36)], rng=np.random.default_rng(1))
     core = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
@@ -360,7 +361,7 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
     session.core, session.counters = core, {"nacks_received": 0, "nacked_packets": 0}
     session.track = session.page = session.relay = None
     session._sender_sent, session.method = None, "video"
-    session._hook_sender(sender)
+    hook_sender_rtcp(sender, core, session.counters)
     packets = [RtcpPsfbPacket(1, 1, 2), RtcpPsfbPacket(4, 1, 2), RtcpRtpfbPacket(1, 1, 2, [5, 6, 7]),
                RtcpPsfbPacket(15, 1, 0, pack_remb_fci(400_000, [2])), RtcpPsfbPacket(15, 1, 0, b"not a remb")]
     for p in packets:
@@ -370,4 +371,4 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
     assert (c["plis"], c["estimates_received"], c["nacks_received"], c["nacked_packets"]) == (2, 1, 1, 3), c
     assert core.keyframe_due(1e12) and c["frames_sent"] == 0 and c["poses_received"] == 0
     with pytest.raises(RuntimeError, match="_handle_rtcp_packet"):
-        session._hook_sender(SimpleNamespace())
+        hook_sender_rtcp(SimpleNamespace(), core, session.counters)

@@ -1,10 +1,12 @@
-"""The page's messages and requests, parsed and checked (sans-IO).
+"""The page's messages and requests, parsed and checked (sans-IO), and the frame message it is sent.
 
 Everything a page sends arrives here first: the session request (JSON posted with the
 SDP offer), poses and feedback on the data channels (JSON text), the recording's rows
 and images.  Each parser returns plain values or raises :class:`PageMessageError`
 naming the field and what was wrong, so the front door can answer a bad request with
-400 and end a session whose page misbehaves without touching any other session.
+400 and end a session whose page misbehaves without touching any other session.  A page's
+feedback becomes the protocol's :class:`~splitrender.protocol.Feedback`
+(:meth:`PageFeedback.feedback`), and each frame's metadata goes to it as :func:`frame_message`.
 """
 
 from __future__ import annotations
@@ -16,10 +18,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import RemoteProtocolError
+from ..protocol import Feedback
 
 __all__ = ["BROWSER_METHODS", "HEADLESS_ONLY", "browser_methods", "PageMessageError", "SessionRequest", "PoseSample", "PageFeedback",
            "parse_session_request", "parse_channel_message", "parse_rows", "parse_recording", "Recording", "decode_json",
-           "MAX_MESSAGE_BYTES", "MAX_JSON_DEPTH", "MAX_STATS", "ROW_COLUMNS", "rgba_to_rgb"]
+           "MAX_MESSAGE_BYTES", "MAX_JSON_DEPTH", "MAX_STATS", "ROW_COLUMNS", "rgba_to_rgb", "frame_message"]
 
 BROWSER_METHODS = {
     "video": "shows the newest frame",
@@ -184,6 +187,27 @@ class PageFeedback:
     frame_id: int
     displayed_us: int
     received_us: int
+
+    def feedback(self, stream: str) -> Feedback:
+        """The protocol's Feedback for the session core: the frame applied on the page's one video ``stream``, decoded
+        when received (the page sees no decode time), nothing lost that it could tell."""
+        return Feedback(frame_id=self.frame_id, received_us=self.received_us, decoded_us=self.received_us,
+                        displayed_us=self.displayed_us, lost_packets=0, applied={stream: self.frame_id})
+
+
+def frame_message(order: Any, update: Any, keyframe: bool, rtp_ts: int, server_us: int,
+                  origin: int | None) -> dict[str, Any]:
+    """The ``frame`` channel's message for one frame (the page's FrameMeta): its id, RTP timestamp (``origin``: the
+    sender's timestamp origin, once known), scene time, server time (µs), the page pose it was predicted from (time and
+    sequence number, from the frame ``order``), keyframe, the pose it was rendered for, and the field of view where
+    the method widened it (atw's overscan)."""
+    meta = {"type": "frame", "id": order.frame_id, "rtp": rtp_ts, "t": order.t_s, "server_us": server_us,
+            "pose_us": order.pose_us, "seq": order.pose_seq, "kf": bool(keyframe),
+            "p": [round(float(v), 6) for v in update.pose.position],
+            "q": [round(float(v), 7) for v in update.pose.orientation], "origin": origin}
+    if "fov_y_deg" in update.meta:
+        meta["fov"] = float(update.meta["fov_y_deg"])
+    return meta
 
 
 def parse_channel_message(text: Any) -> PoseSample | PageFeedback | str:

@@ -31,18 +31,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+from aiortc import RTCConfiguration, RTCPeerConnection
+
 from ..errors import describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import ServerPipeline, rtp_timestamp
 from ..pipeline.recording import SessionLogs
 from ..pipeline.rows import update_row
 from ..pipeline.session import ServerSession
-from ..protocol import Feedback
 from ..scene.pose import CameraIntrinsics
 from ..scene.predict import make_predictor
-from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, parse_channel_message
-from .sdp import check_offer, replace_candidates, strip_candidates, udp_candidate_ports
-from .track import EncodedVideoTrack
+from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, frame_message, parse_channel_message
+from .sdp import check_offer, replace_candidates, udp_candidate_ports
+from .track import EncodedVideoTrack, answer_offer, hook_sender_rtcp, try_offer
 
 __all__ = ["BrowserSession", "BROWSER_CODEC_PARAMS", "answer_offer", "try_offer", "MAX_PAGE_ERRORS"]
 
@@ -58,42 +59,6 @@ FRAME_LIFETIME_MS = 250
 MAX_PAGE_ERRORS = 16
 """A page whose data channels carried this many messages the session refused (each counted in ``page_errors`` and
 answered with an ``error`` naming what was wrong) has its session ended."""
-
-
-async def answer_offer(pc: Any, offer_sdp: str, track: Any) -> Any:
-    """Take the page's offer on ``pc`` (aiortc), add ``track`` and make the answer; returns the sender.  An offer
-    aiortc fails on (it raises ``RuntimeError``, ``ValueError``, ``AttributeError`` ... for what :func:`check_offer`
-    cannot foresee) is the page's error: :class:`PageMessageError` naming the SDP.  ``OSError`` (no socket for
-    ICE) stays the server's."""
-    from aiortc import RTCSessionDescription
-
-    try:
-        await pc.setRemoteDescription(RTCSessionDescription(offer_sdp, "offer"))
-        sender = pc.addTrack(track)
-        await pc.setLocalDescription(await pc.createAnswer())
-    except (OSError, asyncio.CancelledError):
-        raise
-    except Exception as exc:  # noqa: BLE001 - whatever aiortc raises on a peer's SDP
-        raise PageMessageError(f"session request.sdp: not an offer this server can take "
-                               f"({type(exc).__name__}: {exc})"[:300]) from None
-    return sender
-
-
-async def try_offer(sdp: str) -> str:
-    """The answer the front door would give to an offer ``sdp`` (checked, then through aiortc), without a render
-    worker; raises :class:`PageMessageError` naming what was wrong.  For tests and fuzzing of the offer path: the
-    offer's candidates are stripped first, so ICE never sends a check to an address the offer names."""
-    from aiortc import RTCConfiguration, RTCPeerConnection
-
-    check_offer(sdp)
-    sdp = strip_candidates(sdp)   # no remote candidate, so no connectivity check leaves this process, whatever a
-    pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))   # mutated offer names (fuzzing feeds it any address)
-    try:
-        await answer_offer(pc, sdp, EncodedVideoTrack())
-        return str(pc.localDescription.sdp)
-    finally:
-        with contextlib.suppress(Exception):
-            await asyncio.wait_for(pc.close(), 5.0)
 
 
 class BrowserSession:
@@ -149,8 +114,6 @@ class BrowserSession:
 
     async def open(self) -> dict[str, Any]:
         """Build the half, encoders and peer connection; returns the answer (SDP and the session's terms)."""
-        from aiortc import RTCConfiguration, RTCPeerConnection
-
         check_offer(self.req.sdp)       # before a render worker is taken
         cfg = self.cfg
         spec = get_method(self.method)
@@ -166,7 +129,7 @@ class BrowserSession:
         ref = video[0]
         self.stream = ref.name
         self.core = ServerSession(ServerPipeline(specs), self.display_hz,
-                                  # aiortc owns pacing; adaptation follows the page's REMB (:meth:`_hook_sender`)
+                                  # aiortc owns pacing; adaptation follows the page's REMB (track.hook_sender_rtcp)
                                   dataclasses.replace(cfg.session_options(), pacing=False),
                                   predictor=make_predictor(cfg.predictor), transport="webrtc")
         self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
@@ -186,7 +149,7 @@ class BrowserSession:
         self.track = EncodedVideoTrack()
         self.sender = await answer_offer(pc, offer_sdp, self.track)
         self.track.sender = self.sender
-        self._hook_sender(self.sender)
+        hook_sender_rtcp(self.sender, self.core, self.counters)   # the page's PLIs, FIRs and REMBs into the core
         answer = pc.localDescription.sdp
         if self.relay is not None:
             ports = udp_candidate_ports(answer, self.front.ice_host)
@@ -212,38 +175,6 @@ class BrowserSession:
         if self.page is not None:
             terms.update(self.page.terms())
         return terms
-
-    def _hook_sender(self, sender: Any) -> None:
-        """The adapter from aiortc's sender to the session core: the page's PLIs and FIRs go to
-        :meth:`~.ServerSession.receive_picture_loss` (aiortc answers NACKs itself, from its own history, and only
-        counted here; a PLI only sets a flag its encoder would read, and this track has none), its REMB estimates
-        to :meth:`~.ServerSession.receive_estimate`, whose rate and operating-point controllers follow them
-        (``--adapt``; aiortc negotiates ``goog-remb`` and ``abs-send-time``, so the browser estimates the path from
-        arrivals and reports).
-
-        The one private name it uses: aiortc (1.x) offers no public event for the RTCP feedback a sender receives,
-        so this wraps its ``_handle_rtcp_packet``, and refuses to run, naming it, on an aiortc without one.  What it
-        sent is read through the public ``getStats`` (:meth:`read_sender_stats`)."""
-        from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket, unpack_remb_fci
-
-        orig = getattr(sender, "_handle_rtcp_packet", None)
-        if not callable(orig):
-            raise RuntimeError("this aiortc's RTCRtpSender has no _handle_rtcp_packet: the browser session cannot "
-                               "see the page's PLIs (splitrender was written against aiortc 1.x)")
-
-        async def handle(packet: Any) -> None:
-            now_ms = time.time() * 1000
-            if isinstance(packet, RtcpRtpfbPacket) and packet.fmt == 1:      # generic NACK
-                self.counters["nacks_received"] += 1
-                self.counters["nacked_packets"] += len(packet.lost)
-            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt in (1, 4) and self.core is not None:   # PLI, FIR
-                self.core.receive_picture_loss(now_ms)
-            elif isinstance(packet, RtcpPsfbPacket) and packet.fmt == 15 and self.core is not None:   # REMB
-                with contextlib.suppress(ValueError):                             # not a REMB: aiortc ignores it too
-                    self.core.receive_estimate(float(unpack_remb_fci(packet.fci)[0]), now_ms)
-            await orig(packet)
-
-        sender._handle_rtcp_packet = handle
 
     # ------------------------------------------------------------------ events
 
@@ -284,10 +215,8 @@ class BrowserSession:
         self.core.receive_pose_sample(msg)  # a duplicate or reordered one counts as stale
 
     def _on_feedback(self, msg: PageFeedback) -> None:
-        fb = Feedback(frame_id=msg.frame_id, received_us=msg.received_us, decoded_us=msg.received_us,
-                      displayed_us=msg.displayed_us, lost_packets=0, applied={self.stream: msg.frame_id})
         assert self.core is not None
-        self.core.receive_message(fb, time.time() * 1000)
+        self.core.receive_message(msg.feedback(self.stream), time.time() * 1000)
 
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
@@ -417,22 +346,15 @@ class BrowserSession:
         frame = enc.video[self.stream]
         rtp_ts = rtp_timestamp(scene_t)
         t_us = int(wall * 1e6)
-        upd = enc.update
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
-        meta = {"type": "frame", "id": fid, "rtp": rtp_ts, "t": scene_t, "server_us": t_us,
-                "pose_us": order.pose_us, "seq": order.pose_seq, "kf": bool(frame.keyframe),
-                "p": [round(float(v), 6) for v in upd.pose.position],
-                "q": [round(float(v), 7) for v in upd.pose.orientation],
-                "origin": self.track.rtp_origin}
-        if "fov_y_deg" in upd.meta:
-            meta["fov"] = float(upd.meta["fov_y_deg"])
         if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
             ch = self.channels.get("meta")
             for msg in self.page.frame(fid, enc.update.meta):
                 if ch is not None and ch.readyState == "open":
                     ch.send(msg)
-        n_meta = self._send("frame", meta)
+        n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, t_us,
+                                                   self.track.rtp_origin))
         if not self.track.put(frame.data, rtp_ts):
             core.request_keyframe(now_ms)     # the sender fell behind
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
