@@ -313,6 +313,7 @@ class TssServer(ServerHalf):
         self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
         self._sent_desc = np.zeros((n, 17), np.uint8)
         self._sent_origin = np.zeros((n, 3, 2), np.int64)   # where the client finds each triangle's samples
+        self._sent_single_px = -1                          # the single-texel cell side the client's table has
         self._sent_atlas: np.ndarray | None = None          # the last atlas sent (codec_block: empty blocks keep it)
         self._prev_a = np.zeros(n)
         self._prev_kind = np.full(n, -1, np.int64)
@@ -435,7 +436,9 @@ class TssServer(ServerHalf):
         c = self.config
         W, H = self.atlas
         rate = self.budget_rate(px, visible) if c.budget_px > 0 else c.samples_per_px
-        reset = c.layout == "prefix" or (iframe and self.store.load() > c.high_water)
+        # an empty atlas is packed as a repack packs it, in (class, id) order, so that a still view's periodic repack
+        # restores the same cells (its I-frames then send no table rows) instead of the stable allocator's id order
+        reset = c.layout == "prefix" or (iframe and (self.store.load() > c.high_water or self.store.rows == 0))
         if self.store.single_px != c.single_px:      # back from the last resort's one-texel cells: a repack
             self.store.single_px, reset = c.single_px, True
         failed = None
@@ -586,7 +589,10 @@ class TssServer(ServerHalf):
         self.client_has[new] = True
         geo = encode_geometry(new, self.tris.vid, self.tris.vq)
         desc = descriptors(plan, persp, base)
-        if iframe:
+        # a full table only where the client may lack the state (the first frame, a keyframe request, a loss) or the
+        # single-texel cell changes: the tris stream is reliable, so a periodic I-frame whose layout kept its cells
+        # (a still view's repack restores the same id order) sends the rows that changed, as a P-frame does
+        if full or self._frames == 0 or plan.single_px != self._sent_single_px:
             table = encode_table(pvs, plan, desc)
             changed = np.ones(pvs.size, bool)
         else:
@@ -601,6 +607,7 @@ class TssServer(ServerHalf):
         self._sent_live[pvs] = True
         self._sent_desc[pvs] = desc
         self._sent_origin[pvs] = plan.origin
+        self._sent_single_px = plan.single_px
         self._since_i = 1 if iframe else self._since_i + 1
         self._frames += 1
         self.last_plan, self.last_ids = plan, pvs
