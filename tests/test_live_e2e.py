@@ -78,8 +78,10 @@ async def test_video_through_lossy_cloud_relay_matches_virtual_time(tmp_path: Pa
     result, relay_stats, _ = await _run_through_relay(tmp_path, NETWORK, duration_s=duration)
     rows = result.rows
     c = result.counters
-    # frames keep being shown: most display ticks after the first update show something
-    assert len(rows) >= 0.5 * duration * 60, (len(rows), c)
+    # frames keep being shown: most display ticks that ran (a busy machine skips late ones, counted) show something
+    ran = duration * 60 - c["late_ticks"]
+    assert len(rows) + c["late_ticks"] == duration * 60, (len(rows), c)
+    assert sum(r["update_frame_id"] != -1 for r in rows) >= 0.5 * ran, (len(rows), c)
     # at least a third of the 30 fps frames complete (the session's first frames go to
     # connection set-up, and 2 CPU cores shared by server, relay and client drop ticks)
     assert c["frames_complete"] >= duration * 30 / 3, c
@@ -611,7 +613,8 @@ async def test_the_client_keeps_a_bounded_window_of_rows_and_records_them_all(tm
     with open(tmp_path / "frames.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(result.rows) == 20
-    assert len(rows) >= 60, len(rows)                      # 90 ticks less the late ones on a busy machine
+    # every one of the 90 ticks is recorded, or counted as skipped for running late on a busy machine
+    assert len(rows) + result.counters["late_ticks"] == 90 and len(rows) >= 20, (len(rows), result.counters["late_ticks"])
     assert [int(r["frame"]) for r in rows] == list(range(len(rows)))
     assert [r["frame"] for r in rows[-20:]] == [str(r["frame"]) for r in result.rows]
     assert not (tmp_path / "frames.jsonl").exists()
