@@ -89,7 +89,26 @@ def one(method: str, trace: str, mode: str, trace_file: str, duration_s: float, 
     t0 = time.perf_counter()
     res = run(cfg)
     f = figures(res, stamps, steady, low)
-    return {**f, "wall_s": time.perf_counter() - t0, "code": str(Path(splitrender.__file__).resolve().parents[1])}
+    return {**f, "timeline": timeline_half_s(res), "wall_s": time.perf_counter() - t0, "code": str(Path(splitrender.__file__).resolve().parents[1])}
+
+
+def timeline_half_s(res: Any, step_s: float = 0.5) -> dict[str, list[float]]:
+    """Per ``step_s`` of the run: mean model PSNR (dB), sent kbit/s, and at its last update the operating point and
+    the estimator's encoder rate (kbit/s; NaN without): where a run loses against another."""
+    import numpy as np
+
+    fr, ups = res.frames, res.updates
+    end = max(f["t_s"] for f in fr)
+    out: dict[str, list[float]] = {"t_s": [], "model_psnr_db": [], "sent_kbps": [], "point": [], "encoder_kbps": []}
+    for s in np.arange(0.0, end, step_s):
+        p = [f["model_psnr_db"] for f in fr if s <= f["t_s"] < s + step_s and np.isfinite(f.get("model_psnr_db", np.nan))]
+        u = [x for x in ups if s <= x["t_s"] < s + step_s]
+        out["t_s"].append(float(s))
+        out["model_psnr_db"].append(float(np.mean(p)) if p else float("nan"))
+        out["sent_kbps"].append(sum(x["bytes"] for x in u) * 8 / step_s / 1000)
+        out["point"].append(float(u[-1].get("adapt_point", 0.0)) if u else float("nan"))
+        out["encoder_kbps"].append(float(u[-1].get("cc_encoder_kbps", float("nan"))) if u else float("nan"))
+    return out
 
 
 def worktree(rev: str, path: Path) -> str:

@@ -21,6 +21,22 @@ def test_targets_follow_the_estimate_after_paying_for_what_is_not_controlled() -
     assert rc.state()["adapt_overhead_kbps"] == pytest.approx(480)
 
 
+def test_a_burst_of_data_beyond_the_estimate_is_paid_once() -> None:
+    """A session's first frame carries 50 kB of data (12 Mbit/s in a frame's terms) at a 300 kbit/s estimate, then
+    300 B a frame (72 kbit/s) as the estimate climbs to 2 Mbit/s.  The encoders are left the estimate less the data
+    counted at no more than the estimate a frame: 9 frames on, about 1.64 Mbit/s for colour (counted whole, the
+    average still held 4.6 Mbit/s of data and colour sat at its 50 kbit/s floor, as sas's atlas did for its first
+    0.6 s on an 8 Mbit/s link); what the operating point learns of the data is the whole average."""
+    rc = RateController(("color",), 30.0, AdaptConfig(calibrate_frames=0))
+    rc.targets_kbps(3e5)
+    rc.on_frame_sent({"color": 500, "meta": 50_000})
+    for _ in range(9):
+        rc.targets_kbps(2e6)
+        rc.on_frame_sent({"color": 500, "meta": 300})
+    assert rc.targets_kbps(2e6)["color"] == pytest.approx(0.9 * 2000 - 300 * 0.9 ** 9 - 72 * (1 - 0.9 ** 9), rel=1e-6)
+    assert rc.overhead_bps > 4.5e6                      # 12 Mbit/s * 0.9^9 + 72 kbit/s * (1 - 0.9^9): 4.69 Mbit/s
+
+
 def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> None:
     rc = RateController(("color", "depth"), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=0))
     assert rc.targets_kbps(2e6) == pytest.approx({"color": 1000, "depth": 1000})   # equal before any frame

@@ -9,6 +9,12 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    tables), datagram data and lossless video are sent as the method makes them; the
    controller keeps an exponential average of their bits per second (from each frame's
    wire bytes, :meth:`RateController.on_frame_sent`) and leaves the rest to the encoders.
+   What the encoders are left counts each frame's data at no more than the estimate: a burst
+   beyond it (a session's first fill) is a queue, which the estimator's encoder rate already
+   drains, and counted whole the average charges it again for as long as it remembers it (sas
+   sends 53 kB of tables and geometry with its first frame, 12.8 Mbit/s in a frame's terms:
+   on an 8 Mbit/s link its atlas sat at the 50 kbit/s floor for its first 0.6 s).  The
+   operating point (:class:`PointController`) learns a point's data rate whole.
 2. **The rest is split by what each stream took.**  A stream's share is the average of its
    own bits over all controlled streams' bits (equal shares until the first frames), so a
    method's atlas and its depth keep the proportion their content gives them.
@@ -191,6 +197,8 @@ class RateController:
     def __post_init__(self) -> None:
         self.video = tuple(self.video)
         self._overhead_bps: float | None = None
+        self._paid_bps: float | None = None     # the same, each frame counted at no more than the estimate
+        self._estimate_bps: float | None = None  # the encoder rate of the latest targets_kbps
         self._share: dict[str, float] = {n: 1.0 / len(self.video) for n in self.video} if self.video else {}
         self._miss: dict[str, float] = {n: 1.0 for n in self.video}
         self._target: dict[str, float] = {}
@@ -221,6 +229,8 @@ class RateController:
         other = sum(b for n, b in wire_bytes.items() if n not in self._share)
         self.last_overhead_bps = other * 8 * self.fps
         self._overhead_bps = self._avg(self._overhead_bps, other * 8 * self.fps)
+        est = self._estimate_bps
+        self._paid_bps = self._avg(self._paid_bps, other * 8 * self.fps if est is None else min(other * 8 * self.fps, est))
         ours = {n: wire_bytes.get(n, 0) for n in self.video}
         for n, b in ours.items():
             seen = self._seen[n]
@@ -263,7 +273,8 @@ class RateController:
         for a calibrated stream, a :class:`CappedCrf` ceiling for one still calibrating (the method's crf under it)."""
         if not self.video or not math.isfinite(encoder_bps):
             return {}
-        budget = self.cfg.headroom * encoder_bps - (self._overhead_bps or 0.0)
+        self._estimate_bps = encoder_bps
+        budget = self.cfg.headroom * encoder_bps - (self._paid_bps or 0.0)
         out: dict[str, float] = {}
         for n in self.video:
             kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
