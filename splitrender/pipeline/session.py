@@ -64,7 +64,8 @@ from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, ErrorCod
 from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
-from ..scene.pose import Pose as ScenePose
+from ..methods.base import SCALE_KNOB, StreamSpec, get_method, make_config
+from ..scene.pose import CameraIntrinsics, Pose as ScenePose
 from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
 from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
@@ -241,8 +242,6 @@ def parse_welcome(welcome: Welcome, offered: Any = None, limits: ClientLimits = 
     (:meth:`~splitrender.methods.base.MethodConfig.client_sizes`: reference images, atlases, meshes) is held to
     ``limits`` too, before anything is allocated: :class:`~splitrender.limits.ClientLimitError` (413) naming the
     config field."""
-    from ..methods.base import get_method, make_config
-
     params = welcome.method_params
     if offered is not None and welcome.method not in offered:
         raise EnvelopeError(f"Welcome.method: {welcome.method!r:.80} is not one this client offered ({list(offered)})")
@@ -260,8 +259,6 @@ def parse_welcome(welcome: Welcome, offered: Any = None, limits: ClientLimits = 
     fov = _finite_param(params, "fov_y_deg", 60.0, 0.0, 179.0)
     fps = _finite_param(params, "server_fps", 30.0, 0.0, 1000.0)
     if display is not None:
-        from ..scene.pose import CameraIntrinsics
-
         try:
             sizes = config.client_sizes(CameraIntrinsics(display[0], display[1], fov))
         except (ConfigError, TypeError, ValueError, OverflowError) as exc:   # a plug-in's sizing of a config it took
@@ -349,8 +346,6 @@ class ClientHandshake:
     def client_half(self, gl: Any) -> Any:
         """The method's client half the terms name, in GL context ``gl`` (call on the thread that owns it): at the
         display's size and the Welcome's field of view, built from the session data, held to ``limits``."""
-        from ..scene.pose import CameraIntrinsics
-
         t = self.terms
         assert t is not None and self.done and self.display is not None
         intr = CameraIntrinsics(self.display[0], self.display[1], t.fov_y_deg)
@@ -1123,8 +1118,6 @@ class ServerSession:
         self.point: PointController | None = None
         """The method's operating point from the estimate (``adapt = "full"``, when the session has knobs)."""
         if self.options.adapt == "full" and self.rate is not None:
-            from ..methods.base import SCALE_KNOB, StreamSpec
-
             knobs = tuple(self.knobs) + ((SCALE_KNOB,) if any(isinstance(s, StreamSpec) and s.scalable
                                                               for s in self.tx.specs) else ())
             if knobs:

@@ -31,18 +31,16 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from splitrender.errors import ConfigError
 from splitrender.options import ServerProtocolOptions, option_fields, options_of
 from splitrender.pipeline import ServerOptions
 from splitrender.protocol import RtcpError
 from splitrender.protocol.rtcp import rtcp_route_ssrc
+from splitrender.server.session import ServerSession
 from splitrender.server.worker import RenderWorker, parse_test_hang
 from splitrender.transport.errors import BindError, describe_os_error
-
-if TYPE_CHECKING:
-    from splitrender.server.session import ServerSession
 
 __all__ = ["ServerConfig", "LiveServer", "serve", "check_method_params", "sdp_hint", "DEFAULT_PORT",
            "DEFAULT_UDP_PORT"]
@@ -423,8 +421,6 @@ class LiveServer:
     # -- sessions ------------------------------------------------------------------
 
     async def _on_connect(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        from splitrender.server.session import ServerSession
-
         task = asyncio.current_task()
         assert task is not None
         if self._closed:

@@ -45,6 +45,9 @@ import traceback
 from typing import Any
 
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
+from splitrender.methods.base import get_method
+from splitrender.pipeline import ProducerPool, StreamEncoder, make_frame
+from splitrender.scene.pose import CameraIntrinsics, Pose
 
 __all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
 
@@ -249,10 +252,8 @@ class _Half:
 
 class _Worker:
     def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
-        from splitrender.pipeline import ProducerPool
-        from splitrender.render import Renderer
+        from splitrender.render import Renderer             # GL and the scene's files: in the worker process only
         from splitrender.scene.loader import get_scene
-        from splitrender.scene.pose import CameraIntrinsics, Pose
 
         self.scene = get_scene(scene_name)
         self.server_fps = server_fps
@@ -268,9 +269,6 @@ class _Worker:
     def open(self, sid: str, method: str, config: Any, intrinsics: Any, hang_frame: int = -1) -> Any:
         """Build session ``sid``'s server half and encoders; returns its stream specs, session data and the
         parameter sets each video encoder sends (for the SDP)."""
-        from splitrender.methods.base import get_method
-        from splitrender.pipeline import StreamEncoder
-
         half, specs, session_blob = self.producers.server_half(get_method(method), config, intrinsics)
         encoder = StreamEncoder(specs)
         encoder.open()
@@ -281,8 +279,6 @@ class _Worker:
         """Make session ``sid``'s frame ``order`` (:func:`~splitrender.pipeline.frames.make_frame`); returns the coded
         update without its raw planes, the half's stats, and the frame's stages in milliseconds (``make_frame``'s;
         ``frame_ms`` is the whole frame in this process)."""
-        from splitrender.pipeline import make_frame
-
         h = self.halves[sid]
         if order.frame_id == h.hang_frame:
             _hang()

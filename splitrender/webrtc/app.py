@@ -41,8 +41,10 @@ from typing import Any
 
 from aiohttp import web
 
-from ..errors import ConfigError, describe_error
+from ..errors import ConfigError, NetworkConfigError, describe_error
 from ..pipeline.recording import ClientRecording, manifest, save_image
+from ..scene.trace import BUILTIN_TRACES, get_trace
+from ..transport.errors import BindError, describe_os_error
 from .messages import (BROWSER_METHODS, MAX_ROWS, MAX_STATS, PageMessageError, Recording, browser_methods,
                        decode_json, parse_recording, parse_session_request, rgba_to_rgb)
 from .session import BrowserSession
@@ -134,8 +136,6 @@ class WebRtcFrontDoor:
     # ------------------------------------------------------------------ lifecycle
 
     async def start(self) -> None:
-        from ..transport.errors import BindError, describe_os_error
-
         restrict_ice_host(self.server.config.host)
         app = web.Application(client_max_size=self.max_body, middlewares=[self._guard])
         self._trace_pool = ThreadPoolExecutor(MAX_TRACE_JOBS, thread_name_prefix="splitrender-trace")
@@ -228,8 +228,6 @@ class WebRtcFrontDoor:
                                                "Cache-Control": "no-store"})
 
     async def _info(self, request: web.Request) -> web.Response:
-        from ..scene.trace import BUILTIN_TRACES
-
         cfg = self.server.config
         return web.json_response({"scene": cfg.scene, "methods": self.offered, "method_notes": {m: BROWSER_METHODS[m]
                                                                                                  for m in self.offered},
@@ -241,8 +239,6 @@ class WebRtcFrontDoor:
         return web.json_response({"server_ms": time.time() * 1000})
 
     async def _trace(self, request: web.Request) -> web.Response:
-        from ..scene.trace import BUILTIN_TRACES
-
         q = request.query
         name = q.get("name", "walk")
         if name not in BUILTIN_TRACES:
@@ -274,8 +270,6 @@ class WebRtcFrontDoor:
 
     def _make_trace(self, name: str, duration: float, width: int, height: int) -> bytes:
         """A built-in trace sampled at :data:`TRACE_RATE_HZ`, as the JSON the page reads (in the trace thread)."""
-        from ..scene.trace import get_trace
-
         trace = get_trace(name, duration, scene=self.server.scene, fov_y_deg=self.server.config.fov_y_deg,
                           aspect=width / height).sample(TRACE_RATE_HZ)
         return json.dumps({"name": name, "duration_s": float(trace.duration_s),
@@ -420,7 +414,6 @@ def _bad(text: str) -> web.Response:
 
 def check_http_address(text: str) -> tuple[str, int]:
     """``HOST:PORT`` for ``--http`` (as ``splitrender shape`` reads its addresses); raises ConfigError naming it."""
-    from ..errors import NetworkConfigError
     from ..netsim.cli import parse_address
 
     try:
