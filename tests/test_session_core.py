@@ -911,6 +911,24 @@ def test_a_live_clients_row_tells_each_stage_from_the_updates_timestamps() -> No
     assert blank["update_frame_id"] == -1 and math.isnan(blank["update_age_ms"]) and "network_ms" not in blank
 
 
+def test_the_client_core_gives_what_arrived_over_the_last_second() -> None:
+    """``ClientSession.received_kbps`` (the live client's ``kbps_*`` columns, from the core that counts the bytes in):
+    each tick reads the bytes since the oldest tick of the last second over the time between (the first tick, with no
+    tick before it, 0), and a second with nothing new reads 0."""
+    p = Pair()
+    for fid, t_ms in ((0, 0.0), (1, 500.0)):
+        _, dgrams = p.frame(fid, t_ms)
+        for d in dgrams:
+            p.client.receive_datagram(d, t_ms)
+        if fid == 0:
+            w0 = p.client.rx.wire_bytes["color"]
+            first = p.client.received_kbps(0.0)
+            assert w0 > 0 and first == {"kbps_color": 0.0, "kbps_control": 0.0}
+    w1 = p.client.rx.wire_bytes["color"]
+    assert p.client.received_kbps(0.5)["kbps_color"] == pytest.approx((w1 - w0) * 8 / 0.5 / 1000)
+    assert p.client.received_kbps(1.6)["kbps_color"] == 0.0
+
+
 def test_the_server_core_owns_its_control_connection() -> None:
     """``accept_hello`` gives the core the handshake's ``ServerConnection`` (issue 47): the core frames its Welcome
     and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_message``),

@@ -38,7 +38,7 @@ from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, Remot
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
-                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work, control_wire_bytes)
+                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import live_frame_row
@@ -166,7 +166,6 @@ class LiveClient:
         """The sans-IO session core: RTCP, NACK, PLI, playout delay, stalls, feedback."""
         self._recording_out = None if config.out_dir is None else ClientRecording(config.out_dir)
         """The recording folder, written as the session goes (see :meth:`_record`)."""
-        self._rate_window: deque[tuple[float, dict[str, int]]] = deque()
         self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
         self._welcome: Welcome | None = None
@@ -569,7 +568,7 @@ class LiveClient:
             row = live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
                             apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
-            row.update(self._kbps(displayed_us / 1e6))
+            row.update(core.received_kbps(displayed_us / 1e6))
             self._record(row)
             if cfg.save_images and cfg.out_dir is not None:
                 saves.append(loop.run_in_executor(self.io_executor, save_image, cfg.out_dir, row["frame"], cf.color,
@@ -596,19 +595,6 @@ class LiveClient:
             black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
             saves.append(asyncio.get_running_loop().run_in_executor(
                 self.io_executor, save_image, cfg.out_dir, row["frame"], black, np.ones((cfg.height, cfg.width), bool)))
-
-    def _kbps(self, now_s: float) -> dict[str, float]:
-        """``kbps_<stream>`` over the last second for each RTP stream (wire bytes received) and
-        ``kbps_control`` for the control channel (bytes read, with the TCP/IP header model)."""
-        assert self.rx is not None and self.core is not None
-        snap = dict(self.rx.wire_bytes)
-        snap["control"] = control_wire_bytes(self.core.counters["control_bytes_received"])
-        self._rate_window.append((now_s, snap))
-        while len(self._rate_window) > 1 and self._rate_window[0][0] < now_s - 1.0:
-            self._rate_window.popleft()
-        t0, old = self._rate_window[0]
-        span = max(now_s - t0, 1e-3) if len(self._rate_window) > 1 else 1.0
-        return {f"kbps_{k}": (v - old.get(k, 0)) * 8 / span / 1000.0 for k, v in snap.items()}
 
     # ------------------------------------------------------------------ recording
 

@@ -76,7 +76,7 @@ from .frames import FrameOrder
 from .rows import mean_of, session_summary
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
-from .wire import EnvelopeError, SessionDataError, specs_from_table
+from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_from_table
 
 log = logging.getLogger(__name__)
 
@@ -489,6 +489,7 @@ class ClientSession:
         """The update on screen (the newest applied one that showed anything)."""
         self._fed_back = -1
         self._last_release_ms = -math.inf
+        self._rate_window: deque[tuple[float, dict[str, int]]] = deque()   # (s, bytes received so far), a second's
         self.counters: dict[str, Any] = {
             "rtp_packets": 0, "rtp_bytes": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "rtcp_received": 0,
             "nacks_sent": 0, "nacked_packets": 0, "plis_sent": 0, "stall_plis": 0, "stalls": 0, "longest_stall_ms": 0.0,
@@ -891,6 +892,21 @@ class ClientSession:
         return fb
 
     # ------------------------------------------------------------------ counters
+
+    def received_kbps(self, now_s: float) -> dict[str, float]:
+        """What arrived over the last second before ``now_s`` (the driver's clock, s; call once a display tick), kbit/s:
+        ``kbps_<stream>`` for each RTP stream (wire bytes) and ``kbps_control`` for the control channel (bytes read,
+        with the TCP/IP header model): the bytes since the oldest call within the last second, over the time between
+        (0 with no earlier call in it)."""
+        snap = dict(self.rx.wire_bytes)
+        snap["control"] = control_wire_bytes(self.counters["control_bytes_received"])
+        w = self._rate_window
+        w.append((now_s, snap))
+        while len(w) > 1 and w[0][0] < now_s - 1.0:
+            w.popleft()
+        t0, old = w[0]
+        span = max(now_s - t0, 1e-3) if len(w) > 1 else 1.0
+        return {f"kbps_{k}": (v - old.get(k, 0)) * 8 / span / 1000.0 for k, v in snap.items()}
 
     def all_counters(self) -> dict[str, Any]:
         """The session counters plus, per RTP stream, what its jitter buffer dropped: late packets,
