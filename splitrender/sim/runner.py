@@ -167,7 +167,6 @@ class _Client:
     pred: dict[int, tuple[float, float]] = field(default_factory=dict)
     update_rows: dict[int, dict[str, Any]] = field(default_factory=dict)
     protocol_errors: int = 0
-    lost_frames: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
     server_timer_s: float = math.inf
@@ -478,8 +477,6 @@ class VirtualTimeRun:
                 row["delivered"] = int(rf.update.complete)
                 row["missing"] = ";".join(sorted(rf.update.missing))
                 row["arrival_s"] = rf.received_ms / 1000.0
-            if rf.update.missing:
-                c.lost_frames += 1
 
     def _client_timer(self, c: _Client, token: int) -> None:
         if token != c.timer_token:   # superseded by an earlier deadline
@@ -604,7 +601,7 @@ class VirtualTimeRun:
             "mean_kbps": total * 8 / dur / 1000.0, **{f"kbps_{k}": b * 8 / dur / 1000.0 for k, b in c.bytes.items()},
             "session_kb": once / 1000.0, "steady_kbps": (total - once) * 8 / dur / 1000.0, **updates_summary(ups),
             "cost_model": cfg.cost_model, "mean_cost_ms": mean_of(ups, "cost_ms"), "server_skipped": self.server_skipped,
-            "clients": cfg.clients, "lost_frames": c.lost_frames, "protocol_errors": c.protocol_errors,
+            "clients": cfg.clients, "lost_frames": c.core.counters["frames_partial"], "protocol_errors": c.protocol_errors,
             "packets_lost": c.packets_lost, "rtp_packets": c.core_s.counters["rtp_packets"],
             **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
             "mean_pred_err_cm": mean_of(ups, "pred_err_cm"), "mean_pred_err_deg": mean_of(ups, "pred_err_deg"),
