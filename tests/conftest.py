@@ -65,6 +65,39 @@ def truth_cache(tmp_path_factory) -> str:  # type: ignore[no-untyped-def]
     return getattr(tmp_path_factory, "_sr_truth", None) or str(tmp_path_factory.mktemp("truth_cache"))
 
 
+#: Test files that see ``RunConfig.truth_cache`` as they wrote it (:func:`_one_truth_for_every_run`): the cache's own
+#: tests count its hits and misses and compare a run without it.
+OWN_TRUTH_FILES = frozenset({"test_truth_cache.py"})
+
+
+@pytest.fixture(autouse=True)
+def _one_truth_for_every_run(request):  # type: ignore[no-untyped-def]
+    """A virtual-time run in this process that leaves ``truth_cache`` off (``""``, the default) renders its ground
+    truth through the session's cache (:func:`truth_cache`) all the same.  Tests run the same scene, trace, size and
+    rate many times (two reconstructions of one still camera, ``off`` against ``full`` adaptation on one walk, the
+    same walk at another network), and a hit is the frame the renderer draws, bit for bit: the key is the scene's
+    content, the renderer's sources and GL strings, the trace, the size, the field of view, the display rate and the
+    supersampling (:mod:`splitrender.sim.truth`; ``tests/test_truth_cache.py`` checks that a cached run scores as an
+    uncached one).  A hit reports the render time stored with its frame, so ``gt_ms`` stays the cost of rendering.
+    A setting a test names is kept; ``OWN_TRUTH_FILES`` and tests marked ``own_truth`` keep ``""`` too."""
+    if request.node.path.name in OWN_TRUTH_FILES or request.node.get_closest_marker("own_truth"):
+        yield
+        return
+    import splitrender.sim.runner as runner
+
+    folder = request.getfixturevalue("truth_cache")
+    plain = runner.truth_source
+
+    def through_session_cache(setting, *args, **kwargs):  # type: ignore[no-untyped-def]
+        return plain(setting or folder, *args, **kwargs)
+
+    runner.truth_source = through_session_cache
+    try:
+        yield
+    finally:
+        runner.truth_source = plain
+
+
 @pytest.fixture(scope="session")
 def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyped-def]
     """``shared_run(cfg)``: the virtual-time run of ``cfg`` (with the session's renderer and truth cache), made once
