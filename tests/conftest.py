@@ -184,6 +184,8 @@ def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
         os.makedirs(out, exist_ok=True)
     else:
         out = tempfile.mkdtemp(prefix="sr-stress-")
+    with open(os.path.join(out, "started"), "w") as f:        # when it started (``_stress_span``)
+        f.write(repr(__import__("time").time()))
     log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
     config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
                                                     stderr=subprocess.STDOUT))
@@ -205,6 +207,9 @@ def pytest_collection_finish(session) -> None:  # type: ignore[no-untyped-def]
 
 def pytest_configure(config) -> None:  # type: ignore[no-untyped-def]
     """Under ``-n N`` the controller names the run, so that it can remove the workers' shared folder at the end."""
+    import time
+
+    config._sr_t0 = time.time()
     if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
         import uuid
 
@@ -219,6 +224,7 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
         import shutil
         import tempfile
 
+        session.config._sr_stress_span = _stress_span(os.path.join(tempfile.gettempdir(), f"sr-xdist-{uid}", "stress"))
         shutil.rmtree(os.path.join(tempfile.gettempdir(), f"sr-xdist-{uid}"), ignore_errors=True)
         return
     if _xdist_folder() is not None:         # a worker: the stress suite another worker may still read goes on
@@ -241,11 +247,42 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
         import shutil
 
         out, log, proc = bg
+        session.config._sr_stress_span = _stress_span(out)
         if proc.poll() is None:
             proc.kill()
             proc.wait()
         log.close()
         shutil.rmtree(out, ignore_errors=True)
+
+
+def _stress_span(out: str) -> tuple[float, float | None] | None:
+    """``(started, ended or None)`` of the background stress suite in ``out`` (epoch seconds); None where it did not
+    start."""
+    try:
+        with open(os.path.join(out, "started")) as f:
+            started = float(f.read())
+    except (OSError, ValueError):
+        return None
+    rc = os.path.join(out, "rc")
+    return started, (os.path.getmtime(rc) if os.path.exists(rc) else None)
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # type: ignore[no-untyped-def]
+    """One line on the background stress suite's span in the session: where it ends near the session's end, it is
+    what the session waits for (issue 49: the suite's duration)."""
+    span = getattr(config, "_sr_stress_span", None)
+    if span is None:
+        return
+    import time
+
+    t0 = getattr(config, "_sr_t0", span[0])
+    started, ended = span
+    if ended is None:
+        terminalreporter.write_line(f"background stress suite: started {started - t0:.0f} s into the session, "
+                                    f"unfinished {time.time() - started:.0f} s later")
+    else:
+        terminalreporter.write_line(f"background stress suite: {ended - started:.0f} s, from {started - t0:.0f} s to "
+                                    f"{ended - t0:.0f} s into the session ({time.time() - t0:.0f} s)")
 
 
 # ----------------------------------------------------------------------------- shared runs made ahead
