@@ -3,7 +3,9 @@
 One virtual-time run per client count (``walk``, client ``i`` starting ``i * 0.5`` s into
 it, ``ideal`` network, 320x180, no scoring), on two scenes: the 121k-triangle
 ``2CylinderEngine.glb`` (a fine mesh, 115 still objects) and the default scene without
-GI (17k triangles split to 99k, shading-bound, animated objects).  Per server frame
+GI (17k triangles split to 99k, shading-bound, animated objects); ``--scenes gi`` adds the default scene with
+its GI (the probes' relight, once a frame for every session, counts in the shading stage of the session that
+binds them first).  Per server frame
 (frames after the first, whose set-up is reported apart; median over frames):
 
 - the whole server tick, wall (``perf_counter``) and process CPU (``process_time``, so
@@ -30,6 +32,11 @@ one, into the same JSON.  The ``after`` rows report whether their digests equal
 run (the frame metadata carries the stages' wall-clock times, its size varies, and so
 do the TCP segments drawing the link's jitter).
 
+``--solo`` also runs each client of the largest count alone on a server of its own (the same trace offset, scene
+times and poses; :func:`solo_run`): the many-client tick over the sum of its clients' ticks alone is what the
+sessions share (1: nothing; the plain ratio to one client also counts how much more the other clients' views cost),
+and each client's updates are checked to be the bytes it gets alone.
+
 Writes ``benchmarks/results/bench_sas_clients.json``.  Run:
 ``python benchmarks/bench_sas_clients.py --before-tree DIR [--clients 1,2,4,8] [--duration 0.5]``
 (about 17 minutes on 2 cores).
@@ -55,11 +62,13 @@ from splitrender.methods.sas.server import SasProducer, SasServer
 from splitrender.pipeline.sender import StreamEncoder
 from splitrender.render.renderer import Renderer
 from splitrender.sim.config import RunConfig
-from splitrender.sim.runner import VirtualTimeRun
+from splitrender.sim.runner import VirtualTimeRun, _ShiftedTrace
 
 OUT = Path(__file__).parent / "results" / "bench_sas_clients.json"
 ENGINE = "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
-SCENES = {"engine": ENGINE, "default": "default+nogi"}
+SCENES = {"engine": ENGINE, "default": "default+nogi", "gi": "default"}
+"""``gi``: the default scene with its DDGI probes, relit once a server frame for every session (the renderer's);
+not in the default set (``--scenes``)."""
 STAGES = ("shared", "pvs", "alloc", "shade", "meta", "encode", "other")
 
 
@@ -187,8 +196,18 @@ class Recorder:
         return out
 
 
-def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[int, int], network: str) -> dict[str, Any]:
-    """Rows per scene and client count, measured in this process (this process's ``splitrender``)."""
+def solo_run(base: RunConfig, i: int, r: Renderer) -> VirtualTimeRun:
+    """A one-client run of ``base`` whose client sees the trace ``i * client_offset_s`` later: client ``i`` of a
+    many-client run, alone on the server (same scene times, same poses)."""
+    vt = VirtualTimeRun(base.replace(clients=1), r)
+    vt.traces[0] = _ShiftedTrace(vt.trace, i * base.client_offset_s)
+    return vt
+
+
+def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[int, int], network: str,
+            solo: bool = False) -> dict[str, Any]:
+    """Rows per scene and client count, measured in this process (this process's ``splitrender``); with ``solo``
+    each client of the largest count also alone (:func:`solo_run`; client 0 alone is the one-client row)."""
     rec = Recorder()
     rec.install()
     r = Renderer()
@@ -198,21 +217,35 @@ def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[
                          duration_s=duration_s, client_fps=30, flip_every=0, metrics=False, client_offset_s=0.5)
         VirtualTimeRun(base.replace(duration_s=0.1), r).run()   # warm up shaders and caches
         rows = out.setdefault(name, {})
-        for n in counts:
+        runs: list[tuple[str, Any, int]] = [(str(n), lambda n=n: VirtualTimeRun(base.replace(clients=n), r), n)
+                                            for n in counts]
+        if solo:
+            runs += [(f"solo{i}", lambda i=i: solo_run(base, i, r), 1) for i in range(1, max(counts))]
+        for key, make, n in runs:
             rec.reset()
-            vt = VirtualTimeRun(base.replace(clients=n), r)
+            vt = make()
             w0, c0 = time.perf_counter(), time.process_time()
             vt.run()
             row = rec.per_frame(n)
             row["run_wall_s"], row["run_cpu_s"] = time.perf_counter() - w0, time.process_time() - c0
             row["load"] = os.getloadavg()[0]
-            rows[str(n)] = row
+            rows[key] = row
     return out
 
 
 def ratios(rows: dict[str, Any]) -> None:
-    """Each row's ratio to the one-client row (same label, same invocation), per stage, wall and CPU."""
+    """Each row's ratio to the one-client row (same label, same invocation), per stage, wall and CPU; where each
+    client of a row also ran alone (``solo<i>`` rows, :func:`solo_run`), the row's ratio to the sum of its clients
+    alone (``ratio_to_solo_sum``: 1 when the sessions share nothing, each client's own view costing what it does
+    alone) and whether each client's updates are the bytes it gets alone (``digests_equal_solo``)."""
     one = rows["1"]
+    for key, row in rows.items():
+        n = int(key) if key.isdigit() else 0
+        alone = [one] + [rows.get(f"solo{i}") for i in range(1, n)]
+        if n > 1 and all(a is not None for a in alone):
+            row["ratio_to_solo_sum"] = {kind: {k: row[kind][k] / s if (s := sum(a[kind][k] for a in alone)) > 0 else None
+                                               for k in (*STAGES, "tick")} for kind in ("wall", "cpu", "wall_min", "cpu_min")}
+            row["digests_equal_solo"] = [a["digests"][0] == d for a, d in zip(alone, row["digests"])]
     for row in rows.values():
         rt = {kind: {k: row[kind][k] / one[kind][k] if one[kind][k] > 0 else None for k in (*STAGES, "tick")}
               for kind in ("wall", "cpu", "wall_min", "cpu_min")}
@@ -229,12 +262,15 @@ def main() -> None:
                          "measure it and this tree alternately, scene by scene and client count by client count, in "
                          "subprocesses, so both see the same load on a shared machine")
     ap.add_argument("--clients", default="1,2,4,8")
-    ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--scenes", default="engine,default", help=f"of {', '.join(SCENES)} (default engine,default)")
     ap.add_argument("--duration", type=float, default=0.5, help="seconds of each run (default 0.5: 16 server frames)")
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--network", default="ideal",
                     help="network profile (default ideal: with jitter the runs' packet timings, and so the updates, vary "
                          "from run to run, as the metadata carries the stages' wall-clock times)")
+    ap.add_argument("--solo", action="store_true",
+                    help="also run each client of the largest count alone (its own trace offset): the sessions' "
+                         "sharing is the many-client tick over the sum of its clients' ticks alone")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)   # write measure()'s rows here
     ns = ap.parse_args()
@@ -242,12 +278,12 @@ def main() -> None:
     counts = [int(v) for v in ns.clients.split(",")]
     names = ns.scenes.split(",")
     if ns.worker is not None:
-        ns.worker.write_text(json.dumps(measure(names, counts, ns.duration, (w, h), ns.network)))
+        ns.worker.write_text(json.dumps(measure(names, counts, ns.duration, (w, h), ns.network, ns.solo)))
         return
     load0 = os.getloadavg()
     labels: dict[str, dict[str, Any]] = {}
     if ns.before_tree is None:
-        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network)
+        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network, ns.solo)
     else:
         import subprocess
         import sys
@@ -263,7 +299,8 @@ def main() -> None:
                         part = Path(d) / "rows.json"
                         subprocess.run([sys.executable, __file__, "--worker", str(part), "--scenes", name, "--clients",
                                         str(n), "--duration", str(ns.duration), "--size", ns.size, "--network",
-                                        ns.network], env=env, check=True)
+                                        ns.network, *(["--solo"] if ns.solo and n == max(counts) else [])],
+                                       env=env, check=True)
                         got = json.loads(part.read_text())
                     labels.setdefault(label, {}).setdefault(name, {}).update(got[name])
                     row = got[name][str(n)]
@@ -277,6 +314,10 @@ def main() -> None:
                 rt = row["ratio_to_one"]
                 print(f"{label:6s} {name} {key}/1: tick wall {rt['wall']['tick']:.2f}x cpu {rt['cpu']['tick']:.2f}x; "
                       f"whole run wall {rt['run_wall']:.2f}x cpu {rt['run_cpu']:.2f}x")
+                if "ratio_to_solo_sum" in row:
+                    rs = row["ratio_to_solo_sum"]
+                    print(f"{label:6s} {name} {key}/(its clients alone): tick wall {rs['wall']['tick']:.2f}x cpu "
+                          f"{rs['cpu']['tick']:.2f}x; updates as alone: {row['digests_equal_solo']}")
         doc[label] = {"machine": platform.platform(), "cpus": os.cpu_count(), "load_before": load0,
                       "load_after": os.getloadavg(), "duration_s": ns.duration, "size": [w, h], "network": ns.network,
                       "interleaved_with_before_tree": ns.before_tree is not None,

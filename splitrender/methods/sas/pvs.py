@@ -37,6 +37,9 @@ PoseSample = tuple[float, Pose]
 
 CLUSTER_TRIANGLES = 256
 """Triangles per culling cluster (consecutive in patch order, so spatially coherent)."""
+PLACEMENT_TIMES = 16
+"""Scene times whose object placement a patch-id pass keeps (:meth:`PatchIdPass.placement`): a frame's EVS samples
+(3-4 at the default step) and the next frame's."""
 
 
 @dataclass
@@ -187,6 +190,7 @@ class PatchIdPass:
         # scene-wide sorted triangle index + 1 -> patch id + 1 (0 stays background)
         self.lookup = np.concatenate([[0], self.clusters.tri_patch.astype(np.int64) + 1])
         self.drawn_triangles = 0
+        self._placed: dict[float, tuple[np.ndarray, np.ndarray, dict[int, tuple[np.ndarray, np.ndarray, bytes]]]] = {}
         self.gpu_count = gpu_count
         self._count: Any = None
         if gpu_count:
@@ -216,6 +220,32 @@ class PatchIdPass:
             z = self._zero_bytes[(w, h)] = bytes(4 * w * h)
         return z
 
+    def placement(self, t_s: float) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[np.ndarray, np.ndarray, bytes]]]:
+        """Every object's world-space sphere (centres (n_obj, 3), radii) and per animated object its clusters'
+        world-space spheres and model-matrix bytes, at scene time ``t_s``: what a patch-id pass needs of the scene
+        besides the pose.  Kept for the newest :data:`PLACEMENT_TIMES` times, so the sessions of a server, whose EVS
+        samples fall at the same times (each frame's window starts at its newest pose's time and steps
+        ``pvs_step_ms``), and the next frame's overlapping window place the animated objects once per time.  The
+        same numbers as placing them at each pass (each object on its own)."""
+        got = self._placed.get(t_s)
+        if got is not None:
+            return got
+        cl = self.clusters
+        wc, wr = self._world_c, self._world_r
+        anim = np.flatnonzero(self._animated)
+        models = {int(k): np.asarray(self.scene.objects[k].model_matrix(t_s), np.float64) for k in anim}
+        placed: dict[int, tuple[np.ndarray, np.ndarray, bytes]] = {}
+        if anim.size:
+            wc, wr = wc.copy(), wr.copy()
+            wc[anim], wr[anim] = world_spheres(np.stack([models[int(k)] for k in anim]), cl.sphere[anim, :3],
+                                               cl.sphere[anim, 3])
+            for k, m in models.items():
+                placed[k] = (*placed_spheres(m, cl.centers[k], cl.radii[k]), model_bytes(m))
+        got = self._placed[t_s] = (wc, wr, placed)
+        while len(self._placed) > PLACEMENT_TIMES:
+            del self._placed[next(iter(self._placed))]
+        return got
+
     def render_ids(self, pose: Pose, intr: CameraIntrinsics, t_s: float) -> Any:
         """Draw the ID buffer (frustum-culled per object and cluster); returns its texture."""
         fbo, tex = self._fbo(intr.width, intr.height)
@@ -231,13 +261,7 @@ class PatchIdPass:
         self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
         cl = self.clusters
         drawn = 0
-        wc, wr = self._world_c, self._world_r
-        anim = np.flatnonzero(self._animated)
-        models = {int(k): np.asarray(self.scene.objects[k].model_matrix(t_s), np.float64) for k in anim}
-        if anim.size:
-            wc, wr = wc.copy(), wr.copy()
-            wc[anim], wr[anim] = world_spheres(np.stack([models[int(k)] for k in anim]), cl.sphere[anim, :3],
-                                               cl.sphere[anim, 3])
+        wc, wr, placed = self.placement(t_s)
         objs = np.flatnonzero(self._has_tris & in_frustum(planes, wc, wr))
         if objs.size == 0:
             self.drawn_triangles = 0
@@ -247,7 +271,7 @@ class PatchIdPass:
         n = last - first
         sel = np.repeat(first - np.concatenate([[0], np.cumsum(n)[:-1]]), n) + np.arange(int(n.sum()))
         cc, cr = self._cl_c[sel], self._cl_r[sel]
-        moving = [k for k in objs.tolist() if k in models]
+        moving = [k for k in objs.tolist() if k in placed]
         model_b = self._model_bytes
         if moving:
             model_b = list(model_b)
@@ -255,8 +279,7 @@ class PatchIdPass:
             pos = {k: i for i, k in enumerate(objs.tolist())}
             for k in moving:
                 a, b = at[pos[k]], at[pos[k] + 1]
-                cc[a:b], cr[a:b] = placed_spheres(models[k], cl.centers[k], cl.radii[k])
-                model_b[k] = model_bytes(models[k])
+                cc[a:b], cr[a:b], model_b[k] = placed[k]
         vis = sel[in_frustum(planes, cc, cr)]          # visible clusters, ascending: objects, then clusters in order
         if vis.size == 0:
             self.drawn_triangles = 0
