@@ -174,7 +174,9 @@ def test_residual_frames_are_smaller_and_the_client_cache_follows_the_server(ren
     sizes, kinds = [], []
     for f in range(6):
         t = 0.5 + f / 30
-        srv, upd, spec, cfg, scene, pose = _frame(renderer, {}, t=t, frame_id=f, srv=srv, pose=tr.pose_at(t))
+        # residual frames as such: the walk's cached mesh scores under reference_error_db's 30 dB (24-26 dB)
+        srv, upd, spec, cfg, scene, pose = _frame(renderer, {"reference_error_db": 0.0}, t=t, frame_id=f, srv=srv,
+                                                  pose=tr.pose_at(t))
         if cli is None:
             cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
         cli.apply(_decoded(upd))
@@ -246,11 +248,13 @@ def test_quasar_beats_warp_under_cloud_and_quadstream_sends_more(shared_run) -> 
     18.49 dB (2.82x), over 1 s 14.4 Mbit/s for 20.98 dB (2.67x).  QuadStream's own atlas and wide view (the packed atlas with
     24-bit positions, the wide view at 2/3 resolution) took it from 33.3 Mbit/s (2.64x) with the slot atlas.  Over 0.6 s: 19.83 dB at 13.2 Mbit/s, 19.71 dB at 34.7, warp
     19.13.  Wire 1 (interleaved arrays) sent 18.9 and 49.8 Mbit/s over 0.6 s: the byte planes took 1.43x off
-    both, so the ratio stayed."""
+    both, so the ratio stayed.  Since QUASAR sends a reference frame where a residual frame would score under 30 dB
+    (``reference_error_db``, issue 50; the walk's residual frames score 24-26 dB, so most frames are reference
+    frames) QuadStream sends 2.91x QUASAR's bits over 0.3 s (40.4 against 13.9 Mbit/s), 3.24x before."""
     # one ground truth for the three runs (the session's truth cache)
     quasar, qs, warp = (shared_run(_cloud_walk(*CLOUD_RUNS[k])).summary for k in ("quasar", "quadstream", "warp"))
     assert quasar["mean_psnr_db"] >= warp["mean_psnr_db"] + 0.5, (quasar["mean_psnr_db"], warp["mean_psnr_db"])
-    assert qs["mean_kbps"] >= 3.0 * quasar["mean_kbps"], (qs["mean_kbps"], quasar["mean_kbps"])
+    assert qs["mean_kbps"] >= 2.6 * quasar["mean_kbps"], (qs["mean_kbps"], quasar["mean_kbps"])
 
 
 def test_malformed_quad_data_gives_named_errors_and_keeps_the_last_state(renderer) -> None:  # type: ignore[no-untyped-def]
@@ -445,10 +449,11 @@ def test_reference_frames_follow_the_distance_and_angle_thresholds(renderer) -> 
     """QUASAR section 3.5.1: a reference frame "every 5 frames or based on distance and angle thresholds".  At a
     still pose neither threshold fires, so the residual frames run to ``reference_every``; 6 cm aside (past a 5 cm
     threshold) or 3 degrees turned (past 2) the next frame is a reference frame, and the one after it, back at that
-    pose, is residual again.  Unset (0), the same moves give residual frames."""
+    pose, is residual again.  Unset (0), the same moves give residual frames (``reference_error_db`` off: the 3 degree
+    turn alone scores under its 30 dB)."""
     from splitrender.scene.pose import quat_from_euler_deg, quat_mul
 
-    base = {"layers": 1, "wide_fov_deg": 0.0}
+    base = {"layers": 1, "wide_fov_deg": 0.0, "reference_error_db": 0.0}
     for params, moved, want in (
             ({"reference_distance_m": 0.05}, "aside", ["reference", "residual", "residual", "reference", "residual"]),
             ({"reference_angle_deg": 2.0}, "turned", ["reference", "residual", "residual", "reference", "residual"]),

@@ -88,7 +88,7 @@ def test_a_recorded_update_is_counted_as_by_hand() -> None:
     scene = get_scene("default+nogi")
     intr = CameraIntrinsics(160, 90, 60.0, 0.05, 200.0)
     trace = get_trace("walk", scene=scene)
-    srv = spec.server_class(make_config(spec.config, {}), intr, scene, 30)
+    srv = spec.server_class(make_config(spec.config, {"reference_error_db": 0.0}), intr, scene, 30)   # a residual frame as such
     r = Renderer()
     seen = {}
     for f in (0, 1):

@@ -4,7 +4,9 @@
 
 1. the visible G-buffer at the predicted pose; on a **reference frame** (every
    ``reference_every`` frames, when the pose has moved or turned past ``reference_distance_m`` or
-   ``reference_angle_deg`` from the reference pose, on a keyframe request, after a reported loss) its quads
+   ``reference_angle_deg`` from the reference pose, on a keyframe request, after a reported loss, or when the
+   cached mesh drawn from the frame's pose in the reference view's colour scores below ``reference_error_db``
+   against the frame's own render, :meth:`QuadsServer._residual_psnr`) its quads
    (its background too only with ``background_quads``: by default, as in QUASAR's code, the
    client makes the sky's quads itself) are the client's new reference set, its colour atlas slot 0;
 2. on a **residual frame**: the G-buffer at the reference pose and the current time;
@@ -39,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import binary_dilation
 
+from ...render.canvas import upload_image
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, ServerContext, ServerHalf, StreamSpec, Update
 from .accounting import quasar_frame_bytes
@@ -155,6 +158,7 @@ class QuadsServer(ServerHalf):
         self._ref_depth: np.ndarray | None = None
         self._ref_normal: np.ndarray | None = None
         self._mesh: QuadMeshGL | None = None
+        self._colour_tex: Any = None
         self._stats: dict[str, float] = {}
         self.last_sets: list[WireSet] = []
 
@@ -265,6 +269,25 @@ class QuadsServer(ServerHalf):
         times["quadgen_ms"] += q.stats["gen_ms"]
         times["merge_ms"] += q.stats["merge_ms"]
 
+    def _residual_psnr(self, ctx: ServerContext, pose: Pose, ref_pose: Pose, g0: Any, gr: Any) -> float:
+        """What a residual frame would show from ``pose`` of the scene pixels its cached quads cover: the cached
+        mesh (its scene quads, as the client holds them before this frame's update) drawn from ``pose`` with the
+        reference view's colour at this time (``gr``), its PSNR (dB) against this frame's own render ``g0`` over the
+        scene pixels it covers (inf when it covers none).  The revealed quads fill the rest from ``pose`` itself."""
+        intr = self.intrinsics
+        cached = self.cache.quads
+        assert cached is not None
+        mesh = self._gl_mesh(ctx)
+        mesh.upload(*join_meshes([build_mesh(select(cached, ~cached.background(intr)), ref_pose, intr, (0, 0), "view")]))
+        self._colour_tex = upload_image(ctx.renderer.ctx, gr.color, self._colour_tex, linear=True)
+        _, color, _ = mesh.draw(pose, intr, self._colour_tex, (intr.width, intr.height))
+        rgba = np.frombuffer(color.read(), np.uint8).reshape(intr.height, intr.width, 4)[::-1]
+        px = (rgba[..., 3] > 0) & np.isfinite(g0.depth)
+        if not px.any():
+            return math.inf
+        mse = float(((rgba[..., :3][px].astype(np.float64) - g0.color[px].astype(np.float64)) ** 2).mean())
+        return 10 * math.log10(255.0 ** 2 / max(mse, 1e-10))
+
     def _produce_quasar(self, ctx: ServerContext) -> Update:
         cfg, intr = self.config, self.intrinsics
         pose = ctx.target_pose
@@ -274,6 +297,17 @@ class QuadsServer(ServerHalf):
         g0 = self._gbuffer(ctx, pose, intr, times)
         rot = pose.view_matrix()[:3, :3]
         p = cfg.params
+        gr = None
+        if not reference and cfg.reference_error_db > 0:
+            ref_pose = self.cache.pose
+            assert ref_pose is not None
+            gr = g0 if same_pose(ref_pose, pose) else self._gbuffer(ctx, ref_pose, intr, times)
+            if gr is not g0:
+                t1 = time.perf_counter()
+                psnr = self._residual_psnr(ctx, pose, ref_pose, g0, gr)
+                times["mask_ms"] += (time.perf_counter() - t1) * 1e3
+                self._stats["residual_psnr_db"] = psnr
+                reference = psnr < cfg.reference_error_db
         if reference:
             q = generate(g0.depth, g0.normal, rot, intr, p, background=cfg.background_quads)
             self._account(times, q)
@@ -288,7 +322,8 @@ class QuadsServer(ServerHalf):
             assert ref_pose is not None and self._ref_depth is not None and self._ref_normal is not None
             # the G-buffer at the reference pose and this time: the one just drawn when the eye has not moved since
             # the reference frame (the same render, so the same bytes; a still camera draws one view fewer)
-            gr = g0 if same_pose(ref_pose, pose) else self._gbuffer(ctx, ref_pose, intr, times)
+            if gr is None:
+                gr = g0 if same_pose(ref_pose, pose) else self._gbuffer(ctx, ref_pose, intr, times)
             t1 = time.perf_counter()
             a, b = self._ref_depth, gr.depth
             fin_a, fin_b = np.isfinite(a), np.isfinite(b)
