@@ -41,7 +41,7 @@ from bench_tss_matched import BLOCK4, CAMERAS, HALF, SCENES  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "bench_tss_rd.json"
 CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
-    "defaults": ({}, (19.0, 23.0)),
+    "defaults": ({}, (23.0,)),
     "matched block4": (BLOCK4, (23.0, 31.0, 39.0)),
     "half block4": ({**HALF, "codec_block": 4}, (23.0, 31.0)),
 }
@@ -105,8 +105,14 @@ def main() -> None:
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--cameras", default="still,orbit cloud")
     ap.add_argument("--configs", default=",".join(CONFIGS))
+    ap.add_argument("--crfs", default="", help="comma-separated crfs replacing every config's ladder")
+    ap.add_argument("--before-crfs", default="", help="comma-separated crfs of the --before runs (default: the ladder)")
+    ap.add_argument("--reuse", default="", help="a file of rows this benchmark printed (one JSON a line): runs found "
+                                                 "there (scene, camera, tree, config, crf) are taken, not run again")
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args()
+    crfs_all = tuple(float(c) for c in a.crfs.split(",") if c)
+    crfs_before = tuple(float(c) for c in a.before_crfs.split(",") if c)
     trees = {"after": Path(a.after).resolve() if a.after else ROOT}
     if a.before:
         trees["before"] = Path(a.before).resolve()
@@ -126,12 +132,17 @@ def main() -> None:
                 for tree in trees:
                     if tree == "before" and name not in bconf:
                         continue
-                    for crf in crfs:
+                    for crf in (crfs_before if tree == "before" and crfs_before else crfs_all or crfs):
                         jobs.append({"cell": (scene, camera), "tree": tree, "config": name, "crf": crf,
                                      "arg": {**base, "method": "tss", "params": {**params, "crf": crf}}})
     t0 = time.perf_counter()
+    key = (lambda r: (r["scene"], r["camera"], r["tree"], r["config"], float(r["crf"])))
+    reused = {key(r): r for r in (json.loads(x) for x in Path(a.reuse).read_text().splitlines() if x.startswith("{"))} if a.reuse else {}
 
     def one(j: dict[str, Any]) -> dict[str, Any]:
+        old = reused.get((j["cell"][0], j["cell"][1], j["tree"], j["config"], float(j["crf"])))
+        if old is not None:
+            return {**old, "reused": True}
         r = run_in_tree(trees[j["tree"]], CHILD, j["arg"], f"{j['cell']} {j['config']} crf {j['crf']}")
         row = {"scene": j["cell"][0], "camera": j["cell"][1], "tree": j["tree"], "config": j["config"], "crf": j["crf"],
                **{k: v for k, v in r.items() if k != "wall_s"}, "wall_s": round(r["wall_s"], 1)}
@@ -150,6 +161,13 @@ def main() -> None:
                 ladder = sorted((r for r in cell if r["tree"] == tree and r["config"] == name), key=lambda r: r["crf"])
                 if ladder:
                     out[f"{name} | {tree}"] = at_sas(ladder, sas)
+        dflt = [r for r in cell if r["tree"] == "after" and r["config"] == "defaults" and r["crf"] == 23.0]
+        mb4 = [r for r in cell if r["tree"] == "after" and r["config"] == "matched block4"]
+        if dflt and len(mb4) > 1:   # the default question: matched block4 at the defaults' bits
+            db = interp([(math.log(r["steady_kbps"]), r["model_db"]) for r in mb4], math.log(dflt[0]["steady_kbps"]))
+            out["matched block4 at the defaults' bits"] = {
+                "db_minus_defaults": None if db is None else round(db - dflt[0]["model_db"], 2),
+                "defaults_bits_over_sas": round(dflt[0]["steady_kbps"] / sas["steady_kbps"], 3)}
         summary[f"{scene} | {camera}"] = out
     data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     data.setdefault("setting", "320x180, 1 s, server 30 Hz, client 60 Hz; still = static/ideal, orbit cloud = orbit/cloud; "
@@ -161,7 +179,7 @@ def main() -> None:
     RESULTS.write_text(json.dumps(data, indent=1) + "\n")
     for k, v in summary.items():
         for n, s in v.items():
-            if n != "sas":
+            if n != "sas" and "ladder" in s:
                 print(f"{k:40s} {n:28s} at sas bits {s['db_minus_sas_at_sas_bits']} dB; within 1 dB at "
                       f"{s['bits_over_sas_within_1db']}x; lowest {s['lowest_rate']}")
 

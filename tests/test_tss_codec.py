@@ -103,3 +103,33 @@ def test_codec_block_cuts_the_codecs_error_and_bits_on_the_duck(shared_run) -> N
     d1, p1, b1 = still(1)
     d4, p4, b4 = still(4)
     assert d4 <= 0.8 * d1 and p4 >= p1 + 1.2 and b4 <= 0.76 * b1, (d1, p1, b1, d4, p4, b4)
+
+
+def test_a_still_views_periodic_iframes_send_no_table_rows(renderer) -> None:  # type: ignore[no-untyped-def]
+    """The tris stream is reliable, so an I-frame whose repack keeps every cell (a still view: an empty atlas is
+    packed in the repack's (class, id) order) sends a delta with no rows; the first frame and a keyframe request
+    send the full table.  The client's table is the server's plan every frame.  Measured (the duck still at
+    ``TSS_MATCHED`` + ``codec_block`` 4, 320x180, 1 s): frame 30's table 4995 -> 113 bytes, 1772 -> 1730 kbit/s."""
+    import dataclasses
+
+    from splitrender.methods import DecodedUpdate
+    from splitrender.methods.tss.wire import decode_table
+    from test_tss import _client, _server_frame
+
+    srv, ctx, spec, cfg, scene, pose = _server_frame(renderer, params={"gop": 2, "codec_block": 4})
+    cli = _client(renderer, srv, spec, cfg)
+    s = srv.session_data()
+    for k in range(5):
+        c = dataclasses.replace(ctx, frame_id=k, keyframe_requested=(k == 4))
+        u = srv.produce(c)
+        st = srv.stats()
+        assert st["iframe"] == float(k in (0, 2, 4)), (k, st["iframe"])
+        rows, gone = decode_table(u.data["tris"], s["n_triangles"], tuple(s["atlas"]), s["strip"], s["os_grid"], s["block"])
+        if k in (0, 4):
+            assert gone is None and rows.ids.size == st["pvs_triangles"] > 1000, "a full table"
+        else:
+            assert gone is not None and gone.size == 0 and rows.ids.size == 0, (k, rows.ids.size)
+        cli.apply(DecodedUpdate(u.frame_id, u.t_s, u.pose, u.planes, u.meta, u.data))
+        order = np.argsort(srv.last_ids)
+        assert np.array_equal(cli.table.ids, srv.last_ids[order])
+        assert np.array_equal(cli.table.origin, srv.last_plan.origin[order])
