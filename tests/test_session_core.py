@@ -666,6 +666,31 @@ def test_the_live_frame_clock_is_the_core_s() -> None:
     assert core.order_tick(9, 30.0, 0.0).frame_id == 4
 
 
+def test_a_live_tick_orders_a_frame_only_when_the_session_can_take_it() -> None:
+    """``live_tick``, the two live front doors' frame tick (issue 47; each gated its ticks itself): missed ticks are
+    counted, no frame is ordered before the path is ready, on the RTP transport before the client's RTCP names its
+    address, or before a pose; a backlog skips the tick (counted); else the frame lands on the wall clock's tick of
+    the shared grid (epoch 100 s, 30 Hz: 100.5 s is tick 15)."""
+    from splitrender.scene.predict import make_predictor
+
+    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
+    page = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
+    assert page.live_tick(100_500.0, 30.0, 100.0, skipped=2) is None            # no pose yet
+    page.receive_pose(100.4, Pose())
+    assert page.live_tick(100_500.0, 30.0, 100.0, ready=False) is None          # the page has not connected
+    assert page.live_tick(100_500.0, 30.0, 100.0, backlog=True) is None
+    order = page.live_tick(100_500.0, 30.0, 100.0, skipped=1)
+    assert order is not None and (order.frame_id, order.tick, order.t_s) == (0, 15, 0.5)
+    assert (page.counters["frames_skipped_late"], page.counters["frames_skipped_backlog"]) == (3, 1)
+    rtp = ServerSession(ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)],
+                                       rng=np.random.default_rng(1)), 60.0, predictor=make_predictor("cv"))
+    rtp.receive_pose(0.0, Pose())
+    assert rtp.live_tick(1000.0, 30.0, 0.0) is None and rtp.peer is None   # no RTCP from the client yet
+    rtp.receive_datagram(serialize_rtcp([ReceiverReport(1234, ())]), 1000.0, ("10.0.0.1", 5000))
+    order = rtp.live_tick(1000.0, 30.0, 0.0)
+    assert order is not None and order.tick == 30
+
+
 def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     """Both client drivers (virtual time, live) ask the core: a tick is blank before any update shows or while the
     half has no content; a broken video stream's non-keyframe is skipped and counted lost, a keyframe decoded."""
@@ -853,6 +878,31 @@ def test_until_an_update_shows_the_updates_that_show_nothing_wait_for_one_that_d
     p.to_client(ctrl, [], 555.0)
     p.timer(1060.0)
     assert [f.update.frame_id for f in p.client.display(1061.0)] == [2]   # shown before: it comes at its turn
+
+
+def test_a_display_tick_waits_for_the_server_clock_then_shows_black_until_an_update_shows() -> None:
+    """``display_tick``, the display rule of every client driver (issue 47: the live client kept its own list of the
+    ticks before the first frame): a live client's ticks are held while the server's scene clock is unknown and come
+    out blank, in order, with the first tick after a FrameMeta; a tick with nothing shown and nothing to apply is
+    blank; the ticks still held at the end come from ``held_ticks``.  Virtual time (``hold`` false) holds none."""
+    p = Pair(jitter_timeout_ms=50.0, nack_max_tries=0)
+    assert p.client.display_tick("a", 0.0) == ([], None) and p.client.display_tick("b", 16.0) == ([], None)
+    assert p.client.display_tick("v", 16.0, hold=False) == (["a", "b", "v"], None)   # (held ones go with it)
+    assert p.client.display_tick("c", 20.0) == ([], None)
+    ctrl, _ = p.frame(0, 20.0)
+    p.to_client(ctrl, [], 25.0)                      # frame 0's FrameMeta (the server's clock), none of its packets
+    assert p.client.scene_epoch_ms is not None
+    assert p.client.display_tick("d", 30.0) == (["c", "d"], None)
+    p.timer(510.0)                                   # frame 0 given up, released with nothing: still black
+    assert p.client.display_tick("e", 511.0) == (["e"], None)
+    p.server.request_keyframe(515.0)
+    ctrl, dgrams = p.frame(1, 520.0)
+    p.to_client(ctrl, dgrams, 525.0)
+    blanks, new = p.client.display_tick("f", 530.0)
+    assert blanks == [] and new is not None and [f.update.frame_id for f in new] == [0, 1]
+    q = Pair()
+    q.client.display_tick("x", 0.0)
+    assert q.client.held_ticks() == ["x"] and q.client.held_ticks() == []
 
 
 def test_a_feedback_row_has_the_fixed_columns() -> None:

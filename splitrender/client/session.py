@@ -511,7 +511,6 @@ class LiveClient:
         n = int(cfg.duration_s * cfg.display_hz)
         core = self.core
         assert core is not None
-        before_content: list[tuple[int, float, ScenePose]] = []
         saves: list[asyncio.Future[None]] = []
         for tick in range(n):
             delay = start + tick * interval - loop.time()
@@ -521,19 +520,14 @@ class LiveClient:
                 self._counters["late_ticks"] += 1
                 continue  # more than a tick late: skip it rather than bunch renders up
             w = time.time()
-            if core.scene_epoch_ms is None:
-                # nothing from the server yet (no update either): the ticks wait for its clock (the first FrameMeta)
-                before_content.append((tick, w, self._trace_pose(w)))
-                continue
-            for b_tick, b_wall, b_pose in before_content:      # recorded now that the server clock is known
+            # the core's rule: ticks wait for the server's clock (the first FrameMeta), then show black until an
+            # update shows; with a playout delay, only the updates whose turn has come are applied
+            blanks, new = core.display_tick((tick, w, self._trace_pose(w)), _now_ms())
+            for b_tick, b_wall, b_pose in blanks:
                 self._record_blank(b_tick, b_wall, b_pose, saves)
-            before_content.clear()
-            new = core.display(_now_ms())   # with a playout delay, only the updates whose turn has come
-            if core.shown is None and not new:   # nothing to show yet (the core holds back what shows nothing): black
-                self._record_blank(tick, w, self._trace_pose(w), saves)
-                continue
-            await self._show(new, tick, saves)
-        for b_tick, b_wall, b_pose in before_content:   # the server never sent a frame: the ticks, without a scene time
+            if new is not None:
+                await self._show(new, tick, saves)
+        for b_tick, b_wall, b_pose in core.held_ticks():   # the server never sent a frame: without a scene time
             self._record_blank(b_tick, b_wall, b_pose, None)
         await asyncio.gather(*saves)
         raise _RunDone()

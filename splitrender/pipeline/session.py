@@ -47,7 +47,7 @@ import logging
 import math
 import secrets
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Callable, NamedTuple
 
@@ -73,7 +73,7 @@ from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer, ReceiverEstimate
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
-from .rows import mean_of, session_summary
+from .rows import mean_of, session_summary, update_row
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_from_table
@@ -485,6 +485,8 @@ class ClientSession:
         self._last_timer_ms = -math.inf
         self._ready: deque[_Ready] = deque()
         self._pending_apply: list[ReceivedFrame] = []
+        self._held_ticks: list[Any] = []
+        """Display ticks held until the server's scene clock is known (:meth:`display_tick`)."""
         self.shown: ReceivedFrame | None = None
         """The update on screen (the newest applied one that showed anything)."""
         self._fed_back = -1
@@ -854,6 +856,28 @@ class ClientSession:
             return []
         return new
 
+    def display_tick(self, tick: Any, now_ms: float, hold: bool = True) -> tuple[list[Any], list[ReceivedFrame] | None]:
+        """Display tick ``tick`` (the driver's token for it) at ``now_ms``, by the rule of every client driver: the
+        ticks now known to show the black background (blank: their rows name no update, nothing is applied or
+        rendered for them), in order, and the updates to apply at this one (:meth:`display`), or None when it is one
+        of those or held.  With ``hold`` (a live client, whose rows carry the scene time) ticks are held while the
+        server's scene clock is unknown (no FrameMeta yet, and so no update either) and come out blank with the first
+        tick after it is (or from :meth:`held_ticks`).  A tick with no update shown and none to apply is blank; after
+        applying, :meth:`blank` says whether a tick shows anything."""
+        if hold and self.scene_epoch_ms is None:
+            self._held_ticks.append(tick)
+            return [], None
+        blanks, self._held_ticks = self._held_ticks, []
+        new = self.display(now_ms)
+        if self.shown is None and not new:
+            return [*blanks, tick], None
+        return blanks, new
+
+    def held_ticks(self) -> list[Any]:
+        """The ticks still held (:meth:`display_tick`) when the session ends: the server's clock never came."""
+        held, self._held_ticks = self._held_ticks, []
+        return held
+
     def applied(self, rf: ReceivedFrame) -> None:
         """The client half applied ``rf`` (it rejected none of it): it becomes the shown update if it
         shows anything."""
@@ -1153,7 +1177,7 @@ class ServerSession:
             "rtp_packets": 0, "rtp_bytes": 0, "fec_packets": 0, "fec_bytes": 0, "feedback": 0, "lost_reported": 0,
             "rtcp_received": 0, "rtcp_sent": 0, "rtcp_bytes_sent": 0, "retransmitted_bytes": 0, "twcc_feedback": 0,
             "twcc_unknown": 0, "twcc_stamped": 0, "nack_duplicates": 0, "nack_datagram_capped": 0, "nack_rate_limited": 0,
-            "rtcp_foreign": 0,
+            "rtcp_foreign": 0, "frames_skipped_late": 0, "frames_skipped_backlog": 0,
         }
 
     def owns_ssrc(self, ssrc: int) -> bool:
@@ -1501,6 +1525,28 @@ class ServerSession:
         tick = max(tick, self._last_tick + 1)
         self._last_tick = tick
         return self.order_frame(self.counters["frames_sent"], tick, tick / fps, now_ms, epoch_s)
+
+    def live_tick(self, now_ms: float, fps: float, epoch_s: float, skipped: int = 0, ready: bool = True,
+                  backlog: bool = False) -> FrameOrder | None:
+        """One tick of a live front door's frame clock at driver time ``now_ms`` (the wall clock, whose ``epoch_s`` is
+        scene time 0 of the shared grid at ``fps``), after ``skipped`` ticks it missed (rendering overran: counted in
+        ``frames_skipped_late``).  No frame is ordered before the path is ``ready`` (the driver's: the page connected),
+        on the RTP transport before the client's address is known (:attr:`peer`), or before a pose; nor while the last
+        frames have not left (``backlog``: counted in ``frames_skipped_backlog``; stale frames are dropped, not queued).
+        Else :meth:`order_tick` on the grid's tick at ``now_ms``."""
+        self.counters["frames_skipped_late"] += skipped
+        if not ready or (self.transport == "rtp" and self.peer is None) or self.poses.latest is None:
+            return None
+        if backlog:
+            self.counters["frames_skipped_backlog"] += 1
+            return None
+        return self.order_tick(int(round((now_ms / 1000 - epoch_s) * fps)), fps, now_ms, epoch_s)
+
+    def update_row(self, order: FrameOrder, out: OutgoingFrame, enc: EncodedUpdate, stages: dict[str, float],
+                   streams: Iterable[str]) -> dict[str, Any]:
+        """The row of frame ``order`` that every front door writes (:func:`~.rows.update_row`: ``out`` on the wire,
+        the stages of making ``enc``, the wire bytes of ``streams``), with the estimator's state now."""
+        return update_row(order.frame_id, order.t_s, out, enc, order, stages, streams, self.congestion())
 
     def order_frame(self, frame_id: int, tick: int, t_s: float, now_ms: float, epoch_s: float = 0.0,
                     client: int = 0) -> FrameOrder | None:

@@ -41,7 +41,8 @@ from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerD
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
 from splitrender.pipeline.recording import SessionLogs
-from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row, update_row
+from splitrender.pipeline.frames import FrameOrder
+from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
 from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -86,7 +87,6 @@ class LiveServer(Protocol):
     def unregister(self, session: Any) -> None: ...
     def send_datagram(self, data: bytes, addr: Address) -> None: ...
     def ssrc_taken(self, ssrc: int) -> bool: ...
-    def tick_of(self, wall_s: float) -> int: ...
     def frame_ticks(self) -> AsyncIterator[int]: ...
 
 __all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
@@ -139,8 +139,7 @@ class ServerSession:
         self._logs = SessionLogs(None if self.cfg.out_dir is None else self.cfg.out_dir / self.id)
         self._timer_wake = asyncio.Event()
         self._counters: dict[str, int] = {
-            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "meta_bytes": 0, "data_bytes": 0,
-            "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
+            "meta_bytes": 0, "data_bytes": 0, "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
         }
         self.client_error: tuple[int, str] | None = None
         """The client's ``Error`` (code, reason) when it left with one."""
@@ -349,17 +348,16 @@ class ServerSession:
     async def _frame_loop(self) -> None:
         loop = asyncio.get_running_loop()
         next_metrics = loop.time() + self.cfg.metrics_interval_s
+        assert self.core is not None
         async for skipped in self.server.frame_ticks():
-            self._counters["frames_skipped_late"] += skipped
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
                 self.log_metrics()
-            if self.client_addr is None or self.core is None or self.core.poses.latest is None:
-                continue  # no UDP path or no pose yet: nothing useful to send
-            if self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes:
-                self._counters["frames_skipped_backlog"] += 1
-                continue
-            await self._send_frame()
+            wall = time.time()   # the core's frame clock: no frame before the client's address and a pose, none
+            order = self.core.live_tick(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s, skipped,
+                                        backlog=self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes)
+            if order is not None:     # while the last frame's metadata waits in the TCP send buffer
+                await self._send_frame(order, wall)
 
     def log_metrics(self) -> None:
         """One ``metrics`` log line: this session's counters and the datagrams the server dropped."""
@@ -367,14 +365,9 @@ class ServerSession:
                     " ".join(f"{k}={v}" for k, v in self.counters.items()), self.server.udp_dropped,
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
-    async def _send_frame(self) -> None:
-        server, tx, core = self.server, self.tx, self.core
+    async def _send_frame(self, order: FrameOrder, wall: float) -> None:
+        tx, core = self.tx, self.core
         assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
-        wall = time.time()
-        order = core.order_tick(server.tick_of(wall), self.cfg.server_fps, wall * 1000, server.epoch_wall_s)
-        if order is None:          # the operating point sends one tick in frame_div
-            return
-        fid, scene_t = order.frame_id, order.t_s   # the shared grid's scene time
         t_us = int(wall * 1e6)
         # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)
@@ -397,8 +390,7 @@ class ServerSession:
         # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
         # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
         # latency), and packetizing and sending here
-        row = {**update_row(fid, scene_t, out, enc, order, stages, tx.bytes_sent, core.congestion()),
-               "server_us": t_us, "gi_ms": stages["gi_ms"], "worker_rtt_ms": stages["worker_rtt_ms"],
+        row = {**core.update_row(order, out, enc, stages, tx.bytes_sent), "server_us": t_us, "gi_ms": stages["gi_ms"], "worker_rtt_ms": stages["worker_rtt_ms"],
                "send_ms": (c2 - c1) * 1e3}
         self.update_rows.append(row)
         self._log("updates", row)

@@ -63,7 +63,7 @@ from .. import metrics
 from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import ClientFrame, get_method, make_config
 from ..netsim import Link, parse_path
-from ..pipeline.rows import frame_row, frames_summary, mean_of, update_row, updates_summary
+from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
                         check_hello, make_frame, session_summary, tcp_segments)
@@ -370,8 +370,7 @@ class VirtualTimeRun:
             c.pred[f] = (pred_cm, pred_deg)
             # the tick's shared work is the pool's (a run's sessions share one producer), not this session's share
             shared = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
-            row = {"client": c.index, **update_row(f, t_f, out, enc, order, {**stages, "shared_ms": shared}, c.bytes,
-                                                   c.core_s.congestion()),
+            row = {"client": c.index, **c.core_s.update_row(order, out, enc, {**stages, "shared_ms": shared}, c.bytes),
                    "delivered": "", "missing": "", "cost_ms": cost_ms, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
                    "arrival_s": math.nan}
             row.update({f"srv_{k}": v for k, v in stats.items()})
@@ -577,7 +576,7 @@ class VirtualTimeRun:
         """The updates whose turn has come, applied to the client half in order and reported to the core; returns
         the milliseconds applying took and the last one's measured decode time."""
         assert c.core is not None
-        new = c.core.display(now_ms)
+        new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
         decode_ms = math.nan
         for rf in new:
             decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)

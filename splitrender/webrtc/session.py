@@ -37,7 +37,7 @@ from ..errors import describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import ServerPipeline, rtp_timestamp
 from ..pipeline.recording import SessionLogs
-from ..pipeline.rows import update_row
+from ..pipeline.frames import FrameOrder
 from ..pipeline.session import ServerSession
 from ..scene.pose import CameraIntrinsics
 from ..scene.predict import make_predictor
@@ -99,12 +99,12 @@ class BrowserSession:
         self._sender_sent: tuple[int, int] | None = None
         """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
-            "frames_skipped_backlog": 0, "frames_skipped_late": 0, "nacks_received": 0, "nacked_packets": 0,
+            "nacks_received": 0, "nacked_packets": 0,
             "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0,
             "images_received": 0, "image_bytes_received": 0,
         }
-        """What this front door alone counts; the core counts frames, keyframes, poses, feedback, PLIs and REMB
-        estimates (:meth:`server_counters` has both)."""
+        """What this front door alone counts; the core counts frames (those skipped too), keyframes, poses, feedback,
+        PLIs and REMB estimates (:meth:`server_counters` has both)."""
 
     @property
     def out_dir(self) -> Path | None:
@@ -317,30 +317,27 @@ class BrowserSession:
         return out
 
     async def _frame_loop(self) -> None:
+        core, track = self.core, self.track
+        assert core is not None and track is not None
         async for skipped in self.server.frame_ticks():
-            self.counters["frames_skipped_late"] += skipped
-            if (self.core is None or self.core.poses.latest is None or self.pc.connectionState != "connected"
-                    or "frame" not in self.channels or self.channels["frame"].readyState != "open"):
-                if not self.frames_sent and time.time() - self.started_at > CONNECT_TIMEOUT_S:
-                    raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
-                                       f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
-                continue
-            assert self.track is not None
-            if self.track.queued >= 2:      # the sender has not taken the last frames yet: do not pile up
-                self.counters["frames_skipped_backlog"] += 1
-                continue
-            await self._send_frame()
+            wall = time.time()
+            ready = (self.pc.connectionState == "connected" and "frame" in self.channels
+                     and self.channels["frame"].readyState == "open")
+            if not self.frames_sent and wall - self.started_at > CONNECT_TIMEOUT_S and \
+                    not (ready and core.poses.latest is not None):
+                raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
+                                   f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
+            # the core's frame clock; the backlog: the sender has not taken the last frames yet (do not pile up)
+            order = core.live_tick(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s, skipped, ready,
+                                   backlog=track.queued >= 2)
+            if order is not None:
+                await self._send_frame(order, wall)
 
-    async def _send_frame(self) -> None:
-        server, cfg, core = self.server, self.cfg, self.core
+    async def _send_frame(self, order: FrameOrder, wall: float) -> None:
+        core = self.core
         assert core is not None and self.track is not None
-        wall = time.time()
-        now_ms = wall * 1000
-        order = core.order_tick(server.tick_of(wall), cfg.server_fps, now_ms, server.epoch_wall_s)
-        if order is None:
-            return
-        fid, scene_t = order.frame_id, order.t_s
-        enc, _stats, stages = await self.worker.frame(self.id, order, cfg.render_deadline_s, self.counters)
+        now_ms, fid, scene_t = wall * 1000, order.frame_id, order.t_s
+        enc, _stats, stages = await self.worker.frame(self.id, order, self.cfg.render_deadline_s, self.counters)
         if self.ended.is_set():
             return
         frame = enc.video[self.stream]
@@ -361,7 +358,7 @@ class BrowserSession:
         sent = core.frame_encoded(order, enc, now_ms, t_us)
         self.counters["video_bytes"] += len(frame.data)
         self.counters["frame_meta_bytes"] += n_meta
-        row = {**update_row(fid, scene_t, sent, enc, order, stages, (self.stream,), core.congestion()), "server_us": t_us,
+        row = {**core.update_row(order, sent, enc, stages, (self.stream,)), "server_us": t_us,
                "bytes_frame_meta": n_meta, "worker_rtt_ms": stages["worker_rtt_ms"]}
         self._logs.append("updates", row)
 
