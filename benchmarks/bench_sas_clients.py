@@ -224,6 +224,9 @@ def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[
         for key, make, n in runs:
             rec.reset()
             vt = make()
+            # each run relights its own GI probes: runs on one renderer would otherwise reuse the states an earlier
+            # run relit at the same times, and a client alone would skip the relight the clients share together
+            r.probe_states().enabled = False
             w0, c0 = time.perf_counter(), time.process_time()
             vt.run()
             row = rec.per_frame(n)
