@@ -638,6 +638,23 @@ def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
         ServerSession(tx, 60.0, transport="quic")
 
 
+def test_a_page_takes_one_video_stream_on_the_webrtc_profile() -> None:
+    """``accept_page``, the browser front door's side of the handshake in the core (issue 47: the front door built
+    its core and refused streams itself): one video stream gives a core on the WebRTC transport with aiortc's pacing,
+    anything else is refused with the streams named."""
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.pipeline import accept_page
+    from splitrender.scene.predict import make_predictor
+
+    video = StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)
+    core = accept_page("video", [video], 60.0, ServerOptions(pacing=True), make_predictor("cv"))
+    assert core.transport == "webrtc" and not core.options.pacing and core.streams == {} and core.display_hz == 60.0
+    depth = StreamSpec("depth", VideoCodecConfig("h264", gop=300), W, H)
+    with pytest.raises(RemoteProtocolError, match=r"method warp: streams \['color', 'depth'\] cannot go to a page "
+                                                  r"\(it takes one video stream\)"):
+        accept_page("warp", [video, depth], 60.0, ServerOptions(), make_predictor("cv"))
+
+
 def test_the_live_frame_clock_is_the_core_s() -> None:
     """``order_tick``, the two live front doors' frame clock (issue 47; each kept a frame id and a last tick): a frame
     is numbered by the frames sent before it, lands on the wall clock's tick of the shared grid, or on the next one

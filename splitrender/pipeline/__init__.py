@@ -18,7 +18,8 @@ from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from ..options import ClientOptions
 from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientSession, ControlClosed, PoseInbox, Resumed, ServerMessage,
                       ServerOptions, ServerSession, SessionEvent,
-                      SessionTerms, Stalled, StallTimeout, accept_hello, apply_updates, check_hello, parse_welcome, session_params,
+                      SessionTerms, Stalled, StallTimeout, accept_hello, accept_page, apply_updates, check_hello, parse_welcome,
+                      session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
@@ -26,7 +27,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
 
 __all__ = [
     "ClientHandshake", "ClientOptions", "ClientSession", "ControlClosed", "PoseInbox", "ServerMessage", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
-    "Accepted", "accept_hello", "apply_updates", "CLIENT_CODECS",
+    "Accepted", "accept_hello", "accept_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "FrameOrder", "make_frame", "StreamEncoder",

@@ -1007,6 +1007,17 @@ def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs:
     return Accepted(core, welcome, frames)
 
 
+def accept_page(method: str, specs: list[Any], display_hz: float, options: ServerOptions, predictor: Any) -> ServerSession:
+    """The server's side of a browser session (its WebRTC profile): ``method``'s server half declared ``specs``, which
+    a page takes only as one video stream (else a ``RemoteProtocolError`` naming them); the core, on the ``"webrtc"``
+    transport (the WebRTC stack packetizes and paces: ``options.pacing`` is left off)."""
+    if len(specs) != 1 or not isinstance(specs[0], StreamSpec):
+        raise RemoteProtocolError(f"method {method}: streams {[s.name for s in specs]} cannot go to a page (it takes "
+                                  "one video stream)", ErrorCode.UNSUPPORTED_METHOD)
+    return ServerSession(ServerPipeline(specs), display_hz, dataclasses.replace(options, pacing=False),
+                         predictor=predictor, transport="webrtc")
+
+
 class Datagram(NamedTuple):
     """A datagram the server core lets go (:meth:`ServerSession.datagrams_to_send`): its bytes, its ``kind``
     (``"rtp"`` media of ``stream``, ``"fec"``, ``"resend"``, ``"probe"``: the media path; ``"rtcp"``: a sender

@@ -41,7 +41,7 @@ from typing import Any
 
 from aiohttp import web
 
-from ..errors import ConfigError, NetworkConfigError, describe_error
+from ..errors import ConfigError, NetworkConfigError, RemoteProtocolError, describe_error
 from ..pipeline.recording import ClientRecording, manifest, save_image
 from ..scene.trace import BUILTIN_TRACES, get_trace
 from ..transport.errors import BindError, describe_os_error
@@ -299,7 +299,7 @@ class WebRtcFrontDoor:
         self.sessions[session.id] = session
         try:
             answer = await session.open()
-        except PageMessageError as exc:
+        except RemoteProtocolError as exc:     # the page's request or offer (PageMessageError) or its method's streams
             await session.close()
             return _bad(str(exc))
         except Exception as exc:  # noqa: BLE001 - a failed set-up ends this session only

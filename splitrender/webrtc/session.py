@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import json
 import logging
 import secrets
@@ -35,10 +34,10 @@ from aiortc import RTCConfiguration, RTCPeerConnection
 
 from ..errors import describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
-from ..pipeline.sender import ServerPipeline, rtp_timestamp
+from ..pipeline.sender import rtp_timestamp
 from ..pipeline.recording import SessionLogs
 from ..pipeline.frames import FrameOrder
-from ..pipeline.session import ServerSession
+from ..pipeline.session import ServerSession, accept_page
 from ..scene.pose import CameraIntrinsics
 from ..scene.predict import make_predictor
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, frame_message, parse_channel_message
@@ -122,16 +121,10 @@ class BrowserSession:
         self.worker = await self.server.acquire_worker()
         specs, session_blob, _sets = await self.worker.call("open", self.id, self.method, mcfg, self.intrinsics, -1,
                                                             deadline_s=cfg.setup_deadline_s)
-        video = [s for s in specs if isinstance(s, StreamSpec)]
-        if len(specs) != 1 or len(video) != 1:
-            raise PageMessageError(f"method {self.method}: streams {[s.name for s in specs]} cannot go to a page "
-                                   "(it takes one video stream)")
-        ref = video[0]
+        # aiortc owns packetizing and pacing; adaptation follows the page's REMB (track.hook_sender_rtcp)
+        self.core = accept_page(self.method, specs, self.display_hz, cfg.session_options(), make_predictor(cfg.predictor))
+        ref = specs[0]
         self.stream = ref.name
-        self.core = ServerSession(ServerPipeline(specs), self.display_hz,
-                                  # aiortc owns pacing; adaptation follows the page's REMB (track.hook_sender_rtcp)
-                                  dataclasses.replace(cfg.session_options(), pacing=False),
-                                  predictor=make_predictor(cfg.predictor), transport="webrtc")
         self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
                        "stream_height": ref.height}
