@@ -684,28 +684,27 @@ def test_the_live_frame_clock_is_the_core_s() -> None:
 
 
 def test_a_live_tick_orders_a_frame_only_when_the_session_can_take_it() -> None:
-    """``live_tick``, the two live front doors' frame tick (issue 47; each gated its ticks itself): missed ticks are
-    counted, no frame is ordered before the path is ready, on the RTP transport before the client's RTCP names its
-    address, or before a pose; a backlog skips the tick (counted); else the frame lands on the wall clock's tick of
-    the shared grid (epoch 100 s, 30 Hz: 100.5 s is tick 15)."""
+    """``live_tick``, the two live front doors' gate on their frame clock (issue 47; each gated its ticks itself):
+    missed ticks are counted, no frame is made before the path is ready, on the RTP transport before the client's
+    RTCP names its address, or before a pose; a backlog skips the tick (counted).  ``order_at`` orders the frame on
+    the wall clock's tick of the shared grid (epoch 100 s, 30 Hz: 100.5 s is tick 15)."""
     from splitrender.scene.predict import make_predictor
 
     tx = ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], rng=np.random.default_rng(1))
     page = ServerSession(tx, 60.0, predictor=make_predictor("cv"), transport="webrtc")
-    assert page.live_tick(100_500.0, 30.0, 100.0, skipped=2) is None            # no pose yet
+    assert not page.live_tick(skipped=2)                              # no pose yet
     page.receive_pose(100.4, Pose())
-    assert page.live_tick(100_500.0, 30.0, 100.0, ready=False) is None          # the page has not connected
-    assert page.live_tick(100_500.0, 30.0, 100.0, backlog=True) is None
-    order = page.live_tick(100_500.0, 30.0, 100.0, skipped=1)
-    assert order is not None and (order.frame_id, order.tick, order.t_s) == (0, 15, 0.5)
+    assert not page.live_tick(ready=False) and not page.live_tick(backlog=True)   # not connected; a backlog
+    assert page.live_tick(skipped=1)
     assert (page.counters["frames_skipped_late"], page.counters["frames_skipped_backlog"]) == (3, 1)
+    order = page.order_at(100_500.0, 30.0, 100.0)
+    assert order is not None and (order.frame_id, order.tick, order.t_s) == (0, 15, 0.5)
     rtp = ServerSession(ServerPipeline([StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)],
                                        rng=np.random.default_rng(1)), 60.0, predictor=make_predictor("cv"))
     rtp.receive_pose(0.0, Pose())
-    assert rtp.live_tick(1000.0, 30.0, 0.0) is None and rtp.peer is None   # no RTCP from the client yet
+    assert not rtp.live_tick() and rtp.peer is None                   # no RTCP from the client yet
     rtp.receive_datagram(serialize_rtcp([ReceiverReport(1234, ())]), 1000.0, ("10.0.0.1", 5000))
-    order = rtp.live_tick(1000.0, 30.0, 0.0)
-    assert order is not None and order.tick == 30
+    assert rtp.live_tick() and rtp.order_at(1000.0, 30.0, 0.0).tick == 30
 
 
 def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:

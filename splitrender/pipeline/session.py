@@ -1537,20 +1537,22 @@ class ServerSession:
         self._last_tick = tick
         return self.order_frame(self.counters["frames_sent"], tick, tick / fps, now_ms, epoch_s)
 
-    def live_tick(self, now_ms: float, fps: float, epoch_s: float, skipped: int = 0, ready: bool = True,
-                  backlog: bool = False) -> FrameOrder | None:
-        """One tick of a live front door's frame clock at driver time ``now_ms`` (the wall clock, whose ``epoch_s`` is
-        scene time 0 of the shared grid at ``fps``), after ``skipped`` ticks it missed (rendering overran: counted in
-        ``frames_skipped_late``).  No frame is ordered before the path is ``ready`` (the driver's: the page connected),
-        on the RTP transport before the client's address is known (:attr:`peer`), or before a pose; nor while the last
-        frames have not left (``backlog``: counted in ``frames_skipped_backlog``; stale frames are dropped, not queued).
-        Else :meth:`order_tick` on the grid's tick at ``now_ms``."""
+    def live_tick(self, skipped: int = 0, ready: bool = True, backlog: bool = False) -> bool:
+        """Whether a tick of a live front door's frame clock, after ``skipped`` ticks it missed (rendering overran:
+        counted in ``frames_skipped_late``), may make a frame (:meth:`order_at`).  None is made before the path is
+        ``ready`` (the driver's: the page connected), on the RTP transport before the client's address is known
+        (:attr:`peer`), or before a pose; nor while the last frames have not left (``backlog``: counted in
+        ``frames_skipped_backlog``; stale frames are dropped, not queued)."""
         self.counters["frames_skipped_late"] += skipped
         if not ready or (self.transport == "rtp" and self.peer is None) or self.poses.latest is None:
-            return None
+            return False
         if backlog:
             self.counters["frames_skipped_backlog"] += 1
-            return None
+        return not backlog
+
+    def order_at(self, now_ms: float, fps: float, epoch_s: float) -> FrameOrder | None:
+        """:meth:`order_tick` on the tick of the shared grid at ``fps`` at driver time ``now_ms`` (the wall clock,
+        whose ``epoch_s`` is the grid's scene time 0)."""
         return self.order_tick(int(round((now_ms / 1000 - epoch_s) * fps)), fps, now_ms, epoch_s)
 
     def update_row(self, order: FrameOrder, out: OutgoingFrame, enc: EncodedUpdate, stages: dict[str, float],

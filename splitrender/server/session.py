@@ -41,7 +41,6 @@ from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerD
                                 describe_error)
 from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
 from splitrender.pipeline.recording import SessionLogs
-from splitrender.pipeline.frames import FrameOrder
 from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
 from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello
 from splitrender.server.worker import RenderWorker
@@ -353,11 +352,10 @@ class ServerSession:
             if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
                 next_metrics = loop.time() + self.cfg.metrics_interval_s
                 self.log_metrics()
-            wall = time.time()   # the core's frame clock: no frame before the client's address and a pose, none
-            order = self.core.live_tick(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s, skipped,
-                                        backlog=self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes)
-            if order is not None:     # while the last frame's metadata waits in the TCP send buffer
-                await self._send_frame(order, wall)
+            # the core's rule: no frame before the client's address and a pose, none while the last frame's
+            # metadata waits in the TCP send buffer
+            if self.core.live_tick(skipped, backlog=self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes):
+                await self._send_frame()
 
     def log_metrics(self) -> None:
         """One ``metrics`` log line: this session's counters and the datagrams the server dropped."""
@@ -365,9 +363,13 @@ class ServerSession:
                     " ".join(f"{k}={v}" for k, v in self.counters.items()), self.server.udp_dropped,
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
-    async def _send_frame(self, order: FrameOrder, wall: float) -> None:
+    async def _send_frame(self) -> None:
         tx, core = self.tx, self.core
         assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
+        wall = time.time()
+        order = core.order_at(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s)
+        if order is None:          # the operating point sends one tick in frame_div
+            return
         t_us = int(wall * 1e6)
         # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)

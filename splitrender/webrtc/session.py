@@ -36,7 +36,6 @@ from ..errors import describe_error
 from ..methods.base import PageGlue, StreamSpec, get_method, make_config
 from ..pipeline.sender import rtp_timestamp
 from ..pipeline.recording import SessionLogs
-from ..pipeline.frames import FrameOrder
 from ..pipeline.session import ServerSession, accept_page
 from ..scene.pose import CameraIntrinsics
 from ..scene.predict import make_predictor
@@ -320,16 +319,19 @@ class BrowserSession:
                     not (ready and core.poses.latest is not None):
                 raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
                                    f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
-            # the core's frame clock; the backlog: the sender has not taken the last frames yet (do not pile up)
-            order = core.live_tick(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s, skipped, ready,
-                                   backlog=track.queued >= 2)
-            if order is not None:
-                await self._send_frame(order, wall)
+            # the core's rule; the backlog: the sender has not taken the last frames yet (do not pile up)
+            if core.live_tick(skipped, ready, backlog=track.queued >= 2):
+                await self._send_frame()
 
-    async def _send_frame(self, order: FrameOrder, wall: float) -> None:
+    async def _send_frame(self) -> None:
         core = self.core
         assert core is not None and self.track is not None
-        now_ms, fid, scene_t = wall * 1000, order.frame_id, order.t_s
+        wall = time.time()
+        now_ms = wall * 1000
+        order = core.order_at(now_ms, self.cfg.server_fps, self.server.epoch_wall_s)
+        if order is None:
+            return
+        fid, scene_t = order.frame_id, order.t_s
         enc, _stats, stages = await self.worker.frame(self.id, order, self.cfg.render_deadline_s, self.counters)
         if self.ended.is_set():
             return
