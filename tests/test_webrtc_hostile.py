@@ -365,7 +365,10 @@ def test_a_page_with_the_token_in_its_url_streams_and_one_without_is_refused():
         pytest.skip(str(browser_missing()))
     with ServerProcess(["--scene", "minimal", "--methods", "video", "--token", TOKEN]) as server, PageDriver() as d:
         res = d.session(server.url, "video", trace="turn", duration_s=3.0, record_every=0, token=TOKEN)
-        assert res["ok"] and res["stats"]["framesDecoded"] > 30, (res, list(d.console), list(server.log)[-20:])
+        # it streams: the page decodes what reached it (against what arrived, not a rate: 21-25 decoded in 3 s at
+        # load 26-30, where this asked for more than 30)
+        st = res["stats"] if res["ok"] else {}
+        assert res["ok"] and st["framesDecoded"] >= max(5, 0.9 * st["framesReceived"]), (res, list(d.console), list(server.log)[-20:])
         res = d.session(server.url, "video", trace="turn", duration_s=3.0, record_every=0, timeout_s=30)
         assert not res["ok"] and "/api/info: this server needs its token" in res["error"], res
         res = d.session(server.url, "video", trace="turn", duration_s=3.0, record_every=0, timeout_s=30, token="nope")
