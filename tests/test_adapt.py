@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from splitrender.errors import ConfigError
-from splitrender.pipeline.adapt import AdaptConfig, CappedCrf, RateController, retarget
+from splitrender.pipeline.adapt import DIP_FRAMES, AdaptConfig, CappedCrf, RateController, retarget
 
 
 def test_targets_follow_the_estimate_after_paying_for_what_is_not_controlled() -> None:
@@ -35,6 +35,19 @@ def test_a_burst_of_data_beyond_the_estimate_is_paid_once() -> None:
         rc.on_frame_sent({"color": 500, "meta": 300})
     assert rc.targets_kbps(2e6)["color"] == pytest.approx(0.9 * 2000 - 300 * 0.9 ** 9 - 72 * (1 - 0.9 ** 9), rel=1e-6)
     assert rc.overhead_bps > 4.5e6                      # 12 Mbit/s * 0.9^9 + 72 kbit/s * (1 - 0.9^9): 4.69 Mbit/s
+
+
+def test_a_calibrating_ceiling_is_held_through_a_blip_of_queue() -> None:
+    """A calibrating stream's ceiling that falls under ``urgent_ratio`` (0.7) of the one before (which restarts its
+    encoder at once with an I-frame, and its rise back another) is held just over that for DIP_FRAMES - 1 frames: a
+    0.1 s blip costs no I-frame; a fall that lasts passes on the fourth frame."""
+    rc = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0))
+    assert rc.targets_kbps(4e6)["color"] == pytest.approx(4000)
+    held = [rc.targets_kbps(2e6)["color"] for _ in range(DIP_FRAMES - 1)]
+    assert all(isinstance(v, CappedCrf) for v in held) and held == pytest.approx([1.001 * 0.7 * 4000] * 3)
+    assert rc.targets_kbps(4e6)["color"] == pytest.approx(4000)            # the blip is over: no restart at all
+    got = [rc.targets_kbps(2e6)["color"] for _ in range(DIP_FRAMES)]
+    assert got[-1] == pytest.approx(2000)                                  # a fall that lasts
 
 
 def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> None:
@@ -293,16 +306,18 @@ def _adapt_run(path, method: str):  # type: ignore[no-untyped-def]
 @pytest.mark.slow
 def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> None:  # type: ignore[no-untyped-def]
     """The same step (160x90, 5 s) for ``sas``, whose reliable geometry and metadata the controller pays for first
-    and whose atlas repacks bring frequent I-frames: the atlas falls from the 924 kbit/s it took at its own crf to
-    a 205 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 117 ms measured; at most 300
+    and whose atlas repacks bring frequent I-frames: the atlas falls from the 810 kbit/s it took at its own crf to
+    a 198 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 117 ms measured; at most 300
     ms in between)."""
     res = _adapt_run(step_trace_path, "sas")
     before = np.mean([u["bytes_atlas"] for u in res.updates if 0.5 <= u["t_s"] < 1.5]) * 8 * 30 / 1000   # kbit/s
     after = np.mean([u["adapt_atlas_kbps"] for u in res.updates if u["t_s"] >= 2.5])
-    # measured 924 -> 205 kbit/s (0.222), the same every run since encoders under a VBV run one thread (x264's sliced
+    # measured 810 -> 198 kbit/s (0.244) since the start's first fill is paid once (fewer bytes before 1.5 s: 816 at
+    # 508f5b7) and a calibrating ceiling is held through a blip (DIP_FRAMES); before those,
+    # 924 -> 205 kbit/s (0.222), the same every run since encoders under a VBV run one thread (x264's sliced
     # threads coded it differently each run: 158-200 kbit/s in five runs before, docs/experiments.md); 932 -> 186 before
     # sas's metadata carried its shading-reuse counters (1b9e9a3: 13-16 bytes a frame, which the controller pays first)
-    assert after < 0.235 * before and after < 215, (before, after)
+    assert after < 0.26 * before and after < 215, (before, after)
     assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 150            # measured 117 ms
 
 

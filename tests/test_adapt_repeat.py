@@ -59,9 +59,9 @@ def test_an_adapting_sas_run_repeats_bit_for_bit(renderer, tmp_path) -> None:  #
     keys = [k for k in a.updates[0] if k.startswith(("frame_id", "bytes", "keyframe", "adapt_", "cc_", "delivered"))]
     assert {"bytes_atlas", "bytes_meta", "adapt_atlas_kbps", "cc_target_kbps"} <= set(keys)
     assert any(k.startswith("adapt_knob_") for k in keys)
-    # 30 updates (29 before the rate controller counted a frame's data at no more than the estimate: the start's
-    # first fill no longer holds the atlas at its floor, and one more update arrives within the second)
-    assert len(a.updates) == 30 and a.summary["point_moves"] >= 1
+    # 29 updates (30 at 508f5b7, where the start's first fill stopped holding the atlas at its floor; 29 again since a
+    # calibrating ceiling is held through a blip, DIP_FRAMES): the count is the run's structure, not a bound
+    assert len(a.updates) == 29 and a.summary["point_moves"] >= 1
     assert _rows(a.updates, keys) == _rows(b.updates, keys)
     shown = ("update_frame_id", "update_age_ms")
     assert _rows(a.frames, shown) == _rows(b.frames, shown)

@@ -47,7 +47,9 @@ Targets are per second of the streams' own frame rate.  The encoder side
 at the new rate when the target moves by more than ``change_ratio``: at the stream's next
 IDR when it rises or falls a little (that IDR was due anyway), at once with an IDR when
 it falls below ``urgent_ratio`` of the rate the encoder runs at (a queue builds with every
-frame sent too fast, and an IDR at the new rate costs less than the queue).
+frame sent too fast, and an IDR at the new rate costs less than the queue), but a calibrating stream's ceiling is held
+just above that threshold through a fall shorter than ``DIP_FRAMES`` (a blip of queue is not worth an IDR down and
+another back up).
 
 With ``adapt = "full"`` a :class:`PointController` chooses the method's operating point as well (its knobs: the
 resolution of its scalable colour, its atlas budget, depth bits and samples, layers, the server's frame rate; see
@@ -85,6 +87,10 @@ falls back under the cap: where the link carries well more than the method's mea
 picture's bits (its I-frames several times a P-frame's), as with ``adapt = "off"``, and the link only bounds the
 bursts.  A target at the calibrated mean spends the same bits evenly: it squeezes each I-frame into a VBV buffer of
 two mean frames, and a scene that grows past what its calibration saw stays at the old mean."""
+DIP_FRAMES = 4
+"""A calibrating stream's ceiling that falls under ``urgent_ratio`` of what it was (an urgent restart, with an I-frame)
+is held just above that for this many frames less one first: a blip of queue (the encoder rate drains a 51 ms one for
+0.1 s) is not worth an I-frame down and another back up (CEILING_JUMP)."""
 RECALIBRATE = 1.5
 """A cap the link set (a stream whose ceiling kept binding through its calibration) is dropped, and the stream
 calibrated again, once its share of the estimate is this many times the cap."""
@@ -209,6 +215,8 @@ class RateController:
         self._provisional: set[str] = set()                                  # caps the link set, not the method
         self._calibrating: set[str] = set(self.video) if self.cfg.calibrate_frames else set()
         self._wide: set[str] = set()                                         # at the crf under a ceiling (WIDE)
+        self._dip: dict[str, int] = {}                                       # calibrating: frames its ceiling fell
+        self._dip_ref: dict[str, float] = {}                                 # ... and the ceiling before the fall
         self.last_overhead_bps = 0.0
         """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
         self.factor = 1.0
@@ -283,6 +291,15 @@ class RateController:
                 self._calibrating.add(n)   # the link now carries well more than it did: learn the method's own rate
                 #                            (the provisional cap stands for the operating point meanwhile)
             if n in self._calibrating:
+                ref = self._dip_ref.get(n, self._target.get(n))
+                if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref:
+                    self._dip[n] = self._dip.get(n, 0) + 1
+                    self._dip_ref[n] = ref
+                    if self._dip[n] < DIP_FRAMES:     # a blip: held at the restart's threshold, no I-frame for it
+                        kbps = 1.001 * self.cfg.urgent_ratio * ref
+                else:
+                    self._dip.pop(n, None)
+                    self._dip_ref.pop(n, None)
                 out[n] = CappedCrf(kbps)
                 continue
             # a provisional cap is the link's, not the method's: it caps nothing
