@@ -43,14 +43,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _trees import commit_of, run_in_tree  # noqa: E402  (beside this script)
+from bench_quads_models import BUILTIN, MODELS as QUADS_MODELS  # noqa: E402  (the same models, but Wuson)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "bench_quads_models_budget_cloud.json"
-ASSIMP = Path("/usr/share/assimp/models")
-MODELS = {"2CylinderEngine": ASSIMP / "glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb",
-          "duck": ASSIMP / "Collada/duck.dae",
-          "TextureTransformTest": ASSIMP / "glTF2/textureTransform/TextureTransformTest.gltf"}
-BUILTIN = {"default"}
+MODELS = {k: v for k, v in QUADS_MODELS.items() if k != "Wuson"}
 SETTINGS = {"network": "cloud", "duration_s": 1.0, "width": 320, "height": 180, "flip_every": 0}
 MW60 = ("warp", {"depth_coding": "bc4", "extrapolate": False, "fov_scale": 1.0, "reconstruction": "mesh",
                  "resolution_scale": 1.0})
