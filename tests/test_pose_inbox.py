@@ -34,15 +34,15 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
     rule; the live ones the samples as they come: the live server's control bytes to the core, which reads each
     ``Pose`` on its connection (``receive_data``, ``next_message``), the page's through ``receive_pose_sample``) and keeps no inbox or predictor of its own,
-    nor a frame clock (the live ones take ``order_tick``); the client drivers ask the client core for the
+    nor a frame clock (the live ones take ``order_at``, the core's grid tick at the wall clock); the client drivers ask the client core for the
     blank-frame and keyframe-skip rules instead of writing them."""
     from splitrender.client import session as client
     from splitrender.server import session as live
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
-    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", ".order_tick("),
-                             (browser, ".receive_pose_sample(", ".order_tick(")):
+    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", ".order_at("),
+                             (browser, ".receive_pose_sample(", ".order_at(")):
         src = inspect.getsource(mod)
         assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
         assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__

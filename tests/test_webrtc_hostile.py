@@ -135,14 +135,16 @@ async def test_traces_are_bounded_and_made_off_the_event_loop(tmp_path):
                 last = now
 
         tick = asyncio.create_task(ticker())
-        t0 = time.process_time()
+        t0, w0 = time.process_time(), time.perf_counter()
         status, tr = await _status(http, "GET", base + "/api/trace?name=walk&duration_s=60&width=320&height=180")
-        cpu = time.process_time() - t0
+        cpu, wall = time.process_time() - t0, time.perf_counter() - w0
         tick.cancel()
         assert status == 200 and len(tr["t"]) == 60 * 120 + 1
         # measured: 0.5-1.1 CPU s for the 60 s trace, the loop's longest gap 10-30 ms idle and 280 ms in CI beside the
-        # background runs (made on the loop, the gap was the whole trace, 600 ms): the loop never waits for most of it
-        assert cpu > 0.2 and max(gaps) < 0.5 * cpu, (cpu, max(gaps))
+        # background runs (made on the loop, the gap was the whole trace, 600 ms): the loop never waits for most of it.
+        # The gap is held against the request's wall time, which a loaded machine stretches as it stretches the gaps
+        # (with two busy loops beside the suite: a 459 ms gap against 857 ms of CPU failed a bound of half the CPU)
+        assert cpu > 0.2 and max(gaps) < 0.5 * wall, (cpu, wall, max(gaps))
         made: list[tuple[Any, ...]] = []
         make = server.front._make_trace
         server.front._make_trace = lambda *key: made.append(key) or make(*key)
