@@ -236,8 +236,8 @@ def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tm
                 raise
             took = time.monotonic() - t0
         assert srv.returncode == 0 and "server stopped" in err and "Traceback" not in err, err
-        # the 2 s of an idle machine, in proportion to the share of a core each process gets now (measured idle
-        # 0.3-0.6 s; 3.85 s once with two busy loops beside the suite, which this bound scales for)
+        # the 2 s of an idle machine, in proportion to the share of a core each process gets now (3.85 s once with
+        # two busy loops beside the suite, which this bound now scales for)
         assert took < STOP_S * load.slowdown, (took, load.slowdown)
 
     stop(_serve(_free_port()))
