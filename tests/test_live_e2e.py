@@ -217,28 +217,36 @@ def test_cli_serve_and_client_smoke(tmp_path: Path) -> None:
     assert "Traceback" not in err
 
 
+def _sigterm_within_stop_s(srv: subprocess.Popen) -> str:  # type: ignore[type-arg]
+    """SIGTERM ``srv``; it exits 0 within :data:`STOP_S` scaled by the load measured meanwhile; its stderr."""
+    import signal
+    import time
+
+    with LoadMeter() as load:
+        t0 = time.monotonic()
+        srv.send_signal(signal.SIGTERM)
+        try:
+            _, err = srv.communicate(timeout=10 * STOP_S)
+        except subprocess.TimeoutExpired:
+            srv.kill()
+            raise
+        took = time.monotonic() - t0
+    # the 2 s of an idle machine, in proportion to the share of a core each process gets now (3.85 s once with
+    # two busy loops beside the suite, which this bound now scales for)
+    assert srv.returncode == 0 and took < STOP_S * load.slowdown, (took, load.slowdown, err)
+    return err
+
+
 @pytest.mark.slow
 def test_sigterm_stops_the_server_within_two_seconds_idle_and_while_streaming(tmp_path: Path) -> None:
     """``splitrender serve`` exits 0 within 2 s of SIGTERM with no session, and with two clients streaming;
     the clients then end with a non-zero exit and a recording that says the session broke."""
     import json
-    import signal
     import time
 
     def stop(srv: subprocess.Popen) -> None:
-        with LoadMeter() as load:
-            t0 = time.monotonic()
-            srv.send_signal(signal.SIGTERM)
-            try:
-                _, err = srv.communicate(timeout=10 * STOP_S)
-            except subprocess.TimeoutExpired:
-                srv.kill()
-                raise
-            took = time.monotonic() - t0
-        assert srv.returncode == 0 and "server stopped" in err and "Traceback" not in err, err
-        # the 2 s of an idle machine, in proportion to the share of a core each process gets now (3.85 s once with
-        # two busy loops beside the suite, which this bound now scales for)
-        assert took < STOP_S * load.slowdown, (took, load.slowdown)
+        err = _sigterm_within_stop_s(srv)
+        assert "server stopped" in err and "Traceback" not in err, err
 
     stop(_serve(_free_port()))
     port = _free_port()
@@ -281,7 +289,6 @@ def test_a_hung_render_ends_its_session_only_and_sigterm_still_stops_the_server(
     its client exits non-zero naming the deadline, the second session keeps streaming (its journal grows after
     the first client ended) and SIGTERM stops the server within 2 s.  Then, with a 60 s deadline, SIGTERM
     during the hang (the render still stuck) stops the server within 2 s too."""
-    import signal
     import time
 
     port = _free_port()
@@ -301,12 +308,7 @@ def test_a_hung_render_ends_its_session_only_and_sigterm_still_stops_the_server(
             time.sleep(0.1)
         assert _rows(second) >= n + 30, "the second session keeps streaming"
         assert clients[1].poll() is None
-        with LoadMeter() as load:
-            t0 = time.monotonic()
-            srv.send_signal(signal.SIGTERM)
-            _, err = srv.communicate(timeout=10 * STOP_S)
-            took = time.monotonic() - t0
-        assert took < STOP_S * load.slowdown and srv.returncode == 0, (took, load.slowdown, err)
+        err = _sigterm_within_stop_s(srv)
         assert "missed its 1.5 s deadline" in err and "Traceback" not in err, err
         clients[1].communicate(timeout=20)
 
@@ -315,12 +317,7 @@ def test_a_hung_render_ends_its_session_only_and_sigterm_still_stops_the_server(
         clients.append(_client(port, tmp_path / "third"))
         _wait_rows(tmp_path / "third" / "frames.jsonl", 1, clients[2])
         time.sleep(1.0)                      # the worker is now spinning inside frame 3
-        with LoadMeter() as load:
-            t0 = time.monotonic()
-            srv.send_signal(signal.SIGTERM)
-            _, err = srv.communicate(timeout=10 * STOP_S)
-            took = time.monotonic() - t0
-        assert took < STOP_S * load.slowdown and srv.returncode == 0, (took, load.slowdown, err)
+        err = _sigterm_within_stop_s(srv)
     finally:
         if srv.poll() is None:
             srv.kill()
