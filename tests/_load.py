@@ -57,3 +57,12 @@ class LoadMeter:
     @property
     def slowdown(self) -> float:
         return max(1.0, self._wall / self._cpu) if self._cpu > 0 else 1.0
+
+
+def slowdown_over(seconds: float) -> float:
+    """The slowdown measured over ``seconds`` of wall time with nothing else running in this process: for a test
+    whose timed work runs in this process, where a spinning thread beside it would take the interpreter lock from
+    the work it measures.  Take it just before and just after that work."""
+    with LoadMeter() as m:
+        time.sleep(seconds)
+    return m.slowdown

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from _load import slowdown_over
 
 from splitrender.experiments.agreement import RECOVERY, run_cell, run_virtual, within_targets
 
@@ -30,8 +31,13 @@ def test_patient_client_at_two_percent_loss_agrees_between_virtual_time_and_live
     directions: frames shown within 5 points, keyframe counts within 20 % (or 2), NACK counts within 6, and the
     picture and its age close, in one seeded 8 s session run both ways.  Measured (seed 1, two runs): shown 100 /
     100 %, NACKs 1 / 0-4, keyframes 5 / 6, PSNR 19.0 / 17.9-18.0 dB, update age 328 / 327-329 ms; live varies
-    with the machine, hence the PSNR and age bounds of 1.5 dB and 30 ms."""
+    with the machine, hence the PSNR and age bounds of 1.5 dB and 30 ms.  The age bound is an idle machine's,
+    scaled by the slowdown measured just before and after the session (tests/_load.py): at load 15 here live
+    read 7-22 ms above virtual time's 327.9 in eight runs, at b44aad1 and at 68b0ee2 alike, and one clean-clone
+    CI run (the suite's two workers and its stress suite beside it) read 31.0."""
+    before = slowdown_over(1.0)
     row = run_cell("loss 2%", "patient", duration_s=8.0, seed=1)
+    slowdown = max(before, slowdown_over(1.0))
     met = within_targets(row)
     assert met["shown"] and met["keyframes"], (met, row)
     # NACKs: the benchmark's target is within 2 (idle here: 1 / 1-2 in two runs), but live NACKs what parity has not
@@ -40,7 +46,7 @@ def test_patient_client_at_two_percent_loss_agrees_between_virtual_time_and_live
     assert abs(row["nacks_vt"] - row["nacks_live"]) <= max(6, 0.2 * max(row["nacks_vt"], row["nacks_live"])), row
     assert row["shown_pct_vt"] >= 95 and row["shown_pct_live"] >= 95, row
     assert abs(row["mean_psnr_db_vt"] - row["mean_psnr_db_live"]) < 1.5, row
-    assert abs(row["mean_update_age_ms_vt"] - row["mean_update_age_ms_live"]) < 30, row
+    assert abs(row["mean_update_age_ms_vt"] - row["mean_update_age_ms_live"]) < 30 * slowdown, (slowdown, row)
     # both lost packets and both got most of them back, by parity or by NACK.  Live splits them between the two
     # by timing: two runs here rebuilt 21 of 27 and 23 of 29 from parity and resent 2 and 6; one CI run under
     # load rebuilt only 10 of 25 from parity and still showed every frame.
