@@ -98,8 +98,8 @@ class TssClient(ClientHalf):
             st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i] = rows.kind, rows.level, rows.origin, rows.w, rows.w2
             st.h[i], st.a[i], st.persp[i], st.base[i] = rows.h, rows.a, rows.persp, rows.base
             st.single_px = rows.single_px
-        if atlas is None or tris is None:
-            return
+        if atlas is None or (tris is None and self.table is None):
+            return   # no frame before the first table (a frame without one keeps the table the stream built)
         st = self.st
         i = np.flatnonzero(self.live)
         table = Table(i, st.kind[i], st.level[i], st.origin[i], st.w[i], st.w2[i], st.h[i], st.a[i], st.persp[i], st.base[i],

@@ -28,7 +28,8 @@ u8 single_px`` (the side of a single texel's cell in this table, 1, 2 or 4; a de
 keeps the state's); a delta (``full = 0``: every frame but those below, I-frames included) then lists the
 triangles that left, ``u32 n`` and ``n`` delta-coded ``u32`` ids, and carries only the triangles that are new or
 whose descriptor or cell changed (the layout is stable, so most do not; a still view's periodic I-frame repacks to
-the same cells and sends none); a full table (the first frame, a keyframe request, a loss, a new single-texel cell
+the same cells).  A frame whose delta would be empty (no triangle left, none changed) sends no ``tris`` message:
+the client draws its atlas with the table the stream built; a full table (the first frame, a keyframe request, a loss, a new single-texel cell
 side) carries every live triangle.  Then ``u32 n_single, u32 n_lp, u32
 n_os, u16 n_bins``; ``n_bins`` bins (those the rows use, in both kinds) ``u8 level, u16 n`` and
 ``n`` shelves ``u16 x, u16 y`` (first texel), each ``S`` texels wide (``S``: the
