@@ -74,6 +74,30 @@ def test_a_method_that_redraws_geometry_queues_longer_before_it_drops_detail() -
     assert pc.update(0.0, 3.0e6, queue_ms=250.0) and pc.index == 1
 
 
+def test_a_queue_the_method_tolerates_costs_the_point_nothing() -> None:
+    """The point follows the path's rate (the estimator's target), not its encoder rate, which drains a start-up
+    queue: quads at 0.83 s on the cellular-like trace saw 961 of a 3,027 kbit/s target over a 133 ms queue and went to
+    its coarsest point.  A queue under the tolerance leaves the budget at 0.9 of the rate; past it, the excess drains
+    within 0.5 s (a tenth of the budget left at most)."""
+    cfg = AdaptConfig(down_hold_s=0.0)
+    sas = QualityModel((("scale", (0.0, 0.7, 1.6)),), 0.6, 2.2)          # tolerance 300 ms
+    pc = PointController((dataclasses.replace(SCALE_KNOB, model=sas),), _calibrated(2000.0, 200.0, cfg), cfg)
+    assert pc.budget_bps(3.0e6, 133.0) == pytest.approx(0.9 * 3.0e6)
+    assert pc.budget_bps(3.0e6, 400.0) == pytest.approx(0.9 * 3.0e6 * (1 - 100 / 500))
+    assert pc.budget_bps(3.0e6, 5000.0) == pytest.approx(0.9 * 3.0e6 * 0.1)
+    assert pc.update(0.0, 3.0e6, queue_ms=133.0) is False and pc.index == 0   # 2.2 Mbit/s fits 2.7
+    # 0.54 Mbit/s left: the coarsest point (the growing queue's rule alone goes one down)
+    assert pc.update(0.1, 3.0e6, queue_ms=700.0) and pc.index == len(pc.ladder) - 1 == 2
+    # a queue that grew 20 ms or more within 0.3 s (the link fell, the target not yet): the encoder rate
+    pc = PointController((dataclasses.replace(SCALE_KNOB, model=sas),), _calibrated(2000.0, 200.0, cfg), cfg)
+    assert pc.update(0.0, 3.0e6, 20.0, 3.0e6) is False
+    assert pc.budget_bps(3.0e6, 105.0, 0.74e6) == pytest.approx(0.9 * 0.74e6)
+    assert pc.update(0.1, 3.0e6, 105.0, 0.74e6) and pc.index == 2
+    assert pc.budget_bps(3.0e6, 105.0, 0.74e6) == pytest.approx(0.9 * 0.74e6)    # 0.3 s on: still over 20 ms
+    assert pc.update(0.5, 3.0e6, 105.0, 0.74e6) is False
+    assert pc.budget_bps(3.0e6, 105.0, 0.74e6) == pytest.approx(0.9 * 3.0e6)     # held since: tolerated
+
+
 def test_a_rising_estimate_moves_the_point_no_lower() -> None:
     """The start's probing: 0.3 -> 0.6 -> 1.2 Mbit/s within half a second over an empty queue is no reason to drop
     detail; once the estimate stops rising the model's choice stands, and a queue of 50 ms or more does not wait for

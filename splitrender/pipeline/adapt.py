@@ -413,6 +413,16 @@ MAX_SQUEEZE = 8.0
 fit and a queue builds instead (three halvings; the rate controller's floor is ``min_kbps`` a stream)."""
 
 
+GROW_MS = 20.0
+GROW_WINDOW_S = 0.3
+"""A queue over its lowest of the last ``GROW_WINDOW_S`` by ``GROW_MS`` is growing: the point takes the encoder rate."""
+DRAIN_S = 0.5
+"""Without the estimator's encoder rate, the point controller drains the part of a queue past the method's tolerance
+within this (the estimator's ``drain_ms``) ..."""
+MIN_DRAIN_SHARE = 0.1
+"""... and leaves the point at least this share of the budget while it does."""
+
+
 RISING = 1.25
 """With a quality model, an estimate over this many times its lowest of the last ``RISING_WINDOW_S`` is still rising
 (the start's probing, or a link that widened): it asks for no coarser point unless a queue past the method's tolerance
@@ -438,7 +448,9 @@ class PointController:
       first, *learnt at every point the session has been at* (after ``settle_frames``), and for a point not yet
       visited the nearest learnt one scaled by the data knobs' priors.
 
-    A point *fits* a budget (``headroom`` times the estimator's encoder rate) when its data plus its video over
+    A point *fits* a budget (:meth:`budget_bps`: ``headroom`` times the estimator's target, the path's rate, or its
+    encoder rate, which drains the queue, where a queue grows or passes the method's tolerance) when its data plus its
+    video over
     ``stretch`` do (its encoders may run below what they would take, to 1/``stretch`` of it, before a coarser point
     is worth more than the bits it loses).  The controller goes down at once to the richest point that fits (no
     sooner than ``down_hold_s`` after its last move, unless a queue past the budget is growing: a move up just
@@ -479,7 +491,8 @@ class PointController:
         self._moved_s = -math.inf
         self._fits_up_since: float | None = None
         self._queue_ms = 0.0
-        self._recent: list[tuple[float, float]] = []   # (time, encoder rate) over the last RISING_WINDOW_S
+        self._recent: list[tuple[float, float]] = []   # (time, estimate) over the last RISING_WINDOW_S
+        self._queues: list[tuple[float, float]] = []   # (time, queue ms) over the last GROW_WINDOW_S
         self._data_sum: dict[int, list[float]] = {}    # sessions without lossy video: bits/s summed, frames, per point
 
     def values(self, index: int | None = None) -> dict[str, Any]:
@@ -575,25 +588,46 @@ class PointController:
                 s[1] += 1
                 self._data_bps[self.index] = s[0] / s[1]
 
-    def update(self, now_s: float, encoder_bps: float, queue_ms: float = 0.0) -> bool:
-        """Choose the point for the next frame from the estimate; True when it moved."""
-        if not math.isfinite(encoder_bps):
+    def budget_bps(self, estimate_bps: float, queue_ms: float = 0.0, encoder_bps: float | None = None) -> float:
+        """What the point may cost (bit/s): ``headroom`` times the path's rate ``estimate_bps`` (the estimator's
+        target) where the queue ``queue_ms`` is one the method tolerates and not growing: the encoders' rate drains
+        it (the estimator's encoder rate, ``encoder_bps``), and a point chosen for that draining rate is too coarse
+        once it has drained (quads, at 0.83 s on the cellular-like trace: 961 of a 3,027 kbit/s target, over a
+        133 ms start-up queue, and its coarsest point).  A queue past the method's tolerance, or one grown by
+        ``GROW_MS`` within ``GROW_WINDOW_S`` (the link fell: the delay-based target follows only at the over-use, a
+        few hundred ms later), takes the encoder rate (without one, the part past the tolerance drains within
+        ``DRAIN_S``)."""
+        lowest = min((q for t, q in self._queues), default=queue_ms)
+        if queue_ms <= self.tolerance_ms and queue_ms <= lowest + GROW_MS:
+            return self.cfg.headroom * estimate_bps
+        if encoder_bps is not None and math.isfinite(encoder_bps):
+            return self.cfg.headroom * min(estimate_bps, encoder_bps)
+        over = max(0.0, queue_ms - self.tolerance_ms)
+        return self.cfg.headroom * estimate_bps * max(MIN_DRAIN_SHARE, 1.0 - over / (DRAIN_S * 1000.0))
+
+    def update(self, now_s: float, estimate_bps: float, queue_ms: float = 0.0,
+               encoder_bps: float | None = None) -> bool:
+        """Choose the point for the next frame from the path's estimated rate ``estimate_bps`` (the estimator's
+        target), the queue ``queue_ms`` and the estimator's encoder rate ``encoder_bps`` (:meth:`budget_bps` decides
+        which the queue leaves it); True when it moved."""
+        if not math.isfinite(estimate_bps):
             return False
-        self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, encoder_bps)]
+        self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, estimate_bps)]
         if not self.rate.calibrated:
             return False
         if not self.rate.video and self._data_sum.get(self.index, [0.0, 0.0])[1] < self.cfg.settle_frames:
             return False     # no encoder to calibrate (probes: lossless pictures and data): what it sends, learnt first
         if not self._data_bps:          # the data rate at the point the session started from
             self._data_bps[self.index] = self.rate.overhead_bps
-        budget = self.cfg.headroom * encoder_bps
+        budget = self.budget_bps(estimate_bps, queue_ms, encoder_bps)
+        self._queues = [(t, q) for t, q in self._queues if t >= now_s - GROW_WINDOW_S] + [(now_s, queue_ms)]
         last = len(self.ladder) - 1
         growing = queue_ms > self.tolerance_ms and queue_ms > self._queue_ms
         if self.model is None:
             best = next((i for i in range(last + 1) if self.fits(i, budget)), last)
         else:
             best = self._best(budget, queue_ms)
-            if encoder_bps > RISING * min(r for _, r in self._recent) and queue_ms < RISING_QUEUE_MS:
+            if estimate_bps > RISING * min(r for _, r in self._recent) and queue_ms < RISING_QUEUE_MS:
                 best = min(best, self.index)       # a rising estimate is no reason to go down
         if growing and self.index < last:
             best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit

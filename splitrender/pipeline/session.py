@@ -1434,7 +1434,8 @@ class ServerSession:
         :meth:`~.sender.ServerPipeline.encode`; None without.  Call before :meth:`encoder_rates`."""
         if self.point is None or self.estimator is None:
             return None
-        if self.point.update(now_ms / 1000, self.estimator.encoder_bps(), self.estimator.queue_ms()):
+        est = self.estimator      # the path's rate and queue, and the encoders' (draining) rate: the point decides
+        if self.point.update(now_ms / 1000, est.target_bps, est.queue_ms(), est.encoder_bps()):
             self.counters["point_moves"] = self.point.moves
             assert self.rate is not None        # its rates are per second of the frames sent
             self.rate.fps = self._base_fps / self.point.frame_div
