@@ -142,10 +142,25 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 # The stability suite (tests/test_stress.py, ~5 min of two worker processes) needs no quiet machine: it runs in
 # virtual time.  When its tests are selected it starts in the background as the session starts, beside the
 # deterministic tests.  In one process (``-n 0``) its tests come after those, and the live tests last, once the
-# background suite has finished.  Under xdist (the project's ``-n 2``) the scheduler orders the files itself
-# (pytest-xdist sorts scopes by their test count), so live tests may run beside the background suite: they assert
-# what was shown against what was sent, and the few timed bounds (a shutdown within 2 s) scale by the load measured
-# beside them (tests/_load.py), so they hold on a busy machine too.
+# background suite has finished.  Under xdist (the project's ``-n 2 --dist loadfile --no-loadscope-reorder``) each
+# worker takes the next file in the order the workers collected (:func:`_xdist_rank`): the files that took longest
+# first, the many short ones last, so the two workers finish together (pytest-xdist's own order, by test count, left
+# its one-test files to the end: test_tss_rd's 43 s was the last file handed out); test_stress.py, which only reads
+# the background suite's rows, comes last.  Live tests may run beside the background suite: they assert what was
+# shown against what was sent, and the few timed bounds (a shutdown within 2 s) scale by the load measured beside
+# them (tests/_load.py), so they hold on a busy machine too.
+
+#: Seconds the slowest virtual-time files took in the clean-clone CI (idle, ``-n 2``; 14:03 at 913640e and 14:21 a
+#: little later: the sum of each file's tests in the two runs' ``--durations=25``, a lower bound); under xdist they are handed out first, longest
+#: first, and the other files after them by test count.  The files of live sessions (test_live_e2e 58 s,
+#: test_browser 37, test_agreement 20, test_live_memory 18) keep the place their test count gives them, as before:
+#: handed out first they would all run beside the background stress suite.  An order, not an assertion: a file
+#: missing here only runs later.  The session's summary lists the run's slowest files
+#: (:func:`pytest_terminal_summary`) to refresh it from.
+SLOW_FILES_S = {"test_tss.py": 95, "test_sas.py": 75, "test_adapt_probes.py": 74, "test_tss_models.py": 56,
+                "test_adapt_quality.py": 46, "test_tss_rd.py": 43, "test_quads.py": 39, "test_sweep.py": 22,
+                "test_claims.py": 20, "test_demo.py": 20, "test_fuzz_entry_points.py": 19, "test_quads_models.py": 17,
+                "test_adapt_full.py": 16}
 
 LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
                         "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",
@@ -200,8 +215,23 @@ def pytest_collection_modifyitems(session, config, items) -> None:  # type: igno
         return 2 if name in LIVE_FILES else 1 if name == STRESS_FILE else 0
 
     items.sort(key=rank)          # stable: each file's tests stay together and in order
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        counts: dict[str, int] = {}
+        for item in items:
+            counts[item.path.name] = counts.get(item.path.name, 0) + 1
+        items.sort(key=lambda item: _xdist_rank(item.path.name, counts[item.path.name]))
     if any(item.path.name == STRESS_FILE and "suite" in getattr(item, "fixturenames", ()) for item in items):
         _start_stress(config)
+
+
+def _xdist_rank(name: str, count: int) -> tuple[int, float]:
+    """Where the file ``name`` of ``count`` selected tests comes under xdist: :data:`SLOW_FILES_S` longest first,
+    then the rest by test count (most first), test_stress.py last."""
+    if name == STRESS_FILE:
+        return 2, 0.0
+    if name in SLOW_FILES_S:
+        return 0, -SLOW_FILES_S[name]
+    return 1, -count
 
 
 def pytest_collection_finish(session) -> None:  # type: ignore[no-untyped-def]
@@ -270,9 +300,21 @@ def _stress_span(out: str) -> tuple[float, float | None] | None:
     return started, (os.path.getmtime(rc) if os.path.exists(rc) else None)
 
 
+_FILE_S: dict[str, float] = {}
+"""Seconds of setup, call and teardown per test file in this session (every worker's, in the controller)."""
+
+
+def pytest_runtest_logreport(report) -> None:  # type: ignore[no-untyped-def]
+    name = report.nodeid.split("::", 1)[0].rsplit("/", 1)[-1]
+    _FILE_S[name] = _FILE_S.get(name, 0.0) + float(getattr(report, "duration", 0.0) or 0.0)
+
+
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # type: ignore[no-untyped-def]
     """One line on the background stress suite's span in the session: where it ends near the session's end, it is
-    what the session waits for (issue 49: the suite's duration)."""
+    what the session waits for (issue 49: the suite's duration); and one on the slowest files (``SLOW_FILES_S``)."""
+    if not hasattr(config, "workerinput") and len(_FILE_S) > 1:
+        top = sorted(_FILE_S.items(), key=lambda kv: -kv[1])[:20]
+        terminalreporter.write_line("slowest files (s): " + ", ".join(f"{n} {s:.0f}" for n, s in top))
     span = getattr(config, "_sr_stress_span", None)
     if span is None:
         return
