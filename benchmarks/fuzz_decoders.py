@@ -1441,7 +1441,8 @@ def _server_rtcp_entry(s: MethodSeeds) -> EntryPoint:
                 return None
             if ssrc is None or not core.owns_ssrc(ssrc):
                 return None
-            return core.receive_rtcp(parse_rtcp(data), sc.now)
+            core.receive_rtcp(parse_rtcp(data), sc.now)
+            return [d.kind for d in core.datagrams_to_send(sc.now)]   # its answers leave its one way out
         except BaseException:
             sc.core = None
             raise
@@ -1482,7 +1483,8 @@ def _server_nack_entry(s: MethodSeeds) -> EntryPoint:
                 return None
             if ssrc is None or not core.owns_ssrc(ssrc):
                 return None
-            resent = core.receive_datagram(data, sc.now)
+            core.receive_datagram(data, sc.now)
+            resent = [d.data for d in core.datagrams_to_send(sc.now) if d.kind == "resend"]   # no pacer: all leave now
         except BaseException:
             sc.core = None
             raise

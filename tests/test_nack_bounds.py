@@ -61,6 +61,15 @@ class Streaming:
         self.media.append((self.now_ms, PER_FRAME * WIRE))
         self.frame += 1
 
+    def answer(self, rtcp: bytes | list[GenericNack], now_ms: float) -> list[bytes]:
+        """What the core resends at ``now_ms`` for ``rtcp`` (a datagram, or packets parsed): the retransmissions among
+        the datagrams it lets go, by its one way out (``datagrams_to_send``; no pacer here, so they leave at once)."""
+        if isinstance(rtcp, bytes):
+            self.core.receive_datagram(rtcp, now_ms)
+        else:
+            self.core.receive_rtcp(rtcp, now_ms)   # type: ignore[arg-type]
+        return [d.data for d in self.core.datagrams_to_send(now_ms) if d.kind == "resend"]
+
     def last(self, n: int) -> tuple[int, ...]:
         """The sequence numbers of the last ``n`` packets sent."""
         return tuple(range(self.seq - n, self.seq))
@@ -86,8 +95,8 @@ def test_a_thousand_identical_nacks_in_one_datagram_resend_no_more_than_one_does
     nack = _nack(one, one.last(136))
     single = serialize_rtcp([nack])
     assert len(single) == 44
-    got_one = one.core.receive_datagram(single, one.now_ms)
-    got_many = many.core.receive_datagram(serialize_rtcp([nack] * 1000), many.now_ms)
+    got_one = one.answer(single, one.now_ms)
+    got_many = many.answer(serialize_rtcp([nack] * 1000), many.now_ms)
     assert len(got_one) == 136 and got_many == got_one
     c = many.core.counters
     assert (c["nacks"], c["retransmitted"], c["retransmitted_bytes"]) == (1000, 136, 136 * WIRE)
@@ -99,16 +108,16 @@ def test_a_repeated_nack_waits_one_rtt_and_twenty_ms_while_the_rtt_is_unknown() 
     seq = s.last(1)
     t = s.now_ms
     assert s.core.rtt_ms is None
-    assert len(s.core.receive_rtcp([_nack(s, seq)], t)) == 1
-    assert s.core.receive_rtcp([_nack(s, seq)], t + 19.9) == []          # within the 20 ms floor
+    assert len(s.answer([_nack(s, seq)], t)) == 1
+    assert s.answer([_nack(s, seq)], t + 19.9) == []          # within the 20 ms floor
     assert s.core.counters["nack_duplicates"] == 1
-    assert len(s.core.receive_rtcp([_nack(s, seq)], t + 20.0)) == 1      # the floor has passed
+    assert len(s.answer([_nack(s, seq)], t + 20.0)) == 1      # the floor has passed
     s.core.rtt_ms = 80.0                                                 # as a receiver report would set it
-    assert s.core.receive_rtcp([_nack(s, seq)], t + 20.0 + 79.9) == []
-    assert len(s.core.receive_rtcp([_nack(s, seq)], t + 20.0 + 80.0)) == 1
+    assert s.answer([_nack(s, seq)], t + 20.0 + 79.9) == []
+    assert len(s.answer([_nack(s, seq)], t + 20.0 + 80.0)) == 1
     s.core.rtt_ms = 5.0                                                  # a short RTT: the floor holds
-    assert s.core.receive_rtcp([_nack(s, seq)], t + 100.0 + 19.9) == []
-    assert len(s.core.receive_rtcp([_nack(s, seq)], t + 120.0)) == 1
+    assert s.answer([_nack(s, seq)], t + 100.0 + 19.9) == []
+    assert len(s.answer([_nack(s, seq)], t + 120.0)) == 1
     c = s.core.counters
     assert (c["retransmitted"], c["nack_duplicates"]) == (4, 3)
 
@@ -119,28 +128,28 @@ def test_a_sequence_number_sent_again_is_a_new_packet_with_no_hold() -> None:
     s = Streaming()
     seq = s.last(1)
     t = s.now_ms - 5
-    old = s.core.receive_rtcp([_nack(s, seq)], t)
+    old = s.answer([_nack(s, seq)], t)
     s.seq -= PER_FRAME
     s.send_frame()                                          # at t + 5: the last frame's numbers, new packets
-    assert s.core.receive_rtcp([_nack(s, seq)], t + 10) == [bytes(s.core.streams["color"].history.get(seq[0]))] != old
-    assert s.core.receive_rtcp([_nack(s, seq)], t + 11) == []
+    assert s.answer([_nack(s, seq)], t + 10) == [bytes(s.core.streams["color"].history.get(seq[0]))] != old
+    assert s.answer([_nack(s, seq)], t + 11) == []
     assert (s.core.counters["retransmitted"], s.core.counters["nack_duplicates"]) == (2, 1)
 
 
 def test_one_datagram_gets_at_most_256_resends_and_the_rest_is_refused_unread() -> None:
     s = Streaming(nack_rate_share=10.0)                     # the rate cap out of the way
     seqs = s.last(400)
-    got = s.core.receive_rtcp([_nack(s, seqs[:200]), _nack(s, seqs[200:]), _nack(s, seqs[:10])], s.now_ms)
+    got = s.answer([_nack(s, seqs[:200]), _nack(s, seqs[200:]), _nack(s, seqs[:10])], s.now_ms)
     assert len(got) == 256 and [RtpPacket.parse(d).sequence_number for d in got] == list(seqs[:256])
     c = s.core.counters
     assert (c["retransmitted"], c["nack_datagram_capped"], c["nack_duplicates"]) == (256, 144 + 10, 0)
     # the next datagram has its own 256
-    assert len(s.core.receive_rtcp([_nack(s, seqs[256:])], s.now_ms + 1)) == 144
+    assert len(s.answer([_nack(s, seqs[256:])], s.now_ms + 1)) == 144
 
 
 def test_the_per_datagram_cap_is_an_option() -> None:
     s = Streaming(nack_max_per_datagram=3)
-    assert len(s.core.receive_rtcp([_nack(s, s.last(5))], s.now_ms)) == 3
+    assert len(s.answer([_nack(s, s.last(5))], s.now_ms)) == 3
     assert s.core.counters["nack_datagram_capped"] == 2
 
 
@@ -157,7 +166,7 @@ def test_resent_bytes_in_any_second_stay_within_half_the_media_bytes_and_the_flo
             s.send_frame()
         want = tuple(range(s.seq - 400 + k, s.seq - 380 + k))   # 20 of the last 400 sent, each again 190 ms later
         k = (k + 20) % 380
-        resent += [(t, len(d)) for d in s.core.receive_rtcp([_nack(s, want)], t)]
+        resent += [(t, len(d)) for d in s.answer([_nack(s, want)], t)]
         lo = t - NACK_RATE_WINDOW_MS
         media = sum(n for at, n in s.media if lo < at <= t)
         used = sum(n for at, n in resent if lo < at <= t)
@@ -173,7 +182,7 @@ def test_resent_bytes_in_any_second_stay_within_half_the_media_bytes_and_the_flo
 def test_a_quiet_stream_still_gets_the_floor() -> None:
     """No media sent in the last second: 16,000 bytes, 13 packets of 1,190, and the rest refused."""
     s = Streaming(seconds=1.0)
-    got = s.core.receive_rtcp([_nack(s, s.last(20))], s.now_ms + 2000)
+    got = s.answer([_nack(s, s.last(20))], s.now_ms + 2000)
     assert len(got) == 16_000 // WIRE == 13
     assert s.core.counters["nack_rate_limited"] == 7
 
@@ -243,7 +252,7 @@ def test_random_nack_datagrams_stay_within_the_caps(datagrams: list[tuple[int, i
             packets = parse_rtcp(data)
         except RtcpError:
             packets = None
-        got = s.core.receive_datagram(data, t)
+        got = s.answer(data, t)
         if packets is None:
             assert got == []
             continue

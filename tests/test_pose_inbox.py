@@ -34,22 +34,26 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
     rule; the live ones the samples as they come: the live server's control bytes to the core, which reads each
     ``Pose`` on its connection (``receive_data``, ``next_message``), the page's through ``receive_pose_sample``) and keeps no inbox or predictor of its own,
-    nor a frame clock (the live ones take ``order_at``, the core's grid tick at the wall clock); the client drivers ask the client core for the
-    blank-frame and keyframe-skip rules instead of writing them."""
+    nor a frame clock (the live ones take ``RenderWorker.frame``: the core's ``order_at``, its grid tick at the wall
+    clock, made in the worker); the client drivers ask the client core for the
+    display rules (``display_tick``: what to apply; ``showing``: the update shown or the black background, and its
+    Feedback) and the keyframe-skip rule instead of writing them."""
     from splitrender.client import session as client
-    from splitrender.server import session as live
+    from splitrender.server import session as live, worker
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
-    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", ".order_at("),
-                             (browser, ".receive_pose_sample(", ".order_at(")):
+    assert ".order_at(" in inspect.getsource(worker.RenderWorker.frame)   # the live frame tick, written once
+    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", ".worker.frame("),
+                             (browser, ".receive_pose_sample(", ".worker.frame(")):
         src = inspect.getsource(mod)
         assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
         assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__
         assert "ServerContext(" not in src and "KeyframeRateLimiter" not in src, mod.__name__
     for mod in (runner, client):
         src = inspect.getsource(mod)
-        assert ".blank(" in src and ".skips_decode(" in src and ".broken" not in src, mod.__name__
+        assert ".display_tick(" in src and ".showing(" in src and ".skips_decode(" in src, mod.__name__
+        assert ".blank(" not in src and ".feedback(" not in src and ".broken" not in src, mod.__name__
 
 
 def test_the_server_core_takes_a_pose_message_by_the_rule() -> None:

@@ -12,12 +12,13 @@ import pytest
 from splitrender.codecs.video import VideoCodecConfig
 from splitrender.errors import ConfigError
 from splitrender.methods import StreamSpec, Update
-from splitrender.pipeline import (ClientOptions, ClientPipeline, ClientSession, ServerOptions, ServerPipeline, ServerSession,
+from splitrender.pipeline import (ClientOptions, Opening, method_config, ClientPipeline, ClientSession, ServerOptions, ServerPipeline, ServerSession,
                                   Stalled, StallTimeout, specs_from_table)
 from splitrender.protocol import (PROTOCOL_VERSION, ClientConnection, GenericNack, Hello, PictureLossIndication, serialize_rtcp,
                                   ReceiverReport, SenderReport, ServerConnection, Welcome, parse_rtcp)
 from splitrender.protocol.framing import NEED_DATA
-from splitrender.scene.pose import Pose
+from splitrender.scene.pose import CameraIntrinsics, Pose
+from splitrender.server.server import ServerConfig
 
 W, H = 64, 48
 FPS = 30.0
@@ -57,6 +58,12 @@ class Pair:
         self.out = out
         # the RTP datagrams the core lets go now (its one way out; all of them without a pacer), stamped
         return [d for _, d in out.control], [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtp"]
+
+    def answer(self, rtcp: list, now_ms: float) -> list[bytes]:  # type: ignore[type-arg]
+        """The server core takes the client's RTCP ``rtcp`` (parsed) at ``now_ms``: the packets it resends, as they
+        leave its one way out (of kind ``resend``)."""
+        self.server.receive_rtcp(rtcp, now_ms)
+        return [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "resend"]
 
     def reports(self, now_ms: float) -> list[bytes]:
         """The server's sender reports due at ``now_ms`` (what its way out gives of kind ``rtcp``)."""
@@ -111,7 +118,7 @@ def test_a_lost_packet_is_nacked_once_after_the_delay_and_the_retransmission_com
     nacks = _nacks(p.timer(60.0))                    # 20 ms: one NACK naming the lost sequence number
     assert len(nacks) == 1 and nacks[0].lost == (int.from_bytes(lost[2:4], "big"),)
     assert _nacks(p.timer(70.0)) == [] and _nacks(p.timer(170.0)) == []   # the retry waits 120 ms
-    resend = p.server.receive_rtcp([nacks[0]], 80.0)
+    resend = p.answer([nacks[0]], 80.0)
     assert resend == [lost] and p.server.counters["retransmitted"] == 1
     p.to_client([], resend, 95.0)
     shown = p.client.display(96.0)
@@ -343,7 +350,6 @@ def test_a_decoded_frame_of_the_wrong_size_is_dropped_and_counted() -> None:
     error: the stream waits for a keyframe); the video client half refuses a plane that is not its display's."""
     from splitrender.methods.base import DecodedUpdate
     from splitrender.methods.video.client import VideoClient, VideoFrameError
-    from splitrender.scene.pose import CameraIntrinsics
 
     p = Pair()
     ctrl, dgrams = p.frame(0, 0.0)
@@ -482,10 +488,10 @@ def test_transport_wide_feedback_reports_every_stamped_packet_and_a_loss() -> No
     assert p.server.send_history is not None and p.server.send_history.in_flight == 0
     assert p.server.estimator is not None and len(p.server.estimator.history) == 1
     assert set(p.server.congestion()) == {"cc_target_kbps", "cc_encoder_kbps", "cc_acked_kbps", "cc_queue_ms"}
-    resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
-                                                (int.from_bytes(sent[2][2:4], "big"),))], 150.0)
-    (out,) = p.server.datagrams_to_send(150.0)             # the resend leaves the one way too, stamped as it leaves
-    assert len(resend) == 1 and out.kind == "resend" and read_transport_seq(out.data, 5) == len(sent)
+    p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
+                                       (int.from_bytes(sent[2][2:4], "big"),))], 150.0)
+    (out,) = p.server.datagrams_to_send(150.0)             # the resend leaves the one way, stamped as it leaves
+    assert out.kind == "resend" and read_transport_seq(out.data, 5) == len(sent)
     assert p.client.counters["twcc_feedback_sent"] == 1
 
 
@@ -644,15 +650,15 @@ def test_a_page_takes_one_video_stream_on_the_webrtc_profile() -> None:
     anything else is refused with the streams named."""
     from splitrender.errors import RemoteProtocolError
     from splitrender.pipeline import accept_page
-    from splitrender.scene.predict import make_predictor
 
     video = StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)
-    core = accept_page("video", [video], 60.0, ServerOptions(pacing=True), make_predictor("cv"))
+    page = Opening("video", method_config("video", {}), CameraIntrinsics(W, H))
+    core = accept_page(page, [video], 60.0, ServerConfig(transport_cc=True, pacing=True))
     assert core.transport == "webrtc" and not core.options.pacing and core.streams == {} and core.display_hz == 60.0
     depth = StreamSpec("depth", VideoCodecConfig("h264", gop=300), W, H)
     with pytest.raises(RemoteProtocolError, match=r"method warp: streams \['color', 'depth'\] cannot go to a page "
                                                   r"\(it takes one video stream\)"):
-        accept_page("warp", [video, depth], 60.0, ServerOptions(), make_predictor("cv"))
+        accept_page(dataclasses.replace(page, method="warp"), [video, depth], 60.0, ServerConfig())
 
 
 def test_the_live_frame_clock_is_the_core_s() -> None:
@@ -719,8 +725,13 @@ def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     works[0].stream.broken = False                                # (its release mends the stream)
     p.client.on_decoded(works[0], ClientPipeline.decode(works[0]), 0.0)
     (rf,) = p.client.collect(0.0)
-    p.client.applied(rf)
-    assert p.client.shown is rf and not p.client.blank(True) and p.client.blank(False)
+    assert p.client.data_to_send() == b""
+    # what the tick shows (the one call of both drivers): the applied update, its Feedback sent the first time only
+    assert p.client.showing([rf], [True], True, 10.0) is rf and p.client.shown is rf
+    assert p.client.counters["frames_displayed_updates"] == 1 and p.client.data_to_send() != b""
+    assert p.client.showing([], [], False, 20.0) is None         # the half lost its content: the black background
+    assert p.client.showing([], [], True, 30.0) is rf and p.client.data_to_send() == b""
+    assert not p.client.blank(True) and p.client.blank(False)
     works = p.released(1, 33.0)
     assert len(works) == 1 and not works[0].unit.keyframe
     errors = p.client.all_counters()["decode_errors"]
@@ -749,8 +760,9 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
         sconn = ServerConnection()
         sconn.receive_data(ClientConnection().send(h))
         sconn.next_event()
-        return accept_hello(h, "sid", "video", mcfg, [spec], blob, sconn, scene="minimal", fov_y_deg=60.0,
-                            server_fps=30, max_session_bytes=limit, rng=np.random.default_rng(1))
+        return accept_hello(h, "sid", Opening("video", mcfg, CameraIntrinsics(W, H)), [spec], blob, sconn,
+                            ServerConfig(scene="minimal", max_session_bytes=limit), ServerOptions(),
+                            rng=np.random.default_rng(1))
 
     with pytest.raises(SessionDataError, match=rf"^method video: session data of {n} bytes exceeds this server's limit "
                                                rf"of {n - 1} bytes \(max_session_bytes\)$"):
@@ -790,9 +802,8 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
     assert 500.0 <= sr_at <= 1500.0                      # nothing else due: the first sender report (1 s +- 50 %)
     assert p.server.datagrams_to_send(leave_ms) == []    # and what was due has left: the deadline moved on
     seq = int.from_bytes(sent[1].data[2:4], "big")
-    resend = p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))], 20.0)
-    assert [(d.kind, d.data) for d in p.server.datagrams_to_send(20.0)] == [("resend", resend[0])] == \
-        [("resend", sent[1].data)]
+    p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))], 20.0)
+    assert [(d.kind, d.data) for d in p.server.datagrams_to_send(20.0)] == [("resend", sent[1].data)]
     assert [d.kind for d in p.server.datagrams_to_send(sr_at)] == ["rtcp"]
     assert isinstance(parse_rtcp(p.reports(1e9)[0])[0], SenderReport)
 
@@ -803,7 +814,6 @@ def test_the_client_core_owns_its_control_connection() -> None:
     (counted, a gap named, the scene epoch from the newest); Stats and Bye leave as events, the end of the stream as
     ``ControlClosed``.  Bytes out: what the driver sends, by ``data_to_send``, framed for the server's end."""
     from splitrender.codecs.meta import pack_meta
-    from splitrender.methods.base import get_method, make_config
     from splitrender.pipeline import ClientHandshake, ControlClosed, ServerMessage, accept_hello
     from splitrender.protocol import Bye, Pose as PoseMessage, Stats
     from splitrender.protocol.framing import encode_frame
@@ -813,9 +823,9 @@ def test_the_client_core_owns_its_control_connection() -> None:
     sconn = ServerConnection()
     sconn.receive_data(hs.hello(hello))
     assert sconn.next_event() == hello
-    acc = accept_hello(hello, "sid", "video", make_config(get_method("video").config, {}),
+    acc = accept_hello(hello, "sid", Opening("video", method_config("video", {}), CameraIntrinsics(W, H)),
                        [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn,
-                       scene="minimal", fov_y_deg=60.0, server_fps=30, max_session_bytes=1 << 20,
+                       ServerConfig(scene="minimal", max_session_bytes=1 << 20), ServerOptions(),
                        rng=np.random.default_rng(1))
     tx = acc.core.tx
     rng = np.random.default_rng(0)
@@ -1000,7 +1010,6 @@ def test_the_server_core_owns_its_control_connection() -> None:
     and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_message``),
     taking Pose, Feedback and KeyframeRequest by the core's rules and giving every message back in order; a partial
     message waits for its rest and a request naming no stream is refused as before."""
-    from splitrender.methods.base import get_method, make_config
     from splitrender.pipeline import accept_hello
     from splitrender.pipeline.wire import pack_meta
     from splitrender.protocol import Bye, Feedback, KeyframeRequest, MessageError, ServerConnection, Stats
@@ -1010,9 +1019,9 @@ def test_the_server_core_owns_its_control_connection() -> None:
     cconn, sconn = ClientConnection(), ServerConnection()
     sconn.receive_data(cconn.send(hello))
     assert sconn.next_event() == hello
-    acc = accept_hello(hello, "sid", "video", make_config(get_method("video").config, {}),
+    acc = accept_hello(hello, "sid", Opening("video", method_config("video", {}), CameraIntrinsics(W, H)),
                        [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn,
-                       scene="minimal", fov_y_deg=60.0, server_fps=30, max_session_bytes=1 << 20,
+                       ServerConfig(scene="minimal", max_session_bytes=1 << 20), ServerOptions(),
                        rng=np.random.default_rng(1))
     core = acc.core
     assert core.conn is sconn

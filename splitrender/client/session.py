@@ -553,14 +553,14 @@ class LiveClient:
             return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
 
         cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
-        core.report_applied(new, ok)
         displayed_us = wall_us()
-        if core.blank(half.has_content):   # every update so far rejected or without content: still black
-            self._record(live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, None, displayed_us))
+        # the core's rule (and the Feedback of an update shown the first time)
+        shown = core.showing(new, ok, half.has_content, displayed_us / 1000)
+        if shown is None:   # every update so far rejected or without content: still black
+            self._record_blank(tick, tick_wall, pose, saves)
         else:
-            assert core.shown is not None
-            row = live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, core.shown, displayed_us,
-                            apply_ms + render_ms)
+            row = live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, shown, displayed_us,
+                                 apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
             row.update(core.received_kbps(displayed_us / 1e6))
             self._record(row)
@@ -570,7 +570,6 @@ class LiveClient:
                 if len(saves) > 64:
                     await asyncio.gather(*saves[:32])
                     del saves[:32]
-        core.feedback(displayed_us / 1000)   # the first display of a shown update (none while blank at start)
         await self._flush_control()
 
     def _scene_t(self, wall_s: float) -> float:

@@ -16,10 +16,10 @@ from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from ..options import ClientOptions
-from .session import (CLIENT_CODECS, Accepted, ClientHandshake, ClientSession, ControlClosed, PoseInbox, Resumed, ServerMessage,
+from .session import (CLIENT_CODECS, Accepted, Opening, ClientHandshake, ClientSession, ControlClosed, PoseInbox, Resumed, ServerMessage,
                       ServerOptions, ServerSession, SessionEvent,
                       SessionTerms, Stalled, StallTimeout, accept_hello, accept_page, apply_updates, check_hello, parse_welcome,
-                      session_params,
+                      method_config, open_hello, open_page, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
 from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envelope, EnvelopeError, SessionDataError,
@@ -27,7 +27,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
 
 __all__ = [
     "ClientHandshake", "ClientOptions", "ClientSession", "ControlClosed", "PoseInbox", "ServerMessage", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
-    "Accepted", "accept_hello", "accept_page", "apply_updates", "CLIENT_CODECS",
+    "Accepted", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
     "FrameOrder", "make_frame", "StreamEncoder",

@@ -12,7 +12,7 @@ import time
 from typing import Any
 
 from ..codecs.meta import pack_meta
-from ..methods.base import MethodConfig, MethodSpec, SceneProducer
+from ..methods.base import MethodConfig, MethodSpec, SceneProducer, get_method
 
 
 class ProducerPool:
@@ -41,11 +41,13 @@ class ProducerPool:
             self.build_ms[spec.name] = (time.perf_counter() - w0) * 1000
         return p
 
-    def server_half(self, spec: MethodSpec, config: MethodConfig, intrinsics: Any) -> tuple[Any, list[Any], bytes]:
-        """A session's server half of ``spec`` (built on the caller's GL thread) with the method's shared producer,
-        for every front door's handshake (:func:`~.session.accept_hello`): the half, the streams it declares and its
-        packed session data."""
-        half = spec.server_class(config, intrinsics, self.scene, self.server_fps, producer=self.producer(spec, config))
+    def server_half(self, opening: Any) -> tuple[Any, list[Any], bytes]:
+        """The server half of a session's ``opening`` (:class:`~.session.Opening`), built on the caller's GL thread
+        with the method's shared producer, for every front door's handshake (:func:`~.session.accept_hello`): the
+        half, the streams it declares and its packed session data."""
+        spec, config = get_method(opening.method), opening.config
+        half = spec.server_class(config, opening.intrinsics, self.scene, self.server_fps,
+                                 producer=self.producer(spec, config))
         return half, half.streams(), pack_meta(half.session_data())
 
     def stats(self, name: str) -> dict[str, Any]:

@@ -58,6 +58,7 @@ from ..errors import CodecError, ConfigError, RemoteProtocolError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
 from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, ErrorCode, Feedback, FrameMeta, DataChunk,
                         FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
+                        negotiate_method,
                         State, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -66,7 +67,8 @@ from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_f
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..methods.base import SCALE_KNOB, StreamSpec, get_method, make_config
 from ..scene.pose import CameraIntrinsics, Pose as ScenePose
-from ..protocol.twcc import (FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
+from ..scene.predict import make_predictor
+from ..protocol.twcc import (DEFAULT_EXTENSION_ID, FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
 from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
 from .feedback import FeedbackState
@@ -80,7 +82,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "accept_hello", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "PoseInbox",
            "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -195,6 +197,41 @@ def check_hello(hello: Hello, max_pixels: int) -> None:
                            f"limit of {max_pixels} pixels")
     if not hello.codecs:
         raise MessageError("Hello.codecs: empty")
+
+
+@dataclass(frozen=True)
+class Opening:
+    """A session a server is opening, before its method's server half is built (in a render worker, or the runner's
+    producer pool: :meth:`~.producers.ProducerPool.server_half`): the method, its config and the client's camera.
+    Every server front door makes one (:func:`open_hello`, :func:`open_page`, the runner from its run config)."""
+
+    method: str
+    config: Any
+    intrinsics: CameraIntrinsics
+
+
+def method_config(method: str, params: Mapping[str, Any], codecs: Iterable[str] | None = None) -> Any:
+    """``method``'s config from ``params`` (a ``ConfigError`` naming a bad one), fitted to the video codecs the
+    client decodes (its ``Hello.codecs``) where it named them."""
+    config = make_config(get_method(method).config, dict(params))
+    return config if codecs is None else config.for_codecs(tuple(codecs))
+
+
+def open_hello(hello: Hello, methods: Iterable[str], server: Any) -> Opening:
+    """The opening of the session that said ``hello`` to a server of ``methods`` with config ``server`` (its
+    ``max_pixels``, ``method_params`` and ``fov_y_deg``): the Hello checked (:func:`check_hello`), the method
+    negotiated and its config fitted to the client's codecs.  Raises ``RemoteProtocolError`` naming what it refused."""
+    check_hello(hello, server.max_pixels)
+    method = negotiate_method(hello.methods, tuple(methods))
+    return Opening(method, method_config(method, server.method_params.get(method, {}), hello.codecs),
+                   CameraIntrinsics(hello.width, hello.height, server.fov_y_deg))
+
+
+def open_page(method: str, width: int, height: int, server: Any, overrides: Mapping[str, Any]) -> Opening:
+    """The opening of a browser session (:func:`accept_page`): ``method``'s config from ``server``'s parameters for
+    it with ``overrides`` (the codec every browser decodes), the page's camera."""
+    params = {**server.method_params.get(method, {}), **overrides}
+    return Opening(method, method_config(method, params), CameraIntrinsics(width, height, server.fov_y_deg))
 
 
 @dataclass(frozen=True)
@@ -900,6 +937,18 @@ class ClientSession:
         false: every update so far lost its content)."""
         return self.shown is None or not has_content
 
+    def showing(self, frames: list[ReceivedFrame], ok: list[bool], has_content: bool,
+                now_ms: float) -> ReceivedFrame | None:
+        """What a display tick shows, by the one rule of every client driver, once the updates :meth:`display_tick`
+        gave it (``frames``) were applied (``ok``: :func:`apply_updates`'s answer for each, reported here) and the
+        client half says whether it has anything to draw (``has_content``): the update shown, or None where the tick
+        shows the black background (:meth:`blank`; its row names no update).  The shown update's Feedback is sent
+        the first time it is displayed (at ``now_ms``: :meth:`feedback`)."""
+        self.report_applied(frames, ok)
+        shown = None if self.blank(has_content) else self.shown
+        self.feedback(now_ms)
+        return shown
+
     def feedback(self, displayed_ms: float) -> Feedback | None:
         """The ``Feedback`` for the shown update the first time it is displayed (at ``displayed_ms``), sent (its bytes
         join :meth:`data_to_send`) and returned to look at; else None."""
@@ -967,55 +1016,59 @@ class Accepted:
         return self.frames[1:]
 
 
-def accept_hello(hello: Hello, session_id: str, method: str, config: Any, specs: list[Any], session_blob: bytes,
-                 conn: Any, *, scene: str, fov_y_deg: float, server_fps: int,
-                 options: ServerOptions | None = None, max_session_bytes: int, mtu_bytes: int = 1200, fec: bool = False,
-                 transport_cc_id: int | None = None, address: tuple[str, int] = ("127.0.0.1", 6004),
+def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[Any], session_blob: bytes, conn: Any,
+                 server: Any, options: ServerOptions, *, address: tuple[str, int] = ("127.0.0.1", 6004),
                  subject: Any = None, parameter_sets: Mapping[str, tuple[bytes, ...]] | None = None,
                  ssrc_taken: Callable[[int], bool] | None = None, rng: Any = None, core_rng: Any = None,
                  clock_offset_us: int = 0, rtp_origin_ms: float = 0.0, predictor: Any = None) -> Accepted:
-    """The server's side of the handshake after :func:`check_hello`, in every front door that speaks the protocol.
+    """The server's side of the handshake after :func:`open_hello`, in every front door that speaks the protocol.
 
-    ``method``'s server half (built by the caller: here, or in a render worker) declared ``specs`` and
+    ``opening``'s server half (built by the caller: here, or in a render worker) declared ``specs`` and
     ``session_blob``; this checks them against the server's limit and the client's codecs (a
     :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming what is wrong), builds the session's
     :class:`~.sender.ServerPipeline` (opening its encoders here unless ``parameter_sets`` names those of encoders
     running elsewhere, for the SDP) and its core, which keeps ``conn`` (the handshake's ``ServerConnection``: its
-    :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it.
+    :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it.  ``server`` is the
+    server's config (a run's or a live server's: ``scene``, ``fov_y_deg``, ``server_fps``, ``max_session_bytes``,
+    ``mtu_bytes``, ``fec``, ``transport_cc`` and, without ``predictor``, ``predictor`` by name).
     ``rng`` draws the SSRCs and sequence origins, ``core_rng`` the core's RTCP intervals (seeded runs; the system's
     randomness where None)."""
-    if len(session_blob) > max_session_bytes:
+    method, config = opening.method, opening.config
+    if len(session_blob) > server.max_session_bytes:
         raise SessionDataError(f"method {method}: session data of {len(session_blob)} bytes exceeds this server's "
-                               f"limit of {max_session_bytes} bytes (max_session_bytes)")
+                               f"limit of {server.max_session_bytes} bytes (max_session_bytes)")
     for spec in specs:
         codec = getattr(getattr(spec, "codec", None), "codec", None)
         if codec is not None and codec not in hello.codecs:
             raise RemoteProtocolError(f"method {method}: stream {spec.name} is {codec}, which the client does not "
                                       f"accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
-    tx = ServerPipeline(specs, mtu_bytes, ssrc_taken=ssrc_taken, rng=rng, fec=fec, transport_cc_id=transport_cc_id)
+    tx = ServerPipeline(specs, server.mtu_bytes, ssrc_taken=ssrc_taken, rng=rng, fec=server.fec,
+                        transport_cc_id=DEFAULT_EXTENSION_ID if server.transport_cc else None)
     if parameter_sets is None:
         tx.open_encoders()              # the SDP names the parameter sets the encoders will send
     else:
         tx.described_sets.update(parameter_sets)
-    core = ServerSession(tx, hello.display_hz, options or ServerOptions(), clock_offset_us, rtp_origin_ms, core_rng,
-                         knobs=config.adapt_knobs(), predictor=predictor, conn=conn)
+    core = ServerSession(tx, hello.display_hz, options, clock_offset_us, rtp_origin_ms, core_rng,
+                         knobs=config.adapt_knobs(), predictor=make_predictor(server.predictor) if predictor is None else predictor,
+                         conn=conn)
     host, port = address
-    welcome = Welcome(session_id, method,
-                      session_params(method, config, fov_y_deg, server_fps, scene, tx, session_blob, subject),
+    welcome = Welcome(session_id, method, session_params(method, config, server.fov_y_deg, server.server_fps,
+                                                         server.scene, tx, session_blob, subject),
                       tx.describe(host, port, f"splitrender {session_id}"))
     frames = [conn.send(welcome), *(f for _, f in tx.session_frames(session_blob, conn.send))]
     return Accepted(core, welcome, frames)
 
 
-def accept_page(method: str, specs: list[Any], display_hz: float, options: ServerOptions, predictor: Any) -> ServerSession:
-    """The server's side of a browser session (its WebRTC profile): ``method``'s server half declared ``specs``, which
-    a page takes only as one video stream (else a ``RemoteProtocolError`` naming them); the core, on the ``"webrtc"``
-    transport (the WebRTC stack packetizes and paces: ``options.pacing`` is left off)."""
+def accept_page(opening: Opening, specs: list[Any], display_hz: float, server: Any) -> ServerSession:
+    """The server's side of a browser session (its WebRTC profile): ``opening``'s server half declared ``specs``,
+    which a page takes only as one video stream (else a ``RemoteProtocolError`` naming them); the core, on the
+    ``"webrtc"`` transport with ``server``'s session options and predictor (the WebRTC stack packetizes and paces:
+    ``pacing`` is left off)."""
     if len(specs) != 1 or not isinstance(specs[0], StreamSpec):
-        raise RemoteProtocolError(f"method {method}: streams {[s.name for s in specs]} cannot go to a page (it takes "
-                                  "one video stream)", ErrorCode.UNSUPPORTED_METHOD)
-    return ServerSession(ServerPipeline(specs), display_hz, dataclasses.replace(options, pacing=False),
-                         predictor=predictor, transport="webrtc")
+        raise RemoteProtocolError(f"method {opening.method}: streams {[s.name for s in specs]} cannot go to a page "
+                                  "(it takes one video stream)", ErrorCode.UNSUPPORTED_METHOD)
+    return ServerSession(ServerPipeline(specs), display_hz, dataclasses.replace(server.session_options(), pacing=False),
+                         predictor=make_predictor(server.predictor), transport="webrtc")
 
 
 class Datagram(NamedTuple):
@@ -1247,9 +1300,9 @@ class ServerSession:
         (:class:`PoseInbox`).  Returns whether it was taken."""
         return self.poses.offer(t_s, pose, client_us, seq)
 
-    def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> list[bytes]:
+    def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> None:
         """A compound RTCP packet from the client.  The RTP packets it resends (NACKs, within the bounds of
-        :meth:`_answer_nack`) leave by :meth:`datagrams_to_send`; they are returned too, to look at."""
+        :meth:`_answer_nack`) leave by :meth:`datagrams_to_send`, of kind ``resend``, like everything it sends."""
         self.counters["rtcp_received"] += 1
         resend: list[bytes] = []
         refused: dict[int, str] = {}   # media SSRC: the counter of why its later requests here go unread
@@ -1292,7 +1345,6 @@ class ServerSession:
                 self.counters["twcc_unknown"] += self.send_history.unknown - before
                 self.estimator.on_feedback(results, int(round(now_ms * 1000)))
         self._queue([("resend", None, d) for d in resend], now_ms)
-        return resend
 
     def _answer_nack(self, st: _TxState, nack: GenericNack, now_ms: float, resend: list[bytes]) -> str | None:
         """Append to ``resend`` (this datagram's answers so far) the kept packets ``nack`` asks for, as libwebrtc
@@ -1488,21 +1540,21 @@ class ServerSession:
             s.update({"point_moves": self.point.moves, "lowest_point": int(max(pts)) if pts else 0})
         return s
 
-    def receive_datagram(self, data: bytes, now_ms: float, addr: Any = None) -> list[bytes]:
+    def receive_datagram(self, data: bytes, now_ms: float, addr: Any = None) -> None:
         """:meth:`receive_rtcp` from bytes (the one RTCP entry); malformed RTCP is counted (``rtcp_bad``) and
         ignored.  ``addr``, where the driver has one (a live socket): the datagram's source.  The first datagram that
         parses binds :attr:`peer`; one from any other source is then counted (``rtcp_foreign``) and dropped
         unparsed."""
         if self.peer is not None and addr != self.peer:
             self.counters["rtcp_foreign"] += 1
-            return []
+            return
         try:
             packets = parse_rtcp(data)
         except RtcpError:
             self.counters["rtcp_bad"] = self.counters.get("rtcp_bad", 0) + 1
-            return []
+            return
         self.peer = addr
-        return self.receive_rtcp(packets, now_ms)
+        self.receive_rtcp(packets, now_ms)
 
     def receive_picture_loss(self, now_ms: float) -> None:
         """A PLI naming one of our streams (from :meth:`receive_rtcp`, or passed on by a WebRTC stack): counted

@@ -39,13 +39,12 @@ from typing import Any, Protocol
 
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
-from splitrender.methods.base import AnyStreamSpec, StreamSpec, get_method, make_config
+from splitrender.methods.base import AnyStreamSpec, StreamSpec
 from splitrender.pipeline.recording import SessionLogs
 from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
-from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, check_hello
+from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, open_hello
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
-from splitrender.protocol.twcc import DEFAULT_EXTENSION_ID
 from splitrender.protocol import (
     Bye,
     Error,
@@ -57,10 +56,7 @@ from splitrender.protocol import (
     State,
     Stats,
     make_sdp,
-    negotiate_method,
 )
-from splitrender.scene.pose import CameraIntrinsics
-from splitrender.scene.predict import make_predictor
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
 
 Address = tuple[str, int]
@@ -126,7 +122,6 @@ class ServerSession:
         self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
         self.streams: dict[str, _Stream] = {}
         self.method = ""
-        self.intrinsics: CameraIntrinsics | None = None
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
         """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
@@ -248,33 +243,23 @@ class ServerSession:
         return True
 
     async def _setup(self, hello: Hello) -> Accepted:
-        """Choose method and codec, build the halves and encoders (in the render worker) and the session's core;
-        returns the accepted session (its Welcome and the control frames to send first).  Raises RemoteProtocolError."""
-        cfg = self.cfg
-        check_hello(hello, cfg.max_pixels)
-        self.method = negotiate_method(hello.methods, self.server.methods)
-        spec = get_method(self.method)
-        params = dict(cfg.method_params.get(self.method, {}))
-        mcfg = make_config(spec.config, params).for_codecs(tuple(hello.codecs))
-        self.intrinsics = CameraIntrinsics(hello.width, hello.height, cfg.fov_y_deg)
-        server = self.server
+        """Open the session (:func:`~splitrender.pipeline.open_hello`: method and codec), build the half and
+        encoders (in the render worker) and the session's core; returns the accepted session (its Welcome and the
+        control frames to send first).  Raises RemoteProtocolError."""
+        cfg, server = self.cfg, self.server
+        opening = open_hello(hello, server.methods, cfg)
+        self.method = opening.method
         hang = server.test_hang
         self.worker = await server.acquire_worker()
         # the method half and its encoders live in the worker; it sends back the streams, the session data
         # and the parameter sets each encoder will send (for the SDP)
-        specs, session_blob, sets = await self.worker.call(
-            "open", self.id, self.method, mcfg, self.intrinsics, hang[1] if hang and hang[0] == self.ordinal else -1,
-            deadline_s=cfg.setup_deadline_s)
+        specs, session_blob, sets = await self.worker.call("open", self.id, opening, hang[1] if hang and
+                                                           hang[0] == self.ordinal else -1, deadline_s=cfg.setup_deadline_s)
         host, port = server.udp_address
-        acc = accept_hello(hello, self.id, self.method, mcfg, specs, session_blob, self.channel.conn,
-                           scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
-                           options=cfg.session_options(),
-                           max_session_bytes=cfg.max_session_bytes, mtu_bytes=cfg.mtu_bytes, fec=cfg.fec,
-                           transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
+        acc = accept_hello(hello, self.id, opening, specs, session_blob, self.channel.conn, cfg, cfg.session_options(),
                            address=(host if host != "0.0.0.0" else "127.0.0.1", port),
                            subject=getattr(server.scene, "subject", None), parameter_sets=sets,
-                           ssrc_taken=server.ssrc_taken, rtp_origin_ms=server.epoch_wall_s * 1000,
-                           predictor=make_predictor(cfg.predictor))
+                           ssrc_taken=server.ssrc_taken, rtp_origin_ms=server.epoch_wall_s * 1000)
         self.core, self.tx = acc.core, acc.core.tx
         self.core.start(_now_ms())
         for st in self.tx.rtp_streams:
@@ -366,14 +351,13 @@ class ServerSession:
     async def _send_frame(self) -> None:
         tx, core = self.tx, self.core
         assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
-        wall = time.time()
-        order = core.order_at(wall * 1000, self.cfg.server_fps, self.server.epoch_wall_s)
-        if order is None:          # the operating point sends one tick in frame_div
-            return
-        t_us = int(wall * 1e6)
         # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
         # method's own predictions (a PVS over the expected latency)
-        enc, stats, stages = await self.worker.frame(self.id, order, self.cfg.render_deadline_s, self._counters)
+        made = await self.worker.frame(self.id, core, self.server, self._counters)
+        if made is None:
+            return
+        order, enc, stats, stages, wall = made
+        t_us = int(wall * 1e6)
         if self.channel.conn.state is not State.STREAMING:
             # the peer said Bye (or the connection closed) while the worker rendered: the control
             # task is ending the session in this same loop turn; this frame has nowhere to go

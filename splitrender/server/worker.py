@@ -45,7 +45,6 @@ import traceback
 from typing import Any
 
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
-from splitrender.methods.base import get_method
 from splitrender.pipeline import ProducerPool, StreamEncoder, make_frame
 from splitrender.scene.pose import CameraIntrinsics, Pose
 
@@ -152,19 +151,26 @@ class RenderWorker:
             return value
         raise WorkerError(value)
 
-    async def frame(self, sid: str, order: Any, deadline_s: float, counters: dict[str, Any]) -> Any:
-        """Session ``sid``'s frame ``order`` made and encoded here (the process's ``frame``), for both live front
-        doors: its update, the half's stats, and the stages with ``worker_rtt_ms`` (the round trip beyond the
-        worker's own time: pickling, the pipe, this loop's latency).  A missed deadline is counted in
-        ``counters["render_timeouts"]`` before :class:`WorkerTimeout` leaves."""
+    async def frame(self, sid: str, core: Any, server: Any, counters: dict[str, Any]) -> Any:
+        """The live frame tick of both live front doors for session ``sid``: ``core``'s order on the tick of
+        ``server``'s frame grid at the wall clock (:meth:`~splitrender.pipeline.ServerSession.order_at`; None where it
+        orders none: the operating point sends one tick in ``frame_div``), made and encoded here (the process's
+        ``frame``) within ``render_deadline_s``.  Returns the order, its update, the half's stats, the stages with
+        ``worker_rtt_ms`` (the round trip beyond the worker's own time: pickling, the pipe, this loop's latency) and
+        the wall clock it was ordered at (s).  A missed deadline is counted in ``counters["render_timeouts"]`` before
+        :class:`WorkerTimeout` leaves."""
+        wall = time.time()
+        order = core.order_at(wall * 1000, server.config.server_fps, server.epoch_wall_s)
+        if order is None:
+            return None
         c0 = time.perf_counter()
         try:
-            enc, stats, stages = await self.call("frame", sid, order, deadline_s=deadline_s)
+            enc, stats, stages = await self.call("frame", sid, order, deadline_s=server.config.render_deadline_s)
         except WorkerTimeout:
             counters["render_timeouts"] += 1
             raise
         stages["worker_rtt_ms"] = max(0.0, (time.perf_counter() - c0) * 1e3 - stages["frame_ms"])
-        return enc, stats, stages
+        return order, enc, stats, stages, wall
 
     async def _exchange(self, op: str, blob: bytes, deadline_s: float) -> Any:
         assert self._writer is not None
@@ -266,13 +272,13 @@ class _Worker:
     def ping(self) -> int:
         return os.getpid()
 
-    def open(self, sid: str, method: str, config: Any, intrinsics: Any, hang_frame: int = -1) -> Any:
-        """Build session ``sid``'s server half and encoders; returns its stream specs, session data and the
-        parameter sets each video encoder sends (for the SDP)."""
-        half, specs, session_blob = self.producers.server_half(get_method(method), config, intrinsics)
+    def open(self, sid: str, opening: Any, hang_frame: int = -1) -> Any:
+        """Build session ``sid``'s server half of ``opening`` (:class:`~splitrender.pipeline.Opening`) and its
+        encoders; returns its stream specs, session data and the parameter sets each video encoder sends (for the SDP)."""
+        half, specs, session_blob = self.producers.server_half(opening)
         encoder = StreamEncoder(specs)
         encoder.open()
-        self.halves[sid] = _Half(method, half, encoder, intrinsics, hang_frame)
+        self.halves[sid] = _Half(opening.method, half, encoder, opening.intrinsics, hang_frame)
         return specs, session_blob, {name: encoder.parameter_sets(name) for name in encoder.encoders}
 
     def frame(self, sid: str, order: Any) -> Any:

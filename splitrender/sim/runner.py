@@ -61,23 +61,22 @@ import numpy as np
 
 from .. import metrics
 from ..errors import ConfigError, RemoteProtocolError
-from ..methods.base import ClientFrame, get_method, make_config
+from ..methods.base import ClientFrame, get_method
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
-from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, ProducerPool,
+from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, Opening, ProducerPool,
                         ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
-                        check_hello, make_frame, session_summary, tcp_segments)
+                        check_hello, make_frame, method_config, session_summary, tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
-from ..protocol.twcc import DEFAULT_EXTENSION_ID
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
 from ..scene.loader import get_scene
 from ..scene.model import shift_time
 from ..scene.pose import CameraIntrinsics, Pose
-from ..scene.predict import PerfectPredictor, make_predictor, prediction_error
+from ..scene.predict import PerfectPredictor, prediction_error
 from ..scene.trace import get_trace
 from .config import RunConfig, to_toml
 from .truth import truth_source
@@ -185,7 +184,7 @@ class VirtualTimeRun:
         self.cfg = cfg
         self.progress = progress
         self.spec = get_method(cfg.method)
-        self.mcfg = make_config(self.spec.config, cfg.method_params)
+        self.mcfg = method_config(cfg.method, cfg.method_params)
         self.scene = shift_time(get_scene(cfg.scene), cfg.scene_time_offset_s)
         self.trace = get_trace(cfg.trace, scene=self.scene, fov_y_deg=cfg.fov_y_deg, aspect=cfg.width / cfg.height)
         names = cfg.client_traces or (cfg.trace,)
@@ -238,15 +237,12 @@ class VirtualTimeRun:
         # the server's side: the half here, then the one handshake every front door runs
         self._to_server(c, hs.hello(hello))
         make_current(self.renderer.ctx)
-        c.half, specs, session_blob = pool.server_half(self.spec, self.mcfg, self.intr)
-        predictor = PerfectPredictor(c.trace) if cfg.predictor == "perfect" else make_predictor(cfg.predictor)
-        acc = accept_hello(hello, f"sim{i}", cfg.method, self.mcfg, specs, session_blob, c.sconn,
-                           scene=cfg.scene, fov_y_deg=cfg.fov_y_deg, server_fps=cfg.server_fps,
-                           options=cfg.server_options(), max_session_bytes=cfg.max_session_bytes,
-                           mtu_bytes=cfg.mtu_bytes, fec=cfg.fec, transport_cc_id=DEFAULT_EXTENSION_ID if cfg.transport_cc else None,
+        opening = Opening(cfg.method, self.mcfg, self.intr)
+        c.half, specs, session_blob = pool.server_half(opening)
+        acc = accept_hello(hello, f"sim{i}", opening, specs, session_blob, c.sconn, cfg, cfg.server_options(),
                            subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
-                           predictor=predictor)
+                           predictor=PerfectPredictor(c.trace) if cfg.predictor == "perfect" else None)
         c.core_s, c.tx = acc.core, acc.core.tx
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in acc.frames)
         assert hs.receive_data(b"".join(acc.frames)) and hs.welcome is not None and hs.terms is not None
@@ -536,25 +532,28 @@ class VirtualTimeRun:
         self._client_timer_now(c)   # timeouts due at this tick first, as the live client's timer task would
         now_ms = t_d * 1000
         make_current(c.gl)
-        applied_ms, decode_ms = self._apply(c, now_ms)
-        true_pose = c.trace.pose_at(t_d)
+        new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
+        decode_ms = math.nan
+        for rf in new:
+            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
         w0 = time.perf_counter()
+        # the core's rule: a blank tick (nothing shown yet, or only updates whose content was lost) names no update;
+        # the first display of a shown update sends its Feedback with the tick's other output
+        shown = c.core.showing(new, apply_updates(c.chalf, new, f"run {cfg.method}"), c.chalf.has_content, now_ms)
+        true_pose = c.trace.pose_at(t_d)
         if c.chalf.has_content:
             cf = c.chalf.render(true_pose, t_d)
         else:  # nothing to show yet: the black background, every pixel a hole
             cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
-        client_ms = (time.perf_counter() - w0) * 1000 + applied_ms
+        client_ms = (time.perf_counter() - w0) * 1000
         make_current(self.renderer.ctx)
         while c.window and c.window[0][0] <= t_d - 1.0:
             c.window.popleft()
-        # a blank tick (nothing shown yet, or only updates whose content was lost) names no update
-        shown = None if c.core.blank(c.chalf.has_content) else c.core.shown
         fid = shown.update.frame_id if shown is not None else None
         row: dict[str, Any] = {"client": c.index, **frame_row(
             di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, c.pose_t.get(fid, math.nan),
             client_ms, decode_ms)}
         row["pred_err_cm"], row["pred_err_deg"] = c.pred.get(fid, (math.nan, math.nan))
-        c.core.feedback(now_ms)   # the first display of a shown update, sent with the tick's other output
         for name in c.bytes:
             if name != SESSION_STREAM:
                 row[f"kbps_{name}"] = sum(w.get(name, 0) for _, w in c.window) * 8 / 1000.0
@@ -571,18 +570,6 @@ class VirtualTimeRun:
         row.update({f"cli_{k}": v for k, v in cf.stats.items()})
         c.frames.append(row)
         self._client_out(c)
-
-    def _apply(self, c: _Client, now_ms: float) -> tuple[float, float]:
-        """The updates whose turn has come, applied to the client half in order and reported to the core; returns
-        the milliseconds applying took and the last one's measured decode time."""
-        assert c.core is not None
-        new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
-        decode_ms = math.nan
-        for rf in new:
-            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
-        w0 = time.perf_counter()
-        c.core.report_applied(new, apply_updates(c.chalf, new, f"run {self.cfg.method}"))
-        return (time.perf_counter() - w0) * 1000, decode_ms
 
     def _summary(self, c: _Client) -> dict[str, Any]:
         cfg = self.cfg

@@ -373,12 +373,8 @@ class WebRtcFrontDoor:
         """The headless client's recording files for ``s`` under its ``--out`` folder (in an executor thread)."""
         d = s.out_dir
         assert d is not None
-        server = s.server_counters()
-        counters: dict[str, Any] = {**server, **{f"browser_{k}": v for k, v in body.stats.items()}}
-        # the keys the scorer's summary reads, as the headless client names them
-        counters["rtp_bytes"] = int(server.get("rtp_payload_bytes", 0)) + 12 * int(server.get("rtp_packets", 0))
-        counters["meta_bytes"] = int(server.get("frame_meta_bytes", 0)) + int(server.get("sas_slot_bytes", 0))
-        counters["frames_partial"] = 0
+        # the session's counters under the headless client's names where they count the same, and the page's own
+        counters: dict[str, Any] = {**s.server_counters(), **{f"browser_{k}": v for k, v in body.stats.items()}}
         rec = manifest(s.id, s.method, s.params.get("config", {}), s.cfg.scene, s.cfg.fov_y_deg, s.cfg.server_fps,
                        body.trace, s.req.width, s.req.height, s.display_hz, s.display_hz, body.duration_s, True,
                        {"kind": "browser", "user_agent": body.user_agent, "record_every": body.record_every},

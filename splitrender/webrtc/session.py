@@ -33,12 +33,10 @@ from typing import Any
 from aiortc import RTCConfiguration, RTCPeerConnection
 
 from ..errors import describe_error
-from ..methods.base import PageGlue, StreamSpec, get_method, make_config
+from ..methods.base import PageGlue, StreamSpec, get_method
 from ..pipeline.sender import rtp_timestamp
 from ..pipeline.recording import SessionLogs
-from ..pipeline.session import ServerSession, accept_page
-from ..scene.pose import CameraIntrinsics
-from ..scene.predict import make_predictor
+from ..pipeline.session import ServerSession, accept_page, open_page
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, frame_message, parse_channel_message
 from .sdp import check_offer, replace_candidates, udp_candidate_ports
 from .track import EncodedVideoTrack, answer_offer, hook_sender_rtcp, try_offer
@@ -72,7 +70,6 @@ class BrowserSession:
         self.remote = ""
         """The page's address, as the front door saw it (sessions per address are capped)."""
         self.method = req.method
-        self.intrinsics = CameraIntrinsics(req.width, req.height, self.cfg.fov_y_deg)
         self.display_hz = req.display_hz
         self.core: ServerSession | None = None
         """The session core in its WebRTC profile (aiortc owns the transport): the page's poses, by the rule every
@@ -95,10 +92,10 @@ class BrowserSession:
         self._origin_sent = False
         self._logs = SessionLogs(self.out_dir)
         self._sender_sent: tuple[int, int] | None = None
-        """(packets, payload bytes) the RTP sender had sent at the last :meth:`read_sender_stats`."""
+        """(packets, bytes with their RTP headers) the RTP sender had sent at the last :meth:`read_sender_stats`."""
         self.counters: dict[str, int] = {
             "nacks_received": 0, "nacked_packets": 0,
-            "video_bytes": 0, "frame_meta_bytes": 0, "page_errors": 0, "render_timeouts": 0,
+            "video_bytes": 0, "meta_bytes": 0, "page_errors": 0, "render_timeouts": 0,
             "images_received": 0, "image_bytes_received": 0,
         }
         """What this front door alone counts; the core counts frames (those skipped too), keyframes, poses, feedback,
@@ -113,18 +110,15 @@ class BrowserSession:
     async def open(self) -> dict[str, Any]:
         """Build the half, encoders and peer connection; returns the answer (SDP and the session's terms)."""
         check_offer(self.req.sdp)       # before a render worker is taken
-        cfg = self.cfg
-        spec = get_method(self.method)
-        params = {**cfg.method_params.get(self.method, {}), **BROWSER_CODEC_PARAMS}
-        mcfg = make_config(spec.config, params)
+        opening = open_page(self.method, self.req.width, self.req.height, self.cfg, BROWSER_CODEC_PARAMS)
+        mcfg = opening.config
         self.worker = await self.server.acquire_worker()
-        specs, session_blob, _sets = await self.worker.call("open", self.id, self.method, mcfg, self.intrinsics, -1,
-                                                            deadline_s=cfg.setup_deadline_s)
+        specs, session_blob, _sets = await self.worker.call("open", self.id, opening, deadline_s=self.cfg.setup_deadline_s)
         # aiortc owns packetizing and pacing; adaptation follows the page's REMB (track.hook_sender_rtcp)
-        self.core = accept_page(self.method, specs, self.display_hz, cfg.session_options(), make_predictor(cfg.predictor))
+        self.core = accept_page(opening, specs, self.display_hz, self.cfg)
         ref = specs[0]
         self.stream = ref.name
-        self.page = spec.page_class(mcfg, self.intrinsics, session_blob)
+        self.page = get_method(self.method).page_class(mcfg, opening.intrinsics, session_blob)
         self.params = {"config": {k: v for k, v in vars(mcfg).items()}, "stream_width": ref.width,
                        "stream_height": ref.height}
         offer_sdp = self.req.sdp
@@ -221,13 +215,14 @@ class BrowserSession:
         if n >= MAX_PAGE_ERRORS:
             self.end(f"page error: {n} messages refused, the last: {text}")
 
-    def _send(self, label: str, obj: dict[str, Any]) -> int:
+    def _send(self, label: str, obj: dict[str, Any] | bytes) -> int:
+        """Send ``obj`` (JSON, or a method's own binary message) on channel ``label`` if it is open; its bytes."""
         ch = self.channels.get(label)
         if ch is None or ch.readyState != "open":
             return 0
-        text = json.dumps(obj, separators=(",", ":"))
-        ch.send(text)
-        return len(text)
+        data = obj if isinstance(obj, bytes) else json.dumps(obj, separators=(",", ":"))
+        ch.send(data)
+        return len(data)
 
     def end(self, reason: str) -> None:
         if not self.ended.is_set():
@@ -261,15 +256,16 @@ class BrowserSession:
             await self.close()
 
     async def read_sender_stats(self) -> None:
-        """Take the RTP sender's packets and payload bytes sent so far (aiortc's public ``getStats``) into
-        :meth:`server_counters` (``rtp_packets``, ``rtp_payload_bytes``)."""
+        """Take the RTP sender's packets and bytes sent so far (aiortc's public ``getStats``: the payload, and 12 bytes
+        of RTP header a packet) into :meth:`server_counters` (``rtp_packets``, ``rtp_bytes``: as the headless client
+        counts what it receives)."""
         if self.sender is None:
             return
         with contextlib.suppress(Exception):     # a transport already torn down: the last reading stands
             report = await self.sender.getStats()
             for st in report.values():
                 if getattr(st, "type", "") == "outbound-rtp":
-                    self._sender_sent = (int(st.packetsSent), int(st.bytesSent))
+                    self._sender_sent = (int(st.packetsSent), int(st.bytesSent) + 12 * int(st.packetsSent))
 
     async def close(self) -> None:
         self.end(self.end_reason or "closed")
@@ -293,7 +289,9 @@ class BrowserSession:
 
     def server_counters(self) -> dict[str, Any]:
         """The session's counters: its core's (frames, keyframes, poses, feedback, PLIs, REMB estimates), its own,
-        and the RTP sender's (packets and payload bytes sent)."""
+        and the RTP sender's (packets and bytes sent), under the headless client's names where they count the same
+        (``rtp_bytes``, ``meta_bytes``: the frames' metadata and the method's own messages), so that a recording's
+        counters need no renaming."""
         core = self.core.all_counters() if self.core is not None else {}
         out: dict[str, Any] = dict(core, **self.counters, method=self.method)
         if self.track is not None:
@@ -301,7 +299,7 @@ class BrowserSession:
         if self.page is not None:
             out.update(self.page.counters())
         if self._sender_sent is not None:
-            out["rtp_packets"], out["rtp_payload_bytes"] = self._sender_sent
+            out["rtp_packets"], out["rtp_bytes"] = self._sender_sent
         if self.relay is not None:
             st = self.relay.stats()
             out.update({"relay_down_in": st.downlink.packets_in, "relay_down_dropped": st.downlink.packets_dropped,
@@ -326,25 +324,18 @@ class BrowserSession:
     async def _send_frame(self) -> None:
         core = self.core
         assert core is not None and self.track is not None
-        wall = time.time()
-        now_ms = wall * 1000
-        order = core.order_at(now_ms, self.cfg.server_fps, self.server.epoch_wall_s)
-        if order is None:
+        made = await self.worker.frame(self.id, core, self.server, self.counters)
+        if made is None or self.ended.is_set():
             return
-        fid, scene_t = order.frame_id, order.t_s
-        enc, _stats, stages = await self.worker.frame(self.id, order, self.cfg.render_deadline_s, self.counters)
-        if self.ended.is_set():
-            return
+        order, enc, _stats, stages, wall = made
+        now_ms, fid, scene_t = wall * 1000, order.frame_id, order.t_s
         frame = enc.video[self.stream]
         rtp_ts = rtp_timestamp(scene_t)
         t_us = int(wall * 1e6)
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
         if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
-            ch = self.channels.get("meta")
-            for msg in self.page.frame(fid, enc.update.meta):
-                if ch is not None and ch.readyState == "open":
-                    ch.send(msg)
+            self.counters["meta_bytes"] += sum(self._send("meta", msg) for msg in self.page.frame(fid, enc.update.meta))
         n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, t_us,
                                                    self.track.rtp_origin))
         if not self.track.put(frame.data, rtp_ts):
@@ -352,7 +343,7 @@ class BrowserSession:
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         sent = core.frame_encoded(order, enc, now_ms, t_us)
         self.counters["video_bytes"] += len(frame.data)
-        self.counters["frame_meta_bytes"] += n_meta
+        self.counters["meta_bytes"] += n_meta
         row = {**core.update_row(order, sent, enc, stages, (self.stream,)), "server_us": t_us,
                "bytes_frame_meta": n_meta, "worker_rtt_ms": stages["worker_rtt_ms"]}
         self._logs.append("updates", row)
