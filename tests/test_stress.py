@@ -1,11 +1,13 @@
 """The stability suite as tests: every available method through every stress case its scene allows at
-160x90 and 1.8 s (one suite run shared by the tests, ~5 min on 2 cores; the test session starts it in
-the background beside the deterministic tests, see ``conftest.py``), with a stated bound per case:
+160x90 and 1.5 s (one suite run shared by the tests, about 400 CPU seconds; the test session starts it in
+the background beside the deterministic tests, see ``conftest.py``), with a stated bound per case.  The values
+below are the 1.5 s suite's (it ran 1.8 s before: 17 % more CPU for the same disturbances; the window is where it
+was, and recovery stays measurable after it):
 
 - every case, every method: no exception, no crash, no hang (120 s limit per run),
   and frames keep being shown: at least 60% of the display ticks show a frame (a
   lost first frame delays the start: warp under 3% Gilbert-Elliott loss loses about
-  two thirds of its server frames and shows ~75%) and no displayed update is older
+  two thirds of its server frames and shows 74%, tss 70%) and no displayed update is older
   than 1 s;
 - baselines (video, atw): share of frames below 20 dB at most ``baseline_floor_pct``
   of the case (see :data:`splitrender.experiments.stress.CASES`);
@@ -14,24 +16,25 @@ the background beside the deterministic tests, see ``conftest.py``), with a stat
   (mean PSNR inside the window at least 1 dB below the pre-window median);
 - ball_crossing: every method stays above 15 dB on its worst frame;
 - capacity_drop (20 -> 2 Mbit/s inside the window, ``--adapt full``): a recovery bound per method on the oldest
-  update shown, measured plus a quarter (300 ms for video; atw, sas and quads 333; tss 367; warp 400);
-- light_change (the sun dims over the run): generic bounds; video at most 55% below
-  the floor (43% measured);
-- fine_texture (backing away from the glyph sign): video at most 25% below the floor
-  (19% measured);
+  update shown, set at measured plus a quarter when video measured 300 ms, atw, sas and quads 333, tss 367 and
+  warp 400 (now 167 for video and atw, sas 200, tss 300, warp 333, quads 367);
+- light_change (the sun dims over the run): generic bounds; video at most 62% below
+  the floor (54.5% measured; 47% over 1.8 s, whose last 0.3 s come after the dimming);
+- fine_texture (backing away from the glyph sign, 1.5 m to 7 m over the run): video at most
+  35% below the floor (29.5% measured; 19% over 1.8 s, backing away more slowly);
 - atlas_overflow (sas and tss, an atlas of 1 Mpix at 1080p on the fast turns): tss at
-  20 dB or more on the mean and 14.5 on its worst frame (21.0 and 15.4 measured: it lowers
+  20 dB or more on the mean and 14.5 on its worst frame (21.3 and 15.6 measured: it lowers
   its rate, then leaves the smallest triangles out; it raised an error before); sas has
-  the generic bounds (11.5 dB mean: its allocations fail and what is not placed is a hole);
-- with GI (``probes``; measured with 384 rays per probe, 1536 before in brackets):
-  gi_light_change at 45 dB or more on the mean (49.0; 49.3; atw in light_change 22.7)
-  and 34 dB or more on its worst frame (37.5; 37.4); gi_fast_moves at 55 dB or more
+  the generic bounds (12.0 dB mean: its allocations fail and what is not placed is a hole);
+- with GI (``probes``; measured with 384 rays per probe; then over 1.8 s, and with 1536 rays over 1.8 s):
+  gi_light_change at 45 dB or more on the mean (47.2; 49.0; 49.3; atw in light_change 22.5)
+  and 34 dB or more on its worst frame (37.5; 37.5; 37.4); gi_fast_moves at 55 dB or more
   (60, capped: nothing but the camera moves, and every probe the walk needs was sent in
-  the first update); gi_moving_geometry at 30 dB or more on its worst frame (33.0;
+  the first update); gi_moving_geometry at 30 dB or more on its worst frame (33.0; 33.0;
   33.1); gi_lossy_visibility (the ablation) at 22 dB or less on the mean: the leak must
-  show (17.2; 18.7); gi_loss has the generic bounds: the visibility pictures rarely
-  arrive whole under Gilbert-Elliott loss and the client draws direct light only (23.9
-  dB mean; 24.0).
+  show (17.2; 17.2; 18.7); gi_loss has the generic bounds: the visibility pictures rarely
+  arrive whole under Gilbert-Elliott loss and the client draws direct light only (35.8
+  dB mean, 24.0 worst; over 1.8 s 40.2 and 24.0).
 """
 
 from __future__ import annotations
@@ -74,15 +77,15 @@ def test_stress_case(suite: dict, case: str) -> None:
     # capacity_drop adapts from the session's start, and adaptation starts low (300 kbit/s, issue 48): in the quick
     # suite the pre-window baseline (0.2-0.5 s) is the ramp from that start, so the window's cost shows in the oldest
     # update shown (the bounds below), not against that baseline (video measured 1.9 dB better in the window)
-    if case == "capacity_drop":   # the oldest update shown: measured 300 (video), 333 (atw, sas, quads), 367 (tss), 400 ms
+    if case == "capacity_drop":   # oldest update shown, measured: 167 ms (video, atw), 200 (sas), 300 (tss), 333 (warp), 367
         bound = {"video": 375.0, "atw": 420.0, "sas": 420.0, "quads": 420.0, "tss": 460.0, "warp": 500.0}
         for m, r in rows.items():
             assert r["longest_stale_ms"] <= bound.get(m, 1000.0), (m, r["longest_stale_ms"])
     if case == "ball_crossing":
         assert all(r["worst_psnr_db"] > 15.0 for r in rows.values())
-    if case == "atlas_overflow":   # measured 21.0 dB mean, 15.4 worst (sas 11.5, 9.0)
+    if case == "atlas_overflow":   # measured 21.3 dB mean, 15.6 worst (sas 12.0, 9.2)
         assert rows["tss"]["mean_psnr_db"] >= 20.0 and rows["tss"]["worst_psnr_db"] >= 14.5, rows["tss"]
-    if case == "gi_light_change":   # the client relights its own scene: 49.0 dB mean (light_change: atw 22.7)
+    if case == "gi_light_change":   # the client relights its own scene: 47.2 dB mean (light_change: atw 22.5)
         assert rows["probes"]["mean_psnr_db"] >= 45.0, rows["probes"]
     if case == "gi_lossy_visibility":   # the ablation's light leak shows on every frame (17.2 dB measured)
         assert rows["probes"]["mean_psnr_db"] <= 22.0, rows["probes"]
