@@ -12,7 +12,8 @@ atlas beside it.  Per texel the squared error after coding (mean over RGB) is pu
 
 and per 4 x 4 block (H.264's transform) the number of triangles whose samples it holds.  Per configuration: the
 atlas's bytes and PSNR over the rows in use, each category's texels, MSE and share of the error; ``sas``'s bytes and
-PSNR.  ``codec_block`` 1 (no alignment), 4 and 8, and 4 with ``fill_pitch``.  Writes (under ``--label``)
+PSNR.  ``codec_block`` 1 (no alignment), 4 and 8, and 4 with ``fill_pitch``.  With ``--mosaic``, what the tiles'
+means alone cost and what reordering the tiles could save (:func:`mosaic`).  Writes (under ``--label``)
 ``benchmarks/results/bench_tss_codec.json``.  Run::
 
     nice python benchmarks/bench_tss_codec.py
@@ -83,7 +84,42 @@ def code(img: np.ndarray, cfg: Any) -> tuple[int, np.ndarray]:
     return f.nbytes, dec.decode(f.data)
 
 
-def measure(scene: str, variants: list[str]) -> dict[str, Any]:
+def _blocks(img: np.ndarray, b: int) -> np.ndarray:
+    """(N, b, b, 3) the ``b``-square blocks of ``img`` (H, W, 3), row after row."""
+    H, W = img.shape[0] // b * b, img.shape[1] // b * b
+    return img[:H, :W].reshape(H // b, b, W // b, b, 3).transpose(0, 2, 1, 3, 4).reshape(-1, b, b, 3)
+
+
+def _unblocks(blocks: np.ndarray, like: np.ndarray, b: int) -> np.ndarray:
+    out = like.copy()
+    H, W = like.shape[0] // b * b, like.shape[1] // b * b
+    out[:H, :W] = blocks.reshape(H // b, W // b, b, b, 3).transpose(0, 2, 1, 3, 4).reshape(H, W, 3)
+    return out
+
+
+def mosaic(sent: np.ndarray, rows: int, cfg: Any) -> dict[str, int]:
+    """Bytes of the atlas's rows in use coded as one I-frame (``--mosaic``): as sent; each 4 x 4 and 8 x 8 block
+    replaced by its mean (what coding the blocks' means alone costs: the mosaic of tiles); its 8 x 8 blocks moved
+    into the order of their mean luma along a serpentine (the best a reordering of the tiles could do for their
+    means), and into a random order (what the id order already saves)."""
+    img = np.ascontiguousarray(sent[: -(-rows // 16) * 16])
+    out = {"as_sent": code(img, cfg)[0]}
+    for b in (4, 8):
+        bl = _blocks(img, b)
+        flat = np.broadcast_to(bl.astype(np.float32).mean(axis=(1, 2), keepdims=True), bl.shape)
+        out[f"block{b}_means"] = code(_unblocks(np.rint(flat).astype(np.uint8), img, b), cfg)[0]
+    bl = _blocks(img, 8)
+    luma = bl.astype(np.float32).mean(axis=(1, 2)) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    per_row = img.shape[1] // 8
+    for name, order in (("block8_sorted_by_luma", np.argsort(luma, kind="stable")),
+                        ("block8_shuffled", np.random.default_rng(0).permutation(luma.size))):
+        nb = bl[order].reshape(-1, per_row, 8, 8, 3).copy()
+        nb[1::2] = nb[1::2, ::-1]
+        out[name] = code(_unblocks(nb.reshape(bl.shape), img, 8), cfg)[0]
+    return out
+
+
+def measure(scene: str, variants: list[str], with_mosaic: bool = False) -> dict[str, Any]:
     from bench_tss_matched import MATCHED, SCENES
     from splitrender.methods.sas.server import SasServer
     from splitrender.methods.tss.server import TssServer
@@ -144,8 +180,12 @@ def measure(scene: str, variants: list[str]) -> dict[str, Any]:
             owners = np.array([len(set(b[b >= 0].tolist())) for b in o4])
             row["blocks4_by_triangles"] = {str(int(n)): {"blocks": int((owners == n).sum()), "mse": round(float(e4[owners == n].mean()), 2)}
                                            for n in np.unique(owners)}
+            if with_mosaic:
+                row["mosaic_bytes"] = mosaic(sent, rows, cfg)
+                row["mosaic_bytes"]["sas_as_sent"] = out["sas"]["bytes"]
             out[v] = row
-            print(scene, v, json.dumps({k: row[k] for k in ("rows", "bytes", "psnr_db_rows_used", "psnr_db_written")}), flush=True)
+            print(scene, v, json.dumps({k: row[k] for k in ("rows", "bytes", "psnr_db_rows_used", "psnr_db_written", "mosaic_bytes")
+                                        if k in row}), flush=True)
     finally:
         TssServer.produce, SasServer.produce = orig_t, orig_s
     return out
@@ -158,6 +198,7 @@ def main() -> None:
     ap.add_argument("--label", default="after")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--variants", default=",".join(VARIANTS))
+    ap.add_argument("--mosaic", action="store_true", help="per variant, what the atlas's tiles' means cost (mosaic())")
     a = ap.parse_args()
     t0 = time.perf_counter()
     res = {}
@@ -165,7 +206,7 @@ def main() -> None:
         if SCENES[s].startswith("/") and not os.path.exists(SCENES[s]):
             print(f"skip {s}: absent", file=sys.stderr)
             continue
-        res[s] = measure(s, a.variants.split(","))
+        res[s] = measure(s, a.variants.split(","), a.mosaic)
     import splitrender
 
     tree = Path(splitrender.__file__).resolve().parents[1]

@@ -44,11 +44,13 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "defaults": ({}, (23.0,)),
     "matched block4": (BLOCK4, (23.0, 31.0, 39.0)),
     "half block4": ({**HALF, "codec_block": 4}, (23.0, 31.0)),
+    "matched block4 fill": ({**BLOCK4, "fill_pitch": True}, (31.0, 39.0)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
 ``sas``'s samples); ``half block4``: ``bench_tss_matched.py``'s ``HALF`` (the moving budget at 2 samples per display
-pixel, up to 8 per covered pixel) with ``codec_block = 4``, fewer samples at a lower crf."""
+pixel, up to 8 per covered pixel) with ``codec_block = 4``, fewer samples at a lower crf; ``matched block4 fill``:
+``matched block4`` with ``fill_pitch`` (L-packing levels raised to fill their tip blocks' padding with samples)."""
 
 CHILD = r"""
 import json, sys

@@ -340,8 +340,9 @@ class TssServer(ServerHalf):
         else:
             v = c.video(self.server_fps)
         # zstd at level 19, not the pipeline's 3: the tables and geometry are a third of tss's bits on a moving view
-        # (2CylinderEngine's cloud orbit: 2.6 of 7.3 Mbit/s), and 19 takes 11-16 % off both (frame 0 of the engine
-        # still: geo 31.5 -> 28.0 KB, tris 12.9 -> 10.8 KB) for about 1.5 ms a 10 KB frame
+        # (2CylinderEngine's cloud orbit: 2.6 of 7.3 Mbit/s), and 19 takes 8-16 % off both (frame 0 of the engine
+        # still: geo 31.5 -> 28.0 KB, tris 12.9 -> 10.8 KB).  It costs time: those 120 KB raw took 185 ms at 19, 63 at
+        # 15 (28.3 and 11.2 KB), 2 at 3 on this 2-core machine under a load of 20; a moving view's ~10 KB a frame ~15 ms
         return [StreamSpec("atlas", v, *self.atlas), DataStreamSpec("tris", "reliable", level=ZSTD_LEVEL),
                 DataStreamSpec("geo", "reliable", level=ZSTD_LEVEL)]
 
