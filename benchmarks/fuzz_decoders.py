@@ -1101,10 +1101,11 @@ def _client_core(s: MethodSeeds) -> Any:
     return core
 
 
-def _decode_all(core: Any, works: list[Any], now_ms: float) -> None:
+def _decode_all(core: Any, now_ms: float) -> None:
+    """Decode what the client core released (``work_to_decode``)."""
     from splitrender.pipeline import ClientPipeline
 
-    for w in works:
+    for w in core.work_to_decode():
         core.on_decoded(w, ClientPipeline.decode(w), now_ms)
 
 
@@ -1129,7 +1130,8 @@ def _client_control_run(s: MethodSeeds) -> Callable[[bytes], Any]:
             core.receive_message(msg, now)
             core.collect(now)
         now += 1000.0
-        _decode_all(core, core.handle_timer(now), now)
+        core.handle_timer(now)
+        _decode_all(core, now)
         core.collect(now)
         return core.display(now + 1000.0)
 
@@ -1189,9 +1191,11 @@ def _client_datagram_run(s: MethodSeeds) -> Callable[[bytes], Any]:
         now = 0.0
         for d in _split_lp(data):
             now += 1.0
-            _decode_all(core, core.receive_datagram(d, now), now)
+            core.receive_datagram(d, now)
+            _decode_all(core, now)
         now += 1000.0
-        _decode_all(core, core.handle_timer(now), now)
+        core.handle_timer(now)
+        _decode_all(core, now)
         core.collect(now)
         return core.datagrams_to_send()
 

@@ -76,7 +76,9 @@ class Pair:
             self.cconn.receive_data(data)
             while (ev := self.cconn.next_event()) is not NEED_DATA:
                 self.client.receive_message(ev, now_ms)  # type: ignore[arg-type]
-        return [w for d in datagrams for w in self.client.receive_datagram(d, now_ms)]
+        for d in datagrams:
+            self.client.receive_datagram(d, now_ms)
+        return self.client.work_to_decode()
 
     def to_client(self, control: list[bytes], datagrams: list[bytes], now_ms: float) -> None:
         for data in control:
@@ -84,7 +86,8 @@ class Pair:
             while (ev := self.cconn.next_event()) is not NEED_DATA:
                 self.client.receive_message(ev, now_ms)  # type: ignore[arg-type]
         for d in datagrams:
-            self._decode(self.client.receive_datagram(d, now_ms), now_ms)
+            self.client.receive_datagram(d, now_ms)
+            self._decode(self.client.work_to_decode(), now_ms)
         self.client.collect(now_ms)
 
     def _decode(self, works: list, now_ms: float) -> None:  # type: ignore[type-arg]
@@ -93,7 +96,8 @@ class Pair:
 
     def timer(self, now_ms: float) -> list[list]:  # type: ignore[type-arg]
         """Run the client's timer at ``now_ms``; the RTCP it sent, parsed."""
-        self._decode(self.client.handle_timer(now_ms), now_ms)
+        self.client.handle_timer(now_ms)
+        self._decode(self.client.work_to_decode(), now_ms)
         self.client.collect(now_ms)
         return [parse_rtcp(d) for d in self.client.datagrams_to_send()]
 
@@ -357,7 +361,9 @@ def test_a_decoded_frame_of_the_wrong_size_is_dropped_and_counted() -> None:
         p.cconn.receive_data(data)
         while (ev := p.cconn.next_event()) is not NEED_DATA:
             p.client.receive_message(ev, 1.0)  # type: ignore[arg-type]
-    works = [w for d in dgrams for w in p.client.receive_datagram(d, 2.0)]
+    for d in dgrams:
+        p.client.receive_datagram(d, 2.0)
+    works = p.client.work_to_decode()
     assert len(works) == 1
     p.client.on_decoded(works[0], np.zeros((H * 2, W * 2, 3), np.uint8), 3.0)
     p.client.collect(3.0)

@@ -429,11 +429,13 @@ class LiveClient:
 
     def _on_datagram(self, data: bytes) -> None:
         assert self.core is not None
-        self._queue_work(self.core.receive_datagram(data, _now_ms()))
+        self.core.receive_datagram(data, _now_ms())
+        self._queue_work()
 
-    def _queue_work(self, works: list[Work]) -> None:
+    def _queue_work(self) -> None:
+        """What the core released to decode joins the decode queue (a full queue is flushed: the core is told)."""
         assert self.core is not None
-        for w in works:
+        for w in self.core.work_to_decode():
             try:
                 self._decode_q.put_nowait(w)
             except asyncio.QueueFull:
@@ -492,7 +494,8 @@ class LiveClient:
             self._counters["timer_lag_ms_max"] = round(max(self._counters.get("timer_lag_ms_max", 0.0), lag), 1)
             now_ms = _now_ms()
             if now_ms >= core.get_timer():
-                self._queue_work(core.handle_timer(now_ms))
+                core.handle_timer(now_ms)
+                self._queue_work()
                 self._collect()
                 self._flush_rtcp()
             self._take_events()

@@ -21,7 +21,8 @@ core owns its control connection (the :class:`ClientHandshake`'s): the control b
 :meth:`ClientSession.receive_data` and out by :meth:`ClientSession.data_to_send` (feedback, poses,
 Bye); its RTCP comes out of :meth:`ClientSession.datagrams_to_send`, its events (stalls, the
 server's Stats, Bye and Error, the connection's end) out of :meth:`ClientSession.next_event`, the
-decode work and the updates to show from the return values, and :meth:`ClientSession.get_timer`
+decode work out of :meth:`ClientSession.work_to_decode`, the updates to apply out of
+:meth:`ClientSession.display_tick` and what a tick shows out of :meth:`ClientSession.showing`, and :meth:`ClientSession.get_timer`
 says when to call its ``handle_timer``.  The server core keeps the handshake's ``ServerConnection``
 (:func:`accept_hello`): it frames the Welcome and each frame's FrameMeta and reliable data on it, the
 drivers hand it the client's control bytes (:meth:`ServerSession.receive_data`) and take the messages from
@@ -462,10 +463,11 @@ class ClientSession:
     It owns the control connection (``conn``: the handshake's; a fresh one past the handshake where None).  Call
     :meth:`start` once the streams are known, then feed the control connection's bytes (:meth:`receive_data`),
     datagrams (:meth:`receive_datagram`) and timer expiries (:meth:`handle_timer`).  Decoding is the driver's (it
-    may run on another thread): the ``Work`` items returned go to :meth:`ClientPipeline.decode`, their results to
-    :meth:`on_decoded`; :meth:`collect` then moves released frames to the display queue.  At each display tick
-    :meth:`display` gives the updates to apply in order; the driver applies them, reports each with :meth:`applied`,
-    renders, and calls :meth:`feedback` when a new update reached the screen.  What the core sends leaves by
+    may run on another thread): after each of those calls the ``Work`` items :meth:`work_to_decode` gives go to
+    :meth:`ClientPipeline.decode` (unless :meth:`skips_decode`), their results to :meth:`on_decoded`;
+    :meth:`collect` then moves released frames to the display queue.  At each display tick
+    :meth:`display_tick` gives the updates to apply in order; the driver applies them (:func:`apply_updates`) and
+    :meth:`showing` takes the outcome and says what the tick shows (sending a new update's Feedback); then it renders.  What the core sends leaves by
     :meth:`datagrams_to_send` (RTCP) and :meth:`data_to_send` (the control connection: feedback, and what the driver
     :meth:`send`), its events by :meth:`next_event`, and :meth:`get_timer` says when to call :meth:`handle_timer`.
     """
@@ -501,6 +503,8 @@ class ClientSession:
         self.probe_ssrc = probe_ssrc
         """The server's probe packets (padding for its rate estimator): their arrivals are reported, then dropped."""
         self._out: list[bytes] = []
+        self._work: list[Work] = []
+        """Frames released to decode since the last :meth:`work_to_decode`, in order."""
         self.events: list[SessionEvent] = []
         self._holes: dict[str, dict[int, tuple[float, float, int]]] = {}  # stream -> seq -> first seen, last nack, tries
         self.nack_rtt_ms: float | None = None
@@ -618,32 +622,32 @@ class ClientSession:
         out, self._control_out = b"".join(self._control_out), []
         return out
 
-    def receive_datagram(self, data: bytes, now_ms: float) -> list[Work]:
-        """An RTP or RTCP datagram; returns the frames now ready to decode."""
+    def receive_datagram(self, data: bytes, now_ms: float) -> None:
+        """An RTP or RTCP datagram; the frames it makes ready to decode join :meth:`work_to_decode`."""
         rx = self.rx
         if is_rtcp(data):
             try:
                 packets = parse_rtcp(data)
             except RtcpError:
                 self.counters["udp_bad"] += 1
-                return []
+                return
             self.counters["rtcp_received"] += 1
             for p in packets:
                 if isinstance(p, SenderReport) and p.ssrc in rx.by_ssrc:
                     st = rx.by_ssrc[p.ssrc].stats
                     if st is not None:
                         st.on_sender_report(p, now_ms)
-            return []
+            return
         if self.probe_ssrc is not None and len(data) >= 12 and int.from_bytes(data[8:12], "big") == self.probe_ssrc:
             self.counters["probe_packets"] += 1
             self.counters["probe_bytes"] += len(data)
             self._record_transport_seq(data, now_ms)
-            return []
+            return
         before = rx.counters["udp_bad"]
         works = rx.on_datagram(data, now_ms)
         if rx.counters["udp_bad"] != before:
             self.counters["udp_bad"] += 1
-            return []
+            return
         self.rtp_seen = True
         self.counters["rtp_packets"] += 1
         self.counters["rtp_bytes"] += len(data)
@@ -657,7 +661,7 @@ class ClientSession:
                 sample = now_ms - hole[1]
                 self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
                 self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
-        return self._count_keyframes(works)
+        self._work += self._count_keyframes(works)
 
     def _record_transport_seq(self, data: bytes, now_ms: float) -> None:
         if self._twcc is not None and self.transport_cc_id is not None:
@@ -672,6 +676,12 @@ class ClientSession:
         if self.counters["plis_sent"]:
             self.counters["keyframes_after_pli"] += sum(1 for w in works if w.unit.keyframe and w.stream.kind == "video")
         return works
+
+    def work_to_decode(self) -> list[Work]:
+        """The frames released to decode (by :meth:`receive_datagram` and :meth:`handle_timer`) since the last call, in
+        order: the driver decodes each (:meth:`ClientPipeline.decode`) unless :meth:`skips_decode` says not."""
+        out, self._work = self._work, []
+        return out
 
     def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
         """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``)."""
@@ -732,14 +742,15 @@ class ClientSession:
 
     # ------------------------------------------------------------------ timers
 
-    def handle_timer(self, now_ms: float) -> list[Work]:
+    def handle_timer(self, now_ms: float) -> None:
         """Jitter-buffer and resolution timeouts, receiver reports, NACKs, PLIs and stall detection at ``now_ms``.
 
-        Returns frames ready to decode; RTCP goes to :meth:`datagrams_to_send`, stalls to :attr:`events`."""
+        Frames it makes ready to decode join :meth:`work_to_decode`; RTCP goes to :meth:`datagrams_to_send`, stalls to
+        :attr:`events`."""
         self._last_timer_ms = now_ms
-        works = self._count_keyframes(self.rx.poll(now_ms))
+        self._work += self._count_keyframes(self.rx.poll(now_ms))
         if not self._started:
-            return works
+            return
         if not self.rtp_seen:
             if now_ms >= self._next_bind_ms:
                 self._next_bind_ms = now_ms + BIND_INTERVAL_MS
@@ -747,7 +758,7 @@ class ClientSession:
             idle = now_ms - self._last_frame_ms
             if idle >= self.opts.stall_timeout_s * 1000:
                 self.events.append(StallTimeout(now_ms, idle))
-            return works
+            return
         out: list[RtcpPacket] = []
         if now_ms >= self._next_rr_ms:
             self._next_rr_ms = now_ms + _rtcp_interval_ms(self.opts.rr_interval_s, self._rand)
@@ -774,7 +785,6 @@ class ClientSession:
             self._next_twcc_ms = math.inf   # armed again by the next arrival
         if out:
             self._queue_rtcp(out)
-        return works
 
     def get_timer(self) -> float:
         """When :meth:`handle_timer` wants to run next (driver ms; ``inf`` before :meth:`start`)."""

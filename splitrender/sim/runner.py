@@ -441,13 +441,15 @@ class VirtualTimeRun:
 
     def _deliver_datagram(self, c: _Client, data: bytes) -> None:
         assert c.core is not None
-        self._decode(c, c.core.receive_datagram(data, self.now * 1000))
+        c.core.receive_datagram(data, self.now * 1000)
+        self._decode(c)
         self._drain(c)
         self._client_out(c)
 
-    def _decode(self, c: _Client, works: list[Any]) -> None:
+    def _decode(self, c: _Client) -> None:
+        """Decode what the client core released (its keyframe-skip rule first), timing it for the display queue."""
         assert c.core is not None
-        for w in works:
+        for w in c.core.work_to_decode():
             if c.core.skips_decode(w, self.now * 1000):
                 continue
             w0 = time.perf_counter()
@@ -481,7 +483,8 @@ class VirtualTimeRun:
 
     def _client_timer_now(self, c: _Client) -> None:
         assert c.core is not None
-        self._decode(c, c.core.handle_timer(self.now * 1000))
+        c.core.handle_timer(self.now * 1000)
+        self._decode(c)
         self._drain(c)
         self._client_out(c)
 
