@@ -120,3 +120,35 @@ def test_the_model_bleeds_less_over_the_sky_it_reveals(renderer, one_frame) -> N
         got[reach] = (100 * tot[1] / tot[0], 100 * tot[2] / tot[0])
     (m1, b1), (_, b0) = got[keep], got[0]
     assert b1 < 0.5 * b0 and m1 < 1.5, got
+
+
+def test_the_reference_sets_lookup_stops_at_the_silhouette_against_the_sky() -> None:
+    """``scene_sides`` (``silhouette_clamp``, issue 50): a 100x60 block of model pixels in a 320x180 view of sky.  A
+    quad's lookup may filter half a texel across each side whose neighbouring pixel is the model, none across a side
+    that borders the sky (or the view's edge), so an edge quad seen from another pose never blends in the sky texels
+    beside it.  Counted exactly: every side of every quad, against the block's outline; the same with the sky sent
+    as quads (``background_quads``), where the sky's own quads keep their blend among themselves."""
+    from splitrender.methods.quads.config import QuadParams
+    from splitrender.methods.quads.gen import generate
+    from splitrender.methods.quads.mesh import scene_sides
+
+    depth = np.full((INTR.height, INTR.width), np.inf)
+    depth[60:120, 100:200] = 3.0
+    normal = np.zeros((INTR.height, INTR.width, 3))
+    normal[..., 2] = 1.0
+    block = np.isfinite(depth)
+    for background in (False, True):
+        qs = generate(depth, normal, np.eye(3), INTR, QuadParams(), background=background)
+        grow = scene_sides(qs, INTR)
+        assert grow.shape == (len(qs), 4) and set(np.unique(grow)) <= {0.0, 0.5}
+        model = ~qs.background(INTR)
+        assert model.sum() > 0 and (background == bool((~model).any()))
+        for i in range(len(qs)):
+            x, y, s = int(qs.x[i]), int(qs.y[i]), 1 << int(qs.level[i])
+            inside = block[y, x]
+            # left, top, right, bottom: the pixels just across each side, all inside the view and of the same kind
+            across = [(y, y + s, x - 1, x), (y - 1, y, x, x + s), (y, y + s, x + s, x + s + 1), (y + s, y + s + 1, x, x + s)]
+            for side, (y0, y1, x0, x1) in enumerate(across):
+                in_view = y0 >= 0 and x0 >= 0 and y1 <= INTR.height and x1 <= INTR.width
+                same = in_view and bool((block[y0:y1, x0:x1] == inside).all())
+                assert grow[i, side] == (0.5 if same else 0.0), (background, i, side)

@@ -16,7 +16,7 @@ from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
 from .mesh import (ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, continuous_sides, hidden_sky,
-                   join_meshes)
+                   join_meshes, scene_sides)
 from .server import outside_frustum
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
@@ -97,7 +97,11 @@ class QuadsClient(ClientHalf):
             new_ref = any(s.kind == KIND_REFERENCE for s in sets)
             if new_ref or any(s.kind == KIND_UPDATE and len(s.quads) for s in sets) or self._cached_parts is None:
                 # the cached quads' mesh changes only with them (a residual frame without update quads keeps it)
-                cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
+                if self.config.variant == "quasar" and self.config.silhouette_clamp:   # no sky texels at the silhouette
+                    cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), "quad",
+                                         grow=scene_sides(self.cache.quads, self.cache.intr))]
+                else:
+                    cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
                 if quasar_sky and (new_ref or self._cached_parts is None):   # the sky the reference set left out
                     self._sky = background_quads(self.cache.quads, self.cache.intr)
                     self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0),

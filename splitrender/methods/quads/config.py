@@ -128,6 +128,10 @@ class QuadsConfig(MethodConfig):
       views' duplicates and silhouette overhang won the depth test over the centre view, 20.2 dB on 2CylinderEngine's
       model at the server's own pose, lossless, where the centre view alone is exact).  With it the centre view's
       quads also filter across their borders along a surface (:func:`.mesh.continuous_sides`);
+    - ``silhouette_clamp`` (QUASAR): the reference set's colour lookup filters across quad borders only where the
+      pixel beyond is the model (:func:`.mesh.scene_sides`), not into the sky texels beside the silhouette.  On by
+      default (issue 50: on the peer benchmark's Spider, 40 % of our QUASAR's model error lay in covered silhouette
+      pixels drawn as a blend of model and sky, where QUASAR's code, sampling its view nearest, has none);
     - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
       this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
@@ -157,6 +161,7 @@ class QuadsConfig(MethodConfig):
     background_quads: bool = False
     hidden_sky_px: int = 0
     centre_guard: bool = True
+    silhouette_clamp: bool = True
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """Layers (the hidden ones dropped one by one: their quads unsent, their atlas slots black), then the

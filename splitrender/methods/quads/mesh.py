@@ -233,6 +233,20 @@ def continuous_sides(qs: QuadSet, depth: np.ndarray, rel: float | None = None) -
     return out
 
 
+def scene_sides(qs: QuadSet, intr: CameraIntrinsics) -> np.ndarray:
+    """:func:`continuous_sides` of a view's set over its own coverage: half a texel on each side whose neighbouring
+    pixel is a scene pixel of the set, 0 where it is background (no quad there, or a background quad) or outside
+    the view.  QUASAR's reference set (``QuadsConfig.silhouette_clamp``): its lookup filters across quad borders
+    inside the model, as the view's image would, and stops at the silhouette, so an edge quad seen from another
+    pose never mixes in the sky texels beside it (QUASAR's code samples its view nearest, no blend at all)."""
+    index_map = np.full((intr.height, intr.width), -1, np.int64)
+    rasterize(index_map, qs, 0)
+    scene = index_map >= 0
+    if len(qs):
+        scene[scene] = ~qs.background(intr)[index_map[scene]]
+    return continuous_sides(qs, np.where(scene, 1.0, 1e6))   # background: one far 'surface' of its own
+
+
 def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
                clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0,
                grow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -48,7 +48,7 @@ from .accounting import quasar_frame_bytes
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
-from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes, select
+from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes, scene_sides, select
 from .packing import copy_texels, fitting, pack_squares, packed_size, source_order, tile_side, whole_tiles
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
@@ -280,7 +280,12 @@ class QuadsServer(ServerHalf):
         cached = self.cache.quads
         assert cached is not None
         mesh = self._gl_mesh(ctx)
-        mesh.upload(*join_meshes([build_mesh(select(cached, ~cached.background(intr)), ref_pose, intr, (0, 0), "view")]))
+        scene = select(cached, ~cached.background(intr))
+        if self.config.silhouette_clamp:   # as the client draws it
+            part = build_mesh(scene, ref_pose, intr, (0, 0), "quad", grow=scene_sides(scene, intr))
+        else:
+            part = build_mesh(scene, ref_pose, intr, (0, 0), "view")
+        mesh.upload(*join_meshes([part]))
         self._colour_tex = upload_image(ctx.renderer.ctx, gr.color, self._colour_tex, linear=True)
         _, color, _ = mesh.draw(pose, intr, self._colour_tex, (intr.width, intr.height))
         rgba = np.frombuffer(color.read(), np.uint8).reshape(intr.height, intr.width, 4)[::-1]
