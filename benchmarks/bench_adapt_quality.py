@@ -140,10 +140,10 @@ def main() -> None:
         print(json.dumps(one(m, tr, mode, file, float(dur), truth)))
         return
     sys.path.insert(0, str(ROOT))
-    cache = Path(args.cache)
+    cache = Path(args.cache).resolve()
     cache.mkdir(parents=True, exist_ok=True)
     files = write_traces(cache, args.duration)
-    trees = {"before": Path("/tmp/wt_base"), "after": Path("/tmp/wt_after")}
+    trees = {"before": cache / "wt_base", "after": cache / "wt_after"}   # worktrees of --base and --rev
     sha = {"before": worktree(args.base, trees["before"]), "after": worktree(args.rev, trees["after"])}
     methods, traces = args.methods.split(","), args.traces.split(",")
     plan = [(m, tr, mode, code) for tr in traces for m in methods
