@@ -4,7 +4,7 @@ the background beside the deterministic tests, see ``conftest.py``), with a stat
 below are the 1.5 s suite's (it ran 1.8 s before: 17 % more CPU for the same disturbances; the window is where it
 was, and recovery stays measurable after it):
 
-- every case, every method: no exception, no crash, no hang (120 s limit per run),
+- every case, every method: no exception, no crash, no hang (120 CPU s per run, or 480 s of wall time),
   and frames keep being shown: at least 60% of the display ticks show a frame (a
   lost first frame delays the start: warp under 3% Gilbert-Elliott loss loses about
   two thirds of its server frames and shows 74%, tss 70%) and no displayed update is older
@@ -103,3 +103,26 @@ def test_recovery_time() -> None:
     assert recovery_time_s(t, p, 0.5, 1.0) == pytest.approx(0.2)
     assert math.isnan(recovery_time_s(t, np.where(t >= 0.5, 10.0, 30.0), 0.5, 1.0))
     assert QUICK.t1_s + 0.5 < QUICK.duration_s  # recovery is measurable in the quick suite
+
+
+def test_a_run_is_timed_by_its_workers_cpu_time_with_a_wall_clock_backstop() -> None:
+    """A run's limit counts its worker's CPU seconds, so a loaded machine does not make a slow run a hang; a hang that
+    burns nothing is still stopped at WALL_BACKSTOP times the limit; without /proc, wall time alone."""
+    import os
+    import time
+
+    from splitrender.experiments.stress import WALL_BACKSTOP, _Job, _process_cpu_s, _timed_out
+
+    before = time.process_time()
+    cpu = _process_cpu_s(os.getpid())
+    assert cpu is not None and abs(cpu - before) < 0.5, (cpu, before)   # this process's threads, from /proc
+    assert _process_cpu_s(None) is None
+    now = time.monotonic()
+    job = _Job(case=None, method="video", cfg=None, t0=now - 30.0, cpu0=cpu)   # type: ignore[arg-type]
+    assert not _timed_out(job, os.getpid(), limit=10.0)          # 30 s of wall, next to no CPU: waiting, not stuck
+    job.cpu0 = cpu - 11.0
+    assert _timed_out(job, os.getpid(), limit=10.0)              # 11 CPU s spent on it
+    job.cpu0, job.t0 = cpu, now - WALL_BACKSTOP * 10.0 - 1.0
+    assert _timed_out(job, os.getpid(), limit=10.0)              # a hang that burns nothing
+    job.t0 = now - 11.0
+    assert _timed_out(job, None, limit=10.0)                     # no CPU figure: wall time

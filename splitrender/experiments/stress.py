@@ -407,7 +407,37 @@ class _Job:
     method: str
     cfg: RunConfig
     t0: float = 0.0
+    cpu0: float | None = None
     msg: Any = None
+
+
+WALL_BACKSTOP = 4.0
+"""A run is stopped when its worker has spent the limit in CPU seconds on it (a loop that never ends), or this many
+times the limit in wall seconds (a hang that burns nothing, such as a deadlock).  CPU time, not wall time, so that a
+loaded machine (two busy loops, or a second suite beside this one) does not turn a slow run into a 'hang'."""
+
+
+def _process_cpu_s(pid: int | None) -> float | None:
+    """User plus system CPU seconds of process ``pid`` and all its threads (llvmpipe's included), from
+    ``/proc/PID/stat``; None where that cannot be read (not Linux, or the process has gone)."""
+    if pid is None:
+        return None
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _timed_out(j: _Job, pid: int | None, limit: float) -> bool:
+    """Whether the run ``j`` on worker ``pid`` is past its limit (:data:`WALL_BACKSTOP`); wall time alone where the
+    worker's CPU time cannot be read."""
+    wall = time.monotonic() - j.t0
+    cpu = _process_cpu_s(pid)
+    if cpu is None or j.cpu0 is None:
+        return wall > limit
+    return cpu - j.cpu0 > limit or wall > WALL_BACKSTOP * limit
 
 
 @dataclass
@@ -432,7 +462,8 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
 
     One worker process per method runs that method's cases in turn (imports and shader
     compiles are paid once); a case that raises is recorded, a case that crashes the
-    worker or runs past ``timeout_s`` is recorded and the worker is replaced.
+    worker or runs past ``timeout_s`` (CPU seconds of its worker, or :data:`WALL_BACKSTOP` times that in wall
+    seconds) is recorded and the worker is replaced.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -478,9 +509,10 @@ def run_stress(out: str | Path, methods: Sequence[str] | None = None, cases: Seq
                     continue
                 w.current = w.jobs.pop(0)
                 w.current.t0 = time.monotonic()
+                w.current.cpu0 = _process_cpu_s(w.proc.pid)
                 w.conn.send(w.current.cfg)
             j = w.current
-            timed_out = time.monotonic() - j.t0 > limit
+            timed_out = _timed_out(j, w.proc.pid, limit)
             if w.conn.poll(0.05):
                 try:
                     j.msg = w.conn.recv()
@@ -510,7 +542,8 @@ def _row(j: _Job, out: Path, tm: Timing, timed_out: bool, limit: float, exitcode
                  "wall_s": time.monotonic() - j.t0}
     if j.msg is None:
         base.update({"status": "timeout" if timed_out else "crashed",
-                     "error": f"no result after {limit:g} s" if timed_out else f"worker died (exit code {exitcode})"})
+                     "error": f"no result after {limit:g} CPU s or {WALL_BACKSTOP * limit:g} s" if timed_out else
+                     f"worker died (exit code {exitcode})"})
         log.error("stress %s/%s: %s", j.case.name, j.method, base["error"])
         return base
     if j.msg[0] == "error":
