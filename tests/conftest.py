@@ -150,17 +150,17 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 # shown against what was sent, and the few timed bounds (a shutdown within 2 s) scale by the load measured beside
 # them (tests/_load.py), so they hold on a busy machine too.
 
-#: Seconds the slowest virtual-time files took in the clean-clone CI (idle, ``-n 2``; 14:03 at 913640e and 14:21 a
-#: little later: the sum of each file's tests in the two runs' ``--durations=25``, a lower bound); under xdist they are handed out first, longest
-#: first, and the other files after them by test count.  The files of live sessions (test_live_e2e 58 s,
-#: test_browser 37, test_agreement 20, test_live_memory 18) keep the place their test count gives them, as before:
-#: handed out first they would all run beside the background stress suite.  An order, not an assertion: a file
-#: missing here only runs later.  The session's summary lists the run's slowest files
-#: (:func:`pytest_terminal_summary`) to refresh it from.
-SLOW_FILES_S = {"test_tss.py": 95, "test_sas.py": 75, "test_adapt_probes.py": 74, "test_tss_models.py": 56,
-                "test_adapt_quality.py": 46, "test_tss_rd.py": 43, "test_quads.py": 39, "test_sweep.py": 22,
-                "test_claims.py": 20, "test_demo.py": 20, "test_fuzz_entry_points.py": 19, "test_quads_models.py": 17,
-                "test_adapt_full.py": 16}
+#: Seconds the slowest virtual-time files took in the clean-clone CI at b9b42e4 (idle, ``-n 2``, 13:47; the session
+#: summary's "slowest files" line: each file's setup, call and teardown summed, beside the background stress suite).
+#: Under xdist they are handed out first, longest first, and the other files after them by test count.  The files
+#: of live sessions (test_live_e2e 107 s, test_browser 53, test_live_interop 21, test_agreement 20,
+#: test_webrtc_hostile 20, test_live_memory 18) keep the place their test count gives them: handed out first they
+#: would all run beside the background stress suite.  An order, not an assertion: a file missing here only runs
+#: later.  Refresh it from the summary line (:func:`pytest_terminal_summary`).
+SLOW_FILES_S = {"test_tss_models.py": 279, "test_sas.py": 145, "test_tss.py": 134, "test_adapt_probes.py": 129,
+                "test_adapt_quality.py": 87, "test_quads.py": 57, "test_tss_rd.py": 56, "test_sas_detail.py": 38,
+                "test_runner.py": 36, "test_demo.py": 31, "test_quads_models.py": 29, "test_fuzz_entry_points.py": 21,
+                "test_claims.py": 18, "test_sas_clients.py": 16}
 
 LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
                         "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",

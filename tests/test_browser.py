@@ -139,7 +139,9 @@ def test_a_page_that_breaks_the_protocol_ends_its_own_session_only(driver, tmp_p
 
     with ServerProcess(["--scene", "minimal", "--methods", "video", "--out", str(tmp_path)]) as server:
         bad = driver.browser.new_page(viewport=VIEWPORT)
-        bad.goto(f"{server.url}?method=video&trace=turn&duration=4&width=320&height=180&autostart=1")
+        # the bad page's session outlasts the good page's start (a loaded CI machine took more than its 4 s to start
+        # the second page, and the first page's channels had closed before its garbage was sent); the garbage ends it
+        bad.goto(f"{server.url}?method=video&trace=turn&duration=60&width=320&height=180&autostart=1")
         bad.wait_for_function("() => window.splitrender.state.phase === 'streaming'", timeout=60_000)
         good = driver.browser.new_page(viewport=VIEWPORT)
         good.goto(f"{server.url}?method=video&trace=turn&duration=4&width=320&height=180&autostart=1")

@@ -149,7 +149,7 @@ async def _our_setup_failures(server: LiveServer, monkeypatch: pytest.MonkeyPatc
         raise RuntimeError(f"no predictor today ({name})")
 
     with monkeypatch.context() as m:
-        m.setattr("splitrender.server.session.make_predictor", boom)
+        m.setattr("splitrender.pipeline.session.make_predictor", boom)   # the core opens the session
         msgs = await _exchange(server.tcp_address, encode_frame(_hello()))
     errors.append(_only_error(msgs, ErrorCode.INTERNAL))
     return errors
