@@ -150,9 +150,9 @@ def capture(method: str, duration_s: float = 0.6, width: int = WIDTH, height: in
 
     def display(real: Any) -> Any:
         @functools.wraps(real)
-        def wrap(self: Any, now_ms: float) -> Any:
-            out = real(self, now_ms)
-            for rf in out:
+        def wrap(self: Any, tick: Any, now_ms: float, *a: Any, **kw: Any) -> Any:
+            out = real(self, tick, now_ms, *a, **kw)
+            for rf in out[1] or ():   # the updates a display tick applies: the client core's one way out for them
                 u = rf.update
                 seeds.updates.append(CapturedUpdate(u.frame_id, bytes(rf.meta.method_meta), rf.meta,
                                                     copy.deepcopy(u)))
@@ -188,7 +188,7 @@ def capture(method: str, duration_s: float = 0.6, width: int = WIDTH, height: in
     try:
         _patched(ServerPipeline, "session_frames", session_frames, undo)
         _patched(Connection, "send", send, undo)
-        _patched(ClientSession, "display", display, undo)
+        _patched(ClientSession, "display_tick", display, undo)
         _patched(ClientSession, "datagrams_to_send", to_send, undo)
         _patched(ServerSession, "datagrams_to_send", server_out, undo)
         _patched(ServerSession, "frame_sent", frame_sent, undo)

@@ -372,7 +372,6 @@ def test_live_client_rejects_a_bad_frame_meta_as_a_protocol_error() -> None:
             assert peak < 2 * MB, (i, peak)  # measured at most 1.05 MB (the 1 MiB amplification blob)
         good = FrameMeta(9, 0, {}, Pose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), pack_meta(GOOD_ENV), False)
         client.core.receive_data(encode_frame(good), 0.0)
-        client._collect()
         assert client.counters["frames_complete"] == 1  # no streams: complete at once
     finally:
         for ex in (client.gl_executor, client.decode_executor, client.io_executor):

@@ -19,6 +19,7 @@ import pytest
 from splitrender.client.score import score_recording
 from splitrender.client.session import ClientConfig, LiveClient
 from splitrender.netsim import Relay, parse_path
+from splitrender.pipeline import FrameReleased
 from splitrender.server.server import LiveServer, ServerConfig
 
 from _load import LoadMeter
@@ -140,13 +141,17 @@ class _RecordingClient(LiveClient):
         super().__init__(config)
         self.completed: dict[int, tuple[dict[str, int], dict[str, tuple[tuple[int, ...], str]]]] = {}
 
-    def _collect(self) -> list:  # type: ignore[type-arg]
-        released = super()._collect()
-        for fr in released:  # frames the pipeline just released for display
-            if fr.update.complete:
+    def _take_events(self) -> None:
+        self.record_released()
+        super()._take_events()
+
+    def record_released(self) -> None:
+        """The frames the core announced released for display (FrameReleased), before the driver takes its events;
+        once more after the run for those it left untaken."""
+        for ev in list(self.core.events) if self.core is not None else []:
+            if isinstance(ev, FrameReleased) and (fr := ev.frame).update.complete:
                 self.completed[fr.update.frame_id] = (dict(fr.meta.rtp_timestamps),
                                                       {n: (p.shape, str(p.dtype)) for n, p in fr.update.planes.items()})
-        return released
 
 
 async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Path) -> None:
@@ -164,6 +169,7 @@ async def test_warp_colour_and_depth_streams_are_matched_and_shown(tmp_path: Pat
                 await asyncio.sleep(0.01)
             sessions = list(server.sessions.values())
             result = await run
+            client.record_released()
             sc = dict(sessions[0].counters)
         finally:
             serve.cancel()

@@ -12,8 +12,8 @@ import pytest
 from splitrender.codecs.video import VideoCodecConfig
 from splitrender.errors import ConfigError
 from splitrender.methods import StreamSpec, Update
-from splitrender.pipeline import (ClientOptions, Opening, method_config, ClientPipeline, ClientSession, ServerOptions, ServerPipeline, ServerSession,
-                                  Stalled, StallTimeout, specs_from_table)
+from splitrender.pipeline import (ClientOptions, Opening, method_config, ClientPipeline, ClientSession, FrameReleased, ServerOptions, ServerPipeline,
+                                  ServerSession, Stalled, StallTimeout, specs_from_table)
 from splitrender.protocol import (PROTOCOL_VERSION, ClientConnection, GenericNack, Hello, PictureLossIndication, serialize_rtcp,
                                   ReceiverReport, SenderReport, ServerConnection, Welcome, parse_rtcp)
 from splitrender.protocol.framing import NEED_DATA
@@ -88,7 +88,6 @@ class Pair:
         for d in datagrams:
             self.client.receive_datagram(d, now_ms)
             self._decode(self.client.work_to_decode(), now_ms)
-        self.client.collect(now_ms)
 
     def _decode(self, works: list, now_ms: float) -> None:  # type: ignore[type-arg]
         for w in works:
@@ -98,8 +97,17 @@ class Pair:
         """Run the client's timer at ``now_ms``; the RTCP it sent, parsed."""
         self.client.handle_timer(now_ms)
         self._decode(self.client.work_to_decode(), now_ms)
-        self.client.collect(now_ms)
         return [parse_rtcp(d) for d in self.client.datagrams_to_send()]
+
+
+def _due(client: ClientSession, now_ms: float) -> list:  # type: ignore[type-arg]
+    """The updates a display tick at ``now_ms`` applies (the one way frames leave the client core)."""
+    return client.display_tick(None, now_ms, hold=False)[1] or []
+
+
+def _releases(client: ClientSession) -> list:  # type: ignore[type-arg]
+    """The frames the client core announced released since the last call (its other events dropped)."""
+    return [ev.frame for ev in iter(client.next_event, None) if isinstance(ev, FrameReleased)]
 
 
 def _nacks(rtcp: list[list]) -> list[GenericNack]:  # type: ignore[type-arg]
@@ -111,12 +119,12 @@ def test_a_lost_packet_is_nacked_once_after_the_delay_and_the_retransmission_com
     p.timer(0.0)
     ctrl, dgrams = p.frame(0, 0.0)
     p.to_client(ctrl, dgrams, 5.0)
-    assert [f.update.frame_id for f in p.client.display(6.0)] == [0]
+    assert [f.update.frame_id for f in _due(p.client, 6.0)] == [0]
     ctrl, dgrams = p.frame(1, 33.0)
     assert len(dgrams) >= 3
     lost = dgrams[1]
     p.to_client(ctrl, dgrams[:1] + dgrams[2:], 38.0)
-    assert p.client.display(39.0) == []              # held: a packet of frame 1 is missing
+    assert _due(p.client, 39.0) == []              # held: a packet of frame 1 is missing
     assert _nacks(p.timer(40.0)) == []               # the timer sees the hole at 40 ms
     assert _nacks(p.timer(50.0)) == []               # 10 ms later: too early
     nacks = _nacks(p.timer(60.0))                    # 20 ms: one NACK naming the lost sequence number
@@ -125,7 +133,7 @@ def test_a_lost_packet_is_nacked_once_after_the_delay_and_the_retransmission_com
     resend = p.answer([nacks[0]], 80.0)
     assert resend == [lost] and p.server.counters["retransmitted"] == 1
     p.to_client([], resend, 95.0)
-    shown = p.client.display(96.0)
+    shown = _due(p.client, 96.0)
     assert [f.update.frame_id for f in shown] == [1] and shown[0].update.complete
     assert p.client.nack_rtt_ms == pytest.approx(95.0 - 60.0)
     assert p.client.counters["nacks_sent"] == 1 and p.client.counters["plis_sent"] == 0
@@ -153,9 +161,23 @@ def test_a_lost_keyframe_is_answered_with_a_pli_and_the_server_sends_an_idr() ->
     ctrl, dgrams = p.frame(2, 160.0)
     assert p.server.counters["plis"] == 1 and p.server.counters["keyframes"] == 2
     p.to_client(ctrl, dgrams, 165.0)
-    shown = [f for f in p.client.display(170.0) if f.update.planes]
+    shown = [f for f in _due(p.client, 170.0) if f.update.planes]
     assert [f.update.frame_id for f in shown] == [2]
     assert p.client.counters["keyframes_after_pli"] == 1
+
+
+def test_frames_leave_the_client_core_one_way() -> None:
+    """A frame the inputs complete joins the display queue by itself (announced by FrameReleased, for the driver's
+    records) and leaves only as a display tick's update, :attr:`release_delay_ms` after its release (virtual time's
+    decode model); the drivers call nothing in between."""
+    p = Pair()
+    p.client.release_delay_ms = lambda rf: 4.0
+    ctrl, dgrams = p.frame(0, 0.0)
+    p.to_client(ctrl, dgrams, 5.0)
+    (rf,) = _releases(p.client)
+    assert rf.update.frame_id == 0 and rf.update.complete
+    assert _due(p.client, 8.9) == [] and _due(p.client, 9.0) == [rf] and _due(p.client, 100.0) == []
+    assert not hasattr(p.client, "collect") and not hasattr(p.client, "display")
 
 
 def test_a_stall_is_reported_after_stall_frames_intervals_and_asks_for_keyframes_only_after_loss() -> None:
@@ -163,7 +185,7 @@ def test_a_stall_is_reported_after_stall_frames_intervals_and_asks_for_keyframes
     ctrl, dgrams = p.frame(0, 0.0)
     p.to_client(ctrl, dgrams, 5.0)                   # the last frame arrives at 5 ms
     p.timer(100.0)
-    assert p.client.next_event() is None
+    assert [f.update.frame_id for f in _releases(p.client)] == [0]   # its release, the only event
     stall_ms = 6.0 / FPS * 1000                      # 200 ms: nothing measured yet, the nominal rate
     assert p.client.get_timer() == pytest.approx(5.0 + stall_ms)
     rtcp = p.timer(5.0 + stall_ms)
@@ -228,9 +250,9 @@ def test_playout_delay_holds_each_update_until_its_turn() -> None:
         ctrl, dgrams = p.frame(fid, fid * 33.0)
         p.to_client(ctrl, dgrams, fid * 33.0 + 5.0)
     # server times are 1_000_000 + fid µs on the protocol clock (offset 0): due 100 ms after
-    assert p.client.display(1099.9) == []
-    assert [f.update.frame_id for f in p.client.display(1100.001)] == [0, 1]
-    assert [f.update.frame_id for f in p.client.display(1101.0)] == [2]
+    assert _due(p.client, 1099.9) == []
+    assert [f.update.frame_id for f in _due(p.client, 1100.001)] == [0, 1]
+    assert [f.update.frame_id for f in _due(p.client, 1101.0)] == [2]
 
 
 def test_bad_options_are_named() -> None:
@@ -366,7 +388,6 @@ def test_a_decoded_frame_of_the_wrong_size_is_dropped_and_counted() -> None:
     works = p.client.work_to_decode()
     assert len(works) == 1
     p.client.on_decoded(works[0], np.zeros((H * 2, W * 2, 3), np.uint8), 3.0)
-    p.client.collect(3.0)
     assert p.client.rx.counters["frames_wrong_size"] == 1 and p.client.rx.counters["decode_errors"] == 1
     assert p.client.rx.needs_keyframe() == ["color"]
     half = VideoClient(None, CameraIntrinsics(W, H, 60.0), None, {})  # type: ignore[arg-type]
@@ -585,7 +606,7 @@ def test_frames_given_up_for_the_frame_bound_still_hand_over_their_reliable_data
             cconn.receive_data(data)
             while (ev := cconn.next_event()) is not NEED_DATA:
                 client.receive_message(ev, float(fid))  # type: ignore[arg-type]
-        got += [(rf.update.frame_id, rf.update.data.get("tris"), rf.update.missing) for rf in rx.ready()]
+        got += [(rf.update.frame_id, rf.update.data.get("tris"), rf.update.missing) for rf in _releases(client)]
     assert rx.counters["frames_given_up"] == 6 and rx.pending_frames == 4
     assert [(f, d) for f, d, _ in got] == [(f, f"delta {f}".encode()) for f in range(6)], got
     assert all("color" in m for _, _, m in got)                # given up without their pictures
@@ -730,7 +751,7 @@ def test_the_client_core_owns_the_blank_frame_and_keyframe_skip_rules() -> None:
     assert not p.client.skips_decode(works[0], 0.0)               # a keyframe is decoded
     works[0].stream.broken = False                                # (its release mends the stream)
     p.client.on_decoded(works[0], ClientPipeline.decode(works[0]), 0.0)
-    (rf,) = p.client.collect(0.0)
+    (rf,) = _releases(p.client)                                   # released by the decode result, announced
     assert p.client.data_to_send() == b""
     # what the tick shows (the one call of both drivers): the applied update, its Feedback sent the first time only
     assert p.client.showing([rf], [True], True, 10.0) is rf and p.client.shown is rf
@@ -898,18 +919,18 @@ def test_until_an_update_shows_the_updates_that_show_nothing_wait_for_one_that_d
     p.to_client(ctrl, [], 5.0)                       # frame 0's FrameMeta, none of its packets
     p.timer(510.0)                                   # given up (resolve_timeout_ms): released, everything missing
     assert p.client.counters["frames_partial"] == 1
-    assert p.client.display(511.0) == [] and p.client.display(512.0) == [] and p.client.blank(False)
+    assert _due(p.client, 511.0) == [] and _due(p.client, 512.0) == [] and p.client.blank(False)
     p.server.request_keyframe(515.0)                 # (the lost frame was the IDR)
     ctrl, dgrams = p.frame(1, 520.0)
     p.to_client(ctrl, dgrams, 525.0)
-    new = p.client.display(530.0)
+    new = _due(p.client, 530.0)
     assert [(f.update.frame_id, bool(f.update.planes)) for f in new] == [(0, False), (1, True)]
     p.client.report_applied(new, [True, True])
     assert p.client.shown is new[1] and not p.client.blank(True)
     ctrl, _ = p.frame(2, 550.0)
     p.to_client(ctrl, [], 555.0)
     p.timer(1060.0)
-    assert [f.update.frame_id for f in p.client.display(1061.0)] == [2]   # shown before: it comes at its turn
+    assert [f.update.frame_id for f in _due(p.client, 1061.0)] == [2]   # shown before: it comes at its turn
 
 
 def test_a_display_tick_waits_for_the_server_clock_then_shows_black_until_an_update_shows() -> None:

@@ -393,7 +393,6 @@ class LiveClient:
         while True:
             data = await self.channel.reader.read(READ_CHUNK_BYTES)
             self.core.receive_data(data, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
-            self._collect()
             self._take_events()
 
     async def _flush_control(self) -> None:
@@ -404,7 +403,7 @@ class LiveClient:
 
     def _take_events(self) -> None:
         """The core's events: a stall is logged, a stall timeout, the server's Bye or Error or a closed connection
-        end the run (raised)."""
+        end the run (raised); a released frame (FrameReleased) needs nothing here, it is shown by display_tick."""
         assert self.core is not None
         while (ev := self.core.next_event()) is not None:
             if isinstance(ev, StallTimeout):
@@ -456,12 +455,6 @@ class LiveClient:
             if isinstance(res, CodecError):
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
             self.core.on_decoded(w, res, _now_ms())
-            self._collect()
-
-    def _collect(self) -> list[ReceivedFrame]:
-        """Released frames join the core's display queue; returns them."""
-        assert self.core is not None
-        return self.core.collect(_now_ms())
 
     def _all_counters(self) -> dict[str, Any]:
         """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
@@ -496,7 +489,6 @@ class LiveClient:
             if now_ms >= core.get_timer():
                 core.handle_timer(now_ms)
                 self._queue_work()
-                self._collect()
                 self._flush_rtcp()
             self._take_events()
             if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:

@@ -16,7 +16,7 @@ from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from ..options import ClientOptions
-from .session import (CLIENT_CODECS, Accepted, Opening, ClientHandshake, ClientSession, ControlClosed, PoseInbox, Resumed, ServerMessage,
+from .session import (CLIENT_CODECS, Accepted, Opening, ClientHandshake, ClientSession, ControlClosed, FrameReleased, PoseInbox, Resumed, ServerMessage,
                       ServerOptions, ServerSession, SessionEvent,
                       SessionTerms, Stalled, StallTimeout, accept_hello, accept_page, apply_updates, check_hello, parse_welcome,
                       method_config, open_hello, open_page, session_params,
@@ -26,7 +26,7 @@ from .wire import (DEFAULT_MAX_SESSION_BYTES, META_STREAM, SESSION_STREAM, Envel
                    control_wire_bytes, datagram_wire_bytes, specs_from_table, tcp_segments)
 
 __all__ = [
-    "ClientHandshake", "ClientOptions", "ClientSession", "ControlClosed", "PoseInbox", "ServerMessage", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
+    "ClientHandshake", "ClientOptions", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox", "ServerMessage", "Resumed", "ServerOptions", "ServerSession", "SessionEvent",
     "Accepted", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",

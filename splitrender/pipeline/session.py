@@ -83,7 +83,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -437,6 +437,14 @@ class ControlClosed(SessionEvent):
     """The server closed the control connection."""
 
 
+@dataclass(frozen=True)
+class FrameReleased(SessionEvent):
+    """A frame left the receive path for the display queue, whole or with ``frame.update.missing`` streams lost
+    (for the driver's records: it is applied only as :meth:`ClientSession.display_tick` gives it out)."""
+
+    frame: ReceivedFrame
+
+
 # --------------------------------------------------------------------------- client
 
 
@@ -464,10 +472,11 @@ class ClientSession:
     :meth:`start` once the streams are known, then feed the control connection's bytes (:meth:`receive_data`),
     datagrams (:meth:`receive_datagram`) and timer expiries (:meth:`handle_timer`).  Decoding is the driver's (it
     may run on another thread): after each of those calls the ``Work`` items :meth:`work_to_decode` gives go to
-    :meth:`ClientPipeline.decode` (unless :meth:`skips_decode`), their results to :meth:`on_decoded`;
-    :meth:`collect` then moves released frames to the display queue.  At each display tick
-    :meth:`display_tick` gives the updates to apply in order; the driver applies them (:func:`apply_updates`) and
-    :meth:`showing` takes the outcome and says what the tick shows (sending a new update's Feedback); then it renders.  What the core sends leaves by
+    :meth:`ClientPipeline.decode` (unless :meth:`skips_decode`), their results to :meth:`on_decoded`.  The frames
+    each input completes join the display queue there and then (each announced by a :class:`FrameReleased` event);
+    they leave it one way: at each display tick :meth:`display_tick` gives the updates to apply in order, the
+    driver applies them (:func:`apply_updates`) and :meth:`showing` takes the outcome and says what the tick shows
+    (sending a new update's Feedback); then it renders.  What the core sends leaves by
     :meth:`datagrams_to_send` (RTCP) and :meth:`data_to_send` (the control connection: feedback, and what the driver
     :meth:`send`), its events by :meth:`next_event`, and :meth:`get_timer` says when to call :meth:`handle_timer`.
     """
@@ -525,6 +534,9 @@ class ClientSession:
         self._next_bind_ms = math.inf
         self._last_timer_ms = -math.inf
         self._ready: deque[_Ready] = deque()
+        self.release_delay_ms: Callable[[ReceivedFrame], float] | None = None
+        """How long after its release a frame is displayable (virtual time's model of decoding; the live drivers
+        decode before the release: None, at once)."""
         self._pending_apply: list[ReceivedFrame] = []
         self._held_ticks: list[Any] = []
         """Display ticks held until the server's scene clock is known (:meth:`display_tick`)."""
@@ -611,6 +623,7 @@ class ClientSession:
         env = self.rx.last_envelope
         if isinstance(msg, FrameMeta) and env is not None:
             self.scene_epoch_ms = (msg.server_time_us - self.clock_offset_us) / 1000 - env.t_s * 1000
+        self._release(now_ms)
 
     def send(self, msg: Message) -> None:
         """Send ``msg`` on the control connection (a ``Pose``, ``Stats``, ``Bye``): its bytes join
@@ -662,6 +675,7 @@ class ClientSession:
                 self.nack_rtt_ms = sample if self.nack_rtt_ms is None else 0.875 * self.nack_rtt_ms + 0.125 * sample
                 self.counters["nack_rtt_ms"] = round(self.nack_rtt_ms, 1)
         self._work += self._count_keyframes(works)
+        self._release(now_ms)
 
     def _record_transport_seq(self, data: bytes, now_ms: float) -> None:
         if self._twcc is not None and self.transport_cc_id is not None:
@@ -686,6 +700,7 @@ class ClientSession:
     def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
         """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``)."""
         self.rx.on_decoded(work, result, now_ms)
+        self._release(now_ms)
 
     def skips_decode(self, work: Work, now_ms: float) -> bool:
         """The keyframe-skip rule of every driver, asked before decoding ``work``: a frame of a video stream that
@@ -703,14 +718,12 @@ class ClientSession:
             if s.kind == "video":
                 s.broken = True
 
-    def collect(self, now_ms: float, delay_ms: Any = None) -> list[ReceivedFrame]:
-        """Move the frames the pipeline released to the display queue; returns them.
-
-        ``delay_ms(frame)`` (optional): how long after ``now_ms`` the frame is displayable
-        (virtual time models decoding this way); releases stay in frame order."""
-        out = []
+    def _release(self, now_ms: float) -> None:
+        """Move the frames the pipeline released to the display queue (after each input: the one way frames reach
+        :meth:`display_tick`), each announced by a :class:`FrameReleased` event; a frame is displayable
+        :attr:`release_delay_ms` after ``now_ms``, and releases stay in frame order."""
         for rf in self.rx.ready():
-            release = now_ms + (float(delay_ms(rf)) if delay_ms is not None else 0.0)
+            release = now_ms + (float(self.release_delay_ms(rf)) if self.release_delay_ms is not None else 0.0)
             release = max(release, self._last_release_ms)
             self._last_release_ms = release
             if shows_anything(rf):
@@ -720,8 +733,7 @@ class ClientSession:
             while len(self._ready) > MAX_READY_UPDATES + int(self.opts.playout_delay_ms / 10):
                 self.counters["updates_dropped_ready"] += 1
                 self._pending_apply.append(self._ready.popleft().frame)  # applied unseen: the half's state stays in order
-            out.append(rf)
-        return out
+            self.events.append(FrameReleased(now_ms, rf))
 
     def _frame_arrived(self, now_ms: float) -> None:
         if self._stalled:
@@ -747,6 +759,10 @@ class ClientSession:
 
         Frames it makes ready to decode join :meth:`work_to_decode`; RTCP goes to :meth:`datagrams_to_send`, stalls to
         :attr:`events`."""
+        self._timer(now_ms)
+        self._release(now_ms)
+
+    def _timer(self, now_ms: float) -> None:
         self._last_timer_ms = now_ms
         self._work += self._count_keyframes(self.rx.poll(now_ms))
         if not self._started:
@@ -885,7 +901,7 @@ class ClientSession:
 
     # ------------------------------------------------------------------ display
 
-    def display(self, now_ms: float) -> list[ReceivedFrame]:
+    def _display(self, now_ms: float) -> list[ReceivedFrame]:
         """The updates to apply at display time ``now_ms``, in frame order: every released one whose
         decode is done and, with a playout delay, whose server time + the delay has come.  Until an update has
         been shown, updates that show nothing (:func:`shows_anything`) wait for the first that does: the tick shows
@@ -906,7 +922,7 @@ class ClientSession:
     def display_tick(self, tick: Any, now_ms: float, hold: bool = True) -> tuple[list[Any], list[ReceivedFrame] | None]:
         """Display tick ``tick`` (the driver's token for it) at ``now_ms``, by the rule of every client driver: the
         ticks now known to show the black background (blank: their rows name no update, nothing is applied or
-        rendered for them), in order, and the updates to apply at this one (:meth:`display`), or None when it is one
+        rendered for them), in order, and the updates to apply at this one (:meth:`_display`), or None when it is one
         of those or held.  With ``hold`` (a live client, whose rows carry the scene time) ticks are held while the
         server's scene clock is unknown (no FrameMeta yet, and so no update either) and come out blank with the first
         tick after it is (or from :meth:`held_ticks`).  A tick with no update shown and none to apply is blank; after
@@ -915,7 +931,7 @@ class ClientSession:
             self._held_ticks.append(tick)
             return [], None
         blanks, self._held_ticks = self._held_ticks, []
-        new = self.display(now_ms)
+        new = self._display(now_ms)
         if self.shown is None and not new:
             return [*blanks, tick], None
         return blanks, new

@@ -64,9 +64,10 @@ from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import ClientFrame, get_method
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
-from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession, Opening, ProducerPool,
-                        ReceivedFrame, Resumed, ServerPipeline, ServerSession, Stalled, accept_hello, apply_updates,
-                        check_hello, make_frame, method_config, session_summary, tcp_segments)
+from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
+                        FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerPipeline, ServerSession,
+                        Stalled, accept_hello, apply_updates, check_hello, make_frame, method_config, session_summary,
+                        tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
@@ -248,6 +249,7 @@ class VirtualTimeRun:
         assert hs.receive_data(b"".join(acc.frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
+        c.core.release_delay_ms = lambda rf, c=c: self._decode_delay_ms(c, rf)   # type: ignore[misc]
         self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
@@ -436,14 +438,12 @@ class VirtualTimeRun:
         except RemoteProtocolError as exc:  # a malformed update: counted, the run goes on
             c.protocol_errors += 1
             log.warning("run %s client %d: %s", self.cfg.method, c.index, exc)
-        self._drain(c)
         self._client_out(c)
 
     def _deliver_datagram(self, c: _Client, data: bytes) -> None:
         assert c.core is not None
         c.core.receive_datagram(data, self.now * 1000)
         self._decode(c)
-        self._drain(c)
         self._client_out(c)
 
     def _decode(self, c: _Client) -> None:
@@ -457,23 +457,20 @@ class VirtualTimeRun:
             c.decode_ms += (time.perf_counter() - w0) * 1000
             c.core.on_decoded(w, res, self.now * 1000)
 
-    def _drain(self, c: _Client) -> None:
-        """Released frames join the display queue, each its modelled (or measured) decode time later."""
-        assert c.core is not None
-        measured = self.cfg.cost_model == "measured"
+    def _decode_delay_ms(self, c: _Client, rf: ReceivedFrame) -> float:
+        """A frame the client core releases is displayable its modelled (or measured) decode time later."""
+        dec_ms = c.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
+        c.decode_ms_of[rf.update.frame_id] = c.decode_ms
+        c.decode_ms = 0.0
+        return dec_ms
 
-        def decode_delay_ms(rf: ReceivedFrame) -> float:
-            dec_ms = c.decode_ms * self.cfg.cost_scale if measured else self.cfg.decode_latency_ms
-            c.decode_ms_of[rf.update.frame_id] = c.decode_ms
-            c.decode_ms = 0.0
-            return dec_ms
-
-        for rf in c.core.collect(self.now * 1000, decode_delay_ms):
-            row = c.update_rows.pop(rf.update.frame_id, None)
-            if row is not None:
-                row["delivered"] = int(rf.update.complete)
-                row["missing"] = ";".join(sorted(rf.update.missing))
-                row["arrival_s"] = rf.received_ms / 1000.0
+    def _released(self, c: _Client, rf: ReceivedFrame) -> None:
+        """A released frame's delivery in its update row."""
+        row = c.update_rows.pop(rf.update.frame_id, None)
+        if row is not None:
+            row["delivered"] = int(rf.update.complete)
+            row["missing"] = ";".join(sorted(rf.update.missing))
+            row["arrival_s"] = rf.received_ms / 1000.0
 
     def _client_timer(self, c: _Client, token: int) -> None:
         if token != c.timer_token:   # superseded by an earlier deadline
@@ -485,7 +482,6 @@ class VirtualTimeRun:
         assert c.core is not None
         c.core.handle_timer(self.now * 1000)
         self._decode(c)
-        self._drain(c)
         self._client_out(c)
 
     def _client_out(self, c: _Client) -> None:
@@ -501,7 +497,9 @@ class VirtualTimeRun:
                 if not d.corrupted:
                     self._at(d.time_s, _DELIVER, self._server_rtcp, c, data)
         while (ev := c.core.next_event()) is not None:
-            if isinstance(ev, Stalled):
+            if isinstance(ev, FrameReleased):
+                self._released(c, ev.frame)
+            elif isinstance(ev, Stalled):
                 log.debug("run %s client %d: stalled at %.3f s (%.0f ms without a frame)", self.cfg.method, c.index,
                           ev.now_ms / 1000, ev.idle_ms)
             elif isinstance(ev, Resumed):
