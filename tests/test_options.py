@@ -58,14 +58,15 @@ def test_every_option_reaches_the_core_from_every_front_door(f, o):
     assert getattr(RunConfig.from_dict({key: value}), key) == value
 
 
+@pytest.mark.parametrize("end", ["above", "below"])
 @pytest.mark.parametrize("f,o", CLIENT + SERVER, ids=[f.name for f, _ in CLIENT + SERVER])
-def test_an_option_out_of_range_names_its_flag_and_one_range_everywhere(f, o):
-    bad = o.hi * 2 + 1
+def test_an_option_out_of_range_names_its_flag_and_one_range_everywhere(f, o, end):
+    bad = o.hi * 2 + 1 if end == "above" else o.lo - 1
     bad = int(bad) if f.type in ("int", int) else bad
     side = "client" if (f, o) in CLIENT else "serve"
     messages = []
     for cmd in ("run", side):
-        ns = build_parser().parse_args([cmd, o.flag, str(bad)])
+        ns = build_parser().parse_args([cmd, f"{o.flag}={bad}"])   # "=": a negative value is not read as a flag
         with pytest.raises(ConfigError) as err:
             session_options(ns) if cmd == "run" else (client_config(ns) if side == "client" else serve_config(ns))
         messages.append(str(err.value))

@@ -112,3 +112,22 @@ def test_every_client_front_door_writes_the_manifest_the_scorer_reads():
                 "images", "params", "session_id", "complete", "network"):
         assert key in m, key
     assert m["client"] == {"kind": "browser"} and m["params"] == {"overscan": 1.2}
+
+
+def test_the_wall_clock_columns_of_update_rows_are_timing_columns() -> None:
+    """Every column of an update row or its summary that carries a measured stage (make_frame's stages, the encoder's
+    milliseconds) is one the store and the self-repeat comparisons leave out: two runs of one config differ there
+    and nowhere else (shared_ms and mean_shared_server_ms were missing, and a sas run's rows differed in them)."""
+    from types import SimpleNamespace
+
+    from splitrender.experiments.store import is_timing_column
+    from splitrender.pipeline.rows import update_row, updates_summary
+
+    stages = {"shared_ms": 1e9 + 1, "produce_ms": 1e9 + 2}
+    out = SimpleNamespace(total_wire_bytes=100, keyframe=False, wire_bytes={"color": 100})
+    row = update_row(0, 0.0, out, SimpleNamespace(encode_ms=1e9 + 3), SimpleNamespace(expected_latency_s=0.05),
+                     stages, ["color"], {})
+    measured = {k for k, v in {**row, **updates_summary([row])}.items() if isinstance(v, float) and v > 1e9}
+    assert measured == {"shared_ms", "server_ms", "encode_ms", "mean_shared_server_ms", "mean_server_ms",
+                        "mean_encode_ms"}
+    assert all(is_timing_column(k) for k in measured), sorted(k for k in measured if not is_timing_column(k))

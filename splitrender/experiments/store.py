@@ -40,8 +40,9 @@ Row = dict[str, Any]
 #: Columns that are wall-clock measurements on this machine: they differ between two
 #: executions of the same config; everything else in a run's tables is deterministic.
 TIMING_COLUMNS = frozenset({
-    "server_ms", "encode_ms", "decode_ms", "client_ms", "gt_ms",
-    "mean_server_ms", "mean_encode_ms", "mean_decode_ms", "mean_client_ms", "mean_gt_ms", "wall_s",
+    "server_ms", "shared_ms", "encode_ms", "decode_ms", "client_ms", "gt_ms",
+    "mean_server_ms", "mean_shared_server_ms", "mean_encode_ms", "mean_decode_ms", "mean_client_ms", "mean_gt_ms",
+    "wall_s",
 })
 
 
