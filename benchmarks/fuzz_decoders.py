@@ -34,8 +34,8 @@ Entry points (``--only`` takes name prefixes):
 - ``server.control``: client control frames (``Feedback``, ``Pose``, ``KeyframeRequest``,
   ``Stats``, ``Bye``) into a ``ServerConnection`` and the server session core's
   ``receive_message`` (poses also into the live server's predictor); ``server.rtcp``:
-  client RTCP into ``receive_datagram`` and, as the live server routes it
-  (``rtcp_route_ssrc``, then ``parse_rtcp``), ``receive_rtcp``, with a retransmission history to answer NACKs;
+  client RTCP into ``receive_datagram`` (the one RTCP entry), after the live server's routing by SSRC
+  (``rtcp_route_ssrc``), with a retransmission history to answer NACKs;
 - ``fec.parse``, ``fec.recover`` (an FEC packet and its group but one), ``jitter.fec.*``
   (media and FEC packets through a jitter buffer); their mutations include FEC packets
   whose protection is shorter than a media payload;
@@ -63,6 +63,7 @@ prints it).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import heapq
 import json
@@ -1435,14 +1436,9 @@ def _server_rtcp_entry(s: MethodSeeds) -> EntryPoint:
         core = sc.get()
         sc.now += 10.0
         try:
-            core.receive_datagram(data, sc.now)
-            try:   # the live server routes RTCP by the media SSRC its headers name, then the session parses it
-                ssrc = rtcp_route_ssrc(data)
-            except RtcpError:
-                return None
-            if ssrc is None or not core.owns_ssrc(ssrc):
-                return None
-            core.receive_rtcp(parse_rtcp(data), sc.now)
+            with contextlib.suppress(RtcpError):   # the live server routes RTCP by the media SSRC its headers name
+                rtcp_route_ssrc(data)
+            core.receive_datagram(data, sc.now)   # then the session parses it: the one RTCP entry of both clocks
             return [d.kind for d in core.datagrams_to_send(sc.now)]   # its answers leave its one way out
         except BaseException:
             sc.core = None

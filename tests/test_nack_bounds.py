@@ -62,12 +62,10 @@ class Streaming:
         self.frame += 1
 
     def answer(self, rtcp: bytes | list[GenericNack], now_ms: float) -> list[bytes]:
-        """What the core resends at ``now_ms`` for ``rtcp`` (a datagram, or packets parsed): the retransmissions among
-        the datagrams it lets go, by its one way out (``datagrams_to_send``; no pacer here, so they leave at once)."""
-        if isinstance(rtcp, bytes):
-            self.core.receive_datagram(rtcp, now_ms)
-        else:
-            self.core.receive_rtcp(rtcp, now_ms)   # type: ignore[arg-type]
+        """What the core resends at ``now_ms`` for ``rtcp`` (a datagram, or packets sent as one): the retransmissions
+        among the datagrams it lets go, by its one way out (``datagrams_to_send``; no pacer here, so they leave at
+        once)."""
+        self.core.receive_datagram(rtcp if isinstance(rtcp, bytes) else serialize_rtcp(rtcp), now_ms)  # type: ignore[arg-type]
         return [d.data for d in self.core.datagrams_to_send(now_ms) if d.kind == "resend"]
 
     def last(self, n: int) -> tuple[int, ...]:

@@ -60,9 +60,9 @@ class Pair:
         return [d for _, d in out.control], [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtp"]
 
     def answer(self, rtcp: list, now_ms: float) -> list[bytes]:  # type: ignore[type-arg]
-        """The server core takes the client's RTCP ``rtcp`` (parsed) at ``now_ms``: the packets it resends, as they
-        leave its one way out (of kind ``resend``)."""
-        self.server.receive_rtcp(rtcp, now_ms)
+        """The server core takes the client's RTCP ``rtcp`` (packets, sent as one compound datagram) at ``now_ms``: the
+        packets it resends, as they leave its one way out (of kind ``resend``)."""
+        self.server.receive_datagram(serialize_rtcp(rtcp), now_ms)
         return [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "resend"]
 
     def reports(self, now_ms: float) -> list[bytes]:
@@ -157,7 +157,7 @@ def test_a_lost_keyframe_is_answered_with_a_pli_and_the_server_sends_an_idr() ->
     plis = [x for c in rtcp for x in c if isinstance(x, PictureLossIndication)]
     assert len(plis) == 1 and plis[0].media_ssrc == p.tx.streams["color"].ssrc
     assert [x for c in p.timer(150.0) for x in c if isinstance(x, PictureLossIndication)]   # still waiting: again
-    p.server.receive_rtcp(plis, 155.0)
+    p.server.receive_datagram(serialize_rtcp(plis), 155.0)
     ctrl, dgrams = p.frame(2, 160.0)
     assert p.server.counters["plis"] == 1 and p.server.counters["keyframes"] == 2
     p.to_client(ctrl, dgrams, 165.0)
@@ -484,11 +484,11 @@ def test_a_full_intra_request_is_answered_once_per_sequence_number() -> None:
     data = serialize_rtcp([ReceiverReport(0x1234), fir])
     packets = parse_rtcp(data)
     assert packets[1] == fir and rtcp_route_ssrc(data) == ssrc
-    p.server.receive_rtcp(packets, 1000.0)
-    p.server.receive_rtcp(packets, 1010.0)                 # resent: the same request
-    p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc + 1, 8),))], 1020.0)
+    p.server.receive_datagram(serialize_rtcp(packets), 1000.0)
+    p.server.receive_datagram(serialize_rtcp(packets), 1010.0)                 # resent: the same request
+    p.server.receive_datagram(serialize_rtcp([FullIntraRequest(0x1234, ((ssrc + 1, 8),))]), 1020.0)
     assert p.server.counters["firs"] == 1 and p.server.keyframe_due(1030.0)
-    p.server.receive_rtcp([FullIntraRequest(0x1234, ((ssrc, 8),))], 1500.0)
+    p.server.receive_datagram(serialize_rtcp([FullIntraRequest(0x1234, ((ssrc, 8),))]), 1500.0)
     assert p.server.counters["firs"] == 2
 
 
@@ -510,13 +510,13 @@ def test_transport_wide_feedback_reports_every_stamped_packet_and_a_loss() -> No
     fbs = [x for c in p.timer(120.0) for x in c if isinstance(x, TransportFeedback)]
     assert len(fbs) == 1 and fbs[0].base_seq == 0 and len(fbs[0].arrivals) == len(sent)
     assert [a is None for a in fbs[0].arrivals] == [k == 2 for k in range(len(sent))]
-    p.server.receive_rtcp(fbs, 140.0)
+    p.server.receive_datagram(serialize_rtcp(fbs), 140.0)
     assert p.server.counters["twcc_feedback"] == 1 and p.server.counters["twcc_unknown"] == 0
     assert p.server.send_history is not None and p.server.send_history.in_flight == 0
     assert p.server.estimator is not None and len(p.server.estimator.history) == 1
     assert set(p.server.congestion()) == {"cc_target_kbps", "cc_encoder_kbps", "cc_acked_kbps", "cc_queue_ms"}
-    p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
-                                       (int.from_bytes(sent[2][2:4], "big"),))], 150.0)
+    p.server.receive_datagram(serialize_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc,
+                                                          (int.from_bytes(sent[2][2:4], "big"),))]), 150.0)
     (out,) = p.server.datagrams_to_send(150.0)             # the resend leaves the one way, stamped as it leaves
     assert out.kind == "resend" and read_transport_seq(out.data, 5) == len(sent)
     assert p.client.counters["twcc_feedback_sent"] == 1
@@ -829,7 +829,7 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
     assert 500.0 <= sr_at <= 1500.0                      # nothing else due: the first sender report (1 s +- 50 %)
     assert p.server.datagrams_to_send(leave_ms) == []    # and what was due has left: the deadline moved on
     seq = int.from_bytes(sent[1].data[2:4], "big")
-    p.server.receive_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))], 20.0)
+    p.server.receive_datagram(serialize_rtcp([GenericNack(p.client.ssrc, p.tx.streams["color"].ssrc, (seq,))]), 20.0)
     assert [(d.kind, d.data) for d in p.server.datagrams_to_send(20.0)] == [("resend", sent[1].data)]
     assert [d.kind for d in p.server.datagrams_to_send(sr_at)] == ["rtcp"]
     assert isinstance(parse_rtcp(p.reports(1e9)[0])[0], SenderReport)

@@ -1326,8 +1326,8 @@ class ServerSession:
         (:class:`PoseInbox`).  Returns whether it was taken."""
         return self.poses.offer(t_s, pose, client_us, seq)
 
-    def receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> None:
-        """A compound RTCP packet from the client.  The RTP packets it resends (NACKs, within the bounds of
+    def _receive_rtcp(self, packets: list[RtcpPacket], now_ms: float) -> None:
+        """A compound RTCP packet from the client (parsed by :meth:`receive_datagram`, the one RTCP entry).  The RTP packets it resends (NACKs, within the bounds of
         :meth:`_answer_nack`) leave by :meth:`datagrams_to_send`, of kind ``resend``, like everything it sends."""
         self.counters["rtcp_received"] += 1
         resend: list[bytes] = []
@@ -1567,7 +1567,7 @@ class ServerSession:
         return s
 
     def receive_datagram(self, data: bytes, now_ms: float, addr: Any = None) -> None:
-        """:meth:`receive_rtcp` from bytes (the one RTCP entry); malformed RTCP is counted (``rtcp_bad``) and
+        """A compound RTCP datagram from the client (the one RTCP entry of both clocks); malformed RTCP is counted (``rtcp_bad``) and
         ignored.  ``addr``, where the driver has one (a live socket): the datagram's source.  The first datagram that
         parses binds :attr:`peer`; one from any other source is then counted (``rtcp_foreign``) and dropped
         unparsed."""
@@ -1580,10 +1580,10 @@ class ServerSession:
             self.counters["rtcp_bad"] = self.counters.get("rtcp_bad", 0) + 1
             return
         self.peer = addr
-        self.receive_rtcp(packets, now_ms)
+        self._receive_rtcp(packets, now_ms)
 
     def receive_picture_loss(self, now_ms: float) -> None:
-        """A PLI naming one of our streams (from :meth:`receive_rtcp`, or passed on by a WebRTC stack): counted
+        """A PLI naming one of our streams (from :meth:`receive_datagram`, or passed on by a WebRTC stack): counted
         (``plis``), and an IDR requested."""
         self.counters["plis"] += 1
         self.request_keyframe(now_ms)
