@@ -70,7 +70,7 @@ from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandsh
                         tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import PROTOCOL_VERSION, Hello, Message, ServerConnection, Welcome
+from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -235,8 +235,11 @@ class VirtualTimeRun:
         opts = cfg.client_options()
         hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
                              (hello.width, hello.height))
-        # the server's side: the half here, then the one handshake every front door runs
-        self._to_server(c, hs.hello(hello))
+        # the server's side: its end of the control connection reads the Hello; the half here, then the one handshake
+        # every front door runs
+        c.sconn.receive_data(hs.hello(hello))
+        while c.sconn.next_event() is not NEED_DATA:
+            pass
         make_current(self.renderer.ctx)
         opening = Opening(cfg.method, self.mcfg, self.intr)
         c.half, specs, session_blob = pool.server_half(opening)
@@ -265,16 +268,6 @@ class VirtualTimeRun:
         for name in [META_STREAM, *(s.name for s in specs)]:
             c.bytes.setdefault(name, 0)
         return c
-
-    @staticmethod
-    def _to_server(c: _Client, data: bytes) -> list[Message]:
-        """The messages ``data`` completes on the server's end of the in-memory control connection."""
-        c.sconn.receive_data(data)
-        out = []
-        while (ev := c.sconn.next_event()) is not NEED_DATA:
-            if isinstance(ev, Message):
-                out.append(ev)
-        return out
 
     # ------------------------------------------------------------------ run
 
