@@ -1,4 +1,4 @@
-"""``quads`` (QUASAR, the default variant) server and client cost against the ground-truth render (issue 49, item 3).
+"""``quads`` (QUASAR, the default variant, and QuadStream) server and client cost against the ground-truth render (issue 49, item 3).
 
 Each cell (scene, camera, 320x180) runs in its own process: after two warm-up frames, ``--frames`` server frames,
 each followed in the same process by
@@ -21,8 +21,11 @@ frames, so ``identical`` says whether two trees made the same bytes (then qualit
 ``--before-tree DIR`` (``git worktree add --detach DIR REV``) runs each cell alternately in that tree and this one,
 ``--rounds`` times, each side's best (lowest server/GT) run kept with every run's ratios.
 
-Writes ``benchmarks/results/bench_quads_server.json``.
-Run: ``python benchmarks/bench_quads_server.py [--before-tree DIR] [--frames N] [--rounds R]``.
+Cells whose label starts ``qs_`` run QuadStream, the others QUASAR.  ``--size WxH`` sets the display (320x180 by
+default).
+
+Writes ``benchmarks/results/bench_quads_server.json`` (``--out``).
+Run: ``python benchmarks/bench_quads_server.py [--before-tree DIR] [--frames N] [--rounds R] [--size WxH]``.
 """
 
 from __future__ import annotations
@@ -41,13 +44,16 @@ from pathlib import Path
 OUT = Path(__file__).parent / "results" / "bench_quads_server.json"
 DUCK = "/usr/share/assimp/models/Collada/duck.dae"
 CELLS = [("default", "default", "walk"), ("default", "default", "static"), ("default_nogi", "default+nogi", "walk"),
-         ("duck", f"{DUCK}+ground", "orbit"), ("duck", f"{DUCK}+ground", "static")]
+         ("duck", f"{DUCK}+ground", "orbit"), ("duck", f"{DUCK}+ground", "static"),
+         ("qs_default", "default", "walk"), ("qs_default_nogi", "default+nogi", "walk")]
 """(label, scene, trace); the default scene also without its GI (then a ground truth relights nothing: the harder
-comparison for the server); the duck as ``bench_quads_models`` loads it (with a ground), skipped when absent."""
+comparison for the server); the duck as ``bench_quads_models`` loads it (with a ground), skipped when absent.
+Labels starting ``qs_`` run QuadStream (``variant = "quadstream"``), the others QUASAR (the default)."""
 SIZE = (320, 180)
 
 
-def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
+def time_cell(scene_name: str, trace: str, frames: int, variant: str = "quasar",
+              size: tuple[int, int] = SIZE) -> dict[str, object]:
     import numpy as np
 
     import splitrender
@@ -58,12 +64,12 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
     from splitrender.scene.pose import CameraIntrinsics
     from splitrender.scene.trace import get_trace
 
-    intr = CameraIntrinsics(*SIZE)
+    intr = CameraIntrinsics(*size)
     r, r_gt = Renderer(), Renderer()
     scene = get_scene(scene_name)
-    tr = get_trace(trace, scene=scene, aspect=SIZE[0] / SIZE[1])
+    tr = get_trace(trace, scene=scene, aspect=size[0] / size[1])
     spec = get_method("quads")
-    cfg = make_config(spec.config, {})
+    cfg = make_config(spec.config, {"variant": variant})
     srv = spec.server_class(cfg, intr, scene, 30, None)
     cli = None
     cpu = time.process_time
@@ -115,16 +121,22 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--before-tree", default=None)
     ap.add_argument("--cells", default="", help="only these cells (e.g. default_walk)")
+    ap.add_argument("--size", default="320x180", help="display size WxH (default 320x180)")
+    ap.add_argument("--out", default=str(OUT), help="results JSON (default benchmarks/results/bench_quads_server.json)")
     ap.add_argument("--cell", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.cell:
         c = json.loads(args.cell)
-        print(json.dumps(time_cell(c["scene"], c["trace"], c["frames"])))
+        print(json.dumps(time_cell(c["scene"], c["trace"], c["frames"], c["variant"], tuple(c["size"]))))
         return
     here = str(Path(__file__).resolve().parents[1])
     sides = {"before": args.before_tree, "after": here} if args.before_tree else {"after": here}
     only = set(filter(None, args.cells.split(",")))
-    out: dict[str, object] = {"machine": platform.platform(), "size": list(SIZE), "frames": args.frames,
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+    if len(size) != 2 or min(size) < 16:
+        raise SystemExit(f"--size must be WxH with both at least 16, got {args.size!r}")
+    out_path = Path(args.out)
+    out: dict[str, object] = {"machine": platform.platform(), "size": list(size), "frames": args.frames,
                               "rounds": args.rounds, "trees": sides, "targets": {"server_over_gt": 3.0,
                                                                                   "draw_over_gt": 0.3},
                               "load_before": os.getloadavg()[0], "cells": {}}
@@ -135,7 +147,8 @@ def main() -> None:
         runs: dict[str, list[dict[str, object]]] = {s: [] for s in sides}
         for _ in range(args.rounds):
             for side, tree in sides.items():
-                arg = json.dumps({"scene": scene, "trace": trace, "frames": args.frames})
+                arg = json.dumps({"scene": scene, "trace": trace, "frames": args.frames, "size": size,
+                                  "variant": "quadstream" if label.startswith("qs_") else "quasar"})
                 p = subprocess.run([sys.executable, __file__, "--cell", arg], env=dict(os.environ, PYTHONPATH=tree),
                                    cwd=tree, capture_output=True, text=True)
                 if p.returncode:
@@ -158,9 +171,9 @@ def main() -> None:
               f"{cell['identical_client_frames']}; client PSNR "
               + " -> ".join(f"{c['client_psnr_db']:.3f}" for c in cell.values() if isinstance(c, dict)), flush=True)
         out["load_after"] = os.getloadavg()[0]
-        OUT.parent.mkdir(parents=True, exist_ok=True)
-        OUT.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {OUT}")
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        out_path.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {out_path}")
 
 
 if __name__ == "__main__":

@@ -99,6 +99,12 @@ def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+def norm3(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(a, axis=-1)`` over a last axis of 3: the square root of the same sum in the same order
+    (``((x x + y y) + z z)``, numpy's order for so short an axis), so the same bits, without the slow reduction."""
+    return np.sqrt(dot3(a, a))
+
+
 def rays(intr: CameraIntrinsics, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """View-space ray directions (z = -1) through image points ``(u, v)`` (pixels, top-left origin)."""
     f = intr.focal_px()
@@ -130,7 +136,7 @@ def window_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
 
 def orient(n: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Normals ``n`` turned to face the eye along rays ``d``, and at least 2.5 degrees from edge-on."""
-    a = -d / np.linalg.norm(d, axis=-1, keepdims=True)
+    a = -d / norm3(d)[..., None]
     dot = dot3(n, a)[..., None]
     n = np.where(dot < 0, -n, n)
     dot = np.abs(dot)
@@ -159,21 +165,178 @@ def plane_depth(n: np.ndarray, w: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- generation
+_GRIDS: dict[tuple[int, int, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def ray_grids(intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera's rays, computed once per camera: through every pixel centre (H, W, 3), through every point of
+    the half-pixel lattice ((2H + 1, 2W + 1, 3): pixel corners, edge midpoints and centres) and those rays'
+    lengths.  The same arithmetic on the same coordinates as :func:`rays` on the points one at a time (the
+    coordinates are halves of integers, exact in float64), so the same bits."""
+    key = (intr.width, intr.height, intr.focal_px())
+    got = _GRIDS.get(key)
+    if got is None:
+        h, w = intr.height, intr.width
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+        centre = rays(intr, xs + 0.5, ys + 0.5)
+        lat_v, lat_u = np.mgrid[0:2 * h + 1, 0:2 * w + 1].astype(np.float64) / 2
+        lattice = rays(intr, lat_u, lat_v)
+        got = (centre, lattice, np.linalg.norm(lattice, axis=-1))
+        for a in got:
+            a.flags.writeable = False
+        if len(_GRIDS) > 8:
+            _GRIDS.clear()
+        _GRIDS[key] = got
+    return got
+
+
+LATTICE = [(j, i) for j in (0, 1, 2) for i in (0, 1, 2) if (j, i) != (1, 1)]
+"""A pixel's 3x3 corner lattice less its centre: (j, i) half-steps down and right of its top-left corner."""
+
+
+def _lattice_neighbours() -> tuple[list[tuple[int, int, int, int, int]], list[list[int]]]:
+    """Per lattice point of :data:`LATTICE` the neighbouring pixels whose planes meet there: (dx, dy, the point's
+    (j, i) in that neighbour's lattice, its index in :data:`LATTICE`) rows, and each point's rows."""
+    rows: list[tuple[int, int, int, int, int]] = []
+    per: list[list[int]] = []
+    for m, (j, i) in enumerate(LATTICE):
+        dx = -1 if i == 0 else (1 if i == 2 else 0)
+        dy = -1 if j == 0 else (1 if j == 2 else 0)
+        nbs = [(dx, 0), (0, dy), (dx, dy)] if dx and dy else [(dx, dy)]
+        per.append([])
+        for a, b in nbs:
+            per[-1].append(len(rows))
+            rows.append((a, b, j - 2 * b, i - 2 * a, m))
+    return rows, per
+
+
+NEIGHBOUR_ROWS, POINT_ROWS = _lattice_neighbours()
+
+
+def _close_up(own: np.ndarray, dl_len: np.ndarray, zz: np.ndarray, has: np.ndarray, intr: CameraIntrinsics,
+              params: QuadParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 16 corners' depths and offsets of pixels whose own lattice depths are ``own`` (..., 3, 3) (ray lengths
+    ``dl_len``), given their neighbours' depths ``zz`` (..., len(NEIGHBOUR_ROWS)) at the shared lattice points and
+    whether each neighbour has a plane (``has``); and which pixels make a quad."""
+    pj = np.array([LATTICE[m][0] for *_, m in NEIGHBOUR_ROWS])
+    pi = np.array([LATTICE[m][1] for *_, m in NEIGHBOUR_ROWS])
+    own_r = own[..., pj, pi]
+    ok = has & np.isfinite(zz) & np.isfinite(own_r)
+    zv = np.where(ok, zz, 0.0)
+    dist = np.abs(zv - np.where(ok, own_r, 0.0)) * dl_len[..., pj, pi]
+    close_r = ok & (window_depth(dist, intr) < params.delta_max)
+    lat = own.copy()
+    for m, (j, i) in enumerate(LATTICE):
+        rs = POINT_ROWS[m]
+        close = close_r[..., rs[0]]
+        acc = zv[..., rs[0]]
+        for r in rs[1:]:
+            close = close & close_r[..., r]
+            acc = acc + zv[..., r]
+        mean = (own[..., j, i] + acc) / (1 + len(rs))
+        lat[..., j, i] = np.where(close, mean, own[..., j, i])
+    idx_j, idx_i = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
+    corners = lat[..., idx_j, idx_i]                                            # (..., 16) actual depths
+    with np.errstate(invalid="ignore"):
+        offs = (corners - own[..., idx_j, idx_i]) * dl_len[..., idx_j, idx_i]
+    good = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
+    good &= (np.abs(np.where(good[..., None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)
+    return corners, offs, good
+
+
+BAND_ROWS = 16
+"""Rows of pixels :func:`_lattice_dense` works on at a time: each step's arrays then stay in the processor's cache
+(the whole image's (H, W, 16) float64 arrays do not; 2-3x faster at 320x180)."""
+
+
+def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.ndarray, grid: np.ndarray,
+                   grid_len: np.ndarray, intr: CameraIntrinsics, params: QuadParams
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_close_up` for every pixel, band by band of :data:`BAND_ROWS` rows: the lattice rays as strided
+    views of the camera's half-pixel grid, the neighbours as shifted slices.  Returns the level-0 maps' ``present``
+    (``need`` where the quad is good), ``corners``, ``offs`` (0 where no quad is) and ``flat``."""
+    h, w = valid.shape
+    s0, s1, s2 = grid.strides
+    rays9 = np.lib.stride_tricks.as_strided(grid, (h, w, 3, 3, 3), (2 * s0, 2 * s1, s0, s1, s2), writeable=False)
+    l0, l1 = grid_len.strides
+    len9 = np.lib.stride_tricks.as_strided(grid_len, (h, w, 3, 3), (2 * l0, 2 * l1, l0, l1), writeable=False)
+    pad = np.zeros((h + 2, w + 2, 3, 3))
+    vpad = np.zeros((h + 2, w + 2), bool)
+    vpad[1:-1, 1:-1] = valid
+    present = np.zeros((h, w), bool)
+    full_c = np.empty((h, w, 16))
+    full_o = np.empty((h, w, 16))
+    flat = np.empty((h, w), bool)
+    nr = len(NEIGHBOUR_ROWS)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for r0 in range(0, h, BAND_ROWS):
+            r1 = min(h, r0 + BAND_ROWS)
+            pad[1 + r0:1 + r1, 1:-1] = plane_depth(n[r0:r1, :, None, None, :], wq[r0:r1, :, None, None], rays9[r0:r1])
+        for r0 in range(0, h, BAND_ROWS):
+            r1 = min(h, r0 + BAND_ROWS)
+            zz = np.empty((r1 - r0, w, nr))
+            has = np.empty((r1 - r0, w, nr), bool)
+            for r, (dx, dy, nj, ni, _) in enumerate(NEIGHBOUR_ROWS):
+                zz[..., r] = pad[1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w, nj, ni]
+                has[..., r] = vpad[1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w]
+            corners, offs, good = _close_up(pad[1 + r0:1 + r1, 1:-1], len9[r0:r1], zz, has, intr, params)
+            ok = good & need[r0:r1]
+            present[r0:r1] = ok
+            full_c[r0:r1] = np.where(ok[..., None], corners, 0.0)
+            o = full_o[r0:r1] = np.where(ok[..., None], offs, 0.0)
+            flat[r0:r1] = np.where(ok, (np.abs(o) < params.delta_flatten).all(-1), 0.0 < params.delta_flatten)
+    return present, full_c, full_o, flat
+
+
+def _lattice_sparse(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.ndarray, cut: np.ndarray,
+                    grid: np.ndarray, grid_len: np.ndarray, intr: CameraIntrinsics, params: QuadParams
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_close_up` at the pixels of ``need`` only (rows, columns, (k, 16) corners and offsets, (k,) quads);
+    the planes of ``cut`` (``need`` and its neighbours) are cut with their own lattice rays."""
+    h, w = valid.shape
+    cy, cx = np.nonzero(cut)
+    jj, ii = np.mgrid[0:3, 0:3]
+    own_all = np.zeros((h * w, 3, 3))
+    own_all[cy * w + cx] = plane_depth(n[cy, cx][:, None, None, :], wq[cy, cx][:, None, None],
+                                       grid[2 * cy[:, None, None] + jj, 2 * cx[:, None, None] + ii])
+    py, px = np.nonzero(need)
+    own = own_all[py * w + px]                                                 # (k, 3, 3)
+    dl_len = grid_len[2 * py[:, None, None] + jj, 2 * px[:, None, None] + ii]   # (k, 3, 3)
+    nr = len(NEIGHBOUR_ROWS)
+    zz = np.empty((py.size, nr))
+    has = np.empty((py.size, nr), bool)
+    for r, (dx, dy, nj, ni, _) in enumerate(NEIGHBOUR_ROWS):
+        yy, xx = py + dy, px + dx
+        inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+        yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
+        has[:, r] = inside & valid[yc, xc]
+        zz[:, r] = own_all[yc * w + xc, nj, ni]
+    corners, offs, ok = _close_up(own, dl_len, zz, has, intr, params)
+    return py, px, corners, offs, ok
+
+
 def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray, intr: CameraIntrinsics,
                   params: QuadParams, emit: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Level-0 quad map: per pixel its plane, centre depth, 16 corner depths, offsets and flatness.
 
     Planes are built for every valid pixel (neighbours need them); the corner lattice only
-    for the pixels that ``emit`` quads."""
+    for the pixels that ``emit`` quads and their 8 neighbours.
+
+    A neighbour's plane meets a lattice point of a pixel where the point lies on the neighbour's own lattice (a
+    shared corner or edge midpoint, the same ray), so the depth there is the neighbour's own lattice depth: each
+    plane is cut with the rays of its own lattice once, and the neighbours' depths are read from those."""
     h, w = depth.shape
     z = np.where(valid, depth, 1.0)
     need = valid if emit is None else valid & emit
-    if emit is None:
-        ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-        dc = rays(intr, xs + 0.5, ys + 0.5)
+    centre, grid, grid_len = ray_grids(intr)
+    # the whole image at once where most pixels emit (the same arithmetic per pixel, so the same bits)
+    dense = emit is None or 3 * int(np.count_nonzero(need)) > h * w
+    if dense:
+        dc = centre
         n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
         th, ph, n = quantize(n)
         wq = -dot3(n, dc) * z
+        cut = valid
     else:
         # planes only where an emitting pixel or one of its 8 neighbours reads them (the same per-pixel arithmetic,
         # so the same bits there; a residual frame's sets emit from a few per cent of the pixels)
@@ -182,66 +345,25 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
         near[:-1] |= need[1:]
         near[:, 1:] |= near[:, :-1].copy()
         near[:, :-1] |= near[:, 1:].copy()
-        sy, sx = np.nonzero(near & valid)
-        dcs = rays(intr, sx + 0.5, sy + 0.5)
+        cut = near & valid
+        sy, sx = np.nonzero(cut)
+        dcs = centre[sy, sx]
         ths, phs, ns = quantize(orient(normal_view[sy, sx], dcs))
         n, th, ph, wq = np.zeros((h, w, 3)), np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8), np.zeros((h, w))
         n[sy, sx], th[sy, sx], ph[sy, sx] = ns, ths, phs
         wq[sy, sx] = -dot3(ns, dcs) * z[sy, sx]
-    py, px = np.nonzero(need)
-    k = py.size
-    # the 3x3 lattice of each emitting pixel: (j, i) half-steps from its top-left corner
-    half = np.arange(3) / 2
-    lat_u = np.broadcast_to(px[:, None, None] + half[None, None, :], (k, 3, 3))
-    lat_v = np.broadcast_to(py[:, None, None] + half[None, :, None], (k, 3, 3))
-    dl = rays(intr, lat_u.astype(np.float64), lat_v.astype(np.float64))       # (k, 3, 3, 3)
-    dl_len = np.linalg.norm(dl, axis=-1)
-    own = plane_depth(n[py, px][:, None, None, :], wq[py, px][:, None, None], dl)
-
-    planes: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    def neighbour(dx: int, dy: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The plane (normal, w) of each emitting pixel's neighbour at (dx, dy), and whether it has one."""
-        if (dx, dy) not in planes:
-            yy, xx = py + dy, px + dx
-            inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-            yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
-            planes[dx, dy] = (n[yc, xc], wq[yc, xc], inside & valid[yc, xc])
-        return planes[dx, dy]
-
-    def nb(dx: int, dy: int, j: int, i: int) -> tuple[np.ndarray, np.ndarray]:
-        nn, ww, has = neighbour(dx, dy)
-        zz = plane_depth(nn, ww, dl[:, j, i])
-        ok = has & np.isfinite(zz) & np.isfinite(own[:, j, i])
-        dist = np.abs(np.where(ok, zz, 0.0) - np.where(ok, own[:, j, i], 0.0)) * dl_len[:, j, i]
-        return np.where(ok, zz, 0.0), ok & (window_depth(dist, intr) < params.delta_max)
-
-    lat = own.copy()
-    for j in (0, 1, 2):
-        for i in (0, 1, 2):
-            if i == 1 and j == 1:
-                continue
-            dx = -1 if i == 0 else (1 if i == 2 else 0)
-            dy = -1 if j == 0 else (1 if j == 2 else 0)
-            nbs = [(dx, 0), (0, dy), (dx, dy)] if dx and dy else [(dx, dy)]
-            got = [nb(a, b, j, i) for a, b in nbs]
-            close = np.logical_and.reduce([c for _, c in got])
-            mean = (own[:, j, i] + sum(zv for zv, _ in got)) / (1 + len(got))
-            lat[:, j, i] = np.where(close, mean, own[:, j, i])
-    idx_j, idx_i = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
-    corners = lat[:, idx_j, idx_i]                                            # (k, 16) actual depths
-    with np.errstate(invalid="ignore"):
-        offs = (corners - own[:, idx_j, idx_i]) * dl_len[:, idx_j, idx_i]
-    ok = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
-    ok &= (np.abs(np.where(ok[:, None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)
-    present = np.zeros((h, w), bool)
-    present[py[ok], px[ok]] = True
-    full_c = np.zeros((h, w, 16))
-    full_o = np.zeros((h, w, 16))
-    full_c[py[ok], px[ok]] = corners[ok]
-    full_o[py[ok], px[ok]] = offs[ok]
-    flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
-    flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
+    if dense:
+        present, full_c, full_o, flat = _lattice_dense(n, wq, valid, need, grid, grid_len, intr, params)
+    else:
+        py, px, corners, offs, ok = _lattice_sparse(n, wq, valid, need, cut, grid, grid_len, intr, params)
+        present = np.zeros((h, w), bool)
+        present[py[ok], px[ok]] = True
+        full_c = np.zeros((h, w, 16))
+        full_o = np.zeros((h, w, 16))
+        full_c[py[ok], px[ok]] = corners[ok]
+        full_o[py[ok], px[ok]] = offs[ok]
+        flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
+        flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
     return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "corners": full_c, "offs": full_o, "flat": flat}
 
 
@@ -256,25 +378,39 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
            "offs": np.zeros((h, w, 16)), "flat": np.zeros((h, w), bool)}
     cp = child["present"]
     pres = cp[0:2 * h:2, 0:2 * w:2] & cp[0:2 * h:2, 1:2 * w:2] & cp[1:2 * h:2, 0:2 * w:2] & cp[1:2 * h:2, 1:2 * w:2]
-    cy, cx = np.nonzero(pres)
-    if cy.size == 0:
-        return out
+    cy_all, cx_all = np.nonzero(pres)
+    for c0 in range(0, cy_all.size, MERGE_CHUNK):   # in chunks whose arrays stay in the processor's cache
+        _merge_cells(child, out, cy_all[c0:c0 + MERGE_CHUNK], cx_all[c0:c0 + MERGE_CHUNK], level, intr, params, coarse)
+    return out
+
+
+MERGE_CHUNK = 2048
+"""Cells :func:`merge_pass` examines at a time."""
+
+
+def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: np.ndarray, cx: np.ndarray, level: int,
+                 intr: CameraIntrinsics, params: QuadParams, coarse: bool) -> None:
+    """:func:`merge_pass` for the cells (``cy``, ``cx``) whose four children are present: merged ones go to
+    ``out`` and leave ``child``."""
     size = 2 ** (level + 1)
     half = 2 ** level
     subs = [(0, 0), (0, 1), (1, 0), (1, 1)]
     kids = [(2 * cy + sy, 2 * cx + sx) for sy, sx in subs]
     get = lambda key: [child[key][yy, xx] for yy, xx in kids]  # noqa: E731
-    fx, fy = cx.astype(np.float64), cy.astype(np.float64)
+    # every ray below meets the image at a multiple of half a pixel: read from the camera's lattice of rays
+    _, grid, grid_len = ray_grids(intr)
+    gx, gy = 2 * size * cx, 2 * size * cy
     eqs = []
     for s, (sy, sx) in enumerate(subs):
         n = child["n"][kids[s]]
-        dcen = rays(intr, fx * size + sx * half + half / 2, fy * size + sy * half + half / 2)
+        dcen = grid[gy + 2 * sy * half + half, gx + 2 * sx * half + half]
         wv = -dot3(n, dcen) * child["zc"][kids[s]]
         eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
     ok = np.ones(cy.size, bool)
     for a in range(4):
         for b in range(a + 1, 4):
-            ok &= np.linalg.norm(eqs[a] - eqs[b], axis=-1) < params.delta_sim
+            e = eqs[a] - eqs[b]
+            ok &= np.sqrt(((e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]) + e[:, 2] * e[:, 2]) + e[:, 3] * e[:, 3]) < params.delta_sim
     zs = get("zc")
     if coarse:
         ndc = [ndc_depth(z, intr) for z in zs]
@@ -283,20 +419,19 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
             for b in range(a + 1, 4):
                 cont &= np.abs(ndc[a] - ndc[b]) < params.delta_max
         ok |= cont
-    dcen = rays(intr, fx * size + size / 2, fy * size + size / 2)
+    dcen = grid[gy + size, gx + size]
     nsum = sum(get("n"))
-    nn = nsum / np.maximum(np.linalg.norm(nsum, axis=-1, keepdims=True), 1e-12)
+    nn = nsum / np.maximum(norm3(nsum), 1e-12)[:, None]
     th, ph, nq = quantize(orient(nn, dcen))
     zc = sum(zs) / 4.0
     wq = -dot3(nq, dcen) * zc
     cs = get("corners")
     corners = np.stack([cs[s][:, OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
-    u = fx[:, None] * size + SUB_CORNERS[:, 0] * size / 2
-    v = fy[:, None] * size + SUB_CORNERS[:, 1] * size / 2
-    d16 = rays(intr, u, v)
-    plane16 = plane_depth(nq[:, None, :], wq[:, None], d16)
+    iu = gx[:, None] + SUB_CORNERS[:, 0] * size
+    iv = gy[:, None] + SUB_CORNERS[:, 1] * size
+    plane16 = plane_depth(nq[:, None, :], wq[:, None], grid[iv, iu])
     with np.errstate(invalid="ignore"):
-        offs = (corners - plane16) * np.linalg.norm(d16, axis=-1)
+        offs = (corners - plane16) * grid_len[iv, iu]
     ok &= np.isfinite(offs).all(-1)
     ok &= (np.abs(np.where(ok[:, None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)   # a plane near edge-on over a large quad
     sel = np.flatnonzero(ok)
@@ -311,7 +446,6 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     out["flat"][yy, xx] = (np.abs(offs[sel]) < params.delta_flatten).all(-1)
     for ky, kx in kids:  # merged children leave their map
         child["present"][ky[sel], kx[sel]] = False
-    return out
 
 
 def generate(depth: np.ndarray, normal_world: np.ndarray, view_rot: np.ndarray, intr: CameraIntrinsics,
@@ -385,7 +519,7 @@ def corner_points(qs: QuadSet, intr: CameraIntrinsics) -> tuple[np.ndarray, np.n
     offs = np.zeros((len(qs), 16))
     offs[~qs.flat] = qs.offsets.astype(np.float64)
     with np.errstate(invalid="ignore"):
-        z = z + offs / np.linalg.norm(d, axis=-1)
+        z = z + offs / norm3(d)
     ok = np.isfinite(z).all(-1) & (z > 0).all(-1)
     z = np.where(ok[:, None], z, 1.0)
     return d * z[..., None], np.stack([u, v], axis=-1), ok

@@ -361,6 +361,34 @@ class QuadMeshGL:
         self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
                                          index_buffer=self.ibo, index_element_size=4)
 
+    def append(self, vertices: np.ndarray, indices: np.ndarray) -> None:
+        """Add a part (``indices`` counted from its own first vertex) after the mesh uploaded so far: the mesh that
+        ``upload(*join_meshes(parts))`` gives, the same vertices and indices in the same order, without joining and
+        uploading the earlier parts again (QuadStream's server masks each view with the views before it).  The
+        buffers grow by doubling, their contents copied on the GL side."""
+        v = np.ascontiguousarray(vertices, np.float32)
+        if v.shape[0] == 0:
+            return
+        i = (np.asarray(indices, np.uint32) + np.uint32(self.vertices)).astype(np.uint32)
+        vb, ib = v.shape[0] * VERTEX_FLOATS * 4, i.size * 4
+        used_v, used_i = self.vertices * VERTEX_FLOATS * 4, self.count * 4
+        if self.vbo is None or self.vbo.size < used_v + vb or self.ibo.size < used_i + ib:
+            vbo = self.ctx.buffer(reserve=max(used_v + vb, 2 * (self.vbo.size if self.vbo is not None else 0)))
+            ibo = self.ctx.buffer(reserve=max(used_i + ib, 2 * (self.ibo.size if self.ibo is not None else 0)))
+            if self.vbo is not None and used_v:
+                self.ctx.copy_buffer(vbo, self.vbo, used_v)
+                self.ctx.copy_buffer(ibo, self.ibo, used_i)
+            for b in (self.vao, self.vbo, self.ibo):
+                if b is not None:
+                    b.release()
+            self.vbo, self.ibo = vbo, ibo
+            self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect",
+                                                          "in_view")], index_buffer=self.ibo, index_element_size=4)
+        self.vbo.write(v.tobytes(), offset=used_v)
+        self.ibo.write(i.tobytes(), offset=used_i)
+        self.vertices += v.shape[0]
+        self.count += i.size
+
     def set_guard(self, vertices: np.ndarray, indices: np.ndarray, pose: Pose, intr: CameraIntrinsics) -> None:
         """The centre view's guard (QuadStream): the mesh ``vertices``/``indices`` (the centre view's set) drawn from
         ``pose`` (the centre camera) once, its view depth kept; from then on :meth:`draw` discards every fragment of a

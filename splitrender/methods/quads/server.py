@@ -48,7 +48,7 @@ from .accounting import quasar_frame_bytes
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
-from .mesh import QuadMeshGL, ReferenceCache, build_mesh, join_meshes, scene_sides, select
+from .mesh import VERTEX_FLOATS, QuadMeshGL, ReferenceCache, build_mesh, join_meshes, scene_sides, select
 from .packing import copy_texels, fitting, pack_squares, packed_size, source_order, tile_side, whole_tiles
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
@@ -401,7 +401,11 @@ class QuadsServer(ServerHalf):
                 g_color, g_depth, g_normal = expand_edges(g_color, g_depth, g_normal)
             if parts:
                 t1 = time.perf_counter()
-                new = self._unexplained(g_depth, self._mesh_depth(ctx, parts, vp, vi))
+                mesh = self._gl_mesh(ctx)
+                if len(parts) == 1:     # the views so far: the mesh grows by the last one (mesh.append)
+                    mesh.upload(np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32))
+                mesh.append(*parts[-1])
+                new = self._unexplained(g_depth, mesh.depth_at(vp, vi))
                 emit = binary_dilation(new, iterations=1)   # one-pixel boundary quads
                 if vi is self.wide:
                     emit &= self._wide_out
