@@ -138,7 +138,7 @@ class QuadsClient(ClientHalf):
                     parts[centre] = build_mesh(s.quads, pose, intr, origin, "quad", view=view, grow=grow)
         if centre is None:
             self._mesh.clear_guard()
-        self._mesh.upload(*join_meshes(parts))
+        self._mesh.upload_parts(parts)
         self._atlas_tex = upload_image(self.gl, atlas, self._atlas_tex, linear=True)
         self._pose0 = cams[0][0]
         self._broken = False

@@ -315,6 +315,8 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
 
 
 def join_meshes(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    if len(parts) == 1:     # one part is its own join (no copy)
+        return parts[0][0], parts[0][1].astype(np.uint32, copy=False)
     vs, ids, base = [], [], 0
     for v, i in parts:
         vs.append(v)
@@ -356,10 +358,31 @@ class QuadMeshGL:
         self.vertices = int(vertices.shape[0])
         if self.count == 0:
             return
-        self.vbo = self.ctx.buffer(np.ascontiguousarray(vertices, np.float32).tobytes())
-        self.ibo = self.ctx.buffer(np.ascontiguousarray(indices, np.uint32).tobytes())
+        # the arrays themselves (the buffer protocol), not a bytes copy of them
+        self.vbo = self.ctx.buffer(np.ascontiguousarray(vertices, np.float32))
+        self.ibo = self.ctx.buffer(np.ascontiguousarray(indices, np.uint32))
         self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
                                          index_buffer=self.ibo, index_element_size=4)
+
+    def upload_parts(self, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """``upload(*join_meshes(parts))`` without the joined copy: each part written into buffers of the whole
+        mesh's size at its offset, its indices moved past the parts before it (the same bytes in the buffers)."""
+        nv = sum(int(v.shape[0]) for v, _ in parts)
+        ni = sum(int(i.size) for v, i in parts if v.shape[0])
+        self.upload(np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32))
+        if ni == 0:
+            return
+        self.vbo = self.ctx.buffer(reserve=nv * VERTEX_FLOATS * 4)
+        self.ibo = self.ctx.buffer(reserve=ni * 4)
+        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
+                                         index_buffer=self.ibo, index_element_size=4)
+        for v, i in parts:
+            if v.shape[0]:
+                self.vbo.write(np.ascontiguousarray(v, np.float32), offset=self.vertices * VERTEX_FLOATS * 4)
+                self.ibo.write((np.asarray(i, np.uint32) + np.uint32(self.vertices)).astype(np.uint32),
+                               offset=self.count * 4)
+                self.vertices += int(v.shape[0])
+                self.count += int(i.size)
 
     def append(self, vertices: np.ndarray, indices: np.ndarray) -> None:
         """Add a part (``indices`` counted from its own first vertex) after the mesh uploaded so far: the mesh that
@@ -384,8 +407,8 @@ class QuadMeshGL:
             self.vbo, self.ibo = vbo, ibo
             self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect",
                                                           "in_view")], index_buffer=self.ibo, index_element_size=4)
-        self.vbo.write(v.tobytes(), offset=used_v)
-        self.ibo.write(i.tobytes(), offset=used_i)
+        self.vbo.write(v, offset=used_v)
+        self.ibo.write(i, offset=used_i)
         self.vertices += v.shape[0]
         self.count += i.size
 
