@@ -187,8 +187,9 @@ def test_level_selection_fills_the_atlas_both_ways() -> None:
 
 
 # ---------------------------------------------------------------- server + client
-def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0, on_frame=None):  # type: ignore[no-untyped-def]
-    """Server -> codec -> client at zero latency on ``walk``; ``on_frame(srv, update)`` runs after each produce."""
+def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0, on_frame=None, truth: bool = True):  # type: ignore[no-untyped-def]
+    """Server -> codec -> client at zero latency on ``walk``; ``on_frame(srv, update)`` runs after each produce.
+    ``truth``: render the ground truth of each frame (``None`` in its place where off: for tests that score none)."""
     from splitrender.codecs.meta import pack_meta, unpack_meta
     from splitrender.codecs.video import VideoDecoder, VideoEncoder
     from splitrender.methods.sas import SasClient, SasConfig, SasServer
@@ -214,15 +215,34 @@ def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0, on_frame=N
         plane = dec.decode(enc.encode(u.planes["atlas"], u.force_idr).data)
         cli.apply(DecodedUpdate(u.frame_id, t, pose, {"atlas": plane}, unpack_meta(pack_meta(u.meta))))
         frame = cli.render(pose, t)
-        gt = r.render(scene, t, pose, INTR, ("color", "object_id"))
+        gt = r.render(scene, t, pose, INTR, ("color", "object_id")) if truth else None
         out.append((u, plane, frame, gt, srv.stats()))
     return out, cli
+
+
+@functools.lru_cache(maxsize=1)
+def _lossless_walk():  # type: ignore[no-untyped-def]
+    """Three lossless loopback frames of the walk with their ground truth, and the client that applied them: made once
+    for the four tests that read them (the server's patch build and first frame were most of each test's CPU).  Read
+    it, never change it: a test that changes a client takes one of its own (:func:`_client_after`)."""
+    return _loopback(3, {"lossless": True})
+
+
+def _client_after(out, cli, frames: int):  # type: ignore[no-untyped-def]
+    """A fresh client (``cli``'s config, display, GL context and session data) that has applied the first ``frames``
+    updates of ``out`` as :func:`_loopback`'s client did, decoded planes and metadata through the wire format."""
+    from splitrender.codecs.meta import pack_meta, unpack_meta
+
+    fresh = type(cli)(cli.config, cli.intrinsics, cli.gl, cli.session_data)
+    for u, plane, *_ in out[:frames]:
+        fresh.apply(DecodedUpdate(u.frame_id, u.t_s, u.pose, {"atlas": plane}, unpack_meta(pack_meta(u.meta))))
+    return fresh
 
 
 def test_zero_latency_lossless_atlas_matches_ground_truth() -> None:
     from splitrender.metrics.image import psnr
 
-    out, cli = _loopback(3, {"lossless": True})
+    out, cli = _lossless_walk()
     assert len(cli.geo) == len(cli.rect) == int(out[-1][4]["pvs_patches"]), "client state must be exactly the PVS"
     for u, plane, frame, gt, stats in out:
         assert np.array_equal(plane, u.planes["atlas"]), "lossless HEVC gbrp must return the atlas bit-exactly"
@@ -243,7 +263,11 @@ def test_atlas_lookups_never_read_outside_the_patch_block(atlas_filter: str) -> 
     the frame (so the check can fail)."""
     from splitrender.render.canvas import upload_image
 
-    out, cli = _loopback(2, {"lossless": True, "atlas_filter": atlas_filter})
+    if atlas_filter == "bicubic":         # the default: the first two of _lossless_walk's frames, on a client of its own
+        out = _lossless_walk()[0][:2]
+        cli = _client_after(out, _lossless_walk()[1], 2)
+    else:
+        out, cli = _loopback(2, {"lossless": True, "atlas_filter": atlas_filter}, truth=False)
     u, plane, frame, _gt, _ = out[-1]
     h, w = plane.shape[:2]
     inside = np.zeros((h, w), bool)
@@ -304,7 +328,9 @@ def test_small_atlas_resets_only_on_iframes_and_keeps_nothing_outside_live_block
         stale = int(u.planes["atlas"][~mask].any(axis=-1).sum()) if u.meta.get("iframe", False) else 0
         frames.append((bool(st["reset"]), bool(u.meta.get("reset", False)), bool(u.meta.get("iframe", False)), u.force_idr, stale))
 
-    _loopback(20, {"atlas_width": 192, "atlas_height": 96, "gop": 30, "lossless": True}, on_frame=check)
+    # 4 frames (20 before): on this atlas every frame resets (measured over 20 frames: 3,797-6,460 failed allocations
+    # a frame, each of the 20 a reset), so frames 1-3 are the forced mid-GOP resets
+    _loopback(4, {"atlas_width": 192, "atlas_height": 96, "gop": 30, "lossless": True}, on_frame=check, truth=False)
     resets = [f for f, r in enumerate(frames) if r[0]]
     assert len(resets) >= 2 and any(f % 30 for f in resets), f"expected a forced mid-GOP reset, got resets at {resets}"
     for f, (reset, meta_reset, iframe, idr, stale) in enumerate(frames):
@@ -316,7 +342,8 @@ def test_small_atlas_resets_only_on_iframes_and_keeps_nothing_outside_live_block
 
 def test_client_rejects_malformed_metadata() -> None:
     assert issubclass(SasMetaError, RemoteProtocolError) and issubclass(SasMetaError, SplitRenderError)
-    out, cli = _loopback(1, {"lossless": True})
+    out = _lossless_walk()[0][:1]
+    cli = _client_after(out, _lossless_walk()[1], 1)
     u, plane = out[0][0], out[0][1]
     before = (dict(cli.geo), dict(cli.rect), cli.xf.models.copy())
 
@@ -375,8 +402,9 @@ def test_client_imports_only_the_wire_format_from_the_server_side() -> None:
 
 @functools.lru_cache(maxsize=1)
 def _fuzz_client():  # type: ignore[no-untyped-def]
-    out, cli = _loopback(1, {"lossless": True})
-    return cli, out[0][0]
+    """A client of the fuzz's own (it keeps what a mutated map it accepts leaves) after _lossless_walk's first frame."""
+    out = _lossless_walk()[0][:1]
+    return _client_after(out, _lossless_walk()[1], 1), out[0][0]
 
 
 _EXTREMES = [0, 1, -1, 2, 3, 4, 15, 16, 255, 65535, 65536, 2**31 - 1, -(2**31), 2**40]
@@ -451,9 +479,22 @@ def test_linear_prediction_covers_99_percent_on_walk() -> None:
     scene = default_scene(gi=False)
     trace = get_trace("walk")
     lat = _cloud_latency_s()
-    servers = {"none": SasServer(SasConfig(pvs_prediction="none", fov_margin=0.0), INTR, scene, 30),
-               "linear": SasServer(SasConfig(), INTR, scene, 30)}
+    linear = SasServer(SasConfig(), INTR, scene, 30)
+    # the PVS settings are the session's (pvs_samples reads its own config): one producer, one patch build
+    servers = {"none": SasServer(SasConfig(pvs_prediction="none", fov_margin=0.0), INTR, scene, 30, linear.producer),
+               "linear": linear}
     ids = PatchIdPass(r, scene, servers["linear"].patches)
+    evs_area, drawn = ids.evs_area, {}
+
+    def evs_once(pose, intr, t_s):  # type: ignore[no-untyped-def]
+        """``ids.evs_area``, drawn once per time, pose and display: both servers' ``pvs_rates`` draw the same truth
+        samples (a quarter of the test's ID passes), and a drawing is deterministic."""
+        key = (t_s, pose.position.tobytes(), pose.orientation.tobytes(), intr)
+        if key not in drawn:
+            drawn[key] = evs_area(pose, intr, t_s)
+        return drawn[key]
+
+    ids.evs_area = evs_once  # type: ignore[method-assign]
     v = dict.fromkeys(servers, 0.0)
     fn = dict.fromkeys(servers, 0.0)
     n_samples = 0
