@@ -171,7 +171,7 @@ def test_geometry_bytes_per_new_patch_on_walk() -> None:
                             "geo_size": P.size[ids].astype(np.uint8), "geo_pos": v2_pos}))
         rows.append((ids.size, v3, v2))
 
-    _loopback(8, {}, t0=1.0, on_frame=on)
+    _loopback(8, {}, t0=1.0, on_frame=on, truth=False)    # nothing here is scored against the ground truth
     a = np.array(rows, np.float64)
     first, later = a[0, 1] / a[0, 0], a[1:, 1].sum() / a[1:, 0].sum()
     assert first <= 4.0 and a[0, 1] <= 0.4 * a[0, 2], f"first frame: {first:.2f} bytes per patch, {a[0, 1] / a[0, 2]:.2f} of v2"
