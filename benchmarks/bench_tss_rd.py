@@ -45,12 +45,16 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "matched block4": (BLOCK4, (23.0, 31.0, 39.0)),
     "half block4": ({**HALF, "codec_block": 4}, (23.0, 31.0)),
     "matched block4 fill": ({**BLOCK4, "fill_pitch": True}, (31.0, 39.0)),
+    "matched block4 colour": ({**BLOCK4, "colour_order": 16.0}, (31.0, 36.0, 41.0)),
+    "defaults colour": ({"colour_order": 16.0}, (23.0,)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
 ``sas``'s samples); ``half block4``: ``bench_tss_matched.py``'s ``HALF`` (the moving budget at 2 samples per display
 pixel, up to 8 per covered pixel) with ``codec_block = 4``, fewer samples at a lower crf; ``matched block4 fill``:
-``matched block4`` with ``fill_pitch`` (L-packing levels raised to fill their tip blocks' padding with samples)."""
+``matched block4`` with ``fill_pitch`` (L-packing levels raised to fill their tip blocks' padding with samples);
+``matched block4 colour`` and ``defaults colour``: the same with ``colour_order = 16`` (a repack's L-packing cells in the
+order of their samples' mean luma, in bins of 16 levels)."""
 
 CHILD = r"""
 import json, sys
@@ -104,6 +108,7 @@ def main() -> None:
     ap.add_argument("--after", default="", help="the checkout measured as 'after' (default: this one)")
     ap.add_argument("--before", default="", help="a checkout of the commit before the change (its tss runs too)")
     ap.add_argument("--before-configs", default="", help="configs run on --before (default: all)")
+    ap.add_argument("--after-configs", default="", help="configs run on the after tree (default: all)")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--cameras", default="still,orbit cloud")
     ap.add_argument("--configs", default=",".join(CONFIGS))
@@ -119,6 +124,7 @@ def main() -> None:
     if a.before:
         trees["before"] = Path(a.before).resolve()
     bconf = set((a.before_configs or a.configs).split(","))
+    aconf = set((a.after_configs or a.configs).split(","))
     jobs: list[dict[str, Any]] = []
     for scene in a.scenes.split(","):
         if SCENES[scene].startswith("/") and not Path(SCENES[scene]).exists():
@@ -132,7 +138,7 @@ def main() -> None:
             for name in a.configs.split(","):
                 params, crfs = CONFIGS[name]
                 for tree in trees:
-                    if tree == "before" and name not in bconf:
+                    if (tree == "before" and name not in bconf) or (tree == "after" and name not in aconf):
                         continue
                     for crf in (crfs_before if tree == "before" and crfs_before else crfs_all or crfs):
                         jobs.append({"cell": (scene, camera), "tree": tree, "config": name, "crf": crf,

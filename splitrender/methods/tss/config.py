@@ -122,6 +122,16 @@ class TssConfig(MethodConfig):
     in the padding's place; off: on the duck at ``TSS_MATCHED`` it wins still (-20 % bits, +0.5 dB) and loses the
     ``cloud`` orbit (-1.3 dB at level bits; ``flip_level`` 14, which it does not lift past, -0.6 dB at 0.79x the bits
     there and -1.7 dB still: the flips' level 16 lifted to 22 is what the still edges gain from), ``docs/methods.md``.
+
+    ``colour_order`` (0: off, id order): a repack places each L-packing class's triangles in the order of the mean luma
+    of their samples (:func:`~.layout.lp_luma`, from the last atlas that shaded them) in bins of this many 8-bit levels,
+    then by id; a repack with triangles of no known colour (the first frame) shades twice, the second time in that
+    order.  Issue 50 part 1: the mosaic of the tiles' means was 65-75 % of the duck's first atlas (crf 31-41); in id
+    order a mesh's lit and shadowed triangles alternate in a shelf, in colour order the cells beside each other share
+    their means.  The same samples, so a lossless atlas is unchanged at the client; the table pays, its slots no
+    longer in id order.  At ``TSS_MATCHED`` + ``codec_block`` 4 with 16 (``benchmarks/bench_tss_rd.py``, still, at
+    ``sas``'s bits): the duck -3.33 -> -1.57 dB, 2CylinderEngine -5.18 -> -4.19, TextureTransformTest -3.90 -> -3.87;
+    off by default (``docs/methods.md``, "The tiles' order by colour").
     """
 
     gop: int = 30
@@ -150,6 +160,7 @@ class TssConfig(MethodConfig):
     pvs_ring: int = 0
     codec_block: int = 1
     fill_pitch: bool = False
+    colour_order: float = 0.0
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
@@ -202,6 +213,9 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.codec_block: must be 1 (off), 2, 4, 8 or 16 texels, got {self.codec_block}")
         if not 0 <= self.pvs_ring <= 8:
             raise ConfigError(f"TssConfig.pvs_ring: must be in [0, 8] rings of neighbours (0: off), got {self.pvs_ring}")
+        if not 0.0 <= self.colour_order <= 255.0:
+            raise ConfigError(f"TssConfig.colour_order: must be 0 (off) or a luma bin in (0, 255] 8-bit levels, "
+                              f"got {self.colour_order}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

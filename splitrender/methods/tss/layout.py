@@ -53,7 +53,10 @@ in 16 x 16 tiles aligned to the codec's macroblocks (:func:`single_origins`): sl
 out in id order (mesh neighbours, :func:`morton_order`) share chroma samples and
 transform blocks, and a 2 x 2 cell is a chroma sample of its own.  A repack (on overflow,
 or every frame in the ``prefix`` mode) places every triangle in (class, id) order: a
-deterministic prefix sum, not the paper's atomic binning.
+deterministic prefix sum, not the paper's atomic binning.  With the server's colour order
+(``TssConfig.colour_order``, :attr:`StableAtlas.rank`) an L-packing class is placed in the order of its
+triangles' mean luma (:func:`lp_luma`), in bins, then id: cells side by side then share their means, which
+the codec's intra prediction and 4 x 4 DC transform pay for when they differ.
 """
 
 from __future__ import annotations
@@ -463,6 +466,9 @@ class StableAtlas:
         L-packing and oversampling shelves start on rows (and oversampling cells span rows) in multiples of it."""
         self.cls = np.full(n_triangles, -1, np.int64)      # class index per triangle (-1: none)
         self.cell = np.full(n_triangles, -1, np.int64)
+        self.rank: np.ndarray | None = None
+        """Per triangle id, where a repack puts it within its L-packing class, before its id (None: id order alone):
+        the server's colour order (``TssConfig.colour_order``, :func:`lp_luma`)."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -561,7 +567,9 @@ class StableAtlas:
                 self.cls[t], self.cell[t] = c, k
         if repacked:
             self._reset_state()
-            order = sorted(range(len(keys)), key=lambda i: (keys[i], int(ids[i])))
+            rank = (self.rank[ids] if self.rank is not None else np.zeros(ids.size, np.int64)).tolist()
+            order = sorted(range(len(keys)),
+                           key=lambda i: (keys[i], rank[i] if keys[i][0] == KIND_LP else 0, int(ids[i])))
             for i in order:
                 c = self._class(keys[i])
                 k = self._alloc(c)
@@ -595,6 +603,28 @@ class StableAtlas:
         """Shelves per single-texel (0) and L-packing level class: what the client needs to find a slot."""
         return {(0 if k[0] == KIND_SINGLE else k[1]): list(self.shelves[c]) for c, k in enumerate(self.keys)
                 if k[0] in (KIND_SINGLE, KIND_LP) and self.shelves[c]}
+
+
+def lp_luma(rgba: np.ndarray, plan: AtlasPlan) -> tuple[np.ndarray, np.ndarray]:
+    """The mean luma (Rec. 601 weights, 8-bit levels) of the samples each L-packed triangle of ``plan`` wrote into the
+    atlas ``rgba`` (H, W, 4) uint8 (texels of alpha > 127 in its three ``D(l)``-square tip blocks): (M,) indices into
+    the plan's rows and (M,) lumas (NaN where no texel was written).  The server's colour order
+    (``TssConfig.colour_order``) ranks a repack's cells by it."""
+    lp = np.flatnonzero(plan.kind == KIND_LP)
+    out = np.full(lp.size, np.nan)
+    D = tip_dim(plan.level[lp])
+    wts = np.array([0.299, 0.587, 0.114], np.float32)
+    for d in np.unique(D).tolist():
+        sel = np.flatnonzero(D == d)
+        o = plan.origin[lp[sel]]                                                      # (n, 3, 2)
+        yy = o[:, :, 1, None, None] + np.arange(d)[None, None, :, None]
+        xx = o[:, :, 0, None, None] + np.arange(d)[None, None, None, :]
+        px = rgba[yy, xx]                                                             # (n, 3, d, d, 4)
+        w = px[..., 3] > 127
+        y = px[..., :3].astype(np.float32) @ wts
+        n = w.sum(axis=(1, 2, 3))
+        out[sel] = np.where(n > 0, (y * w).sum(axis=(1, 2, 3)) / np.maximum(n, 1), np.nan)
+    return lp, out
 
 
 def plan_atlas(atlas: StableAtlas, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w: np.ndarray, w2: np.ndarray,

@@ -50,8 +50,8 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, morton_order, os_sizes, pitch_level,
-                     plan_atlas, v_count)
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, lp_luma, morton_order,
+                     os_sizes, pitch_level, plan_atlas, v_count)
 from .wire import WIRE_VERSION, descriptors, dequantize_positions, encode_geometry, encode_table, quantize_positions
 
 log = logging.getLogger(__name__)
@@ -323,6 +323,8 @@ class TssServer(ServerHalf):
         self._prev_w1 = np.zeros(n, np.int64)
         self._prev_w2 = np.zeros(n, np.int64)
         self._prev_h = np.zeros(n, np.int64)
+        self._luma = np.full(n, np.nan)
+        """Per triangle, the mean luma of its samples when it was last shaded L-packed (``colour_order``; NaN: never)."""
         self.last_plan: AtlasPlan | None = None
         self.left_out = 0
         """Triangles of the last frame's PVS left out because not even one texel each fitted the atlas."""
@@ -581,6 +583,19 @@ class TssServer(ServerHalf):
         shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
         W, H = self.atlas
         rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
+        if c.colour_order > 0:
+            rows, luma = lp_luma(rgba, plan)
+            unknown = plan.repacked and iframe and bool(np.isnan(self._luma[pvs[rows]]).any())
+            self._luma[pvs[rows]] = luma
+            # the next repack's order: by colour bin, then id; triangles of no known colour last
+            self.store.rank = np.where(np.isnan(self._luma), 1 << 30,
+                                       np.floor(np.nan_to_num(self._luma) / c.colour_order)).astype(np.int64)
+            if unknown:   # a repack placed triangles of no known colour: place them all again by colour, shade again
+                plan = plan_atlas(self.store, pvs, plan.kind, plan.level, plan.w, plan.w2, plan.h, plan.a, reset=True,
+                                  grid=c.os_grid)
+                assert not plan.overflow, "the same classes repacked in another order fit as they did"
+                shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
+                rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
         atlas = fill_gutters(rgba, plan.height, self.block) if c.gutter_fill else rgba[..., :3].copy()
         if self.block > 1 and c.gutter_fill:
             if not iframe and self._sent_atlas is not None:
