@@ -22,7 +22,8 @@ checkout's work in progress).
 Every run is its own process (``--jobs`` at once, under ``nice``), its figures
 (:func:`splitrender.experiments.studies.link.figures`) appended to a cache that a rerun resumes from.
 
-Writes ``benchmarks/results/bench_adapt_quality.json``: per method and trace, off / full before / full after: model
+Writes ``benchmarks/results/bench_adapt_quality.json`` (rows of methods and traces this run did not measure are kept
+from the file, each row naming its ``base`` and ``rev``): per method and trace, off / full before / full after: model
 PSNR, p95 motion-to-photon, longest freeze, mean rate, and the targets (full loses at most 0.5 dB of model PSNR
 against off; lowers p95 motion-to-photon where off builds a queue, here: off's p95 over ``QUEUE_MS``; no freeze over
 500 ms).
@@ -206,15 +207,29 @@ def main() -> None:
                         "psnr_within_0.5dB": row[f"db_vs_off_{label}"] >= -0.5,
                         "mtp_lower_where_off_queues": (not queue) or row[f"mtp_p95_ms_{label}"] < row["mtp_p95_ms_off"],
                         "no_freeze_over_500ms": row[f"longest_freeze_ms_{label}"] <= 500}
+            row.update(base=sha["before"], rev=sha["after"])
             table.setdefault(m, {})[tr] = row
     OUT.mkdir(parents=True, exist_ok=True)
+    runs = [r for r in done.values() if r["sha"] in sha.values() and r["method"] in methods and r["trace"] in traces]
+    path = OUT / "bench_adapt_quality.json"
+    if path.exists():      # rows of other methods and traces stay, each with the commits it was measured at
+        old = json.loads(path.read_text())
+        for m, rows in old.get("table", {}).items():
+            for tr, row in rows.items():
+                if m in methods and tr in traces:
+                    continue
+                row.setdefault("base", old.get("base"))
+                row.setdefault("rev", old.get("rev"))
+                table.setdefault(m, {})[tr] = row
+                runs += [r for r in old.get("runs", []) if r["method"] == m and r["trace"] == tr]
+        traces = sorted({tr for rows in table.values() for tr in rows})
     out = {"benchmark": "bench_adapt_quality", "base": sha["before"], "rev": sha["after"], "duration_s": args.duration,
            "size": [320, 180], "scene": "default+nogi", "trace": "walk", "traces": traces,
-           "queue_ms": QUEUE_MS,
-           "table": table, "runs": [r for r in done.values() if r["sha"] in sha.values()],
+           "queue_ms": QUEUE_MS, "note": "base and rev: this run's commits; each row names its own (older rows kept)",
+           "table": table, "runs": runs,
            "wall_s": time.perf_counter() - t0, "jobs": args.jobs, "machine": platform.machine(), "cpus": os.cpu_count(),
            "load_avg": os.getloadavg()}
-    (OUT / "bench_adapt_quality.json").write_text(json.dumps(out, indent=1) + "\n")
+    path.write_text(json.dumps(out, indent=1) + "\n")
     if not args.keep:
         for p in trees.values():
             subprocess.run(["git", "worktree", "remove", "--force", str(p)], cwd=ROOT, capture_output=True)

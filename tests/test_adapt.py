@@ -381,3 +381,66 @@ def test_a_welcome_with_a_bad_probe_ssrc_is_refused_by_name() -> None:
     for bad in ("1234", -1, 1 << 32, True, streams[0].ssrc):
         with pytest.raises(EnvelopeError, match="Welcome.method_params.probe_ssrc: expected an SSRC no stream uses, got"):
             ClientSession.from_welcome(Welcome("s", "video", {**good, "probe_ssrc": bad}, streams), ClientOptions())
+
+
+def test_a_latency_tolerant_method_gives_its_capped_encoders_a_longer_buffer() -> None:
+    """With ``sas``'s quality model (tolerance 300 ms) the point controller sets the rate controller's VBV buffer to
+    half of what that tolerance leaves past video's 100 ms budget; a ceiling carries it, scaled or not, into the
+    encoder's config, where it lets an IDR take more of its crf's bits: 8.0 kB against 4.5 kB under a 1 Mbit/s cap
+    with two frames' buffer (measured, 320x176; the crf alone: 32.4 kB).  ``video`` (100 ms) keeps two frames."""
+    from splitrender.codecs.video import VideoCodecConfig, VideoEncoder
+    from splitrender.methods.base import SCALE_KNOB
+    from splitrender.methods.sas.config import QUALITY as SAS
+    from splitrender.methods.video import QUALITY as VIDEO
+    from splitrender.pipeline.adapt import BURST_SHARE, PointController, scale_rate
+
+    import dataclasses
+
+    for model, want in ((SAS, BURST_SHARE * (300.0 - 100.0)), (VIDEO, None)):
+        rc = RateController(("atlas",), 30.0)
+        PointController((dataclasses.replace(SCALE_KNOB, model=model),), rc)
+        assert rc.buffer_ms == want
+        ceiling = rc.targets_kbps(2e6)["atlas"]
+        assert isinstance(ceiling, CappedCrf) and ceiling.buffer_ms == want
+        assert scale_rate(ceiling, 2).buffer_ms == want and float(scale_rate(ceiling, 2)) == 2 * float(ceiling)
+    rng = np.random.default_rng(0)
+    base = (rng.random((22, 40, 3)) * 255).astype(np.uint8).repeat(8, 0).repeat(8, 1)
+    img = np.clip(base.astype(int) + rng.integers(-20, 20, base.shape), 0, 255).astype(np.uint8)
+    idr = {b: VideoEncoder(VideoCodecConfig(crf=23.0, cap_kbps=1000.0, cap_buffer_ms=b), 320, 176).encode(img, True).nbytes
+           for b in (None, 200.0)}
+    assert idr[200.0] > 1.5 * idr[None], idr
+    with pytest.raises(ConfigError, match="cap_buffer_ms"):
+        VideoCodecConfig(cap_kbps=1000.0, cap_buffer_ms=-1.0)
+
+
+def test_the_start_up_probes_go_out_back_to_back_and_climb_faster_until_an_overuse() -> None:
+    """The 3x and 6x start-up clusters: the second once the first has been sent, before any result; a probe that
+    finds what it was sent at is followed by one at ``start_climb`` (3) times the estimate until the first over-use,
+    at 2x after it."""
+    from splitrender.pipeline.gcc import GccConfig, ProbeController
+    from splitrender.protocol.twcc import PacketResult
+
+    pc = ProbeController(GccConfig())
+    a = pc.next_cluster(3e5, 0)
+    assert a is not None and a.rate_bps == pytest.approx(9e5)
+    assert pc.next_cluster(3e5, a.end_us - 1) is None                    # the first still going out
+    b = pc.next_cluster(3e5, a.end_us)
+    assert b is not None and b.rate_bps == pytest.approx(1.8e6)
+    assert pc.next_cluster(3e5, b.end_us + 1) is None                    # then one at a time, after its result
+
+    def deliver(cl) -> None:                                             # type: ignore[no-untyped-def]
+        for k in range(cl.packets):
+            send = cl.start_us + int(k * cl.spacing_us())
+            pc.on_result(PacketResult(k, send, cl.packet_bytes, send + 20_000, cl.cluster))
+
+    deliver(a)
+    deliver(b)
+    assert pc.evaluate(b.end_us + 1) == pytest.approx(1.8e6, rel=0.15)
+    c = pc.next_cluster(1.6e6, 300_000)
+    assert c is not None and c.rate_bps == pytest.approx(3 * 1.6e6)
+    deliver(c)
+    pc.on_decrease(400_000)
+    pc.evaluate(c.end_us + 1)
+    assert pc.next_cluster(4e6, 450_000).rate_bps == pytest.approx(2 * 4e6)  # type: ignore[union-attr]
+    with pytest.raises(ConfigError, match="start_climb"):
+        GccConfig(start_climb=1.0)

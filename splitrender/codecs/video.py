@@ -132,10 +132,11 @@ def yuv_to_rgb(y: np.ndarray, cb: np.ndarray, cr: np.ndarray, full_range: bool, 
     return np.clip(out, 0, 255).astype(np.uint8).reshape(h, w, 3)
 
 
-def _vbv(kbps: int, fps: int) -> list[str]:
+def _vbv(kbps: int, fps: int, buffer_ms: float | None = None) -> list[str]:
     """x264/x265 parameters holding a stream under ``kbps`` with a two-frame VBV buffer (bit-rate mode and capped
-    crf alike)."""
-    return [f"vbv-maxrate={kbps}", f"vbv-bufsize={max(1, int(kbps / fps * 2))}"]
+    crf alike), or one of ``buffer_ms`` where that is longer."""
+    frames = kbps / fps * 2
+    return [f"vbv-maxrate={kbps}", f"vbv-bufsize={max(1, int(max(frames, kbps * (buffer_ms or 0.0) / 1000)))}"]
 
 
 VBV_THREADS = 1
@@ -151,7 +152,9 @@ output repeats: they keep the machine's threads."""
 class VideoCodecConfig:
     """How one video stream is coded.  ``bitrate_kbps`` wins over ``crf`` when both are set; ``cap_kbps`` with
     ``crf`` (and no ``bitrate_kbps``) is capped crf: the crf's quality, the rate held under ``cap_kbps`` by the
-    encoder's VBV (a two-frame buffer, as in bit-rate mode)."""
+    encoder's VBV (a two-frame buffer, as in bit-rate mode, or ``cap_buffer_ms`` of the cap where that is longer: a
+    method that tolerates a queue lets an I-frame take its crf's bits and the pacer spread it, rather than squeeze
+    it into two frames' worth)."""
 
     codec: CodecName = "h264"
     pix_fmt: str = "yuv420p"
@@ -159,6 +162,7 @@ class VideoCodecConfig:
     bitrate_kbps: float | None = None
     crf: float | None = 23.0
     cap_kbps: float | None = None
+    cap_buffer_ms: float | None = None
     gop: int = 30
     lossless: bool = False
     preset: str = "ultrafast"
@@ -181,6 +185,8 @@ class VideoCodecConfig:
             raise ConfigError(f"video crf: must be in [0, 51], got {self.crf}")
         if self.cap_kbps is not None and not self.cap_kbps > 0:
             raise ConfigError(f"video cap_kbps: must be > 0, got {self.cap_kbps}")
+        if self.cap_buffer_ms is not None and not 0 <= self.cap_buffer_ms <= 10_000:
+            raise ConfigError(f"video cap_buffer_ms: must be in [0, 10000], got {self.cap_buffer_ms}")
         if self.fps <= 0:
             raise ConfigError(f"video fps: must be > 0, got {self.fps}")
 
@@ -246,7 +252,7 @@ class VideoEncoder:
             elif cfg.crf is not None:
                 opts["crf"] = str(cfg.crf)
                 if cfg.cap_kbps is not None:
-                    params += [*_vbv(max(1, int(cfg.cap_kbps)), cfg.fps), "nal-hrd=none"]
+                    params += [*_vbv(max(1, int(cfg.cap_kbps)), cfg.fps, cfg.cap_buffer_ms), "nal-hrd=none"]
             if cfg.vbv:
                 opts["threads"] = str(VBV_THREADS)
             opts["x264-params"] = ":".join(params)
@@ -260,7 +266,7 @@ class VideoEncoder:
             elif cfg.crf is not None:
                 params.append(f"crf={cfg.crf}")
                 if cfg.cap_kbps is not None:
-                    params += _vbv(max(1, int(cfg.cap_kbps)), cfg.fps)
+                    params += _vbv(max(1, int(cfg.cap_kbps)), cfg.fps, cfg.cap_buffer_ms)
             if cfg.vbv:
                 params.append(f"pools={VBV_THREADS}")
             opts["x265-params"] = ":".join(params)

@@ -89,6 +89,12 @@ class GccConfig:
     probe_interval_s: float = 2.0
     probe_packets: int = 12
     probe_min_bytes: int = 6000
+    start_climb: float = 3.0
+    """Until the first over-use, a probe that found more is followed by one at this multiple of the new estimate
+    (2 after it, as libwebrtc's further probing), and the start-up probes (3x and 6x ``start_bps``) go out back to
+    back rather than each after the last one's feedback: at 2x a step, each a feedback interval and a round trip, sas
+    over the 8 Mbit/s cellular-like trace reached 5.4 Mbit/s at 0.59 s, its atlas under the start's ceilings all the
+    while."""
     stale_overuse_ms: float = 5.0
     drained_ms: float = 100.0
     stale_window_ms: float = 1000.0
@@ -105,6 +111,8 @@ class GccConfig:
         if not 0 < self.min_bps <= self.start_bps <= self.max_bps:
             raise ConfigError(f"GccConfig: need 0 < min_bps <= start_bps <= max_bps, got {self.min_bps:g}, "
                               f"{self.start_bps:g}, {self.max_bps:g}")
+        if not 1 < self.start_climb <= 10:
+            raise ConfigError(f"GccConfig.start_climb: must be in (1, 10], got {self.start_climb}")
         if not 0 < self.beta < 1:
             raise ConfigError(f"GccConfig.beta: must be in (0, 1), got {self.beta}")
         if self.window < 2:
@@ -395,8 +403,10 @@ class ProbeController:
         for cid in [c for c, (_, t, _) in self._sent.items() if now_us - t > 5_000_000]:   # never fully reported
             self._sent.pop(cid)
             self._results.pop(cid, None)
-        if not cfg.probe or self._sent:
+        if not cfg.probe:
             return None
+        if self._sent and not (self._next_id < 2 and self._pending and all(e <= now_us for _, _, e in self._sent.values())):
+            return None      # one cluster at a time, but for the start-up pair (back to back)
         if self._pending:
             rate = self._pending.pop(0) * (cfg.start_bps if self._next_id < 2 else estimate_bps)
         elif (self._last_probe_us is None or now_us - self._last_probe_us >= cfg.probe_interval_s * 1e6) \
@@ -435,8 +445,8 @@ class ProbeController:
             recv_rate = sum(x.size for x in arrived[1:]) * 8e6 / recv_span
             found = min(send_rate, recv_rate)
             self.found.append((cid, found))
-            if found > 0.7 * rate and found * 2 < self.cfg.max_bps:       # it found more: go on climbing
-                self._pending.append(2.0)
+            if found > 0.7 * rate and found * 2 < self.cfg.max_bps and not self._pending:   # it found more: climb
+                self._pending.append(2.0 if self._last_decrease_us > -(1 << 62) else self.cfg.start_climb)
             best = found if best is None else max(best, found)
         return best
 

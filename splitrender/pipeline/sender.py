@@ -162,7 +162,8 @@ class StreamEncoder:
                 if capped and cur is not None and want >= CEILING_JUMP * cur:
                     retargeted = urgent = True     # a ceiling far above: the crf's own picture now, not at the next IDR
                 if retargeted:
-                    cfg = (dataclasses.replace(cfg, cap_kbps=float(want), bitrate_kbps=None, crf=spec.codec.crf)
+                    cfg = (dataclasses.replace(cfg, cap_kbps=float(want), bitrate_kbps=None, crf=spec.codec.crf,
+                                               cap_buffer_ms=getattr(want, "buffer_ms", None))
                            if capped else dataclasses.replace(cfg, bitrate_kbps=float(want), crf=None, cap_kbps=None))
                     restarts += not fresh
                     idr = idr or urgent
@@ -174,7 +175,7 @@ class StreamEncoder:
             if encoder.cfg.bitrate_kbps is not None and want is not None:
                 given[name] = float(encoder.cfg.bitrate_kbps)
             elif encoder.cfg.cap_kbps is not None and want is not None:
-                given[name] = CappedCrf(encoder.cfg.cap_kbps)
+                given[name] = CappedCrf(encoder.cfg.cap_kbps, encoder.cfg.cap_buffer_ms)
             video[name] = ef = encoder.encode(plane, force_idr=idr)
             if ef.keyframe and name not in self._sets_checked and encoder.parameter_sets_known:
                 self._sets_checked.add(name)
