@@ -108,16 +108,17 @@ def test_bits_count_every_stream_and_metadata(shared_run):
 
 
 def test_loss_triggers_keyframe_requests_and_recovery(shared_run):
-    """3 s at 5 % loss, seed 1, shown at 30 Hz: measured 12 lost frames, 2 keyframe requests, 5 keyframes (the bound:
-    more than 4).  Over 2 s 12 lost, 2 requests, 4 keyframes.  At the runner's default 60 Hz (other feedback times,
+    """2 s at 5 % loss, seed 1, shown at 30 Hz: measured 12 lost frames, 2 keyframe requests, 4 keyframes (the bound:
+    more than 3, the GOP's two and one).  Over 3 s 12 lost, 2 requests, 5 keyframes (3 s ran until issue 49: every loss
+    falls in the first 2 s, and the third second cost a third of the test's CPU).  At the runner's default 60 Hz (other feedback times,
     other draws) 20 lost, 3 requests, 4 keyframes.  (Measured 2026-12-06, once the server core's datagrams left one
     way: a retransmission no longer waits behind the frame being encoded, so NACKs repair more, and seed 3, used
     before, now loses no frame: 0 against 16; over seeds 0-5, 6.5 lost frames a run against 11.2.)"""
-    cfg = RunConfig(method="video", network="delay 20ms loss 5%", duration_s=3.0, seed=1, client_fps=30, **TINY)
+    cfg = RunConfig(method="video", network="delay 20ms loss 5%", duration_s=2.0, seed=1, client_fps=30, **TINY)
     res = shared_run(cfg)
     s = res.summary
     assert s["lost_frames"] > 0 and s["keyframe_requests"] > 0
-    assert s["keyframes"] > 1 + math.floor(3.0 * 30 / 30), "IDRs beyond the GOP schedule answer the requests"
+    assert s["keyframes"] > 1 + math.floor(cfg.duration_s * 30 / 30), "IDRs beyond the GOP schedule answer the requests"
     # after every undecodable frame a later update is shown again (the stream recovers)
     shown = sorted({f["update_frame_id"] for f in res.frames})
     lost = [u["frame_id"] for u in res.updates if not u["delivered"]]
