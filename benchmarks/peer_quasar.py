@@ -77,6 +77,8 @@ QUASAR_PROGRAMS: dict[str, tuple[str, str]] = {
 }
 """Role -> (program, its place in a CMake build folder of QUASAR)."""
 METHODS = ("atw", "quasar", "quadstream")
+COVER_SKY_EDGE_PX = 0.25
+"""``--cover``'s reach of QuadStream's centre view past its outline against the sky (pixels; issue 50)."""
 OURS: dict[str, tuple[str, dict[str, Any]]] = {
     "atw": ("atw", {}),
     "quasar": ("quads", {"variant": "quasar"}),
@@ -129,6 +131,9 @@ class Setup:
     hidden_sky_px: int = 0
     """Our QUASAR client's sky quads behind the model's silhouette (``quads`` ``hidden_sky_px``; 0: none, the
     default)."""
+    cover: bool = False
+    """Our quads seal the cracks between their quads (``seal_cracks``) and QuadStream's centre view covers the
+    outline against the sky a quarter pixel further (``sky_edge_px`` :data:`COVER_SKY_EDGE_PX`); off: the defaults."""
 
     @property
     def size(self) -> str:
@@ -379,6 +384,10 @@ def our_config(method: str, setup: Setup, model: Path, path_file: Path) -> Any:
             params["layers"] = setup.layers
             if setup.hidden_sky_px:
                 params["hidden_sky_px"] = setup.hidden_sky_px
+        if setup.cover:
+            params["seal_cracks"] = True
+            if params["variant"] == "quadstream":
+                params["sky_edge_px"] = COVER_SKY_EDGE_PX
     return RunConfig(method=name, method_params=params, scene=str(model) + ("+nosun" if setup.unlit else ""),
                      trace=str(path_file),
                      network=netem_string(setup.latency_ms, setup.jitter_ms), width=setup.width, height=setup.height,
@@ -769,10 +778,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     "silhouette, in pixels (quads hidden_sky_px; default 0: none; 8 was measured)")
     ap.add_argument("--qs-expand-edges", action="store_true", help="our QuadStream grows every silhouette by a pixel "
                     "as qs_simulator does (splitrender.methods.quads.server.QS_EXPAND_EDGES)")
+    ap.add_argument("--cover", action="store_true", help="our quads with their cover of the outline and the cracks "
+                    "between quads (quads seal_cracks=true; QuadStream also sky_edge_px=0.25; off by default, issue 50)")
     ap.add_argument("--ours", default=",".join(METHODS), help="which of our methods to run, comma-separated (default: "
                     "all; the others' rows are left out)")
     ap.add_argument("--reuse", action="store_true", help="take QUASAR's frames and logs already in the work folder "
                     "instead of running its programs again")
+    ap.add_argument("--quasar-rows", metavar="JSON", help="run ours alone: QUASAR's rows, its truth's background "
+                    "colour and content taken from an earlier run's JSON on the same model, walk and set-up (checked), "
+                    "so that none of QUASAR's programs runs and no build is needed")
     ap.add_argument("--xvfb", choices=("auto", "always", "never"), default="auto",
                     help="run QUASAR under xvfb-run: auto = when there is no DISPLAY (default)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds each QUASAR program may run")
@@ -783,8 +797,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup]:
     """Everything checkable before any work: QUASAR's programs, the display, the model, the set-up."""
-    programs = find_quasar_programs(args.quasar_build)
-    with_display([], args.xvfb)   # raises now, not after our runs, when there is no display
+    if getattr(args, "quasar_rows", None):   # ours alone: no QUASAR program runs
+        if not Path(args.quasar_rows).is_file():
+            raise InputError(f"--quasar-rows {args.quasar_rows}: no such file (an earlier run's JSON)")
+        programs: dict[str, Path] = {}
+    else:
+        programs = find_quasar_programs(args.quasar_build)
+        with_display([], args.xvfb)   # raises now, not after our runs, when there is no display
     if not args.model:
         raise InputError("--model PATH is required: the model (.glb/.gltf, or a format converted to it) both tools load")
     model = Path(args.model).expanduser().resolve()
@@ -796,10 +815,34 @@ def check_inputs(args: argparse.Namespace) -> tuple[dict[str, Path], Path, Setup
     except ValueError:
         raise InputError(f"--size {args.size!r}: expected WxH, e.g. 320x180") from None
     setup = Setup(w, h, args.latency, args.jitter, args.prediction, args.view_cell, args.layers, unlit=args.unlit,
-                  lossless=args.lossless, hidden_sky_px=args.hidden_sky or 0)
+                  lossless=args.lossless, hidden_sky_px=args.hidden_sky or 0, cover=args.cover)
     if not 1 <= setup.layers <= 4:
         raise InputError(f"--layers {setup.layers}: ours takes 1 to 4")
     return programs, model, setup
+
+
+SAME_RUN_KEYS = ("trace", "duration_s", "path_samples", "skip_s")
+SAME_SETUP_KEYS = ("width", "height", "latency_ms", "jitter_ms", "prediction", "view_cell_m", "layers", "fov_deg",
+                   "wide_fov_deg")
+
+
+def stored_quasar_run(args: argparse.Namespace, setup: Setup, path_samples: int) -> dict[str, Any]:
+    """The earlier run of ``--quasar-rows``, checked against this one: the same walk (trace, duration, path lines),
+    the same start-up skip and the same set-up on QUASAR's side (sizes, network, prediction, view cell, layers,
+    fields of view); what only ours changes (``unlit``, ``lossless``, our parameters) may differ.  Raises
+    :class:`InputError` naming the first difference."""
+    old = json.loads(Path(args.quasar_rows).read_text())
+    if not any(r.get("tool") == "QUASAR" for r in old.get("rows", ())):
+        raise InputError(f"--quasar-rows {args.quasar_rows}: no QUASAR rows in it")
+    now = {"trace": args.trace, "duration_s": args.duration, "path_samples": path_samples, "skip_s": args.skip}
+    for k in SAME_RUN_KEYS:
+        if old.get(k) != now[k]:
+            raise InputError(f"--quasar-rows {args.quasar_rows}: {k} {old.get(k)!r} there, {now[k]!r} here")
+    for k in SAME_SETUP_KEYS:
+        if old.get("setup", {}).get(k) != getattr(setup, k):
+            raise InputError(f"--quasar-rows {args.quasar_rows}: setup {k} {old.get('setup', {}).get(k)!r} there, "
+                             f"{getattr(setup, k)!r} here")
+    return old
 
 
 def machine() -> dict[str, Any]:
@@ -852,7 +895,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     # QUASAR: ground truth, then each simulator
     commands: dict[str, list[str]] = {}
     logs: dict[str, QuasarLog] = {}
-    for role in ("truth", *METHODS):
+    earlier = stored_quasar_run(args, setup, len(written)) if args.quasar_rows else None
+    for role in ("truth", *METHODS) if earlier is None else ():
         out_dir = work / "quasar" / role
         commands[role] = with_display(quasar_command(role, programs[role], setup, scene_file, path_file, out_dir), args.xvfb)
         if args.reuse and frame_files(out_dir) and (out_dir / "log.txt").is_file():
@@ -863,9 +907,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if role != "truth":
             logs[role] = log
     truth_dir = work / "quasar" / "truth"
-    truth_frames = frame_files(truth_dir)
-    q_bg = background_colour(load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10])
-    content = {"quasar": truth_content((load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10]), q_bg)}
+    if earlier is None:
+        truth_frames = frame_files(truth_dir)
+        q_bg = background_colour(load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10])
+        content = {"quasar": truth_content((load_rgb(truth_frames[i], setup) for i in sorted(truth_frames)[skip::10]), q_bg)}
+    else:
+        q_bg = tuple(earlier["background"]["quasar"])
+        content = {"quasar": earlier.get("truth_content", {}).get("quasar")}
+        commands = earlier.get("quasar_commands") or {}
 
     # ours, each run scored as soon as it ends (its frames are not kept)
     from splitrender.methods.quads import server as quads_server
@@ -897,9 +946,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # QUASAR's scores, and the table
     rows = bytes_table(logs, updates)
-    sim_bg: dict[str, list[int]] = {}
+    if earlier is not None:
+        rows = [dict(r, quasar_run=str(args.quasar_rows)) for r in earlier["rows"] if r["tool"] == "QUASAR"] + rows
+    sim_bg: dict[str, list[int]] = dict(earlier["background"].get("quasar_simulators") or {}) if earlier else {}
     for row in rows:
         m = row["method"]
+        if row["tool"] == "QUASAR" and earlier is not None:
+            continue
         if row["tool"] == "QUASAR":
             recorded = len(frame_files(work / "quasar" / m))
             if abs(recorded - len(written)) > 2:
@@ -913,7 +966,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             row.update(scores[m])
     add_gains(rows)
-    a, b = content["ours"]["model_contrast"], content["quasar"]["model_contrast"]
+    a = content["ours"]["model_contrast"]
+    b = (content["quasar"] or {}).get("model_contrast", a)
     if max(a, b) > CONTENT_RATIO_WARN * max(1e-9, min(a, b)):
         print(f"warning: the two ground truths differ: model colours per frame {content['quasar']['model_colours']:.0f} "
               f"(QUASAR) against {content['ours']['model_colours']:.0f} (ours), contrast inside the model "
@@ -928,8 +982,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "background": {"quasar": list(q_bg), "ours": list(o_bg or ()), "ours_repainted": repaint,
                        "quasar_simulators": sim_bg},
         "truth_content": content, "path_disagreement_deg": disagreement, "frame_size_step_bytes": LOG_STEP_BYTES,
-        "quasar_build": str(Path(args.quasar_build).expanduser().resolve()),
-        "quasar_commit": quasar_commit(Path(args.quasar_build).expanduser()),
+        "quasar_build": str(Path(args.quasar_build).expanduser().resolve()) if args.quasar_build else None,
+        "quasar_commit": (earlier.get("quasar_commit") if earlier is not None
+                          else quasar_commit(Path(args.quasar_build).expanduser())),
+        "quasar_rows_from": str(args.quasar_rows) if earlier is not None else None,
         "quasar_commands": commands, "our_configs": {m: our_config(m, setup, model, path_file).to_dict() for m in METHODS},
         "hidden_sky_px": setup.hidden_sky_px, "qs_expand_edges": quads_server.QS_EXPAND_EDGES, "splitrender_commit": quasar_commit(ROOT),
         "rows": rows, "wall_s": time.perf_counter() - t_start, "gl": renderer.ctx.info.get("GL_RENDERER"),

@@ -455,3 +455,30 @@ def test_truth_content_tells_an_unlit_model_from_a_lit_one() -> None:
     assert f == {"frames": 2, "model_colours": 2.0, "model_contrast": pytest.approx(105 * 20 / (20 * 39))}
     assert l["frames"] == 1 and l["model_colours"] == 40 and 3.5 < l["model_contrast"] < 4.5
     assert pq.truth_content([flat * 0 + np.array(bg, np.uint8)], bg)["frames"] == 0
+
+
+def test_quasar_rows_run_ours_alone_against_an_earlier_run_of_the_same_walk(tmp_path: Path) -> None:
+    """``--quasar-rows``: no QUASAR build or display needed; the earlier run's walk and QUASAR-side set-up must be
+    this run's (each difference named), what only ours changes (unlit, lossless) may differ."""
+    model = tmp_path / "m.glb"
+    model.write_bytes(b"glTF")
+    earlier = tmp_path / "earlier.json"
+    setup = pq.Setup(unlit=True, lossless=True)
+    old = {"trace": "strafe", "duration_s": 5.0, "path_samples": 301, "skip_s": 0.5,
+           "setup": {**{k: getattr(setup, k) for k in pq.SAME_SETUP_KEYS}, "unlit": False},
+           "rows": [{"tool": "QUASAR", "method": "quadstream", "missed_pct": 0.08}]}
+    earlier.write_text(json.dumps(old))
+    args = pq.parse_args(["--model", str(model), "--quasar-rows", str(earlier), "--unlit", "--lossless", "--xvfb", "never"])
+    programs, _, got = pq.check_inputs(args)
+    assert programs == {} and got == setup
+    assert pq.stored_quasar_run(args, got, 301)["rows"][0]["missed_pct"] == 0.08
+    with pytest.raises(pq.InputError, match="path_samples 301 there, 121 here"):
+        pq.stored_quasar_run(args, got, 121)
+    with pytest.raises(pq.InputError, match="setup view_cell_m 0.5 there, 1.0 here"):
+        pq.stored_quasar_run(pq.parse_args(["--model", str(model), "--quasar-rows", str(earlier), "--view-cell", "1"]),
+                             pq.Setup(view_cell_m=1.0), 301)
+    earlier.write_text(json.dumps({**old, "rows": []}))
+    with pytest.raises(pq.InputError, match="no QUASAR rows"):
+        pq.stored_quasar_run(args, got, 301)
+    with pytest.raises(pq.InputError, match="no such file"):
+        pq.check_inputs(pq.parse_args(["--model", str(model), "--quasar-rows", str(tmp_path / "none.json")]))

@@ -16,7 +16,7 @@ from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
 from .mesh import (ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, continuous_sides, hidden_sky,
-                   join_meshes, scene_sides)
+                   join_meshes, quad_depth, scene_sides, sealed, sky_sides)
 from .server import outside_frustum
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
@@ -98,8 +98,12 @@ class QuadsClient(ClientHalf):
             if new_ref or any(s.kind == KIND_UPDATE and len(s.quads) for s in sets) or self._cached_parts is None:
                 # the cached quads' mesh changes only with them (a residual frame without update quads keeps it)
                 if self.config.variant == "quasar" and self.config.silhouette_clamp:   # no sky texels at the silhouette
+                    sides = scene_sides(self.cache.quads, self.cache.intr)
+                    # seal_cracks: each quad drawn nearly half a pixel past its sides where the surface goes on
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), "quad",
-                                         grow=scene_sides(self.cache.quads, self.cache.intr))]
+                                         grow=sides, extend=sealed(continuous_sides(
+                                             self.cache.quads, quad_depth(self.cache.quads, self.cache.intr)))
+                                         if self.config.seal_cracks else None)]
                 else:
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
                 if quasar_sky and (new_ref or self._cached_parts is None):   # the sky the reference set left out
@@ -120,14 +124,17 @@ class QuadsClient(ClientHalf):
                 continue
             pose, intr = cams[s.camera]
             view = s.camera if guard else 0
+            # QuadStream's centre view: its silhouette against the sky drawn a little past its pixels (sky_sides)
+            extend = (sky_sides(s.quads, intr, self.config.sky_edge_px)
+                      if self.config.variant == "quadstream" and s.camera == 0 and self.config.sky_edge_px > 0 else None)
             if s.tex is None:
-                parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp, view=view))
+                parts.append(build_mesh(s.quads, pose, intr, self._origin(s.slot), clamp, view=view, extend=extend))
                 if quasar_sky and s.kind == KIND_WIDE:   # the wide view's sky outside the main view
                     sky = background_quads(s.quads, intr, self._wide_out(intr))
                     parts.append(build_mesh(sky, pose, intr, self._origin(s.slot), "view"))
             else:
                 parts.append(build_mesh(s.quads, pose, intr, s.tex - np.stack([s.quads.x, s.quads.y], axis=-1), "quad",
-                                        view=view))
+                                        view=view, extend=extend))
             if guard and s.camera == 0 and centre is None:
                 centre = len(parts) - 1
                 self._mesh.set_guard(*parts[centre], *cams[0])
@@ -135,7 +142,9 @@ class QuadsClient(ClientHalf):
                 if origin is not None and self._mesh.guard_depth is not None:
                     # the atlas holds the centre view's image: filter across quad borders along a surface
                     grow = continuous_sides(s.quads, self._mesh.guard_depth)
-                    parts[centre] = build_mesh(s.quads, pose, intr, origin, "quad", view=view, grow=grow)
+                    if self.config.seal_cracks:   # and drawn as far past them: no crack opens between its quads
+                        extend = sealed(grow) if extend is None else extend + sealed(grow)
+                    parts[centre] = build_mesh(s.quads, pose, intr, origin, "quad", view=view, grow=grow, extend=extend)
         if centre is None:
             self._mesh.clear_guard()
         self._mesh.upload_parts(parts)

@@ -132,6 +132,16 @@ class QuadsConfig(MethodConfig):
       pixel beyond is the model (:func:`.mesh.scene_sides`), not into the sky texels beside the silhouette.  On by
       default (issue 50: on the peer benchmark's Spider, 40 % of our QUASAR's model error lay in covered silhouette
       pixels drawn as a blend of model and sky, where QUASAR's code, sampling its view nearest, has none);
+    - ``sky_edge_px`` (QuadStream): the client draws each of the centre view's flat quads this many pixels past
+      every side that borders the view's sky, on the quad's own plane (:func:`.mesh.sky_sides`), so that a display
+      pixel whose centre lies on the model between the last model pixel and the true outline is covered from a
+      nearby pose; ``seal_cracks``: QuadStream's centre view and QUASAR's reference set drawn 0.45 pixels past every
+      side where the surface goes on (:func:`.mesh.sealed`), so that no crack opens between two flattened quads
+      whose planes disagree at their shared border.  Off by default (issue 50: on the peer benchmark's Spider and
+      Wuson, unlit, they take QuadStream's missed model pixels under twice QUASAR's code's and lift our QUASAR's
+      model there, but on 2CylinderEngine+ground under ``cloud`` orbit they cost both variants 0.8-1.1 dB on the
+      model; docs/quasar.md has the numbers.  QUASAR's code grows every view's outline by a whole pixel instead,
+      ``expandEdges``);
     - ``merge_scale``: every merge threshold (``delta_sim``, ``delta_flatten``, the hidden layers' too) times
       this;
     - ``chroma``: the atlas in 4:4:4 by default (at the bits of 4:2:0: model +2.1 dB, whole
@@ -162,6 +172,8 @@ class QuadsConfig(MethodConfig):
     hidden_sky_px: int = 0
     centre_guard: bool = True
     silhouette_clamp: bool = True
+    sky_edge_px: float = 0.0
+    seal_cracks: bool = False
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """Layers (the hidden ones dropped one by one: their quads unsent, their atlas slots black), then the
@@ -216,6 +228,8 @@ class QuadsConfig(MethodConfig):
             raise ConfigError(f"{n}.atlas: 'packed' is QuadStream's atlas; QUASAR's cached quads need 'slots'")
         if isinstance(self.hidden_sky_px, bool) or not isinstance(self.hidden_sky_px, int) or not 0 <= self.hidden_sky_px <= 64:
             raise ConfigError(f"{n}.hidden_sky_px: must be an integer in [0, 64] pixels (0: off), got {self.hidden_sky_px!r}")
+        if not 0.0 <= self.sky_edge_px < 0.5:
+            raise ConfigError(f"{n}.sky_edge_px: must be in [0, 0.5) pixels (0: off), got {self.sky_edge_px}")
         if not 0.0 <= self.edp_tolerance < 0.5:
             raise ConfigError(f"{n}.edp_tolerance: must be in [0, 0.5), got {self.edp_tolerance}")
 

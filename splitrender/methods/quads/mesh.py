@@ -19,7 +19,7 @@ import numpy as np
 
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
-from .gen import BACKGROUND_FAR, MAX_LEVEL, QuadSet, corner_points, encode_normals
+from .gen import BACKGROUND_FAR, MAX_LEVEL, QuadSet, corner_points, decode_normals, dot3, encode_normals, plane_depth, rays
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4 + 1
@@ -247,9 +247,76 @@ def scene_sides(qs: QuadSet, intr: CameraIntrinsics) -> np.ndarray:
     return continuous_sides(qs, np.where(scene, 1.0, 1e6))   # background: one far 'surface' of its own
 
 
+SEAL_PX = 0.45
+"""How far past a side where the surface goes on a quad is drawn (``QuadsConfig.seal_cracks``, :func:`sealed`)."""
+
+
+def quad_depth(qs: QuadSet, intr: CameraIntrinsics) -> np.ndarray:
+    """(H, W) view depth at each pixel's centre of the plane of the quad of ``qs`` that covers it (the last one),
+    top row first, inf where none does: the view's depth as its quads give it, the same on both halves."""
+    index_map = np.full((intr.height, intr.width), -1, np.int64)
+    rasterize(index_map, qs, 0)
+    out = np.full(index_map.shape, np.inf)
+    py, px = np.nonzero(index_map >= 0)
+    if py.size:
+        q = index_map[py, px]
+        s = 2.0 ** qs.level[q].astype(np.float64)
+        n = decode_normals(qs.theta[q], qs.phi[q])
+        wv = -dot3(n, rays(intr, qs.x[q] + s / 2, qs.y[q] + s / 2)) * qs.depth[q].astype(np.float64)
+        out[py, px] = plane_depth(n, wv, rays(intr, px + 0.5, py + 0.5))
+    return out
+
+
+def sealed(sides: np.ndarray) -> np.ndarray:
+    """:func:`build_mesh`'s ``extend`` that seals the cracks between a view's quads: :data:`SEAL_PX` on each side
+    where ``sides`` (:func:`continuous_sides` or :func:`scene_sides`: half a texel where the lookup filters across)
+    is set, 0 elsewhere.  Two neighbouring quads flattened onto planes that disagree at their shared border open a
+    crack there seen from another pose, and what lies behind (the sky quads, a hidden layer) showed through (issue
+    50: single pixels inside the model, on the peer benchmark's Wuson and Spider).  Less than half a pixel, so that
+    from the view's own pose no quad reaches another pixel's centre and the view is drawn exactly as before."""
+    return np.where(np.asarray(sides) > 0, SEAL_PX, 0.0)
+
+
+def sky_sides(qs: QuadSet, intr: CameraIntrinsics, px: float) -> np.ndarray:
+    """(N, 4) pixels: ``px`` on each side (left, top, right, bottom) of each scene quad of ``qs`` along which every
+    pixel across lies in the view and is covered by one of the set's background quads (the sky), else 0:
+    :func:`build_mesh`'s ``extend``.  A view's silhouette against the sky, drawn that far out on the quad's own
+    plane: the model's true outline crosses the last model pixel's neighbour anywhere up to its centre, and a quad
+    stops half a pixel short of that, so seen from another pose a display pixel whose centre lies on the model in
+    that sliver showed the sky (issue 50: most of QuadStream's missed model pixels on the peer benchmark).  QUASAR's
+    code (``expandEdges``) adds a whole pixel, at the farthest neighbour's depth, which is its silhouettes' bleed."""
+    out = np.zeros((len(qs), 4))
+    if not len(qs) or px <= 0:
+        return out
+    h, w = intr.height, intr.width
+    index_map = np.full((h, w), -1, np.int64)
+    rasterize(index_map, qs, 0)
+    bg = qs.background(intr)
+    sky = np.zeros((h, w), bool)
+    sky[index_map >= 0] = bg[index_map[index_map >= 0]]
+    for lv in np.unique(qs.level):
+        sel = np.flatnonzero((qs.level == lv) & ~bg)
+        if not sel.size:
+            continue
+        size = 1 << int(lv)
+        x0, y0 = qs.x[sel].astype(np.int64), qs.y[sel].astype(np.int64)
+        k = np.arange(size)
+        for side, (dx, dy) in enumerate(((-1, 0), (0, -1), (1, 0), (0, 1))):
+            if dx:
+                xb = np.broadcast_to((x0 - 1 if dx < 0 else x0 + size)[:, None], (sel.size, size))
+                yb = y0[:, None] + k
+            else:
+                yb = np.broadcast_to((y0 - 1 if dy < 0 else y0 + size)[:, None], (sel.size, size))
+                xb = x0[:, None] + k
+            inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h)
+            across = sky[np.clip(yb, 0, h - 1), np.clip(xb, 0, w - 1)] & inside
+            out[sel, side] = np.where(across.all(axis=1), px, 0.0)
+    return out
+
+
 def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
                clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0,
-               grow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+               grow: np.ndarray | None = None, extend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (N*16, 11) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
     with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; indices uint32, quad by quad:
     24 (:data:`SUB_TRIANGLES`) for a quad with offsets, 6 for a flat one (:data:`FLAT_TRIANGLES`)).
@@ -272,10 +339,20 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     nearest-neighbour sample (on 2CylinderEngine+ground, orbit under cloud, 2 s, that cost QUASAR 1.1 dB on the
     model, ``benchmarks/bench_quads_models.py``).  ``texel`` ((N, 2) atlas pixels, optional): every fragment of quad
     i takes the colour of that one texel instead (:func:`hidden_sky`).  ``grow`` ((N, 4) texels, optional, with
-    ``"quad"``): each quad's rect widened on its left, top, right and bottom (:func:`continuous_sides`)."""
+    ``"quad"``): each quad's rect widened on its left, top, right and bottom (:func:`continuous_sides`).  ``extend``
+    ((N, 4) pixels, optional): each quad's geometry drawn that far past its left, top, right and bottom side, on its
+    own plane (:func:`sky_sides`, :func:`sealed`), where no corner's depth moves by more than :data:`SURFACE_REL`; its
+    lookup there is clamped to the rect as anywhere else."""
     if len(qs) == 0:
         return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
     pts, uv, ok = corner_points(qs, intr)
+    if extend is not None:
+        # a quad seen nearly edge-on: its plane a fraction of a pixel further on may lie far off, or behind the eye;
+        # such a quad is drawn as it is
+        pe, ue, oke = corner_points(qs, intr, extend)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            use = oke & ok & (np.abs(pe[..., 2] / pts[..., 2] - 1.0) <= SURFACE_REL).all(-1)
+        pts, uv = np.where(use[:, None, None], pe, pts), np.where(use[:, None, None], ue, uv)
     pts, uv = pts[ok], uv[ok]
     n = pts.shape[0]
     m = pose.matrix()
