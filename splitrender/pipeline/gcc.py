@@ -25,9 +25,10 @@ transport-wide feedback (:mod:`splitrender.protocol.twcc`):
    the two rates.
 6. **Probing** (:class:`ProbeController`): multiplicative increase alone takes half a
    minute to climb from 2 to 20 Mbit/s (8 % a second), and the estimate starts low (300 kbit/s, as WebRTC), so, as libwebrtc does, the sender
-   sends short clusters of padding at a multiple of the estimate (3x and 6x the start rate, 2x
-   the estimate every ``probe_interval_s`` while nothing is over-used, and again at 2x
-   the result while a probe finds more); a cluster's rate as delivered (bytes after its
+   sends short clusters of padding at a multiple of the estimate (3x and 6x the start rate, back to
+   back; 2x the estimate every ``probe_interval_s`` while nothing is over-used; and again while a
+   probe finds more, at ``start_climb`` (3x) the new estimate until the first over-use and 2x
+   after it); a cluster's rate as delivered (bytes after its
    first arrival over its arrival span, no more than the rate it was sent at) replaces a
    lower estimate.
 
