@@ -99,7 +99,6 @@ from splitrender.protocol import (  # noqa: E402
     NEED_DATA,
     Bye,
     ClientConnection,
-    DataChunk,
     Error,
     Feedback,
     FrameMeta,
