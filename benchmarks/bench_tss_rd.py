@@ -47,6 +47,7 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "matched block4 fill": ({**BLOCK4, "fill_pitch": True}, (31.0, 39.0)),
     "matched block4 colour": ({**BLOCK4, "colour_order": 16.0}, (31.0, 36.0, 41.0)),
     "defaults colour": ({"colour_order": 16.0}, (23.0,)),
+    "matched block4 colour4": ({**BLOCK4, "colour_order": 4.0}, (31.0, 36.0, 41.0)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
@@ -54,7 +55,7 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
 pixel, up to 8 per covered pixel) with ``codec_block = 4``, fewer samples at a lower crf; ``matched block4 fill``:
 ``matched block4`` with ``fill_pitch`` (L-packing levels raised to fill their tip blocks' padding with samples);
 ``matched block4 colour`` and ``defaults colour``: the same with ``colour_order = 16`` (a repack's L-packing cells in the
-order of their samples' mean luma, in bins of 16 levels)."""
+order of their samples' mean luma, in bins of 16 levels); ``matched block4 colour4``: in bins of 4 levels."""
 
 CHILD = r"""
 import json, sys

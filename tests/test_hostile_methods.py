@@ -29,7 +29,7 @@ from splitrender.limits import ClientLimits
 from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
 from splitrender.methods.quads.wire import QuadsWireError
 from splitrender.methods.sas.wire import SasMetaError
-from splitrender.methods.tss.wire import TssWireError
+from splitrender.methods.tss.wire import WIRE_VERSION as TSS_WIRE_VERSION, TssWireError
 from splitrender.methods.warp.wire import WarpMetaError
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics
@@ -42,7 +42,7 @@ INTR = CameraIntrinsics(160, 90, 60.0)
 METHODS: dict[str, tuple[str, dict[str, Any], type[RemoteProtocolError], int]] = {
     # method: (scene, parameters, its error class, its metadata version)
     "sas": ("default+nogi", {"lossless": True}, SasMetaError, 4),
-    "tss": ("default+nogi", {"lossless": True}, TssWireError, 4),
+    "tss": ("default+nogi", {"lossless": True}, TssWireError, TSS_WIRE_VERSION),
     "warp": ("default+nogi", {}, WarpMetaError, 1),
     "quads": ("default+nogi", {"lossless": True, "reference_every": 1}, QuadsWireError, 1),
     "probes": ("default", {}, ProbeStreamError, 2),

@@ -575,6 +575,8 @@ def test_malformed_tables_and_geometry_give_named_errors_and_keep_the_shown_stat
     flags["flags"][0] = 0x80
     lp_slots = os_off - 4 * n1                            # n1 level bytes, then n1 u32 zigzag slot deltas
     lp_levels = lp_slots - n1
+    lp_ids = lp_levels - 4 * (n0 + n2 + n1)                # n1 u32 L-packing ids after the single texels' ids
+    assert n1 >= 2
     far_slot = struct.pack("<I", 2 * 0xFFFFF)              # the first slot far beyond its level's bin
     below = struct.pack("<I", 1)                           # the first slot -1
     gv, gn, gnv, gwide = struct.unpack("<BIIB", geo[:10])
@@ -596,6 +598,10 @@ def test_malformed_tables_and_geometry_give_named_errors_and_keep_the_shown_stat
          r"^tss tris: level-\d+ slot 1048575 outside its bin of \d+ shelves \(\d+ slots\)$"),
         ({"tris": tris[:lp_slots] + below + tris[lp_slots + 4:]}, r"^tss tris: level-\d+ slot -1 outside its bin"),
         ({"tris": tris[:lp_levels] + b"\x80" + tris[lp_levels + 1:]}, r"^tss tris: L-packing level byte with its reserved bit set$"),
+        # the L-packing ids (slot order, zigzag differences): the first far beyond the scene, the second equal to the first
+        ({"tris": tris[:lp_ids] + struct.pack("<I", 2 * 0x7FFFFFF) + tris[lp_ids + 4:]},
+         r"^tss tris lp ids: id \d+ is not in 0 \.\. \d+ \(the scene's triangles\)$"),
+        ({"tris": tris[:lp_ids + 4] + struct.pack("<I", 0) + tris[lp_ids + 8:]}, r"^tss tris lp ids: triangle \d+ listed twice$"),
         ({"tris": tris[:lp_levels - 4 * n0] + below + tris[lp_levels - 4 * n0 + 4:]},
          r"^tss tris: single-texel slot -1 outside its \d+ shelves \(\d+ slots\)$"),
         ({"geo": geo[:-1]}, r"^tss geo: truncated at vertex codes"),

@@ -39,14 +39,15 @@ texels whose ``single_px``-square cells follow a Z-order curve, :func:`~.layout.
 session's ``block``),
 holding the L-packed triangles whose level rounds up to ``L``,
 :func:`~.layout.lp_cell_level`: with ``block`` > 1 every level of the same pitch); then the
-delta-coded ``u32`` ids of each kind (single, L-packing, oversampling; each sorted),
-then
+ids of each kind: the single texels' and the oversampled triangles' sorted and delta-coded (``u32``), the
+L-packing triangles' in slot order (by cell level, then slot) as ``u32`` zigzag-coded differences
+(:func:`zigzag_deltas`; each id in ``0 .. n_triangles - 1`` and listed once), then
 
 - the single texels' slots, as ``u32`` zigzag-coded differences (:func:`zigzag_deltas`:
   slots given in id order are mostly consecutive);
-- one ``u8`` per L-packing triangle: bits 0-5 level - 1, bit 6 no perspective
+- one ``u8`` per L-packing triangle (in the same slot order): bits 0-5 level - 1, bit 6 no perspective
   correction, bit 7 0; then their slots in their cell levels' bins as ``u32`` zigzag
-  differences (:func:`~.layout.lp_tip_origins`);
+  differences (:func:`~.layout.lp_tip_origins`; mostly +1, in whatever order the layout placed the triangles);
 - 16 B per oversampled triangle: ``u16 x, u16 y`` the rectangle's first texel,
   ``u16 width`` of the rectangle, ``u16 w1, u16 w2, u16 h`` the two staircases' bases
   and common height (samples; the rectangle has ``h`` rows on the centred grid,
@@ -54,7 +55,9 @@ then
   65535), ``u8 flags`` (bit 1 no perspective correction, others 0), ``u8 base`` (the
   vertex starting the base; the client rotates its vertices so it comes first).
 
-Version 4 (issue 33, lossy atlases of fine meshes): single texels in Z-ordered tiles
+Version 5 (issue 50): the L-packing rows in slot order, their ids as zigzag differences, instead of in id
+order with their slots as differences; a layout that places triangles by colour (``colour_order``), not by id,
+then costs the table no more than one in id order.  Version 4 (issue 33, lossy atlases of fine meshes): single texels in Z-ordered tiles
 of cells ``single_px`` square, compact geometry (quantised shared vertices instead of
 ``f32`` corners and ``u16`` objects: less than half the bytes), slots as differences
 (a full table of single texels shrank fourfold after zstd), ``tri_base`` and ``obj_box``
@@ -86,7 +89,7 @@ from ..sas.wire import decode_geometry_slots, encode_vertex_codes
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, OS_GRIDS, SINGLE_PX, SINGLE_TILE, AtlasPlan, lp_cell_level, lp_per_shelf,
                      lp_tip_origins, os_rows, os_sizes, single_origins, single_per_shelf, tip_pitch)
 
-WIRE_VERSION = 4
+WIRE_VERSION = 5
 OS_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("pw", "<u2"), ("w1", "<u2"), ("w2", "<u2"), ("h", "<u2"), ("a", "<u2"),
                      ("flags", "u1"), ("base", "u1")])
 """The 16-byte oversampling descriptor."""
@@ -257,11 +260,15 @@ def encode_table(ids: np.ndarray, plan: AtlasPlan, desc: np.ndarray, gone: np.nd
     out = [head, struct.pack("<IIIH", *(s.size for s in sel), len(bins))]
     for lv, shelves in sorted(bins.items()):
         out.append(struct.pack("<BH", lv, len(shelves)) + np.asarray(shelves, "<u2").reshape(-1, 2).tobytes())
-    for s in sel:
-        out.append(encode_ids(ids[s]))
+    # L-packed rows in slot order (cell level, then slot), so their slots step by +1 however the layout ordered the
+    # triangles (colour_order places them by luma, not id); their ids follow as zigzag differences
+    lp_slot = np.ascontiguousarray(desc[sel[1], 2:6]).view("<u4").reshape(-1).astype(np.int64)
+    by_slot = np.lexsort((lp_slot, lp_cell_level(plan.level[sel[1]], plan.block)))
+    sel[1], lp_slot = sel[1][by_slot], lp_slot[by_slot]
+    out += [encode_ids(ids[sel[0]]), zigzag_deltas(ids[sel[1]]), encode_ids(ids[sel[2]])]
     # from the descriptors: slot deltas of single texels, L-packing level bytes and slot deltas, 16-byte records
-    slots = [np.ascontiguousarray(desc[s, 2:6]).view("<u4").reshape(-1).astype(np.int64) for s in sel[:2]]
-    out += [zigzag_deltas(slots[0]), desc[sel[1], 1].tobytes(), zigzag_deltas(slots[1]), desc[sel[2], 1:17].tobytes()]
+    s0 = np.ascontiguousarray(desc[sel[0], 2:6]).view("<u4").reshape(-1).astype(np.int64)
+    out += [zigzag_deltas(s0), desc[sel[1], 1].tobytes(), zigzag_deltas(lp_slot), desc[sel[2], 1:17].tobytes()]
     return b"".join(out)
 
 
@@ -327,14 +334,23 @@ def _decode_body(r: _Reader, n_triangles: int, atlas: tuple[int, int], strip: in
         if shelves.size and ((shelves[:, 1] + tall > H).any() or (shelves[:, 0] + S > W).any()):
             raise TssWireError(f"tss tris: a level-{lv} shelf reaches outside the {W}x{H} atlas")
         bins[lv] = shelves
-    ids = [decode_ids(r.array("<u4", n, f"{k} ids"), f"tris {k} ids", n_triangles) for n, k in
-           ((n0, "single"), (n1, "lp"), (n2, "os"))]
+    id0 = decode_ids(r.array("<u4", n0, "single ids"), "tris single ids", n_triangles)
+    id1 = unzigzag_deltas(r.array("<u4", n1, "lp ids"))   # in slot order, not sorted
+    if id1.size and (id1.min() < 0 or id1.max() >= n_triangles):
+        v = int(id1[(id1 < 0) | (id1 >= n_triangles)][0])
+        raise TssWireError(f"tss tris lp ids: id {v} is not in 0 .. {n_triangles - 1} (the scene's triangles)")
+    id2 = decode_ids(r.array("<u4", n2, "os ids"), "tris os ids", n_triangles)
     s0 = unzigzag_deltas(r.array("<u4", n0, "single slots"))
     b1 = r.array("u1", n1, "lp levels").astype(np.int64)
     slot = unzigzag_deltas(r.array("<u4", n1, "lp slots"))
     rec = r.array(OS_DTYPE, n2, "os descriptors")
     r.done()
-    allids = np.concatenate(ids)
+    # the L-packed rows back in id order (the table's rows are sorted by kind, then id)
+    by_id = np.argsort(id1, kind="stable")
+    id1, b1, slot = id1[by_id], b1[by_id], slot[by_id]
+    if id1.size > 1 and (np.diff(id1) == 0).any():
+        raise TssWireError(f"tss tris lp ids: triangle {int(id1[np.flatnonzero(np.diff(id1) == 0)[0]])} listed twice")
+    allids = np.concatenate([id0, id1, id2])
     if np.unique(allids).size != allids.size:
         raise TssWireError("tss tris: a triangle is listed under two kinds")
     n = allids.size
