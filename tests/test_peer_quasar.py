@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import peer_quasar as pq  # noqa: E402
 
 from splitrender.scene.pose import quat_to_matrix3  # noqa: E402
-from splitrender.scene.trace import CameraTrace, load_quasar_path, save_quasar_path  # noqa: E402
+from splitrender.scene.trace import CameraTrace, load_quasar_path  # noqa: E402
 
 SEP = "======================================================"
 

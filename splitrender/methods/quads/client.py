@@ -16,7 +16,7 @@ from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
 from .mesh import (ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, continuous_sides, hidden_sky,
-                   join_meshes, quad_depth, scene_sides, sealed, sky_sides)
+                   quad_depth, scene_sides, sealed, sky_sides)
 from .server import outside_frustum
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
