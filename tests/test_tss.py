@@ -7,7 +7,6 @@ ground truth beside ``sas`` and ``atw``, and malformed wire data."""
 
 from __future__ import annotations
 
-import math
 import os
 import struct
 
