@@ -77,8 +77,11 @@ def test_stress_case(suite: dict, case: str) -> None:
     # capacity_drop adapts from the session's start, and adaptation starts low (300 kbit/s, issue 48): in the quick
     # suite the pre-window baseline (0.2-0.5 s) is the ramp from that start, so the window's cost shows in the oldest
     # update shown (the bounds below), not against that baseline (video measured 1.9 dB better in the window)
-    if case == "capacity_drop":   # oldest update shown, measured: 167 ms (video, atw), 200 (sas), 300 (tss), 333 (warp), 367
-        bound = {"video": 375.0, "atw": 420.0, "sas": 420.0, "quads": 420.0, "tss": 460.0, "warp": 500.0}
+    # oldest update shown, measured: 167 ms (video, atw), 200 (sas), 300 (tss), 333 (warp), 367 (quads); since 1b30113
+    # gave the methods that tolerate a queue a 100 ms encoder buffer (richer I-frames, which take longer through the
+    # 2 Mbit/s window): sas 67, warp 400, quads 433 ms, at +0.8, +0.4 and +3.1 dB mean PSNR (virtual time, one run each)
+    if case == "capacity_drop":
+        bound = {"video": 375.0, "atw": 420.0, "sas": 420.0, "quads": 470.0, "tss": 460.0, "warp": 500.0}
         for m, r in rows.items():
             assert r["longest_stale_ms"] <= bound.get(m, 1000.0), (m, r["longest_stale_ms"])
     if case == "ball_crossing":
