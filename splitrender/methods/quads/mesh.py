@@ -426,6 +426,11 @@ class QuadMeshGL:
         self.guard_depth: np.ndarray | None = None
         """The centre view's depth from its camera (H, W), top row first, 0 where none (:meth:`set_guard`)."""
 
+    def _bind(self) -> None:
+        """The vertex array over :attr:`vbo` and :attr:`ibo` (after either is made anew)."""
+        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
+                                         index_buffer=self.ibo, index_element_size=4)
+
     def upload(self, vertices: np.ndarray, indices: np.ndarray) -> None:
         for b in (self.vao, self.vbo, self.ibo):
             if b is not None:
@@ -438,8 +443,7 @@ class QuadMeshGL:
         # the arrays themselves (the buffer protocol), not a bytes copy of them
         self.vbo = self.ctx.buffer(np.ascontiguousarray(vertices, np.float32))
         self.ibo = self.ctx.buffer(np.ascontiguousarray(indices, np.uint32))
-        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
-                                         index_buffer=self.ibo, index_element_size=4)
+        self._bind()
 
     def upload_parts(self, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
         """``upload(*join_meshes(parts))`` without the joined copy: each part written into buffers of the whole
@@ -451,8 +455,7 @@ class QuadMeshGL:
             return
         self.vbo = self.ctx.buffer(reserve=nv * VERTEX_FLOATS * 4)
         self.ibo = self.ctx.buffer(reserve=ni * 4)
-        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
-                                         index_buffer=self.ibo, index_element_size=4)
+        self._bind()
         for v, i in parts:
             if v.shape[0]:
                 self.vbo.write(np.ascontiguousarray(v, np.float32), offset=self.vertices * VERTEX_FLOATS * 4)
@@ -482,8 +485,7 @@ class QuadMeshGL:
                 if b is not None:
                     b.release()
             self.vbo, self.ibo = vbo, ibo
-            self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect",
-                                                          "in_view")], index_buffer=self.ibo, index_element_size=4)
+            self._bind()
         self.vbo.write(v, offset=used_v)
         self.ibo.write(i, offset=used_i)
         self.vertices += v.shape[0]
