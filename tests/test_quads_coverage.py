@@ -120,3 +120,13 @@ def test_quasar_seals_the_cracks_of_its_reference_set(renderer, one_frame) -> No
     m1, b1, p1 = _coverage(renderer, one_frame, WUSON, {"variant": "quasar", "layers": 4, "seal_cracks": True})
     m0, b0, p0 = _coverage(renderer, one_frame, WUSON, {"variant": "quasar", "layers": 4})
     assert p1 > p0 + 1.0 and m1 < m0 and b1 < b0 + 0.5, (m1, b1, p1, m0, b0, p0)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 0.5, float("nan")])
+def test_sky_edge_px_out_of_range_is_a_config_error_naming_it(bad: float) -> None:
+    """Half a pixel or more would reach the next pixel's centre and change the view at its own pose: refused."""
+    from splitrender.errors import ConfigError
+    from splitrender.methods.quads.config import QuadsConfig
+
+    with pytest.raises(ConfigError, match="sky_edge_px"):
+        QuadsConfig(sky_edge_px=bad)
