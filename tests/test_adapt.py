@@ -165,10 +165,10 @@ def test_the_pipeline_restarts_an_encoder_at_a_new_rate() -> None:
     encoder at once with an IDR, and the frames after it are about 5x smaller; a rise waits for the GOP's IDR."""
     from splitrender.codecs.video import VideoCodecConfig
     from splitrender.methods.base import StreamSpec, Update
-    from splitrender.pipeline.sender import ServerPipeline
+    from splitrender.pipeline.sender import StreamEncoder
     from splitrender.scene.pose import Pose
 
-    tx = ServerPipeline([StreamSpec("color", VideoCodecConfig(gop=30), 160, 90)], rng=np.random.default_rng(0))
+    tx = StreamEncoder([StreamSpec("color", VideoCodecConfig(gop=30), 160, 90)])
     rng = np.random.default_rng(1)
 
     def frame(i: int, kbps: float):  # type: ignore[no-untyped-def]

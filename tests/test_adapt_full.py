@@ -158,12 +158,12 @@ def test_a_scaled_stream_is_coded_small_and_decoded_at_the_declared_size() -> No
     from splitrender.codecs.video import VideoCodecConfig, VideoDecoder
     from splitrender.methods.base import StreamSpec, Update
     from splitrender.pipeline.receiver import ClientPipeline, RxStream, Work
-    from splitrender.pipeline.sender import ServerPipeline
+    from splitrender.pipeline.sender import StreamEncoder
     from splitrender.protocol import AccessUnit
     from splitrender.scene.pose import Pose
 
     codec = VideoCodecConfig(codec="h264", crf=23.0, gop=30, preset="ultrafast", pix_fmt="yuv444p", fps=30)
-    tx = ServerPipeline([StreamSpec("color", codec, 128, 72, scalable=True), StreamSpec("other", codec, 128, 72)])
+    tx = StreamEncoder([StreamSpec("color", codec, 128, 72, scalable=True), StreamSpec("other", codec, 128, 72)])
     y, x = np.mgrid[0:72, 0:128]
     img = np.stack([x * 2, y * 3, (x * 7 ^ y * 13) & 255], -1).astype(np.uint8)     # ramps, and detail in blue
     full = tx.encode(Update(0, 0.0, Pose(), {"color": img, "other": img}))

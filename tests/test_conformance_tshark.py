@@ -23,7 +23,7 @@ import pytest
 
 from splitrender.codecs.video import VideoCodecConfig
 from splitrender.methods import StreamSpec, Update
-from splitrender.pipeline import ClientOptions, ClientSession, ServerOptions, ServerPipeline, ServerSession
+from splitrender.pipeline import ClientOptions, ClientSession, ServerOptions, ServerPipeline, ServerSession, StreamEncoder
 from splitrender.protocol import RtpPacket, Welcome
 from splitrender.scene.pose import Pose
 
@@ -98,8 +98,9 @@ def _session_rtcp() -> dict[str, Any]:
     the server's SR compounds and the client's RR compounds (one RTP packet of frame 1 lost, so NACKs)."""
     depth = VideoCodecConfig("hevc", pix_fmt="gray", input_format="gray", lossless=True, crf=None)
     specs: list[Any] = [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H), StreamSpec("depth", depth, W, 2 * H)]
-    tx = ServerPipeline(specs, mtu=300, rng=np.random.default_rng(1))
-    tx.open_encoders()
+    tx, encoder = ServerPipeline(specs, mtu=300, rng=np.random.default_rng(1)), StreamEncoder(specs)
+    encoder.open()
+    tx.described_sets.update(encoder.described_sets())
     welcome = Welcome("s", "x", tx.welcome_params(b""), tx.describe("127.0.0.1", SERVER_PORT, "t"))
     client = ClientSession.from_welcome(welcome, ClientOptions(), rng=np.random.default_rng(2))
     server = ServerSession(tx, FPS, ServerOptions(), rng=np.random.default_rng(3))
@@ -116,7 +117,7 @@ def _session_rtcp() -> dict[str, Any]:
         now = fid * 1000 / FPS
         planes = {"color": (rng.random((H, W, 3)) * 255).astype(np.uint8),
                   "depth": (rng.random((2 * H, W)) * 255).astype(np.uint8)}
-        enc = tx.encode(Update(fid, fid / FPS, Pose(), planes, {}), force_idr=fid == 0)
+        enc = encoder.encode(Update(fid, fid / FPS, Pose(), planes, {}), force_idr=fid == 0)
         out = tx.packetize(enc, lambda m: b"", 1_000_000 + fid, fid * 3000, 0, fid, fid / FPS, {}, {})
         server.frame_sent(fid, out, now, 1_000_000 + fid)
         media = [d.data for d in server.datagrams_to_send(now) if d.kind == "rtp"]   # the core's one way out

@@ -14,7 +14,7 @@ import pytest
 
 from splitrender.codecs.video import VideoCodecConfig, VideoDecoder, VideoEncoder
 from splitrender.methods import StreamSpec, Update
-from splitrender.pipeline import ServerPipeline
+from splitrender.pipeline import ServerPipeline, StreamEncoder
 from splitrender.protocol import JitterBuffer, RtpPacket, make_sdp, nal_type, parse_fmtp, parse_hevc_sps, split_annexb
 from splitrender.protocol.sps import (HEVC_LEVELS, hevc_level_idc, hevc_level_of, is_hevc_level, nal_to_rbsp, rbsp_to_nal,
                                       set_hevc_level)
@@ -114,10 +114,12 @@ def test_lossy_streams_keep_x265s_level_which_also_counts_the_bit_rate() -> None
 def test_the_warp_depth_streams_welcome_sdp_and_rtp_stream_agree_on_the_level() -> None:
     """Through the pipeline: the Welcome SDP's level-id, the sprop SPS and the SPS received in the RTP packets."""
     tx = ServerPipeline([StreamSpec("depth", _depth(320, 360), 320, 360)], rng=np.random.default_rng(4))
-    tx.open_encoders()
+    encoder = StreamEncoder(tx.specs)
+    encoder.open()
+    tx.described_sets.update(encoder.described_sets())
     (desc,) = tx.describe("127.0.0.1", 5004, "t")
     plane = (np.random.default_rng(6).random((360, 320)) * 255).astype(np.uint8)
-    enc = tx.encode(Update(0, 0.0, Pose(), {"depth": plane}, {}), force_idr=True)
+    enc = encoder.encode(Update(0, 0.0, Pose(), {"depth": plane}, {}), force_idr=True)
     out = tx.packetize(enc, lambda m: b"", 0, 0, 0, 0, 0.0, {}, {})
     jb = JitterBuffer("hevc")
     aus = []

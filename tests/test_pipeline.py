@@ -16,7 +16,8 @@ import pytest
 
 from splitrender.codecs.video import VideoCodecConfig
 from splitrender.methods import DataStreamSpec, StreamSpec, Update, available_methods, get_method, load_methods
-from splitrender.pipeline import ClientPipeline, ServerPipeline, SessionAssembler, SessionDataError, specs_from_table
+from splitrender.pipeline import (ClientPipeline, ServerPipeline, SessionAssembler, SessionDataError, StreamEncoder,
+                                  specs_from_table)
 from splitrender.protocol import PROTOCOL_VERSION, ClientConnection, Hello, ServerConnection, Welcome
 from splitrender.protocol.framing import NEED_DATA
 from splitrender.scene.pose import Pose
@@ -30,7 +31,8 @@ LOOPBACK = "127.0.0.1"
 # --------------------------------------------------------------------------- sans-IO pipeline pair
 
 
-def _pair(specs: list, fec: bool = False) -> tuple[ServerPipeline, ClientPipeline, ServerConnection, ClientConnection]:  # type: ignore[type-arg]
+def _pair(specs: list, fec: bool = False) -> tuple[ServerPipeline, StreamEncoder, ClientPipeline, ServerConnection,  # type: ignore[type-arg]
+                                                   ClientConnection]:
     tx = ServerPipeline(specs, mtu=1200, rng=np.random.default_rng(1), fec=fec)
     s, c = ServerConnection(), ClientConnection()
     s.receive_data(c.send(Hello(PROTOCOL_VERSION, "", ("x",), ("h264",), 64, 64, 30.0)))
@@ -39,7 +41,7 @@ def _pair(specs: list, fec: bool = False) -> tuple[ServerPipeline, ClientPipelin
     w = c.next_event()
     assert isinstance(w, Welcome)
     rx = ClientPipeline(w.streams, specs_from_table(w.method_params["streams"]), jitter_timeout_ms=50)
-    return tx, rx, s, c
+    return tx, StreamEncoder(specs), rx, s, c
 
 
 def _deliver_control(c: ClientConnection, rx: ClientPipeline, data: bytes, now_ms: float) -> None:
@@ -48,9 +50,9 @@ def _deliver_control(c: ClientConnection, rx: ClientPipeline, data: bytes, now_m
         rx.on_message(ev, now_ms)  # type: ignore[arg-type]
 
 
-def _send(tx: ServerPipeline, s: ServerConnection, fid: int, planes: dict, data: dict):  # type: ignore[no-untyped-def,type-arg]
+def _send(tx: ServerPipeline, encoder: StreamEncoder, s: ServerConnection, fid: int, planes: dict, data: dict):  # type: ignore[no-untyped-def,type-arg]
     upd = Update(fid, fid / 30, Pose(), planes, {"n": fid}, data=data)
-    enc = tx.encode(upd, force_idr=fid == 0)
+    enc = encoder.encode(upd, force_idr=fid == 0)
     return tx.packetize(enc, s.send, 1_000_000 + fid, fid * 3000, 0, fid, fid / 30, {}, {})
 
 
@@ -59,13 +61,13 @@ def test_partial_delivery_names_the_missing_stream_and_keeps_the_rest() -> None:
     ``missing`` and its video and reliable data intact; later frames are complete."""
     specs = [StreamSpec("color", VideoCodecConfig(gop=30), 64, 48), DataStreamSpec("quads", "datagram"),
              DataStreamSpec("table", "reliable")]
-    tx, rx, s, c = _pair(specs)
+    tx, encoder, rx, s, c = _pair(specs)
     rng = np.random.default_rng(0)
     released = []
     for fid in range(4):
         img = np.full((48, 64, 3), 40 * fid, np.uint8)
         quads = rng.integers(0, 255, 3000, dtype=np.uint8).tobytes()  # several datagrams
-        out = _send(tx, s, fid, {"color": img}, {"quads": quads, "table": bytes([fid]) * 10})
+        out = _send(tx, encoder, s, fid, {"color": img}, {"quads": quads, "table": bytes([fid]) * 10})
         assert set(out.wire_bytes) == {"meta", "color", "quads", "table"}
         for _, data in out.control:
             _deliver_control(c, rx, data, fid * 33.0)
@@ -96,7 +98,7 @@ def test_fec_rebuilds_one_lost_packet_per_frame_on_every_stream() -> None:
     frame on both the video and the datagram stream still delivers every frame complete, and the parity
     packets count as their stream's wire bytes."""
     specs = [StreamSpec("color", VideoCodecConfig(gop=30), 64, 48), DataStreamSpec("quads", "datagram")]
-    tx, rx, s, c = _pair(specs, fec=True)
+    tx, encoder, rx, s, c = _pair(specs, fec=True)
     assert {n: (st.fec_ssrc != 0, st.fec_payload_type) for n, st in tx.streams.items()} == {"color": (True, 127),
                                                                                             "quads": (True, 126)}
     assert len(rx.by_fec_ssrc) == 2
@@ -105,7 +107,7 @@ def test_fec_rebuilds_one_lost_packet_per_frame_on_every_stream() -> None:
     for fid in range(4):
         img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
         quads = rng.integers(0, 255, 3000, dtype=np.uint8).tobytes()
-        out = _send(tx, s, fid, {"color": img}, {"quads": quads})
+        out = _send(tx, encoder, s, fid, {"color": img}, {"quads": quads})
         assert {name for name, _ in out.fec} == {"color", "quads"}
         media = sum(28 + len(d) for n, _, d in out.datagrams if n == "quads")
         assert out.wire_bytes["quads"] == media + sum(28 + len(d) for n, d in out.fec if n == "quads")
@@ -198,7 +200,7 @@ def test_many_clients_share_the_scene_producer(renderer) -> None:  # type: ignor
     assert [s["client"] for s in res.client_summaries] == [0, 1, 2]
     assert [s["client_trace"] for s in res.client_summaries] == ["walk", "orbit", "walk"]
     assert vt.pool.frames_prepared["sas"] == 16  # once per server frame, not once per client
-    halves = [c.half for c in vt.clients]
+    halves = [c.maker.half for c in vt.clients]
     assert halves[0].patches is halves[1].patches is halves[2].patches  # patches built once
     assert all(math.isfinite(s["mean_psnr_db"]) for s in res.client_summaries)
     assert len({round(s["mean_psnr_db"], 3) for s in res.client_summaries}) == 3  # own trace, offset, network draws

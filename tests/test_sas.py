@@ -661,7 +661,7 @@ def test_a_session_sends_the_same_updates_alone_and_with_three_others(renderer) 
                 for u in res.updates if u["client"] == 0] for n, (_, res) in runs.items()}
     assert rows[1] == rows[4]
     vt = runs[4][0]
-    halves = [c.half for c in vt.clients]
+    halves = [c.maker.half for c in vt.clients]
     assert all(h.patch_set is halves[0].patch_set and h._ids is halves[0]._ids and h._prog is halves[0]._prog
                for h in halves), "one patch set, patch-id pass and shading program for every session"
     assert vt.pool.frames_prepared["sas"] == 10

@@ -12,7 +12,7 @@ import pytest
 
 from splitrender.codecs.video import VideoCodecConfig, VideoEncoder
 from splitrender.methods import StreamSpec, Update
-from splitrender.pipeline import ServerPipeline
+from splitrender.pipeline import ServerPipeline, StreamEncoder
 from splitrender.protocol import (
     GenericNack,
     JitterBuffer,
@@ -84,11 +84,13 @@ def _pipeline_stream(codec: str, **cfg: object) -> tuple[str, bytes]:
     """(SDP of the Welcome, first access unit as received from the RTP packets) for one pipeline stream."""
     tx = ServerPipeline([StreamSpec("color", VideoCodecConfig(codec=codec, **cfg), WIDTH, HEIGHT)],  # type: ignore[arg-type]
                         rng=np.random.default_rng(4))
-    tx.open_encoders()
+    encoder = StreamEncoder(tx.specs)
+    encoder.open()
+    tx.described_sets.update(encoder.described_sets())
     (desc,) = tx.describe("127.0.0.1", 5004, "t")
     y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
     img = np.stack([x * 255 // WIDTH, y * 255 // HEIGHT, (x + y) % 256], axis=-1).astype(np.uint8)
-    enc = tx.encode(Update(0, 0.0, Pose(), {"color": img}, {}), force_idr=True)
+    enc = encoder.encode(Update(0, 0.0, Pose(), {"color": img}, {}), force_idr=True)
     out = tx.packetize(enc, lambda m: b"", 0, 0, 0, 0, 0.0, {}, {})
     jb = JitterBuffer(codec)  # type: ignore[arg-type]
     aus = []
@@ -331,11 +333,11 @@ def test_the_simulators_welcome_sdp_names_the_parameter_sets_it_sends() -> None:
                                   flip_every=0, metrics=False))
     vt.run()
     (c,) = vt.clients
-    assert c.welcome is not None and c.tx is not None
+    assert c.welcome is not None and c.maker is not None
     sdp = c.welcome.streams[0].sdp
     sets = parameter_sets_from_sdp(sdp)
     assert [nal_type("h264", n) for n in sets] == [7, 8], sdp
-    enc = c.tx.encoder.encoders["color"]
+    enc = c.maker.encoder.encoders["color"]
     assert enc is not None and tuple(sets) == tuple(enc.parameter_sets())
     assert parse_fmtp(sdp)["profile-level-id"] == parse_h264_sps(sets[0]).profile_level_id
 
@@ -359,8 +361,8 @@ def test_a_444_run_describes_decodes_and_shows_full_chroma(codec: str) -> None:
                                       height=90, flip_every=0, method_params={"chroma": chroma, "codec": codec}))
         res = vt.run()
         (c,) = vt.clients
-        assert c.welcome is not None and c.tx is not None
-        enc = c.tx.encoder.encoders["color"]
+        assert c.welcome is not None and c.maker is not None
+        enc = c.maker.encoder.encoders["color"]
         assert enc is not None and enc.cfg.pix_fmt == f"yuv{chroma}p"
         sdp = c.welcome.streams[0].sdp
         fmtp = parse_fmtp(sdp)

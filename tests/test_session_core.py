@@ -13,7 +13,7 @@ from splitrender.codecs.video import VideoCodecConfig
 from splitrender.errors import ConfigError
 from splitrender.methods import StreamSpec, Update
 from splitrender.pipeline import (ClientOptions, Opening, method_config, ClientPipeline, ClientSession, FrameReleased, ServerOptions, ServerPipeline,
-                                  ServerSession, Stalled, StallTimeout, specs_from_table)
+                                  ServerSession, Stalled, StallTimeout, StreamEncoder, specs_from_table)
 from splitrender.protocol import (PROTOCOL_VERSION, ClientConnection, GenericNack, Hello, PictureLossIndication, serialize_rtcp,
                                   ReceiverReport, SenderReport, ServerConnection, Welcome, parse_rtcp)
 from splitrender.protocol.framing import NEED_DATA
@@ -30,6 +30,7 @@ class Pair:
     def __init__(self, transport_cc: bool = False, pacing: bool = False, **client_opts: object) -> None:
         spec = StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)
         self.tx = ServerPipeline([spec], mtu=300, rng=np.random.default_rng(1), transport_cc_id=5 if transport_cc else None)
+        self.encoder = StreamEncoder([spec])
         self.sconn, self.cconn = ServerConnection(), ClientConnection()
         self.sconn.receive_data(self.cconn.send(Hello(PROTOCOL_VERSION, "", ("x",), ("h264",), W, H, FPS)))
         self.sconn.next_event()
@@ -52,7 +53,7 @@ class Pair:
         """Server frame ``fid`` at ``now_ms``: (control frames, RTP datagrams)."""
         kf = self.server.keyframe_due(now_ms)
         plane = (self.rng.random((H, W, 3)) * 255).astype(np.uint8)
-        enc = self.tx.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=kf or fid == 0)
+        enc = self.encoder.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=kf or fid == 0)
         out = self.tx.packetize(enc, self.sconn.send, 1_000_000 + fid, fid * 3000, 0, fid, fid / FPS, {}, {})
         self.server.frame_sent(fid, out, now_ms, 1_000_000 + fid)
         self.out = out
@@ -586,6 +587,7 @@ def test_frames_given_up_for_the_frame_bound_still_hand_over_their_reliable_data
 
     specs = [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H), DataStreamSpec("tris")]
     tx = ServerPipeline(specs, mtu=300, rng=np.random.default_rng(1))
+    encoder = StreamEncoder(specs)
     sconn, cconn = ServerConnection(), ClientConnection()
     sconn.receive_data(cconn.send(Hello(PROTOCOL_VERSION, "", ("x",), ("h264",), W, H, FPS)))
     sconn.next_event()
@@ -599,8 +601,8 @@ def test_frames_given_up_for_the_frame_bound_still_hand_over_their_reliable_data
     got = []
     for fid in range(10):
         plane = (rng.random((H, W, 3)) * 255).astype(np.uint8)
-        enc = tx.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}, data={"tris": f"delta {fid}".encode()}),
-                        force_idr=fid == 0)
+        enc = encoder.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}, data={"tris": f"delta {fid}".encode()}),
+                             force_idr=fid == 0)
         out = tx.packetize(enc, sconn.send, 1_000_000 + fid, fid * 3000, 0, fid, fid / FPS, {}, {})
         for data in (d for _, d in out.control):          # the RTP datagrams never arrive
             cconn.receive_data(data)
@@ -662,7 +664,7 @@ def test_the_webrtc_profile_keeps_no_rtp_transport() -> None:
     # frame_encoded, every front door's report of a made frame: here the stack packetizes, so the coded streams count
     order = core.order_frame(1, 1, 1 / FPS, 33.0)
     plane = (np.random.default_rng(0).random((H, W, 3)) * 255).astype(np.uint8)
-    enc = tx.encode(Update(1, 1 / FPS, Pose(), {"color": plane}, {}), force_idr=True)
+    enc = StreamEncoder(tx.specs).encode(Update(1, 1 / FPS, Pose(), {"color": plane}, {}), force_idr=True)
     sent = core.frame_encoded(order, enc, 33.0, 2)
     assert (sent.frame_id, sent.keyframe, sent.idr_streams, sent.datagrams) == (1, True, ("color",), [])
     assert sent.wire_bytes == {"color": len(enc.video["color"].data)} and sent.control == []
@@ -783,13 +785,16 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
     blob = pack_meta({"pad": np.random.default_rng(0).bytes(5000)})
     n = len(blob)
 
+    encoder = StreamEncoder([spec])
+    encoder.open()
+
     def accept(h: Hello, limit: int = 1 << 20):  # type: ignore[no-untyped-def]
         sconn = ServerConnection()
         sconn.receive_data(ClientConnection().send(h))
         sconn.next_event()
         return accept_hello(h, "sid", Opening("video", mcfg, CameraIntrinsics(W, H)), [spec], blob, sconn,
                             ServerConfig(scene="minimal", max_session_bytes=limit), ServerOptions(),
-                            rng=np.random.default_rng(1))
+                            parameter_sets=encoder.described_sets(), rng=np.random.default_rng(1))
 
     with pytest.raises(SessionDataError, match=rf"^method video: session data of {n} bytes exceeds this server's limit "
                                                rf"of {n - 1} bytes \(max_session_bytes\)$"):
@@ -798,8 +803,8 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
         accept(dataclasses.replace(hello, codecs=("h264",)))
     assert info.value.code == ErrorCode.UNSUPPORTED_METHOD
     acc = accept(hello)
-    assert acc.core.display_hz == FPS and acc.core.tx.encoder is not None         # encoders opened here, for the SDP
-    assert "sprop-vps=" in acc.welcome.streams[0].sdp
+    assert acc.core.display_hz == FPS
+    assert "sprop-vps=" in acc.welcome.streams[0].sdp       # the SDP names the encoder's parameter sets
     cconn = ClientConnection()
     cconn.send(hello)
     hs = ClientHandshake(hello.methods, display=(W, H))
@@ -816,7 +821,7 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
     ``get_timer`` names the next of them."""
     p = Pair()
     plane = (p.rng.random((H, W, 3)) * 255).astype(np.uint8)
-    enc = p.tx.encode(Update(0, 0.0, Pose(), {"color": plane}, {}), force_idr=True)
+    enc = p.encoder.encode(Update(0, 0.0, Pose(), {"color": plane}, {}), force_idr=True)
     out = p.tx.packetize(enc, p.sconn.send, 1_000_000, 0, 0, 0, 0.0, {}, {})
     leave_ms = 29 * 0.137                             # 3.973 ms: its trip through seconds comes back a hair early
     assert leave_ms / 1000 * 1000 < leave_ms
@@ -854,12 +859,12 @@ def test_the_client_core_owns_its_control_connection() -> None:
                        [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}), sconn,
                        ServerConfig(scene="minimal", max_session_bytes=1 << 20), ServerOptions(),
                        rng=np.random.default_rng(1))
-    tx = acc.core.tx
+    tx, encoder = acc.core.tx, StreamEncoder(acc.core.tx.specs)
     rng = np.random.default_rng(0)
 
     def frame(fid: int) -> bytes:
         plane = (rng.random((H, W, 3)) * 255).astype(np.uint8)
-        enc = tx.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=fid == 0)
+        enc = encoder.encode(Update(fid, fid / FPS, Pose(), {"color": plane}, {}), force_idr=fid == 0)
         out = tx.packetize(enc, sconn.send, 5_000_000 + fid * 33_333, fid * 3000, 0, fid, fid / FPS, {}, {})
         return b"".join(d for _, d in out.control)
 

@@ -1,6 +1,6 @@
 """One transmission path for both modes (DESIGN.md, "one pipeline").
 
-:class:`StreamEncoder` and :class:`ServerPipeline` (encode; packetize and count) and :class:`ClientPipeline`
+:class:`StreamEncoder` and :class:`ServerPipeline` (encode; packetize and count: a session holds one of each) and :class:`ClientPipeline`
 (reassemble, jitter buffer, decode, release in order with partial delivery) are
 sans-IO: they take time and bytes in and give bytes and updates out.  The live server
 and client drive them with sockets and the wall clock; the virtual-time runner drives
@@ -11,7 +11,7 @@ session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run, and :mod
 frame's order (the core's) and its making (:func:`make_frame`, wherever the GL context lives).
 """
 
-from .frames import FrameOrder, make_frame
+from .frames import FrameMaker, FrameOrder, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
@@ -30,7 +30,7 @@ __all__ = [
     "Accepted", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
-    "FrameOrder", "make_frame", "StreamEncoder",
+    "FrameMaker", "FrameOrder", "make_frame", "StreamEncoder",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
     "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",

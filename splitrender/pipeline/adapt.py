@@ -43,7 +43,7 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    past what its calibration saw get their bits, as with ``adapt = "off"``, and the link bounds only the bursts.
 
 Targets are per second of the streams' own frame rate.  The encoder side
-(:meth:`~.sender.ServerPipeline.encode` with ``rates_kbps``) restarts a stream's encoder
+(:meth:`~.sender.StreamEncoder.encode` with ``rates_kbps``) restarts a stream's encoder
 at the new rate when the target moves by more than ``change_ratio``: at the stream's next
 IDR when it rises or falls a little (that IDR was due anyway), at once with an IDR when
 it falls below ``urgent_ratio`` of the rate the encoder runs at (a queue builds with every

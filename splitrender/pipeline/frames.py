@@ -9,6 +9,7 @@ Every front door makes a server frame in the same two steps:
 2. :func:`make_frame` runs the order where the GL context lives (the virtual-time runner's thread, the live
    server's render worker): the method's shared work for the tick (:class:`~.producers.ProducerPool`), the server
    half's :meth:`~splitrender.methods.base.ServerHalf.produce` and the encoders (:class:`~.sender.StreamEncoder`).
+   :class:`FrameMaker` holds a session's half and encoders there, opened together, and makes its frames.
 
 A :class:`FrameOrder` pickles (the live server sends it to its worker); its ``predictor`` is a copy taken then, so
 a pose arriving while the worker renders does not move the frame's predictions.
@@ -95,3 +96,23 @@ def make_frame(order: FrameOrder, half: Any, encoder: StreamEncoder, scene: Any,
     stages = {"shared_ms": (w1 - w0) * 1e3, "produce_ms": (w2 - w1) * 1e3,
               "gi_ms": getattr(renderer, "gi_ms", 0.0) - gi0, "encode_ms": enc.encode_ms, "frame_ms": (w3 - w0) * 1e3}
     return enc, half.stats(), stages
+
+
+class FrameMaker:
+    """One session's frame producer where the GL context lives (the runner's thread, a render worker): the server
+    half of ``opening`` (:class:`~.session.Opening`) built with ``pool``'s shared producer, and the encoders of the
+    streams it declares, opened now so that their parameter sets are known for the SDP.  The session core holds the
+    other half of the sending side (:class:`~.sender.ServerPipeline`: packetizing)."""
+
+    def __init__(self, opening: Any, pool: Any) -> None:
+        self.method = opening.method
+        self.intrinsics = opening.intrinsics
+        self.pool = pool
+        self.half, self.specs, self.session_blob = pool.server_half(opening)
+        self.encoder = StreamEncoder(self.specs)
+        self.encoder.open()
+
+    def make(self, order: FrameOrder) -> tuple[EncodedUpdate, dict[str, Any], dict[str, float]]:
+        """Make and encode ``order`` (:func:`make_frame`)."""
+        return make_frame(order, self.half, self.encoder, self.pool.scene, self.pool.renderer, self.intrinsics,
+                          self.pool, self.method)

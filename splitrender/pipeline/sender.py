@@ -1,14 +1,15 @@
 """The server's transmission path for one session (sans-IO): encode, packetize, count.
 
-Two halves, which the live server runs in two processes:
+Two halves, which every session holds one of each of (the live server in two processes):
 
-1. :class:`StreamEncoder` (heavy; the live server runs it in the session's render worker, beside the method's
-   server half): every video plane through the stream's real encoder, every data payload through its compression;
-2. :class:`ServerPipeline` (light; the session's own): reliable data as ``DataChunk`` messages, then the
+1. :class:`StreamEncoder` (heavy; beside the method's server half in :class:`~.frames.FrameMaker`, which the live
+   server runs in the session's render worker): every video plane through the stream's real encoder, every data
+   payload through its compression;
+2. :class:`ServerPipeline` (light; the session core's): reliable data as ``DataChunk`` messages, then the
    ``FrameMeta`` with the update envelope, framed by the session's control
    :class:`~splitrender.protocol.Connection`; video and datagram data as RTP packets.  Every byte is counted per
-   stream as it will cross the wire (:mod:`.wire`).  Where the encoders run in the same process (the virtual-time
-   runner, tests) it holds them too (:meth:`ServerPipeline.open_encoders`).
+   stream as it will cross the wire (:mod:`.wire`).  It holds no encoder: the encoders' parameter sets, for the
+   SDP, are named to it (:attr:`ServerPipeline.described_sets`).
 
 The drivers only move the bytes: the live session writes them to its sockets, the
 virtual-time runner delays them through the network model.
@@ -123,6 +124,10 @@ class StreamEncoder:
         """The parameter sets stream ``name``'s encoder sends (empty before :meth:`open`)."""
         enc = self.encoders.get(name)
         return enc.parameter_sets() if enc is not None else ()
+
+    def described_sets(self) -> dict[str, tuple[bytes, ...]]:
+        """The parameter sets each open video encoder sends, by stream (:attr:`ServerPipeline.described_sets`)."""
+        return {name: self.parameter_sets(name) for name in self.encoders}
 
     def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
                adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
@@ -240,8 +245,7 @@ class ServerPipeline:
         self.probe_payload_type = FIRST_PAYLOAD_TYPE + len(self.rtp_streams)
         self.bytes_sent: dict[str, int] = {META_STREAM: 0, **{s.name: 0 for s in specs}}
         self.described_sets: dict[str, tuple[bytes, ...]] = {}
-        """Parameter sets per stream of encoders that run elsewhere (the live server's render worker)."""
-        self._encoder: StreamEncoder | None = None
+        """Parameter sets per video stream of the session's encoders (its :class:`StreamEncoder`'s), for the SDP."""
 
     # ------------------------------------------------------------------ set-up
 
@@ -249,36 +253,15 @@ class ServerPipeline:
     def rtp_streams(self) -> list[TxStream]:
         return [st for st in self.streams.values() if st.packetizer is not None]
 
-    @property
-    def encoder(self) -> StreamEncoder | None:
-        """This session's encoders where they run in this process (:meth:`open_encoders`), else None."""
-        return self._encoder
-
-    def open_encoders(self) -> StreamEncoder:
-        """Open the session's encoders here (the virtual-time runner, tests); the live session's run in its
-        render worker, and :attr:`described_sets` names their parameter sets instead."""
-        if self._encoder is None:
-            self._encoder = StreamEncoder(self.specs)
-        self._encoder.open()
-        return self._encoder
-
     def parameter_sets(self, name: str) -> tuple[bytes, ...]:
-        """The parameter sets stream ``name``'s encoder sends (:attr:`encoder`'s, else :attr:`described_sets`)."""
-        if self._encoder is not None and name in self._encoder.encoders:
-            return self._encoder.parameter_sets(name)
+        """The parameter sets stream ``name``'s encoder sends (:attr:`described_sets`; empty where none were named)."""
         return tuple(self.described_sets.get(name, ()))
-
-    def encode(self, update: Update, force_idr: bool = False, rates_kbps: dict[str, float] | None = None,
-               adapt: AdaptConfig | None = None, scale: float | None = None) -> EncodedUpdate:
-        """:meth:`StreamEncoder.encode` with this session's encoders (opened on first use)."""
-        enc = self._encoder if self._encoder is not None else self.open_encoders()
-        return enc.encode(update, force_idr, rates_kbps, adapt, scale)
 
     def describe(self, host: str, port: int, session_name: str) -> tuple[StreamDescription, ...]:
         """``Welcome.streams``: one description per RTP stream (SDP for video streams).
 
-        After :meth:`open_encoders` a video stream's SDP carries the parameter sets and the
-        profile and level its encoder sends; before, only what the codec alone says.
+        With :attr:`described_sets` a video stream's SDP carries the parameter sets and the
+        profile and level its encoder sends; without, only what the codec alone says.
         """
         out = []
         for st in self.rtp_streams:

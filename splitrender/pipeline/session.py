@@ -1049,11 +1049,11 @@ def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[An
                  clock_offset_us: int = 0, rtp_origin_ms: float = 0.0, predictor: Any = None) -> Accepted:
     """The server's side of the handshake after :func:`open_hello`, in every front door that speaks the protocol.
 
-    ``opening``'s server half (built by the caller: here, or in a render worker) declared ``specs`` and
-    ``session_blob``; this checks them against the server's limit and the client's codecs (a
-    :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming what is wrong), builds the session's
-    :class:`~.sender.ServerPipeline` (opening its encoders here unless ``parameter_sets`` names those of encoders
-    running elsewhere, for the SDP) and its core, which keeps ``conn`` (the handshake's ``ServerConnection``: its
+    ``opening``'s server half and encoders (the caller's :class:`~.frames.FrameMaker`: in this process, or in a
+    render worker) declared ``specs``, ``session_blob`` and ``parameter_sets``; this checks them against the
+    server's limit and the client's codecs (a :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming
+    what is wrong), builds the session's :class:`~.sender.ServerPipeline` (its SDP naming the encoders' parameter
+    sets) and its core, which keeps ``conn`` (the handshake's ``ServerConnection``: its
     :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it.  ``server`` is the
     server's config (a run's or a live server's: ``scene``, ``fov_y_deg``, ``server_fps``, ``max_session_bytes``,
     ``mtu_bytes``, ``fec``, ``transport_cc`` and, without ``predictor``, ``predictor`` by name).
@@ -1070,10 +1070,7 @@ def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[An
                                       f"accept (Hello.codecs {list(hello.codecs)})", ErrorCode.UNSUPPORTED_METHOD)
     tx = ServerPipeline(specs, server.mtu_bytes, ssrc_taken=ssrc_taken, rng=rng, fec=server.fec,
                         transport_cc_id=DEFAULT_EXTENSION_ID if server.transport_cc else None)
-    if parameter_sets is None:
-        tx.open_encoders()              # the SDP names the parameter sets the encoders will send
-    else:
-        tx.described_sets.update(parameter_sets)
+    tx.described_sets.update(parameter_sets or {})   # the SDP names the sets the session's encoders will send
     core = ServerSession(tx, hello.display_hz, options, clock_offset_us, rtp_origin_ms, core_rng,
                          knobs=config.adapt_knobs(), predictor=make_predictor(server.predictor) if predictor is None else predictor,
                          conn=conn)
@@ -1509,7 +1506,7 @@ class ServerSession:
     def operating_point(self, now_ms: float) -> dict[str, Any] | None:
         """The knob values the next frame should be made with (``adapt = "full"``): the method's own for its server
         half (:meth:`~splitrender.methods.base.ServerHalf.set_knobs`) and ``scale`` for
-        :meth:`~.sender.ServerPipeline.encode`; None without.  Call before :meth:`encoder_rates`."""
+        :meth:`~.sender.StreamEncoder.encode`; None without.  Call before :meth:`encoder_rates`."""
         if self.point is None or self.estimator is None:
             return None
         est = self.estimator      # the path's rate and queue, and the encoders' (draining) rate: the point decides
@@ -1526,7 +1523,7 @@ class ServerSession:
 
     def encoder_rates(self) -> dict[str, float] | None:
         """The bit rate (kbit/s) each lossy video stream should encode the next frame at (``adapt = "rate"``), for
-        :meth:`~.sender.ServerPipeline.encode`; None without rate adaptation."""
+        :meth:`~.sender.StreamEncoder.encode`; None without rate adaptation."""
         if self.rate is None or self.estimator is None:
             return None
         div = self.point.frame_div if self.point is not None else 1   # an encoder takes its rate per frame at its fps

@@ -6,8 +6,8 @@ control sockets and the signal handlers of a server that rendered on a thread.  
 the event loop's process never touches GL or a codec:
 
 * a :class:`RenderWorker` is a child process that loads the scene, creates its own
-  :class:`~splitrender.render.Renderer` (EGL), and holds the method halves, their
-  scene producers and the video encoders of the sessions it serves;
+  :class:`~splitrender.render.Renderer` (EGL), the scene producers, and each session's method half and video
+  encoders (its :class:`~splitrender.pipeline.FrameMaker`);
 * the server talks to it over a socket pair with :mod:`multiprocessing`'s framing
   (4-byte big-endian length, pickled tuple), from asyncio, without threads;
 * every request has a deadline (the **watchdog**): a worker that misses it is killed
@@ -45,7 +45,7 @@ import traceback
 from typing import Any
 
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
-from splitrender.pipeline import ProducerPool, StreamEncoder, make_frame
+from splitrender.pipeline import FrameMaker, ProducerPool
 from splitrender.scene.pose import CameraIntrinsics, Pose
 
 __all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
@@ -245,17 +245,6 @@ def _frame(blob: bytes) -> bytes:
 
 # ---------------------------------------------------------------------- the worker process
 
-@dataclasses.dataclass
-class _Half:
-    """One session inside the worker: its method half and the encoders of its streams."""
-
-    method: str
-    half: Any
-    encoder: Any
-    intrinsics: Any
-    hang_frame: int
-
-
 class _Worker:
     def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
         from splitrender.render import Renderer             # GL and the scene's files: in the worker process only
@@ -267,7 +256,8 @@ class _Worker:
         self.renderer.gi_hz = gi_hz
         self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36), ("color",))   # compile shaders now
         self.producers = ProducerPool(self.scene, server_fps, self.renderer)
-        self.halves: dict[str, _Half] = {}
+        self.sessions: dict[str, tuple[FrameMaker, int]] = {}
+        """Each session's frame maker (its method half and encoders) and the frame the test hook hangs on."""
 
     def ping(self) -> int:
         return os.getpid()
@@ -275,26 +265,23 @@ class _Worker:
     def open(self, sid: str, opening: Any, hang_frame: int = -1) -> Any:
         """Build session ``sid``'s server half of ``opening`` (:class:`~splitrender.pipeline.Opening`) and its
         encoders; returns its stream specs, session data and the parameter sets each video encoder sends (for the SDP)."""
-        half, specs, session_blob = self.producers.server_half(opening)
-        encoder = StreamEncoder(specs)
-        encoder.open()
-        self.halves[sid] = _Half(opening.method, half, encoder, opening.intrinsics, hang_frame)
-        return specs, session_blob, {name: encoder.parameter_sets(name) for name in encoder.encoders}
+        maker = FrameMaker(opening, self.producers)
+        self.sessions[sid] = (maker, hang_frame)
+        return maker.specs, maker.session_blob, maker.encoder.described_sets()
 
     def frame(self, sid: str, order: Any) -> Any:
-        """Make session ``sid``'s frame ``order`` (:func:`~splitrender.pipeline.frames.make_frame`); returns the coded
+        """Make session ``sid``'s frame ``order`` (:meth:`~splitrender.pipeline.FrameMaker.make`); returns the coded
         update without its raw planes, the half's stats, and the frame's stages in milliseconds (``make_frame``'s;
         ``frame_ms`` is the whole frame in this process)."""
-        h = self.halves[sid]
-        if order.frame_id == h.hang_frame:
+        maker, hang_frame = self.sessions[sid]
+        if order.frame_id == hang_frame:
             _hang()
-        enc, stats, stages = make_frame(order, h.half, h.encoder, self.scene, self.renderer, h.intrinsics,
-                                        self.producers, h.method)
+        enc, stats, stages = maker.make(order)
         enc.update = dataclasses.replace(enc.update, planes={}, data={})     # the raw planes stay here
         return enc, stats, stages
 
     def close(self, sid: str) -> None:
-        self.halves.pop(sid, None)
+        self.sessions.pop(sid, None)
 
 
 def _hang() -> None:

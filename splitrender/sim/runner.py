@@ -65,8 +65,8 @@ from ..methods.base import ClientFrame, get_method
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
-                        FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerPipeline, ServerSession,
-                        Stalled, accept_hello, apply_updates, check_hello, make_frame, method_config, session_summary,
+                        FrameMaker, FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerSession,
+                        Stalled, accept_hello, apply_updates, check_hello, method_config, session_summary,
                         tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
@@ -139,8 +139,8 @@ class _Client:
     down: Link
     # server side
     sconn: ServerConnection = field(default_factory=ServerConnection)
-    half: Any = None
-    tx: ServerPipeline | None = None
+    maker: FrameMaker | None = None
+    """The session's server half and encoders (its frames are made here, on the runner's GL thread)."""
     arrivals: list[tuple[float, float]] = field(default_factory=list)
     arrival_idx: int = 0
     core_s: ServerSession | None = None
@@ -242,12 +242,14 @@ class VirtualTimeRun:
             pass
         make_current(self.renderer.ctx)
         opening = Opening(cfg.method, self.mcfg, self.intr)
-        c.half, specs, session_blob = pool.server_half(opening)
-        acc = accept_hello(hello, f"sim{i}", opening, specs, session_blob, c.sconn, cfg, cfg.server_options(),
+        c.maker = maker = FrameMaker(opening, pool)
+        specs = maker.specs
+        acc = accept_hello(hello, f"sim{i}", opening, specs, maker.session_blob, c.sconn, cfg, cfg.server_options(),
+                           parameter_sets=maker.encoder.described_sets(),
                            subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
                            predictor=PerfectPredictor(c.trace) if cfg.predictor == "perfect" else None)
-        c.core_s, c.tx = acc.core, acc.core.tx
+        c.core_s = acc.core
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in acc.frames)
         assert hs.receive_data(b"".join(acc.frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
@@ -333,12 +335,11 @@ class VirtualTimeRun:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
                 self._pose_up(c, c.arrivals[c.arrival_idx][1])   # every front door's rule: newer than the newest taken
                 c.arrival_idx += 1
-            assert c.tx is not None and c.tx.encoder is not None and c.core_s is not None
+            assert c.maker is not None and c.core_s is not None
             order = c.core_s.order_frame(f, f, t_f, t_f * 1000, client=c.index)
             if order is None:      # the operating point sends one tick in frame_div
                 continue
-            enc, stats, stages = make_frame(order, c.half, c.tx.encoder, self.scene, self.renderer, self.intr, pool,
-                                            self.spec.name)
+            enc, stats, stages = c.maker.make(order)
             busy_ms += stages["frame_ms"]
             cost_ms = busy_ms * cfg.cost_scale if measured else cfg.server_latency_ms
             send_t = t_f + cost_ms / 1000.0
