@@ -503,32 +503,37 @@ def gather(maps: list[dict[str, np.ndarray]]) -> QuadSet:
 
 
 # ----------------------------------------------------------------------------- reconstruction
-def corner_points(qs: QuadSet, intr: CameraIntrinsics,
-                  extend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def corner_points(qs: QuadSet, intr: CameraIntrinsics, extend: np.ndarray | None = None,
+                  corners: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """View-space points (N, 16, 3) of every quad's sub-quad corners, their image positions (N, 16, 2),
     and which quads are drawable (N,) (finite corners in front of the eye).  ``extend`` ((N, 4) pixels, optional):
     each planar quad's (flat, or all its offsets 0) corners on its left, top, right and bottom side moved out by that
     much, on the quad's own plane
-    (``mesh.sky_sides``, ``mesh.sealed``)."""
+    (``mesh.sky_sides``, ``mesh.sealed``).  ``corners`` (K indices into the 16, optional): only those corners, (N, K, 3)
+    and (N, K, 2), each the same bits as in the full arrays (``mesh.build_mesh`` takes a flat quad's :data:`OUTER`
+    four; drawable then means those K are)."""
+    sub = SUB_CORNERS if corners is None else SUB_CORNERS[np.asarray(corners)]
     n = decode_normals(qs.theta, qs.phi)
     s = (2.0 ** qs.level.astype(np.float64))
     x0 = qs.x.astype(np.float64)
     y0 = qs.y.astype(np.float64)
     dcen = rays(intr, x0 + s / 2, y0 + s / 2)
     wv = -dot3(n, dcen) * qs.depth.astype(np.float64)
-    u = x0[:, None] + SUB_CORNERS[None, :, 0] * s[:, None] / 2
-    v = y0[:, None] + SUB_CORNERS[None, :, 1] * s[:, None] / 2
+    u = x0[:, None] + sub[None, :, 0] * s[:, None] / 2
+    v = y0[:, None] + sub[None, :, 1] * s[:, None] / 2
     if extend is not None:   # planar quads only: moving a quad's outer corners and not its inner ones would bend the
         # surface its depth offsets give between them, and so its depth at its own pixels
         planar = qs.flat.copy()
         planar[~qs.flat] = (np.asarray(qs.offsets) == 0).all(-1)
         e = np.where(planar[:, None], np.asarray(extend, np.float64), 0.0)
-        u = u - (SUB_CORNERS[None, :, 0] == 0) * e[:, 0:1] + (SUB_CORNERS[None, :, 0] == 2) * e[:, 2:3]
-        v = v - (SUB_CORNERS[None, :, 1] == 0) * e[:, 1:2] + (SUB_CORNERS[None, :, 1] == 2) * e[:, 3:4]
+        u = u - (sub[None, :, 0] == 0) * e[:, 0:1] + (sub[None, :, 0] == 2) * e[:, 2:3]
+        v = v - (sub[None, :, 1] == 0) * e[:, 1:2] + (sub[None, :, 1] == 2) * e[:, 3:4]
     d = rays(intr, u, v)
     z = plane_depth(n[:, None, :], wv[:, None], d)
     offs = np.zeros((len(qs), 16))
     offs[~qs.flat] = qs.offsets.astype(np.float64)
+    if corners is not None:
+        offs = offs[:, np.asarray(corners)]
     with np.errstate(invalid="ignore"):
         z = z + offs / norm3(d)
     ok = np.isfinite(z).all(-1) & (z > 0).all(-1)
