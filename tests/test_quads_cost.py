@@ -156,7 +156,7 @@ def test_flat_quads_drawn_as_two_triangles_show_the_same(renderer, monkeypatch) 
         monkeypatch.setattr(cli_mod, "build_mesh", lambda qs, *a, **k: build(_all_offset(qs), *a, **k))
         old.apply(d)
         monkeypatch.setattr(cli_mod, "build_mesh", build)
-        assert old._mesh.vertices == new._mesh.vertices and new._mesh.count * 3.5 < old._mesh.count
+        assert old._mesh.quads == new._mesh.quads and new._mesh.count * 3.5 < old._mesh.count
         for dt in (0.5 / 30, 1.5 / 30):
             t = 0.5 + f / 30 + dt
             p = tr.pose_at(t)
@@ -167,3 +167,67 @@ def test_flat_quads_drawn_as_two_triangles_show_the_same(renderer, monkeypatch) 
             dholes.append(int(a.holes.sum()) - int(b.holes.sum()))
     assert max(differ) < 0.006 and max(np.abs(dpsnr)) < 0.03 and max(np.abs(dholes)) < 15, (differ, dpsnr, dholes)
     assert abs(np.mean(dpsnr)) < 0.01, dpsnr
+
+
+def _sixteen_corner_mesh(build):  # type: ignore[no-untyped-def]
+    """``build_mesh`` as 55abe70 made it: 16 vertices for every quad, a flat one's 6 indices into its own 16
+    (:data:`FLAT_TRIANGLES`): the mesh built with every quad given zero offsets, its flat quads' indices rewritten."""
+    from splitrender.methods.quads.mesh import FLAT_TRIANGLES, SUB_TRIANGLES
+
+    def old(qs, *a, **k):  # type: ignore[no-untyped-def]
+        v, i = build(_all_offset(qs), *a, **k)
+        assert v.shape[0] == 16 * len(qs)   # every quad drawable here (else the flat flags below would shift)
+        base = np.arange(len(qs), dtype=np.uint32) * 16
+        idx = [base[q] + (FLAT_TRIANGLES if qs.flat[q] else SUB_TRIANGLES) for q in range(len(qs))]
+        return v, (np.concatenate(idx) if idx else i).astype(np.uint32)
+    return old
+
+
+@pytest.mark.parametrize("variant, options", [("quasar", {}), ("quasar", {"seal_cracks": True, "hidden_sky_px": 8}),
+                                              ("quadstream", {"sky_edge_px": 0.25, "seal_cracks": True})])
+def test_flat_quads_from_four_corners_draw_the_same_pixels(renderer, monkeypatch, variant: str,
+                                                           options: dict) -> None:  # type: ignore[no-untyped-def]
+    """``build_mesh`` makes a flat quad's four outer corners, not its 16 (issue 49: the client's apply on the
+    default walk without GI ~30 -> ~18 ms): a client with it and one building 16 corners for every quad (55abe70's
+    mesh) take the same updates (three reference frames: a reference set, its sky, the wide view; with the
+    options that move corners: ``seal_cracks``'s extend, ``hidden_sky_px``'s texel lookups, QuadStream's
+    ``sky_edge_px`` and guard) and draw the same bytes from two poses after each, with 3.5x or more fewer
+    vertices.  Its outer corners' vertices are the 16-corner mesh's own, bit for bit."""
+    import splitrender.methods.quads.client as cli_mod
+    from splitrender.methods import DecodedUpdate, make_config
+    from splitrender.methods.quads.gen import OUTER
+    from splitrender.methods.quads.mesh import sealed
+    from splitrender.methods.quads.wire import decode_sets
+
+    scene, tr, spec, _ = _setup()
+    cfg = make_config(spec.config, {"variant": variant, "lossless": True, **options})
+    srv = spec.server_class(cfg, INTR, scene, 30, None)
+    new = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    old = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    build = cli_mod.build_mesh
+    sixteen = _sixteen_corner_mesh(build)
+    for f in range(3):
+        u = srv.produce(_ctx(renderer, scene, tr, f))
+        d = DecodedUpdate(u.frame_id, u.t_s, u.pose, u.planes, u.meta, dict(u.data))
+        new.apply(d)
+        monkeypatch.setattr(cli_mod, "build_mesh", sixteen)
+        old.apply(d)
+        monkeypatch.setattr(cli_mod, "build_mesh", build)
+        assert new._mesh.count == old._mesh.count and new._mesh.vertices * 3.5 < old._mesh.vertices
+        for dt in (0.5 / 30, 1.5 / 30):
+            t = 0.5 + f / 30 + dt
+            p = tr.pose_at(t)
+            a, b = new.render(p, t), old.render(p, t)
+            assert np.array_equal(a.color, b.color) and np.array_equal(a.holes, b.holes), (f, dt)
+    # the vertices themselves: the last update's first set's flat quads' four, against the 16-corner mesh's outer
+    # corners, with a corner-moving extend
+    qs = decode_sets(d.data["quads"], d.data["offsets"], "t", (INTR.width, INTR.height), srv.slots,
+                     len(u.meta["cameras"]), INTR.far_m, srv.packed)[0].quads
+    assert qs.flat.mean() > 0.9 and (~qs.flat).sum() > 10
+    ext = sealed(np.ones((len(qs), 4)))
+    v4, i4 = build(qs, u.pose, INTR, (0, 0), "quad", extend=ext)
+    v16, _ = build(_all_offset(qs), u.pose, INTR, (0, 0), "quad", extend=ext)
+    nf = int(qs.flat.sum())
+    assert np.array_equal(v4[:4 * nf].reshape(nf, 4, -1), v16.reshape(len(qs), 16, -1)[qs.flat][:, OUTER])
+    assert np.array_equal(v4[4 * nf:].reshape(-1, 16, v4.shape[1]), v16.reshape(len(qs), 16, -1)[~qs.flat])
+    assert i4.size == 6 * nf + 24 * (len(qs) - nf)

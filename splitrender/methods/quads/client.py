@@ -152,7 +152,7 @@ class QuadsClient(ClientHalf):
         self._pose0 = cams[0][0]
         self._broken = False
         self.has_content = True
-        self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.vertices // 16),
+        self._stats = {"mesh_ms": (time.perf_counter() - t0) * 1e3, "quads_drawn": float(self._mesh.quads),
                        "quads_cached": float(len(self.cache))}
 
     def _whole(self, s: Any, intr: CameraIntrinsics) -> tuple[int, int] | None:

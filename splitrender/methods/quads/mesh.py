@@ -19,7 +19,7 @@ import numpy as np
 
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
-from .gen import BACKGROUND_FAR, MAX_LEVEL, QuadSet, corner_points, decode_normals, dot3, encode_normals, plane_depth, rays
+from .gen import BACKGROUND_FAR, MAX_LEVEL, OUTER, QuadSet, corner_points, decode_normals, dot3, encode_normals, plane_depth, rays
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4 + 1
@@ -50,6 +50,9 @@ FLAT_TRIANGLES = np.array([0, 10, 5, 5, 10, 15], np.uint32)
 """6 indices into a flat quad's 16 corners: its outer corners' (TL, BL, TR) and (TR, BL, BR).  Its 16 corners lie on
 one plane, so two triangles draw the surface eight do; llvmpipe's cost per display frame follows the triangles
 (issue 49: the default walk's mesh draw 24 -> 9 ms of CPU with flat quads as two triangles)."""
+FLAT_LOCAL = np.array([0, 2, 1, 1, 2, 3], np.uint32)
+""":data:`FLAT_TRIANGLES` over the four vertices :func:`build_mesh` makes for a flat quad, its :data:`~.gen.OUTER`
+corners (0, 5, 10, 15 of the 16) in that order."""
 
 
 def concat(sets: list[QuadSet]) -> QuadSet:
@@ -314,12 +317,24 @@ def sky_sides(qs: QuadSet, intr: CameraIntrinsics, px: float) -> np.ndarray:
     return out
 
 
+class MeshPart(tuple):  # type: ignore[type-arg]
+    """:func:`build_mesh`'s (vertices, indices), unpacked as a pair, with :attr:`quads`, the quads it draws."""
+
+    quads: int
+
+    def __new__(cls, vertices: np.ndarray, indices: np.ndarray, quads: int) -> "MeshPart":
+        part = super().__new__(cls, (vertices, indices))
+        part.quads = int(quads)
+        return part
+
+
 def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tuple[int, int] | np.ndarray,
                clamp: ColourClamp = "quad", texel: np.ndarray | None = None, view: int = 0,
                grow: np.ndarray | None = None, extend: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (N*16, 11) float32: world xyz, homogeneous atlas pixel coordinates ``(u z, v z, z)``
-    with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; indices uint32, quad by quad:
-    24 (:data:`SUB_TRIANGLES`) for a quad with offsets, 6 for a flat one (:data:`FLAT_TRIANGLES`)).
+    """A :class:`MeshPart`: (vertices (V, 11) float32: world xyz, homogeneous atlas pixel coordinates
+    ``(u z, v z, z)`` with ``z`` the corner's depth in the source camera, atlas pixel rect, ``view``; 4 for a flat
+    quad (its outer corners) and 16 for another, the flat quads' first; indices uint32, quad by quad: 24
+    (:data:`SUB_TRIANGLES`) for a quad with offsets, 6 for a flat one (:data:`FLAT_TRIANGLES`)).
 
     ``view``: the set's view, 0 for the centre view (and all of QUASAR's sets); a later view's fragments are subject
     to the centre view's guard (:meth:`QuadMeshGL.set_guard`).
@@ -344,33 +359,69 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     own plane (:func:`sky_sides`, :func:`sealed`), where no corner's depth moves by more than :data:`SURFACE_REL`; its
     lookup there is clamped to the rect as anywhere else."""
     if len(qs) == 0:
-        return np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32)
-    pts, uv, ok = corner_points(qs, intr)
-    if extend is not None:
-        # a quad seen nearly edge-on: its plane a fraction of a pixel further on may lie far off, or behind the eye;
-        # such a quad is drawn as it is
-        pe, ue, oke = corner_points(qs, intr, extend)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            use = oke & ok & (np.abs(pe[..., 2] / pts[..., 2] - 1.0) <= SURFACE_REL).all(-1)
-        pts, uv = np.where(use[:, None, None], pe, pts), np.where(use[:, None, None], ue, uv)
-    pts, uv = pts[ok], uv[ok]
-    n = pts.shape[0]
+        return MeshPart(np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32), 0)
+    # a flat quad is drawn as its outer corners' two triangles (FLAT_TRIANGLES), so only those four are made: the same
+    # bits for them and the same triangles in the same order, a quarter of the vertices
+    org_all = np.broadcast_to(np.asarray(slot_origin, np.float64), (len(qs), 2))
     m = pose.matrix()
+    kept = np.zeros(len(qs), bool)
+    verts = []
+    for group, corners in ((qs.flat, OUTER), (~qs.flat, None)):
+        if not group.any():
+            continue
+        part = qs if group.all() else select(qs, group)
+        where = np.flatnonzero(group)
+        pts, uv, ok = corner_points(part, intr, corners=corners)
+        if extend is not None:
+            # a quad seen nearly edge-on: its plane a fraction of a pixel further on may lie far off, or behind the
+            # eye; such a quad is drawn as it is.  (A flat quad's depth ratio along a side lies between its
+            # corners', so its outer corners decide as its 16 did.)
+            pe, ue, oke = corner_points(part, intr, np.asarray(extend)[where], corners)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                use = oke & ok & (np.abs(pe[..., 2] / pts[..., 2] - 1.0) <= SURFACE_REL).all(-1)
+            pts, uv = np.where(use[:, None, None], pe, pts), np.where(use[:, None, None], ue, uv)
+        keep = where[ok]
+        kept[keep] = True
+        verts.append(_vertices(qs, keep, pts[ok], uv[ok], m, org_all[keep], intr, clamp, texel, view, grow))
+    v = np.concatenate(verts) if len(verts) > 1 else verts[0]
+    # in quad order (the depth test keeps the first of equal depths): 6 indices for a flat quad, 24 for another; a
+    # flat quad's four vertices first, then the others' 16
+    flat = qs.flat[kept]
+    nflat = int(flat.sum())
+    if flat.all():
+        return MeshPart(v, (np.arange(nflat, dtype=np.uint32)[:, None] * 4 + FLAT_LOCAL[None, :]).ravel(), flat.size)
+    base = np.where(flat, 4 * (np.cumsum(flat) - 1), 4 * nflat + 16 * (np.cumsum(~flat) - 1)).astype(np.uint32)
+    if not flat.any():
+        return MeshPart(v, (base[:, None] + SUB_TRIANGLES[None, :]).ravel(), flat.size)
+    counts = np.where(flat, FLAT_LOCAL.size, SUB_TRIANGLES.size)
+    start = np.cumsum(counts) - counts
+    idx = np.empty(int(counts.sum()), np.uint32)
+    for sel, tri in ((flat, FLAT_LOCAL), (~flat, SUB_TRIANGLES)):
+        idx[(start[sel][:, None] + np.arange(tri.size)).ravel()] = (base[sel][:, None] + tri[None, :]).ravel()
+    return MeshPart(v, idx, flat.size)
+
+
+def _vertices(qs: QuadSet, keep: np.ndarray, pts: np.ndarray, uv: np.ndarray, m: np.ndarray, org: np.ndarray,
+              intr: CameraIntrinsics, clamp: ColourClamp, texel: np.ndarray | None, view: int,
+              grow: np.ndarray | None) -> np.ndarray:
+    """:func:`build_mesh`'s vertices (K, C, :data:`VERTEX_FLOATS`) of quads ``keep`` of ``qs`` from their C corners'
+    view-space points ``pts`` and image positions ``uv``, ``m`` the source camera's pose matrix, ``org`` their slot
+    origins (K, 2), flattened to (K C, :data:`VERTEX_FLOATS`)."""
+    n, c = pts.shape[:2]
     world = pts @ m[:3, :3].T + m[:3, 3]
-    s = (2.0 ** qs.level[ok].astype(np.float64))
-    org = np.broadcast_to(np.asarray(slot_origin, np.float64), (len(qs), 2))[ok]
-    x0 = qs.x[ok].astype(np.float64) + org[:, 0]
-    y0 = qs.y[ok].astype(np.float64) + org[:, 1]
+    s = (2.0 ** qs.level[keep].astype(np.float64))
+    x0 = qs.x[keep].astype(np.float64) + org[:, 0]
+    y0 = qs.y[keep].astype(np.float64) + org[:, 1]
     if texel is not None:
-        t = np.asarray(texel, np.float64)[ok]
+        t = np.asarray(texel, np.float64)[keep]
         rect = np.concatenate([t, t + 1.0], axis=-1)
     elif clamp == "view":
         rect = np.stack([org[:, 0], org[:, 1], org[:, 0] + intr.width, org[:, 1] + intr.height], axis=-1)
     else:
         rect = np.stack([x0, y0, x0 + s, y0 + s], axis=-1)
         if grow is not None:
-            rect += np.asarray(grow, np.float64)[ok] * np.array([-1.0, -1.0, 1.0, 1.0])
-    v = np.empty((n, 16, VERTEX_FLOATS), np.float32)
+            rect += np.asarray(grow, np.float64)[keep] * np.array([-1.0, -1.0, 1.0, 1.0])
+    v = np.empty((n, c, VERTEX_FLOATS), np.float32)
     v[..., 0:3] = world
     zs = -pts[..., 2]
     v[..., 3] = (uv[..., 0] + org[:, None, 0]) * zs
@@ -378,17 +429,7 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
     v[..., 5] = zs
     v[..., 6:10] = rect[:, None, :]
     v[..., 10] = view
-    flat = qs.flat[ok]
-    base = np.arange(n, dtype=np.uint32) * 16
-    if not flat.any():
-        return v.reshape(-1, VERTEX_FLOATS), (base[:, None] + SUB_TRIANGLES[None, :]).ravel()
-    # in quad order (the depth test keeps the first of equal depths): 6 indices for a flat quad, 24 for another
-    counts = np.where(flat, FLAT_TRIANGLES.size, SUB_TRIANGLES.size)
-    start = np.cumsum(counts) - counts
-    idx = np.empty(int(counts.sum()), np.uint32)
-    for sel, tri in ((flat, FLAT_TRIANGLES), (~flat, SUB_TRIANGLES)):
-        idx[(start[sel][:, None] + np.arange(tri.size)).ravel()] = (base[sel][:, None] + tri[None, :]).ravel()
-    return v.reshape(-1, VERTEX_FLOATS), idx
+    return v.reshape(-1, VERTEX_FLOATS)
 
 
 def join_meshes(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -420,7 +461,9 @@ class QuadMeshGL:
         self.vao: Any = None
         self.count = 0
         self.vertices = 0
-        """Vertices uploaded (16 a quad)."""
+        """Vertices uploaded (4 a flat quad, 16 another)."""
+        self.quads = 0
+        """Quads uploaded by :meth:`upload_parts` (its :class:`MeshPart` s')."""
         self._targets: dict[tuple[int, int], tuple[Any, Any, Any]] = {}
         self._guard: tuple[Any, Pose, CameraIntrinsics] | None = None
         self.guard_depth: np.ndarray | None = None
@@ -451,6 +494,7 @@ class QuadMeshGL:
         nv = sum(int(v.shape[0]) for v, _ in parts)
         ni = sum(int(i.size) for v, i in parts if v.shape[0])
         self.upload(np.zeros((0, VERTEX_FLOATS), np.float32), np.zeros(0, np.uint32))
+        self.quads = sum(getattr(p, "quads", 0) for p in parts)
         if ni == 0:
             return
         self.vbo = self.ctx.buffer(reserve=nv * VERTEX_FLOATS * 4)
