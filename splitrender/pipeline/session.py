@@ -1676,6 +1676,23 @@ class ServerSession:
         self.frame_sent(order.frame_id, out, now_ms, server_time_us, enc.rates_kbps, enc.restarts, send_ms)
         return out
 
+    def frame_from_worker(self, order: FrameOrder, enc: EncodedUpdate, stats: dict[str, Any], stages: dict[str, float],
+                          wall_s: float, now_ms: float) -> tuple[OutgoingFrame, dict[str, Any]]:
+        """A live front door's frame ``order``, ordered at wall-clock ``wall_s`` (its server time) and back from the
+        render worker at ``now_ms`` (the wall clock too) with its stages (:meth:`~splitrender.server.worker.RenderWorker.frame`'s,
+        ``worker_rtt_ms`` among them): reported (:meth:`frame_encoded`, the FrameMeta stamped with the worker's
+        ``render``, ``encode`` and ``shared`` times and when it was encoded), with its update row (:meth:`update_row`
+        over the session's streams, and the server time, the probes' relighting and the worker round trip).  Returns
+        what the frame puts on the wire, and the row."""
+        t_us = int(wall_s * 1e6)
+        timing = {"render": int(stages["produce_ms"] * 1000), "encode": int(enc.encode_ms * 1000),
+                  "encoded_at": int(now_ms * 1000), "shared": int(stages["shared_ms"] * 1000)}
+        out = self.frame_encoded(order, enc, now_ms, t_us, timing, stats)
+        streams = self.tx.bytes_sent if self.transport == "rtp" else [s.name for s in self.tx.specs]
+        row = {**self.update_row(order, out, enc, stages, streams), "server_us": t_us, "gi_ms": stages["gi_ms"],
+               "worker_rtt_ms": stages["worker_rtt_ms"]}
+        return out, row
+
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
                    rates_kbps: dict[str, float] | None = None, restarts: int = 0, send_ms: float | None = None) -> None:
         """Frame ``frame_id`` was made at ``now_ms``: its RTP packets join the retransmission history, and they

@@ -57,7 +57,7 @@ from splitrender.protocol import (
     Stats,
     make_sdp,
 )
-from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
+from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel
 
 Address = tuple[str, int]
 
@@ -349,35 +349,22 @@ class ServerSession:
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
     async def _send_frame(self) -> None:
-        tx, core = self.tx, self.core
-        assert self.client_addr is not None and tx is not None and core is not None and self.worker is not None
-        # the worker gets a copy of the order's predictor (pickled now, before any other pose arrives) for the
-        # method's own predictions (a PVS over the expected latency)
-        made = await self.worker.frame(self.id, core, self.server, self._counters)
+        assert self.core is not None and self.worker is not None
+        made = await self.worker.frame(self.id, self.core, self.server, self._counters)
         if made is None:
             return
-        order, enc, stats, stages, wall = made
-        t_us = int(wall * 1e6)
         if self.channel.conn.state is not State.STREAMING:
             # the peer said Bye (or the connection closed) while the worker rendered: the control
             # task is ending the session in this same loop turn; this frame has nowhere to go
             raise _SessionEnded()
         c1 = time.perf_counter()
-        render_ms, shared_ms = stages["produce_ms"], stages["shared_ms"]
-        timing = {"render": int(render_ms * 1000), "encode": int(enc.encode_ms * 1000), "encoded_at": wall_us(),
-                  "shared": int(shared_ms * 1000)}
+        out, row = self.core.frame_from_worker(*made, _now_ms())
         # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        out = core.frame_encoded(order, enc, _now_ms(), t_us, timing, stats)
         await self.channel.write_frames([f for _, f in out.control], drain=False)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
-        c2 = time.perf_counter()
-        # the stages of a live frame: the worker's (shared work, the method's own with the probes' relighting in
-        # either, encode), the round trip to the worker beyond its own time (pickling, the pipe, this loop's
-        # latency), and packetizing and sending here
-        row = {**core.update_row(order, out, enc, stages, tx.bytes_sent), "server_us": t_us, "gi_ms": stages["gi_ms"], "worker_rtt_ms": stages["worker_rtt_ms"],
-               "send_ms": (c2 - c1) * 1e3}
+        row["send_ms"] = (time.perf_counter() - c1) * 1e3    # packetizing and sending here
         self.update_rows.append(row)
         self._log("updates", row)
 

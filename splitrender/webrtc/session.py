@@ -328,23 +328,19 @@ class BrowserSession:
         if made is None or self.ended.is_set():
             return
         order, enc, _stats, stages, wall = made
-        now_ms, fid, scene_t = wall * 1000, order.frame_id, order.t_s
         frame = enc.video[self.stream]
-        rtp_ts = rtp_timestamp(scene_t)
-        t_us = int(wall * 1e6)
+        rtp_ts = rtp_timestamp(order.t_s)
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
         if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
-            self.counters["meta_bytes"] += sum(self._send("meta", msg) for msg in self.page.frame(fid, enc.update.meta))
-        n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, t_us,
+            self.counters["meta_bytes"] += sum(self._send("meta", msg) for msg in self.page.frame(order.frame_id,
+                                                                                                    enc.update.meta))
+        n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, int(wall * 1e6),
                                                    self.track.rtp_origin))
         if not self.track.put(frame.data, rtp_ts):
-            core.request_keyframe(now_ms)     # the sender fell behind
+            core.request_keyframe(time.time() * 1000)     # the sender fell behind
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
-        sent = core.frame_encoded(order, enc, now_ms, t_us)
+        _sent, row = core.frame_from_worker(*made, time.time() * 1000)
         self.counters["video_bytes"] += len(frame.data)
         self.counters["meta_bytes"] += n_meta
-        row = {**core.update_row(order, sent, enc, stages, (self.stream,)), "server_us": t_us,
-               "bytes_frame_meta": n_meta, "worker_rtt_ms": stages["worker_rtt_ms"]}
-        self._logs.append("updates", row)
-
+        self._logs.append("updates", {**row, "bytes_frame_meta": n_meta})
