@@ -231,3 +231,37 @@ def test_flat_quads_from_four_corners_draw_the_same_pixels(renderer, monkeypatch
     assert np.array_equal(v4[:4 * nf].reshape(nf, 4, -1), v16.reshape(len(qs), 16, -1)[qs.flat][:, OUTER])
     assert np.array_equal(v4[4 * nf:].reshape(-1, 16, v4.shape[1]), v16.reshape(len(qs), 16, -1)[~qs.flat])
     assert i4.size == 6 * nf + 24 * (len(qs) - nf)
+
+
+def test_continuous_sides_as_each_sides_pixels_say() -> None:
+    """``continuous_sides`` (running counts over the view, issue 49) against each quad's side read pixel by pixel: half
+    a texel where every pixel along the side and its neighbour across lie in the view on one surface (depths within
+    ``SURFACE_REL``, two infs equal), else 0; quads of every size up to 16 px, sides on the view's border and past
+    it.  ``scene_sides`` with the set's index map handed in gives what it gives making its own."""
+    from splitrender.methods.quads.mesh import SURFACE_REL, _far_quadtree, continuous_sides, index_map_of, scene_sides
+
+    intr = CameraIntrinsics(61, 37)
+    rng = np.random.default_rng(5)
+    qs = _far_quadtree(rng.random((37, 61)) < 0.97, intr)
+    assert len(qs) > 300 and qs.level.max() >= 3
+    depth = rng.choice([1.0, 1.01, 1.3, np.inf, 0.0, np.nan], size=(37, 61), p=[0.55, 0.2, 0.1, 0.05, 0.05, 0.05])
+    depth[5:30, 10:50] = 2.0   # a wide surface, so that large quads' sides go on
+    z = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
+
+    def one_surface(ya: int, xa: int, yb: int, xb: int) -> bool:
+        if not (0 <= ya < 37 and 0 <= xa < 61 and 0 <= yb < 37 and 0 <= xb < 61):
+            return False
+        a, b = z[ya, xa], z[yb, xb]
+        return bool(a == b or abs(a - b) <= SURFACE_REL * min(a, b))
+
+    want = np.zeros((len(qs), 4))
+    for q in range(len(qs)):
+        x0, y0, n = int(qs.x[q]), int(qs.y[q]), 1 << int(qs.level[q])
+        pairs = [[(y, x0, y, x0 - 1) for y in range(y0, y0 + n)], [(y0, x, y0 - 1, x) for x in range(x0, x0 + n)],
+                 [(y, x0 + n - 1, y, x0 + n) for y in range(y0, y0 + n)],
+                 [(y0 + n - 1, x, y0 + n, x) for x in range(x0, x0 + n)]]
+        for side, ps in enumerate(pairs):
+            want[q, side] = 0.5 if all(one_surface(*p) for p in ps) else 0.0
+    got = continuous_sides(qs, depth)
+    assert np.array_equal(got, want) and 0.2 < (got > 0).mean() < 0.9
+    assert np.array_equal(scene_sides(qs, intr, index_map_of(qs, intr)), scene_sides(qs, intr))

@@ -97,19 +97,20 @@ class QuadsClient(ClientHalf):
             new_ref = any(s.kind == KIND_REFERENCE for s in sets)
             if new_ref or any(s.kind == KIND_UPDATE and len(s.quads) for s in sets) or self._cached_parts is None:
                 # the cached quads' mesh changes only with them (a residual frame without update quads keeps it)
+                im = self.cache.index_map if self.cache.raster else None   # the reference set's, made once
                 if self.config.variant == "quasar" and self.config.silhouette_clamp:   # no sky texels at the silhouette
-                    sides = scene_sides(self.cache.quads, self.cache.intr)
+                    sides = scene_sides(self.cache.quads, self.cache.intr, im)
                     # seal_cracks: each quad drawn nearly half a pixel past its sides where the surface goes on
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), "quad",
                                          grow=sides, extend=sealed(continuous_sides(
-                                             self.cache.quads, quad_depth(self.cache.quads, self.cache.intr)))
+                                             self.cache.quads, quad_depth(self.cache.quads, self.cache.intr, im)))
                                          if self.config.seal_cracks else None)]
                 else:
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
                 if quasar_sky and (new_ref or self._cached_parts is None):   # the sky the reference set left out
-                    self._sky = background_quads(self.cache.quads, self.cache.intr)
+                    self._sky = background_quads(self.cache.quads, self.cache.intr, index_map=im)
                     self._hidden_sky = hidden_sky(self.cache.quads, self.cache.intr, self._origin(0),
-                                                  reach=self.config.hidden_sky_px)
+                                                  reach=self.config.hidden_sky_px, index_map=im)
                     self._sky_parts = [build_mesh(self._sky, self.cache.pose, self.cache.intr, self._origin(0), "view"),
                                        # and behind the model's silhouette against it, shown where motion reveals it
                                        build_mesh(self._hidden_sky[0], self.cache.pose, self.cache.intr, self._origin(0),

@@ -83,7 +83,21 @@ def rasterize(index_map: np.ndarray, qs: QuadSet, first: int) -> None:
         index_map[ys[ok], xs[ok]] = idx[ok]
 
 
-def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | None = None) -> QuadSet:
+def index_map_of(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) int64: the quad of ``qs`` covering each pixel (:func:`rasterize`, -1 where none); ``index_map`` when
+    given, the caller's map of the same set (:attr:`ReferenceCache.index_map` while :attr:`ReferenceCache.raster`),
+    read and not changed."""
+    if index_map is not None:
+        if index_map.shape != (intr.height, intr.width):
+            raise ValueError(f"index_map is {index_map.shape}, the view {(intr.height, intr.width)}")
+        return index_map
+    out = np.full((intr.height, intr.width), -1, np.int64)
+    rasterize(out, qs, 0)
+    return out
+
+
+def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | None = None,
+                     index_map: np.ndarray | None = None) -> QuadSet:
     """The background quads a view's set would have carried (``generate(..., background=True)``): over the pixels of
     ``region`` (all when ``None``) that no quad of ``qs`` covers.  The client makes them itself when the server sends
     none (``QuadsConfig.background_quads`` off, as QUASAR's code sends none), so its sky is drawn as before.
@@ -91,10 +105,9 @@ def background_quads(qs: QuadSet, intr: CameraIntrinsics, region: np.ndarray | N
     Every background pixel lies on the same plane (facing the eye at :data:`~.gen.BACKGROUND_FAR` of the far
     distance, flat), so every merge of four present quads succeeds at any thresholds and the set is the quadtree of
     the pixels: at each level the 2x2 blocks whose four children are present merge, the rest stay.  (``generate``
-    makes the same set, field for field, tested; this takes about 1 ms where it took 60-300 ms at 320x180.)"""
-    index_map = np.full((intr.height, intr.width), -1, np.int64)
-    rasterize(index_map, qs, 0)
-    present = index_map < 0
+    makes the same set, field for field, tested; this takes about 1 ms where it took 60-300 ms at 320x180.)
+    ``index_map``: :func:`index_map_of`'s."""
+    present = index_map_of(qs, intr, index_map) < 0
     if region is not None:
         present &= region
     return _far_quadtree(present, intr)
@@ -133,7 +146,7 @@ sky), its default; the client lays them at its config's ``hidden_sky_px`` (0, no
 
 
 def hidden_sky(qs: QuadSet, intr: CameraIntrinsics, slot_origin: tuple[int, int],
-               reach: int | None = None) -> tuple[QuadSet, np.ndarray]:
+               reach: int | None = None, index_map: np.ndarray | None = None) -> tuple[QuadSet, np.ndarray]:
     """Sky quads behind the model: the pixels that ``qs`` covers within ``reach`` pixels of one it leaves
     uncovered (the background), as flat quads on the background's far plane, each coloured by the background texel
     nearest its centre.  Returns the quads and that texel's atlas position per quad ((N, 2), for :func:`build_mesh`'s
@@ -145,14 +158,14 @@ def hidden_sky(qs: QuadSet, intr: CameraIntrinsics, slot_origin: tuple[int, int]
     the model bled over the background (Wuson, the peer benchmark's strafe: 2/3 of our QUASAR's wrongly covered
     background pixels lay in filled holes, issue 50).  QUASAR's code draws its clear colour there, the background.
     Only near the sky: a pixel further from it (a model standing on a ground) may reveal the ground, which the hole
-    fill finds."""
+    fill finds.  ``index_map``: :func:`index_map_of`'s."""
     from scipy.ndimage import distance_transform_edt
 
     reach = HIDDEN_SKY_PX if reach is None else reach
-    index_map = np.full((intr.height, intr.width), -1, np.int64)
-    rasterize(index_map, qs, 0)
-    covered = index_map >= 0
-    if reach <= 0 or covered.all() or not covered.any():
+    if reach <= 0:
+        return QuadSet.empty(), np.zeros((0, 2), np.float64)
+    covered = index_map_of(qs, intr, index_map) >= 0
+    if covered.all() or not covered.any():
         return QuadSet.empty(), np.zeros((0, 2), np.float64)
     dist, (iy, ix) = distance_transform_edt(covered, return_indices=True)
     sky = _far_quadtree(covered & (dist <= reach), intr)
@@ -173,12 +186,16 @@ class ReferenceCache:
     quads: QuadSet | None = None
     index_map: np.ndarray | None = None
     freed: int = 0
+    raster: bool = False
+    """:attr:`index_map` is :func:`rasterize`'s of :attr:`quads` (so far from a reference set alone; an update's quads
+    overwrite it in their own order), for :func:`index_map_of`."""
 
     def set_reference(self, qs: QuadSet, pose: Pose, intr: CameraIntrinsics, frame_id: int) -> None:
         self.pose, self.intr, self.frame_id, self.quads = pose, intr, frame_id, qs
         self.index_map = np.full((intr.height, intr.width), -1, np.int64)
         rasterize(self.index_map, qs, 0)
         self.freed = 0
+        self.raster = True
 
     def apply_update(self, qs: QuadSet) -> None:
         """Append an update's quads, overwrite the index map where they lie, free quads covered entirely."""
@@ -190,6 +207,7 @@ class ReferenceCache:
         named[self.index_map[self.index_map >= 0]] = True
         named[n0:] = True  # an update's quads are drawn even where a later one of the same update overlaps
         self.freed = int((~named[:n0]).sum())
+        self.raster = False
         remap = np.cumsum(named) - 1
         self.quads = select(allq, named)
         m = self.index_map >= 0
@@ -214,36 +232,49 @@ def continuous_sides(qs: QuadSet, depth: np.ndarray, rel: float | None = None) -
     rel = SURFACE_REL if rel is None else rel
     h, w = depth.shape
     out = np.zeros((len(qs), 4))
+    if not len(qs):
+        return out
     z = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
-    for lv in np.unique(qs.level):
-        sel = np.flatnonzero(qs.level == lv)
-        size = 1 << int(lv)
-        x0, y0 = qs.x[sel].astype(np.int64), qs.y[sel].astype(np.int64)
-        k = np.arange(size)
-        for side, (dx, dy) in enumerate(((-1, 0), (0, -1), (1, 0), (0, 1))):
-            if dx:   # a column of pixels along the side
-                xa = np.broadcast_to((x0 if dx < 0 else x0 + size - 1)[:, None], (sel.size, size))
-                ya = y0[:, None] + k
-            else:
-                ya = np.broadcast_to((y0 if dy < 0 else y0 + size - 1)[:, None], (sel.size, size))
-                xa = x0[:, None] + k
-            xb, yb = xa + dx, ya + dy
-            inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h) & (xa < w) & (ya < h)
-            za = z[np.clip(ya, 0, h - 1), np.clip(xa, 0, w - 1)]
-            zb = z[np.clip(yb, 0, h - 1), np.clip(xb, 0, w - 1)]
-            same = (za == zb) | (np.abs(za - zb) <= rel * np.minimum(za, zb))
-            out[sel, side] = np.where((inside & same).all(axis=1), 0.5, 0.0)
+    # per pixel: it and its right (below: its lower) neighbour lie on one surface, both in the view; false beyond
+    # the view out to the largest quad's size, so a quad's side that leaves the view counts no pixel there
+    size = 1 << qs.level.astype(np.int64)
+    pad = int(size.max()) + 1
+    right = np.zeros((h + pad, w + pad), bool)
+    below = np.zeros((h + pad, w + pad), bool)
+    right[:h, :w - 1] = _one_surface(z[:, :-1], z[:, 1:], rel)
+    below[:h - 1, :w] = _one_surface(z[:-1], z[1:], rel)
+    # running counts down the columns of ``right`` and along the rows of ``below`` (a zero first row / column): a
+    # quad's side is continuous where all ``size`` of its pixels' pairs across it are
+    down = np.zeros((h + pad + 1, w + pad), np.int32)
+    np.cumsum(right, axis=0, out=down[1:])
+    along = np.zeros((h + pad, w + pad + 1), np.int32)
+    np.cumsum(below, axis=1, out=along[:, 1:])
+    x0, y0 = qs.x.astype(np.int64), qs.y.astype(np.int64)
+    xl, yt = np.maximum(x0 - 1, 0), np.maximum(y0 - 1, 0)     # the pair's first pixel: the neighbour on the left / top
+    xr, yb = x0 + size - 1, y0 + size - 1
+    full = {0: (x0 > 0) & (down[y0 + size, xl] - down[y0, xl] == size),
+            1: (y0 > 0) & (along[yt, x0 + size] - along[yt, x0] == size),
+            2: down[y0 + size, xr] - down[y0, xr] == size,
+            3: along[yb, x0 + size] - along[yb, x0] == size}
+    for side, ok in full.items():
+        out[:, side] = np.where(ok, 0.5, 0.0)
     return out
 
 
-def scene_sides(qs: QuadSet, intr: CameraIntrinsics) -> np.ndarray:
+def _one_surface(za: np.ndarray, zb: np.ndarray, rel: float) -> np.ndarray:
+    """Neighbouring depths on one surface: equal (two inf: the same background), or within ``rel`` of the nearer."""
+    with np.errstate(invalid="ignore"):   # inf - inf: equal, caught by the first test
+        return (za == zb) | (np.abs(za - zb) <= rel * np.minimum(za, zb))
+
+
+def scene_sides(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None = None) -> np.ndarray:
     """:func:`continuous_sides` of a view's set over its own coverage: half a texel on each side whose neighbouring
     pixel is a scene pixel of the set, 0 where it is background (no quad there, or a background quad) or outside
     the view.  QUASAR's reference set (``QuadsConfig.silhouette_clamp``): its lookup filters across quad borders
     inside the model, as the view's image would, and stops at the silhouette, so an edge quad seen from another
-    pose never mixes in the sky texels beside it (QUASAR's code samples its view nearest, no blend at all)."""
-    index_map = np.full((intr.height, intr.width), -1, np.int64)
-    rasterize(index_map, qs, 0)
+    pose never mixes in the sky texels beside it (QUASAR's code samples its view nearest, no blend at all).
+    ``index_map``: :func:`index_map_of`'s."""
+    index_map = index_map_of(qs, intr, index_map)
     scene = index_map >= 0
     if len(qs):
         scene[scene] = ~qs.background(intr)[index_map[scene]]
@@ -254,11 +285,11 @@ SEAL_PX = 0.45
 """How far past a side where the surface goes on a quad is drawn (``QuadsConfig.seal_cracks``, :func:`sealed`)."""
 
 
-def quad_depth(qs: QuadSet, intr: CameraIntrinsics) -> np.ndarray:
+def quad_depth(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None = None) -> np.ndarray:
     """(H, W) view depth at each pixel's centre of the plane of the quad of ``qs`` that covers it (the last one),
-    top row first, inf where none does: the view's depth as its quads give it, the same on both halves."""
-    index_map = np.full((intr.height, intr.width), -1, np.int64)
-    rasterize(index_map, qs, 0)
+    top row first, inf where none does: the view's depth as its quads give it, the same on both halves.
+    ``index_map``: :func:`index_map_of`'s."""
+    index_map = index_map_of(qs, intr, index_map)
     out = np.full(index_map.shape, np.inf)
     py, px = np.nonzero(index_map >= 0)
     if py.size:
@@ -408,7 +439,7 @@ def _vertices(qs: QuadSet, keep: np.ndarray, pts: np.ndarray, uv: np.ndarray, m:
     view-space points ``pts`` and image positions ``uv``, ``m`` the source camera's pose matrix, ``org`` their slot
     origins (K, 2), flattened to (K C, :data:`VERTEX_FLOATS`)."""
     n, c = pts.shape[:2]
-    world = pts @ m[:3, :3].T + m[:3, 3]
+    world = (pts.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]).reshape(n, c, 3)   # one product, not one per quad
     s = (2.0 ** qs.level[keep].astype(np.float64))
     x0 = qs.x[keep].astype(np.float64) + org[:, 0]
     y0 = qs.y[keep].astype(np.float64) + org[:, 1]
