@@ -487,6 +487,10 @@ class QuadMeshGL:
         self.ctx = ctx
         self._mgl = moderngl
         self.prog = load_program(ctx, SHADERS / "quads_mesh.vert", SHADERS / "quads_mesh.frag")
+        self._guard_prog: Any = None
+        """The program with the guard compiled in (``QUADS_GUARD``), made at the first :meth:`set_guard`; the plain
+        one cannot discard, so its fragments are depth-tested before they are shaded."""
+        self._guard_vao: Any = None
         self.vbo: Any = None
         self.ibo: Any = None
         self.vao: Any = None
@@ -502,14 +506,20 @@ class QuadMeshGL:
 
     def _bind(self) -> None:
         """The vertex array over :attr:`vbo` and :attr:`ibo` (after either is made anew)."""
-        self.vao = self.ctx.vertex_array(self.prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
-                                         index_buffer=self.ibo, index_element_size=4)
+        self.vao = self._vertex_array(self.prog)
+        if self._guard_vao is not None:
+            self._guard_vao.release()
+        self._guard_vao = None   # made when a draw needs it
+
+    def _vertex_array(self, prog: Any) -> Any:
+        return self.ctx.vertex_array(prog, [(self.vbo, "3f 3f 4f 1f", "in_pos", "in_uvw", "in_rect", "in_view")],
+                                     index_buffer=self.ibo, index_element_size=4)
 
     def upload(self, vertices: np.ndarray, indices: np.ndarray) -> None:
-        for b in (self.vao, self.vbo, self.ibo):
+        for b in (self.vao, self._guard_vao, self.vbo, self.ibo):
             if b is not None:
                 b.release()
-        self.vao = self.vbo = self.ibo = None
+        self.vao = self._guard_vao = self.vbo = self.ibo = None
         self.count = int(indices.size)
         self.vertices = int(vertices.shape[0])
         if self.count == 0:
@@ -556,9 +566,10 @@ class QuadMeshGL:
             if self.vbo is not None and used_v:
                 self.ctx.copy_buffer(vbo, self.vbo, used_v)
                 self.ctx.copy_buffer(ibo, self.ibo, used_i)
-            for b in (self.vao, self.vbo, self.ibo):
+            for b in (self.vao, self._guard_vao, self.vbo, self.ibo):
                 if b is not None:
                     b.release()
+            self._guard_vao = None
             self.vbo, self.ibo = vbo, ibo
             self._bind()
         self.vbo.write(v, offset=used_v)
@@ -577,8 +588,8 @@ class QuadMeshGL:
         footprint), which otherwise won the depth test over the centre view at the centre pose (issue 50: 2CylinderEngine
         20.2 dB at the server's pose with a lossless atlas, the centre view alone exact)."""
         self.clear_guard()
-        keep = (self.vao, self.vbo, self.ibo, self.count, self.vertices)
-        self.vao = self.vbo = self.ibo = None
+        keep = (self.vao, self._guard_vao, self.vbo, self.ibo, self.count, self.vertices)
+        self.vao = self._guard_vao = self.vbo = self.ibo = None
         self.upload(vertices, indices)
         _, _, depth = self.draw(pose, intr, None, (1, 1))
         guard = self.ctx.texture((intr.width, intr.height), 1, dtype="f4")
@@ -586,11 +597,16 @@ class QuadMeshGL:
         raw = depth.read()
         guard.write(raw)
         self.guard_depth = np.frombuffer(raw, np.float32).reshape(intr.height, intr.width)[::-1].copy()
-        for b in (self.vao, self.vbo, self.ibo):
+        for b in (self.vao, self._guard_vao, self.vbo, self.ibo):
             if b is not None:
                 b.release()
-        self.vao, self.vbo, self.ibo, self.count, self.vertices = keep
+        self.vao, self._guard_vao, self.vbo, self.ibo, self.count, self.vertices = keep
         self._guard = (guard, pose, intr)
+        if self._guard_prog is None:
+            from ...render.gl import load_program
+
+            self._guard_prog = load_program(self.ctx, SHADERS / "quads_mesh.vert", SHADERS / "quads_mesh.frag",
+                                            defines={"QUADS_GUARD": 1})
 
     def clear_guard(self) -> None:
         if self._guard is not None:
@@ -616,29 +632,34 @@ class QuadMeshGL:
         self.ctx.viewport = (0, 0, intr.width, intr.height)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if self.vao is not None:
+            prog, vao = self.prog, self.vao
+            if self._guard is not None:
+                if self._guard_vao is None:
+                    self._guard_vao = self._vertex_array(self._guard_prog)
+                prog, vao = self._guard_prog, self._guard_vao
             self.ctx.enable(self.ctx.DEPTH_TEST)
             self.ctx.disable(self.ctx.CULL_FACE | self.ctx.BLEND)
             proj = replace(intr, far_m=intr.far_m * FAR_SCALE).projection()
-            self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
-            set_uniform(self.prog, "u_view_bias", VIEW_BIAS if self._guard is not None else 0.0)
-            self.prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
-            set_uniform(self.prog, "u_atlas_size", (float(atlas_size[0]), float(atlas_size[1])))
-            set_uniform(self.prog, "u_has_atlas", 0 if atlas is None else 1)
-            set_uniform(self.prog, "u_has_guard", 0 if self._guard is None else 1)
+            prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
+            set_uniform(prog, "u_view_bias", VIEW_BIAS if self._guard is not None else 0.0)
+            prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
+            set_uniform(prog, "u_atlas_size", (float(atlas_size[0]), float(atlas_size[1])))
+            set_uniform(prog, "u_has_atlas", 0 if atlas is None else 1)
+            set_uniform(prog, "u_has_guard", 0 if self._guard is None else 1)
             if self._guard is not None:
                 tex, gpose, gintr = self._guard
                 gvp = replace(gintr, far_m=gintr.far_m * FAR_SCALE).projection() @ gpose.view_matrix()
-                self.prog["u_guard_vp"].write(np.asarray(gvp, "f4").T.tobytes())
-                self.prog["u_guard_view"].write(np.asarray(gpose.view_matrix(), "f4").T.tobytes())
-                set_uniform(self.prog, "u_guard_size", (float(gintr.width), float(gintr.height)))
-                set_uniform(self.prog, "u_guard_front", CENTRE_PRIORITY)
-                set_uniform(self.prog, "u_guard_reach", GUARD_REACH_PX)
+                prog["u_guard_vp"].write(np.asarray(gvp, "f4").T.tobytes())
+                prog["u_guard_view"].write(np.asarray(gpose.view_matrix(), "f4").T.tobytes())
+                set_uniform(prog, "u_guard_size", (float(gintr.width), float(gintr.height)))
+                set_uniform(prog, "u_guard_front", CENTRE_PRIORITY)
+                set_uniform(prog, "u_guard_reach", GUARD_REACH_PX)
                 tex.use(1)
-                set_uniform(self.prog, "u_guard", 1)
+                set_uniform(prog, "u_guard", 1)
             if atlas is not None:
                 atlas.use(0)
-                set_uniform(self.prog, "u_atlas", 0)
-            self.vao.render(mode=self._mgl.TRIANGLES, vertices=self.count)
+                set_uniform(prog, "u_atlas", 0)
+            vao.render(mode=self._mgl.TRIANGLES, vertices=self.count)
         return fbo, color, depth
 
     def depth_at(self, pose: Pose, intr: CameraIntrinsics) -> np.ndarray:
