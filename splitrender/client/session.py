@@ -38,7 +38,7 @@ from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, Remot
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
-                                  ReceivedFrame, apply_updates, Resumed, ServerMessage, Stalled, StallTimeout, Work)
+                                  ReceivedFrame, Resumed, ServerMessage, Stalled, StallTimeout, Work, black_frame, display_frame)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import live_frame_row
@@ -539,15 +539,8 @@ class LiveClient:
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
         scene_t = self._scene_t(tick_wall)
-
-        def show() -> tuple[Any, list[bool], float, float]:
-            w0 = time.perf_counter()
-            ok = apply_updates(half, new, f"session {self.session_id}")
-            w1 = time.perf_counter()
-            frame = half.render(pose, scene_t)
-            return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
-
-        cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, show)
+        cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, display_frame, half, new, pose, scene_t,
+                                                                 (cfg.width, cfg.height), f"session {self.session_id}")
         displayed_us = wall_us()
         # the core's rule (and the Feedback of an update shown the first time)
         shown = core.showing(new, ok, half.has_content, displayed_us / 1000)
@@ -580,9 +573,9 @@ class LiveClient:
                         int(wall_s * 1e6))
         self._record(row)
         if saves is not None and cfg.save_images and cfg.out_dir is not None:
-            black = np.zeros((cfg.height, cfg.width, 3), np.uint8)
+            black = black_frame(cfg.width, cfg.height)
             saves.append(asyncio.get_running_loop().run_in_executor(
-                self.io_executor, save_image, cfg.out_dir, row["frame"], black, np.ones((cfg.height, cfg.width), bool)))
+                self.io_executor, save_image, cfg.out_dir, row["frame"], black.color, black.holes))
 
     # ------------------------------------------------------------------ recording
 

@@ -11,14 +11,14 @@ session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run, and :mod
 frame's order (the core's) and its making (:func:`make_frame`, wherever the GL context lives).
 """
 
-from .frames import FrameMaker, FrameOrder, make_frame
+from .frames import FrameMaker, FrameOrder, apply_updates, black_frame, display_frame, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from ..options import ClientOptions
 from .session import (CLIENT_CODECS, Accepted, Opening, ClientHandshake, ClientSession, ControlClosed, FrameReleased, PoseInbox, Resumed, ServerMessage,
                       ServerOptions, ServerSession, SessionEvent,
-                      SessionTerms, Stalled, StallTimeout, accept_hello, accept_page, apply_updates, check_hello, parse_welcome,
+                      SessionTerms, Stalled, StallTimeout, accept_hello, accept_page, check_hello, parse_welcome,
                       method_config, open_hello, open_page, session_params,
                       session_summary, shows_anything)
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, StreamEncoder, rtp_timestamp
@@ -30,7 +30,7 @@ __all__ = [
     "Accepted", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
-    "FrameMaker", "FrameOrder", "make_frame", "StreamEncoder",
+    "FrameMaker", "FrameOrder", "black_frame", "display_frame", "make_frame", "StreamEncoder",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",
     "SESSION_STREAM", "ServerPipeline", "SessionAssembler", "SessionDataError", "Work", "control_wire_bytes",

@@ -11,19 +11,29 @@ Every front door makes a server frame in the same two steps:
    half's :meth:`~splitrender.methods.base.ServerHalf.produce` and the encoders (:class:`~.sender.StreamEncoder`).
    :class:`FrameMaker` holds a session's half and encoders there, opened together, and makes its frames.
 
+On the client, :func:`display_frame` is every front door's side of a display tick: the updates applied to the client
+half and the half rendered (the core's :meth:`~.session.ClientSession.display_tick` and
+:meth:`~.session.ClientSession.showing` are the tick's rule before and after it).
+
 A :class:`FrameOrder` pickles (the live server sends it to its worker); its ``predictor`` is a copy taken then, so
 a pose arriving while the worker renders does not move the frame's predictions.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..methods.base import ClientFeedback, ServerContext
+import numpy as np
+
+from ..errors import RemoteProtocolError
+from ..methods.base import ClientFeedback, ClientFrame, ServerContext
 from .adapt import AdaptConfig
 from .sender import EncodedUpdate, StreamEncoder
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -116,3 +126,39 @@ class FrameMaker:
         """Make and encode ``order`` (:func:`make_frame`)."""
         return make_frame(order, self.half, self.encoder, self.pool.scene, self.pool.renderer, self.intrinsics,
                           self.pool, self.method)
+
+
+# ---------------------------------------------------------------------- the client's side of a display tick
+
+def apply_updates(half: Any, frames: list[Any], log_id: str = "") -> list[bool]:
+    """Apply ``frames`` (:class:`~.receiver.ReceivedFrame`) to the client half ``half`` in order (on the thread that
+    owns its GL context): a malformed update is rejected (logged, prefixed ``log_id``) and the half keeps its last good
+    state.  Returns which were applied, for :meth:`~.session.ClientSession.showing`."""
+    ok = []
+    for rf in frames:
+        try:
+            half.apply(rf.update)
+            ok.append(True)
+        except RemoteProtocolError as exc:
+            ok.append(False)
+            log.warning("%s: update %d rejected by the client half: %s", log_id, rf.update.frame_id, exc)
+    return ok
+
+
+def black_frame(width: int, height: int) -> ClientFrame:
+    """The black background a display tick shows with nothing to draw, every pixel a hole."""
+    return ClientFrame(np.zeros((height, width, 3), np.uint8), np.ones((height, width), bool))
+
+
+def display_frame(half: Any, frames: list[Any], pose: Any, t_s: float, size: tuple[int, int],
+                  log_id: str = "") -> tuple[ClientFrame, list[bool], float, float]:
+    """The client half's side of a display tick, in every client front door (on the thread that owns its GL context):
+    the updates the core gave the tick (``frames``: :meth:`~.session.ClientSession.display_tick`) applied
+    (:func:`apply_updates`), then the half rendered at ``pose`` and scene time ``t_s``, or the black background of
+    ``size`` (width, height) where it has nothing to draw.  Returns the frame, which updates were applied (for
+    :meth:`~.session.ClientSession.showing`, the tick's rule), and the apply and render milliseconds."""
+    w0 = time.perf_counter()
+    ok = apply_updates(half, frames, log_id)
+    w1 = time.perf_counter()
+    frame = half.render(pose, t_s) if half.has_content else black_frame(*size)
+    return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000

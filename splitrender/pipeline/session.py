@@ -83,7 +83,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "apply_updates", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -141,21 +141,6 @@ def shows_anything(rf: ReceivedFrame) -> bool:
     """Whether an update can change the picture: complete, or at least one stream of it arrived."""
     u = rf.update
     return bool(u.complete or u.planes or u.data)
-
-
-def apply_updates(half: Any, frames: list[ReceivedFrame], log_id: str = "") -> list[bool]:
-    """Apply ``frames`` to the client half ``half`` in order, in every client front door (on the thread that owns
-    its GL context): a malformed update is rejected (logged, prefixed ``log_id``) and the half keeps its last good
-    state.  Returns which were applied, for :meth:`ClientSession.report_applied`."""
-    ok = []
-    for rf in frames:
-        try:
-            half.apply(rf.update)
-            ok.append(True)
-        except RemoteProtocolError as exc:
-            ok.append(False)
-            log.warning("%s: update %d rejected by the client half: %s", log_id, rf.update.frame_id, exc)
-    return ok
 
 
 def _rtcp_interval_ms(mean_s: float, rand: Any) -> float:

@@ -61,12 +61,12 @@ import numpy as np
 
 from .. import metrics
 from ..errors import ConfigError, RemoteProtocolError
-from ..methods.base import ClientFrame, get_method
+from ..methods.base import get_method
 from ..netsim import Link, parse_path
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
                         FrameMaker, FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerSession,
-                        Stalled, accept_hello, apply_updates, check_hello, method_config, session_summary,
+                        Stalled, accept_hello, check_hello, display_frame, method_config, session_summary,
                         tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
@@ -531,16 +531,13 @@ class VirtualTimeRun:
         decode_ms = math.nan
         for rf in new:
             decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
-        w0 = time.perf_counter()
+        true_pose = c.trace.pose_at(t_d)
+        cf, ok, apply_ms, render_ms = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height),
+                                                    f"run {cfg.method}")
         # the core's rule: a blank tick (nothing shown yet, or only updates whose content was lost) names no update;
         # the first display of a shown update sends its Feedback with the tick's other output
-        shown = c.core.showing(new, apply_updates(c.chalf, new, f"run {cfg.method}"), c.chalf.has_content, now_ms)
-        true_pose = c.trace.pose_at(t_d)
-        if c.chalf.has_content:
-            cf = c.chalf.render(true_pose, t_d)
-        else:  # nothing to show yet: the black background, every pixel a hole
-            cf = ClientFrame(np.zeros((cfg.height, cfg.width, 3), np.uint8), np.ones((cfg.height, cfg.width), bool))
-        client_ms = (time.perf_counter() - w0) * 1000
+        shown = c.core.showing(new, ok, c.chalf.has_content, now_ms)
+        client_ms = apply_ms + render_ms
         make_current(self.renderer.ctx)
         while c.window and c.window[0][0] <= t_d - 1.0:
             c.window.popleft()
