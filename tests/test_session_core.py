@@ -1080,3 +1080,81 @@ def test_the_server_core_owns_its_control_connection() -> None:
         read(cconn.send(KeyframeRequest("nope", "x")), 20.0)
     assert read(cconn.send(Bye("done")), 30.0) == [Bye]
     assert read(b"", 40.0) == [] and core.conn.state.name == "CLOSED"
+
+
+def test_a_frame_back_from_the_render_worker_is_stamped_reported_and_rowed_once_for_both_live_doors() -> None:
+    """Issue 47: ``frame_from_worker``, both live front doors' handling of a made frame.  On the RTP transport the
+    FrameMeta carries the frame's server time (when it was ordered) and the worker's stages (render, encode, shared
+    and when it was encoded: the time it came back), the core counts it, and the row has the update row's columns,
+    the server time, the relighting and the worker round trip; on the WebRTC transport nothing is framed and the
+    row has the same columns but the control channel's ``bytes_meta``."""
+    from splitrender.pipeline.wire import parse_envelope
+    from splitrender.protocol import FrameMeta
+    from splitrender.scene.predict import make_predictor
+
+    p = Pair()
+    spec = p.tx.specs[0]
+    rtp = ServerSession(p.tx, 60.0, ServerOptions(), rng=np.random.default_rng(3), predictor=make_predictor("cv"),
+                        conn=p.sconn)
+    page = ServerSession(ServerPipeline([spec]), 60.0, predictor=make_predictor("cv"), transport="webrtc")
+    plane = (p.rng.random((H, W, 3)) * 255).astype(np.uint8)
+    rows = {}
+    for core, encoder in ((rtp, p.encoder), (page, StreamEncoder([spec]))):
+        core.start(0.0)
+        core.receive_pose(0.0, Pose(), 900_000, 7)
+        order = core.order_frame(0, 0, 0.0, 1000.0)
+        assert order is not None and order.keyframe is False
+        enc = encoder.encode(Update(0, 0.0, Pose(), {"color": plane}, {}), force_idr=True)
+        stages = {"shared_ms": 2.0, "produce_ms": 12.0, "gi_ms": 4.0, "encode_ms": enc.encode_ms, "frame_ms": 20.0,
+                  "worker_rtt_ms": 0.5}
+        out, row = core.frame_from_worker(order, enc, {"patches": 3.0}, stages, 1.5, 1600.0)
+        assert core.counters["frames_sent"] == 1 and core.counters["keyframes"] == 1
+        assert (row["frame_id"], row["keyframe"], row["server_us"], row["gi_ms"], row["worker_rtt_ms"]) == \
+            (0, 1, 1_500_000, 4.0, 0.5)
+        assert (row["server_ms"], row["shared_ms"]) == (12.0, 2.0) and row["bytes_color"] == out.wire_bytes["color"] > 0
+        rows[core.transport] = (out, row, enc)
+    out, row, enc = rows["rtp"]
+    p.cconn.receive_data(b"".join(d for _, d in out.control))
+    meta = p.cconn.next_event()
+    assert isinstance(meta, FrameMeta) and meta.server_time_us == 1_500_000 and meta.pose.client_time_us == 900_000
+    env = parse_envelope(meta.method_meta, 1 << 20)
+    assert env.timing_us == {"render": 12_000, "encode": int(enc.encode_ms * 1000), "encoded_at": 1_600_000,
+                             "shared": 2000}
+    assert env.srv == {"patches": 3.0} and row["bytes_meta"] == out.wire_bytes["meta"] > 0
+    page_out, page_row, page_enc = rows["webrtc"]
+    assert page_out.control == [] and page_out.datagrams == [] and page.datagrams_to_send(1e9) == []
+    assert page_row["bytes_color"] == len(page_enc.video["color"].data)
+    assert set(row) - set(page_row) == {"bytes_meta"} and set(page_row) <= set(row)
+
+
+def test_display_frame_applies_the_ticks_updates_then_renders_or_shows_the_black_background() -> None:
+    """Issue 47: the client half's side of a display tick, the one call of both client front doors: a half with
+    nothing to draw gives the black background (every pixel a hole) without being rendered, a rejected update is
+    reported as not applied and the half keeps what it had, and a half with content is rendered at the tick's pose
+    and time."""
+    from types import SimpleNamespace
+
+    from splitrender.errors import RemoteProtocolError
+    from splitrender.methods.base import ClientFrame
+    from splitrender.pipeline import display_frame
+
+    class Half:
+        has_content = False
+        rendered: list[tuple[object, float]] = []
+
+        def apply(self, upd: object) -> None:
+            if upd.frame_id == 1:  # type: ignore[attr-defined]
+                raise RemoteProtocolError("update 1: bad")
+            self.has_content = True
+
+        def render(self, pose: object, t_s: float) -> ClientFrame:
+            self.rendered.append((pose, t_s))
+            return ClientFrame(np.full((3, 4, 3), 7, np.uint8))
+
+    half = Half()
+    rf = [SimpleNamespace(update=SimpleNamespace(frame_id=i)) for i in range(3)]
+    frame, ok, apply_ms, render_ms = display_frame(half, [rf[1]], "pose", 0.5, (4, 3), "t")
+    assert ok == [False] and half.rendered == [] and apply_ms >= 0 and render_ms >= 0
+    assert frame.color.shape == (3, 4, 3) and not frame.color.any() and frame.holes is not None and frame.holes.all()
+    frame, ok, _, _ = display_frame(half, [rf[0], rf[1], rf[2]], "pose", 0.75, (4, 3), "t")
+    assert ok == [True, False, True] and half.rendered == [("pose", 0.75)] and (frame.color == 7).all()
