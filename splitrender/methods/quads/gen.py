@@ -530,12 +530,13 @@ def corner_points(qs: QuadSet, intr: CameraIntrinsics, extend: np.ndarray | None
         v = v - (sub[None, :, 1] == 0) * e[:, 1:2] + (sub[None, :, 1] == 2) * e[:, 3:4]
     d = rays(intr, u, v)
     z = plane_depth(n[:, None, :], wv[:, None], d)
-    offs = np.zeros((len(qs), 16))
-    offs[~qs.flat] = qs.offsets.astype(np.float64)
-    if corners is not None:
-        offs = offs[:, np.asarray(corners)]
-    with np.errstate(invalid="ignore"):
-        z = z + offs / norm3(d)
+    if not qs.flat.all():   # (a flat set's offsets are 0: z + 0 is z, plane_depth's z being positive or inf)
+        offs = np.zeros((len(qs), 16))
+        offs[~qs.flat] = qs.offsets.astype(np.float64)
+        if corners is not None:
+            offs = offs[:, np.asarray(corners)]
+        with np.errstate(invalid="ignore"):
+            z = z + offs / norm3(d)
     ok = np.isfinite(z).all(-1) & (z > 0).all(-1)
     z = np.where(ok[:, None], z, 1.0)
     return d * z[..., None], np.stack([u, v], axis=-1), ok
