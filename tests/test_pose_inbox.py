@@ -37,7 +37,9 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     nor a frame clock (the live ones take ``RenderWorker.frame``: the core's ``order_at``, its grid tick at the wall
     clock, made in the worker); the client drivers ask the client core for the
     display rules (``display_tick``: what to apply; ``showing``: the update shown or the black background, and its
-    Feedback) and the keyframe-skip rule instead of writing them."""
+    Feedback) and the keyframe-skip rule instead of writing them, and apply and render through ``display_frame``.
+    Every server front door makes its frames with a ``FrameMaker`` (the runner's, the render worker's) and the core
+    packetizes; the live ones hand the made frame to the core's ``frame_from_worker``."""
     from splitrender.client import session as client
     from splitrender.server import session as live, worker
     from splitrender.sim import runner
@@ -50,10 +52,17 @@ def test_every_front_door_uses_it_through_the_core() -> None:
         assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
         assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__
         assert "ServerContext(" not in src and "KeyframeRateLimiter" not in src, mod.__name__
+        # one frame producer (FrameMaker: the half and its encoders; the core packetizes), and the live doors' made
+        # frame reported, stamped and rowed by the core
+        assert "make_frame(" not in src and "StreamEncoder(" not in src and ".packetize(" not in src, mod.__name__
+        assert (".frame_from_worker(" in src) == (mod is not runner), mod.__name__
+    assert "FrameMaker(" in inspect.getsource(runner) and "FrameMaker(" in inspect.getsource(worker)
     for mod in (runner, client):
         src = inspect.getsource(mod)
         assert ".display_tick(" in src and ".showing(" in src and ".skips_decode(" in src, mod.__name__
         assert ".blank(" not in src and ".feedback(" not in src and ".broken" not in src, mod.__name__
+        # the client half's side of a tick is one call (apply, then render or the black background)
+        assert "display_frame" in src and "apply_updates" not in src and "half.render(" not in src, mod.__name__
 
 
 def test_the_server_core_takes_a_pose_message_by_the_rule() -> None:
