@@ -144,8 +144,8 @@ class Recorder:
             rec.hash_s = (rec.hash_s[0] + time.perf_counter() - hw, rec.hash_s[1] + time.process_time() - hc)
             return upd
 
-        def encode(self: StreamEncoder, upd: Any, *a: Any, **kw: Any) -> Any:   # each session's encoders (the runner
-            # calls them directly since the session core's frame step; ServerPipeline.encode calls them too)
+        def encode(self: StreamEncoder, upd: Any, *a: Any, **kw: Any) -> Any:   # each session's encoders (its
+            # FrameMaker's, which the runner holds one of per client)
             w, c = time.perf_counter(), time.process_time()
             out = encode0(self, upd, *a, **kw)
             rec.encode[(len([k for k in rec.encode if k[1] == upd.frame_id]), upd.frame_id)] = (
