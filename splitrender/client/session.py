@@ -38,7 +38,8 @@ from splitrender.errors import (CodecError, ConfigError, PeerTimeoutError, Remot
                                 describe_error)
 from splitrender.limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 from splitrender.pipeline import (CLIENT_CODECS, ClientHandshake, ClientOptions, ClientPipeline, ClientSession, ControlClosed,
-                                  ReceivedFrame, Resumed, ServerMessage, Stalled, StallTimeout, Work, black_frame, display_frame)
+                                  ReceivedFrame, Resumed, ServerMessage, Stalled, StallTimeout, Work, black_frame,
+                                  display_frame)
 from splitrender.options import option_fields, options_of
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import live_frame_row
@@ -539,8 +540,8 @@ class LiveClient:
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
         scene_t = self._scene_t(tick_wall)
-        cf, ok, apply_ms, render_ms = await loop.run_in_executor(self.gl_executor, display_frame, half, new, pose, scene_t,
-                                                                 (cfg.width, cfg.height), f"session {self.session_id}")
+        cf, ok, apply_ms, render_ms = await loop.run_in_executor(
+            self.gl_executor, display_frame, half, new, pose, scene_t, (cfg.width, cfg.height), f"session {self.session_id}")
         displayed_us = wall_us()
         # the core's rule (and the Feedback of an update shown the first time)
         shown = core.showing(new, ok, half.has_content, displayed_us / 1000)

@@ -460,8 +460,8 @@ class ClientSession:
     :meth:`ClientPipeline.decode` (unless :meth:`skips_decode`), their results to :meth:`on_decoded`.  The frames
     each input completes join the display queue there and then (each announced by a :class:`FrameReleased` event);
     they leave it one way: at each display tick :meth:`display_tick` gives the updates to apply in order, the
-    driver applies them (:func:`apply_updates`) and :meth:`showing` takes the outcome and says what the tick shows
-    (sending a new update's Feedback); then it renders.  What the core sends leaves by
+    driver applies them and renders (:func:`~.frames.display_frame`), and :meth:`showing` takes the outcome and says
+    what the tick shows (sending a new update's Feedback).  What the core sends leaves by
     :meth:`datagrams_to_send` (RTCP) and :meth:`data_to_send` (the control connection: feedback, and what the driver
     :meth:`send`), its events by :meth:`next_event`, and :meth:`get_timer` says when to call :meth:`handle_timer`.
     """
@@ -938,7 +938,7 @@ class ClientSession:
         self.counters["apply_errors"] += 1
 
     def report_applied(self, frames: list[ReceivedFrame], ok: list[bool]) -> None:
-        """What :func:`apply_updates` made of ``frames`` (:meth:`applied` or :meth:`apply_failed` each)."""
+        """What :func:`~.frames.apply_updates` made of ``frames`` (:meth:`applied` or :meth:`apply_failed` each)."""
         for rf, good in zip(frames, ok):
             self.applied(rf) if good else self.apply_failed(rf)
 
@@ -951,9 +951,9 @@ class ClientSession:
     def showing(self, frames: list[ReceivedFrame], ok: list[bool], has_content: bool,
                 now_ms: float) -> ReceivedFrame | None:
         """What a display tick shows, by the one rule of every client driver, once the updates :meth:`display_tick`
-        gave it (``frames``) were applied (``ok``: :func:`apply_updates`'s answer for each, reported here) and the
-        client half says whether it has anything to draw (``has_content``): the update shown, or None where the tick
-        shows the black background (:meth:`blank`; its row names no update).  The shown update's Feedback is sent
+        gave it (``frames``) were applied (``ok``: :func:`~.frames.apply_updates`'s answer for each, reported here)
+        and the client half says whether it has anything to draw (``has_content``): the update shown, or None where
+        the tick shows the black background (:meth:`blank`; its row names no update).  The shown update's Feedback is sent
         the first time it is displayed (at ``now_ms``: :meth:`feedback`)."""
         self.report_applied(frames, ok)
         shown = None if self.blank(has_content) else self.shown
