@@ -6,7 +6,8 @@ Every byte goes through the same transmission path as a live session
 pairs, video and datagram data are real RTP packets, the client reassembles them in
 real jitter buffers and decodes them with the real decoders.  Only the sockets are
 replaced: each packet crosses the network model (:mod:`splitrender.netsim`) on a
-simulated clock.
+simulated clock, through its driver (:mod:`splitrender.netsim.driver`: the clock and its events, each direction of
+the path as a wire taking datagrams and a TCP stream, each core's one timer).
 
 Timeline (all on the simulated clock, seconds; wall-clock-like µs values on the wire
 count from :data:`SIM_EPOCH_US` so messages have the same sizes as live ones):
@@ -48,7 +49,6 @@ run is the same on any machine for a given seed.
 from __future__ import annotations
 
 import dataclasses
-import heapq
 import logging
 import math
 import time
@@ -63,6 +63,7 @@ from .. import metrics
 from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import get_method
 from ..netsim import Link, parse_path
+from ..netsim.driver import TIMER, Clock, Timer, Wire, arrivals
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
                         FrameMaker, FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerSession,
@@ -87,7 +88,8 @@ log = logging.getLogger(__name__)
 POSE_MESSAGE_BYTES = 64 + 40
 SIM_EPOCH_US = 1_735_689_600_000_000
 """Simulated wall clock at t = 0 (2025-01-01T00:00:00Z), so timestamps on the wire have live sizes."""
-_DELIVER, _TIMER, _SERVER, _DISPLAY = 0, 1, 2, 3
+_SERVER, _DISPLAY = 2, 3
+"""Event priorities of the runner's ticks (after the driver's deliveries and timers at one time)."""
 ProgressFn = Callable[[int, int], None]
 
 
@@ -135,8 +137,13 @@ class _Client:
     index: int
     trace: Any
     up: Link
-    ctrl: Link
-    down: Link
+    """The poses' uplink (their deliveries are worked out before the run: the model is deterministic)."""
+    ctrl: Wire
+    down: Wire
+    """The control connection up; the control connection and the media down."""
+    rtcp_up: Wire
+    rtcp_down: Wire
+    """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # server side
     sconn: ServerConnection = field(default_factory=ServerConnection)
     maker: FrameMaker | None = None
@@ -145,9 +152,7 @@ class _Client:
     arrival_idx: int = 0
     core_s: ServerSession | None = None
     """The server's session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
-    rtcp_up: Link | None = None
-    rtcp_down: Link | None = None
-    """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
+    server_timer: Timer | None = None
     # client side
     welcome: Welcome | None = None
     """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
@@ -155,13 +160,7 @@ class _Client:
     gl: Any = None
     core: ClientSession | None = None
     """The client's session core (RTCP, NACK, PLI, playout delay, stalls, feedback)."""
-    ctrl_free_s: float = -math.inf
-    down_ctrl_free_s: float = -math.inf
-    sent_s: dict[str, float] = field(default_factory=dict)
-    """The last send time on each link (a link takes sends in time order)."""
-    timer_s: float = math.inf
-    """When the client core's timer event is scheduled (s; ``inf``: none)."""
-    timer_token: int = 0
+    timer: Timer | None = None
     decode_ms_of: dict[int, float] = field(default_factory=dict)
     pose_t: dict[int, float] = field(default_factory=dict)
     pred: dict[int, tuple[float, float]] = field(default_factory=dict)
@@ -169,8 +168,6 @@ class _Client:
     protocol_errors: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
-    server_timer_s: float = math.inf
-    """When the server core's timer event is scheduled (s; ``inf``: none)."""
     bytes: dict[str, int] = field(default_factory=dict)
     window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
     frames: list[dict[str, Any]] = field(default_factory=list)
@@ -205,28 +202,28 @@ class VirtualTimeRun:
         if full <= 0:
             raise ConfigError(f"run config client_offset_s: {cfg.client_offset_s} s leaves no trace for client {cfg.clients - 1}")
         self.duration_s = min(cfg.duration_s or full, full)
-        self._events: list[tuple[float, int, int, Callable[..., None], tuple[Any, ...]]] = []
-        self._seq = 0
+        self.clock = Clock()
         self.server_free_s = 0.0
         """When the server finishes its current frame (``cost_model = "measured"``)."""
         self.server_skipped = 0
 
-    # ------------------------------------------------------------------ events
-
-    def _at(self, t: float, prio: int, fn: Callable[..., None], *args: Any) -> None:
-        self._seq += 1
-        heapq.heappush(self._events, (t, prio, self._seq, fn, args))
+    @property
+    def now(self) -> float:
+        """The simulated clock, s."""
+        return self.clock.now
 
     # ------------------------------------------------------------------ set-up
 
     def _setup(self, i: int, seeds: list[np.random.SeedSequence], pool: ProducerPool) -> _Client:
         cfg = self.cfg
         n = cfg.clients
-        c = _Client(i, self.traces[i], Link(self.path.uplink, np.random.default_rng(seeds[3 * i])),
-                    Link(self.path.uplink, np.random.default_rng(seeds[3 * i + 1])),
-                    Link(self.path.downlink, np.random.default_rng(seeds[3 * i + 2])),
-                    rtcp_up=Link(self.path.uplink, np.random.default_rng(seeds[4 * n + 2 * i])),
-                    rtcp_down=Link(self.path.downlink, np.random.default_rng(seeds[4 * n + 2 * i + 1])))
+        up, down = self.path.uplink, self.path.downlink
+        c = _Client(i, self.traces[i], Link(up, np.random.default_rng(seeds[3 * i])),
+                    *(Wire(self.clock, Link(spec, np.random.default_rng(seeds[k]))) for spec, k in
+                      ((up, 3 * i + 1), (down, 3 * i + 2), (up, 4 * n + 2 * i), (down, 4 * n + 2 * i + 1))))
+        c.server_timer = Timer(self.clock, lambda: self._server_out(c), self.duration_s + 1.0, by_deadline=True)
+        c.timer = Timer(self.clock, lambda: self._client_timer_now(c), self.duration_s + 1.0 / cfg.client_fps,
+                        by_deadline=False)
         # handshake through a real Connection pair (set-up time is not simulated), the client's the same sans-IO
         # core as the live client's; it decodes what the live client does (its method's codec first)
         codecs = tuple(dict.fromkeys((self.mcfg.codec, *CLIENT_CODECS)))
@@ -260,13 +257,8 @@ class VirtualTimeRun:
         make_current(c.gl)
         c.chalf = hs.client_half(c.gl)
         make_current(self.renderer.ctx)
-        # upstream poses: precomputed deliveries (the uplink model is deterministic)
-        for k in range(int(self.duration_s * cfg.tracker_hz) + 1):
-            ts = k / cfg.tracker_hz
-            for d in c.up.send(ts, POSE_MESSAGE_BYTES):
-                if not d.corrupted:
-                    c.arrivals.append((d.time_s, ts))
-        c.arrivals.sort()
+        c.arrivals = arrivals(c.up, (k / cfg.tracker_hz for k in range(int(self.duration_s * cfg.tracker_hz) + 1)),
+                              POSE_MESSAGE_BYTES)   # the tracker's poses up: worked out before the run
         for name in [META_STREAM, *(s.name for s in specs)]:
             c.bytes.setdefault(name, 0)
         return c
@@ -291,20 +283,16 @@ class VirtualTimeRun:
         n_server = int(math.floor(self.duration_s * cfg.server_fps)) + 1
         n_display = int(math.floor(self.duration_s * cfg.client_fps)) + 1
         for f in range(n_server):
-            self._at(f / cfg.server_fps, _SERVER, self._server_tick, f, pool, result)
+            self.clock.at(f / cfg.server_fps, _SERVER, self._server_tick, f, pool, result)
         for di in range(n_display):
-            self._at(di / cfg.client_fps, _DISPLAY, self._display_tick, di, n_display, result)
+            self.clock.at(di / cfg.client_fps, _DISPLAY, self._display_tick, di, n_display, result)
         for c in clients:   # both cores start with the session at t = 0
             assert c.core is not None and c.core_s is not None
             c.core.start(0.0)
             c.core_s.start(0.0)
-            self.now = 0.0
             self._client_out(c)
-            self._server_out(c, 0.0)
-        while self._events:
-            t, _, _, fn, args = heapq.heappop(self._events)
-            self.now = t
-            fn(*args)
+            self._server_out(c)
+        self.clock.run()
         make_current(self.renderer.ctx)
         for c in clients:
             c.gl.release()
@@ -352,8 +340,9 @@ class VirtualTimeRun:
             out = c.core_s.frame_encoded(order, enc, t_f * 1000, sim_us(t_f), timing, wire_stats,
                                          send_ms=send_t * 1000)
             # the frame leaves when its encoding ends: its control frames first, then its datagrams (the core's)
-            self._at(send_t, _TIMER, self._control_down, c, [data for _, data in out.control])
-            self._server_out(c, t_f)
+            self.clock.at(send_t, TIMER, c.down.stream, [(data, tcp_segments(len(data))) for _, data in out.control],
+                          self._deliver_control, c)
+            self._server_out(c)
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
             c.window.append((t_f, dict(out.wire_bytes)))
@@ -370,45 +359,18 @@ class VirtualTimeRun:
             c.update_rows[f] = row
             c.updates.append(row)
 
-    def _control_down(self, c: _Client, frames: list[bytes]) -> None:
-        """Control frames leave now as TCP segments over the downlink, in order, head-of-line blocked."""
-        t_s = max(self.now, c.sent_s.get("down", -math.inf))
-        c.sent_s["down"] = t_s
-        for data in frames:
-            arrive = t_s
-            for seg in tcp_segments(len(data)):
-                arrive = max(arrive, c.down.send(t_s, seg, reliable=True)[0].time_s)
-            arrive = max(arrive, c.down_ctrl_free_s)
-            c.down_ctrl_free_s = arrive
-            self._at(arrive, _DELIVER, self._deliver_control, c, data)
-
-    def _server_out(self, c: _Client, t_s: float) -> None:
-        """What the server core sends at ``t_s`` (its one way out): media, FEC, retransmissions and probes down the
-        media path, sender reports over RTCP's copy of the downlink, each link taking sends in time order; then its
-        one timer is armed."""
-        assert c.core_s is not None and c.rtcp_down is not None
-        for d in c.core_s.datagrams_to_send(t_s * 1000):
-            link, key = (c.rtcp_down, "rtcp_down") if d.kind == "rtcp" else (c.down, "down")
-            t = max(t_s, c.sent_s.get(key, -math.inf))
-            c.sent_s[key] = t
-            deliveries = link.send(t, len(d.data) + 28)
-            if key == "down":
-                c.packets_lost += not deliveries
+    def _server_out(self, c: _Client) -> None:
+        """What the server core sends now (its one way out): media, FEC, retransmissions and probes down the media
+        path, sender reports over RTCP's copy of the downlink; then its one timer is armed."""
+        assert c.core_s is not None and c.server_timer is not None
+        for d in c.core_s.datagrams_to_send(self.now * 1000):
+            if d.kind == "rtcp":
+                c.rtcp_down.datagram(len(d.data) + 28, self._deliver_datagram, c, d.data)
+            else:
+                c.packets_lost += not c.down.datagram(len(d.data) + 28, self._deliver_datagram, c, d.data)
             if d.kind == "probe":
                 c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(d.data))
-            for dl in deliveries:
-                if not dl.corrupted:
-                    self._at(dl.time_s, _DELIVER, self._deliver_datagram, c, d.data)
-        t = max(c.core_s.get_timer() / 1000, self.now)
-        if t < c.server_timer_s and t <= self.duration_s + 1.0:   # armed once: an earlier arming stays
-            c.server_timer_s = t
-            self._at(t, _TIMER, self._server_timer, c, t)
-
-    def _server_timer(self, c: _Client, armed_s: float) -> None:
-        if armed_s != c.server_timer_s:      # a later arming replaced this one
-            return
-        c.server_timer_s = math.inf
-        self._server_out(c, self.now)
+        c.server_timer.arm(c.core_s.get_timer() / 1000)
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
@@ -420,7 +382,7 @@ class VirtualTimeRun:
         """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
         assert c.core_s is not None
         c.core_s.receive_datagram(data, self.now * 1000)
-        self._server_out(c, self.now)
+        self._server_out(c)
 
     # ------------------------------------------------------------------ client
 
@@ -466,12 +428,6 @@ class VirtualTimeRun:
             row["missing"] = ";".join(sorted(rf.update.missing))
             row["arrival_s"] = rf.received_ms / 1000.0
 
-    def _client_timer(self, c: _Client, token: int) -> None:
-        if token != c.timer_token:   # superseded by an earlier deadline
-            return
-        c.timer_s = math.inf
-        self._client_timer_now(c)
-
     def _client_timer_now(self, c: _Client) -> None:
         assert c.core is not None
         c.core.handle_timer(self.now * 1000)
@@ -481,15 +437,11 @@ class VirtualTimeRun:
     def _client_out(self, c: _Client) -> None:
         """What the client core wants sent (control bytes over the uplink as TCP segments, RTCP over its copy of
         the uplink), its events, its next timer."""
-        assert c.core is not None and c.rtcp_up is not None
+        assert c.core is not None and c.timer is not None
         if control := c.core.data_to_send():
-            self._control_up(c, control)
+            c.ctrl.stream([(control, tcp_segments(len(control)))], self._server_receive, c)
         for data in c.core.datagrams_to_send():
-            t = max(self.now, c.sent_s.get("rtcp_up", -math.inf))
-            c.sent_s["rtcp_up"] = t
-            for d in c.rtcp_up.send(t, len(data) + 28):
-                if not d.corrupted:
-                    self._at(d.time_s, _DELIVER, self._server_rtcp, c, data)
+            c.rtcp_up.datagram(len(data) + 28, self._server_rtcp, c, data)
         while (ev := c.core.next_event()) is not None:
             if isinstance(ev, FrameReleased):
                 self._released(c, ev.frame)
@@ -498,21 +450,7 @@ class VirtualTimeRun:
                           ev.now_ms / 1000, ev.idle_ms)
             elif isinstance(ev, Resumed):
                 log.debug("run %s client %d: frames resumed after %.0f ms", self.cfg.method, c.index, ev.stall_ms)
-        t = c.core.get_timer() / 1000
-        if t < c.timer_s and t <= self.duration_s + 1.0 / self.cfg.client_fps:
-            c.timer_s = max(t, self.now)
-            c.timer_token += 1
-            self._at(c.timer_s, _TIMER, self._client_timer, c, c.timer_token)
-
-    def _control_up(self, c: _Client, data: bytes) -> None:
-        arrive = self.now
-        t = max(self.now, c.sent_s.get("ctrl", -math.inf))
-        c.sent_s["ctrl"] = t
-        for seg in tcp_segments(len(data)):
-            arrive = max(arrive, c.ctrl.send(t, seg, reliable=True)[0].time_s)
-        arrive = max(arrive, c.ctrl_free_s)
-        c.ctrl_free_s = arrive
-        self._at(arrive, _DELIVER, self._server_receive, c, data)
+        c.timer.arm(c.core.get_timer() / 1000)
 
     def _display_tick(self, di: int, n_display: int, result: RunResult) -> None:
         t_d = di / self.cfg.client_fps
