@@ -265,3 +265,21 @@ def test_continuous_sides_as_each_sides_pixels_say() -> None:
     got = continuous_sides(qs, depth)
     assert np.array_equal(got, want) and 0.2 < (got > 0).mean() < 0.9
     assert np.array_equal(scene_sides(qs, intr, index_map_of(qs, intr)), scene_sides(qs, intr))
+
+
+def test_decoded_normals_from_the_table_are_the_formulas() -> None:
+    """``decode_normals`` reads uint8 codes from a table (issue 49): for every one of the 256 x 256 codes, in arrays
+    of several shapes and as other integer types (the formula itself), the bits of the spherical formula."""
+    import math
+
+    from splitrender.methods.quads.gen import decode_normals
+
+    codes = np.arange(256, dtype=np.uint8)
+    theta, phi = (x.ravel() for x in np.meshgrid(codes, codes, indexing="ij"))
+    t = theta.astype(np.float64) / 255 * math.pi
+    p = phi.astype(np.float64) / 255 * 2 * math.pi - math.pi
+    want = np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1)
+    assert np.array_equal(decode_normals(theta, phi), want)
+    assert np.array_equal(decode_normals(theta.astype(np.int64), phi.astype(np.int64)), want)
+    assert np.array_equal(decode_normals(theta.reshape(256, 256), phi.reshape(256, 256)), want.reshape(256, 256, 3))
+    assert np.allclose(np.linalg.norm(want, axis=-1), 1.0)

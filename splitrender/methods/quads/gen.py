@@ -119,9 +119,27 @@ def encode_normals(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def decode_normals(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    t = theta.astype(np.float64) / 255 * math.pi
-    p = phi.astype(np.float64) / 255 * 2 * math.pi - math.pi
-    return np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], axis=-1)
+    """Unit normals (..., 3) of 8-bit angles (:func:`encode_normals`); uint8 codes are read from a table of all
+    256 x 256 made once by the same arithmetic (the same bits, tested over every code; the client decodes every
+    quad of a reference frame, issue 49)."""
+    global _NORMALS
+    if isinstance(theta, np.ndarray) and isinstance(phi, np.ndarray) and theta.dtype == phi.dtype == np.uint8:
+        if _NORMALS is None:
+            codes = np.arange(256, dtype=np.uint8)
+            _NORMALS = _decode_normals(codes[:, None], codes[None, :])
+        return _NORMALS[theta, phi]
+    return _decode_normals(theta, phi)
+
+
+_NORMALS: np.ndarray | None = None
+"""(256, 256, 3): :func:`decode_normals` of every (theta, phi) code."""
+
+
+def _decode_normals(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    t = np.asarray(theta).astype(np.float64) / 255 * math.pi
+    p = np.asarray(phi).astype(np.float64) / 255 * 2 * math.pi - math.pi
+    st = np.sin(t)
+    return np.stack(np.broadcast_arrays(st * np.cos(p), np.cos(t), st * np.sin(p)), axis=-1)
 
 
 def ndc_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
