@@ -16,8 +16,9 @@ from ..warp.client import fill_holes
 from .config import QuadsConfig
 from .gen import QuadSet
 from .mesh import (ColourClamp, QuadMeshGL, ReferenceCache, background_quads, build_mesh, continuous_sides, hidden_sky,
-                   quad_depth, scene_sides, sealed, sky_sides)
+                   scene_sides, sealed, sky_sides)
 from .server import outside_frustum
+from .underlap import reference_extend
 from .wire import CACHED_KINDS, KIND_REFERENCE, KIND_UPDATE, KIND_WIDE, QuadsWireError, decode_sets, parse_frame_meta, parse_session
 
 log = logging.getLogger(__name__)
@@ -100,11 +101,11 @@ class QuadsClient(ClientHalf):
                 im = self.cache.index_map if self.cache.raster else None   # the reference set's, made once
                 if self.config.variant == "quasar" and self.config.silhouette_clamp:   # no sky texels at the silhouette
                     sides = scene_sides(self.cache.quads, self.cache.intr, im)
-                    # seal_cracks: each quad drawn nearly half a pixel past its sides where the surface goes on
+                    # drawn a little past its depth edges, behind the surface beyond (underlap_px), and where asked
+                    # past its sides where the surface goes on (seal_cracks) and against the sky (sky_edge_px)
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), "quad",
-                                         grow=sides, extend=sealed(continuous_sides(
-                                             self.cache.quads, quad_depth(self.cache.quads, self.cache.intr, im)))
-                                         if self.config.seal_cracks else None)]
+                                         grow=sides, extend=reference_extend(self.cache.quads, self.cache.intr,
+                                                                             self.config, im))]
                 else:
                     cached = [build_mesh(self.cache.quads, self.cache.pose, self.cache.intr, self._origin(0), clamp)]
                 if quasar_sky and (new_ref or self._cached_parts is None):   # the sky the reference set left out

@@ -48,7 +48,8 @@ from .accounting import quasar_frame_bytes
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
-from .mesh import VERTEX_FLOATS, QuadMeshGL, ReferenceCache, build_mesh, continuous_sides, join_meshes, quad_depth, scene_sides, sealed, select
+from .mesh import VERTEX_FLOATS, QuadMeshGL, ReferenceCache, build_mesh, join_meshes, scene_sides, select
+from .underlap import reference_extend
 from .packing import copy_texels, fitting, pack_squares, packed_size, source_order, tile_side, whole_tiles
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
                    encode_camera, encode_sets)
@@ -284,8 +285,7 @@ class QuadsServer(ServerHalf):
         if self.config.silhouette_clamp:   # as the client draws it
             sides = scene_sides(scene, intr)
             part = build_mesh(scene, ref_pose, intr, (0, 0), "quad", grow=sides,
-                              extend=sealed(continuous_sides(scene, quad_depth(scene, intr))) if self.config.seal_cracks
-                              else None)
+                              extend=reference_extend(scene, intr, self.config))
         else:
             part = build_mesh(scene, ref_pose, intr, (0, 0), "view")
         mesh.upload(*join_meshes([part]))
