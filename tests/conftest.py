@@ -179,6 +179,10 @@ try:
     rc = 0
 except BaseException:
     traceback.print_exc()
+import resource
+use = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+with open(out + "/cpu", "w") as f:                    # the suite's CPU seconds, its method workers' included
+    f.write(repr(sum(u.ru_utime + u.ru_stime for u in use)))
 with open(out + "/rc.tmp", "w") as f:
     f.write(str(rc))
 os.replace(out + "/rc.tmp", out + "/rc")
@@ -209,6 +213,7 @@ def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
                                                     stderr=subprocess.STDOUT))
 
 
+@pytest.hookimpl(trylast=True)   # after -k / -m deselection: a deselected test_stress case starts no stress suite
 def pytest_collection_modifyitems(session, config, items) -> None:  # type: ignore[no-untyped-def]
     def rank(item) -> int:  # type: ignore[no-untyped-def]
         name = item.path.name
@@ -288,25 +293,68 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
         shutil.rmtree(out, ignore_errors=True)
 
 
-def _stress_span(out: str) -> tuple[float, float | None] | None:
-    """``(started, ended or None)`` of the background stress suite in ``out`` (epoch seconds); None where it did not
-    start."""
+def _stress_span(out: str) -> tuple[float, float | None, float | None] | None:
+    """``(started, ended or None, CPU seconds or None)`` of the background stress suite in ``out`` (epoch seconds);
+    None where it did not start."""
     try:
         with open(os.path.join(out, "started")) as f:
             started = float(f.read())
     except (OSError, ValueError):
         return None
     rc = os.path.join(out, "rc")
-    return started, (os.path.getmtime(rc) if os.path.exists(rc) else None)
+    try:
+        with open(os.path.join(out, "cpu")) as f:
+            cpu: float | None = float(f.read())
+    except (OSError, ValueError):
+        cpu = None
+    return started, (os.path.getmtime(rc) if os.path.exists(rc) else None), cpu
 
 
 _FILE_S: dict[str, float] = {}
 """Seconds of setup, call and teardown per test file in this session (every worker's, in the controller)."""
+_FILE_CPU_S: dict[str, float] = {}
+"""CPU seconds per test file (:func:`_cpu_s` over its tests' setup, call and teardown), in the controller."""
+_FILE_SPAN: dict[str, tuple[str, float, float]] = {}
+"""Per test file: the worker that ran it, its first test's start and its last test's end (epoch seconds)."""
+_CPU_MARK: list[float] = [0.0]
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process (every thread: llvmpipe's rasteriser threads too) and of its children that have
+    ended (a live test's server, the browser, the background stress suite once reaped)."""
+    import resource
+    import time
+
+    c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + c.ru_utime + c.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):  # type: ignore[no-untyped-def]
+    _CPU_MARK[0] = _cpu_s()
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):  # type: ignore[no-untyped-def]
+    """Each phase's report carries the CPU seconds it took (``sr_cpu_s``; under xdist it travels to the controller
+    with the report's other fields)."""
+    outcome = yield
+    now = _cpu_s()
+    outcome.get_result().sr_cpu_s = now - _CPU_MARK[0]
+    _CPU_MARK[0] = now
 
 
 def pytest_runtest_logreport(report) -> None:  # type: ignore[no-untyped-def]
     name = report.nodeid.split("::", 1)[0].rsplit("/", 1)[-1]
     _FILE_S[name] = _FILE_S.get(name, 0.0) + float(getattr(report, "duration", 0.0) or 0.0)
+    _FILE_CPU_S[name] = _FILE_CPU_S.get(name, 0.0) + float(getattr(report, "sr_cpu_s", 0.0) or 0.0)
+    start, stop = getattr(report, "start", None), getattr(report, "stop", None)
+    if start is not None and stop is not None:
+        node = getattr(report, "node", None)
+        worker = str(getattr(node, "workerinput", {}).get("workerid", "")) if node is not None else ""
+        w, a, b = _FILE_SPAN.get(name, (worker, start, stop))
+        _FILE_SPAN[name] = (w or worker, min(a, start), max(b, stop))
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # type: ignore[no-untyped-def]
@@ -315,19 +363,32 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # ty
     if not hasattr(config, "workerinput") and len(_FILE_S) > 1:
         top = sorted(_FILE_S.items(), key=lambda kv: -kv[1])[:20]
         terminalreporter.write_line("slowest files (s): " + ", ".join(f"{n} {s:.0f}" for n, s in top))
+        # CPU, not wall: what a file costs whatever runs beside it (the wall seconds above double beside the stress
+        # suite); with the worker and the span of the session it ran in, to see what ran beside what
+        t0 = getattr(config, "_sr_t0", 0.0)
+        cpu = sorted(_FILE_CPU_S.items(), key=lambda kv: -kv[1])[:20]
+
+        def where(n: str) -> str:
+            w, a, b = _FILE_SPAN.get(n, ("", t0, t0))
+            return f" ({w + ' ' if w else ''}{a - t0:.0f}-{b - t0:.0f} s)"
+
+        terminalreporter.write_line(f"CPU seconds by file (all files {sum(_FILE_CPU_S.values()):.0f}; where and when): "
+                                    + ", ".join(f"{n} {c:.0f}{where(n)}" for n, c in cpu))
     span = getattr(config, "_sr_stress_span", None)
     if span is None:
         return
     import time
 
     t0 = getattr(config, "_sr_t0", span[0])
-    started, ended = span
+    started, ended, cpu = span
     if ended is None:
         terminalreporter.write_line(f"background stress suite: started {started - t0:.0f} s into the session, "
                                     f"unfinished {time.time() - started:.0f} s later")
     else:
-        terminalreporter.write_line(f"background stress suite: {ended - started:.0f} s, from {started - t0:.0f} s to "
-                                    f"{ended - t0:.0f} s into the session ({time.time() - t0:.0f} s)")
+        # its CPU also shows in test_stress.py's where the worker that started it ran that file (it reaps it there)
+        used = f", {cpu:.0f} CPU s" if cpu is not None else ""
+        terminalreporter.write_line(f"background stress suite: {ended - started:.0f} s{used}, from {started - t0:.0f} s "
+                                    f"to {ended - t0:.0f} s into the session ({time.time() - t0:.0f} s)")
 
 
 # ----------------------------------------------------------------------------- shared runs made ahead
