@@ -439,7 +439,9 @@ def _vertices(qs: QuadSet, keep: np.ndarray, pts: np.ndarray, uv: np.ndarray, m:
     view-space points ``pts`` and image positions ``uv``, ``m`` the source camera's pose matrix, ``org`` their slot
     origins (K, 2), flattened to (K C, :data:`VERTEX_FLOATS`)."""
     n, c = pts.shape[:2]
-    world = (pts.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]).reshape(n, c, 3)   # one product, not one per quad
+    # a product per quad (numpy's own loop): one (K C, 3) product goes to OpenBLAS, whose threads took 80 ms for
+    # 65k corners on this busy machine (1.5 ms this way), the same bits
+    world = pts @ m[:3, :3].T + m[:3, 3]
     s = (2.0 ** qs.level[keep].astype(np.float64))
     x0 = qs.x[keep].astype(np.float64) + org[:, 0]
     y0 = qs.y[keep].astype(np.float64) + org[:, 1]
