@@ -47,6 +47,19 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "matched block4 colour": ({**BLOCK4, "colour_order": 16.0}, (31.0, 36.0, 41.0)),
     "defaults colour": ({"colour_order": 16.0}, (23.0,)),
     "matched block4 colour4": ({**BLOCK4, "colour_order": 4.0}, (31.0, 36.0, 41.0)),
+    # issue 50 part 1, tss's own knobs at sas's bits (helper-49): "matched block4 colour" with one knob moved
+    "mbc split4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 4.0}, (31.0, 36.0, 41.0)),
+    "mbc split8": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 8.0}, (31.0, 36.0, 41.0)),
+    "mbc spp8": ({**BLOCK4, "colour_order": 16.0, "budget_max_spp": 8.0}, (31.0, 36.0, 41.0)),
+    "mbc px2": ({**BLOCK4, "colour_order": 16.0, "budget_px": 2.0}, (31.0, 36.0, 41.0)),
+    "mbc 420": ({**BLOCK4, "colour_order": 16.0, "chroma": "420"}, (31.0, 36.0, 41.0)),
+    "mbc split16": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0}, (31.0, 36.0, 41.0)),
+    "mbc nosplit": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 0.0}, (31.0, 36.0, 41.0)),
+    "mbc split8 os": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 8.0, "slant_threshold": 1.0}, (31.0, 36.0, 41.0)),
+    "mbc nosplit os": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 0.0, "slant_threshold": 1.0}, (31.0, 36.0, 41.0)),
+    "mbc split16 px2": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "budget_px": 2.0}, (31.0, 33.0)),
+    "mbc split16 flip8": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "flip_level": 8}, (31.0, 33.0)),
+    "mbc split16 single1": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "single_px": 1}, (31.0, 33.0)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
@@ -54,7 +67,15 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
 pixel, up to 8 per covered pixel) with ``codec_block = 4``, fewer samples at a lower crf; ``matched block4 fill``:
 ``matched block4`` with ``fill_pitch`` (L-packing levels raised to fill their tip blocks' padding with samples);
 ``matched block4 colour`` and ``defaults colour``: the same with ``colour_order = 16`` (a repack's L-packing cells in the
-order of their samples' mean luma, in bins of 16 levels); ``matched block4 colour4``: in bins of 4 levels."""
+order of their samples' mean luma, in bins of 16 levels); ``matched block4 colour4``: in bins of 4 levels.
+
+``mbc ...`` (helper-49: tss's own knobs at ``sas``'s bits): ``matched block4 colour`` with one knob moved.
+``split4`` / ``split8`` / ``split16`` / ``nosplit``: ``split_near_m`` 4, 8, 16 or 0 (the load-time split guarantees a
+level of at most 64 at that distance at ``budget_max_spp``: each extra triangle is another tile in the atlas and more
+geometry; the fitted still camera is 3.3-4.4 m from the models' centres, and at 16 m TextureTransformTest's largest
+triangles are capped at ``v(64)`` samples: 82k samples, 158k at 2 m); ``spp8``: ``budget_max_spp = 8``; ``px2``:
+``budget_px = 2``; ``420``: 4:2:0 chroma; ``os``: ``slant_threshold = 1`` (every triangle oversampled); ``split16
+px2`` / ``flip8`` / ``single1``: ``split16`` with ``budget_px = 2``, ``flip_level = 8`` or ``single_px = 1``."""
 
 CHILD = r"""
 import json, sys
