@@ -31,8 +31,6 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from splitrender.client.config import ClientConfig
 from splitrender.errors import CodecError, PeerTimeoutError, RemoteProtocolError, SplitRenderError, describe_error
 from splitrender.pipeline import (ClientHandshake, ClientPipeline, ClientSession, ControlClosed, ReceivedFrame, Resumed,
@@ -73,13 +71,6 @@ class ClientResult:
     """(The counters have the core's FrameMeta count ``frames_meta``, the first and last ids ``meta_first_id`` and
     ``meta_last_id``, and ``meta_gaps``, FrameMetas that did not follow the previous one.)"""
     out_dir: Path | None = None
-
-
-@dataclass
-class _Subject:
-    """What :func:`get_trace` reads of a scene to fit a built-in trace: the model's bounds."""
-
-    subject: tuple[np.ndarray, np.ndarray]
 
 
 class LiveClient:
@@ -257,9 +248,8 @@ class LiveClient:
                 self._welcome, self.session_id, self._params = msg, msg.session_id, dict(msg.method_params)
         terms = hs.terms
         assert terms is not None and self._welcome is not None
-        if terms.subject is not None:  # a loaded model: built-in traces go around it, as in the simulator
-            self.trace = get_trace(cfg.trace, scene=_Subject(terms.subject), fov_y_deg=terms.fov_y_deg,  # type: ignore[arg-type]
-                                   aspect=cfg.width / cfg.height)
+        # a loaded model (the terms' subject): built-in traces go around it, as in the simulator
+        self.trace = get_trace(cfg.trace, scene=terms, fov_y_deg=terms.fov_y_deg, aspect=cfg.width / cfg.height)  # type: ignore[arg-type]
         self._counters["session_bytes"] = hs.session_bytes
 
         def make_half() -> Any:

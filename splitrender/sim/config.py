@@ -197,6 +197,12 @@ class RunConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def toml(self, resolved: dict[str, Any] | None = None) -> str:
+        """A run's ``config.toml``: ``[run]``, this config, and ``[resolved]`` where given (every method parameter,
+        defaults included, and both network directions)."""
+        text = "[run]\n" + to_toml(self.to_dict(), "run.")
+        return text + ("\n[resolved]\n" + to_toml(resolved, "resolved.") if resolved else "")
+
     def key(self) -> str:
         """A stable hash of the resolved config (for result caching)."""
         d = self.to_dict()

@@ -80,7 +80,7 @@ from ..scene.model import shift_time
 from ..scene.pose import CameraIntrinsics, Pose
 from ..scene.predict import PerfectPredictor, prediction_error
 from ..scene.trace import get_trace
-from .config import RunConfig, to_toml
+from .config import RunConfig
 from .truth import truth_source
 
 log = logging.getLogger(__name__)
@@ -112,11 +112,8 @@ class RunResult:
     def write(self, out_dir: str | Path) -> Path:
         """Write frames.csv, updates.csv, summary.csv (a row per client), config.toml and kept images into ``out_dir``
         (:func:`~splitrender.pipeline.recording.write_run`)."""
-        text = "[run]\n" + to_toml(self.config.to_dict(), "run.")
-        if self.resolved:  # every method parameter (defaults included) and both network directions
-            text += "\n[resolved]\n" + to_toml(self.resolved, "resolved.")
-        return write_run(Path(out_dir), self.frames, self.updates, self.client_summaries or [self.summary], text,
-                         self.images)
+        return write_run(Path(out_dir), self.frames, self.updates, self.client_summaries or [self.summary],
+                         self.config.toml(self.resolved), self.images)
 
 
 class _ShiftedTrace:
