@@ -51,7 +51,7 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_from_args(ns: argparse.Namespace) -> object:
     """A :class:`ClientConfig` from parsed arguments."""
-    from splitrender.client.session import ClientConfig
+    from splitrender.client.config import ClientConfig
 
     if ns.duration <= 0 or ns.duration > 3600:
         raise ConfigError(f"--duration: must be in (0, 3600], got {ns.duration}")
