@@ -71,3 +71,15 @@ def test_timer_fires_once_at_the_earliest_deadline_within_the_horizon(by_deadlin
     timer.arm(-1.0)     # a deadline already past fires now
     clock.run()
     assert fired == [0.5, now] and now == 1.0
+
+
+def test_the_runner_puts_its_bytes_on_the_links_through_the_driver():
+    """Issue 47: the link simulation is netsim's; the virtual-time front door keeps no event heap, no per-link send
+    times and no timer slots of its own, and calls no Link.send itself."""
+    import inspect
+
+    from splitrender.sim import runner
+
+    src = inspect.getsource(runner)
+    assert "heapq" not in src and ".send(" not in src and "sent_s" not in src and "timer_token" not in src
+    assert "Wire(" in src and "Timer(" in src and "arrivals(" in src and ".clock.run()" in src
