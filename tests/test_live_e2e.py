@@ -76,16 +76,16 @@ def _update_gaps_s(rows: list[dict]) -> list[float]:  # type: ignore[type-arg]
 @pytest.mark.slow
 async def test_video_through_lossy_cloud_relay_matches_virtual_time(tmp_path: Path, renderer) -> None:  # type: ignore[no-untyped-def]
     duration = 4.0
-    result, relay_stats, _ = await _run_through_relay(tmp_path, NETWORK, duration_s=duration)
+    result, relay_stats, sc = await _run_through_relay(tmp_path, NETWORK, duration_s=duration)
     rows = result.rows
     c = result.counters
     # frames keep being shown: most display ticks that ran (a busy machine skips late ones, counted) show something
     ran = duration * 60 - c["late_ticks"]
     assert len(rows) + c["late_ticks"] == duration * 60, (len(rows), c)
     assert sum(r["update_frame_id"] != -1 for r in rows) >= 0.5 * ran, (len(rows), c)
-    # at least a third of the 30 fps frames complete (the session's first frames go to
-    # connection set-up, and 2 CPU cores shared by server, relay and client drop ticks)
-    assert c["frames_complete"] >= duration * 30 / 3, c
+    # most frames the server sent complete (measured 103 of 111 and 102 of 115 at load 10: 1 % loss, NACK repairs most),
+    # counted against what was sent, not the wall clock's frame rate (a busy machine sends fewer)
+    assert sc["frames_sent"] >= 10 and c["frames_complete"] >= 0.7 * sc["frames_sent"], (c, sc)
     # the relay really lost packets downstream, and the stream went on
     assert relay_stats.downlink.packets_dropped > 0, relay_stats
     gaps = _update_gaps_s(rows)
@@ -131,7 +131,10 @@ async def test_loss_without_nack_recovers_through_pli_and_idr(tmp_path: Path) ->
     assert c["keyframes_after_pli"] >= 1, c
     gaps = _update_gaps_s(result.rows)
     assert max(gaps) < GOP_S, (max(gaps), c)
-    assert c["frames_complete"] >= 0.4 * 3.0 * 30, c
+    # most frames sent complete (measured 0.50-0.72 of them at load 10: each loss breaks the stream until the IDR it
+    # asks for), counted against what the server sent, not the wall clock's frame rate
+    assert server_counters["frames_sent"] >= 10 and c["frames_complete"] >= 0.4 * server_counters["frames_sent"], (
+        c, server_counters)
 
 
 class _RecordingClient(LiveClient):
