@@ -283,3 +283,24 @@ def test_decoded_normals_from_the_table_are_the_formulas() -> None:
     assert np.array_equal(decode_normals(theta.astype(np.int64), phi.astype(np.int64)), want)
     assert np.array_equal(decode_normals(theta.reshape(256, 256), phi.reshape(256, 256)), want.reshape(256, 256, 3))
     assert np.allclose(np.linalg.norm(want, axis=-1), 1.0)
+
+
+def test_extend_moves_only_the_quads_it_names() -> None:
+    """``build_mesh`` computes moved corners only for the quads whose ``extend`` has a side to move (issue 49): a
+    quad with a zero row is built as without ``extend``, one with a side to move as in a set of only such quads."""
+    from splitrender.methods.quads.mesh import _far_quadtree, build_mesh, sealed, select
+    from splitrender.scene.pose import Pose
+
+    rng = np.random.default_rng(2)
+    qs = _far_quadtree(rng.random((INTR.height, INTR.width)) < 0.9, INTR)
+    ext = sealed(rng.random((len(qs), 4)) < 0.2)
+    moved = (ext != 0).any(-1)
+    assert 0.3 < moved.mean() < 0.8
+    pose = Pose(np.array([0.3, 1.2, 2.0]), np.array([0.96, 0.05, 0.27, 0.0]) / np.linalg.norm([0.96, 0.05, 0.27, 0.0]))
+    full, idx = build_mesh(qs, pose, INTR, (0, 0), "quad", extend=ext)
+    plain, idx0 = build_mesh(qs, pose, INTR, (0, 0), "quad")
+    only, _ = build_mesh(select(qs, moved), pose, INTR, (0, 0), "quad", extend=ext[moved])
+    full, plain = full.reshape(len(qs), 4, -1), plain.reshape(len(qs), 4, -1)
+    assert np.array_equal(idx, idx0) and np.array_equal(full[~moved], plain[~moved])
+    assert np.array_equal(full[moved], only.reshape(-1, 4, full.shape[-1]))
+    assert (full[moved] != plain[moved]).any(-1).any(-1).mean() > 0.9

@@ -407,10 +407,15 @@ def build_mesh(qs: QuadSet, pose: Pose, intr: CameraIntrinsics, slot_origin: tup
             # a quad seen nearly edge-on: its plane a fraction of a pixel further on may lie far off, or behind the
             # eye; such a quad is drawn as it is.  (A flat quad's depth ratio along a side lies between its
             # corners', so its outer corners decide as its 16 did.)
-            pe, ue, oke = corner_points(part, intr, np.asarray(extend)[where], corners)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                use = oke & ok & (np.abs(pe[..., 2] / pts[..., 2] - 1.0) <= SURFACE_REL).all(-1)
-            pts, uv = np.where(use[:, None, None], pe, pts), np.where(use[:, None, None], ue, uv)
+            # Only the quads with a side to move: another's corners moved by 0 are its own, the same bits
+            ext = np.asarray(extend, np.float64)[where]
+            moved = (ext != 0).any(-1)
+            if moved.any():
+                pe, ue, oke = corner_points(part if moved.all() else select(part, moved), intr, ext[moved], corners)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    use = oke & ok[moved] & (np.abs(pe[..., 2] / pts[moved][..., 2] - 1.0) <= SURFACE_REL).all(-1)
+                at = np.flatnonzero(moved)[use]
+                pts[at], uv[at] = pe[use], ue[use]   # (corner_points' own arrays)
         keep = where[ok]
         kept[keep] = True
         verts.append(_vertices(qs, keep, pts[ok], uv[ok], m, org_all[keep], intr, clamp, texel, view, grow))
