@@ -185,6 +185,25 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
     poly = np.zeros((n, 8, 3))
     poly[:, :3] = v
     cnt = np.full(n, 3, np.int64)
+    # only the triangles with a corner outside some plane are clipped (a few percent of a frame's PVS); every other
+    # row leaves the loop below as it came in, so its area is the same number either way
+    cut = np.zeros(n, bool)
+    for a, b in planes:
+        cut |= ((poly @ np.asarray(a) + b)[:, :3] < 0).any(axis=1)     # as _clip computes it
+    if cut.any():
+        poly[cut], cnt[cut] = _clip(poly[cut], cnt[cut], planes)
+    z = np.maximum(-poly[..., 2], NEAR_M)
+    p2 = np.stack([poly[..., 0] / z * fx * intr.width / 2, poly[..., 1] / z * f * intr.height / 2], -1)
+    e = p2 - p2[:, :1]
+    cross = e[:, 1:-1, 0] * e[:, 2:, 1] - e[:, 1:-1, 1] * e[:, 2:, 0]      # fan triangles (0, k, k+1)
+    k = np.arange(1, 7)[None, :]
+    return 0.5 * np.abs((cross * (k + 1 < cnt[:, None])).sum(axis=1))
+
+
+def _clip(poly: np.ndarray, cnt: np.ndarray, planes: list[tuple[tuple[float, float, float], float]]) -> tuple[np.ndarray, np.ndarray]:
+    """Sutherland-Hodgman, vectorised: polygons ``poly`` (n, 8, 3) of ``cnt`` (n,) corners clipped to ``planes``
+    (inside where ``a . p + b >= 0``); returns the clipped polygons and their corner counts."""
+    n = poly.shape[0]
     rows = np.arange(n)
     for a, b in planes:
         a_ = np.asarray(a)
@@ -205,12 +224,7 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
             out[rows[e2], np.minimum(pos[e2], 7)] = x[e2]
             pos += e2
         poly, cnt = out, np.minimum(pos, 8)
-    z = np.maximum(-poly[..., 2], NEAR_M)
-    p2 = np.stack([poly[..., 0] / z * fx * intr.width / 2, poly[..., 1] / z * f * intr.height / 2], -1)
-    e = p2 - p2[:, :1]
-    cross = e[:, 1:-1, 0] * e[:, 2:, 1] - e[:, 1:-1, 1] * e[:, 2:, 0]      # fan triangles (0, k, k+1)
-    k = np.arange(1, 7)[None, :]
-    return 0.5 * np.abs((cross * (k + 1 < cnt[:, None])).sum(axis=1))
+    return poly, cnt
 
 
 def moving(samples: list[PoseSample], tol: float = 1e-6) -> bool:
@@ -219,6 +233,20 @@ def moving(samples: list[PoseSample], tol: float = 1e-6) -> bool:
         return False
     v0 = np.asarray(samples[0][1].view_matrix(), np.float64)
     return any(float(np.abs(np.asarray(p.view_matrix(), np.float64) - v0).max()) > tol for _, p in samples[1:])
+
+
+def distinct_samples(samples: list[PoseSample], animated: bool) -> list[PoseSample]:
+    """``samples`` without those that draw the same ID buffer as an earlier one: the same view matrix, bit for bit,
+    at the same time where objects move.  The PVS is the largest area over the samples, so a repeat adds nothing; a
+    still camera's EVS samples are all one view."""
+    seen: set[tuple[bytes, float]] = set()
+    out = []
+    for t_s, p in samples:
+        key = (np.asarray(p.view_matrix(), np.float64).tobytes(), float(t_s) if animated else 0.0)
+        if key not in seen:
+            seen.add(key)
+            out.append((t_s, p))
+    return out
 
 
 def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray, grid: str = "paper") -> int:
@@ -312,6 +340,7 @@ class TssServer(ServerHalf):
         self.pitch_block = self.block if self.config.fill_pitch else 1
         """L-packing levels rise to fill their tip pitch (``fill_pitch``): the block, or 1 (off)."""
         self._n_vertices = int(self.tris.vid.max()) + 1 if self.tris.vid.size else 0
+        self._animated = any(o.animation is not None for o in self.scene.objects)
         self._sent_live = np.zeros(n, bool)                 # the client's table after the last update (reliable stream)
         self._sent_desc = np.zeros((n, 17), np.uint8)
         self._sent_origin = np.zeros((n, 3, 2), np.int64)   # where the client finds each triangle's samples
@@ -528,7 +557,7 @@ class TssServer(ServerHalf):
             self._setup_gl(ctx.renderer)
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
         samples = self.pvs_samples(ctx)
-        area = self._ids.pvs_area(samples, big)
+        area = self._ids.pvs_area(distinct_samples(samples, self._animated), big)
         self._last_seen[area > 0] = self._frames
         pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
         ring = None
@@ -663,15 +692,19 @@ class TssServer(ServerHalf):
         T = self.tris
         rot = np.where(plan.kind == KIND_OS, base, 0)
         order = (rot[:, None] + np.arange(3)) % 3
-        take = (lambda a: np.take_along_axis(a[ids], order[:, :, None], axis=1))
-        pos, nrm, uv, tan = take(T.pos), take(T.nrm), take(T.uv), take(T.tan)
+        rows = ids[:, None]
+        out = np.empty((ids.size, 3, VERTEX_FLOATS), np.float32)
+        out[..., 0:3], out[..., 3:6], out[..., 6:8], out[..., 8:12] = (a[rows, order] for a in (T.pos, T.nrm, T.uv, T.tan))
         # albedo lod as a trilinear forward render picks it: log2 of the longer texel-space
         # derivative of the uv mapping per display pixel (one Jacobian per triangle, at the reference view)
-        lod = self._lod(ids, px, order, uv)
-        info = np.stack([plan.kind, plan.level, persp.astype(np.float64), lod], axis=1)
+        lod = self._lod(ids, px, order, out[..., 6:8])
         o0, o1 = layout_attributes(plan.kind, plan.origin, plan.w, plan.w2, plan.h, plan.a, plan.samples)
-        flat = np.concatenate([info, o0, o1], axis=1)[:, None, :].repeat(3, axis=1)
-        return np.concatenate([pos, nrm, uv, tan, flat], axis=2).astype(np.float32)
+        # the per-triangle attributes cast to float32 once and repeated on the three vertices
+        flat = np.empty((ids.size, 12), np.float32)
+        flat[:, 0], flat[:, 1], flat[:, 2], flat[:, 3] = plan.kind, plan.level, persp, lod
+        flat[:, 4:8], flat[:, 8:12] = o0, o1
+        out[..., 12:] = flat[:, None, :]
+        return out
 
     def _lod(self, ids: np.ndarray, px: np.ndarray, order: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """(N,) albedo mip level per triangle: GL's ``log2(max(|d uv/dx|, |d uv/dy|))`` in texels, from the

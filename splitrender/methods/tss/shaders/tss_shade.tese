@@ -3,7 +3,11 @@
 // thread.  It finds its sample, shades it with the ground truth's shading code and
 // writes the texel(s) straight into the atlas; the rasteriser does not run.
 // Mirrors splitrender/methods/tss/layout.py (lp_positions, os_linear_id, os_row_lengths).
-layout(triangles, equal_spacing, ccw) in;
+// point_mode and a position outside the clip volume: the tessellator's vertices become points that the clipper
+// rejects before primitive assembly.  The shading and the stores are the same; llvmpipe's draw module otherwise
+// assembled every tessellated triangle and, per flush of its vertex buffer, walked every vertex of the draw (a cost
+// that grows with the square of one draw's samples: the duck's one object took 2x the shading itself).
+layout(triangles, equal_spacing, ccw, point_mode) in;
 in vec3 c_world[];
 in vec3 c_normal[];
 in vec2 c_uv[];
@@ -38,7 +42,7 @@ bool os_sample(vec3 B, int l, out vec3 Bs, out ivec2 at) {
 }
 
 void main() {
-    gl_Position = vec4(0.0);
+    gl_Position = vec4(2.0, 2.0, 2.0, 1.0);   // outside: culled (see the layout above)
     vec3 B = gl_TessCoord;
     int kind = int(p_info.x + 0.5);
     int l = int(p_info.y + 0.5);
