@@ -294,10 +294,11 @@ def quad_depth(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None
     py, px = np.nonzero(index_map >= 0)
     if py.size:
         q = index_map[py, px]
-        s = 2.0 ** qs.level[q].astype(np.float64)
-        n = decode_normals(qs.theta[q], qs.phi[q])
-        wv = -dot3(n, rays(intr, qs.x[q] + s / 2, qs.y[q] + s / 2)) * qs.depth[q].astype(np.float64)
-        out[py, px] = plane_depth(n, wv, rays(intr, px + 0.5, py + 0.5))
+        # each quad's plane once, read at its pixels (the same arithmetic per value as per pixel)
+        s = 2.0 ** qs.level.astype(np.float64)
+        n = decode_normals(qs.theta, qs.phi)
+        wv = -dot3(n, rays(intr, qs.x + s / 2, qs.y + s / 2)) * qs.depth.astype(np.float64)
+        out[py, px] = plane_depth(n[q], wv[q], rays(intr, px + 0.5, py + 0.5))
     return out
 
 
