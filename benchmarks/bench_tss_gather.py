@@ -10,6 +10,13 @@ medians of repeated runs, quoted as ratios to the tessellation path measured in 
 process.
 
 Writes ``benchmarks/results/bench_tss_gather.json``.  Run: ``python benchmarks/bench_tss_gather.py``.
+
+``--frames [REV]`` (issue 49) times whole ``tss`` server frames instead: 12 frames per session at 320x180 (the duck,
+2CylinderEngine and default+nogi, still and orbit, ``tss``'s defaults and the claims ledger's ``tss matched``),
+``produce`` and a ground-truth render of the same pose timed per frame, in child processes that alternate between this
+checkout and a git worktree of ``REV`` (default ``HEAD~1``).  It asserts that every update is the same in both (a
+sha256 per frame of the atlas plane, the data streams, the metadata and the non-timing stats) and reports the median
+server ms over the ground truth's.  Writes ``benchmarks/results/bench_tss_gather_frames.json``.
 """
 
 from __future__ import annotations
@@ -23,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's package, not an installed one
+# this checkout's package, not an installed one (``--child ROOT``: the checkout at ROOT, for --frames)
+sys.path.insert(0, sys.argv[sys.argv.index("--child") + 1] if "--child" in sys.argv else str(Path(__file__).resolve().parents[1]))
 
 from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
 from splitrender.methods.tss.server import SHADERS  # noqa: E402
@@ -34,6 +42,14 @@ from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
 from splitrender.scene.trace import get_trace  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "bench_tss_gather.json"
+FRAMES_RESULTS = Path(__file__).parent / "results" / "bench_tss_gather_frames.json"
+SCENES = {"duck": "/usr/share/assimp/models/Collada/duck.dae",
+          "2CylinderEngine": "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb",
+          "default+nogi": "default+nogi"}
+FRAME_CONFIGS = [("duck", "static", "defaults"), ("duck", "orbit", "matched"), ("2CylinderEngine", "orbit", "defaults"),
+                 ("2CylinderEngine", "static", "matched"), ("default+nogi", "static", "matched"),
+                 ("default+nogi", "orbit", "defaults")]
+N_FRAMES = 12
 BLOCKS = (32, 64, 128, 256, 512)
 REPEATS = 5
 
@@ -142,5 +158,102 @@ def main() -> None:
     print(f"tessellation {base_ms:.0f} ms for {n_samples} samples of {ids.size} triangles; wrote {RESULTS}")
 
 
+def child(scene_name: str, trace_name: str, params_name: str) -> None:
+    """One session of :data:`N_FRAMES` server frames (``--frames``' child): prints digests and times as JSON."""
+    import hashlib
+
+    from splitrender.experiments.studies.claims import TSS_MATCHED   # the ledger's "tss matched", one source
+
+    params = {"defaults": {}, "matched": TSS_MATCHED}[params_name]
+    r = Renderer()
+    scene = get_scene(SCENES[scene_name])
+    intr = CameraIntrinsics(320, 180)
+    spec = get_method("tss")
+    srv = spec.server_class(make_config(spec.config, params), intr, scene, 30, None)
+    tr = get_trace(trace_name, scene=scene)
+    out: dict = {"digests": [], "srv_ms": [], "gt_ms": []}
+    for i in range(N_FRAMES):
+        t = i / 30.0
+        pose, tgt = tr.pose_at(t), tr.pose_at(t + 0.05)
+        ctx = ServerContext(frame_id=i, t_s=t, scene=scene, renderer=r, intrinsics=intr, latest_pose=pose, latest_pose_t_s=t,
+                            target_pose=tgt, target_t_s=t + 0.05, predict=tr.pose_at, expected_latency_s=0.05)
+        t0 = time.perf_counter()
+        u = srv.produce(ctx)
+        r.ctx.finish()
+        t1 = time.perf_counter()
+        r.render(scene, t, tgt, intr)
+        r.ctx.finish()
+        t2 = time.perf_counter()
+        out["srv_ms"].append((t1 - t0) * 1e3)
+        out["gt_ms"].append((t2 - t1) * 1e3)
+        h = hashlib.sha256()
+        for k in sorted(u.planes):
+            h.update(k.encode() + np.ascontiguousarray(u.planes[k]).tobytes())
+        for k in sorted(u.data):
+            h.update(k.encode() + u.data[k])
+        h.update(repr(sorted((k, v.tobytes() if isinstance(v, np.ndarray) else v) for k, v in u.meta.items())).encode())
+        h.update(repr((u.force_idr, sorted((k, v) for k, v in srv.stats().items() if not k.endswith("_ms")))).encode())
+        out["digests"].append(h.hexdigest())
+    print(json.dumps(out))
+
+
+def frames(rev: str) -> None:
+    """``--frames``: this checkout against a worktree of ``rev``, alternated, frame by frame identical."""
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    base_sha = subprocess.run(["git", "rev-parse", rev], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+    here_sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+    dirty = [ln[3:] for ln in subprocess.run(["git", "status", "--porcelain", "--", "splitrender"], cwd=root,
+                                               capture_output=True, text=True).stdout.splitlines()]
+    wt = Path(tempfile.mkdtemp(prefix="bench_tss_frames_"))
+    subprocess.run(["git", "worktree", "add", "-f", "--detach", str(wt), base_sha], cwd=root, check=True, capture_output=True)
+    try:
+        runs: dict = {c: {"base": [], "new": []} for c in FRAME_CONFIGS}
+        for rnd in range(2):
+            for c in FRAME_CONFIGS:
+                order = [("base", wt), ("new", root)] if rnd == 0 else [("new", root), ("base", wt)]
+                for name, at in order:
+                    p = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", str(at), *c],
+                                       capture_output=True, text=True, check=True)
+                    runs[c][name].append(json.loads(p.stdout.strip().splitlines()[-1]))
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(wt)], cwd=root, capture_output=True)
+    rows = []
+    for c in FRAME_CONFIGS:
+        b, n = runs[c]["base"], runs[c]["new"]
+        same = all(x["digests"] == b[0]["digests"] for x in b + n)
+        assert same, f"{c}: the updates differ between {rev} and this checkout"
+
+        def over(rs: list) -> float:   # frame 0 (set-up, shader compiles) left out
+            return statistics.median(s / g for r in rs for s, g in zip(r["srv_ms"][1:], r["gt_ms"][1:]))
+
+        def ms(rs: list, key: str) -> float:
+            return statistics.median(x for r in rs for x in r[key][1:])
+
+        row = {"scene": c[0], "camera": c[1], "params": c[2], "updates_identical": same, "frames": N_FRAMES,
+               "base_server_ms": round(ms(b, "srv_ms"), 1), "server_ms": round(ms(n, "srv_ms"), 1),
+               "base_truth_ms": round(ms(b, "gt_ms"), 1), "truth_ms": round(ms(n, "gt_ms"), 1),
+               "base_over_truth": round(over(b), 2), "over_truth": round(over(n), 2)}
+        row["ratio"] = round(row["over_truth"] / row["base_over_truth"], 3)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    out = {"benchmark": "bench_tss_gather --frames", "machine": platform.platform(), "size": [320, 180],
+           "base": base_sha, "measured": here_sha, "uncommitted": dirty,
+           "method": "two sessions per side, alternated; median over frames 1-11 of server ms over the same frame's "
+                     "ground-truth ms (both in the child's process); every update's sha256 the same on both sides",
+           "results": rows}
+    FRAMES_RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    FRAMES_RESULTS.write_text(json.dumps(out, indent=2) + "\n")
+    print(f"wrote {FRAMES_RESULTS}")
+
+
 if __name__ == "__main__":
-    main()
+    if "--child" in sys.argv:
+        child(*sys.argv[sys.argv.index("--child") + 2:][:3])
+    elif "--frames" in sys.argv:
+        k = sys.argv.index("--frames")
+        frames(sys.argv[k + 1] if len(sys.argv) > k + 1 else "HEAD~1")
+    else:
+        main()
