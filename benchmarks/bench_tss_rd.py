@@ -64,6 +64,14 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "mbc split16 lp": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0}, (31.0, 33.0)),
     "mbc split16 lp 420": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                            "chroma": "420"}, (31.0, 33.0)),
+    "mbc split16 lp 420 px4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                               "chroma": "420", "budget_px": 4.0}, (32.0,)),
+    "mbc split16 lp 420 block8": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                  "chroma": "420", "codec_block": 8}, (32.0,)),
+    "mbc split16 lp 420 colour4": ({**BLOCK4, "colour_order": 4.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                   "chroma": "420"}, (32.0,)),
+    "mbc split16 lp 420 block8 px4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                      "chroma": "420", "codec_block": 8, "budget_px": 4.0}, (32.0, 33.0)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
@@ -80,7 +88,8 @@ geometry; the fitted still camera is 3.3-4.4 m from the models' centres, and at 
 triangles are capped at ``v(64)`` samples: 82k samples, 158k at 2 m); ``spp8``: ``budget_max_spp = 8``; ``px2``:
 ``budget_px = 2``; ``420``: 4:2:0 chroma; ``os``: ``slant_threshold = 1`` (every triangle oversampled); ``split16
 px2`` / ``flip8`` / ``single1`` / ``420`` / ``lp``: ``split16`` with ``budget_px = 2``, ``flip_level = 8``,
-``single_px = 1``, 4:2:0 or ``slant_threshold = 1000`` (every triangle L-packed); ``split16 lp 420``: both."""
+``single_px = 1``, 4:2:0 or ``slant_threshold = 1000`` (every triangle L-packed); ``split16 lp 420``: both, and ``px4`` / ``block8`` /
+``colour4`` on top: ``budget_px = 4``, ``codec_block = 8``, ``colour_order = 4``; ``block8 px4``: the first two."""
 
 CHILD = r"""
 import json, sys
