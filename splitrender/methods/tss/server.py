@@ -585,7 +585,8 @@ class TssServer(ServerHalf):
             visible[ring] = 0.0          # no samples asked for: one texel (classify's single kind)
         self._min_level = None
         if c.flip_level > 0:
-            nrm = np.einsum("nij,nkj->nki", np.linalg.inv(m[:, :3, :3]).transpose(0, 2, 1), T.nrm[pvs].astype(np.float64))
+            inv_t = np.linalg.inv(models[:, :3, :3].astype(np.float64)).transpose(0, 2, 1)   # per object, then per triangle
+            nrm = np.einsum("nij,nkj->nki", inv_t[T.obj[pvs]], T.nrm[pvs].astype(np.float64))
             eye = np.asarray(ctx.target_pose.position, np.float64)
             v = eye - world
             ndv = (nrm * v).sum(axis=2) / np.maximum(np.linalg.norm(nrm, axis=2) * np.linalg.norm(v, axis=2), 1e-12)
