@@ -35,7 +35,7 @@ sys.path.insert(0, sys.argv[sys.argv.index("--child") + 1] if "--child" in sys.a
 
 from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
 from splitrender.methods.tss.server import SHADERS  # noqa: E402
-from splitrender.render.gl import read_shader, set_uniform  # noqa: E402
+from splitrender.render.gl import read_shader, set_reference_view, set_uniform  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
@@ -115,12 +115,13 @@ def main() -> None:
     def compute(block: int) -> tuple[float, np.ndarray]:
         prog = r.ctx.compute_shader(src.replace("#version 430", f"#version 430\n#define BLOCK {block}", 1))
         srv._fbo.use()
-        srv._fbo.clear(0.0, 0.0, 0.0, 1.0)
+        srv._fbo.clear(0.0, 0.0, 0.0, 0.0)   # as the tessellation path clears an I-frame: alpha 0, no sample
         srv._counter.clear()
         t0 = time.perf_counter()
         r.bind_shading(prog, scene, t)
         prog["u_eye"].value = tuple(float(x) for x in pose.position)
         set_uniform(prog, "u_os_centred", int(srv.config.os_grid == "centred"))
+        set_reference_view(prog, srv.intrinsics, pose)   # per-sample texture gradients, as the tessellation path's
         srv._tex.bind_to_image(0, read=False, write=True)
         srv._counter.bind_to_storage_buffer(1)
         buf.bind_to_storage_buffer(2)
