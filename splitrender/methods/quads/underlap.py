@@ -47,6 +47,14 @@ def _across(qs: QuadSet, sel: np.ndarray, size: int, side: int) -> tuple[np.ndar
     return x0[:, None] + k, np.broadcast_to((y0 - 1 if dy < 0 else y0 + size)[:, None], (sel.size, size))
 
 
+def _by_level(qs: QuadSet, bg: np.ndarray):  # type: ignore[no-untyped-def]
+    """The scene quads of ``qs`` (``bg``: its background mask) level by level: (their indices, their size in pixels)."""
+    for lv in np.unique(qs.level):
+        sel = np.flatnonzero((qs.level == lv) & ~bg)
+        if sel.size:
+            yield sel, 1 << int(lv)
+
+
 def behind_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.ndarray | None = None) -> np.ndarray:
     """(N, 4) pixels: ``px`` on each side (left, top, right, bottom) of each scene quad of ``qs`` along which every
     pixel across is covered by a scene quad of the set and the quad's own plane, carried to that pixel's centre, lies
@@ -63,11 +71,7 @@ def behind_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.n
     scene[scene] = ~bg[im[scene]]
     z_shown = np.where(scene, quad_depth(qs, intr, im), np.inf)
     normals = decode_normals(qs.theta, qs.phi)
-    for lv in np.unique(qs.level):
-        sel = np.flatnonzero((qs.level == lv) & ~bg)
-        if not sel.size:
-            continue
-        size = 1 << int(lv)
+    for sel, size in _by_level(qs, bg):
         n = normals[sel]
         centre = rays(intr, qs.x[sel].astype(np.float64) + size / 2, qs.y[sel].astype(np.float64) + size / 2)
         wv = -dot3(n, centre) * qs.depth[sel].astype(np.float64)   # the quad's plane n . X + w = 0, view space
@@ -94,11 +98,7 @@ def open_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.nda
     bg = qs.background(intr)
     sky = im < 0
     sky[~sky] = bg[im[~sky]]
-    for lv in np.unique(qs.level):
-        sel = np.flatnonzero((qs.level == lv) & ~bg)
-        if not sel.size:
-            continue
-        size = 1 << int(lv)
+    for sel, size in _by_level(qs, bg):
         for side in range(4):
             xb, yb = _across(qs, sel, size, side)
             inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h)
