@@ -48,7 +48,8 @@ from .accounting import quasar_frame_bytes
 from .config import QuadsConfig
 from .edp import edp_keep
 from .gen import BACKGROUND_FAR, QuadSet, generate, rays
-from .mesh import VERTEX_FLOATS, QuadMeshGL, ReferenceCache, build_mesh, join_meshes, scene_sides, select
+from .mesh import (VERTEX_FLOATS, QuadMeshGL, ReferenceCache, build_mesh, index_map_of, join_meshes, scene_sides,
+                   select)
 from .underlap import reference_extend
 from .packing import copy_texels, fitting, pack_squares, packed_size, source_order, tile_side, whole_tiles
 from .wire import (KIND_HIDDEN, KIND_REFERENCE, KIND_REVEALED, KIND_UPDATE, KIND_VIEW, KIND_WIDE, WIRE_VERSION, WireSet,
@@ -282,10 +283,10 @@ class QuadsServer(ServerHalf):
         assert cached is not None
         mesh = self._gl_mesh(ctx)
         scene = select(cached, ~cached.background(intr))
-        if self.config.silhouette_clamp:   # as the client draws it
-            sides = scene_sides(scene, intr)
-            part = build_mesh(scene, ref_pose, intr, (0, 0), "quad", grow=sides,
-                              extend=reference_extend(scene, intr, self.config))
+        if self.config.silhouette_clamp:   # as the client draws it (the set's pixel map rasterised once for both)
+            im = index_map_of(scene, intr)
+            part = build_mesh(scene, ref_pose, intr, (0, 0), "quad", grow=scene_sides(scene, intr, im),
+                              extend=reference_extend(scene, intr, self.config, im))
         else:
             part = build_mesh(scene, ref_pose, intr, (0, 0), "view")
         mesh.upload(*join_meshes([part]))
