@@ -30,7 +30,7 @@ from typing import Any, Iterable, Sequence
 
 from ..errors import ConfigError
 from ..netsim import parse_path
-from ..sim.config import RunConfig, to_toml
+from ..sim.config import RunConfig
 from ..tabular import write_csv as write_table
 
 log = logging.getLogger(__name__)
@@ -208,7 +208,7 @@ class ResultStore:
         """Write one run's tables and its resolved config; the summary is written last (commit marker)."""
         d = self.run_dir(cfg.key())
         d.mkdir(parents=True, exist_ok=True)
-        (d / "config.toml").write_text("[run]\n" + to_toml(cfg.to_dict()))
+        (d / "config.toml").write_text(cfg.toml())
         write_csv(d / "frames.csv", frames)
         write_csv(d / "updates.csv", updates)
         (d / CODE_FILE).write_text(json.dumps({"method": cfg.method, "method_digest": method_digest(cfg.method),

@@ -73,7 +73,7 @@ from ..methods import methods_for_scene
 from ..render.renderer import Renderer
 from ..scene.pose import look_at_quat
 from ..scene.trace import CameraTrace, static_trace
-from ..sim.config import RunConfig, to_toml
+from ..sim.config import RunConfig
 from ..sim.runner import VirtualTimeRun
 from ..sim.truth import shared_cache_setting
 from .store import Row, fnum, write_csv
@@ -555,7 +555,7 @@ def _row(j: _Job, out: Path, tm: Timing, timed_out: bool, limit: float, exitcode
     write_csv(d / "frames.csv", r["frames"])
     write_csv(d / "updates.csv", r["updates"])
     write_csv(d / "summary.csv", [r["summary"]])
-    (d / "config.toml").write_text("[run]\n" + to_toml(j.cfg.to_dict()))
+    (d / "config.toml").write_text(j.cfg.toml())
     base.update({"status": "ok", "error": "", "cpu_s": r["cpu_s"]})
     base.update(case_metrics(r["frames"], r["n_display"], j.case, tm))
     base.update({"lost_frames": r["summary"].get("lost_frames"), "keyframe_requests": r["summary"].get("keyframe_requests"),
