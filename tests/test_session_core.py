@@ -57,8 +57,10 @@ class Pair:
         out = self.tx.packetize(enc, self.sconn.send, 1_000_000 + fid, fid * 3000, 0, fid, fid / FPS, {}, {})
         self.server.frame_sent(fid, out, now_ms, 1_000_000 + fid)
         self.out = out
-        # the RTP datagrams the core lets go now (its one way out; all of them without a pacer), stamped
-        return [d for _, d in out.control], [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtp"]
+        # what the core lets go now (its one way out: the control frames, all the RTP datagrams without a pacer)
+        control = self.server.data_to_send(now_ms)
+        assert control == [d for _, d in out.control]
+        return control, [d.data for d in self.server.datagrams_to_send(now_ms) if d.kind == "rtp"]
 
     def answer(self, rtcp: list, now_ms: float) -> list[bytes]:  # type: ignore[type-arg]
         """The server core takes the client's RTCP ``rtcp`` (packets, sent as one compound datagram) at ``now_ms``: the
@@ -808,10 +810,12 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
     cconn = ClientConnection()
     cconn.send(hello)
     hs = ClientHandshake(hello.methods, display=(W, H))
-    cconn.receive_data(b"".join(acc.frames))
+    frames = acc.core.data_to_send(0.0)                   # the core's one way out: the Welcome, then the chunks
+    assert len(frames) >= 2 and acc.session_bytes == sum(map(len, frames[1:])) and acc.core.data_to_send(0.0) == []
+    cconn.receive_data(b"".join(frames))
     while (ev := cconn.next_event()) is not NEED_DATA:
         hs.receive_message(ev)  # type: ignore[arg-type]
-    assert hs.done and hs.welcome == acc.welcome and len(acc.session_data_frames) >= 1
+    assert hs.done and hs.welcome == acc.welcome
     assert hs.session_data is not None and hs.session_data["pad"] == np.random.default_rng(0).bytes(5000)
 
 
@@ -826,8 +830,12 @@ def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> N
     leave_ms = 29 * 0.137                             # 3.973 ms: its trip through seconds comes back a hair early
     assert leave_ms / 1000 * 1000 < leave_ms
     p.server.frame_sent(0, out, 0.0, 1_000_000, send_ms=leave_ms)
-    assert p.server.datagrams_to_send(2.0) == [] and p.server.get_timer() == leave_ms
-    sent = p.server.datagrams_to_send(p.server.get_timer() / 1000 * 1000)   # the runner's clock counts in seconds
+    assert p.server.datagrams_to_send(2.0) == [] and p.server.data_to_send(2.0) == []
+    assert p.server.get_timer() == leave_ms
+    at = p.server.get_timer() / 1000 * 1000               # the runner's clock counts in seconds
+    assert p.server.data_to_send(at) == []               # its control frames: from exactly send_ms (not on the timer)
+    assert p.server.data_to_send(leave_ms) == [d for _, d in out.control]
+    sent = p.server.datagrams_to_send(at)
     assert [d.data for d in sent] == [d for _, _, d in out.datagrams]
     assert {(d.kind, d.stream) for d in sent} == {("rtp", "color")}
     sr_at = p.server.get_timer()
@@ -868,7 +876,7 @@ def test_the_client_core_owns_its_control_connection() -> None:
         out = tx.packetize(enc, sconn.send, 5_000_000 + fid * 33_333, fid * 3000, 0, fid, fid / FPS, {}, {})
         return b"".join(d for _, d in out.control)
 
-    assert hs.receive_data(b"".join(acc.frames) + frame(0))
+    assert hs.receive_data(b"".join(acc.core.data_to_send(0.0)) + frame(0))
     core = hs.session(ClientOptions())
     assert core.conn is hs.conn and core.counters["frames_meta"] == 0 and core.scene_epoch_ms is None
     core.start(0.0)
@@ -1057,7 +1065,7 @@ def test_the_server_core_owns_its_control_connection() -> None:
                        rng=np.random.default_rng(1))
     core = acc.core
     assert core.conn is sconn
-    cconn.receive_data(b"".join(acc.frames))
+    cconn.receive_data(b"".join(acc.core.data_to_send(0.0)))
     while cconn.next_event() is not NEED_DATA:
         pass
     data = b"".join([cconn.send(PoseMessage(100_000, 1, (0.0, 1.6, 2.0), (0.0, 0.0, 0.0, 1.0))),
@@ -1114,6 +1122,7 @@ def test_a_frame_back_from_the_render_worker_is_stamped_reported_and_rowed_once_
         assert (row["server_ms"], row["shared_ms"]) == (12.0, 2.0) and row["bytes_color"] == out.wire_bytes["color"] > 0
         rows[core.transport] = (out, row, enc)
     out, row, enc = rows["rtp"]
+    assert rtp.data_to_send(1600.0) == [d for _, d in out.control] and page.data_to_send(1600.0) == []
     p.cconn.receive_data(b"".join(d for _, d in out.control))
     meta = p.cconn.next_event()
     assert isinstance(meta, FrameMeta) and meta.server_time_us == 1_500_000 and meta.pose.client_time_us == 900_000

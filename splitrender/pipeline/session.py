@@ -1015,16 +1015,13 @@ class ClientSession:
 
 @dataclass
 class Accepted:
-    """A session the server accepted (:func:`accept_hello`): its core, the ``Welcome`` and what goes on the control
-    connection first, framed in order (the Welcome, then the session data's ``DataChunk`` messages)."""
+    """A session the server accepted (:func:`accept_hello`): its core, whose :meth:`~ServerSession.data_to_send`
+    gives what goes on the control connection first (the Welcome, then the session data's ``DataChunk`` messages),
+    the ``Welcome``, and the session data's framed bytes (``session_bytes``, the DataChunks')."""
 
     core: ServerSession
     welcome: Welcome
-    frames: list[bytes]
-
-    @property
-    def session_data_frames(self) -> list[bytes]:
-        return self.frames[1:]
+    session_bytes: int
 
 
 def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[Any], session_blob: bytes, conn: Any,
@@ -1039,7 +1036,8 @@ def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[An
     server's limit and the client's codecs (a :class:`~.wire.SessionDataError` or ``RemoteProtocolError`` naming
     what is wrong), builds the session's :class:`~.sender.ServerPipeline` (its SDP naming the encoders' parameter
     sets) and its core, which keeps ``conn`` (the handshake's ``ServerConnection``: its
-    :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it.  ``server`` is the
+    :attr:`~ServerSession.conn`), and frames the ``Welcome`` and the session data on it (the core's
+    :meth:`~ServerSession.data_to_send` gives them).  ``server`` is the
     server's config (a run's or a live server's: ``scene``, ``fov_y_deg``, ``server_fps``, ``max_session_bytes``,
     ``mtu_bytes``, ``fec``, ``transport_cc`` and, without ``predictor``, ``predictor`` by name).
     ``rng`` draws the SSRCs and sequence origins, ``core_rng`` the core's RTCP intervals (seeded runs; the system's
@@ -1063,8 +1061,11 @@ def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[An
     welcome = Welcome(session_id, method, session_params(method, config, server.fov_y_deg, server.server_fps,
                                                          server.scene, tx, session_blob, subject),
                       tx.describe(host, port, f"splitrender {session_id}"))
-    frames = [conn.send(welcome), *(f for _, f in tx.session_frames(session_blob, conn.send))]
-    return Accepted(core, welcome, frames)
+    core.queue_control(conn.send(welcome))
+    chunks = [f for _, f in tx.session_frames(session_blob, conn.send)]
+    for f in chunks:
+        core.queue_control(f)
+    return Accepted(core, welcome, sum(len(f) for f in chunks))
 
 
 def accept_page(opening: Opening, specs: list[Any], display_hz: float, server: Any) -> ServerSession:
@@ -1181,9 +1182,12 @@ class ServerSession:
     feedback, keyframes and frame orders only."""
     conn: Any = None
     """The session's control ``ServerConnection`` (the handshake's, from :func:`accept_hello`): :meth:`frame_encoded`
-    frames a frame's FrameMeta and reliable data on it, :meth:`receive_data` reads the client's bytes with it."""
+    frames a frame's FrameMeta and reliable data on it, :meth:`receive_data` reads the client's bytes with it; what
+    it frames leaves by :meth:`data_to_send`."""
 
     def __post_init__(self) -> None:
+        self._control: deque[tuple[float, bytes]] = deque()
+        """(driver ms from which it may leave, one framed message) for :meth:`data_to_send`, in order."""
         self._rand = _uniform(self.rng)
         self.poses = PoseInbox(self.predictor)
         """The pose rule of every front door (:meth:`receive_pose`)."""
@@ -1260,6 +1264,29 @@ class ServerSession:
     def start(self, now_ms: float) -> None:
         """Streaming starts at ``now_ms``: sender reports are due from then on."""
         self._next_sr_ms = now_ms + _rtcp_interval_ms(self.options.sr_interval_s, self._rand)
+
+    def queue_control(self, frame: bytes, at_ms: float = -math.inf) -> None:
+        """One message framed on :attr:`conn` for :meth:`data_to_send`, to leave from ``at_ms`` (default: at once)."""
+        self._control.append((at_ms, frame))
+
+    def send(self, msg: Message, now_ms: float = -math.inf) -> None:
+        """A control message of the driver's own (``Stats``, ``Bye``), framed on :attr:`conn`; it leaves by
+        :meth:`data_to_send`.  Raises ``LocalProtocolError`` where the connection's state forbids it."""
+        self.queue_control(self.conn.send(msg), now_ms)
+
+    def data_to_send(self, now_ms: float) -> list[bytes]:
+        """The control connection's output due at ``now_ms``, in order, one framed message each: the Welcome and the
+        session data (:func:`accept_hello`), each frame's FrameMeta and reliable data from when its datagrams leave
+        (:meth:`frame_sent`'s ``send_ms``), what the driver :meth:`send`.  Every front door on the RTP transport writes
+        them to the client's TCP connection as they come (virtual time models each message as one write).  Call
+        before :meth:`datagrams_to_send`, after each input; a driver that defers a frame's sending (virtual time's
+        modelled encoding: ``send_ms``) calls it at that time too, which :meth:`get_timer` does not name (a frame's
+        control frames are due from exactly ``send_ms``, so that they leave as they did when the runner wrote them
+        itself: before the frame's datagrams or after, as the clocks' rounding fell)."""
+        out = []
+        while self._control and self._control[0][0] <= now_ms:
+            out.append(self._control.popleft()[1])
+        return out
 
     def receive_data(self, data: bytes) -> None:
         """Control bytes from the client (``b""``: the connection closed), for :attr:`conn`; read them with
@@ -1649,7 +1676,7 @@ class ServerSession:
         """``order``'s frame came back made (``enc``: :func:`~.frames.make_frame`'s coded update) at ``now_ms``, at
         ``server_time_us`` on the protocol's clock, in every front door.  On the RTP transport it is packetized (its
         FrameMeta and reliable data framed on :attr:`conn`, stamped with ``timing`` and ``stats``) and reported
-        (:meth:`frame_sent`, ``send_ms`` as there): its control frames are the driver's to send, its datagrams leave
+        (:meth:`frame_sent`, ``send_ms`` as there): its control frames leave by :meth:`data_to_send`, its datagrams
         by :meth:`datagrams_to_send`.  On the WebRTC transport the stack packetizes: the frame is counted from its
         coded streams.  Returns what the frame puts on the wire."""
         if self.transport == "rtp":
@@ -1680,9 +1707,10 @@ class ServerSession:
 
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,
                    rates_kbps: dict[str, float] | None = None, restarts: int = 0, send_ms: float | None = None) -> None:
-        """Frame ``frame_id`` was made at ``now_ms``: its RTP packets join the retransmission history, and they
-        and its FEC leave by :meth:`datagrams_to_send` from ``send_ms`` (default ``now_ms``; virtual time's
-        modelled encoding ends later), when the estimator also probes.  ``rates_kbps`` and ``restarts``: the
+        """Frame ``frame_id`` was made at ``now_ms``: its RTP packets join the retransmission history; its
+        FrameMeta and reliable data leave by :meth:`data_to_send`, then they and its FEC by :meth:`datagrams_to_send`,
+        from ``send_ms`` (default ``now_ms``; virtual time's modelled encoding ends later), when the estimator also
+        probes.  ``rates_kbps`` and ``restarts``: the
         encoder rates it was coded at and the encoders restarted for it (its :class:`~.sender.EncodedUpdate`'s),
         for the rate controller."""
         self.fb.frame_sent(frame_id, server_time_us)
@@ -1710,6 +1738,8 @@ class ServerSession:
             self.counters["encoder_restarts"] = self.counters.get("encoder_restarts", 0) + restarts
         if self.transport == "rtp":
             at = now_ms if send_ms is None else send_ms
+            for _, frame in out.control:     # its FrameMeta and reliable data leave first, by data_to_send
+                self.queue_control(frame, at)
             items = [("rtp", name, data) for name, _, data in out.datagrams] + [("fec", None, d) for _, d in out.fec]
             if at <= now_ms:
                 self._queue(items, at)

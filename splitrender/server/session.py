@@ -233,8 +233,8 @@ class ServerSession:
             await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
         try:
-            await self.channel.write_frames(acc.frames)     # the Welcome, then the session data
-            self._counters["session_bytes"] = sum(len(f) for f in acc.session_data_frames)
+            await self.channel.write_frames(acc.core.data_to_send(_now_ms()))     # the Welcome, then the session data
+            self._counters["session_bytes"] = acc.session_bytes
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
             return False
@@ -359,8 +359,8 @@ class ServerSession:
             raise _SessionEnded()
         c1 = time.perf_counter()
         out, row = self.core.frame_from_worker(*made, _now_ms())
-        # metadata and reliable data first (TCP), then the RTP packets: a frame is sent whole or not at all
-        await self.channel.write_frames([f for _, f in out.control], drain=False)
+        # the core's one way out: metadata and reliable data first (TCP), then the RTP packets
+        await self.channel.write_frames(self.core.data_to_send(_now_ms()), drain=False)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
         self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
@@ -371,7 +371,8 @@ class ServerSession:
     # ------------------------------------------------------------------ RTCP
 
     async def _timer_loop(self) -> None:
-        """Flushes the core when its one timer comes (woken early when an input may have moved it)."""
+        """Flushes the core (its control frames, then its datagrams) when its one timer comes (woken early when an
+        input may have moved it)."""
         assert self.core is not None
         while True:
             wait = max(0.0, min(1.0, (self.core.get_timer() - _now_ms()) / 1000))
@@ -381,6 +382,8 @@ class ServerSession:
                 async with asyncio.timeout(wait):
                     await self._timer_wake.wait()
             self._timer_wake.clear()
+            if frames := self.core.data_to_send(_now_ms()):   # (a frame's are written as it is sent)
+                await self.channel.write_frames(frames, drain=False)
             self._flush(wake=False)
 
     def on_datagram(self, data: bytes, addr: Address) -> None:

@@ -244,8 +244,9 @@ class VirtualTimeRun:
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
                            predictor=PerfectPredictor(c.trace) if cfg.predictor == "perfect" else None)
         c.core_s = acc.core
-        c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in acc.frames)
-        assert hs.receive_data(b"".join(acc.frames)) and hs.welcome is not None and hs.terms is not None
+        frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
+        c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in frames)
+        assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.core.release_delay_ms = lambda rf, c=c: self._decode_delay_ms(c, rf)   # type: ignore[misc]
@@ -333,12 +334,11 @@ class VirtualTimeRun:
             # the half's wall-clock stage times ride in the envelope only where they are on the clock too: their
             # bytes would otherwise make two runs of one seed differ (and, adapting, decide differently)
             wire_stats = stats if measured else {k: v for k, v in stats.items() if not k.endswith("_ms")}
-            # its datagrams leave when its modelled encoding ends, through the core's one way out
+            # the frame leaves when its modelled encoding ends (its control frames, then its datagrams), through the
+            # core's one way out
             out = c.core_s.frame_encoded(order, enc, t_f * 1000, sim_us(t_f), timing, wire_stats,
                                          send_ms=send_t * 1000)
-            # the frame leaves when its encoding ends: its control frames first, then its datagrams (the core's)
-            self.clock.at(send_t, TIMER, c.down.stream, [(data, tcp_segments(len(data))) for _, data in out.control],
-                          self._deliver_control, c)
+            self.clock.at(send_t, TIMER, self._server_control, c)   # its control frames are due then
             self._server_out(c)
             for k, v in out.wire_bytes.items():
                 c.bytes[k] = c.bytes.get(k, 0) + v
@@ -357,8 +357,9 @@ class VirtualTimeRun:
             c.updates.append(row)
 
     def _server_out(self, c: _Client) -> None:
-        """What the server core sends now (its one way out): media, FEC, retransmissions and probes down the media
-        path, sender reports over RTCP's copy of the downlink; then its one timer is armed."""
+        """What the server core sends now (its one way out; a frame's control frames at its send time:
+        :meth:`_server_control`): media, FEC, retransmissions and probes down the media path, sender reports over
+        RTCP's copy of the downlink; then its one timer is armed."""
         assert c.core_s is not None and c.server_timer is not None
         for d in c.core_s.datagrams_to_send(self.now * 1000):
             if d.kind == "rtcp":
@@ -368,6 +369,11 @@ class VirtualTimeRun:
             if d.kind == "probe":
                 c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(d.data))
         c.server_timer.arm(c.core_s.get_timer() / 1000)
+
+    def _server_control(self, c: _Client) -> None:
+        """The server core's control frames due now, down the TCP stream, each a write."""
+        if frames := c.core_s.data_to_send(self.now * 1000):   # type: ignore[union-attr]
+            c.down.stream([(data, tcp_segments(len(data))) for data in frames], self._deliver_control, c)
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
