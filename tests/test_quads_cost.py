@@ -304,3 +304,28 @@ def test_extend_moves_only_the_quads_it_names() -> None:
     assert np.array_equal(idx, idx0) and np.array_equal(full[~moved], plain[~moved])
     assert np.array_equal(full[moved], only.reshape(-1, 4, full.shape[-1]))
     assert (full[moved] != plain[moved]).any(-1).any(-1).mean() > 0.9
+
+
+@pytest.mark.parametrize("near_far,delta_max", [((0.05, 200.0), 1e-4), ((0.1, 50.0), 1e-3), ((0.05, 200.0), 0.0),
+                                                ((0.05, 200.0), 2.0)])
+def test_close_limit_gives_the_window_depths_verdicts(near_far: tuple[float, float], delta_max: float) -> None:
+    """A lattice neighbour is close when its distance along the ray, as a window depth, is below ``delta_max``; the
+    quad generation compares the distance with ``close_limit`` instead: the same verdict for every distance, at the
+    limit and the float64 values either side of it included, and for NaN and inf."""
+    from splitrender.methods.quads.gen import close_limit, window_depth
+
+    intr = CameraIntrinsics(320, 180, near_m=near_far[0], far_m=near_far[1])
+    limit = close_limit(intr, delta_max)
+    rng = np.random.default_rng(5)
+    d = np.concatenate([rng.random(20000) * 10 ** rng.uniform(-6, 3, 20000), [0.0, np.inf, np.nan, near_far[0],
+                                                                             near_far[1]]])
+    if 0 < limit < np.inf:
+        d = np.concatenate([d, [limit, np.nextafter(limit, 0), np.nextafter(limit, np.inf)],
+                            limit * (1 + rng.uniform(-1e-9, 1e-9, 1000))])
+    with np.errstate(invalid="ignore"):
+        truth = window_depth(d, intr) < delta_max
+    if limit < np.inf:
+        assert np.array_equal(d < limit, truth)
+    else:   # every finite distance is close
+        assert truth[np.isfinite(d)].all()
+    assert truth.any() == (limit > 0)

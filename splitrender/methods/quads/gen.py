@@ -235,74 +235,157 @@ def _close_up(own: np.ndarray, dl_len: np.ndarray, zz: np.ndarray, has: np.ndarr
               params: QuadParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 16 corners' depths and offsets of pixels whose own lattice depths are ``own`` (..., 3, 3) (ray lengths
     ``dl_len``), given their neighbours' depths ``zz`` (..., len(NEIGHBOUR_ROWS)) at the shared lattice points and
-    whether each neighbour has a plane (``has``); and which pixels make a quad."""
-    pj = np.array([LATTICE[m][0] for *_, m in NEIGHBOUR_ROWS])
-    pi = np.array([LATTICE[m][1] for *_, m in NEIGHBOUR_ROWS])
-    own_r = own[..., pj, pi]
-    ok = has & np.isfinite(zz) & np.isfinite(own_r)
-    zv = np.where(ok, zz, 0.0)
-    dist = np.abs(zv - np.where(ok, own_r, 0.0)) * dl_len[..., pj, pi]
-    close_r = ok & (window_depth(dist, intr) < params.delta_max)
+    whether each neighbour has a plane (``has``); and which pixels make a quad.
+
+    A neighbour is close where both depths are finite and their distance along the ray, as a window depth, is
+    below ``delta_max``: the distance is compared with :func:`close_limit` (the same verdicts, without the window
+    depth of every distance); where it is not close its depth is not read."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return _close_up_at(own, dl_len, zz, has, intr, params)
+
+
+def _close_up_at(own: np.ndarray, dl_len: np.ndarray, zz: np.ndarray, has: np.ndarray, intr: CameraIntrinsics,
+                 params: QuadParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    own_r = own[..., _PJ, _PI]
+    dist = np.abs(zz - own_r)
+    dist *= dl_len[..., _PJ, _PI]
+    limit = close_limit(intr, params.delta_max)
+    if limit < np.inf:  # a non-finite depth gives an infinite or NaN distance, which is not below the limit
+        close_r = has & (dist < limit)
+    else:
+        close_r = has & np.isfinite(zz) & np.isfinite(own_r)
     lat = own.copy()
     for m, (j, i) in enumerate(LATTICE):
         rs = POINT_ROWS[m]
         close = close_r[..., rs[0]]
-        acc = zv[..., rs[0]]
+        acc = zz[..., rs[0]]
         for r in rs[1:]:
             close = close & close_r[..., r]
-            acc = acc + zv[..., r]
+            acc = acc + zz[..., r]
         mean = (own[..., j, i] + acc) / (1 + len(rs))
         lat[..., j, i] = np.where(close, mean, own[..., j, i])
-    idx_j, idx_i = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
-    corners = lat[..., idx_j, idx_i]                                            # (..., 16) actual depths
-    with np.errstate(invalid="ignore"):
-        offs = (corners - own[..., idx_j, idx_i]) * dl_len[..., idx_j, idx_i]
-    good = np.isfinite(corners).all(-1) & np.isfinite(offs).all(-1)
-    good &= (np.abs(np.where(good[..., None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)
+    corners = lat[..., _IDX_J, _IDX_I]                                          # (..., 16) actual depths
+    offs = corners - own[..., _IDX_J, _IDX_I]
+    offs *= dl_len[..., _IDX_J, _IDX_I]
+    # |offset| <= MAX_OFFSET_M holds only for finite offsets, and a finite offset has finite depths on both sides
+    good = (np.abs(offs) <= MAX_OFFSET_M).all(-1)
     return corners, offs, good
 
 
-BAND_ROWS = 16
-"""Rows of pixels :func:`_lattice_dense` works on at a time: each step's arrays then stay in the processor's cache
-(the whole image's (H, W, 16) float64 arrays do not; 2-3x faster at 320x180)."""
+_PJ = np.array([LATTICE[m][0] for *_, m in NEIGHBOUR_ROWS])
+_PI = np.array([LATTICE[m][1] for *_, m in NEIGHBOUR_ROWS])
+"""Each of :data:`NEIGHBOUR_ROWS`'s lattice point in the pixel's own lattice."""
+_IDX_J, _IDX_I = SUB_CORNERS[:, 1], SUB_CORNERS[:, 0]
+_LIMITS: dict[tuple[float, float, float], float] = {}
+
+
+def close_limit(intr: CameraIntrinsics, delta_max: float) -> float:
+    """The least distance ``d`` >= 0 whose :func:`window_depth` is not below ``delta_max``: for every ``d`` >= 0,
+    ``window_depth(d) < delta_max`` exactly when ``d < close_limit`` (each floating-point step of
+    :func:`window_depth` is monotone, so the verdict flips once; found by bisection over the float64 values)."""
+    key = (intr.near_m, intr.far_m, float(delta_max))
+    got = _LIMITS.get(key)
+    if got is None:
+        below = lambda d: bool(window_depth(np.array([d]), intr)[0] < delta_max)  # noqa: E731
+        if not below(0.0):
+            got = 0.0
+        elif below(np.inf):
+            got = np.inf
+        else:
+            lo, hi = 0, int(np.array(np.inf).view(np.int64))     # below(lo), not below(hi): bits of non-negatives
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if below(float(np.array(mid, np.int64).view(np.float64))):
+                    lo = mid
+                else:
+                    hi = mid
+            got = float(np.array(hi, np.int64).view(np.float64))
+        _LIMITS[key] = got
+    return got
+
+
+BAND_ROWS = 32
+"""Rows of pixels :func:`_lattice_dense` works on at a time: each step's arrays then stay in the processor's cache."""
+_POINTS = [(j, i) for j in (0, 1, 2) for i in (0, 1, 2)]
+"""The 3x3 lattice's points; :data:`SUB_CORNERS`'s 16 corners are these nine, some more than once."""
+_CORNER_POINT = [_POINTS.index((int(j), int(i))) for i, j in SUB_CORNERS]
+"""Each of the 16 corners' index in :data:`_POINTS`."""
 
 
 def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.ndarray, grid: np.ndarray,
                    grid_len: np.ndarray, intr: CameraIntrinsics, params: QuadParams
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_close_up` for every pixel, band by band of :data:`BAND_ROWS` rows: the lattice rays as strided
-    views of the camera's half-pixel grid, the neighbours as shifted slices.  Returns the level-0 maps' ``present``
-    (``need`` where the quad is good), ``corners``, ``offs`` (0 where no quad is) and ``flat``."""
+    """:func:`_close_up` for every pixel, one lattice point at a time over a band of :data:`BAND_ROWS` rows: each
+    plane is cut with the rays of one of its nine lattice points at once (a strided view of the camera's half-pixel
+    grid), and a neighbour's depth at a shared point is a shifted slice of those.  The same arithmetic per value as
+    :func:`_close_up` (the same additions in the same order), so the same bits.  Returns the level-0 maps'
+    ``present`` (``need`` where the quad is good), ``corners``, ``offs`` (0 where no quad is) and ``flat``."""
     h, w = valid.shape
-    s0, s1, s2 = grid.strides
-    rays9 = np.lib.stride_tricks.as_strided(grid, (h, w, 3, 3, 3), (2 * s0, 2 * s1, s0, s1, s2), writeable=False)
-    l0, l1 = grid_len.strides
-    len9 = np.lib.stride_tricks.as_strided(grid_len, (h, w, 3, 3), (2 * l0, 2 * l1, l0, l1), writeable=False)
-    pad = np.zeros((h + 2, w + 2, 3, 3))
+    own = np.zeros((3, 3, h + 2, w + 2))     # each pixel's plane at its lattice point (j, i); a zero border
+    lens = [[grid_len[j:j + 2 * h:2, i:i + 2 * w:2] for i in range(3)] for j in range(3)]
     vpad = np.zeros((h + 2, w + 2), bool)
     vpad[1:-1, 1:-1] = valid
     present = np.zeros((h, w), bool)
     full_c = np.empty((h, w, 16))
     full_o = np.empty((h, w, 16))
     flat = np.empty((h, w), bool)
-    nr = len(NEIGHBOUR_ROWS)
+    limit = close_limit(intr, params.delta_max)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # plane_depth at lattice point (j, i): a lattice ray's x depends on its column alone, its y on its row
+        # alone and its z is -1, so dot3(n, d) = (n_x d_x + n_y d_y) + n_z d_z from products made once per column
+        # and per row of the lattice (the same products and sums, so the same bits)
+        nx = [n[..., 0] * grid[0, i:i + 2 * w:2, 0] for i in range(3)]
+        ny = [n[..., 1] * grid[j:j + 2 * h:2, 0, 1][:, None] for j in range(3)]
+        nz = n[..., 2] * grid[0, 0, 2]
+        neg_w = -wq
+        for j in range(3):
+            for i in range(3):
+                den = nx[i] + ny[j]
+                den += nz
+                z = neg_w / den
+                own[j, i, 1:-1, 1:-1] = np.where((np.abs(den) > 1e-12) & (z > 0), z, np.inf)
         for r0 in range(0, h, BAND_ROWS):
             r1 = min(h, r0 + BAND_ROWS)
-            pad[1 + r0:1 + r1, 1:-1] = plane_depth(n[r0:r1, :, None, None, :], wq[r0:r1, :, None, None], rays9[r0:r1])
-        for r0 in range(0, h, BAND_ROWS):
-            r1 = min(h, r0 + BAND_ROWS)
-            zz = np.empty((r1 - r0, w, nr))
-            has = np.empty((r1 - r0, w, nr), bool)
-            for r, (dx, dy, nj, ni, _) in enumerate(NEIGHBOUR_ROWS):
-                zz[..., r] = pad[1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w, nj, ni]
-                has[..., r] = vpad[1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w]
-            corners, offs, good = _close_up(pad[1 + r0:1 + r1, 1:-1], len9[r0:r1], zz, has, intr, params)
-            ok = good & need[r0:r1]
+            mine = own[:, :, 1 + r0:1 + r1, 1:-1]
+            ln = [[lens[j][i][r0:r1] for i in range(3)] for j in range(3)]
+            close_r, zz = [], []
+            for dx, dy, nj, ni, m in NEIGHBOUR_ROWS:
+                j, i = LATTICE[m]
+                z = own[nj, ni, 1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w]
+                dist = np.abs(z - mine[j, i])
+                dist *= ln[j][i]
+                has = vpad[1 + r0 + dy:1 + r1 + dy, 1 + dx:1 + dx + w]
+                if limit < np.inf:
+                    close_r.append(has & (dist < limit))
+                else:
+                    close_r.append(has & np.isfinite(z) & np.isfinite(mine[j, i]))
+                zz.append(z)
+            lat = [mine[j, i] for j, i in _POINTS]
+            for m, (j, i) in enumerate(LATTICE):
+                rs = POINT_ROWS[m]
+                close = close_r[rs[0]]
+                acc = zz[rs[0]]
+                for r in rs[1:]:
+                    close = close & close_r[r]
+                    acc = acc + zz[r]
+                mean = (mine[j, i] + acc) / (1 + len(rs))
+                lat[_POINTS.index((j, i))] = np.where(close, mean, mine[j, i])
+            offs = []
+            ok = need[r0:r1].copy()
+            fl = np.full((r1 - r0, w), True)
+            for p, (j, i) in enumerate(_POINTS):
+                o = lat[p] - mine[j, i]
+                o *= ln[j][i]
+                a = np.abs(o)
+                ok &= a <= MAX_OFFSET_M    # only a finite offset passes: finite depths on both sides
+                fl &= a < params.delta_flatten
+                offs.append(o)
             present[r0:r1] = ok
-            full_c[r0:r1] = np.where(ok[..., None], corners, 0.0)
-            o = full_o[r0:r1] = np.where(ok[..., None], offs, 0.0)
-            flat[r0:r1] = np.where(ok, (np.abs(o) < params.delta_flatten).all(-1), 0.0 < params.delta_flatten)
+            flat[r0:r1] = np.where(ok, fl, 0.0 < params.delta_flatten)
+            lat = [np.where(ok, x, 0.0) for x in lat]
+            offs = [np.where(ok, x, 0.0) for x in offs]
+            np.stack([lat[p] for p in _CORNER_POINT], axis=-1, out=full_c[r0:r1])
+            np.stack([offs[p] for p in _CORNER_POINT], axis=-1, out=full_o[r0:r1])
     return present, full_c, full_o, flat
 
 
@@ -314,21 +397,33 @@ def _lattice_sparse(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.n
     h, w = valid.shape
     cy, cx = np.nonzero(cut)
     jj, ii = np.mgrid[0:3, 0:3]
-    own_all = np.zeros((h * w, 3, 3))
-    own_all[cy * w + cx] = plane_depth(n[cy, cx][:, None, None, :], wq[cy, cx][:, None, None],
-                                       grid[2 * cy[:, None, None] + jj, 2 * cx[:, None, None] + ii])
+    # plane_depth at each plane's own lattice: a lattice ray's x is its column's, its y its row's, its z -1, so the
+    # products are read from one row and one column of the lattice (the same values and sums, so the same bits;
+    # :func:`_lattice_dense` does the same)
+    nc, neg_w = n[cy, cx], -wq[cy, cx]
+    den = nc[:, 0, None, None] * grid[0, 2 * cx[:, None, None] + ii, 0] + nc[:, 1, None, None] * grid[2 * cy[:, None, None] + jj, 0, 1]
+    den += nc[:, 2, None, None] * grid[0, 0, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        zc = neg_w[:, None, None] / den
+    own_cut = np.zeros((cy.size + 1, 3, 3))    # the planes of cut, then a zero row (no plane)
+    own_cut[:-1] = np.where((np.abs(den) > 1e-12) & (zc > 0), zc, np.inf)
+    wp = w + 2                                  # index maps with a border of one pixel (outside: no plane)
+    at = np.full((h + 2) * wp, cy.size, np.int64)
+    at[(cy + 1) * wp + cx + 1] = np.arange(cy.size)
+    vpad = np.zeros((h + 2) * wp, bool)
+    vpad.reshape(h + 2, wp)[1:-1, 1:-1] = valid
     py, px = np.nonzero(need)
-    own = own_all[py * w + px]                                                 # (k, 3, 3)
+    base = (py + 1) * wp + px + 1
+    own = own_cut[at[base]]                                                     # (k, 3, 3)
     dl_len = grid_len[2 * py[:, None, None] + jj, 2 * px[:, None, None] + ii]   # (k, 3, 3)
     nr = len(NEIGHBOUR_ROWS)
     zz = np.empty((py.size, nr))
     has = np.empty((py.size, nr), bool)
+    flat_own = own_cut.reshape(-1)
     for r, (dx, dy, nj, ni, _) in enumerate(NEIGHBOUR_ROWS):
-        yy, xx = py + dy, px + dx
-        inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-        yc, xc = np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)
-        has[:, r] = inside & valid[yc, xc]
-        zz[:, r] = own_all[yc * w + xc, nj, ni]
+        nb = base + (dy * wp + dx)
+        has[:, r] = vpad[nb]
+        zz[:, r] = flat_own[9 * at[nb] + (3 * nj + ni)]
     corners, offs, ok = _close_up(own, dl_len, zz, has, intr, params)
     return py, px, corners, offs, ok
 
@@ -409,27 +504,34 @@ MERGE_CHUNK = 2048
 def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: np.ndarray, cx: np.ndarray, level: int,
                  intr: CameraIntrinsics, params: QuadParams, coarse: bool) -> None:
     """:func:`merge_pass` for the cells (``cy``, ``cx``) whose four children are present: merged ones go to
-    ``out`` and leave ``child``."""
+    ``out`` and leave ``child``.
+
+    Every ray below meets the image at a multiple of half a pixel, so it is read from the camera's lattice of rays;
+    a lattice ray's x depends on its column alone, its y on its row alone and its z is -1, so a plane meets it at
+    ``(n_x d_x + n_y d_y) + n_z d_z`` (:func:`dot3`'s sum) with ``d_x`` and ``d_y`` read from one row and one
+    column of the lattice: the same values, so the same bits as reading the whole rays."""
     size = 2 ** (level + 1)
     half = 2 ** level
     subs = [(0, 0), (0, 1), (1, 0), (1, 1)]
-    kids = [(2 * cy + sy, 2 * cx + sx) for sy, sx in subs]
-    get = lambda key: [child[key][yy, xx] for yy, xx in kids]  # noqa: E731
-    # every ray below meets the image at a multiple of half a pixel: read from the camera's lattice of rays
+    cw = child["present"].shape[1]
+    kids = [(2 * cy + sy) * cw + 2 * cx + sx for sy, sx in subs]     # the children's flat indices
     _, grid, grid_len = ray_grids(intr)
+    ray_x, ray_y, ray_z = grid[0, :, 0], grid[:, 0, 1], grid[0, 0, 2]
     gx, gy = 2 * size * cx, 2 * size * cy
+    child_n = child["n"].reshape(-1, 3)
+    ns = [child_n[k] for k in kids]
+    zs = [child["zc"].ravel()[k] for k in kids]
     eqs = []
     for s, (sy, sx) in enumerate(subs):
-        n = child["n"][kids[s]]
-        dcen = grid[gy + 2 * sy * half + half, gx + 2 * sx * half + half]
-        wv = -dot3(n, dcen) * child["zc"][kids[s]]
+        n = ns[s]
+        u, v = gx + 2 * sx * half + half, gy + 2 * sy * half + half
+        wv = -((n[:, 0] * ray_x[u] + n[:, 1] * ray_y[v]) + n[:, 2] * ray_z) * zs[s]
         eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
     ok = np.ones(cy.size, bool)
     for a in range(4):
         for b in range(a + 1, 4):
             e = eqs[a] - eqs[b]
             ok &= np.sqrt(((e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]) + e[:, 2] * e[:, 2]) + e[:, 3] * e[:, 3]) < params.delta_sim
-    zs = get("zc")
     if coarse:
         ndc = [ndc_depth(z, intr) for z in zs]
         cont = np.ones(cy.size, bool)
@@ -438,32 +540,38 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
                 cont &= np.abs(ndc[a] - ndc[b]) < params.delta_max
         ok |= cont
     dcen = grid[gy + size, gx + size]
-    nsum = sum(get("n"))
+    nsum = sum(ns)
     nn = nsum / np.maximum(norm3(nsum), 1e-12)[:, None]
     th, ph, nq = quantize(orient(nn, dcen))
     zc = sum(zs) / 4.0
     wq = -dot3(nq, dcen) * zc
-    cs = get("corners")
-    corners = np.stack([cs[s][:, OUTER[c]] for s in range(4) for c in range(4)], axis=-1)
+    # sub-quad s takes child s's four outer corners
+    flat_c = child["corners"].reshape(-1)
+    corners = np.concatenate([flat_c[16 * k[:, None] + OUTER] for k in kids], axis=-1)
     iu = gx[:, None] + SUB_CORNERS[:, 0] * size
     iv = gy[:, None] + SUB_CORNERS[:, 1] * size
-    plane16 = plane_depth(nq[:, None, :], wq[:, None], grid[iv, iu])
-    with np.errstate(invalid="ignore"):
-        offs = (corners - plane16) * grid_len[iv, iu]
-    ok &= np.isfinite(offs).all(-1)
-    ok &= (np.abs(np.where(ok[:, None], offs, 0.0)) <= MAX_OFFSET_M).all(-1)   # a plane near edge-on over a large quad
+    den = (nq[:, 0:1] * ray_x[iu] + nq[:, 1:2] * ray_y[iv]) + nq[:, 2:3] * ray_z     # plane_depth's, at the 16 corners
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z16 = -wq[:, None] / den
+        plane16 = np.where((np.abs(den) > 1e-12) & (z16 > 0), z16, np.inf)
+        offs = corners - plane16
+        offs *= grid_len[iv, iu]
+    # |offset| <= MAX_OFFSET_M only for a finite offset: none non-finite, none too large (a plane near edge-on over a
+    # large quad)
+    ok &= (np.abs(offs) <= MAX_OFFSET_M).all(-1)
     sel = np.flatnonzero(ok)
-    yy, xx = cy[sel], cx[sel]
-    out["present"][yy, xx] = True
-    out["n"][yy, xx] = nq[sel]
-    out["theta"][yy, xx] = th[sel]
-    out["phi"][yy, xx] = ph[sel]
-    out["zc"][yy, xx] = zc[sel]
-    out["corners"][yy, xx] = corners[sel]
-    out["offs"][yy, xx] = offs[sel]
-    out["flat"][yy, xx] = (np.abs(offs[sel]) < params.delta_flatten).all(-1)
-    for ky, kx in kids:  # merged children leave their map
-        child["present"][ky[sel], kx[sel]] = False
+    at = cy[sel] * out["present"].shape[1] + cx[sel]
+    out["present"].ravel()[at] = True
+    out["n"].reshape(-1, 3)[at] = nq[sel]
+    out["theta"].ravel()[at] = th[sel]
+    out["phi"].ravel()[at] = ph[sel]
+    out["zc"].ravel()[at] = zc[sel]
+    out["corners"].reshape(-1, 16)[at] = corners[sel]
+    o = out["offs"].reshape(-1, 16)[at] = offs[sel]
+    out["flat"].ravel()[at] = (np.abs(o) < params.delta_flatten).all(-1)
+    cpres = child["present"].ravel()
+    for k in kids:  # merged children leave their map
+        cpres[k[sel]] = False
 
 
 def generate(depth: np.ndarray, normal_world: np.ndarray, view_rot: np.ndarray, intr: CameraIntrinsics,
