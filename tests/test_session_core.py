@@ -692,6 +692,35 @@ def test_a_page_takes_one_video_stream_on_the_webrtc_profile() -> None:
         accept_page(dataclasses.replace(page, method="warp"), [video, depth], 60.0, ServerConfig())
 
 
+def test_a_page_gets_the_method_knobs_its_terms_allow(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``serve --webrtc --adapt full`` (issue 47: ``accept_page`` gave the core no knobs, so a page adapted on the
+    pipeline's bare resolution scale, without a quality model): the core takes the method's knobs that leave the
+    page's terms as they are.  video's and atw's scale carry their quality models; sas's atlas budget and frame rate are kept (its page's terms come
+    from the session data, which no knob changes); a knob of a field the page's terms are made from (atw's overscan:
+    the reference field of view the page warps with) is left out, one of another field (crf) kept."""
+    from splitrender.methods.atw.config import AtwConfig
+    from splitrender.methods.base import SCALE_KNOB, Knob
+    from splitrender.pipeline.session import accept_page, page_knobs
+
+    video = StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H, scalable=True)
+    atw = Opening("atw", method_config("atw", {}), CameraIntrinsics(W, H))
+    core = accept_page(atw, [video], 60.0, ServerConfig(transport_cc=True, adapt="full"))
+    assert core.point is not None and [k.name for k in core.point.knobs] == ["scale"]
+    assert core.point.model is not None and core.point.model is atw.config.adapt_knobs()[0].model
+    vcfg = method_config("video", {})
+    plain = accept_page(Opening("video", vcfg, CameraIntrinsics(W, H)), [video], 60.0,
+                        ServerConfig(transport_cc=True, adapt="full"))
+    assert plain.point is not None and plain.point.model is vcfg.adapt_knobs()[0].model is not None
+    sas = Opening("sas", method_config("sas", {}), CameraIntrinsics(W, H))
+    monkeypatch.setattr("splitrender.methods.sas.page.SasPage.__init__", lambda self, *a: None)
+    monkeypatch.setattr("splitrender.methods.sas.page.SasPage.terms", lambda self: {"atlas_width": 1024})
+    assert [k.name for k in page_knobs(sas, b"")] == ["bias_fill", "frame_div"]
+    overscan = Knob("overscan", (1.4, 1.2), (1.0, 0.8), "video", "reference field of view")
+    crf = Knob("crf", (23, 28), (1.0, 0.6), "video", "quantiser")
+    monkeypatch.setattr(AtwConfig, "adapt_knobs", lambda self: (overscan, crf, SCALE_KNOB))
+    assert [k.name for k in page_knobs(atw, b"")] == ["crf", "scale"]
+
+
 def test_the_live_frame_clock_is_the_core_s() -> None:
     """``order_tick``, the two live front doors' frame clock (issue 47; each kept a frame id and a last tick): a frame
     is numbered by the frames sent before it, lands on the wall clock's tick of the shared grid, or on the next one

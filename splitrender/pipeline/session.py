@@ -83,7 +83,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "method_config", "open_hello", "open_page", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -1068,16 +1068,38 @@ def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[An
     return Accepted(core, welcome, sum(len(f) for f in chunks))
 
 
-def accept_page(opening: Opening, specs: list[Any], display_hz: float, server: Any) -> ServerSession:
-    """The server's side of a browser session (its WebRTC profile): ``opening``'s server half declared ``specs``,
-    which a page takes only as one video stream (else a ``RemoteProtocolError`` naming them); the core, on the
-    ``"webrtc"`` transport with ``server``'s session options and predictor (the WebRTC stack packetizes and paces:
-    ``pacing`` is left off)."""
+def accept_page(opening: Opening, specs: list[Any], display_hz: float, server: Any,
+                session_blob: bytes = b"") -> ServerSession:
+    """The server's side of a browser session (its WebRTC profile): ``opening``'s server half declared ``specs``
+    and ``session_blob``, which a page takes only as one video stream (else a ``RemoteProtocolError`` naming them);
+    the core, on the ``"webrtc"`` transport with ``server``'s session options and predictor (the WebRTC stack
+    packetizes and paces: ``pacing`` is left off) and, for ``adapt = "full"``, the knobs the page can follow
+    (:func:`page_knobs`)."""
     if len(specs) != 1 or not isinstance(specs[0], StreamSpec):
         raise RemoteProtocolError(f"method {opening.method}: streams {[s.name for s in specs]} cannot go to a page "
                                   "(it takes one video stream)", ErrorCode.UNSUPPORTED_METHOD)
-    return ServerSession(ServerPipeline(specs), display_hz, dataclasses.replace(server.session_options(), pacing=False),
-                         predictor=make_predictor(server.predictor), transport="webrtc")
+    options = dataclasses.replace(server.session_options(), pacing=False)
+    return ServerSession(ServerPipeline(specs), display_hz, options, predictor=make_predictor(server.predictor),
+                         knobs=page_knobs(opening, session_blob) if options.adapt == "full" else (), transport="webrtc")
+
+
+def page_knobs(opening: Opening, session_blob: bytes) -> tuple[Any, ...]:
+    """The method's operating-point knobs (:meth:`~splitrender.methods.base.MethodConfig.adapt_knobs`) that a browser
+    page can follow.  The page takes its terms once, with the answer (its method's
+    :meth:`~splitrender.methods.base.PageGlue.terms`, made from the config and the session data: atw's reference
+    field of view and fill, sas's atlas), and its frames' own messages every frame; so a knob that sets a config
+    field is kept only where none of its levels changes those terms.  The pipeline's knobs (no config field:
+    ``scale``, whose smaller video the page's decoder takes as any resolution change, and ``frame_div``: the page
+    draws the newest frame it has at every display tick) are kept."""
+    config, page = opening.config, get_method(opening.method).page_class
+    fields = {f.name for f in dataclasses.fields(config)}
+    terms = page(config, opening.intrinsics, session_blob).terms()
+
+    def follows(knob: Any) -> bool:
+        return knob.name not in fields or all(
+            page(dataclasses.replace(config, **{knob.name: v}), opening.intrinsics, session_blob).terms() == terms
+            for v in knob.levels)
+    return tuple(k for k in config.adapt_knobs() if follows(k))
 
 
 class Datagram(NamedTuple):

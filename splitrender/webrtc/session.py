@@ -114,8 +114,9 @@ class BrowserSession:
         mcfg = opening.config
         self.worker = await self.server.acquire_worker()
         specs, session_blob, _sets = await self.worker.call("open", self.id, opening, deadline_s=self.cfg.setup_deadline_s)
-        # aiortc owns packetizing and pacing; adaptation follows the page's REMB (track.hook_sender_rtcp)
-        self.core = accept_page(opening, specs, self.display_hz, self.cfg)
+        # aiortc owns packetizing and pacing; adaptation follows the page's REMB (track.hook_sender_rtcp), with the
+        # method's knobs the page can follow
+        self.core = accept_page(opening, specs, self.display_hz, self.cfg, session_blob)
         ref = specs[0]
         self.stream = ref.name
         self.page = get_method(self.method).page_class(mcfg, opening.intrinsics, session_blob)
