@@ -152,9 +152,11 @@ def window_depth(z: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
     return ndc_depth(np.clip(z, intr.near_m, intr.far_m), intr) * 0.5 + 0.5
 
 
-def orient(n: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Normals ``n`` turned to face the eye along rays ``d``, and at least 2.5 degrees from edge-on."""
-    a = -d / norm3(d)[..., None]
+def orient(n: np.ndarray, d: np.ndarray, a: np.ndarray | None = None) -> np.ndarray:
+    """Normals ``n`` turned to face the eye along rays ``d``, and at least 2.5 degrees from edge-on.  ``a``: the
+    unit vectors towards the eye, ``-d / |d|``, when the caller has them (:func:`toward_eye`)."""
+    if a is None:
+        a = -d / norm3(d)[..., None]
     dot = dot3(n, a)[..., None]
     n = np.where(dot < 0, -n, n)
     dot = np.abs(dot)
@@ -205,6 +207,24 @@ def ray_grids(intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarra
         if len(_GRIDS) > 8:
             _GRIDS.clear()
         _GRIDS[key] = got
+    return got
+
+
+_TOWARD: dict[tuple[int, int, float], np.ndarray] = {}
+
+
+def toward_eye(intr: CameraIntrinsics) -> np.ndarray:
+    """(H, W, 3): :func:`orient`'s unit vectors towards the eye at every pixel centre, computed once per camera (the
+    same arithmetic on :func:`ray_grids`' centre rays, so the same bits)."""
+    key = (intr.width, intr.height, intr.focal_px())
+    got = _TOWARD.get(key)
+    if got is None:
+        centre = ray_grids(intr)[0]
+        got = -centre / norm3(centre)[..., None]
+        got.flags.writeable = False
+        if len(_TOWARD) > 8:
+            _TOWARD.clear()
+        _TOWARD[key] = got
     return got
 
 
@@ -326,8 +346,9 @@ def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.nd
     vpad = np.zeros((h + 2, w + 2), bool)
     vpad[1:-1, 1:-1] = valid
     present = np.zeros((h, w), bool)
-    full_c = np.empty((h, w, 16))
-    full_o = np.empty((h, w, 16))
+    # the corners and offsets corner by corner, each an (H, W) plane, handed on as (H, W, 16) views
+    full_c = np.empty((16, h, w))
+    full_o = np.empty((16, h, w))
     flat = np.empty((h, w), bool)
     limit = close_limit(intr, params.delta_max)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -384,9 +405,10 @@ def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.nd
             flat[r0:r1] = np.where(ok, fl, 0.0 < params.delta_flatten)
             lat = [np.where(ok, x, 0.0) for x in lat]
             offs = [np.where(ok, x, 0.0) for x in offs]
-            np.stack([lat[p] for p in _CORNER_POINT], axis=-1, out=full_c[r0:r1])
-            np.stack([offs[p] for p in _CORNER_POINT], axis=-1, out=full_o[r0:r1])
-    return present, full_c, full_o, flat
+            for k, p in enumerate(_CORNER_POINT):
+                full_c[k, r0:r1] = lat[p]
+                full_o[k, r0:r1] = offs[p]
+    return present, full_c.transpose(1, 2, 0), full_o.transpose(1, 2, 0), flat
 
 
 def _lattice_sparse(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.ndarray, cut: np.ndarray,
@@ -446,7 +468,7 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     dense = emit is None or 3 * int(np.count_nonzero(need)) > h * w
     if dense:
         dc = centre
-        n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc)
+        n = orient(np.where(valid[..., None], normal_view, (0.0, 0.0, 1.0)), dc, toward_eye(intr))
         th, ph, n = quantize(n)
         wq = -dot3(n, dc) * z
         cut = valid
@@ -461,7 +483,7 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
         cut = near & valid
         sy, sx = np.nonzero(cut)
         dcs = centre[sy, sx]
-        ths, phs, ns = quantize(orient(normal_view[sy, sx], dcs))
+        ths, phs, ns = quantize(orient(normal_view[sy, sx], dcs, toward_eye(intr)[sy, sx]))
         n, th, ph, wq = np.zeros((h, w, 3)), np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8), np.zeros((h, w))
         n[sy, sx], th[sy, sx], ph[sy, sx] = ns, ths, phs
         wq[sy, sx] = -dot3(ns, dcs) * z[sy, sx]
@@ -514,7 +536,8 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     half = 2 ** level
     subs = [(0, 0), (0, 1), (1, 0), (1, 1)]
     cw = child["present"].shape[1]
-    kids = [(2 * cy + sy) * cw + 2 * cx + sx for sy, sx in subs]     # the children's flat indices
+    kid_yx = [(2 * cy + sy, 2 * cx + sx) for sy, sx in subs]
+    kids = [ky * cw + kx for ky, kx in kid_yx]     # the children's flat indices
     _, grid, grid_len = ray_grids(intr)
     ray_x, ray_y, ray_z = grid[0, :, 0], grid[:, 0, 1], grid[0, 0, 2]
     gx, gy = 2 * size * cx, 2 * size * cy
@@ -546,8 +569,8 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     zc = sum(zs) / 4.0
     wq = -dot3(nq, dcen) * zc
     # sub-quad s takes child s's four outer corners
-    flat_c = child["corners"].reshape(-1)
-    corners = np.concatenate([flat_c[16 * k[:, None] + OUTER] for k in kids], axis=-1)
+    cs = child["corners"]    # (level 0's is a view of (16, H, W) planes)
+    corners = np.concatenate([cs[ky[:, None], kx[:, None], OUTER] for ky, kx in kid_yx], axis=-1)
     iu = gx[:, None] + SUB_CORNERS[:, 0] * size
     iv = gy[:, None] + SUB_CORNERS[:, 1] * size
     den = (nq[:, 0:1] * ray_x[iu] + nq[:, 1:2] * ray_y[iv]) + nq[:, 2:3] * ray_z     # plane_depth's, at the 16 corners

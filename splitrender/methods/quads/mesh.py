@@ -19,7 +19,8 @@ import numpy as np
 
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
-from .gen import BACKGROUND_FAR, MAX_LEVEL, OUTER, QuadSet, corner_points, decode_normals, dot3, encode_normals, plane_depth, rays
+from .gen import (BACKGROUND_FAR, MAX_LEVEL, OUTER, QuadSet, corner_points, decode_normals, dot3, encode_normals,
+                  plane_depth, ray_grids, rays)
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4 + 1
@@ -290,16 +291,24 @@ def quad_depth(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None
     top row first, inf where none does: the view's depth as its quads give it, the same on both halves.
     ``index_map``: :func:`index_map_of`'s."""
     index_map = index_map_of(qs, intr, index_map)
-    out = np.full(index_map.shape, np.inf)
-    py, px = np.nonzero(index_map >= 0)
-    if py.size:
-        q = index_map[py, px]
-        # each quad's plane once, read at its pixels (the same arithmetic per value as per pixel)
-        s = 2.0 ** qs.level.astype(np.float64)
-        n = decode_normals(qs.theta, qs.phi)
-        wv = -dot3(n, rays(intr, qs.x + s / 2, qs.y + s / 2)) * qs.depth.astype(np.float64)
-        out[py, px] = plane_depth(n[q], wv[q], rays(intr, px + 0.5, py + 0.5))
-    return out
+    if not len(qs):
+        return np.full(index_map.shape, np.inf)
+    # each quad's plane once, read at its pixels (the same arithmetic per value as per pixel); row N of the planes is
+    # a stand-in for the pixels no quad covers (index -1), whose depth is inf
+    s = 2.0 ** qs.level.astype(np.float64)
+    planes = np.zeros((len(qs) + 1, 4))
+    planes[:-1, :3] = decode_normals(qs.theta, qs.phi)
+    planes[:-1, 3] = dot3(planes[:-1, :3], rays(intr, qs.x + s / 2, qs.y + s / 2)) * qs.depth.astype(np.float64)
+    at = planes[index_map]                  # (H, W, 4): the normal and -w of the plane at each pixel
+    # a pixel centre's ray: its x is its column's, its y its row's, its z -1 (ray_grids' centres, the same values as
+    # rays(intr, x + 0.5, y + 0.5)); plane_depth's dot3 from those (the same products and sums), and -w / den
+    centre = ray_grids(intr)[0]
+    den = at[..., 0] * centre[0, :, 0]
+    den += at[..., 1] * centre[:, 0, 1, None]
+    den += at[..., 2] * centre[0, 0, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = at[..., 3] / den
+    return np.where((index_map >= 0) & (np.abs(den) > 1e-12) & (z > 0), z, np.inf)
 
 
 def sealed(sides: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...scene.pose import CameraIntrinsics
-from .gen import QuadSet, decode_normals, dot3, plane_depth, rays
+from .gen import QuadSet, decode_normals, dot3, ray_grids, rays
 from .mesh import continuous_sides, index_map_of, quad_depth, sealed
 
 if TYPE_CHECKING:
@@ -71,17 +71,26 @@ def behind_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.n
     scene[scene] = ~bg[im[scene]]
     z_shown = np.where(scene, quad_depth(qs, intr, im), np.inf)
     normals = decode_normals(qs.theta, qs.phi)
+    # a pixel centre's ray: x its column's, y its row's, z -1 (the same values as rays(intr, x + 0.5, y + 0.5), read
+    # from ray_grids' centres), so plane_depth's dot3 is made of per-column and per-row products (the same bits)
+    centre_rays = ray_grids(intr)[0]
+    ray_x, ray_y, ray_z = centre_rays[0, :, 0], centre_rays[:, 0, 1], centre_rays[0, 0, 2]
     for sel, size in _by_level(qs, bg):
         n = normals[sel]
         centre = rays(intr, qs.x[sel].astype(np.float64) + size / 2, qs.y[sel].astype(np.float64) + size / 2)
-        wv = -dot3(n, centre) * qs.depth[sel].astype(np.float64)   # the quad's plane n . X + w = 0, view space
+        neg_w = dot3(n, centre) * qs.depth[sel].astype(np.float64)   # -w of the quad's plane n . X + w = 0, view space
+        nx, ny, nz = n[:, 0, None], n[:, 1, None], n[:, 2, None] * ray_z
         for side in range(4):
             xb, yb = _across(qs, sel, size, side)
             inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h)
             xc, yc = np.clip(xb, 0, w - 1), np.clip(yb, 0, h - 1)
             zb = np.where(inside, z_shown[yc, xc], np.inf)
-            own = plane_depth(n[:, None, :], wv[:, None], rays(intr, xc + 0.5, yc + 0.5))
-            behind = np.isfinite(zb) & np.isfinite(own) & (own >= zb * (1.0 + UNDERLAP_MARGIN))
+            den = nx * ray_x[xc] + ny * ray_y[yc]
+            den += nz
+            with np.errstate(divide="ignore", invalid="ignore"):
+                own = neg_w[:, None] / den
+            # plane_depth's inf (parallel, or behind the eye) fails as a non-finite depth did
+            behind = np.isfinite(zb) & (np.abs(den) > 1e-12) & (own > 0) & np.isfinite(own) & (own >= zb * (1.0 + UNDERLAP_MARGIN))
             out[sel, side] = np.where(behind.all(axis=1), px, 0.0)
     return out
 
