@@ -155,7 +155,7 @@ async def test_five_flood_datagrams_cost_a_live_server_little_and_the_session_ru
             while not any(s.client_addr is not None and s.update_rows for s in server.sessions.values()):
                 await asyncio.sleep(0.02)
         (session,) = server.sessions.values()
-        ssrc = next(iter(session.streams.values())).ssrc
+        ssrc = next(iter(session.core.streams.values())).ssrc
         spent = [0.0]
         inner = server._on_datagram
 

@@ -40,7 +40,7 @@ from splitrender.pipeline.rows import live_frame_row
 from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
-from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_us
+from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms, wall_us
 from splitrender.transport.errors import ConnectError, describe_os_error
 
 __all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "run_client"]
@@ -126,7 +126,7 @@ class LiveClient:
                 await self._open_udp()
                 self._t0_wall = time.time()
                 assert self.core is not None
-                self.core.start(_now_ms())   # the stall clock starts; an empty RR opens the UDP path
+                self.core.start(wall_ms())   # the stall clock starts; an empty RR opens the UDP path
                 self._flush_rtcp()
                 self._start_recording()
                 try:
@@ -316,7 +316,7 @@ class LiveClient:
         assert self.channel is not None and self.core is not None
         while True:
             data = await self.channel.reader.read(READ_CHUNK_BYTES)
-            self.core.receive_data(data, _now_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
+            self.core.receive_data(data, wall_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
             self._take_events()
 
     async def _flush_control(self) -> None:
@@ -334,11 +334,10 @@ class LiveClient:
                 raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
                                          f"(stall_timeout_s {self.cfg.stall_timeout_s:g} s): the server stopped streaming")
             if isinstance(ev, Stalled):
-                logger.warning("session %s: no new frame for %.0f ms (%g of the server's frame intervals); a "
-                               "keyframe is asked for where packets were lost", self.session_id, ev.idle_ms,
-                               self.cfg.stall_frames)
+                logger.warning("session %s: %s (%g of the server's frame intervals); a keyframe is asked for where "
+                               "packets were lost", self.session_id, ev, self.cfg.stall_frames)
             elif isinstance(ev, Resumed):
-                logger.info("session %s: frames resumed after %.0f ms", self.session_id, ev.stall_ms)
+                logger.info("session %s: %s", self.session_id, ev)
             elif isinstance(ev, ControlClosed):
                 raise ConnectionResetError("server closed the control connection")
             elif isinstance(ev, ServerMessage) and isinstance(ev.message, Bye):
@@ -352,7 +351,7 @@ class LiveClient:
 
     def _on_datagram(self, data: bytes) -> None:
         assert self.core is not None
-        self.core.receive_datagram(data, _now_ms())
+        self.core.receive_datagram(data, wall_ms())
         self._queue_work()
 
     def _queue_work(self) -> None:
@@ -373,12 +372,12 @@ class LiveClient:
         assert self.rx is not None and self.core is not None
         while True:
             w = await self._decode_q.get()
-            if self.core.skips_decode(w, _now_ms()):
+            if self.core.skips_decode(w, wall_ms()):
                 continue
             res = await loop.run_in_executor(self.decode_executor, self.rx.decode, w)
             if isinstance(res, CodecError):
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
-            self.core.on_decoded(w, res, _now_ms())
+            self.core.on_decoded(w, res, wall_ms())
 
     def _all_counters(self) -> dict[str, Any]:
         """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
@@ -402,14 +401,14 @@ class LiveClient:
         last_metrics = time.monotonic()
         lag_sum, lag_n = 0.0, 0
         while True:
-            pause = min(RTCP_TICK_S, max(0.0, (core.get_timer() - _now_ms()) / 1000))
+            pause = min(RTCP_TICK_S, max(0.0, (core.get_timer() - wall_ms()) / 1000))
             w0 = time.monotonic()
             await asyncio.sleep(pause)
             lag = (time.monotonic() - w0 - pause) * 1000   # how late the event loop woke us (GIL held by GL or decode)
             lag_sum, lag_n = lag_sum + lag, lag_n + 1
             self._counters["timer_lag_ms_mean"] = round(lag_sum / lag_n, 2)
             self._counters["timer_lag_ms_max"] = round(max(self._counters.get("timer_lag_ms_max", 0.0), lag), 1)
-            now_ms = _now_ms()
+            now_ms = wall_ms()
             if now_ms >= core.get_timer():
                 core.handle_timer(now_ms)
                 self._queue_work()
@@ -441,7 +440,7 @@ class LiveClient:
             w = time.time()
             # the core's rule: ticks wait for the server's clock (the first FrameMeta), then show black until an
             # update shows; with a playout delay, only the updates whose turn has come are applied
-            blanks, new = core.display_tick((tick, w, self._trace_pose(w)), _now_ms())
+            blanks, new = core.display_tick((tick, w, self._trace_pose(w)), wall_ms())
             for b_tick, b_wall, b_pose in blanks:
                 self._record_blank(b_tick, b_wall, b_pose, saves)
             if new is not None:
@@ -541,8 +540,3 @@ class _ClientUdp(asyncio.DatagramProtocol):
 async def run_client(config: ClientConfig) -> ClientResult:
     """Run one live client session (see :class:`LiveClient`)."""
     return await LiveClient(config).run()
-
-
-def _now_ms() -> float:
-    """The live driver's clock for the session core: the wall clock (the protocol's), ms."""
-    return time.time() * 1000

@@ -266,11 +266,17 @@ class ServerPipeline:
         out = []
         for st in self.rtp_streams:
             fmt = rtp_format(st.spec)
-            sdp = make_sdp(fmt, port, st.payload_type, address=host, session_name=f"{session_name} {st.spec.name}",
-                           parameter_sets=self.parameter_sets(st.spec.name)) if fmt != "data" else ""
+            sdp = self.sdp(st.spec.name, port, session_name, host) if fmt != "data" else ""
             out.append(StreamDescription(st.spec.name, fmt, st.ssrc, st.payload_type, port, sdp,  # type: ignore[arg-type]
                                          fec_ssrc=st.fec_ssrc, fec_payload_type=st.fec_payload_type))
         return tuple(out)
+
+    def sdp(self, name: str, port: int, session_name: str, host: str = "127.0.0.1") -> str:
+        """Video stream ``name``'s SDP, for RTP to ``host``:``port`` (its session named ``<session_name> <name>``): the
+        Welcome's (:meth:`describe`), and the live server's mirror files for ffplay and the like."""
+        st = self.streams[name]
+        return make_sdp(rtp_format(st.spec), port, st.payload_type, address=host,  # type: ignore[arg-type]
+                        session_name=f"{session_name} {name}", parameter_sets=self.parameter_sets(name))
 
     def welcome_params(self, session_blob: bytes) -> dict[str, Any]:
         """The stream table and session data size for ``Welcome.method_params``."""

@@ -83,7 +83,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -395,12 +395,18 @@ class Stalled(SessionEvent):
 
     idle_ms: float
 
+    def __str__(self) -> str:   # what every client driver logs
+        return f"stalled at {self.now_ms / 1000:.3f} s: no new frame for {self.idle_ms:.0f} ms"
+
 
 @dataclass(frozen=True)
 class Resumed(SessionEvent):
     """Frames flow again after a stall of ``stall_ms``."""
 
     stall_ms: float
+
+    def __str__(self) -> str:
+        return f"frames resumed after {self.stall_ms:.0f} ms"
 
 
 @dataclass(frozen=True)
@@ -1081,6 +1087,18 @@ def accept_page(opening: Opening, specs: list[Any], display_hz: float, server: A
     options = dataclasses.replace(server.session_options(), pacing=False)
     return ServerSession(ServerPipeline(specs), display_hz, options, predictor=make_predictor(server.predictor),
                          knobs=page_knobs(opening, session_blob) if options.adapt == "full" else (), transport="webrtc")
+
+
+def page_terms(session_id: str, opening: Opening, spec: Any, page: Any, server: Any, **driver: Any) -> dict[str, Any]:
+    """The session terms a browser page takes with the answer (its ``Welcome``; docs/browser.md): what
+    :func:`session_params` tells a protocol client (the session and method, the scene, field of view and server
+    rate from ``server``'s config), the display's size and the video stream's (``spec``), the method's page glue's
+    own (``page``: :meth:`~splitrender.methods.base.PageGlue.terms`), and the front door's ``driver`` entries (its
+    clock, the frame channel's lifetime, whether it records)."""
+    display = opening.intrinsics
+    return {"session_id": session_id, "method": opening.method, "scene": server.scene, "fov_y_deg": server.fov_y_deg,
+            "server_fps": server.server_fps, "width": display.width, "height": display.height,
+            "stream_width": spec.width, "stream_height": spec.height, **driver, **page.terms()}
 
 
 def page_knobs(opening: Opening, session_blob: bytes) -> tuple[Any, ...]:

@@ -34,12 +34,11 @@ import secrets
 import time
 from collections import deque
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
-from splitrender.methods.base import AnyStreamSpec, StreamSpec
+from splitrender.methods.base import StreamSpec
 from splitrender.pipeline.recording import SessionLogs
 from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
 from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, open_hello
@@ -55,9 +54,8 @@ from splitrender.protocol import (
     ServerConnection,
     State,
     Stats,
-    make_sdp,
 )
-from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel
+from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms
 
 Address = tuple[str, int]
 
@@ -96,16 +94,6 @@ class _SessionEnded(Exception):
     """The control task saw Bye/EOF/Error: end the session's task group."""
 
 
-@dataclass
-class _Stream:
-    """One RTP stream of the session as the driver sees it: where its SDP mirror copy goes."""
-
-    spec: AnyStreamSpec
-    ssrc: int
-    payload_type: int
-    mirror: Address | None = None
-
-
 class ServerSession:
     """One client: its own method halves, encoders, predictor and RTP state."""
 
@@ -120,7 +108,8 @@ class ServerSession:
         peer = writer.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
         self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
-        self.streams: dict[str, _Stream] = {}
+        self.mirrors: dict[str, Address] = {}
+        """Where a copy of each video stream's RTP goes (``sdp_dir`` with mirror ports: its SDP file names it)."""
         self.method = ""
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
@@ -233,7 +222,7 @@ class ServerSession:
             await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
         try:
-            await self.channel.write_frames(acc.core.data_to_send(_now_ms()))     # the Welcome, then the session data
+            await self.channel.write_frames(acc.core.data_to_send(wall_ms()))     # the Welcome, then the session data
             self._counters["session_bytes"] = acc.session_bytes
         except ConnectionError as exc:
             logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
@@ -261,30 +250,24 @@ class ServerSession:
                            subject=getattr(server.scene, "subject", None), parameter_sets=sets,
                            ssrc_taken=server.ssrc_taken, rtp_origin_ms=server.epoch_wall_s * 1000)
         self.core, self.tx = acc.core, acc.core.tx
-        self.core.start(_now_ms())
+        self.core.start(wall_ms())
         for st in self.tx.rtp_streams:
-            stream = _Stream(st.spec, st.ssrc, st.payload_type)
-            self.streams[st.spec.name] = stream
-            if isinstance(st.spec, StreamSpec):
-                self._write_sdp(stream)
-        server.register(self, [s.ssrc for s in self.streams.values()])
+            if isinstance(st.spec, StreamSpec) and self.cfg.sdp_dir is not None:
+                self._write_sdp(st.spec.name)
+        server.register(self, [st.ssrc for st in self.tx.rtp_streams])
         return acc
 
-    def _write_sdp(self, stream: _Stream) -> None:
-        if self.cfg.sdp_dir is None:
-            return
+    def _write_sdp(self, name: str) -> None:
+        """Stream ``name``'s SDP in ``sdp_dir``, naming its mirror port where the server has one (else its own)."""
+        assert self.tx is not None and self.cfg.sdp_dir is not None
         mirror = self.server.next_mirror_port()
         port = mirror if mirror is not None else self.server.udp_address[1]
         if mirror is not None:
-            stream.mirror = ("127.0.0.1", mirror)
-        path = self.cfg.sdp_dir / f"{self.id}_{stream.spec.name}.sdp"
+            self.mirrors[name] = ("127.0.0.1", mirror)
+        path = self.cfg.sdp_dir / f"{self.id}_{name}.sdp"
         path.parent.mkdir(parents=True, exist_ok=True)
-        assert isinstance(stream.spec, StreamSpec)
-        assert self.tx is not None
-        path.write_text(make_sdp(stream.spec.codec.codec, port, stream.payload_type,
-                                 session_name=f"splitrender {self.id} {stream.spec.name}",
-                                 parameter_sets=self.tx.parameter_sets(stream.spec.name)))
-        logger.info("session %s: wrote %s (stream %s on udp port %d)", self.id, path, stream.spec.name, port)
+        path.write_text(self.tx.sdp(name, port, f"splitrender {self.id}"))
+        logger.info("session %s: wrote %s (stream %s on udp port %d)", self.id, path, name, port)
 
     # ------------------------------------------------------------------ control
 
@@ -295,7 +278,7 @@ class ServerSession:
         core, closed = self.core, False
         assert core is not None
         while True:
-            while (msg := core.next_message(_now_ms())) is not None:   # after the end, a cut message raises here
+            while (msg := core.next_message(wall_ms())) is not None:   # after the end, a cut message raises here
                 self._on_message(msg)
             if closed:
                 logger.info("session %s: client closed the connection", self.id)
@@ -358,12 +341,12 @@ class ServerSession:
             # task is ending the session in this same loop turn; this frame has nowhere to go
             raise _SessionEnded()
         c1 = time.perf_counter()
-        out, row = self.core.frame_from_worker(*made, _now_ms())
+        out, row = self.core.frame_from_worker(*made, wall_ms())
         # the core's one way out: metadata and reliable data first (TCP), then the RTP packets
-        await self.channel.write_frames(self.core.data_to_send(_now_ms()), drain=False)
+        await self.channel.write_frames(self.core.data_to_send(wall_ms()), drain=False)
         self._flush()
         self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
-        self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams)
+        self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.core.streams)
         row["send_ms"] = (time.perf_counter() - c1) * 1e3    # packetizing and sending here
         self.update_rows.append(row)
         self._log("updates", row)
@@ -375,14 +358,14 @@ class ServerSession:
         input may have moved it)."""
         assert self.core is not None
         while True:
-            wait = max(0.0, min(1.0, (self.core.get_timer() - _now_ms()) / 1000))
+            wait = max(0.0, min(1.0, (self.core.get_timer() - wall_ms()) / 1000))
             # asyncio.timeout, not wait_for: 3.11's wait_for can swallow the task's cancellation when the wake-up
             # comes at the same moment, and the session's task group then never ends
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(wait):
                     await self._timer_wake.wait()
             self._timer_wake.clear()
-            if frames := self.core.data_to_send(_now_ms()):   # (a frame's are written as it is sent)
+            if frames := self.core.data_to_send(wall_ms()):   # (a frame's are written as it is sent)
                 await self.channel.write_frames(frames, drain=False)
             self._flush(wake=False)
 
@@ -393,7 +376,7 @@ class ServerSession:
         if self.core is None:
             return
         bound = self.core.peer
-        self.core.receive_datagram(data, _now_ms(), addr)
+        self.core.receive_datagram(data, wall_ms(), addr)
         if bound is None and self.core.peer is not None:
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
         self._flush()
@@ -409,11 +392,11 @@ class ServerSession:
         timer task is woken, since the core's next deadline may have moved."""
         if self.core is None:
             return
-        for d in self.core.datagrams_to_send(_now_ms()):
+        for d in self.core.datagrams_to_send(wall_ms()):
             if self.client_addr is None:
                 continue
             self.server.send_datagram(d.data, self.client_addr)
-            mirror = self.streams[d.stream].mirror if d.kind == "rtp" and d.stream is not None else None
+            mirror = self.mirrors.get(d.stream) if d.kind == "rtp" and d.stream is not None else None
             if mirror is not None:
                 self.server.send_datagram(d.data, mirror)
         if wake:
@@ -429,8 +412,3 @@ class ServerSession:
         """Close the row logs and write the session's counters (nothing without ``out_dir`` or frames)."""
         self._logs.close(dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
                               server_udp_dropped=self.server.udp_dropped))
-
-
-def _now_ms() -> float:
-    """The live driver's clock for the session core: the wall clock (the protocol's), ms."""
-    return time.time() * 1000

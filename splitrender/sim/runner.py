@@ -448,11 +448,8 @@ class VirtualTimeRun:
         while (ev := c.core.next_event()) is not None:
             if isinstance(ev, FrameReleased):
                 self._released(c, ev.frame)
-            elif isinstance(ev, Stalled):
-                log.debug("run %s client %d: stalled at %.3f s (%.0f ms without a frame)", self.cfg.method, c.index,
-                          ev.now_ms / 1000, ev.idle_ms)
-            elif isinstance(ev, Resumed):
-                log.debug("run %s client %d: frames resumed after %.0f ms", self.cfg.method, c.index, ev.stall_ms)
+            elif isinstance(ev, (Stalled, Resumed)):
+                log.debug("run %s client %d: %s", self.cfg.method, c.index, ev)
         c.timer.arm(c.core.get_timer() / 1000)
 
     def _display_tick(self, di: int, n_display: int, result: RunResult) -> None:

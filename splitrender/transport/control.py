@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import AsyncIterator
 
 from splitrender.errors import LocalProtocolError, RemoteProtocolError
 from splitrender.protocol import CONNECTION_CLOSED, NEED_DATA, Connection, Error, Message
 
-__all__ = ["ControlChannel", "READ_CHUNK_BYTES", "wall_us"]
+__all__ = ["ControlChannel", "READ_CHUNK_BYTES", "wall_ms", "wall_us"]
 
 logger = logging.getLogger(__name__)
 
@@ -28,9 +29,13 @@ def wall_us() -> int:
     Live sessions assume server and client wall clocks agree (same host, or NTP):
     ``Pose.t_us``, ``FrameMeta.t_us`` and ``Feedback`` times are all on it.
     """
-    import time
-
     return time.time_ns() // 1000
+
+
+def wall_ms() -> float:
+    """The live front doors' clock for the session cores (their ``now_ms``): the host wall clock, the protocol's, in
+    ms."""
+    return time.time() * 1000
 
 
 class ControlChannel:

@@ -33,10 +33,11 @@ from typing import Any
 from aiortc import RTCConfiguration, RTCPeerConnection
 
 from ..errors import describe_error
-from ..methods.base import PageGlue, StreamSpec, get_method
+from ..methods.base import PageGlue, get_method
 from ..pipeline.sender import rtp_timestamp
 from ..pipeline.recording import SessionLogs
-from ..pipeline.session import ServerSession, accept_page, open_page
+from ..pipeline.session import ServerSession, accept_page, open_page, page_terms
+from ..transport.control import wall_ms
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, frame_message, parse_channel_message
 from .sdp import check_offer, replace_candidates, udp_candidate_ports
 from .track import EncodedVideoTrack, answer_offer, hook_sender_rtcp, try_offer
@@ -147,21 +148,11 @@ class BrowserSession:
         if "H264" not in answer:
             raise PageMessageError("the offer has no H.264 video the server can send (the page asks for H.264 "
                                    "Constrained Baseline, packetization-mode 1)")
-        meta = self._session_terms(ref)
+        meta = page_terms(self.id, opening, ref, self.page, self.cfg, epoch_ms=self.server.epoch_wall_s * 1000,
+                          server_ms=wall_ms(), frame_lifetime_ms=FRAME_LIFETIME_MS, recording=self.cfg.out_dir is not None)
         logger.info("browser session %s: %s %dx%d @ %g Hz%s", self.id, self.method, self.req.width, self.req.height,
                     self.display_hz, f" through a shaped path ({self.front.network_text})" if self.relay else "")
         return {"type": "answer", "sdp": answer, **meta}
-
-    def _session_terms(self, ref: StreamSpec) -> dict[str, Any]:
-        terms: dict[str, Any] = {"session_id": self.id, "method": self.method, "scene": self.cfg.scene,
-                                 "fov_y_deg": self.cfg.fov_y_deg, "server_fps": self.cfg.server_fps,
-                                 "epoch_ms": self.server.epoch_wall_s * 1000, "server_ms": time.time() * 1000,
-                                 "width": self.req.width, "height": self.req.height,
-                                 "stream_width": ref.width, "stream_height": ref.height,
-                                 "frame_lifetime_ms": FRAME_LIFETIME_MS, "recording": self.cfg.out_dir is not None}
-        if self.page is not None:
-            terms.update(self.page.terms())
-        return terms
 
     # ------------------------------------------------------------------ events
 
@@ -203,7 +194,7 @@ class BrowserSession:
 
     def _on_feedback(self, msg: PageFeedback) -> None:
         assert self.core is not None
-        self.core.receive_message(msg.feedback(self.stream), time.time() * 1000)
+        self.core.receive_message(msg.feedback(self.stream), wall_ms())
 
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
@@ -339,9 +330,9 @@ class BrowserSession:
         n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, int(wall * 1e6),
                                                    self.track.rtp_origin))
         if not self.track.put(frame.data, rtp_ts):
-            core.request_keyframe(time.time() * 1000)     # the sender fell behind
+            core.request_keyframe(wall_ms())     # the sender fell behind
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
-        _sent, row = core.frame_from_worker(*made, time.time() * 1000)
+        _sent, row = core.frame_from_worker(*made, wall_ms())
         self.counters["video_bytes"] += len(frame.data)
         self.counters["meta_bytes"] += n_meta
         self._logs.append("updates", {**row, "bytes_frame_meta": n_meta})
