@@ -20,7 +20,9 @@ video's bytes (crf + 6).  Writes ``benchmarks/results/bench_knobs_quality.json``
 (``QUALITY`` in each method's config module) store.
 
     python benchmarks/bench_knobs.py [--methods warp,sas] [--duration 1.5]
-    python benchmarks/bench_knobs.py --quality [--methods video,atw,warp,sas,tss,quads] [--duration 2]
+    python benchmarks/bench_knobs.py --quality [--methods video,atw,warp,sas,tss,quads] [--duration 2] [--knobs frame_div]
+
+``--knobs`` measures only the named knobs (no latency or rate runs), into ``bench_knobs_quality_<methods>_<knobs>_<duration>s.json``.
 """
 
 from __future__ import annotations
@@ -107,8 +109,8 @@ def scale_knob(duration_s: float, renderer: Any) -> dict[str, Any]:
             "measured": [b / sizes[0] for b in sizes], "prior": list(SCALE_KNOB.cost)}
 
 
-def quality(method: str, duration_s: float, renderer: Any, tmp: Path) -> dict[str, Any]:
-    """One method's quality model (module docstring)."""
+def quality(method: str, duration_s: float, renderer: Any, tmp: Path, only: set[str] | None = None) -> dict[str, Any]:
+    """One method's quality model (module docstring); with ``only``, just those knobs (no latency or rate runs)."""
     from dataclasses import asdict
 
     from splitrender.experiments.quality_model import latency_db_per_100ms, measure, rate_db_per_halving
@@ -119,6 +121,12 @@ def quality(method: str, duration_s: float, renderer: Any, tmp: Path) -> dict[st
     knobs = list(cfg.adapt_knobs())
     if method in ("video", "atw", "warp"):            # their scalable colour: the pipeline adds the scale knob
         knobs.append(SCALE_KNOB)
+    if only is not None:
+        unknown = only - {k.name for k in knobs}
+        if unknown:
+            raise SystemExit(f"bench_knobs --knobs: {method} has no knob {', '.join(sorted(unknown))} "
+                             f"(it has {', '.join(k.name for k in knobs)})")
+        knobs = [k for k in knobs if k.name in only]
     kw = dict(duration_s=duration_s, renderer=renderer, truth_cache=str(tmp / "truth"))
     ref = measure(method, **kw)
     print(f"{method:6s} ref: {ref}", flush=True)
@@ -131,6 +139,8 @@ def quality(method: str, duration_s: float, renderer: Any, tmp: Path) -> dict[st
         out["knobs"][k.name] = {"levels": list(k.levels), "model_psnr_db": [r.model_psnr_db for r in runs],
                                 "db_lost": [ref.model_psnr_db - r.model_psnr_db for r in runs],
                                 "bytes": [r.all_bytes for r in runs], "video_bytes": [r.video_bytes for r in runs]}
+    if only is not None:
+        return out
     late = measure(method, delay_ms=120.0, **kw)
     print(f"{method:6s} late: {late}", flush=True)
     out["late"] = asdict(late)
@@ -148,6 +158,7 @@ def main() -> None:
     ap.add_argument("--methods", default=None)
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--quality", action="store_true", help="measure the quality models instead of the cost priors")
+    ap.add_argument("--knobs", default=None, help="with --quality: only these knobs (no latency or rate runs)")
     args = ap.parse_args()
     from splitrender.render.renderer import Renderer
 
@@ -156,9 +167,13 @@ def main() -> None:
         tmp = Path(tempfile.mkdtemp(prefix="bench_knobs_q_"))
         t0 = time.perf_counter()
         dur = args.duration or 2.0
-        models = {m: quality(m, dur, renderer, tmp) for m in (args.methods or "video,atw,warp,sas,tss,quads").split(",")}
+        only = set(args.knobs.split(",")) if args.knobs else None
+        models = {m: quality(m, dur, renderer, tmp, only) for m in (args.methods or "video,atw,warp,sas,tss,quads").split(",")}
         OUT.mkdir(parents=True, exist_ok=True)
-        path = OUT / ("bench_knobs_quality.json" if args.methods is None else f"bench_knobs_quality_{args.methods.replace(',', '_')}.json")
+        name = "bench_knobs_quality" + ("" if args.methods is None else "_" + args.methods.replace(",", "_"))
+        if only is not None:
+            name += "_" + "_".join(sorted(only)) + f"_{dur:g}s"
+        path = OUT / f"{name}.json"
         path.write_text(json.dumps({"benchmark": "bench_knobs --quality", "scene": "default+nogi", "trace": "walk",
                                     "size": [320, 180], "duration_s": dur, "models": models,
                                     "wall_s": time.perf_counter() - t0, "machine": platform.machine(),

@@ -44,6 +44,22 @@ def _calibrated(video_kbps: float, overhead_kbps: float, cfg: AdaptConfig) -> Ra
     return rate
 
 
+@pytest.mark.parametrize("halved_first", [False, True])
+def test_a_calibration_across_two_frame_rates_gives_the_own_point_s_rate(halved_first: bool) -> None:
+    """Half the window at the method's own point (2 kB a frame at 30 fps: 480 kbit/s), half at one frame in 2
+    (the point's prior 0.67: 2.68 kB a frame at 15 fps); the cap is the own point's 480 kbit/s either way.  Counted
+    as bytes per frame at the last frame rate it came out 1.49x or 0.75x of it."""
+    cfg = AdaptConfig()
+    rate = RateController(("color",), 30.0, cfg)
+    spans = [(30.0, 1.0, 2000), (15.0, 0.67, 2680)]
+    for fps, factor, size in (spans[::-1] if halved_first else spans):
+        rate.fps, rate.factor = fps, factor
+        for _ in range(cfg.calibrate_frames // 2):
+            rate.on_frame_sent({"color": size})
+    assert rate.calibrated
+    assert rate.natural_video_bps() == pytest.approx(480e3, rel=0.01)
+
+
 def test_the_point_goes_down_at_once_and_back_up_after_a_hold() -> None:
     cfg = AdaptConfig(up_hold_s=1.0, down_hold_s=0.5)
     rate = _calibrated(2000.0, 200.0, cfg)

@@ -216,7 +216,7 @@ class RateController:
         self._share: dict[str, float] = {n: 1.0 / len(self.video) for n in self.video} if self.video else {}
         self._miss: dict[str, float] = {n: 1.0 for n in self.video}
         self._target: dict[str, float] = {}
-        self._seen: dict[str, list[float]] = {n: [] for n in self.video}   # calibration: bytes per frame at the method's own
+        self._seen: dict[str, list[float]] = {n: [] for n in self.video}   # calibration: kbit/s at the method's own
         self._cap: dict[str, float] = {}                                     # kbit/s, once calibrated
         self._ceilings: dict[str, list[float]] = {n: [] for n in self.video}  # calibration: the ceiling of each frame
         self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
@@ -260,8 +260,10 @@ class RateController:
             keyframe = None if idr_streams is None else n in idr_streams
             if n in self._calibrating and (seen or keyframe is not False):   # a window opens at an IDR: one a GOP
                 # at the method's own point: a frame sent at a coarser operating point (the point controller moves
-                # once a provisional cap is known) took that point's share of it
-                seen.append(b / max(self.factor, 1e-3))
+                # once a provisional cap is known) took that point's share of it, per second of that point's frames
+                # (frame_div: at one frame in 2 a frame's bytes are a 15th of a second's, and a window across two
+                # points counted in one rate put tss's own point at 15 Mbit/s, 2.4x its 6.3, on cellular8)
+                seen.append(b * 8 * self.fps / 1000 / max(self.factor, 1e-3))
                 ceiling = (given_kbps or {}).get(n)
                 if ceiling is not None:
                     self._ceilings[n].append(float(ceiling))
@@ -273,7 +275,7 @@ class RateController:
                 # soon as SHAPED_FRAMES show it, so the operating point need not wait for a whole calibration
                 shaped = bool(ceilings and p and self._rate_kbps(p) >= BOUND * sum(ceilings) / len(ceilings))
                 if len(seen) >= self.cfg.calibrate_frames or (shaped and len(seen) >= SHAPED_FRAMES):
-                    self._cap[n] = self.cfg.ceiling * self._rate_kbps(seen)
+                    self._cap[n] = self.cfg.ceiling * sum(seen) / len(seen)
                     (self._provisional.add if shaped else self._provisional.discard)(n)
                     self._calibrating.discard(n)
                     for buf in (seen, ceilings, p):
@@ -450,6 +452,17 @@ the probing (warp's lossless depth at start, held at its own point while its que
 for 2 s on the cellular-like trace)."""
 
 
+ALR_QUIET_S = 1.0
+"""The point controller takes the session as application-limited once the estimate has not fallen and the queue has
+stayed under ``ALR_QUEUE_MS`` for this long (:meth:`PointController.app_limited`; the up hold's length: a step up
+under the whole budget is no sooner than one with the margin)."""
+ALR_QUEUE_MS = 20.0
+"""... the queue it takes as empty (``GROW_MS``: what a frame's burst leaves) ..."""
+ALR_FALL = 0.99
+"""... and an estimate under this share of the one before is one that fell (an over-use or loss: the delay-based
+estimate only ever falls on those)."""
+
+
 BURST_SHARE = 0.5
 """A method that tolerates more queueing than video's budget (``mtp_budget_ms``) lets its capped encoders' VBV buffer
 hold this share of the difference (:attr:`RateController.buffer_ms`): an I-frame takes its crf's bits and queues
@@ -493,6 +506,19 @@ class PointController:
     model's latency slope: methods that redraw geometry at the display pose take more queueing than video) is out.
     The growing-queue rule takes that tolerance in place of ``mtp_budget_ms``; the holds and the up margin stay; an
     estimate still rising over an empty queue (``RISING``: the start's probing) moves the point no lower.
+
+    **Application-limited** (:meth:`app_limited`; libwebrtc's ALR): a delay-based estimate grows only with what is
+    sent (no more than 1.5 times the acknowledged rate, and near the capacity seen at the last over-use by about a
+    packet per round trip), so a point chosen for a dip holds the estimate near its own rate, and the up margin then
+    keeps it there: tss on the 8 Mbit/s cellular-like trace went to one frame in 2 at 1.1 s, behind a 5.6 Mbit/s
+    estimate the margin left 4.3 of, and stayed until a probe 2.2 s later.  Where the estimate has not fallen and the
+    queue has stayed under ``ALR_QUEUE_MS`` for ``ALR_QUIET_S``, and the present point costs no more than the up
+    margin of the budget (the session sends under what the estimate allows: the estimate, not the link, is what
+    binds), the point steps up to the best point under the whole budget, without the margin and with no further hold
+    (the quiet time was one); the session's probes
+    (2x the estimate every ``probe_interval_s``, no faster than 1.5x what the richest point would send) raise the
+    estimate to the link meanwhile, as libwebrtc probes in ALR.  A step that does not fit shows as a queue or an
+    over-use, and the point goes down as usual.
     """
 
     def __init__(self, knobs: tuple[Any, ...], rate: RateController, cfg: AdaptConfig | None = None,
@@ -517,6 +543,10 @@ class PointController:
         self._recent: list[tuple[float, float]] = []   # (time, estimate) over the last RISING_WINDOW_S
         self._queues: list[tuple[float, float]] = []   # (time, queue ms) over the last GROW_WINDOW_S
         self._data_sum: dict[int, list[float]] = {}    # sessions without lossy video: bits/s summed, frames, per point
+        self._calm_since: float | None = None           # since when the estimate has not fallen nor the queue risen
+        self._last_estimate: float | None = None
+        self.alr_steps = 0
+        """Moves up taken under the whole budget because the session was application-limited (:meth:`app_limited`)."""
 
     def values(self, index: int | None = None) -> dict[str, Any]:
         """Each knob's value at point ``index`` (the present one by default)."""
@@ -628,6 +658,26 @@ class PointController:
         over = max(0.0, queue_ms - self.tolerance_ms)
         return self.cfg.headroom * estimate_bps * max(MIN_DRAIN_SHARE, 1.0 - over / (DRAIN_S * 1000.0))
 
+    def _up(self, budget_bps: float, margin: float, queue_ms: float) -> int | None:
+        """The point to go up to under ``margin`` of ``budget_bps`` (None: none richer): without a model the richest
+        that fits, with one the best, where richer than here."""
+        if self.model is None:
+            return next((i for i in range(self.index) if self.fits(i, budget_bps, margin)), None)
+        rich = self._best(margin * budget_bps, queue_ms)
+        return rich if rich < self.index else None
+
+    def app_limited(self, now_s: float, budget_bps: float) -> bool:
+        """The estimate, not the link, binds: it has not fallen and the queue has stayed under ``ALR_QUEUE_MS`` for
+        ``ALR_QUIET_S`` (no over-use, no queue: the link carried all that was sent), and the present point costs
+        no more than ``up_margin`` of ``budget_bps`` (what is sent leaves the estimate no evidence to grow on)."""
+        return (self._calm_since is not None and now_s - self._calm_since >= ALR_QUIET_S
+                and self.cost_bps(self.index) <= self.cfg.up_margin * budget_bps)
+
+    def _calm(self, now_s: float, estimate_bps: float, queue_ms: float) -> None:
+        last, self._last_estimate = self._last_estimate, estimate_bps
+        if self._calm_since is None or queue_ms > ALR_QUEUE_MS or (last is not None and estimate_bps < ALR_FALL * last):
+            self._calm_since = now_s
+
     def update(self, now_s: float, estimate_bps: float, queue_ms: float = 0.0,
                encoder_bps: float | None = None) -> bool:
         """Choose the point for the next frame from the path's estimated rate ``estimate_bps`` (the estimator's
@@ -636,6 +686,7 @@ class PointController:
         if not math.isfinite(estimate_bps):
             return False
         self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, estimate_bps)]
+        self._calm(now_s, estimate_bps, queue_ms)
         if not self.rate.calibrated:
             return False
         if not self.rate.video and self._data_sum.get(self.index, [0.0, 0.0])[1] < self.cfg.settle_frames:
@@ -655,16 +706,20 @@ class PointController:
         if growing and self.index < last:
             best = max(best, self.index + 1)       # a queue past the budget, still growing: what is sent does not fit
         self._queue_ms = queue_ms
-        if self.model is None:
-            up = next((i for i in range(self.index) if self.fits(i, budget, self.cfg.up_margin)), None)
-        else:      # richer and better than here, with room to spare
-            rich = self._best(self.cfg.up_margin * budget, queue_ms)
-            up = rich if rich < self.index else None
+        up = self._up(budget, self.cfg.up_margin, queue_ms)
+        alr = False
+        if self.index > 0 and self.app_limited(now_s, budget):
+            # application-limited: the estimate understates the link, and the margin would hold the point here
+            whole = self._up(budget, 1.0, queue_ms)
+            alr = whole is not None and (up is None or whole < up)
+            up = whole if alr else up
         target = self.index
         if best > self.index:
             self._fits_up_since = None
             if now_s - self._moved_s >= self.cfg.down_hold_s or growing:   # a growing queue does not wait
                 target = best
+        elif up is not None and alr:
+            target = up                            # the quiet time (ALR_QUIET_S) was the hold
         elif up is not None:
             if self._fits_up_since is None:
                 self._fits_up_since = now_s
@@ -674,6 +729,10 @@ class PointController:
             self._fits_up_since = None
         if target == self.index:
             return False
+        if target > self.index:
+            self._calm_since = now_s               # a move down: the link bound
+        elif alr:
+            self.alr_steps += 1                    # further up than the margin allowed: application-limited
         self.index = target
         self.moves += 1
         self._since_move = 0

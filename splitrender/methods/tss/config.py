@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -16,15 +17,27 @@ TSS_KNOB_STEPS = (1.0, 0.7, 0.5, 0.35)
 """The atlas budget's levels, as fractions of the configured ``samples_per_px``."""
 TSS_BUDGET_COST = (1.0, 0.83, 0.69, 0.57)
 """The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
+TSS_FRAME_DIV_COST = (1.0, 0.67, 0.49, 0.36)
+"""Everything tss sends at one server frame in 1, 2, 3, 5 over the first (the ``frame_div`` knob's prior, in place of
+the pipeline's one n-th): its frames carry 1.33, 1.48 and 1.80 times the bytes (the atlas's P-frames code twice,
+three and five times the motion; ``benchmarks/bench_knobs.py --quality``, 2 s; 1.34, 1.53, 1.78 over 8 s).  With one n-th a point
+at one frame in 2 gave the atlas half its rate, a quarter under what its frames take, and the calibration made there
+(a frame's bytes over the prior) put the method's own point a third above its rate, too dear to go back to
+(``docs/experiments.md``: tss on the 8 Mbit/s cellular-like trace at one frame in 2 from 1 to 7 s)."""
 QUALITY = QualityModel(
     (("samples_per_px", (0.0, 0.58, 1.26, 1.63)), ("budget_px", (0.0, 0.58, 1.26, 1.63)),
-     ("frame_div", (0.0, 0.21, 0.44, 0.84))),
+     ("frame_div", (0.0, 0.29, 0.81, 1.98))),
     latency_db_per_100ms=0.22, rate_db_per_halving=1.23,
-    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s; "
+             "frame_div: --knobs frame_div --duration 8, 2026-12-07, f77d872")
 """tss's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 27.59 dB at its own point;
 the sample budget's levels lose 0.58, 1.26 and 1.63 dB for 16, 28 and 40 % of the bytes (``budget_px``, the moving
-budget, is taken to lose what ``samples_per_px`` does); one server frame in 2, 3, 5: 0.21, 0.44, 0.84 dB; +200 ms
-of motion-to-photon 0.44 dB; crf 29 (0.64x the atlas's bits) 0.80 dB.  Measured at the default config."""
+budget, is taken to lose what ``samples_per_px`` does); one server frame in 2, 3, 5: 0.29, 0.81, 1.98 dB over the
+walk's 8 s (0.5-8 s, 29.20 dB at its own point; ``benchmarks/results/bench_knobs_quality_tss_frame_div_8s.json``),
+where its first 2 s, slower, gave 0.21, 0.44, 0.84 (0.21, 0.45, 0.90 again at f77d872): the adaptation benchmarks
+run the whole 8 s, and the frame rate's loss grows with the camera's speed (at 2-3 s one frame in 2 loses 0.5-1.4
+dB); +200 ms of motion-to-photon 0.44 dB; crf 29 (0.64x the atlas's bits) 0.80 dB.  Measured at the default
+config."""
 
 
 @dataclass(frozen=True)
@@ -164,12 +177,14 @@ class TssConfig(MethodConfig):
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
-        with a moving budget the frame's samples per display pixel (``budget_px``); then the server's frame rate."""
+        with a moving budget the frame's samples per display pixel (``budget_px``); then the server's frame rate (its
+        prior tss's own, :data:`TSS_FRAME_DIV_COST`)."""
+        frame_div = dataclasses.replace(FRAME_DIV_KNOB, cost=TSS_FRAME_DIV_COST)
         if self.budget_px > 0:
             return with_model((Knob("budget_px", tuple(round(self.budget_px * f, 4) for f in TSS_KNOB_STEPS),
-                                    TSS_BUDGET_COST, "video", "shading samples per display pixel"), FRAME_DIV_KNOB), QUALITY)
+                                    TSS_BUDGET_COST, "video", "shading samples per display pixel"), frame_div), QUALITY)
         return with_model((Knob("samples_per_px", tuple(round(max(0.05, self.samples_per_px * f), 4) for f in TSS_KNOB_STEPS),
-                                TSS_BUDGET_COST, "video", "shading samples per covered pixel"), FRAME_DIV_KNOB), QUALITY)
+                                TSS_BUDGET_COST, "video", "shading samples per covered pixel"), frame_div), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()
