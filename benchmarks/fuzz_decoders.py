@@ -94,7 +94,7 @@ from fuzz_seeds import METHODS, MethodSeeds, capture  # noqa: E402
 
 from splitrender.codecs.depth import bc4_decode, bc4_encode, quantize_depth  # noqa: E402
 from splitrender.codecs.meta import pack_meta, parse_update_envelope, unpack_meta  # noqa: E402
-from splitrender.errors import CodecError, RemoteProtocolError  # noqa: E402
+from splitrender.errors import CodecError, RemoteProtocolError, ServerRefusedError  # noqa: E402
 from splitrender.protocol import (  # noqa: E402
     NEED_DATA,
     Bye,
@@ -1335,7 +1335,10 @@ def _welcome_entry_points() -> list[EntryPoint]:
     for m in METHODS:
         s = method_seeds(m)
         seeds.append(s.welcome_frame + b"".join(s.session_chunks))
-    return [EntryPoint("client.welcome", seeds, _welcome_run, (RemoteProtocolError,), mutate=message_mutator())]
+    # a server's Error during the handshake is its refusal (ClientHandshake raises ServerRefusedError, as the live
+    # client reports it)
+    return [EntryPoint("client.welcome", seeds, _welcome_run, (RemoteProtocolError, ServerRefusedError),
+                       mutate=message_mutator())]
 
 
 # ---------------------------------------------------------------------------- server session core

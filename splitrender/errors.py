@@ -50,6 +50,12 @@ class LocalProtocolError(ProtocolError, RuntimeError):
     """We tried to do something the protocol does not allow in the current state."""
 
 
+class ServerRefusedError(SplitRenderError):
+    """The server refused or ended the session: it answered with an ``Error`` message, said ``Bye``, or closed the
+    connection during the handshake (the client's handshake core, :class:`~splitrender.pipeline.ClientHandshake`,
+    and the live client name which)."""
+
+
 class PeerTimeoutError(SplitRenderError, TimeoutError):
     """The peer did not send what a session waited for in time; the message names what was awaited, from where and
     for how long (``no Welcome from 127.0.0.1:9100 within connect_timeout_s 5 s``).  The CLI exits 2 with it, as with

@@ -848,6 +848,36 @@ def test_accept_hello_is_the_one_server_handshake() -> None:
     assert hs.session_data is not None and hs.session_data["pad"] == np.random.default_rng(0).bytes(5000)
 
 
+def test_the_client_handshake_names_what_it_waits_for_and_a_refusal() -> None:
+    """The live client's handshake text is the handshake core's (issue 47): what it waits for (for a timeout to
+    name), and a server's ``Error`` or its closing the connection, before the Welcome or during the session data,
+    as a ServerRefusedError naming which."""
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.errors import ServerRefusedError
+    from splitrender.pipeline import ClientHandshake, accept_hello
+    from splitrender.protocol import Error
+
+    hello = Hello(PROTOCOL_VERSION, "", ("video",), ("h264",), W, H, FPS)
+    hs = ClientHandshake(hello.methods, display=(W, H))
+    assert hs.waiting_for == "Welcome"
+    with pytest.raises(ServerRefusedError, match=r"^server refused the session: 503: server busy$"):
+        hs.receive_message(Error(503, "server busy"))
+    with pytest.raises(ServerRefusedError, match=r"^server closed the connection instead of answering Hello$"):
+        hs.receive_message(None)
+    sconn = ServerConnection()
+    sconn.receive_data(hs.hello(hello))
+    sconn.next_event()
+    acc = accept_hello(hello, "sid", Opening("video", method_config("video", {}), CameraIntrinsics(W, H)),
+                       [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)],
+                       pack_meta({"pad": bytes(3000)}), sconn, ServerConfig(scene="minimal", max_session_bytes=1 << 20),
+                       ServerOptions(), rng=np.random.default_rng(1))
+    welcome, *chunks = acc.core.data_to_send(0.0)
+    assert not hs.receive_data(welcome) and chunks
+    assert hs.waiting_for == f"session data (0 of {hs.session_progress[1]} bytes received)" and hs.session_progress[1] > 0
+    with pytest.raises(ServerRefusedError, match=r"^server closed the connection during the session data$"):
+        hs.receive_message(None)
+
+
 def test_everything_the_server_core_sends_leaves_one_way_at_its_one_timer() -> None:
     """Issue 47: a frame whose encoding ends later (virtual time's ``send_ms``) waits behind the core's timer,
     a NACK's answer and the sender reports leave by the same ``datagrams_to_send``, each tagged with its kind, and

@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.client.config import ClientConfig
-from splitrender.errors import CodecError, PeerTimeoutError, RemoteProtocolError, SplitRenderError, describe_error
+from splitrender.errors import (CodecError, PeerTimeoutError, RemoteProtocolError, ServerRefusedError, SplitRenderError,
+                                describe_error)
 from splitrender.pipeline import (ClientHandshake, ClientPipeline, ClientSession, ControlClosed, ReceivedFrame, Resumed,
                                   ServerMessage, Stalled, StallTimeout, Work, black_frame, display_frame)
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
@@ -55,10 +56,6 @@ RTCP_TICK_S = 0.01
 
 class StreamStalledError(SplitRenderError):
     """No frame arrived for ``stall_timeout_s``: the server stopped streaming."""
-
-
-class ServerRefusedError(SplitRenderError):
-    """The server answered with an ``Error`` message."""
 
 
 @dataclass
@@ -231,19 +228,12 @@ class LiveClient:
         await ch.write_frames([hs.hello(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs),
                                               cfg.width, cfg.height, float(cfg.display_hz)))])
         while not hs.done:   # the Welcome, then the session data in DataChunk messages (chunked, counted, bounded)
-            got, total = hs.session_progress
             first = hs.welcome is None
-            msg = await self._next_message("Welcome" if first else f"session data ({got} of {total} bytes received)")
-            if isinstance(msg, Error):
-                raise ServerRefusedError(f"server refused the session: {ControlChannel.error_message(msg)}")
+            msg = await self._next_message(hs.waiting_for)
             if first and msg is None and not cfg.tls and ch.bytes_received == 0:   # a TLS server's answer to plaintext
                 raise ConnectError(f"{cfg.server}:{cfg.port} closed the connection without answering Hello: if it "
                                    "serves TLS (serve --tls-cert), connect with --tls")
-            if first and not isinstance(msg, Welcome):
-                raise ServerRefusedError(f"server closed the connection instead of answering Hello ({msg})")
-            if msg is None:
-                raise ServerRefusedError("server closed the connection during the session data")
-            hs.receive_message(msg)
+            hs.receive_message(msg)   # an Error or the end: ServerRefusedError naming it
             if first:
                 self._welcome, self.session_id, self._params = msg, msg.session_id, dict(msg.method_params)
         terms = hs.terms

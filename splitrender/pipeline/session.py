@@ -55,9 +55,9 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from ..codecs.meta import unpack_meta
-from ..errors import CodecError, ConfigError, RemoteProtocolError
+from ..errors import CodecError, ConfigError, RemoteProtocolError, ServerRefusedError
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
-from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, ErrorCode, Feedback, FrameMeta, DataChunk,
+from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, Error, ErrorCode, Feedback, FrameMeta, DataChunk,
                         FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
                         negotiate_method,
                         State, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
@@ -337,8 +337,21 @@ class ClientHandshake:
             self.receive_message(msg)
         return self.done
 
-    def receive_message(self, msg: Message) -> bool:
-        """One message from the server; True once the session data is complete."""
+    @property
+    def waiting_for(self) -> str:
+        """What the handshake waits for next (the Welcome, or the session data and how much of it came), for a
+        driver's timeout to name."""
+        got, total = self.session_progress
+        return "Welcome" if self.welcome is None else f"session data ({got} of {total} bytes received)"
+
+    def receive_message(self, msg: Message | None) -> bool:
+        """One message from the server (None: it closed the connection); True once the session data is complete.
+        An ``Error`` or the connection's end raises :class:`~splitrender.errors.ServerRefusedError` naming it."""
+        if isinstance(msg, Error):
+            raise ServerRefusedError(f"server refused the session: {msg.code}: {msg.text}")
+        if msg is None:
+            raise ServerRefusedError("server closed the connection " + ("instead of answering Hello" if self.welcome
+                                                                        is None else "during the session data"))
         if self.done:
             raise EnvelopeError(f"handshake: {type(msg).__name__} after the session data was complete")
         if self.welcome is None:
