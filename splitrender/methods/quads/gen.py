@@ -499,7 +499,8 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
         full_o[py[ok], px[ok]] = offs[ok]
         flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
         flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
-    return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "corners": full_c, "offs": full_o, "flat": flat}
+    return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "corners": full_c, "offs": full_o,
+            "flat": flat}
 
 
 def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics, params: QuadParams, coarse: bool
@@ -509,7 +510,7 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     Only cells whose four children are all present are examined (sparse layers cost little)."""
     h, w = child["present"].shape[0] // 2, child["present"].shape[1] // 2
     out = {"present": np.zeros((h, w), bool), "n": np.zeros((h, w, 3)), "theta": np.zeros((h, w), np.uint8),
-           "phi": np.zeros((h, w), np.uint8), "zc": np.ones((h, w)), "corners": np.zeros((h, w, 16)),
+           "phi": np.zeros((h, w), np.uint8), "zc": np.ones((h, w)), "w": np.zeros((h, w)), "corners": np.zeros((h, w, 16)),
            "offs": np.zeros((h, w, 16)), "flat": np.zeros((h, w), bool)}
     cp = child["present"]
     pres = cp[0:2 * h:2, 0:2 * w:2] & cp[0:2 * h:2, 1:2 * w:2] & cp[1:2 * h:2, 0:2 * w:2] & cp[1:2 * h:2, 1:2 * w:2]
@@ -533,7 +534,6 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     ``(n_x d_x + n_y d_y) + n_z d_z`` (:func:`dot3`'s sum) with ``d_x`` and ``d_y`` read from one row and one
     column of the lattice: the same values, so the same bits as reading the whole rays."""
     size = 2 ** (level + 1)
-    half = 2 ** level
     subs = [(0, 0), (0, 1), (1, 0), (1, 1)]
     cw = child["present"].shape[1]
     kid_yx = [(2 * cy + sy, 2 * cx + sx) for sy, sx in subs]
@@ -544,12 +544,10 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     child_n = child["n"].reshape(-1, 3)
     ns = [child_n[k] for k in kids]
     zs = [child["zc"].ravel()[k] for k in kids]
-    eqs = []
-    for s, (sy, sx) in enumerate(subs):
-        n = ns[s]
-        u, v = gx + 2 * sx * half + half, gy + 2 * sy * half + half
-        wv = -((n[:, 0] * ray_x[u] + n[:, 1] * ray_y[v]) + n[:, 2] * ray_z) * zs[s]
-        eqs.append(np.concatenate([n, wv[..., None]], axis=-1))
+    # each child's plane n . X + w = 0: its w as made with it (-dot3(n, its centre ray) * its centre depth, in
+    # initial_quads or the merge that made it; the same bits as making it again here)
+    ws = [child["w"].ravel()[k] for k in kids]
+    eqs = [np.concatenate([ns[s], ws[s][:, None]], axis=-1) for s in range(4)]
     ok = np.ones(cy.size, bool)
     for a in range(4):
         for b in range(a + 1, 4):
@@ -589,6 +587,7 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     out["theta"].ravel()[at] = th[sel]
     out["phi"].ravel()[at] = ph[sel]
     out["zc"].ravel()[at] = zc[sel]
+    out["w"].ravel()[at] = wq[sel]
     out["corners"].reshape(-1, 16)[at] = corners[sel]
     o = out["offs"].reshape(-1, 16)[at] = offs[sel]
     out["flat"].ravel()[at] = (np.abs(o) < params.delta_flatten).all(-1)

@@ -20,7 +20,7 @@ import numpy as np
 from ...render.gl import set_uniform
 from ...scene.pose import CameraIntrinsics, Pose
 from .gen import (BACKGROUND_FAR, MAX_LEVEL, OUTER, QuadSet, corner_points, decode_normals, dot3, encode_normals,
-                  plane_depth, ray_grids, rays)
+                  ray_grids, rays)
 
 SHADERS = Path(__file__).parent / "shaders"
 VERTEX_FLOATS = 3 + 3 + 4 + 1
