@@ -7,7 +7,7 @@ bracket ``sas``'s rate; ``null`` when the ladder's lowest rate is still above it
 within 1 dB of ``sas`` (the same interpolation the other way).
 
 - scenes: assimp's duck, TextureTransformTest, 2CylinderEngine (Debian's assimp-testmodels; absent ones skipped)
-  and ``default+nogi``; cameras ``still`` (``static``, ``ideal``) and ``orbit cloud`` (``orbit``, ``cloud``); 320x180,
+  and ``default+nogi`` (``--scenes`` adds ``default gi``, the default scene with its GI); cameras ``still`` (``static``, ``ideal``) and ``orbit cloud`` (``orbit``, ``cloud``); 320x180,
   1 s, server 30 Hz, client 60 Hz (``bench_tss_matched.py``'s setting);
 - ``sas`` at its defaults (crf 23), once per cell, in the "after" checkout;
 - ``tss`` configurations (:data:`CONFIGS`) each over its crf ladder, in this checkout or ``--after TREE`` ("after") and, with
@@ -36,7 +36,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
 from _trees import commit_of, run_in_tree  # noqa: E402
-from bench_tss_matched import BLOCK4, CAMERAS, HALF, SCENES  # noqa: E402
+from bench_tss_matched import BLOCK4, CAMERAS, HALF, SCENES as MATCHED_SCENES  # noqa: E402
+SCENES = {**MATCHED_SCENES, "default gi": "default"}
+"""``bench_tss_matched.py``'s scenes and the default scene with its GI (``--scenes`` picks it; not run by default)."""
 
 RESULTS = Path(__file__).parent / "results" / "bench_tss_rd.json"
 CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
@@ -144,7 +146,7 @@ def main() -> None:
     ap.add_argument("--before", default="", help="a checkout of the commit before the change (its tss runs too)")
     ap.add_argument("--before-configs", default="", help="configs run on --before (default: all)")
     ap.add_argument("--after-configs", default="", help="configs run on the after tree (default: all)")
-    ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--scenes", default=",".join(MATCHED_SCENES))
     ap.add_argument("--cameras", default="still,orbit cloud")
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--crfs", default="", help="comma-separated crfs replacing every config's ladder")

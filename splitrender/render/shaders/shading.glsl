@@ -73,6 +73,12 @@ float shadow_factor(vec3 world_pos, vec3 n) {
 #ifndef ALBEDO_LOOKUP
 #define ALBEDO_LOOKUP(uv) texture(u_albedo, uv)
 #endif
+// The same for the other maps (normal, metallic-roughness, occlusion, emissive).  texture() takes its level from the
+// fragment's derivatives; outside a fragment shader (tss's tessellation and compute gathering) it reads level 0,
+// the unfiltered texture, so those shaders define MAP_LOOKUP with their own gradients.
+#ifndef MAP_LOOKUP
+#define MAP_LOOKUP(tex, uv) texture(tex, uv)
+#endif
 
 vec3 srgb_to_linear(vec3 c) { return pow(c, vec3(2.2)); }
 vec3 linear_to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
@@ -115,7 +121,7 @@ vec3 mapped_normal(vec3 n, vec4 tangent, vec2 uv) {
     if (dot(t, t) < 1e-12) return n;
     t = normalize(t);
     vec3 b = cross(n, t) * (tangent.w < 0.0 ? -1.0 : 1.0);
-    vec3 m = texture(u_normal_map, uv).rgb * 2.0 - 1.0;
+    vec3 m = MAP_LOOKUP(u_normal_map, uv).rgb * 2.0 - 1.0;
     m.xy *= u_normal_scale;
     return normalize(mat3(t, b, n) * m);
 }
@@ -150,7 +156,7 @@ vec3 shade_pbr(vec3 world_pos, vec3 n_geo, vec4 tangent, vec2 uv, vec3 v) {
     if (u_has_texture != 0) base *= srgb_to_linear(ALBEDO_LOOKUP(uv).rgb);
     float metallic = u_metallic, roughness = u_roughness;
     if (u_has_mr_map != 0) {
-        vec3 mr = texture(u_mr_map, uv).rgb;
+        vec3 mr = MAP_LOOKUP(u_mr_map, uv).rgb;
         roughness *= mr.g;
         metallic *= mr.b;
     }
@@ -162,7 +168,7 @@ vec3 shade_pbr(vec3 world_pos, vec3 n_geo, vec4 tangent, vec2 uv, vec3 v) {
     vec3 c_diff = base * (1.0 - metallic);
     vec3 f0 = mix(vec3(0.04), base, metallic);
     float ao = 1.0;
-    if (u_has_occlusion_map != 0) ao = 1.0 + u_occlusion_strength * (texture(u_occlusion_map, uv).r - 1.0);
+    if (u_has_occlusion_map != 0) ao = 1.0 + u_occlusion_strength * (MAP_LOOKUP(u_occlusion_map, uv).r - 1.0);
     // ambient: the hemisphere term of the older model for diffuse, a sky/ground
     // environment along the reflection for specular
     vec3 r = reflect(-v, n);
@@ -178,7 +184,7 @@ vec3 shade_pbr(vec3 world_pos, vec3 n_geo, vec4 tangent, vec2 uv, vec3 v) {
         c += gltf_brdf(n, v, d / max(dist, 1e-4), c_diff, f0, a2, ndv) * u_point_color[i] * att;
     }
     vec3 e = u_emissive;
-    if (u_has_emissive_map != 0) e *= srgb_to_linear(texture(u_emissive_map, uv).rgb);
+    if (u_has_emissive_map != 0) e *= srgb_to_linear(MAP_LOOKUP(u_emissive_map, uv).rgb);
     return c + e;
 }
 

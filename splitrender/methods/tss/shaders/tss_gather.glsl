@@ -9,6 +9,9 @@ uniform mat4 u_view_proj; // the reference view's projection * view (zero: per-t
 uniform vec2 u_viewport;  // display pixels
 uniform int u_os_centred; // oversampling grid: 1 cell centres (layout.os_row_lengths "centred"), 0 the paper's lattice
 #define ALBEDO_LOOKUP(uv) (g_grad ? textureGrad(u_albedo, uv, g_dx, g_dy) : textureLod(u_albedo, uv, g_lod))
+// the other maps with the same gradients (texture() here would read their level 0, unfiltered: the default scene's
+// emissive sign aliased, 26 dB lossless at any rate); the fallback level is the albedo's, moved by the maps' size ratio
+#define MAP_LOOKUP(tex, uv) (g_grad ? textureGrad(tex, uv, g_dx, g_dy) : textureLod(tex, uv, max(0.0, g_lod + log2(float(textureSize(tex, 0).x) / float(textureSize(u_albedo, 0).x)))))
 #include "shading.glsl"
 const float EPS = 1e-4;
 
