@@ -187,13 +187,18 @@ def test_two_clients_of_one_gi_server_get_their_own_rates_while_it_traces_once(r
     assert not np.array_equal(halves[0].sent_codes[sent], round_codes(halves[0].sent_codes[sent], 6))
 
 
+#: The step runs' length: 4.5 s, not 6 (the link falls at 1.5 s; scored over 2.5 s to the end): 'off', whose queue and
+#: keyframe requests grow with the run, took 47.5 + 16.8 CPU s over 6 s and 37.6 + 13.4 over 4.5 (at 0c23be9).
+END_S = 4.5
+
+
 def _step_runs(tmp_path):  # type: ignore[no-untyped-def]
     from splitrender.netsim.traces import step_trace, write_mahimahi
     from splitrender.sim.config import RunConfig
     from splitrender.sim.runner import VirtualTimeRun
 
     path = write_mahimahi(step_trace([(1.5, 5.0), (4.5, 0.4)]), tmp_path / "step.trace")
-    return {adapt: VirtualTimeRun(RunConfig(method="probes", scene="default", trace="walk", duration_s=6.0, width=160,
+    return {adapt: VirtualTimeRun(RunConfig(method="probes", scene="default", trace="walk", duration_s=END_S, width=160,
                                             height=90, client_fps=30, flip_every=0, network=f"delay 20ms trace {path}",
                                             transport_cc=True, adapt=adapt, seed=0)).run()
             for adapt in ("off", "full")}
@@ -212,7 +217,12 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
     moments; before probes' own frame_div prior and the estimator's drained over-use rule: point 8, then the
     coarsest at 3.8 s, 957 kbit/s; the same at gop 300 and 30).  Both stay far over the link: each loss on it brings a
     keyframe request, and the I-frame on an empty canvas makes the next updates refill every changed probe.  Model
-    PSNR over the run: ``off`` 20.16 dB, ``full`` 20.06 (19.98 and 19.94 before; both lag by seconds)."""
+    PSNR over the run: ``off`` 20.16 dB, ``full`` 20.06 (19.98 and 19.94 before; both lag by seconds).  All that over
+    6 s; the test runs 4.5 s (``END_S``) and scores 2.5-4.5 s, where ``off``'s queue has had 1.5 s less to grow
+    (measured at 0c23be9): ``off`` 2,562 kbit/s, p95 age 3,168 ms, model PSNR 21.51 dB; ``full`` (one move, to point
+    9) 685 kbit/s, 1,935 ms, 21.35 dB.  The bounds on ``off``'s rate and age are those values', as the 6 s ones were
+    (1800-2400 and > 3500 before); the ratios between ``full`` and ``off`` are asserted as before (measured 0.27 and
+    0.61 of ``off``, 0.35 and 0.74 over 6 s)."""
     res = _step_runs(tmp_path)
 
     def sent_kbps(r, a: float, b: float) -> float:  # type: ignore[no-untyped-def]
@@ -223,12 +233,12 @@ def test_full_adaptation_sends_less_and_younger_probes_over_a_narrow_link(tmp_pa
 
     off, full = res["off"], res["full"]
     assert full.summary["point_moves"] >= 1 and full.summary["lowest_point"] >= 8, full.summary
-    low = {a: sent_kbps(r, 2.5, 6.0) for a, r in res.items()}
-    assert 1800 < low["off"] < 2400 and low["full"] < 1000 and low["full"] < 0.45 * low["off"], low
-    p95 = {a: float(np.percentile(ages(r, 2.5, 6.0), 95)) for a, r in res.items()}
-    assert p95["off"] > 3500 and p95["full"] < 0.9 * p95["off"], p95
+    low = {a: sent_kbps(r, 2.5, END_S) for a, r in res.items()}
+    assert 2200 < low["off"] < 2900 and low["full"] < 1000 and low["full"] < 0.45 * low["off"], low
+    p95 = {a: float(np.percentile(ages(r, 2.5, END_S), 95)) for a, r in res.items()}
+    assert p95["off"] > 2700 and p95["full"] < 0.9 * p95["off"], p95
     q = {a: r.summary["mean_model_psnr_db"] for a, r in res.items()}
-    assert abs(q["off"] - 20.16) < 0.4 and abs(q["full"] - 20.06) < 0.4, q
+    assert abs(q["off"] - 21.51) < 0.4 and abs(q["full"] - 21.35) < 0.4, q
 
 
 def _vis_bytes_around_a_precision_drop(renderer, module=None):  # type: ignore[no-untyped-def]
