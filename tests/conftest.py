@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -167,8 +168,26 @@ LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_in
                         "test_sdp.py", "test_cli.py", "test_browser.py", "test_browser_front.py"})
 STRESS_FILE = "test_stress.py"
 _STRESS_SCRIPT = """
-import os, pickle, sys, traceback
+import os, pickle, signal, sys, threading, time, traceback
 out = sys.argv[1]
+parent, session = os.getppid(), int(sys.argv[2])
+
+
+def alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def orphaned():         # the test session that started this suite is gone (interrupted, killed): so is the reason to run
+    while os.getppid() == parent and alive(session):
+        time.sleep(1.0)
+    os.killpg(0, signal.SIGKILL)        # this process group: the suite and its method workers
+
+
+threading.Thread(target=orphaned, daemon=True).start()
 rc = 1
 try:
     from splitrender.experiments.stress import run_stress
@@ -206,11 +225,13 @@ def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
         os.makedirs(out, exist_ok=True)
     else:
         out = tempfile.mkdtemp(prefix="sr-stress-")
+    # the session's first process: under xdist the controller, whose workers may outlive it a while when it is killed
+    session = os.getppid() if shared is not None else os.getpid()
     with open(os.path.join(out, "started"), "w") as f:        # when it started (``_stress_span``)
         f.write(repr(__import__("time").time()))
     log = open(os.path.join(out, "log.txt"), "wb")  # noqa: SIM115 - closed at session end
-    config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out], stdout=log,
-                                                    stderr=subprocess.STDOUT))
+    config._sr_stress = (out, log, subprocess.Popen([sys.executable, "-c", _STRESS_SCRIPT, out, str(session)], stdout=log,
+                                                    stderr=subprocess.STDOUT, start_new_session=True))
 
 
 @pytest.hookimpl(trylast=True)   # after -k / -m deselection: a deselected test_stress case starts no stress suite
@@ -271,7 +292,7 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
             try:
                 bg[2].wait(timeout=1800)
             except Exception:
-                bg[2].kill()
+                os.killpg(bg[2].pid, signal.SIGKILL)
             bg[1].close()
         return
     _stop_ahead(session.config)
@@ -287,7 +308,7 @@ def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untype
         out, log, proc = bg
         session.config._sr_stress_span = _stress_span(out)
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)     # its own process group: the method workers too
             proc.wait()
         log.close()
         shutil.rmtree(out, ignore_errors=True)
