@@ -511,7 +511,7 @@ class PointController:
     sent (no more than 1.5 times the acknowledged rate, and near the capacity seen at the last over-use by about a
     packet per round trip), so a point chosen for a dip holds the estimate near its own rate, and the up margin then
     keeps it there: tss on the 8 Mbit/s cellular-like trace went to one frame in 2 at 1.1 s, behind a 5.6 Mbit/s
-    estimate the margin left 4.3 of, and stayed until a probe 2.2 s later.  Where the estimate has not fallen and the
+    estimate the margin left 4.3 of, and stayed there until 5.1 s.  Where the estimate has not fallen and the
     queue has stayed under ``ALR_QUEUE_MS`` for ``ALR_QUIET_S``, and the present point costs no more than the up
     margin of the budget (the session sends under what the estimate allows: the estimate, not the link, is what
     binds), the point steps up to the best point under the whole budget, without the margin and with no further hold
