@@ -41,6 +41,9 @@ drains a standing queue) into a bit rate for every lossy video stream of the ses
    spends it evenly: where the stream's share is ``WIDE`` times the cap or more, the stream runs at the method's crf
    again under a ceiling at its share (until the share falls under the cap), so its I-frames and a scene that grows
    past what its calibration saw get their bits, as with ``adapt = "off"``, and the link bounds only the bursts.
+   A method that tolerates a queue (:attr:`RateController.buffer_ms` set) never runs at a target: under the cap its
+   crf runs under a ceiling at the target (``BURST_CAP``), so the stream never changes rate mode, each change a new
+   encoder and an IDR.
 
 Targets are per second of the streams' own frame rate.  The encoder side
 (:meth:`~.sender.StreamEncoder.encode` with ``rates_kbps``) restarts a stream's encoder
