@@ -248,6 +248,12 @@ def test_classify_lifts_the_triangles_given_a_least_level() -> None:
     kind2, level2 = classify(px, *args, min_level=np.array([8, 8, 8, 0]))[:2]
     assert list(kind2) == [KIND_LP] * 4 and list(level2[:2]) == [8, 8], (kind2, level2)
     assert level2[2] == level[2] == level2[3] > 8, level2
+    # flip_cap: the lift capped at flip_cap times the samples along the longest edge (rate 1: its length in pixels),
+    # at least 1; a triangle whose own level is higher keeps it
+    kind3, level3 = classify(px, *args, min_level=np.array([16, 16, 16, 0]), flip_cap=1.0)[:2]
+    assert list(kind3) == [KIND_LP] * 4 and list(level3[:2]) == [1, 16], (kind3, level3)
+    assert level3[2] == level[2] == level3[3], level3
+    assert list(classify(px, *args, min_level=np.array([16, 16, 16, 0]), flip_cap=4.0)[1][:2]) == [3, 16]   # ceil(4 * 0.71)
 
 
 @pytest.mark.slow

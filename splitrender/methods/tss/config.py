@@ -112,7 +112,13 @@ class TssConfig(MethodConfig):
     or staircase rows past a triangle thinner than one sample step) put the flipped colour on the pixels beside it.
     Issue 50 part 1: this, not the motion, was ``tss``'s gap to ``sas`` on the duck's orbit (zero latency, lossless,
     one fresh frame per pose, 30 poses: 40.39 dB against 43.84; with ``flip_level = 8`` 45.23, the same samples).
-    Off by default: on the default scene it buys nothing for 5-16 % more bits (``docs/methods.md``).
+    Off by default: on the default scene it buys nothing for 5-16 % more bits (``docs/methods.md``).  ``flip_cap``
+    (0: off): the lift goes no higher than ``flip_cap`` times the samples the frame's rate puts along the triangle's
+    longest projected edge (a level-``l`` patch has ``l + 1`` along each edge), so a flipped triangle under a pixel
+    is not shaded at ``v(flip_level)`` samples.  Issue 50 part 1 (``bench_tss_rd.py``, ``mbc split16 lp 420 block8``,
+    crf 31): the default scene's ``cloud`` orbit -2.79 -> -1.57 dB against ``sas`` at 1.19x -> 0.78x its bits (cap 1),
+    still -4.99 -> -4.62 (cap 2); but the duck loses 0.06-0.24 dB at equal bits on its orbit (cap 2), so off by
+    default (``docs/methods.md``).
 
     ``pvs_ring`` (0: off, the paper's PVS): while the view moves (the EVS samples' views differ), the triangles sharing
     a vertex with the PVS, this many rings out, join it at one texel each (no samples asked for: the single kind).  The
@@ -170,6 +176,7 @@ class TssConfig(MethodConfig):
     budget_px: float = 0.0
     budget_max_spp: float = 8.0
     flip_level: int = 0
+    flip_cap: float = 0.0
     pvs_ring: int = 0
     codec_block: int = 1
     fill_pitch: bool = False
@@ -224,6 +231,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.budget_max_spp: must be in [0.05, 16], got {self.budget_max_spp}")
         if not 0 <= self.flip_level <= 64:
             raise ConfigError(f"TssConfig.flip_level: must be in [0, 64] (0: off), got {self.flip_level}")
+        if not 0.0 <= self.flip_cap <= 64.0:
+            raise ConfigError(f"TssConfig.flip_cap: must be in [0, 64] (0: off), got {self.flip_cap}")
         if self.codec_block not in (1, 2, 4, 8, 16):
             raise ConfigError(f"TssConfig.codec_block: must be 1 (off), 2, 4, 8 or 16 texels, got {self.codec_block}")
         if not 0 <= self.pvs_ring <= 8:

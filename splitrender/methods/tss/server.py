@@ -259,9 +259,19 @@ def plan_samples(kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.nda
     return int(n.sum())
 
 
+def capped_lift(min_level: np.ndarray, span: np.ndarray, flip_cap: float) -> np.ndarray:
+    """``flip_level``'s lifts (``min_level``, 0: none) capped at ``ceil(flip_cap * span)`` (at least 1), where ``span``
+    is the samples the frame's rate puts along each triangle's longest projected edge: a level-``l`` patch has ``l + 1``
+    samples along an edge, so the lift goes only as far as the triangle can show.  ``flip_cap`` 0: uncapped."""
+    if flip_cap <= 0:
+        return min_level
+    cap = np.clip(np.ceil(flip_cap * span), 1, MAX_LEVEL).astype(np.int64)
+    return np.where(min_level > 0, np.minimum(min_level, cap), 0)
+
+
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf,
-             min_level: np.ndarray | None = None, pitch_block: int = 1) -> tuple[np.ndarray, ...]:
+             min_level: np.ndarray | None = None, pitch_block: int = 1, flip_cap: float = 0.0) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
@@ -272,7 +282,8 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     inside the widened view, :func:`visible_area`) a triangle reaching out of the view
     gets samples for that part only, spread over the whole triangle (the paper
     samples whole triangles; the part outside the view would need samples only if
-    the client turned that way, and the PVS margin already covers that).
+    the client turned that way, and the PVS margin already covers that).  ``min_level`` (``flip_level``) lifts
+    L-packing levels, capped by :func:`capped_lift` at ``flip_cap``.
     """
     e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
     ln = np.linalg.norm(e, axis=2)
@@ -293,6 +304,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     kind = np.where(single, KIND_SINGLE, np.where((slant > slant_threshold) & ~sliver, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
     if min_level is not None:
+        min_level = capped_lift(min_level, longest * np.sqrt(rate * shown / np.maximum(area, 1e-12)), flip_cap)
         lift = min_level > 0
         kind[lift] = KIND_LP
         level[lift] = np.maximum(level[lift], min_level[lift])
@@ -448,7 +460,7 @@ class TssServer(ServerHalf):
         target = c.budget_px * self.intrinsics.width * self.intrinsics.height
 
         def fits(r: float) -> bool:
-            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
             return plan_samples(*k[:5], grid=c.os_grid) <= target
 
         lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
@@ -481,13 +493,17 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
+            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
                 if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
-                    lift = self._min_level > 0
+                    e = np.linalg.norm(np.roll(px, -1, axis=1) - px, axis=2).max(axis=1)
+                    ar = 0.5 * np.abs(np.cross(px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]))
+                    sh = ar if visible is None else np.minimum(ar, visible)
+                    ml = capped_lift(self._min_level, e * np.sqrt(rate * sh / np.maximum(ar, 1e-12)), c.flip_cap)
+                    lift = ml > 0
                     kind[lift] = KIND_LP
-                    level[lift] = np.maximum(level[lift], self._min_level[lift])
+                    level[lift] = np.maximum(level[lift], ml[lift])
                 if self.pitch_block > 1:
                     lp = kind == KIND_LP
                     level[lp] = pitch_level(level[lp], self.pitch_block)
@@ -503,7 +519,7 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
                 p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid
