@@ -78,6 +78,8 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
                                        "chroma": "420", "codec_block": 8, "flip_cap": 3.0}, (32.0,)),
     "mbc split16 lp 420 block8 cap4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                                        "chroma": "420", "codec_block": 8, "flip_cap": 4.0}, (32.0,)),
+    "mbc split16 lp 420 block8 flip0": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                        "chroma": "420", "codec_block": 8, "flip_level": 0}, (32.0,)),
     "mbc split16 lp 420 colour4": ({**BLOCK4, "colour_order": 4.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                                    "chroma": "420"}, (32.0,)),
     "mbc split16 lp 420 block8 px4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
@@ -101,7 +103,7 @@ px2`` / ``flip8`` / ``single1`` / ``420`` / ``lp``: ``split16`` with ``budget_px
 ``single_px = 1``, 4:2:0 or ``slant_threshold = 1000`` (every triangle L-packed); ``split16 lp 420``: both, and ``px4`` / ``block8`` /
 ``colour4`` on top: ``budget_px = 4``, ``codec_block = 8``, ``colour_order = 4``; ``block8 px4``: the first two;
 ``block8 cap1`` ... ``cap4``: ``block8`` with ``flip_cap`` 1 to 4 (the flips' lift capped at that many times the
-samples along the triangle's longest edge)."""
+samples along the triangle's longest edge); ``block8 flip0``: ``block8`` with ``flip_level = 0``."""
 
 CHILD = r"""
 import json, sys
