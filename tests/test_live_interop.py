@@ -234,16 +234,25 @@ def _gst_frames(sdp: Path, datagrams: list[bytes], codec: str, tmp: Path, n: int
     return [hashlib.md5(f.read_bytes()).hexdigest() for f in sorted(frames.iterdir())], err, drops
 
 
+def _one_copy(got: list[str], ours: list[str]) -> bool:
+    """Whether ``got`` holds every frame of ``ours``, in order, one after another: one whole copy of the stream sent
+    twice.  A receiver that started reading late loses the head of the first copy; one stopped at the end of the
+    stream may not write the second copy's last frame, which its parser holds until the end of stream (at load 9 a
+    clean-clone run saw GStreamer write 75 of 2 x 38, every frame of the first copy as ours)."""
+    n = len(ours)
+    return any(got[i:i + n] == ours for i in range(len(got) - n + 1))
+
+
 def _until_no_drops(decode: Callable[[float], tuple[list[str], str, int]], ours: list[str],
-                    tail: bool) -> tuple[list[str], str, list[int]]:
-    """``decode(gap_s)`` with the gaps of :data:`REPLAY_GAPS_S` until its frames are ``ours`` (their last ``len(ours)``
-    with ``tail``) or a try lost no datagram in the kernel; the last try's frames and error text, and the drops of
-    every try."""
+                    whole_copy: bool) -> tuple[list[str], str, list[int]]:
+    """``decode(gap_s)`` with the gaps of :data:`REPLAY_GAPS_S` until its frames are ``ours`` (hold one whole copy of
+    them with ``whole_copy``: :func:`_one_copy`) or a try lost no datagram in the kernel; the last try's frames and
+    error text, and the drops of every try."""
     drops: list[int] = []
     for gap in REPLAY_GAPS_S:
         got, err, d = decode(gap)
         drops.append(d)
-        if (got[-len(ours):] if tail else got) == ours or d == 0:
+        if (_one_copy(got, ours) if whole_copy else got == ours) or d == 0:
             break
     return got, err, drops
 
@@ -261,13 +270,14 @@ def test_ffmpeg_and_gstreamer_decode_every_frame_of_a_live_session(tmp_path: Pat
         # enough frames to compare (an IDR and P-frames after it): how many a 2 s session makes is the machine's rate
         # (measured 19-60, by load), and what counts is that every one of them decodes the same (issue 49)
         assert n >= 10, f"{name}: only {n} frames in 2 s"
-        ff, ff_err, ff_drops = _until_no_drops(lambda gap: _ffmpeg_frames(sdp, datagrams, n, gap), ours, tail=False)
+        ff, ff_err, ff_drops = _until_no_drops(lambda gap: _ffmpeg_frames(sdp, datagrams, n, gap), ours,
+                                               whole_copy=False)
         gst, gst_err, gst_drops = _until_no_drops(lambda gap: _gst_frames(sdp, datagrams, codec, tmp_path, n, gap), ours,
-                                                  tail=True)
+                                                  whole_copy=True)
         assert ff == ours, f"{method}/{name} ({codec}): ffmpeg decoded {len(ff)} frames, {sum(a == b for a, b in zip(ff, ours))} " \
                            f"of {n} as ours (datagrams the kernel dropped, per try: {ff_drops}): {ff_err[-400:]}"
         # every frame of one copy, in order and bit for bit (the second copy's frames are the first's again)
-        assert gst[-n:] == ours, \
-            f"{method}/{name} ({codec}): GStreamer decoded {len(gst)} frames of 2 x {n}, the last {n} " \
-            f"{sum(a == b for a, b in zip(gst[-n:], ours))} of {n} as ours (datagrams the kernel dropped, per try: " \
-            f"{gst_drops}): {gst_err[-400:]}"
+        assert _one_copy(gst, ours), \
+            f"{method}/{name} ({codec}): GStreamer decoded {len(gst)} frames of 2 x {n}, none {n} in a row as ours " \
+            f"(the last {n}: {sum(a == b for a, b in zip(gst[-n:], ours))} as ours; datagrams the kernel dropped, per " \
+            f"try: {gst_drops}): {gst_err[-400:]}"
