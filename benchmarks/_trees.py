@@ -29,6 +29,18 @@ def run_in_tree(tree: Path, child: str, arg: dict, what: str) -> dict:
     return out
 
 
+def run_cell(tree: str | Path, script: str, arg: dict, what: str) -> dict:
+    """``python script --cell ARG`` on ``tree`` (a benchmark that measures one cell per process, itself the child):
+    the JSON dict its last line of output prints, checked to come from ``tree``; a failure raises naming ``what``."""
+    p = subprocess.run([sys.executable, script, "--cell", json.dumps(arg)], env=dict(os.environ, PYTHONPATH=str(tree)),
+                       cwd=str(tree), capture_output=True, text=True)
+    if p.returncode:
+        raise RuntimeError(f"{what} on {tree}:\n{p.stderr[-3000:]}")
+    got = json.loads(p.stdout.strip().splitlines()[-1])
+    assert got["tree"] == str(Path(tree).resolve()), (got["tree"], tree)
+    return got
+
+
 def commit_of(tree: Path, paths: str = "splitrender") -> str:
     """The tree's commit, and whether ``paths`` in it carry uncommitted changes."""
     r = subprocess.run(["git", "-C", str(tree), "rev-parse", "HEAD"], capture_output=True, text=True)

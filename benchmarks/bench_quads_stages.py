@@ -30,10 +30,12 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _trees import run_cell  # noqa: E402
 
 OUT = Path(__file__).parent / "results" / "bench_quads_stages.json"
 DUCK = "/usr/share/assimp/models/Collada/duck.dae"
@@ -157,14 +159,8 @@ def main() -> None:
         runs: dict[str, list[dict[str, object]]] = {s: [] for s in sides}
         for _ in range(args.rounds):
             for side, tree in sides.items():
-                arg = json.dumps({"scene": scene, "trace": trace, "frames": args.frames})
-                p = subprocess.run([sys.executable, __file__, "--cell", arg], env=dict(os.environ, PYTHONPATH=tree),
-                                   cwd=tree, capture_output=True, text=True)
-                if p.returncode:
-                    raise RuntimeError(f"{name} on {tree}:\n{p.stderr[-3000:]}")
-                got = json.loads(p.stdout.strip().splitlines()[-1])
-                assert got["tree"] == str(Path(tree).resolve()), (got["tree"], tree)
-                runs[side].append(got)
+                arg = {"scene": scene, "trace": trace, "frames": args.frames}
+                runs[side].append(run_cell(tree, __file__, arg, name))
         cell = {side: {**min(rs, key=lambda x: float(x["server_over_gt"])),  # type: ignore[arg-type]
                        "runs_server_over_gt": [x["server_over_gt"] for x in rs]} for side, rs in runs.items()}
         out["cells"][name] = cell  # type: ignore[index]
