@@ -57,9 +57,7 @@ def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
     for f in range(FRAMES):
         t = 0.5 + f / 30
         pose = trace.pose_at(t)
-        ctx = ServerContext(frame_id=f, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
-                            expected_latency_s=0.0)
+        ctx = ServerContext.at_pose(f, t, scene, renderer, intr, pose)
         t0 = time.perf_counter()
         upd = srv.produce(ctx)
         total = (time.perf_counter() - t0) * 1e3

@@ -80,9 +80,7 @@ def time_cell(scene_name: str, trace: str, frames: int, variant: str = "quasar",
     for f in range(frames + 2):
         t = 0.5 + f / 30
         pose = tr.pose_at(t)
-        ctx = ServerContext(frame_id=f, t_s=t, scene=scene, renderer=r, intrinsics=intr, latest_pose=pose,
-                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
-                            expected_latency_s=0.0)
+        ctx = ServerContext.at_pose(f, t, scene, r, intr, pose)
         c0 = cpu()
         u = srv.produce(ctx)
         c1 = cpu()

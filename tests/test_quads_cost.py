@@ -34,9 +34,7 @@ def _ctx(renderer, scene, tr, f: int):  # type: ignore[no-untyped-def]
 
     t = 0.5 + f / 30
     pose = tr.pose_at(t)
-    return ServerContext(frame_id=f, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                         latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose,
-                         expected_latency_s=0.0)
+    return ServerContext.at_pose(f, t, scene, renderer, INTR, pose)
 
 
 def test_sparse_planes_are_the_whole_images(renderer) -> None:  # type: ignore[no-untyped-def]

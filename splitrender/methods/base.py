@@ -269,6 +269,15 @@ class ServerContext:
     shared: Any = None
     client: int = 0
 
+    @classmethod
+    def at_pose(cls, frame_id: int, t_s: float, scene: Scene, renderer: Any, intrinsics: CameraIntrinsics,
+                pose: Pose) -> ServerContext:
+        """A frame for a client seen at ``pose`` at ``t_s`` and held there, with no latency (benchmarks and tests
+        that drive a server half directly)."""
+        return cls(frame_id=frame_id, t_s=t_s, scene=scene, renderer=renderer, intrinsics=intrinsics,
+                   latest_pose=pose, latest_pose_t_s=t_s, target_pose=pose, target_t_s=t_s, predict=lambda _t: pose,
+                   expected_latency_s=0.0)
+
 
 @dataclass
 class Update:
