@@ -1322,15 +1322,10 @@ class ServerSession:
         """One message framed on :attr:`conn` for :meth:`data_to_send`, to leave from ``at_ms`` (default: at once)."""
         self._control.append((at_ms, frame))
 
-    def send(self, msg: Message, now_ms: float = -math.inf) -> None:
-        """A control message of the driver's own (``Stats``, ``Bye``), framed on :attr:`conn`; it leaves by
-        :meth:`data_to_send`.  Raises ``LocalProtocolError`` where the connection's state forbids it."""
-        self.queue_control(self.conn.send(msg), now_ms)
-
     def data_to_send(self, now_ms: float) -> list[bytes]:
         """The control connection's output due at ``now_ms``, in order, one framed message each: the Welcome and the
         session data (:func:`accept_hello`), each frame's FrameMeta and reliable data from when its datagrams leave
-        (:meth:`frame_sent`'s ``send_ms``), what the driver :meth:`send`.  Every front door on the RTP transport writes
+        (:meth:`frame_sent`'s ``send_ms``).  Every front door on the RTP transport writes
         them to the client's TCP connection as they come (virtual time models each message as one write).  Call
         before :meth:`datagrams_to_send`, after each input; a driver that defers a frame's sending (virtual time's
         modelled encoding: ``send_ms``) calls it at that time too, which :meth:`get_timer` does not name (a frame's
