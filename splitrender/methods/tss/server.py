@@ -274,10 +274,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              min_level: np.ndarray | None = None, pitch_block: int = 1, flip_cap: float = 0.0) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
-    Returns ``kind, level, w1, w2, h, a, base, slant, need``: the kind, L-packing level,
+    Returns ``kind, level, w1, w2, h, a, base, slant, need, span``: the kind, L-packing level,
     the oversampling staircases (bases and height in samples, the split fraction ``a``
-    quantised to 16 bits as on the wire), the base's start vertex, slantedness and
-    samples needed (area times rate).  ``pitch_block`` > 1 (``fill_pitch``): L-packing levels rise to the highest of
+    quantised to 16 bits as on the wire), the base's start vertex, slantedness,
+    samples needed (area times rate) and the samples along the longest edge (:func:`capped_lift`'s ``span``).  ``pitch_block`` > 1 (``fill_pitch``): L-packing levels rise to the highest of
     the same tip pitch (:func:`~.layout.pitch_level`).  With ``visible`` (pixels of each triangle
     inside the widened view, :func:`visible_area`) a triangle reaching out of the view
     gets samples for that part only, spread over the whole triangle (the paper
@@ -297,14 +297,15 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     need = shown * rate
     # one texel only for a triangle that is small in both directions: a sliver (a far floor tile's triangle,
     # 8 px long and a quarter pixel high) would show one colour along its whole length
-    single = (need < tiny) & (longest * np.sqrt(rate * shown / np.maximum(area, 1e-12)) < sliver_px)
+    span = longest * np.sqrt(rate * shown / np.maximum(area, 1e-12))   # samples along the longest edge
+    single = (need < tiny) & (span < sliver_px)
     # a sliver (under ``tiny`` but long) is L-packed at its low level: its corners and centre along its length cost a
     # few samples, where the oversampling staircases its slant would call for take two rows of its length and more
     sliver = need < tiny
     kind = np.where(single, KIND_SINGLE, np.where((slant > slant_threshold) & ~sliver, KIND_OS, KIND_LP)).astype(np.int64)
     level = level_for(need)
     if min_level is not None:
-        min_level = capped_lift(min_level, longest * np.sqrt(rate * shown / np.maximum(area, 1e-12)), flip_cap)
+        min_level = capped_lift(min_level, span, flip_cap)
         lift = min_level > 0
         kind[lift] = KIND_LP
         level[lift] = np.maximum(level[lift], min_level[lift])
@@ -325,7 +326,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     total = (w1 + w2 + 4) * (h + 1) if grid == "paper" else (w1 + w2 + 2) * h    # bounds of os_sizes' samples
     shrink = np.sqrt(np.minimum(1.0, 0.9 * int(v_count(MAX_LEVEL)) / np.maximum(total, 1)))
     w1, w2, h = (np.clip(np.floor(v * shrink), 1, 4096).astype(np.int64) for v in (w1, w2, h))
-    return kind, level, w1, w2, h, a, base, slant, need
+    return kind, level, w1, w2, h, a, base, slant, need, span
 
 
 class TssServer(ServerHalf):
@@ -493,14 +494,11 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
+            kind, level, w1, w2, h, a, base, slant, need, span = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
                 if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
-                    e = np.linalg.norm(np.roll(px, -1, axis=1) - px, axis=2).max(axis=1)
-                    ar = 0.5 * np.abs(np.cross(px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]))
-                    sh = ar if visible is None else np.minimum(ar, visible)
-                    ml = capped_lift(self._min_level, e * np.sqrt(rate * sh / np.maximum(ar, 1e-12)), c.flip_cap)
+                    ml = capped_lift(self._min_level, span, c.flip_cap)
                     lift = ml > 0
                     kind[lift] = KIND_LP
                     level[lift] = np.maximum(level[lift], ml[lift])
