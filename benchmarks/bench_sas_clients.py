@@ -205,7 +205,7 @@ def solo_run(base: RunConfig, i: int, r: Renderer) -> VirtualTimeRun:
 
 
 def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[int, int], network: str,
-            solo: bool = False) -> dict[str, Any]:
+            solo: bool = False, params: dict[str, Any] | None = None) -> dict[str, Any]:
     """Rows per scene and client count, measured in this process (this process's ``splitrender``); with ``solo``
     each client of the largest count also alone (:func:`solo_run`; client 0 alone is the one-client row)."""
     rec = Recorder()
@@ -213,7 +213,7 @@ def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[
     r = Renderer()
     out: dict[str, Any] = {}
     for name in names:
-        base = RunConfig(method="sas", scene=SCENES[name], trace="walk", network=network, width=size[0], height=size[1],
+        base = RunConfig(method="sas", method_params=dict(params or {}), scene=SCENES[name], trace="walk", network=network, width=size[0], height=size[1],
                          duration_s=duration_s, client_fps=30, flip_every=0, metrics=False, client_offset_s=0.5)
         VirtualTimeRun(base.replace(duration_s=0.1), r).run()   # warm up shaders and caches
         rows = out.setdefault(name, {})
@@ -274,6 +274,7 @@ def main() -> None:
     ap.add_argument("--solo", action="store_true",
                     help="also run each client of the largest count alone (its own trace offset): the sessions' "
                          "sharing is the many-client tick over the sum of its clients' ticks alone")
+    ap.add_argument("--params", default="{}", help="SasConfig fields, JSON (e.g. '{\"reshade_eye_deg\": 2}'), both trees")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)   # write measure()'s rows here
     ns = ap.parse_args()
@@ -281,12 +282,13 @@ def main() -> None:
     counts = [int(v) for v in ns.clients.split(",")]
     names = ns.scenes.split(",")
     if ns.worker is not None:
-        ns.worker.write_text(json.dumps(measure(names, counts, ns.duration, (w, h), ns.network, ns.solo)))
+        ns.worker.write_text(json.dumps(measure(names, counts, ns.duration, (w, h), ns.network, ns.solo,
+                                                json.loads(ns.params))))
         return
     load0 = os.getloadavg()
     labels: dict[str, dict[str, Any]] = {}
     if ns.before_tree is None:
-        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network, ns.solo)
+        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network, ns.solo, json.loads(ns.params))
     else:
         import subprocess
         import sys
@@ -302,7 +304,8 @@ def main() -> None:
                         part = Path(d) / "rows.json"
                         subprocess.run([sys.executable, __file__, "--worker", str(part), "--scenes", name, "--clients",
                                         str(n), "--duration", str(ns.duration), "--size", ns.size, "--network",
-                                        ns.network, *(["--solo"] if ns.solo and n == max(counts) else [])],
+                                        ns.network, "--params", ns.params,
+                                        *(["--solo"] if ns.solo and n == max(counts) else [])],
                                        env=env, check=True)
                         got = json.loads(part.read_text())
                     labels.setdefault(label, {}).setdefault(name, {}).update(got[name])
@@ -321,7 +324,7 @@ def main() -> None:
                     rs = row["ratio_to_solo_sum"]
                     print(f"{label:6s} {name} {key}/(its clients alone): tick wall {rs['wall']['tick']:.2f}x cpu "
                           f"{rs['cpu']['tick']:.2f}x; updates as alone: {row['digests_equal_solo']}")
-        doc[label] = {"machine": platform.platform(), "cpus": os.cpu_count(), "load_before": load0,
+        doc[label] = {"machine": platform.platform(), "cpus": os.cpu_count(), "load_before": load0, "params": json.loads(ns.params),
                       "load_after": os.getloadavg(), "duration_s": ns.duration, "size": [w, h], "network": ns.network,
                       "interleaved_with_before_tree": ns.before_tree is not None,
                       "scenes": {name: {"scene": SCENES[name], "rows": rows} for name, rows in scenes.items()}}

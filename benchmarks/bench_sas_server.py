@@ -20,7 +20,10 @@ selection, allocation, shading, atlas read-back) at 320x180:
   (``duck.dae``, skipped when absent), still (``static``) at 320x180 and 640x360 and
   moving (``walk`` at 320x180 and 640x360; the duck ``orbit`` at 320x180); each cell's atlases are hashed frame by frame, and
   ``identical`` says whether the two trees' atlases are the same bytes (then so is
-  every decoded frame and its quality).
+  every decoded frame and its quality).  ``--after-cfg JSON`` sets SasConfig fields on this tree's side (e.g.
+  ``reshade_eye_deg``); each side also reports the ratio of its mean server and ground-truth
+  times (``server_over_ground_truth_mean``), as a server whose cost alternates between frames
+  would be flattered by its fastest frame alone.
 
 Writes ``benchmarks/results/bench_sas_server.json``.  Run:
 ``python benchmarks/bench_sas_server.py [--frames N] [--before-tree DIR] [--rounds R]``.
@@ -124,20 +127,27 @@ def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dic
             gt.append((t3 - t2) * 1e3)
             stats.append(srv.stats())
     out: dict[str, object] = {"server_ms": float(np.min(ms)), "ground_truth_ms": float(np.min(gt)),
-                              "server_over_ground_truth": float(np.min(ms) / np.min(gt)), "digest": dig.hexdigest(),
+                              "server_over_ground_truth": float(np.min(ms) / np.min(gt)),
+                              # means: a server that shades some blocks every other frame (reshade_eye_deg) has
+                              # cheap and dear frames, whose fastest alone would flatter it
+                              "server_mean_ms": float(np.mean(ms)), "ground_truth_mean_ms": float(np.mean(gt)),
+                              "server_over_ground_truth_mean": float(np.mean(ms) / np.mean(gt)), "digest": dig.hexdigest(),
                               "samples": float(np.median([s["samples"] for s in stats]))}
-    for k in ("pvs_ms", "alloc_ms", "shade_ms", "meta_ms", "shaded_patches", "shadow_reused_patches", "pvs_patches"):
+    for k in ("pvs_ms", "alloc_ms", "shade_ms", "meta_ms", "shaded_patches", "shadow_reused_patches", "pvs_patches",
+              "eye_kept_patches"):
         if k in stats[0]:
             out[k] = float(np.median([s[k] for s in stats]))
     return out
 
 
-def before_after(frames: int, rounds: int, before_tree: str | None, only: set[str] | None = None) -> dict[str, object]:
+def before_after(frames: int, rounds: int, before_tree: str | None, only: set[str] | None = None,
+                 after_cfg: dict[str, object] | None = None) -> dict[str, object]:
     """``before_after`` (module docstring): each cell alternately in the tree before and this one (``only``: the
-    cells of these names)."""
+    cells of these names; ``after_cfg``: SasConfig fields of this tree's side)."""
     here = str(Path(__file__).resolve().parents[1])
-    sides = {"before": (before_tree or here, {} if before_tree else {"shade_changed_only": False}), "after": (here, {})}
-    out: dict[str, object] = {"before": before_tree or "this tree, shade_changed_only off"}
+    sides = {"before": (before_tree or here, {} if before_tree else {"shade_changed_only": False}),
+             "after": (here, dict(after_cfg or {}))}
+    out: dict[str, object] = {"before": before_tree or "this tree, shade_changed_only off", "after_cfg": dict(after_cfg or {})}
     for label, scene, trace, w, h in CELLS:
         if (scene == DUCK and not os.path.exists(DUCK)) or (only and f"{label}_{trace}_{w}x{h}" not in only):
             continue
@@ -154,10 +164,14 @@ def before_after(frames: int, rounds: int, before_tree: str | None, only: set[st
             best = min(rs, key=lambda x: float(x["server_over_ground_truth"]))  # type: ignore[arg-type]
             cell[side] = {**best, "server_over_ground_truth_runs": [x["server_over_ground_truth"] for x in rs]}
         cell["identical"] = len({x["digest"] for rs in runs.values() for x in rs}) == 1
+        for side, rs in runs.items():   # the means' ratio, best of the runs
+            cell[side]["server_over_ground_truth_mean_runs"] = [x.get("server_over_ground_truth_mean") for x in rs]  # type: ignore[index]
         out[f"{label}_{trace}_{w}x{h}"] = cell
         b, a = cell["before"], cell["after"]
+        bm = min(float(x) for x in b["server_over_ground_truth_mean_runs"] if x is not None)  # type: ignore[index]
+        am = min(float(x) for x in a["server_over_ground_truth_mean_runs"] if x is not None)  # type: ignore[index]
         print(f"{label} {trace} {w}x{h}: server/GT {b['server_over_ground_truth']:.2f} -> {a['server_over_ground_truth']:.2f}"  # type: ignore[index]
-              f" identical {cell['identical']}", flush=True)
+              f" (means {bm:.2f} -> {am:.2f}) identical {cell['identical']}", flush=True)
     return out
 
 
@@ -169,6 +183,7 @@ def main() -> None:
     ap.add_argument("--cell", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--only-before-after", action="store_true", help="run before_after alone, into the JSON there")
     ap.add_argument("--cells", default="", help="with --only-before-after: these cells (e.g. default_walk_640x360)")
+    ap.add_argument("--after-cfg", default="{}", help='SasConfig fields of this tree\'s side, JSON (e.g. \'{"reshade_eye_deg": 2}\')')
     args = ap.parse_args()
     if args.cell:
         c = json.loads(args.cell)
@@ -176,7 +191,8 @@ def main() -> None:
         return
     if args.only_before_after:
         prev = json.loads(OUT.read_text()) if OUT.exists() else {}
-        got = before_after(args.frames, args.rounds, args.before_tree, set(filter(None, args.cells.split(","))))
+        got = before_after(args.frames, args.rounds, args.before_tree, set(filter(None, args.cells.split(","))),
+                           json.loads(args.after_cfg))
         prev["before_after"] = {**prev.get("before_after", {}), **got}
         OUT.write_text(json.dumps(prev, indent=2) + "\n")
         return
@@ -193,7 +209,8 @@ def main() -> None:
     out = {"machine": platform.platform(), "resolution": [INTR.width, INTR.height], "frames": args.frames,
            "targets": {"large_over_small_nothing_visible": 2.0, "default_server_over_ground_truth": 1.5,
                        "before_after_server_over_ground_truth": 3.0},
-           "ratios": ratios, "runs": res, "before_after": before_after(args.frames, args.rounds, args.before_tree)}
+           "ratios": ratios, "runs": res, "before_after": before_after(args.frames, args.rounds, args.before_tree, None,
+                                                                  json.loads(args.after_cfg))}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(out, indent=2) + "\n")
     print(json.dumps({"ratios": ratios, **{k: {kk: round(vv, 2) for kk, vv in v.items()} for k, v in res.items()}}, indent=1))

@@ -74,7 +74,13 @@ class SasConfig(MethodConfig):
     block every frame.  ``reuse_shadow``: each texel's sun-shadow factor (the shadow maps' 2 x 9 taps) is kept in
     a float texture beside the atlas, and a block drawn again reads it back while its patch, block, object and
     the sun are unchanged, no moving caster is near, and every texel's normal stays on the same side of the eye
-    (the lookup moves along it); the atlas is bit for bit the same.
+    (the lookup moves along it); the atlas is bit for bit the same.  ``reshade_eye_deg`` (0: off): with
+    ``shade_changed_only`` a moving eye no longer makes every block change: a block keeps the texels shaded at an
+    earlier eye while, seen from any point of its patch, the eye's direction has turned by less than this many
+    degrees and its distance changed by less than that many radians' worth, the reference view's direction has
+    turned by less, every texel's normal is on the same side of the eye, and at most ``reshade_max_age`` frames
+    have passed (view-dependent terms, specular and texture filtering, lag by that much; the atlas is no longer
+    the one shading every block gives).
     """
 
     gop: int = 30
@@ -103,6 +109,8 @@ class SasConfig(MethodConfig):
     inset_min_texels: int = 8
     shade_changed_only: bool = True
     reuse_shadow: bool = True
+    reshade_eye_deg: float = 0.0
+    reshade_max_age: int = 8
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: the fraction of the atlas eq. 3 fills (``bias_fill``; with ``fill_atlas`` off, the
@@ -147,6 +155,10 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.inset_min_texels: must be in [0, 4096], got {self.inset_min_texels}")
         if self.atlas_filter not in ("bicubic", "bilinear"):
             raise ConfigError(f"SasConfig.atlas_filter: {self.atlas_filter!r} is not one of ['bicubic', 'bilinear']")
+        if not 0.0 <= self.reshade_eye_deg <= 30.0:   # NaN too
+            raise ConfigError(f"SasConfig.reshade_eye_deg: must be in [0, 30], got {self.reshade_eye_deg}")
+        if not 1 <= self.reshade_max_age <= 1000:
+            raise ConfigError(f"SasConfig.reshade_max_age: must be in [1, 1000], got {self.reshade_max_age}")
         if not self.atlas_mpix_1080p > 0:   # NaN too
             raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
 

@@ -115,12 +115,18 @@ SHADOW_CACHE_UNIT = 9
 """Texture unit of the shadow cache (the shading program uses 0-8)."""
 
 
-def frame_uniform_key(prog: Any) -> bytes:
-    """The bytes of every uniform of ``prog`` that is not set per object (:data:`PER_OBJECT_UNIFORMS`): what a
-    texel's shading reads besides its vertex attributes, its object's matrices and material, and the textures."""
+EYE_UNIFORMS = frozenset({"u_eye", "u_view_proj"})
+"""The frame uniforms that follow the client's eye (its position; the reference view the texture gradients are
+taken in): with :attr:`SasConfig.reshade_eye_deg` a block is kept over their change by its own test."""
+
+
+def frame_uniform_key(prog: Any, skip: frozenset[str] = frozenset()) -> bytes:
+    """The bytes of every uniform of ``prog`` that is not set per object (:data:`PER_OBJECT_UNIFORMS`) nor in
+    ``skip``: what a texel's shading reads besides its vertex attributes, its object's matrices and material, and
+    the textures."""
     parts = []
     for name in sorted(prog):
-        if name in PER_OBJECT_UNIFORMS:
+        if name in PER_OBJECT_UNIFORMS or name in skip:
             continue
         m = prog[name]
         if hasattr(m, "array_length") and hasattr(m, "read") and not hasattr(m, "binding"):
@@ -477,6 +483,12 @@ class SasServer(ServerHalf):
         self._vp = np.eye(4)
         self._vp_frame: SasFrame | None = None
         self._reused_count = 0
+        # reshade_eye_deg: per patch the server frame its block was last shaded in and the flip code then; per
+        # recent frame the eye and the reference view's rotation it was shaded at
+        self._shaded_at = np.zeros(self.patches.count, np.int64)
+        self._shaded_flip = np.zeros(self.patches.count, np.int8)
+        self._eye_hist: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._kept_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
@@ -630,6 +642,7 @@ class SasServer(ServerHalf):
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
             "samples": float(((1 << al.level_w[live].astype(np.int64)) * (1 << al.level_h[live].astype(np.int64))).sum()),
             "shaded_patches": float(self._shaded_count), "shadow_reused_patches": float(self._reused_count),
+            "eye_kept_patches": float(self._kept_count),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
@@ -643,7 +656,7 @@ class SasServer(ServerHalf):
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         if clear:
             self._fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._shaded_count = self._reused_count = 0
+        self._shaded_count = self._reused_count = self._kept_count = 0
         if live.size == 0:
             self._texels_ok[:] = False
             self._shadow_ok[:] = False
@@ -654,7 +667,7 @@ class SasServer(ServerHalf):
         if stale.size:
             self._vcache[stale] = self._shade_vertices(stale)
             self._vcache_ok[stale] = True
-            if self._sc is not None:
+            if self._sc is not None or self._eye_tol > 0:
                 self._flip_terms(stale)
         prog = self._prog
         ctx.renderer.bind_shading(prog, self.scene, ctx.t_s)
@@ -663,14 +676,21 @@ class SasServer(ServerHalf):
             prog["u_eye"].value = tuple(float(x) for x in ctx.target_pose.position)
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # textures filtered for its pixel footprint
         foot32 = np.asarray(foot, np.float32)
-        key = self._frame_key(ctx, prog)
+        tol = self._eye_tol
+        key = self._frame_key(ctx, prog, EYE_UNIFORMS if tol > 0 else frozenset())
+        eye = np.asarray(ctx.target_pose.position, np.float64)
+        rot = np.asarray(ctx.target_pose.view_matrix(), np.float64)[:3, :3]
         prev = self._shaded_models
         moved = np.ones(self.n_obj, bool) if prev is None or prev.shape != frame.models.shape \
             else (frame.models != prev).any(axis=(1, 2))
         if clear or not self.config.shade_changed_only or key is None or key != self._shaded_key:
             draw = live
         else:
-            draw = live[self._changed(live, frame, foot32, moved)]
+            changed = self._changed(live, frame, foot32, moved)
+            if tol > 0:
+                cand = np.flatnonzero(~changed)
+                changed[cand] = self._eye_moved(live[cand], frame, eye, rot)
+            draw = live[changed]
         reuse = np.zeros(draw.size, bool)
         code = np.zeros(draw.size, np.int8)
         if self._sc is not None and draw.size:
@@ -687,16 +707,23 @@ class SasServer(ServerHalf):
         # what the atlas and the cache hold after this frame
         self._texels_ok[:] = False
         self._texels_ok[live] = True
-        self._shaded_foot[live] = foot32
+        self._shaded_foot[draw] = foot32[np.searchsorted(live, draw)]   # the others' footprint is as it was shaded
         self._shaded_key = key
         self._shaded_models = frame.models.copy()
         self._shaded_count = int(draw.size)
+        self._kept_count = int(live.size - draw.size)
         self._reused_count = int(reuse.sum())
         kept = self._shadow_ok[live].copy()
         self._shadow_ok[:] = False
         self._shadow_ok[live] = kept
         self._shadow_ok[draw] = reuse | (code != 0)
         self._shadow_code[draw] = code
+        if tol > 0:
+            self._shaded_at[draw] = self._frames
+            self._shaded_flip[draw] = code if self._sc is not None else self._flip_code(draw, frame, eye)
+            self._eye_hist[self._frames] = (eye, rot)
+            for f in [f for f in self._eye_hist if f <= self._frames - self.config.reshade_max_age]:
+                del self._eye_hist[f]
         if self._sc is not None:
             # the cache written this frame starts as last frame's (blocks not drawn keep their factors)
             w = self._sc_write
@@ -760,7 +787,7 @@ class SasServer(ServerHalf):
             if hasattr(m, "array_length") and hasattr(m, "read") and not hasattr(m, "binding"):
                 dst[name].write(m.read())
 
-    def _frame_key(self, ctx: ServerContext, prog: Any) -> tuple[Any, ...] | None:
+    def _frame_key(self, ctx: ServerContext, prog: Any, skip: frozenset[str] = frozenset()) -> tuple[Any, ...] | None:
         """What every texel's shading reads this frame besides its patch, block, footprint, object and the shadow
         maps: the frame's uniforms (:func:`frame_uniform_key`: lights, eye, reference view, atlas size) and the GI
         probes' state; None when the probes' state cannot be told (a source outside this renderer's volume)."""
@@ -774,14 +801,60 @@ class SasServer(ServerHalf):
             if gi is None:
                 return None
             gi = (id(vol), gi)
-        return frame_uniform_key(prog), gi
+        return frame_uniform_key(prog, skip), gi
+
+    @property
+    def _eye_tol(self) -> float:
+        """:attr:`SasConfig.reshade_eye_deg` in radians where it applies (``shade_changed_only`` on), else 0."""
+        c = self.config
+        return math.radians(c.reshade_eye_deg) if c.shade_changed_only else 0.0
+
+    def _eye_moved(self, ids: np.ndarray, frame: SasFrame, eye: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """(len(ids),) bool, with :attr:`SasConfig.reshade_eye_deg`: which blocks of patches ``ids`` (each unchanged
+        otherwise since it was last shaded) are shaded again for the eye ``eye`` and reference view rotation ``rot``:
+        those shaded ``reshade_max_age`` or more frames ago, whose texels' normals are not all on one side of the
+        eye as they were (:meth:`_flip_code`), whose reference view turned by the tolerance or more, or where the
+        eye moved by at least the tolerance times its distance from the patch (its grown triangles' sphere): within
+        it, the eye's direction from every point of the patch turned, and its distance changed relatively, by less
+        than the tolerance (radians)."""
+        if ids.size == 0:
+            return np.zeros(0, bool)
+        tol = self._eye_tol
+        at = self._shaded_at[ids]
+        out = (self._frames - at >= self.config.reshade_max_age)
+        frames_at = np.unique(at[~out])
+        if any(int(f) not in self._eye_hist for f in frames_at):
+            return np.ones(ids.size, bool)
+        old_eye = np.zeros((ids.size, 3))
+        for f in frames_at.tolist():
+            e0, r0 = self._eye_hist[f]
+            sel = at == f
+            old_eye[sel] = e0
+            cos = (float(np.trace(rot @ r0.T)) - 1.0) / 2.0
+            if cos < math.cos(tol):
+                out |= sel
+        m = frame.models[self.patches.object_index[ids]]
+        c = np.einsum("nij,nj->ni", m[:, :3, :3], self._flip_c[ids]) + m[:, :3, 3]
+        r = self._flip_r[ids] * np.linalg.norm(m[:, :3, :3], axis=1).max(axis=1)
+        dist = np.minimum(np.linalg.norm(eye - c, axis=1), np.linalg.norm(old_eye - c, axis=1)) - r
+        out |= ~(np.linalg.norm(eye - old_eye, axis=1) < tol * np.maximum(dist, 0.0))
+        cand = np.flatnonzero(~out)
+        if cand.size:
+            code = self._flip_code(ids[cand], frame, eye)
+            out[cand] = (code == 0) | (code != self._shaded_flip[ids[cand]])
+        return out
 
     def _changed(self, live: np.ndarray, frame: SasFrame, foot: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """(len(live),) bool: which live patches' texels differ from last frame's, the frame's uniforms and probes
-        being the same: those not shaded into their block last frame, with another footprint, of an object whose
-        matrix changed (``moved``, per object), or near a shadow caster that moved (:meth:`_near_moved_casters`)."""
+        being the same: those not shaded into their block last frame, with another footprint (with
+        :attr:`SasConfig.reshade_eye_deg`, one that changed by that tolerance in radians, relatively, since the block
+        was shaded), of an object whose matrix changed (``moved``, per object), or near a shadow caster that moved
+        (:meth:`_near_moved_casters`)."""
         P = self.patches
-        out = ~self._texels_ok[live] | moved[P.object_index[live]] | (foot != self._shaded_foot[live]).any(axis=1)
+        old = self._shaded_foot[live]
+        tol = self._eye_tol
+        refoot = (np.abs(foot - old) > tol * old) if tol > 0 else (foot != old)
+        out = ~self._texels_ok[live] | moved[P.object_index[live]] | refoot.any(axis=1)
         cand = np.flatnonzero(~out)
         if cand.size:
             out[cand] = self._near_moved_casters(live[cand], frame, moved)
