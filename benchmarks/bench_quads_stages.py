@@ -6,7 +6,8 @@ each followed by the ground truth of the same frame by a renderer of its own (``
 ``time.process_time``, llvmpipe's threads included), the median over the frames:
 
 - ``render``: its G-buffer renders (the visible view; the reference view at this time for the residual-error test
-  and the update; the peeled hidden layer; the wide view), colour, depth and normals read back;
+  and the update; the peeled hidden layer; the wide view), colour, depth and normals read back (a hidden layer's
+  colour, shaded after its parallax test where it is sent, included);
 - ``generate``: quad generation and merging of every set (reference or update and revealed, hidden layer, wide
   view);
 - ``residual_test``: the residual-error test (the cached mesh drawn from the frame's pose), and inside it
@@ -73,6 +74,8 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
     wrap(srv_mod, "generate", "generate")
     wrap(srv_mod, "edp_keep", "edp")
     wrap(srv_mod.QuadsServer, "_gbuffer", "render")
+    if hasattr(srv_mod.QuadsServer, "_colour"):      # a hidden layer's colour, shaded after its parallax test
+        wrap(srv_mod.QuadsServer, "_colour", "render")
     wrap(srv_mod.QuadsServer, "_residual_psnr", "residual_test")
     wrap(srv_mod.QuadsServer, "_mesh_depth", "mask_mesh")
     wrap(srv_mod, "encode_sets", "encode")

@@ -209,3 +209,41 @@ def test_supersampling_averages_blocks_and_keeps_ids_at_pixel_centres(renderer):
     # anti-aliasing changes pixels along edges much more than the interiors (a finer mip level moves those a little)
     d = np.abs(two.color.astype(int) - one.color.astype(int)).max(axis=-1)
     assert np.median(d) <= 2 and 0.04 < (d > 24).mean() < 0.15, ((d > 24).mean(), np.median(d))  # measured: 1, 8.3%
+
+
+def test_shade_gives_the_one_pass_colour_of_a_gbuffer_drawn_without_it(renderer):
+    """``Renderer.shade``: a G-buffer drawn without colour (no shading at all) and then shaded over its own depths and
+    triangle ids gives one pass's colour to the bit, its depth, normals and ids the same too; with ``where`` only
+    those pixels are shaded (sky on the background elsewhere, black on surfaces).  Also for a depth-peeled layer and
+    after another render drew over the G-buffer (it is drawn again)."""
+    from splitrender.scene import default_scene
+    from splitrender.scene.trace import get_trace
+
+    scene, intr = default_scene(), CameraIntrinsics(160, 90, 60.0)
+    tr = get_trace("walk", 2.0)
+    outs = ("depth", "normal", "object_id", "triangle_id")
+    for t in (0.3, 1.4):
+        pose = tr.pose_at(t)
+        one = renderer.render(scene, t, pose, intr, ("color", *outs))
+        g = renderer.render(scene, t, pose, intr, outs)
+        assert g.color.size == 0
+        for k in outs:
+            assert np.array_equal(getattr(g, k), getattr(one, k)), k
+        assert np.array_equal(renderer.shade(g), one.color)
+        peel_one = renderer.render(scene, t, pose, intr, ("color", "depth"), peel=one.depth)
+        peel = renderer.render(scene, t, pose, intr, ("depth",), peel=one.depth)
+        assert np.array_equal(peel.depth, peel_one.depth, equal_nan=True)
+        where = np.zeros((90, 160), bool)
+        where[20:60, 30:110] = True
+        c = renderer.shade(peel, where)
+        assert np.array_equal(c[where], peel_one.color[where])
+        sky = np.round(np.asarray(scene.sky_color) * 255)
+        bg, fg = ~where & ~np.isfinite(peel.depth), ~where & np.isfinite(peel.depth)
+        assert bg.any() and fg.any() and (np.abs(c[bg] - sky) <= 1).all() and (c[fg] == 0).all()
+        # the masked shading moved g's depth buffer and the peel render drew over it: both drawn again
+        assert np.array_equal(renderer.shade(peel), peel_one.color)
+        assert np.array_equal(renderer.shade(g), one.color)
+    with pytest.raises(ValueError, match="no colour"):
+        renderer.shade(one)
+    with pytest.raises(ValueError, match="where must be"):
+        renderer.shade(g, np.ones((10, 10), bool))

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..scene.model import Scene, SceneObject
 from ..scene.pose import CameraIntrinsics, Pose, look_at_quat
-from .canvas import FullscreenPass
+from .canvas import FullscreenPass, upload_image
 from .ddgi import GI_UNITS, DdgiSettings, DdgiVolume, ProbeStates, gi_time
 from .gl import SHADER_DIR, get_context, has_uniform, load_program, set_uniform
 
@@ -42,6 +42,8 @@ derivatives only, so no method that resamples shading (SAS, TSS) could reproduce
 
 MAP_UNITS = {"u_mr_map": 3, "u_normal_map": 4, "u_occlusion_map": 5, "u_emissive_map": 6}
 PEEL_UNIT = 7
+DRAWN_IDS_UNIT = 8
+"""The unit of the drawn ids :meth:`Renderer.shade` compares with (the shadow maps take 1 and 2, DDGI its GI_UNITS)."""
 PEEL_EPS = 1e-4
 """Depth peeling keeps a fragment only this far (relative) behind the previous layer (f32 depth noise)."""
 
@@ -53,6 +55,19 @@ class RenderOutput:
     normal: np.ndarray | None = None
     object_id: np.ndarray | None = None
     triangle_id: np.ndarray | None = None
+    drawn: Any = field(default=None, repr=False, compare=False)
+    """What :meth:`Renderer.shade` needs to colour this G-buffer (a render without colour, not supersampled)."""
+
+
+@dataclass(frozen=True)
+class _Drawn:
+    serial: int
+    scene: Scene
+    t_s: float
+    pose: Pose
+    intr: CameraIntrinsics
+    object_ids: set[int] | None
+    peel: np.ndarray | None
 
 
 @dataclass
@@ -66,6 +81,8 @@ class ObjectGPU:
     tri_base: int
     maps: dict[str, Any] = field(default_factory=dict)   # the material's other textures, by uniform name
     tbo: Any = None                                      # per-vertex tangents (4f)
+    gbuffer_vao: Any = None                              # on Renderer.gbuffer_prog (made on first use)
+    shade_vao: Any = None                                # on Renderer.shade_prog (made on first use)
 
 
 @dataclass
@@ -127,6 +144,9 @@ class Renderer:
         self.ctx = ctx if ctx is not None else get_context()
         self.prog = load_program(self.ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "forward.frag")
         self.shadow_prog = load_program(self.ctx, SHADER_DIR / "shadow.vert", SHADER_DIR / "shadow.frag")
+        self._gbuffer_prog: Any = None
+        self._shade_prog: Any = None
+        self._serial = 0      # renders drawn so far (Renderer.shade checks that its G-buffer is still the last one)
         self._scenes: dict[int, SceneGPU] = {}
         self._placeholder_tex: Any = None
         self._peel_tex: Any = None
@@ -139,6 +159,8 @@ class Renderer:
         self._shadow_static_key: int | None = None
         self._shadow_key: tuple[int, float] | None = None
         self._background = FullscreenPass(self.ctx, SHADER_DIR / "background.frag")
+        self._where_pass: FullscreenPass | None = None
+        self._where_tex: Any = None
         self._gi: dict[int, DdgiVolume] = {}
         self.gi_sources: dict[int, Any] = {}
         """Probes to shade a scene with instead of computing its own (by ``id(scene)``; a client's received copy)."""
@@ -198,12 +220,44 @@ class Renderer:
             color = self.ctx.texture((w, h), 4, dtype="f1")
             normal = self.ctx.texture((w, h), 4, dtype="f2")
             ids = self.ctx.texture((w, h), 2, dtype="u4")
+            ids.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
             depth_lin = self.ctx.texture((w, h), 1, dtype="f4")
             zbuf = self.ctx.depth_renderbuffer((w, h))
             fbo = self.ctx.framebuffer([color, normal, ids, depth_lin], zbuf)
-            f = (fbo, color, normal, ids, depth_lin)
+            shade_fbo = self.ctx.framebuffer([color], zbuf)     # Renderer.shade: colour over the drawn depths
+            depth_fbo = self.ctx.framebuffer(depth_attachment=zbuf)
+            f = (fbo, color, normal, ids, depth_lin, shade_fbo, depth_fbo)
             self._fbos[(w, h)] = f
         return f
+
+    @property
+    def gbuffer_prog(self) -> Any:
+        """The forward program without shading (``NO_COLOR``): a render that asks for no colour draws with it."""
+        if self._gbuffer_prog is None:
+            self._gbuffer_prog = load_program(self.ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "forward.frag",
+                                              defines={"NO_COLOR": 1})
+        return self._gbuffer_prog
+
+    @property
+    def shade_prog(self) -> Any:
+        """The forward program's shading over a G-buffer already drawn (``SHADE_PASS``, :meth:`shade`)."""
+        if self._shade_prog is None:
+            self._shade_prog = load_program(self.ctx, SHADER_DIR / "forward.vert", SHADER_DIR / "forward.frag",
+                                            defines={"SHADE_PASS": 1})
+        return self._shade_prog
+
+    def _vao(self, og: ObjectGPU, prog: Any) -> Any:
+        """``og``'s vertex array on ``prog`` (the forward program or one of its two variants)."""
+        if prog is self.prog:
+            return og.vao
+        if prog is self._gbuffer_prog:
+            if og.gbuffer_vao is None:     # no texture coordinates or tangents: nothing shades
+                og.gbuffer_vao = self.ctx.vertex_array(prog, [(og.vbo, "3f 3f 8x", "in_position", "in_normal")], og.ibo)
+            return og.gbuffer_vao
+        if og.shade_vao is None:
+            og.shade_vao = self.ctx.vertex_array(prog, [(og.vbo, "3f 3f 2f", "in_position", "in_normal", "in_uv"),
+                                                        (og.tbo, "4f", "in_tangent")], og.ibo)
+        return og.shade_vao
 
     # ------------------------------------------------------------------ shading
     def _shadow_target(self, kind: str, size: int) -> tuple[Any, Any]:
@@ -373,10 +427,10 @@ class Renderer:
                 set_uniform(prog, name, unit)
             set_uniform(prog, "u_has_" + name[2:], int(tex is not None and has_uniform(prog, name)))
 
-    def _bind_peel(self, peel: np.ndarray | None, intr: CameraIntrinsics) -> None:
+    def _bind_peel(self, prog: Any, peel: np.ndarray | None, intr: CameraIntrinsics) -> None:
         """Bind the depth-peeling texture (a 1x1 placeholder when not peeling: every sampler gets a texture)."""
         if peel is None:
-            set_uniform(self.prog, "u_peel_on", 0)
+            set_uniform(prog, "u_peel_on", 0)
             if self._peel_none is None:
                 self._peel_none = self.ctx.texture((1, 1), 1, np.zeros(1, "f4").tobytes(), dtype="f4")
                 self._peel_none.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
@@ -388,11 +442,11 @@ class Renderer:
                 self._peel_tex = self.ctx.texture((intr.width, intr.height), 1, dtype="f4")
                 self._peel_tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
             self._peel_tex.write(np.ascontiguousarray(np.asarray(peel, np.float32)[::-1]).tobytes())
-            set_uniform(self.prog, "u_peel_on", 1)
-            set_uniform(self.prog, "u_peel_eps", PEEL_EPS)
+            set_uniform(prog, "u_peel_on", 1)
+            set_uniform(prog, "u_peel_eps", PEEL_EPS)
             tex = self._peel_tex
         tex.use(location=PEEL_UNIT)
-        set_uniform(self.prog, "u_peel", PEEL_UNIT)
+        set_uniform(prog, "u_peel", PEEL_UNIT)
 
     def _placeholder(self) -> Any:
         if self._placeholder_tex is None:
@@ -442,38 +496,25 @@ class Renderer:
     def _render(self, scene: Scene, t_s: float, pose: Pose, intr: CameraIntrinsics,
                 outputs: tuple[str, ...], object_ids: set[int] | None, peel: np.ndarray | None = None) -> RenderOutput:
         sg = self.upload(scene)
-        self.bind_shading(self.prog, scene, t_s, gi="color" in outputs)
-        self._bind_peel(peel, intr)
-        fbo, color, normal, ids, depth_lin = self._fbo(intr.width, intr.height)
+        colour = "color" in outputs
+        prog = self.prog if colour else self.gbuffer_prog    # no colour asked: nothing is shaded
+        if colour:
+            self.bind_shading(prog, scene, t_s)
+        self._bind_peel(prog, peel, intr)
+        fbo, color, normal, ids, depth_lin, *_ = self._fbo(intr.width, intr.height)
+        self._serial += 1
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
         fbo.clear(depth=1.0)
         self._background.prog["u_sky"].value = tuple(scene.sky_color)
         self._background.run()  # background values in every attachment (ids 0, depth inf)
-        self.ctx.enable(self.ctx.DEPTH_TEST)
-        self.ctx.disable(self.ctx.CULL_FACE)
-        view = pose.view_matrix()
-        proj = intr.projection()
-        self.prog["u_view"].write(np.asarray(view, "f4").T.tobytes())
-        self.prog["u_proj"].write(np.asarray(proj, "f4").T.tobytes())
-        set_uniform(self.prog, "u_eye", tuple(pose.position))
-        for og in sg.objects:
-            if object_ids is not None and og.obj.object_id not in object_ids:
-                continue
-            model = og.obj.model_matrix(t_s)
-            nm = normal_matrix(model)
-            if nm is None:      # a transform nothing sensible can be drawn with (a client's scene): skip the object
-                continue
-            self.prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
-            self.prog["u_normal_matrix"].write(np.asarray(nm, "f4").T.tobytes())
-            set_uniform(self.prog, "u_object_id", og.obj.object_id)
-            set_uniform(self.prog, "u_primitive_base", og.tri_base)
-            self.bind_material(self.prog, og)
-            og.vao.render()
+        self._draw_objects(prog, sg, t_s, pose, intr, object_ids, colour)
         w, h = intr.width, intr.height
         out = RenderOutput(color=np.empty(0, np.uint8))
-        if "color" in outputs:
+        if colour:
             out.color = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3)[::-1].copy()
+        else:
+            out.drawn = _Drawn(self._serial, scene, float(t_s), pose, intr, object_ids, peel)
         if "depth" in outputs:
             out.depth = np.frombuffer(depth_lin.read(), np.float32).reshape(h, w)[::-1].copy()
         if "normal" in outputs:
@@ -485,6 +526,84 @@ class Renderer:
             if "triangle_id" in outputs:
                 out.triangle_id = idv[..., 1].copy()
         return out
+
+    def _draw_objects(self, prog: Any, sg: SceneGPU, t_s: float, pose: Pose, intr: CameraIntrinsics,
+                      object_ids: set[int] | None, materials: bool) -> None:
+        """Draw the scene's objects (those in ``object_ids``) with ``prog`` into the bound framebuffer, depth-tested
+        (the caller sets the test's function); ``materials``: bind each one's material (a shading program)."""
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.disable(self.ctx.CULL_FACE)
+        prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
+        prog["u_proj"].write(np.asarray(intr.projection(), "f4").T.tobytes())
+        set_uniform(prog, "u_eye", tuple(pose.position))
+        for og in sg.objects:
+            if object_ids is not None and og.obj.object_id not in object_ids:
+                continue
+            model = og.obj.model_matrix(t_s)
+            nm = normal_matrix(model)
+            if nm is None:      # a transform nothing sensible can be drawn with (a client's scene): skip the object
+                continue
+            prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
+            prog["u_normal_matrix"].write(np.asarray(nm, "f4").T.tobytes())
+            set_uniform(prog, "u_object_id", og.obj.object_id)
+            set_uniform(prog, "u_primitive_base", og.tri_base)
+            if materials:
+                self.bind_material(prog, og)
+            self._vao(og, prog).render()
+
+    def shade(self, g: RenderOutput, where: np.ndarray | None = None) -> np.ndarray:
+        """The colour :meth:`render` gives with the G-buffer ``g`` (a render that asked for no colour, not
+        supersampled), bit for bit, at the pixels ``where`` ((H, W) bool; every pixel by default).
+
+        Only the surfaces ``g`` holds are shaded, each fragment once: ``g``'s depth buffer with an equal test (so a
+        hidden fragment is not shaded, whatever the drawing order) and its triangle ids (a fragment of another
+        triangle at the same quantised depth lost ``g``'s less-than test).  Pixels outside ``where`` are not shaded
+        either: the depth buffer is set to the near plane there first.  Outside ``where`` the colour is the sky's on
+        background pixels and black on the others.  ``g`` drawn over by a later render is drawn again first."""
+        d = g.drawn
+        if not isinstance(d, _Drawn):
+            raise ValueError("Renderer.shade needs a render that asked for no colour and was not supersampled")
+        w, h = d.intr.width, d.intr.height
+        if where is not None and np.shape(where) != (h, w):
+            raise ValueError(f"shade's where must be {(h, w)}, got {np.shape(where)}")
+        prog = self.shade_prog
+        sg = self.upload(d.scene)
+        self.bind_shading(prog, d.scene, d.t_s)  # may draw (probes relit, shadow maps) before g's buffers are used
+        if d.serial != self._serial:            # g's buffers were drawn over: draw them again
+            self._render(d.scene, d.t_s, d.pose, d.intr, ("depth",), d.object_ids, d.peel)
+        _, _, _, ids, _, shade_fbo, depth_fbo = self._fbo(w, h)
+        if where is not None and not np.all(where):
+            depth_fbo.use()
+            self.ctx.viewport = (0, 0, w, h)
+            self._depth_near_outside(where)
+            self._serial += 1                   # the depth buffer is no longer g's
+        shade_fbo.use()
+        self.ctx.viewport = (0, 0, w, h)
+        ids.use(location=DRAWN_IDS_UNIT)
+        set_uniform(prog, "u_drawn_ids", DRAWN_IDS_UNIT)
+        self.ctx.depth_func = "=="
+        try:
+            self._draw_objects(prog, sg, d.t_s, d.pose, d.intr, d.object_ids, True)
+        finally:
+            self.ctx.depth_func = "<"
+        return np.frombuffer(shade_fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    def _depth_near_outside(self, where: np.ndarray) -> None:
+        """Set the bound framebuffer's depth buffer (it has no colour) to the near plane (0) where ``where`` is false
+        (row 0 at the top), leaving the rest: an equal test drawn after it then fails early there, before any
+        shading."""
+        if self._where_pass is None:
+            self._where_pass = FullscreenPass(self.ctx, SHADER_DIR / "depth_where.frag")
+        self._where_tex = upload_image(self.ctx, np.ascontiguousarray(np.asarray(where, np.uint8)[::-1]) * np.uint8(255),
+                                       self._where_tex, linear=False)
+        self._where_tex.use(location=DRAWN_IDS_UNIT + 1)
+        self._where_pass.prog["u_where"].value = DRAWN_IDS_UNIT + 1
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.depth_func = "1"       # always: the pass writes its depth
+        try:
+            self._where_pass.vao.render(mode=self.ctx.TRIANGLES, vertices=3)
+        finally:
+            self.ctx.depth_func = "<"
 
 
 def make_pose_looking(eye: tuple[float, float, float], target: tuple[float, float, float]) -> Pose:

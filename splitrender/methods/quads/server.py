@@ -117,10 +117,16 @@ def wide_intrinsics(intr: CameraIntrinsics, fov_y_deg: float, scale: float = 0.5
                             intr.near_m, intr.far_m)
 
 
-def masked_colour(color: np.ndarray, emit: np.ndarray) -> np.ndarray:
-    """A masked slot's colour: ``color`` where ``emit`` and one pixel around it (the client's bilinear lookup
-    reaches half a texel past a quad's edge), black elsewhere."""
-    ring = binary_dilation(emit, structure=np.ones((3, 3), bool))
+def colour_ring(emit: np.ndarray) -> np.ndarray:
+    """The pixels whose colour a masked slot sends: ``emit`` and one pixel around it (the client's bilinear lookup
+    reaches half a texel past a quad's edge)."""
+    return binary_dilation(emit, structure=np.ones((3, 3), bool))
+
+
+def masked_colour(color: np.ndarray, emit: np.ndarray, ring: np.ndarray | None = None) -> np.ndarray:
+    """A masked slot's colour: ``color`` at :func:`colour_ring` of ``emit`` (``ring`` when given), black elsewhere."""
+    if ring is None:
+        ring = colour_ring(emit)
     return np.where(ring[..., None], color, 0).astype(np.uint8)
 
 
@@ -190,12 +196,29 @@ class QuadsServer(ServerHalf):
         atlas[y:y + img.shape[0], x:x + img.shape[1]] = img
 
     def _gbuffer(self, ctx: ServerContext, pose: Pose, intr: CameraIntrinsics, times: dict[str, float],
-                 peel: np.ndarray | None = None) -> Any:
-        """Colour, depth and normals at ``pose``; the time goes to ``times["gbuffer_ms"]``."""
+                 peel: np.ndarray | None = None, colour: bool = True) -> Any:
+        """Depth, normals and (with ``colour``) colour at ``pose``; the time goes to ``times["gbuffer_ms"]``.
+
+        Drawn in two passes, the G-buffer unshaded then its surfaces shaded (``Renderer.shade``: the same bytes as
+        one pass, each visible fragment shaded once); ``colour=False`` leaves the second to :meth:`_colour`, for
+        the pixels that need it.  A supersampled renderer draws one pass (its colour is a block mean)."""
         t0 = time.perf_counter()
-        g = ctx.renderer.render(self.scene, ctx.t_s, pose, intr, ("color", "depth", "normal"), peel=peel)
+        r = ctx.renderer
+        if colour and peel is None and r.supersample != 1:
+            g = r.render(self.scene, ctx.t_s, pose, intr, ("color", "depth", "normal"))
+        else:
+            g = r.render(self.scene, ctx.t_s, pose, intr, ("depth", "normal"), peel=peel)
+            if colour:
+                g.color = r.shade(g)
         times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
         return g
+
+    @staticmethod
+    def _colour(ctx: ServerContext, g: Any, where: np.ndarray, times: dict[str, float]) -> None:
+        """``g.color`` (a G-buffer drawn without it) at the pixels ``where``; the time goes to ``gbuffer_ms``."""
+        t0 = time.perf_counter()
+        g.color = ctx.renderer.shade(g, where)
+        times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
 
     def _start(self) -> tuple[dict[str, float], np.ndarray]:
         """A frame's stage times (all zero) and its empty atlas."""
@@ -247,7 +270,7 @@ class QuadsServer(ServerHalf):
         prev = front.depth
         radius = cfg.view_cell_m / 2
         for k in range(1, cfg.layers):
-            g = self._gbuffer(ctx, pose, intr, times, peel=prev)
+            g = self._gbuffer(ctx, pose, intr, times, peel=prev, colour=False)
             t1 = time.perf_counter()
             keep = edp_keep(front.depth, g.depth, intr, radius, cfg.edp_tolerance)
             q = generate(g.depth, g.normal, pose.view_matrix()[:3, :3], intr, hp, emit=keep)
@@ -256,7 +279,9 @@ class QuadsServer(ServerHalf):
             self._stats[f"hidden{k}_fragments"] = float(np.isfinite(g.depth).sum())
             self._stats[f"hidden{k}_kept"] = float(keep.sum())
             sets.append(WireSet(KIND_HIDDEN, first_slot + k - 1, cam, q))
-            self._place(atlas, first_slot + k - 1, masked_colour(g.color, keep))
+            ring = colour_ring(keep)
+            self._colour(ctx, g, ring, times)     # the layer's colour is sent only there: shaded only there
+            self._place(atlas, first_slot + k - 1, masked_colour(g.color, keep, ring))
             prev = g.depth
             if not np.isfinite(g.depth).any():
                 break
