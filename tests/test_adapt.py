@@ -50,6 +50,45 @@ def test_a_calibrating_ceiling_is_held_through_a_blip_of_queue() -> None:
     assert got[-1] == pytest.approx(2000)                                  # a fall that lasts
 
 
+def test_a_queue_tolerant_start_is_not_squeezed_by_its_first_fill_before_any_measurement() -> None:
+    """Before the estimator's first measurement (its encoder rate still the first it gave, GCC's 300 kbit/s guess) a
+    calibrating stream of a method that tolerates a queue keeps the start's share of it (START_HOLD): tss's first
+    frame carries 17 kB of geometry, which, paid first against the guess, left its atlas the 50 kbit/s floor at
+    0.13 s and an IDR coded at it.  Once the estimate moves the overhead is paid as before; without a buffer (video,
+    atw) nothing changes."""
+    for buffer_ms, first in ((100.0, 270.0), (None, 50.0)):
+        rc = RateController(("atlas",), 30.0)
+        rc.buffer_ms = buffer_ms
+        assert rc.targets_kbps(3e5)["atlas"] == pytest.approx(270.0)
+        for _ in range(DIP_FRAMES + 1):
+            rc.on_frame_sent({"atlas": 1000, "geo": 17_000})
+            got = rc.targets_kbps(3e5)["atlas"]
+        assert got == pytest.approx(first)
+        got = [rc.targets_kbps(3.1e5)["atlas"] for _ in range(DIP_FRAMES)]
+        assert got[-1] == pytest.approx(50.0)            # measured: the overhead is paid first (after a blip's hold)
+
+
+def test_a_queue_tolerant_calibrated_ceiling_is_held_through_a_blip() -> None:
+    """A calibrated stream of a method that tolerates a queue runs at its crf under a ceiling (BURST_CAP); a fall of
+    that ceiling under ``urgent_ratio`` is held just over it for DIP_FRAMES - 1 frames, as a calibrating one is: tss
+    met a three-frame dip of the estimate (6.5 -> 3.2 Mbit/s and back) with an atlas IDR down and another up."""
+    rc = RateController(("atlas",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=2))
+    rc.buffer_ms = 100.0
+    rc.targets_kbps(6e6)
+    for idr in (("atlas",), ()):
+        rc.on_frame_sent({"atlas": 20_000}, {"atlas": CappedCrf(12_000.0, 100.0)}, idr)
+    assert rc.calibrated and "atlas" not in rc._provisional        # its own rate: 4.8 Mbit/s
+    assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)
+    held = [rc.targets_kbps(3e6)["atlas"] for _ in range(DIP_FRAMES - 1)]
+    assert all(isinstance(v, CappedCrf) for v in held) and held == pytest.approx([1.001 * 0.7 * 4800] * 3)
+    assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)   # the blip is over: no restart at all
+    got = [rc.targets_kbps(3e6)["atlas"] for _ in range(DIP_FRAMES)]
+    assert got[-1] == pytest.approx(3000.0)                        # a fall that lasts
+    rc.buffer_ms = None                                              # video, atw: a bit rate, at once
+    rc.targets_kbps(6e6)
+    assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(3000.0)
+
+
 def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> None:
     rc = RateController(("color", "depth"), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=0))
     assert rc.targets_kbps(2e6) == pytest.approx({"color": 1000, "depth": 1000})   # equal before any frame

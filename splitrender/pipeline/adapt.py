@@ -103,7 +103,15 @@ two mean frames, and a scene that grows past what its calibration saw stays at t
 DIP_FRAMES = 4
 """A calibrating stream's ceiling that falls under ``urgent_ratio`` of what it was (an urgent restart, with an I-frame)
 is held just above that for this many frames less one first: a blip of queue (the encoder rate drains a 51 ms one for
-0.1 s) is not worth an I-frame down and another back up (CEILING_JUMP)."""
+0.1 s) is not worth an I-frame down and another back up (CEILING_JUMP).  So is a calibrated stream's ceiling where
+the method tolerates a queue (:attr:`RateController.buffer_ms` set): tss on the 8 Mbit/s cellular-like trace met a
+three-frame dip of the estimate at 0.97 s (6.5 -> 3.2 Mbit/s and back) with an atlas IDR down and another up two
+frames later, each squeezed under the dip's ceiling, where its 100 ms buffer takes the dip's extra bits."""
+START_HOLD = True
+"""Before the estimator's first measurement (its encoder rate still the first it gave: GCC's start guess, 300 kbit/s)
+a calibrating stream of a method that tolerates a queue keeps at least the start's share of it: the first frames'
+data (tss's geometry, 17 kB in its first frame), paid first against a guess, left its atlas the 50 kbit/s floor at
+0.13 s and cost an IDR coded at it, 0.07 s before the start probes' result lifted the ceiling six times over."""
 RECALIBRATE = 1.5
 """A cap the link set (a stream whose ceiling kept binding through its calibration) is dropped, and the stream
 calibrated again, once its share of the estimate is this many times the cap."""
@@ -238,6 +246,7 @@ class RateController:
         self._wide: set[str] = set()                                         # at the crf under a ceiling (WIDE)
         self._dip: dict[str, int] = {}                                       # calibrating: frames its ceiling fell
         self._dip_ref: dict[str, float] = {}                                 # ... and the ceiling before the fall
+        self._first_bps: float | None = None                                 # the estimator's first encoder rate
         self.last_overhead_bps = 0.0
         """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
         self.factor = 1.0
@@ -303,6 +312,20 @@ class RateController:
                 ratio = min(2.0, max(0.5, sent_kbps / kbps))
                 self._miss[n] = self._avg(self._miss[n], ratio)
 
+    def _held(self, n: str, kbps: float) -> float:
+        """Stream ``n``'s ceiling ``kbps``, held just over ``urgent_ratio`` of the one before through a fall shorter
+        than ``DIP_FRAMES`` (no restart, no I-frame, for a blip)."""
+        ref = self._dip_ref.get(n, self._target.get(n))
+        if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref:
+            self._dip[n] = self._dip.get(n, 0) + 1
+            self._dip_ref[n] = ref
+            if self._dip[n] < DIP_FRAMES:     # a blip: held at the restart's threshold, no I-frame for it
+                return 1.001 * self.cfg.urgent_ratio * ref
+        else:
+            self._dip.pop(n, None)
+            self._dip_ref.pop(n, None)
+        return kbps
+
     def _rate_kbps(self, per_frame: list[float] | list[int]) -> float:
         return float(sum(per_frame)) / len(per_frame) * 8 * self.fps / 1000
 
@@ -312,7 +335,11 @@ class RateController:
         if not self.video or not math.isfinite(encoder_bps):
             return {}
         self._estimate_bps = encoder_bps
+        if self._first_bps is None:
+            self._first_bps = encoder_bps
         budget = self.cfg.headroom * encoder_bps - (self._paid_bps or 0.0)
+        tolerant = self.buffer_ms is not None          # a method that tolerates a queue
+        start = START_HOLD and tolerant and encoder_bps == self._first_bps   # no measurement yet: the start's guess
         out: dict[str, float] = {}
         for n in self.video:
             kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
@@ -321,28 +348,21 @@ class RateController:
                 self._calibrating.add(n)   # the link now carries well more than it did: learn the method's own rate
                 #                            (the provisional cap stands for the operating point meanwhile)
             if n in self._calibrating:
-                ref = self._dip_ref.get(n, self._target.get(n))
-                if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref:
-                    self._dip[n] = self._dip.get(n, 0) + 1
-                    self._dip_ref[n] = ref
-                    if self._dip[n] < DIP_FRAMES:     # a blip: held at the restart's threshold, no I-frame for it
-                        kbps = 1.001 * self.cfg.urgent_ratio * ref
-                else:
-                    self._dip.pop(n, None)
-                    self._dip_ref.pop(n, None)
-                out[n] = CappedCrf(kbps, self.buffer_ms)
+                if start:       # the first fill's data is not paid against a guess (START_HOLD)
+                    kbps = max(kbps, self.cfg.headroom * encoder_bps * self._share[n] / self._miss[n] / 1000)
+                out[n] = CappedCrf(self._held(n, kbps), self.buffer_ms)
                 continue
             # a provisional cap is the link's, not the method's: it caps nothing
             cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)
             if n not in self._provisional and kbps >= (1.0 if n in self._wide else WIDE) * cap * self.factor:
                 self._wide.add(n)              # room to spare: the method's own crf, the link bounding its bursts
-                out[n] = CappedCrf(kbps, self.buffer_ms)
+                out[n] = CappedCrf(self._held(n, kbps) if tolerant else kbps, self.buffer_ms)
                 continue
             self._wide.discard(n)
             target = max(self.cfg.min_kbps, min(kbps, cap * self.factor))
             if BURST_CAP and self.buffer_ms is not None:
                 # a method that tolerates a queue: its crf under a ceiling at the target (BURST_CAP), not a bit rate
-                out[n] = CappedCrf(target, self.buffer_ms)
+                out[n] = CappedCrf(self._held(n, target), self.buffer_ms)   # through a blip too (DIP_FRAMES)
                 continue
             out[n] = target
         self._target = out
