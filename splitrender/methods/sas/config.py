@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -17,6 +18,12 @@ KNOB_STEPS = (1.0, 0.66, 0.44, 0.29)
 """The atlas budget's levels, as fractions of the configured one."""
 SAS_BUDGET_COST = (1.0, 0.96, 0.81, 0.70)
 """The atlas's bits at each level over those at the first (the knob's prior; ``benchmarks/bench_knobs.py``)."""
+SAS_FRAME_DIV_COST = (1.0, 0.61, 0.59, 0.49)
+"""Everything sas sends at one server frame in 1, 2, 3, 5 over the first (the ``frame_div`` knob's prior, in place of
+the pipeline's one n-th): its frames carry 1.23, 1.76 and 2.43 times the bytes (the atlas's P-frames code the longer
+motion, and each frame's PVS, geometry and tables grow with it; ``benchmarks/bench_knobs.py --quality --methods sas
+--knobs frame_div``, 2 s, cc91518: ``benchmarks/results/bench_knobs_quality_sas_frame_div_2s.json``).  Per second
+one frame in 3 saves little over one in 2."""
 QUALITY = QualityModel(
     (("bias_fill", (0.0, 0.55, 1.27, 2.57)), ("texels_per_px", (0.0, 0.55, 1.27, 2.57)),
      ("frame_div", (0.0, 0.81, 1.45, 2.61))),
@@ -121,7 +128,8 @@ class SasConfig(MethodConfig):
         else:
             budget = Knob("texels_per_px", tuple(round(max(0.05, self.texels_per_px * f), 4) for f in KNOB_STEPS),
                           SAS_BUDGET_COST, "video", "shading texels per pixel")
-        return with_model((budget, FRAME_DIV_KNOB), QUALITY)
+        frame_div = dataclasses.replace(FRAME_DIV_KNOB, cost=SAS_FRAME_DIV_COST)
+        return with_model((budget, frame_div), QUALITY)
 
     def __post_init__(self) -> None:
         super().__post_init__()
