@@ -488,6 +488,8 @@ class SasServer(ServerHalf):
         self._shaded_at = np.zeros(self.patches.count, np.int64)
         self._shaded_flip = np.zeros(self.patches.count, np.int8)
         self._eye_hist: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._code = np.zeros(self.patches.count, np.int8)      # this frame's _flip_code per patch, where _code_ok
+        self._code_ok = np.zeros(self.patches.count, bool)
         self._kept_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
@@ -680,6 +682,7 @@ class SasServer(ServerHalf):
         key = self._frame_key(ctx, prog, EYE_UNIFORMS if tol > 0 else frozenset())
         eye = np.asarray(ctx.target_pose.position, np.float64)
         rot = np.asarray(ctx.target_pose.view_matrix(), np.float64)[:3, :3]
+        self._code_ok[:] = False
         prev = self._shaded_models
         moved = np.ones(self.n_obj, bool) if prev is None or prev.shape != frame.models.shape \
             else (frame.models != prev).any(axis=(1, 2))
@@ -698,7 +701,7 @@ class SasServer(ServerHalf):
             if clear or skey != self._shadow_key:
                 self._shadow_ok[:] = False
             self._shadow_key = skey
-            code = self._flip_code(draw, frame, ctx.target_pose.position)
+            code = self._frame_codes(draw, frame, eye)
             reuse = self._shadow_ok[draw] & (code != 0) & (code == self._shadow_code[draw]) \
                 & ~moved[P.object_index[draw]]
             if reuse.any():
@@ -720,7 +723,7 @@ class SasServer(ServerHalf):
         self._shadow_code[draw] = code
         if tol > 0:
             self._shaded_at[draw] = self._frames
-            self._shaded_flip[draw] = code if self._sc is not None else self._flip_code(draw, frame, eye)
+            self._shaded_flip[draw] = code if self._sc is not None else self._frame_codes(draw, frame, eye)
             self._eye_hist[self._frames] = (eye, rot)
             for f in [f for f in self._eye_hist if f <= self._frames - self.config.reshade_max_age]:
                 del self._eye_hist[f]
@@ -840,7 +843,7 @@ class SasServer(ServerHalf):
         out |= ~(np.linalg.norm(eye - old_eye, axis=1) < tol * np.maximum(dist, 0.0))
         cand = np.flatnonzero(~out)
         if cand.size:
-            code = self._flip_code(ids[cand], frame, eye)
+            code = self._frame_codes(ids[cand], frame, eye)
             out[cand] = (code == 0) | (code != self._shaded_flip[ids[cand]])
         return out
 
@@ -928,6 +931,15 @@ class SasServer(ServerHalf):
         self._flip_c[ids] = c
         self._flip_r[ids] = np.sqrt(((pts.reshape(ids.size, 9, 3) - c[:, None]) ** 2).sum(-1)).max(axis=1)
 
+    def _frame_codes(self, ids: np.ndarray, frame: SasFrame, eye: np.ndarray) -> np.ndarray:
+        """:meth:`_flip_code` of patches ``ids`` at this frame's eye, each patch's taken once a frame (the eye test
+        and the shadow cache ask for overlapping sets; each row is computed on its own, so the same numbers)."""
+        todo = ids[~self._code_ok[ids]]
+        if todo.size:
+            self._code[todo] = self._flip_code(todo, frame, eye)
+            self._code_ok[todo] = True
+        return self._code[ids]
+
     def _flip_code(self, ids: np.ndarray, frame: SasFrame, eye: Any) -> np.ndarray:
         """(len(ids),) int8 per patch: 1 when every texel's normal faces the eye (the shader keeps it), -1 when every
         one faces away (the shader flips it), 0 when that cannot be told.  A texel's n . (eye - x), n and x
@@ -972,6 +984,9 @@ class SasServer(ServerHalf):
             inset = self.config.inset_min_texels
             xy = block_layout_xy(np.broadcast_to(SLOT_LAYOUT[k], (sel.size, 5, 2)), rect[sel], self.transposed[sid], inset)
             ins = block_inset(rect[sel], inset) > 0                    # (n, 2) inset along atlas x, y
+            # every slot's atlas xy, position, normal, uv and tangent, extrapolated at once per triangle below
+            attr = np.concatenate([xy, P.slot_pos[sid], P.slot_nrm[sid], P.slot_uv[sid], P.slot_tan[sid]], axis=2,
+                                  dtype=np.float64)                    # (n, 5, 14)
             for t, tri in enumerate(TRI_SLOTS[k]):
                 if tri[0] < 0:
                     continue
@@ -988,14 +1003,11 @@ class SasServer(ServerHalf):
                         atlas_axis = np.where(self.transposed[sid], 1 - axes[e], axes[e])
                         d[:, e] = np.where(ins[np.arange(sel.size), atlas_axis], INSET_GROW_TEXELS, 0.0)
                 w = expand_triangles(p2, d)   # (n, 3, 3)
-                q = np.einsum("nkj,njc->nkc", w, p2)
-                pos = np.einsum("nkj,njc->nkc", w, P.slot_pos[sid][:, tri].astype(np.float64))
-                nrm = np.einsum("nkj,njc->nkc", w, P.slot_nrm[sid][:, tri].astype(np.float64))
-                uv = np.einsum("nkj,njc->nkc", w, P.slot_uv[sid][:, tri].astype(np.float64))
-                tan = np.einsum("nkj,njc->nkc", w, P.slot_tan[sid][:, tri].astype(np.float64))
-                tan[..., 3] = P.slot_tan[sid][:, tri[0], 3][:, None]    # handedness is not interpolated
-                r4 = np.broadcast_to(rect[sel][:, None, :], (sel.size, 3, 4))
-                out[sel, t, :, :VERTEX_FLOATS - 2] = np.concatenate([q, pos, nrm, uv, tan, r4], axis=2)
+                a = attr[:, tri]                                       # (n, 3 corners, 14)
+                v = np.einsum("nkj,njc->nkc", w, a)
+                v[..., 13] = a[:, None, 0, 13]                         # handedness is not interpolated
+                out[sel, t, :, :14] = v
+                out[sel, t, :, 14:VERTEX_FLOATS - 2] = rect[sel][:, None, :]
         return out
 
     def _meta(self, ctx: ServerContext, pvs: np.ndarray, live: np.ndarray, res: Any, iframe: bool, reset: bool,
