@@ -83,6 +83,7 @@ class ObjectGPU:
     tbo: Any = None                                      # per-vertex tangents (4f)
     gbuffer_vao: Any = None                              # on Renderer.gbuffer_prog (made on first use)
     shade_vao: Any = None                                # on Renderer.shade_prog (made on first use)
+    matrices: tuple[Any, Any] = (None, None)              # the last model matrix's bytes, its uniform bytes
 
 
 @dataclass
@@ -539,17 +540,28 @@ class Renderer:
         for og in sg.objects:
             if object_ids is not None and og.obj.object_id not in object_ids:
                 continue
-            model = og.obj.model_matrix(t_s)
-            nm = normal_matrix(model)
-            if nm is None:      # a transform nothing sensible can be drawn with (a client's scene): skip the object
+            mats = self._matrices(og, t_s)
+            if mats is None:    # a transform nothing sensible can be drawn with (a client's scene): skip the object
                 continue
-            prog["u_model"].write(np.asarray(model, "f4").T.tobytes())
-            prog["u_normal_matrix"].write(np.asarray(nm, "f4").T.tobytes())
+            prog["u_model"].write(mats[0])
+            prog["u_normal_matrix"].write(mats[1])
             set_uniform(prog, "u_object_id", og.obj.object_id)
             set_uniform(prog, "u_primitive_base", og.tri_base)
             if materials:
                 self.bind_material(prog, og)
             self._vao(og, prog).render()
+
+    @staticmethod
+    def _matrices(og: ObjectGPU, t_s: float) -> tuple[bytes, bytes] | None:
+        """The model and normal matrices' uniform bytes of ``og`` at ``t_s`` (None: not drawable), kept while its
+        model matrix stays the same (a static object's always: the inverse is not taken again every pass)."""
+        model = np.asarray(og.obj.model_matrix(t_s))
+        key = (model.dtype.str, model.shape, model.tobytes())
+        if og.matrices[0] != key:
+            nm = normal_matrix(model)
+            og.matrices = (key, None if nm is None else (np.asarray(model, "f4").T.tobytes(),
+                                                         np.asarray(nm, "f4").T.tobytes()))
+        return og.matrices[1]
 
     def shade(self, g: RenderOutput, where: np.ndarray | None = None) -> np.ndarray:
         """The colour :meth:`render` gives with the G-buffer ``g`` (a render that asked for no colour, not
