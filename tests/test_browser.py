@@ -100,6 +100,9 @@ def test_browser_statistics_agree_with_the_server(driver, tmp_path):
     # Chromium's first REMB comes after about 5 s (none in 5 s sessions, 7-11 in 8 s, measured)
     assert c["estimates_received"] > 0, c
     rows = read_csv(out / res["session_id"] / "updates.csv")
+    # every page Feedback the core took has its row, as the RTP front door writes them (issue 47)
+    feedback = read_csv(out / res["session_id"] / "feedback.csv")
+    assert len(feedback) >= c["feedback"] > 0 and all(isinstance(r["server_us"], (int, float)) and r["server_us"] > 0 for r in feedback), (len(feedback), c)
     targets = [r["cc_target_kbps"] for r in rows]
     # the estimate left GCC's start for the page's (measured: 100-190 kbit/s on this link) and stayed in bounds
     assert targets[0] == 300.0 and any(t != 300.0 for t in targets) and all(100.0 <= t <= 50_000.0 for t in targets), targets

@@ -301,10 +301,12 @@ def test_a_feedback_flood_leaves_the_server_core_bounded() -> None:
         return Feedback(i, 1, 2, 3, 0, 0, {"render": 1, "encode": 2}, {stream: i}, {stream: tuple(range(256 * i, 256 * i + 256))})
 
     core.receive_message(fb(0), 100.0)
+    core.rows_to_write()
     tracemalloc.start()
     base = tracemalloc.get_traced_memory()[0]
     for i in range(1, 3001):
         core.receive_message(fb(i), 100.0 + i)
+        assert [k for k, _ in core.rows_to_write()] == ["feedback"]   # each Feedback's row, taken as a driver does
     grown = (tracemalloc.get_traced_memory()[0] - base) / 2**20
     tracemalloc.stop()
     assert grown < 1.0, grown
@@ -1106,9 +1108,11 @@ def test_the_client_core_gives_what_arrived_over_the_last_second() -> None:
 
 def test_the_server_core_owns_its_control_connection() -> None:
     """``accept_hello`` gives the core the handshake's ``ServerConnection`` (issue 47): the core frames its Welcome
-    and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_message``),
-    taking Pose, Feedback and KeyframeRequest by the core's rules and giving every message back in order; a partial
-    message waits for its rest and a request naming no stream is refused as before."""
+    and its frames' FrameMeta on it, and reads the client's bytes with it (``receive_data``, ``next_event``),
+    taking Pose, Feedback and KeyframeRequest by the core's rules (a Feedback's row for ``rows_to_write``) and giving
+    the rest back in order as events, the connection's end last; a partial message waits for its rest and a request
+    naming no stream is refused as before."""
+    from splitrender.pipeline.session import ClientMessage, ControlClosed
     from splitrender.pipeline import accept_hello
     from splitrender.pipeline.wire import pack_meta
     from splitrender.protocol import Bye, Feedback, KeyframeRequest, MessageError, ServerConnection, Stats
@@ -1135,18 +1139,21 @@ def test_the_server_core_owns_its_control_connection() -> None:
     def read(chunk: bytes, now: float) -> list[type]:
         core.receive_data(chunk)
         out = []
-        while (m := core.next_message(now)) is not None:
-            out.append(type(m))
+        while (ev := core.next_event(now)) is not None:
+            out.append(type(ev.message) if isinstance(ev, ClientMessage) else type(ev))
+            if isinstance(ev, ControlClosed):
+                break
         return out
 
     assert read(data[:7], 0.0) == []
-    assert read(data[7:], 10.0) == [PoseMessage, PoseMessage, Feedback, KeyframeRequest, Stats]
+    assert read(data[7:], 10.0) == [Stats]
+    assert [(k, r["frame_id"]) for k, r in core.rows_to_write()] == [("feedback", 0)] and core.rows_to_write() == []
     assert core.poses.counters() == {"poses_received": 1, "poses_stale": 1}
     assert (core.counters["feedback"], core.counters["keyframe_requests"]) == (1, 1)
     with pytest.raises(MessageError, match="KeyframeRequest.stream: unknown stream 'nope'"):
         read(cconn.send(KeyframeRequest("nope", "x")), 20.0)
     assert read(cconn.send(Bye("done")), 30.0) == [Bye]
-    assert read(b"", 40.0) == [] and core.conn.state.name == "CLOSED"
+    assert read(b"", 40.0) == [ControlClosed] and core.conn.state.name == "CLOSED"
 
 
 def test_a_frame_back_from_the_render_worker_is_stamped_reported_and_rowed_once_for_both_live_doors() -> None:

@@ -11,20 +11,22 @@ A client's recording is a folder:
 
 :class:`ClientRecording` writes it for the headless client (as the session goes) and the browser front door (whole,
 from the page's upload), both with the one manifest of :func:`manifest`; the virtual-time runner writes the same
-``frames.csv`` beside its scored tables (:func:`write_run`).  A server keeps per session the rows it sends
-(``updates.csv``, ``feedback.csv``) and its counters (``counters.csv``) with :class:`SessionLogs`, in the TCP server and
-the browser front door alike."""
+``frames.csv`` beside its scored tables (:func:`write_run`).  A server keeps per session the rows its core records
+(``updates.csv``, ``feedback.csv``: :meth:`~.session.ServerSession.rows_to_write`) and its counters (``counters.csv``)
+with :class:`SessionLogs`, in the TCP server and the browser front door alike."""
 
 from __future__ import annotations
 
 import json
 import math
 import time
+from collections import defaultdict, deque
 from pathlib import Path
-from typing import IO, Any, Iterator, Sequence
+from typing import IO, Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
+from .rows import FEEDBACK_COLUMNS
 from ..tabular import CsvAppender, atomic_file, atomic_write_bytes, write_csv, write_csv_passes
 
 JOURNAL = "frames.jsonl"
@@ -151,16 +153,24 @@ def journal_to_csv(journal: Path, out: Path) -> int:
     return write_csv_passes(out, lambda: iter_journal(journal))
 
 
+ROWS_KEPT = 1024
+"""Rows of each kind a server session keeps in memory (:attr:`SessionLogs.recent`: the newest; the row logs on disk
+have them all)."""
+
+
 class SessionLogs:
     """A server's records of one session under ``out_dir`` (None: none kept): row logs appended as they come,
     ``<name>.csv`` each (opened with its first row; columns fixed then, from ``columns`` or that row's keys), and
-    ``counters.csv`` written once at :meth:`close`."""
+    ``counters.csv`` written once at :meth:`close`.  The newest :data:`ROWS_KEPT` rows of each log stay in
+    :attr:`recent`, with ``out_dir`` or without."""
 
     def __init__(self, out_dir: Path | None) -> None:
         self.dir = None if out_dir is None else Path(out_dir)
         self._logs: dict[str, CsvAppender] = {}
+        self.recent: dict[str, deque[dict[str, Any]]] = defaultdict(lambda: deque(maxlen=ROWS_KEPT))
 
     def append(self, name: str, row: dict[str, Any], columns: Sequence[str] | None = None) -> None:
+        self.recent[name].append(row)
         if self.dir is None:
             return
         log = self._logs.get(name)
@@ -168,6 +178,12 @@ class SessionLogs:
             self.dir.mkdir(parents=True, exist_ok=True)
             log = self._logs[name] = CsvAppender(self.dir / f"{name}.csv", list(columns or row))
         log.append(row)
+
+    def write(self, rows: Iterable[tuple[str, dict[str, Any]]]) -> None:
+        """:meth:`append` each (name, row) a server core recorded (:meth:`~.session.ServerSession.rows_to_write`),
+        ``feedback`` rows under their fixed columns (a Feedback may echo fewer timings)."""
+        for name, row in rows:
+            self.append(name, row, FEEDBACK_COLUMNS if name == "feedback" else None)
 
     def rows(self, name: str) -> int:
         """How many rows ``<name>.csv`` has taken."""

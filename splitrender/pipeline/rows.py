@@ -87,12 +87,13 @@ def live_frame_row(index: int, tick: int, trace_t: float, scene_t: float, pose: 
 
 def feedback_row(fb: Any, server_us: int | None) -> dict[str, Any]:
     """One ``Feedback``'s row (:data:`FEEDBACK_COLUMNS`): its times (µs on the protocol's clock), the frame's server
-    time ``server_us`` as the server remembers it ("" where it no longer does), motion-to-photon, and the lost frames
+    time ``server_us`` as the server remembers it ("" where it no longer does), motion-to-photon ("" where the
+    Feedback names no pose time: a browser page's), and the lost frames
     per stream as ``stream:id,id;...``."""
     row: dict[str, Any] = {"frame_id": fb.frame_id, "server_us": server_us if server_us is not None else "",
                            "received_us": fb.received_us, "decoded_us": fb.decoded_us, "displayed_us": fb.displayed_us,
                            "pose_time_us": fb.pose_time_us, "lost_packets": fb.lost_packets,
-                           "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0,
+                           "motion_to_photon_ms": (fb.displayed_us - fb.pose_time_us) / 1000.0 if fb.pose_time_us else "",
                            "lost_frames": ";".join(f"{k}:{','.join(map(str, v))}" for k, v in fb.lost.items())}
     row.update({f"server_{k}_us": v for k, v in fb.server_timings_us.items() if k in FEEDBACK_TIMINGS})
     return row

@@ -25,9 +25,11 @@ decode work out of :meth:`ClientSession.work_to_decode`, the updates to apply ou
 :meth:`ClientSession.display_tick` and what a tick shows out of :meth:`ClientSession.showing`, and :meth:`ClientSession.get_timer`
 says when to call its ``handle_timer``.  The server core keeps the handshake's ``ServerConnection``
 (:func:`accept_hello`): it frames the Welcome and each frame's FrameMeta and reliable data on it, the
-drivers hand it the client's control bytes (:meth:`ServerSession.receive_data`) and take the messages from
-:meth:`ServerSession.next_message`, the core having taken Pose, Feedback and KeyframeRequest (Stats, Bye and Error
-are the driver's).
+drivers hand it the client's control bytes (:meth:`ServerSession.receive_data`) and take its events from
+:meth:`ServerSession.next_event`, the core having taken Pose, Feedback and KeyframeRequest (the client's Stats, Bye and
+Error, and the connection's end, are the driver's to act on).  The rows a server session records (a ``feedback`` row
+per Feedback, an ``updates`` row per frame a live front door sent) leave by :meth:`ServerSession.rows_to_write`, for
+the one writer every front door uses (:class:`~.recording.SessionLogs`).
 
 Two drivers run them: the virtual-time runner (:mod:`splitrender.sim.runner`) with the
 network model on a simulated clock, and the live server and client
@@ -76,7 +78,7 @@ from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer, ReceiverEstimate
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
 from .frames import FrameOrder
-from .rows import mean_of, session_summary, update_row
+from .rows import feedback_row, mean_of, session_summary, update_row
 from ..options import NACK_RATE_WINDOW_MS, ClientOptions, ServerProtocolOptions
 from .sender import EncodedUpdate, OutgoingFrame, ServerPipeline, rtp_timestamp
 from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_from_table
@@ -84,7 +86,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 log = logging.getLogger(__name__)
 
 __all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
-           "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
+           "ClientMessage", "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -437,8 +439,16 @@ class ServerMessage(SessionEvent):
 
 
 @dataclass(frozen=True)
+class ClientMessage(SessionEvent):
+    """A control message the server core leaves to the driver (:meth:`ServerSession.next_event`): ``Stats``, ``Bye``
+    or ``Error``."""
+
+    message: Message
+
+
+@dataclass(frozen=True)
 class ControlClosed(SessionEvent):
-    """The server closed the control connection."""
+    """The peer closed the control connection (the server, to the client core; the client, to the server core)."""
 
 
 @dataclass(frozen=True)
@@ -1237,10 +1247,14 @@ class ServerSession:
     """The session's control ``ServerConnection`` (the handshake's, from :func:`accept_hello`): :meth:`frame_encoded`
     frames a frame's FrameMeta and reliable data on it, :meth:`receive_data` reads the client's bytes with it; what
     it frames leaves by :meth:`data_to_send`."""
+    record_rows: bool = True
+    """Whether the core records rows for :meth:`rows_to_write` (a driver that never takes them sets False: virtual
+    time, which keeps its own tables)."""
 
     def __post_init__(self) -> None:
         self._control: deque[tuple[float, bytes]] = deque()
         """(driver ms from which it may leave, one framed message) for :meth:`data_to_send`, in order."""
+        self._rows_out: list[tuple[str, dict[str, Any]]] = []
         self._rand = _uniform(self.rng)
         self.poses = PoseInbox(self.predictor)
         """The pose rule of every front door (:meth:`receive_pose`)."""
@@ -1337,33 +1351,51 @@ class ServerSession:
         return out
 
     def receive_data(self, data: bytes) -> None:
-        """Control bytes from the client (``b""``: the connection closed), for :attr:`conn`; read them with
-        :meth:`next_message`."""
+        """Control bytes from the client (``b""``: the connection closed), for :attr:`conn`; what they say comes out
+        of :meth:`next_event`."""
         self.conn.receive_data(data)
 
-    def next_message(self, now_ms: float) -> Message | None:
-        """The next control message read on :attr:`conn` (what came with the Hello first), once the core took it if
-        it is one the core keeps (Pose, Feedback, KeyframeRequest: :meth:`receive_message`); Stats, Bye and Error
-        are the driver's.  None when the connection needs more bytes or has closed.  Raises
-        ``RemoteProtocolError`` on malformed or illegal input."""
-        msg = self.conn.next_event()
-        if not isinstance(msg, Message):
-            return None
-        if isinstance(msg, (Pose, Feedback, KeyframeRequest)):
+    def next_event(self, now_ms: float) -> SessionEvent | None:
+        """What the driver must act on in the client's control bytes (:meth:`receive_data`), one at a time: the
+        client's Stats, Bye or Error (:class:`ClientMessage`), or :class:`ControlClosed` once it closed the connection;
+        None while more bytes are needed.  Every Pose, Feedback and KeyframeRequest before it is the core's
+        (:meth:`receive_message`).  Raises ``RemoteProtocolError`` on malformed or illegal input (a message cut by
+        the end of the stream among them)."""
+        while True:
+            msg = self.conn.next_event()
+            if msg is CONNECTION_CLOSED:
+                return ControlClosed(now_ms)
+            if not isinstance(msg, Message):
+                return None
+            if not isinstance(msg, (Pose, Feedback, KeyframeRequest)):
+                return ClientMessage(now_ms, msg)
             self.receive_message(msg, now_ms)
-        return msg
+
+    def rows_to_write(self) -> list[tuple[str, dict[str, Any]]]:
+        """The rows recorded since the last call, in order, as (kind, row): ``feedback`` (one per Feedback taken:
+        :func:`~.rows.feedback_row`) and ``updates`` (one per frame a live front door sent: :meth:`frame_from_worker`'s,
+        to which the driver may add its own columns before it calls this)."""
+        out, self._rows_out = self._rows_out, []
+        return out
+
+    def _record(self, kind: str, row: dict[str, Any]) -> None:
+        if self.record_rows:
+            self._rows_out.append((kind, row))
 
     def receive_message(self, msg: Message, now_ms: float) -> float | None:
         """A ``Pose`` (:meth:`receive_pose_sample`), ``Feedback`` or ``KeyframeRequest`` from the control channel,
         in every front door that has one; the others (Stats, Bye, Error) are the driver's.  Returns the latency a
-        Feedback measured (s), if any; raises ``MessageError`` for a request naming no stream of ours."""
+        Feedback measured (s), if any, and records the Feedback's row (:meth:`rows_to_write`); raises ``MessageError``
+        for a request naming no stream of ours."""
         if isinstance(msg, Pose):
             self.receive_pose_sample(msg)
             return None
         if isinstance(msg, Feedback):
             self.counters["feedback"] += 1
             self.counters["lost_reported"] += sum(len(v) for v in msg.lost.values())
-            return self.fb.on_feedback(msg)
+            latency = self.fb.on_feedback(msg)
+            self._record("feedback", feedback_row(msg, self.fb.server_time_us(msg.frame_id)))
+            return latency
         if isinstance(msg, KeyframeRequest):
             if msg.stream not in self.tx.streams:
                 raise MessageError(f"KeyframeRequest.stream: unknown stream {msg.stream!r}")
@@ -1742,8 +1774,10 @@ class ServerSession:
         render worker at ``now_ms`` (the wall clock too) with its stages (:meth:`~splitrender.server.worker.RenderWorker.frame`'s,
         ``worker_rtt_ms`` among them): reported (:meth:`frame_encoded`, the FrameMeta stamped with the worker's
         ``render``, ``encode`` and ``shared`` times and when it was encoded), with its update row (:meth:`update_row`
-        over the session's streams, and the server time, the probes' relighting and the worker round trip).  Returns
-        what the frame puts on the wire, and the row."""
+        over the session's streams, and the server time, the probes' relighting and the worker round trip), which
+        :meth:`rows_to_write` gives.  On the RTP transport it counts the FrameMeta's payload (``meta_bytes``) and the
+        wire bytes of the frame's data streams (``data_bytes``).  Returns what the frame puts on the wire, and the
+        row."""
         t_us = int(wall_s * 1e6)
         timing = {"render": int(stages["produce_ms"] * 1000), "encode": int(enc.encode_ms * 1000),
                   "encoded_at": int(now_ms * 1000), "shared": int(stages["shared_ms"] * 1000)}
@@ -1751,6 +1785,11 @@ class ServerSession:
         streams = self.tx.bytes_sent if self.transport == "rtp" else [s.name for s in self.tx.specs]
         row = {**self.update_row(order, out, enc, stages, streams), "server_us": t_us, "gi_ms": stages["gi_ms"],
                "worker_rtt_ms": stages["worker_rtt_ms"]}
+        if self.transport == "rtp":
+            for key, n in (("meta_bytes", out.payload_bytes.get("meta", 0)),
+                           ("data_bytes", sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.streams))):
+                self.counters[key] = self.counters.get(key, 0) + n
+        self._record("updates", row)
         return out, row
 
     def frame_sent(self, frame_id: int, out: OutgoingFrame, now_ms: float, server_time_us: int,

@@ -2,8 +2,9 @@
 
 Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`):
 
-* ``control``: reads Pose / Feedback / KeyframeRequest / Stats / Bye; a Bye or EOF
-  ends the session, a protocol error sends ``Error`` and ends it;
+* ``control``: hands the client's control bytes to the session core, which takes Pose, Feedback and KeyframeRequest
+  and gives back the rest (:meth:`~splitrender.pipeline.ServerSession.next_event`); a Bye, an Error or EOF ends the
+  session, a protocol error sends ``Error`` and ends it;
 * ``frames``: the frame clock at ``server_fps``; each tick has the session's render
   worker (:mod:`splitrender.server.worker`, another process) render and encode, then
   sends FrameMeta over TCP and the planes as RTP over UDP.  A frame that misses the
@@ -32,29 +33,18 @@ import logging
 import math
 import secrets
 import time
-from collections import deque
 from collections.abc import AsyncIterator
 from typing import Any, Protocol
 
 from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                                 describe_error)
 from splitrender.methods.base import StreamSpec
-from splitrender.pipeline.recording import SessionLogs
-from splitrender.pipeline.rows import FEEDBACK_COLUMNS, feedback_row
+from splitrender.pipeline.recording import ROWS_KEPT, SessionLogs
 from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, open_hello
+from splitrender.pipeline.session import ClientMessage, ControlClosed, SessionEvent
 from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
-from splitrender.protocol import (
-    Bye,
-    Error,
-    ErrorCode,
-    Feedback,
-    Hello,
-    Message,
-    ServerConnection,
-    State,
-    Stats,
-)
+from splitrender.protocol import Bye, Error, ErrorCode, Hello, ServerConnection, State, Stats
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms
 
 Address = tuple[str, int]
@@ -84,9 +74,6 @@ class LiveServer(Protocol):
 
 __all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
 
-ROWS_KEPT = 1024
-"""Feedback and update rows a session keeps in memory (the newest; the row logs on disk have them all)."""
-
 logger = logging.getLogger(__name__)
 
 
@@ -114,16 +101,10 @@ class ServerSession:
         self.tx: ServerPipeline | None = None
         self.core: SessionCore | None = None
         """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
-        self.feedback_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
-        """The newest Feedback rows (all of them go to ``feedback.csv`` as they come when ``out_dir`` is set)."""
-        self.update_rows: deque[dict[str, Any]] = deque(maxlen=ROWS_KEPT)
-        """The newest rows of frames sent: wire bytes per stream (as the virtual-time runner's updates.csv; all of
-        them go to ``updates.csv`` as they are sent when ``out_dir`` is set)."""
         self._logs = SessionLogs(None if self.cfg.out_dir is None else self.cfg.out_dir / self.id)
+        """``feedback.csv`` and ``updates.csv`` (the core's rows, as they come) and ``counters.csv``, with ``out_dir``."""
         self._timer_wake = asyncio.Event()
-        self._counters: dict[str, int] = {
-            "meta_bytes": 0, "data_bytes": 0, "session_bytes": 0, "render_timeouts": 0, "client_errors": 0,
-        }
+        self._counters: dict[str, int] = {"session_bytes": 0, "render_timeouts": 0, "client_errors": 0}
         self.client_error: tuple[int, str] | None = None
         """The client's ``Error`` (code, reason) when it left with one."""
 
@@ -135,6 +116,16 @@ class ServerSession:
     @property
     def rtt_ms(self) -> float | None:
         return self.core.rtt_ms if self.core is not None else None
+
+    @property
+    def feedback_rows(self) -> Any:
+        """The newest :data:`ROWS_KEPT` Feedback rows (``feedback.csv`` has them all)."""
+        return self._logs.recent["feedback"]
+
+    @property
+    def update_rows(self) -> Any:
+        """The newest :data:`ROWS_KEPT` rows of frames sent (``updates.csv`` has them all)."""
+        return self._logs.recent["updates"]
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -273,42 +264,33 @@ class ServerSession:
 
     async def _control_loop(self) -> None:
         """The control connection's bytes to the core, which reads them on the handshake's connection (what came with
-        the Hello first); the messages it gives back are recorded (Feedback), logged (Stats) or end the session (Bye,
-        Error, the end of the stream)."""
-        core, closed = self.core, False
+        the Hello first); its rows are written as they come, its events logged (Stats) or end the session (Bye, Error,
+        the end of the stream)."""
+        core = self.core
         assert core is not None
         while True:
-            while (msg := core.next_message(wall_ms())) is not None:   # after the end, a cut message raises here
-                self._on_message(msg)
-            if closed:
-                logger.info("session %s: client closed the connection", self.id)
-                raise _SessionEnded()
+            while (ev := core.next_event(wall_ms())) is not None:   # after the end, a cut message raises here
+                self._on_event(ev)
+            self._logs.write(core.rows_to_write())
             data = await self.channel.reader.read(READ_CHUNK_BYTES)
             self.channel.bytes_received += len(data)
             core.receive_data(data)
-            closed = not data
 
-    def _on_message(self, msg: Message) -> None:
-        """A control message the core gave back (having taken Pose, Feedback and KeyframeRequest)."""
-        if isinstance(msg, Feedback):
-            self._record_feedback(msg)
-        elif isinstance(msg, Stats):
+    def _on_event(self, ev: SessionEvent) -> None:
+        """What the core left to this door: the client's Stats (logged), Bye or Error, or the connection's end."""
+        msg = ev.message if isinstance(ev, ClientMessage) else None
+        if isinstance(msg, Stats):
             logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
+            return
+        if isinstance(ev, ControlClosed):
+            logger.info("session %s: client closed the connection", self.id)
         elif isinstance(msg, Bye):
             logger.info("session %s: client says bye: %s", self.id, msg.reason)
-            raise _SessionEnded()
         elif isinstance(msg, Error):
             self._counters["client_errors"] += 1
             self.client_error = (msg.code, msg.text)
             logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
-            raise _SessionEnded()
-
-    def _record_feedback(self, fb: Feedback) -> None:
-        """The row of a Feedback the core took (a malformed one it refused has none)."""
-        assert self.core is not None
-        row = feedback_row(fb, self.core.fb.server_time_us(fb.frame_id))
-        self.feedback_rows.append(row)
-        self._log("feedback", row)
+        raise _SessionEnded()
 
     # ------------------------------------------------------------------ frames
 
@@ -341,15 +323,12 @@ class ServerSession:
             # task is ending the session in this same loop turn; this frame has nowhere to go
             raise _SessionEnded()
         c1 = time.perf_counter()
-        out, row = self.core.frame_from_worker(*made, wall_ms())
+        _out, row = self.core.frame_from_worker(*made, wall_ms())
         # the core's one way out: metadata and reliable data first (TCP), then the RTP packets
         await self.channel.write_frames(self.core.data_to_send(wall_ms()), drain=False)
         self._flush()
-        self._counters["meta_bytes"] += out.payload_bytes.get("meta", 0)
-        self._counters["data_bytes"] += sum(v for k, v in out.wire_bytes.items() if k != "meta" and k not in self.core.streams)
         row["send_ms"] = (time.perf_counter() - c1) * 1e3    # packetizing and sending here
-        self.update_rows.append(row)
-        self._log("updates", row)
+        self._logs.write(self.core.rows_to_write())
 
     # ------------------------------------------------------------------ RTCP
 
@@ -404,11 +383,9 @@ class ServerSession:
 
     # ------------------------------------------------------------------ records
 
-    def _log(self, name: str, row: dict[str, Any]) -> None:
-        """Append ``row`` to ``<out_dir>/<session>/<name>.csv`` (opened with the first row; columns fixed then)."""
-        self._logs.append(name, row, None if name == "updates" else FEEDBACK_COLUMNS)
-
     def _write_feedback(self) -> None:
-        """Close the row logs and write the session's counters (nothing without ``out_dir`` or frames)."""
+        """Write the core's last rows, close the row logs and write the session's counters (nothing without
+        ``out_dir`` or frames)."""
+        self._logs.write(self.core.rows_to_write() if self.core is not None else ())
         self._logs.close(dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
                               server_udp_dropped=self.server.udp_dropped))

@@ -244,6 +244,7 @@ class VirtualTimeRun:
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
                            predictor=PerfectPredictor(c.trace) if cfg.predictor == "perfect" else None)
         c.core_s = acc.core
+        acc.core.record_rows = False   # a run keeps its own tables
         frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in frames)
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
@@ -378,7 +379,7 @@ class VirtualTimeRun:
     def _server_receive(self, c: _Client, data: bytes) -> None:
         assert c.core_s is not None
         c.core_s.receive_data(data)
-        while c.core_s.next_message(self.now * 1000) is not None:   # the core takes what the server reads
+        while c.core_s.next_event(self.now * 1000) is not None:   # the core takes what the server reads
             pass
 
     def _server_rtcp(self, c: _Client, data: bytes) -> None:

@@ -182,7 +182,7 @@ class PoseSample:
 
 @dataclass(frozen=True)
 class PageFeedback:
-    """A shown frame: its id, when it was shown (µs, server clock) and the pose time it was rendered from."""
+    """A shown frame: its id, when it was shown and when it was received (µs, server clock)."""
 
     frame_id: int
     displayed_us: int

@@ -195,6 +195,7 @@ class BrowserSession:
     def _on_feedback(self, msg: PageFeedback) -> None:
         assert self.core is not None
         self.core.receive_message(msg.feedback(self.stream), wall_ms())
+        self._logs.write(self.core.rows_to_write())   # its feedback.csv row, as the RTP front door's
 
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
@@ -271,6 +272,7 @@ class BrowserSession:
         if self.worker is not None:
             worker, self.worker = self.worker, None
             await self.server.release_worker(worker, self.id)
+        self._logs.write(self.core.rows_to_write() if self.core is not None else ())
         self._logs.close(self.server_counters())
         logger.info("browser session %s: closed (%s): %s", self.id, self.end_reason,
                     ", ".join(f"{k}={v}" for k, v in self.server_counters().items() if v))
@@ -333,6 +335,7 @@ class BrowserSession:
             core.request_keyframe(wall_ms())     # the sender fell behind
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         _sent, row = core.frame_from_worker(*made, wall_ms())
+        row["bytes_frame_meta"] = n_meta
+        self._logs.write(core.rows_to_write())
         self.counters["video_bytes"] += len(frame.data)
         self.counters["meta_bytes"] += n_meta
-        self._logs.append("updates", {**row, "bytes_frame_meta": n_meta})
