@@ -24,12 +24,13 @@ DUCK = "/usr/share/assimp/models/Collada/duck.dae"
 
 
 def _run(scene_name: str, trace: str, frames: int, t0: float = 0.5) -> tuple[list[int], list[float], list[float]]:
-    """Both settings side by side (off, on): per frame the texels (atlas pixels) that differ, the share of live
+    """Both settings side by side (off, on; ``reshade_eye_deg`` 0 in both): per frame the texels (atlas pixels) that differ, the share of live
     patches the reusing server drew and the share of those drawn that read their shadow factors back."""
     r = Renderer()
     scene = get_scene(scene_name)
     tr = get_trace(trace, scene=scene, aspect=INTR.width / INTR.height)
-    srvs = [SasServer(SasConfig(shade_changed_only=on, reuse_shadow=on), INTR, scene, 30) for on in (False, True)]
+    srvs = [SasServer(SasConfig(shade_changed_only=on, reuse_shadow=on, reshade_eye_deg=0.0), INTR, scene, 30)
+            for on in (False, True)]
     diff, share, reused = [], [], []
     for f in range(frames):
         t = t0 + f / 30
@@ -140,7 +141,7 @@ def test_eye_tolerance_keeps_blocks_close_to_reshading() -> None:
 
 
 def test_eye_tolerance_off_is_bit_exact() -> None:
-    """With ``reshade_eye_deg`` 0 (the default) nothing is kept over a moving eye: the atlas is the one shading every
+    """With ``reshade_eye_deg`` 0 (off; the default is 2) nothing is kept over a moving eye: the atlas is the one shading every
     block gives (the tests above), and no block counts as kept."""
     import os
 

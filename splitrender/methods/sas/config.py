@@ -81,7 +81,7 @@ class SasConfig(MethodConfig):
     block every frame.  ``reuse_shadow``: each texel's sun-shadow factor (the shadow maps' 2 x 9 taps) is kept in
     a float texture beside the atlas, and a block drawn again reads it back while its patch, block, object and
     the sun are unchanged, no moving caster is near, and every texel's normal stays on the same side of the eye
-    (the lookup moves along it); the atlas is bit for bit the same.  ``reshade_eye_deg`` (0: off): with
+    (the lookup moves along it); the atlas is bit for bit the same.  ``reshade_eye_deg`` (2; 0: off): with
     ``shade_changed_only`` a moving eye no longer makes every block change: a block keeps the texels shaded at an
     earlier eye while, seen from any point of its patch, the eye's direction has turned by less than this many
     degrees and its distance changed by less than that many radians' worth, the reference view's direction has
@@ -116,7 +116,7 @@ class SasConfig(MethodConfig):
     inset_min_texels: int = 8
     shade_changed_only: bool = True
     reuse_shadow: bool = True
-    reshade_eye_deg: float = 0.0
+    reshade_eye_deg: float = 2.0
     reshade_max_age: int = 8
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
