@@ -175,11 +175,13 @@ class BrowserSession:
         """A message on the ``pose`` channel.  Nothing raised here may reach aiortc: it would close the peer
         connection with no error counted or sent.  A refused message is counted, answered and dropped."""
         try:
+            assert self.core is not None
             msg = parse_channel_message(text)
             if isinstance(msg, PoseSample):
-                self._on_pose(msg)
+                self.core.receive_pose_sample(msg)  # by the core's rule: a duplicate or reordered one counts as stale
             elif isinstance(msg, PageFeedback):
-                self._on_feedback(msg)
+                self.core.receive_message(msg.feedback(self.stream), wall_ms())
+                self._logs.write(self.core.rows_to_write())   # its feedback.csv row, as the RTP front door's
             else:
                 self.end("the page said bye")
         except PageMessageError as exc:
@@ -187,15 +189,6 @@ class BrowserSession:
         except Exception as exc:  # noqa: BLE001 - our bug, but the page's session only
             logger.exception("browser session %s: a page message could not be handled", self.id)
             self._page_error(f"page message: could not be handled ({describe_error(exc)})"[:300])
-
-    def _on_pose(self, msg: PoseSample) -> None:
-        assert self.core is not None
-        self.core.receive_pose_sample(msg)  # a duplicate or reordered one counts as stale
-
-    def _on_feedback(self, msg: PageFeedback) -> None:
-        assert self.core is not None
-        self.core.receive_message(msg.feedback(self.stream), wall_ms())
-        self._logs.write(self.core.rows_to_write())   # its feedback.csv row, as the RTP front door's
 
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
