@@ -28,7 +28,9 @@ void sample_gradients(vec3 b) {
     vec2 s2 = (e2.xy * c.w - c.xy * e2.w) / (c.w * c.w) * 0.5 * u_viewport;
     float det = s1.x * s2.y - s2.x * s1.y;
     if (abs(det) < 1e-6) return;
-    mat2 g = mat2(c_uv[1] - c_uv[0], c_uv[2] - c_uv[0]) * inverse(mat2(s1, s2));
+    // shade() reads the maps at u_uv_transform * uv (KHR_texture_transform), so the gradients go through its linear
+    // part too (TextureTransformTest scales two of its quads by 1.5: their mip level was 0.58 too fine)
+    mat2 g = mat2(u_uv_transform) * mat2(c_uv[1] - c_uv[0], c_uv[2] - c_uv[0]) * inverse(mat2(s1, s2));
     g_dx = g[0];
     g_dy = g[1];
     g_grad = true;
