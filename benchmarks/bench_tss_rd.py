@@ -80,6 +80,14 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
                                        "chroma": "420", "codec_block": 8, "flip_cap": 4.0}, (32.0,)),
     "mbc split16 lp 420 block8 flip0": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                                         "chroma": "420", "codec_block": 8, "flip_level": 0}, (32.0,)),
+    "mbc split16 os4c 420 block8": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 4.0,
+                                    "os_grid": "centred", "os_min_rows": 2.0, "chroma": "420", "codec_block": 8}, (32.0,)),
+    "mbc split16 os4c 420 block8 step15": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 4.0,
+                                           "os_grid": "centred", "os_min_rows": 2.0, "os_min_step": 1.5, "chroma": "420",
+                                           "codec_block": 8}, (32.0,)),
+    "mbc split16 os4c 420 block8 step15 rows4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 4.0,
+                                                 "os_grid": "centred", "os_min_rows": 4.0, "os_min_step": 1.5,
+                                                 "chroma": "420", "codec_block": 8}, (32.0,)),
     "mbc split16 lp 420 colour4": ({**BLOCK4, "colour_order": 4.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                                    "chroma": "420"}, (32.0,)),
     "mbc split16 lp 420 block8 px4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
@@ -103,7 +111,10 @@ px2`` / ``flip8`` / ``single1`` / ``420`` / ``lp``: ``split16`` with ``budget_px
 ``single_px = 1``, 4:2:0 or ``slant_threshold = 1000`` (every triangle L-packed); ``split16 lp 420``: both, and ``px4`` / ``block8`` /
 ``colour4`` on top: ``budget_px = 4``, ``codec_block = 8``, ``colour_order = 4``; ``block8 px4``: the first two;
 ``block8 cap1`` ... ``cap4``: ``block8`` with ``flip_cap`` 1 to 4 (the flips' lift capped at that many times the
-samples along the triangle's longest edge); ``block8 flip0``: ``block8`` with ``flip_level = 0``."""
+samples along the triangle's longest edge); ``block8 flip0``: ``block8`` with ``flip_level = 0``.  ``split16 os4c 420
+block8`` (helper-66): ``split16 lp 420 block8`` with the slanted triangles (longest edge over height above 4) whose
+height holds at least 2 samples oversampled on the centred grid (``os_min_rows = 2``), the rest L-packed; ``step15``: only those that L-packing would sample more than 1.5 px apart
+along their longest edge (``os_min_step = 1.5``); ``step15 rows4``: with ``os_min_rows = 4``."""
 
 CHILD = r"""
 import json, sys

@@ -120,6 +120,19 @@ class TssConfig(MethodConfig):
     still -4.99 -> -4.62 (cap 2); but the duck loses 0.06-0.24 dB at equal bits on its orbit (cap 2), so off by
     default (``docs/methods.md``).
 
+    ``os_min_rows`` / ``os_min_step`` (0: off, the slant alone decides): a triangle past ``slant_threshold`` is
+    oversampled only where its height holds at least ``os_min_rows`` samples at the frame's rate and L-packing would put
+    its samples more than ``os_min_step`` pixels apart along its longest edge (``longest / level``); else L-packed.
+    L-packing's rings put ``l + 1`` samples along each edge, so a slanted triangle at its area's level is sampled
+    coarsely along its length and finely across: the default scene's brick pillars (24 px strips, level 12) were
+    sampled 2 px apart across their mortar lines and aliased, where a thin railing bar (a third of a pixel high) loses
+    its shading on one centred row.  Issue 50 part 1 (helper-66, ``docs/methods.md``): with ``slant_threshold = 4``,
+    the centred grid, 2 rows and 1.5 px, one uncoded still frame of the default scene: pillar0 29.9 -> 37.7 dB, the
+    model 34.4 -> 36.2 at the same samples; the duck's plan unchanged.  Off by default: in ``bench_tss_rd.py`` (crf 31,
+    ``tss`` minus ``sas``) it takes the default scene from -4.99 to -4.51 dB still and -2.79 to -1.85 on the ``cloud``
+    orbit at fewer bits, but loses on the duck's orbit (-2.20 -> -3.45) and the engine's (-1.51 -> -1.88 at 1.4x the
+    bits: the oversampled rows' table entries churn as the view moves).
+
     ``pvs_ring`` (0: off, the paper's PVS): while the view moves (the EVS samples' views differ), the triangles sharing
     a vertex with the PVS, this many rings out, join it at one texel each (no samples asked for: the single kind).  The
     PVS is per triangle, and a small triangle the EVS samples did not see (between an engine's fins) was a hole where
@@ -177,6 +190,8 @@ class TssConfig(MethodConfig):
     budget_max_spp: float = 8.0
     flip_level: int = 0
     flip_cap: float = 0.0
+    os_min_rows: float = 0.0
+    os_min_step: float = 0.0
     pvs_ring: int = 0
     codec_block: int = 1
     fill_pitch: bool = False
@@ -233,6 +248,10 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.flip_level: must be in [0, 64] (0: off), got {self.flip_level}")
         if not 0.0 <= self.flip_cap <= 64.0:
             raise ConfigError(f"TssConfig.flip_cap: must be in [0, 64] (0: off), got {self.flip_cap}")
+        if not 0.0 <= self.os_min_rows <= 64.0:
+            raise ConfigError(f"TssConfig.os_min_rows: must be in [0, 64] samples (0: off), got {self.os_min_rows}")
+        if not 0.0 <= self.os_min_step <= 64.0:
+            raise ConfigError(f"TssConfig.os_min_step: must be in [0, 64] pixels (0: off), got {self.os_min_step}")
         if self.codec_block not in (1, 2, 4, 8, 16):
             raise ConfigError(f"TssConfig.codec_block: must be 1 (off), 2, 4, 8 or 16 texels, got {self.codec_block}")
         if not 0 <= self.pvs_ring <= 8:

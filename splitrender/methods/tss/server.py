@@ -271,7 +271,8 @@ def capped_lift(min_level: np.ndarray, span: np.ndarray, flip_cap: float) -> np.
 
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf,
-             min_level: np.ndarray | None = None, pitch_block: int = 1, flip_cap: float = 0.0) -> tuple[np.ndarray, ...]:
+             min_level: np.ndarray | None = None, pitch_block: int = 1, flip_cap: float = 0.0,
+             os_min_rows: float = 0.0, os_min_step: float = 0.0) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need, span``: the kind, L-packing level,
@@ -283,7 +284,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     gets samples for that part only, spread over the whole triangle (the paper
     samples whole triangles; the part outside the view would need samples only if
     the client turned that way, and the PVS margin already covers that).  ``min_level`` (``flip_level``) lifts
-    L-packing levels, capped by :func:`capped_lift` at ``flip_cap``.
+    L-packing levels, capped by :func:`capped_lift` at ``flip_cap``.  ``os_min_rows``: a slanted triangle is
+    oversampled only where its height holds at least this many samples at the rate (else L-packed);
+    ``os_min_step``: and only where L-packing would put its samples further apart than this many pixels along the
+    longest edge (``longest / level``).
     """
     e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
     ln = np.linalg.norm(e, axis=2)
@@ -302,8 +306,10 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     # a sliver (under ``tiny`` but long) is L-packed at its low level: its corners and centre along its length cost a
     # few samples, where the oversampling staircases its slant would call for take two rows of its length and more
     sliver = need < tiny
-    kind = np.where(single, KIND_SINGLE, np.where((slant > slant_threshold) & ~sliver, KIND_OS, KIND_LP)).astype(np.int64)
+    rows = height * np.sqrt(rate * shown / np.maximum(area, 1e-12))      # samples up the height
     level = level_for(need)
+    slanted = (slant > slant_threshold) & ~sliver & (rows >= os_min_rows) & (longest >= os_min_step * level)
+    kind = np.where(single, KIND_SINGLE, np.where(slanted, KIND_OS, KIND_LP)).astype(np.int64)
     if min_level is not None:
         min_level = capped_lift(min_level, span, flip_cap)
         lift = min_level > 0
@@ -433,7 +439,8 @@ class TssServer(ServerHalf):
         pw1, pw2, ph = self._prev_w1[ids], self._prev_w2[ids], self._prev_h[ids]
         tiny = c.tiny_samples
         stay = pk == kind
-        stay |= (pk == KIND_OS) & (kind == KIND_LP) & (slant > c.slant_threshold * (1 - hy)) & (need >= tiny)
+        stay |= (pk == KIND_OS) & (kind == KIND_LP) & (slant > c.slant_threshold * (1 - hy)) & (need >= tiny) \
+            & (h >= c.os_min_rows * (1 - hy))
         stay |= (pk == KIND_LP) & (kind == KIND_OS) & (slant < c.slant_threshold * (1 + hy))
         stay |= (pk == KIND_SINGLE) & (need < tiny * (1 + hy))
         stay |= (pk == KIND_LP) & (kind == KIND_SINGLE) & (need >= tiny * (1 - hy))
@@ -461,7 +468,7 @@ class TssServer(ServerHalf):
         target = c.budget_px * self.intrinsics.width * self.intrinsics.height
 
         def fits(r: float) -> bool:
-            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
             return plan_samples(*k[:5], grid=c.os_grid) <= target
 
         lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
@@ -494,7 +501,7 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need, span = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
+            kind, level, w1, w2, h, a, base, slant, need, span = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
                 if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
@@ -517,7 +524,7 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
                 p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid
