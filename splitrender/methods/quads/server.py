@@ -176,6 +176,8 @@ class QuadsServer(ServerHalf):
         self._ref_depth: np.ndarray | None = None
         self._ref_normal: np.ndarray | None = None
         self._ref_view: tuple[Any, int] | None = None   # a timeless scene's reference G-buffer and scene version
+        self._views: dict[tuple[Any, ...], tuple[Any, Any]] = {}      # last frame's G-buffers of a timeless scene
+        self._views_now: dict[tuple[Any, ...], tuple[Any, Any]] = {}  # this frame's (peel input, G-buffer) by view
         self._mesh: QuadMeshGL | None = None
         self._colour_tex: Any = None
         self._stats: dict[str, float] = {}
@@ -206,11 +208,20 @@ class QuadsServer(ServerHalf):
 
     def _gbuffer(self, ctx: ServerContext, pose: Pose, intr: CameraIntrinsics, times: dict[str, float],
                  peel: np.ndarray | None = None, colour: bool = True) -> Any:
-        """Depth, normals and (with ``colour``) colour at ``pose``; the time goes to ``times["gbuffer_ms"]``.
+        """Depth, normals and (with ``colour``) colour at ``pose``; the time goes to ``times["gbuffer_ms"]``.  A
+        :func:`timeless` scene's view drawn last frame (a still camera) is that frame's G-buffer (the same bytes).
 
         Drawn in two passes, the G-buffer unshaded then its surfaces shaded (``Renderer.shade``: the same bytes as
         one pass, each visible fragment shaded once); ``colour=False`` leaves the second to :meth:`_colour`, for
         the pixels that need it.  A supersampled renderer draws one pass (its colour is a block mean)."""
+        key = None
+        if timeless(self.scene):   # the same view of a timeless scene as last frame's (a still camera): kept from it
+            key = (pose.position.tobytes(), pose.orientation.tobytes(), id(intr), colour, self.scene.version,
+                   ctx.renderer.supersample)
+            hit = self._views.get(key)
+            if hit is not None and hit[0] is peel:     # a peeled layer: behind the very same layer
+                self._views_now[key] = hit
+                return hit[1]
         t0 = time.perf_counter()
         r = ctx.renderer
         if colour and peel is None and r.supersample != 1:
@@ -220,17 +231,25 @@ class QuadsServer(ServerHalf):
             if colour:
                 g.color = r.shade(g)
         times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
+        if key is not None:
+            self._views_now[key] = (peel, g)
         return g
 
     def _colour(self, ctx: ServerContext, g: Any, where: np.ndarray, times: dict[str, float]) -> None:
-        """``g.color`` (a G-buffer drawn without it) at the pixels ``where``; the time goes to ``gbuffer_ms``."""
+        """``g.color`` (a G-buffer drawn without it) at the pixels ``where``; the time goes to ``gbuffer_ms``.  A
+        G-buffer kept from the last frame (:meth:`_gbuffer`) already coloured at the same pixels keeps its colour."""
+        done = getattr(g, "quads_where", None)
+        if done is not None and np.array_equal(done, where):
+            return
         t0 = time.perf_counter()
         g.color = ctx.renderer.shade(g, where)
+        g.quads_where = where
         times["gbuffer_ms"] += (time.perf_counter() - t0) * 1e3
 
     def _start(self) -> tuple[dict[str, float], np.ndarray]:
         """A frame's stage times (all zero) and its empty atlas."""
         self._stats = {}
+        self._views, self._views_now = self._views_now, {}
         return dict.fromkeys(STAGES, 0.0), np.zeros((self.atlas_wh[1], self.atlas_wh[0], 3), np.uint8)
 
     def _gl_mesh(self, ctx: ServerContext) -> QuadMeshGL:
