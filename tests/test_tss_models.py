@@ -267,10 +267,11 @@ def test_flip_level_closes_the_orbit_gap_without_latency(shared_run) -> None:  #
     from the eye.  A silhouette triangle that the flip crosses got the few samples its area asks for (3 at its
     corners, or an oversampling staircase whose rows lie outside a triangle thinner than one sample step), so a
     pixel beside the flip read the flipped colour.  ``flip_level = 8`` L-packs those triangles at level 8 (61
-    samples) or more.  320x180, 0.5 s, ``orbit``, ``ideal``, lossless, model PSNR over the frames that show an update
-    (measured: ``sas`` 41.91 dB from 257k samples; the moving budget 38.65, -3.26; with ``flip_level = 8`` and
-    hysteresis 0.75 42.50 from 121k, +0.59).  Asserted: the flips gain at least half of the 3.85 dB measured, and
-    ``tss`` leads ``sas`` by at least half its measured lead from at most 0.6x its samples."""
+    samples) or more.  320x180, 0.3 s, ``orbit``, ``ideal``, lossless, model PSNR over the frames that show an update,
+    9 of them (measured at cfd47c2: ``sas`` 40.60 dB from 261k samples; the moving budget 38.12, -2.48; with
+    ``flip_level = 8`` and hysteresis 0.75 41.40 from 121k, +0.80; over 0.5 s, 15 frames: 41.91 dB from 257k, 38.65,
+    42.50 from 121k, the same as when first measured).  Asserted: the flips gain at least half of the 3.29 dB
+    measured, and ``tss`` leads ``sas`` by at least half its measured lead from at most 0.6x its samples."""
     from splitrender.sim.runner import RunConfig
 
     path = MODELS["duck"]
@@ -278,7 +279,7 @@ def test_flip_level_closes_the_orbit_gap_without_latency(shared_run) -> None:  #
         pytest.skip(f"{path} absent (Debian's assimp-testmodels)")
 
     def orbit(method: str, params: dict) -> tuple[float, float]:
-        res = shared_run(RunConfig(method=method, scene=path, trace="orbit", network="ideal", duration_s=0.5, width=320,
+        res = shared_run(RunConfig(method=method, scene=path, trace="orbit", network="ideal", duration_s=0.3, width=320,
                                    height=180, client_fps=30, flip_every=0, seed=0, method_params={**params, "lossless": True}))
         shown = [f for f in res.frames if f["update_frame_id"] >= 0]
         return float(np.mean([f["model_psnr_db"] for f in shown])), float(np.mean([u["srv_samples"] for u in res.updates]))
@@ -288,7 +289,7 @@ def test_flip_level_closes_the_orbit_gap_without_latency(shared_run) -> None:  #
     old, _ = orbit("tss", moving)
     new, n = orbit("tss", {**moving, "flip_level": 8, "hysteresis": 0.75})
     got = (sas, n_sas, old, new, n)
-    assert new >= old + 1.9 and new >= sas + 0.3 and n <= 0.6 * n_sas, got
+    assert new >= old + 1.6 and new >= sas + 0.4 and n <= 0.6 * n_sas, got
 
 
 def test_moving_tells_a_still_view_from_a_moving_one() -> None:
@@ -309,9 +310,11 @@ def test_pvs_ring_fills_the_engines_orbit_holes(shared_run) -> None:  # type: ig
     lossless ``sas`` by 5.4 dB, not the codec: its per-triangle PVS missed the small triangles between the fins that
     the client's view turns to between the EVS samples, and the client showed the sky there (3x ``sas``'s geometric
     holes, 0.33 % of the view against 0.12 %).  ``pvs_ring = 1`` adds the PVS's neighbours (sharing a vertex) while
-    the view moves, at one texel each.  320x180, 0.5 s, ``orbit``, ``cloud``, lossless, model PSNR over the frames
-    that show an update (measured: 26.03 dB with 0.58 % of the view in geometric holes; with the ring 31.56 dB,
-    0.46 %).  Asserted: the ring's gain, within 1 dB of the 5.53 dB measured, and fewer holes."""
+    the view moves, at one texel each.  320x180, 0.3 s, ``orbit``, ``cloud``, lossless, model PSNR over the frames
+    that show an update, 7 of them (measured at cfd47c2: 23.34 dB with 0.99 % of the view in geometric holes; with the
+    ring 28.07 dB, 0.84 %).  Over 0.5 s, 13 frames shown, the same gap was wider (26.02 dB, 0.58 %; with the ring
+    31.42, 0.46 %; 5.53 dB when first measured) for 22 CPU s of runs against 12 at 0.3 s.  Asserted: the ring's gain,
+    within 1 dB of the 4.72 dB measured, and at most 0.9 of the holes (0.85 measured)."""
     from splitrender.sim.runner import RunConfig
 
     path = "/usr/share/assimp/models/glTF2/2CylinderEngine-glTF-Binary/2CylinderEngine.glb"
@@ -319,7 +322,7 @@ def test_pvs_ring_fills_the_engines_orbit_holes(shared_run) -> None:  # type: ig
         pytest.skip(f"{path} absent (Debian's assimp-testmodels)")
 
     def orbit(params: dict) -> tuple[float, float]:
-        res = shared_run(RunConfig(method="tss", scene=path, trace="orbit", network="cloud", duration_s=0.5, width=320,
+        res = shared_run(RunConfig(method="tss", scene=path, trace="orbit", network="cloud", duration_s=0.3, width=320,
                                    height=180, client_fps=30, flip_every=0, seed=0, method_params={**params, "lossless": True}))
         shown = [f for f in res.frames if f["update_frame_id"] >= 0]
         return (float(np.mean([f["model_psnr_db"] for f in shown])), float(np.mean([f["hole_geom_pct"] for f in shown])))
@@ -328,4 +331,4 @@ def test_pvs_ring_fills_the_engines_orbit_holes(shared_run) -> None:  # type: ig
     old, old_holes = orbit(flips)
     new, new_holes = orbit({**flips, "pvs_ring": 1})
     got = (old, old_holes, new, new_holes)
-    assert new >= old + 4.5 and new_holes < 0.9 * old_holes, got
+    assert new >= old + 3.7 and new_holes < 0.9 * old_holes, got
