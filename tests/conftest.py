@@ -140,7 +140,7 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 
 # ----------------------------------------------------------------------------- ordering and the stress suite
 #
-# The stability suite (tests/test_stress.py, ~5 min of two worker processes) needs no quiet machine: it runs in
+# The stability suite (tests/test_stress.py, ~300 CPU s in two worker processes) needs no quiet machine: it runs in
 # virtual time.  When its tests are selected it starts in the background as the session starts, beside the
 # deterministic tests.  In one process (``-n 0``) its tests come after those, and the live tests last, once the
 # background suite has finished.  Under xdist (the project's ``-n 2 --dist loadfile --no-loadscope-reorder``) each
@@ -151,17 +151,18 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 # shown against what was sent, and the few timed bounds (a shutdown within 2 s) scale by the load measured beside
 # them (tests/_load.py), so they hold on a busy machine too.
 
-#: Seconds the slowest virtual-time files took in the clean-clone CI at b9b42e4 (idle, ``-n 2``, 13:47; the session
-#: summary's "slowest files" line: each file's setup, call and teardown summed, beside the background stress suite).
+#: Seconds the slowest virtual-time files took in the clean-clone CI at cc91518 (idle, ``-n 2``, 12:21; the session
+#: summary's "slowest files" line: each file's setup, call and teardown summed, beside the background stress suite;
+#: test_claims and test_sas_clients from their CPU seconds, under 15 s).
 #: Under xdist they are handed out first, longest first, and the other files after them by test count.  The files
-#: of live sessions (test_live_e2e 107 s, test_browser 53, test_live_interop 21, test_agreement 20,
-#: test_webrtc_hostile 20, test_live_memory 18) keep the place their test count gives them: handed out first they
-#: would all run beside the background stress suite.  An order, not an assertion: a file missing here only runs
-#: later.  Refresh it from the summary line (:func:`pytest_terminal_summary`).
-SLOW_FILES_S = {"test_tss_models.py": 279, "test_sas.py": 145, "test_tss.py": 134, "test_adapt_probes.py": 129,
-                "test_adapt_quality.py": 87, "test_quads.py": 57, "test_tss_rd.py": 56, "test_sas_detail.py": 38,
-                "test_runner.py": 36, "test_demo.py": 31, "test_quads_models.py": 29, "test_fuzz_entry_points.py": 21,
-                "test_claims.py": 18, "test_sas_clients.py": 16}
+#: of live sessions (test_live_e2e 103 s, test_browser 54, test_agreement 21, test_live_interop 20,
+#: test_hostile_live 19, test_live_memory 18, test_webrtc_hostile 17) keep the place their test count gives them:
+#: handed out first they would all run beside the background stress suite.  An order, not an assertion: a file
+#: missing here only runs later.  Refresh it from the summary line (:func:`pytest_terminal_summary`).
+SLOW_FILES_S = {"test_tss_models.py": 175, "test_adapt_quality.py": 116, "test_adapt_probes.py": 111, "test_tss.py": 109,
+                "test_sas.py": 107, "test_quads.py": 70, "test_tss_rd.py": 69, "test_sas_detail.py": 34,
+                "test_runner.py": 34, "test_demo.py": 28, "test_quads_models.py": 25, "test_fuzz_entry_points.py": 22,
+                "test_claims.py": 14, "test_sas_clients.py": 14}
 
 LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
                         "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",
