@@ -84,6 +84,10 @@ def test_a_queue_tolerant_calibrated_ceiling_is_held_through_a_blip() -> None:
     assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)   # the blip is over: no restart at all
     got = [rc.targets_kbps(3e6)["atlas"] for _ in range(DIP_FRAMES)]
     assert got[-1] == pytest.approx(3000.0)                        # a fall that lasts
+    assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)
+    rc.factor = 0.5                                                  # the point moved down: a decision, not a blip
+    assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(2400.0)   # not held at 0.7 x 4800
+    rc.factor = 1.0
     rc.buffer_ms = None                                              # video, atw: a bit rate, at once
     rc.targets_kbps(6e6)
     assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(3000.0)

@@ -246,6 +246,7 @@ class RateController:
         self._wide: set[str] = set()                                         # at the crf under a ceiling (WIDE)
         self._dip: dict[str, int] = {}                                       # calibrating: frames its ceiling fell
         self._dip_ref: dict[str, float] = {}                                 # ... and the ceiling before the fall
+        self._target_factor = 1.0                                            # self.factor at the latest targets
         self._first_bps: float | None = None                                 # the estimator's first encoder rate
         self.last_overhead_bps = 0.0
         """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
@@ -316,7 +317,8 @@ class RateController:
         """Stream ``n``'s ceiling ``kbps``, held just over ``urgent_ratio`` of the one before through a fall shorter
         than ``DIP_FRAMES`` (no restart, no I-frame, for a blip)."""
         ref = self._dip_ref.get(n, self._target.get(n))
-        if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref:
+        moved = self._target_factor != self.factor     # the operating point moved: a decision, not a blip
+        if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref and not moved:
             self._dip[n] = self._dip.get(n, 0) + 1
             self._dip_ref[n] = ref
             if self._dip[n] < DIP_FRAMES:     # a blip: held at the restart's threshold, no I-frame for it
@@ -366,6 +368,7 @@ class RateController:
                 continue
             out[n] = target
         self._target = out
+        self._target_factor = self.factor
         return dict(out)
 
     @property
