@@ -9,6 +9,10 @@ Outputs, all with row 0 at the top of the image:
 - ``triangle_id``: (H, W) uint32 scene-wide triangle index + 1, 0 on background
   (triangle ``k`` of object ``o`` has index ``tri_base[o] + k``; see :meth:`SceneGPU.tri_base`).
 
+A render that asks for no colour draws unshaded (the forward program without its shading), and
+:meth:`Renderer.shade` colours such a G-buffer afterwards, each visible fragment once and only at the pixels asked
+for, to the same bytes as one pass: a server that sends colour only at some pixels shades only those.
+
 The same renderer draws the ground truth (at the client's true pose and time) and
 whatever a server half needs.  Shading lives in ``shaders/shading.glsl``; any program
 that includes it can be set up with :meth:`Renderer.bind_shading`.
