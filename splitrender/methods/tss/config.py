@@ -131,7 +131,8 @@ class TssConfig(MethodConfig):
     model 34.4 -> 36.2 at the same samples; the duck's plan unchanged.  Off by default: in ``bench_tss_rd.py`` (crf 31,
     ``tss`` minus ``sas``) it takes the default scene from -4.99 to -4.51 dB still and -2.79 to -1.85 on the ``cloud``
     orbit at fewer bits, but loses on the duck's orbit (-2.20 -> -3.45) and the engine's (-1.51 -> -1.88 at 1.4x the
-    bits: the oversampled rows' table entries churn as the view moves).
+    bits: the oversampled rows' table entries churn as the view moves).  With 4 rows: default -4.47 still, -1.97 on the
+    orbit, the duck as before, the engine's orbit -0.24 to -0.32 dB at crf 29-31 (+0.53 at crf 33): not shown to hold.
 
     ``pvs_ring`` (0: off, the paper's PVS): while the view moves (the EVS samples' views differ), the triangles sharing
     a vertex with the PVS, this many rings out, join it at one texel each (no samples asked for: the single kind).  The
