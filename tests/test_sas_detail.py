@@ -460,3 +460,35 @@ def test_pvs_leaves_out_a_sample_next_to_the_window_s_end() -> None:
     assert sample_times(0.0, 0.1, 0.0333) == [0.0, 0.0333, 0.0666, 0.1]
     assert sample_times(0.0, 0.001, 0.0333) == [0.0, 0.001]
     assert sample_times(0.0, 0.0684, 0.0333) == [0.0, 0.0333, 0.0666, 0.0684]   # 0.054 steps from the end: kept
+
+
+TTT = "/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf"
+
+
+@pytest.mark.skipif(not __import__("os").path.exists(TTT), reason="assimp-testmodels not installed")
+def test_atlas_texture_gradients_follow_the_materials_uv_transform(renderer) -> None:  # type: ignore[no-untyped-def]
+    """``shade()`` reads the maps at ``u_uv_transform * uv`` (KHR_texture_transform); atlas_shade.frag took the display
+    footprint's gradients on the untransformed uv, so TextureTransformTest's two quads scaled by 1.5 were filtered at too
+    fine a mip level and aliased (tss had the same, 3838ba7).  One still frame, the atlas as shaded (no codec), PSNR on
+    each quad: measured quad 0 40.26 -> 55.84 dB, quad 2 39.30 -> 51.22; the others (no scale) the same either way
+    (quad 5, rotated: 53.97)."""
+    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.scene.loader import get_scene
+    from splitrender.scene.trace import get_trace
+
+    scene = get_scene(TTT)
+    spec = get_method("sas")
+    cfg = make_config(spec.config, {})
+    pose = get_trace("static", scene=scene).pose_at(0.5)
+    srv = spec.server_class(cfg, INTR, scene, 30, None)
+    upd = srv.produce(ServerContext.at_pose(0, 0.5, scene, renderer, INTR, pose))
+    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
+    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
+    truth = renderer.render(scene, 0.5, pose, INTR, ("color", "object_id"))
+    got = cli.render(pose, 0.5).color.astype(np.float64)
+    db = {}
+    for name in ("TextureTransformTest_0", "TextureTransformTest_2", "TextureTransformTest_5"):
+        m = truth.object_id == next(o.object_id for o in scene.objects if o.name == name)
+        assert m.sum() > 1000, f"{name} is in view"
+        db[name] = 10.0 * np.log10(255.0 ** 2 / np.mean((got[m] - truth.color[m].astype(np.float64)) ** 2))
+    assert min(db.values()) >= 50.0, db

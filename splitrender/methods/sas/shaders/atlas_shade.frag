@@ -53,6 +53,9 @@ void main() {
         g_duv_dx = ux * v_footprint.x;
         g_duv_dy = uy * v_footprint.y;
     }
+    // shade() reads the maps at u_uv_transform * uv (KHR_texture_transform): the gradients go through its linear part
+    g_duv_dx = mat2(u_uv_transform) * g_duv_dx;
+    g_duv_dy = mat2(u_uv_transform) * g_duv_dy;
     vec2 p = gl_FragCoord.xy;
     if (p.x < v_rect.x || p.y < v_rect.y || p.x > v_rect.x + v_rect.z || p.y > v_rect.y + v_rect.w) discard;
     vec3 n = normalize(v_normal);
