@@ -68,10 +68,10 @@ def test_a_queue_tolerant_start_is_not_squeezed_by_its_first_fill_before_any_mea
         assert got[-1] == pytest.approx(50.0)            # measured: the overhead is paid first (after a blip's hold)
 
 
-def test_a_queue_tolerant_calibrated_ceiling_is_held_through_a_blip() -> None:
-    """A calibrated stream of a method that tolerates a queue runs at its crf under a ceiling (BURST_CAP); a fall of
-    that ceiling under ``urgent_ratio`` is held just over it for DIP_FRAMES - 1 frames, as a calibrating one is: tss
-    met a three-frame dip of the estimate (6.5 -> 3.2 Mbit/s and back) with an atlas IDR down and another up."""
+def test_a_calibrated_ceiling_falls_at_once_and_a_point_move_is_no_blip() -> None:
+    """Only a calibrating ceiling is held through a blip (DIP_FRAMES): a queue-tolerant method's calibrated one (its
+    crf under a ceiling, BURST_CAP) falls at once (held, quads on the step trace queued through the 2 Mbit/s span's
+    falls: 0.33 dB under), and so does a calibrating one where the operating point moved (the controller's decision)."""
     rc = RateController(("atlas",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0, calibrate_frames=2))
     rc.buffer_ms = 100.0
     rc.targets_kbps(6e6)
@@ -79,18 +79,13 @@ def test_a_queue_tolerant_calibrated_ceiling_is_held_through_a_blip() -> None:
         rc.on_frame_sent({"atlas": 20_000}, {"atlas": CappedCrf(12_000.0, 100.0)}, idr)
     assert rc.calibrated and "atlas" not in rc._provisional        # its own rate: 4.8 Mbit/s
     assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)
-    held = [rc.targets_kbps(3e6)["atlas"] for _ in range(DIP_FRAMES - 1)]
-    assert all(isinstance(v, CappedCrf) for v in held) and held == pytest.approx([1.001 * 0.7 * 4800] * 3)
-    assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)   # the blip is over: no restart at all
-    got = [rc.targets_kbps(3e6)["atlas"] for _ in range(DIP_FRAMES)]
-    assert got[-1] == pytest.approx(3000.0)                        # a fall that lasts
-    assert rc.targets_kbps(6e6)["atlas"] == pytest.approx(4800.0)
-    rc.factor = 0.5                                                  # the point moved down: a decision, not a blip
-    assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(2400.0)   # not held at 0.7 x 4800
-    rc.factor = 1.0
-    rc.buffer_ms = None                                              # video, atw: a bit rate, at once
-    rc.targets_kbps(6e6)
-    assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(3000.0)
+    assert rc.targets_kbps(3e6)["atlas"] == pytest.approx(3000.0)   # at once
+    rc = RateController(("color",), 30.0, AdaptConfig(smoothing=1.0, headroom=1.0))
+    assert rc.targets_kbps(4e6)["color"] == pytest.approx(4000)
+    assert rc.targets_kbps(2e6)["color"] == pytest.approx(1.001 * 0.7 * 4000)   # a blip: held
+    assert rc.targets_kbps(4e6)["color"] == pytest.approx(4000)
+    rc.factor = 0.5                                                 # the point moved down: not held
+    assert rc.targets_kbps(2e6)["color"] == pytest.approx(2000)
 
 
 def test_streams_share_by_what_they_took_and_an_encoder_s_miss_is_learnt() -> None:
@@ -349,8 +344,8 @@ def _adapt_run(path, method: str):  # type: ignore[no-untyped-def]
 @pytest.mark.slow
 def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> None:  # type: ignore[no-untyped-def]
     """The same step (160x90, 5 s) for ``sas``, whose reliable geometry and metadata the controller pays for first
-    and whose atlas repacks bring frequent I-frames: the atlas falls from the 810 kbit/s it took at its own crf to
-    a 198 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 117 ms measured; at most 300
+    and whose atlas repacks bring frequent I-frames: the atlas falls from the 714 kbit/s it took at its own crf to
+    a 204 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 117 ms measured; at most 300
     ms in between)."""
     res = _adapt_run(step_trace_path, "sas")
     before = np.mean([u["bytes_atlas"] for u in res.updates if 0.5 <= u["t_s"] < 1.5]) * 8 * 30 / 1000   # kbit/s
@@ -360,7 +355,8 @@ def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> N
     # 924 -> 205 kbit/s (0.222), the same every run since encoders under a VBV run one thread (x264's sliced
     # threads coded it differently each run: 158-200 kbit/s in five runs before, docs/experiments.md); 932 -> 186 before
     # sas's metadata carried its shading-reuse counters (1b9e9a3: 13-16 bytes a frame, which the controller pays first)
-    assert after < 0.26 * before and after < 215, (before, after)
+    # 714 -> 204 kbit/s (0.285) since sas's reshade_eye_deg is on by default (a0efa28: fewer atlas bits at its crf)
+    assert after < 0.31 * before and after < 215, (before, after)
     assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 150            # measured 117 ms
 
 

@@ -103,10 +103,10 @@ two mean frames, and a scene that grows past what its calibration saw stays at t
 DIP_FRAMES = 4
 """A calibrating stream's ceiling that falls under ``urgent_ratio`` of what it was (an urgent restart, with an I-frame)
 is held just above that for this many frames less one first: a blip of queue (the encoder rate drains a 51 ms one for
-0.1 s) is not worth an I-frame down and another back up (CEILING_JUMP).  So is a calibrated stream's ceiling where
-the method tolerates a queue (:attr:`RateController.buffer_ms` set): tss on the 8 Mbit/s cellular-like trace met a
-three-frame dip of the estimate at 0.97 s (6.5 -> 3.2 Mbit/s and back) with an atlas IDR down and another up two
-frames later, each squeezed under the dip's ceiling, where its 100 ms buffer takes the dip's extra bits."""
+0.1 s) is not worth an I-frame down and another back up (CEILING_JUMP); a fall at a move of the operating point is
+not held (the controller's decision).  Not for a calibrated stream (75e4ada held those too, for a queue-tolerant
+method): on the step trace ``quads`` kept its ceilings through the 2 Mbit/s span's falls, queued, and its estimate came
+back slower, 0.33 dB under (8 s, 13c0e9e against cc91518), with no gain for ``tss`` on ``cellular8``."""
 START_HOLD = True
 """Before the estimator's first measurement (its encoder rate still the first it gave: GCC's start guess, 300 kbit/s)
 a calibrating stream of a method that tolerates a queue keeps at least the start's share of it: the first frames'
@@ -358,13 +358,13 @@ class RateController:
             cap = self.cfg.max_kbps if n in self._provisional else self._cap.get(n, self.cfg.max_kbps)
             if n not in self._provisional and kbps >= (1.0 if n in self._wide else WIDE) * cap * self.factor:
                 self._wide.add(n)              # room to spare: the method's own crf, the link bounding its bursts
-                out[n] = CappedCrf(self._held(n, kbps) if tolerant else kbps, self.buffer_ms)
+                out[n] = CappedCrf(kbps, self.buffer_ms)
                 continue
             self._wide.discard(n)
             target = max(self.cfg.min_kbps, min(kbps, cap * self.factor))
             if BURST_CAP and self.buffer_ms is not None:
                 # a method that tolerates a queue: its crf under a ceiling at the target (BURST_CAP), not a bit rate
-                out[n] = CappedCrf(self._held(n, target), self.buffer_ms)   # through a blip too (DIP_FRAMES)
+                out[n] = CappedCrf(target, self.buffer_ms)
                 continue
             out[n] = target
         self._target = out
