@@ -216,7 +216,7 @@ class QuadsServer(ServerHalf):
         the pixels that need it.  A supersampled renderer draws one pass (its colour is a block mean)."""
         key = None
         if timeless(self.scene):   # the same view of a timeless scene as last frame's (a still camera): kept from it
-            key = (pose.position.tobytes(), pose.orientation.tobytes(), id(intr), colour, self.scene.version,
+            key = (pose.position.tobytes(), pose.orientation.tobytes(), intr, colour, self.scene.version,
                    ctx.renderer.supersample)
             hit = self._views.get(key)
             if hit is not None and hit[0] is peel:     # a peeled layer: behind the very same layer
