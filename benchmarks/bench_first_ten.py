@@ -15,6 +15,12 @@ the run's medians to ``benchmarks/results/bench_first_ten.json``.  Run::
     python benchmarks/bench_first_ten.py                      # demo and suite, this checkout, once
     python benchmarks/bench_first_ten.py --only demo --repeat 3
     python benchmarks/bench_first_ten.py --tree /tmp/before   # and the commit before, alternately
+    python benchmarks/bench_first_ten.py --from-log ci.log --commit 5e1a817 --note "clean clone, idle"
+
+(``--from-log``: a suite run already made, such as a clean clone's ``bash .ci/run`` saved to a file, recorded from its
+last lines without running anything: the pytest summary's count and seconds, and for CPU seconds the session
+summary's per-file CPU plus the background stress suite's, tests/conftest.py; the workers' start-up and collection
+are not in that figure, so it reads a few per cent under a measured run's)
 
 (the demo takes about 2 minutes and the suite about 10-14 on 2 idle cores: measure with the machine otherwise idle,
 or say what ran beside it).
@@ -79,6 +85,27 @@ def measure(tree: Path, what: str) -> dict[str, object]:
             "passed": passed, "failed": failed, "note": "" if not p.returncode or what == "suite" else f"exit {p.returncode}"}
 
 
+def from_log(path: Path, commit: str) -> dict[str, object]:
+    """The suite's row from a saved run's output (``python3 -m pytest -q`` or ``bash .ci/run``): its last summary
+    line (``1604 passed, 1 warning in 644.58s``) for the wall seconds and the counts, and CPU seconds as the sum of
+    tests/conftest.py's ``CPU seconds by file (all files N`` and ``background stress suite: ..., C CPU s`` (blank
+    where the log lacks them)."""
+    text = path.read_text(errors="replace")
+    done = [m for m in re.finditer(r"^=*\s*(.*\bin ([0-9.]+)s\b.*?)\s*=*$", text, re.M) if "passed" in m.group(1)
+            or "failed" in m.group(1)]
+    if not done:
+        raise SystemExit(f"{path}: no pytest summary line ('N passed ... in S s')")
+    line, wall = done[-1].group(1), float(done[-1].group(2))
+    p, f = re.search(r"(\d+) passed", line), re.search(r"(\d+) failed", line)
+    files = re.findall(r"CPU seconds by file \(all files (\d+)", text)
+    stress = re.findall(r"background stress suite: [0-9.]+ s, ([0-9.]+) CPU s", text)
+    cpu = round(float(files[-1]) + (float(stress[-1]) if stress else 0.0), 1) if files else ""
+    return {"commit": commit, "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime(path.stat().st_mtime)),
+            "machine": platform.platform(), "cpus": os.cpu_count(), "load_before": "", "load_after": "",
+            "what": "suite", "wall_s": round(wall, 1), "cpu_s": cpu, "passed": p.group(1) if p else "0",
+            "failed": f.group(1) if f else "0", "note": f"from the log {path.name}"}
+
+
 def append_history(row: dict[str, object]) -> None:
     new = not HISTORY.exists()
     with open(HISTORY, "a", newline="") as f:
@@ -94,7 +121,23 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="measurements of each, per checkout")
     ap.add_argument("--tree", type=Path, help="another checkout to measure alternately (the commit before)")
     ap.add_argument("--note", default="", help="what else ran on the machine, for the history")
+    ap.add_argument("--from-log", type=Path, help="record a suite run already made, from its saved output (runs nothing)")
+    ap.add_argument("--commit", help="with --from-log: the commit that log ran (a clean clone's HEAD)")
     ns = ap.parse_args()
+    if ns.from_log:
+        if not ns.commit:
+            ap.error("--from-log needs --commit (the log does not name its commit)")
+        if not ns.from_log.is_file():
+            ap.error(f"--from-log {ns.from_log}: no such file")
+        full = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", ns.commit + "^{commit}"],
+                              capture_output=True, text=True)
+        if full.returncode:
+            ap.error(f"--commit {ns.commit}: not a commit of {ROOT}")
+        row = from_log(ns.from_log, full.stdout.strip())
+        row["note"] = "; ".join(x for x in (str(row["note"]), ns.note) if x)
+        append_history(row)
+        print(json.dumps(row))
+        return
     whats = [ns.only] if ns.only else ["demo", "suite"]
     trees = [("this", ROOT)] + ([("before", ns.tree.resolve())] if ns.tree else [])
     rows: dict[tuple[str, str], list[dict[str, object]]] = {}
