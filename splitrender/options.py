@@ -12,9 +12,10 @@ or key differs), and everything else is made from it:
   (:func:`add_option_arguments`, read back by :func:`options_from_args`);
 * the cores' options from a front door's config (:func:`options_of`).
 
-So every option is settable in both modes, under one name and one range.  Two options keep an older
-key in ``RunConfig`` (``nack_tries``, ``keyframe_request_interval_ms``: stored runs are keyed on it), and
-two have another default in virtual time (``jitter_timeout_ms`` 100 ms; ``stall_timeout_s`` never, since
+So every option is settable in both modes, under one name and one range.  Two options had another name in
+``RunConfig`` before they were declared once (``nack_tries``, ``keyframe_request_interval_ms``; :attr:`Option.old_key`):
+``RunConfig.key`` still hashes them under it, so stored runs keep their keys, and a run config's TOML may still use it
+(read as the live name).  Two have another default in virtual time (``jitter_timeout_ms`` 100 ms; ``stall_timeout_s`` never, since
 a run must end by its duration, not by an error).
 """
 
@@ -31,7 +32,7 @@ from .limits import DEFAULT_CLIENT_LIMITS, ClientLimits
 
 
 __all__ = ["ClientOptions", "ServerProtocolOptions", "Option", "add_option_arguments", "check_options", "declared", "option",
-           "option_defaults", "option_fields", "options_from_args", "options_of", "options_table"]
+           "old_keys", "option_defaults", "option_fields", "options_from_args", "options_of", "options_table"]
 
 NACK_MIN_RESEND_MS = 20.0
 """A packet resent at t is not resent again for a NACK arriving before t + max(RTT, this) (ms; the RTT is the
@@ -59,15 +60,16 @@ def _num(x: float) -> str:
 @dataclass(frozen=True)
 class Option:
     """One option's declaration (the metadata of its field): range ``[lo, hi]`` (``inf_ok``: or infinity),
-    command-line ``flag`` and ``help``; ``run_key``: its key in ``RunConfig`` where that differs from the
-    field's name; ``virtual``: its default in virtual time where that differs."""
+    command-line ``flag`` and ``help``; ``old_key``: the name ``RunConfig`` gave it before the options were
+    declared once, under which ``RunConfig.key`` hashes it (stored runs' keys) and a run config's TOML may still
+    give it; ``virtual``: its default in virtual time where that differs."""
 
     lo: float
     hi: float
     flag: str
     help: str
     metavar: str | None = None
-    run_key: str | None = None
+    old_key: str | None = None
     virtual: Any = _SAME
     inf_ok: bool = False
 
@@ -95,13 +97,13 @@ class ClientOptions:
     """
 
     nack_max_tries: int = option(3, 0, 20, "--nack-tries", "NACKs per lost RTP packet (0 = NACK off)",
-                                 run_key="nack_tries")
+                                 old_key="nack_tries")
     nack_delay_ms: float = option(20.0, 0.0, 2000.0, "--nack-delay", "how long a hole waits before its first NACK "
                                   "(reordering)", metavar="MS")
     nack_retry_ms: float = option(120.0, 1.0, 5000.0, "--nack-retry", "the wait between two NACKs of a hole until "
                                   "a retransmission's round trip is measured", metavar="MS")
     pli_interval_ms: float = option(250.0, 1.0, 10_000.0, "--pli-interval", "the least time between two keyframe "
-                                    "requests (PLIs) of a stream", metavar="MS", run_key="keyframe_request_interval_ms")
+                                    "requests (PLIs) of a stream", metavar="MS", old_key="keyframe_request_interval_ms")
     rr_interval_s: float = option(0.5, 0.01, 60.0, "--rr-interval", "mean interval between receiver reports",
                                   metavar="S")
     jitter_timeout_ms: float = option(300.0, 1.0, 10_000.0, "--jitter-timeout", "how long a jitter buffer waits "
@@ -179,28 +181,29 @@ def _is_int(f: dataclasses.Field) -> bool:
     return f.type in ("int", int)
 
 
-def _key(f: dataclasses.Field, o: Option, run: bool) -> str:
-    return (o.run_key or f.name) if run else f.name
-
-
 def _default(f: dataclasses.Field, o: Option, virtual: bool) -> Any:
     return f.default if not virtual or o.virtual is _SAME else o.virtual
 
 
-def option_defaults(*classes: type, virtual: bool = False, run: bool = False) -> dict[str, Any]:
-    """Each option's key (``run``: ``RunConfig``'s) and its default in the mode (``virtual``)."""
-    return {_key(f, o, run): _default(f, o, virtual) for cls in classes for f, o in declared(cls)}
+def option_defaults(*classes: type, virtual: bool = False) -> dict[str, Any]:
+    """Each option's name and its default in the mode (``virtual``)."""
+    return {f.name: _default(f, o, virtual) for cls in classes for f, o in declared(cls)}
 
 
-def option_fields(*classes: type, virtual: bool = False, run: bool = False) -> Any:
+def old_keys(*classes: type) -> dict[str, str]:
+    """The options of ``classes`` that ``RunConfig`` once named otherwise: old key -> name (:attr:`Option.old_key`)."""
+    return {o.old_key: f.name for cls in classes for f, o in declared(cls) if o.old_key}
+
+
+def option_fields(*classes: type, virtual: bool = False) -> Any:
     """A class decorator, applied under ``@dataclass``: adds every option of ``classes`` to the class as a field
-    (named by its key, ``run``: ``RunConfig``'s; with the mode's default), so a front door's config (and its TOML
+    (under its name, with the mode's default), so a front door's config (and its TOML
     keys) carries the options without declaring them again."""
     def add(cls: type) -> type:
         ann = dict(cls.__dict__.get("__annotations__", {}))
         for c in classes:
             for f, o in declared(c):
-                key = _key(f, o, run)
+                key = f.name
                 if key in ann:
                     raise TypeError(f"{cls.__name__}.{key} is declared by {c.__name__} already")
                 ann[key] = f.type
@@ -210,9 +213,9 @@ def option_fields(*classes: type, virtual: bool = False, run: bool = False) -> A
     return add
 
 
-def options_of(config: Any, cls: type, *, run: bool = False, **extra: Any) -> Any:
+def options_of(config: Any, cls: type, **extra: Any) -> Any:
     """The core's options (``cls``) from a front door's config that carries them (:func:`option_fields`)."""
-    return cls(**{f.name: getattr(config, _key(f, o, run)) for f, o in declared(cls)}, **extra)
+    return cls(**{f.name: getattr(config, f.name) for f, o in declared(cls)}, **extra)
 
 
 def _dest(o: Option) -> str:
@@ -232,16 +235,15 @@ def add_option_arguments(parser: argparse.ArgumentParser, *classes: type, virtua
                            help=f"{o.help} (default {d:g}; range {_num(o.lo)}-{_num(o.hi)}{' or inf' if o.inf_ok else ''})")
 
 
-def options_from_args(ns: argparse.Namespace, *classes: type, run: bool = False) -> dict[str, Any]:
-    """The options given on the command line (:func:`add_option_arguments`), by key (``run``: ``RunConfig``'s),
-    each checked against its range under its flag's name."""
+def options_from_args(ns: argparse.Namespace, *classes: type) -> dict[str, Any]:
+    """The options given on the command line (:func:`add_option_arguments`), by name, each checked against its range under its flag's name."""
     out: dict[str, Any] = {}
     for cls in classes:
         for f, o in declared(cls):
             v = getattr(ns, _dest(o), None)
             if v is not None:
                 o.check(v, o.flag)
-                out[_key(f, o, run)] = v
+                out[f.name] = v
     return out
 
 
@@ -251,7 +253,7 @@ def options_table() -> str:
             "|---|---|---|---|---|---|---|"]
     for cls, side in ((ClientOptions, "client"), (ServerProtocolOptions, "server")):
         for f, o in declared(cls):
-            key = f"`{f.name}`" + (f" (run: `{o.run_key}`)" if o.run_key else "")
+            key = f"`{f.name}`" + (f" (stored runs: `{o.old_key}`)" if o.old_key else "")
             virtual = _default(f, o, True)
             rng = f"{_num(o.lo)}-{_num(o.hi)}" + (" or inf" if o.inf_ok else "")
             rows.append(f"| {side} | {key} | `{o.flag}` | {f.default:g} | {virtual:g} | {rng} | {o.help} |")

@@ -67,7 +67,7 @@ def test_virtual_time_with_the_patient_options_repeats_itself_bit_for_bit() -> N
         rec = RECOVERY["patient"]
         cfg = RunConfig(method="video", scene="minimal", trace="walk", network="delay 20ms 5ms loss 3%", width=160,
                         height=90, server_fps=15, client_fps=30, duration_s=3.0, seed=7, flip_every=0, mtu_bytes=300,
-                        fec=True, playout_delay_ms=rec["playout_delay_ms"], nack_tries=rec["nack_tries"],
+                        fec=True, playout_delay_ms=rec["playout_delay_ms"], nack_max_tries=rec["nack_max_tries"],
                         jitter_timeout_ms=rec["jitter_timeout_ms"], stall_frames=rec["stall_frames"])
         runs.append(VirtualTimeRun(cfg).run())
     a, b = runs

@@ -126,7 +126,7 @@ def test_the_jitter_buffer_completes_a_frame_from_fec_whichever_arrives_last() -
 
 def test_fec_keeps_frames_coming_at_two_percent_loss_in_virtual_time() -> None:
     """``video`` on the minimal scene, 160x90, 3 s, ``delay 20ms loss 2%``, seed 0, shown of 91 server frames:
-    without any recovery (``nack_tries`` 0) 72, with NACK alone 82, with FEC 89 (over seeds 0-2: none 64-72,
+    without any recovery (``nack_max_tries`` 0) 72, with NACK alone 82, with FEC 89 (over seeds 0-2: none 64-72,
     NACK 69-82, FEC 83-89).  The run is seeded, so the bounds sit near the measure: FEC at least 87 frames and 15
     over none (measured 89, +17), NACK 8 over none (measured +10).  The seed fixes which packets drop, TCP's metadata
     segments among them (one lost costs a 200 ms retransmission timeout, six frames, that FEC cannot help): the stream
@@ -141,7 +141,7 @@ def test_fec_keeps_frames_coming_at_two_percent_loss_in_virtual_time() -> None:
     for name, fec, nack in (("none", False, 0), ("nack", False, 3), ("fec", True, 0)):
         res = VirtualTimeRun(RunConfig(method="video", scene="minimal", trace="walk", network="delay 20ms loss 2%",
                                        duration_s=3.0, width=160, height=90, client_fps=30, flip_every=0, fec=fec,
-                                       nack_tries=nack, metrics=False, seed=0, method_params={"chroma": "420"}), r).run()
+                                       nack_max_tries=nack, metrics=False, seed=0, method_params={"chroma": "420"}), r).run()
         shown[name] = len({f["update_frame_id"] for f in res.frames if f["update_frame_id"] >= 0})
         assert len(res.updates) == 91
     assert shown["fec"] >= 87 and shown["fec"] >= shown["none"] + 15, shown

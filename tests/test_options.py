@@ -53,9 +53,9 @@ def test_every_option_reaches_the_core_from_every_front_door(f, o):
         ns = build_parser().parse_args(["serve", *flag])
         assert getattr(serve_config(ns).session_options(), f.name) == value
         assert getattr(ServerConfig(**{f.name: value}).session_options(), f.name) == value
-    # and as a config (TOML) key, under the run's name for it
-    key = o.run_key or f.name
-    assert getattr(RunConfig.from_dict({key: value}), key) == value
+    # and as a config (TOML) key, under its name (and its old name where RunConfig had one)
+    for key in (f.name, *([o.old_key] if o.old_key else [])):
+        assert getattr(RunConfig.from_dict({key: value}), f.name) == value
 
 
 @pytest.mark.parametrize("end", ["above", "below"])
@@ -75,8 +75,8 @@ def test_an_option_out_of_range_names_its_flag_and_one_range_everywhere(f, o, en
     # the cores and the configs refuse it with the same range, by the option's name
     with pytest.raises(ConfigError, match=rf"{f.name}: must be in \[.*\].*got {bad}"):
         (ClientOptions if side == "client" else ServerOptions)(**{f.name: bad})
-    with pytest.raises(ConfigError, match=f.name if not o.run_key else o.run_key + "|" + f.name):
-        RunConfig.from_dict({o.run_key or f.name: bad})
+    with pytest.raises(ConfigError, match=f.name):
+        RunConfig.from_dict({o.old_key or f.name: bad})
 
 
 def test_virtual_time_defaults_differ_only_where_declared():
@@ -92,8 +92,15 @@ def test_stored_run_keys_are_unchanged_by_the_declaration():
     (these values were computed by the code before the options were declared once, 2026-12-06), and an option
     added since changes a key only when it differs from its default."""
     assert RunConfig().key() == "9bd4aaccdc3cc6e2"
-    assert RunConfig(nack_tries=2, history_packets=100, method="sas").key() == "20b3f3405666b18b"
+    assert RunConfig(nack_max_tries=2, history_packets=100, method="sas").key() == "20b3f3405666b18b"
     assert RunConfig(nack_delay_ms=20.0).key() == RunConfig().key() != RunConfig(nack_delay_ms=30.0).key()
+    # the two options RunConfig once named otherwise hash under those names (nack_tries,
+    # keyframe_request_interval_ms), and a stored config.toml's old names read as the live ones
+    assert RunConfig(pli_interval_ms=100.0).key() == "53cd28c04f6435a3"
+    old = RunConfig.from_dict({"nack_tries": 2, "keyframe_request_interval_ms": 100.0})
+    assert old == RunConfig(nack_max_tries=2, pli_interval_ms=100.0)
+    with pytest.raises(ConfigError, match="'nack_tries' is the old name of 'nack_max_tries'"):
+        RunConfig.from_dict({"nack_tries": 2, "nack_max_tries": 2})
 
 
 def test_the_protocol_docs_table_is_the_declaration():

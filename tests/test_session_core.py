@@ -268,7 +268,7 @@ def test_bad_options_are_named() -> None:
     from splitrender.sim.config import RunConfig
 
     with pytest.raises(ConfigError, match="run config client options: client nack_max_tries: must be in"):
-        RunConfig(nack_tries=-1)
+        RunConfig(nack_max_tries=-1)
     with pytest.raises(ConfigError, match="playout_delay_ms: must be in \\[0, 2000\\], got 5000"):
         RunConfig.from_dict({"playout_delay_ms": 5000})
 

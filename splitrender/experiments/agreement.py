@@ -57,8 +57,8 @@ the update age grow through the run (the queue of 1000 packets does not overflow
 RECOVERY: dict[str, dict[str, Any]] = {
     "nack": {},
     "nack+fec": {"fec": True},
-    "patient": {"fec": True, "playout_delay_ms": 300.0, "nack_tries": 6, "jitter_timeout_ms": 600.0, "stall_frames": 15.0},
-    "no nack": {"nack_tries": 0},
+    "patient": {"fec": True, "playout_delay_ms": 300.0, "nack_max_tries": 6, "jitter_timeout_ms": 600.0, "stall_frames": 15.0},
+    "no nack": {"nack_max_tries": 0},
 }
 """Loss-recovery set-ups: NACK alone (the default), with FEC, the README's patient client, neither."""
 
@@ -94,7 +94,7 @@ async def _live(network: str, recovery: dict[str, Any], duration_s: float, seed:
             ccfg = ClientConfig(server=host, port=tcp[1], udp_port=udp[1], methods=(SETUP["method"],),
                                 width=SETUP["width"], height=SETUP["height"], display_hz=SETUP["client_fps"],
                                 trace=SETUP["trace"], duration_s=duration_s, out_dir=out, save_images=True,
-                                nack_max_tries=int(recovery.get("nack_tries", 3)),
+                                nack_max_tries=int(recovery.get("nack_max_tries", 3)),
                                 jitter_timeout_ms=float(recovery.get("jitter_timeout_ms", 300.0)),
                                 playout_delay_ms=float(recovery.get("playout_delay_ms", 0.0)),
                                 stall_frames=float(recovery.get("stall_frames", 6.0)), metrics_interval_s=0)

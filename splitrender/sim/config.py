@@ -12,22 +12,28 @@ from typing import Any
 
 from ..coerce import coerce_value
 from ..errors import ConfigError
-from ..options import ClientOptions, ServerProtocolOptions, option_defaults, option_fields, options_from_args, options_of
+from ..options import (ClientOptions, ServerProtocolOptions, old_keys, option_defaults, option_fields, options_from_args,
+                       options_of)
 from ..pipeline.adapt import check_adapt_mode
 from ..pipeline.session import ServerOptions
 
 
-_KEYED_ALWAYS = frozenset({"nack_tries", "keyframe_request_interval_ms", "jitter_timeout_ms", "playout_delay_ms",
+_KEYED_ALWAYS = frozenset({"nack_max_tries", "pli_interval_ms", "jitter_timeout_ms", "playout_delay_ms",
                            "stall_frames"})
 """Session options that were RunConfig fields before the options were declared once: :meth:`RunConfig.key` hashes
 them always (as it did), the others only where they differ from their default."""
+_OLD_KEYS = old_keys(ClientOptions, ServerProtocolOptions)
+"""RunConfig's names of two options before they were declared once (``nack_tries``: ``nack_max_tries``,
+``keyframe_request_interval_ms``: ``pli_interval_ms``): :meth:`RunConfig.key` hashes the options under them, so every
+stored run keeps its key, and :meth:`RunConfig.from_dict` (TOML: stored runs' config.toml) reads them as the live
+names."""
 
 COST_MODELS = ("fixed", "measured")
 """Where processing time on the simulated clock comes from (see :class:`RunConfig`)."""
 
 
 @dataclass(frozen=True)
-@option_fields(ClientOptions, ServerProtocolOptions, virtual=True, run=True)
+@option_fields(ClientOptions, ServerProtocolOptions, virtual=True)
 class RunConfig:
     """One virtual-time run: a method on a scene, a trace and a network.
 
@@ -41,7 +47,7 @@ class RunConfig:
     per frame for all of them); client ``i`` follows ``client_traces[i % len]`` (or
     ``trace``), starting ``i * client_offset_s`` seconds into it, with its own network
     links seeded from ``seed``.  ``jitter_timeout_ms``: how long the client's jitter
-    buffer waits for a frame's missing packets; ``keyframe_request_interval_ms``: the
+    buffer waits for a frame's missing packets; ``pli_interval_ms``: the
     least time between two keyframe requests of a client; ``max_session_bytes``:
     limit on the method's session data.
 
@@ -70,9 +76,10 @@ class RunConfig:
     ``fec``: protect every RTP stream with RFC 5109 parity packets (:mod:`splitrender.protocol.fec`).
 
     The session options (the cores' loss recovery, reports and NACK bounds) are fields too, added from their one
-    declaration (:mod:`splitrender.options`) under the same names as live, except ``nack_tries`` and
-    ``keyframe_request_interval_ms`` (the client's ``nack_max_tries`` and ``pli_interval_ms``), with virtual time's
-    defaults (``jitter_timeout_ms`` 100, ``stall_timeout_s`` inf).
+    declaration (:mod:`splitrender.options`) under the same names as live, with virtual time's defaults
+    (``jitter_timeout_ms`` 100, ``stall_timeout_s`` inf).  ``nack_max_tries`` and ``pli_interval_ms`` were
+    ``nack_tries`` and ``keyframe_request_interval_ms`` here once: :meth:`key` hashes them under those names
+    (:data:`_OLD_KEYS`), and :meth:`from_dict` reads those names too.
     """
 
     method: str = "video"
@@ -175,7 +182,9 @@ class RunConfig:
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "RunConfig":
-        """Build from a dict (e.g. parsed TOML), naming unknown keys and wrong types."""
+        """Build from a dict (e.g. parsed TOML), naming unknown keys and wrong types.  The two options' old names
+        (:data:`_OLD_KEYS`, as in stored runs' config.toml) are read as their live names (silently; both names at once
+        is an error)."""
         if not isinstance(d, dict):
             raise ConfigError(f"run config: expected a table, got {type(d).__name__}")
         import typing
@@ -184,6 +193,10 @@ class RunConfig:
         names = {f.name for f in dataclasses.fields(RunConfig)}
         kw: dict[str, Any] = {}
         for k, v in d.items():
+            if k in _OLD_KEYS:
+                if _OLD_KEYS[k] in d:
+                    raise ConfigError(f"run config: {k!r} is the old name of {_OLD_KEYS[k]!r}: give one of them")
+                k = _OLD_KEYS[k]
             if k not in names:
                 raise ConfigError(f"run config: unknown key {k!r} (valid: {', '.join(sorted(names))})")
             kw[k] = v if k == "method_params" else coerce_value("run config", k, hints[k], v)
@@ -204,25 +217,28 @@ class RunConfig:
         return text + ("\n[resolved]\n" + to_toml(resolved, "resolved.") if resolved else "")
 
     def key(self) -> str:
-        """A stable hash of the resolved config (for result caching)."""
+        """A stable hash of the resolved config (for result caching); two options under their old names
+        (:data:`_OLD_KEYS`), so stored runs keep their keys."""
         d = self.to_dict()
         d.pop("truth_cache")  # where the ground truth is cached does not change the result
-        added = {**option_defaults(ClientOptions, ServerProtocolOptions, virtual=True, run=True),
+        added = {**option_defaults(ClientOptions, ServerProtocolOptions, virtual=True),
                  "cost_model": "fixed", "cost_scale": 1.0, "supersample": 1, "scene_time_offset_s": 0.0,
                  "fec": False, "transport_cc": False, "pacing": False, "adapt": "off"}
         for k, default in added.items():
             if k not in _KEYED_ALWAYS and d[k] == default:  # keys of configs from before these options stay valid
                 del d[k]
+        for old, name in _OLD_KEYS.items():
+            d[old] = d.pop(name)
         blob = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def client_options(self) -> ClientOptions:
         """The session core's client options of this run (:mod:`splitrender.options`)."""
-        return options_of(self, ClientOptions, run=True)
+        return options_of(self, ClientOptions)
 
     def server_options(self) -> ServerOptions:
         """The session core's server options of this run: the same keys and ranges as the live server's."""
-        return options_of(self, ServerOptions, run=True, pacing=self.pacing, adapt=self.adapt)
+        return options_of(self, ServerOptions, pacing=self.pacing, adapt=self.adapt)
 
     def replace(self, **kw: Any) -> "RunConfig":
         return dataclasses.replace(self, **kw)
@@ -231,7 +247,7 @@ class RunConfig:
 def session_options(ns: Any) -> dict[str, Any]:
     """The RunConfig keys of the session options given on the command line (``add_option_arguments``'s group,
     and ``--fec``), from an argparse namespace."""
-    out = options_from_args(ns, ClientOptions, ServerProtocolOptions, run=True)
+    out = options_from_args(ns, ClientOptions, ServerProtocolOptions)
     if getattr(ns, "fec", None) is not None:
         out["fec"] = ns.fec
     return out

@@ -30,7 +30,7 @@ count from :data:`SIM_EPOCH_US` so messages have the same sizes as live ones):
 - Everything the protocol decides is the sans-IO session cores' (:mod:`splitrender.pipeline.session`),
   the same ones the live server and client drive: the client core NACKs holes, sends
   PLIs while a video stream waits for a keyframe (at most every
-  ``keyframe_request_interval_ms``), receiver reports and stall PLIs; the server core
+  ``pli_interval_ms``), receiver reports and stall PLIs; the server core
   answers NACKs from its retransmission history (down the media path) and PLIs with an
   IDR, and sends sender reports.  RTCP crosses its own copy of each direction's
   network model (the same impairment, its own random draws).  The runner schedules
