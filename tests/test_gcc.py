@@ -133,6 +133,62 @@ def test_a_probe_measures_what_the_link_delivers() -> None:
     assert est.target_bps == pytest.approx(0.9 * 6e6, rel=0.03)
 
 
+def _media(est: BandwidthEstimator, t0_us: int, seconds: float, bps: float, seq0: int = 0) -> tuple[int, int]:
+    """Feed ``est`` 1,200-byte media packets sent at ``bps`` for ``seconds`` from ``t0_us``, 20 ms each way, no queue,
+    one feedback every 50 ms; returns (the time after, the next sequence number)."""
+    gap = int(1200 * 8e6 / bps)
+    t, seq, batch = t0_us, seq0, []
+    while t < t0_us + seconds * 1e6:
+        batch.append(PacketResult(seq, t, 1200, t + 20_000))
+        seq += 1
+        t += gap
+        if batch and t - batch[0].send_us >= 50_000:
+            est.on_feedback(batch, t + 40_000)
+            batch = []
+    return t, seq
+
+
+def test_an_application_limited_sender_is_told_apart_and_a_large_drop_is_probed_back() -> None:
+    """ALR: media sent under ``alr_usage`` (0.8) of the target over the last 0.5 s is application-limited, and not
+    when it fills the target.  After a large drop (under 0.66 of the last second's highest) the detector leaving
+    over-use while application-limited sends one cluster at 0.85 of the rate before the drop, as libwebrtc's
+    ProbeController does; not without ALR, nor twice within 5 s."""
+    est = BandwidthEstimator(GccConfig(start_bps=5e6, probe=False))
+    _media(est, 0, 1.0, 1e6)
+    assert est.app_limited                                   # 1 Mbit/s under a 5 Mbit/s target
+    est2 = BandwidthEstimator(GccConfig(start_bps=2e6, probe=False))
+    _media(est2, 0, 1.0, 2.4e6)
+    assert not est2.app_limited
+
+    from splitrender.pipeline.gcc import ProbeController
+    pc = ProbeController(GccConfig())
+    pc._pending.clear()
+    pc._last_probe_us = 0                                    # no periodic probe due in what follows
+    for k in range(10):
+        pc.on_estimate(7e6, k * 50_000)
+    pc.on_estimate(6e6, 500_000)
+    assert pc._drop is None                                  # 0.86 of the high: no large drop
+    pc.on_estimate(3.9e6, 550_000)                           # 0.56: a large drop from 7 Mbit/s
+    pc.on_recovered(3.9e6, False, 800_000)
+    assert pc.next_cluster(3.9e6, 800_000) is None           # not application-limited: no drop probe
+    pc.on_recovered(3.9e6, True, 900_000)
+    cl = pc.next_cluster(3.9e6, 900_000)
+    assert cl is not None and cl.rate_bps == pytest.approx(0.85 * 7e6) and pc.drop_probes == 1
+    pc._sent.clear()
+    pc.on_estimate(3.0e6, 1_000_000)
+    pc.on_recovered(3.0e6, True, 1_200_000)
+    assert pc.next_cluster(3.0e6, 1_200_000) is None         # one drop probe per 5 s
+    late = ProbeController(GccConfig())
+    late._pending.clear()
+    late._last_probe_us = 10**9
+    late.on_estimate(7e6, 0)
+    late.on_estimate(3e6, 100_000)
+    late.on_recovered(3e6, True, 5_200_000)                  # over 5 s after the drop: the link has moved on
+    assert late.next_cluster(3e6, 5_200_000) is None
+    with pytest.raises(ConfigError, match="alr_usage"):
+        GccConfig(alr_usage=0.0)
+
+
 def test_config_is_validated() -> None:
     with pytest.raises(ConfigError, match="need 0 < min_bps <= start_bps <= max_bps"):
         GccConfig(start_bps=1.0)
