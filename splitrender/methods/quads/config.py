@@ -47,13 +47,16 @@ QUAD_LAYER_COST = (1.0, 0.65)
 """Geometry and offsets at one layer over those at two (the knob's prior; ``benchmarks/bench_knobs.py``); each further
 hidden layer dropped is taken to save as much."""
 QUALITY = QualityModel(
-    (("layers", (0.0, -0.13)), ("frame_div", (0.0, 0.32, 0.53, 0.99))),
+    (("layers", (0.0, -0.13)), ("frame_div", (0.0, 0.49, 0.81, 1.38))),
     latency_db_per_100ms=0.64, rate_db_per_halving=0.82,
-    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s")
+    measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, "
+             "model PSNR after 0.5 s; frame_div again 2026-12-07 at 5e1a817 (--knobs frame_div)")
 """quads's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 23.96 dB at its own point;
 the visible layer alone measures 0.13 dB *better* (the walk disoccludes little that the hidden layer holds) for 36 %
-fewer bytes; one server frame in 2, 3, 5: 0.32, 0.53, 0.99 dB; +200 ms of motion-to-photon 1.28 dB; crf 29 (0.66x
-the colour atlas's bits) 0.50 dB.  Measured at the default config (two layers)."""
+fewer bytes; +200 ms of motion-to-photon 1.28 dB; crf 29 (0.66x the colour atlas's bits) 0.50 dB.  Measured at the
+default config (two layers).  One server frame in 2, 3, 5: 0.49, 0.81, 1.38 dB, measured again at 5e1a817 (its own
+point 24.44 dB; ``benchmarks/results/bench_knobs_quality_quads_frame_div_2s.json``, the same figures as at 4a7a27a);
+fb7ffbf's 0.32, 0.53, 0.99 had gone stale with quads's changes since."""
 
 
 @dataclass(frozen=True)
