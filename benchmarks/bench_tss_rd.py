@@ -92,6 +92,15 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
                                    "chroma": "420"}, (32.0,)),
     "mbc split16 lp 420 block8 px4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
                                       "chroma": "420", "codec_block": 8, "budget_px": 4.0}, (32.0, 33.0)),
+    "mbc split16 lp 420 block8 px45": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                       "chroma": "420", "codec_block": 8, "budget_px": 4.5, "atlas_mpix_1080p": 48.0},
+                                       (31.0, 35.0)),
+    "mbc split16 lp 420 block8 own": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                      "chroma": "420", "codec_block": 8, "lp_own": True}, (31.0, 35.0)),
+    "mbc split16 lp 420 block8 cubic": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                        "chroma": "420", "codec_block": 8, "lp_filter": "cubic"}, (31.0,)),
+    "mbc split16 lp 420 block8 own cubic": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 16.0, "slant_threshold": 1000.0,
+                                            "chroma": "420", "codec_block": 8, "lp_own": True, "lp_filter": "cubic"}, (31.0,)),
 }
 """Name -> (``tss`` parameters, crf ladder).  ``defaults``: ``tss`` as shipped (one sample per covered pixel);
 ``matched block4``: the claims ledger's ``TSS_MATCHED`` with ``codec_block = 4`` (``bench_tss_matched.py``, 0.6-1.2x
@@ -114,7 +123,13 @@ px2`` / ``flip8`` / ``single1`` / ``420`` / ``lp``: ``split16`` with ``budget_px
 samples along the triangle's longest edge); ``block8 flip0``: ``block8`` with ``flip_level = 0``.  ``split16 os4c 420
 block8`` (helper-66): ``split16 lp 420 block8`` with the slanted triangles (longest edge over height above 4) whose
 height holds at least 2 samples oversampled on the centred grid (``os_min_rows = 2``), the rest L-packed; ``step15``: only those that L-packing would sample more than 1.5 px apart
-along their longest edge (``os_min_step = 1.5``); ``step15 rows4``: with ``os_min_rows = 4``."""
+along their longest edge (``os_min_step = 1.5``); ``step15 rows4``: with ``os_min_rows = 4``.  ``block8 px45`` (helper-74): ``split16 lp 420 block8`` at ``budget_px = 4.5``,
+about ``sas``'s texels per display pixel (issue 50's "no more samples" read as a density matched to ``sas``'s), with
+``atlas_mpix_1080p = 48``: at 24 the tip blocks' padding to 8 texels fills the atlas and holds the default scene's rate
+at 3.1 (224k samples whatever the budget above 4).  ``block8 own`` (helper-74): ``split16 lp 420 block8`` with ``lp_own``
+(L-packing levels chosen for the samples each patch holds for itself, its shared edge and corner samples counted
+once); ``block8 cubic``: with ``lp_filter = "cubic"`` (the client reads L-packed triangles off their tip blocks'
+diagonals with a Catmull-Rom filter, as ``sas``'s client reads its atlas; the same bits); ``block8 own cubic``: both."""
 
 CHILD = r"""
 import json, sys
@@ -176,6 +191,8 @@ def main() -> None:
     ap.add_argument("--before-crfs", default="", help="comma-separated crfs of the --before runs (default: the ladder)")
     ap.add_argument("--reuse", default="", help="a file of rows this benchmark printed (one JSON a line): runs found "
                                                  "there (scene, camera, tree, config, crf) are taken, not run again")
+    ap.add_argument("--sas-bilinear", action="store_true", help="also run sas with atlas_filter=bilinear (row config "
+                                                                 "'sas bilinear': how much sas's Catmull-Rom client filter buys)")
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args()
     crfs_all = tuple(float(c) for c in a.crfs.split(",") if c)
@@ -195,6 +212,9 @@ def main() -> None:
             base = {"scene": SCENES[scene], "trace": trace, "network": network}
             jobs.append({"cell": (scene, camera), "tree": "after", "config": "sas", "crf": 23.0,
                          "arg": {**base, "method": "sas", "params": {}}})
+            if a.sas_bilinear:
+                jobs.append({"cell": (scene, camera), "tree": "after", "config": "sas bilinear", "crf": 23.0,
+                             "arg": {**base, "method": "sas", "params": {"atlas_filter": "bilinear"}}})
             for name in a.configs.split(","):
                 params, crfs = CONFIGS[name]
                 for tree in trees:
@@ -224,6 +244,10 @@ def main() -> None:
         cell = [r for r in rows if r["scene"] == scene and r["camera"] == camera]
         sas = next(r for r in cell if r["config"] == "sas")
         out: dict[str, Any] = {"sas": {k: sas[k] for k in ("model_db", "model_dssim", "steady_kbps", "kbps", "samples")}}
+        for r in cell:
+            if r["config"] == "sas bilinear":
+                out["sas bilinear"] = {"model_db_minus_sas": round(r["model_db"] - sas["model_db"], 2),
+                                       "bits_over_sas": round(r["steady_kbps"] / sas["steady_kbps"], 3)}
         for tree in trees:
             for name in CONFIGS:
                 ladder = sorted((r for r in cell if r["tree"] == tree and r["config"] == name), key=lambda r: r["crf"])

@@ -165,6 +165,21 @@ class TssConfig(MethodConfig):
     longer in id order.  At ``TSS_MATCHED`` + ``codec_block`` 4 with 16 (``benchmarks/bench_tss_rd.py``, still, at
     ``sas``'s bits): the duck -3.33 -> -1.57 dB, 2CylinderEngine -5.18 -> -4.19, TextureTransformTest -3.90 -> -3.87;
     off by default (``docs/methods.md``, "The tiles' order by colour").
+
+    ``lp_own`` (False: the paper's count): an L-packing level is chosen so that the samples the patch holds for itself
+    cover the triangle's need (:func:`~.layout.own_count`: ``v(l)`` less half of the ``3 l`` on its outer ring, which it
+    shares with its neighbours, and the corners' further share), not all ``v(l)``.  A mesh of 1-2 px triangles at
+    level 1 was shaded at its vertices only (the default scene's torus, Gouraud on a gold specular: 27.4 dB at any
+    rate, ``sas`` 36.8); with it the torus scores 36.1 from the same budget (one uncoded still frame).  The budget's
+    rate falls to pay for it (2.38 -> 1.68 on the default scene), so the larger triangles get fewer samples
+    (issue 50 part 1, helper-74; ``docs/methods.md``).
+
+    ``lp_filter``: how the client reads an L-packed triangle off its tip blocks: ``linear`` (the default: one bilinear
+    tap, or the three samples around the point on a diagonal cell) or ``cubic`` (a Catmull-Rom filter over 4x4 texels
+    off the diagonal, each tap clamped to the block and to the point's side of it, as ``sas``'s client reads its
+    atlas; the diagonal cells and the innermost ring of odd levels stay linear).  One still frame, no codec, 4 samples
+    per covered pixel: TextureTransformTest 46.28 -> 48.19 dB, the default scene 36.70 -> 36.84; the same bits, but
+    coded at crf 31 the codec's error hides it (``docs/methods.md``), so off by default.
     """
 
     gop: int = 30
@@ -197,6 +212,8 @@ class TssConfig(MethodConfig):
     codec_block: int = 1
     fill_pitch: bool = False
     colour_order: float = 0.0
+    lp_own: bool = False
+    lp_filter: Literal["linear", "cubic"] = "linear"
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
@@ -260,6 +277,8 @@ class TssConfig(MethodConfig):
         if not 0.0 <= self.colour_order <= 255.0:
             raise ConfigError(f"TssConfig.colour_order: must be 0 (off) or a luma bin in (0, 255] 8-bit levels, "
                               f"got {self.colour_order}")
+        if self.lp_filter not in ("linear", "cubic"):
+            raise ConfigError(f"TssConfig.lp_filter: {self.lp_filter!r} is not one of ['linear', 'cubic']")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

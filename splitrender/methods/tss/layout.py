@@ -95,6 +95,25 @@ def level_for(samples: np.ndarray) -> np.ndarray:
     return np.clip(lv, 1, MAX_LEVEL).astype(np.int64)
 
 
+def own_count(level: np.ndarray | int) -> np.ndarray:
+    """The samples a level-``l`` patch holds for itself, its neighbours' shared ones counted once: ``v(l)`` less half
+    of the ``3 l`` on its outer ring and a further third of each corner (a mesh vertex is shared by about six
+    triangles, an edge sample by two).  ``own_count(1)`` = 0.5 (three corners), ``own_count(2)`` = 3, ``own_count(10)`` = 75
+    of 91 (``TssConfig.lp_own``)."""
+    lv = np.asarray(level, np.int64)
+    return v_count(lv) - 1.5 * lv - 1.0
+
+
+OWN_TABLE = own_count(np.arange(1, MAX_LEVEL + 1))
+
+
+def level_for_own(samples: np.ndarray) -> np.ndarray:
+    """Smallest level ``l`` in 1..64 whose :func:`own_count` covers ``samples`` (capped at 64)."""
+    s = np.asarray(samples, np.float64)
+    lv = np.searchsorted(OWN_TABLE, s, side="left") + 1
+    return np.clip(lv, 1, MAX_LEVEL).astype(np.int64)
+
+
 def tip_dim(level: np.ndarray | int) -> np.ndarray:
     """Side ``D(l)`` of one tip block in texels: ``ceil((l + 1) / 2)``, plus one for odd ``l``."""
     lv = np.asarray(level, np.int64)

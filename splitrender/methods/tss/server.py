@@ -50,8 +50,8 @@ from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, Str
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
 from .config import TssConfig
-from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, lp_luma, morton_order,
-                     os_sizes, pitch_level, plan_atlas, v_count)
+from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, level_for_own, lp_luma, morton_order,
+                     os_sizes, own_count, pitch_level, plan_atlas, v_count)
 from .wire import WIRE_VERSION, descriptors, dequantize_positions, encode_geometry, encode_table, quantize_positions
 
 log = logging.getLogger(__name__)
@@ -272,7 +272,7 @@ def capped_lift(min_level: np.ndarray, span: np.ndarray, flip_cap: float) -> np.
 def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
              visible: np.ndarray | None = None, grid: str = "paper", sliver_px: float = math.inf,
              min_level: np.ndarray | None = None, pitch_block: int = 1, flip_cap: float = 0.0,
-             os_min_rows: float = 0.0, os_min_step: float = 0.0) -> tuple[np.ndarray, ...]:
+             os_min_rows: float = 0.0, os_min_step: float = 0.0, lp_own: bool = False) -> tuple[np.ndarray, ...]:
     """Sample distribution of triangles with pixel corners ``px`` (N, 3, 2) at ``rate`` samples per pixel.
 
     Returns ``kind, level, w1, w2, h, a, base, slant, need, span``: the kind, L-packing level,
@@ -287,7 +287,8 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     L-packing levels, capped by :func:`capped_lift` at ``flip_cap``.  ``os_min_rows``: a slanted triangle is
     oversampled only where its height holds at least this many samples at the rate (else L-packed);
     ``os_min_step``: and only where L-packing would put its samples further apart than this many pixels along the
-    longest edge (``longest / level``).
+    longest edge (``longest / level``).  ``lp_own``: L-packing levels cover the need with the samples each patch holds
+    for itself (:func:`~.layout.level_for_own`: shared edge and corner samples counted once) instead of all ``v(l)``.
     """
     e = np.roll(px, -1, axis=1) - px                       # edge k: vertex k -> k+1
     ln = np.linalg.norm(e, axis=2)
@@ -307,7 +308,7 @@ def classify(px: np.ndarray, rate: float, slant_threshold: float, tiny: float,
     # few samples, where the oversampling staircases its slant would call for take two rows of its length and more
     sliver = need < tiny
     rows = height * np.sqrt(rate * shown / np.maximum(area, 1e-12))      # samples up the height
-    level = level_for(need)
+    level = level_for_own(need) if lp_own else level_for(need)
     slanted = (slant > slant_threshold) & ~sliver & (rows >= os_min_rows) & (longest >= os_min_step * level)
     kind = np.where(single, KIND_SINGLE, np.where(slanted, KIND_OS, KIND_LP)).astype(np.int64)
     if min_level is not None:
@@ -445,13 +446,13 @@ class TssServer(ServerHalf):
         stay |= (pk == KIND_SINGLE) & (need < tiny * (1 + hy))
         stay |= (pk == KIND_LP) & (kind == KIND_SINGLE) & (need >= tiny * (1 - hy))
         kind[:] = np.where(stay & (pk >= 0), pk, kind)
-        v_prev = v_count(np.maximum(pl, 1))
+        v_prev = (own_count if c.lp_own else v_count)(np.maximum(pl, 1))
         keep_l = (kind == KIND_LP) & (pk == KIND_LP) & (v_prev >= need * (1 - hy)) & (v_prev <= need * (1 + 2 * hy) + 2)
         level[:] = np.where(keep_l, pl, level)
         # a level that has to rise rises past the need by hy, so a triangle growing on screen moves cells less often
         # (each move is new content for a P-frame: +0.14 to +0.17 dB on the walk for 1 % more bits)
         up = (kind == KIND_LP) & (pk == KIND_LP) & ~keep_l & (level > pl)
-        level[:] = np.where(up, level_for(need * (1 + hy)), level)
+        level[:] = np.where(up, (level_for_own if c.lp_own else level_for)(need * (1 + hy)), level)
 
         def close(old: np.ndarray, new: np.ndarray) -> np.ndarray:
             return (old >= new * (1 - hy)) & (old <= new * (1 + hy) + 1)
@@ -468,7 +469,7 @@ class TssServer(ServerHalf):
         target = c.budget_px * self.intrinsics.width * self.intrinsics.height
 
         def fits(r: float) -> bool:
-            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
+            k = classify(px, r, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step, c.lp_own)
             return plan_samples(*k[:5], grid=c.os_grid) <= target
 
         lo, hi = math.ceil(8 * math.log2(c.samples_per_px)), math.floor(8 * math.log2(c.top_rate))
@@ -501,7 +502,7 @@ class TssServer(ServerHalf):
             self.store.single_px, reset = c.single_px, True
         failed = None
         for attempt in range(12):
-            kind, level, w1, w2, h, a, base, slant, need, span = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
+            kind, level, w1, w2, h, a, base, slant, need, span = classify(px, rate, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step, c.lp_own)
             if attempt == 0 and c.layout == "stable":
                 self._hysteresis(ids, kind, level, w1, w2, h, a, slant, need)
                 if self._min_level is not None:      # the hysteresis keeps no lifted triangle below its level
@@ -524,7 +525,7 @@ class TssServer(ServerHalf):
             good = (plan, kind, level, w1, w2, h, a, base, slant, rate)
             for _ in range(3):
                 mid = math.sqrt(lo * hi)
-                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step)
+                k2 = classify(px, mid, c.slant_threshold, c.tiny_samples, visible, c.os_grid, c.sliver_px or math.inf, self._min_level, self.pitch_block, c.flip_cap, c.os_min_rows, c.os_min_step, c.lp_own)
                 p2 = plan_atlas(self.store, ids, *k2[:6], reset=True, grid=c.os_grid)
                 if p2.overflow:
                     hi = mid

@@ -10,7 +10,33 @@ uniform sampler2D u_atlas;
 uniform vec2 u_atlas_size;
 uniform int u_single_px;    // side of a single texel's cell (layout.single_origins)
 uniform int u_os_centred;   // oversampling grid: 1 cell centres, taps clamped to each row (layout.os_centred_taps)
+uniform int u_lp_cubic;     // L-packing off the diagonal: Catmull-Rom over 4x4 texels of the point's side (lp_filter)
 layout(location = 0) out vec4 f_color;
+
+vec4 catmull_rom(float t) {   // weights of the taps at -1, 0, 1, 2
+    float t2 = t * t, t3 = t2 * t;
+    return vec4(-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0, -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2);
+}
+
+// one side of a tip block's diagonal is an affine lattice (x along a ring's edge, y the ring): Catmull-Rom over the
+// 4x4 texels around xy, each tap clamped to the block and to the point's side of the diagonal (x >= y on side a),
+// so a tap never reads the mirrored side or a neighbouring block
+vec3 lp_cubic(ivec2 o, vec2 xy, bool side_a, int Dm) {
+    ivec2 i0 = ivec2(floor(xy));
+    vec2 f = xy - vec2(i0);
+    vec4 wx = catmull_rom(f.x), wy = catmull_rom(f.y);
+    vec3 acc = vec3(0.0);
+    for (int j = 0; j < 4; ++j) {
+        vec3 row = vec3(0.0);
+        for (int i = 0; i < 4; ++i) {
+            ivec2 t = clamp(i0 + ivec2(i - 1, j - 1), ivec2(0), ivec2(Dm));
+            if (side_a) t.x = max(t.x, t.y); else t.y = max(t.y, t.x);
+            row += wx[i] * texelFetch(u_atlas, o + t, 0).rgb;
+        }
+        acc += wy[j] * row;
+    }
+    return clamp(acc, 0.0, 1.0);
+}
 
 vec2 tip_origin(int t) { return t == 0 ? v_o0.xy : (t == 1 ? v_o0.zw : v_o1.xy); }
 
@@ -52,6 +78,10 @@ void main() {
         vec2 xy = side_a ? vec2(c, r) : vec2(r, c);
         ivec2 i0 = ivec2(floor(xy));
         if (i0.x != i0.y) {
+            if (u_lp_cubic != 0) {
+                f_color = vec4(lp_cubic(o, xy, side_a, Dm), 1.0);
+                return;
+            }
             p = vec2(o) + 0.5 + xy;
         } else {
             vec2 f = xy - vec2(i0);
