@@ -161,3 +161,53 @@ def test_serial_pool_and_dask_give_the_same_tables(tmp_path: Path) -> None:
     _, res = run_sweep(f, tmp_path / "serial", workers=1)
     assert res.cached and not res.ran and len(res.cached) == 4
     assert _det(read_csv(tmp_path / "serial" / "runs.csv")) == _det(runs)
+
+
+_ORPHAN_PARENT = """
+import multiprocessing as mp, os, sys, time
+from concurrent.futures import ProcessPoolExecutor
+from splitrender.experiments.sweep import _init_worker
+
+if __name__ == "__main__":
+    ctx = mp.get_context("spawn")
+    ex = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_init_worker, initargs=(ctx.Queue(),))
+    print(ex.submit(os.getpid).result(), flush=True)
+    ex.submit(time.sleep, 120)     # a long run the worker is busy with when its parent dies
+    time.sleep(120)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"   # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+def test_pool_worker_ends_when_its_parent_is_killed(tmp_path: Path) -> None:
+    """A sweep worker whose parent was killed (SIGKILL: no executor shutdown) ends within seconds instead of
+    finishing its run (``exit_when_orphaned``): before it, the worker here would have slept its 120 s."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(_ORPHAN_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(parent.stdout.readline())
+        assert _alive(worker)
+        time.sleep(0.5)                       # the worker is in its 120 s task now
+        assert _alive(worker)
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 30.0    # polls every 1 s; 30 s leaves room for a loaded machine
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _alive(worker), f"pool worker {worker} still running after its parent was killed"
+    finally:
+        if parent.poll() is None:
+            parent.kill()

@@ -224,9 +224,33 @@ def worker_renderer() -> Any:
     return r
 
 
+ORPHAN_POLL_S = 1.0
+"""How often a pool worker checks that the process that started it is still alive (seconds)."""
+
+
+def exit_when_orphaned(parent: int, poll_s: float = ORPHAN_POLL_S) -> threading.Thread:
+    """Start a daemon thread that ends this process (``os._exit(1)``) once ``parent`` is no longer its parent.
+
+    A pool worker blocks on its call queue, whose pipe the other workers hold open too, so a parent killed by a
+    signal (no executor shutdown) left its workers and their runs going: a ``splitrender study`` stopped with
+    SIGTERM kept four workers computing for 10-14 minutes.  Reparenting (to init or a subreaper) is what a dead
+    parent looks like from here; ``PR_SET_PDEATHSIG`` would not do, since it fires when the *thread* that forked
+    exits, and the executor starts replacement workers from its management thread."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    t = threading.Thread(target=watch, name="orphan-watch", daemon=True)
+    t.start()
+    return t
+
+
 def _init_worker(q: Any, gl_threads: int | None = None) -> None:
     global _PROGRESS_Q
     _PROGRESS_Q = q
+    exit_when_orphaned(os.getppid())
     if gl_threads is not None:   # before this process makes its GL context (Mesa reads it then)
         os.environ.setdefault("LP_NUM_THREADS", str(gl_threads))
 
