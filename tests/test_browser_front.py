@@ -358,7 +358,8 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
 
     sender = SimpleNamespace(_handle_rtcp_packet=aiortc_handler)
     session = BrowserSession.__new__(BrowserSession)
-    session.core, session.counters = core, {"nacks_received": 0, "nacked_packets": 0}
+    session.core = core
+    session.counters = session._counters = {"nacks_received": 0, "nacked_packets": 0}
     session.track = session.page = session.relay = None
     session._sender_sent, session.method = None, "video"
     hook_sender_rtcp(sender, core, session.counters)

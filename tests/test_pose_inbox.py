@@ -34,20 +34,22 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     each front door hands its samples to the server core (``ServerSession.receive_pose``, whose PoseInbox applies the
     rule; the live ones the samples as they come: the live server's control bytes to the core, which reads each
     ``Pose`` on its connection (``receive_data``, ``next_message``), the page's through ``receive_pose_sample``) and keeps no inbox or predictor of its own,
-    nor a frame clock (the live ones take ``RenderWorker.frame``: the core's ``order_at``, its grid tick at the wall
-    clock, made in the worker); the client drivers ask the client core for the
+    nor a frame clock (the live ones share one, their base's ``LiveSession._make_frame``: the core's ``order_at``, its
+    grid tick at the wall clock, made in the worker); the client drivers ask the client core for the
     display rules (``display_tick``: what to apply; ``showing``: the update shown or the black background, and its
     Feedback) and the keyframe-skip rule instead of writing them, and apply and render through ``display_frame``.
     Every server front door makes its frames with a ``FrameMaker`` (the runner's, the render worker's) and the core
     packetizes; the live ones hand the made frame to the core's ``frame_from_worker``."""
     from splitrender.client import session as client
+    from splitrender.pipeline.live import LiveSession
     from splitrender.server import session as live, worker
     from splitrender.sim import runner
     from splitrender.webrtc import session as browser
 
-    assert ".order_at(" in inspect.getsource(worker.RenderWorker.frame)   # the live frame tick, written once
-    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", ".worker.frame("),
-                             (browser, ".receive_pose_sample(", ".worker.frame(")):
+    assert ".order_at(" in inspect.getsource(LiveSession._make_frame)   # the live frame tick, written once
+    assert issubclass(live.ServerSession, LiveSession) and issubclass(browser.BrowserSession, LiveSession)
+    for mod, pose, order in ((runner, ".receive_pose(", ".order_frame("), (live, ".next_message(", "(LiveSession)"),
+                             (browser, ".receive_pose_sample(", "(LiveSession)")):
         src = inspect.getsource(mod)
         assert pose in src and order in src and "_last_tick" not in src and "ScenePose(" not in src, mod.__name__
         assert "PoseInbox(" not in src and ".offer(" not in src and ".predict(" not in src, mod.__name__

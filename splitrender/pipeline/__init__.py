@@ -8,7 +8,8 @@ them with the network model on a simulated clock.  :mod:`.feedback` holds both e
 of the feedback loop, :mod:`.producers` the scene producers shared by sessions, and
 :mod:`.wire` the byte-counting model and the update envelope; :mod:`.session` the sans-IO
 session cores (RTCP, NACK, PLI, playout, stalls) that both drivers run, and :mod:`.frames` a server
-frame's order (the core's) and its making (:func:`make_frame`, wherever the GL context lives).
+frame's order (the core's) and its making (:func:`make_frame`, wherever the GL context lives); :mod:`.live`
+the session the two live server front doors share around the core (not sans-IO: asyncio, a render worker).
 """
 
 from .frames import FrameMaker, FrameOrder, apply_updates, black_frame, display_frame, make_frame

@@ -1771,7 +1771,7 @@ class ServerSession:
     def frame_from_worker(self, order: FrameOrder, enc: EncodedUpdate, stats: dict[str, Any], stages: dict[str, float],
                           wall_s: float, now_ms: float) -> tuple[OutgoingFrame, dict[str, Any]]:
         """A live front door's frame ``order``, ordered at wall-clock ``wall_s`` (its server time) and back from the
-        render worker at ``now_ms`` (the wall clock too) with its stages (:meth:`~splitrender.server.worker.RenderWorker.frame`'s,
+        render worker at ``now_ms`` (the wall clock too) with its stages (:meth:`~.live.LiveSession._make_frame`'s,
         ``worker_rtt_ms`` among them): reported (:meth:`frame_encoded`, the FrameMeta stamped with the worker's
         ``render``, ``encode`` and ``shared`` times and when it was encoded), with its update row (:meth:`update_row`
         over the session's streams, and the server time, the probes' relighting and the worker round trip), which

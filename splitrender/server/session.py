@@ -1,11 +1,12 @@
 """One live server session: handshake, frame clock, RTP/RTCP, feedback.
 
-Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`):
+Task layout (all in one ``asyncio.TaskGroup`` owned by :meth:`ServerSession.run`, the live session's
+(:class:`~splitrender.pipeline.live.LiveSession`, which the browser's session shares)):
 
 * ``control``: hands the client's control bytes to the session core, which takes Pose, Feedback and KeyframeRequest
   and gives back the rest (:meth:`~splitrender.pipeline.ServerSession.next_event`); a Bye, an Error or EOF ends the
   session, a protocol error sends ``Error`` and ends it;
-* ``frames``: the frame clock at ``server_fps``; each tick has the session's render
+* ``frames``: the frame clock at ``server_fps`` (the live session's); each tick has the session's render
   worker (:mod:`splitrender.server.worker`, another process) render and encode, then
   sends FrameMeta over TCP and the planes as RTP over UDP.  A frame that misses the
   worker's deadline ends the session with an error (the worker is killed).
@@ -31,80 +32,40 @@ import asyncio
 import contextlib
 import logging
 import math
-import secrets
 import time
-from collections.abc import AsyncIterator
-from typing import Any, Protocol
+from typing import Any
 
-from splitrender.errors import (LocalProtocolError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
-                                describe_error)
+from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
 from splitrender.methods.base import StreamSpec
-from splitrender.pipeline.recording import ROWS_KEPT, SessionLogs
-from splitrender.pipeline import Accepted, ServerPipeline, ServerSession as SessionCore, accept_hello, open_hello
+from splitrender.pipeline.live import Address, LiveServer, LiveSession, MadeFrame, SessionEnded
+from splitrender.pipeline.recording import ROWS_KEPT
+from splitrender.pipeline import Accepted, ServerPipeline, accept_hello, open_hello
 from splitrender.pipeline.session import ClientMessage, ControlClosed, SessionEvent
-from splitrender.server.worker import RenderWorker
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
 from splitrender.protocol import Bye, Error, ErrorCode, Hello, ServerConnection, State, Stats
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms
-
-Address = tuple[str, int]
-
-
-class LiveServer(Protocol):
-    """What a session uses of its server (:class:`splitrender.server.server.LiveServer`, which imports this
-    module: the session names the server's interface instead of importing it back)."""
-
-    config: Any
-    epoch_wall_s: float
-    methods: Any
-    scene: Any
-    sessions: dict[str, Any]
-    test_hang: tuple[int, int] | None
-    udp_address: Address
-    udp_dropped: int
-
-    async def acquire_worker(self) -> RenderWorker: ...
-    async def release_worker(self, worker: RenderWorker, session_id: str) -> None: ...
-    def next_mirror_port(self) -> int | None: ...
-    def register(self, session: Any, ssrcs: list[int]) -> None: ...
-    def unregister(self, session: Any) -> None: ...
-    def send_datagram(self, data: bytes, addr: Address) -> None: ...
-    def ssrc_taken(self, ssrc: int) -> bool: ...
-    def frame_ticks(self) -> AsyncIterator[int]: ...
 
 __all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
 
 logger = logging.getLogger(__name__)
 
 
-class _SessionEnded(Exception):
-    """The control task saw Bye/EOF/Error: end the session's task group."""
-
-
-class ServerSession:
-    """One client: its own method halves, encoders, predictor and RTP state."""
+class ServerSession(LiveSession):
+    """One client: its own method halves, encoders, predictor and RTP state (the live session's life, frame clock
+    and end: :class:`~splitrender.pipeline.live.LiveSession`)."""
 
     def __init__(self, server: LiveServer, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                  ordinal: int = 0) -> None:
-        self.server = server
-        self.ordinal = ordinal
-        """This session's number on the server (1-based; the ``test_hang`` hook names sessions by it)."""
-        self.worker: RenderWorker | None = None
-        self.cfg = server.config
-        self.id = secrets.token_hex(6)
+        super().__init__(server, ordinal)
         peer = writer.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "?"
         self.channel = ControlChannel(ServerConnection(self.cfg.token), reader, writer, f"session {self.id}")
         self.mirrors: dict[str, Address] = {}
         """Where a copy of each video stream's RTP goes (``sdp_dir`` with mirror ports: its SDP file names it)."""
-        self.method = ""
         self.tx: ServerPipeline | None = None
-        self.core: SessionCore | None = None
-        """The sans-IO session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
-        self._logs = SessionLogs(None if self.cfg.out_dir is None else self.cfg.out_dir / self.id)
-        """``feedback.csv`` and ``updates.csv`` (the core's rows, as they come) and ``counters.csv``, with ``out_dir``."""
         self._timer_wake = asyncio.Event()
-        self._counters: dict[str, int] = {"session_bytes": 0, "render_timeouts": 0, "client_errors": 0}
+        self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+        self._counters.update({"session_bytes": 0, "client_errors": 0})
         self.client_error: tuple[int, str] | None = None
         """The client's ``Error`` (code, reason) when it left with one."""
 
@@ -113,64 +74,26 @@ class ServerSession:
         """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
         return {**(self.core.all_counters() if self.core is not None else {}), **self._counters}
 
+    def server_counters(self) -> dict[str, Any]:
+        return dict(super().server_counters(), rtt_ms=self.rtt_ms or math.nan, server_udp_dropped=self.server.udp_dropped)
+
     @property
     def rtt_ms(self) -> float | None:
         return self.core.rtt_ms if self.core is not None else None
 
-    @property
-    def feedback_rows(self) -> Any:
-        """The newest :data:`ROWS_KEPT` Feedback rows (``feedback.csv`` has them all)."""
-        return self._logs.recent["feedback"]
-
-    @property
-    def update_rows(self) -> Any:
-        """The newest :data:`ROWS_KEPT` rows of frames sent (``updates.csv`` has them all)."""
-        return self._logs.recent["updates"]
-
     # ------------------------------------------------------------------ lifecycle
 
-    async def run(self) -> None:
-        """Handshake, then stream until Bye/EOF/error or cancellation."""
-        logger.info("session %s: connection from %s", self.id, self.peer)
-        try:
-            if len(self.server.sessions) >= self.cfg.max_sessions:
-                await self.channel.send_error(503, f"server busy: {self.cfg.max_sessions} sessions already")
-                return
-            if not await self._handshake():
-                return
-            try:
-                async with asyncio.TaskGroup() as tg:
-                    tg.create_task(self._control_loop(), name=f"session-{self.id}-control")
-                    tg.create_task(self._frame_loop(), name=f"session-{self.id}-frames")
-                    tg.create_task(self._timer_loop(), name=f"session-{self.id}-timer")
-            except* _SessionEnded:
-                pass
-            except* RemoteProtocolError as eg:
-                exc = eg.exceptions[0]
-                assert isinstance(exc, RemoteProtocolError)
-                logger.warning("session %s: protocol error from %s: %s", self.id, self.peer, exc)
-                await self.channel.send_error(exc)
-            except* (ConnectionError, asyncio.IncompleteReadError) as eg:
-                logger.info("session %s: connection lost: %s", self.id, eg.exceptions[0])
-            except* Exception as eg:  # noqa: BLE001 - a failing session must not take the server down
-                err = eg.exceptions[0]
-                if isinstance(err, (WorkerTimeout, WorkerDied, WorkerError)):   # said in full by the message
-                    logger.error("session %s: failed: %s", self.id, describe_error(err))
-                else:
-                    logger.error("session %s: failed", self.id, exc_info=err)
-                await self.channel.send_error(ErrorCode.INTERNAL, f"server error: {describe_error(err)}")
-        except asyncio.CancelledError:
-            self._say_bye("server shutting down")
-            raise
-        finally:
-            self.server.unregister(self)
-            self._write_feedback()
-            await self.channel.close()
-            if self.worker is not None:
-                await self.server.release_worker(self.worker, self.id)
-            why = f"; client error {self.client_error[0]}: {self.client_error[1]}" if self.client_error else ""
-            logger.info("session %s: closed (%s)%s", self.id,
-                        ", ".join(f"{k}={v}" for k, v in self.counters.items() if v), why)
+    def _loops(self) -> tuple[Any, ...]:
+        return self._control_loop(), self._timer_loop()
+
+    async def _send_error(self, exc: RemoteProtocolError | int, text: str = "") -> None:
+        await self.channel.send_error(exc, text)
+
+    async def _teardown(self) -> None:
+        self.server.unregister(self)
+        if self.client_error is not None:
+            self.end_reason = f"client error {self.client_error[0]}: {self.client_error[1]}"
+        await self.channel.close()
 
     def _say_bye(self, reason: str) -> None:
         """Best-effort Bye without waiting (used while being cancelled)."""
@@ -183,41 +106,34 @@ class ServerSession:
 
     # ------------------------------------------------------------------ handshake
 
-    async def _handshake(self) -> bool:
+    async def _start(self) -> bool:
+        """The handshake: the Hello within ``hello_timeout_s`` (else an Error naming the wait), the session's set-up,
+        the Welcome and the session data.  False where the session ends there: the server was busy, the client left
+        before its Hello, or our side failed to set it up (an Error ``session setup failed: ...``, logged).  The
+        client's protocol errors and a lost connection leave to :meth:`run`."""
+        logger.info("session %s: connection from %s", self.id, self.peer)
+        if len(self.server.sessions) >= self.cfg.max_sessions:
+            await self.channel.send_error(503, f"server busy: {self.cfg.max_sessions} sessions already")
+            return False
         try:
             msg = await asyncio.wait_for(self.channel.next_message(), self.cfg.hello_timeout_s)
         except asyncio.TimeoutError:
-            logger.warning("session %s: no Hello from %s within %.1f s", self.id, self.peer, self.cfg.hello_timeout_s)
-            await self.channel.send_error(ErrorCode.BAD_MESSAGE, f"no Hello within {self.cfg.hello_timeout_s:g} s")
-            return False
-        except RemoteProtocolError as exc:
-            logger.warning("session %s: bad handshake from %s: %s", self.id, self.peer, exc)
-            await self.channel.send_error(exc)
-            return False
-        except ConnectionError as exc:
-            logger.info("session %s: %s went away during handshake: %s", self.id, self.peer, exc)
-            return False
+            raise RemoteProtocolError(f"no Hello within {self.cfg.hello_timeout_s:g} s", ErrorCode.BAD_MESSAGE) from None
         if msg is None:
             logger.info("session %s: %s closed before Hello", self.id, self.peer)
             return False
         assert isinstance(msg, Hello)  # the state machine allows nothing else here
         try:
             acc = await self._setup(msg)
-        except RemoteProtocolError as exc:
-            logger.warning("session %s: refused %s: %s", self.id, self.peer, exc)
-            await self.channel.send_error(exc)
-            return False
+        except RemoteProtocolError:
+            raise
         except Exception as exc:  # noqa: BLE001 - any setup failure ends this session only
             # our fault (a method, encoder or GL failure): tell the client, keep serving others
             logger.exception("session %s: setup for %s failed", self.id, self.peer)
             await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
             return False
-        try:
-            await self.channel.write_frames(acc.core.data_to_send(wall_ms()))     # the Welcome, then the session data
-            self._counters["session_bytes"] = acc.session_bytes
-        except ConnectionError as exc:
-            logger.info("session %s: %s went away before Welcome: %s", self.id, self.peer, exc)
-            return False
+        await self.channel.write_frames(acc.core.data_to_send(wall_ms()))     # the Welcome, then the session data
+        self._counters["session_bytes"] = acc.session_bytes
         logger.info("session %s: %s streaming %s %dx%d @ %g Hz to %s", self.id, self.peer, self.method,
                     msg.width, msg.height, msg.display_hz, ", ".join(s.name for s in acc.welcome.streams))
         return True
@@ -230,11 +146,8 @@ class ServerSession:
         opening = open_hello(hello, server.methods, cfg)
         self.method = opening.method
         hang = server.test_hang
-        self.worker = await server.acquire_worker()
-        # the method half and its encoders live in the worker; it sends back the streams, the session data
-        # and the parameter sets each encoder will send (for the SDP)
-        specs, session_blob, sets = await self.worker.call("open", self.id, opening, hang[1] if hang and
-                                                           hang[0] == self.ordinal else -1, deadline_s=cfg.setup_deadline_s)
+        # the method half and its encoders live in the worker
+        specs, session_blob, sets = await self._open_worker(opening, hang[1] if hang and hang[0] == self.ordinal else -1)
         host, port = server.udp_address
         acc = accept_hello(hello, self.id, opening, specs, session_blob, self.channel.conn, cfg, cfg.session_options(),
                            address=(host if host != "0.0.0.0" else "127.0.0.1", port),
@@ -290,22 +203,17 @@ class ServerSession:
             self._counters["client_errors"] += 1
             self.client_error = (msg.code, msg.text)
             logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
-        raise _SessionEnded()
+        raise SessionEnded()
 
     # ------------------------------------------------------------------ frames
 
-    async def _frame_loop(self) -> None:
-        loop = asyncio.get_running_loop()
-        next_metrics = loop.time() + self.cfg.metrics_interval_s
-        assert self.core is not None
-        async for skipped in self.server.frame_ticks():
-            if self.cfg.metrics_interval_s > 0 and loop.time() >= next_metrics:
-                next_metrics = loop.time() + self.cfg.metrics_interval_s
-                self.log_metrics()
-            # the core's rule: no frame before the client's address and a pose, none while the last frame's
-            # metadata waits in the TCP send buffer
-            if self.core.live_tick(skipped, backlog=self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes):
-                await self._send_frame()
+    def _tick(self) -> tuple[bool, bool]:
+        """A tick of the frame clock: the ``metrics`` log line when due; the core's rule then makes no frame before
+        the client's address and a pose, nor while the last frame's metadata waits in the TCP send buffer."""
+        if self.cfg.metrics_interval_s > 0 and time.monotonic() >= self._next_metrics:
+            self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+            self.log_metrics()
+        return True, self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes
 
     def log_metrics(self) -> None:
         """One ``metrics`` log line: this session's counters and the datagrams the server dropped."""
@@ -313,22 +221,18 @@ class ServerSession:
                     " ".join(f"{k}={v}" for k, v in self.counters.items()), self.server.udp_dropped,
                     f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
-    async def _send_frame(self) -> None:
-        assert self.core is not None and self.worker is not None
-        made = await self.worker.frame(self.id, self.core, self.server, self._counters)
-        if made is None:
-            return
+    async def _deliver(self, made: MadeFrame) -> None:
+        assert self.core is not None
         if self.channel.conn.state is not State.STREAMING:
             # the peer said Bye (or the connection closed) while the worker rendered: the control
             # task is ending the session in this same loop turn; this frame has nowhere to go
-            raise _SessionEnded()
+            raise SessionEnded()
         c1 = time.perf_counter()
         _out, row = self.core.frame_from_worker(*made, wall_ms())
         # the core's one way out: metadata and reliable data first (TCP), then the RTP packets
         await self.channel.write_frames(self.core.data_to_send(wall_ms()), drain=False)
         self._flush()
         row["send_ms"] = (time.perf_counter() - c1) * 1e3    # packetizing and sending here
-        self._logs.write(self.core.rows_to_write())
 
     # ------------------------------------------------------------------ RTCP
 
@@ -380,12 +284,3 @@ class ServerSession:
                 self.server.send_datagram(d.data, mirror)
         if wake:
             self._timer_wake.set()
-
-    # ------------------------------------------------------------------ records
-
-    def _write_feedback(self) -> None:
-        """Write the core's last rows, close the row logs and write the session's counters (nothing without
-        ``out_dir`` or frames)."""
-        self._logs.write(self.core.rows_to_write() if self.core is not None else ())
-        self._logs.close(dict(self.counters, method=self.method, rtt_ms=self.rtt_ms or math.nan,
-                              server_udp_dropped=self.server.udp_dropped))

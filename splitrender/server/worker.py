@@ -93,7 +93,7 @@ class RenderWorker:
     """One worker process and the asyncio end of its socket.
 
     ``await call(op, *args, deadline_s=...)`` sends one request and waits for its answer;
-    requests are answered in order (:meth:`frame`: a frame order's).  Raises :class:`WorkerError` (the worker reported an
+    requests are answered in order (a session's frames: :meth:`~splitrender.pipeline.live.LiveSession._make_frame`).  Raises :class:`WorkerError` (the worker reported an
     exception; it keeps running), :class:`WorkerTimeout` (deadline missed; the worker is
     killed) or :class:`WorkerDied`.
     """
@@ -150,27 +150,6 @@ class RenderWorker:
         if status == "ok":
             return value
         raise WorkerError(value)
-
-    async def frame(self, sid: str, core: Any, server: Any, counters: dict[str, Any]) -> Any:
-        """The live frame tick of both live front doors for session ``sid``: ``core``'s order on the tick of
-        ``server``'s frame grid at the wall clock (:meth:`~splitrender.pipeline.ServerSession.order_at`; None where it
-        orders none: the operating point sends one tick in ``frame_div``), made and encoded here (the process's
-        ``frame``) within ``render_deadline_s``.  Returns the order, its update, the half's stats, the stages with
-        ``worker_rtt_ms`` (the round trip beyond the worker's own time: pickling, the pipe, this loop's latency) and
-        the wall clock it was ordered at (s).  A missed deadline is counted in ``counters["render_timeouts"]`` before
-        :class:`WorkerTimeout` leaves."""
-        wall = time.time()
-        order = core.order_at(wall * 1000, server.config.server_fps, server.epoch_wall_s)
-        if order is None:
-            return None
-        c0 = time.perf_counter()
-        try:
-            enc, stats, stages = await self.call("frame", sid, order, deadline_s=server.config.render_deadline_s)
-        except WorkerTimeout:
-            counters["render_timeouts"] += 1
-            raise
-        stages["worker_rtt_ms"] = max(0.0, (time.perf_counter() - c0) * 1e3 - stages["frame_ms"])
-        return order, enc, stats, stages, wall
 
     async def _exchange(self, op: str, blob: bytes, deadline_s: float) -> Any:
         assert self._writer is not None

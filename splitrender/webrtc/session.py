@@ -1,7 +1,8 @@
 """One browser session: an aiortc peer connection fed by a method server half in a render worker.
 
-Task layout: :meth:`BrowserSession.run` owns the frame clock (the server's shared frame
-grid, as :class:`splitrender.server.session.ServerSession` ticks) and ends the session
+Task layout: :meth:`BrowserSession.run` (the live session's, which the RTP front door's
+:class:`splitrender.server.session.ServerSession` shares: :class:`~splitrender.pipeline.live.LiveSession`) owns the
+frame clock (the server's shared frame grid) and ends the session
 when the page says ``bye``, the peer connection fails or closes, the page breaks the
 protocol, or the server closes.  Per frame the session's render worker renders and codes
 the update (the same call the RTP front door makes); the colour access unit goes to the
@@ -25,22 +26,20 @@ import asyncio
 import contextlib
 import json
 import logging
-import secrets
 import time
-from pathlib import Path
 from typing import Any
 
 from aiortc import RTCConfiguration, RTCPeerConnection
 
-from ..errors import describe_error
+from ..errors import PeerTimeoutError, RemoteProtocolError, describe_error
 from ..methods.base import PageGlue, get_method
+from ..pipeline.live import LiveSession, MadeFrame
 from ..pipeline.sender import rtp_timestamp
-from ..pipeline.recording import SessionLogs
-from ..pipeline.session import ServerSession, accept_page, open_page, page_terms
+from ..pipeline.session import accept_page, open_page, page_terms
 from ..transport.control import wall_ms
 from .messages import PageFeedback, PageMessageError, PoseSample, SessionRequest, frame_message, parse_channel_message
 from .sdp import check_offer, replace_candidates, udp_candidate_ports
-from .track import EncodedVideoTrack, answer_offer, hook_sender_rtcp, try_offer
+from .track import EncodedVideoTrack, answer_offer, hook_sender_rtcp, sender_sent, try_offer
 
 __all__ = ["BrowserSession", "BROWSER_CODEC_PARAMS", "answer_offer", "try_offer", "MAX_PAGE_ERRORS"]
 
@@ -58,25 +57,21 @@ MAX_PAGE_ERRORS = 16
 answered with an ``error`` naming what was wrong) has its session ended."""
 
 
-class BrowserSession:
-    """One page: its peer connection, method half (in a render worker), predictor and counters."""
+class BrowserSession(LiveSession):
+    """One page: its peer connection, method half (in a render worker), predictor and counters (the live session's
+    life, frame clock and end: :class:`~splitrender.pipeline.live.LiveSession`)."""
+
+    kind = "browser session"
 
     def __init__(self, front: Any, req: SessionRequest, ordinal: int) -> None:
+        super().__init__(front.server, ordinal)
         self.front = front
-        self.server = front.server
-        self.cfg = self.server.config
         self.req = req
-        self.ordinal = ordinal
-        self.id = secrets.token_hex(6)
         self.remote = ""
         """The page's address, as the front door saw it (sessions per address are capped)."""
         self.method = req.method
         self.display_hz = req.display_hz
-        self.core: ServerSession | None = None
-        """The session core in its WebRTC profile (aiortc owns the transport): the page's poses, by the rule every
-        front door keeps, its feedback, keyframes and frame orders."""
         self.pc: Any = None
-        self.worker: Any = None
         self.track: EncodedVideoTrack | None = None
         self.sender: Any = None
         self.relay: Any = None
@@ -86,25 +81,19 @@ class BrowserSession:
         """The method's video stream (``color``; ``atlas`` for ``sas``)."""
         self.page: PageGlue | None = None
         """The method's page glue (:attr:`~splitrender.methods.base.MethodSpec.page`: atw's overscan, sas's slots)."""
-        self.ended = asyncio.Event()
-        self.end_reason = ""
-        self.ended_at: float | None = None
         self.started_at = time.time()
         self._origin_sent = False
-        self._logs = SessionLogs(self.out_dir)
         self._sender_sent: tuple[int, int] | None = None
         """(packets, bytes with their RTP headers) the RTP sender had sent at the last :meth:`read_sender_stats`."""
-        self.counters: dict[str, int] = {
+        self._counters.update({
             "nacks_received": 0, "nacked_packets": 0,
-            "video_bytes": 0, "meta_bytes": 0, "page_errors": 0, "render_timeouts": 0,
+            "video_bytes": 0, "meta_bytes": 0, "page_errors": 0,
             "images_received": 0, "image_bytes_received": 0,
-        }
-        """What this front door alone counts; the core counts frames (those skipped too), keyframes, poses, feedback,
-        PLIs and REMB estimates (:meth:`server_counters` has both)."""
-
-    @property
-    def out_dir(self) -> Path | None:
-        return None if self.cfg.out_dir is None else Path(self.cfg.out_dir) / self.id
+        })
+        self.counters = self._counters
+        """What this front door alone counts; the core (in its WebRTC profile: aiortc owns the transport) counts
+        frames (those skipped too), keyframes, poses, feedback, PLIs and REMB estimates (:meth:`server_counters` has
+        both)."""
 
     # ------------------------------------------------------------------ set-up
 
@@ -113,8 +102,7 @@ class BrowserSession:
         check_offer(self.req.sdp)       # before a render worker is taken
         opening = open_page(self.method, self.req.width, self.req.height, self.cfg, BROWSER_CODEC_PARAMS)
         mcfg = opening.config
-        self.worker = await self.server.acquire_worker()
-        specs, session_blob, _sets = await self.worker.call("open", self.id, opening, deadline_s=self.cfg.setup_deadline_s)
+        specs, session_blob, _sets = await self._open_worker(opening)
         # aiortc owns packetizing and pacing; adaptation follows the page's REMB (track.hook_sender_rtcp), with the
         # method's knobs the page can follow
         self.core = accept_page(opening, specs, self.display_hz, self.cfg, session_blob)
@@ -210,50 +198,27 @@ class BrowserSession:
         ch.send(data)
         return len(data)
 
-    def end(self, reason: str) -> None:
-        if not self.ended.is_set():
-            self.end_reason = reason
-            self.ended_at = time.time()
-            self.ended.set()
-
     # ------------------------------------------------------------------ running
 
-    async def run(self) -> None:
-        """Stream until the session ends; then close the peer connection and hand the worker back."""
-        frames = asyncio.create_task(self._frame_loop(), name=f"browser-{self.id}-frames")
-        ended = asyncio.create_task(self.ended.wait())
-        try:
-            done, _ = await asyncio.wait({frames, ended}, return_when=asyncio.FIRST_COMPLETED)
-            if frames in done and frames.exception() is not None:
-                err = frames.exception()
-                logger.error("browser session %s: failed: %s", self.id, describe_error(err))
-                self._send("meta", {"type": "error", "text": f"server error: {describe_error(err)}"})
-                self.end(f"server error: {describe_error(err)}")
-            for t in (frames, ended):
-                t.cancel()
-            await asyncio.gather(frames, ended, return_exceptions=True)
-        except asyncio.CancelledError:
-            self.end("server shutting down")
-            self._send("meta", {"type": "bye", "reason": "server shutting down"})
-            for t in (frames, ended):       # cancelled while waiting: the session's tasks go with it
-                t.cancel()
-            raise
-        finally:
-            await self.close()
+    async def _send_error(self, exc: RemoteProtocolError | int, text: str = "") -> None:
+        """An ``error`` to the page on ``meta``; the session ends with it."""
+        text = str(exc) if isinstance(exc, RemoteProtocolError) else text
+        self._send("meta", {"type": "error", "text": text})
+        self.end(text)
+
+    def _say_bye(self, reason: str) -> None:
+        self.end(reason)
+        self._send("meta", {"type": "bye", "reason": reason})
 
     async def read_sender_stats(self) -> None:
-        """Take the RTP sender's packets and bytes sent so far (aiortc's public ``getStats``: the payload, and 12 bytes
-        of RTP header a packet) into :meth:`server_counters` (``rtp_packets``, ``rtp_bytes``: as the headless client
-        counts what it receives)."""
-        if self.sender is None:
-            return
-        with contextlib.suppress(Exception):     # a transport already torn down: the last reading stands
-            report = await self.sender.getStats()
-            for st in report.values():
-                if getattr(st, "type", "") == "outbound-rtp":
-                    self._sender_sent = (int(st.packetsSent), int(st.bytesSent) + 12 * int(st.packetsSent))
+        """Take the RTP sender's packets and bytes sent so far (:func:`~.track.sender_sent`) into
+        :meth:`server_counters` (``rtp_packets``, ``rtp_bytes``); where it can no longer be read the last reading stands."""
+        if self.sender is not None:
+            self._sender_sent = await sender_sent(self.sender) or self._sender_sent
 
-    async def close(self) -> None:
+    async def _teardown(self) -> None:
+        """The session ends (its reason kept), the sender's last statistics are read, the peer connection and the
+        relay closed."""
         self.end(self.end_reason or "closed")
         await self.read_sender_stats()
         if self.pc is not None:
@@ -262,13 +227,6 @@ class BrowserSession:
         if self.relay is not None:
             with contextlib.suppress(Exception):
                 await self.relay.close()
-        if self.worker is not None:
-            worker, self.worker = self.worker, None
-            await self.server.release_worker(worker, self.id)
-        self._logs.write(self.core.rows_to_write() if self.core is not None else ())
-        self._logs.close(self.server_counters())
-        logger.info("browser session %s: closed (%s): %s", self.id, self.end_reason,
-                    ", ".join(f"{k}={v}" for k, v in self.server_counters().items() if v))
 
     @property
     def frames_sent(self) -> int:
@@ -279,8 +237,7 @@ class BrowserSession:
         and the RTP sender's (packets and bytes sent), under the headless client's names where they count the same
         (``rtp_bytes``, ``meta_bytes``: the frames' metadata and the method's own messages), so that a recording's
         counters need no renaming."""
-        core = self.core.all_counters() if self.core is not None else {}
-        out: dict[str, Any] = dict(core, **self.counters, method=self.method)
+        out = super().server_counters()
         if self.track is not None:
             out["frames_dropped_sender"] = self.track.frames_dropped
         if self.page is not None:
@@ -293,26 +250,23 @@ class BrowserSession:
                         "relay_up_in": st.uplink.packets_in, "relay_up_dropped": st.uplink.packets_dropped})
         return out
 
-    async def _frame_loop(self) -> None:
-        core, track = self.core, self.track
-        assert core is not None and track is not None
-        async for skipped in self.server.frame_ticks():
-            wall = time.time()
-            ready = (self.pc.connectionState == "connected" and "frame" in self.channels
-                     and self.channels["frame"].readyState == "open")
-            if not self.frames_sent and wall - self.started_at > CONNECT_TIMEOUT_S and \
-                    not (ready and core.poses.latest is not None):
-                raise TimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
+    def _tick(self) -> tuple[bool, bool]:
+        """A tick of the frame clock: a page that has not connected (its peer connection and ``frame`` channel) and
+        sent a pose within :data:`CONNECT_TIMEOUT_S` ends the session; the core's rule then makes no frame before it
+        has, nor while the sender has not taken the last frames yet (do not pile up)."""
+        assert self.core is not None and self.track is not None
+        ready = (self.pc.connectionState == "connected" and "frame" in self.channels
+                 and self.channels["frame"].readyState == "open")
+        if not self.frames_sent and time.time() - self.started_at > CONNECT_TIMEOUT_S and \
+                not (ready and self.core.poses.latest is not None):
+            raise PeerTimeoutError(f"the page did not connect and send a pose within {CONNECT_TIMEOUT_S:g} s "
                                    f"(connection {self.pc.connectionState}, channels {sorted(self.channels)})")
-            # the core's rule; the backlog: the sender has not taken the last frames yet (do not pile up)
-            if core.live_tick(skipped, ready, backlog=track.queued >= 2):
-                await self._send_frame()
+        return ready, self.track.queued >= 2
 
-    async def _send_frame(self) -> None:
+    async def _deliver(self, made: MadeFrame) -> None:
         core = self.core
         assert core is not None and self.track is not None
-        made = await self.worker.frame(self.id, core, self.server, self.counters)
-        if made is None or self.ended.is_set():
+        if self.ended.is_set():
             return
         order, enc, _stats, stages, wall = made
         frame = enc.video[self.stream]
@@ -329,6 +283,5 @@ class BrowserSession:
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         _sent, row = core.frame_from_worker(*made, wall_ms())
         row["bytes_frame_meta"] = n_meta
-        self._logs.write(core.rows_to_write())
         self.counters["video_bytes"] += len(frame.data)
         self.counters["meta_bytes"] += n_meta

@@ -21,7 +21,7 @@ from aiortc.rtp import RtcpPsfbPacket, RtcpRtpfbPacket, unpack_remb_fci
 from .messages import PageMessageError
 from .sdp import check_offer, strip_candidates
 
-__all__ = ["EncodedVideoTrack", "RTP_TIME_BASE", "answer_offer", "hook_sender_rtcp", "try_offer"]
+__all__ = ["EncodedVideoTrack", "RTP_TIME_BASE", "answer_offer", "hook_sender_rtcp", "sender_sent", "try_offer"]
 
 RTP_TIME_BASE = Fraction(1, 90_000)
 
@@ -103,6 +103,18 @@ async def answer_offer(pc: Any, offer_sdp: str, track: Any) -> Any:
     return sender
 
 
+async def sender_sent(sender: Any) -> tuple[int, int] | None:
+    """The RTP sender's packets and bytes sent so far, through aiortc's public ``getStats`` (its bytes are the
+    payload's: 12 bytes of RTP header a packet are added, as the headless client counts what it receives); None where
+    the transport is already torn down."""
+    with contextlib.suppress(Exception):
+        report = await sender.getStats()
+        for st in report.values():
+            if getattr(st, "type", "") == "outbound-rtp":
+                return int(st.packetsSent), int(st.bytesSent) + 12 * int(st.packetsSent)
+    return None
+
+
 async def try_offer(sdp: str) -> str:
     """The answer the front door would give to an offer ``sdp`` (checked, then through aiortc), without a render
     worker; raises :class:`PageMessageError` naming what was wrong.  For tests and fuzzing of the offer path: the
@@ -128,7 +140,7 @@ def hook_sender_rtcp(sender: Any, core: Any, counters: dict[str, int]) -> None:
 
     The one private name it uses: aiortc (1.x) offers no public event for the RTCP feedback a sender receives, so
     this wraps its ``_handle_rtcp_packet``, and refuses to run, naming it, on an aiortc without one.  What the sender
-    sent is read through the public ``getStats`` (``BrowserSession.read_sender_stats``)."""
+    sent is read through the public ``getStats`` (:func:`sender_sent`)."""
     orig = getattr(sender, "_handle_rtcp_packet", None)
     if not callable(orig):
         raise RuntimeError("this aiortc's RTCRtpSender has no _handle_rtcp_packet: the browser session cannot "
