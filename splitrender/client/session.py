@@ -32,19 +32,18 @@ from pathlib import Path
 from typing import Any
 
 from splitrender.client.config import ClientConfig
-from splitrender.errors import (CodecError, PeerTimeoutError, RemoteProtocolError, ServerRefusedError, SplitRenderError,
-                                describe_error)
-from splitrender.pipeline import (ClientHandshake, ClientPipeline, ClientSession, ControlClosed, ReceivedFrame, Resumed,
-                                  ServerMessage, Stalled, StallTimeout, Work, black_frame, display_frame)
+from splitrender.errors import CodecError, PeerTimeoutError, ServerRefusedError, SplitRenderError
+from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession, ReceivedFrame, Work, black_frame, display_frame
+from splitrender.pipeline.session import StreamStalledError, leaving_error
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import live_frame_row
-from splitrender.protocol import PROTOCOL_VERSION, Bye, Error, ErrorCode, Hello, Pose, Stats, Welcome
+from splitrender.protocol import PROTOCOL_VERSION, Bye, Hello, Pose, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms, wall_us
 from splitrender.transport.errors import ConnectError, describe_os_error
 
-__all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "run_client"]
+__all__ = ["ClientConfig", "LiveClient", "ClientResult", "ServerRefusedError", "StreamStalledError", "run_client"]
 
 logger = logging.getLogger(__name__)
 
@@ -52,10 +51,6 @@ DECODE_QUEUE = 64
 """Access units waiting for the decoder; overflow flushes and asks for a keyframe."""
 RTCP_TICK_S = 0.01
 """The longest the timer task sleeps between two looks at the core's deadline, s."""
-
-
-class StreamStalledError(SplitRenderError):
-    """No frame arrived for ``stall_timeout_s``: the server stopped streaming."""
 
 
 @dataclass
@@ -196,19 +191,11 @@ class LiveClient:
             ex.shutdown(wait=True)
 
     async def _say_error(self, exc: BaseException) -> None:
-        """Tell the server why this client is leaving (best effort): ``Error`` with the peer error's code for bad
-        input from the server, 408 for a stream that stalled, 500 for a failure of our own.  Nothing when the
-        server ended the session or the connection is gone."""
-        if self.channel is None or isinstance(exc, (ServerRefusedError, ConnectionError, asyncio.IncompleteReadError)):
-            return
-        if isinstance(exc, RemoteProtocolError):
-            code, text = exc.code, f"client: {exc}"
-        elif isinstance(exc, (StreamStalledError, PeerTimeoutError)):
-            code, text = ErrorCode.TIMEOUT, f"client: {exc}"
-        else:
-            code, text = ErrorCode.INTERNAL, f"client failed: {describe_error(exc)}"
-        logger.info("session %s: leaving with Error %d: %s", self.session_id, code, text)
-        await self.channel.send_error(int(code), text)
+        """Tell the server why this client is leaving (best effort; the core's rule, :func:`leaving_error`)."""
+        said = leaving_error(exc)
+        if self.channel is not None and said is not None:
+            logger.info("session %s: leaving with Error %d: %s", self.session_id, *said)
+            await self.channel.send_error(*said)
 
     async def _say_bye(self, reason: str) -> None:
         assert self.core is not None
@@ -316,26 +303,10 @@ class LiveClient:
             await self.channel.write_frames([data])
 
     def _take_events(self) -> None:
-        """The core's events: a stall is logged, a stall timeout, the server's Bye or Error or a closed connection
-        end the run (raised); a released frame (FrameReleased) needs nothing here, it is shown by display_tick."""
+        """The core's events by its one rule (:meth:`ClientSession.take_events`: what ends the session is raised); a
+        released frame needs nothing here, display_tick shows it."""
         assert self.core is not None
-        while (ev := self.core.next_event()) is not None:
-            if isinstance(ev, StallTimeout):
-                raise StreamStalledError(f"session {self.session_id}: no frame for {ev.idle_ms / 1000:.1f} s "
-                                         f"(stall_timeout_s {self.cfg.stall_timeout_s:g} s): the server stopped streaming")
-            if isinstance(ev, Stalled):
-                logger.warning("session %s: %s (%g of the server's frame intervals); a keyframe is asked for where "
-                               "packets were lost", self.session_id, ev, self.cfg.stall_frames)
-            elif isinstance(ev, Resumed):
-                logger.info("session %s: %s", self.session_id, ev)
-            elif isinstance(ev, ControlClosed):
-                raise ConnectionResetError("server closed the control connection")
-            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Bye):
-                raise ServerRefusedError(f"server ended the session: {ev.message.reason}")
-            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Error):
-                raise ServerRefusedError(f"server error {ControlChannel.error_message(ev.message)}")
-            elif isinstance(ev, ServerMessage) and isinstance(ev.message, Stats):
-                logger.debug("session %s: server stats %s", self.session_id, dict(ev.message.counters))
+        self.core.take_events(f"session {self.session_id}")
 
     # ------------------------------------------------------------------ UDP in
 

@@ -57,12 +57,13 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from ..codecs.meta import unpack_meta
-from ..errors import CodecError, ConfigError, RemoteProtocolError, ServerRefusedError
+from ..errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolError, ServerRefusedError,
+                      SplitRenderError, describe_error)
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
-from ..protocol import (CONNECTION_CLOSED, NEED_DATA, ClientConnection, Error, ErrorCode, Feedback, FrameMeta, DataChunk,
+from ..protocol import (CONNECTION_CLOSED, NEED_DATA, Bye, ClientConnection, Error, ErrorCode, Feedback, FrameMeta, DataChunk,
                         FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
                         negotiate_method,
-                        State, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
+                        State, Stats, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
 from ..protocol.errors import RtcpError
@@ -86,7 +87,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 log = logging.getLogger(__name__)
 
 __all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
-           "ClientMessage", "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "check_hello", "parse_welcome",
+           "ClientMessage", "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "StreamStalledError", "check_hello", "leaving_error", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
@@ -460,6 +461,24 @@ class FrameReleased(SessionEvent):
 
 
 # --------------------------------------------------------------------------- client
+
+
+class StreamStalledError(SplitRenderError):
+    """No frame arrived for ``stall_timeout_s``: the server stopped streaming (:meth:`ClientSession.take_events`)."""
+
+
+def leaving_error(exc: BaseException) -> tuple[int, str] | None:
+    """What a client leaving the session on ``exc`` tells the server, as its ``Error``'s code and text: the peer
+    error's own code for bad input from the server, 408 for a stream that stalled or a server that did not answer in
+    time, 500 for a failure of its own; None where there is no one to tell (the server ended or refused the session,
+    or the connection is gone)."""
+    if isinstance(exc, (ServerRefusedError, ConnectionError, EOFError)):
+        return None
+    if isinstance(exc, RemoteProtocolError):
+        return int(exc.code), f"client: {exc}"
+    if isinstance(exc, (StreamStalledError, PeerTimeoutError)):
+        return int(ErrorCode.TIMEOUT), f"client: {exc}"
+    return int(ErrorCode.INTERNAL), f"client failed: {describe_error(exc)}"
 
 
 STALL_MAX_INTERVAL_MS = 500.0
@@ -912,6 +931,36 @@ class ClientSession:
     def next_event(self) -> SessionEvent | None:
         """The oldest event not yet taken (a stall, its end, a stall timeout), or None."""
         return self.events.pop(0) if self.events else None
+
+    def take_events(self, label: str, virtual: bool = False) -> list[ReceivedFrame]:
+        """Every event not yet taken, by the one rule of every client driver: the frames released (returned in order,
+        for the driver's records); a stall logged (a warning, its end info), the server's Stats at debug, ``label``
+        naming the session; what ends the session raised: a stall timeout (:class:`StreamStalledError`), the server's
+        Bye or Error (:class:`~splitrender.errors.ServerRefusedError`), the control connection's end
+        (``ConnectionResetError``).  ``virtual``: virtual time's rule, where a run ends by its duration (a stall timeout
+        ends nothing) and its many runs log a stall and its end at debug."""
+        released = []
+        while (ev := self.next_event()) is not None:
+            msg = ev.message if isinstance(ev, ServerMessage) else None
+            if isinstance(ev, FrameReleased):
+                released.append(ev.frame)
+            elif isinstance(ev, StallTimeout) and not virtual:
+                raise StreamStalledError(f"{label}: no frame for {ev.idle_ms / 1000:.1f} s (stall_timeout_s "
+                                         f"{self.opts.stall_timeout_s:g} s): the server stopped streaming")
+            elif isinstance(ev, Stalled):
+                log.log(logging.DEBUG if virtual else logging.WARNING, "%s: %s (%g of the server's frame intervals); a "
+                        "keyframe is asked for where packets were lost", label, ev, self.opts.stall_frames)
+            elif isinstance(ev, Resumed):
+                log.log(logging.DEBUG if virtual else logging.INFO, "%s: %s", label, ev)
+            elif isinstance(ev, ControlClosed):
+                raise ConnectionResetError("server closed the control connection")
+            elif isinstance(msg, Bye):
+                raise ServerRefusedError(f"server ended the session: {msg.reason}")
+            elif isinstance(msg, Error):
+                raise ServerRefusedError(f"server error {msg.code}: {msg.text}")
+            elif isinstance(msg, Stats):
+                log.debug("%s: server stats %s", label, dict(msg.counters))
+        return released
 
     # ------------------------------------------------------------------ display
 

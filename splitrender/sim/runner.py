@@ -66,12 +66,11 @@ from ..netsim import Link, parse_path
 from ..netsim.driver import TIMER, Clock, Timer, Wire, arrivals
 from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
-                        FrameMaker, FrameReleased, Opening, ProducerPool, ReceivedFrame, Resumed, ServerSession,
-                        Stalled, accept_hello, check_hello, display_frame, method_config, session_summary,
-                        tcp_segments)
+                        FrameMaker, Opening, ProducerPool, ReceivedFrame, ServerSession, accept_hello, check_hello,
+                        display_frame, method_config, session_summary, tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection, Welcome
+from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -142,7 +141,6 @@ class _Client:
     rtcp_down: Wire
     """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # server side
-    sconn: ServerConnection = field(default_factory=ServerConnection)
     maker: FrameMaker | None = None
     """The session's server half and encoders (its frames are made here, on the runner's GL thread)."""
     arrivals: list[tuple[float, float]] = field(default_factory=list)
@@ -151,8 +149,6 @@ class _Client:
     """The server's session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
     server_timer: Timer | None = None
     # client side
-    welcome: Welcome | None = None
-    """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live)."""
     chalf: Any = None
     gl: Any = None
     core: ClientSession | None = None
@@ -231,14 +227,15 @@ class VirtualTimeRun:
                              (hello.width, hello.height))
         # the server's side: its end of the control connection reads the Hello; the half here, then the one handshake
         # every front door runs
-        c.sconn.receive_data(hs.hello(hello))
-        while c.sconn.next_event() is not NEED_DATA:
+        sconn = ServerConnection()
+        sconn.receive_data(hs.hello(hello))
+        while sconn.next_event() is not NEED_DATA:
             pass
         make_current(self.renderer.ctx)
         opening = Opening(cfg.method, self.mcfg, self.intr)
         c.maker = maker = FrameMaker(opening, pool)
         specs = maker.specs
-        acc = accept_hello(hello, f"sim{i}", opening, specs, maker.session_blob, c.sconn, cfg, cfg.server_options(),
+        acc = accept_hello(hello, f"sim{i}", opening, specs, maker.session_blob, sconn, cfg, cfg.server_options(),
                            parameter_sets=maker.encoder.described_sets(),
                            subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
@@ -248,7 +245,6 @@ class VirtualTimeRun:
         frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in frames)
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
-        c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.core.release_delay_ms = lambda rf, c=c: self._decode_delay_ms(c, rf)   # type: ignore[misc]
         self._pose_up(c, 0.0)   # the Hello carries the first pose
@@ -446,11 +442,8 @@ class VirtualTimeRun:
             c.ctrl.stream([(control, tcp_segments(len(control)))], self._server_receive, c)
         for data in c.core.datagrams_to_send():
             c.rtcp_up.datagram(len(data) + 28, self._server_rtcp, c, data)
-        while (ev := c.core.next_event()) is not None:
-            if isinstance(ev, FrameReleased):
-                self._released(c, ev.frame)
-            elif isinstance(ev, (Stalled, Resumed)):
-                log.debug("run %s client %d: %s", self.cfg.method, c.index, ev)
+        for rf in c.core.take_events(f"run {self.cfg.method} client {c.index}", virtual=True):
+            self._released(c, rf)
         c.timer.arm(c.core.get_timer() / 1000)
 
     def _display_tick(self, di: int, n_display: int, result: RunResult) -> None:
