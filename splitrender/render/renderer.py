@@ -390,6 +390,7 @@ class Renderer:
         if vol is not None:
             if not vol.updating:
                 w0 = time.perf_counter()
+                vol.recurrent = self.gi_hz > 0
                 vol.update(gi_time(t_s, self.gi_hz))
                 self.gi_ms += (time.perf_counter() - w0) * 1e3
             vol.bind(prog)
