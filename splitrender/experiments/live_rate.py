@@ -11,6 +11,10 @@ The server's ``updates.csv`` gives each frame's stages (milliseconds):
 - ``worker_rtt``: the round trip to the render worker beyond its own time (pickling, the pipe, this loop);
 - ``send``: packetizing, the control messages and the datagrams.
 
+``worker_cpu_ms_per_update`` is the render worker's CPU time over the session (every thread, llvmpipe's
+included; the session's set-up too) per update made: on a machine shared with other work it moves far less than
+the rates and the wall-clock stages do.
+
 Whatever is left of each frame interval is ``wait``: the frame clock waiting for its next
 tick (a server that keeps up at ``server_fps`` waits) or the event loop busy elsewhere.
 The client's ``frames.csv`` and ``counters.json`` give its display rate (display ticks
@@ -110,13 +114,36 @@ def summarise_client(out: Path, display_hz: float, duration_s: float) -> dict[st
             "decode_ms": float(decode_ms.mean()) if decode_ms.size else math.nan}
 
 
+def _cpu_s(pid: int | None) -> float:
+    """User + system CPU seconds of process ``pid`` (all its threads: llvmpipe's rasterisers too); NaN if gone."""
+    try:
+        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return math.nan
+
+
+def _workers_cpu(srv: LiveServer) -> dict[int, float]:
+    return {w.pid: _cpu_s(w.pid) for w in list(srv.workers) if w.pid is not None}
+
+
 async def _session(method: str, seconds: float, scene: str, width: int, height: int, display_hz: float,
-                   server_fps: int, gi_hz: float, out: Path, params: dict[str, Any] | None) -> tuple[int, str]:
+                   server_fps: int, gi_hz: float, out: Path, params: dict[str, Any] | None,
+                   cpu: dict[str, float]) -> tuple[int, str]:
     cfg = ServerConfig(host=LOOPBACK, port=0, udp_port=0, scene=scene, server_fps=server_fps, methods=(method,),
                        method_params={method: dict(params)} if params else {}, out_dir=out / "server", gi_hz=gi_hz,
                        metrics_interval_s=0)
     async with LiveServer(cfg) as srv:
         serve = asyncio.create_task(srv.serve_forever())
+        cpu0 = _workers_cpu(srv)
+        last = dict(cpu0)
+
+        async def poll() -> None:       # a worker's last reading before its session closes it
+            while True:
+                last.update({p: c for p, c in _workers_cpu(srv).items() if math.isfinite(c)})
+                await asyncio.sleep(0.25)
+
+        poller = asyncio.create_task(poll())
         try:
             cmd = [sys.executable, "-c", "from splitrender.cli import main; main()", "client",
                    "--port", str(srv.tcp_address[1]), "--method", method, "--width", str(width), "--height", str(height),
@@ -129,8 +156,12 @@ async def _session(method: str, seconds: float, scene: str, width: int, height: 
             except TimeoutError:
                 proc.kill()
                 _, err = await proc.communicate()
+            # the session's worker is the busiest (the spare that starts behind it only loads the scene)
+            last.update({p: c for p, c in _workers_cpu(srv).items() if math.isfinite(c)})
+            cpu["worker_cpu_s"] = max((c - cpu0.get(pid, 0.0) for pid, c in last.items()), default=math.nan)
             return int(proc.returncode or 0), err.decode(errors="replace")[-2000:]
         finally:
+            poller.cancel()
             serve.cancel()
             await asyncio.gather(serve, return_exceptions=True)
 
@@ -145,13 +176,18 @@ def measure(method: str, *, seconds: float = 8.0, scene: str = "default", width:
         out = Path(tmp.name)
     try:
         w0 = time.perf_counter()
-        rc, err = asyncio.run(_session(method, seconds, scene, width, height, display_hz, server_fps, gi_hz, out, params))
+        cpu: dict[str, float] = {}
+        rc, err = asyncio.run(_session(method, seconds, scene, width, height, display_hz, server_fps, gi_hz, out, params,
+                                       cpu))
         wall = time.perf_counter() - w0
         sessions = sorted((out / "server").glob("*/updates.csv"))
         srv = summarise_server(_read_csv(sessions[0]) if sessions else [])
         cli = summarise_client(out / "client", display_hz, seconds)
         row: dict[str, Any] = {"method": method, "scene": scene, "size": f"{width}x{height}", "gi_hz": gi_hz,
                                "server_fps": server_fps, "seconds": seconds, "client_rc": rc, "wall_s": wall,
+                               "worker_cpu_s": cpu.get("worker_cpu_s", math.nan),
+                               "worker_cpu_ms_per_update": cpu.get("worker_cpu_s", math.nan) * 1e3 / srv["updates"]
+                               if srv["updates"] else math.nan,
                                **srv, **{f"client_{k}" if not k.startswith("client") else k: v for k, v in cli.items()}}
         if rc != 0:
             row["client_error"] = err.strip().splitlines()[-1] if err.strip() else f"exit {rc}"
