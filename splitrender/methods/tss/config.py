@@ -172,7 +172,10 @@ class TssConfig(MethodConfig):
     level 1 was shaded at its vertices only (the default scene's torus, Gouraud on a gold specular: 27.4 dB at any
     rate, ``sas`` 36.8); with it the torus scores 36.1 from the same budget (one uncoded still frame).  The budget's
     rate falls to pay for it (2.38 -> 1.68 on the default scene), so the larger triangles get fewer samples
-    (issue 50 part 1, helper-74; ``docs/methods.md``).
+    (issue 50 part 1, helper-74; ``docs/methods.md``).  ``bench_tss_rd.py``, ``mbc split16 lp 420 block8`` at crf 31,
+    on minus off: still +0.08 (duck), +0.52 (2CylinderEngine), +0.25 (default scene), +0.03 dB (TextureTransformTest)
+    at 0.97-1.01x the bits; ``cloud`` orbit +0.63 (default), +1.71 (engine, at 0.85x the bits), -0.11 (duck, 1.02x).
+    Off by default: the duck's orbit loses and ``tss``'s own defaults were not measured with it.
 
     ``lp_filter``: how the client reads an L-packed triangle off its tip blocks: ``linear`` (the default: one bilinear
     tap, or the three samples around the point on a diagonal cell) or ``cubic`` (a Catmull-Rom filter over 4x4 texels
