@@ -345,7 +345,7 @@ def _adapt_run(path, method: str):  # type: ignore[no-untyped-def]
 def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> None:  # type: ignore[no-untyped-def]
     """The same step (160x90, 5 s) for ``sas``, whose reliable geometry and metadata the controller pays for first
     and whose atlas repacks bring frequent I-frames: the atlas falls from the 714 kbit/s it took at its own crf to
-    a 348 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 133 ms measured; at most 300
+    a 216 kbit/s target and the update age recovers (p95 from 2.5 s after the drop: 117 ms measured; at most 300
     ms in between)."""
     res = _adapt_run(step_trace_path, "sas")
     before = np.mean([u["bytes_atlas"] for u in res.updates if 0.5 <= u["t_s"] < 1.5]) * 8 * 30 / 1000   # kbit/s
@@ -356,10 +356,11 @@ def test_an_atlas_with_geometry_beside_it_follows_the_link(step_trace_path) -> N
     # threads coded it differently each run: 158-200 kbit/s in five runs before, docs/experiments.md); 932 -> 186 before
     # sas's metadata carried its shading-reuse counters (1b9e9a3: 13-16 bytes a frame, which the controller pays first)
     # 714 -> 204 kbit/s (0.285) since sas's reshade_eye_deg is on by default (a0efa28: fewer atlas bits at its crf);
-    # 714 -> 348 kbit/s (0.487) since the probe after a large drop (GccConfig.drop_probe): at 2.31 s it found 550 of
-    # the 600 kbit/s link where the over-use had left the estimate at 338 (the queue then 8-28 ms)
-    assert after < 0.55 * before and after < 400, (before, after)
-    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 150            # measured 133 ms (117 before the probe)
+    # 714 -> 216 kbit/s (0.302) since the probe after a large drop (GccConfig.drop_probe, at most 2x the estimate): at
+    # 2.31 s, 694 kbit/s, it read 440 of the 600 kbit/s link, under the estimate; uncapped (2.3 Mbit/s) it read 550
+    # and the atlas took 348 (p95 age 133 ms)
+    assert after < 0.33 * before and after < 230, (before, after)
+    assert float(np.percentile(_ages(res, 4.0, 5.0), 95)) < 150            # measured 117 ms
 
 
 @pytest.mark.slow

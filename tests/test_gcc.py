@@ -185,8 +185,18 @@ def test_an_application_limited_sender_is_told_apart_and_a_large_drop_is_probed_
     late.on_estimate(3e6, 100_000)
     late.on_recovered(3e6, True, 5_200_000)                  # over 5 s after the drop: the link has moved on
     assert late.next_cluster(3e6, 5_200_000) is None
+    far = ProbeController(GccConfig())                       # the link did fall: 20 -> 1 Mbit/s
+    far._pending.clear()
+    far._last_probe_us = 10**9
+    far.on_estimate(20e6, 0)
+    far.on_estimate(1e6, 100_000)
+    far.on_recovered(1e6, True, 1_000_000)
+    cl = far.next_cluster(1e6, 1_000_000)
+    assert cl is not None and cl.rate_bps == pytest.approx(2e6)   # no more than 2x the estimate, not 17 Mbit/s
     with pytest.raises(ConfigError, match="alr_usage"):
         GccConfig(alr_usage=0.0)
+    with pytest.raises(ConfigError, match="drop_probe_max"):
+        GccConfig(drop_probe_max=1.0)
 
 
 def test_config_is_validated() -> None:

@@ -103,6 +103,7 @@ class GccConfig:
     drop_probe: float = 0.85
     drop_timeout_s: float = 5.0
     alr_ended_s: float = 3.0
+    drop_probe_max: float = 2.0
     """Application-limited (libwebrtc's ALR) and the probe after a large drop: the session is application-limited
     while the media it sent over the last ``alr_window_us`` (by send time, as the feedback reports it) is under
     ``alr_usage`` of the target (libwebrtc's detector takes 0.65 of its pacing budget; this session's rate controller
@@ -113,7 +114,12 @@ class GccConfig:
     it; at most one per ``drop_timeout_s``), as libwebrtc's ProbeController does after a drop (0.66, 0.85, 5 s, 3 s):
     a delay-based estimate grows only with what is sent, so after an over-use in a dip a session sending under its
     estimate stays under it when the link comes back (tss on the 8 Mbit/s cellular-like trace: 7.3 -> 3.9 Mbit/s at
-    5.5 s, held at 3.6-3.7 until the end of the run while the link carried 7-9)."""
+    5.5 s, held at 3.6-3.7 until the end of the run while the link carried 7-9).  The cluster goes at no more than
+    ``drop_probe_max`` times the estimate (the periodic probe's multiple; a probe that finds it all climbs on from
+    there): where the link did fall, one at 0.85 of a 20 Mbit/s estimate is 32 kB into a 2 Mbit/s link, a 130 ms
+    queue (``warp`` on the step trace lost 0.5 dB with it, 4.5-6 s).  At 3x the closed loop's step
+    (``tests/test_gcc.py``) read its 2 Mbit/s span high and queued (p95 delay 70 ms against 52); at 2x and 6x it did
+    not."""
     stale_overuse_ms: float = 5.0
     drained_ms: float = 100.0
     stale_window_ms: float = 1000.0
@@ -139,6 +145,8 @@ class GccConfig:
         if not (0 < self.alr_usage <= 1 and 0 < self.drop_ratio < 1 and 0 < self.drop_probe <= 1):
             raise ConfigError(f"GccConfig: alr_usage, drop_ratio and drop_probe must be in (0, 1], got {self.alr_usage}, "
                               f"{self.drop_ratio}, {self.drop_probe}")
+        if not 1 < self.drop_probe_max <= 10:
+            raise ConfigError(f"GccConfig.drop_probe_max: must be in (1, 10], got {self.drop_probe_max}")
         if not (self.alr_window_us > 0 and 0 <= self.drop_timeout_s < math.inf and 0 <= self.alr_ended_s < math.inf):
             raise ConfigError(f"GccConfig: alr_window_us must be > 0 and drop_timeout_s, alr_ended_s finite >= 0, got "
                               f"{self.alr_window_us}, {self.drop_timeout_s}, {self.alr_ended_s}")
@@ -446,7 +454,7 @@ class ProbeController:
         if not cfg.probe or not app_limited or self._drop is None:
             return
         t, before = self._drop
-        rate = cfg.drop_probe * before
+        rate = min(cfg.drop_probe * before, cfg.drop_probe_max * estimate_bps)
         timeout = cfg.drop_timeout_s * 1e6
         if 0.95 * rate > estimate_bps and now_us - t < timeout and now_us - self._drop_probe_us > timeout:
             self._requested = rate
