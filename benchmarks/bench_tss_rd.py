@@ -48,6 +48,7 @@ CONFIGS: dict[str, tuple[dict[str, Any], tuple[float, ...]]] = {
     "matched block4 fill": ({**BLOCK4, "fill_pitch": True}, (31.0, 39.0)),
     "matched block4 colour": ({**BLOCK4, "colour_order": 16.0}, (31.0, 36.0, 41.0)),
     "defaults colour": ({"colour_order": 16.0}, (23.0,)),
+    "defaults own": ({"lp_own": True}, (23.0,)),
     "matched block4 colour4": ({**BLOCK4, "colour_order": 4.0}, (31.0, 36.0, 41.0)),
     # issue 50 part 1, tss's own knobs at sas's bits (helper-49): "matched block4 colour" with one knob moved
     "mbc split4": ({**BLOCK4, "colour_order": 16.0, "split_near_m": 4.0}, (31.0, 36.0, 41.0)),
@@ -129,7 +130,8 @@ about ``sas``'s texels per display pixel (issue 50's "no more samples" read as a
 at 3.1 (224k samples whatever the budget above 4).  ``block8 own`` (helper-74): ``split16 lp 420 block8`` with ``lp_own``
 (L-packing levels chosen for the samples each patch holds for itself, its shared edge and corner samples counted
 once); ``block8 cubic``: with ``lp_filter = "cubic"`` (the client reads L-packed triangles off their tip blocks'
-diagonals with a Catmull-Rom filter, as ``sas``'s client reads its atlas; the same bits); ``block8 own cubic``: both."""
+diagonals with a Catmull-Rom filter, as ``sas``'s client reads its atlas; the same bits); ``block8 own cubic``: both.
+``defaults own``: ``tss``'s defaults with ``lp_own``."""
 
 CHILD = r"""
 import json, sys
