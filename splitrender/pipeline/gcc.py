@@ -28,8 +28,7 @@ transport-wide feedback (:mod:`splitrender.protocol.twcc`):
    sends short clusters of padding at a multiple of the estimate (3x and 6x the start rate, back to
    back; 2x the estimate every ``probe_interval_s`` while nothing is over-used; and again while a
    probe finds more, at ``start_climb`` (3x) the new estimate until the first over-use and 2x
-   after it; and once, at 0.85 of the rate before it, after a large drop of the estimate while the session is
-   application-limited, as libwebrtc's ProbeController does); a cluster's rate as delivered (bytes after its
+   after it); a cluster's rate as delivered (bytes after its
    first arrival over its arrival span, no more than the rate it was sent at) replaces a
    lower estimate.
 
@@ -97,29 +96,6 @@ class GccConfig:
     back rather than each after the last one's feedback: at 2x a step, each a feedback interval and a round trip, sas
     over the 8 Mbit/s cellular-like trace reached 5.4 Mbit/s at 0.59 s, its atlas under the start's ceilings all the
     while."""
-    alr_usage: float = 0.8
-    alr_window_us: int = 500_000
-    drop_ratio: float = 0.66
-    drop_probe: float = 0.85
-    drop_timeout_s: float = 5.0
-    alr_ended_s: float = 3.0
-    drop_probe_max: float = 2.0
-    """Application-limited (libwebrtc's ALR) and the probe after a large drop: the session is application-limited
-    while the media it sent over the last ``alr_window_us`` (by send time, as the feedback reports it) is under
-    ``alr_usage`` of the target (libwebrtc's detector takes 0.65 of its pacing budget; this session's rate controller
-    aims at 0.9 of the estimate, and a method's crf under a ceiling sends less than the ceiling, so its streams fill
-    0.75-0.9 of an estimate the link could raise).  Where the target fell under ``drop_ratio`` of its highest within
-    the last second, and the detector then leaves over-use while the session is application-limited or was within
-    ``alr_ended_s``, one cluster goes out at ``drop_probe`` of the rate before the drop (within ``drop_timeout_s`` of
-    it; at most one per ``drop_timeout_s``), as libwebrtc's ProbeController does after a drop (0.66, 0.85, 5 s, 3 s):
-    a delay-based estimate grows only with what is sent, so after an over-use in a dip a session sending under its
-    estimate stays under it when the link comes back (tss on the 8 Mbit/s cellular-like trace: 7.3 -> 3.9 Mbit/s at
-    5.5 s, held at 3.6-3.7 until the end of the run while the link carried 7-9).  The cluster goes at no more than
-    ``drop_probe_max`` times the estimate (the periodic probe's multiple; a probe that finds it all climbs on from
-    there): where the link did fall, one at 0.85 of a 20 Mbit/s estimate is 32 kB into a 2 Mbit/s link, a 130 ms
-    queue (``warp`` on the step trace lost 0.5 dB with it, 4.5-6 s).  At 3x the closed loop's step
-    (``tests/test_gcc.py``) read its 2 Mbit/s span high and queued (p95 delay 70 ms against 52); at 2x and 6x it did
-    not."""
     stale_overuse_ms: float = 5.0
     drained_ms: float = 100.0
     stale_window_ms: float = 1000.0
@@ -142,14 +118,6 @@ class GccConfig:
             raise ConfigError(f"GccConfig.beta: must be in (0, 1), got {self.beta}")
         if self.window < 2:
             raise ConfigError(f"GccConfig.window: must be >= 2, got {self.window}")
-        if not (0 < self.alr_usage <= 1 and 0 < self.drop_ratio < 1 and 0 < self.drop_probe <= 1):
-            raise ConfigError(f"GccConfig: alr_usage, drop_ratio and drop_probe must be in (0, 1], got {self.alr_usage}, "
-                              f"{self.drop_ratio}, {self.drop_probe}")
-        if not 1 < self.drop_probe_max <= 10:
-            raise ConfigError(f"GccConfig.drop_probe_max: must be in (1, 10], got {self.drop_probe_max}")
-        if not (self.alr_window_us > 0 and 0 <= self.drop_timeout_s < math.inf and 0 <= self.alr_ended_s < math.inf):
-            raise ConfigError(f"GccConfig: alr_window_us must be > 0 and drop_timeout_s, alr_ended_s finite >= 0, got "
-                              f"{self.alr_window_us}, {self.drop_timeout_s}, {self.alr_ended_s}")
         for name in ("stale_overuse_ms", "drained_ms", "stale_window_ms"):
             if not 0 <= getattr(self, name) < math.inf:
                 raise ConfigError(f"GccConfig.{name}: must be a finite number of ms >= 0, got {getattr(self, name)}")
@@ -427,38 +395,9 @@ class ProbeController:
         self._last_probe_us: int | None = None
         self._last_decrease_us = -(1 << 62)
         self.found: list[tuple[int, float]] = []                        # (cluster, rate found)
-        self._estimates: collections.deque[tuple[int, float]] = collections.deque()   # (us, target) over the last 1 s
-        self._drop: tuple[int, float] | None = None                     # the last large drop: (us, rate before it)
-        self._drop_probe_us = -(1 << 62)
-        self._requested: float | None = None                            # a drop probe's rate, to send next
-        self.drop_probes = 0
 
     def on_decrease(self, now_us: int) -> None:
         self._last_decrease_us = now_us
-
-    def on_estimate(self, bps: float, now_us: int) -> None:
-        """The target after a feedback: a fall under ``drop_ratio`` of its highest within the last second is a large
-        drop (the rate before it is what a drop probe looks for)."""
-        est = self._estimates
-        while est and est[0][0] < now_us - 1_000_000:
-            est.popleft()
-        high = max((b for _, b in est), default=bps)
-        if bps < self.cfg.drop_ratio * high and (self._drop is None or self._drop[0] < est[0][0]):
-            self._drop = (now_us, high)
-        est.append((now_us, bps))
-
-    def on_recovered(self, estimate_bps: float, app_limited: bool, now_us: int) -> None:
-        """The detector left over-use: where the session is (or lately was) application-limited and the target fell
-        a long way within ``drop_timeout_s``, probe at ``drop_probe`` of the rate before the fall (GccConfig)."""
-        cfg = self.cfg
-        if not cfg.probe or not app_limited or self._drop is None:
-            return
-        t, before = self._drop
-        rate = min(cfg.drop_probe * before, cfg.drop_probe_max * estimate_bps)
-        timeout = cfg.drop_timeout_s * 1e6
-        if 0.95 * rate > estimate_bps and now_us - t < timeout and now_us - self._drop_probe_us > timeout:
-            self._requested = rate
-            self._drop_probe_us = now_us
 
     def next_cluster(self, estimate_bps: float, now_us: int) -> ProbeCluster | None:
         cfg = self.cfg
@@ -469,10 +408,7 @@ class ProbeController:
             return None
         if self._sent and not (self._next_id < 2 and self._pending and all(e <= now_us for _, _, e in self._sent.values())):
             return None      # one cluster at a time, but for the start-up pair (back to back)
-        if self._requested is not None:
-            rate, self._requested = self._requested, None
-            self.drop_probes += 1
-        elif self._pending:
+        if self._pending:
             rate = self._pending.pop(0) * (cfg.start_bps if self._next_id < 2 else estimate_bps)
         elif (self._last_probe_us is None or now_us - self._last_probe_us >= cfg.probe_interval_s * 1e6) \
                 and now_us - self._last_decrease_us >= cfg.probe_interval_s * 1e6 and estimate_bps < cfg.max_bps:
@@ -535,10 +471,6 @@ class BandwidthEstimator:
         self.target_bps = self.cfg.start_bps
         self._probe_at: tuple[int, float] | None = None
         self.overuses = 0
-        self._sent: collections.deque[tuple[int, int]] = collections.deque()   # media (send us, bytes), ALR window
-        self.app_limited = False
-        """The media sent over the last ``alr_window_us`` is under ``alr_usage`` of the target (GccConfig)."""
-        self._alr_end_us: int | None = None
 
     def probe(self, now_us: int) -> ProbeCluster | None:
         """A probe cluster to send now, if one is due (mark its packets with its ``cluster`` in the send history)."""
@@ -555,21 +487,6 @@ class BandwidthEstimator:
         base = min(d for _, d in self._owd)
         peak = max((d for a, d in self._owd if a >= start_us), default=base)
         return (peak - base) / 1000.0 >= self.cfg.drained_ms
-
-    def _update_alr(self, now_us: int) -> None:
-        """Application-limited or not, from the media sent over the last ``alr_window_us`` of send times."""
-        sent, window = self._sent, self.cfg.alr_window_us
-        if not sent:
-            return
-        while sent and sent[0][0] < sent[-1][0] - window:
-            sent.popleft()
-        if sent[-1][0] - sent[0][0] < window // 2:
-            return                           # not yet a window's worth
-        rate = sum(b for _, b in sent) * 8e6 / max(sent[-1][0] - sent[0][0], 1)
-        alr = rate < self.cfg.alr_usage * self.target_bps
-        if self.app_limited and not alr:
-            self._alr_end_us = now_us
-        self.app_limited = alr
 
     def queue_ms(self) -> float:
         """The media's queueing delay now: the newest one-way delays over the lowest of the last
@@ -620,8 +537,6 @@ class BandwidthEstimator:
         for r in sorted(results, key=lambda r: r.send_us):
             if r.probe >= 0:
                 self.probes.on_result(r)
-            elif not self._sent or r.send_us >= self._sent[-1][0]:
-                self._sent.append((r.send_us, r.size))
             if r.arrival_us is None:
                 lost += 1
                 continue
@@ -655,17 +570,11 @@ class BandwidthEstimator:
         delay_bps = self.aimd.update(usage, acked, now_us)
         loss_bps = self.loss.update(lost, len(results), delay_bps)
         self.target_bps = min(delay_bps, loss_bps)
-        self._update_alr(now_us)
-        self.probes.on_estimate(self.target_bps, now_us)
-        if prev_usage == Usage.OVERUSE and usage != Usage.OVERUSE:     # recovered from an over-use
-            recent = self._alr_end_us is not None and now_us - self._alr_end_us < self.cfg.alr_ended_s * 1e6
-            self.probes.on_recovered(self.target_bps, self.app_limited or recent, now_us)
         self.history.append({"t_us": now_us, "target_bps": self.target_bps, "delay_bps": delay_bps, "loss_bps": loss_bps,
                              "encoder_bps": self.encoder_bps(), "queue_ms": self.queue_ms(),
                              "probe_bps": probe_bps if probe_bps is not None else math.nan,
                              "acked_bps": acked if acked is not None else math.nan, "trend": self.trendline.trend,
-                             "threshold": self.trendline.threshold, "usage": usage, "loss": self.loss.loss,
-                             "app_limited": self.app_limited})
+                             "threshold": self.trendline.threshold, "usage": usage, "loss": self.loss.loss})
         return self.target_bps
 
 
