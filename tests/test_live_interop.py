@@ -71,7 +71,8 @@ def _bound(port: int) -> bool:
     return False
 
 
-def _live_session(tmp_path: Path, method: str, codecs: tuple[str, ...]) -> dict[str, tuple[Path, list[bytes], str]]:
+def _live_session(tmp_path: Path, method: str, codecs: tuple[str, ...], duration_s: float = 2.0
+                  ) -> dict[str, tuple[Path, list[bytes], str]]:
     """Run one live session; per stream name: its SDP file, the datagrams mirrored to it, its codec."""
     from splitrender.client.session import ClientConfig, LiveClient
     from splitrender.server.server import LiveServer, ServerConfig
@@ -93,7 +94,7 @@ def _live_session(tmp_path: Path, method: str, codecs: tuple[str, ...]) -> dict[
         async with LiveServer(cfg) as server:
             serve = asyncio.create_task(server.serve_forever())
             client = LiveClient(ClientConfig(port=server.tcp_address[1], methods=(method,), codecs=codecs, width=W, height=H,
-                                             display_hz=30, duration_s=2.0))
+                                             display_hz=30, duration_s=duration_s))
             await client.run()
             await asyncio.sleep(0.2)
             serve.cancel()
@@ -260,16 +261,21 @@ def _until_no_drops(decode: Callable[[float], tuple[list[str], str, int]], ours:
 @pytest.mark.parametrize("method,codecs", [("video", ("h264",)), ("video", ("hevc",)), ("warp", ("h264", "hevc")),
                                            ("warp", ("hevc",))])
 def test_ffmpeg_and_gstreamer_decode_every_frame_of_a_live_session(tmp_path: Path, method: str, codecs: tuple[str, ...]) -> None:
-    streams = _live_session(tmp_path / "sdp", method, codecs)
+    # enough frames to compare (an IDR and P-frames after it): how many a 2 s session makes is the machine's rate
+    # (measured 59 idle, 19-60 by load, 8 once in a clean clone's CI), and what counts is that every one of them
+    # decodes the same (issue 49): a session that made fewer than 10 is run again for longer
+    for k, duration_s in enumerate((2.0, 6.0, 12.0)):
+        streams = _live_session(tmp_path / f"sdp{k}", method, codecs, duration_s)
+        counts = {name: len(_decoded_md5s(codec, datagrams)) for name, (_, datagrams, codec) in streams.items()}
+        if min(counts.values(), default=0) >= 10:
+            break
     assert len(streams) == (2 if method == "warp" else 1), sorted(streams)
+    assert min(counts.values()) >= 10, f"only {counts} frames in {duration_s} s"
     for name, (sdp, datagrams, codec) in streams.items():
         if len(codecs) == 1:
             assert codec == codecs[0], f"{name}: the client accepts only {codecs[0]}, the SDP says {codec}"
         ours = _decoded_md5s(codec, datagrams)
         n = len(ours)
-        # enough frames to compare (an IDR and P-frames after it): how many a 2 s session makes is the machine's rate
-        # (measured 19-60, by load), and what counts is that every one of them decodes the same (issue 49)
-        assert n >= 10, f"{name}: only {n} frames in 2 s"
         ff, ff_err, ff_drops = _until_no_drops(lambda gap: _ffmpeg_frames(sdp, datagrams, n, gap), ours,
                                                whole_copy=False)
         gst, gst_err, gst_drops = _until_no_drops(lambda gap: _gst_frames(sdp, datagrams, codec, tmp_path, n, gap), ours,

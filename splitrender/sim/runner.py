@@ -70,7 +70,7 @@ from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandsh
                         display_frame, method_config, session_summary, tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection
+from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -149,6 +149,9 @@ class _Client:
     """The server's session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
     server_timer: Timer | None = None
     # client side
+    welcome: Welcome | None = None
+    """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live; the fuzz seeds and the SDP
+    tests read it)."""
     chalf: Any = None
     gl: Any = None
     core: ClientSession | None = None
@@ -245,6 +248,7 @@ class VirtualTimeRun:
         frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
         c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in frames)
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
+        c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
         c.core.release_delay_ms = lambda rf, c=c: self._decode_delay_ms(c, rf)   # type: ignore[misc]
         self._pose_up(c, 0.0)   # the Hello carries the first pose
