@@ -221,3 +221,17 @@ def test_tss_s_frame_rate_knob_holds_where_re_measured(renderer, truth_cache) ->
     per_second = half.all_bytes / 2 / own.all_bytes          # bytes per frame sent, half as many frames
     assert per_second == pytest.approx(TSS_FRAME_DIV_COST[1], abs=0.05)
     assert per_second > FRAME_DIV_KNOB.cost[1] + 0.1
+
+
+@pytest.mark.slow
+def test_quads_s_frame_rate_knob_holds_where_re_measured(renderer, truth_cache) -> None:  # type: ignore[no-untyped-def]
+    """One quads frame in 3, pinned, 2 s (the runs of ``benchmarks/bench_knobs.py --quality --methods quads --knobs
+    frame_div``, which stored a loss of 0.81 dB at 5e1a817, 24.44 dB at its own point), and the order of the stored
+    losses the controller reads (fewer frames, more lost)."""
+    from splitrender.experiments.quality_model import measure
+    from splitrender.methods.quads.config import QUALITY as QUADS
+
+    own = measure("quads", renderer=renderer, truth_cache=truth_cache)
+    third = measure("quads", {"frame_div": 3}, renderer=renderer, truth_cache=truth_cache)
+    assert own.model_psnr_db - third.model_psnr_db == pytest.approx(QUADS.db_lost("frame_div", 2), abs=TOLERANCE_DB)
+    assert QUADS.db_lost("frame_div", 1) < QUADS.db_lost("frame_div", 2) < QUADS.db_lost("frame_div", 3)
