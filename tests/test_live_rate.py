@@ -153,13 +153,13 @@ def test_render_workers_start_with_one_blas_thread(monkeypatch: pytest.MonkeyPat
     environment is left as it was."""
     from multiprocessing import forkserver
 
-    from splitrender.server import server as srv
+    from splitrender.server import worker
 
     seen = {}
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     monkeypatch.setattr(forkserver, "ensure_running", lambda: seen.update(os.environ))
-    srv.start_fork_server()
+    worker.worker_context()
     assert seen.get("OPENBLAS_NUM_THREADS") == "1" and "OPENBLAS_NUM_THREADS" not in os.environ
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")       # one the user set is kept
-    srv.start_fork_server()
+    worker.worker_context()
     assert seen["OPENBLAS_NUM_THREADS"] == "3" == os.environ["OPENBLAS_NUM_THREADS"]

@@ -38,8 +38,9 @@ def test_every_front_door_uses_it_through_the_core() -> None:
     grid tick at the wall clock, made in the worker); the client drivers ask the client core for the
     display rules (``display_tick``: what to apply; ``showing``: the update shown or the black background, and its
     Feedback) and the keyframe-skip rule instead of writing them, and apply and render through ``display_frame``.
-    Every server front door makes its frames with a ``FrameMaker`` (the runner's, the render worker's) and the core
-    packetizes; the live ones hand the made frame to the core's ``frame_from_worker``."""
+    Every server front door makes its frames with a ``FrameMaker`` (the runner's; the render worker's, in its
+    ``SessionFrames``) and the core packetizes; the live ones hand the made frame to the core's
+    ``frame_from_worker``."""
     from splitrender.client import session as client
     from splitrender.pipeline.live import LiveSession
     from splitrender.server import session as live, worker
@@ -58,7 +59,10 @@ def test_every_front_door_uses_it_through_the_core() -> None:
         # frame reported, stamped and rowed by the core
         assert "make_frame(" not in src and "StreamEncoder(" not in src and ".packetize(" not in src, mod.__name__
         assert (".frame_from_worker(" in src) == (mod is not runner), mod.__name__
-    assert "FrameMaker(" in inspect.getsource(runner) and "FrameMaker(" in inspect.getsource(worker)
+    from splitrender.pipeline.frames import SessionFrames
+
+    assert "FrameMaker(" in inspect.getsource(runner) and "(SessionFrames)" in inspect.getsource(worker)
+    assert "FrameMaker(" in inspect.getsource(SessionFrames)    # the render worker's makers, one per session
     for mod in (runner, client):
         src = inspect.getsource(mod)
         assert ".display_tick(" in src and ".showing(" in src and ".skips_decode(" in src, mod.__name__

@@ -24,9 +24,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import logging
-import math
 import time
-from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -37,7 +35,7 @@ from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession,
 from splitrender.pipeline.session import StreamStalledError, leaving_error
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
 from splitrender.pipeline.rows import live_frame_row
-from splitrender.protocol import PROTOCOL_VERSION, Bye, Hello, Pose, Welcome
+from splitrender.protocol import Bye, Pose, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms, wall_us
@@ -81,16 +79,14 @@ class LiveClient:
         self.rx: ClientPipeline | None = None
         self.core: ClientSession | None = None
         """The sans-IO session core: RTCP, NACK, PLI, playout delay, stalls, feedback."""
-        self._recording_out = None if config.out_dir is None else ClientRecording(config.out_dir)
-        """The recording folder, written as the session goes (see :meth:`_record`)."""
+        self.recording = ClientRecording(config.out_dir, config.rows_kept)
+        """The recording folder, written as the session goes; its ``recent`` holds the newest ``rows_kept`` displayed
+        rows (its ``frames.jsonl``/``frames.csv`` has them all)."""
         self._decode_q: asyncio.Queue[Work] = asyncio.Queue(DECODE_QUEUE)
         self._half: Any = None
         self._welcome: Welcome | None = None
         self._params: dict[str, Any] = {}
         self._t0_wall = 0.0
-        self.rows: deque[dict[str, Any]] = deque(maxlen=config.rows_kept)
-        """The newest ``rows_kept`` displayed rows (the recording's ``frames.jsonl``/``frames.csv`` has them all)."""
-        self._rows_recorded = 0
         self._counters: dict[str, Any] = {"late_ticks": 0}
 
     @property
@@ -120,7 +116,7 @@ class LiveClient:
                 assert self.core is not None
                 self.core.start(wall_ms())   # the stall clock starts; an empty RR opens the UDP path
                 self._flush_rtcp()
-                self._start_recording()
+                self.recording.start(self._recording())   # the manifest, complete: false; the journal opened
                 try:
                     async with asyncio.TaskGroup() as tg:
                         tg.create_task(self._pose_loop(), name="client-poses")
@@ -145,39 +141,23 @@ class LiveClient:
                 await self.channel.close()
         except BaseException as exc:
             await self._release()
-            if self._recording_out is not None and self._recording_out.started:   # a broken session: keep what was
+            if self.recording.started:   # a broken session: keep what was
                 # recorded, marked incomplete
-                result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": False,
-                                      "error": f"{type(exc).__name__}: {exc}"}, cfg.out_dir)
-                self._finish_recording(result)
+                result = ClientResult(list(self.recording.recent), self._all_counters(), {
+                    **self._recording(), "complete": False, "error": f"{type(exc).__name__}: {exc}"}, cfg.out_dir)
+                self.recording.finish(result.recording, result.counters)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
-                             exc, self._rows_recorded, cfg.out_dir)
+                             exc, self.recording.rows, cfg.out_dir)
             raise
         await self._release()
-        logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self._rows_recorded,
+        logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self.recording.rows,
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(list(self.rows), self._all_counters(), {**self._recording(), "complete": True}, cfg.out_dir)
-        if cfg.out_dir is not None:
-            await asyncio.get_running_loop().run_in_executor(None, self._finish_recording, result)
+        result = ClientResult(list(self.recording.recent), self._all_counters(),
+                              {**self._recording(), "complete": True}, cfg.out_dir)
+        if cfg.out_dir is not None:   # frames.csv, counters.json and the completed manifest; then the journal goes
+            await asyncio.get_running_loop().run_in_executor(None, self.recording.finish, result.recording,
+                                                             result.counters)
         return result
-
-    # ------------------------------------------------------------------ recording as it goes
-
-    def _start_recording(self) -> None:
-        """Write the manifest (``complete: false``) and open the journal for the rows to come."""
-        if self._recording_out is not None:
-            self._recording_out.start(self._recording())
-
-    def _record(self, row: dict[str, Any]) -> None:
-        self.rows.append(row)
-        self._rows_recorded += 1
-        if self._recording_out is not None:
-            self._recording_out.append(row)
-
-    def _finish_recording(self, result: ClientResult) -> None:
-        """frames.csv, counters.json and the completed manifest; the journal goes once they are written."""
-        if self._recording_out is not None:
-            self._recording_out.finish(result.recording, result.counters, result.rows)
 
     async def _release(self) -> None:
         loop = asyncio.get_running_loop()
@@ -212,8 +192,7 @@ class LiveClient:
         allocation), driven over the control connection; then the client half and the session core."""
         cfg, ch = self.cfg, self.channel
         assert ch is not None
-        await ch.write_frames([hs.hello(Hello(PROTOCOL_VERSION, cfg.token, tuple(cfg.methods), tuple(cfg.codecs),
-                                              cfg.width, cfg.height, float(cfg.display_hz)))])
+        await ch.write_frames([hs.hello(hs.make_hello(cfg.codecs, cfg.display_hz, cfg.token))])
         while not hs.done:   # the Welcome, then the session data in DataChunk messages (chunked, counted, bounded)
             first = hs.welcome is None
             msg = await self._next_message(hs.waiting_for)
@@ -343,7 +322,7 @@ class LiveClient:
     def _all_counters(self) -> dict[str, Any]:
         """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
         base = self.core.all_counters() if self.core is not None else {}
-        return {**base, **self._counters, "rows_recorded": self._rows_recorded}
+        return {**base, **self._counters, "rows_recorded": self.recording.rows}
 
     # ------------------------------------------------------------------ RTCP out
 
@@ -422,7 +401,7 @@ class LiveClient:
         tick_wall = time.time()
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
-        scene_t = self._scene_t(tick_wall)
+        scene_t = core.scene_t(tick_wall)
         cf, ok, apply_ms, render_ms = await loop.run_in_executor(
             self.gl_executor, display_frame, half, new, pose, scene_t, (cfg.width, cfg.height), f"session {self.session_id}")
         displayed_us = wall_us()
@@ -431,11 +410,11 @@ class LiveClient:
         if shown is None:   # every update so far rejected or without content: still black
             self._record_blank(tick, tick_wall, pose, saves)
         else:
-            row = live_frame_row(self._rows_recorded, tick, trace_t, scene_t, pose, shown, displayed_us,
+            row = live_frame_row(self.recording.rows, tick, trace_t, scene_t, pose, shown, displayed_us,
                                  apply_ms + render_ms)
             row.update({f"cli_{k}": v for k, v in cf.stats.items()})
             row.update(core.received_kbps(displayed_us / 1e6))
-            self._record(row)
+            self.recording.append(row)
             if cfg.save_images and cfg.out_dir is not None:
                 saves.append(loop.run_in_executor(self.io_executor, save_image, cfg.out_dir, row["frame"], cf.color,
                                                   cf.holes))
@@ -444,18 +423,14 @@ class LiveClient:
                     del saves[:32]
         await self._flush_control()
 
-    def _scene_t(self, wall_s: float) -> float:
-        """The server's scene time at wall-clock ``wall_s`` (NaN before the first FrameMeta)."""
-        epoch = self.core.scene_epoch_ms if self.core is not None else None
-        return math.nan if epoch is None else wall_s - epoch / 1000
-
     def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
         kept; without the server clock, ``saves`` is None and the row has no scene time)."""
         cfg = self.cfg
-        row = live_frame_row(self._rows_recorded, tick, wall_s - self._t0_wall, self._scene_t(wall_s), pose, None,
-                        int(wall_s * 1e6))
-        self._record(row)
+        assert self.core is not None
+        row = live_frame_row(self.recording.rows, tick, wall_s - self._t0_wall, self.core.scene_t(wall_s), pose, None,
+                             int(wall_s * 1e6))
+        self.recording.append(row)
         if saves is not None and cfg.save_images and cfg.out_dir is not None:
             black = black_frame(cfg.width, cfg.height)
             saves.append(asyncio.get_running_loop().run_in_executor(

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import RemoteProtocolError
 from ..methods.base import ClientFeedback, ClientFrame, ServerContext
 from .adapt import AdaptConfig
+from .producers import ProducerPool
 from .sender import EncodedUpdate, StreamEncoder
 
 log = logging.getLogger(__name__)
@@ -126,6 +127,42 @@ class FrameMaker:
         """Make and encode ``order`` (:func:`make_frame`)."""
         return make_frame(order, self.half, self.encoder, self.pool.scene, self.pool.renderer, self.intrinsics,
                           self.pool, self.method)
+
+
+class SessionFrames:
+    """The frame makers a render worker holds (:mod:`splitrender.server.worker`, in its own process): scene
+    ``scene_name``, its renderer (live GI relit at ``gi_hz``; its shaders compiled at once) and the scene producers,
+    shared by the sessions it serves, and each session's :class:`FrameMaker`, by session id."""
+
+    def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
+        from ..render import Renderer             # GL and the scene's files: where the frames are made only
+        from ..scene.loader import get_scene
+        from ..scene.pose import CameraIntrinsics, Pose
+
+        self.scene = get_scene(scene_name)
+        self.server_fps = server_fps
+        self.renderer = Renderer()
+        self.renderer.gi_hz = gi_hz
+        self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36), ("color",))   # compile shaders now
+        self.producers = ProducerPool(self.scene, server_fps, self.renderer)
+        self.makers: dict[str, FrameMaker] = {}
+
+    def open(self, sid: str, opening: Any) -> tuple[list[Any], bytes, dict[str, Any]]:
+        """Build session ``sid``'s server half of ``opening`` (:class:`~.session.Opening`) and its encoders; returns its
+        stream specs, session data and the parameter sets each video encoder sends (for the SDP)."""
+        maker = self.makers[sid] = FrameMaker(opening, self.producers)
+        return maker.specs, maker.session_blob, maker.encoder.described_sets()
+
+    def frame(self, sid: str, order: FrameOrder) -> tuple[EncodedUpdate, dict[str, Any], dict[str, float]]:
+        """Make session ``sid``'s frame ``order`` (:meth:`FrameMaker.make`) for another process: the coded update
+        without its raw planes (they stay here), the half's stats, and the frame's stages in milliseconds
+        (``frame_ms`` is the whole frame in this process)."""
+        enc, stats, stages = self.makers[sid].make(order)
+        enc.update = replace(enc.update, planes={}, data={})
+        return enc, stats, stages
+
+    def close(self, sid: str) -> None:
+        self.makers.pop(sid, None)
 
 
 # ---------------------------------------------------------------------- the client's side of a display tick

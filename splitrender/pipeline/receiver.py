@@ -120,6 +120,9 @@ class ReceivedFrame:
     meta_ms: float
     received_ms: float
     decoded_ms: float
+    decode_ms: float = 0.0
+    """The decoding time charged to the frame (ms): what the driver reported decoding took since the last frame was
+    released (:meth:`~.session.ClientSession.on_decoded`; the virtual-time runner's measured cost)."""
 
 
 def held_nbytes(obj: Any, depth: int = 0) -> int:

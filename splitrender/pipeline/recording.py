@@ -33,6 +33,9 @@ JOURNAL = "frames.jsonl"
 """Rows appended while the session runs; replaced by frames.csv at the end, left behind by a killed client."""
 JOURNAL_FLUSH_S = 0.5
 """How often the journal is flushed to the operating system (s)."""
+ROWS_KEPT = 1024
+"""Rows of each kind a server session keeps in memory (:attr:`SessionLogs.recent`: the newest; the row logs on disk
+have them all), and a client recording by default (:attr:`ClientRecording.recent`)."""
 
 
 def _json(obj: Any) -> bytes:
@@ -52,14 +55,18 @@ def manifest(session_id: str, method: str, params: dict[str, Any], scene: str, f
 
 
 class ClientRecording:
-    """A client's recording folder ``out_dir`` (module docstring).  :meth:`start`, then :meth:`append` per displayed
-    row, then :meth:`finish`; or :meth:`finish` alone with every row (a recording uploaded whole)."""
+    """A client's recording folder ``out_dir`` (module docstring; None: nothing written, the rows only counted and
+    kept).  :meth:`start`, then :meth:`append` per displayed row, then :meth:`finish`; or :meth:`finish` alone with
+    every row (a recording uploaded whole).  The newest ``rows_kept`` rows stay in :attr:`recent` (the journal and
+    ``frames.csv`` have them all)."""
 
-    def __init__(self, out_dir: Path) -> None:
-        self.dir = Path(out_dir)
+    def __init__(self, out_dir: Path | None, rows_kept: int = ROWS_KEPT) -> None:
+        self.dir = None if out_dir is None else Path(out_dir)
         self._journal: IO[str] | None = None
         self._flushed = 0.0
         self.rows = 0
+        """The rows appended so far."""
+        self.recent: deque[dict[str, Any]] = deque(maxlen=rows_kept)
 
     @property
     def started(self) -> bool:
@@ -67,6 +74,8 @@ class ClientRecording:
 
     def start(self, manifest: dict[str, Any]) -> None:
         """Write the manifest (``complete: false``), drop what an earlier session left, open the journal."""
+        if self.dir is None:
+            return
         self.dir.mkdir(parents=True, exist_ok=True)
         for stale in ("frames.csv", "summary.csv", "counters.json"):
             (self.dir / stale).unlink(missing_ok=True)
@@ -75,11 +84,12 @@ class ClientRecording:
         self._flushed = time.monotonic()
 
     def append(self, row: dict[str, Any]) -> None:
-        """One displayed row into the journal (nothing before :meth:`start`)."""
+        """One displayed row: counted, kept in :attr:`recent`, and into the journal once :meth:`start` opened it."""
+        self.recent.append(row)
+        self.rows += 1
         if self._journal is None:
             return
         self._journal.write(json.dumps(row, default=float) + "\n")
-        self.rows += 1
         now = time.monotonic()
         if now - self._flushed >= JOURNAL_FLUSH_S:
             self._journal.flush()
@@ -89,6 +99,8 @@ class ClientRecording:
                rows: Sequence[dict[str, Any]] | None = None) -> None:
         """``frames.csv`` (from the journal, every row, or from ``rows`` when there is none), ``counters.json`` and the
         final manifest; the journal goes once they are written."""
+        if self.dir is None:
+            return
         self.dir.mkdir(parents=True, exist_ok=True)
         if self._journal is not None:
             self._journal.close()
@@ -151,11 +163,6 @@ def journal_to_csv(journal: Path, out: Path) -> int:
     """``frames.jsonl`` as ``frames.csv`` (every key a column, in order of first appearance), in two passes over
     the file so that memory stays flat whatever its length.  Returns the rows written."""
     return write_csv_passes(out, lambda: iter_journal(journal))
-
-
-ROWS_KEPT = 1024
-"""Rows of each kind a server session keeps in memory (:attr:`SessionLogs.recent`: the newest; the row logs on disk
-have them all)."""
 
 
 class SessionLogs:

@@ -6,8 +6,9 @@ the columns every server front door shares, :func:`frame_row` those every client
 :func:`live_frame_row` the live client's whole row), :func:`feedback_row` a live server's ``feedback.csv`` row (one per
 ``Feedback``); :func:`frames_summary`, :func:`updates_summary` and
 :func:`session_summary` make a run's summary columns from the rows and the cores' counters, the same for a
-virtual-time run and a scored live recording.  Each front door adds only what it alone measures (virtual time: the
-modelled cost, delivery and prediction error; live: the wall-clock stages of the worker round trip and the send).
+virtual-time run and a scored live recording (:func:`run_summary`: a virtual-time run's whole summary row).  Each
+front door adds only what it alone measures (virtual time: the modelled cost, delivery and prediction error; live:
+the wall-clock stages of the worker round trip and the send).
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from typing import Any, Iterable
 
 from .. import metrics
 from ..metrics.image import mean_of, pct_of
+from .wire import SESSION_STREAM
 
-__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "live_frame_row", "mean_of", "pct_of", "session_summary", "update_row",
-           "updates_summary"]
+__all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "live_frame_row", "mean_of", "pct_of",
+           "run_summary", "session_summary", "update_row", "updates_summary"]
 
 FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
 """The server timings a client echoes in Feedback (those the server put in FrameMeta); others are ignored."""
@@ -125,7 +127,8 @@ def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[d
     ``client``: :meth:`ClientSession.all_counters`; ``server``: :attr:`ServerSession.counters`; ``rows``:
     one per display tick with ``t_s`` (s) and ``update_frame_id`` (-1 before the first update).
     ``shown_pct``: distinct updates shown over the server frames from the first shown to the last;
-    ``longest_freeze_ms``: the longest time between two new updates reaching the screen."""
+    ``longest_freeze_ms``: the longest time between two new updates reaching the screen; ``lost_frames``: the frames
+    released with a stream missing."""
     firsts: dict[int, float] = {}
     for r in rows:
         fid = int(r.get("update_frame_id", -1))
@@ -138,7 +141,8 @@ def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[d
     return {
         "updates_shown": len(ids), "shown_pct": 100.0 * len(ids) / span if span else math.nan,
         "longest_freeze_ms": 1000.0 * max(gaps) if gaps else math.nan,
-        "keyframes": int(server.get("keyframes", 0)), "keyframe_requests": int(client.get("plis_sent", 0)),
+        "lost_frames": int(client.get("frames_partial", 0)), "keyframes": int(server.get("keyframes", 0)),
+        "keyframe_requests": int(client.get("plis_sent", 0)),
         "plis_received": int(server.get("plis", 0)), "nacks": int(client.get("nacks_sent", 0)),
         "nacked_packets": int(client.get("nacked_packets", 0)), "retransmitted": int(server.get("retransmitted", 0)),
         "fec_recovered": int(sum(v for k, v in client.items() if k.endswith("_fec_recovered"))),
@@ -146,4 +150,35 @@ def session_summary(client: dict[str, Any], server: dict[str, Any], rows: list[d
         "apply_errors": int(client.get("apply_errors", 0)), "decode_errors": int(client.get("decode_errors", 0)),
         "rtcp_up_bytes": int(client.get("rtcp_bytes_sent", 0)), "rtcp_down_bytes": int(server.get("rtcp_bytes_sent", 0)),
         "retransmitted_bytes": int(server.get("retransmitted_bytes", 0)),
+    }
+
+
+def run_summary(cfg: Any, client: int, frames: list[dict[str, Any]], updates: list[dict[str, Any]],
+                wire_bytes: dict[str, int], duration_s: float, server_skipped: int, protocol_errors: int,
+                packets_lost: int, client_counters: dict[str, Any], server_counters: dict[str, Any],
+                server_summary: dict[str, Any]) -> dict[str, Any]:
+    """A virtual-time run's ``summary.csv`` row for client ``client`` (a scored live recording's has the same columns
+    where both measure them): the run's settings (``cfg``, a :class:`~splitrender.sim.config.RunConfig`),
+    :func:`frames_summary` of its display rows, the bit rates of ``wire_bytes`` (per stream, over ``duration_s``; the
+    one-off session data apart), :func:`updates_summary`, the modelled cost and the prediction error of its update
+    rows, the runner's own counts (ticks the busy server skipped, malformed updates, datagrams the downlink lost),
+    :func:`session_summary` of the cores' counters, and ``server_summary`` (what the server core's estimator, rate
+    adaptation and operating point did: :meth:`~.session.ServerSession.summary`)."""
+    total = sum(wire_bytes.values())
+    once = wire_bytes.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
+    traces = cfg.client_traces or (cfg.trace,)
+    return {
+        "client": client, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace,
+        "seed": cfg.seed, "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
+        "client_trace": traces[client % len(traces)], "width": cfg.width, "height": cfg.height,
+        "server_fps": cfg.server_fps, "client_fps": cfg.client_fps, **frames_summary(frames),
+        "mean_kbps": total * 8 / duration_s / 1000.0,
+        **{f"kbps_{k}": b * 8 / duration_s / 1000.0 for k, b in wire_bytes.items()},
+        "session_kb": once / 1000.0, "steady_kbps": (total - once) * 8 / duration_s / 1000.0,
+        **updates_summary(updates),
+        "cost_model": cfg.cost_model, "mean_cost_ms": mean_of(updates, "cost_ms"), "server_skipped": server_skipped,
+        "clients": cfg.clients, "protocol_errors": protocol_errors, "packets_lost": packets_lost,
+        "rtp_packets": server_counters["rtp_packets"], **session_summary(client_counters, server_counters, frames),
+        "mean_pred_err_cm": mean_of(updates, "pred_err_cm"), "mean_pred_err_deg": mean_of(updates, "pred_err_deg"),
+        "flip_every": cfg.flip_every, "config_key": cfg.key(), **server_summary,
     }

@@ -62,7 +62,7 @@ from ..errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolE
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
 from ..protocol import (CONNECTION_CLOSED, NEED_DATA, Bye, ClientConnection, Error, ErrorCode, Feedback, FrameMeta, DataChunk,
                         FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
-                        negotiate_method,
+                        PROTOCOL_VERSION, negotiate_method,
                         State, Stats, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -328,8 +328,14 @@ class ClientHandshake:
             return 0, 0
         return self._asm.received, self._asm.total
 
+    def make_hello(self, codecs: Iterable[str], display_hz: float, token: str = "") -> Hello:
+        """The ``Hello`` this client sends: the methods it offers, the ``codecs`` it decodes (in order of preference),
+        its display's size and rate, and the server's ``token``."""
+        assert self.offered is not None and self.display is not None
+        return Hello(PROTOCOL_VERSION, token, self.offered, tuple(codecs), *self.display, float(display_hz))
+
     def hello(self, hello: Hello) -> bytes:
-        """The ``Hello``'s bytes, the first the client sends."""
+        """The ``Hello``'s bytes (:meth:`make_hello`), the first the client sends."""
         return self.conn.send(hello)
 
     def receive_data(self, data: bytes) -> bool:
@@ -570,6 +576,8 @@ class ClientSession:
         self.release_delay_ms: Callable[[ReceivedFrame], float] | None = None
         """How long after its release a frame is displayable (virtual time's model of decoding; the live drivers
         decode before the release: None, at once)."""
+        self._decode_ms = 0.0
+        """Decoding time reported since the last release (:meth:`on_decoded`), ms."""
         self._pending_apply: list[ReceivedFrame] = []
         self._held_ticks: list[Any] = []
         """Display ticks held until the server's scene clock is known (:meth:`display_tick`)."""
@@ -606,6 +614,10 @@ class ClientSession:
                    probe if cc is not None else None, conn)
 
     # ------------------------------------------------------------------ clock
+
+    def scene_t(self, now_s: float) -> float:
+        """The server's scene time at driver time ``now_s`` (s; NaN before the first FrameMeta set its clock)."""
+        return math.nan if self.scene_epoch_ms is None else now_s - self.scene_epoch_ms / 1000
 
     def protocol_us(self, now_ms: float) -> int:
         """The protocol's wall-clock µs at driver time ``now_ms``."""
@@ -730,8 +742,10 @@ class ClientSession:
         out, self._work = self._work, []
         return out
 
-    def on_decoded(self, work: Work, result: Any, now_ms: float) -> None:
-        """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``)."""
+    def on_decoded(self, work: Work, result: Any, now_ms: float, decode_ms: float = 0.0) -> None:
+        """The result of decoding ``work`` (the decoded plane or bytes, or the ``CodecError``), and how long decoding
+        it took (ms; charged to the next frame released: its :attr:`~.receiver.ReceivedFrame.decode_ms`)."""
+        self._decode_ms += decode_ms
         self.rx.on_decoded(work, result, now_ms)
         self._release(now_ms)
 
@@ -756,6 +770,7 @@ class ClientSession:
         :meth:`display_tick`), each announced by a :class:`FrameReleased` event; a frame is displayable
         :attr:`release_delay_ms` after ``now_ms``, and releases stay in frame order."""
         for rf in self.rx.ready():
+            rf.decode_ms, self._decode_ms = self._decode_ms, 0.0
             release = now_ms + (float(self.release_delay_ms(rf)) if self.release_delay_ms is not None else 0.0)
             release = max(release, self._last_release_ms)
             self._last_release_ms = release
@@ -1419,6 +1434,24 @@ class ServerSession:
             if not isinstance(msg, (Pose, Feedback, KeyframeRequest)):
                 return ClientMessage(now_ms, msg)
             self.receive_message(msg, now_ms)
+
+    def take_events(self, label: str, now_ms: float) -> Message | ControlClosed | None:
+        """Every event in the client's control bytes so far (:meth:`next_event`), by the one rule of every server
+        driver: the client's Stats logged at debug (``label`` naming the session); what ends the session logged and
+        returned: its Bye or Error, or :class:`ControlClosed`; None while the session goes on."""
+        while (ev := self.next_event(now_ms)) is not None:
+            msg = ev.message if isinstance(ev, ClientMessage) else None
+            if isinstance(msg, Stats):
+                log.debug("%s: client stats %s", label, dict(msg.counters))
+                continue
+            if isinstance(msg, Bye):
+                log.info("%s: client says bye: %s", label, msg.reason)
+            elif isinstance(msg, Error):
+                log.warning("%s: client left with Error %d: %s", label, msg.code, msg.text)
+            else:
+                log.info("%s: client closed the connection", label)
+            return msg if msg is not None else ev
+        return None
 
     def rows_to_write(self) -> list[tuple[str, dict[str, Any]]]:
         """The rows recorded since the last call, in order, as (kind, row): ``feedback`` (one per Feedback taken:

@@ -39,7 +39,7 @@ from splitrender.pipeline import ServerOptions
 from splitrender.protocol import RtcpError
 from splitrender.protocol.rtcp import rtcp_route_ssrc
 from splitrender.server.session import ServerSession
-from splitrender.server.worker import RenderWorker, parse_test_hang, worker_context
+from splitrender.server.worker import RenderWorker, parse_test_hang
 from splitrender.transport.errors import BindError, describe_os_error
 
 __all__ = ["ServerConfig", "LiveServer", "serve", "check_method_params", "sdp_hint", "DEFAULT_PORT",
@@ -55,34 +55,6 @@ DEFAULT_GI_HZ = 5.0
 """Live servers relight the scene's DDGI probes at this rate (0: every frame)."""
 
 Address = tuple[str, int]
-
-WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1"}
-"""Environment the render workers start with, where the server's own environment does not set it.  One BLAS thread:
-their matrices are small (the probes' ray weights, the methods' per-patch math), and llvmpipe's threads fill the
-cores; a second BLAS thread waiting for a core made the probes' 256 x 384 x 256 visibility product take 52 ms
-where one thread takes 1.7 (2 cores, load ~18).  The same bits either way (the probes hashed alike)."""
-
-
-def start_fork_server() -> None:
-    """Start the fork server the render workers come from (:func:`~splitrender.server.worker.worker_context`) with
-    :data:`WORKER_ENV`, unless it runs already; this process's own environment is left as it was."""
-    ctx = worker_context()
-    if ctx.get_start_method() != "forkserver":
-        return
-    from multiprocessing import forkserver
-
-    saved = {k: os.environ.get(k) for k in WORKER_ENV}
-    for k, v in WORKER_ENV.items():
-        os.environ.setdefault(k, v)
-    try:
-        forkserver.ensure_running()
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
 
 @dataclass(frozen=True)
 @option_fields(ServerProtocolOptions)
@@ -300,7 +272,6 @@ class LiveServer:
     # -- render workers ------------------------------------------------------------
 
     async def _new_worker(self) -> RenderWorker:
-        start_fork_server()
         w = RenderWorker(self.config.scene, self.config.server_fps, self.config.gi_hz)
         self.workers.add(w)
         try:

@@ -40,9 +40,8 @@ from splitrender.methods.base import StreamSpec
 from splitrender.pipeline.live import Address, LiveServer, LiveSession, MadeFrame, SessionEnded
 from splitrender.pipeline.recording import ROWS_KEPT
 from splitrender.pipeline import Accepted, ServerPipeline, accept_hello, open_hello
-from splitrender.pipeline.session import ClientMessage, ControlClosed, SessionEvent
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
-from splitrender.protocol import Bye, Error, ErrorCode, Hello, ServerConnection, State, Stats
+from splitrender.protocol import Bye, Error, ErrorCode, Hello, ServerConnection, State
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms
 
 __all__ = ["ServerSession", "FIRST_PAYLOAD_TYPE", "ROWS_KEPT"]
@@ -177,32 +176,19 @@ class ServerSession(LiveSession):
 
     async def _control_loop(self) -> None:
         """The control connection's bytes to the core, which reads them on the handshake's connection (what came with
-        the Hello first); its rows are written as they come, its events logged (Stats) or end the session (Bye, Error,
-        the end of the stream)."""
+        the Hello first); its rows are written as they come, its events taken by its rule
+        (:meth:`~splitrender.pipeline.ServerSession.take_events`: Stats logged; a Bye, an Error or the end of the
+        stream ends the session, the client's Error counted in ``client_errors`` and kept)."""
         core = self.core
         assert core is not None
-        while True:
-            while (ev := core.next_event(wall_ms())) is not None:   # after the end, a cut message raises here
-                self._on_event(ev)
+        while (left := core.take_events(f"session {self.id}", wall_ms())) is None:   # a message cut by the end raises
             self._logs.write(core.rows_to_write())
             data = await self.channel.reader.read(READ_CHUNK_BYTES)
             self.channel.bytes_received += len(data)
             core.receive_data(data)
-
-    def _on_event(self, ev: SessionEvent) -> None:
-        """What the core left to this door: the client's Stats (logged), Bye or Error, or the connection's end."""
-        msg = ev.message if isinstance(ev, ClientMessage) else None
-        if isinstance(msg, Stats):
-            logger.debug("session %s: client stats %s", self.id, dict(msg.counters))
-            return
-        if isinstance(ev, ControlClosed):
-            logger.info("session %s: client closed the connection", self.id)
-        elif isinstance(msg, Bye):
-            logger.info("session %s: client says bye: %s", self.id, msg.reason)
-        elif isinstance(msg, Error):
+        if isinstance(left, Error):
             self._counters["client_errors"] += 1
-            self.client_error = (msg.code, msg.text)
-            logger.warning("session %s: client left with Error %d: %s", self.id, msg.code, msg.text)
+            self.client_error = (left.code, left.text)
         raise SessionEnded()
 
     # ------------------------------------------------------------------ frames

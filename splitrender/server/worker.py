@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import itertools
 import logging
 import multiprocessing
@@ -42,11 +41,11 @@ import socket
 import struct
 import time
 import traceback
+from multiprocessing import forkserver
 from typing import Any
 
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
-from splitrender.pipeline import FrameMaker, ProducerPool
-from splitrender.scene.pose import CameraIntrinsics, Pose
+from splitrender.pipeline.frames import SessionFrames
 
 __all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
 
@@ -55,20 +54,38 @@ logger = logging.getLogger(__name__)
 _PRELOAD = ["splitrender.server.worker", "splitrender.render", "splitrender.methods", "splitrender.pipeline",
             "splitrender.scene.loader", "splitrender.codecs.video"]
 
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1"}
+"""Environment the render workers start with, where the server's own environment does not set it.  One BLAS thread:
+their matrices are small (the probes' ray weights, the methods' per-patch math), and llvmpipe's threads fill the
+cores; a second BLAS thread waiting for a core made the probes' 256 x 384 x 256 visibility product take 52 ms
+where one thread takes 1.7 (2 cores, load ~18).  The same bits either way (the probes hashed alike)."""
+
 _ctx: Any = None
 
 
 def worker_context() -> Any:
-    """The multiprocessing context workers start from: a fork server with the heavy modules preloaded
-    (safe: the fork server is single-threaded and never creates a GL context)."""
+    """The multiprocessing context workers start from: a fork server with the heavy modules preloaded (safe: the fork
+    server is single-threaded and never creates a GL context), started here with :data:`WORKER_ENV` unless it runs
+    already (this process's own environment is left as it was)."""
     global _ctx
     if _ctx is None:
-        methods = multiprocessing.get_all_start_methods()
-        if "forkserver" in methods:
-            _ctx = multiprocessing.get_context("forkserver")
-            _ctx.set_forkserver_preload(_PRELOAD)
-        else:  # pragma: no cover - non-Unix
+        if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover - non-Unix
             _ctx = multiprocessing.get_context("spawn")
+            return _ctx
+        _ctx = multiprocessing.get_context("forkserver")
+        _ctx.set_forkserver_preload(_PRELOAD)
+    if _ctx.get_start_method() == "forkserver":
+        saved = {k: os.environ.get(k) for k in WORKER_ENV}
+        for k, v in WORKER_ENV.items():
+            os.environ.setdefault(k, v)
+        try:
+            forkserver.ensure_running()
+        finally:
+            for k, old in saved.items():
+                if old is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = old
     return _ctx
 
 
@@ -224,43 +241,25 @@ def _frame(blob: bytes) -> bytes:
 
 # ---------------------------------------------------------------------- the worker process
 
-class _Worker:
-    def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
-        from splitrender.render import Renderer             # GL and the scene's files: in the worker process only
-        from splitrender.scene.loader import get_scene
+class _Worker(SessionFrames):
+    """The worker process's sessions (:class:`~splitrender.pipeline.frames.SessionFrames`: the scene, renderer,
+    producers and each session's frame maker) and, per session, the frame the test hook hangs on."""
 
-        self.scene = get_scene(scene_name)
-        self.server_fps = server_fps
-        self.renderer = Renderer()
-        self.renderer.gi_hz = gi_hz
-        self.renderer.render(self.scene, 0.0, Pose(), CameraIntrinsics(64, 36), ("color",))   # compile shaders now
-        self.producers = ProducerPool(self.scene, server_fps, self.renderer)
-        self.sessions: dict[str, tuple[FrameMaker, int]] = {}
-        """Each session's frame maker (its method half and encoders) and the frame the test hook hangs on."""
+    def __init__(self, scene_name: str, server_fps: int, gi_hz: float = 0.0) -> None:
+        super().__init__(scene_name, server_fps, gi_hz)
+        self.hang_at: dict[str, int] = {}
 
     def ping(self) -> int:
         return os.getpid()
 
     def open(self, sid: str, opening: Any, hang_frame: int = -1) -> Any:
-        """Build session ``sid``'s server half of ``opening`` (:class:`~splitrender.pipeline.Opening`) and its
-        encoders; returns its stream specs, session data and the parameter sets each video encoder sends (for the SDP)."""
-        maker = FrameMaker(opening, self.producers)
-        self.sessions[sid] = (maker, hang_frame)
-        return maker.specs, maker.session_blob, maker.encoder.described_sets()
+        self.hang_at[sid] = hang_frame
+        return super().open(sid, opening)
 
     def frame(self, sid: str, order: Any) -> Any:
-        """Make session ``sid``'s frame ``order`` (:meth:`~splitrender.pipeline.FrameMaker.make`); returns the coded
-        update without its raw planes, the half's stats, and the frame's stages in milliseconds (``make_frame``'s;
-        ``frame_ms`` is the whole frame in this process)."""
-        maker, hang_frame = self.sessions[sid]
-        if order.frame_id == hang_frame:
+        if order.frame_id == self.hang_at.get(sid, -1):
             _hang()
-        enc, stats, stages = maker.make(order)
-        enc.update = dataclasses.replace(enc.update, planes={}, data={})     # the raw planes stay here
-        return enc, stats, stages
-
-    def close(self, sid: str) -> None:
-        self.sessions.pop(sid, None)
+        return super().frame(sid, order)
 
 
 def _hang() -> None:

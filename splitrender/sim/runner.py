@@ -70,7 +70,7 @@ from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandsh
                         display_frame, method_config, session_summary, tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import PROTOCOL_VERSION, Hello, ServerConnection, Welcome
+from ..protocol import ServerConnection, Welcome
 from ..protocol.framing import NEED_DATA
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
@@ -157,7 +157,6 @@ class _Client:
     core: ClientSession | None = None
     """The client's session core (RTCP, NACK, PLI, playout delay, stalls, feedback)."""
     timer: Timer | None = None
-    decode_ms_of: dict[int, float] = field(default_factory=dict)
     pose_t: dict[int, float] = field(default_factory=dict)
     pred: dict[int, tuple[float, float]] = field(default_factory=dict)
     update_rows: dict[int, dict[str, Any]] = field(default_factory=dict)
@@ -168,7 +167,6 @@ class _Client:
     window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
     frames: list[dict[str, Any]] = field(default_factory=list)
     updates: list[dict[str, Any]] = field(default_factory=list)
-    decode_ms: float = 0.0
 
 
 class VirtualTimeRun:
@@ -222,12 +220,11 @@ class VirtualTimeRun:
                         by_deadline=False)
         # handshake through a real Connection pair (set-up time is not simulated), the client's the same sans-IO
         # core as the live client's; it decodes what the live client does (its method's codec first)
-        codecs = tuple(dict.fromkeys((self.mcfg.codec, *CLIENT_CODECS)))
-        hello = Hello(PROTOCOL_VERSION, "", (cfg.method,), codecs, cfg.width, cfg.height, float(cfg.client_fps))
-        check_hello(hello, cfg.width * cfg.height)
         opts = cfg.client_options()
-        hs = ClientHandshake(hello.methods, dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
-                             (hello.width, hello.height))
+        hs = ClientHandshake((cfg.method,), dataclasses.replace(opts.limits, max_session_bytes=cfg.max_session_bytes),
+                             (cfg.width, cfg.height))
+        hello = hs.make_hello(dict.fromkeys((self.mcfg.codec, *CLIENT_CODECS)), cfg.client_fps)
+        check_hello(hello, cfg.width * cfg.height)
         # the server's side: its end of the control connection reads the Hello; the half here, then the one handshake
         # every front door runs
         sconn = ServerConnection()
@@ -250,7 +247,7 @@ class VirtualTimeRun:
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
-        c.core.release_delay_ms = lambda rf, c=c: self._decode_delay_ms(c, rf)   # type: ignore[misc]
+        c.core.release_delay_ms = self._decode_delay_ms   # type: ignore[assignment]
         self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
         make_current(c.gl)
@@ -414,15 +411,12 @@ class VirtualTimeRun:
                 continue
             w0 = time.perf_counter()
             res = ClientPipeline.decode(w)
-            c.decode_ms += (time.perf_counter() - w0) * 1000
-            c.core.on_decoded(w, res, self.now * 1000)
+            c.core.on_decoded(w, res, self.now * 1000, (time.perf_counter() - w0) * 1000)
 
-    def _decode_delay_ms(self, c: _Client, rf: ReceivedFrame) -> float:
-        """A frame the client core releases is displayable its modelled (or measured) decode time later."""
-        dec_ms = c.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
-        c.decode_ms_of[rf.update.frame_id] = c.decode_ms
-        c.decode_ms = 0.0
-        return dec_ms
+    def _decode_delay_ms(self, rf: ReceivedFrame) -> float:
+        """A frame the client core releases is displayable its modelled (or measured: its ``decode_ms``) decode time
+        later."""
+        return rf.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
 
     def _released(self, c: _Client, rf: ReceivedFrame) -> None:
         """A released frame's delivery in its update row."""
@@ -464,9 +458,7 @@ class VirtualTimeRun:
         now_ms = t_d * 1000
         make_current(c.gl)
         new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
-        decode_ms = math.nan
-        for rf in new:
-            decode_ms = c.decode_ms_of.pop(rf.update.frame_id, math.nan)
+        decode_ms = new[-1].decode_ms if new else math.nan
         true_pose = c.trace.pose_at(t_d)
         cf, ok, apply_ms, render_ms = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height),
                                                     f"run {cfg.method}")
@@ -515,8 +507,8 @@ class VirtualTimeRun:
             "mean_kbps": total * 8 / dur / 1000.0, **{f"kbps_{k}": b * 8 / dur / 1000.0 for k, b in c.bytes.items()},
             "session_kb": once / 1000.0, "steady_kbps": (total - once) * 8 / dur / 1000.0, **updates_summary(ups),
             "cost_model": cfg.cost_model, "mean_cost_ms": mean_of(ups, "cost_ms"), "server_skipped": self.server_skipped,
-            "clients": cfg.clients, "lost_frames": c.core.counters["frames_partial"], "protocol_errors": c.protocol_errors,
-            "packets_lost": c.packets_lost, "rtp_packets": c.core_s.counters["rtp_packets"],
+            "clients": cfg.clients, "protocol_errors": c.protocol_errors, "packets_lost": c.packets_lost,
+            "rtp_packets": c.core_s.counters["rtp_packets"],
             **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
             "mean_pred_err_cm": mean_of(ups, "pred_err_cm"), "mean_pred_err_deg": mean_of(ups, "pred_err_deg"),
             "flip_every": cfg.flip_every, "config_key": cfg.key(),
