@@ -66,7 +66,8 @@ def costs(duration_s: float, gops: list[int]) -> dict[str, Any]:
     """The cost priors' measurement (module docstring)."""
     from splitrender.codecs.meta import pack_meta
     from splitrender.codecs.video import VideoEncoder
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.pipeline.producers import ProducerPool
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
@@ -88,9 +89,7 @@ def costs(duration_s: float, gops: list[int]) -> dict[str, Any]:
         for frame in range(0, n, div):
             t = frame / 30
             pose = trace.pose_at(t)
-            ctx = ServerContext(frame_id=frame, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                                latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
-                                expected_latency_s=0.0, shared=pool.prepare("probes", frame, t))
+            ctx = server_context(scene, renderer, intr, pose, t_s=t, frame_id=frame, shared=pool.prepare("probes", frame, t))
             upd = half.produce(ctx)
             for k, plane in upd.planes.items():
                 b = len(enc[k].encode(plane, force_idr=upd.force_idr).data)

@@ -25,9 +25,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from splitrender.codecs.meta import pack_meta, unpack_meta  # noqa: E402
-from splitrender.methods.base import DecodedUpdate, ServerContext  # noqa: E402
+from splitrender.methods.base import DecodedUpdate  # noqa: E402
 from splitrender.methods.sas import SasClient, SasConfig, SasServer  # noqa: E402
 from splitrender.metrics.image import psnr  # noqa: E402
+from splitrender.pipeline.direct import server_context  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
@@ -65,7 +66,7 @@ def main() -> None:
         for f in range(3):
             t = 1.0 + f / 30
             pose = trace.pose_at(t)
-            u = srv.produce(ServerContext(f, t, scene, r, intr, pose, t, pose, t, trace.pose_at, 0.0))
+            u = srv.produce(server_context(scene, r, intr, pose, t_s=t, frame_id=f, predict=trace.pose_at))
             cli.apply(DecodedUpdate(u.frame_id, t, pose, dict(u.planes), unpack_meta(pack_meta(u.meta))))
         pose = trace.pose_at(t)
         cli.render(pose, t)      # warm-up: vertex buffer, shader compilation

@@ -43,8 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from splitrender.methods.base import ServerContext
 from splitrender.methods.sas import SasConfig, SasServer
+from splitrender.pipeline.direct import server_context
 from splitrender.render.renderer import Renderer
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics, Pose, look_at_quat
@@ -82,7 +82,7 @@ def time_server(scene_name: str, frames: int, away: bool, r: Renderer, **cfg: ob
     ms, stats, gt = [], [], []
     for f in range(frames + 2):
         t = 0.5 + f / 30
-        ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, lambda _t: pose, 0.0)
+        ctx = server_context(scene, r, INTR, pose, t_s=t, frame_id=f)
         t1 = time.perf_counter()
         srv.produce(ctx)
         t2 = time.perf_counter()
@@ -115,7 +115,7 @@ def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dic
     for f in range(frames + 2):
         t = 0.5 + f / 30
         pose = tr.pose_at(t)
-        ctx = ServerContext(f, t, scene, r, intr, pose, t, pose, t, tr.pose_at, 0.0)
+        ctx = server_context(scene, r, intr, pose, t_s=t, frame_id=f, predict=tr.pose_at)
         t1 = time.perf_counter()
         u = srv.produce(ctx)
         t2 = time.perf_counter()

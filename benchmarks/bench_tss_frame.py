@@ -50,7 +50,8 @@ RUNS: dict[str, tuple[str, dict[str, Any]]] = {
 
 def frame(renderer: Any, method: str, scene_name: str, params: dict[str, Any], t: float = 0.5) -> dict[str, Any]:
     """One update of ``method`` at the ``static`` pose, drawn by a fresh client: PSNR on the model and per object."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import still_frame
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
     from splitrender.scene.trace import get_trace
@@ -60,15 +61,10 @@ def frame(renderer: Any, method: str, scene_name: str, params: dict[str, Any], t
     spec = get_method(method)
     cfg = make_config(spec.config, params)
     pose = get_trace("static", scene=scene).pose_at(t)
-    srv = spec.server_class(cfg, intr, scene, 30, None)
-    ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                        latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
-    upd = srv.produce(ctx)
-    cli = spec.client_class(cfg, intr, renderer.ctx, srv.session_data())
-    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
-    truth = renderer.render(scene, ctx.t_s, pose, intr, ("color", "object_id"))
-    got = cli.render(pose, ctx.t_s).color
-    stats = getattr(srv, "_stats", {})
+    still = still_frame(spec, cfg, intr, scene, renderer, pose, t)
+    truth = renderer.render(scene, t, pose, intr, ("color", "object_id"))
+    got = still.frame.color   # type: ignore[union-attr]
+    stats = getattr(still.server, "_stats", {})
 
     def db(m: np.ndarray) -> float:
         e = float(np.mean((got[m].astype(np.float64) - truth.color[m].astype(np.float64)) ** 2))

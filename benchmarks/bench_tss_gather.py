@@ -33,8 +33,9 @@ import numpy as np
 # this checkout's package, not an installed one (``--child ROOT``: the checkout at ROOT, for --frames)
 sys.path.insert(0, sys.argv[sys.argv.index("--child") + 1] if "--child" in sys.argv else str(Path(__file__).resolve().parents[1]))
 
-from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
+from splitrender.methods import get_method, make_config  # noqa: E402
 from splitrender.methods.tss.server import SHADERS  # noqa: E402
+from splitrender.pipeline.direct import server_context  # noqa: E402
 from splitrender.render.gl import read_shader, set_reference_view, set_uniform  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
@@ -63,8 +64,7 @@ def main() -> None:
     srv = spec.server_class(cfg, intr, scene, 30, None)
     t = 1.0
     pose = get_trace("walk", scene=scene).pose_at(t)
-    ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=r, intrinsics=intr, latest_pose=pose, latest_pose_t_s=t,
-                        target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
+    ctx = server_context(scene, r, intr, pose, t_s=t)
     captured: dict = {}
     gather = srv._gather
 
@@ -176,8 +176,7 @@ def child(scene_name: str, trace_name: str, params_name: str) -> None:
     for i in range(N_FRAMES):
         t = i / 30.0
         pose, tgt = tr.pose_at(t), tr.pose_at(t + 0.05)
-        ctx = ServerContext(frame_id=i, t_s=t, scene=scene, renderer=r, intrinsics=intr, latest_pose=pose, latest_pose_t_s=t,
-                            target_pose=tgt, target_t_s=t + 0.05, predict=tr.pose_at, expected_latency_s=0.05)
+        ctx = server_context(scene, r, intr, pose, t_s=t, frame_id=i, predict=tr.pose_at, latency_s=0.05)
         t0 = time.perf_counter()
         u = srv.produce(ctx)
         r.ctx.finish()

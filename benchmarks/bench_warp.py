@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from splitrender.codecs.meta import pack_meta, unpack_meta
-from splitrender.methods.base import DecodedUpdate, ServerContext
+from splitrender.methods.base import DecodedUpdate
 from splitrender.methods.warp import WarpClient, WarpConfig, WarpServer
+from splitrender.pipeline.direct import server_context
 from splitrender.render import Renderer
 from splitrender.scene.pose import CameraIntrinsics, Pose
 from splitrender.scene.procedural import default_scene
@@ -42,7 +43,7 @@ def bench(size: tuple[int, int], frames: int, renderer: Renderer) -> dict[str, o
     for rec in ("points", "quads", "mesh"):
         cfg = WarpConfig(reconstruction=rec)
         srv = WarpServer(cfg, intr, scene, 30)
-        ctx = ServerContext(0, 0.0, scene, renderer, intr, start, 0.0, start, 0.0, lambda t: start, 0.0)
+        ctx = server_context(scene, renderer, intr, start)
         u = srv.produce(ctx)
         cli = WarpClient(cfg, intr, renderer.ctx, {})
         cli.apply(DecodedUpdate(0, 0.0, u.pose, u.planes, unpack_meta(pack_meta(u.meta))))

@@ -38,17 +38,10 @@ def gl(renderer):
 def one_frame(renderer):  # type: ignore[no-untyped-def]
     """``one_frame(method, cfg, intr, scene, pose, t_s=0.0)``: a fresh server half of ``method`` makes one frame for
     ``pose`` (no latency, no network), and a fresh client half applies it; returns the client half, to render."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method
+    from splitrender.pipeline.direct import still_frame
 
     def make(method, cfg, intr, scene, pose, t_s=0.0):  # type: ignore[no-untyped-def]
-        spec = get_method(method)
-        srv = spec.server_class(cfg, intr, scene, 30, None)
-        upd = srv.produce(ServerContext(frame_id=0, t_s=t_s, scene=scene, renderer=renderer, intrinsics=intr,
-                                        latest_pose=pose, latest_pose_t_s=t_s, target_pose=pose, target_t_s=t_s,
-                                        predict=lambda _t: pose, expected_latency_s=0.0))
-        cli = spec.client_class(cfg, intr, renderer.ctx, srv.session_data())
-        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
-        return cli
+        return still_frame(method, cfg, intr, scene, renderer, pose, t_s, render=False).client
 
     return make
 

@@ -212,7 +212,8 @@ def test_warp_s_depth_step_goes_through_the_wire() -> None:
     """A warp server at ``depth_step`` 2 keeps one depth sample in four, top left; the client's parser repeats each
     one back over the view (a surface's depth is the same where it is, within one sample)."""
     from splitrender.methods import get_method, make_config
-    from splitrender.methods.base import DecodedUpdate, ServerContext
+    from splitrender.methods.base import DecodedUpdate
+    from splitrender.pipeline.direct import server_context
     from splitrender.methods.warp.wire import parse_update
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
@@ -228,7 +229,7 @@ def test_warp_s_depth_step_goes_through_the_wire() -> None:
     for step in (1, 2):
         cfg = make_config(spec.config, {"depth_step": step})
         srv = spec.server_class(cfg, intr, scene, 30)
-        ctx = ServerContext(0, 0.5, scene, r, intr, pose, 0.5, pose, 0.5, lambda t: pose, 0.0)
+        ctx = server_context(scene, r, intr, pose, t_s=0.5)
         upd = srv.produce(ctx)
         dec = DecodedUpdate(0, 0.5, pose, upd.planes, upd.meta)
         out[step] = parse_update(dec, cfg, srv.ref_intr).views[0].depth_m

@@ -141,7 +141,8 @@ def test_two_clients_of_one_gi_server_get_their_own_rates_while_it_traces_once(r
     fill's I-frame, whose visibility HEVC lossless barely shrinks, is most of both), 0.16 after the first frame
     (10,012 against 62,167); its probes are the rounded ones."""
     from splitrender.codecs.video import VideoEncoder
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.methods.probes.server import round_codes, round_moments
     from splitrender.pipeline.producers import ProducerPool
     from splitrender.scene.loader import get_scene
@@ -165,9 +166,7 @@ def test_two_clients_of_one_gi_server_get_their_own_rates_while_it_traces_once(r
         pose = trace.pose_at(t)
         shared = pool.prepare("probes", frame, t)
         for i, h in enumerate(halves):
-            ctx = ServerContext(frame_id=frame, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                                latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
-                                expected_latency_s=0.0, shared=shared)
+            ctx = server_context(scene, renderer, INTR, pose, t_s=t, frame_id=frame, shared=shared)
             upd = h.produce(ctx)
             for name, plane in upd.planes.items():
                 n = len(encoders[i][name].encode(plane, force_idr=upd.force_idr).data)
@@ -245,7 +244,8 @@ def _vis_bytes_around_a_precision_drop(renderer, module=None):  # type: ignore[n
     """One probes session on ``default`` (320x180, 30 fps, the walk), ``vis_bits`` 10 -> 2 before frame 10 as the point
     controller sets it: the bytes of the visibility picture at each GI update (frames 0, 3, ... 15), and the half."""
     from splitrender.codecs.video import VideoEncoder
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.pipeline.producers import ProducerPool
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
@@ -263,9 +263,7 @@ def _vis_bytes_around_a_precision_drop(renderer, module=None):  # type: ignore[n
             half.set_knobs({"vis_bits": 2})
         t = frame / 30
         pose = trace.pose_at(t)
-        ctx = ServerContext(frame_id=frame, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t, p=pose: p,
-                            expected_latency_s=0.0, shared=pool.prepare("probes", frame, t))
+        ctx = server_context(scene, renderer, INTR, pose, t_s=t, frame_id=frame, shared=pool.prepare("probes", frame, t))
         upd = half.produce(ctx)
         for name, plane in upd.planes.items():
             n = len(enc[name].encode(plane, force_idr=upd.force_idr).data)

@@ -218,7 +218,7 @@ def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
     """What the page keeps for ``sas`` (slot rows applied in order, transforms) equals the SAS client's own
     vertex buffer after every frame, whatever the PVS did; parts stay under 64 KiB."""
     from splitrender.codecs.meta import pack_meta, unpack_meta
-    from splitrender.methods.base import ServerContext
+    from splitrender.pipeline.direct import server_context
     from splitrender.methods.sas import SasConfig, SasServer
     from splitrender.methods.sas.slots import PatchSlots
     from splitrender.methods.sas.wire import parse_frame_meta, parse_session
@@ -245,7 +245,7 @@ def test_sas_slot_messages_rebuild_the_sas_clients_vertex_buffer():
     for f in range(8):
         t = f * 0.2
         pose = trace.pose_at(t)
-        u = srv.produce(ServerContext(f, t, scene, r, intr, pose, t, pose, t, trace.pose_at, 0.0))
+        u = srv.produce(server_context(scene, r, intr, pose, t_s=t, frame_id=f, predict=trace.pose_at))
         meta = unpack_meta(pack_meta(u.meta))
         msgs = bridge.frame(f, meta)
         for msg in msgs:                      # the page's reading

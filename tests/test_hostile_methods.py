@@ -26,11 +26,12 @@ from splitrender.codecs.meta import pack_meta, unpack_meta
 from splitrender.errors import RemoteProtocolError
 from splitrender.gi.stream import ProbeStreamError
 from splitrender.limits import ClientLimits
-from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+from splitrender.methods import DecodedUpdate, get_method, make_config
 from splitrender.methods.quads.wire import QuadsWireError
 from splitrender.methods.sas.wire import SasMetaError
 from splitrender.methods.tss.wire import WIRE_VERSION as TSS_WIRE_VERSION, TssWireError
 from splitrender.methods.warp.wire import WarpMetaError
+from splitrender.pipeline.direct import server_context
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.trace import get_trace
@@ -105,8 +106,8 @@ def pair(request: Any, renderer: Any) -> Pair:
         for f in range(2):
             t = 0.5 + f / 30
             pose = trace.pose_at(t)
-            ctx = ServerContext(f, t, scene, renderer, INTR, pose, t, pose, t, trace.pose_at, 0.0,
-                                shared=prod.prepare(f, t) if prod else None)
+            ctx = server_context(scene, renderer, INTR, pose, t_s=t, frame_id=f, predict=trace.pose_at,
+                                 shared=prod.prepare(f, t) if prod else None)
             u = srv.produce(ctx)
             updates.append(DecodedUpdate(u.frame_id, t, pose, u.planes, unpack_meta(pack_meta(u.meta)), dict(u.data)))
         _PAIRS[name] = Pair(name, spec.client_class, cfg, unpack_meta(pack_meta(srv.session_data())), updates, renderer)

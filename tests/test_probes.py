@@ -18,7 +18,8 @@ def renderer():  # type: ignore[no-untyped-def]
 
 
 def _server(renderer, scene_name: str = "minimal+gi", params: dict | None = None, t: float = 0.5, trace: str = "walk"):  # type: ignore[no-untyped-def]
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -30,9 +31,7 @@ def _server(renderer, scene_name: str = "minimal+gi", params: dict | None = None
     pose = get_trace(trace, scene=scene).pose_at(t)
 
     def ctx(frame_id: int, tt: float = t, **kw):  # type: ignore[no-untyped-def]
-        return ServerContext(frame_id=frame_id, t_s=tt, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                             latest_pose_t_s=tt, target_pose=pose, target_t_s=tt, predict=lambda _t: pose,
-                             expected_latency_s=0.0, shared=prod.prepare(frame_id, tt), **kw)
+        return server_context(scene, renderer, INTR, pose, t_s=tt, frame_id=frame_id, shared=prod.prepare(frame_id, tt), **kw)
     return srv, spec, cfg, scene, pose, ctx
 
 
@@ -258,7 +257,7 @@ def test_a_lost_update_resends_its_probes_on_an_empty_canvas_and_refresh_spreads
     assert not srv.produce(ctx(1, 0.0)).planes                       # still: nothing
     again = srv.produce(ctx(2, 0.0, feedback=ClientFeedback(lost_since={"vis": (0,)})))
     assert again.force_idr and np.array_equal(decode_index_list(again.data["index"], srv.count), ids0)
-    kf = srv.produce(ctx(3, 0.0, keyframe_requested=True))
+    kf = srv.produce(ctx(3, 0.0, keyframe=True))
     assert kf.force_idr and decode_index_list(kf.data["index"], srv.count).size == 0
     assert not kf.planes["color"].any() and not kf.planes["vis"].any(), "an I-frame on an empty canvas"
 

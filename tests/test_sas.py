@@ -11,11 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from splitrender.errors import RemoteProtocolError, SplitRenderError
-from splitrender.methods.base import DecodedUpdate, ServerContext
+from splitrender.methods.base import DecodedUpdate
 from splitrender.methods.sas.allocator import STRATEGIES, AtlasLayout, PatchAllocator
 from splitrender.methods.sas.levels import select_levels
 from splitrender.methods.sas.patches import build_mesh_patches, build_scene_patches
 from splitrender.methods.sas.wire import TRI_SLOTS, SasMetaError
+from splitrender.pipeline.direct import server_context
 from splitrender.scene.pose import CameraIntrinsics
 from splitrender.scene.procedural import default_scene
 from splitrender.sim.runner import RunConfig
@@ -208,7 +209,7 @@ def _loopback(frames: int, cfg_kw: dict, scene=None, t0: float = 1.0, on_frame=N
     for f in range(frames):
         t = t0 + f / 30
         pose = trace.pose_at(t)
-        ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, trace.pose_at, 0.0)
+        ctx = server_context(scene, r, INTR, pose, t_s=t, frame_id=f, predict=trace.pose_at)
         u = srv.produce(ctx)
         if on_frame is not None:
             on_frame(srv, u)
@@ -502,7 +503,7 @@ def test_linear_prediction_covers_99_percent_on_walk() -> None:
         pred = make_predictor("cv")
         for k in range(4, -1, -1):
             pred.observe(t - k / 120, trace.pose_at(t - k / 120))
-        ctx = ServerContext(0, t, scene, r, INTR, trace.pose_at(t), t, pred.predict(t + lat), t + lat, pred.predict, lat)
+        ctx = server_context(scene, r, INTR, trace.pose_at(t), t_s=t, predict=pred.predict, latency_s=lat)
         times = sample_times(t, t + lat + 1 / 30, servers["linear"].config.pvs_step_ms / 1e3)
         truth = [(s, trace.pose_at(s)) for s in times]
         for m, srv in servers.items():
@@ -539,7 +540,7 @@ def test_pvs_holds_a_moving_object_that_enters_the_view_within_the_window() -> N
     eye = np.array([2.5, 1.2, 0.0])
     pose = Pose(eye, look_at_quat(eye, eye + np.array([0.0, -0.1, -1.0])))
     t, lat = 0.87, _cloud_latency_s()
-    ctx = ServerContext(0, t, scene, r, INTR, pose, t, pose, t + lat, lambda _t: pose, lat)
+    ctx = server_context(scene, r, INTR, pose, t_s=t, latency_s=lat)
     samples = srv.pvs_samples(ctx)
     assert ids.evs_area(pose, INTR, t)[ball_patches].sum() == 0, "the ball must start outside the view"
     entering = ids.evs_area(pose, INTR, samples[-1][0])[ball_patches]

@@ -9,9 +9,9 @@ import pytest
 
 import splitrender.methods.sas.server as sas_server
 from splitrender.codecs.meta import pack_meta
-from splitrender.methods.base import ServerContext
 from splitrender.methods.sas import SasConfig, SasServer
 from splitrender.methods.sas.server import SasProducer
+from splitrender.pipeline.direct import server_context
 from splitrender.render.renderer import Renderer
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics
@@ -38,7 +38,7 @@ def _updates(scene_name: str, clients: list[int], frames: int, r: Renderer) -> d
             def at(s: float, c: int = c) -> object:
                 return tr.pose_at(s + OFFSETS[c])
             pose = at(t)
-            ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, at, 0.0, shared=shared, client=i)
+            ctx = server_context(scene, r, INTR, pose, t_s=t, frame_id=f, predict=at, shared=shared, client=i)
             upd = halves[c].produce(ctx)
             out[c].append(np.ascontiguousarray(upd.planes["atlas"]).tobytes() + pack_meta(upd.meta))
     return out

@@ -188,7 +188,8 @@ def test_moving_object_is_drawn_at_the_display_time() -> None:
     from dataclasses import replace
 
     from splitrender.codecs.meta import pack_meta, unpack_meta
-    from splitrender.methods.base import DecodedUpdate, ServerContext
+    from splitrender.methods.base import DecodedUpdate
+    from splitrender.pipeline.direct import server_context
     from splitrender.methods.sas import SasClient, SasConfig, SasServer
     from splitrender.methods.sas.client import extrapolate_transforms
     from splitrender.render.renderer import Renderer
@@ -207,7 +208,7 @@ def test_moving_object_is_drawn_at_the_display_time() -> None:
     for f in range(6):
         t = 1.3 + f / 30
         pose = trace.pose_at(t + late)
-        ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t + late, lambda s: trace.pose_at(s), late)
+        ctx = server_context(scene, r, INTR, pose, t_s=t, frame_id=f, predict=trace.pose_at, latency_s=late)
         u = srv.produce(ctx)
         cli.apply(DecodedUpdate(u.frame_id, t, pose, {"atlas": u.planes["atlas"]}, unpack_meta(pack_meta(u.meta))))
         if f < 2:
@@ -417,7 +418,7 @@ def test_shading_draws_each_block_texel_once_and_misses_none(renderer) -> None: 
     thirty-second of a texel only (grown by 1.5 texels as the outer edges, the default view drew 1.65 times the
     blocks' texels, and shading cost followed the fragments): at most 1.1 fragments per block texel, and no texel
     of a live block left as it was before the pass (a crack along a block's diagonal, whose texel centres lie on it)."""
-    from splitrender.methods.base import ServerContext
+    from splitrender.pipeline.direct import server_context
     from splitrender.methods.sas import SasConfig, SasServer
     from splitrender.scene.procedural import default_scene
     from splitrender.scene.trace import get_trace
@@ -433,7 +434,7 @@ def test_shading_draws_each_block_texel_once_and_misses_none(renderer) -> None: 
 
     srv._shade = spy  # type: ignore[method-assign]
     pose = get_trace("static").pose_at(0.5)
-    srv.produce(ServerContext(0, 0.5, scene, renderer, INTR, pose, 0.5, pose, 0.5, lambda _t: pose, 0.0))
+    srv.produce(server_context(scene, renderer, INTR, pose, t_s=0.5))
     ctx, live, frame, foot = got["args"]  # type: ignore[misc]
     srv._fbo.use()
     srv._fbo.clear(1.0, 0.0, 1.0, 1.0)               # magenta: no shaded texel of the default scene is
@@ -472,7 +473,8 @@ def test_atlas_texture_gradients_follow_the_materials_uv_transform(renderer) -> 
     fine a mip level and aliased (tss had the same, 3838ba7).  One still frame, the atlas as shaded (no codec), PSNR on
     each quad: measured quad 0 40.26 -> 55.84 dB, quad 2 39.30 -> 51.22; the others (no scale) the same either way
     (quad 5, rotated: 53.97)."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import still_frame
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -480,12 +482,9 @@ def test_atlas_texture_gradients_follow_the_materials_uv_transform(renderer) -> 
     spec = get_method("sas")
     cfg = make_config(spec.config, {})
     pose = get_trace("static", scene=scene).pose_at(0.5)
-    srv = spec.server_class(cfg, INTR, scene, 30, None)
-    upd = srv.produce(ServerContext.at_pose(0, 0.5, scene, renderer, INTR, pose))
-    cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
-    cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
+    still = still_frame(spec, cfg, INTR, scene, renderer, pose, 0.5)
     truth = renderer.render(scene, 0.5, pose, INTR, ("color", "object_id"))
-    got = cli.render(pose, 0.5).color.astype(np.float64)
+    got = still.frame.color.astype(np.float64)   # type: ignore[union-attr]
     db = {}
     for name in ("TextureTransformTest_0", "TextureTransformTest_2", "TextureTransformTest_5"):
         m = truth.object_id == next(o.object_id for o in scene.objects if o.name == name)

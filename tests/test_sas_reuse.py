@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import splitrender.methods.sas.server as sas_server
-from splitrender.methods.base import ServerContext
 from splitrender.methods.sas import SasConfig, SasServer
+from splitrender.pipeline.direct import server_context
 from splitrender.render.renderer import Renderer
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics
@@ -37,7 +37,7 @@ def _run(scene_name: str, trace: str, frames: int, t0: float = 0.5) -> tuple[lis
         pose = tr.pose_at(t)
         atl = []
         for srv in srvs:
-            ctx = ServerContext(f, t, scene, r, INTR, pose, t, pose, t, tr.pose_at, 0.0)
+            ctx = server_context(scene, r, INTR, pose, t_s=t, frame_id=f, predict=tr.pose_at)
             atl.append(srv.produce(ctx).planes["atlas"])
         diff.append(int((atl[0] != atl[1]).any(axis=2).sum()))
         st = srvs[1].stats()
@@ -113,7 +113,7 @@ def _eye_run(tol: float, frames: int, broken: bool = False) -> tuple[list[float]
     for f in range(frames):
         t = 0.5 + f / 30
         pose = tr.pose_at(t)
-        atl = [s.produce(ServerContext(f, t, scene, r, INTR, pose, t, pose, t, tr.pose_at, 0.0)).planes["atlas"]
+        atl = [s.produce(server_context(scene, r, INTR, pose, t_s=t, frame_id=f, predict=tr.pose_at)).planes["atlas"]
                for s in (ref, srv)]
         used = atl[0].any(axis=2) | atl[1].any(axis=2)
         d = (atl[0][used].astype(np.float64) - atl[1][used]) ** 2

@@ -358,7 +358,8 @@ def renderer():  # type: ignore[no-untyped-def]
 
 def _server_frame(renderer, scene_name: str = "default+nogi", params: dict | None = None, t: float = 0.5,  # type: ignore[no-untyped-def]
                   intr: CameraIntrinsics = INTR, trace: str = "walk"):
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -367,8 +368,7 @@ def _server_frame(renderer, scene_name: str = "default+nogi", params: dict | Non
     cfg = make_config(spec.config, params or {})
     pose = get_trace(trace, scene=scene).pose_at(t)
     srv = spec.server_class(cfg, intr, scene, 30, None)
-    ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                        latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
+    ctx = server_context(scene, renderer, intr, pose, t_s=t)
     return srv, ctx, spec, cfg, scene, pose
 
 

@@ -12,8 +12,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from splitrender.codecs.meta import pack_meta, unpack_meta
-from splitrender.codecs.video import VideoDecoder, VideoEncoder
 from splitrender.errors import CodecError, ConfigError, RemoteProtocolError
 from splitrender.methods import get_method, make_config
 from splitrender.methods.atw import AtwClient, AtwConfig, AtwServer
@@ -21,6 +19,7 @@ from splitrender.methods.base import DecodedUpdate, ServerContext, ServerHalf, U
 from splitrender.methods.warp import (WarpClient, WarpConfig, WarpMetaError, WarpServer, extrapolate_model, mesh_grid_indices,
                                       reference_poses)
 from splitrender.metrics import hole_rate, lab_error_rate, psnr
+from splitrender.pipeline.direct import decoded_through_codecs, server_context
 from splitrender.scene.pose import CameraIntrinsics, Pose, quat_from_axis_angle, quat_to_matrix3
 from splitrender.scene.model import Material, Scene, SceneObject
 from splitrender.scene.primitives import box
@@ -36,17 +35,12 @@ def scene():  # type: ignore[no-untyped-def]
 
 
 def context(scene: Any, renderer: Any, pose: Pose, t_s: float = 0.0, frame_id: int = 0) -> ServerContext:
-    return ServerContext(frame_id, t_s, scene, renderer, INTR, pose, t_s, pose, t_s, lambda t: pose, 0.0)
+    return server_context(scene, renderer, INTR, pose, t_s=t_s, frame_id=frame_id)
 
 
 def through_wire(server: ServerHalf, update: Update) -> DecodedUpdate:
     """Encode every plane with its stream's real codec and the metadata with msgpack+zstd, and back."""
-    planes = {}
-    for s in server.streams():
-        enc = VideoEncoder(s.codec, s.width, s.height)
-        dec = VideoDecoder(s.codec.codec, s.codec.input_format)
-        planes[s.name] = dec.decode(enc.encode(update.planes[s.name], force_idr=True).data)
-    return DecodedUpdate(update.frame_id, update.t_s, update.pose, planes, unpack_meta(pack_meta(update.meta)))
+    return decoded_through_codecs(server, update)[0]
 
 
 def warp_pair(scene: Any, renderer: Any, t_s: float = 0.0, pose: Pose = START, **params: Any) -> tuple[WarpServer, WarpClient]:

@@ -14,8 +14,9 @@ from hypothesis.extra import numpy as hnp
 
 from splitrender.codecs.meta import pack_meta, unpack_meta
 from splitrender.errors import RemoteProtocolError
-from splitrender.methods.base import DecodedUpdate, ServerContext
+from splitrender.methods.base import DecodedUpdate
 from splitrender.methods.warp import WarpClient, WarpConfig, WarpMetaError, WarpServer
+from splitrender.pipeline.direct import server_context
 from splitrender.scene.pose import CameraIntrinsics, Pose
 from splitrender.scene.procedural import default_scene
 
@@ -33,7 +34,7 @@ def fuzz_pair(request: Any, renderer: Any) -> tuple[WarpClient, DecodedUpdate]:
     scene = default_scene(gi=False)
     cfg = WarpConfig(views=2, depth_coding=request.param, reconstruction="mesh")
     srv = WarpServer(cfg, INTR, scene, 30)
-    ctx = ServerContext(0, T_REF, scene, renderer, INTR, START, T_REF, START, T_REF, lambda t: START, 0.0)
+    ctx = server_context(scene, renderer, INTR, START, t_s=T_REF)
     u = srv.produce(ctx)
     good = DecodedUpdate(0, u.t_s, u.pose, u.planes, unpack_meta(pack_meta(u.meta)))
     cli = WarpClient(cfg, INTR, renderer.ctx, srv.session_data())

@@ -12,6 +12,7 @@ frame's order (the core's) and its making (:func:`make_frame`, wherever the GL c
 the session the two live server front doors share around the core (not sans-IO: asyncio, a render worker).
 """
 
+from .direct import StillFrame, server_context, still_frame
 from .frames import FrameMaker, FrameOrder, apply_updates, black_frame, display_frame, make_frame
 from .feedback import FeedbackState, FeedbackTracker, LatencyEstimator
 from .producers import ProducerPool
@@ -31,6 +32,7 @@ __all__ = [
     "Accepted", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "apply_updates", "CLIENT_CODECS",
     "SessionTerms", "Stalled", "StallTimeout", "check_hello", "parse_welcome", "session_params",
     "session_summary", "shows_anything",
+    "StillFrame", "server_context", "still_frame",
     "FrameMaker", "FrameOrder", "black_frame", "display_frame", "make_frame", "StreamEncoder",
     "ClientPipeline", "DEFAULT_MAX_SESSION_BYTES", "EncodedUpdate", "Envelope", "EnvelopeError", "FeedbackState",
     "FeedbackTracker", "LatencyEstimator", "META_STREAM", "OutgoingFrame", "ProducerPool", "ReceivedFrame",

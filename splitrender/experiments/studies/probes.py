@@ -33,10 +33,11 @@ from typing import Any
 
 import numpy as np
 
-from ...codecs.video import VideoDecoder, VideoEncoder
+from ...codecs.video import VideoEncoder
 from ...gi.stream import decode_index_list, guard_band_savings
-from ...methods import DecodedUpdate, ServerContext, get_method, make_config
+from ...methods import get_method, make_config
 from ...metrics.image import psnr
+from ...pipeline.direct import server_context, still_frame
 from ...render.renderer import Renderer, make_pose_looking
 from ...scene.loader import get_scene
 from ...scene.pose import CameraIntrinsics
@@ -80,9 +81,7 @@ def _rate_run(renderer: Any, scene_name: str, times: np.ndarray, keyframe_at_end
     for f, (t, kf) in enumerate(schedule):
         if kf:       # a full refresh, the paper's answer to a keyframe request (ours resends only what was lost)
             srv.sent[:] = False
-        ctx = ServerContext(frame_id=f, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose,
-                            expected_latency_s=0.0, keyframe_requested=kf)
+        ctx = server_context(scene, renderer, intr, pose, t_s=t, frame_id=f, keyframe=kf)
         w0 = time.perf_counter()
         upd = srv.produce(ctx)
         server_ms = (time.perf_counter() - w0) * 1e3
@@ -130,21 +129,10 @@ def leak_ablation(renderer: Any, size: tuple[int, int] = (160, 90)) -> list[dict
     rows = []
     for lossy in (False, True):
         cfg = make_config(spec.config, {"vis_lossy": lossy})
-        prod = spec.producer_class(cfg, scene, 10, renderer)
-        srv = spec.server_class(cfg, intr, scene, 10, prod)
-        ctx = ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                            latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0, predict=lambda _t: pose,
-                            expected_latency_s=0.0, shared=prod.prepare(0, 0.0))
-        upd = srv.produce(ctx)
-        specs = {st.name: st for st in srv.streams() if getattr(st, "kind", "") == "video"}
-        planes, bits = {}, {}
-        for n, img in upd.planes.items():
-            enc = VideoEncoder(specs[n].codec, specs[n].width, specs[n].height).encode(img, force_idr=True)
-            bits[n] = 8 * len(enc.data)
-            planes[n] = VideoDecoder("hevc", specs[n].codec.input_format).decode(enc.data)
-        cli = spec.client_class(cfg, intr, renderer.ctx, srv.session_data())
-        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, planes, upd.meta, dict(upd.data)))
-        shown = cli.render(pose, 0.0).color
+        still = still_frame(spec, cfg, intr, scene, renderer, pose, 0.0, codec=True, fps=10,
+                            producer=spec.producer_class(cfg, scene, 10, renderer))
+        bits = {n: 8 * still.coded_bytes[n] for n in still.update.planes}
+        shown = still.frame.color   # type: ignore[union-attr]
         rows.append({"visibility": "lossy HEVC (crf 23)" if lossy else "lossless HEVC", "psnr_db": psnr(shown, truth),
                      "brightness_over_truth": float(shown.astype(np.float64).mean() / max(truth.astype(np.float64).mean(), 1e-9)),
                      "vis_kbit": bits.get("vis", 0) / 1e3, "color_kbit": bits.get("color", 0) / 1e3})

@@ -23,10 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from ...methods import DecodedUpdate, ServerContext, get_method, make_config
+from ...methods import get_method, make_config
 from ...methods.quads.server import STAGES as SERVER_STAGES
 from ...methods.warp import fov_scale_for
 from ...metrics.image import psnr
+from ...pipeline.direct import still_frame
 from ...render.renderer import Renderer
 from ...scene.loader import get_scene
 from ...scene.pose import CameraIntrinsics, Pose
@@ -82,14 +83,8 @@ def _threshold_sweep(renderer: Any, size: tuple[int, int], quick: bool = False) 
     sweeps += [("coarse_passes", float(v), {"coarse_passes": v}) for v in (range(0, 5, 2) if quick else range(5))]
     for name, value, p in sweeps:
         cfg = make_config(spec.config, {"lossless": True, "layers": 1, "wide_fov_deg": 0.0, "reference_every": 1, **p})
-        srv = spec.server_class(cfg, intr, scene, 30, None)
-        ctx = ServerContext(frame_id=0, t_s=t, scene=scene, renderer=renderer, intrinsics=intr, latest_pose=pose,
-                            latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
-        upd = srv.produce(ctx)
-        cli = spec.client_class(cfg, intr, renderer.ctx, srv.session_data())
-        cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, upd.data))
-        fr = cli.render(off, t)
-        st = srv.stats()
+        still = still_frame(spec, cfg, intr, scene, renderer, pose, t, view=off)
+        upd, fr, st = still.update, still.frame, still.server.stats()
         rows.append({"parameter": name, "value": value, "quads": st["quads"], "nonflat": st["nonflat"],
                      "psnr_db": psnr(fr.color, truth), "holes_pct": 100.0 * float(fr.holes.mean()),
                      "quads_bytes": len(upd.data["quads"]) + len(upd.data["offsets"])})
