@@ -24,9 +24,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 import zstandard  # noqa: E402
 
-from splitrender.methods import ServerContext, get_method, make_config  # noqa: E402
+from splitrender.methods import get_method, make_config  # noqa: E402
 from splitrender.methods.quads.server import STAGES as SERVER_STAGES  # noqa: E402
 from splitrender.methods.quads.wire import SET_HEADER, from_byte_planes  # noqa: E402
+from splitrender.pipeline.direct import server_context  # noqa: E402
 from splitrender.render.renderer import Renderer  # noqa: E402
 from splitrender.scene.loader import get_scene  # noqa: E402
 from splitrender.scene.pose import CameraIntrinsics  # noqa: E402
@@ -57,7 +58,7 @@ def one(renderer: Renderer, variant: str, size: tuple[int, int]) -> dict:
     for f in range(FRAMES):
         t = 0.5 + f / 30
         pose = trace.pose_at(t)
-        ctx = ServerContext.at_pose(f, t, scene, renderer, intr, pose)
+        ctx = server_context(scene, renderer, intr, pose, t_s=t, frame_id=f)
         t0 = time.perf_counter()
         upd = srv.produce(ctx)
         total = (time.perf_counter() - t0) * 1e3

@@ -59,8 +59,9 @@ def time_cell(scene_name: str, trace: str, frames: int, variant: str = "quasar",
     import numpy as np
 
     import splitrender
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import DecodedUpdate, get_method, make_config
     from splitrender.metrics.image import psnr
+    from splitrender.pipeline.direct import server_context
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
@@ -80,7 +81,7 @@ def time_cell(scene_name: str, trace: str, frames: int, variant: str = "quasar",
     for f in range(frames + 2):
         t = 0.5 + f / 30
         pose = tr.pose_at(t)
-        ctx = ServerContext.at_pose(f, t, scene, r, intr, pose)
+        ctx = server_context(scene, r, intr, pose, t_s=t, frame_id=f)
         c0 = cpu()
         u = srv.produce(ctx)
         c1 = cpu()

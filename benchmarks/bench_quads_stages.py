@@ -49,7 +49,8 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
     import splitrender
     import splitrender.methods.quads.mesh as mesh_mod
     import splitrender.methods.quads.server as srv_mod
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
@@ -116,7 +117,7 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
     for f in range(frames + 2):
         t = 0.5 + f / 30
         pose = tr.pose_at(t)
-        ctx = ServerContext.at_pose(f, t, scene, r, intr, pose)
+        ctx = server_context(scene, r, intr, pose, t_s=t, frame_id=f)
         acc.clear()
         c0 = cpu()
         srv.produce(ctx)

@@ -91,7 +91,8 @@ def test_quad_count_falls_monotonically_with_the_thresholds(renderer) -> None:  
 
 
 def _frame(renderer, params: dict, t: float = 0.5, frame_id: int = 0, srv=None, pose: Pose | None = None):  # type: ignore[no-untyped-def]
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -100,8 +101,7 @@ def _frame(renderer, params: dict, t: float = 0.5, frame_id: int = 0, srv=None, 
     cfg = make_config(spec.config, {"lossless": True, **params})
     pose = pose or get_trace("walk", scene=scene).pose_at(t)
     srv = srv or spec.server_class(cfg, INTR, scene, 30, None)
-    ctx = ServerContext(frame_id=frame_id, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                        latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose, expected_latency_s=0.0)
+    ctx = server_context(scene, renderer, INTR, pose, t_s=t, frame_id=frame_id)
     return srv, srv.produce(ctx), spec, cfg, scene, pose
 
 
@@ -389,15 +389,14 @@ def test_quads_past_the_packed_atlas_are_left_out_and_the_rest_still_draws(rende
     (the last views' quads) is left out and counted, and the client draws the rest.  Here a 512x128 atlas (65.5k
     texels) takes the centre view (57.6k) and part of the first corner view: measured 11529 of 12733 quads left
     out, 65521 texels kept, no hole at the centre pose."""
-    from splitrender.methods import ServerContext
     from splitrender.methods.quads.packing import fitting
+    from splitrender.pipeline.direct import server_context
 
     assert fitting(np.array([4, 4, 2, 1]), 36) == 3 and fitting(np.array([4, 4, 2, 1]), 32) == 2
     assert fitting(np.array([4]), 15) == 0
     srv, _, spec, cfg, scene, pose = _frame(renderer, {"variant": "quadstream"})
     srv.packed = srv.atlas_wh = (512, 128)
-    ctx = ServerContext(frame_id=1, t_s=0.5, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                        latest_pose_t_s=0.5, target_pose=pose, target_t_s=0.5, predict=lambda _t: pose, expected_latency_s=0.0)
+    ctx = server_context(scene, renderer, INTR, pose, t_s=0.5, frame_id=1)
     upd = srv.produce(ctx)
     st = srv.stats()
     assert st["atlas_dropped"] > 11000 and 65000 < sum(s.quads.pixels() for s in srv.last_sets) <= 512 * 128

@@ -78,7 +78,7 @@ def test_a_recorded_update_is_counted_as_by_hand() -> None:
     """The quads server half on the default walk: a reference frame, then a residual one; its ``quasar_bytes`` stat
     equals the hand computation over the sets it sent, and the residual frame's leaves its hidden layer out."""
     from splitrender.methods import get_method, make_config
-    from splitrender.methods.base import ServerContext
+    from splitrender.pipeline.direct import server_context
     from splitrender.render.renderer import Renderer
     from splitrender.scene.loader import get_scene
     from splitrender.scene.pose import CameraIntrinsics
@@ -94,7 +94,7 @@ def test_a_recorded_update_is_counted_as_by_hand() -> None:
     for f in (0, 1):
         t = f / 30
         pose = trace.pose_at(t)
-        srv.produce(ServerContext(f, t, scene, r, intr, pose, t, pose, t, lambda _t: pose, 0.0))
+        srv.produce(server_context(scene, r, intr, pose, t_s=t, frame_id=f))
         st = srv.stats()
         kinds = {s.kind for s in srv.last_sets}
         counted = srv.last_sets if st["reference"] else [s for s in srv.last_sets if s.kind in (KIND_UPDATE, KIND_REVEALED)]

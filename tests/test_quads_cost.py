@@ -30,11 +30,11 @@ def _setup(trace: str = "walk"):  # type: ignore[no-untyped-def]
 
 
 def _ctx(renderer, scene, tr, f: int):  # type: ignore[no-untyped-def]
-    from splitrender.methods import ServerContext
+    from splitrender.pipeline.direct import server_context
 
     t = 0.5 + f / 30
     pose = tr.pose_at(t)
-    return ServerContext.at_pose(f, t, scene, renderer, INTR, pose)
+    return server_context(scene, renderer, INTR, pose, t_s=t, frame_id=f)
 
 
 def test_sparse_planes_are_the_whole_images(renderer) -> None:  # type: ignore[no-untyped-def]

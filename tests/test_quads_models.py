@@ -27,7 +27,8 @@ needs_models = pytest.mark.skipif(not (ENGINE.exists() and DUCK.exists()),
 def _reference_frame(renderer, params: dict):  # type: ignore[no-untyped-def]
     """The first (reference) frame of QUASAR on the engine+ground at the fitted orbit's start: (server, update, spec,
     config, scene, pose)."""
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -36,9 +37,7 @@ def _reference_frame(renderer, params: dict):  # type: ignore[no-untyped-def]
     spec = get_method("quads")
     cfg = make_config(spec.config, {"lossless": True, **params})
     srv = spec.server_class(cfg, INTR, scene, 30, None)
-    ctx = ServerContext(frame_id=0, t_s=0.5, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                        latest_pose_t_s=0.5, target_pose=pose, target_t_s=0.5, predict=lambda _t: pose,
-                        expected_latency_s=0.0)
+    ctx = server_context(scene, renderer, INTR, pose, t_s=0.5)
     return srv, srv.produce(ctx), spec, cfg, scene, pose
 
 

@@ -28,7 +28,8 @@ needs_models = pytest.mark.skipif(not (ENGINE.exists() and DUCK.exists()),
 def _two_frames(renderer, model: Path, params: dict, dt: float = 1 / 30):  # type: ignore[no-untyped-def]
     """A reference frame at the orbit's pose at ``T0`` and the next frame at ``T0 + dt``, both applied by a client:
     (second frame's kind, its server stats, the client's model PSNR at the second pose against the truth)."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import DecodedUpdate, get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -40,9 +41,7 @@ def _two_frames(renderer, model: Path, params: dict, dt: float = 1 / 30):  # typ
     cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
     for fid, t in enumerate((T0, T0 + dt)):
         pose = trace.pose_at(t)
-        upd = srv.produce(ServerContext(frame_id=fid, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR,
-                                        latest_pose=pose, latest_pose_t_s=t, target_pose=pose, target_t_s=t,
-                                        predict=lambda _t, p=pose: p, expected_latency_s=0.0))
+        upd = srv.produce(server_context(scene, renderer, INTR, pose, t_s=t, frame_id=fid))
         cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
     got = cli.render(pose, t)
     truth = renderer.render(scene, t, pose, INTR, ("color", "object_id"))

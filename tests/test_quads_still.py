@@ -89,7 +89,8 @@ def test_quadstream_at_the_servers_pose_codes_its_centre_view_as_quasar_does(ren
     centre view lay whole in the atlas, its quads were binned among the others' and coded as a mosaic
     (2CylinderEngine: 36.07 dB against QUASAR's 36.99).  Bound: within 0.01 dB of QUASAR's."""
     from splitrender.codecs.video import VideoDecoder, VideoEncoder
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import DecodedUpdate, get_method, make_config
+    from splitrender.pipeline.direct import server_context
 
     scene = fins_scene()
     pose = Pose(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
@@ -100,9 +101,7 @@ def test_quadstream_at_the_servers_pose_codes_its_centre_view_as_quasar_does(ren
     for variant in ("quasar", "quadstream"):
         cfg = make_config(spec.config, {"variant": variant})
         srv = spec.server_class(cfg, INTR, scene, 30, None)
-        upd = srv.produce(ServerContext(frame_id=0, t_s=0.0, scene=scene, renderer=renderer, intrinsics=INTR, latest_pose=pose,
-                                        latest_pose_t_s=0.0, target_pose=pose, target_t_s=0.0, predict=lambda _t: pose,
-                                        expected_latency_s=0.0))
+        upd = srv.produce(server_context(scene, renderer, INTR, pose))
         st = srv.streams()[0]
         coded = VideoEncoder(st.codec, st.width, st.height).encode(upd.planes["atlas"], force_idr=True)
         atlas = VideoDecoder(st.codec.codec).decode(coded.data)

@@ -73,7 +73,8 @@ def test_underlap_fills_the_engines_slivers_and_leaves_the_reference_pose_alone(
     underlap and without it (every extension is under half a pixel and behind a nearer surface).  25 ms later,
     measured: the model pixels no quad covers 1.84 % -> 0.46 % of the model (MeshWarp 60: 0.47 %), model PSNR
     19.79 -> 20.14 dB.  Bounds: holes under 0.8 % with it and over 1.4 % without, at least 0.2 dB gained."""
-    from splitrender.methods import DecodedUpdate, ServerContext, get_method, make_config
+    from splitrender.methods import DecodedUpdate, get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
     from splitrender.scene.trace import get_trace
 
@@ -87,9 +88,7 @@ def test_underlap_fills_the_engines_slivers_and_leaves_the_reference_pose_alone(
         srv = spec.server_class(cfg, INTR, scene, 30, None)
         cli = spec.client_class(cfg, INTR, renderer.ctx, srv.session_data())
         pose = trace.pose_at(t0)
-        upd = srv.produce(ServerContext(frame_id=0, t_s=t0, scene=scene, renderer=renderer, intrinsics=INTR,
-                                        latest_pose=pose, latest_pose_t_s=t0, target_pose=pose, target_t_s=t0,
-                                        predict=lambda _t, p=pose: p, expected_latency_s=0.0))
+        upd = srv.produce(server_context(scene, renderer, INTR, pose, t_s=t0))
         assert upd.meta["frame"] == "reference"
         cli.apply(DecodedUpdate(upd.frame_id, upd.t_s, upd.pose, upd.planes, upd.meta, dict(upd.data)))
         shown[px] = (cli.render(pose, t0), cli.render(trace.pose_at(t0 + dt), t0 + dt))

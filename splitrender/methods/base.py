@@ -250,7 +250,9 @@ class ServerContext:
     pose at the time the frame is expected to be displayed (``t_s + expected_latency_s``);
     ``predict(t)`` extrapolates the client pose to any time (for PVS steps).
     ``shared`` is what the method's :class:`SceneProducer` prepared for this server
-    frame (``None`` without a producer); ``client`` numbers the session on this server.
+    frame (``None`` without a producer); ``client`` numbers the session on this server.  A session's core builds
+    it (``pipeline.frames.FrameOrder.context``); benchmarks, studies and tests that drive a half directly build it
+    with ``pipeline.direct.server_context``.
     """
 
     frame_id: int
@@ -268,15 +270,6 @@ class ServerContext:
     feedback: ClientFeedback = field(default_factory=ClientFeedback)
     shared: Any = None
     client: int = 0
-
-    @classmethod
-    def at_pose(cls, frame_id: int, t_s: float, scene: Scene, renderer: Any, intrinsics: CameraIntrinsics,
-                pose: Pose) -> ServerContext:
-        """A frame for a client seen at ``pose`` at ``t_s`` and held there, with no latency (benchmarks and tests
-        that drive a server half directly)."""
-        return cls(frame_id=frame_id, t_s=t_s, scene=scene, renderer=renderer, intrinsics=intrinsics,
-                   latest_pose=pose, latest_pose_t_s=t_s, target_pose=pose, target_t_s=t_s, predict=lambda _t: pose,
-                   expected_latency_s=0.0)
 
 
 @dataclass
