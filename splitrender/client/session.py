@@ -91,10 +91,12 @@ class LiveClient:
 
     @property
     def counters(self) -> dict[str, Any]:
-        """The session core's counters and the driver's own (late display ticks, the timer task's lag)."""
-        core = self.core.counters if self.core is not None else {}
+        """The session core's counters, with what each RTP stream's jitter buffer dropped
+        (:meth:`ClientSession.all_counters`), and the driver's own (late display ticks, the timer task's lag, datagrams
+        from a foreign address, the rows recorded)."""
+        core = self.core.all_counters() if self.core is not None else {}
         foreign = {"udp_foreign": self._udp_protocol.foreign} if self._udp_protocol is not None else {}
-        return {**core, **self._counters, **foreign}
+        return {**core, **self._counters, **foreign, "rows_recorded": self.recording.rows}
 
     # ------------------------------------------------------------------ run
 
@@ -143,7 +145,7 @@ class LiveClient:
             await self._release()
             if self.recording.started:   # a broken session: keep what was
                 # recorded, marked incomplete
-                result = ClientResult(list(self.recording.recent), self._all_counters(), {
+                result = ClientResult(list(self.recording.recent), self.counters, {
                     **self._recording(), "complete": False, "error": f"{type(exc).__name__}: {exc}"}, cfg.out_dir)
                 self.recording.finish(result.recording, result.counters)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
@@ -152,7 +154,7 @@ class LiveClient:
         await self._release()
         logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self.recording.rows,
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(list(self.recording.recent), self._all_counters(),
+        result = ClientResult(list(self.recording.recent), self.counters,
                               {**self._recording(), "complete": True}, cfg.out_dir)
         if cfg.out_dir is not None:   # frames.csv, counters.json and the completed manifest; then the journal goes
             await asyncio.get_running_loop().run_in_executor(None, self.recording.finish, result.recording,
@@ -319,11 +321,6 @@ class LiveClient:
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
             self.core.on_decoded(w, res, wall_ms())
 
-    def _all_counters(self) -> dict[str, Any]:
-        """The counters with, per RTP stream, what its jitter buffer dropped (see :meth:`ClientSession.all_counters`)."""
-        base = self.core.all_counters() if self.core is not None else {}
-        return {**base, **self._counters, "rows_recorded": self.recording.rows}
-
     # ------------------------------------------------------------------ RTCP out
 
     def _flush_rtcp(self) -> None:
@@ -357,7 +354,7 @@ class LiveClient:
             if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:
                 last_metrics = time.monotonic()
                 logger.info("metrics session=%s %s", self.session_id,
-                            " ".join(f"{k}={v}" for k, v in self._all_counters().items()))
+                            " ".join(f"{k}={v}" for k, v in self.counters.items()))
 
     # ------------------------------------------------------------------ display
 

@@ -39,7 +39,7 @@ from splitrender.pipeline import ServerOptions
 from splitrender.protocol import RtcpError
 from splitrender.protocol.rtcp import rtcp_route_ssrc
 from splitrender.server.session import ServerSession
-from splitrender.server.worker import RenderWorker, parse_test_hang
+from splitrender.server.worker import RenderWorker
 from splitrender.transport.errors import BindError, describe_os_error
 
 __all__ = ["ServerConfig", "LiveServer", "serve", "check_method_params", "sdp_hint", "DEFAULT_PORT",
@@ -55,6 +55,22 @@ DEFAULT_GI_HZ = 5.0
 """Live servers relight the scene's DDGI probes at this rate (0: every frame)."""
 
 Address = tuple[str, int]
+
+
+def parse_test_hang(text: str) -> tuple[int, int] | None:
+    """``"SESSION:FRAME"`` (the ``SPLITRENDER_TEST_HANG`` test hook): the server's SESSION-th session (1-based)
+    hangs while rendering frame FRAME; ``""`` = never.  Raises ``ValueError`` naming the fault."""
+    if not text:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        s, f = int(a), int(b)
+    except ValueError:
+        s = f = -1
+    if not sep or s < 1 or f < 0:
+        raise ValueError(f"SPLITRENDER_TEST_HANG: expected SESSION:FRAME (e.g. 1:5), got {text!r}")
+    return s, f
+
 
 @dataclass(frozen=True)
 @option_fields(ServerProtocolOptions)

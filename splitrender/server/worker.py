@@ -47,7 +47,7 @@ from typing import Any
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
 from splitrender.pipeline.frames import SessionFrames
 
-__all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "parse_test_hang"]
+__all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context"]
 
 logger = logging.getLogger(__name__)
 
@@ -87,21 +87,6 @@ def worker_context() -> Any:
                 else:
                     os.environ[k] = old
     return _ctx
-
-
-def parse_test_hang(text: str) -> tuple[int, int] | None:
-    """``"SESSION:FRAME"`` (the ``SPLITRENDER_TEST_HANG`` test hook): the server's SESSION-th session (1-based)
-    hangs while rendering frame FRAME; ``""`` = never.  Raises ``ValueError`` naming the fault."""
-    if not text:
-        return None
-    a, sep, b = text.partition(":")
-    try:
-        s, f = int(a), int(b)
-    except ValueError:
-        s = f = -1
-    if not sep or s < 1 or f < 0:
-        raise ValueError(f"SPLITRENDER_TEST_HANG: expected SESSION:FRAME (e.g. 1:5), got {text!r}")
-    return s, f
 
 
 # ---------------------------------------------------------------------- the event-loop side

@@ -64,10 +64,10 @@ from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import get_method
 from ..netsim import Link, parse_path
 from ..netsim.driver import TIMER, Clock, Timer, Wire, arrivals
-from ..pipeline.rows import frame_row, frames_summary, mean_of, updates_summary
+from ..pipeline.rows import frame_row, run_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
                         FrameMaker, Opening, ProducerPool, ReceivedFrame, ServerSession, accept_hello, check_hello,
-                        display_frame, method_config, session_summary, tcp_segments)
+                        display_frame, method_config, tcp_segments)
 from ..pipeline.recording import write_run
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
 from ..protocol import ServerConnection, Welcome
@@ -492,28 +492,12 @@ class VirtualTimeRun:
         self._client_out(c)
 
     def _summary(self, c: _Client) -> dict[str, Any]:
-        cfg = self.cfg
+        """Client ``c``'s summary row (:func:`~splitrender.pipeline.rows.run_summary`), over the run and one server
+        frame interval."""
         assert c.core is not None and c.core_s is not None
-        dur = self.duration_s + 1.0 / cfg.server_fps
-        total = sum(c.bytes.values())
-        once = c.bytes.get(SESSION_STREAM, 0)  # the one-off session data (a probes scene upload)
-        ups = c.updates
-        traces = cfg.client_traces or (cfg.trace,)
-        return {
-            "client": c.index, "method": cfg.method, "network": cfg.network, "scene": cfg.scene, "trace": cfg.trace,
-            "seed": cfg.seed, "params": ";".join(f"{k}={v}" for k, v in sorted(cfg.method_params.items())),
-            "client_trace": traces[c.index % len(traces)], "width": cfg.width, "height": cfg.height,
-            "server_fps": cfg.server_fps, "client_fps": cfg.client_fps, **frames_summary(c.frames),
-            "mean_kbps": total * 8 / dur / 1000.0, **{f"kbps_{k}": b * 8 / dur / 1000.0 for k, b in c.bytes.items()},
-            "session_kb": once / 1000.0, "steady_kbps": (total - once) * 8 / dur / 1000.0, **updates_summary(ups),
-            "cost_model": cfg.cost_model, "mean_cost_ms": mean_of(ups, "cost_ms"), "server_skipped": self.server_skipped,
-            "clients": cfg.clients, "protocol_errors": c.protocol_errors, "packets_lost": c.packets_lost,
-            "rtp_packets": c.core_s.counters["rtp_packets"],
-            **session_summary(c.core.all_counters(), c.core_s.counters, c.frames),
-            "mean_pred_err_cm": mean_of(ups, "pred_err_cm"), "mean_pred_err_deg": mean_of(ups, "pred_err_deg"),
-            "flip_every": cfg.flip_every, "config_key": cfg.key(),
-            **c.core_s.summary(ups),   # what its estimator, rate adaptation and operating point did
-        }
+        return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes, self.duration_s + 1.0 / self.cfg.server_fps,
+                           self.server_skipped, c.protocol_errors, c.packets_lost, c.core.all_counters(),
+                           c.core_s.counters, c.core_s.summary(c.updates))
 
 
 def run(cfg: RunConfig, out_dir: str | Path | None = None, renderer: Renderer | None = None, progress: ProgressFn | None = None) -> RunResult:
