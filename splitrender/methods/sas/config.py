@@ -87,7 +87,15 @@ class SasConfig(MethodConfig):
     degrees and its distance changed by less than that many radians' worth, the reference view's direction has
     turned by less, every texel's normal is on the same side of the eye, and at most ``reshade_max_age`` frames
     have passed (view-dependent terms, specular and texture filtering, lag by that much; the atlas is no longer
-    the one shading every block gives).
+    the one shading every block gives).  ``live_refresh_frames`` (4; 0: off): live only (the renderer relights the
+    GI probes at a rate, ``Renderer.gi_hz`` > 0; virtual time and the ground truth relight them for every frame and
+    are untouched), with ``shade_changed_only`` a block whose texels are late rather than wrong (shaded at another
+    eye or footprint past ``reshade_eye_deg``'s tolerances, or under older probes) keeps them a while: each frame
+    reshades the longest-kept of those stale blocks, at least a ``1 / live_refresh_frames`` share, so every block is
+    shaded again at most this many server frames after it was last shaded (specular, texture filtering and indirect
+    light lag by at most that).  A block of a moved object, under a moved shadow caster, newly placed or whose
+    texels' normals turned to the other side of the eye is shaded at once.  Without it a live method slower than the
+    5 Hz GI rate sees new probes, and on a walk an eye past the tolerances, at every frame and reshades every block.
     """
 
     gop: int = 30
@@ -118,6 +126,7 @@ class SasConfig(MethodConfig):
     reuse_shadow: bool = True
     reshade_eye_deg: float = 2.0
     reshade_max_age: int = 8
+    live_refresh_frames: int = 4
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: the fraction of the atlas eq. 3 fills (``bias_fill``; with ``fill_atlas`` off, the
@@ -167,6 +176,8 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.reshade_eye_deg: must be in [0, 30], got {self.reshade_eye_deg}")
         if not 1 <= self.reshade_max_age <= 1000:
             raise ConfigError(f"SasConfig.reshade_max_age: must be in [1, 1000], got {self.reshade_max_age}")
+        if not 0 <= self.live_refresh_frames <= 1000:
+            raise ConfigError(f"SasConfig.live_refresh_frames: must be in [0, 1000], got {self.live_refresh_frames}")
         if not self.atlas_mpix_1080p > 0:   # NaN too
             raise ConfigError(f"SasConfig.atlas_mpix_1080p: must be > 0, got {self.atlas_mpix_1080p}")
 

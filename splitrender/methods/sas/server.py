@@ -491,6 +491,12 @@ class SasServer(ServerHalf):
         self._code = np.zeros(self.patches.count, np.int8)      # this frame's _flip_code per patch, where _code_ok
         self._code_ok = np.zeros(self.patches.count, bool)
         self._kept_count = 0
+        # live_refresh_frames: the probes' state of the last frame, a count of its changes, per patch the count its
+        # block was shaded under, and how many blocks a frame kept that a later eye, footprint or probes would change
+        self._gi_state: Any = None
+        self._gi_gen = 0
+        self._shaded_gen = np.zeros(self.patches.count, np.int64)
+        self._stale_kept_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
@@ -644,21 +650,22 @@ class SasServer(ServerHalf):
             "geo_sent": float(np.asarray(meta.get("geo_id", ())).size),
             "samples": float(((1 << al.level_w[live].astype(np.int64)) * (1 << al.level_h[live].astype(np.int64))).sum()),
             "shaded_patches": float(self._shaded_count), "shadow_reused_patches": float(self._reused_count),
-            "eye_kept_patches": float(self._kept_count),
+            "eye_kept_patches": float(self._kept_count), "stale_kept_patches": float(self._stale_kept_count),
         }
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe)
 
     def _shade(self, ctx: ServerContext, live: np.ndarray, frame: SasFrame, foot: np.ndarray, clear: bool) -> None:
         """Shading stage: the live PVS patches into their blocks (one draw per object; the objects' matrices from the
         shared ``frame``); with :attr:`SasConfig.shade_changed_only` on a P-frame only those :meth:`_changed` says
-        would come out differently, the others keep last frame's texels; with :attr:`SasConfig.reuse_shadow` the
+        would come out differently, the others keep last frame's texels (live, with :attr:`SasConfig.live_refresh_frames`,
+        also a while over a change of the eye, footprint or probes: :meth:`_live_changed`); with :attr:`SasConfig.reuse_shadow` the
         drawn patches whose shadow factors cannot have changed (:meth:`_shadow_reusable`) read them from the cache."""
         gl = self._gl
         self._fbo.use()
         gl.viewport = (0, 0, self.layout.width, self.layout.height)
         if clear:
             self._fbo.clear(0.0, 0.0, 0.0, 1.0)
-        self._shaded_count = self._reused_count = self._kept_count = 0
+        self._shaded_count = self._reused_count = self._kept_count = self._stale_kept_count = 0
         if live.size == 0:
             self._texels_ok[:] = False
             self._shadow_ok[:] = False
@@ -680,14 +687,21 @@ class SasServer(ServerHalf):
         foot32 = np.asarray(foot, np.float32)
         tol = self._eye_tol
         key = self._frame_key(ctx, prog, EYE_UNIFORMS if tol > 0 else frozenset())
+        refresh = self._live_refresh(ctx)
+        if key is not None and key[1] != self._gi_state:
+            self._gi_state, self._gi_gen = key[1], self._gi_gen + 1
+        old = self._shaded_key
+        same = key is not None and old is not None and (key[0] == old[0] if refresh else key == old)
         eye = np.asarray(ctx.target_pose.position, np.float64)
         rot = np.asarray(ctx.target_pose.view_matrix(), np.float64)[:3, :3]
         self._code_ok[:] = False
         prev = self._shaded_models
         moved = np.ones(self.n_obj, bool) if prev is None or prev.shape != frame.models.shape \
             else (frame.models != prev).any(axis=(1, 2))
-        if clear or not self.config.shade_changed_only or key is None or key != self._shaded_key:
+        if clear or not self.config.shade_changed_only or not same:
             draw = live
+        elif refresh:
+            draw = live[self._live_changed(live, frame, foot32, moved, eye, rot, refresh)]
         else:
             changed = self._changed(live, frame, foot32, moved)
             if tol > 0:
@@ -721,8 +735,9 @@ class SasServer(ServerHalf):
         self._shadow_ok[live] = kept
         self._shadow_ok[draw] = reuse | (code != 0)
         self._shadow_code[draw] = code
+        self._shaded_at[draw] = self._frames
+        self._shaded_gen[draw] = self._gi_gen
         if tol > 0:
-            self._shaded_at[draw] = self._frames
             self._shaded_flip[draw] = code if self._sc is not None else self._frame_codes(draw, frame, eye)
             self._eye_hist[self._frames] = (eye, rot)
             for f in [f for f in self._eye_hist if f <= self._frames - self.config.reshade_max_age]:
@@ -806,20 +821,62 @@ class SasServer(ServerHalf):
             gi = (id(vol), gi)
         return frame_uniform_key(prog, skip), gi
 
+    def _live_refresh(self, ctx: ServerContext) -> int:
+        """:attr:`SasConfig.live_refresh_frames` where it applies (``shade_changed_only`` on and the renderer relighting
+        the probes at a rate: a live server), else 0 (virtual time: a block is kept only while :meth:`_changed` and
+        :meth:`_eye_moved` say its texels would come out as they are)."""
+        c = self.config
+        return int(c.live_refresh_frames) if c.shade_changed_only and getattr(ctx.renderer, "gi_hz", 0.0) > 0 else 0
+
+    def _live_changed(self, live: np.ndarray, frame: SasFrame, foot: np.ndarray, moved: np.ndarray, eye: np.ndarray,
+                      rot: np.ndarray, refresh: int) -> np.ndarray:
+        """(len(live),) bool, live (:meth:`_live_refresh` > 0): which live blocks are shaded this frame.  Those whose
+        texels would be wrong, not only late: not shaded into their block, of a moved object, near a moved shadow
+        caster (:meth:`_changed`'s tests) or, with :attr:`SasConfig.reshade_eye_deg`, whose texels' normals are no
+        longer all on the side of the eye they were shaded at (:meth:`_flip_code`).  The others shaded at another
+        footprint, eye (:meth:`_eye_moved`'s tolerances) or state of the probes are stale; of those, every one shaded
+        ``refresh`` or more frames ago and the longest-kept others up to a ``1 / refresh`` share (rounded up) are
+        shaded: each stale block at most ``refresh`` frames after its last shading."""
+        P = self.patches
+        hard = ~self._texels_ok[live] | moved[P.object_index[live]]
+        cand = np.flatnonzero(~hard)
+        if cand.size:
+            hard[cand] = self._near_moved_casters(live[cand], frame, moved)
+        tol = self._eye_tol
+        old = self._shaded_foot[live]
+        stale = ((np.abs(foot - old) > tol * old) if tol > 0 else (foot != old)).any(axis=1)
+        stale |= self._shaded_gen[live] != self._gi_gen
+        if tol > 0:
+            cand = np.flatnonzero(~hard)
+            code = self._frame_codes(live[cand], frame, eye)
+            hard[cand] = (code == 0) | (code != self._shaded_flip[live[cand]])
+            cand = np.flatnonzero(~hard & ~stale)
+            if cand.size:
+                stale[cand] = self._eye_moved(live[cand], frame, eye, rot, flip=False)
+        stale &= ~hard
+        at = self._shaded_at[live]
+        due = stale & (self._frames - at >= refresh)
+        quota = -(-int(stale.sum()) // refresh) - int(due.sum())
+        if quota > 0:
+            cand = np.flatnonzero(stale & ~due)
+            due[cand[np.argsort(at[cand], kind="stable")[:quota]]] = True
+        self._stale_kept_count = int((stale & ~due).sum())
+        return hard | due
+
     @property
     def _eye_tol(self) -> float:
         """:attr:`SasConfig.reshade_eye_deg` in radians where it applies (``shade_changed_only`` on), else 0."""
         c = self.config
         return math.radians(c.reshade_eye_deg) if c.shade_changed_only else 0.0
 
-    def _eye_moved(self, ids: np.ndarray, frame: SasFrame, eye: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    def _eye_moved(self, ids: np.ndarray, frame: SasFrame, eye: np.ndarray, rot: np.ndarray, flip: bool = True) -> np.ndarray:
         """(len(ids),) bool, with :attr:`SasConfig.reshade_eye_deg`: which blocks of patches ``ids`` (each unchanged
         otherwise since it was last shaded) are shaded again for the eye ``eye`` and reference view rotation ``rot``:
         those shaded ``reshade_max_age`` or more frames ago, whose texels' normals are not all on one side of the
         eye as they were (:meth:`_flip_code`), whose reference view turned by the tolerance or more, or where the
         eye moved by at least the tolerance times its distance from the patch (its grown triangles' sphere): within
         it, the eye's direction from every point of the patch turned, and its distance changed relatively, by less
-        than the tolerance (radians)."""
+        than the tolerance (radians).  ``flip`` False leaves the side test out (:meth:`_live_changed` makes it)."""
         if ids.size == 0:
             return np.zeros(0, bool)
         tol = self._eye_tol
@@ -842,7 +899,7 @@ class SasServer(ServerHalf):
         dist = np.minimum(np.linalg.norm(eye - c, axis=1), np.linalg.norm(old_eye - c, axis=1)) - r
         out |= ~(np.linalg.norm(eye - old_eye, axis=1) < tol * np.maximum(dist, 0.0))
         cand = np.flatnonzero(~out)
-        if cand.size:
+        if cand.size and flip:
             code = self._frame_codes(ids[cand], frame, eye)
             out[cand] = (code == 0) | (code != self._shaded_flip[ids[cand]])
         return out

@@ -187,6 +187,15 @@ class TssConfig(MethodConfig):
     atlas; the diagonal cells and the innermost ring of odd levels stay linear).  One still frame, no codec, 4 samples
     per covered pixel: TextureTransformTest 46.28 -> 48.19 dB, the default scene 36.70 -> 36.84; the same bits, but
     coded at crf 31 the codec's error hides it (``docs/methods.md``), so off by default.
+
+    ``live_refresh_frames`` (4; 0: off): live only (the renderer relights the GI probes at a rate, ``Renderer.gi_hz``
+    > 0; virtual time and the ground truth relight them for every frame and are untouched), a P-frame gathers again
+    only the triangles whose samples would be wrong, not only late: new to the atlas or in another cell (the table
+    row that changed), of a moved object, near a moved shadow caster, or all of them when a light's intensity
+    changed; the others keep their samples while the eye and the probes change, and each frame gathers again the
+    longest-kept of them, at least a ``1 / live_refresh_frames`` share, so every triangle is gathered at most this
+    many server frames after its last gathering (specular, texture filtering and indirect light lag by at most that).
+    Without it a live ``tss`` gathers every PVS triangle every frame.
     """
 
     gop: int = 30
@@ -221,6 +230,7 @@ class TssConfig(MethodConfig):
     colour_order: float = 0.0
     lp_own: bool = True
     lp_filter: Literal["linear", "cubic"] = "linear"
+    live_refresh_frames: int = 4
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
         """The atlas budget: shading samples per covered pixel (``samples_per_px``), lowered in steps of about 0.7, or
@@ -261,6 +271,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.high_water: must be in [0, 1], got {self.high_water}")
         if not 0.0 <= self.hysteresis <= 1.0:
             raise ConfigError(f"TssConfig.hysteresis: must be in [0, 1], got {self.hysteresis}")
+        if not 0 <= self.live_refresh_frames <= 1000:
+            raise ConfigError(f"TssConfig.live_refresh_frames: must be in [0, 1000], got {self.live_refresh_frames}")
         if self.os_grid not in ("centred", "paper"):
             raise ConfigError(f"TssConfig.os_grid: {self.os_grid!r} is not one of ['centred', 'paper']")
         if self.single_px not in (1, 2, 4):

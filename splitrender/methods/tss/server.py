@@ -44,11 +44,14 @@ from typing import Any
 import numpy as np
 
 from ...codecs.video import VideoCodecConfig
+from ...render.ddgi import gi_time
 from ...render.gl import grow_vertex_buffer, read_shader, runs, set_reference_view, set_uniform
+from ...render.renderer import light_view_projection
 from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
+from ..sas.server import SHADOW_NORMAL_OFFSET_M, SHADOW_REACH_TEXELS, light_rects, rects_overlap
 from .config import TssConfig
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, level_for_own, lp_luma, morton_order,
                      os_sizes, own_count, pitch_level, plan_atlas, v_count)
@@ -62,6 +65,10 @@ NEAR_M = 0.05
 ZSTD_LEVEL = 19
 """zstd level of the ``tris`` and ``geo`` streams (:meth:`TssServer.streams`)."""
 VERTEX_FLOATS = 3 + 3 + 2 + 4 + 4 + 4 + 4
+PERSP_KEEP = 0.02
+"""``live_refresh_frames``: a perspective-placed triangle's samples are kept while its corners' view depths relative to
+the first one's changed by less than this since they were gathered (the client places the samples with the newest
+frame's depths; 2 % moves a sample by under half a per cent of the triangle)."""
 
 
 @dataclass
@@ -382,6 +389,17 @@ class TssServer(ServerHalf):
         """Per PVS triangle of the frame being planned, the least L-packing level (``flip_level``; None: off)."""
         self.keep_unwritten = False
         """Whether the next gathering leaves the texels it does not write as they were (set per frame: P-frames)."""
+        # live_refresh_frames: per triangle the frame it was last gathered in and the view generation (a count of the
+        # changes of the eye and the probes' time) then; the last gathering's object matrices and light intensities
+        self._gathered_at = np.zeros(n, np.int64)
+        self._gathered_gen = np.full(n, -1, np.int64)
+        self._gathered_ratio = np.ones((n, 2))
+        self._gen = 0
+        self._gen_key: Any = None
+        self._gathered_models: np.ndarray | None = None
+        self._gathered_lights: Any = None
+        self._stale_kept = 0
+        self._dynamic = np.array([o.dynamic for o in self.scene.objects], bool)
 
     # ------------------------------------------------------------------ interface
     def streams(self) -> list[Any]:
@@ -632,7 +650,8 @@ class TssServer(ServerHalf):
         persp = (depth.min(axis=1) > NEAR_M) & c.perspective
         t2 = time.perf_counter()
         self.keep_unwritten = not iframe
-        shaded = self._gather(ctx, pvs, plan, base, persp, models, px)
+        rows = self._live_rows(ctx, pvs, plan, descriptors(plan, persp, base), models, iframe, depth, persp)
+        shaded = self._gather(ctx, pvs, plan, base, persp, models, px, rows=rows)
         W, H = self.atlas
         rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
         if c.colour_order > 0:
@@ -699,7 +718,8 @@ class TssServer(ServerHalf):
             "atlas_used_pct": 100.0 * plan.height / H, "rate": rate, "iframe": float(iframe),
             "geo_sent": float(new.size), "table_rows": float(changed.sum()), "repacked": float(plan.repacked), "atlas_load_pct": 100.0 * self.store.load(),
             "slanted_pct": 100.0 * float((slant > c.slant_threshold).mean()) if slant.size else 0.0,
-            "tris_left_out": float(self.left_out),
+            "tris_left_out": float(self.left_out), "gathered_triangles": float(pvs.size if rows is None else rows.size),
+            "stale_kept_triangles": float(self._stale_kept),
         }
         meta = {"v": WIRE_VERSION, "xf": models.astype(np.float32)}
         # no geo message when no triangle is new, no tris message when the table does not change (a still view's
@@ -709,6 +729,79 @@ class TssServer(ServerHalf):
         if send_table:
             data["tris"] = table
         return Update(ctx.frame_id, ctx.t_s, ctx.target_pose, {"atlas": atlas}, meta, force_idr=iframe, data=data)
+
+    def _live_refresh(self, ctx: ServerContext) -> int:
+        """:attr:`TssConfig.live_refresh_frames` where it applies (the renderer relighting the probes at a rate: a live
+        server), else 0 (virtual time: every PVS triangle is gathered every frame)."""
+        return int(self.config.live_refresh_frames) if getattr(ctx.renderer, "gi_hz", 0.0) > 0 else 0
+
+    def _live_rows(self, ctx: ServerContext, pvs: np.ndarray, plan: AtlasPlan, desc: np.ndarray, models: np.ndarray,
+                   iframe: bool, depth: np.ndarray, persp: np.ndarray) -> np.ndarray | None:
+        """Which rows of ``pvs`` this frame gathers (sorted; None: all), live (:meth:`_live_refresh` > 0) on a
+        P-frame: those whose samples would be wrong, not only late (new to the client's table or in another cell:
+        :func:`~.wire.descriptors` ``desc`` or origin changed; of a moved object; near a moved shadow caster; placed in
+        perspective (``persp``) at corner ``depth`` ratios that changed by :data:`PERSP_KEEP` or more), all of
+        them when a light's intensity changed; of the others, gathered at another eye or time of the probes
+        (stale), every one gathered ``refresh`` or more frames ago and the longest-kept up to a ``1 / refresh``
+        share (rounded up).  Records what it gathers."""
+        refresh = self._live_refresh(ctx)
+        sc = self.scene
+        pose = ctx.target_pose
+        ratio = depth[:, 1:] / np.where(np.abs(depth[:, :1]) > 1e-9, depth[:, :1], 1e-9)
+        key = (tuple(map(float, pose.position)), tuple(map(float, pose.orientation)),
+               gi_time(ctx.t_s, float(getattr(ctx.renderer, "gi_hz", 0.0))))
+        if key != self._gen_key:
+            self._gen_key, self._gen = key, self._gen + 1
+        lights = (float(sc.sun.intensity.value(ctx.t_s)) if sc.sun is not None else None,
+                  tuple(float(pl.intensity.value(ctx.t_s)) for pl in sc.point_lights))
+        prev, prev_lights = self._gathered_models, self._gathered_lights
+        self._gathered_models, self._gathered_lights = models.copy(), lights
+        rows = None
+        self._stale_kept = 0
+        if refresh and not iframe and prev is not None and prev.shape == models.shape and lights == prev_lights \
+                and plan.single_px == self._sent_single_px:
+            moved = (models != prev).any(axis=(1, 2))
+            hard = (~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
+                    | (plan.origin != self._sent_origin[pvs]).any(axis=(1, 2)) | moved[self.tris.obj[pvs]])
+            pp = np.flatnonzero(persp & ~hard)              # depths > NEAR_M now and when gathered (persp is in desc)
+            hard[pp] = (np.abs(ratio[pp] / self._gathered_ratio[pvs[pp]] - 1.0) >= PERSP_KEEP).any(axis=1)
+            cand = np.flatnonzero(~hard)
+            if cand.size:
+                hard[cand] = self._near_moved_casters(pvs[cand], models, prev, moved)
+            stale = ~hard & (self._gathered_gen[pvs] != self._gen)
+            at = self._gathered_at[pvs]
+            due = stale & (self._frames - at >= refresh)
+            quota = -(-int(stale.sum()) // refresh) - int(due.sum())
+            if quota > 0:
+                c = np.flatnonzero(stale & ~due)
+                due[c[np.argsort(at[c], kind="stable")[:quota]]] = True
+            self._stale_kept = int((stale & ~due).sum())
+            rows = np.flatnonzero(hard | due)
+        drawn = pvs if rows is None else pvs[rows]
+        self._gathered_at[drawn] = self._frames
+        self._gathered_gen[drawn] = self._gen
+        self._gathered_ratio[drawn] = ratio if rows is None else ratio[rows]
+        return rows
+
+    def _near_moved_casters(self, ids: np.ndarray, models: np.ndarray, prev: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """(len(ids),) bool: whether triangles ``ids``' sun-shadow lookups (the triangle at ``models``, grown by the
+        lookup's normal offset) reach the sun's map where a dynamic caster that moved (``moved``, per object) was
+        (``prev``) or is (its object box, grown by ``sas``'s :data:`~..sas.server.SHADOW_REACH_TEXELS`)."""
+        sun = self.scene.sun
+        casters = np.flatnonzero(moved & self._dynamic)
+        if casters.size == 0 or sun is None or ids.size == 0:
+            return np.zeros(ids.size, bool)
+        vp = light_view_projection(self.scene)
+        box = self.tris.box[casters].astype(np.float64)
+        corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), box[:, 1], box[:, 0])
+                            for i in range(8)], axis=1)
+        reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
+        boxes = [light_rects(vp, corners @ m[casters, :3, :3].transpose(0, 2, 1) + m[casters, None, :3, 3], reach)
+                 for m in (prev, models)]
+        m = models[self.tris.obj[ids]].astype(np.float64)
+        world = np.einsum("nij,nkj->nki", m[:, :3, :3], self.tris.pos[ids].astype(np.float64)) + m[:, None, :3, 3]
+        scale = float(np.linalg.norm(vp[:2, :3], axis=1).max())
+        return rects_overlap(light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale), np.concatenate(boxes))
 
     def _vertices(self, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray, px: np.ndarray) -> np.ndarray:
         """(N, 3, VERTEX_FLOATS) gathering-stage vertices (OS triangles rotated so the base starts at vertex 0)."""
@@ -745,11 +838,17 @@ class TssServer(ServerHalf):
         return np.where(ok, np.maximum(0.0, np.log2(np.maximum(rho, 1e-12))), 0.0)
 
     def _gather(self, ctx: ServerContext, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray,
-                models: np.ndarray, px: np.ndarray, eye: tuple[float, float, float] | None = None) -> int:
+                models: np.ndarray, px: np.ndarray, eye: tuple[float, float, float] | None = None,
+                rows: np.ndarray | None = None) -> int:
         """Shade every live triangle's samples into the atlas; returns the samples the GPU shaded.  With
         ``keep_unwritten`` (P-frames) the texels no live triangle writes keep the previous frame's colours: no client
         reads them, and a P-frame then spends no bits on the cells that triangles left.  ``eye``: where the shading's
-        view-dependent terms look from (None: the target pose; ``benchmarks/bench_tss_churn.py`` separates the two)."""
+        view-dependent terms look from (None: the target pose; ``benchmarks/bench_tss_churn.py`` separates the two).
+        ``rows``: gather only these rows of ``ids`` (:meth:`_live_rows`; the others keep their samples)."""
+        if rows is not None:
+            ids, base, persp, px = ids[rows], base[rows], persp[rows], px[rows]
+            plan = dataclasses.replace(plan, **{k: getattr(plan, k)[rows] for k in
+                                                ("kind", "level", "slot", "origin", "w", "w2", "h", "a", "samples")})
         gl = self._gl
         self._fbo.use()
         if not self.keep_unwritten:
