@@ -642,8 +642,11 @@ class QuadMeshGL:
             self._targets[(w, h)] = t
         return t
 
-    def draw(self, pose: Pose, intr: CameraIntrinsics, atlas: Any | None, atlas_size: tuple[int, int]) -> tuple[Any, Any, Any]:
-        """Draw into the target of ``intr``'s size; returns (framebuffer, colour texture, depth texture)."""
+    def draw(self, pose: Pose, intr: CameraIntrinsics, atlas: Any | None, atlas_size: tuple[int, int],
+             atlas_alpha: bool = False) -> tuple[Any, Any, Any]:
+        """Draw into the target of ``intr``'s size; returns (framebuffer, colour texture, depth texture).  The
+        colour's alpha is 1 where the mesh covers, 0 elsewhere; with ``atlas_alpha`` the atlas's (filtered) alpha
+        where it covers instead (the server's residual-error test carries a mask in it)."""
         fbo, color, depth = self.target(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
@@ -662,6 +665,7 @@ class QuadMeshGL:
             prog["u_view"].write(np.asarray(pose.view_matrix(), "f4").T.tobytes())
             set_uniform(prog, "u_atlas_size", (float(atlas_size[0]), float(atlas_size[1])))
             set_uniform(prog, "u_has_atlas", 0 if atlas is None else 1)
+            set_uniform(prog, "u_atlas_alpha", 1 if atlas_alpha and atlas is not None else 0)
             set_uniform(prog, "u_has_guard", 0 if self._guard is None else 1)
             if self._guard is not None:
                 tex, gpose, gintr = self._guard

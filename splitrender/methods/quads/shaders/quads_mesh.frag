@@ -11,6 +11,7 @@ flat in float v_view;
 uniform sampler2D u_atlas;
 uniform vec2 u_atlas_size;
 uniform int u_has_atlas;
+uniform int u_atlas_alpha;     // 1: the atlas's alpha is the output's (the server's residual-error test: a mask)
 #ifdef QUADS_GUARD
 // compiled in only for a mesh with a guard (QuadStream): a shader that can discard has every fragment shaded before
 // its depth test (llvmpipe), one without is depth-tested first (QUASAR's mesh draw ~1/3 less CPU, the same pixels)
@@ -44,11 +45,11 @@ void main() {
         }
     }
 #endif
-    vec3 c = vec3(0.0);
+    vec4 c = vec4(0.0, 0.0, 0.0, 1.0);
     if (u_has_atlas == 1) {
         vec2 uv = clamp(v_uvw.xy / v_uvw.z, v_rect.xy + 0.5, v_rect.zw - 0.5) / u_atlas_size;
-        c = texture(u_atlas, uv).rgb;
+        c = texture(u_atlas, uv);
     }
-    f_color = vec4(c, 1.0);
+    f_color = vec4(c.rgb, u_atlas_alpha == 1 ? c.a : 1.0);
     f_depth = v_depth;
 }
