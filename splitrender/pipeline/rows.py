@@ -14,6 +14,7 @@ the wall-clock stages of the worker round trip and the send).
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Any, Iterable
 
 from .. import metrics
@@ -21,7 +22,7 @@ from ..metrics.image import mean_of, pct_of
 from .wire import SESSION_STREAM
 
 __all__ = ["FEEDBACK_COLUMNS", "feedback_row", "frame_row", "frames_summary", "live_frame_row", "mean_of", "pct_of",
-           "run_summary", "session_summary", "update_row", "updates_summary"]
+           "run_summary", "SentBytes", "session_summary", "update_row", "updates_summary"]
 
 FEEDBACK_TIMINGS = ("render", "encode", "encoded_at")
 """The server timings a client echoes in Feedback (those the server put in FrameMeta); others are ignored."""
@@ -43,6 +44,33 @@ def update_row(frame_id: int, t_s: float, out: Any, enc: Any, order: Any, stages
     row.update({f"bytes_{k}": out.wire_bytes.get(k, 0) for k in streams if k != "session"})
     row.update(congestion)
     return row
+
+
+class SentBytes:
+    """The wire bytes a session sent per stream (in the order the streams are named or first counted): :attr:`total`
+    over the session, and its frames' over the last second (:meth:`kbps`, a display tick's ``kbps_<stream>``
+    columns); the virtual-time runner's, whose clock says when each frame left."""
+
+    def __init__(self, names: Iterable[str]) -> None:
+        self.total: dict[str, int] = dict.fromkeys(names, 0)
+        self._frames: deque[tuple[float, dict[str, int]]] = deque()
+
+    def add(self, name: str, n: int) -> None:
+        """``n`` more bytes of stream ``name`` (outside any frame's: the session data, probes)."""
+        self.total[name] = self.total.get(name, 0) + n
+
+    def frame(self, t_s: float, wire_bytes: dict[str, int]) -> None:
+        """A frame's wire bytes per stream, sent at ``t_s``."""
+        for k, v in wire_bytes.items():
+            self.add(k, v)
+        self._frames.append((t_s, dict(wire_bytes)))
+
+    def kbps(self, t_s: float) -> dict[str, float]:
+        """``kbps_<stream>`` of every stream but the one-off session data: the frames sent after ``t_s`` - 1 s."""
+        while self._frames and self._frames[0][0] <= t_s - 1.0:
+            self._frames.popleft()
+        return {f"kbps_{name}": sum(w.get(name, 0) for _, w in self._frames) * 8 / 1000.0 for name in self.total
+                if name != SESSION_STREAM}
 
 
 def frame_row(index: int, t_s: float, shown: int | None, display_s: float, update_s: float, pose_s: float,

@@ -62,7 +62,7 @@ from ..errors import (CodecError, ConfigError, PeerTimeoutError, RemoteProtocolE
 from ..limits import DEFAULT_CLIENT_LIMITS, ClientLimits, check_client_sizes
 from ..protocol import (CONNECTION_CLOSED, NEED_DATA, Bye, ClientConnection, Error, ErrorCode, Feedback, FrameMeta, DataChunk,
                         FullIntraRequest, GenericNack, Hello, KeyframeRateLimiter, KeyframeRequest, Message, MessageError, Pose,
-                        PROTOCOL_VERSION, negotiate_method,
+                        PROTOCOL_VERSION, ServerConnection, negotiate_method,
                         State, Stats, PictureLossIndication, ReceiverReport, ReportBlock, RetransmissionHistory,
                         RtcpPacket, RtpPacket, SenderReport, Welcome, is_rtcp, ntp_from_seconds, ntp_middle32, parse_rtcp,
                         serialize_rtcp)
@@ -86,7 +86,7 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "read_hello", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ClientMessage", "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "StreamStalledError", "check_hello", "leaving_error", "parse_welcome",
            "session_params", "session_summary", "shows_anything"]
 
@@ -1115,6 +1115,17 @@ class Accepted:
     core: ServerSession
     welcome: Welcome
     session_bytes: int
+
+
+def read_hello(data: bytes, token: str = "") -> ServerConnection:
+    """The server's end of a control connection that has read a client's ``Hello`` (``data``: its bytes, from
+    :meth:`ClientHandshake.hello`), for :func:`accept_hello`: an in-process handshake's (the virtual-time runner's;
+    the live server's reads it from its socket)."""
+    conn = ServerConnection(token)
+    conn.receive_data(data)
+    while conn.next_event() is not NEED_DATA:
+        pass
+    return conn
 
 
 def accept_hello(hello: Hello, session_id: str, opening: Opening, specs: list[Any], session_blob: bytes, conn: Any,

@@ -52,7 +52,6 @@ import dataclasses
 import logging
 import math
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -64,14 +63,14 @@ from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import get_method
 from ..netsim import Link, parse_path
 from ..netsim.driver import TIMER, Clock, Timer, Wire, arrivals
-from ..pipeline.rows import frame_row, run_summary
+from ..pipeline.rows import SentBytes, frame_row, run_summary
 from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
                         FrameMaker, Opening, ProducerPool, ReceivedFrame, ServerSession, accept_hello, check_hello,
                         display_frame, method_config, tcp_segments)
 from ..pipeline.recording import write_run
+from ..pipeline.session import read_hello
 from ..pipeline.wire import control_wire_bytes, datagram_wire_bytes
-from ..protocol import ServerConnection, Welcome
-from ..protocol.framing import NEED_DATA
+from ..protocol import Welcome
 from ..render.gl import create_context, make_current
 from ..render.renderer import Renderer
 from ..scene.loader import get_scene
@@ -163,8 +162,8 @@ class _Client:
     protocol_errors: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
-    bytes: dict[str, int] = field(default_factory=dict)
-    window: deque[tuple[float, dict[str, int]]] = field(default_factory=deque)
+    bytes: SentBytes = field(default_factory=lambda: SentBytes(()))
+    """The wire bytes the server sent per stream, in all and over the last second."""
     frames: list[dict[str, Any]] = field(default_factory=list)
     updates: list[dict[str, Any]] = field(default_factory=list)
 
@@ -227,10 +226,7 @@ class VirtualTimeRun:
         check_hello(hello, cfg.width * cfg.height)
         # the server's side: its end of the control connection reads the Hello; the half here, then the one handshake
         # every front door runs
-        sconn = ServerConnection()
-        sconn.receive_data(hs.hello(hello))
-        while sconn.next_event() is not NEED_DATA:
-            pass
+        sconn = read_hello(hs.hello(hello))
         make_current(self.renderer.ctx)
         opening = Opening(cfg.method, self.mcfg, self.intr)
         c.maker = maker = FrameMaker(opening, pool)
@@ -243,7 +239,8 @@ class VirtualTimeRun:
         c.core_s = acc.core
         acc.core.record_rows = False   # a run keeps its own tables
         frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
-        c.bytes[SESSION_STREAM] = sum(control_wire_bytes(len(f)) for f in frames)
+        c.bytes = SentBytes([SESSION_STREAM, META_STREAM, *(s.name for s in specs)])
+        c.bytes.add(SESSION_STREAM, sum(control_wire_bytes(len(f)) for f in frames))
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
         c.welcome = hs.welcome
         c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
@@ -255,8 +252,6 @@ class VirtualTimeRun:
         make_current(self.renderer.ctx)
         c.arrivals = arrivals(c.up, (k / cfg.tracker_hz for k in range(int(self.duration_s * cfg.tracker_hz) + 1)),
                               POSE_MESSAGE_BYTES)   # the tracker's poses up: worked out before the run
-        for name in [META_STREAM, *(s.name for s in specs)]:
-            c.bytes.setdefault(name, 0)
         return c
 
     # ------------------------------------------------------------------ run
@@ -338,15 +333,13 @@ class VirtualTimeRun:
                                          send_ms=send_t * 1000)
             self.clock.at(send_t, TIMER, self._server_control, c)   # its control frames are due then
             self._server_out(c)
-            for k, v in out.wire_bytes.items():
-                c.bytes[k] = c.bytes.get(k, 0) + v
-            c.window.append((t_f, dict(out.wire_bytes)))
+            c.bytes.frame(t_f, out.wire_bytes)
             pred_cm, pred_deg = prediction_error(order.target_pose, c.trace.pose_at(order.target_t_s))
             c.pose_t[f] = order.latest_pose_t_s
             c.pred[f] = (pred_cm, pred_deg)
             # the tick's shared work is the pool's (a run's sessions share one producer), not this session's share
             shared = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
-            row = {"client": c.index, **c.core_s.update_row(order, out, enc, {**stages, "shared_ms": shared}, c.bytes),
+            row = {"client": c.index, **c.core_s.update_row(order, out, enc, {**stages, "shared_ms": shared}, c.bytes.total),
                    "delivered": "", "missing": "", "cost_ms": cost_ms, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
                    "arrival_s": math.nan}
             row.update({f"srv_{k}": v for k, v in stats.items()})
@@ -365,7 +358,7 @@ class VirtualTimeRun:
             else:
                 c.packets_lost += not c.down.datagram(len(d.data) + 28, self._deliver_datagram, c, d.data)
             if d.kind == "probe":
-                c.bytes["probe"] = c.bytes.get("probe", 0) + datagram_wire_bytes(len(d.data))
+                c.bytes.add("probe", datagram_wire_bytes(len(d.data)))
         c.server_timer.arm(c.core_s.get_timer() / 1000)
 
     def _server_control(self, c: _Client) -> None:
@@ -467,16 +460,12 @@ class VirtualTimeRun:
         shown = c.core.showing(new, ok, c.chalf.has_content, now_ms)
         client_ms = apply_ms + render_ms
         make_current(self.renderer.ctx)
-        while c.window and c.window[0][0] <= t_d - 1.0:
-            c.window.popleft()
         fid = shown.update.frame_id if shown is not None else None
         row: dict[str, Any] = {"client": c.index, **frame_row(
             di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, c.pose_t.get(fid, math.nan),
             client_ms, decode_ms)}
         row["pred_err_cm"], row["pred_err_deg"] = c.pred.get(fid, (math.nan, math.nan))
-        for name in c.bytes:
-            if name != SESSION_STREAM:
-                row[f"kbps_{name}"] = sum(w.get(name, 0) for _, w in c.window) * 8 / 1000.0
+        row.update(c.bytes.kbps(t_d))   # what the server sent over the last second
         if cfg.metrics:
             w0 = time.perf_counter()
             gt_out = self.truth.render(self.scene, t_d, true_pose, self.intr, ("color", "object_id"))
@@ -495,7 +484,7 @@ class VirtualTimeRun:
         """Client ``c``'s summary row (:func:`~splitrender.pipeline.rows.run_summary`), over the run and one server
         frame interval."""
         assert c.core is not None and c.core_s is not None
-        return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes, self.duration_s + 1.0 / self.cfg.server_fps,
+        return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes.total, self.duration_s + 1.0 / self.cfg.server_fps,
                            self.server_skipped, c.protocol_errors, c.packets_lost, c.core.all_counters(),
                            c.core_s.counters, c.core_s.summary(c.updates))
 
