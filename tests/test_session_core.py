@@ -962,6 +962,58 @@ def test_the_client_core_owns_its_control_connection() -> None:
     assert isinstance(events[-1], ControlClosed) and events[-1].now_ms == 90.0
 
 
+def test_the_server_core_takes_the_client_s_events_by_one_rule() -> None:
+    """Issue 47: what the client says on the control connection is taken by one rule in the server core
+    (``take_events``, the live server's): Stats are logged and the session goes on (None); a Bye, an Error or the end
+    of the stream ends it, handed back.  The Hello is the client handshake's (``make_hello``) and the server's end
+    reads it in process (``read_hello``), as the runner's."""
+    from splitrender.codecs.meta import pack_meta
+    from splitrender.pipeline import ClientHandshake, ControlClosed, accept_hello
+    from splitrender.pipeline.session import read_hello
+    from splitrender.protocol import Bye, Error, ErrorCode, Stats
+
+    def session(seed: int) -> tuple[ClientSession, ServerSession]:
+        hs = ClientHandshake(("video",), display=(W, H))
+        hello = hs.make_hello(("h264", "hevc"), FPS)
+        assert hello == Hello(PROTOCOL_VERSION, "", ("video",), ("h264", "hevc"), W, H, FPS)
+        acc = accept_hello(hello, "sid", Opening("video", method_config("video", {}), CameraIntrinsics(W, H)),
+                           [StreamSpec("color", VideoCodecConfig("h264", gop=300), W, H)], pack_meta({}),
+                           read_hello(hs.hello(hello)), ServerConfig(scene="minimal"), ServerOptions(),
+                           rng=np.random.default_rng(seed))
+        assert hs.receive_data(b"".join(acc.core.data_to_send(0.0)))
+        return hs.session(ClientOptions()), acc.core
+
+    ends = []
+    for seed, last in enumerate((Bye("done"), Error(ErrorCode.INTERNAL, "gone"), None)):
+        client, server = session(seed)
+        client.send(Stats({"x": 1}))
+        server.receive_data(client.data_to_send())
+        assert server.take_events("s", 10.0) is None
+        if last is not None:
+            client.send(last)
+        server.receive_data(client.data_to_send() if last is not None else b"")
+        ends.append(server.take_events("s", 20.0))
+    assert ends[0] == Bye("done") and ends[1] == Error(ErrorCode.INTERNAL, "gone")
+    assert isinstance(ends[2], ControlClosed) and ends[2].now_ms == 20.0
+
+
+def test_sent_bytes_rates_the_last_second_of_frames() -> None:
+    """The runner's per-stream wire bytes (``rows.SentBytes``): totals in the order the streams are named or first
+    counted, and each display tick's ``kbps_<stream>`` over the frames of the last second, the session data left
+    out."""
+    from splitrender.pipeline.rows import SentBytes
+
+    sent = SentBytes(["session", "meta", "color"])
+    sent.add("session", 5000)
+    sent.frame(0.0, {"meta": 100, "color": 1000})
+    sent.frame(0.5, {"meta": 100, "color": 3000, "fec": 50})
+    sent.add("probe", 10)
+    assert sent.total == {"session": 5000, "meta": 200, "color": 4000, "fec": 50, "probe": 10}
+    assert list(sent.total) == ["session", "meta", "color", "fec", "probe"]
+    assert sent.kbps(0.9) == {"kbps_meta": 1.6, "kbps_color": 32.0, "kbps_fec": 0.4, "kbps_probe": 0.0}
+    assert sent.kbps(1.0) == {"kbps_meta": 0.8, "kbps_color": 24.0, "kbps_fec": 0.4, "kbps_probe": 0.0}
+
+
 def test_the_server_core_binds_its_client_s_rtcp_address() -> None:
     """The live server's address rule, in the core (issue 47): a malformed datagram binds nothing (``rtcp_bad``), the
     first that parses binds its source, and later ones from any other source are counted (``rtcp_foreign``) and
