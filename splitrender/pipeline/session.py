@@ -86,9 +86,9 @@ from .wire import EnvelopeError, SessionDataError, control_wire_bytes, specs_fro
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "read_hello", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
+__all__ = ["Accepted", "CLIENT_CODECS", "Opening", "accept_hello", "accept_page", "method_config", "open_hello", "open_page", "page_knobs", "page_terms", "ClientHandshake", "ClientSession", "ControlClosed", "FrameReleased", "PoseInbox",
            "ClientMessage", "ServerMessage", "ServerOptions", "ServerSession", "SessionEvent", "SessionTerms", "Stalled", "Resumed", "StallTimeout", "StreamStalledError", "check_hello", "leaving_error", "parse_welcome",
-           "session_params", "session_summary", "shows_anything"]
+           "read_hello", "session_params", "session_summary", "shows_anything"]
 
 TIMER_TICK_MS = 10.0
 """While packets or frames are outstanding the client core wants its timer this often (ms)."""

@@ -339,7 +339,8 @@ class VirtualTimeRun:
             c.pred[f] = (pred_cm, pred_deg)
             # the tick's shared work is the pool's (a run's sessions share one producer), not this session's share
             shared = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
-            row = {"client": c.index, **c.core_s.update_row(order, out, enc, {**stages, "shared_ms": shared}, c.bytes.total),
+            row = {"client": c.index,
+                   **c.core_s.update_row(order, out, enc, {**stages, "shared_ms": shared}, c.bytes.total),
                    "delivered": "", "missing": "", "cost_ms": cost_ms, "pred_err_cm": pred_cm, "pred_err_deg": pred_deg,
                    "arrival_s": math.nan}
             row.update({f"srv_{k}": v for k, v in stats.items()})
@@ -484,9 +485,10 @@ class VirtualTimeRun:
         """Client ``c``'s summary row (:func:`~splitrender.pipeline.rows.run_summary`), over the run and one server
         frame interval."""
         assert c.core is not None and c.core_s is not None
-        return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes.total, self.duration_s + 1.0 / self.cfg.server_fps,
-                           self.server_skipped, c.protocol_errors, c.packets_lost, c.core.all_counters(),
-                           c.core_s.counters, c.core_s.summary(c.updates))
+        dur = self.duration_s + 1.0 / self.cfg.server_fps
+        return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes.total, dur, self.server_skipped,
+                           c.protocol_errors, c.packets_lost, c.core.all_counters(), c.core_s.counters,
+                           c.core_s.summary(c.updates))
 
 
 def run(cfg: RunConfig, out_dir: str | Path | None = None, renderer: Renderer | None = None, progress: ProgressFn | None = None) -> RunResult:
