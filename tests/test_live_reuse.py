@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from splitrender.methods.base import ServerContext
 from splitrender.methods.sas import SasConfig, SasServer
 from splitrender.methods.tss import TssConfig, TssServer
+from splitrender.pipeline.direct import server_context
 from splitrender.render.renderer import Renderer
 from splitrender.scene.loader import get_scene
 from splitrender.scene.pose import CameraIntrinsics
@@ -24,12 +24,6 @@ HZ = 3.0
 REFRESH = 3
 """The bound tested (the option's default is 4): at 160x90 tss's small atlas repacks on an I-frame every 4 frames of
 the walk, which refreshes every triangle, so only a shorter bound can be told from none."""
-
-
-def _ctx(f: int, t: float, scene: Any, r: Any, pose: Any) -> ServerContext:
-    return ServerContext(frame_id=f, t_s=t, scene=scene, renderer=r, intrinsics=INTR, latest_pose=pose,
-                         latest_pose_t_s=t, target_pose=pose, target_t_s=t, predict=lambda _t: pose,
-                         expected_latency_s=0.0)
 
 
 def _servers(method: str, scene: Any, refresh: tuple[int, ...]) -> list[Any]:
@@ -68,7 +62,7 @@ def _run(method: str, gi_hz: float, frames: int, refresh: tuple[int, ...] = (0, 
     for f in range(frames):
         t = 1.0 + f / HZ
         pose = tr.pose_at(t)
-        ups = [s.produce(_ctx(f, t, scene, r, pose)) for s in srvs]
+        ups = [s.produce(server_context(scene, r, INTR, pose, t_s=t, frame_id=f)) for s in srvs]
         a, b = (u.planes["atlas"] for u in (ups[0], ups[-1]))
         used = a.any(axis=2) | b.any(axis=2)
         d = (a[used].astype(np.float64) - b[used]) ** 2
