@@ -72,7 +72,7 @@ at the reference pose, errs most, and stops there when those pixels alone put th
 PARTIAL_TARGET = 1.3
 """The blocks shaded first carry this many times the error the threshold allows, by the last colour's estimate."""
 PARTIAL_BLOCK = 16
-"""The partial test's blocks (pixels a side); each is shaded grown by a quarter of it (a frame's parallax)."""
+"""The partial test's blocks (pixels a side); each is shaded grown by an eighth of it (a frame's parallax)."""
 PARTIAL_MAX = 0.5
 """More than this share of the blocks needed: the view is shaded whole at once (the frame is likely residual)."""
 
@@ -365,16 +365,14 @@ class QuadsServer(ServerHalf):
         mse = float(((rgba[..., :3][px].astype(np.float64) - g0.color[px].astype(np.float64)) ** 2).mean())
         return 10 * math.log10(255.0 ** 2 / max(mse, 1e-10))
 
-    def _mesh_rgba(self, ctx: ServerContext, pose: Pose, img: np.ndarray, out: CameraIntrinsics | None = None
-                   ) -> np.ndarray:
-        """The uploaded mesh drawn from ``pose`` into ``out`` (the display by default) in ``img`` (a colour at the
-        reference view's pixels; (H, W, 4): its alpha drawn filtered as the colour is): (h, w, 4), top row first,
-        alpha 255 where it covers (``img``'s filtered alpha there when it has one), 0 elsewhere."""
+    def _mesh_rgba(self, ctx: ServerContext, pose: Pose, img: np.ndarray) -> np.ndarray:
+        """The uploaded mesh drawn from ``pose`` in ``img`` (a colour at the reference view's pixels; (H, W, 4): its
+        alpha drawn filtered as the colour is): (H, W, 4), top row first, alpha 255 where it covers (``img``'s
+        filtered alpha there when it has one), 0 elsewhere."""
         intr = self.intrinsics
-        out = out or intr
         tex = self._colour_tex = upload_image(ctx.renderer.ctx, img, self._colour_tex, linear=True)
-        _, color, _ = self._gl_mesh(ctx).draw(pose, out, tex, (intr.width, intr.height), atlas_alpha=img.shape[2] == 4)
-        return np.frombuffer(color.read(), np.uint8).reshape(out.height, out.width, 4)[::-1]
+        _, color, _ = self._gl_mesh(ctx).draw(pose, intr, tex, (intr.width, intr.height), atlas_alpha=img.shape[2] == 4)
+        return np.frombuffer(color.read(), np.uint8).reshape(intr.height, intr.width, 4)[::-1]
 
     def _partial_blocks(self, ctx: ServerContext, pose: Pose, g0: Any) -> np.ndarray | None:
         """(H, W) bool: the blocks of :data:`PARTIAL_BLOCK` pixels to shade first, where the cached mesh drawn in the
@@ -467,7 +465,8 @@ class QuadsServer(ServerHalf):
                 psnr = self._residual_psnr(ctx, pose, ref_pose, g0, gr)
                 times["mask_ms"] += (time.perf_counter() - t1) * 1e3
                 # reported as every PSNR of the project is (capped at 60 dB, finite: the wire refuses inf, which a
-                # view with no reference pixels in it gives); the rule compares the exact figure
+                # view with no reference pixels in it gives); the rule compares the exact figure (or, decided from
+                # part of the view, a bound of it under the threshold: residual_psnr_partial is then set)
                 self._stats["residual_psnr_db"] = min(psnr, RESIDUAL_PSNR_CAP_DB)
                 reference = psnr < cfg.reference_error_db
         if reference:
