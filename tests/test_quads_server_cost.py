@@ -19,7 +19,8 @@ INTR = CameraIntrinsics(160, 90)
 
 def _frames(renderer, poses: list[tuple[float, Pose]]) -> list[tuple[str, dict, str]]:  # type: ignore[no-untyped-def]
     """Each frame's kind, server stats and a digest of what it sends (atlas, quads, offsets)."""
-    from splitrender.methods import ServerContext, get_method, make_config
+    from splitrender.methods import get_method, make_config
+    from splitrender.pipeline.direct import server_context
     from splitrender.scene.loader import get_scene
 
     scene = get_scene("default+nogi")
@@ -27,9 +28,7 @@ def _frames(renderer, poses: list[tuple[float, Pose]]) -> list[tuple[str, dict, 
     srv = spec.server_class(make_config(spec.config, {}), INTR, scene, 30, None)
     out = []
     for fid, (t, pose) in enumerate(poses):
-        upd = srv.produce(ServerContext(frame_id=fid, t_s=t, scene=scene, renderer=renderer, intrinsics=INTR,
-                                        latest_pose=pose, latest_pose_t_s=t, target_pose=pose, target_t_s=t,
-                                        predict=lambda _t, p=pose: p, expected_latency_s=0.0))
+        upd = srv.produce(server_context(scene, renderer, INTR, pose, t_s=t, frame_id=fid))
         d = hashlib.sha256(np.ascontiguousarray(upd.planes["atlas"]).tobytes())
         d.update(upd.data["quads"])
         d.update(upd.data["offsets"])
