@@ -55,8 +55,8 @@ def test_matched_runs_give_a_table_and_the_resolution_trend(tmp_path: Path) -> N
     assert "(0.50-0.50x them; the paper's 0.48-1.61x)" in text, text
     assert "lossless against lossless in 2 of 3 cells (A 320x180 p0, A 1280x720 p0)" in text, text
     assert "each at a crf for those bits) in 1 (A 1280x720 p0)" in text, text
-    assert "A p0 320x180 -> 1280x720: lossy +0.00300 -> -0.00050, lossless -0.00070 -> -0.00060" in text, text
-    assert "the lossy gap shrinks in 1 of 1 scene-cells and a gap changes sign in 1." in text, text
+    assert "A p0 320x180 -> 1280x720: lossy +0.00300 (2.50x `sas`'s) -> -0.00050 (0.50x), lossless -0.00070 -> -0.00060" in text, text
+    assert "the lossy gap shrinks in 1 of 1 scene-cells (1 as the ratio of the two DSSIMs) and a gap changes sign in 1." in text, text
 
 
 def test_no_matched_runs_no_matched_section(tmp_path: Path) -> None:
