@@ -261,15 +261,6 @@ class RateController:
         the ceiling: sas's first atlas IDRs took 1-24 kB under the start's ceilings where its crf takes 90 kB, and
         its model PSNR stayed 3-6 dB under ``adapt = "off"``'s for its first second on the 8 Mbit/s cellular-like
         trace."""
-        self.path: tuple[float, float] | None = None
-        """The estimator's target (bit/s) and queue (ms) as the point controller last read them (None without one).
-        Where the queue is one the method's bursts may make (within :attr:`buffer_ms`), the encoders take the target,
-        not the estimator's encoder rate: that drains any queue over ``queue_target_ms`` (40 ms) down from what the
-        link delivered over the last 0.2 s, which an application-limited session's own rate sets, not the link's.
-        tss on the 8 Mbit/s cellular-like trace: at 0.97 s an I-frame's 48 ms queue took its atlas's ceiling from
-        5.3 to 2.0 Mbit/s, an urgent restart whose I-frame and the next (the method's own, 7 kB) were coded at it;
-        without the drain there, 27.29 -> 27.54 dB over 8 s and p95 motion-to-photon 192 -> 158 ms (off 28.97 dB,
-        192 ms; ``bench_adapt_quality``)."""
 
     def _avg(self, old: float | None, new: float) -> float:
         return new if old is None else old + self.cfg.smoothing * (new - old)
@@ -345,8 +336,6 @@ class RateController:
         for a calibrated stream, a :class:`CappedCrf` ceiling for one still calibrating (the method's crf under it)."""
         if not self.video or not math.isfinite(encoder_bps):
             return {}
-        if self.buffer_ms is not None and self.path is not None and self.path[1] <= self.buffer_ms:
-            encoder_bps = max(encoder_bps, self.path[0])   # a queue the method's bursts may make: not drained
         self._estimate_bps = encoder_bps
         if self._first_bps is None:
             self._first_bps = encoder_bps
@@ -737,7 +726,6 @@ class PointController:
         which the queue leaves it); True when it moved."""
         if not math.isfinite(estimate_bps):
             return False
-        self.rate.path = (estimate_bps, queue_ms)
         self._recent = [(t, r) for t, r in self._recent if t >= now_s - RISING_WINDOW_S] + [(now_s, estimate_bps)]
         self._calm(now_s, estimate_bps, queue_ms)
         if not self.rate.calibrated:
