@@ -359,10 +359,10 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
     sender = SimpleNamespace(_handle_rtcp_packet=aiortc_handler)
     session = BrowserSession.__new__(BrowserSession)
     session.core = core
-    session.counters = session._counters = {"nacks_received": 0, "nacked_packets": 0}
+    session._counters = {"nacks_received": 0, "nacked_packets": 0}
     session.track = session.page = session.relay = None
     session._sender_sent, session.method = None, "video"
-    hook_sender_rtcp(sender, core, session.counters)
+    hook_sender_rtcp(sender, core, session._counters)
     packets = [RtcpPsfbPacket(1, 1, 2), RtcpPsfbPacket(4, 1, 2), RtcpRtpfbPacket(1, 1, 2, [5, 6, 7]),
                RtcpPsfbPacket(15, 1, 0, pack_remb_fci(400_000, [2])), RtcpPsfbPacket(15, 1, 0, b"not a remb")]
     for p in packets:
@@ -372,4 +372,4 @@ async def test_the_senders_rtcp_reaches_the_session_core_through_one_adapter():
     assert (c["plis"], c["estimates_received"], c["nacks_received"], c["nacked_packets"]) == (2, 1, 1, 3), c
     assert core.keyframe_due(1e12) and c["frames_sent"] == 0 and c["poses_received"] == 0
     with pytest.raises(RuntimeError, match="_handle_rtcp_packet"):
-        hook_sender_rtcp(SimpleNamespace(), core, session.counters)
+        hook_sender_rtcp(SimpleNamespace(), core, session._counters)

@@ -106,13 +106,31 @@ class LiveSession:
         self._logs = SessionLogs(self.out_dir)
         """``feedback.csv`` and ``updates.csv`` (the core's rows, as they come) and ``counters.csv``, with ``out_dir``."""
         self._counters: dict[str, int] = {"render_timeouts": 0}
-        """What the door counts itself, beside its core (:meth:`server_counters` has both)."""
+        """What the door counts itself, beside its core (:attr:`counters`; :meth:`count` adds to it)."""
+        self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+
+    @property
+    def counters(self) -> dict[str, Any]:
+        """This session's counters: its core's (frames, keyframes, poses, feedback, PLIs, NACKs, ...) and the
+        door's own."""
+        return {**(self.core.all_counters() if self.core is not None else {}), **self._counters}
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Add ``n`` to the door's own counter ``name`` (one the core does not keep)."""
+        self._counters[name] = self._counters.get(name, 0) + n
+
+    @property
+    def frames_sent(self) -> int:
+        return self.core.counters["frames_sent"] if self.core is not None else 0
 
     def server_counters(self) -> dict[str, Any]:
         """The session's counters: its core's (frames, keyframes, poses, feedback, PLIs, ...), the door's own, and
         its method; what ``counters.csv`` gets and the closing log line names."""
-        core = self.core.all_counters() if self.core is not None else {}
-        return {**core, **self._counters, "method": self.method}
+        return {**self.counters, "method": self.method}
+
+    def log_metrics(self) -> None:
+        """One ``metrics`` log line: the session's counters (:meth:`server_counters`)."""
+        self.log.info("metrics session=%s %s", self.id, " ".join(f"{k}={v}" for k, v in self.server_counters().items()))
 
     @property
     def feedback_rows(self) -> Any:
@@ -198,9 +216,13 @@ class LiveSession:
 
     async def _frame_loop(self) -> None:
         """The frame clock: the server's shared frame grid at ``server_fps`` (each tick with the ticks missed
-        before it while a frame was made); a frame is made on each tick the core's rule lets through."""
+        before it while a frame was made); a frame is made on each tick the core's rule lets through.  Every
+        ``metrics_interval_s`` (0: never) a tick logs the ``metrics`` line first."""
         assert self.core is not None
         async for skipped in self.server.frame_ticks():
+            if self.cfg.metrics_interval_s > 0 and time.monotonic() >= self._next_metrics:
+                self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+                self.log_metrics()
             ready, backlog = self._tick()
             if self.core.live_tick(skipped, ready, backlog=backlog):
                 await self._send_frame()

@@ -63,22 +63,13 @@ class ServerSession(LiveSession):
         """Where a copy of each video stream's RTP goes (``sdp_dir`` with mirror ports: its SDP file names it)."""
         self.tx: ServerPipeline | None = None
         self._timer_wake = asyncio.Event()
-        self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
         self._counters.update({"session_bytes": 0, "client_errors": 0})
         self.client_error: tuple[int, str] | None = None
         """The client's ``Error`` (code, reason) when it left with one."""
 
-    @property
-    def counters(self) -> dict[str, Any]:
-        """This session's counters: the driver's and its core's (frames, keyframes, PLIs, NACKs, ...)."""
-        return {**(self.core.all_counters() if self.core is not None else {}), **self._counters}
-
     def server_counters(self) -> dict[str, Any]:
-        return dict(super().server_counters(), rtt_ms=self.rtt_ms or math.nan, server_udp_dropped=self.server.udp_dropped)
-
-    @property
-    def rtt_ms(self) -> float | None:
-        return self.core.rtt_ms if self.core is not None else None
+        rtt_ms = self.core.rtt_ms if self.core is not None else None
+        return dict(super().server_counters(), rtt_ms=rtt_ms or math.nan, server_udp_dropped=self.server.udp_dropped)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -194,18 +185,9 @@ class ServerSession(LiveSession):
     # ------------------------------------------------------------------ frames
 
     def _tick(self) -> tuple[bool, bool]:
-        """A tick of the frame clock: the ``metrics`` log line when due; the core's rule then makes no frame before
-        the client's address and a pose, nor while the last frame's metadata waits in the TCP send buffer."""
-        if self.cfg.metrics_interval_s > 0 and time.monotonic() >= self._next_metrics:
-            self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
-            self.log_metrics()
+        """A tick of the frame clock: the core's rule makes no frame before the client's address and a pose, nor
+        while the last frame's metadata waits in the TCP send buffer."""
         return True, self.channel.write_buffer_bytes > self.cfg.max_meta_backlog_bytes
-
-    def log_metrics(self) -> None:
-        """One ``metrics`` log line: this session's counters and the datagrams the server dropped."""
-        logger.info("metrics session=%s method=%s %s server_udp_dropped=%d rtt_ms=%s", self.id, self.method,
-                    " ".join(f"{k}={v}" for k, v in self.counters.items()), self.server.udp_dropped,
-                    f"{self.rtt_ms:.1f}" if self.rtt_ms is not None else "nan")
 
     async def _deliver(self, made: MadeFrame) -> None:
         assert self.core is not None
@@ -250,21 +232,17 @@ class ServerSession(LiveSession):
             logger.info("session %s: client RTP address is %s:%d (learned from RTCP)", self.id, *addr)
         self._flush()
 
-    @property
-    def client_addr(self) -> Address | None:
-        """The client's RTP address, learned from its RTCP (the core's :attr:`~.ServerSession.peer`)."""
-        return self.core.peer if self.core is not None else None
-
     def _flush(self, wake: bool = True) -> None:
         """Send what the core lets go now (its one way out): RTP and sender reports to the client, each stream's RTP to
-        its mirror as well; before the client's address is known they are dropped.  After an input (``wake``) the
+        its mirror as well; before the client's address (learned from its RTCP: the core's
+        :attr:`~splitrender.pipeline.ServerSession.peer`) is known they are dropped.  After an input (``wake``) the
         timer task is woken, since the core's next deadline may have moved."""
         if self.core is None:
             return
         for d in self.core.datagrams_to_send(wall_ms()):
-            if self.client_addr is None:
+            if self.core.peer is None:
                 continue
-            self.server.send_datagram(d.data, self.client_addr)
+            self.server.send_datagram(d.data, self.core.peer)
             mirror = self.mirrors.get(d.stream) if d.kind == "rtp" and d.stream is not None else None
             if mirror is not None:
                 self.server.send_datagram(d.data, mirror)

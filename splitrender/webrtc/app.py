@@ -350,8 +350,8 @@ class WebRtcFrontDoor:
         except PageMessageError as exc:
             return _bad(str(exc))
         assert s.out_dir is not None
-        c["images_received"] += 1
-        c["image_bytes_received"] += size
+        s.count("images_received")
+        s.count("image_bytes_received", size)
         await asyncio.get_running_loop().run_in_executor(None, save_image, s.out_dir, frame, rgb, None)
         return web.json_response({"ok": True})
 

@@ -89,11 +89,7 @@ class BrowserSession(LiveSession):
             "nacks_received": 0, "nacked_packets": 0,
             "video_bytes": 0, "meta_bytes": 0, "page_errors": 0,
             "images_received": 0, "image_bytes_received": 0,
-        })
-        self.counters = self._counters
-        """What this front door alone counts; the core (in its WebRTC profile: aiortc owns the transport) counts
-        frames (those skipped too), keyframes, poses, feedback, PLIs and REMB estimates (:meth:`server_counters` has
-        both)."""
+        })   # what this door alone counts; the core (aiortc owns the transport) counts frames, PLIs, REMBs, ...
 
     # ------------------------------------------------------------------ set-up
 
@@ -125,7 +121,7 @@ class BrowserSession(LiveSession):
         self.track = EncodedVideoTrack()
         self.sender = await answer_offer(pc, offer_sdp, self.track)
         self.track.sender = self.sender
-        hook_sender_rtcp(self.sender, self.core, self.counters)   # the page's PLIs, FIRs and REMBs into the core
+        hook_sender_rtcp(self.sender, self.core, self._counters)   # the page's PLIs, FIRs and REMBs into the core
         answer = pc.localDescription.sdp
         if self.relay is not None:
             ports = udp_candidate_ports(answer, self.front.ice_host)
@@ -181,8 +177,8 @@ class BrowserSession(LiveSession):
     def _page_error(self, text: str) -> None:
         """A message the session refused: counted (``page_errors``), answered on ``meta`` with an ``error`` naming
         what was wrong, and dropped; the :data:`MAX_PAGE_ERRORS`-th ends the session."""
-        self.counters["page_errors"] += 1
-        n = self.counters["page_errors"]
+        self.count("page_errors")
+        n = self._counters["page_errors"]
         if n <= 3 or n == MAX_PAGE_ERRORS:
             logger.warning("browser session %s: %s", self.id, text)
         self._send("meta", {"type": "error", "text": text})
@@ -228,10 +224,6 @@ class BrowserSession(LiveSession):
             with contextlib.suppress(Exception):
                 await self.relay.close()
 
-    @property
-    def frames_sent(self) -> int:
-        return self.core.counters["frames_sent"] if self.core is not None else 0
-
     def server_counters(self) -> dict[str, Any]:
         """The session's counters: its core's (frames, keyframes, poses, feedback, PLIs, REMB estimates), its own,
         and the RTP sender's (packets and bytes sent), under the headless client's names where they count the same
@@ -274,8 +266,8 @@ class BrowserSession(LiveSession):
         if not self._origin_sent and self.track.rtp_origin is not None:
             self._origin_sent = bool(self._send("meta", {"type": "origin", "rtp_origin": self.track.rtp_origin}))
         if self.page is not None:    # the method's own messages first (sas: its patch slots), on the reliable channel
-            self.counters["meta_bytes"] += sum(self._send("meta", msg) for msg in self.page.frame(order.frame_id,
-                                                                                                    enc.update.meta))
+            self.count("meta_bytes", sum(self._send("meta", msg) for msg in self.page.frame(order.frame_id,
+                                                                                             enc.update.meta)))
         n_meta = self._send("frame", frame_message(order, enc.update, frame.keyframe, rtp_ts, int(wall * 1e6),
                                                    self.track.rtp_origin))
         if not self.track.put(frame.data, rtp_ts):
@@ -283,5 +275,5 @@ class BrowserSession(LiveSession):
         # the core counts the frame and its keyframe (aiortc packetizes it: nothing for an RTP history)
         _sent, row = core.frame_from_worker(*made, wall_ms())
         row["bytes_frame_meta"] = n_meta
-        self.counters["video_bytes"] += len(frame.data)
-        self.counters["meta_bytes"] += n_meta
+        self.count("video_bytes", len(frame.data))
+        self.count("meta_bytes", n_meta)
