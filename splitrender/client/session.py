@@ -34,8 +34,7 @@ from splitrender.errors import CodecError, PeerTimeoutError, ServerRefusedError,
 from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession, ReceivedFrame, Work, black_frame, display_frame
 from splitrender.pipeline.session import StreamStalledError, leaving_error
 from splitrender.pipeline.recording import ClientRecording, manifest, save_image
-from splitrender.pipeline.rows import live_frame_row
-from splitrender.protocol import Bye, Pose, Welcome
+from splitrender.protocol import Bye, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
 from splitrender.transport.control import READ_CHUNK_BYTES, ControlChannel, wall_ms, wall_us
@@ -258,9 +257,7 @@ class LiveClient:
             if delay > 0:
                 await asyncio.sleep(delay)
             now_us = wall_us()
-            pose = self._trace_pose(now_us / 1e6)
-            self.core.send(Pose(now_us, seq & 0xFFFFFFFF, tuple(float(v) for v in pose.position),  # type: ignore[arg-type]
-                                tuple(float(v) for v in pose.orientation)))  # type: ignore[arg-type]
+            self.core.send_pose(now_us, seq, self._trace_pose(now_us / 1e6))
             await self._flush_control()
         await asyncio.Event().wait()  # the display task ends the run
 
@@ -407,31 +404,31 @@ class LiveClient:
         if shown is None:   # every update so far rejected or without content: still black
             self._record_blank(tick, tick_wall, pose, saves)
         else:
-            row = live_frame_row(self.recording.rows, tick, trace_t, scene_t, pose, shown, displayed_us,
-                                 apply_ms + render_ms)
-            row.update({f"cli_{k}": v for k, v in cf.stats.items()})
-            row.update(core.received_kbps(displayed_us / 1e6))
-            self.recording.append(row)
-            if cfg.save_images and cfg.out_dir is not None:
-                saves.append(loop.run_in_executor(self.io_executor, save_image, cfg.out_dir, row["frame"], cf.color,
-                                                  cf.holes))
-                if len(saves) > 64:
-                    await asyncio.gather(*saves[:32])
-                    del saves[:32]
+            row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, apply_ms + render_ms,
+                                      **{f"cli_{k}": v for k, v in cf.stats.items()},
+                                      **core.received_kbps(displayed_us / 1e6))
+            self._save_image(saves, row["frame"], cf.color, cf.holes)
+            if len(saves) > 64:
+                await asyncio.gather(*saves[:32])
+                del saves[:32]
         await self._flush_control()
 
     def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
         kept; without the server clock, ``saves`` is None and the row has no scene time)."""
-        cfg = self.cfg
         assert self.core is not None
-        row = live_frame_row(self.recording.rows, tick, wall_s - self._t0_wall, self.core.scene_t(wall_s), pose, None,
-                             int(wall_s * 1e6))
-        self.recording.append(row)
-        if saves is not None and cfg.save_images and cfg.out_dir is not None:
-            black = black_frame(cfg.width, cfg.height)
-            saves.append(asyncio.get_running_loop().run_in_executor(
-                self.io_executor, save_image, cfg.out_dir, row["frame"], black.color, black.holes))
+        row = self.recording.tick(tick, wall_s - self._t0_wall, self.core.scene_t(wall_s), pose, None,
+                                  int(wall_s * 1e6))
+        if saves is not None and self.cfg.save_images:
+            black = black_frame(self.cfg.width, self.cfg.height)
+            self._save_image(saves, row["frame"], black.color, black.holes)
+
+    def _save_image(self, saves: list[Any], frame: int, color: Any, holes: Any) -> None:
+        """Save a displayed image on the I/O thread where images are kept (its future joins ``saves``)."""
+        cfg = self.cfg
+        if cfg.save_images and cfg.out_dir is not None:
+            saves.append(asyncio.get_running_loop().run_in_executor(self.io_executor, save_image, cfg.out_dir, frame,
+                                                                    color, holes))
 
     # ------------------------------------------------------------------ recording
 

@@ -26,7 +26,7 @@ from typing import IO, Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .rows import FEEDBACK_COLUMNS
+from .rows import FEEDBACK_COLUMNS, live_frame_row
 from ..tabular import CsvAppender, atomic_file, atomic_write_bytes, write_csv, write_csv_passes
 
 JOURNAL = "frames.jsonl"
@@ -94,6 +94,14 @@ class ClientRecording:
         if now - self._flushed >= JOURNAL_FLUSH_S:
             self._journal.flush()
             self._flushed = now
+
+    def tick(self, tick: int, trace_t: float, scene_t: float, pose: Any, shown: Any, displayed_us: int,
+             client_ms: float = math.nan, **columns: Any) -> dict[str, Any]:
+        """A display tick's row (:func:`~.rows.live_frame_row`, ``shown`` the update shown or None for the black
+        background; numbered by the rows so far) with ``columns`` after it: appended, and returned."""
+        row = {**live_frame_row(self.rows, tick, trace_t, scene_t, pose, shown, displayed_us, client_ms), **columns}
+        self.append(row)
+        return row
 
     def finish(self, manifest: dict[str, Any], counters: dict[str, Any],
                rows: Sequence[dict[str, Any]] | None = None) -> None:

@@ -675,6 +675,12 @@ class ClientSession:
         :meth:`data_to_send`.  Raises ``LocalProtocolError`` where the connection's state forbids it."""
         self._control_out.append(self.conn.send(msg))
 
+    def send_pose(self, client_time_us: int, seq: int, pose: ScenePose) -> None:
+        """Send the tracker's ``pose`` sampled at ``client_time_us`` (wall-clock µs) as the ``seq``-th ``Pose``
+        (numbered modulo 2^32, as the message carries it)."""
+        position, orientation = (tuple(float(v) for v in a) for a in (pose.position, pose.orientation))
+        self.send(Pose(client_time_us, seq & 0xFFFFFFFF, position, orientation))  # type: ignore[arg-type]
+
     def data_to_send(self) -> bytes:
         """The control connection's bytes queued since the last call (feedback, what was :meth:`send`), in order."""
         out, self._control_out = b"".join(self._control_out), []
