@@ -156,9 +156,8 @@ class _Client:
     core: ClientSession | None = None
     """The client's session core (RTCP, NACK, PLI, playout delay, stalls, feedback)."""
     timer: Timer | None = None
-    pose_t: dict[int, float] = field(default_factory=dict)
-    pred: dict[int, tuple[float, float]] = field(default_factory=dict)
-    update_rows: dict[int, dict[str, Any]] = field(default_factory=dict)
+    sent: dict[int, tuple[dict[str, Any], float]] = field(default_factory=dict)
+    """Each frame sent: its update row and the sample time of the newest pose its order had (s)."""
     protocol_errors: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
@@ -335,8 +334,6 @@ class VirtualTimeRun:
             self._server_out(c)
             c.bytes.frame(t_f, out.wire_bytes)
             pred_cm, pred_deg = prediction_error(order.target_pose, c.trace.pose_at(order.target_t_s))
-            c.pose_t[f] = order.latest_pose_t_s
-            c.pred[f] = (pred_cm, pred_deg)
             # the tick's shared work is the pool's (a run's sessions share one producer), not this session's share
             shared = pool.shared_ms.get(self.spec.name, 0.0) if self.spec.producer is not None else 0.0
             row = {"client": c.index,
@@ -345,7 +342,7 @@ class VirtualTimeRun:
                    "arrival_s": math.nan}
             row.update({f"srv_{k}": v for k, v in stats.items()})
             row.update({f"shared_{k}": v for k, v in pool.stats(self.spec.name).items()})
-            c.update_rows[f] = row
+            c.sent[f] = (row, order.latest_pose_t_s)
             c.updates.append(row)
 
     def _server_out(self, c: _Client) -> None:
@@ -413,9 +410,9 @@ class VirtualTimeRun:
         return rf.decode_ms * self.cfg.cost_scale if self.cfg.cost_model == "measured" else self.cfg.decode_latency_ms
 
     def _released(self, c: _Client, rf: ReceivedFrame) -> None:
-        """A released frame's delivery in its update row."""
-        row = c.update_rows.pop(rf.update.frame_id, None)
-        if row is not None:
+        """A released frame's delivery in its update row (its first release's)."""
+        row = c.sent.get(rf.update.frame_id, ({}, 0.0))[0]
+        if row.get("delivered") == "":
             row["delivered"] = int(rf.update.complete)
             row["missing"] = ";".join(sorted(rf.update.missing))
             row["arrival_s"] = rf.received_ms / 1000.0
@@ -462,10 +459,10 @@ class VirtualTimeRun:
         client_ms = apply_ms + render_ms
         make_current(self.renderer.ctx)
         fid = shown.update.frame_id if shown is not None else None
+        sent, pose_t = c.sent.get(fid, ({}, math.nan))   # type: ignore[arg-type]
         row: dict[str, Any] = {"client": c.index, **frame_row(
-            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, c.pose_t.get(fid, math.nan),
-            client_ms, decode_ms)}
-        row["pred_err_cm"], row["pred_err_deg"] = c.pred.get(fid, (math.nan, math.nan))
+            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, pose_t, client_ms, decode_ms)}
+        row["pred_err_cm"], row["pred_err_deg"] = sent.get("pred_err_cm", math.nan), sent.get("pred_err_deg", math.nan)
         row.update(c.bytes.kbps(t_d))   # what the server sent over the last second
         if cfg.metrics:
             w0 = time.perf_counter()
