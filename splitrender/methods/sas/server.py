@@ -150,6 +150,18 @@ def rects_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             & (a[:, None, 1] <= b[None, :, 3]) & (b[None, :, 1] <= a[:, None, 3])).any(axis=1)
 
 
+def refresh_due(stale: np.ndarray, shaded_at: np.ndarray, frame: int, refresh: int) -> np.ndarray:
+    """Which of the ``stale`` items (late, not wrong: ``live_refresh_frames``) are shaded again this ``frame``: those
+    last shaded (``shaded_at``) ``refresh`` or more frames ago, and the longest-kept of the rest up to a ``1 /
+    refresh`` share of the stale ones, so that none stays older than ``refresh - 1`` frames."""
+    due = stale & (frame - shaded_at >= refresh)
+    quota = -(-int(stale.sum()) // refresh) - int(due.sum())
+    if quota > 0:
+        cand = np.flatnonzero(stale & ~due)
+        due[cand[np.argsort(shaded_at[cand], kind="stable")[:quota]]] = True
+    return due
+
+
 def has_texture_detail(material: Any) -> bool:
     """Whether one of ``material``'s maps (:data:`TEXTURE_MAPS`) varies: a constant map (a loader's 2x2 grey for
     a model without one) carries no detail more texels could resolve."""
@@ -854,12 +866,7 @@ class SasServer(ServerHalf):
             if cand.size:
                 stale[cand] = self._eye_moved(live[cand], frame, eye, rot, flip=False)
         stale &= ~hard
-        at = self._shaded_at[live]
-        due = stale & (self._frames - at >= refresh)
-        quota = -(-int(stale.sum()) // refresh) - int(due.sum())
-        if quota > 0:
-            cand = np.flatnonzero(stale & ~due)
-            due[cand[np.argsort(at[cand], kind="stable")[:quota]]] = True
+        due = refresh_due(stale, self._shaded_at[live], self._frames, refresh)
         self._stale_kept_count = int((stale & ~due).sum())
         return hard | due
 

@@ -51,7 +51,7 @@ from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
-from ..sas.server import SHADOW_NORMAL_OFFSET_M, SHADOW_REACH_TEXELS, light_rects, rects_overlap
+from ..sas.server import SHADOW_NORMAL_OFFSET_M, SHADOW_REACH_TEXELS, light_rects, rects_overlap, refresh_due
 from .config import TssConfig
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, level_for_own, lp_luma, morton_order,
                      os_sizes, own_count, pitch_level, plan_atlas, v_count)
@@ -769,12 +769,7 @@ class TssServer(ServerHalf):
             if cand.size:
                 hard[cand] = self._near_moved_casters(pvs[cand], models, prev, moved)
             stale = ~hard & (self._gathered_gen[pvs] != self._gen)
-            at = self._gathered_at[pvs]
-            due = stale & (self._frames - at >= refresh)
-            quota = -(-int(stale.sum()) // refresh) - int(due.sum())
-            if quota > 0:
-                c = np.flatnonzero(stale & ~due)
-                due[c[np.argsort(at[c], kind="stable")[:quota]]] = True
+            due = refresh_due(stale, self._gathered_at[pvs], self._frames, refresh)
             self._stale_kept = int((stale & ~due).sum())
             rows = np.flatnonzero(hard | due)
         drawn = pvs if rows is None else pvs[rows]
