@@ -150,6 +150,16 @@ def rects_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             & (a[:, None, 1] <= b[None, :, 3]) & (b[None, :, 1] <= a[:, None, 3])).any(axis=1)
 
 
+def caster_rects(vp: np.ndarray, lo: np.ndarray, hi: np.ndarray, placements: tuple[np.ndarray, ...],
+                 reach: float) -> np.ndarray:
+    """(len(placements) * K, 4) the light-clip rectangles of K casters' object boxes (corners ``lo``, ``hi``: (K, 3))
+    placed by each of ``placements`` (their (K, 4, 4) object matrices: where a moved caster was and is) under the
+    sun's ``vp``, each grown by ``reach`` clip units."""
+    corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), hi, lo) for i in range(8)], axis=1)
+    return np.concatenate([light_rects(vp, corners @ m[:, :3, :3].transpose(0, 2, 1) + m[:, None, :3, 3], reach)
+                           for m in placements])
+
+
 def refresh_due(stale: np.ndarray, shaded_at: np.ndarray, frame: int, refresh: int) -> np.ndarray:
     """Which of the ``stale`` items (late, not wrong: ``live_refresh_frames``) are shaded again this ``frame``: those
     last shaded (``shaded_at``) ``refresh`` or more frames ago, and the longest-kept of the rest up to a ``1 /
@@ -940,13 +950,9 @@ class SasServer(ServerHalf):
             return np.ones(ids.size, bool)
         vp = self._sun_vp(frame)
         reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
-        lo, hi = self.obj_box[casters, 0], self.obj_box[casters, 1]
-        corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), hi, lo) for i in range(8)], axis=1)
-        boxes = []
-        for m in (prev, frame.models):
-            mk = m[casters]
-            boxes.append(light_rects(vp, corners @ mk[:, :3, :3].transpose(0, 2, 1) + mk[:, None, :3, 3], reach))
-        return rects_overlap(self._light_rects(ids, frame, vp), np.concatenate(boxes))
+        boxes = caster_rects(vp, self.obj_box[casters, 0], self.obj_box[casters, 1],
+                             (prev[casters], frame.models[casters]), reach)
+        return rects_overlap(self._light_rects(ids, frame, vp), boxes)
 
     def _sun_vp(self, frame: SasFrame) -> np.ndarray:
         """The sun's world -> light-clip matrix (``light_view_projection``, which walks the scene's bounds), once a

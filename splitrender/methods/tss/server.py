@@ -51,7 +51,8 @@ from ...scene.pose import CameraIntrinsics, Pose
 from ..base import DataStreamSpec, SceneProducer, ServerContext, ServerHalf, StreamSpec, Update
 from ..sas.patches import split_scene_meshes
 from ..sas.pvs import PatchIdPass, PoseSample, evs_samples
-from ..sas.server import SHADOW_NORMAL_OFFSET_M, SHADOW_REACH_TEXELS, light_rects, rects_overlap, refresh_due
+from ..sas.server import (SHADOW_NORMAL_OFFSET_M, SHADOW_REACH_TEXELS, caster_rects, light_rects, rects_overlap,
+                          refresh_due)
 from .config import TssConfig
 from .layout import (KIND_LP, KIND_OS, KIND_SINGLE, MAX_LEVEL, AtlasPlan, StableAtlas, fill_gutters, layout_attributes, level_for, level_for_own, lp_luma, morton_order,
                      os_sizes, own_count, pitch_level, plan_atlas, v_count)
@@ -650,7 +651,7 @@ class TssServer(ServerHalf):
         persp = (depth.min(axis=1) > NEAR_M) & c.perspective
         t2 = time.perf_counter()
         self.keep_unwritten = not iframe
-        rows = self._live_rows(ctx, pvs, plan, descriptors(plan, persp, base), models, iframe, depth, persp)
+        rows = self._live_rows(ctx, pvs, plan, base, models, iframe, depth, persp)
         shaded = self._gather(ctx, pvs, plan, base, persp, models, px, rows=rows)
         W, H = self.atlas
         rgba = np.frombuffer(self._fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4)
@@ -694,8 +695,7 @@ class TssServer(ServerHalf):
             live[pvs] = True
             gone = np.flatnonzero(self._sent_live & ~live)
             # a row whose descriptor is unchanged still moves when its bin's shelves do (per-frame layouts)
-            changed = (~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
-                       | (plan.origin != self._sent_origin[pvs]).any(axis=(1, 2)))
+            changed = self._rows_changed(pvs, plan, desc)
             table = encode_table(pvs, plan, desc, gone, changed)
             send_table = bool(changed.any() or gone.size)
         self._sent_live[:] = False
@@ -735,11 +735,11 @@ class TssServer(ServerHalf):
         server), else 0 (virtual time: every PVS triangle is gathered every frame)."""
         return int(self.config.live_refresh_frames) if getattr(ctx.renderer, "gi_hz", 0.0) > 0 else 0
 
-    def _live_rows(self, ctx: ServerContext, pvs: np.ndarray, plan: AtlasPlan, desc: np.ndarray, models: np.ndarray,
+    def _live_rows(self, ctx: ServerContext, pvs: np.ndarray, plan: AtlasPlan, base: np.ndarray, models: np.ndarray,
                    iframe: bool, depth: np.ndarray, persp: np.ndarray) -> np.ndarray | None:
         """Which rows of ``pvs`` this frame gathers (sorted; None: all), live (:meth:`_live_refresh` > 0) on a
         P-frame: those whose samples would be wrong, not only late (new to the client's table or in another cell:
-        :func:`~.wire.descriptors` ``desc`` or origin changed; of a moved object; near a moved shadow caster; placed in
+        :meth:`_rows_changed`; of a moved object; near a moved shadow caster; placed in
         perspective (``persp``) at corner ``depth`` ratios that changed by :data:`PERSP_KEEP` or more), all of
         them when a light's intensity changed; of the others, gathered at another eye or time of the probes
         (stale), every one gathered ``refresh`` or more frames ago and the longest-kept up to a ``1 / refresh``
@@ -761,8 +761,7 @@ class TssServer(ServerHalf):
         if refresh and not iframe and prev is not None and prev.shape == models.shape and lights == prev_lights \
                 and plan.single_px == self._sent_single_px:
             moved = (models != prev).any(axis=(1, 2))
-            hard = (~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
-                    | (plan.origin != self._sent_origin[pvs]).any(axis=(1, 2)) | moved[self.tris.obj[pvs]])
+            hard = self._rows_changed(pvs, plan, descriptors(plan, persp, base)) | moved[self.tris.obj[pvs]]
             pp = np.flatnonzero(persp & ~hard)              # depths > NEAR_M now and when gathered (persp is in desc)
             hard[pp] = (np.abs(ratio[pp] / self._gathered_ratio[pvs[pp]] - 1.0) >= PERSP_KEEP).any(axis=1)
             cand = np.flatnonzero(~hard)
@@ -778,6 +777,12 @@ class TssServer(ServerHalf):
         self._gathered_ratio[drawn] = ratio if rows is None else ratio[rows]
         return rows
 
+    def _rows_changed(self, pvs: np.ndarray, plan: AtlasPlan, desc: np.ndarray) -> np.ndarray:
+        """(len(pvs),) bool: which triangles' rows of the client's table change this frame: new to the client, another
+        descriptor (:func:`~.wire.descriptors` ``desc``: kind, level, cell) or another origin."""
+        return (~self._sent_live[pvs] | (desc != self._sent_desc[pvs]).any(axis=1)
+                | (plan.origin != self._sent_origin[pvs]).any(axis=(1, 2)))
+
     def _near_moved_casters(self, ids: np.ndarray, models: np.ndarray, prev: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """(len(ids),) bool: whether triangles ``ids``' sun-shadow lookups (the triangle at ``models``, grown by the
         lookup's normal offset) reach the sun's map where a dynamic caster that moved (``moved``, per object) was
@@ -788,15 +793,12 @@ class TssServer(ServerHalf):
             return np.zeros(ids.size, bool)
         vp = light_view_projection(self.scene)
         box = self.tris.box[casters].astype(np.float64)
-        corners = np.stack([np.where(np.array([(i >> j) & 1 for j in range(3)], bool), box[:, 1], box[:, 0])
-                            for i in range(8)], axis=1)
         reach = SHADOW_REACH_TEXELS * 2.0 / sun.shadow_map_size
-        boxes = [light_rects(vp, corners @ m[casters, :3, :3].transpose(0, 2, 1) + m[casters, None, :3, 3], reach)
-                 for m in (prev, models)]
+        boxes = caster_rects(vp, box[:, 0], box[:, 1], (prev[casters], models[casters]), reach)
         m = models[self.tris.obj[ids]].astype(np.float64)
         world = np.einsum("nij,nkj->nki", m[:, :3, :3], self.tris.pos[ids].astype(np.float64)) + m[:, None, :3, 3]
         scale = float(np.linalg.norm(vp[:2, :3], axis=1).max())
-        return rects_overlap(light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale), np.concatenate(boxes))
+        return rects_overlap(light_rects(vp, world, SHADOW_NORMAL_OFFSET_M * scale), boxes)
 
     def _vertices(self, ids: np.ndarray, plan: AtlasPlan, base: np.ndarray, persp: np.ndarray, px: np.ndarray) -> np.ndarray:
         """(N, 3, VERTEX_FLOATS) gathering-stage vertices (OS triangles rotated so the base starts at vertex 0)."""
