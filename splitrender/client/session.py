@@ -33,7 +33,7 @@ from splitrender.client.config import ClientConfig
 from splitrender.errors import CodecError, PeerTimeoutError, ServerRefusedError, SplitRenderError
 from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession, ReceivedFrame, Work, black_frame, display_frame
 from splitrender.pipeline.session import StreamStalledError, leaving_error
-from splitrender.pipeline.recording import ClientRecording, manifest, save_image
+from splitrender.pipeline.recording import ClientRecording, MetricsLog, manifest, save_image
 from splitrender.protocol import Bye, Welcome
 from splitrender.scene.pose import Pose as ScenePose
 from splitrender.scene.trace import get_trace
@@ -208,13 +208,8 @@ class LiveClient:
         # a loaded model (the terms' subject): built-in traces go around it, as in the simulator
         self.trace = get_trace(cfg.trace, scene=terms, fov_y_deg=terms.fov_y_deg, aspect=cfg.width / cfg.height)  # type: ignore[arg-type]
         self._counters["session_bytes"] = hs.session_bytes
-
-        def make_half() -> Any:
-            from splitrender.render.gl import get_context
-
-            return hs.client_half(get_context())
-
-        self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, make_half)
+        # the client half in the GL thread's own context
+        self._half = await asyncio.get_running_loop().run_in_executor(self.gl_executor, hs.client_half)
         self.core = hs.session(cfg.options())
         self.rx = self.core.rx
         logger.info("session %s: method %s, streams %s", self.session_id, terms.method,
@@ -329,10 +324,9 @@ class LiveClient:
 
     async def _rtcp_loop(self) -> None:
         """The core's timer: sleep to its deadline (at most :data:`RTCP_TICK_S`), run it, send what it queued."""
-        cfg = self.cfg
         core = self.core
         assert core is not None
-        last_metrics = time.monotonic()
+        metrics = MetricsLog(logger, self.session_id, self.cfg.metrics_interval_s)
         lag_sum, lag_n = 0.0, 0
         while True:
             pause = min(RTCP_TICK_S, max(0.0, (core.get_timer() - wall_ms()) / 1000))
@@ -348,10 +342,8 @@ class LiveClient:
                 self._queue_work()
                 self._flush_rtcp()
             self._take_events()
-            if cfg.metrics_interval_s > 0 and time.monotonic() - last_metrics >= cfg.metrics_interval_s:
-                last_metrics = time.monotonic()
-                logger.info("metrics session=%s %s", self.session_id,
-                            " ".join(f"{k}={v}" for k, v in self.counters.items()))
+            if metrics.due():
+                metrics.write(self.counters)
 
     # ------------------------------------------------------------------ display
 
@@ -396,18 +388,17 @@ class LiveClient:
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
         scene_t = core.scene_t(tick_wall)
-        cf, ok, apply_ms, render_ms = await loop.run_in_executor(
-            self.gl_executor, display_frame, half, new, pose, scene_t, (cfg.width, cfg.height), f"session {self.session_id}")
+        d = await loop.run_in_executor(self.gl_executor, display_frame, half, new, pose, scene_t, (cfg.width, cfg.height),
+                                       f"session {self.session_id}")
         displayed_us = wall_us()
         # the core's rule (and the Feedback of an update shown the first time)
-        shown = core.showing(new, ok, half.has_content, displayed_us / 1000)
+        shown = core.showing(new, d.ok, half.has_content, displayed_us / 1000)
         if shown is None:   # every update so far rejected or without content: still black
             self._record_blank(tick, tick_wall, pose, saves)
         else:
-            row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, apply_ms + render_ms,
-                                      **{f"cli_{k}": v for k, v in cf.stats.items()},
+            row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, d.client_ms, **d.columns,
                                       **core.received_kbps(displayed_us / 1e6))
-            self._save_image(saves, row["frame"], cf.color, cf.holes)
+            self._save_image(saves, row["frame"], d.frame.color, d.frame.holes)
             if len(saves) > 64:
                 await asyncio.gather(*saves[:32])
                 del saves[:32]

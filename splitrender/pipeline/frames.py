@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -187,8 +187,28 @@ def black_frame(width: int, height: int) -> ClientFrame:
     return ClientFrame(np.zeros((height, width, 3), np.uint8), np.ones((height, width), bool))
 
 
+class Displayed(NamedTuple):
+    """A display tick's client-half side (:func:`display_frame`): the frame drawn, which updates were applied (for
+    :meth:`~.session.ClientSession.showing`), and the apply and render milliseconds."""
+
+    frame: ClientFrame
+    ok: list[bool]
+    apply_ms: float
+    render_ms: float
+
+    @property
+    def client_ms(self) -> float:
+        """The tick's client milliseconds (a frame row's ``client_ms``): applying and rendering."""
+        return self.apply_ms + self.render_ms
+
+    @property
+    def columns(self) -> dict[str, Any]:
+        """The client half's stats as a frame row's ``cli_<stat>`` columns (every client front door's)."""
+        return {f"cli_{k}": v for k, v in self.frame.stats.items()}
+
+
 def display_frame(half: Any, frames: list[Any], pose: Any, t_s: float, size: tuple[int, int],
-                  log_id: str = "") -> tuple[ClientFrame, list[bool], float, float]:
+                  log_id: str = "") -> Displayed:
     """The client half's side of a display tick, in every client front door (on the thread that owns its GL context):
     the updates the core gave the tick (``frames``: :meth:`~.session.ClientSession.display_tick`) applied
     (:func:`apply_updates`), then the half rendered at ``pose`` and scene time ``t_s``, or the black background of
@@ -198,4 +218,4 @@ def display_frame(half: Any, frames: list[Any], pose: Any, t_s: float, size: tup
     ok = apply_updates(half, frames, log_id)
     w1 = time.perf_counter()
     frame = half.render(pose, t_s) if half.has_content else black_frame(*size)
-    return frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000
+    return Displayed(frame, ok, (w1 - w0) * 1000, (time.perf_counter() - w1) * 1000)

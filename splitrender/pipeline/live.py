@@ -31,7 +31,7 @@ from ..errors import (PeerTimeoutError, RemoteProtocolError, WorkerDied, WorkerE
                       describe_error)
 from ..protocol import ErrorCode
 from .frames import FrameOrder
-from .recording import SessionLogs
+from .recording import MetricsLog, SessionLogs
 from .sender import EncodedUpdate
 from .session import ServerSession
 
@@ -107,7 +107,7 @@ class LiveSession:
         """``feedback.csv`` and ``updates.csv`` (the core's rows, as they come) and ``counters.csv``, with ``out_dir``."""
         self._counters: dict[str, int] = {"render_timeouts": 0}
         """What the door counts itself, beside its core (:attr:`counters`; :meth:`count` adds to it)."""
-        self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+        self._metrics = MetricsLog(self.log, self.id, self.cfg.metrics_interval_s)
 
     @property
     def counters(self) -> dict[str, Any]:
@@ -130,7 +130,7 @@ class LiveSession:
 
     def log_metrics(self) -> None:
         """One ``metrics`` log line: the session's counters (:meth:`server_counters`)."""
-        self.log.info("metrics session=%s %s", self.id, " ".join(f"{k}={v}" for k, v in self.server_counters().items()))
+        self._metrics.write(self.server_counters())
 
     @property
     def feedback_rows(self) -> Any:
@@ -220,8 +220,7 @@ class LiveSession:
         ``metrics_interval_s`` (0: never) a tick logs the ``metrics`` line first."""
         assert self.core is not None
         async for skipped in self.server.frame_ticks():
-            if self.cfg.metrics_interval_s > 0 and time.monotonic() >= self._next_metrics:
-                self._next_metrics = time.monotonic() + self.cfg.metrics_interval_s
+            if self._metrics.due():
                 self.log_metrics()
             ready, backlog = self._tick()
             if self.core.live_tick(skipped, ready, backlog=backlog):

@@ -42,6 +42,27 @@ def _json(obj: Any) -> bytes:
     return json.dumps(obj, indent=2, default=str).encode()
 
 
+class MetricsLog:
+    """A live session's ``metrics`` log line, in every live front door (the server's two and the headless client):
+    ``metrics session=<id> name=value ...`` on ``log`` at most every ``interval_s`` (0: never), the first
+    ``interval_s`` after the session's start."""
+
+    def __init__(self, log: Any, session_id: str, interval_s: float) -> None:
+        self.log, self.session_id, self.interval_s = log, session_id, interval_s
+        self._next = time.monotonic() + interval_s
+
+    def due(self) -> bool:
+        """Whether a line is due now (its clock then restarts): :meth:`write` it."""
+        if self.interval_s <= 0 or time.monotonic() < self._next:
+            return False
+        self._next = time.monotonic() + self.interval_s
+        return True
+
+    def write(self, counters: dict[str, Any]) -> None:
+        """One ``metrics`` line of ``counters``."""
+        self.log.info("metrics session=%s %s", self.session_id, " ".join(f"{k}={v}" for k, v in counters.items()))
+
+
 def manifest(session_id: str, method: str, params: dict[str, Any], scene: str, fov_y_deg: float, server_fps: float,
              trace: str, width: int, height: int, display_hz: float, tracker_hz: float, duration_s: float,
              images: bool, client: dict[str, Any], **extra: Any) -> dict[str, Any]:

@@ -70,6 +70,7 @@ from ..protocol.errors import RtcpError
 from ..protocol.rtcp import SDES_CNAME, SdesChunk, SourceDescription, compound_feedback
 from ..protocol.rtp import RTP_CLOCK_HZ
 from ..methods.base import SCALE_KNOB, StreamSpec, get_method, make_config
+from ..render.gl import get_context, make_current
 from ..scene.pose import CameraIntrinsics, Pose as ScenePose
 from ..scene.predict import make_predictor
 from ..protocol.twcc import (DEFAULT_EXTENSION_ID, FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
@@ -388,11 +389,17 @@ class ClientHandshake:
             self.done = True
         return self.done
 
-    def client_half(self, gl: Any) -> Any:
-        """The method's client half the terms name, in GL context ``gl`` (call on the thread that owns it): at the
-        display's size and the Welcome's field of view, built from the session data, held to ``limits``."""
+    def client_half(self, gl: Any = None) -> Any:
+        """The method's client half the terms name, in GL context ``gl`` (made current here; call on the thread that
+        owns it), or by default in the calling thread's own (:func:`~splitrender.render.gl.get_context`: a live
+        client's GL thread): at the display's size and the Welcome's field of view, built from the session data, held
+        to ``limits``."""
         t = self.terms
         assert t is not None and self.done and self.display is not None
+        if gl is None:
+            gl = get_context()
+        else:
+            make_current(gl)
         intr = CameraIntrinsics(self.display[0], self.display[1], t.fov_y_deg)
         return t.spec.client_class(t.config, intr, gl, self.session_data, limits=self.limits)
 

@@ -127,7 +127,7 @@ class _ShiftedTrace:
 
 @dataclass
 class _Client:
-    """One session of a run: its server side, links and client side."""
+    """One session of a run: its server side, links and client side (built once its handshake is done)."""
 
     index: int
     trace: Any
@@ -140,29 +140,29 @@ class _Client:
     rtcp_down: Wire
     """RTCP's own copies of the path's two directions (same impairment, own random draws)."""
     # server side
-    maker: FrameMaker | None = None
+    maker: FrameMaker
     """The session's server half and encoders (its frames are made here, on the runner's GL thread)."""
-    arrivals: list[tuple[float, float]] = field(default_factory=list)
-    arrival_idx: int = 0
-    core_s: ServerSession | None = None
+    core_s: ServerSession
     """The server's session core (poses, feedback, keyframes, frame orders, NACK answers, sender reports)."""
-    server_timer: Timer | None = None
     # client side
-    welcome: Welcome | None = None
+    welcome: Welcome
     """The Welcome the client decoded (its SDPs carry the encoders' parameter sets, as live; the fuzz seeds and the SDP
     tests read it)."""
-    chalf: Any = None
-    gl: Any = None
-    core: ClientSession | None = None
+    chalf: Any
+    gl: Any
+    core: ClientSession
     """The client's session core (RTCP, NACK, PLI, playout delay, stalls, feedback)."""
-    timer: Timer | None = None
+    bytes: SentBytes
+    """The wire bytes the server sent per stream, in all and over the last second."""
+    server_timer: Timer = field(init=False)
+    timer: Timer = field(init=False)
+    arrivals: list[tuple[float, float]] = field(default_factory=list)
+    arrival_idx: int = 0
     sent: dict[int, tuple[dict[str, Any], float]] = field(default_factory=dict)
     """Each frame sent: its update row and the sample time of the newest pose its order had (s)."""
     protocol_errors: int = 0
     packets_lost: int = 0
     """RTP datagrams the downlink dropped (media, FEC and retransmissions)."""
-    bytes: SentBytes = field(default_factory=lambda: SentBytes(()))
-    """The wire bytes the server sent per stream, in all and over the last second."""
     frames: list[dict[str, Any]] = field(default_factory=list)
     updates: list[dict[str, Any]] = field(default_factory=list)
 
@@ -210,12 +210,6 @@ class VirtualTimeRun:
         cfg = self.cfg
         n = cfg.clients
         up, down = self.path.uplink, self.path.downlink
-        c = _Client(i, self.traces[i], Link(up, np.random.default_rng(seeds[3 * i])),
-                    *(Wire(self.clock, Link(spec, np.random.default_rng(seeds[k]))) for spec, k in
-                      ((up, 3 * i + 1), (down, 3 * i + 2), (up, 4 * n + 2 * i), (down, 4 * n + 2 * i + 1))))
-        c.server_timer = Timer(self.clock, lambda: self._server_out(c), self.duration_s + 1.0, by_deadline=True)
-        c.timer = Timer(self.clock, lambda: self._client_timer_now(c), self.duration_s + 1.0 / cfg.client_fps,
-                        by_deadline=False)
         # handshake through a real Connection pair (set-up time is not simulated), the client's the same sans-IO
         # core as the live client's; it decodes what the live client does (its method's codec first)
         opts = cfg.client_options()
@@ -228,27 +222,29 @@ class VirtualTimeRun:
         sconn = read_hello(hs.hello(hello))
         make_current(self.renderer.ctx)
         opening = Opening(cfg.method, self.mcfg, self.intr)
-        c.maker = maker = FrameMaker(opening, pool)
-        specs = maker.specs
-        acc = accept_hello(hello, f"sim{i}", opening, specs, maker.session_blob, sconn, cfg, cfg.server_options(),
+        maker = FrameMaker(opening, pool)
+        acc = accept_hello(hello, f"sim{i}", opening, maker.specs, maker.session_blob, sconn, cfg, cfg.server_options(),
                            parameter_sets=maker.encoder.described_sets(),
                            subject=getattr(self.scene, "subject", None), rng=np.random.default_rng(seeds[3 * n + i]),
                            core_rng=np.random.default_rng(seeds[6 * n + 2 * i + 1]), clock_offset_us=SIM_EPOCH_US,
-                           predictor=PerfectPredictor(c.trace) if cfg.predictor == "perfect" else None)
-        c.core_s = acc.core
+                           predictor=PerfectPredictor(self.traces[i]) if cfg.predictor == "perfect" else None)
         acc.core.record_rows = False   # a run keeps its own tables
         frames = acc.core.data_to_send(0.0)   # the Welcome and the session data
-        c.bytes = SentBytes([SESSION_STREAM, META_STREAM, *(s.name for s in specs)])
-        c.bytes.add(SESSION_STREAM, sum(control_wire_bytes(len(f)) for f in frames))
+        sent = SentBytes([SESSION_STREAM, META_STREAM, *(s.name for s in maker.specs)])
+        sent.add(SESSION_STREAM, sum(control_wire_bytes(len(f)) for f in frames))
         assert hs.receive_data(b"".join(frames)) and hs.welcome is not None and hs.terms is not None
-        c.welcome = hs.welcome
-        c.core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
-        c.core.release_delay_ms = self._decode_delay_ms   # type: ignore[assignment]
-        self._pose_up(c, 0.0)   # the Hello carries the first pose
-        c.gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
-        make_current(c.gl)
-        c.chalf = hs.client_half(c.gl)
+        core = hs.session(opts, SIM_EPOCH_US, np.random.default_rng(seeds[6 * n + 2 * i]))
+        core.release_delay_ms = self._decode_delay_ms   # type: ignore[assignment]
+        gl = create_context()  # the client half's own context: it cannot touch the server's GL objects
+        c = _Client(i, self.traces[i], Link(up, np.random.default_rng(seeds[3 * i])),
+                    *(Wire(self.clock, Link(spec, np.random.default_rng(seeds[k]))) for spec, k in
+                      ((up, 3 * i + 1), (down, 3 * i + 2), (up, 4 * n + 2 * i), (down, 4 * n + 2 * i + 1))),
+                    maker, acc.core, hs.welcome, hs.client_half(gl), gl, core, sent)
         make_current(self.renderer.ctx)
+        c.server_timer = Timer(self.clock, lambda: self._server_out(c), self.duration_s + 1.0, by_deadline=True)
+        c.timer = Timer(self.clock, lambda: self._client_timer_now(c), self.duration_s + 1.0 / cfg.client_fps,
+                        by_deadline=False)
+        self._pose_up(c, 0.0)   # the Hello carries the first pose
         c.arrivals = arrivals(c.up, (k / cfg.tracker_hz for k in range(int(self.duration_s * cfg.tracker_hz) + 1)),
                               POSE_MESSAGE_BYTES)   # the tracker's poses up: worked out before the run
         return c
@@ -277,7 +273,6 @@ class VirtualTimeRun:
         for di in range(n_display):
             self.clock.at(di / cfg.client_fps, _DISPLAY, self._display_tick, di, n_display, result)
         for c in clients:   # both cores start with the session at t = 0
-            assert c.core is not None and c.core_s is not None
             c.core.start(0.0)
             c.core_s.start(0.0)
             self._client_out(c)
@@ -313,7 +308,6 @@ class VirtualTimeRun:
             while c.arrival_idx < len(c.arrivals) and c.arrivals[c.arrival_idx][0] <= t_f:
                 self._pose_up(c, c.arrivals[c.arrival_idx][1])   # every front door's rule: newer than the newest taken
                 c.arrival_idx += 1
-            assert c.maker is not None and c.core_s is not None
             order = c.core_s.order_frame(f, f, t_f, t_f * 1000, client=c.index)
             if order is None:      # the operating point sends one tick in frame_div
                 continue
@@ -349,7 +343,6 @@ class VirtualTimeRun:
         """What the server core sends now (its one way out; a frame's control frames at its send time:
         :meth:`_server_control`): media, FEC, retransmissions and probes down the media path, sender reports over
         RTCP's copy of the downlink; then its one timer is armed."""
-        assert c.core_s is not None and c.server_timer is not None
         for d in c.core_s.datagrams_to_send(self.now * 1000):
             if d.kind == "rtcp":
                 c.rtcp_down.datagram(len(d.data) + 28, self._deliver_datagram, c, d.data)
@@ -361,25 +354,22 @@ class VirtualTimeRun:
 
     def _server_control(self, c: _Client) -> None:
         """The server core's control frames due now, down the TCP stream, each a write."""
-        if frames := c.core_s.data_to_send(self.now * 1000):   # type: ignore[union-attr]
+        if frames := c.core_s.data_to_send(self.now * 1000):
             c.down.stream([(data, tcp_segments(len(data))) for data in frames], self._deliver_control, c)
 
     def _server_receive(self, c: _Client, data: bytes) -> None:
-        assert c.core_s is not None
         c.core_s.receive_data(data)
         while c.core_s.next_event(self.now * 1000) is not None:   # the core takes what the server reads
             pass
 
     def _server_rtcp(self, c: _Client, data: bytes) -> None:
         """A client RTCP datagram reaches the server; NACKed packets go back down the media path."""
-        assert c.core_s is not None
         c.core_s.receive_datagram(data, self.now * 1000)
         self._server_out(c)
 
     # ------------------------------------------------------------------ client
 
     def _deliver_control(self, c: _Client, data: bytes) -> None:
-        assert c.core is not None
         now_ms = self.now * 1000
         try:
             c.core.receive_data(data, now_ms)
@@ -389,14 +379,12 @@ class VirtualTimeRun:
         self._client_out(c)
 
     def _deliver_datagram(self, c: _Client, data: bytes) -> None:
-        assert c.core is not None
         c.core.receive_datagram(data, self.now * 1000)
         self._decode(c)
         self._client_out(c)
 
     def _decode(self, c: _Client) -> None:
         """Decode what the client core released (its keyframe-skip rule first), timing it for the display queue."""
-        assert c.core is not None
         for w in c.core.work_to_decode():
             if c.core.skips_decode(w, self.now * 1000):
                 continue
@@ -418,7 +406,6 @@ class VirtualTimeRun:
             row["arrival_s"] = rf.received_ms / 1000.0
 
     def _client_timer_now(self, c: _Client) -> None:
-        assert c.core is not None
         c.core.handle_timer(self.now * 1000)
         self._decode(c)
         self._client_out(c)
@@ -426,7 +413,6 @@ class VirtualTimeRun:
     def _client_out(self, c: _Client) -> None:
         """What the client core wants sent (control bytes over the uplink as TCP segments, RTCP over its copy of
         the uplink), its events, its next timer."""
-        assert c.core is not None and c.timer is not None
         if control := c.core.data_to_send():
             c.ctrl.stream([(control, tcp_segments(len(control)))], self._server_receive, c)
         for data in c.core.datagrams_to_send():
@@ -444,24 +430,21 @@ class VirtualTimeRun:
 
     def _display_one(self, c: _Client, di: int, t_d: float, result: RunResult) -> None:
         cfg = self.cfg
-        assert c.core is not None
         self._client_timer_now(c)   # timeouts due at this tick first, as the live client's timer task would
         now_ms = t_d * 1000
         make_current(c.gl)
         new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
         decode_ms = new[-1].decode_ms if new else math.nan
         true_pose = c.trace.pose_at(t_d)
-        cf, ok, apply_ms, render_ms = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height),
-                                                    f"run {cfg.method}")
+        d = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height), f"run {cfg.method}")
         # the core's rule: a blank tick (nothing shown yet, or only updates whose content was lost) names no update;
         # the first display of a shown update sends its Feedback with the tick's other output
-        shown = c.core.showing(new, ok, c.chalf.has_content, now_ms)
-        client_ms = apply_ms + render_ms
+        shown = c.core.showing(new, d.ok, c.chalf.has_content, now_ms)
         make_current(self.renderer.ctx)
         fid = shown.update.frame_id if shown is not None else None
         sent, pose_t = c.sent.get(fid, ({}, math.nan))   # type: ignore[arg-type]
         row: dict[str, Any] = {"client": c.index, **frame_row(
-            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, pose_t, client_ms, decode_ms)}
+            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, pose_t, d.client_ms, decode_ms)}
         row["pred_err_cm"], row["pred_err_deg"] = sent.get("pred_err_cm", math.nan), sent.get("pred_err_deg", math.nan)
         row.update(c.bytes.kbps(t_d))   # what the server sent over the last second
         if cfg.metrics:
@@ -469,19 +452,18 @@ class VirtualTimeRun:
             gt_out = self.truth.render(self.scene, t_d, true_pose, self.intr, ("color", "object_id"))
             gt = gt_out.color
             row["gt_ms"] = getattr(gt_out, "render_ms", None) or (time.perf_counter() - w0) * 1000  # a cache hit: its render time
-            row.update(metrics.score_frame(cf.color, cf.holes, gt, gt_out.object_id > 0,
+            row.update(metrics.score_frame(d.frame.color, d.frame.holes, gt, gt_out.object_id > 0,
                                            bool(cfg.flip_every) and di % cfg.flip_every == 0, cfg.ssim_sigma,
                                            truth_model=self.scene.model_mask(gt_out.object_id)))
             if cfg.save_images_every and di % cfg.save_images_every == 0 and c.index == 0:
-                result.images.append((di, cf.color, gt))
-        row.update({f"cli_{k}": v for k, v in cf.stats.items()})
+                result.images.append((di, d.frame.color, gt))
+        row.update(d.columns)
         c.frames.append(row)
         self._client_out(c)
 
     def _summary(self, c: _Client) -> dict[str, Any]:
         """Client ``c``'s summary row (:func:`~splitrender.pipeline.rows.run_summary`), over the run and one server
         frame interval."""
-        assert c.core is not None and c.core_s is not None
         dur = self.duration_s + 1.0 / self.cfg.server_fps
         return run_summary(self.cfg, c.index, c.frames, c.updates, c.bytes.total, dur, self.server_skipped,
                            c.protocol_errors, c.packets_lost, c.core.all_counters(), c.core_s.counters,
