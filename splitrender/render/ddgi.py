@@ -62,6 +62,12 @@ NEAR_M = 0.02
 SHARPNESS = 50.0
 BACKFACE_INACTIVE = 0.25
 GL_CLIP_DISTANCE0 = 0x3000
+VIS_WEIGHT_FLOOR = float(np.finfo(np.float32).tiny) * 2.0 ** 24
+"""Visibility weights below this (2e-31; 5,680 of the 43,024 non-zero ones at the default 8 x 8 faces, each row
+summing to 1) are dropped: a weight just above float32's smallest normal times a ray's distance (0.004-1 m near
+a probe) or its square made subnormal products, whose microcode assists took the moments of the default scene's
+256 probes 30.9 ms of CPU an update where they take 12.6 without.  What they add (< 1e-28 m^2 a texel) is below
+half an ulp of the moments: the same bits (``tests/test_gi_weights.py``)."""
 MOVING_MIN_RAYS = 2.0
 """A moving object is redrawn only for the probes that see its bounding sphere at least this many ray spacings
 across: farther probes would see it in a ray or two at most, and drawing it for them is most of the cost
@@ -144,14 +150,16 @@ def gi_time(t_s: float, hz: float) -> float:
     return math.floor(t_s * hz + 1e-9) / hz
 
 
-def flush_subnormal(w: np.ndarray) -> np.ndarray:
-    """``w`` with its subnormal entries set to 0.  The visibility weights' cosine power leaves a few per cent of them
-    below float32's smallest normal; the CPU multiplies those through microcode assists, so the 256 x 384 x 256
-    visibility product took 38 ms where it takes 1.8 flushed (one BLAS thread, x86-64).  Their products (< 1e-37
-    each) are below half an ulp of any sum of the normal ones: the probes come out the same bits (hashed over
-    8 relights of the default scene, and a walk's video, sas and tss runs the same)."""
+def flush_subnormal(w: np.ndarray, floor: float | None = None) -> np.ndarray:
+    """``w`` with its entries below ``floor`` in magnitude (default: float32's smallest normal) set to 0.  The
+    visibility weights' cosine power leaves a few per cent of them below float32's smallest normal; the CPU
+    multiplies those through microcode assists, so the 256 x 384 x 256 visibility product took 38 ms where it
+    takes 1.8 flushed (one BLAS thread, x86-64).  Their products (< 1e-37 each) are below half an ulp of any sum
+    of the normal ones: the probes come out the same bits (hashed over 8 relights of the default scene, and a
+    walk's video, sas and tss runs the same).  A normal weight times a distance under a metre can still make a
+    subnormal product: :data:`VIS_WEIGHT_FLOOR`."""
     w = np.array(w, copy=True)
-    w[np.abs(w) < np.finfo(w.dtype).tiny] = 0
+    w[np.abs(w) < (np.finfo(w.dtype).tiny if floor is None else floor)] = 0
     return w
 
 
@@ -289,7 +297,8 @@ class DdgiVolume:
         self.max_distance = float(np.linalg.norm(self.spacing)) * 2.0
         dirs, omega = cube_directions(F)
         self._w_irr = flush_subnormal(irradiance_weights(texel_directions(IRR_CORE), dirs, omega).astype(np.float32))
-        self._w_vis = flush_subnormal(visibility_weights(texel_directions(VIS_CORE), dirs, omega, SHARPNESS).astype(np.float32))
+        self._w_vis = flush_subnormal(visibility_weights(texel_directions(VIS_CORE), dirs, omega, SHARPNESS).astype(np.float32),
+                                      VIS_WEIGHT_FLOOR)
         ctx = renderer.ctx
         self.ctx = ctx
         W, H = self.cols * self.tile[0], self.rows * self.tile[1]
