@@ -33,6 +33,7 @@ from splitrender.client.config import ClientConfig
 from splitrender.errors import CodecError, PeerTimeoutError, ServerRefusedError, SplitRenderError
 from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession, ReceivedFrame, Work, black_frame, display_frame
 from splitrender.pipeline.session import StreamStalledError, leaving_error
+from splitrender.pipeline.live import wait_for_timer
 from splitrender.pipeline.recording import ClientRecording, MetricsLog, manifest, save_image
 from splitrender.protocol import Bye, Welcome
 from splitrender.scene.pose import Pose as ScenePose
@@ -329,10 +330,7 @@ class LiveClient:
         metrics = MetricsLog(logger, self.session_id, self.cfg.metrics_interval_s)
         lag_sum, lag_n = 0.0, 0
         while True:
-            pause = min(RTCP_TICK_S, max(0.0, (core.get_timer() - wall_ms()) / 1000))
-            w0 = time.monotonic()
-            await asyncio.sleep(pause)
-            lag = (time.monotonic() - w0 - pause) * 1000   # how late the event loop woke us (GIL held by GL or decode)
+            lag = await wait_for_timer(core.get_timer() - wall_ms(), RTCP_TICK_S)   # how late the loop woke us
             lag_sum, lag_n = lag_sum + lag, lag_n + 1
             self._counters["timer_lag_ms_mean"] = round(lag_sum / lag_n, 2)
             self._counters["timer_lag_ms_max"] = round(max(self._counters.get("timer_lag_ms_max", 0.0), lag), 1)

@@ -20,6 +20,7 @@ circle.  It imports neither, and names what it uses of the server instead (:clas
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import secrets
 import time
@@ -35,13 +36,32 @@ from .recording import MetricsLog, SessionLogs
 from .sender import EncodedUpdate
 from .session import ServerSession
 
-__all__ = ["LiveServer", "LiveSession", "MadeFrame", "SessionEnded"]
+__all__ = ["LiveServer", "LiveSession", "MadeFrame", "SessionEnded", "wait_for_timer"]
 
 Address = tuple[str, int]
 
 MadeFrame = tuple[FrameOrder, EncodedUpdate, dict[str, Any], dict[str, float], float]
 """A frame back from the render worker (:meth:`LiveSession._make_frame`): its order, its coded update, the method
 half's stats, its stages (ms) and the wall clock it was ordered at (s)."""
+
+
+async def wait_for_timer(delay_ms: float, cap_s: float, wake: asyncio.Event | None = None) -> float:
+    """A live front door's wait for its core's one timer, due in ``delay_ms`` (:meth:`~.session.ServerSession.get_timer`
+    less the wall clock; at once where it is past), at most ``cap_s``, or until ``wake`` is set (an input may have moved
+    the deadline; it is cleared).  Returns how much later than asked the event loop woke it (ms; GL or decode work
+    holding the interpreter lock)."""
+    wait = max(0.0, min(cap_s, delay_ms / 1000))
+    w0 = time.monotonic()
+    if wake is None:
+        await asyncio.sleep(wait)
+    else:
+        # asyncio.timeout, not wait_for: 3.11's wait_for can swallow the task's cancellation when the wake-up comes at
+        # the same moment, and the session's task group then never ends
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(wait):
+                await wake.wait()
+        wake.clear()
+    return (time.monotonic() - w0 - wait) * 1000
 
 
 class LiveServer(Protocol):

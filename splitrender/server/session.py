@@ -29,7 +29,6 @@ retransmissions it answers with leave through the same flush.  Everything the pr
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import time
@@ -37,7 +36,7 @@ from typing import Any
 
 from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
 from splitrender.methods.base import StreamSpec
-from splitrender.pipeline.live import Address, LiveServer, LiveSession, MadeFrame, SessionEnded
+from splitrender.pipeline.live import Address, LiveServer, LiveSession, MadeFrame, SessionEnded, wait_for_timer
 from splitrender.pipeline.recording import ROWS_KEPT
 from splitrender.pipeline import Accepted, ServerPipeline, accept_hello, open_hello
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -209,13 +208,7 @@ class ServerSession(LiveSession):
         input may have moved it)."""
         assert self.core is not None
         while True:
-            wait = max(0.0, min(1.0, (self.core.get_timer() - wall_ms()) / 1000))
-            # asyncio.timeout, not wait_for: 3.11's wait_for can swallow the task's cancellation when the wake-up
-            # comes at the same moment, and the session's task group then never ends
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(wait):
-                    await self._timer_wake.wait()
-            self._timer_wake.clear()
+            await wait_for_timer(self.core.get_timer() - wall_ms(), 1.0, self._timer_wake)
             if frames := self.core.data_to_send(wall_ms()):   # (a frame's are written as it is sent)
                 await self.channel.write_frames(frames, drain=False)
             self._flush(wake=False)
