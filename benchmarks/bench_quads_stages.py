@@ -10,7 +10,8 @@ each followed by the ground truth of the same frame by a renderer of its own (``
   colour, shaded after its parallax test where it is sent, included);
 - ``generate``: quad generation and merging of every set (reference or update and revealed, hidden layer, wide
   view);
-- ``residual_test``: the residual-error test (the cached mesh drawn from the frame's pose), and inside it
+- ``residual_test``: the residual-error test (the cached mesh drawn from the frame's pose; its estimate in the last
+  colour sent, which may decide alone: ``estimated`` counts those frames), and inside it
   ``rt_extend`` (the underlap's sides), ``rt_mesh`` (``build_mesh``), ``rt_sides`` (``scene_sides``) and ``rt_draw``;
 - ``edp``: the parallax test of the hidden layer; ``mask_mesh``: a residual frame's coverage mask (the cached mesh's
   depth); ``encode``: the wire sets; ``accounting``: QUASAR's own byte count;
@@ -96,16 +97,21 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
                 acc["rt_mesh"] += (cpu() - t0) * 1e3
 
     srv_mod.build_mesh = build_timed
-    rp = srv_mod.QuadsServer._residual_psnr
+    # the test's mesh and its estimate (methods of their own since the estimate may decide alone) count in it too
+    marked = ["_residual_psnr"] + [m for m in ("_upload_cached", "_estimate") if hasattr(srv_mod.QuadsServer, m)]
+    for m in marked[1:]:
+        wrap(srv_mod.QuadsServer, m, "residual_test")
+    for m in marked:
+        def mark(f: object) -> object:
+            def rp_marked(*a: object, **k: object) -> object:
+                depth[0] += 1
+                try:
+                    return f(*a, **k)  # type: ignore[operator]
+                finally:
+                    depth[0] -= 1
+            return rp_marked
 
-    def rp_marked(*a: object, **k: object) -> object:
-        depth[0] += 1
-        try:
-            return rp(*a, **k)
-        finally:
-            depth[0] -= 1
-
-    srv_mod.QuadsServer._residual_psnr = rp_marked   # type: ignore[method-assign]
+        setattr(srv_mod.QuadsServer, m, mark(getattr(srv_mod.QuadsServer, m)))
     intr = CameraIntrinsics(*SIZE)
     r, r_gt = Renderer(), Renderer()
     scene = get_scene(scene_name)
@@ -129,6 +135,7 @@ def time_cell(scene_name: str, trace: str, frames: int) -> dict[str, object]:
             row["server"], row["gt"] = (c1 - c0) * 1e3, (c2 - c1) * 1e3
             row["rest"] = row["server"] - sum(row[k] for k in TOP)
             row["reference"] = srv.stats()["reference"]
+            row["estimated"] = srv.stats().get("residual_psnr_estimate", 0.0)
             rows.append(row)
     med = {k: statistics.median(x[k] for x in rows) for k in rows[0]}
     return {"tree": str(Path(splitrender.__file__).resolve().parents[1]), "median_ms": med,

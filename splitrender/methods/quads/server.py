@@ -75,6 +75,16 @@ PARTIAL_BLOCK = 16
 """The partial test's blocks (pixels a side); each is shaded grown by an eighth of it (a frame's parallax)."""
 PARTIAL_MAX = 0.5
 """More than this share of the blocks needed: the view is shaded whole at once (the frame is likely residual)."""
+ESTIMATE_MARGIN_DB = 2.0
+"""The residual-error test's estimate (the cached mesh drawn in the last colour sent at the reference pose, the view a
+frame or more earlier: :meth:`QuadsServer._estimate`) decides a reference frame alone when it scores this far under
+``reference_error_db``: the reference view at this time is then neither drawn nor shaded.  Not a bound (the scene's
+shading at the reference pose may change between the two times), a margin: the estimate lies under the exact test,
+within 0.3 dB on the default scene's walk, strafe and orbit and the duck's orbit at 320x180 (the walk 24.0-25.0 dB
+against 24.2-25.1), 0.6 dB on the fast walk and the turns' frames near 30 dB, 1.1 dB with the ball crossing a creeping
+camera's view and 1.25 dB while the sun dims (``docs/methods.md``).  Only while the lights and the scene's version are
+as they were when that colour was drawn (:func:`lights_at`): a light's change leaves the exact test to decide.  0: off
+(every verdict from the exact test)."""
 
 QS_EXPAND_EDGES = False
 """QuadStream's views grow every silhouette by a pixel, as ``qs_simulator`` does (``expandEdges``, QUASAR's
@@ -158,6 +168,13 @@ def timeless(scene: Any) -> bool:
     return not scene.dynamic_ids() and all(len(s.values) == 1 for s in const) and scene.gi == "none"
 
 
+def lights_at(scene: Any, t_s: float) -> tuple[Any, ...]:
+    """The scene's version and its lights' intensities at ``t_s``: where two times give the same, a view's shading
+    changes between them only with what moves (:data:`ESTIMATE_MARGIN_DB`)."""
+    lights = ([scene.sun.intensity] if scene.sun is not None else []) + [pl.intensity for pl in scene.point_lights]
+    return (scene.version, *(s.value(t_s) for s in lights))
+
+
 def same_pose(a: Pose, b: Pose) -> bool:
     """Whether ``a`` and ``b`` are the same pose to the bit (a render from either is the same)."""
     return bool(np.array_equal(a.position, b.position) and np.array_equal(a.orientation, b.orientation))
@@ -192,6 +209,7 @@ class QuadsServer(ServerHalf):
         self._colour_tex: Any = None
         self._part_tex: Any = None      # the partial test's last colour at the reference pose, and its exact mask
         self._ref_colour: np.ndarray | None = None     # the colour last sent at the reference pose (slot 0)
+        self._ref_colour_at: tuple[Any, ...] = ()       # its scene version and lights (:func:`lights_at`)
         self._stats: dict[str, float] = {}
         self.last_sets: list[WireSet] = []
 
@@ -337,15 +355,12 @@ class QuadsServer(ServerHalf):
         times["quadgen_ms"] += q.stats["gen_ms"]
         times["merge_ms"] += q.stats["merge_ms"]
 
-    def _residual_psnr(self, ctx: ServerContext, pose: Pose, ref_pose: Pose, g0: Any, gr: Any) -> float:
-        """What a residual frame would show from ``pose`` of the scene pixels its cached quads cover: the cached
-        mesh (its scene quads, as the client holds them before this frame's update) drawn from ``pose`` with the
-        reference view's colour at this time (``gr``), its PSNR (dB) against this frame's own render ``g0`` over the
-        scene pixels it covers (inf when it covers none).  The revealed quads fill the rest from ``pose`` itself."""
+    def _upload_cached(self, ctx: ServerContext, ref_pose: Pose) -> None:
+        """The residual-error test's mesh uploaded: the cached quads' scene quads, as the client holds them before this
+        frame's update (drawn as the client draws them)."""
         intr = self.intrinsics
         cached = self.cache.quads
         assert cached is not None
-        mesh = self._gl_mesh(ctx)
         scene = select(cached, ~cached.background(intr))
         if self.config.silhouette_clamp:   # as the client draws it (the set's pixel map rasterised once for both)
             im = index_map_of(scene, intr)
@@ -353,9 +368,33 @@ class QuadsServer(ServerHalf):
                               extend=reference_extend(scene, intr, self.config, im))
         else:
             part = build_mesh(scene, ref_pose, intr, (0, 0), "view")
-        mesh.upload(*join_meshes([part]))
+        self._gl_mesh(ctx).upload(*join_meshes([part]))
+
+    def _estimate(self, ctx: ServerContext, pose: Pose, g0: Any) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """The uploaded mesh (:meth:`_upload_cached`) drawn from ``pose`` in the last colour sent at the reference pose
+        (:attr:`_ref_colour`: the view a frame or more earlier) against this frame's render ``g0``: (its squared
+        error per pixel (H, W) int64, 0 where it covers no scene pixel; the pixels it covers; its PSNR in dB, inf
+        where it covers none), or None before any colour was sent or where neither :data:`PARTIAL_TEST` nor
+        :data:`ESTIMATE_MARGIN_DB` uses it."""
+        if self._ref_colour is None or not (PARTIAL_TEST or ESTIMATE_MARGIN_DB > 0):
+            return None
+        est = self._mesh_rgba(ctx, pose, self._ref_colour)
+        px = (est[..., 3] > 0) & np.isfinite(g0.depth)
+        d = est[..., :3].astype(np.int16) - g0.color
+        err = np.einsum("ijk,ijk->ij", d, d, dtype=np.int64) * px
+        n = int(px.sum())
+        sse = int(err.sum())
+        psnr = math.inf if n == 0 else 10 * math.log10(255.0 ** 2 * 3 * n / max(sse, 3 * n * 1e-10))
+        return err, px, psnr
+
+    def _residual_psnr(self, ctx: ServerContext, pose: Pose, g0: Any, gr: Any,
+                       est: tuple[np.ndarray, np.ndarray, float] | None = None) -> float:
+        """What a residual frame would show from ``pose`` of the scene pixels its cached quads cover: the cached
+        mesh (uploaded, :meth:`_upload_cached`) drawn from ``pose`` with the reference view's colour at this time
+        (``gr``), its PSNR (dB) against this frame's own render ``g0`` over the scene pixels it covers (inf when it
+        covers none).  The revealed quads fill the rest from ``pose`` itself.  ``est``: :meth:`_estimate`'s."""
         if gr.color.size == 0:      # drawn without colour (PARTIAL_TEST): shaded part first, whole when undecided
-            bound = self._partial_verdict(ctx, pose, g0, gr)
+            bound = self._partial_verdict(ctx, pose, g0, gr, est)
             if bound is not None:
                 return bound
         rgba = self._mesh_rgba(ctx, pose, gr.color)
@@ -374,19 +413,16 @@ class QuadsServer(ServerHalf):
         _, color, _ = self._gl_mesh(ctx).draw(pose, intr, tex, (intr.width, intr.height), atlas_alpha=img.shape[2] == 4)
         return np.frombuffer(color.read(), np.uint8).reshape(intr.height, intr.width, 4)[::-1]
 
-    def _partial_blocks(self, ctx: ServerContext, pose: Pose, g0: Any) -> np.ndarray | None:
-        """(H, W) bool: the blocks of :data:`PARTIAL_BLOCK` pixels to shade first, where the cached mesh drawn in the
-        last colour sent at the reference pose (:attr:`_ref_colour`: the view a frame or more earlier) errs most
-        against this frame's render, until they carry :data:`PARTIAL_TARGET` times the error the threshold allows;
-        None where that takes more than :data:`PARTIAL_MAX` of them (or nothing is covered).  An estimate: which
-        texels are shaded changes no verdict, only how soon one is reached.  (Drawn at half the size, it ranked the
-        blocks by their edges: 40 % of them at 640x360 where the whole size needs 15-24 %.)"""
+    def _partial_blocks(self, est: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray | None:
+        """(H, W) bool: the blocks of :data:`PARTIAL_BLOCK` pixels to shade first, where the estimate ``est``
+        (:meth:`_estimate`: the cached mesh drawn in the last colour sent at the reference pose) errs most against
+        this frame's render, until they carry :data:`PARTIAL_TARGET` times the error the threshold allows; None where
+        that takes more than :data:`PARTIAL_MAX` of them (or nothing is covered).  An estimate: which texels are
+        shaded changes no verdict, only how soon one is reached.  (Drawn at half the size, it ranked the blocks by
+        their edges: 40 % of them at 640x360 where the whole size needs 15-24 %.)"""
         intr = self.intrinsics
         h, w = intr.height, intr.width
-        est = self._mesh_rgba(ctx, pose, self._ref_colour)
-        px = (est[..., 3] > 0) & np.isfinite(g0.depth)
-        d = est[..., :3].astype(np.int16) - g0.color
-        err = np.einsum("ijk,ijk->ij", d, d, dtype=np.int64) * px
+        err, px, _ = est
         b = PARTIAL_BLOCK
         hb, wb = -(-h // b), -(-w // b)
         blocks = np.zeros((hb * b, wb * b), np.int64)
@@ -401,7 +437,8 @@ class QuadsServer(ServerHalf):
         chosen[order[:k]] = True
         return np.repeat(np.repeat(chosen.reshape(hb, wb), b, 0), b, 1)[:h, :w]
 
-    def _partial_verdict(self, ctx: ServerContext, pose: Pose, g0: Any, gr: Any) -> float | None:
+    def _partial_verdict(self, ctx: ServerContext, pose: Pose, g0: Any, gr: Any,
+                         est: tuple[np.ndarray, np.ndarray, float] | None) -> float | None:
         """The residual-error test's verdict from part of the reference view ``gr`` (drawn without colour): an upper
         bound of its PSNR (dB) when that part alone puts it under ``reference_error_db`` (a reference frame), else
         None with ``gr.color`` shaded whole (the same bytes as one pass) for the exact test.
@@ -412,7 +449,7 @@ class QuadsServer(ServerHalf):
         alpha of 255 on the shaded texels shrunk by one and 128 elsewhere, so a pixel's filtered alpha is over 128
         only where one of its bilinear taps lies in the shrunk set, and then all four lie in the shaded one."""
         r = ctx.renderer
-        core = None if self._ref_colour is None else self._partial_blocks(ctx, pose, g0)
+        core = None if est is None else self._partial_blocks(est)
         if core is None:
             gr.color = r.shade(gr)
             return None
@@ -458,15 +495,25 @@ class QuadsServer(ServerHalf):
         if not reference and cfg.reference_error_db > 0:
             ref_pose = self.cache.pose
             assert ref_pose is not None
-            gr = self._reference_view(ctx, pose, ref_pose, g0, times,
-                                      colour=not PARTIAL_TEST or ctx.renderer.supersample != 1)
-            if gr is not g0:
+            if not same_pose(ref_pose, pose):
                 t1 = time.perf_counter()
-                psnr = self._residual_psnr(ctx, pose, ref_pose, g0, gr)
+                self._upload_cached(ctx, ref_pose)
+                est = self._estimate(ctx, pose, g0)
                 times["mask_ms"] += (time.perf_counter() - t1) * 1e3
+                if (est is not None and ESTIMATE_MARGIN_DB > 0 and est[2] < cfg.reference_error_db - ESTIMATE_MARGIN_DB
+                        and lights_at(self.scene, ctx.t_s) == self._ref_colour_at):
+                    psnr = est[2]       # the estimate alone: the reference view at this time is not drawn
+                    self._stats["residual_psnr_estimate"] = 1.0
+                else:
+                    gr = self._reference_view(ctx, pose, ref_pose, g0, times,
+                                              colour=not PARTIAL_TEST or ctx.renderer.supersample != 1)
+                    t1 = time.perf_counter()
+                    psnr = self._residual_psnr(ctx, pose, g0, gr, est)
+                    times["mask_ms"] += (time.perf_counter() - t1) * 1e3
                 # reported as every PSNR of the project is (capped at 60 dB, finite: the wire refuses inf, which a
                 # view with no reference pixels in it gives); the rule compares the exact figure (or, decided from
-                # part of the view, a bound of it under the threshold: residual_psnr_partial is then set)
+                # part of the view, a bound of it under the threshold: residual_psnr_partial is then set; or the
+                # estimate, far enough under it: residual_psnr_estimate)
                 self._stats["residual_psnr_db"] = min(psnr, RESIDUAL_PSNR_CAP_DB)
                 reference = psnr < cfg.reference_error_db
         if reference:
@@ -476,6 +523,7 @@ class QuadsServer(ServerHalf):
             self._ref_depth, self._ref_normal = g0.depth.copy(), g0.normal.copy()
             self._ref_view = (g0, self.scene.version) if timeless(self.scene) else None
             self._ref_colour = g0.color
+            self._ref_colour_at = lights_at(self.scene, ctx.t_s)
             sets.append(WireSet(KIND_REFERENCE, 0, 1, q))
             self._place(atlas, 0, g0.color)
             self._ref_due = False
@@ -501,6 +549,7 @@ class QuadsServer(ServerHalf):
             sets.append(WireSet(KIND_UPDATE, 0, 1, qu))
             self._place(atlas, 0, gr.color)
             self._ref_colour = gr.color
+            self._ref_colour_at = lights_at(self.scene, ctx.t_s)
             t1 = time.perf_counter()
             assert self.cache.quads is not None
             if cfg.residual_mask == "coverage":
