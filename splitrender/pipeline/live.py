@@ -225,10 +225,14 @@ class LiveSession:
         self.log.info("%s %s: closed (%s)%s", self.kind, self.id,
                     ", ".join(f"{k}={v}" for k, v in counters.items() if v), f"; {self.end_reason}" if self.end_reason else "")
 
-    async def _open_worker(self, opening: Any, hang_frame: int = -1) -> tuple[list[Any], bytes, dict[str, Any]]:
+    async def _open_worker(self, opening: Any, test_hang: bool = False) -> tuple[list[Any], bytes, dict[str, Any]]:
         """Take a render worker and build ``opening``'s server half and encoders in it
-        (:class:`~splitrender.pipeline.Opening`; the worker hangs at frame ``hang_frame``, the test hook); returns
-        the streams, the session data and the parameter sets each video encoder will send (for the SDP)."""
+        (:class:`~splitrender.pipeline.Opening`, whose method the session's becomes; with ``test_hang``, the worker
+        hangs at the frame the server's ``test_hang`` hook names for this session's ordinal); returns the streams, the
+        session data and the parameter sets each video encoder will send (for the SDP)."""
+        self.method = opening.method
+        hang = self.server.test_hang
+        hang_frame = hang[1] if test_hang and hang and hang[0] == self.ordinal else -1
         self.worker = await self.server.acquire_worker()
         return await self.worker.call("open", self.id, opening, hang_frame, deadline_s=self.cfg.setup_deadline_s)
 

@@ -133,10 +133,8 @@ class ServerSession(LiveSession):
         control frames to send first).  Raises RemoteProtocolError."""
         cfg, server = self.cfg, self.server
         opening = open_hello(hello, server.methods, cfg)
-        self.method = opening.method
-        hang = server.test_hang
         # the method half and its encoders live in the worker
-        specs, session_blob, sets = await self._open_worker(opening, hang[1] if hang and hang[0] == self.ordinal else -1)
+        specs, session_blob, sets = await self._open_worker(opening, test_hang=True)
         host, port = server.udp_address
         acc = accept_hello(hello, self.id, opening, specs, session_blob, self.channel.conn, cfg, cfg.session_options(),
                            address=(host if host != "0.0.0.0" else "127.0.0.1", port),
