@@ -134,38 +134,37 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 # ----------------------------------------------------------------------------- ordering and the stress suite
 #
 # The stability suite (tests/test_stress.py, ~300 CPU s in two worker processes) needs no quiet machine: it runs in
-# virtual time.  When its tests are selected it starts in the background as the session starts, beside the
-# deterministic tests.  In one process (``-n 0``) its tests come after those, and the live tests last, once the
-# background suite has finished.  Under xdist (the project's ``-n 2 --dist loadfile --no-loadscope-reorder``) each
-# worker takes the next file in the order the workers collected (:func:`_xdist_rank`): the files that took longest
-# first, the many short ones last, so the two workers finish together (pytest-xdist's own order, by test count, left
-# its one-test files to the end: test_tss_rd's 43 s was the last file handed out); test_stress.py, which only reads
-# the background suite's rows, comes last.  Live tests may run beside the background suite: they assert what was
-# shown against what was sent, and the few timed bounds (a shutdown within 2 s) scale by the load measured beside
-# them (tests/_load.py), so they hold on a busy machine too.
+# virtual time.  When its tests are selected it starts in the background as the session starts, beside the deterministic
+# tests.  In one process (``-n 0``) its tests come after those, and the live tests last, once the background suite has
+# finished.  Under xdist (the project's ``-n 2 --dist loadfile --no-loadscope-reorder``) each worker takes the next file
+# in the order the workers collected (:func:`_xdist_rank`): the files that wait on real time first on an otherwise idle
+# machine, beside the background suite (:data:`WAITING_FILES_S`), then the files that took longest, the many short ones
+# last, so the two workers finish together (pytest-xdist's own order, by test count, left its one-test files to the end:
+# test_tss_rd's 43 s was the last file handed out); test_stress.py, which only reads the background suite's rows, comes
+# last.  Live tests may run beside the background suite: they assert what was shown against what was sent, and the few
+# timed bounds (a shutdown within 2 s) scale by the load measured beside them (tests/_load.py), so they hold on a busy
+# machine too.
 #
 # Where the session waits (issue 49): clean-clone CI at 5e1a817, idle, 1,063 CPU s in 645 s on 2 cores, so ~227
 # core-seconds unused.  The background suite (its own session, so under Linux's autogroup a scheduling group of its
 # own: ~1 core from the first second) was done at 247 s, before the live files started (~400 s), whose waits on real
-# time (test_live_e2e 103 s wall for 50 CPU s, test_browser 53 for 29, five more live files ~89 s) then left a
-# core idle, and a worker idles after its last file.  ``SR_STRESS_NICE=10`` (:data:`STRESS_NICE`, off by default)
-# runs the suite in this session's group at that niceness instead, so that it takes what the tests leave: in a
-# session at load 17-28 (others' work beside it) it ran as such a filler (2.5 % of a core per method worker while
-# both test workers were busy, then the rest) and every stress test passed, but four live tests failed, and
-# test_agreement's live-against-virtual-time update age failed 1 run in 3 beside two nice-10 busy loops (119 ms
-# against a bound of 65) where it passed 3 of 3 beside two nice-0 loops: the load meter those bounds scale by
-# (tests/_load.py, a nice-0 thread) does not see a niced neighbour, which still delays a live pipeline.  So it stays
-# off until the live bounds scale by what a niced neighbour costs them.
+# time (test_live_e2e 103 s wall for 50 CPU s, test_browser 53 for 29, five more live files ~89 s) then left a core
+# idle, and a worker idles after its last file.  ``SR_STRESS_NICE=10`` (:data:`STRESS_NICE`, off by default) runs the
+# suite in this session's group at that niceness instead, so that it takes what the tests leave: in a session at
+# load 17-28 (others' work beside it) it ran as such a filler (2.5 % of a core per method worker while both test
+# workers were busy, then the rest) and every stress test passed, but four live tests failed, and test_agreement's
+# live-against-virtual-time update age failed 1 run in 3 beside two nice-10 busy loops (119 ms against a bound of
+# 65) where it passed 3 of 3 beside two nice-0 loops: the load meter those bounds scale by (tests/_load.py, a nice-0
+# thread) does not see a niced neighbour, which still delays a live pipeline.  So it stays off until the live bounds
+# scale by what a niced neighbour costs them.  Instead, on an otherwise idle machine, the live files now come first,
+# beside the suite at its own priority (:data:`WAITING_FILES_S`): there the suite's method workers are the filler.
 
 #: Seconds the slowest virtual-time files took in the clean-clone CI at 5e1a817 (idle, ``-n 2``, 10:44; the session
 #: summary's "slowest files" line: each file's setup, call and teardown summed, beside the background stress suite
 #: then at the same priority; test_claims from its CPU seconds).
-#: Under xdist they are handed out first, longest first, and the other files after them by test count.  The files
-#: of live sessions (test_live_e2e 103 s, test_browser 53, test_live_interop 19, test_hostile_live 19,
-#: test_live_memory 17, test_agreement 17, test_webrtc_hostile 17) keep the place their test count gives them, in
-#: the middle: last, their waits on real time would leave a core idle once the background suite is done.  An order,
-#: not an assertion: a file missing here only runs later.  Refresh it from the summary line
-#: (:func:`pytest_terminal_summary`).
+#: Under xdist they are handed out after the files that wait on real time (:data:`WAITING_FILES_S`), longest first,
+#: and the other files after them by test count.  An order, not an assertion: a file missing here only runs later.
+#: Refresh it from the summary line (:func:`pytest_terminal_summary`).
 SLOW_FILES_S = {"test_tss_models.py": 163, "test_adapt_quality.py": 131, "test_tss.py": 96, "test_adapt_probes.py": 91,
                 "test_sas.py": 50, "test_tss_rd.py": 35, "test_runner.py": 32, "test_demo.py": 26,
                 "test_sas_detail.py": 26, "test_quads.py": 24, "test_quads_models.py": 19,
@@ -174,6 +173,20 @@ SLOW_FILES_S = {"test_tss_models.py": 163, "test_adapt_quality.py": 131, "test_t
 LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_interop.py", "test_hostile_live.py",
                         "test_hostile_decoders.py", "test_rtp_interop.py", "test_netsim_relay.py", "test_pipeline.py",
                         "test_sdp.py", "test_cli.py", "test_browser.py", "test_browser_front.py"})
+#: The files whose live sessions wait on real time, with their wall seconds in the clean-clone CI at 8de5067 (idle,
+#: 11:27; in brackets their CPU seconds where the summary showed them): test_live_e2e 109 (55), test_browser 67 (31),
+#: the rest 17-21 wall for a few CPU seconds each (at load, in one of this day's runs, test_live_interop 30 wall for 5
+#: CPU s, test_webrtc_hostile 37 for 10, test_live_rate 26 for 9, test_live_memory 21 for 4).  Those waits left a core
+#: idle once the background stress suite was done (at 8de5067 it ran from 8 to 247 s, the live files from 425 s on: the
+#: workers' live files took 261 s of wall for 116 CPU s, ~145 core-seconds of the 2 x 688 - 1,131 = 245 the session left
+#: unused).  Under xdist they are handed out first on an otherwise idle machine (:data:`LIVE_FIRST_ENV`), longest first,
+#: so that they run beside the stress suite, whose two method workers take the core they leave (the suite is ~250 CPU s,
+#: one core for ~250 s; these files take ~150 s of each worker), and every file after them uses its core whole.  Live
+#: tests assert what was shown against what was sent, and the few timed bounds scale by the load measured beside them
+#: (tests/_load.py). :data:`LIVE_FILES` not named here follow, by test count.
+WAITING_FILES_S = {"test_live_e2e.py": 109, "test_browser.py": 67, "test_live_interop.py": 21,
+                   "test_webrtc_hostile.py": 21, "test_hostile_live.py": 20, "test_agreement.py": 19,
+                   "test_live_memory.py": 18, "test_live_rate.py": 17}
 STRESS_FILE = "test_stress.py"
 #: ``SR_STRESS_NICE``: the background stress suite's niceness, in this session's scheduling group (0, unset: in a
 #: session of its own, as before).  At 10, beside two busy test workers its two method workers get about a tenth of a
@@ -273,14 +286,51 @@ def pytest_collection_modifyitems(session, config, items) -> None:  # type: igno
         _start_stress(config)
 
 
-def _xdist_rank(name: str, count: int) -> tuple[int, float]:
-    """Where the file ``name`` of ``count`` selected tests comes under xdist: :data:`SLOW_FILES_S` longest first,
-    then the rest by test count (most first), test_stress.py last."""
+#: ``SR_LIVE_FIRST``: 1 hands out :data:`WAITING_FILES_S` first under xdist, 0 keeps them after the slow files.  Unset,
+#: the controller sets it from :func:`_others_runnable` as the session starts: first only on a machine that is
+#: otherwise idle.  Beside the suite the live files share their workers' scheduling group's core between them (the
+#: suite, a session of its own, is a group of its own under autogroup): together they use about one core (test_live_e2e
+#: 52 CPU s in 109 s, test_browser 31 in 67), so each gets about what it would get with a free core, as before.  With
+#: other work beside (two busy loops: a third group, or two more tasks in the tests' group) their share would fall
+#: to a third or a quarter of a core where it was a half, and at load 17-20 of this day's other work 5 of 44 live tests
+#: failed without the suite beside them and 11 of 222 with it (helper-86): so on a busy machine they keep their later
+#: place, after the suite, as before.
+LIVE_FIRST_ENV = "SR_LIVE_FIRST"
+#: Processes of others runnable on average (:func:`_others_runnable`) from which the machine counts as busy: two busy
+#: loops read 2, an idle machine 0-0.3.
+BUSY_OTHERS = 0.75
+
+
+def _others_runnable(samples: int = 20, every_s: float = 0.025) -> float:
+    """How many processes other than this one are runnable on the machine, on average over ``samples`` readings of
+    ``/proc/loadavg``'s running count, ``every_s`` apart (0.5 s in all; a load average would lag a minute behind
+    loops started just before the session).  Inf where it cannot be read: the busy machine's order, the safe one."""
+    import time
+
+    seen = []
+    for _ in range(samples):
+        try:
+            with open("/proc/loadavg") as f:
+                seen.append(int(f.read().split()[3].split("/")[0]) - 1)     # this process, reading, is one of them
+        except (OSError, IndexError, ValueError):
+            return float("inf")
+        time.sleep(every_s)
+    return sum(seen) / len(seen)
+
+
+def _xdist_rank(name: str, count: int) -> tuple[int, float, int]:
+    """Where the file ``name`` of ``count`` selected tests comes under xdist: on an otherwise idle machine
+    (:data:`LIVE_FIRST_ENV`) the files that wait on real time first (:data:`WAITING_FILES_S` longest first, then the
+    other :data:`LIVE_FILES` by test count), beside the background stress suite; then :data:`SLOW_FILES_S` longest
+    first; then the rest by test count (most first), the live files among them on a busy machine; test_stress.py last
+    (it reads the suite's rows)."""
     if name == STRESS_FILE:
-        return 2, 0.0
+        return 3, 0.0, 0
+    if (name in WAITING_FILES_S or name in LIVE_FILES) and os.environ.get(LIVE_FIRST_ENV) == "1":
+        return 0, -WAITING_FILES_S.get(name, 0.0), -count
     if name in SLOW_FILES_S:
-        return 0, -SLOW_FILES_S[name]
-    return 1, -count
+        return 1, -SLOW_FILES_S[name], 0
+    return 2, 0.0, -count
 
 
 def pytest_collection_finish(session) -> None:  # type: ignore[no-untyped-def]
@@ -298,6 +348,11 @@ def pytest_configure(config) -> None:  # type: ignore[no-untyped-def]
         if getattr(config.option, "testrunuid", None) is None:
             config.option.testrunuid = uuid.uuid4().hex
         config._sr_xdist_uid = config.option.testrunuid
+        # decided once, here, before the workers start (they inherit the environment): each must collect one order
+        if LIVE_FIRST_ENV not in os.environ:
+            others = _others_runnable()
+            os.environ[LIVE_FIRST_ENV] = "1" if others < BUSY_OTHERS else "0"
+            config._sr_others_runnable = others
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
@@ -420,6 +475,11 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # ty
 
         terminalreporter.write_line(f"CPU seconds by file (all files {sum(_FILE_CPU_S.values()):.0f}; where and when): "
                                     + ", ".join(f"{n} {c:.0f}{where(n)}" for n, c in cpu))
+        # the files whose wall seconds most exceed their CPU seconds: waits on real time (WAITING_FILES_S), or a core
+        # shared with the background stress suite where their span falls in its
+        waits = sorted(_FILE_S, key=lambda n: _FILE_CPU_S.get(n, 0.0) - _FILE_S[n])[:15]
+        terminalreporter.write_line("wall over CPU seconds by file: " + ", ".join(
+            f"{n} {_FILE_S[n]:.0f}/{_FILE_CPU_S.get(n, 0.0):.0f}{where(n)}" for n in waits))
         # where each worker waited: its files' wall seconds against their CPU seconds (a live file waits on real time;
         # test_stress.py waits for the background suite), and from its last file to the session's end
         end = time.time() - t0
@@ -435,6 +495,12 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # ty
         rows = [f"{w} {r[0]:.0f}, {r[1]:.0f}; {r[3]:.0f}, {r[4]:.0f}; {end - r[2]:.0f}" for w, r in sorted(per.items())]
         terminalreporter.write_line("workers (files' wall s, their CPU s; live files' wall s, their CPU s; idle "
                                     "after the last file): " + ", ".join(rows))
+    if not hasattr(config, "workerinput") and os.environ.get(LIVE_FIRST_ENV) is not None and len(_FILE_S) > 1:
+        others = getattr(config, "_sr_others_runnable", None)
+        why = f"{others:.1f} other processes runnable as it started" if others is not None else LIVE_FIRST_ENV
+        first = os.environ[LIVE_FIRST_ENV] == "1"
+        terminalreporter.write_line("live files: " + ("first, beside the stress suite" if first
+                                                      else "after the slow files (a busy machine)") + f" ({why})")
     span = getattr(config, "_sr_stress_span", None)
     if span is None:
         return
