@@ -98,15 +98,19 @@ def test_video_and_atw_in_the_browser_are_scored_and_atw_beats_video_under_delay
                         "--webrtc-network", DELAY]) as server:
         scores, reach = {}, {}
         for method in ("video", "atw"):
-            res, summary, counters = _session(driver, server, out, method)
+            # measured: 98-100 % of the server's frames decoded (137-147 of 139-149 idle; 57 of 60 with the suite
+            # running beside it: how many the server sends in 5 s is the machine's rate, so only enough to score,
+            # and a session that sent fewer than 25 is run again for longer: at load 15-20, 17 and 18 in 5 s).
+            # What arrived is the transport's; what was decoded by the end also the page's speed: at load 13-22 the
+            # jitter buffer still held 5-10 received frames (64 decoded of 74 sent, 6 of 11 received)
+            for duration_s in (5.0, 10.0, 20.0):
+                res, summary, counters = _session(driver, server, out, method, duration_s=duration_s)
+                if counters["frames_sent"] >= 25:
+                    break
             _screenshot(driver, tmp_path, method)
             sent = counters["frames_sent"]
             st = res["stats"]
-            # measured: 98-100 % of the server's frames decoded (137-147 of 139-149 idle; 57 of 60 with the suite
-            # running beside it: how many the server sends in 5 s is the machine's rate, so only enough to score).
-            # What arrived is the transport's; what was decoded by the end also the page's speed: at load 13-22 the
-            # jitter buffer still held 5-10 received frames (64 decoded of 74 sent, 6 of 11 received)
-            assert sent >= 25 and st["framesReceived"] >= 0.9 * sent, (method, st, sent)
+            assert sent >= 25 and st["framesReceived"] >= 0.9 * sent, (method, st, sent, duration_s)
             assert st["framesDecoded"] <= st["framesReceived"] and st["framesDecoded"] >= 0.5 * sent, (method, st, sent)
             rec = json.loads((out / res["session_id"] / "recording.json").read_text())
             assert rec["method"] == method and rec["client"]["kind"] == "browser" and rec["network"] == DELAY
@@ -179,7 +183,11 @@ def test_browser_statistics_agree_with_the_server(driver, tmp_path):
     assert c["nacked_packets"] >= st["packetsLost"] - 5, (st, c)        # every packet missing at first is NACKed
     # frames: none decoded that the server did not send, none of the IDRs missed
     assert st["framesDecoded"] <= c["frames_sent"] and st["keyFramesDecoded"] <= c["keyframes"]
-    assert st["framesDecoded"] >= 0.9 * c["frames_sent"], (st, c)
+    # what arrived is the transport's (NACKs recover the 3 % lost: 82 and 84 received of 84 and 85 sent at load 16);
+    # what was decoded by the time the page read its statistics also the page's speed: 98-100 % idle, 92-96 % at load
+    # 16, 86-88 % at load 15-20 (60 of 68, 31 of 36 sent: the jitter buffer still held received frames)
+    assert st["framesReceived"] >= 0.9 * c["frames_sent"], (st, c)
+    assert st["framesDecoded"] <= st["framesReceived"] and st["framesDecoded"] >= 0.75 * c["frames_sent"], (st, c)
     assert summary["nacks"] == 0           # the headless client's columns stay theirs: the page's are browser_*
     assert c["browser_nackCount"] == st["nackCount"]
 
