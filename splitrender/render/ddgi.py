@@ -68,6 +68,12 @@ summing to 1) are dropped: a weight just above float32's smallest normal times a
 a probe) or its square made subnormal products, whose microcode assists took the moments of the default scene's
 256 probes 30.9 ms of CPU an update where they take 12.6 without.  What they add (< 1e-28 m^2 a texel) is below
 half an ulp of the moments: the same bits (``tests/test_gi_weights.py``)."""
+RELIGHT_HALVES = True
+"""A recurrent update (live: ``Renderer.gi_hz`` > 0) whose lights are as the last update's relights the probes of
+every second row of the probe atlas (spread over the whole volume), the even rows and the odd ones alternately:
+each probe is relit, its moving objects redrawn and its visibility derived every second update, at that update's
+time (late, not wrong: a live server relights at its own rate, ``Renderer.gi_hz``).  A change of a light's
+intensity, colour or direction, the first update and virtual time (not recurrent) relight them all."""
 MOVING_MIN_RAYS = 2.0
 """A moving object is redrawn only for the probes that see its bounding sphere at least this many ray spacings
 across: farther probes would see it in a ray or two at most, and drawing it for them is most of the cost
@@ -320,15 +326,20 @@ class DdgiVolume:
         bounces accumulate over updates), instead of every bounce from scratch.  A live server relighting at a GI rate
         sets it (``Renderer.gi_hz`` > 0: half the relight passes); virtual time and the ground truth never do."""
         self._key: Any = None
+        self._half = 0
         self._capture()
         self._relight = FullscreenPass(ctx, SHADER_DIR / "gi_relight.frag")
 
     # ------------------------------------------------------------------ capture
-    def _per_ray(self, img: np.ndarray) -> np.ndarray:
-        """(count, 6 F^2, C) per-probe rays of an atlas image (H, W, C) laid out as the capture tiles."""
+    def _per_ray(self, img: np.ndarray, probes: np.ndarray | None = None) -> np.ndarray:
+        """(count, 6 F^2, C) per-probe rays of an atlas image (H, W, C) laid out as the capture tiles; with ``probes``
+        (indices), only theirs."""
         F = self.settings.face_res
         C = img.shape[-1]
         t = img.reshape(self.rows, F, self.cols, 6, F, C).transpose(0, 2, 3, 1, 4, 5)   # (row, col, face, y, x, C)
+        if probes is not None:
+            r, c = np.divmod(np.asarray(probes, np.int64), self.cols)
+            return t[r, c].reshape(r.size, 6 * F * F, C)
         return t.reshape(self.rows * self.cols, 6 * F * F, C)[: self.count]
 
     def _capture(self) -> None:
@@ -381,9 +392,10 @@ class DdgiVolume:
         fbo.release()
         zbuf.release()
 
-    def _draw(self, objects: list[Any], t_s: float, fbo: Any, min_rays: float = 0.0) -> None:
+    def _draw(self, objects: list[Any], t_s: float, fbo: Any, min_rays: float = 0.0, probes: np.ndarray | None = None) -> None:
         """Draw ``objects`` at ``t_s`` into every probe face of ``fbo`` that their bounding spheres reach and, with
-        ``min_rays`` > 0, only for probes that see the sphere at least that many ray spacings across."""
+        ``min_rays`` > 0, only for probes that see the sphere at least that many ray spacings across; with ``probes``
+        ((count,) bool), only for those."""
         r, ctx, prog = self.renderer, self.ctx, self._prog
         fbo.use()
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -407,6 +419,8 @@ class DdgiVolume:
                 seen = (dist >= -radius).all(axis=2) | (near <= radius)[:, None]
                 if min_rays > 0:        # the sphere's diameter spans min_rays ray spacings ((pi / 2) / face_res) or more
                     seen &= (2.0 * radius * self.settings.face_res >= near * min_rays * (math.pi / 2.0))[:, None]
+                if probes is not None:
+                    seen &= probes[:, None]
                 inst = self._inst_all[seen.reshape(-1)]
                 if not inst.size:
                     continue
@@ -423,11 +437,18 @@ class DdgiVolume:
         W, H = textures[0].size
         return [np.frombuffer(t.read(), np.float32 if i == 0 else np.float16).reshape(H, W, 4) for i, t in enumerate(textures)]
 
-    def _capture_moving(self, t_s: float) -> None:
+    def _capture_moving(self, t_s: float, half: int | None = None) -> None:
         """Redraw the moving objects at ``t_s`` and merge them over the static G-buffer (nearer hit wins): their
-        bounce and their occlusion reach the probes, and the visibility moments follow them."""
+        bounce and their occlusion reach the probes, and the visibility moments follow them.  ``half``
+        (:data:`RELIGHT_HALVES`): only for the probes of that half; the others keep their active flags and moments
+        (their G-buffer rows are left static, which only their own relight reads)."""
         assert self._static is not None
-        self._draw(self._moving, t_s, self._mov_fbo, min_rays=MOVING_MIN_RAYS)
+        ids = self._half_ids(half) if half is not None else None
+        mask = None
+        if ids is not None:
+            mask = np.zeros(self.count, bool)
+            mask[ids] = True
+        self._draw(self._moving, t_s, self._mov_fbo, min_rays=MOVING_MIN_RAYS, probes=mask)
         mov = self._read(self._mov)
         hit = np.nonzero(mov[0][..., 3] > 0.5)
         d = np.linalg.norm(mov[0][hit][:, :3] - self._eye[hit], axis=-1)
@@ -440,7 +461,29 @@ class DdgiVolume:
             merged.append(a)
         for tex, a in zip(self._cap, merged):
             tex.write(np.ascontiguousarray(a).tobytes())
-        self._derive(merged[0], merged[1])
+        if ids is None:
+            self._derive(merged[0], merged[1])
+        else:
+            self._derive_probes(merged[0], merged[1], ids)
+
+    def _half_ids(self, half: int) -> np.ndarray:
+        """The probes of half ``half`` (0 or 1) of :data:`RELIGHT_HALVES`: those in the even or odd rows of the atlas."""
+        return np.flatnonzero((np.arange(self.count) // self.cols) % 2 == half)
+
+    def _derive_probes(self, pos: np.ndarray, nrm: np.ndarray, ids: np.ndarray) -> None:
+        """:meth:`_derive` for probes ``ids`` only (the same steps on their rows), the others' active flags and moments
+        as they are."""
+        active, moments = self.active.copy(), np.array(self.moments, copy=True)
+        hit = self._per_ray(pos[..., 3:4], ids)[..., 0] > 0.5
+        back = self._per_ray(nrm[..., 3:4], ids)[..., 0] > 0.5
+        active[ids] = (back & hit).mean(axis=1) <= BACKFACE_INACTIVE
+        dist = np.linalg.norm(self._per_ray(pos[..., :3], ids) - self.positions[ids][:, None, :], axis=-1)
+        dist = np.where(hit, np.minimum(dist, self.max_distance), self.max_distance)
+        dist = np.where(back & hit, dist * 0.2, dist)
+        d = dist.astype(np.float32)
+        moments[ids] = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1)
+        self.active, self.moments = active, moments
+        self._write_visibility()
 
     def _derive(self, pos: np.ndarray, nrm: np.ndarray) -> None:
         """Active flags and visibility moments from the G-buffer's positions and normals."""
@@ -488,9 +531,13 @@ class DdgiVolume:
         prev_fbo, prev_viewport = self.ctx.fbo, self.ctx.viewport
         self.updating = True
         try:
+            recurrent = self.recurrent and self._key is not None
+            # a live update whose lights are as the last one's relights half the probes (their atlas rows alternately)
+            half = self._half if RELIGHT_HALVES and recurrent and key[:3] == self._key[:3] else None
             if self._moving:
-                self._capture_moving(t_s)
-            self._relight_all(t_s, self.recurrent and self._key is not None)
+                self._capture_moving(t_s, half)
+            self._relight_all(t_s, recurrent, half)
+            self._half = 1 - self._half if half is not None else self._half
         finally:
             self.updating = False
             prev_fbo.use()
@@ -502,9 +549,11 @@ class DdgiVolume:
             self.states.put((self._content, key), self.irradiance, self.moments, self.active)
         return True
 
-    def _relight_all(self, t_s: float, recurrent: bool = False) -> None:
-        # bounce 0 reads no probes (u_bounce); each later bounce reads the textures the one before wrote (recurrent:
-        # only the last bounce, reading what the last update left)
+    def _relight_all(self, t_s: float, recurrent: bool = False, half: int | None = None) -> None:
+        """Relight the probes: ``bounces`` passes, each later bounce reading the textures the one before wrote
+        (``recurrent``: only the last bounce, reading what the last update left).  ``half`` (0 or 1; recurrent only):
+        only the probes in the even or odd rows of the atlas (:data:`RELIGHT_HALVES`), the others keep their
+        irradiance."""
         r, ctx = self.renderer, self.ctx
         prog = self._relight.prog
         r.bind_shading(prog, self.scene, t_s)
@@ -518,13 +567,25 @@ class DdgiVolume:
         set_uniform(prog, "u_sky", tuple(float(c) for c in self.scene.ambient))
         self._rad_fbo.use()
         ctx.viewport = (0, 0, *self._rad.size)
+        W, H = self._rad.size
+        F = self.settings.face_res
         for b in ([self.settings.bounces - 1] if recurrent else range(self.settings.bounces)):
             set_uniform(prog, "u_bounce", b)
-            self._relight.run()
-            W, H = self._rad.size
-            rad = np.frombuffer(self._rad.read(), np.float32).reshape(H, W, 4)[..., :3]
-            L = np.ascontiguousarray(self._per_ray(rad))                          # (count, rays, 3)
-            self.irradiance = np.ascontiguousarray(np.matmul(self._w_irr, L))           # (count, texels, 3), BLAS
+            if half is None:
+                self._relight.run()
+                rad = np.frombuffer(self._rad.read(), np.float32).reshape(H, W, 4)[..., :3]
+                L = np.ascontiguousarray(self._per_ray(rad))                          # (count, rays, 3)
+                self.irradiance = np.ascontiguousarray(np.matmul(self._w_irr, L))           # (count, texels, 3), BLAS
+            else:
+                for row in range(half, self.rows, 2):
+                    ctx.scissor = (0, row * F, W, F)
+                    self._relight.run()
+                ctx.scissor = None
+                rad = np.frombuffer(self._rad.read(), np.float32).reshape(H, W, 4)[..., :3]
+                ids = self._half_ids(half)
+                irr = np.array(self.irradiance, copy=True)
+                irr[ids] = np.matmul(self._w_irr, self._per_ray(rad, ids))
+                self.irradiance = irr
             self.irradiance[~self.active] = 0.0
             self.irr_tex.write(irradiance_atlas(self.irradiance, self.active).tobytes())
 
