@@ -1,7 +1,8 @@
 """The live client's memory stays flat over a bounded run (issue #37).
 
 A real ``splitrender serve`` and a real client run as separate processes on loopback (scene ``minimal``,
-method ``video``, 160x90, display ``DISPLAY_HZ``) for ``DURATION_S``.  The client keeps only its newest
+method ``video``, 160x90, display ``DISPLAY_HZ``) for ``DURATION_S`` (again for twice that where a loaded machine
+made too few rows after the warm-up to judge).  The client keeps only its newest
 ``rows_kept`` displayed rows in memory and appends every row to ``frames.jsonl`` in its recording folder; with a
 small ``rows_kept`` the in-memory window is full after a second or two, so from then on the journal's row count
 keeps growing while the client's resident set (``VmRSS`` of ``/proc/<pid>/status``) must not.
@@ -140,10 +141,16 @@ def warm_end(samples: list[tuple[float, int, int]], rows: int = ROWS_KEPT) -> fl
 
 @pytest.mark.slow
 def test_client_memory_flat_while_rows_grow(tmp_path: Path) -> None:
-    samples, text = measure(tmp_path / "rec")
-    warm = warm_end(samples)
+    # on a loaded machine the first rows come late (at load 20 the window was full only 8 s in, leaving 5 samples
+    # after the warm-up): a session too short to show MIN_ROWS_GROWTH rows over 10 samples after it runs again, longer
+    for k, duration_s in enumerate((DURATION_S, 2 * DURATION_S)):
+        rec = tmp_path / f"rec{k}"
+        samples, text = measure(rec, duration_s=duration_s)
+        warm = warm_end(samples)
+        after = [s for s in samples if warm is not None and s[0] >= warm]
+        if len(after) >= 10 and after[-1][1] - after[0][1] >= MIN_ROWS_GROWTH:
+            break
     assert warm is not None, (f"the journal never reached {ROWS_KEPT} rows", samples, text[-2000:])
-    after = [s for s in samples if s[0] >= warm]
     assert len(after) >= 10, (f"too few samples after the warm-up ({warm:.1f} s)", samples)
     (t_a, rows_a, rss_a), (t_b, rows_b, rss_b) = after[0], after[-1]
     growth_kb_per_row = (rss_b - rss_a) / max(1, rows_b - rows_a)
@@ -152,4 +159,4 @@ def test_client_memory_flat_while_rows_grow(tmp_path: Path) -> None:
     assert rows_b - rows_a >= MIN_ROWS_GROWTH, detail
     assert growth_kb_per_row < RSS_GROWTH_BOUND_KB_PER_ROW, detail
     # and the recording has every row, not only the kept window
-    assert (tmp_path / "rec" / "frames.csv").read_text().count("\n") - 1 >= rows_b, detail
+    assert (rec / "frames.csv").read_text().count("\n") - 1 >= rows_b, detail
