@@ -60,14 +60,20 @@ async def _udp_round(path: PathSpec, n: int, spacing_s: float, size: int = 200):
 
 
 async def test_udp_cloud_delay_within_bounds() -> None:
+    from _load import slowdown_over
+
+    before = slowdown_over(0.5)
     async with asyncio.timeout(10):
         sent, at_server, at_client, stats = await _udp_round(get_profile("cloud"), 150, 0.004)
+    slowdown = max(before, slowdown_over(0.5))
     assert len(at_server) == len(at_client) == 150  # no loss configured
     up = [(at_server[s] - sent[s]) * 1e3 for s in sent]
     down_rtt = [(at_client[s] - sent[s]) * 1e3 for s in sent]
-    slack = 15.0  # ms of event-loop scheduling allowed on a busy machine
-    assert 30.0 - 0.5 <= min(up) and max(up) <= 70.0 + slack
-    assert 60.0 - 1.0 <= min(down_rtt) and max(down_rtt) <= 140.0 + 2 * slack
+    # ms of event-loop scheduling allowed, scaled by the load measured just before and after (tests/_load.py): at
+    # load 20 with the stress suite beside, the slowest datagram's uplink took 131 ms where the profile's bound is 70
+    slack = 15.0 * slowdown
+    assert 30.0 - 0.5 <= min(up) and max(up) <= 70.0 + slack, (min(up), max(up), slowdown)
+    assert 60.0 - 1.0 <= min(down_rtt) and max(down_rtt) <= 140.0 + 2 * slack, (min(down_rtt), max(down_rtt), slowdown)
     assert stats.uplink.packets_in == stats.uplink.packets_out == 150
     assert stats.downlink.packets_out == 150 and stats.uplink.bytes_out == 150 * 200
 
