@@ -386,17 +386,17 @@ class LiveClient:
         pose = self._trace_pose(tick_wall)
         trace_t = tick_wall - self._t0_wall
         scene_t = core.scene_t(tick_wall)
-        d = await loop.run_in_executor(self.gl_executor, display_frame, half, new, pose, scene_t, (cfg.width, cfg.height),
-                                       f"session {self.session_id}")
+        drawn = await loop.run_in_executor(self.gl_executor, display_frame, half, new, pose, scene_t,
+                                           (cfg.width, cfg.height), f"session {self.session_id}")
         displayed_us = wall_us()
         # the core's rule (and the Feedback of an update shown the first time)
-        shown = core.showing(new, d.ok, half.has_content, displayed_us / 1000)
+        shown = core.showing(new, drawn.ok, half.has_content, displayed_us / 1000)
         if shown is None:   # every update so far rejected or without content: still black
             self._record_blank(tick, tick_wall, pose, saves)
         else:
-            row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, d.client_ms, **d.columns,
-                                      **core.received_kbps(displayed_us / 1e6))
-            self._save_image(saves, row["frame"], d.frame.color, d.frame.holes)
+            row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, drawn.client_ms,
+                                      **drawn.columns, **core.received_kbps(displayed_us / 1e6))
+            self._save_image(saves, row["frame"], drawn.frame.color, drawn.frame.holes)
             if len(saves) > 64:
                 await asyncio.gather(*saves[:32])
                 del saves[:32]

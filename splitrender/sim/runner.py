@@ -436,15 +436,15 @@ class VirtualTimeRun:
         new = c.core.display_tick(None, now_ms, hold=False)[1] or []   # every driver's rule (virtual time holds none)
         decode_ms = new[-1].decode_ms if new else math.nan
         true_pose = c.trace.pose_at(t_d)
-        d = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height), f"run {cfg.method}")
+        drawn = display_frame(c.chalf, new, true_pose, t_d, (cfg.width, cfg.height), f"run {cfg.method}")
         # the core's rule: a blank tick (nothing shown yet, or only updates whose content was lost) names no update;
         # the first display of a shown update sends its Feedback with the tick's other output
-        shown = c.core.showing(new, d.ok, c.chalf.has_content, now_ms)
+        shown = c.core.showing(new, drawn.ok, c.chalf.has_content, now_ms)
         make_current(self.renderer.ctx)
         fid = shown.update.frame_id if shown is not None else None
         sent, pose_t = c.sent.get(fid, ({}, math.nan))   # type: ignore[arg-type]
         row: dict[str, Any] = {"client": c.index, **frame_row(
-            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, pose_t, d.client_ms, decode_ms)}
+            di, t_d, fid, t_d, shown.update.t_s if shown is not None else math.nan, pose_t, drawn.client_ms, decode_ms)}
         row["pred_err_cm"], row["pred_err_deg"] = sent.get("pred_err_cm", math.nan), sent.get("pred_err_deg", math.nan)
         row.update(c.bytes.kbps(t_d))   # what the server sent over the last second
         if cfg.metrics:
@@ -452,12 +452,12 @@ class VirtualTimeRun:
             gt_out = self.truth.render(self.scene, t_d, true_pose, self.intr, ("color", "object_id"))
             gt = gt_out.color
             row["gt_ms"] = getattr(gt_out, "render_ms", None) or (time.perf_counter() - w0) * 1000  # a cache hit: its render time
-            row.update(metrics.score_frame(d.frame.color, d.frame.holes, gt, gt_out.object_id > 0,
+            row.update(metrics.score_frame(drawn.frame.color, drawn.frame.holes, gt, gt_out.object_id > 0,
                                            bool(cfg.flip_every) and di % cfg.flip_every == 0, cfg.ssim_sigma,
                                            truth_model=self.scene.model_mask(gt_out.object_id)))
             if cfg.save_images_every and di % cfg.save_images_every == 0 and c.index == 0:
-                result.images.append((di, d.frame.color, gt))
-        row.update(d.columns)
+                result.images.append((di, drawn.frame.color, gt))
+        row.update(drawn.columns)
         c.frames.append(row)
         self._client_out(c)
 
