@@ -112,20 +112,19 @@ class LiveClient:
             hs = ClientHandshake(cfg.methods, cfg.limits, (cfg.width, cfg.height))   # it owns the connection
             self.channel = ControlChannel(hs.conn, reader, writer, "client")
             try:
-                await self._handshake(hs)
-                await self._open_udp()
+                core = await self._handshake(hs)
+                await self._open_udp(core)
                 self._t0_wall = time.time()
-                assert self.core is not None
-                self.core.start(wall_ms())   # the stall clock starts; an empty RR opens the UDP path
-                self._flush_rtcp()
+                core.start(wall_ms())   # the stall clock starts; an empty RR opens the UDP path
+                self._flush_rtcp(core)
                 self.recording.start(self._recording())   # the manifest, complete: false; the journal opened
                 try:
                     async with asyncio.TaskGroup() as tg:
-                        tg.create_task(self._pose_loop(), name="client-poses")
-                        tg.create_task(self._control_loop(), name="client-control")
-                        tg.create_task(self._rtcp_loop(), name="client-rtcp")
-                        tg.create_task(self._decode_loop(), name="client-decode")
-                        tg.create_task(self._display_loop(), name="client-display")
+                        tg.create_task(self._pose_loop(core), name="client-poses")
+                        tg.create_task(self._control_loop(core), name="client-control")
+                        tg.create_task(self._rtcp_loop(core), name="client-rtcp")
+                        tg.create_task(self._decode_loop(core), name="client-decode")
+                        tg.create_task(self._display_loop(core), name="client-display")
                 except BaseExceptionGroup as eg:
                     _, rest = eg.split(_RunDone)
                     if rest is not None:  # re-raise the first real failure as itself
@@ -133,7 +132,7 @@ class LiveClient:
                         while isinstance(first, BaseExceptionGroup):
                             first = first.exceptions[0]
                         raise first from None
-                await self._say_bye("duration reached")
+                await self._say_bye(core, "duration reached")
             except Exception as exc:
                 await self._say_error(exc)
                 raise
@@ -145,17 +144,15 @@ class LiveClient:
             await self._release()
             if self.recording.started:   # a broken session: keep what was
                 # recorded, marked incomplete
-                result = ClientResult(list(self.recording.recent), self.counters, {
-                    **self._recording(), "complete": False, "error": f"{type(exc).__name__}: {exc}"}, cfg.out_dir)
-                self.recording.finish(result.recording, result.counters)
+                self.recording.finish(self.recording.ended(self._recording(), exc), self.counters)
                 logger.error("session %s: ended early (%s); the partial recording (%d rows) is in %s", self.session_id,
                              exc, self.recording.rows, cfg.out_dir)
             raise
         await self._release()
         logger.info("session %s: client done: %d displayed rows, %s", self.session_id, self.recording.rows,
                     ", ".join(f"{k}={v}" for k, v in self.counters.items() if v))
-        result = ClientResult(list(self.recording.recent), self.counters,
-                              {**self._recording(), "complete": True}, cfg.out_dir)
+        result = ClientResult(list(self.recording.recent), self.counters, self.recording.ended(self._recording()),
+                              cfg.out_dir)
         if cfg.out_dir is not None:   # frames.csv, counters.json and the completed manifest; then the journal goes
             await asyncio.get_running_loop().run_in_executor(None, self.recording.finish, result.recording,
                                                              result.counters)
@@ -179,19 +176,18 @@ class LiveClient:
             logger.info("session %s: leaving with Error %d: %s", self.session_id, *said)
             await self.channel.send_error(*said)
 
-    async def _say_bye(self, reason: str) -> None:
-        assert self.core is not None
+    async def _say_bye(self, core: ClientSession, reason: str) -> None:
         try:
-            self.core.send(Bye(reason))
-            await asyncio.wait_for(self._flush_control(), 1.0)
+            core.send(Bye(reason))
+            await asyncio.wait_for(self._flush_control(core), 1.0)
         except (ConnectionError, asyncio.TimeoutError, SplitRenderError) as exc:
             logger.debug("session %s: Bye not sent: %s", self.session_id, exc)
 
     # ------------------------------------------------------------------ handshake
 
-    async def _handshake(self, hs: ClientHandshake) -> None:
+    async def _handshake(self, hs: ClientHandshake) -> ClientSession:
         """The sans-IO handshake both modes share (it holds the config's sizes to ``cfg.limits`` before any
-        allocation), driven over the control connection; then the client half and the session core."""
+        allocation), driven over the control connection; then the client half and the session core (returned)."""
         cfg, ch = self.cfg, self.channel
         assert ch is not None
         await ch.write_frames([hs.hello(hs.make_hello(cfg.codecs, cfg.display_hz, cfg.token))])
@@ -215,6 +211,7 @@ class LiveClient:
         self.rx = self.core.rx
         logger.info("session %s: method %s, streams %s", self.session_id, terms.method,
                     ", ".join(f"{s.name}({s.codec}, ssrc {s.ssrc:08x})" for s in self._welcome.streams))
+        return self.core
 
     async def _next_message(self, what: str) -> Any:
         """The server's next control message; :class:`PeerTimeoutError` naming ``what``, the server and the wait when
@@ -230,20 +227,19 @@ class LiveClient:
             raise PeerTimeoutError(f"no {what} from {cfg.server}:{cfg.port} within connect_timeout_s "
                                    f"{cfg.connect_timeout_s:g} s") from None
 
-    async def _open_udp(self) -> None:
+    async def _open_udp(self, core: ClientSession) -> None:
         assert self._welcome is not None
         port = self.cfg.udp_port or (self._welcome.streams[0].port if self._welcome.streams else 0)
         loop = asyncio.get_running_loop()
         try:
             self.udp, self._udp_protocol = await loop.create_datagram_endpoint(
-                lambda: _ClientUdp(self._on_datagram), remote_addr=(self.cfg.server, port))
+                lambda: _ClientUdp(lambda data: self._on_datagram(core, data)), remote_addr=(self.cfg.server, port))
         except (OSError, OverflowError) as exc:
             raise ConnectError(f"cannot open udp to {self.cfg.server}:{port}: {describe_os_error(exc)}") from exc
 
     # ------------------------------------------------------------------ poses
 
-    async def _pose_loop(self) -> None:
-        assert self.core is not None
+    async def _pose_loop(self, core: ClientSession) -> None:
         interval = 1.0 / self.cfg.tracker_hz
         loop = asyncio.get_running_loop()
         start = loop.time()
@@ -253,8 +249,8 @@ class LiveClient:
             if delay > 0:
                 await asyncio.sleep(delay)
             now_us = wall_us()
-            self.core.send_pose(now_us, seq, self._trace_pose(now_us / 1e6))
-            await self._flush_control()
+            core.send_pose(now_us, seq, self._trace_pose(now_us / 1e6))
+            await self._flush_control(core)
         await asyncio.Event().wait()  # the display task ends the run
 
     def _trace_pose(self, wall_s: float) -> ScenePose:
@@ -262,71 +258,65 @@ class LiveClient:
 
     # ------------------------------------------------------------------ control
 
-    async def _control_loop(self) -> None:
+    async def _control_loop(self, core: ClientSession) -> None:
         """The control connection's bytes to the core, which owns it; its events end the run where they say so."""
-        assert self.channel is not None and self.core is not None
+        assert self.channel is not None
         while True:
             data = await self.channel.reader.read(READ_CHUNK_BYTES)
-            self.core.receive_data(data, wall_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
+            core.receive_data(data, wall_ms())  # raises RemoteProtocolError on bad input: the session ends with Error
             self._take_events()
 
-    async def _flush_control(self) -> None:
+    async def _flush_control(self, core: ClientSession) -> None:
         """Write what the core queued on the control connection (feedback, poses, Bye)."""
-        assert self.core is not None and self.channel is not None
-        if data := self.core.data_to_send():
+        assert self.channel is not None
+        if data := core.data_to_send():
             await self.channel.write_frames([data])
 
     def _take_events(self) -> None:
         """The core's events by its one rule (:meth:`ClientSession.take_events`: what ends the session is raised); a
-        released frame needs nothing here, display_tick shows it."""
+        released frame needs nothing here, display_tick shows it.  (It takes no core: tests override it.)"""
         assert self.core is not None
         self.core.take_events(f"session {self.session_id}")
 
     # ------------------------------------------------------------------ UDP in
 
-    def _on_datagram(self, data: bytes) -> None:
-        assert self.core is not None
-        self.core.receive_datagram(data, wall_ms())
-        self._queue_work()
+    def _on_datagram(self, core: ClientSession, data: bytes) -> None:
+        core.receive_datagram(data, wall_ms())
+        self._queue_work(core)
 
-    def _queue_work(self) -> None:
+    def _queue_work(self, core: ClientSession) -> None:
         """What the core released to decode joins the decode queue (a full queue is flushed: the core is told)."""
-        assert self.core is not None
-        for w in self.core.work_to_decode():
+        for w in core.work_to_decode():
             try:
                 self._decode_q.put_nowait(w)
             except asyncio.QueueFull:
                 while not self._decode_q.empty():
                     self._decode_q.get_nowait()
-                self.core.decoder_overflow()
+                core.decoder_overflow()
 
     # ------------------------------------------------------------------ decode
 
-    async def _decode_loop(self) -> None:
+    async def _decode_loop(self, core: ClientSession) -> None:
         loop = asyncio.get_running_loop()
-        assert self.rx is not None and self.core is not None
         while True:
             w = await self._decode_q.get()
-            if self.core.skips_decode(w, wall_ms()):
+            if core.skips_decode(w, wall_ms()):
                 continue
-            res = await loop.run_in_executor(self.decode_executor, self.rx.decode, w)
+            res = await loop.run_in_executor(self.decode_executor, core.rx.decode, w)
             if isinstance(res, CodecError):
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
-            self.core.on_decoded(w, res, wall_ms())
+            core.on_decoded(w, res, wall_ms())
 
     # ------------------------------------------------------------------ RTCP out
 
-    def _flush_rtcp(self) -> None:
+    def _flush_rtcp(self, core: ClientSession) -> None:
         """Send the compound RTCP packets the core queued."""
-        assert self.core is not None
-        for data in self.core.datagrams_to_send():
+        for data in core.datagrams_to_send():
             if self.udp is not None and not self.udp.is_closing():
                 self.udp.sendto(data)
 
-    async def _rtcp_loop(self) -> None:
+    async def _rtcp_loop(self, core: ClientSession) -> None:
         """The core's timer: sleep to its deadline (at most :data:`RTCP_TICK_S`), run it, send what it queued."""
-        core = self.core
-        assert core is not None
         metrics = MetricsLog(logger, self.session_id, self.cfg.metrics_interval_s)
         lag_sum, lag_n = 0.0, 0
         while True:
@@ -337,22 +327,20 @@ class LiveClient:
             now_ms = wall_ms()
             if now_ms >= core.get_timer():
                 core.handle_timer(now_ms)
-                self._queue_work()
-                self._flush_rtcp()
+                self._queue_work(core)
+                self._flush_rtcp(core)
             self._take_events()
             if metrics.due():
                 metrics.write(self.counters)
 
     # ------------------------------------------------------------------ display
 
-    async def _display_loop(self) -> None:
+    async def _display_loop(self, core: ClientSession) -> None:
         cfg = self.cfg
         loop = asyncio.get_running_loop()
         interval = 1.0 / cfg.display_hz
         start = loop.time()
         n = int(cfg.duration_s * cfg.display_hz)
-        core = self.core
-        assert core is not None
         saves: list[asyncio.Future[None]] = []
         for tick in range(n):
             delay = start + tick * interval - loop.time()
@@ -366,21 +354,19 @@ class LiveClient:
             # update shows; with a playout delay, only the updates whose turn has come are applied
             blanks, new = core.display_tick((tick, w, self._trace_pose(w)), wall_ms())
             for b_tick, b_wall, b_pose in blanks:
-                self._record_blank(b_tick, b_wall, b_pose, saves)
+                self._record_blank(core, b_tick, b_wall, b_pose, saves)
             if new is not None:
-                await self._show(new, tick, saves)
+                await self._show(core, new, tick, saves)
         for b_tick, b_wall, b_pose in core.held_ticks():   # the server never sent a frame: without a scene time
-            self._record_blank(b_tick, b_wall, b_pose, None)
+            self._record_blank(core, b_tick, b_wall, b_pose, None)
         await asyncio.gather(*saves)
         raise _RunDone()
 
-    async def _show(self, new: list[ReceivedFrame], tick: int, saves: list[Any]) -> None:
+    async def _show(self, core: ClientSession, new: list[ReceivedFrame], tick: int, saves: list[Any]) -> None:
         """Display tick ``tick``: apply the ``new`` updates and render the trace's pose (on the GL thread), report them
         to the core, record the row (and the image), and send the feedback of a newly shown update."""
         cfg = self.cfg
         half = self._half
-        core = self.core
-        assert core is not None
         loop = asyncio.get_running_loop()
         tick_wall = time.time()
         pose = self._trace_pose(tick_wall)
@@ -392,7 +378,7 @@ class LiveClient:
         # the core's rule (and the Feedback of an update shown the first time)
         shown = core.showing(new, drawn.ok, half.has_content, displayed_us / 1000)
         if shown is None:   # every update so far rejected or without content: still black
-            self._record_blank(tick, tick_wall, pose, saves)
+            self._record_blank(core, tick, tick_wall, pose, saves)
         else:
             row = self.recording.tick(tick, trace_t, scene_t, pose, shown, displayed_us, drawn.client_ms,
                                       **drawn.columns, **core.received_kbps(displayed_us / 1e6))
@@ -400,13 +386,13 @@ class LiveClient:
             if len(saves) > 64:
                 await asyncio.gather(*saves[:32])
                 del saves[:32]
-        await self._flush_control()
+        await self._flush_control(core)
 
-    def _record_blank(self, tick: int, wall_s: float, pose: ScenePose, saves: list[Any] | None) -> None:
+    def _record_blank(self, core: ClientSession, tick: int, wall_s: float, pose: ScenePose,
+                      saves: list[Any] | None) -> None:
         """Record a tick that showed the black background (its image saved when ``saves`` is given and images are
         kept; without the server clock, ``saves`` is None and the row has no scene time)."""
-        assert self.core is not None
-        row = self.recording.tick(tick, wall_s - self._t0_wall, self.core.scene_t(wall_s), pose, None,
+        row = self.recording.tick(tick, wall_s - self._t0_wall, core.scene_t(wall_s), pose, None,
                                   int(wall_s * 1e6))
         if saves is not None and self.cfg.save_images:
             black = black_frame(self.cfg.width, self.cfg.height)

@@ -124,6 +124,14 @@ class ClientRecording:
         self.append(row)
         return row
 
+    @staticmethod
+    def ended(manifest: dict[str, Any], exc: BaseException | None = None) -> dict[str, Any]:
+        """The final manifest of a session that ended: ``complete``, or (``exc``: a broken session, whose recording
+        keeps what was recorded) incomplete, with the ``error`` that ended it."""
+        if exc is None:
+            return {**manifest, "complete": True}
+        return {**manifest, "complete": False, "error": f"{type(exc).__name__}: {exc}"}
+
     def finish(self, manifest: dict[str, Any], counters: dict[str, Any],
                rows: Sequence[dict[str, Any]] | None = None) -> None:
         """``frames.csv`` (from the journal, every row, or from ``rows`` when there is none), ``counters.json`` and the
