@@ -9,7 +9,7 @@ the event loop's process never touches GL or a codec:
   :class:`~splitrender.render.Renderer` (EGL), the scene producers, and each session's method half and video
   encoders (its :class:`~splitrender.pipeline.FrameMaker`);
 * the server talks to it over a socket pair with :mod:`multiprocessing`'s framing
-  (4-byte big-endian length, pickled tuple), from asyncio, without threads;
+  (4-byte big-endian length, pickled tuple), from asyncio, without threads (:mod:`splitrender.pipeline.processes`);
 * every request has a deadline (the **watchdog**): a worker that misses it is killed
   with SIGKILL, every session it served ends with an error naming the request and the
   deadline, and the next session gets a fresh worker; the event loop stays free, so the
@@ -24,7 +24,8 @@ created, shaders compiled) waits for the next session so that a session starts w
 paying for the process start.
 
 Workers fork from a :mod:`multiprocessing` fork server that imported the heavy modules
-(numpy, moderngl, PyAV, the methods) once and never created a GL context.
+(numpy, moderngl, PyAV, the methods) once and never created a GL context
+(:func:`~splitrender.pipeline.processes.worker_context`).
 """
 
 from __future__ import annotations
@@ -33,60 +34,21 @@ import asyncio
 import contextlib
 import itertools
 import logging
-import multiprocessing
 import os
 import pickle
 import signal
 import socket
-import struct
 import time
 import traceback
-from multiprocessing import forkserver
 from typing import Any
 
 from splitrender.errors import WorkerDied, WorkerError, WorkerTimeout, describe_error  # noqa: F401 - re-exported
 from splitrender.pipeline.frames import SessionFrames
+from splitrender.pipeline.processes import WORKER_ENV, frame_bytes, read_frame, worker_context
 
-__all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context"]
+__all__ = ["RenderWorker", "WorkerError", "WorkerTimeout", "WorkerDied", "worker_context", "WORKER_ENV"]
 
 logger = logging.getLogger(__name__)
-
-_PRELOAD = ["splitrender.server.worker", "splitrender.render", "splitrender.methods", "splitrender.pipeline",
-            "splitrender.scene.loader", "splitrender.codecs.video"]
-
-WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1"}
-"""Environment the render workers start with, where the server's own environment does not set it.  One BLAS thread:
-their matrices are small (the probes' ray weights, the methods' per-patch math), and llvmpipe's threads fill the
-cores; a second BLAS thread waiting for a core made the probes' 256 x 384 x 256 visibility product take 52 ms
-where one thread takes 1.7 (2 cores, load ~18).  The same bits either way (the probes hashed alike)."""
-
-_ctx: Any = None
-
-
-def worker_context() -> Any:
-    """The multiprocessing context workers start from: a fork server with the heavy modules preloaded (safe: the fork
-    server is single-threaded and never creates a GL context), started here with :data:`WORKER_ENV` unless it runs
-    already (this process's own environment is left as it was)."""
-    global _ctx
-    if _ctx is None:
-        if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover - non-Unix
-            _ctx = multiprocessing.get_context("spawn")
-            return _ctx
-        _ctx = multiprocessing.get_context("forkserver")
-        _ctx.set_forkserver_preload(_PRELOAD)
-    if _ctx.get_start_method() == "forkserver":
-        saved = {k: os.environ.get(k) for k in WORKER_ENV}
-        for k, v in WORKER_ENV.items():
-            os.environ.setdefault(k, v)
-        try:
-            forkserver.ensure_running()
-        finally:
-            for k, old in saved.items():
-                if old is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = old
-    return _ctx
 
 
 # ---------------------------------------------------------------------- the event-loop side
@@ -154,13 +116,13 @@ class RenderWorker:
         raise WorkerError(value)
 
     async def _exchange(self, op: str, blob: bytes, deadline_s: float) -> Any:
-        assert self._writer is not None
+        assert self._reader is not None and self._writer is not None
         async with self._lock:
             if self.dead is not None:
                 raise WorkerDied(f"render worker {self.name}: {self.dead}")
             try:
-                self._writer.write(_frame(blob))
-                return await asyncio.wait_for(self._read(), deadline_s)
+                self._writer.write(frame_bytes(blob))
+                return await asyncio.wait_for(read_frame(self._reader), deadline_s)
             except asyncio.TimeoutError:
                 why = f"{op} missed its {deadline_s:g} s deadline"
                 self.kill(why)
@@ -169,14 +131,6 @@ class RenderWorker:
                 code = self.process.exitcode if self.process is not None else None
                 self.kill(f"connection lost during {op}: {exc or type(exc).__name__}")
                 raise WorkerDied(f"render worker {self.name}: ended during {op} (exit code {code})") from None
-
-    async def _read(self) -> Any:
-        assert self._reader is not None
-        head = await self._reader.readexactly(4)
-        (n,) = struct.unpack("!i", head)
-        if n == -1:
-            (n,) = struct.unpack("!Q", await self._reader.readexactly(8))
-        return pickle.loads(await self._reader.readexactly(n))
 
     def kill(self, why: str) -> None:
         """SIGKILL the process now (idempotent); every later call raises :class:`WorkerDied`."""
@@ -201,7 +155,7 @@ class RenderWorker:
             if self.dead is None and self._writer is not None and not self._lock.locked():
                 self.dead = "closed"
                 with contextlib.suppress(Exception):
-                    self._writer.write(_frame(pickle.dumps(("stop", ()))))
+                    self._writer.write(frame_bytes(pickle.dumps(("stop", ()))))
                     await asyncio.wait_for(self._writer.drain(), grace_s)
                 end = time.monotonic() + grace_s
                 while p is not None and p.is_alive() and time.monotonic() < end:
@@ -216,12 +170,6 @@ class RenderWorker:
                 await asyncio.sleep(0.01)
             with contextlib.suppress(Exception):
                 p.join(0)
-
-
-def _frame(blob: bytes) -> bytes:
-    n = len(blob)
-    head = struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!i", -1) + struct.pack("!Q", n)
-    return head + blob
 
 
 # ---------------------------------------------------------------------- the worker process
