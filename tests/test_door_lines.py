@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 import splitrender
 
 DOORS = ("sim/runner.py", "server/session.py", "server/worker.py", "client/session.py", "webrtc/session.py")
@@ -25,8 +23,6 @@ def test_the_door_files_exist_and_are_counted() -> None:
     assert all(n > 100 for n in lines.values()), lines   # a moved or emptied door is a change to this test too
 
 
-@pytest.mark.xfail(strict=True, reason="issue 47: the five doors are 1,742 lines at 72ed14d+1 (bound 1,700); when "
-                   "this passes, take the marker off")
 def test_the_five_doors_are_at_most_1700_lines() -> None:
     lines = door_lines()
     total = sum(lines.values())
