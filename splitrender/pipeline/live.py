@@ -24,9 +24,9 @@ import contextlib
 import logging
 import secrets
 import time
-from collections.abc import AsyncIterator, Coroutine
+from collections.abc import AsyncIterator, Awaitable, Coroutine
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from ..errors import (PeerTimeoutError, RemoteProtocolError, WorkerDied, WorkerError, WorkerTimeout,
                       describe_error)
@@ -36,9 +36,10 @@ from .recording import MetricsLog, SessionLogs
 from .sender import EncodedUpdate
 from .session import ServerSession
 
-__all__ = ["LiveServer", "LiveSession", "MadeFrame", "SessionEnded", "wait_for_timer"]
+__all__ = ["LiveServer", "LiveSession", "MadeFrame", "SessionEnded", "busy_refusal", "wait_for_timer"]
 
 Address = tuple[str, int]
+T = TypeVar("T")
 
 MadeFrame = tuple[FrameOrder, EncodedUpdate, dict[str, Any], dict[str, float], float]
 """A frame back from the render worker (:meth:`LiveSession._make_frame`): its order, its coded update, the method
@@ -62,6 +63,12 @@ async def wait_for_timer(delay_ms: float, cap_s: float, wake: asyncio.Event | No
                 await wake.wait()
         wake.clear()
     return (time.monotonic() - w0 - wait) * 1000
+
+
+def busy_refusal(sessions: int, most: int) -> str | None:
+    """What a server running ``sessions`` sessions, at most ``most`` (``max_sessions``), refuses a new one with
+    (both front doors: the RTP door's Error 503, the browser's 503 answer); None while there is room."""
+    return f"server busy: {sessions} sessions already" if sessions >= most else None
 
 
 class LiveServer(Protocol):
@@ -224,6 +231,19 @@ class LiveSession:
         self._logs.close(counters)
         self.log.info("%s %s: closed (%s)%s", self.kind, self.id,
                     ", ".join(f"{k}={v}" for k, v in counters.items() if v), f"; {self.end_reason}" if self.end_reason else "")
+
+    async def set_up(self, step: Awaitable[T]) -> T | None:
+        """The door's set-up ``step`` (its half, encoders and core), awaited: the peer's protocol error leaves as
+        itself; any other failure is ours (a method, encoder or GL failure), which ends this session only: logged,
+        told to the peer (:meth:`_send_error`, ``session setup failed: ...``), and None."""
+        try:
+            return await step
+        except RemoteProtocolError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any setup failure ends this session only
+            self.log.exception("%s %s: setup for %s failed", self.kind, self.id, self.peer)
+            await self._send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
+            return None
 
     async def _open_worker(self, opening: Any, test_hang: bool = False) -> tuple[list[Any], bytes, dict[str, Any]]:
         """Take a render worker and build ``opening``'s server half and encoders in it

@@ -34,9 +34,10 @@ import math
 import time
 from typing import Any
 
-from splitrender.errors import LocalProtocolError, RemoteProtocolError, describe_error
+from splitrender.errors import LocalProtocolError, RemoteProtocolError
 from splitrender.methods.base import StreamSpec
-from splitrender.pipeline.live import Address, LiveServer, LiveSession, MadeFrame, SessionEnded, wait_for_timer
+from splitrender.pipeline.live import (Address, LiveServer, LiveSession, MadeFrame, SessionEnded, busy_refusal,
+                                       wait_for_timer)
 from splitrender.pipeline.recording import ROWS_KEPT
 from splitrender.pipeline import Accepted, ServerPipeline, accept_hello, open_hello
 from splitrender.pipeline.sender import FIRST_PAYLOAD_TYPE
@@ -98,11 +99,12 @@ class ServerSession(LiveSession):
     async def _start(self) -> bool:
         """The handshake: the Hello within ``hello_timeout_s`` (else an Error naming the wait), the session's set-up,
         the Welcome and the session data.  False where the session ends there: the server was busy, the client left
-        before its Hello, or our side failed to set it up (an Error ``session setup failed: ...``, logged).  The
-        client's protocol errors and a lost connection leave to :meth:`run`."""
+        before its Hello, or our side failed to set it up (an Error ``session setup failed: ...``, logged:
+        :meth:`~splitrender.pipeline.live.LiveSession.set_up`).  The client's protocol errors and a lost connection
+        leave to :meth:`run`."""
         logger.info("session %s: connection from %s", self.id, self.peer)
-        if len(self.server.sessions) >= self.cfg.max_sessions:
-            await self.channel.send_error(503, f"server busy: {self.cfg.max_sessions} sessions already")
+        if (busy := busy_refusal(len(self.server.sessions), self.cfg.max_sessions)) is not None:
+            await self.channel.send_error(503, busy)
             return False
         try:
             msg = await asyncio.wait_for(self.channel.next_message(), self.cfg.hello_timeout_s)
@@ -112,14 +114,8 @@ class ServerSession(LiveSession):
             logger.info("session %s: %s closed before Hello", self.id, self.peer)
             return False
         assert isinstance(msg, Hello)  # the state machine allows nothing else here
-        try:
-            acc = await self._setup(msg)
-        except RemoteProtocolError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - any setup failure ends this session only
-            # our fault (a method, encoder or GL failure): tell the client, keep serving others
-            logger.exception("session %s: setup for %s failed", self.id, self.peer)
-            await self.channel.send_error(ErrorCode.INTERNAL, f"session setup failed: {describe_error(exc)}")
+        acc = await self.set_up(self._setup(msg))
+        if acc is None:   # our fault (a method, encoder or GL failure): the client told, others still served
             return False
         await self.channel.write_frames(acc.core.data_to_send(wall_ms()))     # the Welcome, then the session data
         self._counters["session_bytes"] = acc.session_bytes

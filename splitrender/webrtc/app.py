@@ -41,7 +41,8 @@ from typing import Any
 
 from aiohttp import web
 
-from ..errors import ConfigError, NetworkConfigError, RemoteProtocolError, describe_error
+from ..errors import ConfigError, NetworkConfigError, RemoteProtocolError
+from ..pipeline.live import busy_refusal
 from ..pipeline.recording import ClientRecording, manifest, save_image
 from ..scene.trace import BUILTIN_TRACES, get_trace
 from ..transport.errors import BindError, describe_os_error
@@ -284,9 +285,9 @@ class WebRtcFrontDoor:
             req = parse_session_request(body, self.offered, self.server.config.max_pixels)
         except PageMessageError as exc:
             return _bad(str(exc))
-        busy = len(self.server.sessions) + len(self.active)
-        if busy >= self.server.config.max_sessions:
-            return web.json_response({"error": f"server busy: {busy} sessions already"}, status=503)
+        busy = busy_refusal(len(self.server.sessions) + len(self.active), self.server.config.max_sessions)
+        if busy is not None:
+            return web.json_response({"error": busy}, status=503)
         remote = request.remote or "?"
         mine = sum(1 for s in self.active if s.remote == remote)
         if mine >= MAX_SESSIONS_PER_ADDRESS:
@@ -296,16 +297,16 @@ class WebRtcFrontDoor:
         self.sessions_total += 1
         session = BrowserSession(self, req, self.sessions_total)
         session.remote = remote
+        session.peer = remote     # as the logs name it
         self.sessions[session.id] = session
-        try:
-            answer = await session.open()
+        try:   # a failed set-up (logged, the session ended with its error) ends this session only
+            answer = await session.set_up(session.open())
         except RemoteProtocolError as exc:     # the page's request or offer (PageMessageError) or its method's streams
             await session.close()
             return _bad(str(exc))
-        except Exception as exc:  # noqa: BLE001 - a failed set-up ends this session only
-            logger.exception("browser session %s: set-up failed", session.id)
+        if answer is None:
             await session.close()
-            return web.json_response({"error": f"session set-up failed: {describe_error(exc)}"}, status=500)
+            return web.json_response({"error": session.end_reason}, status=500)
         task = asyncio.ensure_future(session.run())
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
