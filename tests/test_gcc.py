@@ -133,11 +133,51 @@ def test_a_probe_measures_what_the_link_delivers() -> None:
     assert est.target_bps == pytest.approx(0.9 * 6e6, rel=0.03)
 
 
+def _start_clusters(cfg: GccConfig) -> list[tuple[float, int, int]]:
+    """(rate, start us, end us) of the clusters the estimator sends before any feedback, polled every ms for 0.2 s."""
+    est, out = BandwidthEstimator(cfg), []
+    for now in range(0, 200_000, 1_000):
+        cl = est.probe(now)
+        if cl is not None:
+            out.append((cl.rate_bps, cl.start_us, cl.end_us))
+    return out
+
+
+def test_the_start_up_probes_go_back_to_back_at_their_multiples() -> None:
+    """GCC's own: 3x and 6x the start rate, the second as the first ends, then nothing until feedback; a config's
+    ``start_probes`` (a queue-tolerant method's, issue 48) sends its multiples the same way."""
+    own = _start_clusters(GccConfig())
+    assert [r for r, _, _ in own] == pytest.approx([0.9e6, 1.8e6])
+    more = _start_clusters(GccConfig(start_probes=(3.0, 6.0, 12.0, 24.0)))
+    assert [r for r, _, _ in more] == pytest.approx([0.9e6, 1.8e6, 3.6e6, 7.2e6])
+    assert more[:2] == own                                  # the first two as GCC's, to the microsecond
+    assert all(0 <= b[1] - a[2] < 1_000 for a, b in zip(more, more[1:]))   # each within a poll of the last's end
+
+
+def test_the_acknowledged_cap_bounds_an_increase() -> None:
+    """An increase never takes the rate past ``acked_cap`` times the acknowledged rate plus 10 kbit/s (1.5 by
+    default), however long since the last update."""
+    for cap in (1.5, 2.0):
+        aimd = AimdRateControl(GccConfig(start_bps=3e6, acked_cap=cap))
+        aimd.update(Usage.NORMAL, 1e6, 0)
+        assert aimd.rate_bps == 3e6                         # no increase: the start stays where it is
+        aimd.rate_bps = 1e6
+        for k in range(1, 200):
+            aimd.update(Usage.NORMAL, 1e6, k * 1_000_000)
+        assert aimd.rate_bps == pytest.approx(cap * 1e6 + 10_000)
+
+
 def test_config_is_validated() -> None:
     with pytest.raises(ConfigError, match="need 0 < min_bps <= start_bps <= max_bps"):
         GccConfig(start_bps=1.0)
     with pytest.raises(ConfigError, match="beta: must be in"):
         GccConfig(beta=1.5)
+    with pytest.raises(ConfigError, match=r"start_probes: one or more, each in \[1, 100\], got \(\)"):
+        GccConfig(start_probes=())
+    with pytest.raises(ConfigError, match="start_probes: one or more"):
+        GccConfig(start_probes=(3.0, 0.5))
+    with pytest.raises(ConfigError, match=r"acked_cap: must be in \[1, 10\], got 0.9"):
+        GccConfig(acked_cap=0.9)
 
 
 # --------------------------------------------------------------------------- capacity traces

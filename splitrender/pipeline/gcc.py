@@ -25,8 +25,8 @@ transport-wide feedback (:mod:`splitrender.protocol.twcc`):
    the two rates.
 6. **Probing** (:class:`ProbeController`): multiplicative increase alone takes half a
    minute to climb from 2 to 20 Mbit/s (8 % a second), and the estimate starts low (300 kbit/s, as WebRTC), so, as libwebrtc does, the sender
-   sends short clusters of padding at a multiple of the estimate (3x and 6x the start rate, back to
-   back; 2x the estimate every ``probe_interval_s`` while nothing is over-used; and again while a
+   sends short clusters of padding at a multiple of the estimate (``start_probes``: 3x and 6x the start rate, back
+   to back; 2x the estimate every ``probe_interval_s`` while nothing is over-used; and again while a
    probe finds more, at ``start_climb`` (3x) the new estimate until the first over-use and 2x
    after it); a cluster's rate as delivered (bytes after its
    first arrival over its arrival span, no more than the rate it was sent at) replaces a
@@ -96,6 +96,13 @@ class GccConfig:
     back rather than each after the last one's feedback: at 2x a step, each a feedback interval and a round trip, sas
     over the 8 Mbit/s cellular-like trace reached 5.4 Mbit/s at 0.59 s, its atlas under the start's ceilings all the
     while."""
+    start_probes: tuple[float, ...] = (3.0, 6.0)
+    """The start-up probes' rates, multiples of ``start_bps``, sent back to back before any feedback (libwebrtc's 3x
+    and 6x).  A method that redraws geometry at the display pose may take more (its quality model's ``estimator``:
+    3x to 24x, 20 kB more, 0.16 s more of queue on a 1 Mbit/s link): video's step-down test failed with them."""
+    acked_cap: float = 1.5
+    """A delay-based increase never takes the estimate over this many times the acknowledged rate (plus 10 kbit/s):
+    no large increase without evidence the link takes it (libwebrtc's 1.5)."""
     stale_overuse_ms: float = 5.0
     drained_ms: float = 100.0
     stale_window_ms: float = 1000.0
@@ -114,6 +121,10 @@ class GccConfig:
                               f"{self.start_bps:g}, {self.max_bps:g}")
         if not 1 < self.start_climb <= 10:
             raise ConfigError(f"GccConfig.start_climb: must be in (1, 10], got {self.start_climb}")
+        if not self.start_probes or not all(1 <= m <= 100 for m in self.start_probes):
+            raise ConfigError(f"GccConfig.start_probes: one or more, each in [1, 100], got {self.start_probes}")
+        if not 1 <= self.acked_cap <= 10:
+            raise ConfigError(f"GccConfig.acked_cap: must be in [1, 10], got {self.acked_cap}")
         if not 0 < self.beta < 1:
             raise ConfigError(f"GccConfig.beta: must be in (0, 1), got {self.beta}")
         if self.window < 2:
@@ -328,7 +339,7 @@ class AimdRateControl:
                 self._cap_var = min(max(0.95 * self._cap_var + 0.05 * (self._cap_mean - k) ** 2 / norm, 0.4), 2.5)
             self.state = "hold"
         if acked_bps is not None and self.rate_bps > before:    # no large increase without evidence the link takes it
-            self.rate_bps = max(before, min(self.rate_bps, 1.5 * acked_bps + 10_000))
+            self.rate_bps = max(before, min(self.rate_bps, cfg.acked_cap * acked_bps + 10_000))
         self.rate_bps = min(max(self.rate_bps, cfg.min_bps), cfg.max_bps)
         return self.rate_bps
 
@@ -389,7 +400,8 @@ class ProbeController:
     def __init__(self, cfg: GccConfig) -> None:
         self.cfg = cfg
         self._next_id = 0
-        self._pending: list[float] = [3.0, 6.0] if cfg.probe else []   # start-up multiples of the start rate
+        self._start = len(cfg.start_probes)
+        self._pending: list[float] = list(cfg.start_probes) if cfg.probe else []   # multiples of the start rate
         self._sent: dict[int, tuple[float, int, int]] = {}              # cluster -> (rate, start us, end us)
         self._results: dict[int, list[PacketResult]] = {}
         self._last_probe_us: int | None = None
@@ -406,10 +418,11 @@ class ProbeController:
             self._results.pop(cid, None)
         if not cfg.probe:
             return None
-        if self._sent and not (self._next_id < 2 and self._pending and all(e <= now_us for _, _, e in self._sent.values())):
-            return None      # one cluster at a time, but for the start-up pair (back to back)
+        if self._sent and not (self._next_id < self._start and self._pending
+                               and all(e <= now_us for _, _, e in self._sent.values())):
+            return None      # one cluster at a time, but for the start-up ones (back to back)
         if self._pending:
-            rate = self._pending.pop(0) * (cfg.start_bps if self._next_id < 2 else estimate_bps)
+            rate = self._pending.pop(0) * (cfg.start_bps if self._next_id < self._start else estimate_bps)
         elif (self._last_probe_us is None or now_us - self._last_probe_us >= cfg.probe_interval_s * 1e6) \
                 and now_us - self._last_decrease_us >= cfg.probe_interval_s * 1e6 and estimate_bps < cfg.max_bps:
             rate = 2.0 * estimate_bps
