@@ -255,6 +255,41 @@ def test_adaptation_needs_the_feedback_and_probes_only_where_it_adapts() -> None
 
 
 
+@pytest.mark.parametrize("method", ["video", "atw", "warp", "sas", "tss", "quads"])
+def test_the_estimator_is_the_methods_own_only_where_it_adapts_its_point(method: str) -> None:
+    """A method's quality model may set its adapting session's estimator (``QualityModel.estimator``, issue 48): the
+    methods that redraw geometry at the display pose start with bigger probes, video and atw keep GCC's own; the
+    fields reach the estimator with ``adapt = "full"`` only, and an unknown field is a config error."""
+    import dataclasses
+
+    from splitrender.codecs.video import VideoCodecConfig
+    from splitrender.methods import get_method
+    from splitrender.methods.base import StreamSpec, with_model
+    from splitrender.pipeline.gcc import GccConfig
+    from splitrender.pipeline.sender import ServerPipeline
+    from splitrender.pipeline.session import UNADAPTED_START_BPS, ServerOptions, ServerSession
+
+    knobs = get_method(method).config().adapt_knobs()
+    model = next(k.model for k in knobs if k.model is not None)
+    tolerant = method in ("warp", "sas", "tss", "quads")
+    assert bool(model.estimator) == tolerant
+    specs = [StreamSpec("color", VideoCodecConfig(), 160, 90)]
+
+    def estimator_cfg(adapt: str, knobs: tuple = knobs) -> GccConfig:
+        core = ServerSession(ServerPipeline(specs, transport_cc_id=5), 30.0, ServerOptions(adapt=adapt), knobs=knobs)
+        return core.estimator.cfg
+
+    own = dict(model.estimator)
+    assert estimator_cfg("full") == dataclasses.replace(GccConfig(), **own)
+    assert estimator_cfg("rate") == GccConfig()
+    assert estimator_cfg("off") == GccConfig(start_bps=UNADAPTED_START_BPS)
+    if tolerant:
+        assert len(own["start_probes"]) > len(GccConfig().start_probes)
+    bad = with_model(knobs, dataclasses.replace(model, estimator=(("start_rate", 1e6),)))
+    with pytest.raises(ConfigError, match="quality model estimator: .*start_rate"):
+        estimator_cfg("full", bad)
+
+
 def test_the_webrtc_profile_follows_the_receivers_estimate() -> None:
     """The browser front door's core (aiortc owns RTP: no transport-wide feedback) adapts to the estimate the page's
     browser reports (RTCP REMB, :meth:`ServerSession.receive_estimate`): the encoder's rate follows it down and up,

@@ -131,6 +131,11 @@ class QualityModel:
     latency_db_per_100ms: float
     rate_db_per_halving: float
     measured: str = ""
+    estimator: tuple[tuple[str, Any], ...] = ()
+    """``(field, value)`` pairs of :class:`~splitrender.pipeline.gcc.GccConfig` that an adapting session of the
+    method (``adapt = "full"``) sets on its send-rate estimator: a method that redraws geometry at the display pose
+    (sas, tss, quads, warp) tolerates the queue a bigger start-up probe or a faster climb may leave, where video and
+    atw show it as latency (empty: the estimator's own, as for them)."""
 
     def __post_init__(self) -> None:
         for name, db in self.knob_db:

@@ -1372,6 +1372,12 @@ class ServerSession:
         gcc = self.options.gcc
         if self.options.adapt == "off" and gcc.start_bps < UNADAPTED_START_BPS <= gcc.max_bps:
             gcc = dataclasses.replace(gcc, start_bps=UNADAPTED_START_BPS)
+        model = next((k.model for k in self.knobs if getattr(k, "model", None) is not None), None)
+        if self.options.adapt == "full" and model is not None and model.estimator:   # the method's own (QualityModel)
+            try:
+                gcc = dataclasses.replace(gcc, **dict(model.estimator))
+            except TypeError as e:
+                raise ConfigError(f"quality model estimator: {e}") from None
         self.estimator: BandwidthEstimator | ReceiverEstimate | None = BandwidthEstimator(gcc) if cc else None
         """The path's send-rate estimate from that feedback (:mod:`.gcc`); on the WebRTC transport with adaptation,
         the receiver's own estimate (REMB, :meth:`receive_estimate`)."""
