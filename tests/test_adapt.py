@@ -257,9 +257,10 @@ def test_adaptation_needs_the_feedback_and_probes_only_where_it_adapts() -> None
 
 @pytest.mark.parametrize("method", ["video", "atw", "warp", "sas", "tss", "quads"])
 def test_the_estimator_is_the_methods_own_only_where_it_adapts_its_point(method: str) -> None:
-    """A method's quality model may set its adapting session's estimator (``QualityModel.estimator``, issue 48): the
-    methods that redraw geometry at the display pose start with bigger probes, video and atw keep GCC's own; the
-    fields reach the estimator with ``adapt = "full"`` only, and an unknown field is a config error."""
+    """A method's quality model may set its adapting session's estimator (``QualityModel.estimator``, issue 48): sas
+    and tss (they redraw geometry at the display pose) start with bigger probes, video and atw keep GCC's own (and
+    quads and warp, which hold their targets with it); the fields reach the estimator with ``adapt = "full"`` only,
+    and an unknown field is a config error."""
     import dataclasses
 
     from splitrender.codecs.video import VideoCodecConfig
@@ -271,7 +272,7 @@ def test_the_estimator_is_the_methods_own_only_where_it_adapts_its_point(method:
 
     knobs = get_method(method).config().adapt_knobs()
     model = next(k.model for k in knobs if k.model is not None)
-    tolerant = method in ("warp", "sas", "tss", "quads")
+    tolerant = method in ("sas", "tss")
     assert bool(model.estimator) == tolerant
     specs = [StreamSpec("color", VideoCodecConfig(), 160, 90)]
 

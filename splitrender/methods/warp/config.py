@@ -31,14 +31,9 @@ DEPTH_BITS_DB = {16: 0.0, 12: 0.005, 10: 0.021, 8: 0.241}
 """Model PSNR (dB) lost at ``depth_bits`` against 16 (``benchmarks/bench_knobs.py --quality``; :data:`QUALITY`)."""
 QUALITY_MEASURED = ("benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, "
                     "delay 20ms, model PSNR after 0.5 s")
-ESTIMATOR: tuple[tuple[str, object], ...] = (("start_probes", (3.0, 6.0, 12.0, 24.0)), ("acked_cap", 2.0),
-                                              ("probe_interval_s", 1.0))
-"""The estimator of an adapting session (``QualityModel.estimator``): a method that redraws geometry at the display pose
-takes the queue an estimate that runs ahead may leave, as tss does (measured there: ``methods/tss/config.py``)."""
 QUALITY = QualityModel(
     (("depth_bits", tuple(DEPTH_BITS_DB.values())), ("depth_step", (0.0, 0.20)), ("scale", (0.0, 0.59, 1.83))),
-    latency_db_per_100ms=0.41, rate_db_per_halving=0.90, measured=QUALITY_MEASURED,
-    estimator=ESTIMATOR)
+    latency_db_per_100ms=0.41, rate_db_per_halving=0.90, measured=QUALITY_MEASURED)
 """warp's quality model at its default config (:class:`~splitrender.methods.base.QualityModel`; a config's own levels
 take theirs from :data:`DEPTH_BITS_DB`): model PSNR 23.70 dB at its own point; 12, 10 and 8 depth
 bits lose 0.005, 0.02 and 0.24 dB for 17, 42 and 64 % of the bytes; one depth sample in four 0.20 dB (45 %); the
