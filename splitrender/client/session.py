@@ -32,6 +32,7 @@ from typing import Any
 from splitrender.client.config import ClientConfig
 from splitrender.errors import CodecError, PeerTimeoutError, ServerRefusedError, SplitRenderError
 from splitrender.pipeline import ClientHandshake, ClientPipeline, ClientSession, ReceivedFrame, Work, black_frame, display_frame
+from splitrender.pipeline.frames import decode_work
 from splitrender.pipeline.session import StreamStalledError, leaving_error
 from splitrender.pipeline.live import wait_for_timer
 from splitrender.pipeline.recording import ClientRecording, MetricsLog, manifest, save_image
@@ -302,10 +303,10 @@ class LiveClient:
             w = await self._decode_q.get()
             if core.skips_decode(w, wall_ms()):
                 continue
-            res = await loop.run_in_executor(self.decode_executor, core.rx.decode, w)
+            res, decode_ms = await loop.run_in_executor(self.decode_executor, decode_work, w)
             if isinstance(res, CodecError):
                 logger.info("session %s: %s decode error, waiting for a keyframe: %s", self.session_id, w.stream.name, res)
-            core.on_decoded(w, res, wall_ms())
+            core.on_decoded(w, res, wall_ms(), decode_ms)
 
     # ------------------------------------------------------------------ RTCP out
 

@@ -32,6 +32,7 @@ from ..errors import RemoteProtocolError
 from ..methods.base import ClientFeedback, ClientFrame, ServerContext
 from .adapt import AdaptConfig
 from .producers import ProducerPool
+from .receiver import ClientPipeline
 from .sender import EncodedUpdate, StreamEncoder
 
 log = logging.getLogger(__name__)
@@ -185,6 +186,17 @@ def apply_updates(half: Any, frames: list[Any], log_id: str = "") -> list[bool]:
 def black_frame(width: int, height: int) -> ClientFrame:
     """The black background a display tick shows with nothing to draw, every pixel a hole."""
     return ClientFrame(np.zeros((height, width, 3), np.uint8), np.ones((height, width), bool))
+
+
+def decode_work(work: Any) -> tuple[Any, float]:
+    """Every client front door's decode of what its core released (:meth:`~.session.ClientSession.work_to_decode`,
+    after :meth:`~.session.ClientSession.skips_decode`), where it runs it (in line, or on the live client's decoder
+    thread): the pipeline's answer (:meth:`~.receiver.ClientPipeline.decode`: the plane or bytes, or the
+    :class:`~splitrender.errors.CodecError`) and the milliseconds it took, for
+    :meth:`~.session.ClientSession.on_decoded`."""
+    w0 = time.perf_counter()
+    res = ClientPipeline.decode(work)
+    return res, (time.perf_counter() - w0) * 1000
 
 
 class Displayed(NamedTuple):

@@ -63,8 +63,9 @@ from ..errors import ConfigError, RemoteProtocolError
 from ..methods.base import get_method
 from ..netsim import Link, parse_path
 from ..netsim.driver import TIMER, Clock, Timer, Wire, arrivals
+from ..pipeline.frames import decode_work
 from ..pipeline.rows import SentBytes, frame_row, run_summary
-from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientPipeline, ClientSession,
+from ..pipeline import (CLIENT_CODECS, META_STREAM, SESSION_STREAM, ClientHandshake, ClientSession,
                         FrameMaker, Opening, ProducerPool, ReceivedFrame, ServerSession, accept_hello, check_hello,
                         display_frame, method_config, tcp_segments)
 from ..pipeline.recording import write_run
@@ -386,11 +387,9 @@ class VirtualTimeRun:
     def _decode(self, c: _Client) -> None:
         """Decode what the client core released (its keyframe-skip rule first), timing it for the display queue."""
         for w in c.core.work_to_decode():
-            if c.core.skips_decode(w, self.now * 1000):
-                continue
-            w0 = time.perf_counter()
-            res = ClientPipeline.decode(w)
-            c.core.on_decoded(w, res, self.now * 1000, (time.perf_counter() - w0) * 1000)
+            if not c.core.skips_decode(w, self.now * 1000):
+                res, decode_ms = decode_work(w)
+                c.core.on_decoded(w, res, self.now * 1000, decode_ms)
 
     def _decode_delay_ms(self, rf: ReceivedFrame) -> float:
         """A frame the client core releases is displayable its modelled (or measured: its ``decode_ms``) decode time
