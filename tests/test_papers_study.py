@@ -182,3 +182,30 @@ def test_study_base_runs_cells_charts_text_and_section(tmp_path: Path) -> None:
     calls.clear()
     Tiny(tmp_path / "full", quick=False).run()
     assert calls == ["cells", "charts", "text", "publish"]
+
+
+def test_an_invocation_stopped_mid_grid_keeps_its_history_entry(tmp_path: Path) -> None:
+    """A study's store history is written as its runs finish, not only at the end: an invocation killed at its time
+    limit (claims' full grid took 3,601 s against the 3,600 s limit once, and its 260 runs then read as cached with no
+    invocation that made them) leaves its entry with the runs done so far and the stopped note; one that finishes
+    replaces the note with its final counts."""
+    from splitrender.experiments.studies._study import STOPPED_NOTE, _HistoryTally
+    from splitrender.experiments.studies._util import read_history, store_history_text, write_history
+
+    path = tmp_path / "store" / "x_history.json"
+    write_history(path, [{"utc": "U0", "commit": "c0", "ran": 3, "cached": 0, "runs_s": 9.0}])
+    entry = {"utc": "U1", "commit": "c1", "ran": 0, "cached": 0, "failed": 0, "runs_s": 0.0, "workers": 2,
+             "dask": "", "note": STOPPED_NOTE}
+    tally = _HistoryTally(path, entry, t0=0.0)
+    tally.start_all(5)
+    tally.run_done("k1", "a")
+    tally.run_done("k2", "b")        # ... and the process is killed here
+    hist = read_history(path)
+    assert [h["utc"] for h in hist] == ["U0", "U1"] and hist[1]["ran"] == 2 and hist[1]["note"] == STOPPED_NOTE
+    assert "U1 at c1: 2 runs in " in store_history_text(hist) and f"({STOPPED_NOTE})" in store_history_text(hist)
+    entry.pop("note")
+    final = tally.write(ran=5, cached=7, failed=0, runs_s=12.5)
+    assert final == read_history(path) and final[1]["ran"] == 5 and "note" not in final[1]
+    assert read_history(tmp_path / "missing.json") == []
+    (tmp_path / "bad.json").write_text("{not json")
+    assert read_history(tmp_path / "bad.json") == []

@@ -22,7 +22,43 @@ from ...tabular import write_csv
 from ..sections import Section
 from ..store import ResultStore
 from ..sweep import ExecResult, run_configs
-from ._util import append_history, executor, git_commit, save_figure
+from ._util import executor, git_commit, read_history, save_figure, write_history
+
+
+STOPPED_NOTE = "stopped before it finished: what it had run by then"
+"""An invocation's history entry while its runs go on: an invocation stopped before the end (a study past its time
+limit is killed) keeps it, so the runs it left in the store are still accounted for."""
+
+
+class _HistoryTally:
+    """The sweep's progress (:class:`~splitrender.experiments.sweep.RunProgress`) kept in the store's history: this
+    invocation's entry is written as its runs start and rewritten as each one finishes (the runs done, failed ones
+    included, and the seconds so far), then once more with the final counts (:meth:`write`)."""
+
+    def __init__(self, path: Path, entry: dict[str, Any], t0: float) -> None:
+        self.path, self.entry, self.t0 = path, entry, t0
+        self.before = read_history(path)
+
+    def start_all(self, total: int) -> None:
+        self._save()
+
+    def run_update(self, key: str, label: str, done: int, total: int) -> None:
+        pass
+
+    def run_done(self, key: str, label: str) -> None:
+        self.entry["ran"] += 1
+        self.entry["runs_s"] = round(time.perf_counter() - self.t0, 1)
+        self._save()
+
+    def write(self, **final: Any) -> list[dict[str, Any]]:
+        """The entry with ``final``'s counts; the whole history, this invocation last."""
+        self.entry.update(final)
+        return self._save()
+
+    def _save(self) -> list[dict[str, Any]]:
+        hist = [*self.before, dict(self.entry)]
+        write_history(self.path, hist)
+        return hist
 
 
 @dataclass
@@ -102,12 +138,14 @@ class Study:
         ex = executor(default_workers)
         commit = git_commit()   # the code that runs them (HEAD may move while they run)
         t0 = time.perf_counter()
-        res = run_configs(list(configs), self.store, **ex)
+        entry = {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit, "ran": 0, "cached": 0,
+                 "failed": 0, "runs_s": 0.0, "workers": ex["workers"], "dask": ex["dask"] or "", "note": STOPPED_NOTE}
+        tally = _HistoryTally(self.history_path, entry, t0)
+        res = run_configs(list(configs), self.store, progress=tally, **ex)
         runs_s = time.perf_counter() - t0
-        history = append_history(self.history_path, {
-            "utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit, "ran": len(res.ran),
-            "cached": len(res.cached), "failed": len(res.failures), "runs_s": round(runs_s, 1),
-            "workers": ex["workers"], "dask": ex["dask"] or ""})
+        entry.pop("note")
+        history = tally.write(ran=len(res.ran), cached=len(res.cached), failed=len(res.failures),
+                              runs_s=round(runs_s, 1))
         return GridRun(res, runs_s, ex["workers"], ex["dask"], commit, history)
 
     def table(self, name: str, rows: Iterable[dict[str, Any]], columns: Iterable[str] | None = None) -> Path:

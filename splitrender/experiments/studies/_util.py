@@ -12,6 +12,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ...errors import ConfigError
+from ...tabular import atomic_write_bytes
 
 ROOT = Path(__file__).resolve().parents[3]
 """The source checkout (where ``docs/`` and ``.git`` are, when the package runs from one)."""
@@ -89,21 +90,24 @@ def git_commit() -> str:
         return "unknown"
 
 
-def append_history(path: Path, entry: dict[str, Any]) -> list[dict[str, Any]]:
-    """Append one invocation (what ran when, and how long the runs took) to the JSON list at ``path`` and return the
-    whole list, so a table rebuilt from stored runs still says what produced them."""
+def read_history(path: Path) -> list[dict[str, Any]]:
+    """A study's store history (the JSON list at ``path``: one entry per invocation, what ran when and how long the
+    runs took), empty where there is none or it does not parse."""
     try:
         hist = json.loads(path.read_text()) if path.is_file() else []
     except ValueError:
-        hist = []
-    hist.append(entry)
+        return []
+    return hist if isinstance(hist, list) else []
+
+
+def write_history(path: Path, hist: list[dict[str, Any]]) -> None:
+    """Write a store history whole (atomically: a study stopped mid-write leaves the old list, not half of one)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(hist, indent=1))
-    return list(hist)
+    atomic_write_bytes(path, json.dumps(hist, indent=1).encode())
 
 
 def store_history_text(hist: list[dict[str, Any]]) -> str:
-    """One sentence on what filled a study's result store (the list :func:`append_history` keeps): every invocation
+    """One sentence on what filled a study's result store (the list :func:`read_history` reads): every invocation
     that ran something (a rebuild from the store runs nothing and is left out), when, at which commit, how many runs
     in how long, and where when it says; ``""`` when none ran."""
     ran = [h for h in hist if h.get("ran")]
