@@ -10,7 +10,7 @@ from typing import Literal
 from ...errors import ConfigError
 from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics
-from ..base import FRAME_DIV_KNOB, Knob, MethodConfig, QualityModel, with_model
+from ..base import FRAME_DIV_KNOB, QUEUE_TOLERANT_ESTIMATOR, Knob, MethodConfig, QualityModel, with_model
 from .allocator import STRATEGIES, AtlasLayout
 
 
@@ -24,16 +24,12 @@ the pipeline's one n-th): its frames carry 1.23, 1.76 and 2.43 times the bytes (
 motion, and each frame's PVS, geometry and tables grow with it; ``benchmarks/bench_knobs.py --quality --methods sas
 --knobs frame_div``, 2 s, cc91518: ``benchmarks/results/bench_knobs_quality_sas_frame_div_2s.json``).  Per second
 one frame in 3 saves little over one in 2."""
-ESTIMATOR: tuple[tuple[str, object], ...] = (("start_probes", (3.0, 6.0, 12.0, 24.0)), ("acked_cap", 2.0),
-                                              ("probe_interval_s", 1.0))
-"""The estimator of an adapting session (``QualityModel.estimator``): a method that redraws geometry at the display pose
-takes the queue an estimate that runs ahead may leave, as tss does (measured there: ``methods/tss/config.py``)."""
 QUALITY = QualityModel(
     (("bias_fill", (0.0, 0.55, 1.27, 2.57)), ("texels_per_px", (0.0, 0.55, 1.27, 2.57)),
      ("frame_div", (0.0, 0.81, 1.45, 2.61))),
     latency_db_per_100ms=0.66, rate_db_per_halving=1.40,
     measured="benchmarks/bench_knobs.py --quality --methods sas, 2026-12-06, c06f4f3 with issue 50's I-frames: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s",
-    estimator=ESTIMATOR)
+    estimator=QUEUE_TOLERANT_ESTIMATOR)
 """sas's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 31.13 dB at its own point;
 the atlas budget's levels lose 0.55, 1.27 and 2.57 dB (``texels_per_px``, the budget without ``fill_atlas``, is
 taken to lose what ``bias_fill`` does); one server frame in 2, 3, 5: 0.81, 1.45, 2.61 dB; +200 ms of

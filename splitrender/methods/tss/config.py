@@ -10,7 +10,7 @@ from typing import Literal
 from ...errors import ConfigError
 from ...limits import ClientSize
 from ...scene.pose import CameraIntrinsics
-from ..base import FRAME_DIV_KNOB, Knob, MethodConfig, QualityModel, with_model
+from ..base import FRAME_DIV_KNOB, QUEUE_TOLERANT_ESTIMATOR, Knob, MethodConfig, QualityModel, with_model
 
 
 TSS_KNOB_STEPS = (1.0, 0.7, 0.5, 0.35)
@@ -24,23 +24,13 @@ three and five times the motion; ``benchmarks/bench_knobs.py --quality``, 2 s; 1
 at one frame in 2 gave the atlas half its rate, a quarter under what its frames take, and the calibration made there
 (a frame's bytes over the prior) put the method's own point a third above its rate, too dear to go back to
 (``docs/experiments.md``: tss on the 8 Mbit/s cellular-like trace at one frame in 2 from 1 to 7 s)."""
-ESTIMATOR: tuple[tuple[str, object], ...] = (("start_probes", (3.0, 6.0, 12.0, 24.0)), ("acked_cap", 2.0),
-                                              ("probe_interval_s", 1.0))
-"""The estimator of an adapting session (``QualityModel.estimator``; :class:`~splitrender.pipeline.gcc.GccConfig`):
-a method that redraws geometry at the display pose takes the queue an estimate that runs ahead may leave, where video
-and atw show it as latency.  Start-up probes at 3x to 24x the start rate (to 7.2 Mbit/s, back to back: the estimate
-found within the first feedback, where its atlas's first I-frames were coded under ceilings of 0.27-3.5 Mbit/s);
-an increase up to twice the acknowledged rate, not 1.5 (an application-limited session at one frame in 2 held its
-estimate at 1.5x what that point sends); a periodic probe every second, not two.  tss on the 8 Mbit/s cellular-like
-trace (8 s, ``bench_adapt_quality``'s run, 2026-12-07, 99f0add plus the change): 26.86 dB without them, 27.73 with the
-probes alone, 27.90 with all three (``off`` 28.90), 27.48 with a gentler decrease (``beta`` 0.9) as well."""
 QUALITY = QualityModel(
     (("samples_per_px", (0.0, 0.58, 1.26, 1.63)), ("budget_px", (0.0, 0.58, 1.26, 1.63)),
      ("frame_div", (0.0, 0.29, 0.81, 1.98))),
     latency_db_per_100ms=0.22, rate_db_per_halving=1.23,
     measured="benchmarks/bench_knobs.py --quality, 2026-12-06, fb7ffbf: default+nogi, walk, 320x180, 2 s, delay 20ms, model PSNR after 0.5 s; "
              "frame_div: --knobs frame_div --duration 8, 2026-12-07, f77d872",
-    estimator=ESTIMATOR)
+    estimator=QUEUE_TOLERANT_ESTIMATOR)
 """tss's quality model (:class:`~splitrender.methods.base.QualityModel`): model PSNR 27.59 dB at its own point;
 the sample budget's levels lose 0.58, 1.26 and 1.63 dB for 16, 28 and 40 % of the bytes (``budget_px``, the moving
 budget, is taken to lose what ``samples_per_px`` does); one server frame in 2, 3, 5: 0.29, 0.81, 1.98 dB over the
