@@ -156,8 +156,8 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 # live-against-virtual-time update age failed 1 run in 3 beside two nice-10 busy loops (119 ms against a bound of
 # 65) where it passed 3 of 3 beside two nice-0 loops: the load meter those bounds scale by (tests/_load.py, a nice-0
 # thread) does not see a niced neighbour, which still delays a live pipeline.  So it stays off until the live bounds
-# scale by what a niced neighbour costs them.  Instead, on an otherwise idle machine, the live files now come first,
-# beside the suite at its own priority (:data:`WAITING_FILES_S`): there the suite's method workers are the filler.
+# scale by what a niced neighbour costs them.  Handing the live files out first, beside the suite at its own priority
+# (:data:`WAITING_FILES_S`, :data:`LIVE_FIRST_ENV`), did not help either (measured there).
 
 #: Seconds the slowest virtual-time files took in the clean-clone CI at 5e1a817 (idle, ``-n 2``, 10:44; the session
 #: summary's "slowest files" line: each file's setup, call and teardown summed, beside the background stress suite
@@ -179,7 +179,7 @@ LIVE_FILES = frozenset({"test_live_e2e.py", "test_live_errors.py", "test_live_in
 #: CPU s, test_webrtc_hostile 37 for 10, test_live_rate 26 for 9, test_live_memory 21 for 4).  Those waits left a core
 #: idle once the background stress suite was done (at 8de5067 it ran from 8 to 247 s, the live files from 425 s on: the
 #: workers' live files took 261 s of wall for 116 CPU s, ~145 core-seconds of the 2 x 688 - 1,131 = 245 the session left
-#: unused).  Under xdist they are handed out first on an otherwise idle machine (:data:`LIVE_FIRST_ENV`), longest first,
+#: unused).  Under xdist they may be handed out first (:data:`LIVE_FIRST_ENV`), longest first,
 #: so that they run beside the stress suite, whose two method workers take the core they leave (the suite is ~250 CPU s,
 #: one core for ~250 s; these files take ~150 s of each worker), and every file after them uses its core whole.  Live
 #: tests assert what was shown against what was sent, and the few timed bounds scale by the load measured beside them
@@ -286,44 +286,21 @@ def pytest_collection_modifyitems(session, config, items) -> None:  # type: igno
         _start_stress(config)
 
 
-#: ``SR_LIVE_FIRST``: 1 hands out :data:`WAITING_FILES_S` first under xdist, 0 keeps them after the slow files.  Unset,
-#: the controller sets it from :func:`_others_runnable` as the session starts: first only on a machine that is
-#: otherwise idle.  Beside the suite the live files share their workers' scheduling group's core between them (the
-#: suite, a session of its own, is a group of its own under autogroup): together they use about one core (test_live_e2e
-#: 52 CPU s in 109 s, test_browser 31 in 67), so each gets about what it would get with a free core, as before.  With
-#: other work beside (two busy loops: a third group, or two more tasks in the tests' group) their share would fall
-#: to a third or a quarter of a core where it was a half, and at load 17-20 of this day's other work 5 of 44 live tests
-#: failed without the suite beside them and 11 of 222 with it (helper-86): so on a busy machine they keep their later
-#: place, after the suite, as before.
+#: ``SR_LIVE_FIRST``: 1 hands out :data:`WAITING_FILES_S` first under xdist, beside the background stress suite; unset
+#: or 0 keeps them after the slow files.  Tried as the default on an otherwise idle machine (helper-86's estimate: the
+#: suite's method workers would fill the core the live files' waits leave, ~70 s less wall) and measured in a
+#: clean-clone CI at cb307b5, idle: 11:34 (against 11:27-11:49 in the old order), the live files 201 and 206 s of
+#: the two workers' wall for 61 and 59 CPU s (test_live_e2e 189 s against 109), and two live tests failed on the
+#: share of a core they were left (a good session stalled 1.47 s beside a metadata bomb; the virtual-time/live
+#: quality agreement 0.83 dB apart against 0.5).  So it is off unless asked for.
 LIVE_FIRST_ENV = "SR_LIVE_FIRST"
-#: Processes of others runnable on average (:func:`_others_runnable`) from which the machine counts as busy: two busy
-#: loops read 2, an idle machine 0-0.3.
-BUSY_OTHERS = 0.75
-
-
-def _others_runnable(samples: int = 20, every_s: float = 0.025) -> float:
-    """How many processes other than this one are runnable on the machine, on average over ``samples`` readings of
-    ``/proc/loadavg``'s running count, ``every_s`` apart (0.5 s in all; a load average would lag a minute behind
-    loops started just before the session).  Inf where it cannot be read: the busy machine's order, the safe one."""
-    import time
-
-    seen = []
-    for _ in range(samples):
-        try:
-            with open("/proc/loadavg") as f:
-                seen.append(int(f.read().split()[3].split("/")[0]) - 1)     # this process, reading, is one of them
-        except (OSError, IndexError, ValueError):
-            return float("inf")
-        time.sleep(every_s)
-    return sum(seen) / len(seen)
 
 
 def _xdist_rank(name: str, count: int) -> tuple[int, float, int]:
-    """Where the file ``name`` of ``count`` selected tests comes under xdist: on an otherwise idle machine
-    (:data:`LIVE_FIRST_ENV`) the files that wait on real time first (:data:`WAITING_FILES_S` longest first, then the
-    other :data:`LIVE_FILES` by test count), beside the background stress suite; then :data:`SLOW_FILES_S` longest
-    first; then the rest by test count (most first), the live files among them on a busy machine; test_stress.py last
-    (it reads the suite's rows)."""
+    """Where the file ``name`` of ``count`` selected tests comes under xdist: with :data:`LIVE_FIRST_ENV` the files
+    that wait on real time first (:data:`WAITING_FILES_S` longest first, then the other :data:`LIVE_FILES` by test
+    count), beside the background stress suite; then :data:`SLOW_FILES_S` longest first; then the rest by test count
+    (most first), the live files among them by default; test_stress.py last (it reads the suite's rows)."""
     if name == STRESS_FILE:
         return 3, 0.0, 0
     if (name in WAITING_FILES_S or name in LIVE_FILES) and os.environ.get(LIVE_FIRST_ENV) == "1":
@@ -348,11 +325,6 @@ def pytest_configure(config) -> None:  # type: ignore[no-untyped-def]
         if getattr(config.option, "testrunuid", None) is None:
             config.option.testrunuid = uuid.uuid4().hex
         config._sr_xdist_uid = config.option.testrunuid
-        # decided once, here, before the workers start (they inherit the environment): each must collect one order
-        if LIVE_FIRST_ENV not in os.environ:
-            others = _others_runnable()
-            os.environ[LIVE_FIRST_ENV] = "1" if others < BUSY_OTHERS else "0"
-            config._sr_others_runnable = others
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:  # type: ignore[no-untyped-def]
@@ -495,12 +467,8 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:  # ty
         rows = [f"{w} {r[0]:.0f}, {r[1]:.0f}; {r[3]:.0f}, {r[4]:.0f}; {end - r[2]:.0f}" for w, r in sorted(per.items())]
         terminalreporter.write_line("workers (files' wall s, their CPU s; live files' wall s, their CPU s; idle "
                                     "after the last file): " + ", ".join(rows))
-    if not hasattr(config, "workerinput") and os.environ.get(LIVE_FIRST_ENV) is not None and len(_FILE_S) > 1:
-        others = getattr(config, "_sr_others_runnable", None)
-        why = f"{others:.1f} other processes runnable as it started" if others is not None else LIVE_FIRST_ENV
-        first = os.environ[LIVE_FIRST_ENV] == "1"
-        terminalreporter.write_line("live files: " + ("first, beside the stress suite" if first
-                                                      else "after the slow files (a busy machine)") + f" ({why})")
+    if not hasattr(config, "workerinput") and os.environ.get(LIVE_FIRST_ENV) == "1" and len(_FILE_S) > 1:
+        terminalreporter.write_line(f"live files: first, beside the stress suite ({LIVE_FIRST_ENV}=1)")
     span = getattr(config, "_sr_stress_span", None)
     if span is None:
         return
