@@ -211,7 +211,25 @@ def lp_lookup(bary: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray, np.
     return t, x, y
 
 
-def lp_reconstruct(blocks: np.ndarray, bary: np.ndarray, level: int) -> np.ndarray:
+def lp_inset_offset(level: np.ndarray | int, inset: float) -> np.ndarray:
+    """The smallest barycentric ``d0`` of an inset L-packing lattice (``inset`` > 0; 0: the paper's, on the edges):
+    ``inset / (3 (l + 1))``.  At ``inset`` 1 the outer ring sits half a ring spacing inside the triangle (``d0 = (1 -
+    3 d0) i(l) / 2``), so no sample lies on an edge or a corner: none is one a neighbouring triangle shades again, and
+    the same ``v(l)`` samples cover the triangle ``(l + 1) / l`` times more densely along each side than the paper's
+    lattice, whose ``3 l`` outer samples (``3 l / v(l)``, 14 % of a level-13 patch) are shared.  Level 1's three
+    samples are then ``(2/3, 1/6, 1/6)`` and its rotations.  The client extrapolates past the outer ring
+    (:func:`lp_reconstruct`), exact for linear shading."""
+    return float(inset) / (3.0 * (np.asarray(level, np.float64) + 1.0))
+
+
+def lp_inset_coords(bary: np.ndarray, level: int, inset: float) -> np.ndarray:
+    """Where the sample of the lattice point ``bary`` (N, 3) is shaded with the lattice inset (:func:`lp_inset_offset`):
+    ``d0 + (1 - 3 d0) bary``; it is stored where :func:`lp_positions` puts ``bary`` (``shaders/tss_shade.tese``)."""
+    d0 = float(lp_inset_offset(level, inset))
+    return d0 + (1.0 - 3.0 * d0) * np.asarray(bary, np.float64)
+
+
+def lp_reconstruct(blocks: np.ndarray, bary: np.ndarray, level: int, inset: float = 0.0) -> np.ndarray:
     """The client's L-packing reconstruction (``shaders/client.frag``) at points ``bary`` (N, 3) from the three tip
     blocks ``blocks`` (3, D, D, ...) of one triangle at ``level``: (N, ...) values.
 
@@ -220,16 +238,25 @@ def lp_reconstruct(blocks: np.ndarray, bary: np.ndarray, level: int) -> np.ndarr
     third of a sample step from where the tap takes it to be, and in the innermost ring of an odd level, which has no
     row of its own.  There the point is interpolated linearly on the three samples around it: on a diagonal cell the
     two diagonal texels and the one on the point's side, in the innermost ring its three corners (texels ``(k, k)``,
-    ``(k + 1, k)`` and ``(k, k + 1)`` of the block, ``k = level // 2``).  Exact for linear shading at every level."""
+    ``(k + 1, k)`` and ``(k, k + 1)`` of the block, ``k = level // 2``).  Exact for linear shading at every level.
+
+    ``inset`` > 0 (:func:`lp_inset_offset`): the point is first moved into the inset lattice's coordinates, ``(bary -
+    d0) / (1 - 3 d0)``, whose smallest coordinate is down to ``-1 / (3 l)`` (half a ring) near the edges; there the
+    block's edge cell is extrapolated (bilinear, or the diagonal cell's three samples), still exact for linear
+    shading."""
     b = np.asarray(bary, np.float64)
+    if inset > 0:
+        d0 = float(lp_inset_offset(level, inset))
+        b = (b - d0) / (1.0 - 3.0 * d0)
     n = np.arange(len(b))
     D = int(tip_dim(level))
     k = int(max_ring(level))
     t, x, y = lp_lookup(b, level)
     a, q = (t + 1) % 3, (t + 2) % 3
     m_val = np.minimum(b[n, a], b[n, q])
-    x0 = np.minimum(np.floor(x).astype(np.int64), D - 1)
-    y0 = np.minimum(np.floor(y).astype(np.int64), D - 1)
+    lo, hi = (0, max(D - 2, 0)) if inset > 0 else (None, D - 1)
+    x0 = np.clip(np.floor(x).astype(np.int64), lo, hi)
+    y0 = np.clip(np.floor(y).astype(np.int64), lo, hi)
     fx, fy = x - x0, y - y0
     x1, y1 = np.minimum(x0 + 1, D - 1), np.minimum(y0 + 1, D - 1)
     ex = (slice(None),) + (None,) * (blocks.ndim - 3)
@@ -246,7 +273,8 @@ def lp_reconstruct(blocks: np.ndarray, bary: np.ndarray, level: int) -> np.ndarr
         w = [((b[n, j] - d) / (1.0 - 3.0 * d))[ex] for j in (t, a, q)]
         kk = np.full(len(b), k)
         centre = w[0] * T(kk, kk) + w[1] * T(kk + 1, kk) + w[2] * T(kk, kk + 1)
-        out = np.where((m_val * 1.5 * level > k)[ex], centre, out)
+        # level 1 inset: its three samples everywhere (its block's fourth texel is no sample to extrapolate with)
+        out = np.where((m_val * 1.5 * level > k)[ex] | (inset > 0 and level == 1), centre, out)
     return out
 
 

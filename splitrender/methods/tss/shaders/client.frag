@@ -10,6 +10,7 @@ uniform sampler2D u_atlas;
 uniform vec2 u_atlas_size;
 uniform int u_single_px;    // side of a single texel's cell (layout.single_origins)
 uniform int u_os_centred;   // oversampling grid: 1 cell centres, taps clamped to each row (layout.os_centred_taps)
+uniform float u_lp_inset;   // L-packing lattice moved off the edges (layout.lp_inset_offset; 0: the paper's)
 uniform int u_lp_cubic;     // L-packing off the diagonal: Catmull-Rom over 4x4 texels of the point's side (lp_filter)
 layout(location = 0) out vec4 f_color;
 
@@ -58,6 +59,10 @@ void main() {
         // the innermost ring of odd levels, which holds no row, interpolate linearly on the three samples around
         // the point instead (layout.lp_reconstruct; exact for linear shading)
         float l = v_info.y;
+        if (u_lp_inset > 0.0) {
+            float d0 = u_lp_inset / (3.0 * (l + 1.0));
+            B = (B - d0) / (1.0 - 3.0 * d0);   // the lattice's coordinates: below 0 by up to half a ring, extrapolated
+        }
         int li = int(l + 0.5), k = li / 2;
         int t = B.x >= B.y && B.x >= B.z ? 0 : (B.y >= B.z ? 1 : 2);
         int a = (t + 1) % 3, q = (t + 2) % 3;
@@ -66,7 +71,8 @@ void main() {
         float m = side_a ? B[q] : B[a];
         ivec2 o = ivec2(tip_origin(t));
         int Dm = (li + 2) / 2 + (li & 1) - 1;
-        if ((li & 1) == 1 && m * 1.5 * l > float(k)) {
+        // (inset level 1: its three samples everywhere, the block's fourth texel is no sample to extrapolate with)
+        if ((li & 1) == 1 && (m * 1.5 * l > float(k) || (u_lp_inset > 0.0 && li == 1))) {
             float d = 2.0 * float(k) / (3.0 * l);
             vec3 w = (vec3(B[t], B[a], B[q]) - d) / (1.0 - 3.0 * d);
             f_color = vec4(w.x * texelFetch(u_atlas, o + ivec2(k, k), 0).rgb + w.y * texelFetch(u_atlas, o + ivec2(k + 1, k), 0).rgb
@@ -77,6 +83,28 @@ void main() {
         float c = (s + 0.5 * m) * l;
         vec2 xy = side_a ? vec2(c, r) : vec2(r, c);
         ivec2 i0 = ivec2(floor(xy));
+        if (u_lp_inset > 0.0) {
+            // the outer ring lies inside the triangle: the lattice's edge cell, bilinear (or the diagonal cell's
+            // three samples), extrapolated past it; with lp_filter cubic the Catmull-Rom at the point moved onto
+            // the lattice plus the edge cell's linear step to the point (layout.lp_inset_offset)
+            i0 = clamp(i0, ivec2(0), ivec2(max(Dm - 1, 0)));
+            vec2 f = xy - vec2(i0);
+            ivec2 i1 = min(i0 + 1, ivec2(Dm));
+            vec3 c00 = texelFetch(u_atlas, o + i0, 0).rgb, c11 = texelFetch(u_atlas, o + i1, 0).rgb;
+            vec3 v;
+            if (u_lp_cubic != 0 && i0.x != i0.y) {
+                vec2 xc = clamp(xy, vec2(0.0), vec2(float(Dm)));
+                vec3 c10 = texelFetch(u_atlas, o + ivec2(i1.x, i0.y), 0).rgb, c01 = texelFetch(u_atlas, o + ivec2(i0.x, i1.y), 0).rgb;
+                v = lp_cubic(o, xc, side_a, Dm) + (xy.x - xc.x) * (c10 - c00) + (xy.y - xc.y) * (c01 - c00);
+            } else if (i0.x != i0.y)
+                v = (1.0 - f.x) * (1.0 - f.y) * c00 + f.x * (1.0 - f.y) * texelFetch(u_atlas, o + ivec2(i1.x, i0.y), 0).rgb
+                    + (1.0 - f.x) * f.y * texelFetch(u_atlas, o + ivec2(i0.x, i1.y), 0).rgb + f.x * f.y * c11;
+            else
+                v = side_a ? (1.0 - f.x) * c00 + (f.x - f.y) * texelFetch(u_atlas, o + ivec2(i1.x, i0.y), 0).rgb + f.y * c11
+                           : (1.0 - f.y) * c00 + (f.y - f.x) * texelFetch(u_atlas, o + ivec2(i0.x, i1.y), 0).rgb + f.x * c11;
+            f_color = vec4(clamp(v, 0.0, 1.0), 1.0);
+            return;
+        }
         if (i0.x != i0.y) {
             if (u_lp_cubic != 0) {
                 f_color = vec4(lp_cubic(o, xy, side_a, Dm), 1.0);

@@ -19,6 +19,7 @@ patch in vec4 p_o1;
 layout(rgba8, binding = 0) uniform writeonly image2D u_atlas;
 layout(std430, binding = 1) buffer Counters { uint n_shaded; };
 uniform vec3 u_eye;
+uniform float u_lp_inset;  // L-packing: the lattice moved off the triangle's edges (layout.lp_inset_offset; 0: off)
 uniform int u_single_px;   // single texels fill a cell this many texels square (layout.single_origins)
 #include "tss_gather.glsl"
 // The sample an invocation shades (oversampling: from its linear thread id), and whether it shades one.
@@ -57,6 +58,9 @@ void main() {
         Bs = vec3(1.0 / 3.0);
     } else if (kind == 2) {
         valid = os_sample(B, l, Bs, at);
+    } else if (u_lp_inset > 0.0) {         // shaded off the edges, stored where the edge lattice would be
+        float d0 = u_lp_inset / (3.0 * float(l + 1));
+        Bs = d0 + (1.0 - 3.0 * d0) * B;
     }
     if (!valid) return;
     vec3 c = shade_at(Bs);
