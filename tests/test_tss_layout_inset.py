@@ -39,3 +39,14 @@ def test_inset_lattice_is_off_the_edges_and_read_back_exactly_for_linear_shading
     assert err.max() < 1e-9, (lv, err.max())
     paper = np.abs(lp_reconstruct(img, P, lv) - P @ c).max()
     assert paper > 0.02, (lv, paper)
+
+
+def test_the_inset_is_a_checked_config_field() -> None:
+    """``lp_inset`` is a :class:`TssConfig` field (off by default), in [0, 1] half ring spacings, a named error outside."""
+    from splitrender.errors import ConfigError
+    from splitrender.methods.tss.config import TssConfig
+
+    assert TssConfig().lp_inset == 0.0 and TssConfig(lp_inset=1.0).lp_inset == 1.0
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ConfigError, match="TssConfig.lp_inset: must be in"):
+            TssConfig(lp_inset=bad)

@@ -55,14 +55,12 @@ def test_interior_error_falls_with_the_samples_no_per_sample_floor(shared_run) -
 
 
 @pytest.mark.skipif(not os.path.exists(TTT), reason="assimp-testmodels not installed")
-def test_inset_lattice_raises_the_interior_from_the_same_samples(shared_run, renderer, truth_cache, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def test_inset_lattice_raises_the_interior_from_the_same_samples(shared_run, renderer, truth_cache) -> None:  # type: ignore[no-untyped-def]
     """The L-packing lattice inset off the triangles' edges (``lp_inset`` 1, ``layout.lp_inset_offset``): the same
     ``v(l)`` samples, none of them on an edge that a neighbour shades again, so each triangle's own are denser; the
     client extrapolates past the outer ring.  Lossless at ``sas``'s budget (helper-90, at d5eebc1):
-    interior 50.05 -> 51.13 dB, 173,572 samples shaded in both.  The option's switch is a ``TssConfig`` field that
-    ``config.py`` does not hold yet: the test sets it on the class (read with ``getattr``, default 0).  Bounds: the
+    interior 50.05 -> 51.13 dB, 173,572 samples shaded in both (``TssConfig.lp_inset``, off by default).  Bounds: the
     same samples, the rise at least 0.6 dB (measured 1.08)."""
-    from splitrender.methods.tss.config import TssConfig
     from splitrender.sim.config import RunConfig
     from splitrender.sim.runner import run
 
@@ -74,8 +72,8 @@ def test_inset_lattice_raises_the_interior_from_the_same_samples(shared_run, ren
     cfg = RunConfig(method="tss", scene=TTT, trace="static", network="ideal", duration_s=0.3, width=320, height=180,
                     client_fps=30, flip_every=0, seed=0, method_params={**MATCHED, "budget_px": SAS_BUDGET_PX})
     paper, n_paper = go(shared_run(cfg))
-    monkeypatch.setattr(TssConfig, "lp_inset", 1.0, raising=False)
-    inset, n_inset = go(run(cfg.replace(truth_cache=truth_cache), renderer=renderer))
+    inset_cfg = cfg.replace(truth_cache=truth_cache, method_params={**cfg.method_params, "lp_inset": 1.0})
+    inset, n_inset = go(run(inset_cfg, renderer=renderer))
     got = {"paper": paper, "inset": inset, "shaded": (n_paper, n_inset)}
     assert n_inset == n_paper and n_paper, got
     assert inset >= paper + 0.6, got

@@ -146,8 +146,8 @@ class TssClient(ClientHalf):
             self.prog["u_atlas"].value = 0
             self.prog["u_atlas_size"].value = tuple(float(x) for x in self.session.atlas)
             set_uniform(self.prog, "u_os_centred", int(self.session.os_grid == "centred"))
-            set_uniform(self.prog, "u_lp_inset", float(getattr(self.config, "lp_inset", 0.0)))
-            set_uniform(self.prog, "u_lp_cubic", int(getattr(self.config, "lp_filter", "linear") == "cubic"))
+            set_uniform(self.prog, "u_lp_inset", float(self.config.lp_inset))
+            set_uniform(self.prog, "u_lp_cubic", int(self.config.lp_filter == "cubic"))
             set_uniform(self.prog, "u_single_px", self.table.single_px if self.table is not None else 1)
             self._vao.render(vertices=3 * self._n)
         color, covered = self.canvas.read()

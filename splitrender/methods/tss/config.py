@@ -189,6 +189,13 @@ class TssConfig(MethodConfig):
     per covered pixel: TextureTransformTest 46.28 -> 48.19 dB, the default scene 36.70 -> 36.84; the same bits, but
     coded at crf 31 the codec's error hides it (``docs/methods.md``), so off by default.
 
+    ``lp_inset`` (0: the paper's lattice, samples on the edges): how far an L-packed triangle's lattice sits inside its
+    edges, in half ring spacings (:func:`~.layout.lp_inset_offset`; 1: the outer ring half a spacing in, no sample
+    shared with a neighbour, the same samples ``(l + 1) / l`` times denser along each side; the client extrapolates
+    past the outer ring).  Lossless at ``sas``'s budget, 320x180 still: interior +1.1 dB on TextureTransformTest,
+    +4.2 on the duck, but the duck's whole model -1.1 (three silhouette pixels extrapolated, not sampled), and coded at
+    crf 23 it loses on both (``docs/methods.md``), so off by default.
+
     ``live_refresh_frames`` (4; 0: off): live only (the renderer relights the GI probes at a rate, ``Renderer.gi_hz``
     > 0; virtual time and the ground truth relight them for every frame and are untouched), a P-frame gathers again
     only the triangles whose samples would be wrong, not only late: new to the atlas or in another cell (the table
@@ -231,6 +238,7 @@ class TssConfig(MethodConfig):
     colour_order: float = 0.0
     lp_own: bool = True
     lp_filter: Literal["linear", "cubic"] = "linear"
+    lp_inset: float = 0.0
     live_refresh_frames: int = 4
 
     def adapt_knobs(self) -> tuple[Knob, ...]:
@@ -299,6 +307,8 @@ class TssConfig(MethodConfig):
                               f"got {self.colour_order}")
         if self.lp_filter not in ("linear", "cubic"):
             raise ConfigError(f"TssConfig.lp_filter: {self.lp_filter!r} is not one of ['linear', 'cubic']")
+        if not 0.0 <= self.lp_inset <= 1.0:
+            raise ConfigError(f"TssConfig.lp_inset: must be in [0, 1] half ring spacings (0: off), got {self.lp_inset}")
         if not 1 <= self.split_max_triangles <= 50_000_000:
             raise ConfigError(f"TssConfig.split_max_triangles: must be in [1, 5e7], got {self.split_max_triangles}")
 

@@ -863,7 +863,7 @@ class TssServer(ServerHalf):
         prog["u_view"].write(np.asarray(ctx.target_pose.view_matrix(), "f4").T.tobytes())
         set_reference_view(prog, self.intrinsics, ctx.target_pose)   # per-sample texture gradients
         set_uniform(prog, "u_os_centred", int(self.config.os_grid == "centred"))
-        set_uniform(prog, "u_lp_inset", float(getattr(self.config, "lp_inset", 0.0)))   # layout.lp_inset_offset
+        set_uniform(prog, "u_lp_inset", float(self.config.lp_inset))   # layout.lp_inset_offset
         set_uniform(prog, "u_single_px", plan.single_px)
         self._tex.bind_to_image(0, read=False, write=True)
         self._counter.bind_to_storage_buffer(1)
