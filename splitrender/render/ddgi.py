@@ -461,41 +461,29 @@ class DdgiVolume:
             merged.append(a)
         for tex, a in zip(self._cap, merged):
             tex.write(np.ascontiguousarray(a).tobytes())
-        if ids is None:
-            self._derive(merged[0], merged[1])
-        else:
-            self._derive_probes(merged[0], merged[1], ids)
+        self._derive(merged[0], merged[1], ids)
 
     def _half_ids(self, half: int) -> np.ndarray:
         """The probes of half ``half`` (0 or 1) of :data:`RELIGHT_HALVES`: those in the even or odd rows of the atlas."""
         return np.flatnonzero((np.arange(self.count) // self.cols) % 2 == half)
 
-    def _derive_probes(self, pos: np.ndarray, nrm: np.ndarray, ids: np.ndarray) -> None:
-        """:meth:`_derive` for probes ``ids`` only (the same steps on their rows), the others' active flags and moments
-        as they are."""
-        active, moments = self.active.copy(), np.array(self.moments, copy=True)
+    def _derive(self, pos: np.ndarray, nrm: np.ndarray, ids: np.ndarray | None = None) -> None:
+        """Active flags and visibility moments from the G-buffer's positions and normals; with ``ids``, of those probes
+        only (:data:`RELIGHT_HALVES`: the same steps on their rows), the others' flags and moments as they are."""
+        sel = slice(None) if ids is None else ids
         hit = self._per_ray(pos[..., 3:4], ids)[..., 0] > 0.5
         back = self._per_ray(nrm[..., 3:4], ids)[..., 0] > 0.5
-        active[ids] = (back & hit).mean(axis=1) <= BACKFACE_INACTIVE
-        dist = np.linalg.norm(self._per_ray(pos[..., :3], ids) - self.positions[ids][:, None, :], axis=-1)
+        active = (back & hit).mean(axis=1) <= BACKFACE_INACTIVE
+        dist = np.linalg.norm(self._per_ray(pos[..., :3], ids) - self.positions[sel][:, None, :], axis=-1)
         dist = np.where(hit, np.minimum(dist, self.max_distance), self.max_distance)
-        dist = np.where(back & hit, dist * 0.2, dist)
+        dist = np.where(back & hit, dist * 0.2, dist)          # DDGI: back faces pull the distance in
         d = dist.astype(np.float32)
-        moments[ids] = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1)
-        self.active, self.moments = active, moments
-        self._write_visibility()
-
-    def _derive(self, pos: np.ndarray, nrm: np.ndarray) -> None:
-        """Active flags and visibility moments from the G-buffer's positions and normals."""
-        nrm = nrm.astype(np.float32)
-        self._hit = self._per_ray(pos[..., 3:4])[..., 0] > 0.5
-        back = self._per_ray(nrm[..., 3:4])[..., 0] > 0.5
-        self.active = (back & self._hit).mean(axis=1) <= BACKFACE_INACTIVE
-        dist = np.linalg.norm(self._per_ray(pos[..., :3]) - self.positions[:, None, :], axis=-1)
-        dist = np.where(self._hit, np.minimum(dist, self.max_distance), self.max_distance)
-        dist = np.where(back & self._hit, dist * 0.2, dist)          # DDGI: back faces pull the distance in
-        d = dist.astype(np.float32)
-        self.moments = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1).astype(np.float32)   # (count, VIS^2, 2)
+        moments = np.stack([d @ self._w_vis.T, (d * d) @ self._w_vis.T], axis=-1).astype(np.float32)   # (n, VIS^2, 2)
+        if ids is None:
+            self.active, self.moments = active, moments
+        else:       # new arrays: the old ones may be held by the shared state cache
+            self.active, self.moments = self.active.copy(), np.array(self.moments, copy=True)
+            self.active[ids], self.moments[ids] = active, moments
         self._write_visibility()
 
     def _write_visibility(self) -> None:
