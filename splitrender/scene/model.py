@@ -293,6 +293,10 @@ class Scene:
     def dynamic_ids(self) -> list[int]:
         return [o.object_id for o in self.objects if o.dynamic]
 
+    def light_intensities(self) -> list[Schedule]:
+        """The lights' intensity schedules: the sun's first, if any, then the point lights' in order."""
+        return ([self.sun.intensity] if self.sun is not None else []) + [pl.intensity for pl in self.point_lights]
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)

@@ -163,16 +163,14 @@ def outside_frustum(wide: CameraIntrinsics, main: CameraIntrinsics) -> np.ndarra
 def timeless(scene: Any) -> bool:
     """Whether ``scene`` renders the same at every time: nothing moves, no light's intensity changes and no GI
     probes are relit (a render at one pose is then the same bytes at any time)."""
-    const = [scene.sun.intensity] if scene.sun is not None else []
-    const += [pl.intensity for pl in scene.point_lights]
+    const = scene.light_intensities()
     return not scene.dynamic_ids() and all(len(s.values) == 1 for s in const) and scene.gi == "none"
 
 
 def lights_at(scene: Any, t_s: float) -> tuple[Any, ...]:
     """The scene's version and its lights' intensities at ``t_s``: where two times give the same, a view's shading
     changes between them only with what moves (:data:`ESTIMATE_MARGIN_DB`)."""
-    lights = ([scene.sun.intensity] if scene.sun is not None else []) + [pl.intensity for pl in scene.point_lights]
-    return (scene.version, *(s.value(t_s) for s in lights))
+    return (scene.version, *(s.value(t_s) for s in scene.light_intensities()))
 
 
 def same_pose(a: Pose, b: Pose) -> bool:
