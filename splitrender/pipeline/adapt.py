@@ -418,6 +418,12 @@ def stream_fps(specs: Iterable[object]) -> float:
     return max(rates) if rates else 30.0
 
 
+def knobs_model(knobs: Iterable[Any]) -> Any:
+    """The method's quality model its knobs carry (:class:`~splitrender.methods.base.QualityModel`; the first knob
+    that has one), or None."""
+    return next((k.model for k in knobs if getattr(k, "model", None) is not None), None)
+
+
 def build_ladder(knobs: tuple[Any, ...]) -> list[tuple[int, ...]]:
     """The operating points, richest first: from every knob at its first level, each step lowers the next knob (in
     declaration order, round robin) that has a level left, so no knob is spent before the others are touched; knobs
@@ -568,8 +574,7 @@ class PointController:
         self.knobs = tuple(k for k in knobs if not (k.name in seen or seen.add(k.name)))   # of a name is kept
         self.rate = rate
         self.cfg = cfg or rate.cfg
-        self.model = model if model is not None else next(
-            (k.model for k in self.knobs if getattr(k, "model", None) is not None), None)
+        self.model = model if model is not None else knobs_model(self.knobs)
         """The method's quality model (None: the richest point that fits, as without one)."""
         self.ladder = quality_ladder(self.knobs, self.model) if self.model is not None else build_ladder(self.knobs)
         if self.model is not None and self.rate.buffer_ms is None and self.tolerance_ms > self.cfg.mtp_budget_ms:

@@ -75,7 +75,8 @@ from ..scene.pose import CameraIntrinsics, Pose as ScenePose
 from ..scene.predict import make_predictor
 from ..protocol.twcc import (DEFAULT_EXTENSION_ID, FeedbackRecorder, SendHistory, TransportFeedback, one_byte_extension, read_transport_seq,
                              write_transport_seq)
-from .adapt import AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, scale_rate, stream_fps
+from .adapt import (AdaptConfig, PointController, RateController, check_adapt_mode, controlled_streams, knobs_model, scale_rate,
+                    stream_fps)
 from .feedback import FeedbackState
 from .gcc import BandwidthEstimator, GccConfig, Pacer, ReceiverEstimate
 from .receiver import ClientPipeline, ReceivedFrame, SessionAssembler, Work
@@ -1372,7 +1373,7 @@ class ServerSession:
         gcc = self.options.gcc
         if self.options.adapt == "off" and gcc.start_bps < UNADAPTED_START_BPS <= gcc.max_bps:
             gcc = dataclasses.replace(gcc, start_bps=UNADAPTED_START_BPS)
-        model = next((k.model for k in self.knobs if getattr(k, "model", None) is not None), None)
+        model = knobs_model(self.knobs)
         if self.options.adapt == "full" and model is not None and model.estimator:   # the method's own (QualityModel)
             try:
                 gcc = dataclasses.replace(gcc, **dict(model.estimator))
