@@ -119,13 +119,11 @@ def step_plan(duration_s: float) -> list[tuple[float, float]]:
 def networks(folder: Path, duration_s: float) -> dict[str, tuple[str, Any, list[tuple[float, float]], Any]]:
     """Per trace: the ``--network`` string, its capacity timestamps (None: no limit), the steady spans, the low span."""
     from splitrender.experiments.studies.link import step_spans
-    from splitrender.netsim.traces import cellular_trace, step_trace, write_mahimahi
+    from splitrender.netsim.traces import CELLULAR_LIKE, named_cellular_trace, step_trace, write_mahimahi
 
     d = duration_s + 2.0
     stamps = {"step": step_trace(step_plan(duration_s)),
-              "cellular": cellular_trace(d, 4.0, 0.5, seed=0),
-              "cellular8": cellular_trace(d, 8.0, 0.5, seed=0),
-              "harsh": cellular_trace(d, 4.0, 0.8, corr_time_s=0.3, outage_share=0.08, seed=0)}
+              **{name: named_cellular_trace(name, d, seed=0) for name in CELLULAR_LIKE}}   # cellular, cellular8, harsh
     out: dict[str, tuple[str, Any, list[tuple[float, float]], Any]] = {}
     for name, st in stamps.items():
         path = write_mahimahi(st, folder / f"{name}.trace")

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +31,8 @@ from splitrender.errors import NetworkConfigError
 
 from .models import MAHIMAHI_MTU_BYTES
 
-__all__ = ["cellular_trace", "rate_series", "step_trace", "trace_stats", "write_mahimahi"]
+__all__ = ["CELLULAR_LIKE", "cellular_trace", "named_cellular_trace", "rate_series", "step_trace", "trace_stats",
+           "write_mahimahi"]
 
 _BITS_PER_OPP = MAHIMAHI_MTU_BYTES * 8
 
@@ -99,6 +101,26 @@ def cellular_trace(duration_s: float, mean_mbps: float = 8.0, cv: float = 0.5, c
         if not rates.any():
             rates[-1] = mean_mbps
     return _stamps_from_rates(rates.tolist(), slot_ms)
+
+
+CELLULAR_LIKE: dict[str, dict[str, Any]] = {
+    "cellular": {"mean_mbps": 4.0, "cv": 0.5},
+    "cellular8": {"mean_mbps": 8.0, "cv": 0.5},
+    "harsh": {"mean_mbps": 4.0, "cv": 0.8, "corr_time_s": 0.3, "outage_share": 0.08},
+}
+"""The project's named cellular-like traces (:func:`cellular_trace`'s arguments besides the duration and seed), shared
+by the link study and the adaptation benchmarks: ``cellular``, 4 Mbit/s on average, where the 320x180 methods meet the
+link often; ``cellular8``, 8 Mbit/s, where ``sas`` and ``tss`` meet it only in its dips; ``harsh``, the parameters that
+land inside mahimahi's public LTE/UMTS downlinks (docs/experiments.md)."""
+
+
+def named_cellular_trace(name: str, duration_s: float, seed: int = 0) -> np.ndarray:
+    """The named trace of :data:`CELLULAR_LIKE` over ``duration_s`` at ``seed`` (its timestamps, ms)."""
+    try:
+        params = CELLULAR_LIKE[name]
+    except KeyError:
+        raise NetworkConfigError(f"cellular trace: no trace named {name!r} (known: {', '.join(CELLULAR_LIKE)})") from None
+    return cellular_trace(duration_s, seed=seed, **params)
 
 
 def rate_series(stamps_ms: np.ndarray, slot_ms: int = 100) -> np.ndarray:

@@ -78,6 +78,10 @@ def run_command(cfg: Any) -> str:
         parts.append(f"--ssim-sigma {cfg.ssim_sigma:g}")
     if not cfg.metrics:
         parts.append("--no-metrics")
+    if cfg.transport_cc:
+        parts.append("--transport-cc")
+    if cfg.adapt != "off":
+        parts.append(f"--adapt {cfg.adapt}")
     return " ".join(parts)
 
 
