@@ -525,6 +525,7 @@ class StableAtlas:
         self.free: list[list[int]] = []                   # per class: free cells (sorted descending; pop() takes the lowest)
         self.fresh: list[list[int]] = []                  # per class: cells never used since the last repack (descending)
         self.cursor = np.zeros(max(1, self.width // self.strip), np.int64)   # first free row per strip
+        self._load = 0.0                                  # load(), kept as the cursor moves (_alloc asks per cell)
         self.cls[:] = -1
         self.cell[:] = -1
 
@@ -559,12 +560,14 @@ class StableAtlas:
             if y + sh > self.height:
                 return None
             self.cursor[:] = y + sh
+            self._load = float(self.cursor.mean()) / self.height
             return 0, y
         s = int(np.argmin(self.cursor))
         y = -(-int(self.cursor[s]) // align) * align
         if y + sh > self.height:
             return None
         self.cursor[s] = y + sh
+        self._load = float(self.cursor.mean()) / self.height
         return s * self.strip, y
 
     def _alloc(self, c: int) -> int:
@@ -585,7 +588,7 @@ class StableAtlas:
 
     def load(self) -> float:
         """Mean rows in use per strip over the atlas height."""
-        return float(self.cursor.mean()) / self.height
+        return self._load
 
     def place(self, ids: np.ndarray, keys: list[tuple[int, ...]], reset: bool = False) -> tuple[bool, bool]:
         """Give every live triangle ``ids`` (sorted) of class ``keys`` a cell; returns ``(fits, repacked)``."""
@@ -593,7 +596,9 @@ class StableAtlas:
         live[ids] = True
         repacked = reset
         if not reset:
-            want = np.array([self._class(k) for k in keys], np.int64)
+            for k in dict.fromkeys(keys):        # new classes in order of first use, as one lookup per key made them
+                self._class(k)
+            want = np.fromiter(map(self.index.__getitem__, keys), np.int64, len(keys))
             gone = np.flatnonzero((self.cls >= 0) & ~live)
             moved = ids[(self.cls[ids] >= 0) & (self.cls[ids] != want)]
             out = np.concatenate([gone, moved])
@@ -606,23 +611,33 @@ class StableAtlas:
             self.cls[out] = -1
             self.cell[out] = -1
             new = self.cls[ids] < 0
-            for t, c in zip(ids[new].tolist(), want[new].tolist()):
+            t_new, c_new = ids[new], want[new]
+            cells = []
+            for c in c_new.tolist():
                 k = self._alloc(c)
                 if k < 0:
-                    repacked = True
+                    repacked = True         # everything is placed again below
                     break
-                self.cls[t], self.cell[t] = c, k
+                cells.append(k)
+            if not repacked:
+                self.cls[t_new], self.cell[t_new] = c_new, cells
         if repacked:
             self._reset_state()
             rank = (self.rank[ids] if self.rank is not None else np.zeros(ids.size, np.int64)).tolist()
             order = sorted(range(len(keys)),
                            key=lambda i: (keys[i], rank[i] if keys[i][0] == KIND_LP else 0, int(ids[i])))
+            cls, cells = [], []
             for i in order:
                 c = self._class(keys[i])
                 k = self._alloc(c)
                 if k < 0:
-                    return False, True
-                self.cls[ids[i]], self.cell[ids[i]] = c, k
+                    break
+                cls.append(c)
+                cells.append(k)
+            at = ids[np.asarray(order[:len(cells)], np.int64)]
+            self.cls[at], self.cell[at] = cls, cells      # those placed before a failure keep their cells, as before
+            if len(cells) < len(order):
+                return False, True
         return True, repacked
 
     def origins(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -842,12 +857,16 @@ def fill_gutters(rgba: np.ndarray, rows: int, block: int = 1) -> np.ndarray:
         c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)   # each coarser level: means, weight 1
         w = ok.astype(np.float32)
     col = c
-    for c_k, w_k in reversed(pyramid):
+    for c_k, w_k in reversed(pyramid[1:]):
         up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
         mine = w_k > 0
         col = np.where(mine[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
-    col = col[:rows, : rgba.shape[1]]
-    hole = rgba[:rows, :, 3] <= 127
+    # the finest level only where no sample wrote (the others keep their texels): the same per-texel steps, without
+    # the full-size upsampled copy (a fifth of this function's time on a 320x180 walk's atlas, 82 % written)
+    c0, w0 = pyramid[0]
+    hy, hx = np.nonzero(rgba[:rows, :, 3] <= 127)
+    wh = w0[hy, hx]
+    val = np.where((wh > 0)[:, None], c0[hy, hx] / np.maximum(wh, 1e-9)[:, None], col[hy >> 1, hx >> 1])
     out = out.copy()
-    out[:rows][hole] = np.clip(np.rint(col[hole]), 0, 255).astype(np.uint8)
+    out[hy, hx] = np.clip(np.rint(val), 0, 255).astype(np.uint8)
     return out

@@ -211,11 +211,19 @@ def visible_area(world: np.ndarray, pose: Pose, intr: CameraIntrinsics, margin: 
 def _clip(poly: np.ndarray, cnt: np.ndarray, planes: list[tuple[tuple[float, float, float], float]]) -> tuple[np.ndarray, np.ndarray]:
     """Sutherland-Hodgman, vectorised: polygons ``poly`` (n, 8, 3) of ``cnt`` (n,) corners clipped to ``planes``
     (inside where ``a . p + b >= 0``); returns the clipped polygons and their corner counts."""
-    n = poly.shape[0]
-    rows = np.arange(n)
+    poly, cnt = poly.copy(), cnt.copy()
     for a, b in planes:
         a_ = np.asarray(a)
-        d = poly @ a_ + b                                                   # (n, 8)
+        d_all = poly @ a_ + b                                               # (n, 8)
+        # a polygon with no corner outside this plane leaves it as it came (its corners in order, zeros past them):
+        # only the others go through the loop below (a triangle crosses one or two of the five planes)
+        act = np.flatnonzero(((np.arange(8)[None, :] < cnt[:, None]) & (d_all < 0)).any(axis=1))
+        if act.size == 0:
+            continue
+        n = act.size
+        rows = np.arange(n)
+        full, full_cnt = poly, cnt
+        poly, cnt, d = poly[act], cnt[act], d_all[act]
         out = np.zeros_like(poly)
         pos = np.zeros(n, np.int64)
         for i in range(8):
@@ -231,7 +239,8 @@ def _clip(poly: np.ndarray, cnt: np.ndarray, planes: list[tuple[tuple[float, flo
             x = pi + t[:, None] * (pj - pi)
             out[rows[e2], np.minimum(pos[e2], 7)] = x[e2]
             pos += e2
-        poly, cnt = out, np.minimum(pos, 8)
+        full[act], full_cnt[act] = out, np.minimum(pos, 8)
+        poly, cnt = full, full_cnt
     return poly, cnt
 
 
