@@ -1,7 +1,7 @@
 """Where ``sas``'s server time goes with 1, 2, 4 and 8 clients on one server (issue 33, item 5).
 
-One virtual-time run per client count (``walk``, client ``i`` starting ``i * 0.5`` s into
-it, ``ideal`` network, 320x180, no scoring), on two scenes: the 121k-triangle
+One virtual-time run per client count (``walk``, client ``i`` starting ``i * offset`` s into
+it, ``--offset`` 0.5 s by default; issue 49 spaces them 0.3 s apart, ``ideal`` network, 320x180, no scoring), on two scenes: the 121k-triangle
 ``2CylinderEngine.glb`` (a fine mesh, 115 still objects) and the default scene without
 GI (17k triangles split to 99k, shading-bound, animated objects); ``--scenes gi`` adds the default scene with
 its GI (the probes' relight, once a frame for every session, counts in the shading stage of the session that
@@ -38,7 +38,7 @@ sessions share (1: nothing; the plain ratio to one client also counts how much m
 and each client's updates are checked to be the bytes it gets alone.
 
 Writes ``benchmarks/results/bench_sas_clients.json``.  Run:
-``python benchmarks/bench_sas_clients.py --before-tree DIR [--clients 1,2,4,8] [--duration 0.5]``
+``python benchmarks/bench_sas_clients.py --before-tree DIR [--clients 1,2,4,8] [--duration 0.5] [--offset 0.5]``
 (about 17 minutes on 2 cores).
 """
 
@@ -205,16 +205,17 @@ def solo_run(base: RunConfig, i: int, r: Renderer) -> VirtualTimeRun:
 
 
 def measure(names: list[str], counts: list[int], duration_s: float, size: tuple[int, int], network: str,
-            solo: bool = False, params: dict[str, Any] | None = None) -> dict[str, Any]:
+            solo: bool = False, params: dict[str, Any] | None = None, offset_s: float = 0.5) -> dict[str, Any]:
     """Rows per scene and client count, measured in this process (this process's ``splitrender``); with ``solo``
-    each client of the largest count also alone (:func:`solo_run`; client 0 alone is the one-client row)."""
+    each client of the largest count also alone (:func:`solo_run`; client 0 alone is the one-client row).
+    Client ``i`` starts ``i * offset_s`` seconds into the trace."""
     rec = Recorder()
     rec.install()
     r = Renderer()
     out: dict[str, Any] = {}
     for name in names:
         base = RunConfig(method="sas", method_params=dict(params or {}), scene=SCENES[name], trace="walk", network=network, width=size[0], height=size[1],
-                         duration_s=duration_s, client_fps=30, flip_every=0, metrics=False, client_offset_s=0.5)
+                         duration_s=duration_s, client_fps=30, flip_every=0, metrics=False, client_offset_s=offset_s)
         VirtualTimeRun(base.replace(duration_s=0.1), r).run()   # warm up shaders and caches
         rows = out.setdefault(name, {})
         runs: list[tuple[str, Any, int]] = [(str(n), lambda n=n: VirtualTimeRun(base.replace(clients=n), r), n)
@@ -268,6 +269,8 @@ def main() -> None:
     ap.add_argument("--scenes", default="engine,default", help=f"of {', '.join(SCENES)} (default engine,default)")
     ap.add_argument("--duration", type=float, default=0.5, help="seconds of each run (default 0.5: 16 server frames)")
     ap.add_argument("--size", default="320x180")
+    ap.add_argument("--offset", type=float, default=0.5,
+                    help="seconds between the clients' starts along the trace (default 0.5; issue 49: 0.3)")
     ap.add_argument("--network", default="ideal",
                     help="network profile (default ideal: with jitter the runs' packet timings, and so the updates, vary "
                          "from run to run, as the metadata carries the stages' wall-clock times)")
@@ -283,12 +286,13 @@ def main() -> None:
     names = ns.scenes.split(",")
     if ns.worker is not None:
         ns.worker.write_text(json.dumps(measure(names, counts, ns.duration, (w, h), ns.network, ns.solo,
-                                                json.loads(ns.params))))
+                                                json.loads(ns.params), ns.offset)))
         return
     load0 = os.getloadavg()
     labels: dict[str, dict[str, Any]] = {}
     if ns.before_tree is None:
-        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network, ns.solo, json.loads(ns.params))
+        labels[ns.label] = measure(names, counts, ns.duration, (w, h), ns.network, ns.solo, json.loads(ns.params),
+                                   ns.offset)
     else:
         import subprocess
         import sys
@@ -303,7 +307,7 @@ def main() -> None:
                     with tempfile.TemporaryDirectory() as d:
                         part = Path(d) / "rows.json"
                         subprocess.run([sys.executable, __file__, "--worker", str(part), "--scenes", name, "--clients",
-                                        str(n), "--duration", str(ns.duration), "--size", ns.size, "--network",
+                                        str(n), "--duration", str(ns.duration), "--size", ns.size, "--offset", str(ns.offset), "--network",
                                         ns.network, "--params", ns.params,
                                         *(["--solo"] if ns.solo and n == max(counts) else [])],
                                        env=env, check=True)
@@ -326,6 +330,7 @@ def main() -> None:
                           f"{rs['cpu']['tick']:.2f}x; updates as alone: {row['digests_equal_solo']}")
         doc[label] = {"machine": platform.platform(), "cpus": os.cpu_count(), "load_before": load0, "params": json.loads(ns.params),
                       "load_after": os.getloadavg(), "duration_s": ns.duration, "size": [w, h], "network": ns.network,
+                      "client_offset_s": ns.offset,
                       "interleaved_with_before_tree": ns.before_tree is not None,
                       "scenes": {name: {"scene": SCENES[name], "rows": rows} for name, rows in scenes.items()}}
     if "before" in doc:

@@ -463,6 +463,55 @@ def test_pvs_leaves_out_a_sample_next_to_the_window_s_end() -> None:
     assert sample_times(0.0, 0.0684, 0.0333) == [0.0, 0.0333, 0.0666, 0.0684]   # 0.054 steps from the end: kept
 
 
+
+def test_a_long_window_takes_at_most_max_samples_evenly_spaced() -> None:
+    """A live server making a frame in 0.6 s expects that much latency: 33.3 ms steps over its window took 22 ID
+    passes (issue 49).  ``max_samples`` spreads a longer window over that many times, ends kept; a window that fits
+    is sampled as without it (the cap of 8 leaves every virtual-time network profile's 3-7 samples alone)."""
+    from splitrender.methods.sas import SasConfig
+    from splitrender.methods.sas.pvs import sample_times
+    from splitrender.errors import ConfigError
+
+    long = sample_times(0.0, 0.7, 0.0333)
+    assert len(long) == 22
+    capped = sample_times(0.0, 0.7, 0.0333, 8)
+    assert len(capped) == 8 and capped[0] == 0.0 and capped[-1] == 0.7
+    assert np.allclose(np.diff(capped), 0.1)
+    for window in (1 / 30, 0.1, 0.2, 0.2331):   # up to 8 samples: the same times with the cap
+        assert sample_times(0.5, 0.5 + window, 0.0333, 8) == sample_times(0.5, 0.5 + window, 0.0333)
+    assert len(sample_times(0.5, 0.5 + 0.2331, 0.0333)) == 8
+    assert SasConfig().pvs_max_samples == 8
+    with pytest.raises(ConfigError, match="pvs_max_samples"):
+        SasConfig(pvs_max_samples=1)
+
+
+def test_each_id_pass_starts_from_a_cleared_id_buffer() -> None:
+    """The ID buffer is cleared with a GL clear (not an upload of zeros): a pass that draws nothing after one that
+    drew the room reads back background only, and a pass after others equals a fresh pass's at the same pose."""
+    from splitrender.methods.sas import SasConfig, SasServer
+    from splitrender.methods.sas.pvs import PatchIdPass
+    from splitrender.render.renderer import Renderer
+    from splitrender.scene.pose import Pose, look_at_quat
+    from splitrender.scene.procedural import default_scene
+    from splitrender.scene.trace import get_trace
+
+    r = Renderer()
+    scene = default_scene(gi=False)
+    trace = get_trace("walk")
+    srv = SasServer(SasConfig(), INTR, scene, 30)
+    ids = PatchIdPass(r, scene, srv.patches)
+    big = INTR.enlarged(1.2)
+    seen = ids.id_buffer(trace.pose_at(1.0), big, 1.0)
+    assert (seen > 0).mean() > 0.5
+    eye = np.array([0.0, 1.6, 30.0])
+    away = Pose(eye, look_at_quat(eye, eye + np.array([0.0, 0.0, 1.0])))   # away from the room
+    assert not ids.id_buffer(away, big, 1.0).any()
+    fresh = PatchIdPass(r, scene, srv.patches)
+    for t in (2.0, 3.5):
+        ids.id_buffer(trace.pose_at(t - 1.0), big, t - 1.0)
+        got = ids.id_buffer(trace.pose_at(t), big, t)
+        assert np.array_equal(got, fresh.id_buffer(trace.pose_at(t), big, t))
+
 TTT = "/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf"
 
 

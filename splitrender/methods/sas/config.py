@@ -61,6 +61,10 @@ class SasConfig(MethodConfig):
     patch at its ideal level (as many texels as it covers pixels) unless the atlas is short.  ``fill_max_density``: the
     fill raises a patch at most to this many times its ideal texels per pixel per side; ``fill_max_density_plain``
     the same for patches whose material has no map that varies (smooth shading, where texels mostly cost bits).  ``strategy``: allocator S0 (paper) .. S3.
+    ``pvs_max_samples``: the most EVS samples (patch-id passes) a frame's PVS takes; a longer window (from the
+    newest pose to one frame past the target, ``pvs_step_ms`` apart) is sampled at that many evenly spaced times.
+    A live server that makes a frame in 0.6 s expects that much latency, and 33 ms steps took 22 passes, half its
+    frame (issue 49); 8 leaves the windows of every network profile in virtual time as they were (ideal to cloud take 3-7).
     ``pvs_linger_frames``: a patch stays in the PVS for this many server frames after
     it was last in an EVS sample, so small patches flickering at the edge of
     visibility do not re-send geometry and blocks every frame.  ``split_near_m``: at load time every mesh is split (:func:`~.patches.split_mesh`)
@@ -110,6 +114,7 @@ class SasConfig(MethodConfig):
     high_water: float = 0.9
     fov_margin: float = 0.2
     pvs_step_ms: float = 33.3
+    pvs_max_samples: int = 8
     pvs_prediction: Literal["linear", "none"] = "linear"
     texels_per_px: float = 1.0
     bias_fill: float = 0.75
@@ -153,6 +158,8 @@ class SasConfig(MethodConfig):
             raise ConfigError(f"SasConfig.high_water: must be in [0.1, 1], got {self.high_water}")
         if not self.pvs_step_ms > 0:
             raise ConfigError(f"SasConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
+        if not 2 <= self.pvs_max_samples <= 1000:
+            raise ConfigError(f"SasConfig.pvs_max_samples: must be in [2, 1000], got {self.pvs_max_samples}")
         if not 0.05 <= self.texels_per_px <= 8:
             raise ConfigError(f"SasConfig.texels_per_px: must be in [0.05, 8], got {self.texels_per_px}")
         if self.pvs_prediction not in ("linear", "none"):

@@ -165,7 +165,6 @@ class PatchIdPass:
             ibo = self.ctx.buffer(idx.tobytes() if idx.size else b"\0" * 12)
             self.objects.append((o, self.ctx.vertex_array(self.prog, [(vbo, "3f", "in_position")], ibo)))
         self._fbos: dict[tuple[int, int], tuple[Any, Any]] = {}
-        self._zero_bytes: dict[tuple[int, int], bytes] = {}
         # whole-object spheres in world space, tested against a frustum all at once (a scene of a hundred
         # objects paid more for a numpy call per object than for drawing nothing): the still objects' once,
         # the animated ones' at each sample's time
@@ -214,12 +213,6 @@ class PatchIdPass:
             f = self._fbos[(w, h)] = (fbo, tex)
         return f
 
-    def _zeros(self, w: int, h: int) -> bytes:
-        z = self._zero_bytes.get((w, h))
-        if z is None:
-            z = self._zero_bytes[(w, h)] = bytes(4 * w * h)
-        return z
-
     def placement(self, t_s: float) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[np.ndarray, np.ndarray, bytes]]]:
         """Every object's world-space sphere (centres (n_obj, 3), radii) and per animated object its clusters'
         world-space spheres and model-matrix bytes, at scene time ``t_s``: what a patch-id pass needs of the scene
@@ -251,8 +244,9 @@ class PatchIdPass:
         fbo, tex = self._fbo(intr.width, intr.height)
         fbo.use()
         self.ctx.viewport = (0, 0, intr.width, intr.height)
-        fbo.clear(depth=1.0)
-        tex.write(self._zeros(intr.width, intr.height))
+        # one GL clear of the ids (an unsigned-integer attachment: moderngl clears it with glClearBufferuiv) and the
+        # depth; the ids were cleared by uploading a buffer of zeros each pass
+        fbo.clear(color=(0, 0, 0, 0), depth=1.0)
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.disable(self.ctx.CULL_FACE)
         view, proj = pose.view_matrix(), intr.projection()
@@ -358,24 +352,28 @@ SAMPLE_MERGE_STEPS = 0.05
 sample 0.03 ms before the end, a third of the frame's ID passes for no patch."""
 
 
-def sample_times(t_from_s: float, t_to_s: float, step_s: float) -> list[float]:
+def sample_times(t_from_s: float, t_to_s: float, step_s: float, max_samples: int = 0) -> list[float]:
     """EVS sample times from ``t_from_s`` to ``t_to_s`` (both included) in steps of ``step_s`` (one closer to the
-    end than :data:`SAMPLE_MERGE_STEPS` of a step left out)."""
+    end than :data:`SAMPLE_MERGE_STEPS` of a step left out).  ``max_samples`` (>= 2; 0: no limit): a window that
+    would take more is sampled at that many evenly spaced times instead, its ends included (the steps grow)."""
     if t_to_s <= t_from_s or step_s <= 0:
         return [t_from_s]
     n = max(1, int(np.ceil((t_to_s - t_from_s) / step_s - SAMPLE_MERGE_STEPS)))
+    if max_samples >= 2 and n + 1 > max_samples:
+        return [t_from_s + (t_to_s - t_from_s) * k / (max_samples - 1) for k in range(max_samples - 1)] + [t_to_s]
     ts = [t_from_s + k * step_s for k in range(n)]
     return ts + [t_to_s]
 
 
-def evs_samples(ctx: Any, prediction: str, step_ms: float, server_fps: int) -> list[PoseSample]:
+def evs_samples(ctx: Any, prediction: str, step_ms: float, server_fps: int, max_samples: int = 0) -> list[PoseSample]:
     """EVS samples ``(t_s, pose)`` of a server frame (``ctx``: a ``ServerContext``): the newest pose, then
-    predictions in ``step_ms`` steps to one frame past the target.  Animated objects are placed at each
-    sample's time; with ``prediction = "none"`` the one sample shows the newest pose at the frame's time."""
+    predictions in ``step_ms`` steps to one frame past the target (at most ``max_samples`` of them in all:
+    :func:`sample_times`).  Animated objects are placed at each sample's time; with ``prediction = "none"`` the
+    one sample shows the newest pose at the frame's time."""
     if prediction == "none":
         return [(ctx.t_s, ctx.latest_pose)]
     t_end = max(ctx.target_t_s, ctx.latest_pose_t_s) + 1.0 / server_fps
-    ts = sample_times(ctx.latest_pose_t_s, t_end, step_ms / 1e3)
+    ts = sample_times(ctx.latest_pose_t_s, t_end, step_ms / 1e3, max_samples)
     return [(ts[0], ctx.latest_pose)] + [(t, ctx.predict(t)) for t in ts[1:]]
 
 

@@ -3,7 +3,7 @@
 Per server frame (paper figure 2):
 
 1. visibility: EVS samples from the newest client pose to ``target + one frame`` in
-   steps of ``pvs_step_ms`` (poses from the pose predictor, animated objects at each
+   steps of ``pvs_step_ms``, at most ``pvs_max_samples`` of them (poses from the pose predictor, animated objects at each
    sample's time; ``pvs_prediction="none"`` uses the newest pose only, objects at
    the frame's time), each with the field of view enlarged by ``fov_margin``; the
    PVS is their union;
@@ -585,7 +585,8 @@ class SasServer(ServerHalf):
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
         """EVS samples of the PVS (:func:`~.pvs.evs_samples`)."""
-        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps)
+        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps,
+                           self.config.pvs_max_samples)
 
     def frame_state(self, ctx: ServerContext) -> SasFrame:
         """The shared state of ``ctx``'s server frame: the producer's (``ctx.shared``), or prepared here when the
@@ -603,7 +604,8 @@ class SasServer(ServerHalf):
         frame = self.frame_state(ctx)
         t0, u0 = time.perf_counter(), time.process_time()
         big = self.intrinsics.enlarged(1.0 + c.fov_margin, keep_pixel_density=True) if c.fov_margin > 0 else self.intrinsics
-        area = self._ids.pvs_area(self.pvs_samples(ctx), big)
+        samples = self.pvs_samples(ctx)
+        area = self._ids.pvs_area(samples, big)
         self._last_seen[area > 0] = self._frames
         pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
         t1, u1 = time.perf_counter(), time.process_time()
@@ -661,7 +663,7 @@ class SasServer(ServerHalf):
         mem = al.memory()
         t4, u4 = time.perf_counter(), time.process_time()
         self._stats = {
-            "pvs_patches": float(pvs.size), "pvs_ms": (t1 - t0) * 1e3, "alloc_ms": (t2 - t1) * 1e3,
+            "pvs_patches": float(pvs.size), "evs_samples": float(len(samples)), "pvs_ms": (t1 - t0) * 1e3, "alloc_ms": (t2 - t1) * 1e3,
             "shade_ms": (t3 - t2) * 1e3, "meta_ms": (t4 - t3) * 1e3,
             # process CPU time of the same stages (llvmpipe's rasterising threads included)
             "pvs_cpu_ms": (u1 - u0) * 1e3, "alloc_cpu_ms": (u2 - u1) * 1e3, "shade_cpu_ms": (u3 - u2) * 1e3,
