@@ -351,9 +351,10 @@ def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.nd
     vpad = np.zeros((h + 2, w + 2), bool)
     vpad[1:-1, 1:-1] = valid
     present = np.zeros((h, w), bool)
-    # the corners and offsets corner by corner, each an (H, W) plane, handed on as (H, W, 16) views
-    full_c = np.empty((16, h, w))
-    full_o = np.empty((16, h, w))
+    # the depths and offsets at the nine lattice points, each an (H, W) plane (the 16 corners are these nine, some
+    # more than once: :class:`_LevelZero` spreads them when asked)
+    lat9 = np.empty((9, h, w))
+    off9 = np.empty((9, h, w))
     flat = np.empty((h, w), bool)
     limit = close_limit(intr, params.delta_max)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -414,17 +415,14 @@ def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.nd
             present[r0:r1] = ok
             flat[r0:r1] = np.where(ok, fl, 0.0 < params.delta_flatten)
             # every plane written whole, then 0 where no quad is (few pixels: the same values as zeroing each plane)
-            for k, p in enumerate(_CORNER_POINT):
-                full_c[k, r0:r1] = lat[p]
-                if offs[p] is None:
-                    full_o[k, r0:r1] = 0.0
-                else:
-                    full_o[k, r0:r1] = offs[p]
+            for p in range(9):
+                lat9[p, r0:r1] = lat[p]
+                off9[p, r0:r1] = 0.0 if offs[p] is None else offs[p]
             if not ok.all():
                 bad = ~ok
-                full_c[:, r0:r1][:, bad] = 0.0
-                full_o[:, r0:r1][:, bad] = 0.0
-    return present, full_c.transpose(1, 2, 0), full_o.transpose(1, 2, 0), flat
+                lat9[:, r0:r1][:, bad] = 0.0
+                off9[:, r0:r1][:, bad] = 0.0
+    return present, lat9, off9, flat
 
 
 def _lattice_sparse(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.ndarray, cut: np.ndarray,
@@ -504,19 +502,34 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
         n[sy, sx], th[sy, sx], ph[sy, sx] = ns, ths, phs
         wq[sy, sx] = -dot3(ns, dcs) * z[sy, sx]
     if dense:
-        present, full_c, full_o, flat = _lattice_dense(n, wq, valid, need, grid, grid_len, intr, params)
-    else:
-        py, px, corners, offs, ok = _lattice_sparse(n, wq, valid, need, cut, grid, grid_len, intr, params)
-        present = np.zeros((h, w), bool)
-        present[py[ok], px[ok]] = True
-        full_c = np.zeros((h, w, 16))
-        full_o = np.zeros((h, w, 16))
-        full_c[py[ok], px[ok]] = corners[ok]
-        full_o[py[ok], px[ok]] = offs[ok]
-        flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
-        flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
+        present, lat9, off9, flat = _lattice_dense(n, wq, valid, need, grid, grid_len, intr, params)
+        return _LevelZero({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
+                           "lat9": lat9, "off9": off9})
+    py, px, corners, offs, ok = _lattice_sparse(n, wq, valid, need, cut, grid, grid_len, intr, params)
+    present = np.zeros((h, w), bool)
+    present[py[ok], px[ok]] = True
+    full_c = np.zeros((h, w, 16))
+    full_o = np.zeros((h, w, 16))
+    full_c[py[ok], px[ok]] = corners[ok]
+    full_o[py[ok], px[ok]] = offs[ok]
+    flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
+    flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
     return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "corners": full_c, "offs": full_o,
             "flat": flat}
+
+
+class _LevelZero(dict):  # type: ignore[type-arg]
+    """:func:`initial_quads`' maps made whole (:func:`_lattice_dense`): the depths and offsets at the nine lattice
+    points (``lat9``, ``off9``: (9, H, W), :data:`_POINTS`' order), and ``corners`` and ``offs`` ((H, W, 16), the
+    16 corners' values, 0 where no quad is) spread from them only when read (merging reads four lattice planes,
+    gathering the offsets of the quads that carry them)."""
+
+    def __missing__(self, key: str) -> np.ndarray:
+        if key not in ("corners", "offs"):
+            raise KeyError(key)
+        got = self["lat9" if key == "corners" else "off9"][_CORNER_POINT].transpose(1, 2, 0)
+        self[key] = got
+        return got
 
 
 def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics, params: QuadParams, coarse: bool
@@ -534,8 +547,11 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     if cy_all.size:
         # the children's outer corners (the only corners a merge reads), each one contiguous (H, W) plane read by
         # flat index: the same values as reading them from the (H, W, 16) map, whose level-0 form is a transposed view
-        cs = child["corners"]
-        outer = [np.ascontiguousarray(cs[..., k]).reshape(-1) for k in OUTER]
+        if "lat9" in child:     # level 0 made whole: its lattice planes, not the 16 corners spread out
+            outer = [child["lat9"][_CORNER_POINT[k]].reshape(-1) for k in OUTER]
+        else:
+            cs = child["corners"]
+            outer = [np.ascontiguousarray(cs[..., k]).reshape(-1) for k in OUTER]
     for c0 in range(0, cy_all.size, MERGE_CHUNK):   # in chunks whose arrays stay in the processor's cache
         _merge_cells(child, out, cy_all[c0:c0 + MERGE_CHUNK], cx_all[c0:c0 + MERGE_CHUNK], level, intr, params, coarse,
                      outer)
@@ -668,8 +684,11 @@ def gather(maps: list[dict[str, np.ndarray]]) -> QuadSet:
         parts["depth"].append(m["zc"].reshape(-1).take(at).astype(np.float32))
         fl = m["flat"].reshape(-1).take(at)
         parts["flat"].append(fl)
-        # only the quads with offsets send them (level 0's map is a view of 16 planes: read those rows alone)
-        parts["offs"].append(m["offs"][yy[~fl], xx[~fl]])
+        # only the quads with offsets send them (read from level 0's lattice planes when it has them)
+        if "off9" in m:
+            parts["offs"].append(m["off9"][:, yy[~fl], xx[~fl]][_CORNER_POINT].T)
+        else:
+            parts["offs"].append(m["offs"][yy[~fl], xx[~fl]])
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     flat = cat["flat"].astype(bool)
     return QuadSet(cat["level"].astype(np.uint8), cat["x"].astype(np.uint16), cat["y"].astype(np.uint16),
