@@ -508,28 +508,48 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
     py, px, corners, offs, ok = _lattice_sparse(n, wq, valid, need, cut, grid, grid_len, intr, params)
     present = np.zeros((h, w), bool)
     present[py[ok], px[ok]] = True
-    full_c = np.zeros((h, w, 16))
-    full_o = np.zeros((h, w, 16))
-    full_c[py[ok], px[ok]] = corners[ok]
-    full_o[py[ok], px[ok]] = offs[ok]
     flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
     flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
-    return {"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "corners": full_c, "offs": full_o,
-            "flat": flat}
+    return _LevelZero({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
+                       "at": py[ok] * w + px[ok], "c16": corners[ok], "o16": offs[ok]})
 
 
 class _LevelZero(dict):  # type: ignore[type-arg]
-    """:func:`initial_quads`' maps made whole (:func:`_lattice_dense`): the depths and offsets at the nine lattice
-    points (``lat9``, ``off9``: (9, H, W), :data:`_POINTS`' order), and ``corners`` and ``offs`` ((H, W, 16), the
-    16 corners' values, 0 where no quad is) spread from them only when read (merging reads four lattice planes,
-    gathering the offsets of the quads that carry them)."""
+    """:func:`initial_quads`' maps, whose ``corners`` and ``offs`` ((H, W, 16): the 16 corners' depths and offsets, 0
+    where no quad is) are spread out only when read: merging reads the four outer corners (:meth:`outer`), gathering
+    the offsets of the quads that carry them (:meth:`offsets_at`).  Made whole (:func:`_lattice_dense`) they are
+    kept as the nine lattice points' planes (``lat9``, ``off9``: (9, H, W), :data:`_POINTS`' order); made at some
+    pixels (:func:`_lattice_sparse`) as those quads' rows (``at``: flat pixel index, row-major; ``c16``, ``o16``)."""
 
     def __missing__(self, key: str) -> np.ndarray:
         if key not in ("corners", "offs"):
             raise KeyError(key)
-        got = self["lat9" if key == "corners" else "off9"][_CORNER_POINT].transpose(1, 2, 0)
+        if "lat9" in self:
+            got = self["lat9" if key == "corners" else "off9"][_CORNER_POINT].transpose(1, 2, 0)
+        else:
+            h, w = self["present"].shape
+            got = np.zeros((h * w, 16))
+            got[self["at"]] = self["c16" if key == "corners" else "o16"]
+            got = got.reshape(h, w, 16)
         self[key] = got
         return got
+
+    def outer(self) -> list[np.ndarray]:
+        """The four outer corners' depths (:data:`OUTER`), each a flat (H W) array."""
+        if "lat9" in self:
+            return [self["lat9"][_CORNER_POINT[k]].reshape(-1) for k in OUTER]
+        out = []
+        for k in OUTER:
+            plane = np.zeros(self["present"].size)
+            plane[self["at"]] = self["c16"][:, k]
+            out.append(plane)
+        return out
+
+    def offsets_at(self, at: np.ndarray) -> np.ndarray:
+        """(K, 16) offsets of the quads at flat pixel indices ``at`` (each one a quad's)."""
+        if "lat9" in self:
+            return self["off9"].reshape(9, -1)[:, at][_CORNER_POINT].T
+        return self["o16"][np.searchsorted(self["at"], at)]
 
 
 def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics, params: QuadParams, coarse: bool
@@ -547,8 +567,8 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
     if cy_all.size:
         # the children's outer corners (the only corners a merge reads), each one contiguous (H, W) plane read by
         # flat index: the same values as reading them from the (H, W, 16) map, whose level-0 form is a transposed view
-        if "lat9" in child:     # level 0 made whole: its lattice planes, not the 16 corners spread out
-            outer = [child["lat9"][_CORNER_POINT[k]].reshape(-1) for k in OUTER]
+        if isinstance(child, _LevelZero):     # level 0: not its 16 corners spread out
+            outer = child.outer()
         else:
             cs = child["corners"]
             outer = [np.ascontiguousarray(cs[..., k]).reshape(-1) for k in OUTER]
@@ -685,8 +705,8 @@ def gather(maps: list[dict[str, np.ndarray]]) -> QuadSet:
         fl = m["flat"].reshape(-1).take(at)
         parts["flat"].append(fl)
         # only the quads with offsets send them (read from level 0's lattice planes when it has them)
-        if "off9" in m:
-            parts["offs"].append(m["off9"][:, yy[~fl], xx[~fl]][_CORNER_POINT].T)
+        if isinstance(m, _LevelZero):
+            parts["offs"].append(m.offsets_at(at[~fl]))
         else:
             parts["offs"].append(m["offs"][yy[~fl], xx[~fl]])
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
