@@ -352,7 +352,7 @@ def _lattice_dense(n: np.ndarray, wq: np.ndarray, valid: np.ndarray, need: np.nd
     vpad[1:-1, 1:-1] = valid
     present = np.zeros((h, w), bool)
     # the depths and offsets at the nine lattice points, each an (H, W) plane (the 16 corners are these nine, some
-    # more than once: :class:`_LevelZero` spreads them when asked)
+    # more than once: :class:`_QuadMaps` spreads them when asked)
     lat9 = np.empty((9, h, w))
     off9 = np.empty((9, h, w))
     flat = np.empty((h, w), bool)
@@ -503,23 +503,24 @@ def initial_quads(depth: np.ndarray, normal_view: np.ndarray, valid: np.ndarray,
         wq[sy, sx] = -dot3(ns, dcs) * z[sy, sx]
     if dense:
         present, lat9, off9, flat = _lattice_dense(n, wq, valid, need, grid, grid_len, intr, params)
-        return _LevelZero({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
+        return _QuadMaps({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
                            "lat9": lat9, "off9": off9})
     py, px, corners, offs, ok = _lattice_sparse(n, wq, valid, need, cut, grid, grid_len, intr, params)
     present = np.zeros((h, w), bool)
     present[py[ok], px[ok]] = True
     flat = np.full((h, w), 0.0 < params.delta_flatten)      # offsets 0 where no quad is
     flat[py[ok], px[ok]] = (np.abs(offs[ok]) < params.delta_flatten).all(-1)
-    return _LevelZero({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
+    return _QuadMaps({"present": present, "n": n, "theta": th, "phi": ph, "zc": z, "w": wq, "flat": flat,
                        "at": py[ok] * w + px[ok], "c16": corners[ok], "o16": offs[ok]})
 
 
-class _LevelZero(dict):  # type: ignore[type-arg]
-    """:func:`initial_quads`' maps, whose ``corners`` and ``offs`` ((H, W, 16): the 16 corners' depths and offsets, 0
+class _QuadMaps(dict):  # type: ignore[type-arg]
+    """:func:`initial_quads`' and :func:`merge_pass`' maps, whose ``corners`` and ``offs`` ((H, W, 16): the 16 corners' depths and offsets, 0
     where no quad is) are spread out only when read: merging reads the four outer corners (:meth:`outer`), gathering
     the offsets of the quads that carry them (:meth:`offsets_at`).  Made whole (:func:`_lattice_dense`) they are
     kept as the nine lattice points' planes (``lat9``, ``off9``: (9, H, W), :data:`_POINTS`' order); made at some
-    pixels (:func:`_lattice_sparse`) as those quads' rows (``at``: flat pixel index, row-major; ``c16``, ``o16``)."""
+    pixels (:func:`_lattice_sparse`) or merged, as those quads' rows (``at``: flat pixel index, row-major; ``c16``,
+    ``o16``)."""
 
     def __missing__(self, key: str) -> np.ndarray:
         if key not in ("corners", "offs"):
@@ -558,23 +559,27 @@ def merge_pass(child: dict[str, np.ndarray], level: int, intr: CameraIntrinsics,
 
     Only cells whose four children are all present are examined (sparse layers cost little)."""
     h, w = child["present"].shape[0] // 2, child["present"].shape[1] // 2
-    out = {"present": np.zeros((h, w), bool), "n": np.zeros((h, w, 3)), "theta": np.zeros((h, w), np.uint8),
-           "phi": np.zeros((h, w), np.uint8), "zc": np.ones((h, w)), "w": np.zeros((h, w)), "corners": np.zeros((h, w, 16)),
-           "offs": np.zeros((h, w, 16)), "flat": np.zeros((h, w), bool)}
+    out = _QuadMaps({"present": np.zeros((h, w), bool), "n": np.zeros((h, w, 3)), "theta": np.zeros((h, w), np.uint8),
+                      "phi": np.zeros((h, w), np.uint8), "zc": np.ones((h, w)), "w": np.zeros((h, w)),
+                      "flat": np.zeros((h, w), bool)})
+    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []     # the merged quads' (at, corners, offsets)
     cp = child["present"]
     pres = cp[0:2 * h:2, 0:2 * w:2] & cp[0:2 * h:2, 1:2 * w:2] & cp[1:2 * h:2, 0:2 * w:2] & cp[1:2 * h:2, 1:2 * w:2]
     cy_all, cx_all = np.nonzero(pres)
     if cy_all.size:
         # the children's outer corners (the only corners a merge reads), each one contiguous (H, W) plane read by
         # flat index: the same values as reading them from the (H, W, 16) map, whose level-0 form is a transposed view
-        if isinstance(child, _LevelZero):     # level 0: not its 16 corners spread out
+        if isinstance(child, _QuadMaps):     # not its 16 corners spread out
             outer = child.outer()
         else:
             cs = child["corners"]
             outer = [np.ascontiguousarray(cs[..., k]).reshape(-1) for k in OUTER]
     for c0 in range(0, cy_all.size, MERGE_CHUNK):   # in chunks whose arrays stay in the processor's cache
-        _merge_cells(child, out, cy_all[c0:c0 + MERGE_CHUNK], cx_all[c0:c0 + MERGE_CHUNK], level, intr, params, coarse,
-                     outer)
+        rows.append(_merge_cells(child, out, cy_all[c0:c0 + MERGE_CHUNK], cx_all[c0:c0 + MERGE_CHUNK], level, intr,
+                                 params, coarse, outer))
+    out["at"] = np.concatenate([r[0] for r in rows]) if rows else np.zeros(0, np.int64)
+    out["c16"] = np.concatenate([r[1] for r in rows]) if rows else np.zeros((0, 16))
+    out["o16"] = np.concatenate([r[2] for r in rows]) if rows else np.zeros((0, 16))
     return out
 
 
@@ -583,9 +588,10 @@ MERGE_CHUNK = 2048
 
 
 def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: np.ndarray, cx: np.ndarray, level: int,
-                 intr: CameraIntrinsics, params: QuadParams, coarse: bool, outer: list[np.ndarray]) -> None:
+                 intr: CameraIntrinsics, params: QuadParams, coarse: bool, outer: list[np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`merge_pass` for the cells (``cy``, ``cx``) whose four children are present: merged ones go to
-    ``out`` and leave ``child``.
+    ``out`` and leave ``child``; returns their flat indices in ``out``, corners and offsets (K, 16).
 
     Every ray below meets the image at a multiple of half a pixel, so it is read from the camera's lattice of rays;
     a lattice ray's x depends on its column alone, its y on its row alone and its z is -1, so a plane meets it at
@@ -648,12 +654,12 @@ def _merge_cells(child: dict[str, np.ndarray], out: dict[str, np.ndarray], cy: n
     out["phi"].ravel()[at] = ph[sel]
     out["zc"].ravel()[at] = zc[sel]
     out["w"].ravel()[at] = wq[sel]
-    out["corners"].reshape(-1, 16)[at] = corners[sel]
-    o = out["offs"].reshape(-1, 16)[at] = offs[sel]
+    o = offs[sel]
     out["flat"].ravel()[at] = (np.abs(o) < params.delta_flatten).all(-1)
     cpres = child["present"].ravel()
     for k in kids:  # merged children leave their map
         cpres[k[sel]] = False
+    return at, corners[sel], o
 
 
 def generate(depth: np.ndarray, normal_world: np.ndarray, view_rot: np.ndarray, intr: CameraIntrinsics,
@@ -705,7 +711,7 @@ def gather(maps: list[dict[str, np.ndarray]]) -> QuadSet:
         fl = m["flat"].reshape(-1).take(at)
         parts["flat"].append(fl)
         # only the quads with offsets send them (read from level 0's lattice planes when it has them)
-        if isinstance(m, _LevelZero):
+        if isinstance(m, _QuadMaps):
             parts["offs"].append(m.offsets_at(at[~fl]))
         else:
             parts["offs"].append(m["offs"][yy[~fl], xx[~fl]])
