@@ -81,7 +81,10 @@ def rasterize(index_map: np.ndarray, qs: QuadSet, first: int) -> None:
         xs = qs.x[sel, None].astype(np.int64) + dx.ravel()
         ok = (ys < h) & (xs < w)
         idx = np.broadcast_to((first + sel)[:, None], ys.shape)
-        index_map[ys[ok], xs[ok]] = idx[ok]
+        if index_map.flags.c_contiguous:    # by flat index (faster; the same writes)
+            index_map.reshape(-1)[ys[ok] * w + xs[ok]] = idx[ok]
+        else:
+            index_map[ys[ok], xs[ok]] = idx[ok]
 
 
 def index_map_of(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None = None) -> np.ndarray:
@@ -231,19 +234,25 @@ def continuous_sides(qs: QuadSet, depth: np.ndarray, rel: float | None = None) -
     whole in its atlas) and the surface goes on, and stops at depth edges (a post before a wall stays crisp).
     ``rel`` defaults to :data:`SURFACE_REL`."""
     rel = SURFACE_REL if rel is None else rel
-    h, w = depth.shape
-    out = np.zeros((len(qs), 4))
     if not len(qs):
-        return out
+        return np.zeros((len(qs), 4))
     z = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
+    return _sides_of_pairs(qs, _one_surface(z[:, :-1], z[:, 1:], rel), _one_surface(z[:-1], z[1:], rel))
+
+
+def _sides_of_pairs(qs: QuadSet, across: np.ndarray, down_pairs: np.ndarray) -> np.ndarray:
+    """:func:`continuous_sides` from which pairs of neighbouring pixels lie on one surface: ``across`` (H, W - 1)
+    each pixel and its right neighbour, ``down_pairs`` (H - 1, W) each and its lower one."""
+    h, w = down_pairs.shape[0] + 1, across.shape[1] + 1
+    out = np.zeros((len(qs), 4))
     # per pixel: it and its right (below: its lower) neighbour lie on one surface, both in the view; false beyond
     # the view out to the largest quad's size, so a quad's side that leaves the view counts no pixel there
     size = 1 << qs.level.astype(np.int64)
     pad = int(size.max()) + 1
     right = np.zeros((h + pad, w + pad), bool)
     below = np.zeros((h + pad, w + pad), bool)
-    right[:h, :w - 1] = _one_surface(z[:, :-1], z[:, 1:], rel)
-    below[:h - 1, :w] = _one_surface(z[:-1], z[1:], rel)
+    right[:h, :w - 1] = across
+    below[:h - 1, :w] = down_pairs
     # running counts down the columns of ``right`` and along the rows of ``below`` (a zero first row / column): a
     # quad's side is continuous where all ``size`` of its pixels' pairs across it are
     down = np.zeros((h + pad + 1, w + pad), np.int32)
@@ -276,10 +285,13 @@ def scene_sides(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | Non
     pose never mixes in the sky texels beside it (QUASAR's code samples its view nearest, no blend at all).
     ``index_map``: :func:`index_map_of`'s."""
     index_map = index_map_of(qs, intr, index_map)
+    if not len(qs):
+        return np.zeros((0, 4))
     scene = index_map >= 0
-    if len(qs):
-        scene[scene] = ~qs.background(intr)[index_map[scene]]
-    return continuous_sides(qs, np.where(scene, 1.0, 1e6))   # background: one far 'surface' of its own
+    scene[scene] = ~qs.background(intr)[index_map[scene]]
+    # continuous_sides of a depth 1 at scene pixels and 1e6 elsewhere (background: one far 'surface' of its own):
+    # two such depths are on one surface exactly when they are equal, so when both pixels are scene or neither is
+    return _sides_of_pairs(qs, scene[:, :-1] == scene[:, 1:], scene[:-1] == scene[1:])
 
 
 SEAL_PX = 0.45
@@ -299,7 +311,8 @@ def quad_depth(qs: QuadSet, intr: CameraIntrinsics, index_map: np.ndarray | None
     planes = np.zeros((len(qs) + 1, 4))
     planes[:-1, :3] = decode_normals(qs.theta, qs.phi)
     planes[:-1, 3] = dot3(planes[:-1, :3], rays(intr, qs.x + s / 2, qs.y + s / 2)) * qs.depth.astype(np.float64)
-    at = planes[index_map]                  # (H, W, 4): the normal and -w of the plane at each pixel
+    at = planes.take(index_map, axis=0)     # (H, W, 4): the normal and -w of the plane at each pixel (take: the
+    # same rows as planes[index_map], index -1 the last, several times faster)
     # a pixel centre's ray: its x is its column's, its y its row's, its z -1 (ray_grids' centres, the same values as
     # rays(intr, x + 0.5, y + 0.5)); plane_depth's dot3 from those (the same products and sums), and -w / den
     centre = ray_grids(intr)[0]

@@ -76,7 +76,7 @@ def behind_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.n
     centre_rays = ray_grids(intr)[0]
     ray_x, ray_y, ray_z = centre_rays[0, :, 0], centre_rays[:, 0, 1], centre_rays[0, 0, 2]
     for sel, size in _by_level(qs, bg):
-        n = normals[sel]
+        n = normals.take(sel, axis=0)
         centre = rays(intr, qs.x[sel].astype(np.float64) + size / 2, qs.y[sel].astype(np.float64) + size / 2)
         neg_w = dot3(n, centre) * qs.depth[sel].astype(np.float64)   # -w of the quad's plane n . X + w = 0, view space
         nx, ny, nz = n[:, 0, None], n[:, 1, None], n[:, 2, None] * ray_z
@@ -84,7 +84,7 @@ def behind_sides(qs: QuadSet, intr: CameraIntrinsics, px: float, index_map: np.n
             xb, yb = _across(qs, sel, size, side)
             inside = (xb >= 0) & (xb < w) & (yb >= 0) & (yb < h)
             xc, yc = np.clip(xb, 0, w - 1), np.clip(yb, 0, h - 1)
-            zb = np.where(inside, z_shown[yc, xc], np.inf)
+            zb = np.where(inside, z_shown.reshape(-1).take(yc * w + xc), np.inf)   # (z_shown[yc, xc], faster)
             den = nx * ray_x[xc] + ny * ray_y[yc]
             den += nz
             with np.errstate(divide="ignore", invalid="ignore"):
