@@ -818,6 +818,46 @@ def dilate_in_blocks(col: np.ndarray, w: np.ndarray, block: int) -> tuple[np.nda
     return col, w
 
 
+def _fill_holes(rgba: np.ndarray, rows: int, out: np.ndarray) -> np.ndarray:
+    """:func:`fill_gutters` without blocks, from the second level: its 2x2 sums of the written texels' 8-bit colours are
+    integers, exact in float32 whichever way they are added, so they are summed as integers (no float32 copy of the
+    atlas); an unwritten texel of the first level has no weight and takes the second level's colour."""
+    m = rgba[:rows, :, 3] > 127
+    ci = rgba[:rows, :, :3].astype(np.uint16)
+    ci *= m[..., None]
+    mi = m.astype(np.uint16)
+    ph, pw = ci.shape[0] % 2, ci.shape[1] % 2
+    if ph or pw:
+        ci = np.pad(ci, ((0, ph), (0, pw), (0, 0)))
+        mi = np.pad(mi, ((0, ph), (0, pw)))
+    ci, mi = ci[0::2] + ci[1::2], mi[0::2] + mi[1::2]            # row pairs, then column pairs
+    c = (ci[:, 0::2] + ci[:, 1::2]).astype(np.float32)
+    w = (mi[:, 0::2] + mi[:, 1::2]).astype(np.float32)
+    ok = w > 0
+    c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)
+    w = ok.astype(np.float32)
+    pyramid = []
+    while c.shape[0] > 1 or c.shape[1] > 1:
+        ph, pw = c.shape[0] % 2, c.shape[1] % 2
+        if ph or pw:
+            c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
+            w = np.pad(w, ((0, ph), (0, pw)))
+        pyramid.append((c, w))
+        c = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
+        w = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        ok = w > 0
+        c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)
+        w = ok.astype(np.float32)
+    col = c
+    for c_k, w_k in reversed(pyramid):
+        up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
+        col = np.where((w_k > 0)[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
+    hy, hx = np.nonzero(~m)
+    out = out.copy()
+    out[hy, hx] = np.clip(np.rint(col[hy >> 1, hx >> 1]), 0, 255).astype(np.uint8)
+    return out
+
+
 def fill_gutters(rgba: np.ndarray, rows: int, block: int = 1) -> np.ndarray:
     """The atlas ``rgba`` (H, W, 4) uint8 as RGB with every texel no sample wrote (alpha 0) in its first ``rows``
     rows filled by push-pull: the alpha-weighted mean of the written texels in the smallest enclosing 2^k block.
@@ -835,6 +875,8 @@ def fill_gutters(rgba: np.ndarray, rows: int, block: int = 1) -> np.ndarray:
     w = (rgba[:rows, :, 3] > 127).astype(np.float32)
     if w.all() or not w.any():
         return out
+    if block == 1:
+        return _fill_holes(rgba, rows, out)
     c = rgba[:rows, :, :3].astype(np.float32) * w[..., None]
     if block > 1:
         c, wb = dilate_in_blocks(c, w > 0, block)
