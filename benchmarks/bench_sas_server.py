@@ -25,6 +25,13 @@ selection, allocation, shading, atlas read-back) at 320x180:
   times (``server_over_ground_truth_mean``), as a server whose cost alternates between frames
   would be flattered by its fastest frame alone.
 
+- ``--live-like`` (issue 49, item 5): frames as a live server makes them, in this process: the default scene with its
+  GI relit at ``--gi-hz`` (5, the live server's rate), ``walk`` at 320x180, frames ``--dt`` (0.6 s) apart, each
+  expecting ``--latency`` (0.65 s: a server making a frame in 0.6 s measures about that); per frame the process
+  CPU of ``produce`` and of its stages and the EVS samples taken, the tree before (``--before-tree``) and this one
+  alternately, ``--rounds`` times, into ``--out``.  The live benchmark (``bench_live_rate.py``) measures the same
+  through the sockets but needs a machine quiet enough for a session to start.
+
 Writes ``benchmarks/results/bench_sas_server.json``.  Run:
 ``python benchmarks/bench_sas_server.py [--frames N] [--before-tree DIR] [--rounds R]``.
 """
@@ -140,6 +147,58 @@ def time_cell(scene_name: str, trace: str, w: int, h: int, frames: int, cfg: dic
     return out
 
 
+def live_like_cell(frames: int, dt_s: float, latency_s: float, gi_hz: float) -> dict[str, object]:
+    """``--live-like``'s frames in this process's tree (module docstring): per-frame CPU means (ms) of ``produce``
+    and its stages, the EVS samples and the PVS size (medians), over ``frames`` frames after two warm-up frames."""
+    intr = CameraIntrinsics(320, 180)
+    r = Renderer()
+    r.gi_hz = gi_hz
+    scene = get_scene("default")
+    tr = get_trace("walk", scene=scene, aspect=intr.width / intr.height)
+    srv = SasServer(SasConfig(), intr, scene, 30)
+    rows: list[dict[str, float]] = []
+    for f in range(frames + 2):
+        t = 0.5 + f * dt_s
+        ctx = server_context(scene, r, intr, tr.pose_at(t), t_s=t, frame_id=f, predict=tr.pose_at, latency_s=latency_s)
+        n = len(srv.pvs_samples(ctx))
+        w, c = time.perf_counter(), time.process_time()
+        srv.produce(ctx)
+        w, c = time.perf_counter() - w, time.process_time() - c
+        st = srv.stats()
+        if f >= 2:
+            rows.append({"produce_cpu_ms": c * 1e3, "produce_wall_ms": w * 1e3, "evs_samples": float(n),
+                         **{k: float(st[k]) for k in ("pvs_cpu_ms", "alloc_cpu_ms", "shade_cpu_ms", "meta_cpu_ms",
+                                                      "pvs_patches", "shaded_patches") if k in st}})
+    out: dict[str, object] = {k: float(np.mean([x[k] for x in rows])) for k in rows[0] if k.endswith("_ms")}
+    out.update({k: float(np.median([x[k] for x in rows])) for k in ("evs_samples", "pvs_patches", "shaded_patches")
+                if k in rows[0]})
+    out["load1"] = os.getloadavg()[0]
+    return out
+
+
+def live_like(args: argparse.Namespace) -> None:
+    """``--live-like`` (module docstring): the tree before and this one alternately, each run in its own process."""
+    here = str(Path(__file__).resolve().parents[1])
+    trees = {"before": args.before_tree or here, "after": here}
+    arg = json.dumps({"frames": args.frames, "dt": args.dt, "latency": args.latency, "gi_hz": args.gi_hz})
+    runs: dict[str, list[dict[str, object]]] = {"before": [], "after": []}
+    for _ in range(args.rounds):
+        for side, tree in trees.items():
+            p = subprocess.run([sys.executable, __file__, "--live-cell", arg], env=dict(os.environ, PYTHONPATH=tree),
+                               cwd=tree, capture_output=True, text=True, check=True)
+            runs[side].append(json.loads(p.stdout.strip().splitlines()[-1]))
+            x = runs[side][-1]
+            print(f"{side:6s} produce {x['produce_cpu_ms']:.0f} ms CPU (PVS {x['pvs_cpu_ms']:.0f}, shading "
+                  f"{x['shade_cpu_ms']:.0f}), {x['evs_samples']:.0f} EVS samples, load {x['load1']:.1f}", flush=True)
+    ratio = [float(a["produce_cpu_ms"]) / float(b["produce_cpu_ms"]) for b, a in zip(runs["before"], runs["after"])]  # type: ignore[arg-type]
+    doc = {"machine": platform.platform(), "before": args.before_tree or "this tree", "frames": args.frames,
+           "dt_s": args.dt, "latency_s": args.latency, "gi_hz": args.gi_hz, "size": [320, 180], "scene": "default",
+           "trace": "walk", "runs": runs, "produce_cpu_after_over_before_per_round": ratio}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=2) + "\n")
+    print(f"produce CPU after/before per round: {', '.join(f'{x:.2f}' for x in ratio)} -> {args.out}")
+
+
 def before_after(frames: int, rounds: int, before_tree: str | None, only: set[str] | None = None,
                  after_cfg: dict[str, object] | None = None) -> dict[str, object]:
     """``before_after`` (module docstring): each cell alternately in the tree before and this one (``only``: the
@@ -181,10 +240,24 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2, help="before/after alternations per before_after cell")
     ap.add_argument("--before-tree", default=None)
     ap.add_argument("--cell", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--live-cell", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--live-like", action="store_true", help="frames as a live server makes them (module docstring)")
+    ap.add_argument("--dt", type=float, default=0.6, help="--live-like: seconds between frames")
+    ap.add_argument("--latency", type=float, default=0.65, help="--live-like: the latency each frame expects, s")
+    ap.add_argument("--gi-hz", type=float, default=5.0, help="--live-like: the probes' relight rate")
+    ap.add_argument("--out", type=Path, default=OUT.with_name("bench_sas_server_live_like.json"),
+                    help="--live-like: the JSON written")
     ap.add_argument("--only-before-after", action="store_true", help="run before_after alone, into the JSON there")
     ap.add_argument("--cells", default="", help="with --only-before-after: these cells (e.g. default_walk_640x360)")
     ap.add_argument("--after-cfg", default="{}", help='SasConfig fields of this tree\'s side, JSON (e.g. \'{"reshade_eye_deg": 2}\')')
     args = ap.parse_args()
+    if args.live_cell:
+        c = json.loads(args.live_cell)
+        print(json.dumps(live_like_cell(c["frames"], c["dt"], c["latency"], c["gi_hz"])))
+        return
+    if args.live_like:
+        live_like(args)
+        return
     if args.cell:
         c = json.loads(args.cell)
         print(json.dumps(time_cell(c["scene"], c["trace"], c["w"], c["h"], c["frames"], c["cfg"])))
