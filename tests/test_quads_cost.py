@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -61,6 +63,39 @@ def test_sparse_planes_are_the_whole_images(renderer) -> None:  # type: ignore[n
     assert np.array_equal(sparse["present"], dense["present"] & at)
     for k in ("n", "theta", "phi", "zc", "corners", "offs", "flat"):
         assert np.array_equal(sparse[k][at], dense[k][at]), k
+
+
+def test_every_levels_maps_spread_what_gather_sends(renderer, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The maps keep a level's corners and offsets as lattice planes or rows and spread ``corners`` / ``offs``
+    ((H, W, 16)) only when read (issue 49, h95): on a whole frame (dense level 0) and on a few pixels (sparse), at
+    every level the spread offsets of the quads with offsets are what ``gather`` sends (to float16, in order), and each
+    merged quad's corners are its children's outer corners."""
+    from splitrender.methods.quads import gen
+
+    scene, tr, _, cfg = _setup()
+    pose = tr.pose_at(0.5)
+    g = renderer.render(scene, 0.5, pose, INTR, ("color", "depth", "normal"))
+    rot = pose.view_matrix()[:3, :3]
+    emit = np.zeros(g.depth.shape, bool)
+    emit[40:120, 60:260:3] = True
+    emit[100:140, 100:180] = True
+    seen: list[list[dict[str, np.ndarray]]] = []
+    orig = gen.gather
+    monkeypatch.setattr(gen, "gather", lambda maps: seen.append(maps) or orig(maps))
+    params = dataclasses.replace(cfg.params, delta_flatten=1e-4)    # quads with offsets at every level, level 0 too
+    for kw in ({}, {"emit": emit}):
+        q = gen.generate(g.depth, g.normal, rot, INTR, params, **kw)
+        maps = seen[-1]
+        assert len(maps) >= 3 and ((~q.flat) & (q.level == 0)).sum() > 100 and ((~q.flat) & (q.level > 0)).sum() > 10
+        sent = []
+        for lv, m in enumerate(maps):
+            sel = m["present"] & ~m["flat"]
+            sent.append(m["offs"][sel])
+            if lv:      # a merged quad's sub-quad s takes child s's four outer corners
+                yy, xx = np.nonzero(m["present"])
+                kids = [maps[lv - 1]["corners"][2 * yy + sy, 2 * xx + sx][:, gen.OUTER] for sy in (0, 1) for sx in (0, 1)]
+                assert np.array_equal(m["corners"][yy, xx], np.concatenate(kids, axis=-1))
+        assert np.array_equal(np.concatenate(sent).astype(np.float16), q.offsets)
 
 
 def test_a_still_camera_draws_the_reference_view_once(renderer, monkeypatch) -> None:  # type: ignore[no-untyped-def]
