@@ -512,6 +512,32 @@ def test_each_id_pass_starts_from_a_cleared_id_buffer() -> None:
         got = ids.id_buffer(trace.pose_at(t), big, t)
         assert np.array_equal(got, fresh.id_buffer(trace.pose_at(t), big, t))
 
+
+def test_live_pvs_lingers_for_the_time_its_frames_take() -> None:
+    """``pvs_linger_frames`` (8) keeps a patch 8 frames after its last EVS sample: in virtual time 8 frames; live
+    (the renderer relights the probes at a rate) the frames within 8 / 30 s, at least one, so a live server making
+    a frame in 0.6 s no longer keeps (and refreshes) patches seen 4.8 s ago, and one at 30 fps keeps 8 as before."""
+    from types import SimpleNamespace
+
+    from splitrender.methods.sas import SasConfig, SasServer
+    from splitrender.scene.procedural import default_scene
+
+    srv = SasServer(SasConfig(), INTR, default_scene(gi=False), 30)
+    live, virtual = SimpleNamespace(gi_hz=5.0), SimpleNamespace(gi_hz=0.0)
+
+    def linger(renderer: object, times: list[float], t: float) -> int:
+        srv._frame_t = list(times)
+        return srv._linger_frames(SimpleNamespace(renderer=renderer, t_s=t))  # type: ignore[arg-type]
+
+    fast = [1.0 + k / 30 for k in range(8)]
+    slow = [1.0 + 0.6 * k for k in range(8)]
+    assert linger(live, fast, 1.0 + 8 / 30) == 8 and linger(virtual, fast, 1.0 + 8 / 30) == 8
+    assert linger(live, slow, 1.0 + 0.6 * 8) == 1 and linger(virtual, slow, 1.0 + 0.6 * 8) == 8
+    assert linger(live, [1.0 + 0.1 * k for k in range(8)], 1.8) == 2    # frames 0.1 s apart: 0.2 s within 0.267
+    assert linger(live, [], 1.0) == 1
+    assert SasServer(SasConfig(pvs_linger_frames=0), INTR, srv.scene, 30)._linger_frames(
+        SimpleNamespace(renderer=live, t_s=1.0)) == 0  # type: ignore[arg-type]
+
 TTT = "/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf"
 
 

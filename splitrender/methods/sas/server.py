@@ -520,6 +520,7 @@ class SasServer(ServerHalf):
         self._shaded_gen = np.zeros(self.patches.count, np.int64)
         self._stale_kept_count = 0
         self._last_seen = np.full(self.patches.count, -(1 << 40), np.int64)   # server frame a patch was last in an EVS
+        self._frame_t: list[float] = []      # the scene times of the last pvs_linger_frames frames (_linger_frames)
         self.n_obj = len(self.scene.objects)
         self._ids: PatchIdPass | None = None
         self._gl: Any = None
@@ -588,6 +589,18 @@ class SasServer(ServerHalf):
         return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps,
                            self.config.pvs_max_samples)
 
+    def _linger_frames(self, ctx: ServerContext) -> int:
+        """How many frames a patch stays in the PVS after its last EVS: :attr:`SasConfig.pvs_linger_frames`; live (the
+        renderer relights the probes at a rate, as :meth:`_live_refresh` tells), the frames of the time that many
+        take at ``server_fps`` (8 / 30 s), at least one: a live server making a frame in 0.6 s kept a patch 4.8 s
+        after it was last seen, and most blocks it shaded were of such patches (issue 49).  Virtual time makes its
+        frames at ``server_fps`` and keeps the count."""
+        n = self.config.pvs_linger_frames
+        if n == 0 or getattr(ctx.renderer, "gi_hz", 0.0) <= 0:
+            return n
+        span = n / self.server_fps
+        return max(1, sum(1 for t in self._frame_t if ctx.t_s - t <= span * (1 + 1e-9)))
+
     def frame_state(self, ctx: ServerContext) -> SasFrame:
         """The shared state of ``ctx``'s server frame: the producer's (``ctx.shared``), or prepared here when the
         half runs without one."""
@@ -607,7 +620,7 @@ class SasServer(ServerHalf):
         samples = self.pvs_samples(ctx)
         area = self._ids.pvs_area(samples, big)
         self._last_seen[area > 0] = self._frames
-        pvs = np.flatnonzero(self._last_seen >= self._frames - c.pvs_linger_frames)
+        pvs = np.flatnonzero(self._last_seen >= self._frames - self._linger_frames(ctx))
         t1, u1 = time.perf_counter(), time.process_time()
         # level selection at the predicted eye
         models = frame.models
@@ -657,6 +670,7 @@ class SasServer(ServerHalf):
         atlas = np.frombuffer(self._fbo.read(components=3, alignment=1), np.uint8).reshape(self.layout.height, self.layout.width, 3).copy()
         t3, u3 = time.perf_counter(), time.process_time()
         meta = self._meta(ctx, pvs, live, res, iframe, reset, full, models)
+        self._frame_t = (self._frame_t + [ctx.t_s])[-c.pvs_linger_frames:] if c.pvs_linger_frames else []
         self._since_i = 1 if iframe else self._since_i + 1
         self._since_check = 1 if (check or reset) else self._since_check + 1
         self._frames += 1
