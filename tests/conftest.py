@@ -133,17 +133,17 @@ def shared_run(request, session_renderer, truth_cache):  # type: ignore[no-untyp
 
 # ----------------------------------------------------------------------------- ordering and the stress suite
 #
-# The stability suite (tests/test_stress.py, ~300 CPU s in two worker processes) needs no quiet machine: it runs in
-# virtual time.  When its tests are selected it starts in the background as the session starts, beside the deterministic
-# tests.  In one process (``-n 0``) its tests come after those, and the live tests last, once the background suite has
-# finished.  Under xdist (the project's ``-n 2 --dist loadfile --no-loadscope-reorder``) each worker takes the next file
-# in the order the workers collected (:func:`_xdist_rank`): the files that wait on real time first on an otherwise idle
-# machine, beside the background suite (:data:`WAITING_FILES_S`), then the files that took longest, the many short ones
-# last, so the two workers finish together (pytest-xdist's own order, by test count, left its one-test files to the end:
-# test_tss_rd's 43 s was the last file handed out); test_stress.py, which only reads the background suite's rows, comes
-# last.  Live tests may run beside the background suite: they assert what was shown against what was sent, and the few
-# timed bounds (a shutdown within 2 s) scale by the load measured beside them (tests/_load.py), so they hold on a busy
-# machine too.
+# The stability suite (tests/test_stress.py, ~200 CPU s at 96x54, ``STRESS_SIZE``, in two worker processes) needs no
+# quiet machine: it runs in virtual time.  When its tests are selected it starts in the background as the session
+# starts, beside the deterministic tests.  In one process (``-n 0``) its tests come after those, and the live tests
+# last, once the background suite has finished.  Under xdist (the project's ``-n 2 --dist loadfile
+# --no-loadscope-reorder``) each worker takes the next file in the order the workers collected (:func:`_xdist_rank`):
+# the files that wait on real time first on an otherwise idle machine, beside the background suite
+# (:data:`WAITING_FILES_S`), then the files that took longest, the many short ones last, so the two workers finish
+# together (pytest-xdist's own order, by test count, left its one-test files to the end: test_tss_rd's 43 s was the last
+# file handed out); test_stress.py, which only reads the background suite's rows, comes last.  Live tests may run beside
+# the background suite: they assert what was shown against what was sent, and the few timed bounds (a shutdown within
+# 2 s) scale by the load measured beside them (tests/_load.py), so they hold on a busy machine too.
 #
 # Where the session waits (issue 49): clean-clone CI at 5e1a817, idle, 1,063 CPU s in 645 s on 2 cores, so ~227
 # core-seconds unused.  The background suite (its own session, so under Linux's autogroup a scheduling group of its
@@ -199,6 +199,12 @@ STRESS_NICE = int(os.environ.get("SR_STRESS_NICE", "0") or 0)
 #: (measured: 17 CPU s in 718 s), ~490 s of wall time: past the 480 s a 120 s limit gives, not past 960.  A run that
 #: never ends is still stopped, at 240 CPU s.
 STRESS_TIMEOUT_S = 240 if STRESS_NICE else 120
+#: The background stress suite's image size: the quick suite's timing (``stress.QUICK``: 1.25 s, window 0.4-0.7 s) at
+#: 96x54, not its 160x90.  Its runs took 197 CPU s against 275 (0.72x; the suite's processes 210 against 289; the GI
+#: cases, whose probes do not depend on the display's size, 30 either way), measured one after the other at load 10-14
+#: while other work ran; every stress test passed at both sizes, and test_stress.py gives the figures at 96x54 and the
+#: bounds derived from them (issue 49: the suite's time).
+STRESS_SIZE = (96, 54)
 _STRESS_SCRIPT = """
 import os, pickle, signal, sys, threading, time, traceback
 out = sys.argv[1]
@@ -223,8 +229,10 @@ def orphaned():         # the test session that started this suite is gone (inte
 threading.Thread(target=orphaned, daemon=True).start()
 rc = 1
 try:
-    from splitrender.experiments.stress import run_stress
-    res = run_stress(out, quick=True, workers=2, timeout_s=float(sys.argv[4]))
+    import dataclasses
+    from splitrender.experiments.stress import QUICK, run_stress
+    size = dict(zip(("width", "height"), map(int, sys.argv[5].split("x"))))     # STRESS_SIZE
+    res = run_stress(out, workers=2, timeout_s=float(sys.argv[4]), timing=dataclasses.replace(QUICK, **size))
     with open(out + "/rows.tmp", "wb") as f:
         pickle.dump(res.rows, f)
     os.replace(out + "/rows.tmp", out + "/rows.pickle")
@@ -266,7 +274,8 @@ def _start_stress(config) -> None:  # type: ignore[no-untyped-def]
     # a process group of its own (to kill it with its method workers); niced, in this session: a session of its own
     # is a scheduling group of its own under autogroup, where its niceness would count only against itself
     where = {"process_group": 0} if STRESS_NICE else {"start_new_session": True}
-    args = [sys.executable, "-c", _STRESS_SCRIPT, out, str(session), str(STRESS_NICE), str(STRESS_TIMEOUT_S)]
+    args = [sys.executable, "-c", _STRESS_SCRIPT, out, str(session), str(STRESS_NICE), str(STRESS_TIMEOUT_S),
+            "x".join(map(str, STRESS_SIZE))]
     config._sr_stress = (out, log, subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, **where))
 
 
