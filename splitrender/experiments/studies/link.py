@@ -246,7 +246,7 @@ def front_chart(rows: Sequence[dict[str, Any]], titles: dict[str, str], path: Pa
     traces = list(dict.fromkeys(r["trace"] for r in rows))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     colours = {m: f"C{i % 10}" for i, m in enumerate(methods)}
-    fig, axes = plt.subplots(1, len(traces), figsize=(4.6 * len(traces), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(traces), figsize=(max(7.5, 4.6 * len(traces)), 4.2), squeeze=False)
     for ax, tr in zip(axes[0], traces):
         for m in methods:
             pts = [r for mode in MODES for r in rows if r["trace"] == tr and r["method"] == m and r["adapt"] == mode
@@ -266,7 +266,7 @@ def front_chart(rows: Sequence[dict[str, Any]], titles: dict[str, str], path: Pa
                + [Line2D([], [], color="0.3", marker=MODE_MARKER[k], ls="", label=f"adapt {k}") for k in MODES
                   if any(r["adapt"] == k for r in rows)])
     axes[0][-1].legend(handles=handles, fontsize=7, loc="best")
-    fig.suptitle("Quality against latency per method: each mode's point (up and left is better)")
+    fig.suptitle("Model PSNR against p95 motion-to-photon, each mode's point (up and left is better)", fontsize=10)
     return save_figure(fig, path)
 
 
