@@ -213,3 +213,28 @@ def test_stable_atlas_places_every_frame_as_it_did(block: int) -> None:
         overflows += int(pa.overflow)
     assert repacks >= 1           # the walk ran the atlas out of cells at least once
     assert KIND_OS in kind
+
+
+def test_a_live_window_takes_at_most_pvs_max_samples_id_passes() -> None:
+    """tss takes its PVS as sas does, capped alike (``TssConfig.pvs_max_samples``, 8): a live server expecting 0.65 s
+    of latency takes 8 patch-id passes where 33.3 ms steps took 22; a virtual-time window (cloud: 50 ms and a frame)
+    keeps its own samples, and a config asking for more is honoured."""
+    from types import SimpleNamespace
+
+    from splitrender.errors import ConfigError
+    from splitrender.methods.tss import TssConfig
+    from splitrender.pipeline.direct import server_context
+    from splitrender.scene.trace import get_trace
+
+    walk = get_trace("walk")
+    intr = CameraIntrinsics(160, 90, 60.0)
+
+    def passes(latency_s: float, cfg: TssConfig) -> int:
+        ctx = server_context(None, None, intr, t_s=2.0, predict=walk.pose_at, latency_s=latency_s)
+        return len(tss_server.TssServer.pvs_samples(SimpleNamespace(config=cfg, server_fps=30), ctx))
+
+    assert passes(0.65, TssConfig()) == 8
+    assert passes(0.65, TssConfig(pvs_max_samples=1000)) == 22
+    assert passes(0.05, TssConfig()) == passes(0.05, TssConfig(pvs_max_samples=1000)) < 8
+    with pytest.raises(ConfigError, match="pvs_max_samples"):
+        TssConfig(pvs_max_samples=1)

@@ -63,7 +63,8 @@ class TssConfig(MethodConfig):
     the display's pixel count (the paper's 24 Mpix for its walkthroughs); when
     the visible set does not fit, the sampling rate of the frame is lowered until it
     does.  PVS settings as ``sas``: ``fov_margin``, ``pvs_step_ms``,
-    ``pvs_prediction``, ``pvs_linger_frames``.  ``split_near_m``: at load time, meshes
+    ``pvs_prediction``, ``pvs_linger_frames``, ``pvs_max_samples`` (a live server's long windows take at most that
+    many patch-id passes; virtual time's networks take fewer).  ``split_near_m``: at load time, meshes
     are split (midpoints) until no edge seen from this distance needs a level above 64
     (the paper's pre-tessellation, done once); 0 disables it.  ``perspective``: place
     samples uniformly in the reference view's screen space ([MHAM08], eq. 5) rather
@@ -216,6 +217,7 @@ class TssConfig(MethodConfig):
     pvs_step_ms: float = 33.3
     pvs_prediction: Literal["linear", "none"] = "linear"
     pvs_linger_frames: int = 8
+    pvs_max_samples: int = 8
     split_near_m: float = 2.0
     split_max_triangles: int = 200_000
     perspective: bool = True
@@ -268,6 +270,8 @@ class TssConfig(MethodConfig):
             raise ConfigError(f"TssConfig.fov_margin: must be in [0, 2], got {self.fov_margin}")
         if not self.pvs_step_ms > 0:
             raise ConfigError(f"TssConfig.pvs_step_ms: must be > 0, got {self.pvs_step_ms}")
+        if not 2 <= self.pvs_max_samples <= 1000:
+            raise ConfigError(f"TssConfig.pvs_max_samples: must be in [2, 1000], got {self.pvs_max_samples}")
         if self.pvs_prediction not in ("linear", "none"):
             raise ConfigError(f"TssConfig.pvs_prediction: {self.pvs_prediction!r} is not one of ['linear', 'none']")
         if not 0 <= self.pvs_linger_frames <= 1000:

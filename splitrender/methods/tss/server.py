@@ -457,7 +457,8 @@ class TssServer(ServerHalf):
     # ------------------------------------------------------------------ frame
     def pvs_samples(self, ctx: ServerContext) -> list[PoseSample]:
         """EVS samples of the PVS, as ``sas`` takes them (:func:`~splitrender.methods.sas.pvs.evs_samples`)."""
-        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps)
+        return evs_samples(ctx, self.config.pvs_prediction, self.config.pvs_step_ms, self.server_fps,
+                           self.config.pvs_max_samples)
 
     def _hysteresis(self, ids: np.ndarray, kind: np.ndarray, level: np.ndarray, w1: np.ndarray, w2: np.ndarray, h: np.ndarray,
                     a: np.ndarray, slant: np.ndarray, need: np.ndarray) -> None:
