@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="the studies' quick settings")
     p.add_argument("--timeout", type=float, default=3600.0, help="stop studies still running after this many seconds")
     p.add_argument("--workers", type=int, default=None,
-                   help="worker processes for the studies that run a grid of runs (claims, papers; default 2)")
+                   help="worker processes for the studies that run a grid of runs (claims, papers, link; default 2)")
     p.add_argument("--dask", default=None, metavar="ADDRESS",
                    help="run those grids on a Dask cluster (tcp://host:8786) or 'local' for a LocalCluster, as sweeps do")
     p.set_defaults(func=_lazy("splitrender.experiments.demo:main_study"))
