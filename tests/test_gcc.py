@@ -133,6 +133,36 @@ def test_a_probe_measures_what_the_link_delivers() -> None:
     assert est.target_bps == pytest.approx(0.9 * 6e6, rel=0.03)
 
 
+def _probe_beside_media(cfg: GccConfig) -> BandwidthEstimator:
+    """A periodic probe (2x a 6 Mbit/s estimate) through a 7 Mbit/s FIFO bottleneck while media goes out at 3.5
+    Mbit/s, 1,000-byte packets: the estimator after the feedback that covers it."""
+    est = BandwidthEstimator(cfg)
+    est.probes._pending.clear()
+    est.aimd.set_estimate(6e6)
+    cl = est.probes.next_cluster(6e6, 10_000_000)
+    assert cl is not None and cl.rate_bps == pytest.approx(12e6)
+    sent = [(cl.start_us + int(k * cl.spacing_us()), cl.packet_bytes, cl.cluster) for k in range(cl.packets)]
+    sent += [(9_990_000 + k * 2_286, 1000, -1) for k in range(40)]          # 1,000 bytes every 2.29 ms: 3.5 Mbit/s
+    results, t_free = [], 0
+    for seq, (send, size, probe) in enumerate(sorted(sent)):
+        t_free = max(t_free, send + 20_000) + int(size * 8e6 / 7e6)
+        results.append(PacketResult(seq, send, size, t_free, probe))
+    est.on_feedback(results, 10_200_000)
+    return est
+
+
+def test_a_probe_beside_media_measures_the_link_with_probe_media() -> None:
+    """Padding alone, a probe sent while media shares the link reads the link less the media's rate (5.5 of 7
+    Mbit/s here, under the 6 Mbit/s estimate: nothing found); with ``probe_media`` the media sent within its span
+    counts too and it reads the link, raising the estimate to 0.9 of it."""
+    alone = _probe_beside_media(GccConfig())
+    assert alone.probes.found[-1][1] < 0.8 * 7e6
+    assert alone.target_bps < 6.1e6
+    both = _probe_beside_media(GccConfig(probe_media=True))
+    assert both.probes.found[-1][1] == pytest.approx(7e6, rel=0.05)
+    assert both.target_bps == pytest.approx(0.9 * 7e6, rel=0.05)
+
+
 def _start_clusters(cfg: GccConfig) -> list[tuple[float, int, int]]:
     """(rate, start us, end us) of the clusters the estimator sends before any feedback, polled every ms for 0.2 s."""
     est, out = BandwidthEstimator(cfg), []
