@@ -519,3 +519,25 @@ def test_the_start_up_probes_go_out_back_to_back_and_climb_faster_until_an_overu
     assert pc.next_cluster(4e6, 450_000).rate_bps == pytest.approx(2 * 4e6)  # type: ignore[union-attr]
     with pytest.raises(ConfigError, match="start_climb"):
         GccConfig(start_climb=1.0)
+
+
+def test_a_method_whose_estimator_probes_high_at_start_codes_its_first_frames_under_that_probe() -> None:
+    """START_BOOST: tss's estimator sends start-up probes to 24x the 300 kbit/s guess at 0 s; until the first
+    measurement its calibrating streams keep their share of that (0.9 x 7.2 Mbit/s), not of the guess (tss coded its
+    first atlas IDR in 2.9 kB under 270 kbit/s); once the estimate moves, its own share (no blip hold from the
+    boosted ceiling).  sas (the same probes, its model's ``start_boost`` off) and quads (GCC's probes) keep the
+    guess's share."""
+    import dataclasses
+
+    from splitrender.methods.base import SCALE_KNOB
+    from splitrender.methods.quads.config import QUALITY as QUADS
+    from splitrender.methods.sas.config import QUALITY as SAS
+    from splitrender.methods.tss.config import QUALITY as TSS
+    from splitrender.pipeline.adapt import PointController
+
+    for model, boost in ((TSS, 24.0), (SAS, 1.0), (QUADS, 1.0)):
+        rc = RateController(("atlas",), 30.0)
+        PointController((dataclasses.replace(SCALE_KNOB, model=model),), rc)
+        assert rc.start_boost == boost
+        assert rc.targets_kbps(3e5)["atlas"] == pytest.approx(270.0 * boost)
+        assert rc.targets_kbps(1e6)["atlas"] == pytest.approx(900.0)      # measured: the estimate's share

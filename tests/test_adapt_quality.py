@@ -235,3 +235,46 @@ def test_quads_s_frame_rate_knob_holds_where_re_measured(renderer, truth_cache) 
     third = measure("quads", {"frame_div": 3}, renderer=renderer, truth_cache=truth_cache)
     assert own.model_psnr_db - third.model_psnr_db == pytest.approx(QUADS.db_lost("frame_div", 2), abs=TOLERANCE_DB)
     assert QUADS.db_lost("frame_div", 1) < QUADS.db_lost("frame_div", 2) < QUADS.db_lost("frame_div", 3)
+
+
+def test_a_model_with_up_room_steps_up_at_once_where_the_richer_point_fits_twice_over() -> None:
+    """At one frame in 2 after a fall (4.6 Mbit/s of video and data at the own point), an estimate that a probe lifts
+    to 12 Mbit/s: with ``up_room`` 2 (tss's) the point goes back up at the next update with the queue empty, not
+    after the up hold; with a queue, or without ``up_room``, it waits the hold.  Where the own point fits only once
+    over, the hold stands."""
+    cfg = AdaptConfig(down_hold_s=0.0)
+
+    def at_one_in_two(room: float) -> PointController:
+        model = dataclasses.replace(MODEL, up_room=room)
+        pc = PointController((dataclasses.replace(BUDGET, model=model), FRAME_DIV_KNOB),
+                             _calibrated(4000.0, 600.0, cfg), cfg)
+        assert pc.update(0.0, 2.6e6 / 0.9) and pc.values()["frame_div"] == 2
+        return pc
+
+    for room, queue_ms, est, want in ((2.0, 5.0, 12e6, 0.1), (2.0, 30.0, 12e6, 1.1), (0.0, 5.0, 12e6, 1.1),
+                                      (2.0, 5.0, 6e6, 1.1)):
+        pc = at_one_in_two(room)
+        moved = [s for s in (0.1 * k for k in range(1, 15)) if pc.update(s, est, queue_ms=queue_ms)]
+        assert moved[:1] == [pytest.approx(want)] and pc.index == 0, (room, queue_ms, est, moved)
+
+
+def test_a_tracked_cap_follows_what_the_crf_sends_and_not_what_a_ceiling_shapes() -> None:
+    """``track_cap`` (tss's model): after calibration (2.4 Mbit/s) a stream sending 1.2 Mbit/s under 5 Mbit/s
+    ceilings (its crf's rate) moves its cap towards that, 1/30 a frame (1.36 after 60 frames); one sending 4.5 under 5
+    (the ceiling shaping it) is followed only while its average stays under TRACK_BOUND of the ceilings' (4 Mbit/s);
+    without ``track_cap`` the cap is the calibration's."""
+    from splitrender.pipeline.adapt import CappedCrf
+
+    def cap_after(track: bool, kbytes: float) -> float:
+        rc = RateController(("atlas",), 30.0)
+        rc.track_cap = track
+        for _ in range(30):
+            rc.on_frame_sent({"atlas": 10_000}, {"atlas": CappedCrf(9000.0)})
+        assert rc.natural_video_bps() == pytest.approx(2.4e6)
+        for _ in range(60):
+            rc.on_frame_sent({"atlas": int(kbytes * 1000)}, {"atlas": CappedCrf(5000.0)}, idr_streams=())
+        return rc.natural_video_bps()
+
+    assert cap_after(True, 5.0) == pytest.approx(2.4e6 - 1.2e6 * (1 - (29 / 30) ** 60), rel=1e-3)
+    assert 2.4e6 < cap_after(True, 18.75) <= 0.8 * 5e6
+    assert cap_after(False, 5.0) == pytest.approx(2.4e6)

@@ -152,6 +152,22 @@ class QualityModel:
     GCC's own, do not (with tss's, warp's oldest update shown in the quick stress suite's capacity drop was 333 ms
     against its 292 ms bound, quads's 367 against 375)."""
 
+    track_cap: bool = False
+    """The rate controller keeps learning what the method's own operating point sends after its calibration
+    (:attr:`~splitrender.pipeline.adapt.RateController.track_cap`): a cap measured once, in a window of fast motion
+    and restart IDRs, priced tss's own point at 8.6 Mbit/s (``off`` sends 5.8 on average) and held it at one frame in
+    2 for the last 3.7 s of the 8 Mbit/s cellular-like trace, sending 3.5 Mbit/s under a 7.3 Mbit/s estimate."""
+
+    start_boost: bool = False
+    """Until the estimator's first measurement the method's calibrating streams take their share of the highest of
+    its start-up probes (its ``estimator``'s ``start_probes``), not of the 300 kbit/s guess
+    (:attr:`~splitrender.pipeline.adapt.RateController.start_boost`; tss: its first atlas IDR was 2.9 kB)."""
+    up_room: float = 0.0
+    """Where a richer point's cost fits this many times over in the budget with no queue, the point controller steps
+    up to it at once, without the up hold (0: never; :attr:`~splitrender.pipeline.adapt.PointController.up_room`): a
+    probe that finds the link wide is a measurement, not a creep.  tss on the 8 Mbit/s cellular-like trace found 16
+    Mbit/s at 2.7 s and stayed at one frame in 3 (its own point costing 5 Mbit/s) until 3.7 s."""
+
     def __post_init__(self) -> None:
         for name, db in self.knob_db:
             if not db or db[0] != 0.0 or any(not (x == x) for x in db):

@@ -112,6 +112,20 @@ START_HOLD = True
 a calibrating stream of a method that tolerates a queue keeps at least the start's share of it: the first frames'
 data (tss's geometry, 17 kB in its first frame), paid first against a guess, left its atlas the 50 kbit/s floor at
 0.13 s and cost an IDR coded at it, 0.07 s before the start probes' result lifted the ceiling six times over."""
+START_BOOST = True
+"""A method that tolerates a queue, whose estimator sends start-up probes past GCC's own (its quality model's
+``estimator``: sas and tss, 3x to 24x the 300 kbit/s guess, back to back at 0 s) and whose model asks for it
+(``start_boost``: tss; sas, unmeasured, keeps the guess's share) codes its first frames under a
+ceiling at its share of the highest of them (:attr:`RateController.start_boost`), not of the guess: the probes' result
+comes back only after they have all been sent (0.2-0.3 s), and tss on the 8 Mbit/s cellular-like trace coded its first
+atlas IDR in 2.9 kB under a 270 kbit/s ceiling and the next at 0.2 s under 1.2 Mbit/s (model PSNR 7-14 dB for its
+first 0.27 s, 17.1 dB over the first half second against ``adapt = "off"``'s 22.0)."""
+UP_ROOM = True
+"""The point controller takes a method's ``up_room`` (its quality model's): off, every step up waits the up hold."""
+TRACK_BOUND = 0.8
+"""A stream whose average rate stays under this share of its ceilings' average is at its crf's rate, not the
+ceiling's (:attr:`RateController.track_cap`): tss under a 5.8 Mbit/s ceiling at one frame in 2 sent 3.0-3.8 (0.5-0.65
+of it; ``BOUND``'s 0.5, calibration's test of a window's P-frames alone, read it as shaped)."""
 RECALIBRATE = 1.5
 """A cap the link set (a stream whose ceiling kept binding through its calibration) is dropped, and the stream
 calibrated again, once its share of the estimate is this many times the cap."""
@@ -243,17 +257,31 @@ class RateController:
         self._p_frames: dict[str, list[int]] = {n: [] for n in self.video}    # calibration: bytes of its P-frames
         self._provisional: set[str] = set()                                  # caps the link set, not the method
         self._calibrating: set[str] = set(self.video) if self.cfg.calibrate_frames else set()
+        self._track: dict[str, tuple[float, float]] = {}                     # track_cap: (rate, ceiling) averages
         self._wide: set[str] = set()                                         # at the crf under a ceiling (WIDE)
         self._dip: dict[str, int] = {}                                       # calibrating: frames its ceiling fell
         self._dip_ref: dict[str, float] = {}                                 # ... and the ceiling before the fall
         self._target_factor = 1.0                                            # self.factor at the latest targets
         self._first_bps: float | None = None                                 # the estimator's first encoder rate
+        self._boosted = False                                                # the latest ceilings were start_boost's
+        self._left_start = False                                             # ... and these are the first after them
         self.last_overhead_bps = 0.0
         """The newest frame's bits of what the encoders do not control, per second of frames (not averaged)."""
         self.factor = 1.0
         """What the operating point (:class:`PointController`) lets the encoders take, as a fraction of what they
         took at the method's own point: each calibrated cap is multiplied by it."""
         self.frames = 0
+        self.start_boost = 1.0
+        """Before the estimator's first measurement (``START_HOLD``), a calibrating stream of a method that tolerates a
+        queue keeps at least its share of this many times the start's guess: the highest of the start-up probes its
+        estimator sends at once (:attr:`~splitrender.methods.base.QualityModel.estimator`'s ``start_probes``;
+        :class:`PointController` sets it), what the link is being asked to carry anyway (1: the guess alone)."""
+        self.track_cap = False
+        """After a stream's calibration its cap follows what it sends: an average of each frame's rate at the method's
+        own point (as calibration counts it; weight 1 / ``calibrate_frames``), taken as the cap while it stays under
+        ``TRACK_BOUND`` of the same average of its ceilings (the crf's rate, not the link's): what the method sends follows
+        its content (tss's camera speed), and a cap measured once in one window prices its own point for the rest of
+        the session (the method's quality model's ``track_cap``; :class:`PointController` sets it)."""
         self.buffer_ms: float | None = None
         """The VBV buffer (ms of the ceiling) a :class:`CappedCrf` gives its encoder, where longer than two frames
         (None: two frames): the queue a method tolerates past video's (:class:`PointController` sets it from the
@@ -300,9 +328,20 @@ class RateController:
                 if len(seen) >= self.cfg.calibrate_frames or (shaped and len(seen) >= SHAPED_FRAMES):
                     self._cap[n] = self.cfg.ceiling * sum(seen) / len(seen)
                     (self._provisional.add if shaped else self._provisional.discard)(n)
+                    self._track.pop(n, None)
                     self._calibrating.discard(n)
                     for buf in (seen, ceilings, p):
                         buf.clear()
+            elif self.track_cap and n in self._cap and n not in self._provisional:
+                ceiling = (given_kbps or {}).get(n)
+                if ceiling is not None:        # both at the method's own point, as calibration counts them
+                    f = max(self.factor, 1e-3)
+                    r, c = b * 8 * self.fps / 1000 / f, float(ceiling) / f
+                    r0, c0 = self._track.get(n, (self._cap[n], c))
+                    w = 1.0 / max(self.cfg.calibrate_frames, 1)
+                    self._track[n] = (r0 + w * (r - r0), c0 + w * (c - c0))
+                    if self._track[n][0] < TRACK_BOUND * self._track[n][1]:   # the crf's rate, not the ceiling's
+                        self._cap[n] = self._track[n][0]
         total = sum(ours.values())
         if total > 0:
             for n, b in ours.items():
@@ -317,7 +356,8 @@ class RateController:
         """Stream ``n``'s ceiling ``kbps``, held just over ``urgent_ratio`` of the one before through a fall shorter
         than ``DIP_FRAMES`` (no restart, no I-frame, for a blip)."""
         ref = self._dip_ref.get(n, self._target.get(n))
-        moved = self._target_factor != self.factor     # the operating point moved: a decision, not a blip
+        # the operating point moved, or the start's boosted ceiling met the first measurement: a decision, not a blip
+        moved = self._target_factor != self.factor or self._left_start
         if isinstance(ref, CappedCrf) and kbps < self.cfg.urgent_ratio * ref and not moved:
             self._dip[n] = self._dip.get(n, 0) + 1
             self._dip_ref[n] = ref
@@ -342,6 +382,7 @@ class RateController:
         budget = self.cfg.headroom * encoder_bps - (self._paid_bps or 0.0)
         tolerant = self.buffer_ms is not None          # a method that tolerates a queue
         start = START_HOLD and tolerant and encoder_bps == self._first_bps   # no measurement yet: the start's guess
+        self._left_start, self._boosted = self._boosted and not start, start and self.start_boost > 1.0
         out: dict[str, float] = {}
         for n in self.video:
             kbps = min(self.cfg.max_kbps, max(self.cfg.min_kbps, budget * self._share[n] / self._miss[n] / 1000))
@@ -351,7 +392,8 @@ class RateController:
                 #                            (the provisional cap stands for the operating point meanwhile)
             if n in self._calibrating:
                 if start:       # the first fill's data is not paid against a guess (START_HOLD)
-                    kbps = max(kbps, self.cfg.headroom * encoder_bps * self._share[n] / self._miss[n] / 1000)
+                    kbps = max(kbps, self.cfg.headroom * encoder_bps * self.start_boost * self._share[n]
+                               / self._miss[n] / 1000)
                 out[n] = CappedCrf(self._held(n, kbps), self.buffer_ms)
                 continue
             # a provisional cap is the link's, not the method's: it caps nothing
@@ -579,6 +621,10 @@ class PointController:
         self.ladder = quality_ladder(self.knobs, self.model) if self.model is not None else build_ladder(self.knobs)
         if self.model is not None and self.rate.buffer_ms is None and self.tolerance_ms > self.cfg.mtp_budget_ms:
             self.rate.buffer_ms = BURST_SHARE * (self.tolerance_ms - self.cfg.mtp_budget_ms)
+            if START_BOOST and getattr(self.model, "start_boost", False):
+                self.rate.start_boost = max(dict(self.model.estimator).get("start_probes", (1.0,)))
+        if self.model is not None and getattr(self.model, "track_cap", False):
+            self.rate.track_cap = True
         self.index = 0
         self.moves = 0
         self._data_bps: dict[int, float] = {}
@@ -591,6 +637,9 @@ class PointController:
         self._data_sum: dict[int, list[float]] = {}    # sessions without lossy video: bits/s summed, frames, per point
         self._calm_since: float | None = None           # since when the estimate has not fallen nor the queue risen
         self._last_estimate: float | None = None
+        self.up_room = float(getattr(self.model, "up_room", 0.0) or 0.0) if UP_ROOM else 0.0
+        """A richer point whose cost fits this many times over in the budget, with no queue, is taken without the up
+        hold (the quality model's ``up_room``; 0: never)."""
         self.alr_steps = 0
         """Moves up taken under the whole budget because the session was application-limited (:meth:`app_limited`)."""
 
@@ -766,6 +815,9 @@ class PointController:
                 target = best
         elif up is not None and alr:
             target = up                            # the quiet time (ALR_QUIET_S) was the hold
+        elif up is not None and self.up_room and queue_ms < ALR_QUEUE_MS \
+                and self.up_room * self.cost_bps(up) <= budget:
+            target = up                            # room to spare several times over: no hold
         elif up is not None:
             if self._fits_up_since is None:
                 self._fits_up_since = now_s
