@@ -68,6 +68,7 @@ def closed_port() -> int:
     (["serve", "--gi-hz", "-1"], "--gi-hz: must be 0 (every frame) or in [0.1, 240], got -1"),
     (["serve", "--gi-hz", "0.05"], "--gi-hz: must be 0 (every frame) or in [0.1, 240], got 0.05"),
     (["client", "--rows-kept", "0"], "--rows-kept: must be in [1, 10000000], got 0"),
+    (["client", "--connect-timeout", "0"], "--connect-timeout: must be in (0, 3600] s, got 0.0"),
 ])
 def test_bad_arguments_are_refused_at_startup(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
     if argv[0] == "serve":  # should a check regress, the server fails to bind instead of serving forever
@@ -75,6 +76,19 @@ def test_bad_arguments_are_refused_at_startup(argv: list[str], message: str, cap
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err == f"splitrender: error: {message}\n"
+
+
+def test_client_connect_timeout_reaches_its_config() -> None:
+    """``client --connect-timeout`` sets how long the client waits for its Welcome (5 s unless given: a loaded
+    machine's sas set-up took longer, so the live-rate benchmark asks for 60)."""
+    import argparse
+
+    from splitrender.client.cli import add_client_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_client_arguments(p)
+    assert config_from_args(p.parse_args([])).connect_timeout_s == 5.0   # type: ignore[attr-defined]
+    assert config_from_args(p.parse_args(["--connect-timeout", "60"])).connect_timeout_s == 60.0   # type: ignore[attr-defined]
 
 
 def test_live_server_checks_method_params_before_starting() -> None:

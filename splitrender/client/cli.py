@@ -43,6 +43,8 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
                         "max_stream_bytes, max_session_bytes, max_pending_frames, max_pending_bytes, max_video_pixels, "
                         "max_probes, max_scene_triangles, max_scene_objects, max_reference_pixels, max_atlas_pixels, "
                         "max_mesh_vertices (docs/protocol.md, Limits)")
+    p.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+                   help="seconds to wait for the connection and the server's Welcome (default 5)")
     p.add_argument("--rows-kept", type=int, default=4096, metavar="N",
                    help="displayed-frame rows kept in memory (every row goes to the recording as it is shown; "
                         "default 4096)")
@@ -62,6 +64,8 @@ def config_from_args(ns: argparse.Namespace) -> object:
             raise ConfigError(f"{opt}: must be in [1, 65535], got {port}")
     if not 0 <= ns.metrics_interval <= 3600:
         raise ConfigError(f"--metrics-interval: must be in [0, 3600] s, got {ns.metrics_interval}")
+    if not 0 < ns.connect_timeout <= 3600:
+        raise ConfigError(f"--connect-timeout: must be in (0, 3600] s, got {ns.connect_timeout}")
     if not 1 <= ns.rows_kept <= 10_000_000:
         raise ConfigError(f"--rows-kept: must be in [1, 10000000], got {ns.rows_kept}")
     given = options_from_args(ns, ClientOptions)   # a session option out of range fails here, by its flag
@@ -82,7 +86,7 @@ def config_from_args(ns: argparse.Namespace) -> object:
                         codecs=codecs, width=ns.width, height=ns.height, display_hz=ns.display_hz,
                         tracker_hz=ns.tracker_hz, trace=ns.trace, duration_s=ns.duration, out_dir=ns.out,
                         save_images=ns.save_images or ns.score, metrics_interval_s=ns.metrics_interval,
-                        limits=client_limits, rows_kept=ns.rows_kept,
+                        limits=client_limits, rows_kept=ns.rows_kept, connect_timeout_s=ns.connect_timeout,
                         **given)
 
 

@@ -148,7 +148,7 @@ async def _session(method: str, seconds: float, scene: str, width: int, height: 
             cmd = [sys.executable, "-c", "from splitrender.cli import main; main()", "client",
                    "--port", str(srv.tcp_address[1]), "--method", method, "--width", str(width), "--height", str(height),
                    "--display-hz", f"{display_hz:g}", "--duration", f"{seconds:g}", "--out", str(out / "client"),
-                   "--metrics-interval", "0", "--stall-timeout", "30"]
+                   "--metrics-interval", "0", "--stall-timeout", "30", "--connect-timeout", "60"]
             proc = await asyncio.create_subprocess_exec(*cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
             try:
