@@ -818,6 +818,30 @@ def dilate_in_blocks(col: np.ndarray, w: np.ndarray, block: int) -> tuple[np.nda
     return col, w
 
 
+def _push_pull(c: np.ndarray, w: np.ndarray, finest: int) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """Push-pull over colour sums ``c`` (h, w, 3) float32 with weights ``w`` (h, w): push builds the pyramid of
+    levels (each padded to even sides, then 2x2 sums turned into means of weight 1 where any weight lies), pull
+    comes back down, each level's own mean where it has weight, else the coarser level's colour.  The pull stops at
+    level ``finest`` (0: the input's); returns that level's colours and the pyramid (level k's (c, w) at index k)."""
+    pyramid = []
+    while c.shape[0] > 1 or c.shape[1] > 1:
+        ph, pw = c.shape[0] % 2, c.shape[1] % 2
+        if ph or pw:
+            c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
+            w = np.pad(w, ((0, ph), (0, pw)))
+        pyramid.append((c, w))
+        c = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
+        w = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+        ok = w > 0
+        c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)   # each coarser level: means, weight 1
+        w = ok.astype(np.float32)
+    col = c
+    for c_k, w_k in reversed(pyramid[finest:]):
+        up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
+        col = np.where((w_k > 0)[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
+    return col, pyramid
+
+
 def _fill_holes(rgba: np.ndarray, rows: int, out: np.ndarray) -> np.ndarray:
     """:func:`fill_gutters` without blocks, from the second level: its 2x2 sums of the written texels' 8-bit colours are
     integers, exact in float32 whichever way they are added, so they are summed as integers (no float32 copy of the
@@ -836,22 +860,7 @@ def _fill_holes(rgba: np.ndarray, rows: int, out: np.ndarray) -> np.ndarray:
     ok = w > 0
     c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)
     w = ok.astype(np.float32)
-    pyramid = []
-    while c.shape[0] > 1 or c.shape[1] > 1:
-        ph, pw = c.shape[0] % 2, c.shape[1] % 2
-        if ph or pw:
-            c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
-            w = np.pad(w, ((0, ph), (0, pw)))
-        pyramid.append((c, w))
-        c = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
-        w = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
-        ok = w > 0
-        c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)
-        w = ok.astype(np.float32)
-    col = c
-    for c_k, w_k in reversed(pyramid):
-        up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
-        col = np.where((w_k > 0)[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
+    col, _ = _push_pull(c, w, 0)
     hy, hx = np.nonzero(~m)
     out = out.copy()
     out[hy, hx] = np.clip(np.rint(col[hy >> 1, hx >> 1]), 0, 255).astype(np.uint8)
@@ -886,23 +895,7 @@ def fill_gutters(rgba: np.ndarray, rows: int, block: int = 1) -> np.ndarray:
             out = out.copy()
             out[:rows][hole] = np.clip(np.rint(c[hole]), 0, 255).astype(np.uint8)
             return out
-    pyramid = []
-    while c.shape[0] > 1 or c.shape[1] > 1:
-        ph, pw = c.shape[0] % 2, c.shape[1] % 2
-        if ph or pw:
-            c = np.pad(c, ((0, ph), (0, pw), (0, 0)))
-            w = np.pad(w, ((0, ph), (0, pw)))
-        pyramid.append((c, w))
-        c = c[0::2, 0::2] + c[1::2, 0::2] + c[0::2, 1::2] + c[1::2, 1::2]
-        w = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
-        ok = w > 0
-        c = np.where(ok[..., None], c / np.maximum(w, 1e-9)[..., None], 0.0)   # each coarser level: means, weight 1
-        w = ok.astype(np.float32)
-    col = c
-    for c_k, w_k in reversed(pyramid[1:]):
-        up = np.repeat(np.repeat(col, 2, axis=0), 2, axis=1)[: c_k.shape[0], : c_k.shape[1]]
-        mine = w_k > 0
-        col = np.where(mine[..., None], c_k / np.maximum(w_k, 1e-9)[..., None], up)
+    col, pyramid = _push_pull(c, w, 1)
     # the finest level only where no sample wrote (the others keep their texels): the same per-texel steps, without
     # the full-size upsampled copy (a fifth of this function's time on a 320x180 walk's atlas, 82 % written)
     c0, w0 = pyramid[0]
